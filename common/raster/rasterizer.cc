@@ -1,0 +1,395 @@
+#include "common/raster/rasterizer.h"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <thread>
+#include <vector>
+
+namespace exo {
+namespace {
+
+constexpr int kSubpixelBits = 8;
+constexpr int64_t kSubpixel = int64_t{1} << kSubpixelBits;
+constexpr double kGuardBandPx = 16384.0;
+constexpr int kBandRows = 16;
+
+// A clip-polygon vertex: camera-frame position plus barycentric coordinates w.r.t. the
+// original mesh triangle (so any attribute can be recovered exactly after clipping).
+struct ClipVertex {
+  glm::dvec3 p_cam;
+  glm::dvec3 bary;
+};
+
+// One screen-space triangle ready for scan conversion.
+struct SetupTriangle {
+  // Fixed-point vertex positions (1/256 px) and the edge data derived from them.
+  int64_t x0, y0, x1, y1, x2, y2;
+  bool top_left[3];
+  int min_x, max_x, min_y, max_y;  // pixel bounding box, clamped to the image
+  // Perspective weights w_k(u,v) = lambda_k(u,v) / z_k as planes a*u + b*v + c (double, from
+  // the unrounded projection) and their sum, the 1/z plane.
+  std::array<glm::dvec3, 3> w_plane;
+  glm::dvec3 inv_z_plane;
+  std::array<glm::dvec3, 3> bary;  // barycentrics (in the mesh triangle) of the 3 vertices
+  uint32_t triangle;
+};
+
+// Clip plane f(p) = dot(n, p) + d >= 0 in the camera frame.
+struct Plane {
+  glm::dvec3 n;
+  double d;
+  double Eval(const glm::dvec3& p) const { return glm::dot(n, p) + d; }
+};
+
+bool LexLess(const glm::dvec3& a, const glm::dvec3& b) {
+  if (a.x != b.x) return a.x < b.x;
+  if (a.y != b.y) return a.y < b.y;
+  return a.z < b.z;
+}
+
+// Intersection of edge (a,b) with a plane, computed from a canonical endpoint order so that
+// the two triangles sharing the edge get bit-identical vertices (no cracks at the near plane).
+ClipVertex Intersect(const Plane& plane, const ClipVertex& a, const ClipVertex& b) {
+  const bool swap = LexLess(b.p_cam, a.p_cam);
+  const ClipVertex& p = swap ? b : a;
+  const ClipVertex& q = swap ? a : b;
+  const double fp = plane.Eval(p.p_cam), fq = plane.Eval(q.p_cam);
+  const double t = fp / (fp - fq);
+  return {p.p_cam + t * (q.p_cam - p.p_cam), p.bary + t * (q.bary - p.bary)};
+}
+
+// Sutherland-Hodgman against one plane. Polygons have at most 3 + 5 vertices.
+int ClipPolygon(const Plane& plane, const ClipVertex* in, int n, ClipVertex* out) {
+  int m = 0;
+  for (int i = 0; i < n; ++i) {
+    const ClipVertex& a = in[i];
+    const ClipVertex& b = in[(i + 1) % n];
+    const double fa = plane.Eval(a.p_cam), fb = plane.Eval(b.p_cam);
+    if (fa >= 0) out[m++] = a;
+    if ((fa >= 0) != (fb >= 0)) out[m++] = Intersect(plane, a, b);
+  }
+  return m;
+}
+
+int64_t FloorDiv(int64_t a, int64_t b) { return a >= 0 ? a / b : -((-a + b - 1) / b); }
+int64_t CeilDiv(int64_t a, int64_t b) { return -FloorDiv(-a, b); }
+
+// Edge (a -> b) is top-left in the y-down image with positive-area orientation.
+bool IsTopLeft(int64_t ax, int64_t ay, int64_t bx, int64_t by) {
+  const int64_t dx = bx - ax, dy = by - ay;
+  return dy < 0 || (dy == 0 && dx > 0);
+}
+
+class Setup {
+ public:
+  Setup(const PinholeCamera& cam, const RasterOptions& opt) : cam_(cam), opt_(opt) {
+    const double g = kGuardBandPx;
+    planes_[0] = {{0, 0, 1}, -opt.near_m};
+    planes_[1] = {{cam.fx, 0, cam.cx + g}, 0};                          // u >= -g
+    planes_[2] = {{-cam.fx, 0, (cam.width - 1 + g) - cam.cx}, 0};       // u <= W-1+g
+    planes_[3] = {{0, cam.fy, cam.cy + g}, 0};                          // v >= -g
+    planes_[4] = {{0, -cam.fy, (cam.height - 1 + g) - cam.cy}, 0};      // v <= H-1+g
+  }
+
+  // Appends the screen triangles of mesh triangle `t`; returns true when it was clipped.
+  bool Add(uint32_t t, const glm::dvec3& a, const glm::dvec3& b, const glm::dvec3& c,
+           std::vector<SetupTriangle>* out) const {
+    ClipVertex poly[2][16];
+    poly[0][0] = {a, {1, 0, 0}};
+    poly[0][1] = {b, {0, 1, 0}};
+    poly[0][2] = {c, {0, 0, 1}};
+    int n = 3, cur = 0;
+    bool clipped = false;
+    for (const Plane& pl : planes_) {
+      const double fa = pl.Eval(poly[cur][0].p_cam);
+      bool all_in = fa >= 0, all_out = fa < 0;
+      for (int i = 1; i < n; ++i) {
+        const double f = pl.Eval(poly[cur][i].p_cam);
+        all_in &= f >= 0;
+        all_out &= f < 0;
+      }
+      if (all_out) return clipped;
+      if (all_in) continue;
+      clipped = true;
+      n = ClipPolygon(pl, poly[cur], n, poly[1 - cur]);
+      cur = 1 - cur;
+      if (n < 3) return clipped;
+    }
+    for (int i = 1; i + 1 < n; ++i) Emit(t, poly[cur][0], poly[cur][i], poly[cur][i + 1], out);
+    return clipped;
+  }
+
+ private:
+  void Emit(uint32_t t, ClipVertex v0, ClipVertex v1, ClipVertex v2,
+            std::vector<SetupTriangle>* out) const {
+    auto project = [&](const glm::dvec3& p) {
+      return glm::dvec2(cam_.fx * p.x / p.z + cam_.cx, cam_.fy * p.y / p.z + cam_.cy);
+    };
+    glm::dvec2 s0 = project(v0.p_cam), s1 = project(v1.p_cam), s2 = project(v2.p_cam);
+    auto fix = [](double x) { return static_cast<int64_t>(std::llround(x * kSubpixel)); };
+    int64_t x0 = fix(s0.x), y0 = fix(s0.y), x1 = fix(s1.x), y1 = fix(s1.y), x2 = fix(s2.x),
+            y2 = fix(s2.y);
+    int64_t area = (x1 - x0) * (y2 - y0) - (y1 - y0) * (x2 - x0);
+    if (area == 0) return;
+    // Positive screen area (y down) <=> geometric normal points away from the camera.
+    if (area > 0 && opt_.cull_backfaces) return;
+    if (area < 0) {
+      std::swap(v1, v2);
+      std::swap(s1, s2);
+      std::swap(x1, x2);
+      std::swap(y1, y2);
+    }
+    SetupTriangle st;
+    st.x0 = x0; st.y0 = y0; st.x1 = x1; st.y1 = y1; st.x2 = x2; st.y2 = y2;
+    st.top_left[0] = IsTopLeft(x0, y0, x1, y1);  // edge 0: v0 -> v1 (weight of v2)
+    st.top_left[1] = IsTopLeft(x1, y1, x2, y2);  // edge 1: v1 -> v2 (weight of v0)
+    st.top_left[2] = IsTopLeft(x2, y2, x0, y0);  // edge 2: v2 -> v0 (weight of v1)
+    const int64_t min_x = std::min({x0, x1, x2}), max_x = std::max({x0, x1, x2});
+    const int64_t min_y = std::min({y0, y1, y2}), max_y = std::max({y0, y1, y2});
+    st.min_x = static_cast<int>(std::max<int64_t>(0, CeilDiv(min_x, kSubpixel)));
+    st.max_x = static_cast<int>(std::min<int64_t>(cam_.width - 1, FloorDiv(max_x, kSubpixel)));
+    st.min_y = static_cast<int>(std::max<int64_t>(0, CeilDiv(min_y, kSubpixel)));
+    st.max_y = static_cast<int>(std::min<int64_t>(cam_.height - 1, FloorDiv(max_y, kSubpixel)));
+    if (st.min_x > st.max_x || st.min_y > st.max_y) return;
+    // Screen barycentric planes from the unrounded projection (exact depth for planes).
+    double d = (s1.x - s0.x) * (s2.y - s0.y) - (s1.y - s0.y) * (s2.x - s0.x);
+    if (d == 0.0) {  // sliver whose unrounded area vanishes: use the fixed-point vertices
+      s0 = glm::dvec2(x0, y0) / double(kSubpixel);
+      s1 = glm::dvec2(x1, y1) / double(kSubpixel);
+      s2 = glm::dvec2(x2, y2) / double(kSubpixel);
+      d = (s1.x - s0.x) * (s2.y - s0.y) - (s1.y - s0.y) * (s2.x - s0.x);
+    }
+    const glm::dvec2 s[3] = {s0, s1, s2};
+    const double z[3] = {v0.p_cam.z, v1.p_cam.z, v2.p_cam.z};
+    st.inv_z_plane = glm::dvec3(0.0);
+    for (int k = 0; k < 3; ++k) {
+      const glm::dvec2& a = s[(k + 1) % 3];
+      const glm::dvec2& b = s[(k + 2) % 3];
+      // lambda_k(u,v) = ((b.x-a.x)*(v-a.y) - (b.y-a.y)*(u-a.x)) / d
+      const glm::dvec3 lambda{-(b.y - a.y) / d, (b.x - a.x) / d,
+                              ((b.y - a.y) * a.x - (b.x - a.x) * a.y) / d};
+      st.w_plane[k] = lambda / z[k];
+      st.inv_z_plane += st.w_plane[k];
+    }
+    st.bary = {v0.bary, v1.bary, v2.bary};
+    st.triangle = t;
+    out->push_back(st);
+  }
+
+  const PinholeCamera& cam_;
+  const RasterOptions& opt_;
+  Plane planes_[5];
+};
+
+template <typename F>
+void ParallelFor(int num_threads, int n, F&& f) {
+  num_threads = std::max(1, std::min(num_threads, n));
+  if (num_threads == 1) {
+    for (int i = 0; i < n; ++i) f(i, 0);
+    return;
+  }
+  std::vector<std::thread> threads;
+  for (int t = 0; t < num_threads; ++t)
+    threads.emplace_back([&, t] {
+      for (int i = t; i < n; i += num_threads) f(i, t);
+    });
+  for (auto& th : threads) th.join();
+}
+
+}  // namespace
+
+absl::Status RasterOptions::Validate() const {
+  if (!(near_m > 0) || !std::isfinite(near_m))
+    return absl::InvalidArgumentError(absl::StrCat("raster near_m must be > 0, got ", near_m));
+  if (width < 0 || height < 0 || (width == 0) != (height == 0))
+    return absl::InvalidArgumentError(absl::StrCat(
+        "raster width/height must both be 0 (camera size) or both > 0, got ", width, "x", height));
+  if (width > 32768 || height > 32768)
+    return absl::InvalidArgumentError("raster size above 32768 px");
+  if (num_threads < 1 || num_threads > 256)
+    return absl::InvalidArgumentError(absl::StrCat("raster num_threads must be in [1,256], got ",
+                                                   num_threads));
+  if (cell_id && !(cell_grid.cell_size_m > 0 && std::isfinite(cell_grid.cell_size_m)))
+    return absl::InvalidArgumentError("cell_id requested with a non-positive cell size");
+  return absl::OkStatus();
+}
+
+absl::Status ValidateMesh(const TriangleMesh& mesh) {
+  if (mesh.indices.size() % 3 != 0)
+    return absl::InvalidArgumentError(
+        absl::StrCat("mesh index count ", mesh.indices.size(), " is not a multiple of 3"));
+  const size_t nv = mesh.positions.size();
+  for (size_t i = 0; i < mesh.indices.size(); ++i)
+    if (mesh.indices[i] >= nv)
+      return absl::InvalidArgumentError(absl::StrCat("mesh index ", i, " = ", mesh.indices[i],
+                                                     " out of range (", nv, " vertices)"));
+  if (!mesh.normals.empty() && mesh.normals.size() != nv)
+    return absl::InvalidArgumentError("mesh normals size differs from positions size");
+  if (!mesh.colors.empty() && mesh.colors.size() != nv)
+    return absl::InvalidArgumentError("mesh colors size differs from positions size");
+  if (!mesh.material.empty() && mesh.material.size() != mesh.num_triangles())
+    return absl::InvalidArgumentError("mesh material size differs from triangle count");
+  return absl::OkStatus();
+}
+
+absl::StatusOr<RasterOutput> Rasterize(const TriangleMesh& mesh, const PinholeCamera& camera,
+                                       const Rigid3d& local_from_cam,
+                                       const RasterOptions& options) {
+  EXO_RETURN_IF_ERROR(options.Validate());
+  EXO_RETURN_IF_ERROR(camera.Validate());
+  EXO_RETURN_IF_ERROR(ValidateQuaternion(local_from_cam.rotation));
+  const glm::dvec3& tr = local_from_cam.translation;
+  if (!std::isfinite(tr.x) || !std::isfinite(tr.y) || !std::isfinite(tr.z))
+    return absl::InvalidArgumentError("raster pose translation has NaN or Inf");
+  EXO_RETURN_IF_ERROR(ValidateMesh(mesh));
+
+  RasterOutput out;
+  out.camera = options.width > 0 ? camera.Scaled(options.width, options.height) : camera;
+  const PinholeCamera& cam = out.camera;
+  const int W = cam.width, H = cam.height;
+  const int threads = options.num_threads;
+  out.triangles_in = mesh.num_triangles();
+
+  // 1. Vertices into the camera frame (double).
+  const Rigid3d cam_from_local = local_from_cam.Inverse();
+  const glm::dmat3 R = cam_from_local.RotationMatrix();
+  const glm::dvec3 t = cam_from_local.translation;
+  std::vector<glm::dvec3> p_cam(mesh.positions.size());
+  for (size_t i = 0; i < p_cam.size(); ++i) p_cam[i] = R * glm::dvec3(mesh.positions[i]) + t;
+
+  // 2. Triangle setup (clipping, projection, edge and plane equations), in parallel chunks
+  // concatenated in triangle order.
+  const int num_tris = static_cast<int>(mesh.num_triangles());
+  const int chunks = std::max(1, std::min(threads * 4, num_tris / 256 + 1));
+  std::vector<std::vector<SetupTriangle>> chunk_setups(chunks);
+  std::vector<size_t> chunk_clipped(chunks, 0);
+  Setup setup(cam, options);
+  ParallelFor(threads, chunks, [&](int c, int) {
+    const int begin = static_cast<int>(int64_t{num_tris} * c / chunks);
+    const int end = static_cast<int>(int64_t{num_tris} * (c + 1) / chunks);
+    auto& v = chunk_setups[c];
+    v.reserve(end - begin);
+    for (int tri = begin; tri < end; ++tri) {
+      const uint32_t* idx = &mesh.indices[3 * static_cast<size_t>(tri)];
+      if (setup.Add(static_cast<uint32_t>(tri), p_cam[idx[0]], p_cam[idx[1]], p_cam[idx[2]], &v))
+        ++chunk_clipped[c];
+    }
+  });
+  std::vector<SetupTriangle> tris;
+  for (int c = 0; c < chunks; ++c) {
+    tris.insert(tris.end(), chunk_setups[c].begin(), chunk_setups[c].end());
+    out.triangles_clipped += chunk_clipped[c];
+  }
+  out.triangles_setup = tris.size();
+
+  // 3. Bin into row bands (in triangle order, so depth ties resolve deterministically).
+  const int num_bands = (H + kBandRows - 1) / kBandRows;
+  std::vector<std::vector<uint32_t>> bands(num_bands);
+  for (uint32_t i = 0; i < tris.size(); ++i)
+    for (int b = tris[i].min_y / kBandRows; b <= tris[i].max_y / kBandRows; ++b)
+      bands[b].push_back(i);
+
+  // 4. Scan conversion with incremental fixed-point edge functions + 1/z depth test.
+  std::vector<double> inv_z(static_cast<size_t>(W) * H, 0.0);
+  std::vector<uint32_t> winner(static_cast<size_t>(W) * H, kNoTriangle);
+  ParallelFor(threads, num_bands, [&](int b, int) {
+    const int band_y0 = b * kBandRows, band_y1 = std::min(H - 1, band_y0 + kBandRows - 1);
+    for (uint32_t ti : bands[b]) {
+      const SetupTriangle& s = tris[ti];
+      const int y_begin = std::max(s.min_y, band_y0), y_end = std::min(s.max_y, band_y1);
+      // Edge k: from a to b; E(P) = (bx-ax)*(Py-ay) - (by-ay)*(Px-ax).
+      const int64_t ax[3] = {s.x0, s.x1, s.x2}, ay[3] = {s.y0, s.y1, s.y2};
+      const int64_t bx[3] = {s.x1, s.x2, s.x0}, by[3] = {s.y1, s.y2, s.y0};
+      int64_t step_x[3], bias[3];
+      for (int k = 0; k < 3; ++k) {
+        step_x[k] = -(by[k] - ay[k]) * kSubpixel;
+        bias[k] = s.top_left[k] ? 0 : -1;
+      }
+      const int64_t px0 = int64_t{s.min_x} * kSubpixel;
+      for (int y = y_begin; y <= y_end; ++y) {
+        const int64_t py = int64_t{y} * kSubpixel;
+        int64_t e[3];
+        for (int k = 0; k < 3; ++k)
+          e[k] = (bx[k] - ax[k]) * (py - ay[k]) - (by[k] - ay[k]) * (px0 - ax[k]) + bias[k];
+        const size_t row = static_cast<size_t>(y) * W;
+        const double row_inv_z = s.inv_z_plane.y * y + s.inv_z_plane.z;
+        bool was_inside = false;
+        for (int x = s.min_x; x <= s.max_x; ++x) {
+          if ((e[0] | e[1] | e[2]) >= 0) {
+            was_inside = true;
+            const double iz = s.inv_z_plane.x * x + row_inv_z;
+            const size_t idx = row + x;
+            if (iz > inv_z[idx]) {
+              inv_z[idx] = iz;
+              winner[idx] = ti;
+            }
+          } else if (was_inside) {
+            break;  // convex: the span on this row has ended
+          }
+          e[0] += step_x[0];
+          e[1] += step_x[1];
+          e[2] += step_x[2];
+        }
+      }
+    }
+  });
+
+  // 5. Resolve visible pixels into the requested outputs.
+  if (options.z_depth) out.z_depth_m = ImageF(W, H, 1, 0.0f);
+  if (options.range) out.range_m = ImageF(W, H, 1, 0.0f);
+  if (options.position) out.position_local = ImageF(W, H, 3, 0.0f);
+  if (options.normal) out.normal_local = ImageF(W, H, 3, 0.0f);
+  if (options.triangle_id) out.triangle_id = ImageU32(W, H, 1, kNoTriangle);
+  if (options.cell_id) out.cell_id = Image<uint64_t>(W, H, 1, kNoCell);
+  const bool need_bary = options.position || options.cell_id || options.normal;
+  const bool vertex_normals = options.interpolate_normals && !mesh.normals.empty();
+  std::vector<size_t> covered(threads, 0);
+  ParallelFor(threads, H, [&](int y, int thread) {
+    for (int x = 0; x < W; ++x) {
+      const size_t idx = static_cast<size_t>(y) * W + x;
+      const uint32_t ti = winner[idx];
+      if (ti == kNoTriangle) continue;
+      ++covered[thread];
+      const SetupTriangle& s = tris[ti];
+      const double z = 1.0 / inv_z[idx];
+      if (options.z_depth) out.z_depth_m.at(x, y) = static_cast<float>(z);
+      if (options.range)
+        out.range_m.at(x, y) = static_cast<float>(cam.RangeFromZDepth({x, y}, z));
+      if (options.triangle_id) out.triangle_id.at(x, y) = s.triangle;
+      if (!need_bary) continue;
+      glm::dvec3 beta(0.0);
+      for (int k = 0; k < 3; ++k) {
+        const double w = s.w_plane[k].x * x + s.w_plane[k].y * y + s.w_plane[k].z;
+        beta += (w * z) * s.bary[k];
+      }
+      const uint32_t* vi = &mesh.indices[3 * static_cast<size_t>(s.triangle)];
+      if (options.position || options.cell_id) {
+        const glm::dvec3 p = beta.x * glm::dvec3(mesh.positions[vi[0]]) +
+                             beta.y * glm::dvec3(mesh.positions[vi[1]]) +
+                             beta.z * glm::dvec3(mesh.positions[vi[2]]);
+        if (options.position)
+          for (int c = 0; c < 3; ++c) out.position_local.at(x, y, c) = static_cast<float>(p[c]);
+        if (options.cell_id) out.cell_id.at(x, y) = options.cell_grid.IdOf(p);
+      }
+      if (options.normal) {
+        glm::dvec3 n;
+        if (vertex_normals) {
+          n = beta.x * glm::dvec3(mesh.normals[vi[0]]) + beta.y * glm::dvec3(mesh.normals[vi[1]]) +
+              beta.z * glm::dvec3(mesh.normals[vi[2]]);
+        } else {
+          const glm::dvec3 p0(mesh.positions[vi[0]]);
+          n = glm::cross(glm::dvec3(mesh.positions[vi[1]]) - p0,
+                         glm::dvec3(mesh.positions[vi[2]]) - p0);
+        }
+        const double len = glm::length(n);
+        if (len > 0) n /= len;
+        for (int c = 0; c < 3; ++c) out.normal_local.at(x, y, c) = static_cast<float>(n[c]);
+      }
+    }
+  });
+  for (size_t c : covered) out.pixels_covered += c;
+  return out;
+}
+
+}  // namespace exo

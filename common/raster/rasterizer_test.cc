@@ -1,0 +1,406 @@
+#include "common/raster/rasterizer.h"
+
+#include <algorithm>
+#include <cmath>
+#include <random>
+
+#include <glm/gtc/quaternion.hpp>
+#include <gtest/gtest.h>
+
+namespace exo {
+namespace {
+
+// A camera whose pixel -> z=1 plane mapping is exact in float: f = 64, c = 31.5.
+PinholeCamera ExactCamera() {
+  PinholeCamera c;
+  c.fx = c.fy = 64;
+  c.cx = c.cy = 31.5;
+  c.width = c.height = 64;
+  return c;
+}
+
+// Point on the z = depth plane (camera frame) that projects to pixel (u, v) of ExactCamera.
+glm::vec3 AtPixel(double u, double v, double depth = 1.0) {
+  const PinholeCamera c = ExactCamera();
+  return glm::vec3(c.Unproject({u, v}, depth));
+}
+
+void AddQuad(TriangleMesh* m, glm::vec3 a, glm::vec3 b, glm::vec3 c, glm::vec3 d) {
+  const uint32_t base = static_cast<uint32_t>(m->positions.size());
+  m->positions.insert(m->positions.end(), {a, b, c, d});
+  m->indices.insert(m->indices.end(), {base, base + 1, base + 2, base, base + 2, base + 3});
+}
+
+RasterOptions AllOutputs() {
+  RasterOptions o;
+  o.z_depth = o.range = o.position = o.normal = o.triangle_id = o.cell_id = true;
+  return o;
+}
+
+int CountCovered(const ImageF& z) {
+  int n = 0;
+  for (float v : z.span()) n += v > 0;
+  return n;
+}
+
+// Plane at a known depth: z and range of every pixel are exact to 1e-5 relative.
+TEST(RasterizerTest, FrontoParallelPlaneExactDepthAndRange) {
+  const PinholeCamera cam = PinholeCamera::FromFov(80, 60, glm::radians(70.0));
+  TriangleMesh m;
+  const float d = 7.25f;
+  AddQuad(&m, {-50, -50, d}, {50, -50, d}, {50, 50, d}, {-50, 50, d});
+  auto out = Rasterize(m, cam, Rigid3d::Identity(), AllOutputs());
+  ASSERT_TRUE(out.ok()) << out.status();
+  for (int y = 0; y < cam.height; ++y)
+    for (int x = 0; x < cam.width; ++x) {
+      ASSERT_NEAR(out->z_depth_m.at(x, y), d, 1e-5 * d) << x << "," << y;
+      const double range = cam.RangeFromZDepth({x, y}, d);
+      ASSERT_NEAR(out->range_m.at(x, y), range, 1e-5 * range);
+      const glm::dvec3 p = cam.Unproject({x, y}, d);
+      for (int c = 0; c < 3; ++c) ASSERT_NEAR(out->position_local.at(x, y, c), p[c], 1e-4);
+      // Winding (a,b,c) seen from the camera: normal (p1-p0)x(p2-p0) = +z.
+      ASSERT_NEAR(out->normal_local.at(x, y, 2), 1.0, 1e-6);
+    }
+  EXPECT_EQ(out->pixels_covered, size_t(cam.width * cam.height));
+}
+
+// A tilted plane n.p = 4 (camera frame): z(u,v) = 4 / (n . ray(u,v)). This needs the
+// perspective-correct (1/z-linear) interpolation; screen-linear z would be off by percent.
+TEST(RasterizerTest, TiltedPlaneDepthIsPerspectiveCorrect) {
+  const PinholeCamera cam = PinholeCamera::FromFov(96, 72, glm::radians(65.0));
+  const glm::dvec3 n = glm::normalize(glm::dvec3(0.3, -0.5, 1.0));
+  const double dist = 4.0;
+  // Build a big quad on the plane from two tangent vectors.
+  const glm::dvec3 t1 = glm::normalize(glm::cross(n, glm::dvec3(1, 0, 0)));
+  const glm::dvec3 t2 = glm::cross(n, t1);
+  const glm::dvec3 o = n * dist;
+  auto P = [&](double a, double b) { return glm::vec3(o + a * t1 + b * t2); };
+  TriangleMesh m;
+  AddQuad(&m, P(-20, -20), P(20, -20), P(20, 20), P(-20, 20));
+  RasterOptions opt = AllOutputs();
+  auto out = Rasterize(m, cam, Rigid3d::Identity(), opt);
+  ASSERT_TRUE(out.ok()) << out.status();
+  double max_rel = 0;
+  for (int y = 0; y < cam.height; ++y)
+    for (int x = 0; x < cam.width; ++x) {
+      const glm::dvec3 ray = cam.RayZ1({x, y});
+      const double z = dist / glm::dot(n, ray);
+      ASSERT_GT(out->z_depth_m.at(x, y), 0) << x << "," << y;
+      max_rel = std::max(max_rel, std::abs(out->z_depth_m.at(x, y) - z) / z);
+      const double range = z * glm::length(ray);
+      ASSERT_NEAR(out->range_m.at(x, y), range, 1e-5 * range);
+      const glm::dvec3 p = ray * z;
+      for (int c = 0; c < 3; ++c) ASSERT_NEAR(out->position_local.at(x, y, c), p[c], 2e-4);
+    }
+  EXPECT_LT(max_rel, 1e-5);
+}
+
+// Convex hull area of points (monotone chain), for the analytic silhouette.
+double HullAreaAndPerimeter(std::vector<glm::dvec2> pts, double* perimeter) {
+  std::sort(pts.begin(), pts.end(),
+            [](auto a, auto b) { return a.x < b.x || (a.x == b.x && a.y < b.y); });
+  auto cross = [](glm::dvec2 o, glm::dvec2 a, glm::dvec2 b) {
+    return (a.x - o.x) * (b.y - o.y) - (a.y - o.y) * (b.x - o.x);
+  };
+  std::vector<glm::dvec2> h(2 * pts.size());
+  size_t k = 0;
+  for (size_t i = 0; i < pts.size(); ++i) {
+    while (k >= 2 && cross(h[k - 2], h[k - 1], pts[i]) <= 0) --k;
+    h[k++] = pts[i];
+  }
+  for (size_t i = pts.size() - 1, t = k + 1; i-- > 0;) {
+    while (k >= t && cross(h[k - 2], h[k - 1], pts[i]) <= 0) --k;
+    h[k++] = pts[i];
+  }
+  h.resize(k - 1);
+  double area = 0;
+  *perimeter = 0;
+  for (size_t i = 0; i < h.size(); ++i) {
+    const glm::dvec2 a = h[i], b = h[(i + 1) % h.size()];
+    area += a.x * b.y - a.y * b.x;
+    *perimeter += glm::length(b - a);
+  }
+  return std::abs(area) / 2;
+}
+
+TriangleMesh Cube(glm::vec3 c, float half) {
+  TriangleMesh m;
+  auto v = [&](int sx, int sy, int sz) { return c + half * glm::vec3(sx, sy, sz); };
+  AddQuad(&m, v(-1, -1, -1), v(-1, 1, -1), v(1, 1, -1), v(1, -1, -1));  // -z
+  AddQuad(&m, v(-1, -1, 1), v(1, -1, 1), v(1, 1, 1), v(-1, 1, 1));      // +z
+  AddQuad(&m, v(-1, -1, -1), v(-1, -1, 1), v(-1, 1, 1), v(-1, 1, -1));  // -x
+  AddQuad(&m, v(1, -1, -1), v(1, 1, -1), v(1, 1, 1), v(1, -1, 1));      // +x
+  AddQuad(&m, v(-1, -1, -1), v(1, -1, -1), v(1, -1, 1), v(-1, -1, 1));  // -y
+  AddQuad(&m, v(-1, 1, -1), v(-1, 1, 1), v(1, 1, 1), v(1, 1, -1));      // +y
+  return m;
+}
+
+// A rotated cube's silhouette: pixel count equals the area of the convex hull of its projected
+// corners within the boundary pixels (perimeter).
+TEST(RasterizerTest, CubeSilhouetteMatchesProjectedArea) {
+  const PinholeCamera cam = PinholeCamera::FromFov(320, 240, glm::radians(60.0));
+  const TriangleMesh cube = Cube({0, 0, 0}, 1.0f);
+  Rigid3d local_from_cam;
+  local_from_cam.rotation = glm::angleAxis(0.5, glm::normalize(glm::dvec3(1, 2, 0.5)));
+  local_from_cam.translation = local_from_cam.rotation * glm::dvec3(0.2, -0.1, -6.0);
+  RasterOptions opt;
+  auto out = Rasterize(cube, cam, local_from_cam, opt);
+  ASSERT_TRUE(out.ok()) << out.status();
+  const Rigid3d cam_from_local = local_from_cam.Inverse();
+  std::vector<glm::dvec2> corners;
+  for (int i = 0; i < 8; ++i) {
+    glm::dvec2 uv;
+    ASSERT_TRUE(cam.Project(cam_from_local * glm::dvec3(i & 1 ? 1 : -1, i & 2 ? 1 : -1,
+                                                        i & 4 ? 1 : -1),
+                            &uv));
+    corners.push_back(uv);
+  }
+  double perimeter = 0;
+  const double area = HullAreaAndPerimeter(corners, &perimeter);
+  const int count = CountCovered(out->z_depth_m);
+  EXPECT_GT(area, 3000);
+  EXPECT_NEAR(count, area, 0.5 * perimeter) << "perimeter " << perimeter;
+  // With back-face culling the silhouette is the same (the cube is closed, outward winding).
+  opt.cull_backfaces = true;
+  auto culled = Rasterize(cube, cam, local_from_cam, opt);
+  ASSERT_TRUE(culled.ok());
+  EXPECT_EQ(culled->z_depth_m, out->z_depth_m);
+}
+
+// Renders each triangle alone and counts per-pixel hits.
+std::vector<int> HitCounts(const TriangleMesh& m, const PinholeCamera& cam) {
+  std::vector<int> hits(cam.width * cam.height, 0);
+  for (size_t t = 0; t < m.num_triangles(); ++t) {
+    TriangleMesh one;
+    one.positions = m.positions;
+    one.indices.assign(m.indices.begin() + 3 * t, m.indices.begin() + 3 * t + 3);
+    auto out = Rasterize(one, cam, Rigid3d::Identity(), RasterOptions{});
+    EXO_CHECK(out.ok());
+    for (int i = 0; i < cam.width * cam.height; ++i) hits[i] += out->z_depth_m.data()[i] > 0;
+  }
+  return hits;
+}
+
+// Watertightness: a quad split along a diagonal through pixel centres (the tie case) is hit
+// exactly once per pixel. Guard: the top-left fill rule; with ">= 0" on every edge the diagonal
+// pixels are hit twice, with "> 0" they are holes.
+TEST(RasterizerTest, SharedEdgeEveryPixelHitExactlyOnce) {
+  const PinholeCamera cam = ExactCamera();
+  TriangleMesh m;
+  // Corners on pixel centres: the outer edges pass through pixel centres too.
+  AddQuad(&m, AtPixel(10, 10), AtPixel(40, 10), AtPixel(40, 40), AtPixel(10, 40));
+  const std::vector<int> hits = HitCounts(m, cam);
+  int total = 0;
+  for (int y = 0; y < cam.height; ++y)
+    for (int x = 0; x < cam.width; ++x) {
+      const int h = hits[y * cam.width + x];
+      ASSERT_LE(h, 1) << x << "," << y;
+      total += h;
+    }
+  // Top-left rule on a square with corners on pixel centres: the top and left edges are in,
+  // bottom and right out -> 30 x 30 pixels exactly.
+  EXPECT_EQ(total, 30 * 30);
+}
+
+// A fan of 8 triangles around a centre on a pixel centre: edges in all 8 directions (vertical,
+// horizontal, both diagonals) pass through pixel centres; every pixel of the square is hit once.
+TEST(RasterizerTest, FanAroundPixelCentreIsWatertight) {
+  const PinholeCamera cam = ExactCamera();
+  TriangleMesh m;
+  m.positions.push_back(AtPixel(30, 30));
+  const double ring[8][2] = {{9.5, 9.5},   {30, 9.5},   {50.5, 9.5}, {50.5, 30},
+                             {50.5, 50.5}, {30, 50.5},  {9.5, 50.5}, {9.5, 30}};
+  for (auto& r : ring) m.positions.push_back(AtPixel(r[0], r[1]));
+  for (uint32_t i = 0; i < 8; ++i) m.indices.insert(m.indices.end(), {0, 1 + i, 1 + (i + 1) % 8});
+  const std::vector<int> hits = HitCounts(m, cam);
+  for (int y = 0; y < cam.height; ++y)
+    for (int x = 0; x < cam.width; ++x) {
+      const bool inside = x >= 10 && x <= 50 && y >= 10 && y <= 50;
+      ASSERT_EQ(hits[y * cam.width + x], inside ? 1 : 0) << x << "," << y;
+    }
+}
+
+// A ground plane from behind the camera to 50 m ahead crosses the near plane. Guard: near-plane
+// clipping; dropping crossing triangles renders nothing, and not clipping projects the vertex
+// behind the camera through the centre (mirror image, wrong pixels).
+TEST(RasterizerTest, NearPlaneClippingKeepsCrossingTriangles) {
+  const PinholeCamera cam = PinholeCamera::FromFov(64, 48, glm::radians(90.0));  // fx = 32
+  TriangleMesh m;
+  const float h = 1.0f;  // ground 1 m below the camera (y down)
+  AddQuad(&m, {-100, h, -10}, {-100, h, 50}, {100, h, 50}, {100, h, -10});
+  RasterOptions opt = AllOutputs();
+  auto out = Rasterize(m, cam, Rigid3d::Identity(), opt);
+  ASSERT_TRUE(out.ok()) << out.status();
+  EXPECT_EQ(out->triangles_clipped, 2u);
+  for (int y = 0; y < cam.height; ++y)
+    for (int x = 0; x < cam.width; ++x) {
+      const double dv = y - cam.cy;
+      const double z = dv > 0 ? cam.fy * h / dv : 0;
+      if (dv > 0 && z <= 50 - 1e-6) {
+        ASSERT_NEAR(out->z_depth_m.at(x, y), z, 1e-5 * z) << x << "," << y;
+        ASSERT_NEAR(out->position_local.at(x, y, 1), h, 1e-5);
+      } else if (dv <= 0 || z > 50 + 1e-6) {
+        ASSERT_EQ(out->z_depth_m.at(x, y), 0.0f) << x << "," << y;
+      }
+    }
+  // Everything closer than the near plane is cut away.
+  TriangleMesh close;
+  AddQuad(&close, {-1, -1, 0.005f}, {1, -1, 0.005f}, {1, 1, 0.005f}, {-1, 1, 0.005f});
+  auto none = Rasterize(close, cam, Rigid3d::Identity(), opt);
+  ASSERT_TRUE(none.ok());
+  EXPECT_EQ(none->pixels_covered, 0u);
+}
+
+// A wall crossing the near plane at a slant: the part in front is drawn, with correct depth.
+TEST(RasterizerTest, SlantedWallThroughNearPlane) {
+  const PinholeCamera cam = PinholeCamera::FromFov(64, 48, glm::radians(90.0));
+  TriangleMesh m;
+  // Plane x = 0.5 - 0.2 z... i.e. n = (1, 0, 0.2)/|.|, passing next to the camera.
+  auto P = [](float y, float z) { return glm::vec3(0.5f - 0.2f * z, y, z); };
+  AddQuad(&m, P(-5, -3), P(5, -3), P(5, 30), P(-5, 30));
+  RasterOptions opt;
+  opt.near_m = 0.1;
+  auto out = Rasterize(m, cam, Rigid3d::Identity(), opt);
+  ASSERT_TRUE(out.ok());
+  int checked = 0;
+  for (int y = 0; y < cam.height; ++y)
+    for (int x = 0; x < cam.width; ++x) {
+      const glm::dvec3 r = cam.RayZ1({x, y});
+      // x = 0.5 - 0.2 z with x = r.x z -> z = 0.5 / (r.x + 0.2)
+      const double den = r.x + 0.2;
+      if (den <= 0) continue;
+      const double z = 0.5 / den;
+      if (z < 0.1 || z > 30 || std::abs(r.y * z) > 5) continue;
+      if (std::abs(r.y * z) > 4.9 || z > 29.5 || z < 0.11) continue;  // away from the borders
+      ASSERT_NEAR(out->z_depth_m.at(x, y), z, 1e-5 * z) << x << "," << y;
+      ++checked;
+    }
+  EXPECT_GT(checked, 300);
+}
+
+// Cell ids of the ground plane z = 0 seen from 10 m above: each pixel's id is the cell of the
+// analytic intersection point (pixels within 1e-4 m of a cell border are skipped).
+TEST(RasterizerTest, CellIdsOfAPlane) {
+  const PinholeCamera cam = PinholeCamera::FromFov(120, 90, glm::radians(60.0));
+  TriangleMesh m;
+  AddQuad(&m, {-30, -30, 0}, {30, -30, 0}, {30, 30, 0}, {-30, 30, 0});
+  Rigid3d local_from_cam;
+  // Looking down: camera z -> local -z; camera y (down in image) -> local -y.
+  local_from_cam.rotation = glm::angleAxis(glm::pi<double>(), glm::dvec3(1, 0, 0));
+  local_from_cam.translation = {1.3, -2.1, 10.0};
+  RasterOptions opt = AllOutputs();
+  opt.cell_grid.cell_size_m = 0.5;
+  auto out = Rasterize(m, cam, local_from_cam, opt);
+  ASSERT_TRUE(out.ok()) << out.status();
+  int checked = 0, distinct_changes = 0;
+  for (int y = 0; y < cam.height; ++y)
+    for (int x = 0; x < cam.width; ++x) {
+      const glm::dvec3 p = local_from_cam * cam.Unproject({x, y}, 10.0);
+      ASSERT_NEAR(out->z_depth_m.at(x, y), 10.0, 1e-4);
+      ASSERT_NEAR(out->normal_local.at(x, y, 2), 1.0, 1e-6);  // faces up (+z, to the camera)
+      auto near_border = [](double v) {
+        const double f = v / 0.5 - std::floor(v / 0.5);
+        return f < 2e-4 || f > 1 - 2e-4;
+      };
+      if (near_border(p.x) || near_border(p.y) || near_border(p.z + 1e-3)) continue;
+      ASSERT_EQ(out->cell_id.at(x, y), opt.cell_grid.IdOf(p)) << x << "," << y;
+      ++checked;
+      if (x > 0 && out->cell_id.at(x, y) != out->cell_id.at(x - 1, y)) ++distinct_changes;
+    }
+  EXPECT_GT(checked, cam.width * cam.height * 9 / 10);
+  EXPECT_GT(distinct_changes, 100);  // many cells across the view
+}
+
+// Reduced resolution renders through camera.Scaled with consistent intrinsics.
+TEST(RasterizerTest, ReducedResolution) {
+  const PinholeCamera cam = PinholeCamera::FromFov(160, 120, glm::radians(60.0));
+  TriangleMesh m;
+  AddQuad(&m, {-0.5f, -0.5f, 3}, {0.5f, -0.5f, 3}, {0.5f, 0.5f, 3}, {-0.5f, 0.5f, 3});
+  RasterOptions opt;
+  auto full = Rasterize(m, cam, Rigid3d::Identity(), opt);
+  opt.width = 40;
+  opt.height = 30;
+  auto quarter = Rasterize(m, cam, Rigid3d::Identity(), opt);
+  ASSERT_TRUE(full.ok() && quarter.ok());
+  EXPECT_EQ(quarter->camera.width, 40);
+  EXPECT_EQ(quarter->z_depth_m.width(), 40);
+  // Analytic area: (fx * 1 / 3)^2 pixels at full res, /16 at quarter res.
+  const double area_full = std::pow(cam.fx / 3.0, 2);
+  EXPECT_NEAR(CountCovered(full->z_depth_m), area_full, 4 * cam.fx / 3.0);
+  EXPECT_NEAR(CountCovered(quarter->z_depth_m), area_full / 16, cam.fx / 3.0);
+}
+
+// Depth test + deterministic output for any thread count, on a random triangle soup with
+// overlapping and coincident triangles.
+TEST(RasterizerTest, DeterministicAcrossThreadCounts) {
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<float> u(-3, 3), zd(0.05f, 8);
+  TriangleMesh m;
+  for (int t = 0; t < 600; ++t) {
+    const glm::vec3 c(u(rng), u(rng), zd(rng));
+    for (int k = 0; k < 3; ++k) m.positions.push_back(c + 0.5f * glm::vec3(u(rng), u(rng), u(rng)));
+    const uint32_t b = 3 * t;
+    m.indices.insert(m.indices.end(), {b, b + 1, b + 2});
+  }
+  // Duplicate the first 50 triangles exactly (depth ties: the lower index must win).
+  for (uint32_t t = 0; t < 50; ++t)
+    m.indices.insert(m.indices.end(), {3 * t, 3 * t + 1, 3 * t + 2});
+  const PinholeCamera cam = PinholeCamera::FromFov(200, 150, glm::radians(80.0));
+  RasterOptions opt = AllOutputs();
+  opt.num_threads = 1;
+  auto a = Rasterize(m, cam, Rigid3d::Identity(), opt);
+  ASSERT_TRUE(a.ok());
+  for (uint32_t id : a->triangle_id.span()) ASSERT_TRUE(id == kNoTriangle || id < 600);
+  for (int threads : {2, 3, 8}) {
+    opt.num_threads = threads;
+    auto b = Rasterize(m, cam, Rigid3d::Identity(), opt);
+    ASSERT_TRUE(b.ok());
+    EXPECT_EQ(a->z_depth_m, b->z_depth_m);
+    EXPECT_EQ(a->triangle_id, b->triangle_id);
+    EXPECT_EQ(a->position_local, b->position_local);
+    EXPECT_EQ(a->cell_id, b->cell_id);
+  }
+  // The depth buffer holds the nearest surface: compare with brute-force ray casting of a few
+  // pixels (Moller-Trumbore).
+  for (int y = 5; y < cam.height; y += 17)
+    for (int x = 3; x < cam.width; x += 13) {
+      const glm::dvec3 dir = cam.RayZ1({x, y});
+      double best = 0;
+      for (size_t t = 0; t < 600; ++t) {
+        const glm::dvec3 p0(m.positions[3 * t]), p1(m.positions[3 * t + 1]),
+            p2(m.positions[3 * t + 2]);
+        const glm::dvec3 e1 = p1 - p0, e2 = p2 - p0, pv = glm::cross(dir, e2);
+        const double det = glm::dot(e1, pv);
+        if (std::abs(det) < 1e-12) continue;
+        const double bu = glm::dot(-p0, pv) / det;
+        const glm::dvec3 qv = glm::cross(-p0, e1);
+        const double bv = glm::dot(dir, qv) / det, tz = glm::dot(e2, qv) / det;
+        if (bu < 1e-6 || bv < 1e-6 || bu + bv > 1 - 1e-6 || tz < opt.near_m) continue;
+        if (best == 0 || tz < best) best = tz;
+      }
+      if (best > 0) {
+        EXPECT_NEAR(a->z_depth_m.at(x, y), best, 1e-4 * best) << x << "," << y;
+      }
+    }
+}
+
+TEST(RasterizerTest, BadInputIsAnError) {
+  const PinholeCamera cam = PinholeCamera::FromFov(32, 24, 1.0);
+  TriangleMesh m;
+  AddQuad(&m, {-1, -1, 2}, {1, -1, 2}, {1, 1, 2}, {-1, 1, 2});
+  m.indices.push_back(99);
+  m.indices.push_back(0);
+  m.indices.push_back(1);
+  EXPECT_FALSE(Rasterize(m, cam, Rigid3d::Identity(), RasterOptions{}).ok());
+  m.indices.resize(6);
+  RasterOptions bad;
+  bad.near_m = 0;
+  EXPECT_FALSE(Rasterize(m, cam, Rigid3d::Identity(), bad).ok());
+  Rigid3d nan_pose;
+  nan_pose.translation.x = std::nan("");
+  EXPECT_FALSE(Rasterize(m, cam, nan_pose, RasterOptions{}).ok());
+  EXPECT_FALSE(Rasterize(m, PinholeCamera{}, Rigid3d::Identity(), RasterOptions{}).ok());
+}
+
+}  // namespace
+}  // namespace exo
