@@ -1,0 +1,57 @@
+// Camera trajectories through the synthetic scenes (SPEC §9): a 2D Hilbert-curve fly-over at a
+// fixed altitude (looking forward and down), a walking path at eye height along the scene's
+// waypoints, and seeded random test poses inside the navigable region that look at content.
+// Poses are local_from_cam (camera frame x right, y down, z forward; scene-local frame z up).
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include "common/camera.h"
+#include "common/rigid3.h"
+#include "common/status.h"
+#include "common/synth/scene.h"
+
+namespace exo::synth {
+
+enum class TrajectoryKind { kFlyover, kWalk };
+const char* TrajectoryKindName(TrajectoryKind k);
+absl::StatusOr<TrajectoryKind> ParseTrajectoryKind(const std::string& name);
+
+struct TrajectoryOptions {
+  int num_frames = 120;           // thesis: 5000
+  int hilbert_order = 3;          // 4^order curve vertices over the scene footprint
+  double flyover_pitch_deg = 40;  // below the horizon
+  double walk_look_around_deg = 20;  // amplitude of a slow yaw sweep while walking
+  double frame_rate_hz = 30;      // timestamps
+  absl::Status Validate() const;
+};
+
+struct TimedPose {
+  double timestamp_s = 0;
+  Rigid3d local_from_cam;
+};
+
+// A camera pose at `eye` looking at `target` with z up (no roll).
+Rigid3d LookAt(const glm::dvec3& eye, const glm::dvec3& target);
+// The 2D Hilbert curve of the given order as points in [0,1]^2 (4^order points).
+std::vector<glm::dvec2> HilbertCurve(int order);
+
+// Errors: a trajectory the scene does not support (fly-over indoors), bad options.
+absl::StatusOr<std::vector<TimedPose>> MakeTrajectory(const SynthScene& scene, TrajectoryKind kind,
+                                                      const TrajectoryOptions& options);
+
+struct TestPoseOptions {
+  int count = 200;
+  uint64_t seed = 7;
+  // Accept a pose when at least this fraction of a low-res depth render hits geometry and no
+  // surface is closer than min_depth_m (no pose inside or against geometry).
+  double min_coverage = 0.9;
+  double min_depth_m = 0.4;
+  absl::Status Validate() const;
+};
+absl::StatusOr<std::vector<Rigid3d>> MakeTestPoses(const SynthScene& scene,
+                                                   const PinholeCamera& camera,
+                                                   const TestPoseOptions& options);
+
+}  // namespace exo::synth
