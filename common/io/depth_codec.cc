@@ -1,0 +1,285 @@
+#include "common/io/depth_codec.h"
+
+#include <zstd.h>
+
+#include <cmath>
+#include <cstring>
+#include <opencv2/imgcodecs.hpp>
+
+#include "common/io/cv_adapter.h"
+
+namespace exo {
+namespace {
+
+constexpr char kMagic[4] = {'E', 'X', 'D', '1'};
+constexpr uint8_t kVersion = 1;
+
+void PutU32(uint8_t* p, uint32_t v) {
+  for (int i = 0; i < 4; ++i) p[i] = static_cast<uint8_t>(v >> (8 * i));
+}
+uint32_t GetU32(const uint8_t* p) {
+  return uint32_t{p[0]} | uint32_t{p[1]} << 8 | uint32_t{p[2]} << 16 | uint32_t{p[3]} << 24;
+}
+
+inline uint16_t ZigZag(uint16_t residual) {
+  const int16_t s = static_cast<int16_t>(residual);
+  return static_cast<uint16_t>((static_cast<uint16_t>(s) << 1) ^ static_cast<uint16_t>(s >> 15));
+}
+inline uint16_t UnZigZag(uint16_t z) {
+  return static_cast<uint16_t>((z >> 1) ^ static_cast<uint16_t>(-(z & 1)));
+}
+
+// Predictor: left neighbour; first column: the pixel above; (0,0): 0.
+template <typename Emit>
+void ForEachResidual(const ImageU16& d, Emit emit) {
+  const int w = d.width(), h = d.height();
+  size_t i = 0;
+  for (int y = 0; y < h; ++y) {
+    const uint16_t* row = d.row(y);
+    const uint16_t first_pred = y > 0 ? d.row(y - 1)[0] : 0;
+    emit(i++, ZigZag(static_cast<uint16_t>(row[0] - first_pred)));
+    for (int x = 1; x < w; ++x) emit(i++, ZigZag(static_cast<uint16_t>(row[x] - row[x - 1])));
+  }
+}
+
+// Residual stream (index -> zig-zag residual) back to pixels.
+template <typename Get>
+void Reconstruct(ImageU16* d, Get get) {
+  const int w = d->width(), h = d->height();
+  size_t i = 0;
+  for (int y = 0; y < h; ++y) {
+    uint16_t* row = d->row(y);
+    const uint16_t first_pred = y > 0 ? d->row(y - 1)[0] : 0;
+    row[0] = static_cast<uint16_t>(first_pred + UnZigZag(get(i++)));
+    for (int x = 1; x < w; ++x) row[x] = static_cast<uint16_t>(row[x - 1] + UnZigZag(get(i++)));
+  }
+}
+
+absl::StatusOr<std::vector<uint8_t>> ZstdCompress(const uint8_t* src, size_t n, int level,
+                                                  std::vector<uint8_t> out) {
+  const size_t offset = out.size();
+  out.resize(offset + ZSTD_compressBound(n));
+  thread_local ZSTD_CCtx* cctx = ZSTD_createCCtx();
+  ZSTD_CCtx_reset(cctx, ZSTD_reset_session_and_parameters);
+  ZSTD_CCtx_setParameter(cctx, ZSTD_c_compressionLevel, level);
+  ZSTD_CCtx_setParameter(cctx, ZSTD_c_checksumFlag, 1);
+  const size_t r = ZSTD_compress2(cctx, out.data() + offset, out.size() - offset, src, n);
+  if (ZSTD_isError(r))
+    return absl::InternalError(absl::StrCat("zstd compress failed: ", ZSTD_getErrorName(r)));
+  out.resize(offset + r);
+  return out;
+}
+
+absl::Status ZstdDecompress(std::span<const uint8_t> src, uint8_t* dst, size_t expected) {
+  const unsigned long long content = ZSTD_getFrameContentSize(src.data(), src.size());
+  if (content == ZSTD_CONTENTSIZE_ERROR)
+    return absl::InvalidArgumentError("depth payload is not a zstd frame (corrupt data)");
+  if (content != ZSTD_CONTENTSIZE_UNKNOWN && content != expected)
+    return absl::InvalidArgumentError(absl::StrCat("depth payload decodes to ", content,
+                                                   " bytes, header says ", expected));
+  thread_local ZSTD_DCtx* dctx = ZSTD_createDCtx();
+  const size_t r = ZSTD_decompressDCtx(dctx, dst, expected, src.data(), src.size());
+  if (ZSTD_isError(r))
+    return absl::InvalidArgumentError(
+        absl::StrCat("corrupt or truncated depth payload: zstd: ", ZSTD_getErrorName(r)));
+  if (r != expected)
+    return absl::InvalidArgumentError(
+        absl::StrCat("depth payload decoded to ", r, " bytes, expected ", expected));
+  return absl::OkStatus();
+}
+
+}  // namespace
+
+std::string_view DepthCodecName(DepthCodec codec) {
+  switch (codec) {
+    case DepthCodec::kRawZstd: return "raw_zstd";
+    case DepthCodec::kDeltaZstd: return "delta_zstd";
+    case DepthCodec::kDeltaPlanesZstd: return "delta_planes_zstd";
+    case DepthCodec::kPng: return "png16";
+  }
+  return "unknown";
+}
+
+absl::Status DepthCodecOptions::Validate() const {
+  switch (codec) {
+    case DepthCodec::kRawZstd:
+    case DepthCodec::kDeltaZstd:
+    case DepthCodec::kDeltaPlanesZstd:
+      if (zstd_level < 1 || zstd_level > 19)
+        return absl::InvalidArgumentError(absl::StrCat("zstd_level ", zstd_level, " not in [1, 19]"));
+      return absl::OkStatus();
+    case DepthCodec::kPng:
+      if (png_compression < 0 || png_compression > 9)
+        return absl::InvalidArgumentError(
+            absl::StrCat("png_compression ", png_compression, " not in [0, 9]"));
+      return absl::OkStatus();
+  }
+  return absl::InvalidArgumentError(
+      absl::StrCat("unknown depth codec ", static_cast<int>(codec)));
+}
+
+absl::StatusOr<std::vector<uint8_t>> EncodeDepth(const ImageU16& depth,
+                                                 const DepthCodecOptions& options) {
+  EXO_RETURN_IF_ERROR(options.Validate());
+  if (depth.empty() || depth.channels() != 1)
+    return absl::InvalidArgumentError(absl::StrCat("EncodeDepth needs a non-empty 1-channel image, got ",
+                                                   depth.width(), "x", depth.height(), "x",
+                                                   depth.channels()));
+  if (int64_t{depth.width()} * depth.height() > kMaxDepthPixels)
+    return absl::InvalidArgumentError("depth image too large");
+  std::vector<uint8_t> out(kDepthHeaderBytes, 0);
+  std::memcpy(out.data(), kMagic, 4);
+  out[4] = kVersion;
+  out[5] = static_cast<uint8_t>(options.codec);
+  PutU32(out.data() + 8, static_cast<uint32_t>(depth.width()));
+  PutU32(out.data() + 12, static_cast<uint32_t>(depth.height()));
+  const size_t n = depth.size();
+  switch (options.codec) {
+    case DepthCodec::kRawZstd: {
+      std::vector<uint8_t> raw(2 * n);
+      for (size_t i = 0; i < n; ++i) {
+        raw[2 * i] = static_cast<uint8_t>(depth.data()[i]);
+        raw[2 * i + 1] = static_cast<uint8_t>(depth.data()[i] >> 8);
+      }
+      EXO_ASSIGN_OR_RETURN(out, ZstdCompress(raw.data(), raw.size(), options.zstd_level,
+                                             std::move(out)));
+      break;
+    }
+    case DepthCodec::kDeltaZstd: {
+      std::vector<uint8_t> raw(2 * n);
+      ForEachResidual(depth, [&](size_t i, uint16_t z) {
+        raw[2 * i] = static_cast<uint8_t>(z);
+        raw[2 * i + 1] = static_cast<uint8_t>(z >> 8);
+      });
+      EXO_ASSIGN_OR_RETURN(out, ZstdCompress(raw.data(), raw.size(), options.zstd_level,
+                                             std::move(out)));
+      break;
+    }
+    case DepthCodec::kDeltaPlanesZstd: {
+      std::vector<uint8_t> raw(2 * n);
+      uint8_t* hi = raw.data();
+      uint8_t* lo = raw.data() + n;
+      ForEachResidual(depth, [&](size_t i, uint16_t z) {
+        hi[i] = static_cast<uint8_t>(z >> 8);
+        lo[i] = static_cast<uint8_t>(z);
+      });
+      EXO_ASSIGN_OR_RETURN(out, ZstdCompress(raw.data(), raw.size(), options.zstd_level,
+                                             std::move(out)));
+      break;
+    }
+    case DepthCodec::kPng: {
+      std::vector<uint8_t> png;
+      try {
+        if (!cv::imencode(".png", CvView(depth), png,
+                          {cv::IMWRITE_PNG_COMPRESSION, options.png_compression}))
+          return absl::InternalError("OpenCV PNG encode failed");
+      } catch (const cv::Exception& e) {
+        return absl::InternalError(absl::StrCat("OpenCV PNG encode failed: ", e.what()));
+      }
+      out.insert(out.end(), png.begin(), png.end());
+      break;
+    }
+  }
+  PutU32(out.data() + 16, static_cast<uint32_t>(out.size() - kDepthHeaderBytes));
+  return out;
+}
+
+std::vector<uint8_t> EncodeDepth(const ImageU16& depth) {
+  auto r = EncodeDepth(depth, DepthCodecOptions{});
+  EXO_CHECK(r.ok());
+  return *std::move(r);
+}
+
+absl::StatusOr<ImageU16> DecodeDepth(std::span<const uint8_t> bytes) {
+  if (bytes.size() < kDepthHeaderBytes)
+    return absl::InvalidArgumentError(absl::StrCat("depth data truncated: ", bytes.size(),
+                                                   " bytes, the header alone is ",
+                                                   kDepthHeaderBytes));
+  if (std::memcmp(bytes.data(), kMagic, 4) != 0)
+    return absl::InvalidArgumentError("not an Exoview depth stream (bad magic, expected EXD1)");
+  if (bytes[4] != kVersion)
+    return absl::InvalidArgumentError(
+        absl::StrCat("unsupported depth stream version ", int{bytes[4]}, " (this build reads ",
+                     int{kVersion}, ")"));
+  const uint8_t codec_byte = bytes[5];
+  const uint32_t w = GetU32(bytes.data() + 8);
+  const uint32_t h = GetU32(bytes.data() + 12);
+  const uint32_t payload = GetU32(bytes.data() + 16);
+  if (w == 0 || h == 0 || int64_t{w} * h > kMaxDepthPixels || w > (1u << 20) || h > (1u << 20))
+    return absl::InvalidArgumentError(absl::StrCat("depth header has invalid size ", w, "x", h));
+  if (payload != bytes.size() - kDepthHeaderBytes)
+    return absl::InvalidArgumentError(
+        absl::StrCat("depth data truncated or padded: header says ", payload,
+                     " payload bytes, got ", bytes.size() - kDepthHeaderBytes));
+  const auto body = bytes.subspan(kDepthHeaderBytes);
+  ImageU16 depth(static_cast<int>(w), static_cast<int>(h), 1);
+  const size_t n = depth.size();
+  switch (static_cast<DepthCodec>(codec_byte)) {
+    case DepthCodec::kRawZstd: {
+      std::vector<uint8_t> raw(2 * n);
+      EXO_RETURN_IF_ERROR(ZstdDecompress(body, raw.data(), raw.size()));
+      for (size_t i = 0; i < n; ++i)
+        depth.data()[i] = static_cast<uint16_t>(raw[2 * i] | raw[2 * i + 1] << 8);
+      return depth;
+    }
+    case DepthCodec::kDeltaZstd: {
+      std::vector<uint8_t> raw(2 * n);
+      EXO_RETURN_IF_ERROR(ZstdDecompress(body, raw.data(), raw.size()));
+      Reconstruct(&depth, [&](size_t i) {
+        return static_cast<uint16_t>(raw[2 * i] | raw[2 * i + 1] << 8);
+      });
+      return depth;
+    }
+    case DepthCodec::kDeltaPlanesZstd: {
+      std::vector<uint8_t> raw(2 * n);
+      EXO_RETURN_IF_ERROR(ZstdDecompress(body, raw.data(), raw.size()));
+      const uint8_t* hi = raw.data();
+      const uint8_t* lo = raw.data() + n;
+      Reconstruct(&depth, [&](size_t i) { return static_cast<uint16_t>(hi[i] << 8 | lo[i]); });
+      return depth;
+    }
+    case DepthCodec::kPng: {
+      cv::Mat m;
+      try {
+        m = cv::imdecode(cv::Mat(1, static_cast<int>(body.size()), CV_8UC1,
+                                 const_cast<uint8_t*>(body.data())),
+                         cv::IMREAD_UNCHANGED);
+      } catch (const cv::Exception& e) {
+        return absl::InvalidArgumentError(absl::StrCat("corrupt PNG depth payload: ", e.what()));
+      }
+      if (m.empty()) return absl::InvalidArgumentError("corrupt or truncated PNG depth payload");
+      if (m.type() != CV_16UC1 || m.cols != static_cast<int>(w) || m.rows != static_cast<int>(h))
+        return absl::InvalidArgumentError(absl::StrCat(
+            "PNG depth payload is ", m.cols, "x", m.rows, " type ", m.type(), ", header says ", w,
+            "x", h, " 16-bit"));
+      m.copyTo(CvView(depth));
+      return depth;
+    }
+  }
+  return absl::InvalidArgumentError(absl::StrCat("unknown depth codec id ", int{codec_byte}));
+}
+
+ImageF DepthMetersFromU16(const ImageU16& depth_raw, double metres_per_unit) {
+  EXO_CHECK(depth_raw.channels() == 1 && metres_per_unit > 0.0);
+  ImageF out(depth_raw.width(), depth_raw.height(), 1);
+  const float s = static_cast<float>(metres_per_unit);
+  for (size_t i = 0; i < depth_raw.size(); ++i)
+    out.data()[i] = static_cast<float>(depth_raw.data()[i]) * s;
+  return out;
+}
+
+ImageU16 DepthU16FromMeters(const ImageF& depth_m, double metres_per_unit) {
+  EXO_CHECK(depth_m.channels() == 1 && metres_per_unit > 0.0);
+  ImageU16 out(depth_m.width(), depth_m.height(), 1);
+  const double inv = 1.0 / metres_per_unit;
+  for (size_t i = 0; i < depth_m.size(); ++i) {
+    const double v = depth_m.data()[i];
+    if (!std::isfinite(v) || v <= 0.0) continue;  // 0 = invalid
+    const double units = std::nearbyint(v * inv);
+    if (units < 1.0 || units > 65535.0) continue;  // not representable -> invalid, never wrapped
+    out.data()[i] = static_cast<uint16_t>(units);
+  }
+  return out;
+}
+
+}  // namespace exo
