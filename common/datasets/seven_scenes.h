@@ -1,0 +1,47 @@
+// Reader for the Microsoft 7-Scenes layout: frame-NNNNNN.{color.jpg,depth.png,pose.txt} plus
+// camera-intrinsics.txt (3x3 K). Depth: 16-bit PNG in millimetres, 0 = invalid. Pose: 4x4
+// camera-to-world, validated (orthonormal rotation, last row 0 0 0 1).
+//
+// Caveat of the data (see ../shared/data/README.md): K and the pose belong to the DEPTH camera
+// and colour is NOT registered to depth (edges are offset by 10-20 px). The data gives no colour
+// intrinsics or extrinsic, so the reader sets color_camera = depth_camera = K and
+// color_from_depth = identity, as the data's README prescribes; world_from_cam is the depth
+// camera's pose. 7-Scenes has no timestamps: timestamp_s = index / 30 (Kinect v1 rate).
+#pragma once
+
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "common/datasets/frame_source.h"
+
+namespace exo {
+
+class SevenScenesReader : public FrameSource {
+ public:
+  static constexpr double kDepthMetresPerUnit = 0.001;
+  static constexpr double kFrameRateHz = 30.0;
+
+  // Scans `dir` for frame-*.color.jpg and reads camera-intrinsics.txt. Errors: NotFound if the
+  // directory, the intrinsics or every frame is missing; InvalidArgument for a malformed K.
+  static absl::StatusOr<std::unique_ptr<SevenScenesReader>> Open(const std::string& dir);
+
+  size_t size() const override { return indices_.size(); }
+  absl::StatusOr<Frame> Load(size_t i) const override;
+  std::string name() const override { return "7scenes:" + dir_; }
+
+  int frame_index(size_t i) const { return indices_[i]; }  // the NNNNNN of frame i
+  const PinholeCamera& camera() const { return camera_; }
+  // Only the pose of frame i (cheap: no image decoding).
+  absl::StatusOr<Rigid3d> LoadPose(size_t i) const;
+
+ private:
+  std::string dir_;
+  PinholeCamera camera_;
+  std::vector<int> indices_;
+};
+
+// Parses a whitespace-separated 4x4 row-major matrix file into a validated rigid transform.
+absl::StatusOr<Rigid3d> ReadPoseFile4x4(const std::string& path);
+
+}  // namespace exo
