@@ -1,0 +1,124 @@
+// Headless Vulkan render client engine (SPEC §6, client side): keeps the client store resident on
+// the GPU (mesh chunks, stored views as sRGB texture-array layers with pose/intrinsics/exposure,
+// depth for occlusion, per-cell reference table with an open-addressing cell-hash lookup),
+// uploads incrementally (one view / one cell / one chunk at a time), and renders novel views by
+// lumigraph blending (shaders/blend.frag, a line-by-line mirror of common/lumigraph/blend_math.h)
+// plus a cell-id pass for view planning. Runs on lavapipe (Mesa llvmpipe Vulkan) on CPU-only
+// machines. vulkan.h never appears in this header (pimpl).
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "common/camera.h"
+#include "common/cells.h"
+#include "common/image.h"
+#include "common/lumigraph/blend_math.h"
+#include "common/lumigraph/model.h"
+#include "common/rigid3.h"
+#include "common/status.h"
+
+namespace exo {
+
+struct VulkanRendererOptions {
+  // Enables VK_LAYER_KHRONOS_validation and records its errors/warnings (ValidationErrors()).
+  bool enable_validation = false;
+  // Reference slots reserved per cell on the GPU (a cell's refs beyond this are an error).
+  int max_refs_per_cell = 16;
+  // Clip planes of the novel camera (metres along the optical axis).
+  float near_m = 0.01f;
+  float far_m = 10000.0f;
+  // Discontinuity parameters are baked into each view's depth layer at upload time (an exact
+  // refactoring of blend::Validity's discontinuity test: it depends only on the stored pixel).
+  // The render-time BlendOptions must carry the same radius / delta_z (checked per Render()).
+  int bake_discontinuity_radius_px = blend::BlendOptions{}.discontinuity_radius_px;
+  float bake_discontinuity_delta_z_m = blend::BlendOptions{}.discontinuity_delta_z_m;
+  float bake_discontinuity_delta_z_rel = blend::BlendOptions{}.discontinuity_delta_z_rel;
+
+  absl::Status Validate() const;
+};
+
+// Bytes and objects moved from host to GPU since the last ResetStats().
+struct UploadStats {
+  uint64_t bytes = 0;
+  uint64_t view_uploads = 0;
+  uint64_t cell_uploads = 0;
+  uint64_t chunk_uploads = 0;
+  uint64_t table_rebuilds = 0;   // cell-hash table regrowths (full table upload)
+  uint64_t array_regrowths = 0;  // view texture arrays regrown (GPU-side copy, no host bytes)
+};
+
+struct RenderResult {
+  ImageU8 color;     // RGB8, sRGB
+  ImageU8 coverage;  // 1 ch: 0 = no proxy surface, 1 = surface but no valid view, 2 = blended
+  double gpu_ms = 0;       // submit-to-fence time of the render pass
+  double readback_ms = 0;  // copy-out of the colour attachment to ImageU8
+};
+
+// Packs a 64-bit CellId into the 2 x 32-bit form of the cell-id pass (R32G32_UINT, lo = x).
+inline CellId CellIdFromUints(uint32_t lo, uint32_t hi) {
+  return (static_cast<uint64_t>(hi) << 32) | lo;
+}
+
+class VulkanRenderer {
+ public:
+  // Creates the device (lavapipe or any Vulkan device with a graphics queue). Fails with
+  // kUnavailable and a clear message when no Vulkan device exists.
+  static absl::StatusOr<std::unique_ptr<VulkanRenderer>> Create(
+      const VulkanRendererOptions& options);
+  ~VulkanRenderer();
+  VulkanRenderer(const VulkanRenderer&) = delete;
+  VulkanRenderer& operator=(const VulkanRenderer&) = delete;
+
+  // ---- store residency: incremental updates ----
+  absl::Status SetGrid(const CellGrid& grid);
+  // Adds or replaces a view (uploads its colour, baked depth and record only).
+  absl::Status UpsertView(const StoredView& view);
+  absl::Status RemoveView(ViewId id);
+  // Sets R(b_k) (replaces); an empty list removes the cell. Refs to views not (yet) resident
+  // are skipped on the GPU and picked up when the view arrives.
+  absl::Status SetCellRefs(CellId cell, std::span<const ViewId> refs);
+  absl::Status UpsertChunk(const MeshChunk& chunk);
+  absl::Status RemoveChunk(uint64_t chunk_id);
+  // Brings the resident store to `model`, uploading only what differs: chunks by version, views
+  // by content fingerprint (pose, intrinsics, exposure, pixels), cells by reference list.
+  absl::Status SyncModel(const LumigraphModel& model);
+
+  // ---- rendering ----
+  // Blends a novel view (camera at local_from_cam in the scene-local frame).
+  absl::StatusOr<RenderResult> Render(const PinholeCamera& camera, const Rigid3d& local_from_cam,
+                                      const blend::BlendOptions& options);
+  // Cell-id pass: the CellId of the proxy surface per pixel (kNoCell where none).
+  absl::StatusOr<Image<uint64_t>> RenderCellIds(const PinholeCamera& camera,
+                                                const Rigid3d& local_from_cam);
+
+  // ---- introspection ----
+  const UploadStats& stats() const;
+  void ResetStats();
+  // Bytes of GPU memory held for the store (buffers and texture arrays).
+  uint64_t ResidentBytes() const;
+  size_t num_views() const;
+  size_t num_cells() const;
+  size_t num_chunks() const;
+  std::string DeviceName() const;
+  std::vector<std::string> ValidationErrors() const;
+
+  class Impl;
+
+ private:
+  explicit VulkanRenderer(std::unique_ptr<Impl> impl);
+  std::unique_ptr<Impl> impl_;
+};
+
+// The per-view depth preprocessing the renderer uploads: pixels that fail (3.4)'s discontinuity
+// test (a neighbour at offset {-r,0,r}^2 in the image with invalid depth or a jump > Δ_z) become
+// 0 (invalid), so the fragment shader needs one depth fetch per candidate view instead of nine.
+// Exactly equivalent to blend::Validity with the same radius / delta_z. Pure CPU, exposed for
+// tests.
+ImageF BakeDiscontinuities(const ImageF& depth_m, int radius_px, float delta_z_m,
+                           float delta_z_rel);
+
+}  // namespace exo

@@ -1,0 +1,12 @@
+#version 450
+// Proxy-mesh vertex stage shared by the blend, cell-id and view-depth passes.
+#extension GL_GOOGLE_include_directive : require
+#include "lumigraph_common.glsl"
+
+layout(location = 0) in vec3 in_p_local;
+layout(location = 0) out vec3 out_p_local;
+
+void main() {
+  out_p_local = in_p_local;
+  gl_Position = frame.clip_from_local * vec4(in_p_local, 1.0);
+}
