@@ -45,6 +45,9 @@ const std::array<float, 256>& SrgbToLinearLut() {
 // Block coordinates must stay inside PackCell's signed 21-bit range.
 constexpr int32_t kMaxBlockCoord = (1 << 20) - 64;
 
+// Lower bound of the incidence cosine used to scale and weight an observation.
+constexpr float kMinIncidenceCos = 0.1f;
+
 bool PoseFinite(const Rigid3d& p) {
   const auto& t = p.translation;
   return std::isfinite(t.x) && std::isfinite(t.y) && std::isfinite(t.z) &&
@@ -85,6 +88,7 @@ struct TsdfVolume::Block {
 
 struct TsdfVolume::Context {
   const ImageF* depth = nullptr;
+  const float* cos_incidence = nullptr;  // per depth pixel, |cos| between ray and surface normal
   float fx, fy, cx, cy;
   int width, height;
   glm::mat3 cam_from_local_r;
@@ -271,6 +275,46 @@ absl::StatusOr<TsdfIntegrateStats> TsdfVolume::IntegrateDepth(
     valid_per_task[task] = valid;
   });
 
+  // 1b. Incidence angle per pixel from the depth map's own normals (central differences).
+  //     The projective (along-ray) distance overestimates the Euclidean distance by 1/cos at
+  //     oblique incidence; scaling by cos makes the fused field closer to a true SDF and the
+  //     weight cos down-weights grazing observations (silhouettes, depth edges).
+  std::vector<float> cos_incidence(size_t(cam.width) * cam.height, 1.0f);
+  ParallelFor(num_tasks, nt, [&](size_t task) {
+    const int y0 = int(task) * rows_per_task, y1 = std::min(cam.height, y0 + rows_per_task);
+    auto valid = [&](int u, int v) {
+      if (u < 0 || v < 0 || u >= cam.width || v >= cam.height) return 0.0f;
+      const float d = depth_m.row(v)[u];
+      return (d >= min_d && d <= max_d) ? d : 0.0f;
+    };
+    const float edge_rel = 0.05f;
+    for (int v = y0; v < y1; ++v)
+      for (int u = 0; u < cam.width; ++u) {
+        const float d = valid(u, v);
+        if (d == 0.0f) continue;
+        auto point = [&](int uu, int vv, float dd) {
+          return glm::vec3((uu - ctx.cx) / ctx.fx * dd, (vv - ctx.cy) / ctx.fy * dd, dd);
+        };
+        auto near = [&](float dn) { return dn > 0 && std::abs(dn - d) < edge_rel * d; };
+        const float dl = valid(u - 1, v), dr = valid(u + 1, v), du = valid(u, v - 1),
+                    dd = valid(u, v + 1);
+        const glm::vec3 p = point(u, v, d);
+        glm::vec3 tx(0.0f), ty(0.0f);
+        if (near(dl) && near(dr)) tx = point(u + 1, v, dr) - point(u - 1, v, dl);
+        else if (near(dr)) tx = point(u + 1, v, dr) - p;
+        else if (near(dl)) tx = p - point(u - 1, v, dl);
+        if (near(du) && near(dd)) ty = point(u, v + 1, dd) - point(u, v - 1, du);
+        else if (near(dd)) ty = point(u, v + 1, dd) - p;
+        else if (near(du)) ty = p - point(u, v - 1, du);
+        const glm::vec3 n = glm::cross(tx, ty);
+        const float nl = glm::length(n);
+        // No neighbours on one axis (isolated pixel or depth edge): treat as grazing.
+        cos_incidence[size_t(v) * cam.width + u] =
+            nl > 0 ? std::abs(glm::dot(n, p)) / (nl * glm::length(p)) : 0.0f;
+      }
+  });
+  ctx.cos_incidence = cos_incidence.data();
+
   // 2. Allocate missing blocks; list each touched block once.
   TsdfIntegrateStats stats;
   ++stamp_;
@@ -330,15 +374,17 @@ void TsdfVolume::IntegrateBlock(Block* block, const Context& c) const {
         const float uf = c.fx * xz + c.cx, vf = c.fy * yz + c.cy;
         if (!(uf >= -0.5f && vf >= -0.5f && uf < w - 0.5f && vf < c.height - 0.5f)) continue;
         const int ui = int(uf + 0.5f), vi = int(vf + 0.5f);
-        const float d = depth[size_t(vi) * w + ui];
+        const size_t pix = size_t(vi) * w + ui;
+        const float d = depth[pix];
         if (!(d >= c.min_depth && d <= c.max_depth)) continue;  // invalid depth (0/NaN/Inf)
         // Signed distance along the ray (range difference), positive in front of the surface.
         const float sdf = (d - pc.z) * std::sqrt(1.0f + xz * xz + yz * yz);
         if (sdf < -c.trunc) continue;  // occluded: beyond the band behind the surface
-        const float tsdf = std::min(sdf, c.trunc);
+        const float cos_i = std::max(c.cos_incidence[pix], kMinIncidenceCos);
+        const float tsdf = std::clamp(sdf * cos_i, -c.trunc, c.trunc);
         TsdfVoxel& v = vox[x];
-        const float nw = v.weight + 1.0f;
-        v.sdf_m = (v.sdf_m * v.weight + tsdf) / nw;
+        const float nw = v.weight + cos_i;
+        v.sdf_m = (v.sdf_m * v.weight + tsdf * cos_i) / nw;
         v.weight = std::min(nw, c.max_weight);
         if (color && sdf < c.trunc) {
           int cu = ui, cv = vi;

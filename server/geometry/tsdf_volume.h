@@ -49,8 +49,9 @@ struct TsdfOptions {
   float max_depth_m = 6.0f;
   int block_size = 8;            // voxels per block edge, 2..32
   bool integrate_color = true;
-  // Voxels with weight below this are treated as unobserved by marching cubes.
-  float min_extract_weight = 0.5f;
+  // Voxels with weight below this are treated as unobserved by marching cubes. Each observation
+  // adds its incidence cosine (from the depth map's normals, floored at 0.1) to the weight.
+  float min_extract_weight = 0.25f;
   int num_threads = 2;
 
   absl::Status Validate() const;
@@ -59,7 +60,7 @@ struct TsdfOptions {
 
 struct TsdfVoxel {
   float sdf_m = 0.0f;   // truncated signed distance (positive in front of the surface)
-  float weight = 0.0f;  // 0 = never observed
+  float weight = 0.0f;  // sum of observation weights (capped); 0 = never observed
   uint8_t r = 0, g = 0, b = 0;
   uint8_t color_weight = 0;  // saturating count of colour observations
 };
