@@ -1,0 +1,62 @@
+// GradientChecker tests for every cost functor of refinement (autodiff vs numeric).
+#include "server/refinement/cost_functors.h"
+
+#include <cmath>
+#include <vector>
+
+#include <ceres/gradient_checker.h>
+#include <ceres/manifold.h>
+#include <gtest/gtest.h>
+
+namespace exo::refinement {
+namespace {
+
+TEST(CostFunctorsTest, ExposureResidualGradient) {
+  std::unique_ptr<ceres::CostFunction> cf(ExposureResidual::Create(0.37, 0.52));
+  ceres::NumericDiffOptions nd;
+  const std::vector<const ceres::Manifold*>* no_manifolds = nullptr;
+  ceres::GradientChecker checker(cf.get(), no_manifolds, nd);
+  double e = 1.3;
+  double* params[1] = {&e};
+  ceres::GradientChecker::ProbeResults results;
+  EXPECT_TRUE(checker.Probe(params, 1e-7, &results)) << results.error_log;
+  EXPECT_NEAR(results.residuals[0], 1.3 * 0.37 - 0.52, 1e-12);
+}
+
+TEST(CostFunctorsTest, PoseResidualGradientWithQuaternionManifold) {
+  // A smooth analytic image so the bicubic interpolant is well resolved.
+  const int w = 64, h = 48;
+  std::vector<float> img(w * h);
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x)
+      img[y * w + x] = 0.5f + 0.3f * std::sin(0.21 * x + 0.1 * y) * std::cos(0.17 * y);
+  LumaGrid grid(img.data(), 0, h, 0, w);
+  LumaInterpolator interp(grid);
+  LevelIntrinsics k{50.0, 52.0, 31.5, 23.5};
+  ceres::EigenQuaternionManifold q_manifold;
+  std::vector<const ceres::Manifold*> manifolds = {&q_manifold, nullptr};
+  ceres::NumericDiffOptions nd;
+  for (int trial = 0; trial < 5; ++trial) {
+    const Eigen::Vector3d p(0.1 * trial - 0.2, 0.05 * trial - 0.1, 2.0 + 0.1 * trial);
+    std::unique_ptr<ceres::CostFunction> cf(PoseResidual::Create(&interp, k, p, 1.2, 0.4));
+    ceres::GradientChecker checker(cf.get(), &manifolds, nd);
+    Eigen::Quaterniond q(Eigen::AngleAxisd(0.05 * trial, Eigen::Vector3d(0.3, 1, 0.2).normalized()));
+    double qd[4] = {q.x(), q.y(), q.z(), q.w()};
+    double t[3] = {0.01 * trial, -0.02, 0.03};
+    double* params[2] = {qd, t};
+    ceres::GradientChecker::ProbeResults results;
+    EXPECT_TRUE(checker.Probe(params, 1e-5, &results)) << "trial " << trial << results.error_log;
+  }
+}
+
+TEST(CostFunctorsTest, PoseResidualRejectsPointsBehindCamera) {
+  std::vector<float> img(16 * 16, 0.5f);
+  LumaGrid grid(img.data(), 0, 16, 0, 16);
+  LumaInterpolator interp(grid);
+  PoseResidual f(&interp, {10, 10, 7.5, 7.5}, Eigen::Vector3d(0, 0, -1), 1.0, 0.5);
+  double q[4] = {0, 0, 0, 1}, t[3] = {0, 0, 0}, r;
+  EXPECT_FALSE(f(q, t, &r));
+}
+
+}  // namespace
+}  // namespace exo::refinement

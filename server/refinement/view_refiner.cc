@@ -1,0 +1,656 @@
+#include "server/refinement/view_refiner.h"
+
+#include <algorithm>
+#include <array>
+#include <chrono>
+#include <cmath>
+#include <memory>
+#include <vector>
+
+#include <Eigen/Eigenvalues>
+
+#include "server/refinement/cost_functors.h"
+
+namespace exo {
+namespace {
+
+using refinement::ExposureResidual;
+using refinement::LevelIntrinsics;
+using refinement::LumaGrid;
+using refinement::LumaInterpolator;
+using refinement::PoseResidual;
+
+constexpr int kMaxLevels = 5;
+
+struct LinearLut {
+  std::array<float, 256> v;
+  LinearLut() {
+    for (int i = 0; i < 256; ++i) v[i] = static_cast<float>(SrgbToLinear(static_cast<uint8_t>(i)));
+  }
+};
+const LinearLut& Lut() {
+  static const LinearLut lut;  // immutable after construction (thread-safe init)
+  return lut;
+}
+
+// One pyramid level of an image: linear luma, a "bad" mask (saturated/black pixels, dilated by
+// the sampling support) and the level's intrinsics. The interpolator points into `luma`.
+struct Level {
+  int w = 0, h = 0;
+  std::vector<float> luma;
+  std::vector<uint8_t> bad;
+  LevelIntrinsics k;
+  std::unique_ptr<LumaGrid> grid;
+  std::unique_ptr<LumaInterpolator> interp;
+
+  bool Bad(double u, double v) const {
+    const int x = static_cast<int>(std::lround(u)), y = static_cast<int>(std::lround(v));
+    if (x < 0 || y < 0 || x >= w || y >= h) return true;
+    return bad[static_cast<size_t>(y) * w + x] != 0;
+  }
+  bool Inside(double u, double v, double border) const {
+    return u >= border && v >= border && u <= w - 1 - border && v <= h - 1 - border;
+  }
+  double Bilinear(double u, double v) const {
+    const int x0 = std::clamp(static_cast<int>(std::floor(u)), 0, w - 2);
+    const int y0 = std::clamp(static_cast<int>(std::floor(v)), 0, h - 2);
+    const double fx = std::clamp(u - x0, 0.0, 1.0), fy = std::clamp(v - y0, 0.0, 1.0);
+    const float* r0 = &luma[static_cast<size_t>(y0) * w + x0];
+    const float* r1 = r0 + w;
+    return (1 - fy) * ((1 - fx) * r0[0] + fx * r0[1]) + fy * ((1 - fx) * r1[0] + fx * r1[1]);
+  }
+};
+
+void Dilate(std::vector<uint8_t>& m, int w, int h, int radius) {
+  if (radius <= 0) return;
+  std::vector<uint8_t> tmp(m.size(), 0);
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      uint8_t a = 0;
+      for (int d = -radius; d <= radius && !a; ++d) {
+        const int xx = x + d;
+        if (xx >= 0 && xx < w) a = m[static_cast<size_t>(y) * w + xx];
+      }
+      tmp[static_cast<size_t>(y) * w + x] = a;
+    }
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      uint8_t a = 0;
+      for (int d = -radius; d <= radius && !a; ++d) {
+        const int yy = y + d;
+        if (yy >= 0 && yy < h) a = tmp[static_cast<size_t>(yy) * w + x];
+      }
+      m[static_cast<size_t>(y) * w + x] = a;
+    }
+}
+
+std::vector<Level> BuildPyramid(const ImageU8& color, const PinholeCamera& cam, int levels,
+                                const RefinementOptions& o) {
+  const auto& lut = Lut().v;
+  std::vector<Level> pyr(levels);
+  Level& l0 = pyr[0];
+  l0.w = color.width();
+  l0.h = color.height();
+  l0.k = {cam.fx, cam.fy, cam.cx, cam.cy};
+  l0.luma.resize(static_cast<size_t>(l0.w) * l0.h);
+  l0.bad.resize(l0.luma.size());
+  const uint8_t* px = color.data();
+  for (size_t i = 0; i < l0.luma.size(); ++i, px += 3) {
+    l0.luma[i] = 0.2126f * lut[px[0]] + 0.7152f * lut[px[1]] + 0.0722f * lut[px[2]];
+    const int mx = std::max({px[0], px[1], px[2]});
+    l0.bad[i] = (mx >= o.saturated_u8 || mx <= o.black_u8) ? 1 : 0;
+  }
+  for (int l = 1; l < levels; ++l) {
+    const Level& p = pyr[l - 1];
+    Level& c = pyr[l];
+    c.w = p.w / 2;
+    c.h = p.h / 2;
+    c.k = {p.k.fx * 0.5, p.k.fy * 0.5, (p.k.cx + 0.5) * 0.5 - 0.5, (p.k.cy + 0.5) * 0.5 - 0.5};
+    c.luma.resize(static_cast<size_t>(c.w) * c.h);
+    c.bad.resize(c.luma.size());
+    for (int y = 0; y < c.h; ++y)
+      for (int x = 0; x < c.w; ++x) {
+        const size_t a = static_cast<size_t>(2 * y) * p.w + 2 * x, b = a + p.w;
+        c.luma[static_cast<size_t>(y) * c.w + x] =
+            0.25f * (p.luma[a] + p.luma[a + 1] + p.luma[b] + p.luma[b + 1]);
+        c.bad[static_cast<size_t>(y) * c.w + x] = p.bad[a] | p.bad[a + 1] | p.bad[b] | p.bad[b + 1];
+      }
+  }
+  for (Level& l : pyr) {
+    Dilate(l.bad, l.w, l.h, o.border_px);
+    l.grid = std::make_unique<LumaGrid>(l.luma.data(), 0, l.h, 0, l.w);
+    l.interp = std::make_unique<LumaInterpolator>(*l.grid);
+  }
+  return pyr;
+}
+
+struct Pose {  // cam_from_local
+  Eigen::Quaterniond q{1, 0, 0, 0};
+  Eigen::Vector3d t{0, 0, 0};
+  Eigen::Vector3d Apply(const Eigen::Vector3d& p) const { return q * p + t; }
+};
+
+Pose CamFromLocal(const Rigid3d& local_from_cam) {
+  const Rigid3d c = local_from_cam.Inverse();
+  Pose p;
+  p.q = Eigen::Quaterniond(c.rotation.w, c.rotation.x, c.rotation.y, c.rotation.z).normalized();
+  p.t = {c.translation.x, c.translation.y, c.translation.z};
+  return p;
+}
+Rigid3d LocalFromCam(const Pose& p) {
+  const Eigen::Quaterniond q = p.q.normalized();
+  Rigid3d c;
+  c.rotation = glm::dquat(q.w(), q.x(), q.y(), q.z());
+  c.translation = {p.t.x(), p.t.y(), p.t.z()};
+  return c.Inverse();
+}
+
+struct Sample {
+  Eigen::Vector3d p_in_local;
+  std::array<float, kMaxLevels> m{};     // median of E_i * C_i per level
+  std::array<bool, kMaxLevels> has{};
+};
+
+// Depth edge test of SPEC §6: within 2 px of a discontinuity larger than dz, or of a hole.
+bool NearDepthEdge(const ImageF& d, int x, int y, float z, double dz) {
+  static constexpr int kOff[8][2] = {{-2, 0}, {2, 0}, {0, -2}, {0, 2},
+                                     {-2, -2}, {2, 2}, {-2, 2}, {2, -2}};
+  for (const auto& o : kOff) {
+    const int xx = x + o[0], yy = y + o[1];
+    if (!d.Contains(xx, yy)) continue;  // image border is handled by the FOV border
+    const float n = d.at(xx, yy);
+    if (!(n > 0.f) || !std::isfinite(n) || std::abs(n - z) > dz) return true;
+  }
+  return false;
+}
+
+double Median(std::vector<double>& v) {
+  if (v.empty()) return 0.0;
+  const size_t n = v.size(), mid = n / 2;
+  std::nth_element(v.begin(), v.begin() + mid, v.end());
+  double m = v[mid];
+  if (n % 2 == 0) m = 0.5 * (m + *std::max_element(v.begin(), v.begin() + mid));
+  return m;
+}
+
+double TukeyRho(double r, double c) {
+  const double c2 = c * c, s = r * r;
+  if (s >= c2) return c2 / 6.0;
+  const double a = 1.0 - s / c2;
+  return c2 / 6.0 * (1.0 - a * a * a);
+}
+
+class Refiner {
+ public:
+  Refiner(const StoredView& cand, std::vector<const StoredView*> refs, const RefinementOptions& o)
+      : cand_(cand), refs_(std::move(refs)), o_(o) {}
+
+  absl::StatusOr<RefinementResult> Run();
+
+ private:
+  struct Active {
+    std::vector<int> idx;
+    std::vector<double> c;  // candidate value at the current pose
+  };
+  void BuildSamples();
+  Active ActiveSet(int level, const Pose& pose) const;
+  bool ValidInCandidate(int level, const Pose& pose, const Sample& s, double* u,
+                        double* v) const;
+  double Energy(int level, double e, const Pose& pose, double scale, int* valid) const;
+  double ScaleFromResiduals(std::vector<double> r) const;
+  double SolveExposure(int level, const Pose& pose, double e);
+  Pose SolvePose(int level, double e, const Pose& pose);
+  void RankCheck(const Pose& pose, double e);
+
+  const StoredView& cand_;
+  std::vector<const StoredView*> refs_;
+  const RefinementOptions& o_;
+  int levels_ = 1;
+  std::vector<Level> cand_pyr_;
+  std::vector<std::vector<Level>> ref_pyr_;
+  std::vector<Sample> samples_;
+  double median_depth_m_ = 1.0;
+  RefinementResult res_;
+};
+
+void Refiner::BuildSamples() {
+  const Pose cand0 = CamFromLocal(cand_.local_from_cam);
+  const Level& c0 = cand_pyr_[0];
+  const bool cand_depth = !cand_.depth_m.empty() && cand_.depth_m.width() == c0.w &&
+                          cand_.depth_m.height() == c0.h;
+  const int per_ref = std::max(1, o_.max_samples / static_cast<int>(refs_.size()));
+  std::vector<double> vals[kMaxLevels];
+  std::vector<double> depths;
+  for (size_t r = 0; r < refs_.size(); ++r) {
+    const StoredView& ref = *refs_[r];
+    const Level& rl = ref_pyr_[r][0];
+    const int w = rl.w, h = rl.h;
+    const int block = std::max(2, static_cast<int>(std::ceil(std::sqrt(double(w) * h / per_ref))));
+    for (int by = o_.border_px; by < h - o_.border_px; by += block)
+      for (int bx = o_.border_px; bx < w - o_.border_px; bx += block) {
+        // The most textured pixel of the block with valid depth (DSO-style candidates).
+        int best_x = -1, best_y = -1;
+        double best_g = -1.0;
+        for (int y = by; y < std::min(by + block, h - o_.border_px); ++y)
+          for (int x = bx; x < std::min(bx + block, w - o_.border_px); ++x) {
+            const size_t i = static_cast<size_t>(y) * w + x;
+            const float z = ref.depth_m.at(x, y);
+            if (!(z > 0.f) || !std::isfinite(z) || rl.bad[i]) continue;
+            const double g = std::abs(rl.luma[i + 1] - rl.luma[i - 1]) +
+                             std::abs(rl.luma[i + w] - rl.luma[i - w]);
+            if (g > best_g) {
+              best_g = g;
+              best_x = x;
+              best_y = y;
+            }
+          }
+        if (best_x < 0) continue;
+        const float z = ref.depth_m.at(best_x, best_y);
+        if (NearDepthEdge(ref.depth_m, best_x, best_y, z, o_.depth_discontinuity_m)) continue;
+        const glm::dvec3 pc = ref.camera.Unproject({double(best_x), double(best_y)}, z);
+        const glm::dvec3 pl = ref.local_from_cam * pc;
+        Sample s;
+        s.p_in_local = {pl.x, pl.y, pl.z};
+        // Valid in the candidate at its initial pose (SPEC §6, looser occlusion tolerance).
+        const Eigen::Vector3d q = cand0.Apply(s.p_in_local);
+        if (!(q.z() > 1e-6)) continue;
+        const double u = c0.k.fx * q.x() / q.z() + c0.k.cx, v = c0.k.fy * q.y() / q.z() + c0.k.cy;
+        if (!c0.Inside(u, v, o_.border_px)) continue;
+        if (cand_depth) {
+          const float dc = cand_.depth_m.at(static_cast<int>(std::lround(u)),
+                                            static_cast<int>(std::lround(v)));
+          if (dc > 0.f && std::isfinite(dc) &&
+              std::abs(q.z() - dc) > o_.cand_occlusion_abs_m + o_.cand_occlusion_rel * dc)
+            continue;
+        }
+        // Median over the references in which the point is valid.
+        for (auto& vv : vals) vv.clear();
+        for (size_t i = 0; i < refs_.size(); ++i) {
+          const StoredView& ri = *refs_[i];
+          const glm::dvec3 pi = ri.local_from_cam.Inverse() * pl;
+          glm::dvec2 uv;
+          if (!ri.camera.Project(pi, &uv)) continue;
+          const Level& L0 = ref_pyr_[i][0];
+          if (!L0.Inside(uv.x, uv.y, 1.0)) continue;
+          const int xi = static_cast<int>(std::lround(uv.x)), yi = static_cast<int>(std::lround(uv.y));
+          const float di = ri.depth_m.at(xi, yi);
+          if (!(di > 0.f) || !std::isfinite(di)) continue;
+          if (std::abs(pi.z - di) > o_.ref_occlusion_abs_m + o_.ref_occlusion_rel * di) continue;
+          if (NearDepthEdge(ri.depth_m, xi, yi, di, o_.depth_discontinuity_m)) continue;
+          for (int l = 0; l < levels_; ++l) {
+            const Level& L = ref_pyr_[i][l];
+            const double s_l = 1.0 / (1 << l);
+            const double ul = (uv.x + 0.5) * s_l - 0.5, vl = (uv.y + 0.5) * s_l - 0.5;
+            if (!L.Inside(ul, vl, 0.0) || L.Bad(ul, vl)) continue;
+            vals[l].push_back(ri.exposure * L.Bilinear(ul, vl));
+          }
+        }
+        for (int l = 0; l < levels_; ++l) {
+          s.has[l] = !vals[l].empty();
+          if (s.has[l]) s.m[l] = static_cast<float>(Median(vals[l]));
+        }
+        if (!s.has[0]) continue;
+        samples_.push_back(s);
+        depths.push_back(q.z());
+      }
+  }
+  if (!depths.empty()) median_depth_m_ = Median(depths);
+}
+
+bool Refiner::ValidInCandidate(int level, const Pose& pose, const Sample& s, double* u,
+                               double* v) const {
+  if (!s.has[level]) return false;
+  const Level& L = cand_pyr_[level];
+  const Eigen::Vector3d q = pose.Apply(s.p_in_local);
+  if (!(q.z() > 1e-6)) return false;
+  *u = L.k.fx * q.x() / q.z() + L.k.cx;
+  *v = L.k.fy * q.y() / q.z() + L.k.cy;
+  return L.Inside(*u, *v, o_.border_px) && !L.Bad(*u, *v);
+}
+
+Refiner::Active Refiner::ActiveSet(int level, const Pose& pose) const {
+  Active a;
+  const Level& L = cand_pyr_[level];
+  for (size_t j = 0; j < samples_.size(); ++j) {
+    double u, v;
+    if (!ValidInCandidate(level, pose, samples_[j], &u, &v)) continue;
+    double val;
+    L.interp->Evaluate(v, u, &val);
+    a.idx.push_back(static_cast<int>(j));
+    a.c.push_back(val);
+  }
+  return a;
+}
+
+// J (3.17) at one level with a fixed Tukey scale; samples not valid in the candidate at this
+// pose cost the Tukey maximum, so moving samples out of view never lowers the energy.
+double Refiner::Energy(int level, double e, const Pose& pose, double scale, int* valid) const {
+  const Level& L = cand_pyr_[level];
+  double sum = 0.0;
+  int n = 0;
+  for (const Sample& s : samples_) {
+    if (!s.has[level]) continue;
+    double u, v;
+    if (!ValidInCandidate(level, pose, s, &u, &v)) {
+      sum += scale * scale / 6.0;
+      continue;
+    }
+    double val;
+    L.interp->Evaluate(v, u, &val);
+    sum += TukeyRho(e * val - s.m[level], scale);
+    ++n;
+  }
+  if (valid) *valid = n;
+  return sum;
+}
+
+double Refiner::ScaleFromResiduals(std::vector<double> r) const {
+  if (!o_.scale_from_mad || r.empty()) return o_.fixed_scale;
+  const double med = Median(r);
+  for (double& x : r) x = std::abs(x - med);
+  const double mad = Median(r);
+  return std::max(o_.min_scale, o_.tukey_k * 1.4826 * mad);
+}
+
+ceres::Solver::Options SolverOptions(const RefinementOptions& o) {
+  ceres::Solver::Options s;
+  s.linear_solver_type = ceres::DENSE_QR;
+  s.max_num_iterations = o.max_solver_iterations;
+  s.num_threads = 1;
+  s.use_nonmonotonic_steps = false;  // every accepted LM step lowers the cost
+  s.minimizer_progress_to_stdout = false;
+  s.logging_type = ceres::SILENT;
+  s.function_tolerance = 1e-7;
+  s.parameter_tolerance = 1e-8;
+  return s;
+}
+
+double Refiner::SolveExposure(int level, const Pose& pose, double e) {
+  const Active a = ActiveSet(level, pose);
+  if (a.idx.size() < 3) return e;
+  std::vector<double> r(a.idx.size());
+  for (size_t k = 0; k < a.idx.size(); ++k) r[k] = e * a.c[k] - samples_[a.idx[k]].m[level];
+  const double scale = ScaleFromResiduals(r);
+  const double before = Energy(level, e, pose, scale, nullptr);
+  double x = e;
+  const ceres::Solver::Options so = SolverOptions(o_);
+  for (int stage = o_.warm_start ? 0 : 1; stage < 2; ++stage) {
+    ceres::Problem::Options po;
+    po.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+    ceres::Problem problem(po);
+    std::unique_ptr<ceres::LossFunction> loss;
+    if (stage == 0)
+      loss = std::make_unique<ceres::CauchyLoss>(scale);
+    else
+      loss = std::make_unique<ceres::TukeyLoss>(scale);
+    for (size_t k = 0; k < a.idx.size(); ++k)
+      problem.AddResidualBlock(ExposureResidual::Create(a.c[k], samples_[a.idx[k]].m[level]),
+                               loss.get(), &x);
+    problem.SetParameterLowerBound(&x, 0, 1e-4);
+    ceres::Solver::Summary sum;
+    ceres::Solve(so, &problem, &sum);
+    res_.iterations += static_cast<int>(sum.iterations.size());
+  }
+  if (!std::isfinite(x) || Energy(level, x, pose, scale, nullptr) > before) {
+    res_.step_reverted = true;  // guard: never accept a stage that raises J
+    return e;
+  }
+  return x;
+}
+
+Pose Refiner::SolvePose(int level, double e, const Pose& pose) {
+  const Active a = ActiveSet(level, pose);
+  if (static_cast<int>(a.idx.size()) < o_.min_pose_samples) return pose;
+  const Level& L = cand_pyr_[level];
+  std::vector<double> r(a.idx.size());
+  for (size_t k = 0; k < a.idx.size(); ++k) r[k] = e * a.c[k] - samples_[a.idx[k]].m[level];
+  const double scale = ScaleFromResiduals(r);
+  const double before = Energy(level, e, pose, scale, nullptr);
+  double q[4] = {pose.q.x(), pose.q.y(), pose.q.z(), pose.q.w()};
+  double t[3] = {pose.t.x(), pose.t.y(), pose.t.z()};
+  const ceres::Solver::Options so = SolverOptions(o_);
+  ceres::Problem::Options po;
+  po.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+  po.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+  ceres::EigenQuaternionManifold manifold;
+  ceres::TukeyLoss loss(scale);
+  ceres::Problem problem(po);
+  for (size_t k = 0; k < a.idx.size(); ++k) {
+    const Sample& s = samples_[a.idx[k]];
+    problem.AddResidualBlock(PoseResidual::Create(L.interp.get(), L.k, s.p_in_local, e, s.m[level]),
+                             &loss, q, t);
+  }
+  problem.SetManifold(q, &manifold);
+  ceres::Solver::Summary sum;
+  ceres::Solve(so, &problem, &sum);
+  res_.iterations += static_cast<int>(sum.iterations.size());
+  Pose out;
+  out.q = Eigen::Quaterniond(q[3], q[0], q[1], q[2]).normalized();
+  out.t = {t[0], t[1], t[2]};
+  if (!out.t.allFinite() || !out.q.coeffs().allFinite() ||
+      Energy(level, e, out, scale, nullptr) > before) {
+    res_.step_reverted = true;  // guard: never accept a stage that raises J
+    return pose;
+  }
+  return out;
+}
+
+// Gauss-Newton information of the 6-DoF pose block at level 0, robust-weighted, with columns
+// normalised to "one pixel of image motion" so rotation and translation are comparable.
+void Refiner::RankCheck(const Pose& pose, double e) {
+  const Active a = ActiveSet(0, pose);
+  const Level& L = cand_pyr_[0];
+  const int n = static_cast<int>(a.idx.size());
+  if (n < o_.min_pose_samples) {
+    res_.pose_refused_rank_deficient = true;
+    return;
+  }
+  std::vector<double> r(n);
+  for (int k = 0; k < n; ++k) r[k] = e * a.c[k] - samples_[a.idx[k]].m[0];
+  const double scale = ScaleFromResiduals(r);
+  double q[4] = {pose.q.x(), pose.q.y(), pose.q.z(), pose.q.w()};
+  double t[3] = {pose.t.x(), pose.t.y(), pose.t.z()};
+  double plus_jac[12];
+  ceres::EigenQuaternionManifold().PlusJacobian(q, plus_jac);
+  const Eigen::Map<const Eigen::Matrix<double, 4, 3, Eigen::RowMajor>> pj(plus_jac);
+  const double f = 0.5 * (L.k.fx + L.k.fy);
+  Eigen::Matrix<double, 6, 6> h = Eigen::Matrix<double, 6, 6>::Zero();
+  const double* params[2] = {q, t};
+  for (int k = 0; k < n; ++k) {
+    const Sample& s = samples_[a.idx[k]];
+    std::unique_ptr<ceres::CostFunction> cf(
+        PoseResidual::Create(L.interp.get(), L.k, s.p_in_local, e, s.m[0]));
+    double res, jq[4], jt[3];
+    double* jac[2] = {jq, jt};
+    if (!cf->Evaluate(params, &res, jac)) continue;
+    const double s2 = res * res / (scale * scale);
+    const double w = s2 < 1.0 ? (1.0 - s2) * (1.0 - s2) : 0.0;
+    Eigen::Matrix<double, 6, 1> j;
+    // Tangent delta of the manifold is half the rotation angle: d/dtheta = d/ddelta / 2.
+    j.head<3>() = (Eigen::Map<Eigen::Matrix<double, 1, 4>>(jq) * pj).transpose() / (2.0 * f);
+    j.tail<3>() = Eigen::Map<Eigen::Vector3d>(jt) * (median_depth_m_ / f);
+    h += w * j * j.transpose();
+  }
+  h /= n;
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 6, 6>> es(h);
+  const double lmin = std::max(0.0, es.eigenvalues()(0)), lmax = es.eigenvalues()(5);
+  res_.pose_min_eigenvalue = lmin;
+  res_.pose_condition = lmin > 0 ? lmax / lmin : std::numeric_limits<double>::infinity();
+  if (lmin < o_.min_pose_information || res_.pose_condition > o_.max_pose_condition)
+    res_.pose_refused_rank_deficient = true;
+}
+
+absl::StatusOr<RefinementResult> Refiner::Run() {
+  const auto t0 = std::chrono::steady_clock::now();
+  levels_ = 1;
+  while (levels_ < std::min(o_.pyramid_levels, kMaxLevels) &&
+         (cand_.color.width() >> levels_) >= 40 && (cand_.color.height() >> levels_) >= 30)
+    ++levels_;
+  cand_pyr_ = BuildPyramid(cand_.color, cand_.camera, levels_, o_);
+  ref_pyr_.reserve(refs_.size());
+  for (const StoredView* r : refs_) ref_pyr_.push_back(BuildPyramid(r->color, r->camera, levels_, o_));
+  BuildSamples();
+  res_.num_samples = static_cast<int>(samples_.size());
+  const Pose pose0 = CamFromLocal(cand_.local_from_cam);
+  const Active a0 = ActiveSet(0, pose0);
+  if (a0.idx.size() < 3)
+    return absl::FailedPreconditionError(absl::StrCat(
+        "refinement: only ", a0.idx.size(),
+        " surface samples are valid in the candidate and the reference views (no overlap, or "
+        "all saturated/black)"));
+
+  // Initial exposure: robust ratio of medians to candidate values, or the given value.
+  double e0 = o_.initial_exposure;
+  if (o_.init_exposure_from_ratio) {
+    std::vector<double> ratio;
+    for (size_t k = 0; k < a0.idx.size(); ++k)
+      if (a0.c[k] > 1e-3) ratio.push_back(samples_[a0.idx[k]].m[0] / a0.c[k]);
+    if (!ratio.empty()) e0 = Median(ratio);
+  }
+  // Reporting/guard scale, fixed for the whole call.
+  std::vector<double> r0(a0.idx.size());
+  for (size_t k = 0; k < a0.idx.size(); ++k) r0[k] = e0 * a0.c[k] - samples_[a0.idx[k]].m[0];
+  const double report_scale = ScaleFromResiduals(r0);
+  res_.cost_before = Energy(0, e0, pose0, report_scale, nullptr);
+
+  double e = SolveExposure(0, pose0, e0);
+  const double e_exposure_only = e;
+  Pose pose = pose0;
+  if (o_.refine_pose) {
+    if (o_.check_rank) RankCheck(pose0, e);
+    if (!res_.pose_refused_rank_deficient) {
+      for (int l = levels_ - 1; l >= 0; --l) {
+        for (int it = 0; it < o_.max_outer_iterations; ++it) {
+          const Pose p1 = SolvePose(l, e, pose);
+          const double e1 = SolveExposure(l, p1, e);
+          const double drot = p1.q.angularDistance(pose.q);
+          const double dt = (LocalFromCam(p1).translation - LocalFromCam(pose).translation).length();
+          const double de = std::abs(e1 - e) / std::max(e, 1e-9);
+          pose = p1;
+          e = e1;
+          if (drot < o_.convergence_rotation_rad && dt < o_.convergence_translation_m &&
+              de < o_.convergence_exposure_rel)
+            break;
+        }
+      }
+      e = SolveExposure(0, pose, e);
+    }
+  }
+  res_.cost_after = Energy(0, e, pose, report_scale, nullptr);
+  const double cost_exposure_only = Energy(0, e_exposure_only, pose0, report_scale, nullptr);
+  if (res_.cost_after > cost_exposure_only) {
+    // Guard: the pose stages raised J overall (e.g. drifted to another minimum): undo them.
+    res_.step_reverted = true;
+    pose = pose0;
+    e = e_exposure_only;
+    res_.cost_after = cost_exposure_only;
+  }
+  if (res_.cost_after > res_.cost_before) {
+    res_.step_reverted = true;
+    e = e0;
+    res_.cost_after = res_.cost_before;
+  }
+
+  // Pose-outlier decision on the final residuals.
+  const Active af = ActiveSet(0, pose);
+  res_.num_valid_final = static_cast<int>(af.idx.size());
+  std::vector<double> absr, ms;
+  for (size_t k = 0; k < af.idx.size(); ++k) {
+    const double m = samples_[af.idx[k]].m[0];
+    absr.push_back(std::abs(e * af.c[k] - m));
+    ms.push_back(m);
+  }
+  const double med_m = Median(ms);
+  res_.relative_residual = med_m > 0 ? Median(absr) / med_m : 1.0;
+  const double valid_fraction = samples_.empty() ? 0.0 : double(af.idx.size()) / samples_.size();
+  res_.rejected_outlier = res_.relative_residual > o_.outlier_max_relative_residual ||
+                          valid_fraction < o_.outlier_min_valid_fraction;
+  res_.exposure = e;
+  res_.local_from_cam = LocalFromCam(pose);
+  res_.ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  return res_;
+}
+
+absl::Status ValidateViewImages(const StoredView& v, const char* what) {
+  EXO_RETURN_IF_ERROR(v.camera.Validate());
+  if (v.color.channels() != 3 || v.color.width() != v.camera.width ||
+      v.color.height() != v.camera.height)
+    return absl::InvalidArgumentError(absl::StrCat("refinement: ", what, " colour must be RGB8 of ",
+                                                   v.camera.width, "x", v.camera.height));
+  if (v.color.width() < 8 || v.color.height() < 8)
+    return absl::InvalidArgumentError(absl::StrCat("refinement: ", what, " image too small"));
+  const glm::dquat& q = v.local_from_cam.rotation;
+  EXO_RETURN_IF_ERROR(ValidateQuaternion(q));
+  const glm::dvec3& t = v.local_from_cam.translation;
+  if (!std::isfinite(t.x) || !std::isfinite(t.y) || !std::isfinite(t.z))
+    return absl::InvalidArgumentError(absl::StrCat("refinement: ", what, " translation not finite"));
+  return absl::OkStatus();
+}
+
+}  // namespace
+
+double SrgbToLinear(uint8_t v) {
+  const double c = v / 255.0;
+  return c <= 0.04045 ? c / 12.92 : std::pow((c + 0.055) / 1.055, 2.4);
+}
+
+absl::Status RefinementOptions::Validate() const {
+  if (max_samples < 10) return absl::InvalidArgumentError("refinement: max_samples must be >= 10");
+  if (max_reference_views < 1)
+    return absl::InvalidArgumentError("refinement: max_reference_views must be >= 1");
+  if (saturated_u8 <= black_u8 || saturated_u8 > 256 || black_u8 < -1)
+    return absl::InvalidArgumentError("refinement: need -1 <= black_u8 < saturated_u8 <= 256");
+  if (!(ref_occlusion_abs_m >= 0) || !(ref_occlusion_rel >= 0) || !(cand_occlusion_abs_m >= 0) ||
+      !(cand_occlusion_rel >= 0) || !(depth_discontinuity_m > 0))
+    return absl::InvalidArgumentError("refinement: occlusion/discontinuity tolerances must be >= 0");
+  if (border_px < 1 || border_px > 8)
+    return absl::InvalidArgumentError("refinement: border_px must be in [1, 8]");
+  if (pyramid_levels < 1 || pyramid_levels > kMaxLevels)
+    return absl::InvalidArgumentError(absl::StrCat("refinement: pyramid_levels in [1, ", kMaxLevels, "]"));
+  if (max_outer_iterations < 1 || max_solver_iterations < 1)
+    return absl::InvalidArgumentError("refinement: iteration limits must be >= 1");
+  if (!(initial_exposure > 0) || !std::isfinite(initial_exposure))
+    return absl::InvalidArgumentError("refinement: initial_exposure must be > 0");
+  if (!(tukey_k > 0) || !(fixed_scale > 0) || !(min_scale > 0))
+    return absl::InvalidArgumentError("refinement: Tukey scales must be > 0");
+  if (min_pose_samples < 6) return absl::InvalidArgumentError("refinement: min_pose_samples >= 6");
+  if (!(min_pose_information >= 0) || !(max_pose_condition > 1))
+    return absl::InvalidArgumentError("refinement: rank thresholds invalid");
+  if (!(outlier_max_relative_residual > 0) || !(outlier_min_valid_fraction >= 0) ||
+      outlier_min_valid_fraction > 1)
+    return absl::InvalidArgumentError("refinement: outlier thresholds invalid");
+  return absl::OkStatus();
+}
+
+absl::StatusOr<RefinementResult> RefineView(const StoredView& candidate,
+                                            std::span<const StoredView* const> refs,
+                                            const RefinementOptions& options) {
+  EXO_RETURN_IF_ERROR(options.Validate());
+  EXO_RETURN_IF_ERROR(ValidateViewImages(candidate, "candidate"));
+  if (!candidate.depth_m.empty() && (candidate.depth_m.width() != candidate.color.width() ||
+                                     candidate.depth_m.height() != candidate.color.height()))
+    return absl::InvalidArgumentError("refinement: candidate depth must be empty or colour-sized");
+  std::vector<const StoredView*> use;
+  for (const StoredView* r : refs) {
+    if (r == nullptr) return absl::InvalidArgumentError("refinement: null reference view");
+    EXO_RETURN_IF_ERROR(ValidateViewImages(*r, "reference"));
+    if (r->depth_m.width() != r->color.width() || r->depth_m.height() != r->color.height())
+      return absl::InvalidArgumentError("refinement: reference depth must be colour-sized");
+    if (!(r->exposure > 0.f) || !std::isfinite(r->exposure))
+      return absl::InvalidArgumentError("refinement: reference exposure must be > 0");
+    use.push_back(r);
+  }
+  if (use.empty()) return absl::InvalidArgumentError("refinement: no reference views");
+  // The nearest references (camera centres) share the most surface with the candidate.
+  const glm::dvec3 c = candidate.local_from_cam.translation;
+  std::stable_sort(use.begin(), use.end(), [&](const StoredView* a, const StoredView* b) {
+    return glm::length(a->local_from_cam.translation - c) <
+           glm::length(b->local_from_cam.translation - c);
+  });
+  if (static_cast<int>(use.size()) > options.max_reference_views)
+    use.resize(options.max_reference_views);
+  Refiner refiner(candidate, std::move(use), options);
+  return refiner.Run();
+}
+
+}  // namespace exo

@@ -1,0 +1,111 @@
+// View refinement (SPEC §5, thesis §3.1.3): before a candidate view enters the store, estimate
+// its exposure factor E_I and correct small pose errors by minimising the robust photometric
+// energy J(I) = sum_j m(E_I * C_I(pi(p_j, I)) - median_i(E_i * C_i(pi(p_j, F_i)))) (3.17) over
+// surface samples p_j valid in I, alternating exposure and 6-DoF pose (Ceres, Tukey loss with a
+// Cauchy warm start and a MAD scale, bicubic sampling, quaternion manifold, image pyramid).
+// Intensities are linear luma (sRGB decoded); saturated and black pixels are ignored. The gauge
+// is fixed: stored views keep their E_i. Safety: a stage that raises the energy is undone,
+// rank-deficient pose problems (textureless surfaces, too few samples) keep the initial pose,
+// and a view whose final residual stays high is flagged as a pose outlier.
+//
+// Pure library, no global state: RefineView may run on any thread (one call per thread; the
+// inputs are read-only). RefinementStats is owned and aggregated by the caller.
+#pragma once
+
+#include <cstdint>
+#include <span>
+#include <string>
+
+#include "common/lumigraph/model.h"
+#include "common/rigid3.h"
+#include "common/status.h"
+
+namespace exo {
+
+struct RefinementOptions {
+  // --- surface samples ---
+  int max_samples = 1500;           // total over all reference views
+  int max_reference_views = 8;      // the nearest (camera centre) references are used
+  int saturated_u8 = 250;           // sRGB value >= this in any channel: ignored
+  int black_u8 = 5;                 // sRGB value <= this in every channel: ignored
+  double ref_occlusion_abs_m = 0.03;   // validity epsilon in the references (z-depth compare)
+  double ref_occlusion_rel = 0.02;
+  double cand_occlusion_abs_m = 0.10;  // looser in the candidate: its pose is uncertain
+  double cand_occlusion_rel = 0.05;
+  double depth_discontinuity_m = 0.10;  // SPEC §6 Delta_z; samples within 2 px are invalid
+  int border_px = 2;                    // bicubic support
+
+  // --- optimisation ---
+  int pyramid_levels = 3;           // clipped so that the coarsest level is >= 40 px wide
+  int max_outer_iterations = 4;     // exposure <-> pose alternations per level
+  int max_solver_iterations = 15;   // Levenberg-Marquardt iterations per stage
+  bool refine_pose = true;
+  bool init_exposure_from_ratio = true;  // E0 = median(m_j / c_j); else initial_exposure
+  double initial_exposure = 1.0;
+  bool warm_start = true;           // Cauchy before Tukey (Tukey is flat for large residuals)
+  bool scale_from_mad = true;       // Tukey scale c = tukey_k * 1.4826 * MAD(residuals)
+  double tukey_k = 4.685;
+  double fixed_scale = 0.05;        // used when !scale_from_mad
+  double min_scale = 0.01;          // floor of the MAD scale (linear intensity)
+  double convergence_rotation_rad = 1e-4;
+  double convergence_translation_m = 1e-4;
+  double convergence_exposure_rel = 1e-4;
+
+  // --- safety ---
+  bool check_rank = true;
+  int min_pose_samples = 60;
+  // Smallest eigenvalue of the robust-weighted, pixel-normalised pose Gauss-Newton matrix,
+  // per sample ((linear intensity / px)^2); below: pose refused (textureless).
+  double min_pose_information = 2e-6;
+  double max_pose_condition = 1e5;
+  // Pose outlier: median |r_j| / median(m_j) above this at the end, or too few samples valid.
+  double outlier_max_relative_residual = 0.12;
+  double outlier_min_valid_fraction = 0.3;
+
+  absl::Status Validate() const;
+};
+
+struct RefinementResult {
+  double exposure = 1.0;       // E_I (linear factor applied to the candidate when blending)
+  Rigid3d local_from_cam;      // corrected pose
+  bool pose_refused_rank_deficient = false;
+  bool rejected_outlier = false;
+  bool step_reverted = false;  // some stage raised the energy and was undone
+  int num_samples = 0;         // surface samples with a median
+  int num_valid_final = 0;     // of those, valid in the candidate at the final pose
+  int iterations = 0;          // Ceres iterations, all stages
+  double cost_before = 0.0;    // J (Tukey, fixed scale) at the input pose, initial exposure
+  double cost_after = 0.0;     // J at the result, same scale and samples
+  double relative_residual = 0.0;  // median |r_j| / median(m_j) at the end
+  double pose_min_eigenvalue = 0.0;  // rank check figures (pixel-normalised, per sample)
+  double pose_condition = 0.0;
+  double ms = 0.0;
+};
+
+// Aggregated by the caller (e.g. the planner's refinement worker).
+struct RefinementStats {
+  int64_t refined = 0;
+  int64_t rejected_outlier = 0;
+  int64_t pose_refused = 0;
+  int64_t steps_reverted = 0;
+  double total_ms = 0.0;
+  void Add(const RefinementResult& r) {
+    ++refined;
+    rejected_outlier += r.rejected_outlier;
+    pose_refused += r.pose_refused_rank_deficient;
+    steps_reverted += r.step_reverted;
+    total_ms += r.ms;
+  }
+};
+
+// Refines `candidate` (its colour, depth (may be empty), camera, local_from_cam; its
+// `exposure` is ignored) against stored views `refs` (their exposure is fixed). Errors:
+// invalid options/inputs, no reference, no surface sample valid in the candidate.
+absl::StatusOr<RefinementResult> RefineView(const StoredView& candidate,
+                                            std::span<const StoredView* const> refs,
+                                            const RefinementOptions& options);
+
+// sRGB (8-bit) -> linear [0,1], exact IEC 61966-2-1 decode.
+double SrgbToLinear(uint8_t v);
+
+}  // namespace exo
