@@ -1,0 +1,203 @@
+#include "server/inpainting/depth_maps.h"
+
+#include <algorithm>
+#include <cmath>
+
+namespace exo::inpaint {
+
+bool PushPullFill(std::vector<float>& data, int channels, const std::vector<uint8_t>& known,
+                  int width, int height) {
+  // Level 0 holds the premultiplied sums and weights.
+  struct Level {
+    int w, h;
+    std::vector<float> sum;  // channels per pixel, weighted
+    std::vector<float> wt;
+  };
+  std::vector<Level> levels;
+  Level l0{width, height, std::vector<float>(static_cast<size_t>(width) * height * channels),
+           std::vector<float>(static_cast<size_t>(width) * height)};
+  bool any = false;
+  for (size_t i = 0; i < l0.wt.size(); ++i) {
+    if (!known[i]) continue;
+    any = true;
+    l0.wt[i] = 1.f;
+    for (int c = 0; c < channels; ++c) l0.sum[i * channels + c] = data[i * channels + c];
+  }
+  if (!any) return false;
+  levels.push_back(std::move(l0));
+  // Push: 2x2 sums down to 1x1.
+  while (levels.back().w > 1 || levels.back().h > 1) {
+    const Level& f = levels.back();
+    Level c{(f.w + 1) / 2, (f.h + 1) / 2, {}, {}};
+    c.sum.assign(static_cast<size_t>(c.w) * c.h * channels, 0.f);
+    c.wt.assign(static_cast<size_t>(c.w) * c.h, 0.f);
+    for (int y = 0; y < f.h; ++y) {
+      for (int x = 0; x < f.w; ++x) {
+        const size_t fi = static_cast<size_t>(y) * f.w + x;
+        const size_t ci = static_cast<size_t>(y / 2) * c.w + x / 2;
+        c.wt[ci] += f.wt[fi];
+        for (int k = 0; k < channels; ++k) c.sum[ci * channels + k] += f.sum[fi * channels + k];
+      }
+    }
+    // Normalise to averages with weight min(1, w) so that sparse data does not dominate.
+    for (size_t i = 0; i < c.wt.size(); ++i) {
+      if (c.wt[i] > 0.f) {
+        const float s = std::min(1.f, c.wt[i]) / c.wt[i];
+        for (int k = 0; k < channels; ++k) c.sum[i * channels + k] *= s;
+        c.wt[i] = std::min(1.f, c.wt[i]);
+      }
+    }
+    levels.push_back(std::move(c));
+  }
+  // Pull: every level holds premultiplied values (sum = average * alpha, wt = alpha <= 1);
+  // the unknown part (1 - alpha) comes from the coarser level, already complete.
+  {
+    Level& top = levels.back();
+    for (size_t i = 0; i < top.wt.size(); ++i) {
+      if (top.wt[i] > 0.f) {
+        for (int k = 0; k < channels; ++k) top.sum[i * channels + k] /= top.wt[i];
+      }
+      top.wt[i] = 1.f;
+    }
+  }
+  for (int li = static_cast<int>(levels.size()) - 2; li >= 0; --li) {
+    Level& f = levels[li];
+    const Level& c = levels[li + 1];
+    for (int y = 0; y < f.h; ++y) {
+      for (int x = 0; x < f.w; ++x) {
+        const size_t fi = static_cast<size_t>(y) * f.w + x;
+        const size_t ci = static_cast<size_t>(y / 2) * c.w + x / 2;
+        const float rest = 1.f - std::min(1.f, f.wt[fi]);
+        for (int k = 0; k < channels; ++k) {
+          f.sum[fi * channels + k] += rest * c.sum[ci * channels + k];
+        }
+        f.wt[fi] = 1.f;
+      }
+    }
+  }
+  const Level& top = levels[0];
+  for (size_t i = 0; i < top.wt.size(); ++i) {
+    if (known[i]) continue;
+    for (int k = 0; k < channels; ++k) data[i * channels + k] = top.sum[i * channels + k];
+  }
+  return true;
+}
+
+int PrefillDepth(ImageF& depth_m, const std::vector<uint8_t>& fill_here,
+                 const std::vector<uint8_t>& use_as_data) {
+  const int w = depth_m.width(), h = depth_m.height();
+  const size_t n = static_cast<size_t>(w) * h;
+  std::vector<float> data(n, 0.f);
+  std::vector<uint8_t> known(n, 0);
+  bool need = false;
+  for (size_t i = 0; i < n; ++i) {
+    const float z = depth_m.data()[i];
+    const bool valid = std::isfinite(z) && z > 0.f;
+    if (valid && use_as_data[i]) {
+      known[i] = 1;
+      data[i] = z;
+    }
+    if (!valid && fill_here[i]) need = true;
+  }
+  if (!need) return 0;
+  if (!PushPullFill(data, 1, known, w, h)) return 0;
+  int filled = 0;
+  for (size_t i = 0; i < n; ++i) {
+    float& z = depth_m.data()[i];
+    if (fill_here[i] && !(std::isfinite(z) && z > 0.f) && data[i] > 0.f) {
+      z = data[i];
+      ++filled;
+    }
+  }
+  return filled;
+}
+
+ImageF NormalsFromDepth(const ImageF& depth_m, const PinholeCamera& camera, int step,
+                        float rel_discontinuity) {
+  const int w = depth_m.width(), h = depth_m.height();
+  auto valid = [](float z) { return std::isfinite(z) && z > 0.f; };
+  // 5x5 smoothing that only averages neighbours on the same surface (relative test).
+  ImageF smooth(w, h, 1, 0.f);
+  for (int y = 0; y < h; ++y) {
+    for (int x = 0; x < w; ++x) {
+      const float zc = depth_m.at(x, y);
+      if (!valid(zc)) continue;
+      const float tol = rel_discontinuity * zc;
+      float s = 0.f;
+      int cnt = 0;
+      for (int dy = -2; dy <= 2; ++dy) {
+        const int yy = y + dy;
+        if (yy < 0 || yy >= h) continue;
+        const float* row = depth_m.row(yy);
+        for (int dx = -2; dx <= 2; ++dx) {
+          const int xx = x + dx;
+          if (xx < 0 || xx >= w) continue;
+          const float z = row[xx];
+          if (valid(z) && std::fabs(z - zc) <= tol) {
+            s += z;
+            ++cnt;
+          }
+        }
+      }
+      smooth.at(x, y) = s / cnt;
+    }
+  }
+  ImageF normals(w, h, 3, 0.f);
+  const double ifx = 1.0 / camera.fx, ify = 1.0 / camera.fy;
+  auto point = [&](int x, int y) {
+    const double z = smooth.at(x, y);
+    return glm::dvec3((x - camera.cx) * ifx * z, (y - camera.cy) * ify * z, z);
+  };
+  auto usable = [&](int x, int y, float zc) {
+    if (x < 0 || y < 0 || x >= w || y >= h) return false;
+    const float z = smooth.at(x, y);
+    return valid(z) && std::fabs(z - zc) <= rel_discontinuity * zc * step;
+  };
+  for (int y = 0; y < h; ++y) {
+    for (int x = 0; x < w; ++x) {
+      const float zc = smooth.at(x, y);
+      if (!valid(zc)) continue;
+      const glm::dvec3 pc = point(x, y);
+      glm::dvec3 dx(0.0), dy(0.0);
+      const bool xp = usable(x + step, y, zc), xm = usable(x - step, y, zc);
+      const bool yp = usable(x, y + step, zc), ym = usable(x, y - step, zc);
+      if (xp && xm) dx = point(x + step, y) - point(x - step, y);
+      else if (xp) dx = point(x + step, y) - pc;
+      else if (xm) dx = pc - point(x - step, y);
+      else continue;
+      if (yp && ym) dy = point(x, y + step) - point(x, y - step);
+      else if (yp) dy = point(x, y + step) - pc;
+      else if (ym) dy = pc - point(x, y - step);
+      else continue;
+      glm::dvec3 n = glm::cross(dy, dx);
+      const double len = glm::length(n);
+      if (!(len > 0.0) || !std::isfinite(len)) continue;
+      n /= len;
+      if (glm::dot(n, pc) > 0.0) n = -n;  // face the camera
+      normals.at(x, y, 0) = static_cast<float>(n.x);
+      normals.at(x, y, 1) = static_cast<float>(n.y);
+      normals.at(x, y, 2) = static_cast<float>(n.z);
+    }
+  }
+  return normals;
+}
+
+absl::Status CheckDepthUnits(const ImageF& depth_m, double max_median_depth_m) {
+  std::vector<float> v;
+  v.reserve(depth_m.size());
+  for (float z : depth_m.span()) {
+    if (z < 0.f) return absl::InvalidArgumentError("depth has negative values; 0 marks invalid");
+    if (std::isfinite(z) && z > 0.f) v.push_back(z);
+  }
+  if (v.empty()) return absl::OkStatus();
+  auto mid = v.begin() + v.size() / 2;
+  std::nth_element(v.begin(), mid, v.end());
+  if (*mid > max_median_depth_m) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "median depth is ", *mid, " but depth must be in metres (limit ", max_median_depth_m,
+        " m); is it in millimetres? divide by the sensor's depth scale first"));
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace exo::inpaint

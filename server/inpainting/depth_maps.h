@@ -1,0 +1,41 @@
+// Per-pixel geometry helpers for RGB-D inpainting (thesis §4.1.7 "frame pre-processing"):
+// hole pre-fill by push-pull (normalised convolution over a pyramid), normals from z-depth, and
+// the depth-unit sanity check. Every threshold here is relative to depth, so the results are
+// invariant to the unit scale of the scene (a scene 10x larger gives the same normals).
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include "common/camera.h"
+#include "common/image.h"
+#include "common/status.h"
+
+namespace exo::inpaint {
+
+// Fills unknown samples of a float image with `channels` interleaved channels by push-pull:
+// valid-weighted 2x2 averaging down a pyramid, then filling unknowns from the coarser level
+// on the way up. `known[i]` != 0 marks known pixels; they are never changed. Returns false
+// when no pixel is known (nothing can be filled).
+bool PushPullFill(std::vector<float>& data, int channels, const std::vector<uint8_t>& known,
+                  int width, int height);
+
+// Fills invalid depth (0 / non-finite) of pixels where `fill_here` != 0 from the valid depth of
+// pixels where `use_as_data` != 0 (push-pull). Pixels outside `fill_here` keep their value.
+// Returns the number of pixels filled; 0 valid data pixels leaves everything unchanged.
+int PrefillDepth(ImageF& depth_m, const std::vector<uint8_t>& fill_here,
+                 const std::vector<uint8_t>& use_as_data);
+
+// Camera-frame unit normals (3 channels, facing the camera) from z-depth. The depth is first
+// smoothed with a 5x5 valid-weighted filter that ignores neighbours differing by more than
+// `rel_discontinuity` * z (Kinect depth is quantised); the normal is the cross product of
+// central differences at +-`step` px, falling back to one-sided differences across a relative
+// discontinuity. Pixels without a usable neighbourhood get (0,0,0).
+ImageF NormalsFromDepth(const ImageF& depth_m, const PinholeCamera& camera, int step = 2,
+                        float rel_discontinuity = 0.05f);
+
+// Depth-unit check: the median of the valid depth must not exceed `max_median_depth_m`
+// (millimetre depth passed as metres is the usual cause). Negative depth is rejected too.
+absl::Status CheckDepthUnits(const ImageF& depth_m, double max_median_depth_m);
+
+}  // namespace exo::inpaint

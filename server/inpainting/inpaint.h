@@ -1,0 +1,99 @@
+// RGB-D keyframe inpainting (InpaintFusion, thesis chapter 4, SPEC §7): fills a masked region T
+// of an RGB-D keyframe in colour AND depth so that the result stays consistent when the camera
+// moves, and re-uses an earlier keyframe's solution for the next keyframe.
+//
+//   1. depth pre-fill outside T (sensor holes, push-pull), normals from depth (depth_maps.h);
+//   2. coarse-to-fine PatchMatch for the source map f: T -> (image \ T) minimising
+//      w * rho_t * rho_g + (1 - w) * rho_s  (4.7-4.10) with rho_t the mean 5x5 SSD of colour,
+//      rho_g the mean of 1/max(kappa, n . n') over a 3x3 lattice at 2 px spacing of the same
+//      5x5 window, rho_s the capped squared neighbour-offset incoherence;
+//   3. colour and normals copied through f (4.11-4.12);
+//   4. depth from a Poisson solve on the mean bidirectional gradients of the copied depth
+//      samples (4.13-4.16), T's border as Dirichlet boundary (poisson.h). By default the
+//      gradients are taken of inverse depth, which is affine in pixel coordinates on any plane,
+//      so planar surfaces are reproduced exactly; kDepth follows the thesis literally.
+//   5. keyframe propagation (4.3-4.6): the previous keyframe's map initialises the new one
+//      through 3D reprojection; only pixels it leaves unmapped are searched.
+//
+// Determinism: the result depends only on the inputs and `seed`, not on `num_threads`: the
+// sweep runs over fixed row bands in two phases (even bands, then odd bands), each band in
+// raster order, and every random draw comes from a hash of (seed, level, iteration, pixel).
+#pragma once
+
+#include <cstdint>
+
+#include "common/camera.h"
+#include "common/image.h"
+#include "common/rigid3.h"
+#include "common/status.h"
+
+namespace exo::inpaint {
+
+using ImageI32 = Image<int32_t>;
+
+enum class DepthDomain { kInverseDepth, kDepth };
+
+struct InpaintOptions {
+  double w = 0.9;            // texture*geometry vs spatial coherence weight (4.7), in (0, 1]
+  double kappa = 0.1;        // lower bound of n . n' in rho_g (4.10), in (0, 1]
+  bool use_geometry = true;  // false: colour-only PatchMatch (rho_g == 1), the baseline
+  double spatial_cap_px2 = 16.0;  // cap of one neighbour's squared offset incoherence (4.9)
+  int pyramid_levels = 0;         // 0 = automatic (coarsest side >= min_coarse_side)
+  int min_coarse_side = 24;
+  int coarse_iterations = 8;  // sweeps at the coarsest level ...
+  int fine_iterations = 2;    // ... falling linearly to this at full resolution
+  int propagated_iterations = 3;  // sweeps over the unmapped pixels of a propagated keyframe
+  int band_rows = 8;              // rows per band of the deterministic parallel sweep
+  int num_threads = 2;
+  uint64_t seed = 1;
+  DepthDomain depth_domain = DepthDomain::kInverseDepth;
+  double max_median_depth_m = 100.0;  // units check: larger medians are millimetres
+  float normal_rel_discontinuity = 0.05f;
+  double poisson_tolerance = 1e-8;
+  absl::Status Validate() const;
+};
+
+struct RgbdKeyframe {
+  ImageU8 color;    // RGB8
+  ImageF depth_m;   // z-depth in metres, 0 = invalid; registered to colour, same size
+  PinholeCamera camera;
+  Rigid3d world_from_cam;
+};
+
+struct InpaintStats {
+  int target_pixels = 0;
+  int source_pixels = 0;     // valid patch centres at full resolution
+  int prefilled_pixels = 0;  // depth holes outside T filled before the search
+  int propagated_pixels = 0; // pixels of T initialised from the previous keyframe
+  int levels = 0;
+  int poisson_iterations = 0;
+  int neumann_components = 0;
+  int invalid_depth_pixels = 0;  // T pixels whose solved depth came out non-positive
+  double ms_prepare = 0, ms_search = 0, ms_copy = 0, ms_poisson = 0, ms_total = 0;
+};
+
+struct InpaintResult {
+  ImageU8 color;     // RGB8, T filled
+  ImageF depth_m;    // T inpainted, holes outside T pre-filled
+  ImageF normals;    // 3 ch camera-frame unit normals of depth_m
+  ImageI32 source;   // 2 ch: f(u) = (x, y) source pixel for u in T; (-1, -1) elsewhere
+  ImageU8 mask;      // T (1 ch, 255 inside)
+  PinholeCamera camera;
+  Rigid3d world_from_cam;
+  InpaintStats stats;
+};
+
+// Inpaints T (`mask` != 0, 1 channel, size of the frame) of `frame`. With `previous` (an earlier
+// keyframe's result of the same scene, its pose and camera), the source map is initialised by
+// keyframe propagation (4.3-4.6) and only the unmapped pixels are searched.
+// Errors: invalid options or frame, mask of the wrong size, an empty mask, a mask covering the
+// whole frame, no valid source patch, depth that looks like millimetres.
+absl::StatusOr<InpaintResult> InpaintKeyframe(const RgbdKeyframe& frame, const ImageU8& mask,
+                                              const InpaintOptions& options,
+                                              const InpaintResult* previous = nullptr);
+
+// rho_g of 4.10 for `count` normal pairs (3 floats each): mean of 1/max(kappa, a . b). Exposed
+// for tests; opposite or zero normals cost 1/kappa instead of dividing by <= 0.
+float GeometryCost(const float* normals_a, const float* normals_b, int count, float kappa);
+
+}  // namespace exo::inpaint

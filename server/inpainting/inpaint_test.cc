@@ -1,0 +1,348 @@
+#include "server/inpainting/inpaint.h"
+
+#include <cmath>
+
+#include <gtest/gtest.h>
+
+#include "server/inpainting/depth_maps.h"
+#include "server/inpainting/test_scenes.h"
+
+namespace exo::inpaint {
+namespace {
+
+using testing::RectMask;
+using testing::RenderPlanes;
+using testing::SmallCamera;
+using testing::WorldPlane;
+
+// A wall 2 m away, tilted 30 degrees about the vertical axis (world == camera at identity).
+std::vector<WorldPlane> TiltedWall() {
+  const glm::dvec3 n = glm::normalize(glm::dvec3(std::sin(0.5), 0.0, -std::cos(0.5)));
+  return {{n, glm::dot(n, glm::dvec3(0, 0, 2.0)), nullptr}};
+}
+
+InpaintOptions FastOptions() {
+  InpaintOptions o;
+  o.num_threads = 2;
+  return o;
+}
+
+double MeanAbsDepthErrorInMask(const ImageF& a, const ImageF& b, const ImageU8& mask) {
+  double s = 0;
+  int n = 0;
+  for (int y = 0; y < mask.height(); ++y)
+    for (int x = 0; x < mask.width(); ++x)
+      if (mask.at(x, y) && b.at(x, y) > 0.f) {
+        s += std::fabs(a.at(x, y) - b.at(x, y));
+        ++n;
+      }
+  return n ? s / n : 0.0;
+}
+
+TEST(InpaintTest, TiltedPlaneDepthIsExactAndColourIsCopied) {
+  const PinholeCamera cam = SmallCamera();
+  const RgbdKeyframe truth = RenderPlanes(TiltedWall(), cam, Rigid3d::Identity());
+  const ImageU8 mask = RectMask(cam.width, cam.height, 50, 40, 100, 80);
+  auto r = InpaintKeyframe(truth, mask, FastOptions());
+  ASSERT_TRUE(r.ok()) << r.status();
+  // Inverse depth is affine on a plane: the Poisson solve on copied inverse-depth gradients
+  // reproduces the plane (up to float rounding).
+  EXPECT_LT(MeanAbsDepthErrorInMask(r->depth_m, truth.depth_m, mask), 2e-4);
+  for (int y = 40; y < 80; ++y) {
+    for (int x = 50; x < 100; ++x) {
+      const int sx = r->source.at(x, y, 0), sy = r->source.at(x, y, 1);
+      ASSERT_GE(sx, 2);
+      ASSERT_FALSE(mask.at(sx, sy));
+      for (int k = 0; k < 3; ++k) ASSERT_EQ(r->color.at(x, y, k), truth.color.at(sx, sy, k));  // 4.11
+    }
+  }
+  // The literal thesis domain (raw depth gradients copied from elsewhere on the plane) bends the
+  // plane: clearly worse than inverse depth on the same source map.
+  InpaintOptions lit = FastOptions();
+  lit.depth_domain = DepthDomain::kDepth;
+  auto r2 = InpaintKeyframe(truth, mask, lit);
+  ASSERT_TRUE(r2.ok());
+  EXPECT_GT(MeanAbsDepthErrorInMask(r2->depth_m, truth.depth_m, mask),
+            MeanAbsDepthErrorInMask(r->depth_m, truth.depth_m, mask));
+}
+
+// Hard case: mask touching the image border. Guards: the target window is clipped to the image
+// (Cost), and source patches keep their whole 5x5 window inside the image (source_ok).
+TEST(InpaintTest, MaskTouchingTheBorder) {
+  const PinholeCamera cam = SmallCamera();
+  const RgbdKeyframe truth = RenderPlanes(TiltedWall(), cam, Rigid3d::Identity());
+  ImageU8 mask = RectMask(cam.width, cam.height, 0, 0, 40, 30);
+  for (int y = 90; y < 120; ++y)
+    for (int x = 130; x < 160; ++x) mask.at(x, y) = 255;
+  auto r = InpaintKeyframe(truth, mask, FastOptions());
+  ASSERT_TRUE(r.ok()) << r.status();
+  for (int y = 0; y < cam.height; ++y) {
+    for (int x = 0; x < cam.width; ++x) {
+      if (!mask.at(x, y)) continue;
+      const int sx = r->source.at(x, y, 0), sy = r->source.at(x, y, 1);
+      ASSERT_TRUE(sx >= 2 && sy >= 2 && sx < cam.width - 2 && sy < cam.height - 2) << sx << "," << sy;
+      ASSERT_GT(r->depth_m.at(x, y), 0.f);
+      ASSERT_TRUE(std::isfinite(r->depth_m.at(x, y)));
+    }
+  }
+  EXPECT_LT(MeanAbsDepthErrorInMask(r->depth_m, truth.depth_m, mask), 2e-3);
+}
+
+// Hard case: mask covering the whole frame -> clear error, not a crash.
+TEST(InpaintTest, MaskCoveringWholeFrameIsAClearError) {
+  const PinholeCamera cam = SmallCamera(40, 30);
+  const RgbdKeyframe f = RenderPlanes(TiltedWall(), cam, Rigid3d::Identity());
+  auto r = InpaintKeyframe(f, ImageU8(40, 30, 1, 255), FastOptions());
+  ASSERT_FALSE(r.ok());
+  EXPECT_EQ(r.status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_NE(r.status().message().find("whole frame"), std::string::npos);
+  EXPECT_FALSE(InpaintKeyframe(f, ImageU8(40, 30, 1, 0), FastOptions()).ok());  // empty mask
+  EXPECT_FALSE(InpaintKeyframe(f, ImageU8(40, 29, 1, 0), FastOptions()).ok());  // wrong size
+}
+
+// Hard case: no valid source pixels. Guard: the empty source list check (without it the random
+// initialisation indexes an empty list).
+TEST(InpaintTest, NoValidSourceIsAClearError) {
+  const PinholeCamera cam = SmallCamera(40, 30);
+  RgbdKeyframe f = RenderPlanes(TiltedWall(), cam, Rigid3d::Identity());
+  // Everything but a 3-px-wide strip is masked: no 5x5 window fits outside the mask.
+  ImageU8 mask = RectMask(40, 30, 0, 0, 40, 30);
+  for (int y = 0; y < 30; ++y)
+    for (int x = 10; x < 13; ++x) mask.at(x, y) = 0;
+  auto r = InpaintKeyframe(f, mask, FastOptions());
+  ASSERT_FALSE(r.ok());
+  EXPECT_EQ(r.status().code(), absl::StatusCode::kFailedPrecondition);
+  EXPECT_NE(r.status().message().find("no valid source"), std::string::npos);
+  // No valid depth anywhere outside the mask: same clear error.
+  f.depth_m = ImageF(40, 30, 1, 0.f);
+  auto r2 = InpaintKeyframe(f, RectMask(40, 30, 10, 10, 20, 20), FastOptions());
+  ASSERT_FALSE(r2.ok());
+  EXPECT_EQ(r2.status().code(), absl::StatusCode::kFailedPrecondition);
+}
+
+// Hard case: 1-2 px slivers. The texture varies along x only, so a horizontal sliver has an
+// exact answer (the pixel above). Guard: the any-of-2x2 mask pyramid keeps slivers at every
+// level, so their sources come from the coarse-to-fine search rather than a random guess.
+TEST(InpaintTest, OneAndTwoPixelSlivers) {
+  const PinholeCamera cam = SmallCamera();
+  const std::vector<WorldPlane> wall = {{glm::dvec3(0, 0, -1), -2.0, nullptr}};
+  auto stripes = [](const glm::dvec3& p) {
+    const double a = std::sin(40.0 * p.x) + 0.5 * std::sin(97.0 * p.x + 1.0);
+    return glm::dvec3(128 + 80 * a, 128 - 60 * a, 100 + 40 * std::sin(23.0 * p.x));
+  };
+  const RgbdKeyframe truth = RenderPlanes(wall, cam, Rigid3d::Identity(), stripes);
+  ImageU8 mask(cam.width, cam.height, 1, 0);
+  for (int x = 10; x < 150; ++x) mask.at(x, 30) = 255;                 // 1 px, horizontal
+  for (int x = 10; x < 150; ++x) mask.at(x, 70) = mask.at(x, 71) = 255;  // 2 px, horizontal
+  auto r = InpaintKeyframe(truth, mask, FastOptions());
+  ASSERT_TRUE(r.ok()) << r.status();
+  double err = 0;
+  int n = 0;
+  for (int y = 0; y < cam.height; ++y)
+    for (int x = 0; x < cam.width; ++x)
+      if (mask.at(x, y)) {
+        for (int k = 0; k < 3; ++k) err += std::abs(r->color.at(x, y, k) - truth.color.at(x, y, k));
+        n += 3;
+      }
+  EXPECT_LT(err / n, 3.0);
+  EXPECT_LT(MeanAbsDepthErrorInMask(r->depth_m, truth.depth_m, mask), 1e-4);
+}
+
+// Hard case: degenerate normals. Guard: 1/max(kappa, n . n'): opposite, orthogonal and zero
+// normals cost 1/kappa instead of dividing by zero or going negative.
+TEST(InpaintTest, GeometryCostKappaGuard) {
+  const float up[3] = {0, 0, -1}, down[3] = {0, 0, 1}, side[3] = {1, 0, 0}, zero[3] = {0, 0, 0};
+  EXPECT_FLOAT_EQ(GeometryCost(up, up, 1, 0.1f), 1.f);
+  EXPECT_FLOAT_EQ(GeometryCost(up, down, 1, 0.1f), 10.f);
+  EXPECT_FLOAT_EQ(GeometryCost(up, side, 1, 0.1f), 10.f);
+  EXPECT_FLOAT_EQ(GeometryCost(up, zero, 1, 0.25f), 4.f);
+  // Whole pipeline on a scene whose normals degenerate (a plane seen nearly edge-on next to a
+  // fronto-parallel one): everything stays finite.
+  const PinholeCamera cam = SmallCamera();
+  const glm::dvec3 graze = glm::normalize(glm::dvec3(0.999, 0.0, -0.045));
+  const std::vector<WorldPlane> planes = {
+      {glm::dvec3(0, 0, -1), -3.0, nullptr},
+      {graze, glm::dot(graze, glm::dvec3(0, 0, 1.5)), [](const glm::dvec3& p) { return p.z < 2.9; }}};
+  const RgbdKeyframe f = RenderPlanes(planes, cam, Rigid3d::Identity());
+  InpaintOptions o = FastOptions();
+  o.kappa = 0.05;
+  auto r = InpaintKeyframe(f, RectMask(cam.width, cam.height, 60, 40, 100, 80), o);
+  ASSERT_TRUE(r.ok()) << r.status();
+  for (float z : r->depth_m.span()) ASSERT_TRUE(std::isfinite(z));
+  for (float v : r->normals.span()) ASSERT_TRUE(std::isfinite(v));
+}
+
+// The geometry term keeps the search on surfaces whose normals agree: a textured wall above a
+// floor with the same texture, mask inside the wall.
+TEST(InpaintTest, GeometryTermPrefersMatchingNormals) {
+  const PinholeCamera cam = SmallCamera();
+  const glm::dvec3 floor_n = glm::normalize(glm::dvec3(0, -1, -0.15));
+  const std::vector<WorldPlane> planes = {
+      {glm::dvec3(0, 0, -1), -3.0, [](const glm::dvec3& p) { return p.y < 0.05; }},
+      {floor_n, glm::dot(floor_n, glm::dvec3(0, 0.05, 3.0)), nullptr}};
+  auto tex = [](const glm::dvec3& p) {  // same pattern on both planes (x and y+z coordinates)
+    const double u = p.x, v = p.y + p.z;
+    const double a = std::sin(9.0 * u) * std::sin(7.0 * v) + 0.3 * std::sin(31.0 * u + 17.0 * v);
+    return glm::dvec3(128 + 90 * a, 128 - 70 * a, 128 + 50 * std::sin(13.0 * v));
+  };
+  const RgbdKeyframe f = RenderPlanes(planes, cam, Rigid3d::Identity(), tex);
+  const ImageU8 mask = RectMask(cam.width, cam.height, 40, 12, 120, 46);
+  auto frac_on_wall = [&](const InpaintResult& r) {
+    int on = 0, n = 0;
+    for (int y = 12; y < 46; ++y)
+      for (int x = 40; x < 120; ++x) {
+        const int sx = r.source.at(x, y, 0), sy = r.source.at(x, y, 1);
+        on += std::fabs(r.normals.at(sx, sy, 2) + 1.f) < 0.05f;  // wall normal (0,0,-1)
+        ++n;
+      }
+    return static_cast<double>(on) / n;
+  };
+  auto with = InpaintKeyframe(f, mask, FastOptions());
+  ASSERT_TRUE(with.ok());
+  EXPECT_GT(frac_on_wall(*with), 0.97);
+  // The colour-only baseline (rho_g == 1) wanders onto the floor.
+  InpaintOptions colour_only = FastOptions();
+  colour_only.use_geometry = false;
+  auto without = InpaintKeyframe(f, mask, colour_only);
+  ASSERT_TRUE(without.ok());
+  EXPECT_LT(frac_on_wall(*without), 0.5);
+  EXPECT_LT(MeanAbsDepthErrorInMask(with->depth_m, f.depth_m, mask), 5e-3);
+}
+
+// Hard case: depth in mm vs m. Guard 1: the units check (median depth) gives a clear error.
+// Guard 2: every threshold is relative to depth, so the same scene 10x larger (still metres)
+// gives the same source map and 10x the depth. The scene has a 3 % depth step: an absolute
+// discontinuity threshold would treat it differently at the two scales.
+TEST(InpaintTest, DepthUnitsAndScaleInvariance) {
+  const PinholeCamera cam = SmallCamera();
+  const std::vector<WorldPlane> planes = {
+      {glm::dvec3(0, 0, -1), -2.0, [](const glm::dvec3& p) { return p.x < 0.0; }},
+      {glm::dvec3(0, 0, -1), -2.06, nullptr}};
+  const RgbdKeyframe f = RenderPlanes(planes, cam, Rigid3d::Identity());
+  const ImageU8 mask = RectMask(cam.width, cam.height, 60, 40, 100, 80);
+  RgbdKeyframe mm = f;
+  for (float& z : mm.depth_m.span()) z *= 1000.f;
+  auto bad = InpaintKeyframe(mm, mask, FastOptions());
+  ASSERT_FALSE(bad.ok());
+  EXPECT_NE(bad.status().message().find("millimetres"), std::string::npos);
+
+  RgbdKeyframe big = f;
+  for (float& z : big.depth_m.span()) z *= 10.f;
+  auto a = InpaintKeyframe(f, mask, FastOptions());
+  auto b = InpaintKeyframe(big, mask, FastOptions());
+  ASSERT_TRUE(a.ok() && b.ok());
+  EXPECT_TRUE(a->source == b->source);
+  EXPECT_TRUE(a->color == b->color);
+  for (int y = 40; y < 80; ++y)
+    for (int x = 60; x < 100; ++x) ASSERT_NEAR(b->depth_m.at(x, y), 10.f * a->depth_m.at(x, y), 1e-4 * b->depth_m.at(x, y));
+}
+
+// Determinism: same seed -> same output with 1, 2 and 3 threads.
+TEST(InpaintTest, SameOutputWithOneAndTwoThreads) {
+  const PinholeCamera cam = SmallCamera();
+  const RgbdKeyframe f = RenderPlanes(TiltedWall(), cam, Rigid3d::Identity());
+  const ImageU8 mask = RectMask(cam.width, cam.height, 30, 20, 110, 90);
+  InpaintOptions o = FastOptions();
+  o.seed = 1234;
+  o.num_threads = 1;
+  auto a = InpaintKeyframe(f, mask, o);
+  o.num_threads = 2;
+  auto b = InpaintKeyframe(f, mask, o);
+  o.num_threads = 3;
+  auto c = InpaintKeyframe(f, mask, o);
+  ASSERT_TRUE(a.ok() && b.ok() && c.ok());
+  EXPECT_TRUE(a->source == b->source);
+  EXPECT_TRUE(a->color == b->color);
+  EXPECT_TRUE(a->depth_m == b->depth_m);
+  EXPECT_TRUE(a->source == c->source);
+  o.seed = 99;
+  auto d = InpaintKeyframe(f, mask, o);
+  ASSERT_TRUE(d.ok());
+  EXPECT_FALSE(a->source == d->source);  // the seed matters
+}
+
+// Keyframe propagation (4.3-4.6).
+TEST(InpaintTest, PropagationReusesThePreviousMap) {
+  const PinholeCamera cam = SmallCamera();
+  const auto planes = TiltedWall();
+  const RgbdKeyframe f0 = RenderPlanes(planes, cam, Rigid3d::Identity());
+  const ImageU8 mask0 = RectMask(cam.width, cam.height, 50, 40, 100, 80);
+  auto r0 = InpaintKeyframe(f0, mask0, FastOptions());
+  ASSERT_TRUE(r0.ok());
+  // Same pose: every pixel maps to exactly the previous source.
+  auto same = InpaintKeyframe(f0, mask0, FastOptions(), &*r0);
+  ASSERT_TRUE(same.ok());
+  EXPECT_EQ(same->stats.propagated_pixels, same->stats.target_pixels);
+  EXPECT_TRUE(same->source == r0->source);
+
+  // Camera moved 5 cm right: the mask is the same 3D region seen from the new pose.
+  Rigid3d pose1 = Rigid3d::Identity();
+  pose1.translation = glm::dvec3(0.05, 0.0, 0.0);
+  const RgbdKeyframe f1 = RenderPlanes(planes, cam, pose1);
+  ImageU8 mask1(cam.width, cam.height, 1, 0);
+  for (int y = 0; y < cam.height; ++y)
+    for (int x = 0; x < cam.width; ++x) {
+      const glm::dvec3 pw = pose1 * cam.Unproject({x, y}, f1.depth_m.at(x, y));
+      glm::dvec2 uv;
+      if (cam.Project(pw, &uv) && cam.InImage(uv) && mask0.at(std::lround(uv.x), std::lround(uv.y)))
+        mask1.at(x, y) = 255;
+    }
+  auto r1 = InpaintKeyframe(f1, mask1, FastOptions(), &*r0);
+  ASSERT_TRUE(r1.ok()) << r1.status();
+  EXPECT_GT(r1->stats.propagated_pixels, 0.9 * r1->stats.target_pixels);
+  EXPECT_LT(MeanAbsDepthErrorInMask(r1->depth_m, f1.depth_m, mask1), 2e-3);
+  // Consistency: a propagated pixel's source is the previous source's 3D point seen in frame 1.
+  int checked = 0;
+  for (int y = 0; y < cam.height; y += 3)
+    for (int x = 0; x < cam.width; x += 3) {
+      if (!mask1.at(x, y)) continue;
+      const glm::dvec3 pw = pose1 * cam.Unproject({x, y}, f1.depth_m.at(x, y));
+      glm::dvec2 uv0;
+      ASSERT_TRUE(cam.Project(pw, &uv0));
+      const int u0x = std::lround(uv0.x), u0y = std::lround(uv0.y);
+      if (!mask0.at(u0x, u0y)) continue;
+      const int s0x = r0->source.at(u0x, u0y, 0), s0y = r0->source.at(u0x, u0y, 1);
+      const glm::dvec3 ps = cam.Unproject({s0x, s0y}, f0.depth_m.at(s0x, s0y));
+      glm::dvec2 uvs;
+      ASSERT_TRUE(cam.Project(pose1.Inverse() * ps, &uvs));
+      // Sources that leave the image (or fall into T) in frame 1 are searched afresh.
+      if (!cam.InImage(uvs, 3.0) || mask1.at(std::lround(uvs.x), std::lround(uvs.y))) continue;
+      EXPECT_NEAR(r1->source.at(x, y, 0), uvs.x, 1.51);
+      EXPECT_NEAR(r1->source.at(x, y, 1), uvs.y, 1.51);
+      ++checked;
+    }
+  EXPECT_GT(checked, 50);
+}
+
+TEST(InpaintTest, OptionsValidate) {
+  InpaintOptions o;
+  EXPECT_TRUE(o.Validate().ok());
+  o.kappa = 0.0;
+  EXPECT_FALSE(o.Validate().ok());
+  o = InpaintOptions{};
+  o.w = 1.5;
+  EXPECT_FALSE(o.Validate().ok());
+  o = InpaintOptions{};
+  o.num_threads = 0;
+  EXPECT_FALSE(o.Validate().ok());
+}
+
+TEST(DepthMapsTest, PushPullFillsHolesAndNormalsFacePlane) {
+  const PinholeCamera cam = SmallCamera(80, 60);
+  RgbdKeyframe f = RenderPlanes(TiltedWall(), cam, Rigid3d::Identity());
+  const ImageF truth = f.depth_m;
+  for (int y = 20; y < 30; ++y)
+    for (int x = 20; x < 30; ++x) f.depth_m.at(x, y) = 0.f;
+  std::vector<uint8_t> all(80 * 60, 1);
+  EXPECT_EQ(PrefillDepth(f.depth_m, all, all), 100);
+  for (int y = 20; y < 30; ++y)
+    for (int x = 20; x < 30; ++x) EXPECT_NEAR(f.depth_m.at(x, y), truth.at(x, y), 0.1);  // push-pull is smooth, not planar
+  const ImageF n = NormalsFromDepth(truth, cam);
+  const glm::dvec3 expect = glm::normalize(glm::dvec3(std::sin(0.5), 0.0, -std::cos(0.5)));
+  for (int y = 5; y < 55; y += 5)
+    for (int x = 5; x < 75; x += 5)
+      EXPECT_GT(n.at(x, y, 0) * expect.x + n.at(x, y, 1) * expect.y + n.at(x, y, 2) * expect.z, 0.999);
+}
+
+}  // namespace
+}  // namespace exo::inpaint

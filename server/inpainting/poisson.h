@@ -1,0 +1,53 @@
+// Gradient-domain (Poisson) reconstruction of a scalar field inside a region, used for the
+// inpainted depth (thesis eqs. 4.13-4.16): the unknowns are the pixels of the region R; every
+// 4-neighbour pair with at least one end in R contributes (x_p - x_q - g_pq)^2; a neighbour
+// outside R with a known value is a Dirichlet boundary, a neighbour outside R without one (or
+// outside the image) is a natural (Neumann) boundary. A connected part of R that touches no
+// known value is pure Neumann: its solution is fixed up to a constant, which the gauge sets
+// (the mean over that part equals the mean of `gauge`). Solved with Eigen's conjugate
+// gradient and an incomplete-Cholesky preconditioner (a sparse direct LDL^T is the fallback).
+#pragma once
+
+#include <cstdint>
+
+#include "common/image.h"
+#include "common/status.h"
+
+namespace exo::inpaint {
+
+struct PoissonOptions {
+  double tolerance = 1e-10;  // relative residual of the conjugate gradient
+  int max_iterations = 2000;
+  absl::Status Validate() const;
+};
+
+struct PoissonStats {
+  int unknowns = 0;
+  int components = 0;
+  int neumann_components = 0;  // parts with no Dirichlet boundary (gauge applied)
+  int iterations = 0;
+  double residual = 0.0;
+  bool used_direct_solver = false;
+};
+
+struct PoissonProblem {
+  const ImageU8* region = nullptr;  // 1 ch, != 0 inside R
+  // Known values outside R (NaN = unknown). Size of `region`, 1 channel.
+  const ImageF* values = nullptr;
+  // gx(x, y): target for x(x, y) - x(x + 1, y); gy(x, y): target for x(x, y) - x(x, y + 1).
+  // NaN = no constraint on that pair.
+  const ImageF* gx = nullptr;
+  const ImageF* gy = nullptr;
+  // Per-pixel values whose mean over a pure-Neumann component sets its constant (NaN = not
+  // used). May be null when every component has a Dirichlet boundary.
+  const ImageF* gauge = nullptr;
+  // Optional initial guess inside R (NaN = none).
+  const ImageF* initial = nullptr;
+};
+
+// Returns `values` with R replaced by the solution. Errors: mismatched sizes, a pure-Neumann
+// component without gauge values, solver failure.
+absl::StatusOr<ImageF> SolvePoisson(const PoissonProblem& problem, const PoissonOptions& options,
+                                    PoissonStats* stats = nullptr);
+
+}  // namespace exo::inpaint
