@@ -1,0 +1,135 @@
+#include "server/geometry/cell_areas.h"
+
+#include <cmath>
+
+#include "common/status.h"
+
+namespace exo {
+namespace {
+
+using Polygon = std::vector<glm::dvec3>;
+
+double PolygonArea(const Polygon& p) {
+  glm::dvec3 acc(0.0);
+  for (size_t i = 1; i + 1 < p.size(); ++i) acc += glm::cross(p[i] - p[0], p[i + 1] - p[0]);
+  return 0.5 * glm::length(acc);
+}
+
+// Splits `poly` at the plane coord[axis] = c into the part below and the part above.
+void Split(const Polygon& poly, int axis, double c, Polygon* below, Polygon* above) {
+  below->clear();
+  above->clear();
+  const size_t n = poly.size();
+  for (size_t i = 0; i < n; ++i) {
+    const glm::dvec3& a = poly[i];
+    const glm::dvec3& b = poly[(i + 1) % n];
+    const double da = a[axis] - c, db = b[axis] - c;
+    if (da <= 0) below->push_back(a);
+    if (da >= 0) above->push_back(a);
+    if ((da < 0 && db > 0) || (da > 0 && db < 0)) {
+      const glm::dvec3 x = a + (b - a) * (da / (da - db));
+      below->push_back(x);
+      above->push_back(x);
+    }
+  }
+}
+
+// Recursively clips along axes 0, 1, 2 and accumulates piece areas per cell.
+void ClipInto(const Polygon& poly, int axis, const CellGrid& grid,
+              absl::flat_hash_map<CellId, double>* out) {
+  if (poly.size() < 3) return;
+  if (axis == 3) {
+    glm::dvec3 c(0.0);
+    for (const auto& p : poly) c += p;
+    c /= double(poly.size());
+    const double a = PolygonArea(poly);
+    if (a > 0) (*out)[grid.IdOf(c)] += a;
+    return;
+  }
+  const double q = grid.cell_size_m;
+  double lo = poly[0][axis], hi = lo;
+  for (const auto& p : poly) lo = std::min(lo, p[axis]), hi = std::max(hi, p[axis]);
+  const int64_t k0 = int64_t(std::floor(lo / q)), k1 = int64_t(std::floor(hi / q));
+  if (k0 == k1) {
+    ClipInto(poly, axis + 1, grid, out);
+    return;
+  }
+  Polygon rest = poly, below, above;
+  for (int64_t k = k0 + 1; k <= k1 && rest.size() >= 3; ++k) {
+    Split(rest, axis, double(k) * q, &below, &above);
+    ClipInto(below, axis + 1, grid, out);
+    rest.swap(above);
+  }
+  ClipInto(rest, axis + 1, grid, out);
+}
+
+}  // namespace
+
+CellAreas::CellAreas(const CellGrid& grid) : grid_(grid) { EXO_CHECK(grid.cell_size_m > 0); }
+
+absl::flat_hash_map<CellId, double> CellAreas::AreaPerCell(const TriangleMesh& mesh,
+                                                           const CellGrid& grid) {
+  absl::flat_hash_map<CellId, double> out;
+  Polygon tri(3);
+  for (size_t t = 0; t + 2 < mesh.indices.size(); t += 3) {
+    for (int j = 0; j < 3; ++j) tri[j] = glm::dvec3(mesh.positions[mesh.indices[t + j]]);
+    // Fast path: the whole triangle in one cell (the usual case when cells >> voxels).
+    const CellId c0 = grid.IdOf(tri[0]);
+    if (grid.IdOf(tri[1]) == c0 && grid.IdOf(tri[2]) == c0) {
+      const double a = 0.5 * glm::length(glm::cross(tri[1] - tri[0], tri[2] - tri[0]));
+      if (a > 0) out[c0] += a;
+      continue;
+    }
+    ClipInto(tri, 0, grid, &out);
+  }
+  return out;
+}
+
+void CellAreas::Apply(const absl::flat_hash_map<CellId, double>& contrib, double sign) {
+  for (const auto& [cell, a] : contrib) {
+    changed_.insert(cell);
+    int& n = chunk_count_[cell];
+    n += sign > 0 ? 1 : -1;
+    if (n <= 0) {
+      // Last contributor gone: erase instead of keeping a rounding residue.
+      chunk_count_.erase(cell);
+      area_.erase(cell);
+    } else {
+      area_[cell] += sign * a;
+    }
+  }
+}
+
+void CellAreas::UpdateChunk(const MeshChunk& chunk) {
+  RemoveChunk(chunk.id);
+  auto contrib = AreaPerCell(chunk.mesh, grid_);
+  if (contrib.empty()) return;
+  Apply(contrib, +1.0);
+  per_chunk_[chunk.id] = std::move(contrib);
+}
+
+void CellAreas::RemoveChunk(uint64_t chunk_id) {
+  auto it = per_chunk_.find(chunk_id);
+  if (it == per_chunk_.end()) return;
+  Apply(it->second, -1.0);
+  per_chunk_.erase(it);
+}
+
+double CellAreas::Area(CellId cell) const {
+  auto it = area_.find(cell);
+  return it == area_.end() ? 0.0 : std::max(0.0, it->second);
+}
+
+double CellAreas::TotalArea() const {
+  double s = 0;
+  for (const auto& [c, a] : area_) s += a;
+  return s;
+}
+
+std::vector<CellId> CellAreas::TakeChangedCells() {
+  std::vector<CellId> out(changed_.begin(), changed_.end());
+  changed_.clear();
+  return out;
+}
+
+}  // namespace exo
