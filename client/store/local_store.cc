@@ -1,0 +1,104 @@
+#include "client/store/local_store.h"
+
+#include <utility>
+
+namespace exo {
+
+absl::Status LocalStore::ApplyKind(const v1::Delta& d, LumigraphModel* model,
+                                   std::map<ViewId, ViewDigestRecord>* views,
+                                   std::map<uint64_t, ChunkDigestRecord>* chunks) {
+  switch (d.kind_case()) {
+    case v1::Delta::kSceneParams: {
+      const auto& s = d.scene_params();
+      model->origin.origin_in_world = {s.origin_in_world().x(), s.origin_in_world().y(),
+                                       s.origin_in_world().z()};
+      if (!(s.cell_size_m() > 0.0)) return absl::InvalidArgumentError("scene cell size <= 0");
+      model->grid.cell_size_m = s.cell_size_m();
+      return absl::OkStatus();
+    }
+    case v1::Delta::kViewAdded: {
+      EXO_ASSIGN_OR_RETURN(StoredView v, ViewFromProto(d.view_added()));
+      (*views)[v.id] = DigestRecordFromProto(d.view_added());
+      model->views[v.id] = std::move(v);
+      return absl::OkStatus();
+    }
+    case v1::Delta::kViewUpdated: {
+      const auto& u = d.view_updated();
+      auto it = model->views.find(u.view_id());
+      if (it == model->views.end())
+        return absl::FailedPreconditionError(absl::StrCat("update of unknown view ", u.view_id()));
+      EXO_ASSIGN_OR_RETURN(it->second.local_from_cam, PoseFromProto(u.local_from_cam()));
+      it->second.exposure = u.exposure();
+      auto& r = (*views)[u.view_id()];
+      r.local_from_cam = it->second.local_from_cam;
+      r.exposure = u.exposure();
+      return absl::OkStatus();
+    }
+    case v1::Delta::kViewRemoved:
+      if (model->views.erase(d.view_removed().view_id()) == 0)
+        return absl::FailedPreconditionError(
+            absl::StrCat("removal of unknown view ", d.view_removed().view_id()));
+      views->erase(d.view_removed().view_id());
+      return absl::OkStatus();
+    case v1::Delta::kCellRefsChanged:
+      for (const auto& c : d.cell_refs_changed().cells()) {
+        if (c.view_ids().empty())
+          model->cell_refs.erase(c.cell_id());
+        else
+          model->cell_refs[c.cell_id()].assign(c.view_ids().begin(), c.view_ids().end());
+      }
+      return absl::OkStatus();
+    case v1::Delta::kMeshChunkUpserted: {
+      const auto& m = d.mesh_chunk_upserted();
+      EXO_ASSIGN_OR_RETURN(TriangleMesh mesh, MeshFromProto(m));
+      (*chunks)[m.chunk_id()] = {m.chunk_version(), MeshHash(mesh)};
+      MeshChunk& c = model->chunks[m.chunk_id()];
+      c.id = m.chunk_id();
+      c.version = m.chunk_version();
+      c.mesh = std::move(mesh);
+      return absl::OkStatus();
+    }
+    case v1::Delta::kMeshChunkRemoved:
+      if (model->chunks.erase(d.mesh_chunk_removed().chunk_id()) == 0)
+        return absl::FailedPreconditionError("removal of unknown mesh chunk");
+      chunks->erase(d.mesh_chunk_removed().chunk_id());
+      return absl::OkStatus();
+    default:
+      return absl::InvalidArgumentError("delta has no payload");
+  }
+}
+
+absl::Status LocalStore::Apply(const v1::Delta& d) {
+  if (d.has_snapshot_begin()) {
+    in_snapshot_ = true;
+    pending_ = LumigraphModel{};
+    pending_views_.clear();
+    pending_chunks_.clear();
+    return absl::OkStatus();
+  }
+  if (d.has_snapshot_end()) {
+    if (!in_snapshot_) return absl::FailedPreconditionError("snapshot end without begin");
+    in_snapshot_ = false;
+    pending_.version = d.version();
+    model_ = std::move(pending_);
+    view_records_ = std::move(pending_views_);
+    chunk_records_ = std::move(pending_chunks_);
+    pending_ = LumigraphModel{};
+    ++snapshots_applied_;
+    return absl::OkStatus();
+  }
+  if (in_snapshot_) return ApplyKind(d, &pending_, &pending_views_, &pending_chunks_);
+  if (d.version() != model_.version + 1)
+    return absl::FailedPreconditionError(absl::StrCat(
+        "delta version ", d.version(), " does not follow the local version ", model_.version));
+  EXO_RETURN_IF_ERROR(ApplyKind(d, &model_, &view_records_, &chunk_records_));
+  model_.version = d.version();
+  ++deltas_applied_;
+  return absl::OkStatus();
+}
+
+uint64_t LocalStore::Digest() const {
+  return ModelDigest(view_records_, model_.cell_refs, chunk_records_);
+}
+
+}  // namespace exo

@@ -1,0 +1,280 @@
+#include "server/service/frame_proto.h"
+
+#include <cmath>
+#include <cstring>
+
+#include "common/io/depth_codec.h"
+#include "common/io/jpeg.h"
+
+namespace exo {
+
+void PoseToProto(const Rigid3d& pose, v1::Pose* out) {
+  auto* q = out->mutable_quaternion();
+  q->set_w(pose.rotation.w);
+  q->set_x(pose.rotation.x);
+  q->set_y(pose.rotation.y);
+  q->set_z(pose.rotation.z);
+  auto* t = out->mutable_translation();
+  t->set_x(pose.translation.x);
+  t->set_y(pose.translation.y);
+  t->set_z(pose.translation.z);
+}
+
+absl::StatusOr<Rigid3d> PoseFromProto(const v1::Pose& pose) {
+  Rigid3d out;
+  switch (pose.rotation_case()) {
+    case v1::Pose::kQuaternion: {
+      const auto& q = pose.quaternion();
+      const glm::dquat quat(q.w(), q.x(), q.y(), q.z());
+      EXO_RETURN_IF_ERROR(ValidateQuaternion(quat));
+      // Exactly as sent (already unit within tolerance): keeps client/server bit-identical.
+      out.rotation = quat;
+      break;
+    }
+    case v1::Pose::kMatrix: {
+      const auto& m = pose.matrix();
+      if (m.row_major_size() != 9)
+        return absl::InvalidArgumentError(
+            absl::StrCat("rotation matrix has ", m.row_major_size(), " values, expected 9"));
+      std::array<double, 9> r;
+      for (int i = 0; i < 9; ++i) r[i] = m.row_major(i);
+      EXO_RETURN_IF_ERROR(ValidateRotation(r));
+      glm::dmat3 rm;
+      for (int row = 0; row < 3; ++row)
+        for (int col = 0; col < 3; ++col) rm[col][row] = r[row * 3 + col];
+      out.rotation = glm::normalize(glm::quat_cast(rm));
+      break;
+    }
+    default:
+      return absl::InvalidArgumentError("pose has no rotation (quaternion or matrix)");
+  }
+  const auto& t = pose.translation();
+  out.translation = {t.x(), t.y(), t.z()};
+  if (!std::isfinite(t.x()) || !std::isfinite(t.y()) || !std::isfinite(t.z()))
+    return absl::InvalidArgumentError("pose translation has NaN or Inf");
+  return out;
+}
+
+void IntrinsicsToProto(const PinholeCamera& c, v1::Intrinsics* out) {
+  out->set_fx(c.fx);
+  out->set_fy(c.fy);
+  out->set_cx(c.cx);
+  out->set_cy(c.cy);
+  out->set_width(c.width);
+  out->set_height(c.height);
+}
+
+absl::StatusOr<PinholeCamera> IntrinsicsFromProto(const v1::Intrinsics& in) {
+  PinholeCamera c;
+  c.fx = in.fx();
+  c.fy = in.fy();
+  c.cx = in.cx();
+  c.cy = in.cy();
+  c.width = in.width();
+  c.height = in.height();
+  EXO_RETURN_IF_ERROR(c.Validate());
+  return c;
+}
+
+void DepthToProto(const ImageF& depth_m, double metres_per_unit, v1::DepthImage* out) {
+  const ImageU16 raw = DepthU16FromMeters(depth_m, metres_per_unit);
+  const std::vector<uint8_t> bytes = EncodeDepth(raw);
+  out->set_codec(v1::DEPTH_CODEC_EXO_U16);
+  out->set_data(bytes.data(), bytes.size());
+  out->set_width(raw.width());
+  out->set_height(raw.height());
+  out->set_depth_scale_m(metres_per_unit);
+}
+
+absl::StatusOr<ImageF> DepthFromProto(const v1::DepthImage& d) {
+  if (!(d.depth_scale_m() > 0.0) || !std::isfinite(d.depth_scale_m()))
+    return absl::InvalidArgumentError(
+        absl::StrCat("depth scale must be a positive number of metres per unit, got ",
+                     d.depth_scale_m()));
+  if (d.width() <= 0 || d.height() <= 0)
+    return absl::InvalidArgumentError(
+        absl::StrCat("depth image size ", d.width(), "x", d.height(), " is empty"));
+  ImageU16 raw;
+  switch (d.codec()) {
+    case v1::DEPTH_CODEC_RAW_U16: {
+      const size_t n = static_cast<size_t>(d.width()) * d.height();
+      if (d.data().size() != n * 2)
+        return absl::InvalidArgumentError(absl::StrCat(
+            "raw depth has ", d.data().size(), " bytes, ", d.width(), "x", d.height(),
+            " needs ", n * 2));
+      raw = ImageU16(d.width(), d.height());
+      std::memcpy(raw.data(), d.data().data(), n * 2);  // little-endian host
+      break;
+    }
+    case v1::DEPTH_CODEC_EXO_U16: {
+      auto decoded = DecodeDepth(std::span<const uint8_t>(
+          reinterpret_cast<const uint8_t*>(d.data().data()), d.data().size()));
+      if (!decoded.ok())
+        return absl::InvalidArgumentError(
+            absl::StrCat("depth does not decode: ", decoded.status().message()));
+      raw = *std::move(decoded);
+      if (raw.width() != d.width() || raw.height() != d.height())
+        return absl::InvalidArgumentError(
+            absl::StrCat("depth decodes to ", raw.width(), "x", raw.height(),
+                         " but the message says ", d.width(), "x", d.height()));
+      break;
+    }
+    default:
+      return absl::InvalidArgumentError(
+          absl::StrCat("unknown depth codec ", static_cast<int>(d.codec())));
+  }
+  return DepthMetersFromU16(raw, d.depth_scale_m());
+}
+
+absl::Status FrameEncodeOptions::Validate() const {
+  if (jpeg_quality < 1 || jpeg_quality > 100)
+    return absl::InvalidArgumentError("jpeg_quality must be in [1, 100]");
+  if (!(depth_metres_per_unit > 0.0))
+    return absl::InvalidArgumentError("depth_metres_per_unit must be > 0");
+  return absl::OkStatus();
+}
+
+absl::StatusOr<v1::Frame> FrameToProto(const Frame& f, const FrameEncodeOptions& options) {
+  EXO_RETURN_IF_ERROR(options.Validate());
+  v1::Frame msg;
+  msg.set_sequence(f.sequence);
+  msg.set_timestamp_s(f.timestamp_s);
+  EXO_ASSIGN_OR_RETURN(std::vector<uint8_t> jpeg, EncodeJpeg(f.color, options.jpeg_quality));
+  msg.set_color_jpeg(jpeg.data(), jpeg.size());
+  if (!f.depth_m.empty()) DepthToProto(f.depth_m, options.depth_metres_per_unit, msg.mutable_depth());
+  IntrinsicsToProto(f.color_camera, msg.mutable_color_intrinsics());
+  const bool registered = f.depth_camera.fx == f.color_camera.fx &&
+                          f.depth_camera.fy == f.color_camera.fy &&
+                          f.depth_camera.cx == f.color_camera.cx &&
+                          f.depth_camera.cy == f.color_camera.cy &&
+                          f.depth_camera.width == f.color_camera.width &&
+                          f.depth_camera.height == f.color_camera.height;
+  if (!registered) {
+    IntrinsicsToProto(f.depth_camera, msg.mutable_depth_intrinsics());
+    PoseToProto(f.color_from_depth, msg.mutable_color_from_depth());
+  }
+  PoseToProto(f.world_from_cam, msg.mutable_world_from_cam());
+  if (f.exposure) msg.set_exposure(*f.exposure);
+  return msg;
+}
+
+absl::StatusOr<Frame> FrameFromProto(const v1::Frame& msg, const FrameDecodeOptions& options) {
+  Frame f;
+  f.sequence = msg.sequence();
+  f.timestamp_s = msg.timestamp_s();
+  if (!std::isfinite(msg.timestamp_s()))
+    return absl::InvalidArgumentError("timestamp is NaN or Inf");
+  if (!msg.has_color_intrinsics())
+    return absl::InvalidArgumentError("missing intrinsics: the frame has no color_intrinsics");
+  {
+    auto cam = IntrinsicsFromProto(msg.color_intrinsics());
+    if (!cam.ok())
+      return absl::InvalidArgumentError(absl::StrCat("colour intrinsics: ", cam.status().message()));
+    f.color_camera = *cam;
+  }
+  if (static_cast<int64_t>(f.color_camera.width) * f.color_camera.height > options.max_pixels)
+    return absl::InvalidArgumentError(absl::StrCat("colour image ", f.color_camera.width, "x",
+                                                   f.color_camera.height, " exceeds ",
+                                                   options.max_pixels, " pixels"));
+  f.depth_camera = f.color_camera;
+  if (msg.has_depth_intrinsics()) {
+    auto cam = IntrinsicsFromProto(msg.depth_intrinsics());
+    if (!cam.ok())
+      return absl::InvalidArgumentError(absl::StrCat("depth intrinsics: ", cam.status().message()));
+    f.depth_camera = *cam;
+  }
+  if (msg.has_color_from_depth()) {
+    auto p = PoseFromProto(msg.color_from_depth());
+    if (!p.ok())
+      return absl::InvalidArgumentError(
+          absl::StrCat("depth-to-colour extrinsic: ", p.status().message()));
+    f.color_from_depth = *p;
+  }
+  if (msg.has_world_from_cam()) {
+    auto p = PoseFromProto(msg.world_from_cam());
+    if (!p.ok()) return absl::InvalidArgumentError(absl::StrCat("pose: ", p.status().message()));
+    f.world_from_cam = *p;
+  } else if (options.pose_required) {
+    return absl::InvalidArgumentError("missing pose: the frame has no world_from_cam");
+  }
+  if (msg.has_exposure()) {
+    if (!std::isfinite(msg.exposure()) || msg.exposure() <= 0.0)
+      return absl::InvalidArgumentError(
+          absl::StrCat("exposure must be finite and > 0, got ", msg.exposure()));
+    f.exposure = msg.exposure();
+  }
+  // Colour: header first (cheap size check), then the full decode.
+  const std::span<const uint8_t> jpeg(reinterpret_cast<const uint8_t*>(msg.color_jpeg().data()),
+                                      msg.color_jpeg().size());
+  if (jpeg.empty()) return absl::InvalidArgumentError("colour JPEG is empty");
+  {
+    auto info = ReadJpegInfo(jpeg);
+    if (!info.ok())
+      return absl::InvalidArgumentError(
+          absl::StrCat("corrupt colour JPEG: ", info.status().message()));
+    if (info->width != f.color_camera.width || info->height != f.color_camera.height)
+      return absl::InvalidArgumentError(absl::StrCat(
+          "colour JPEG is ", info->width, "x", info->height, " but intrinsics say ",
+          f.color_camera.width, "x", f.color_camera.height));
+  }
+  {
+    auto rgb = DecodeJpeg(jpeg);
+    if (!rgb.ok())
+      return absl::InvalidArgumentError(
+          absl::StrCat("corrupt colour JPEG: ", rgb.status().message()));
+    f.color = *std::move(rgb);
+  }
+  if (msg.has_depth()) {
+    const auto& d = msg.depth();
+    if (d.width() != f.depth_camera.width || d.height() != f.depth_camera.height)
+      return absl::InvalidArgumentError(absl::StrCat(
+          "depth image is ", d.width(), "x", d.height(), " but depth intrinsics say ",
+          f.depth_camera.width, "x", f.depth_camera.height));
+    auto depth = DepthFromProto(d);
+    if (!depth.ok()) return depth.status();
+    f.depth_m = *std::move(depth);
+  }
+  EXO_RETURN_IF_ERROR(f.Validate());
+  return f;
+}
+
+void MeshToProto(const TriangleMesh& mesh, v1::MeshChunkUpserted* out) {
+  out->mutable_positions()->Reserve(static_cast<int>(mesh.positions.size() * 3));
+  for (const auto& p : mesh.positions) {
+    out->add_positions(p.x);
+    out->add_positions(p.y);
+    out->add_positions(p.z);
+  }
+  for (const auto& n : mesh.normals) {
+    out->add_normals(n.x);
+    out->add_normals(n.y);
+    out->add_normals(n.z);
+  }
+  out->mutable_indices()->Add(mesh.indices.begin(), mesh.indices.end());
+}
+
+absl::StatusOr<TriangleMesh> MeshFromProto(const v1::MeshChunkUpserted& msg) {
+  if (msg.positions_size() % 3 != 0)
+    return absl::InvalidArgumentError("mesh positions are not xyz triples");
+  if (msg.normals_size() != 0 && msg.normals_size() != msg.positions_size())
+    return absl::InvalidArgumentError("mesh normals do not match positions");
+  if (msg.indices_size() % 3 != 0)
+    return absl::InvalidArgumentError("mesh indices are not triangles");
+  TriangleMesh m;
+  const int nv = msg.positions_size() / 3;
+  m.positions.resize(nv);
+  for (int i = 0; i < nv; ++i)
+    m.positions[i] = {msg.positions(3 * i), msg.positions(3 * i + 1), msg.positions(3 * i + 2)};
+  if (msg.normals_size() != 0) {
+    m.normals.resize(nv);
+    for (int i = 0; i < nv; ++i)
+      m.normals[i] = {msg.normals(3 * i), msg.normals(3 * i + 1), msg.normals(3 * i + 2)};
+  }
+  m.indices.assign(msg.indices().begin(), msg.indices().end());
+  for (uint32_t idx : m.indices)
+    if (idx >= static_cast<uint32_t>(nv))
+      return absl::InvalidArgumentError(absl::StrCat("mesh index ", idx, " >= ", nv, " vertices"));
+  return m;
+}
+
+}  // namespace exo

@@ -1,0 +1,52 @@
+// Conversion between the exoview.v1 wire messages and the domain types (exo::Frame, poses,
+// intrinsics, meshes), with the ingest validation of SPEC §12: every bad field becomes a clear
+// absl::Status (InvalidArgument) that the server puts on the frame's ack. No gRPC here, only the
+// generated protobuf messages; both the server and the clients link this (`exoview_wire`).
+#pragma once
+
+#include <cstdint>
+
+#include "common/camera.h"
+#include "common/frame.h"
+#include "common/image.h"
+#include "common/mesh.h"
+#include "common/rigid3.h"
+#include "common/status.h"
+#include "proto/exoview.pb.h"
+
+namespace exo {
+
+namespace v1 = ::exoview::v1;
+
+// Pose: the quaternion or the 3x3 matrix is validated (finite, unit / orthonormal, det +1).
+void PoseToProto(const Rigid3d& pose, v1::Pose* out);
+absl::StatusOr<Rigid3d> PoseFromProto(const v1::Pose& pose);
+
+void IntrinsicsToProto(const PinholeCamera& camera, v1::Intrinsics* out);
+// "missing intrinsics" (all zero / absent message) and invalid values are errors.
+absl::StatusOr<PinholeCamera> IntrinsicsFromProto(const v1::Intrinsics& intrinsics);
+
+// Depth: encodes metres as u16 with `metres_per_unit` using the lossless common/io codec.
+void DepthToProto(const ImageF& depth_m, double metres_per_unit, v1::DepthImage* out);
+absl::StatusOr<ImageF> DepthFromProto(const v1::DepthImage& depth);
+
+// Frame for upload: colour re-encoded as JPEG of `jpeg_quality`, depth losslessly as u16.
+struct FrameEncodeOptions {
+  int jpeg_quality = 90;
+  double depth_metres_per_unit = 0.001;
+  absl::Status Validate() const;
+};
+absl::StatusOr<v1::Frame> FrameToProto(const Frame& frame, const FrameEncodeOptions& options);
+
+// Full ingest decode + validation of one uploaded frame. `pose_required` = false when the
+// server has a UDP pose stream (the pose may then be absent and is filled in by the caller).
+struct FrameDecodeOptions {
+  bool pose_required = true;
+  int64_t max_pixels = int64_t{1} << 24;  // 16 Mpix per image
+};
+absl::StatusOr<Frame> FrameFromProto(const v1::Frame& msg, const FrameDecodeOptions& options);
+
+void MeshToProto(const TriangleMesh& mesh, v1::MeshChunkUpserted* out);
+absl::StatusOr<TriangleMesh> MeshFromProto(const v1::MeshChunkUpserted& msg);
+
+}  // namespace exo

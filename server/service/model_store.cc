@@ -1,0 +1,281 @@
+#include "server/service/model_store.h"
+
+#include <chrono>
+
+namespace exo {
+
+absl::Status ModelStoreOptions::Validate() const {
+  if (max_log_deltas < 1) return absl::InvalidArgumentError("max_log_deltas must be >= 1");
+  if (max_log_bytes < 1) return absl::InvalidArgumentError("max_log_bytes must be >= 1");
+  if (max_subscriber_lag < 1) return absl::InvalidArgumentError("max_subscriber_lag must be >= 1");
+  return absl::OkStatus();
+}
+
+ModelStore::ModelStore(const ModelStoreOptions& options) : options_(options) {
+  EXO_CHECK(options_.Validate().ok());
+}
+
+ModelStore::~ModelStore() { CloseAll(); }
+
+uint64_t ModelStore::CommitLocked(v1::Delta delta) {
+  delta.set_version(++version_);
+  auto ptr = std::make_shared<const v1::Delta>(std::move(delta));
+  log_bytes_ += ptr->ByteSizeLong();
+  log_.push_back(std::move(ptr));
+  // Compaction: the model is the snapshot, so the oldest deltas can simply go.
+  while (log_.size() > options_.max_log_deltas ||
+         (log_.size() > 1 && log_bytes_ > options_.max_log_bytes)) {
+    log_bytes_ -= log_.front()->ByteSizeLong();
+    log_.pop_front();
+  }
+  cv_.notify_all();
+  return version_;
+}
+
+uint64_t ModelStore::SetSceneParams(const LocalOrigin& origin, double cell_size_m) {
+  std::lock_guard lock(mu_);
+  scene_.mutable_origin_in_world()->set_x(origin.origin_in_world.x);
+  scene_.mutable_origin_in_world()->set_y(origin.origin_in_world.y);
+  scene_.mutable_origin_in_world()->set_z(origin.origin_in_world.z);
+  scene_.set_cell_size_m(cell_size_m);
+  has_scene_ = true;
+  v1::Delta d;
+  *d.mutable_scene_params() = scene_;
+  return CommitLocked(std::move(d));
+}
+
+uint64_t ModelStore::AddView(v1::ViewAdded view) {
+  std::lock_guard lock(mu_);
+  const ViewId id = view.view_id();
+  if (auto it = views_.find(id); it != views_.end()) view_bytes_ -= it->second->ByteSizeLong();
+  auto ptr = std::make_shared<v1::ViewAdded>(std::move(view));
+  view_bytes_ += ptr->ByteSizeLong();
+  view_records_[id] = DigestRecordFromProto(*ptr);
+  views_[id] = ptr;
+  v1::Delta d;
+  *d.mutable_view_added() = *ptr;
+  return CommitLocked(std::move(d));
+}
+
+absl::StatusOr<uint64_t> ModelStore::UpdateView(ViewId id, const Rigid3d& local_from_cam,
+                                                float exposure) {
+  std::lock_guard lock(mu_);
+  auto it = views_.find(id);
+  if (it == views_.end()) return absl::NotFoundError(absl::StrCat("no view ", id));
+  // Copy-on-write: snapshots in flight keep the old message.
+  auto updated = std::make_shared<v1::ViewAdded>(*it->second);
+  PoseToProto(local_from_cam, updated->mutable_local_from_cam());
+  updated->set_exposure(exposure);
+  it->second = updated;
+  view_records_[id] = DigestRecordFromProto(*updated);
+  v1::Delta d;
+  auto* u = d.mutable_view_updated();
+  u->set_view_id(id);
+  PoseToProto(local_from_cam, u->mutable_local_from_cam());
+  u->set_exposure(exposure);
+  return CommitLocked(std::move(d));
+}
+
+absl::StatusOr<uint64_t> ModelStore::RemoveView(ViewId id) {
+  std::lock_guard lock(mu_);
+  auto it = views_.find(id);
+  if (it == views_.end()) return absl::NotFoundError(absl::StrCat("no view ", id));
+  view_bytes_ -= it->second->ByteSizeLong();
+  views_.erase(it);
+  view_records_.erase(id);
+  v1::Delta d;
+  d.mutable_view_removed()->set_view_id(id);
+  return CommitLocked(std::move(d));
+}
+
+uint64_t ModelStore::SetCellRefs(
+    const std::vector<std::pair<CellId, std::vector<ViewId>>>& cells) {
+  std::lock_guard lock(mu_);
+  v1::Delta d;
+  auto* c = d.mutable_cell_refs_changed();
+  for (const auto& [cell, refs] : cells) {
+    if (refs.empty())
+      cell_refs_.erase(cell);
+    else
+      cell_refs_[cell] = refs;
+    auto* e = c->add_cells();
+    e->set_cell_id(cell);
+    e->mutable_view_ids()->Add(refs.begin(), refs.end());
+  }
+  return CommitLocked(std::move(d));
+}
+
+uint64_t ModelStore::UpsertChunk(uint64_t chunk_id, uint64_t chunk_version,
+                                 const TriangleMesh& mesh) {
+  v1::Delta d;
+  auto* m = d.mutable_mesh_chunk_upserted();
+  m->set_chunk_id(chunk_id);
+  m->set_chunk_version(chunk_version);
+  MeshToProto(mesh, m);  // outside the lock: meshes can be large
+  std::lock_guard lock(mu_);
+  if (auto it = chunks_.find(chunk_id); it != chunks_.end()) chunk_bytes_ -= it->second->ByteSizeLong();
+  auto ptr = std::make_shared<const v1::MeshChunkUpserted>(*m);
+  chunk_bytes_ += ptr->ByteSizeLong();
+  chunks_[chunk_id] = ptr;
+  chunk_records_[chunk_id] = {chunk_version, MeshHash(mesh)};
+  return CommitLocked(std::move(d));
+}
+
+absl::StatusOr<uint64_t> ModelStore::RemoveChunk(uint64_t chunk_id) {
+  std::lock_guard lock(mu_);
+  auto it = chunks_.find(chunk_id);
+  if (it == chunks_.end()) return absl::NotFoundError(absl::StrCat("no chunk ", chunk_id));
+  chunk_bytes_ -= it->second->ByteSizeLong();
+  chunks_.erase(it);
+  chunk_records_.erase(chunk_id);
+  v1::Delta d;
+  d.mutable_mesh_chunk_removed()->set_chunk_id(chunk_id);
+  return CommitLocked(std::move(d));
+}
+
+size_t ModelStore::SnapshotBytesLocked() const {
+  return view_bytes_ + chunk_bytes_ + cell_refs_.size() * 24 + 64;
+}
+
+std::vector<DeltaPtr> ModelStore::SnapshotLocked() const {
+  std::vector<DeltaPtr> out;
+  out.reserve(views_.size() + chunks_.size() + 4);
+  auto push = [&](v1::Delta d) {
+    d.set_version(version_);
+    out.push_back(std::make_shared<const v1::Delta>(std::move(d)));
+  };
+  {
+    v1::Delta d;
+    d.mutable_snapshot_begin();
+    push(std::move(d));
+  }
+  if (has_scene_) {
+    v1::Delta d;
+    *d.mutable_scene_params() = scene_;
+    push(std::move(d));
+  }
+  for (const auto& [id, c] : chunks_) {
+    v1::Delta d;
+    *d.mutable_mesh_chunk_upserted() = *c;
+    push(std::move(d));
+  }
+  for (const auto& [id, v] : views_) {
+    v1::Delta d;
+    *d.mutable_view_added() = *v;
+    push(std::move(d));
+  }
+  if (!cell_refs_.empty()) {
+    v1::Delta d;
+    auto* c = d.mutable_cell_refs_changed();
+    for (const auto& [cell, refs] : cell_refs_) {
+      auto* e = c->add_cells();
+      e->set_cell_id(cell);
+      e->mutable_view_ids()->Add(refs.begin(), refs.end());
+    }
+    push(std::move(d));
+  }
+  {
+    v1::Delta d;
+    d.mutable_snapshot_end();
+    push(std::move(d));
+  }
+  return out;
+}
+
+std::shared_ptr<Subscription> ModelStore::Subscribe(uint64_t last_version) {
+  std::lock_guard lock(mu_);
+  bool snapshot = false;
+  if (last_version > version_) {
+    snapshot = true;  // a version from the future: the client's model is not ours
+  } else if (last_version < version_) {
+    const uint64_t first = log_.empty() ? version_ + 1 : log_.front()->version();
+    if (last_version + 1 < first) {
+      snapshot = true;  // compacted away
+    } else {
+      size_t missed_bytes = 0;
+      for (auto it = log_.rbegin(); it != log_.rend() && (*it)->version() > last_version; ++it)
+        missed_bytes += (*it)->ByteSizeLong();
+      snapshot = missed_bytes > SnapshotBytesLocked();
+    }
+  }
+  ++subscribers_;
+  return std::shared_ptr<Subscription>(new Subscription(this, last_version, snapshot),
+                                       [this](Subscription* s) {
+                                         {
+                                           std::lock_guard l(mu_);
+                                           --subscribers_;
+                                         }
+                                         delete s;
+                                       });
+}
+
+std::vector<DeltaPtr> Subscription::Next(int timeout_ms) {
+  ModelStore& m = *store_;
+  std::unique_lock lock(m.mu_);
+  m.cv_.wait_for(lock, std::chrono::milliseconds(timeout_ms), [&] {
+    return closed_ || m.closed_ || force_snapshot_ || m.version_ > sent_version_;
+  });
+  if (closed_ || m.closed_) return {};
+  const uint64_t first = m.log_.empty() ? m.version_ + 1 : m.log_.front()->version();
+  const bool fell_behind = m.version_ > sent_version_ &&
+                           (sent_version_ + 1 < first ||
+                            m.version_ - sent_version_ > m.options_.max_subscriber_lag);
+  if (force_snapshot_ || fell_behind) {
+    force_snapshot_ = false;
+    ++snapshots_;
+    ++m.snapshots_sent_;
+    sent_version_ = m.version_;
+    return m.SnapshotLocked();
+  }
+  std::vector<DeltaPtr> out;
+  if (m.version_ <= sent_version_) return out;
+  // Log entries with version > sent_version_ (contiguous versions).
+  const size_t start = static_cast<size_t>(sent_version_ + 1 - first);
+  constexpr size_t kMaxBatch = 64;
+  for (size_t i = start; i < m.log_.size() && out.size() < kMaxBatch; ++i) out.push_back(m.log_[i]);
+  sent_version_ = out.back()->version();
+  return out;
+}
+
+void Subscription::Close() {
+  std::lock_guard lock(store_->mu_);
+  closed_ = true;
+  store_->cv_.notify_all();
+}
+
+void ModelStore::CloseAll() {
+  std::lock_guard lock(mu_);
+  closed_ = true;
+  cv_.notify_all();
+}
+
+uint64_t ModelStore::DigestLocked() const {
+  return ModelDigest(view_records_, cell_refs_, chunk_records_);
+}
+
+ModelStore::Summary ModelStore::GetSummary() const {
+  std::lock_guard lock(mu_);
+  Summary s;
+  s.version = version_;
+  s.digest = DigestLocked();
+  s.num_views = static_cast<uint32_t>(views_.size());
+  s.num_cells = static_cast<uint32_t>(cell_refs_.size());
+  s.num_chunks = static_cast<uint32_t>(chunks_.size());
+  s.log_first_version = log_.empty() ? version_ + 1 : log_.front()->version();
+  s.snapshot_bytes = SnapshotBytesLocked();
+  s.subscribers = static_cast<uint32_t>(subscribers_);
+  s.snapshots_sent = snapshots_sent_;
+  return s;
+}
+
+uint64_t ModelStore::version() const {
+  std::lock_guard lock(mu_);
+  return version_;
+}
+
+bool ModelStore::has_view(ViewId id) const {
+  std::lock_guard lock(mu_);
+  return views_.count(id) > 0;
+}
+
+}  // namespace exo

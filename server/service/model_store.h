@@ -1,0 +1,121 @@
+// The server's versioned model as clients see it, the bounded delta log and the subscription
+// cursors of the publisher. Every mutation bumps the model version by one and appends one Delta
+// to the log; the log is bounded (count and bytes) and compacts by dropping its oldest entries,
+// since the current model itself is the snapshot. A subscriber is a cursor into the log: a slow
+// subscriber only lags, it never blocks a mutation or other subscribers; when it falls behind the
+// log (or lags more than `max_subscriber_lag`) it is switched to a snapshot resync.
+// Thread-safe. No gRPC here: the service layer writes what Next() returns.
+#pragma once
+
+#include <condition_variable>
+#include <cstdint>
+#include <deque>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <unordered_map>
+#include <vector>
+
+#include "common/lumigraph/model.h"
+#include "common/status.h"
+#include "proto/exoview.pb.h"
+#include "server/service/model_proto.h"
+
+namespace exo {
+
+using DeltaPtr = std::shared_ptr<const v1::Delta>;
+
+struct ModelStoreOptions {
+  size_t max_log_deltas = 4096;
+  size_t max_log_bytes = size_t{64} << 20;
+  size_t max_subscriber_lag = 2048;   // deltas behind the head before a forced resync
+  absl::Status Validate() const;
+};
+
+class ModelStore;
+
+// One subscriber's cursor. Only the thread that serves the subscriber calls Next().
+class Subscription {
+ public:
+  // Blocks until there is something to send, `timeout_ms` elapsed (empty result), or Close().
+  // Returns either a batch of log deltas or a whole snapshot (SnapshotBegin ... SnapshotEnd).
+  std::vector<DeltaPtr> Next(int timeout_ms);
+  void Close();
+  uint64_t sent_version() const { return sent_version_; }
+  uint64_t snapshots() const { return snapshots_; }
+
+ private:
+  friend class ModelStore;
+  Subscription(ModelStore* store, uint64_t from_version, bool force_snapshot)
+      : store_(store), sent_version_(from_version), force_snapshot_(force_snapshot) {}
+  ModelStore* store_;
+  uint64_t sent_version_;  // everything <= this has been handed out
+  bool force_snapshot_;
+  bool closed_ = false;
+  uint64_t snapshots_ = 0;
+};
+
+class ModelStore {
+ public:
+  explicit ModelStore(const ModelStoreOptions& options = {});
+  ~ModelStore();
+
+  // Mutations. Each returns the new model version.
+  uint64_t SetSceneParams(const LocalOrigin& origin, double cell_size_m);
+  uint64_t AddView(v1::ViewAdded view);          // replaces a view of the same id
+  absl::StatusOr<uint64_t> UpdateView(ViewId id, const Rigid3d& local_from_cam, float exposure);
+  absl::StatusOr<uint64_t> RemoveView(ViewId id);
+  // Replaces the reference lists of the given cells (empty list = cell removed).
+  uint64_t SetCellRefs(const std::vector<std::pair<CellId, std::vector<ViewId>>>& cells);
+  uint64_t UpsertChunk(uint64_t chunk_id, uint64_t chunk_version, const TriangleMesh& mesh);
+  absl::StatusOr<uint64_t> RemoveChunk(uint64_t chunk_id);
+
+  // Subscribe from the client's last applied version: only the missed deltas, or a snapshot
+  // when the log no longer holds them, when they would cost more bytes than a snapshot, or when
+  // the client claims a version from the future (e.g. the server restarted).
+  std::shared_ptr<Subscription> Subscribe(uint64_t last_version);
+  // Wakes every subscription (shutdown); later Next() calls return empty.
+  void CloseAll();
+
+  struct Summary {
+    uint64_t version = 0;
+    uint64_t digest = 0;
+    uint32_t num_views = 0, num_cells = 0, num_chunks = 0;
+    uint64_t log_first_version = 0;
+    uint64_t snapshot_bytes = 0;
+    uint32_t subscribers = 0;
+    uint64_t snapshots_sent = 0;
+  };
+  Summary GetSummary() const;
+  uint64_t version() const;
+  bool has_view(ViewId id) const;
+
+ private:
+  friend class Subscription;
+  uint64_t CommitLocked(v1::Delta delta);          // sets version, appends, compacts, notifies
+  std::vector<DeltaPtr> SnapshotLocked() const;    // SnapshotBegin, model, SnapshotEnd
+  size_t SnapshotBytesLocked() const;
+  uint64_t DigestLocked() const;
+
+  const ModelStoreOptions options_;
+  mutable std::mutex mu_;
+  std::condition_variable cv_;
+  bool closed_ = false;
+  uint64_t version_ = 0;
+  // Model as published.
+  bool has_scene_ = false;
+  v1::SceneParams scene_;
+  std::map<ViewId, std::shared_ptr<v1::ViewAdded>> views_;
+  std::map<ViewId, ViewDigestRecord> view_records_;
+  std::unordered_map<CellId, std::vector<ViewId>> cell_refs_;
+  std::map<uint64_t, std::shared_ptr<const v1::MeshChunkUpserted>> chunks_;
+  std::map<uint64_t, ChunkDigestRecord> chunk_records_;
+  size_t view_bytes_ = 0, chunk_bytes_ = 0;
+  // Delta log: versions (log_.front()->version() .. version_).
+  std::deque<DeltaPtr> log_;
+  size_t log_bytes_ = 0;
+  int subscribers_ = 0;
+  uint64_t snapshots_sent_ = 0;
+};
+
+}  // namespace exo

@@ -1,0 +1,95 @@
+#include "server/service/pipeline.h"
+
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+
+namespace exo {
+
+int64_t SteadyNowNs() {
+  return std::chrono::duration_cast<std::chrono::nanoseconds>(
+             std::chrono::steady_clock::now().time_since_epoch())
+      .count();
+}
+
+absl::Status PipelineOptions::Validate() const {
+  if (admission_queue < 1) return absl::InvalidArgumentError("admission_queue must be >= 1");
+  if (stage_queue < 1) return absl::InvalidArgumentError("stage_queue must be >= 1");
+  if (!(cell_size_m > 0.0) || !std::isfinite(cell_size_m))
+    return absl::InvalidArgumentError("cell_size_m must be > 0");
+  return absl::OkStatus();
+}
+
+Pipeline::Pipeline(const PipelineOptions& options, ModelStore* store,
+                   std::vector<std::unique_ptr<PipelineStage>> stages)
+    : options_(options), stages_(std::move(stages)) {
+  EXO_CHECK(options_.Validate().ok());
+  ctx_.store = store;
+  ctx_.cell_size_m = options_.cell_size_m;
+  for (size_t i = 0; i < stages_.size(); ++i)
+    queues_.push_back(std::make_unique<BoundedQueue<PipelineFramePtr>>(
+        i == 0 ? options_.admission_queue : options_.stage_queue));
+}
+
+Pipeline::~Pipeline() { Stop(); }
+
+Pipeline::Admission Pipeline::Submit(PipelineFramePtr frame) {
+  if (!origin_set_.load(std::memory_order_acquire)) {
+    // The first admitted frame fixes the scene-local origin (its camera centre rounded to whole
+    // cells, so cell boundaries do not depend on sub-cell noise). Only the ingest thread(s)
+    // submit and stages start reading ctx_ after their first Pop, which happens-after this.
+    static std::mutex origin_mu;
+    std::lock_guard lock(origin_mu);
+    if (!origin_set_.load()) {
+      const glm::dvec3 p = frame->frame.world_from_cam.translation;
+      const double q = options_.cell_size_m;
+      ctx_.origin.origin_in_world = {std::round(p.x / q) * q, std::round(p.y / q) * q,
+                                     std::round(p.z / q) * q};
+      ctx_.store->SetSceneParams(ctx_.origin, options_.cell_size_m);
+      for (size_t i = 0; i < stages_.size(); ++i) threads_.emplace_back([this, i] { RunStage(i); });
+      origin_set_.store(true, std::memory_order_release);
+    }
+  }
+  if (stages_.empty()) {
+    processed_.fetch_add(1);
+    last_latency_ns_.store(SteadyNowNs() - frame->received_ns);
+    return Admission::kAccepted;
+  }
+  return queues_[0]->TryPush(std::move(frame)) ? Admission::kAccepted : Admission::kDropped;
+}
+
+void Pipeline::RunStage(size_t i) {
+  while (auto item = queues_[i]->Pop()) {
+    const PipelineFramePtr& f = *item;
+    if (auto s = stages_[i]->Process(*f, ctx_); !s.ok()) {
+      errors_.fetch_add(1);
+      std::fprintf(stderr, "[pipeline] stage %s, frame %llu: %s\n", stages_[i]->name().c_str(),
+                   static_cast<unsigned long long>(f->frame.sequence),
+                   std::string(s.message()).c_str());
+    }
+    if (i + 1 < stages_.size()) {
+      queues_[i + 1]->Push(std::move(*item));
+    } else {
+      processed_.fetch_add(1);
+      last_latency_ns_.store(SteadyNowNs() - f->received_ns);
+    }
+  }
+  // Upstream closed and drained: close ours so the next stage drains too.
+  if (i + 1 < queues_.size()) queues_[i + 1]->Close();
+}
+
+void Pipeline::Stop() {
+  if (stopped_) return;
+  stopped_ = true;
+  if (!queues_.empty()) queues_[0]->Close();
+  for (auto& t : threads_) t.join();
+  threads_.clear();
+}
+
+std::vector<std::string> Pipeline::stage_names() const {
+  std::vector<std::string> names;
+  for (const auto& s : stages_) names.push_back(s->name());
+  return names;
+}
+
+}  // namespace exo

@@ -1,0 +1,90 @@
+// The modeling pipeline of the server (SPEC §1): accepted frames flow through a chain of stages
+// (geometry -> planning -> refinement ...), each on its own thread, connected by bounded queues.
+// Admission is the only place where work is dropped: when the first queue is full the frame is
+// refused as a planning candidate (acked DROPPED); once admitted, a frame is never dropped (later
+// queues block, which backs up into admission). Each stage publishes its model changes to the
+// ModelStore itself. The pipeline runs with whatever stages the server was built with; with none
+// it only validates and counts (it never invents model content).
+#pragma once
+
+#include <atomic>
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "common/frame.h"
+#include "common/rigid3.h"
+#include "common/status.h"
+#include "server/service/bounded_queue.h"
+#include "server/service/model_store.h"
+
+namespace exo {
+
+// One accepted frame on its way through the stages (pose still world_from_cam).
+struct PipelineFrame {
+  Frame frame;
+  int64_t received_ns = 0;  // steady clock, when ingest accepted it
+};
+using PipelineFramePtr = std::shared_ptr<const PipelineFrame>;
+
+// Shared scene context every stage sees: the local origin (fixed by the first accepted frame)
+// and the published model.
+struct SceneContext {
+  LocalOrigin origin;
+  double cell_size_m = 0.5;
+  ModelStore* store = nullptr;
+};
+
+class PipelineStage {
+ public:
+  virtual ~PipelineStage() = default;
+  virtual std::string name() const = 0;
+  // Processes one admitted frame; publishes its model changes to ctx.store. An error is counted
+  // and logged; the pipeline goes on with the next frame.
+  virtual absl::Status Process(const PipelineFrame& frame, const SceneContext& ctx) = 0;
+};
+
+struct PipelineOptions {
+  size_t admission_queue = 8;  // frames waiting for the first stage (beyond: DROPPED)
+  size_t stage_queue = 4;      // between later stages (blocking)
+  double cell_size_m = 0.5;
+  absl::Status Validate() const;
+};
+
+class Pipeline {
+ public:
+  Pipeline(const PipelineOptions& options, ModelStore* store,
+           std::vector<std::unique_ptr<PipelineStage>> stages);
+  ~Pipeline();  // Stop()
+
+  enum class Admission { kAccepted, kDropped };
+  // Called by ingest with a validated frame. Never blocks.
+  Admission Submit(PipelineFramePtr frame);
+  // Drains the queues (every admitted frame is processed) and joins the threads.
+  void Stop();
+
+  std::vector<std::string> stage_names() const;
+  uint64_t frames_processed() const { return processed_.load(); }
+  uint64_t stage_errors() const { return errors_.load(); }
+  // Latency from admission to the end of the last stage (ns), for stats.
+  int64_t last_latency_ns() const { return last_latency_ns_.load(); }
+
+ private:
+  void RunStage(size_t i);
+
+  const PipelineOptions options_;
+  SceneContext ctx_;
+  std::atomic<bool> origin_set_{false};
+  std::vector<std::unique_ptr<PipelineStage>> stages_;
+  std::vector<std::unique_ptr<BoundedQueue<PipelineFramePtr>>> queues_;  // queues_[i] feeds stage i
+  std::vector<std::thread> threads_;
+  std::atomic<uint64_t> processed_{0}, errors_{0};
+  std::atomic<int64_t> last_latency_ns_{0};
+  bool stopped_ = false;
+};
+
+int64_t SteadyNowNs();
+
+}  // namespace exo

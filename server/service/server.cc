@@ -1,0 +1,218 @@
+#include "server/service/server.h"
+
+#include <chrono>
+#include <cstdio>
+#include <fstream>
+#include <mutex>
+
+#include <grpcpp/grpcpp.h>
+#include <grpcpp/health_check_service_interface.h>
+
+#include "absl/strings/numbers.h"
+#include "absl/strings/str_split.h"
+#include "absl/strings/strip.h"
+#include "proto/exoview.grpc.pb.h"
+#include "server/service/stages.h"
+
+namespace exo {
+namespace {
+
+grpc::Status ToGrpc(const absl::Status& s) {
+  return grpc::Status(static_cast<grpc::StatusCode>(s.code()), std::string(s.message()));
+}
+
+template <typename T>
+absl::Status ParseNumber(const std::string& key, const std::string& v, T* out) {
+  if constexpr (std::is_same_v<T, double>) {
+    if (absl::SimpleAtod(v, out)) return absl::OkStatus();
+  } else if constexpr (std::is_same_v<T, bool>) {
+    if (absl::SimpleAtob(v, out)) return absl::OkStatus();
+  } else {
+    int64_t x;
+    if (absl::SimpleAtoi(v, &x) && x >= 0) {
+      *out = static_cast<T>(x);
+      return absl::OkStatus();
+    }
+  }
+  return absl::InvalidArgumentError(absl::StrCat("config ", key, ": cannot parse '", v, "'"));
+}
+
+}  // namespace
+
+absl::Status ServerConfig::Validate() const {
+  if (listen.empty()) return absl::InvalidArgumentError("listen address is empty");
+  EXO_RETURN_IF_ERROR(ingest.Validate());
+  if (transport_max_bytes < ingest.max_frame_bytes)
+    return absl::InvalidArgumentError("transport_max_bytes must be >= max_frame_bytes");
+  EXO_RETURN_IF_ERROR(pipeline.Validate());
+  EXO_RETURN_IF_ERROR(store.Validate());
+  EXO_RETURN_IF_ERROR(publish.Validate());
+  if (!(voxel_size_m > 0.0)) return absl::InvalidArgumentError("voxel_size_m must be > 0");
+  if (mesh_every_n_frames < 1) return absl::InvalidArgumentError("mesh_every_n_frames must be >= 1");
+  return absl::OkStatus();
+}
+
+absl::Status ApplyConfigValue(const std::string& key, const std::string& value, ServerConfig* c) {
+  if (key == "listen") { c->listen = value; return absl::OkStatus(); }
+  if (key == "max_frame_bytes") return ParseNumber(key, value, &c->ingest.max_frame_bytes);
+  if (key == "transport_max_bytes") return ParseNumber(key, value, &c->transport_max_bytes);
+  if (key == "admission_queue") return ParseNumber(key, value, &c->pipeline.admission_queue);
+  if (key == "stage_queue") return ParseNumber(key, value, &c->pipeline.stage_queue);
+  if (key == "cell_size_m") return ParseNumber(key, value, &c->pipeline.cell_size_m);
+  if (key == "max_log_deltas") return ParseNumber(key, value, &c->store.max_log_deltas);
+  if (key == "max_log_bytes") return ParseNumber(key, value, &c->store.max_log_bytes);
+  if (key == "max_subscriber_lag") return ParseNumber(key, value, &c->store.max_subscriber_lag);
+  if (key == "publish_jpeg_quality") return ParseNumber(key, value, &c->publish.jpeg_quality);
+  if (key == "publish_depth_downscale") return ParseNumber(key, value, &c->publish.depth_downscale);
+  if (key == "geometry") return ParseNumber(key, value, &c->enable_geometry);
+  if (key == "voxel_size_m") return ParseNumber(key, value, &c->voxel_size_m);
+  if (key == "mesh_every_n_frames") return ParseNumber(key, value, &c->mesh_every_n_frames);
+  if (key == "planning") return ParseNumber(key, value, &c->enable_planning);
+  if (key == "refinement") return ParseNumber(key, value, &c->enable_refinement);
+  return absl::InvalidArgumentError(absl::StrCat("unknown config key '", key, "'"));
+}
+
+absl::Status LoadConfigFile(const std::string& path, ServerConfig* c) {
+  std::ifstream in(path);
+  if (!in) return absl::NotFoundError(absl::StrCat("cannot open config file ", path));
+  std::string line;
+  int n = 0;
+  while (std::getline(in, line)) {
+    ++n;
+    if (auto hash = line.find('#'); hash != std::string::npos) line.resize(hash);
+    absl::string_view s = absl::StripAsciiWhitespace(line);
+    if (s.empty()) continue;
+    const auto eq = s.find('=');
+    if (eq == absl::string_view::npos)
+      return absl::InvalidArgumentError(absl::StrCat(path, ":", n, ": expected key = value"));
+    const std::string key(absl::StripAsciiWhitespace(s.substr(0, eq)));
+    const std::string value(absl::StripAsciiWhitespace(s.substr(eq + 1)));
+    if (auto st = ApplyConfigValue(key, value, c); !st.ok())
+      return absl::InvalidArgumentError(absl::StrCat(path, ":", n, ": ", st.message()));
+  }
+  return absl::OkStatus();
+}
+
+// ---------------------------------------------------------------------------------------------
+
+class ExoviewServer::Service final : public v1::Exoview::Service {
+ public:
+  Service(const ServerConfig& config, ModelStore* store, Pipeline* pipeline,
+          const std::atomic<bool>* shutting_down)
+      : config_(config), store_(store), pipeline_(pipeline), shutting_down_(shutting_down) {}
+
+  grpc::Status Upload(grpc::ServerContext* ctx,
+                      grpc::ServerReaderWriter<v1::Ack, v1::Frame>* stream) override {
+    IngestStream ingest(config_.ingest);
+    v1::Frame msg;
+    while (stream->Read(&msg)) {
+      received_.fetch_add(1);
+      const int64_t t0 = SteadyNowNs();
+      v1::Ack ack;
+      ack.set_sequence(msg.sequence());
+      if (shutting_down_->load()) {
+        ack.set_status(v1::Ack::REJECTED);
+        ack.set_reason("server is shutting down");
+        rejected_.fetch_add(1);
+      } else if (auto frame = ingest.Admit(msg, msg.ByteSizeLong()); !frame.ok()) {
+        ack.set_status(v1::Ack::REJECTED);
+        ack.set_reason(std::string(frame.status().message()));
+        rejected_.fetch_add(1);
+      } else {
+        auto pf = std::make_shared<PipelineFrame>();
+        pf->frame = *std::move(frame);
+        pf->received_ns = t0;
+        if (pipeline_->Submit(std::move(pf)) == Pipeline::Admission::kAccepted) {
+          ack.set_status(v1::Ack::ACCEPTED);
+          accepted_.fetch_add(1);
+        } else {
+          ack.set_status(v1::Ack::DROPPED);
+          ack.set_reason("overload: planning queue full, candidate dropped");
+          dropped_.fetch_add(1);
+        }
+      }
+      ack.set_model_version(store_->version());
+      if (!stream->Write(ack)) break;
+    }
+    return grpc::Status::OK;
+  }
+
+  grpc::Status Subscribe(grpc::ServerContext* ctx, const v1::SubscribeRequest* req,
+                         grpc::ServerWriter<v1::Delta>* writer) override {
+    auto sub = store_->Subscribe(req->last_version());
+    while (!ctx->IsCancelled() && !shutting_down_->load()) {
+      const std::vector<DeltaPtr> batch = sub->Next(100);
+      for (size_t i = 0; i < batch.size(); ++i) {
+        grpc::WriteOptions opts;
+        if (i + 1 < batch.size()) opts.set_buffer_hint();
+        if (!writer->Write(*batch[i], opts)) return grpc::Status::OK;
+        bytes_published_.fetch_add(batch[i]->ByteSizeLong());
+      }
+    }
+    return grpc::Status::OK;
+  }
+
+  grpc::Status GetStats(grpc::ServerContext*, const v1::StatsRequest*, v1::Stats* out) override {
+    const ModelStore::Summary s = store_->GetSummary();
+    out->set_model_version(s.version);
+    out->set_model_digest(s.digest);
+    out->set_num_views(s.num_views);
+    out->set_num_cells(s.num_cells);
+    out->set_num_chunks(s.num_chunks);
+    out->set_frames_received(received_.load());
+    out->set_frames_accepted(accepted_.load());
+    out->set_frames_rejected(rejected_.load());
+    out->set_frames_dropped(dropped_.load());
+    out->set_subscribers(s.subscribers);
+    out->set_bytes_published(bytes_published_.load());
+    out->set_snapshots_sent(s.snapshots_sent);
+    out->set_log_first_version(s.log_first_version);
+    for (const auto& n : pipeline_->stage_names()) out->add_stages(n);
+    out->set_frames_processed(pipeline_->frames_processed());
+    return grpc::Status::OK;
+  }
+
+ private:
+  const ServerConfig& config_;
+  ModelStore* store_;
+  Pipeline* pipeline_;
+  const std::atomic<bool>* shutting_down_;
+  std::atomic<uint64_t> received_{0}, accepted_{0}, rejected_{0}, dropped_{0}, bytes_published_{0};
+};
+
+ExoviewServer::ExoviewServer(const ServerConfig& config) : config_(config) {}
+
+ExoviewServer::~ExoviewServer() { Shutdown(); }
+
+absl::Status ExoviewServer::Start() {
+  EXO_RETURN_IF_ERROR(config_.Validate());
+  store_ = std::make_unique<ModelStore>(config_.store);
+  EXO_ASSIGN_OR_RETURN(auto stages, MakeStages(config_));
+  pipeline_ = std::make_unique<Pipeline>(config_.pipeline, store_.get(), std::move(stages));
+  service_ = std::make_unique<Service>(config_, store_.get(), pipeline_.get(), &shutting_down_);
+  grpc::EnableDefaultHealthCheckService(true);
+  grpc::ServerBuilder builder;
+  builder.AddListeningPort(config_.listen, grpc::InsecureServerCredentials(), &port_);
+  builder.SetMaxReceiveMessageSize(static_cast<int>(config_.transport_max_bytes));
+  builder.SetMaxSendMessageSize(static_cast<int>(config_.transport_max_bytes));
+  builder.RegisterService(service_.get());
+  server_ = builder.BuildAndStart();
+  if (!server_ || port_ == 0)
+    return absl::UnavailableError(absl::StrCat("cannot listen on ", config_.listen));
+  server_->GetHealthCheckService()->SetServingStatus(true);
+  return absl::OkStatus();
+}
+
+void ExoviewServer::Shutdown() {
+  if (shutting_down_.exchange(true)) return;
+  if (server_) server_->GetHealthCheckService()->SetServingStatus(false);
+  if (store_) store_->CloseAll();  // wakes subscription loops
+  if (server_) server_->Shutdown(std::chrono::system_clock::now() + std::chrono::seconds(2));
+  if (pipeline_) pipeline_->Stop();  // every admitted frame is processed before we return
+}
+
+void ExoviewServer::Wait() {
+  if (server_) server_->Wait();
+}
+
+}  // namespace exo

@@ -1,0 +1,71 @@
+// The Exoview modeling server: gRPC service exoview.v1.Exoview (Upload, Subscribe, GetStats) +
+// the standard health service, wired to ingest validation, the staged pipeline and the
+// versioned ModelStore/publisher. Config: `key = value` file lines and `--key=value` flags share
+// one set of keys (ApplyConfigValue); see docs/service.md for the list.
+#pragma once
+
+#include <atomic>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "common/status.h"
+#include "server/service/ingest.h"
+#include "server/service/model_proto.h"
+#include "server/service/model_store.h"
+#include "server/service/pipeline.h"
+
+namespace grpc {
+class Server;
+}
+
+namespace exo {
+
+struct ServerConfig {
+  std::string listen = "127.0.0.1:50051";  // port 0 = pick a free port (see ExoviewServer::port)
+  IngestOptions ingest;
+  // Transport limit (gRPC max receive size). Above ingest.max_frame_bytes a frame still gets a
+  // per-frame REJECTED ack; only messages above this hard limit end the stream.
+  size_t transport_max_bytes = size_t{64} << 20;
+  PipelineOptions pipeline;
+  ModelStoreOptions store;
+  ViewEncodeOptions publish;         // what clients receive per view
+  // Stages (each only where the server was built with it).
+  bool enable_geometry = true;
+  double voxel_size_m = 0.04;
+  int mesh_every_n_frames = 5;       // re-mesh dirty blocks every n fused frames
+  bool enable_planning = true;
+  bool enable_refinement = true;
+  absl::Status Validate() const;
+};
+
+// Applies one key/value (from a config file line or a --key=value flag).
+absl::Status ApplyConfigValue(const std::string& key, const std::string& value, ServerConfig* c);
+// Reads `key = value` lines ('#' starts a comment).
+absl::Status LoadConfigFile(const std::string& path, ServerConfig* c);
+// Stage names this binary was built with.
+std::vector<std::string> AvailableStages();
+
+class ExoviewServer {
+ public:
+  explicit ExoviewServer(const ServerConfig& config);
+  ~ExoviewServer();
+  absl::Status Start();
+  int port() const { return port_; }
+  // Graceful: stops taking frames, ends subscriptions, drains the pipeline, stops gRPC.
+  void Shutdown();
+  void Wait();
+  ModelStore& store() { return *store_; }
+
+ private:
+  class Service;
+  ServerConfig config_;
+  std::unique_ptr<ModelStore> store_;
+  std::unique_ptr<Pipeline> pipeline_;
+  std::unique_ptr<Service> service_;
+  std::unique_ptr<grpc::Server> server_;
+  int port_ = 0;
+  std::atomic<bool> shutting_down_{false};
+};
+
+}  // namespace exo

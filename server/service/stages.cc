@@ -1,0 +1,29 @@
+#include "server/service/stages.h"
+
+#include "server/service/server.h"
+#ifdef EXOVIEW_HAVE_GEOMETRY
+#include "server/service/geometry_stage.h"
+#endif
+
+namespace exo {
+
+std::vector<std::string> AvailableStages() {
+  std::vector<std::string> s;
+#ifdef EXOVIEW_HAVE_GEOMETRY
+  s.push_back("geometry");
+#endif
+  return s;
+}
+
+absl::StatusOr<std::vector<std::unique_ptr<PipelineStage>>> MakeStages(const ServerConfig& config) {
+  std::vector<std::unique_ptr<PipelineStage>> stages;
+#ifdef EXOVIEW_HAVE_GEOMETRY
+  if (config.enable_geometry) {
+    EXO_ASSIGN_OR_RETURN(auto g, MakeGeometryStage(config.voxel_size_m, config.mesh_every_n_frames));
+    stages.push_back(std::move(g));
+  }
+#endif
+  return stages;
+}
+
+}  // namespace exo
