@@ -77,6 +77,11 @@ struct SynthScene {
   bool indoor = false;
   glm::dvec3 sun_dir{0, 0, 1};     // unit, towards the light
   double ambient = 0.35;           // ambient light fraction
+  uint32_t texture_seed = 1;       // varies the procedural textures
+  // Street centre lines (village): asphalt draws lane markings along them.
+  std::vector<double> street_x;    // streets running along y at these x
+  std::vector<double> street_y;    // streets running along x at these y
+  double street_half_width_m = 3.0;
 
   // Scene diameter (AABB diagonal), metres: others derive cell size and d_max from it.
   double ExtentM() const { return glm::length(bounds.Size()); }

@@ -1,0 +1,237 @@
+#include "common/synth/trajectory.h"
+
+#include <algorithm>
+#include <cmath>
+#include <random>
+
+#include "common/raster/rasterizer.h"
+
+namespace exo::synth {
+namespace {
+
+// Dense polyline along a centripetal Catmull-Rom spline through `pts`, resampled by arc length.
+class ArcLengthPath {
+ public:
+  explicit ArcLengthPath(const std::vector<glm::dvec3>& pts) {
+    const size_t n = pts.size();
+    auto P = [&](long i) { return pts[std::clamp<long>(i, 0, long(n) - 1)]; };
+    for (size_t i = 0; i + 1 < n; ++i) {
+      glm::dvec3 p0 = P(long(i) - 1), p1 = P(i), p2 = P(i + 1), p3 = P(i + 2);
+      if (i == 0) p0 = 2.0 * p1 - p2;
+      if (i + 2 >= n) p3 = 2.0 * p2 - p1;
+      auto knot = [](const glm::dvec3& a, const glm::dvec3& b) {
+        return std::max(1e-6, std::sqrt(glm::length(b - a)));
+      };
+      const double t0 = 0, t1 = t0 + knot(p0, p1), t2 = t1 + knot(p1, p2), t3 = t2 + knot(p2, p3);
+      constexpr int kSteps = 48;
+      for (int k = (i == 0 ? 0 : 1); k <= kSteps; ++k) {
+        const double t = t1 + (t2 - t1) * k / kSteps;
+        const glm::dvec3 a1 = (t1 - t) / (t1 - t0) * p0 + (t - t0) / (t1 - t0) * p1;
+        const glm::dvec3 a2 = (t2 - t) / (t2 - t1) * p1 + (t - t1) / (t2 - t1) * p2;
+        const glm::dvec3 a3 = (t3 - t) / (t3 - t2) * p2 + (t - t2) / (t3 - t2) * p3;
+        const glm::dvec3 b1 = (t2 - t) / (t2 - t0) * a1 + (t - t0) / (t2 - t0) * a2;
+        const glm::dvec3 b2 = (t3 - t) / (t3 - t1) * a2 + (t - t1) / (t3 - t1) * a3;
+        const glm::dvec3 c = (t2 - t) / (t2 - t1) * b1 + (t - t1) / (t2 - t1) * b2;
+        if (!dense_.empty()) cum_.push_back(cum_.back() + glm::length(c - dense_.back()));
+        else cum_.push_back(0.0);
+        dense_.push_back(c);
+      }
+    }
+    if (n == 1) {
+      dense_.push_back(pts[0]);
+      cum_.push_back(0);
+    }
+  }
+  double Length() const { return cum_.back(); }
+  glm::dvec3 At(double s) const {
+    s = std::clamp(s, 0.0, Length());
+    const size_t i = std::upper_bound(cum_.begin(), cum_.end(), s) - cum_.begin();
+    if (i == 0) return dense_.front();
+    if (i >= dense_.size()) return dense_.back();
+    const double seg = cum_[i] - cum_[i - 1];
+    const double t = seg > 0 ? (s - cum_[i - 1]) / seg : 0;
+    return dense_[i - 1] + t * (dense_[i] - dense_[i - 1]);
+  }
+  // Smoothed horizontal heading: direction between points `window` metres before and after.
+  glm::dvec3 Heading(double s, double window) const {
+    glm::dvec3 d = At(s + window) - At(s - window);
+    d.z = 0;
+    const double len = glm::length(d);
+    return len > 1e-9 ? d / len : glm::dvec3(1, 0, 0);
+  }
+
+ private:
+  std::vector<glm::dvec3> dense_;
+  std::vector<double> cum_;
+};
+
+glm::dvec3 Direction(double yaw, double pitch) {
+  return {std::cos(pitch) * std::cos(yaw), std::cos(pitch) * std::sin(yaw), std::sin(pitch)};
+}
+
+}  // namespace
+
+const char* TrajectoryKindName(TrajectoryKind k) {
+  return k == TrajectoryKind::kFlyover ? "flyover" : "walk";
+}
+
+absl::StatusOr<TrajectoryKind> ParseTrajectoryKind(const std::string& name) {
+  if (name == "flyover") return TrajectoryKind::kFlyover;
+  if (name == "walk") return TrajectoryKind::kWalk;
+  return absl::InvalidArgumentError(
+      absl::StrCat("unknown trajectory '", name, "' (expected flyover or walk)"));
+}
+
+absl::Status TrajectoryOptions::Validate() const {
+  if (num_frames < 1 || num_frames > 1000000)
+    return absl::InvalidArgumentError(
+        absl::StrCat("num_frames must be in [1, 1e6], got ", num_frames));
+  if (hilbert_order < 1 || hilbert_order > 8)
+    return absl::InvalidArgumentError("hilbert_order must be in [1, 8]");
+  if (!(flyover_pitch_deg > 0 && flyover_pitch_deg < 90))
+    return absl::InvalidArgumentError("flyover_pitch_deg must be in (0, 90)");
+  if (!(walk_look_around_deg >= 0 && walk_look_around_deg < 90))
+    return absl::InvalidArgumentError("walk_look_around_deg must be in [0, 90)");
+  if (!(frame_rate_hz > 0) || !std::isfinite(frame_rate_hz))
+    return absl::InvalidArgumentError("frame_rate_hz must be > 0");
+  return absl::OkStatus();
+}
+
+absl::Status TestPoseOptions::Validate() const {
+  if (count < 0 || count > 100000) return absl::InvalidArgumentError("test pose count out of range");
+  if (!(min_coverage >= 0 && min_coverage <= 1))
+    return absl::InvalidArgumentError("min_coverage must be in [0, 1]");
+  if (!(min_depth_m >= 0)) return absl::InvalidArgumentError("min_depth_m must be >= 0");
+  return absl::OkStatus();
+}
+
+Rigid3d LookAt(const glm::dvec3& eye, const glm::dvec3& target) {
+  glm::dvec3 f = target - eye;
+  const double len = glm::length(f);
+  f = len > 1e-12 ? f / len : glm::dvec3(1, 0, 0);
+  glm::dvec3 r = glm::cross(f, glm::dvec3(0, 0, 1));
+  if (glm::length(r) < 1e-9) r = glm::dvec3(1, 0, 0);
+  r = glm::normalize(r);
+  const glm::dvec3 d = glm::cross(f, r);  // image down
+  Rigid3d out;
+  out.rotation = glm::normalize(glm::quat_cast(glm::dmat3(r, d, f)));
+  out.translation = eye;
+  return out;
+}
+
+std::vector<glm::dvec2> HilbertCurve(int order) {
+  const int n = 1 << order;
+  std::vector<glm::dvec2> pts;
+  pts.reserve(static_cast<size_t>(n) * n);
+  for (int d = 0; d < n * n; ++d) {
+    int x = 0, y = 0, t = d;
+    for (int s = 1; s < n; s *= 2) {
+      const int rx = 1 & (t / 2), ry = 1 & (t ^ rx);
+      if (ry == 0) {
+        if (rx == 1) {
+          x = s - 1 - x;
+          y = s - 1 - y;
+        }
+        std::swap(x, y);
+      }
+      x += s * rx;
+      y += s * ry;
+      t /= 4;
+    }
+    pts.push_back({n > 1 ? double(x) / (n - 1) : 0.5, n > 1 ? double(y) / (n - 1) : 0.5});
+  }
+  return pts;
+}
+
+absl::StatusOr<std::vector<TimedPose>> MakeTrajectory(const SynthScene& scene, TrajectoryKind kind,
+                                                      const TrajectoryOptions& options) {
+  EXO_RETURN_IF_ERROR(options.Validate());
+  std::vector<glm::dvec3> waypoints;
+  double heading_window = 1.0;
+  if (kind == TrajectoryKind::kFlyover) {
+    if (scene.flyover_altitude_m <= 0)
+      return absl::InvalidArgumentError(
+          absl::StrCat("scene '", scene.name, "' has no fly-over (indoor); use the walk"));
+    const glm::dvec3 lo = scene.navigable.min, hi = scene.navigable.max;
+    const double inset = 0.15 * std::min(hi.x - lo.x, hi.y - lo.y);
+    for (const glm::dvec2& h : HilbertCurve(options.hilbert_order))
+      waypoints.push_back({lo.x + inset + h.x * (hi.x - lo.x - 2 * inset),
+                           lo.y + inset + h.y * (hi.y - lo.y - 2 * inset),
+                           scene.flyover_altitude_m});
+    heading_window = 4.0;
+  } else {
+    if (scene.walk_waypoints.size() < 2)
+      return absl::InvalidArgumentError(absl::StrCat("scene '", scene.name, "' has no walk path"));
+    waypoints = scene.walk_waypoints;
+  }
+  const ArcLengthPath path(waypoints);
+  const double L = path.Length();
+  std::vector<TimedPose> out;
+  out.reserve(options.num_frames);
+  for (int i = 0; i < options.num_frames; ++i) {
+    const double s = options.num_frames > 1 ? L * i / (options.num_frames - 1) : 0.0;
+    const glm::dvec3 eye = path.At(s);
+    const glm::dvec3 h = path.Heading(s, heading_window);
+    double yaw = std::atan2(h.y, h.x), pitch;
+    if (kind == TrajectoryKind::kFlyover) {
+      pitch = -glm::radians(options.flyover_pitch_deg);
+    } else {
+      yaw += glm::radians(options.walk_look_around_deg) * std::sin(2 * glm::pi<double>() * s / 9.0);
+      pitch = -glm::radians(8.0) + glm::radians(4.0) * std::sin(2 * glm::pi<double>() * s / 5.0);
+    }
+    out.push_back({i / options.frame_rate_hz, LookAt(eye, eye + Direction(yaw, pitch))});
+  }
+  return out;
+}
+
+absl::StatusOr<std::vector<Rigid3d>> MakeTestPoses(const SynthScene& scene,
+                                                   const PinholeCamera& camera,
+                                                   const TestPoseOptions& options) {
+  EXO_RETURN_IF_ERROR(options.Validate());
+  EXO_RETURN_IF_ERROR(camera.Validate());
+  std::mt19937_64 rng(options.seed * 0x2545F4914F6CDD1Dull + 17);
+  auto uni = [&](double a, double b) { return std::uniform_real_distribution<double>(a, b)(rng); };
+  RasterOptions ro;
+  ro.z_depth = true;
+  ro.width = 64;
+  ro.height = std::max(8, static_cast<int>(std::lround(64.0 * camera.height / camera.width)));
+  ro.num_threads = 1;
+  ro.near_m = 0.05;
+  const glm::dvec3 lo = scene.navigable.min, hi = scene.navigable.max;
+  std::vector<Rigid3d> poses;
+  const int max_attempts = 400 * std::max(1, options.count);
+  for (int attempt = 0; attempt < max_attempts && int(poses.size()) < options.count; ++attempt) {
+    // Eye-level views everywhere; outdoors also elevated views (up to the fly-over altitude).
+    const bool high = scene.flyover_altitude_m > 0 && (rng() & 1);
+    glm::dvec3 eye(uni(lo.x, hi.x), uni(lo.y, hi.y), 0);
+    double pitch;
+    if (high) {
+      eye.z = uni(4.0, scene.flyover_altitude_m);
+      pitch = -glm::radians(uni(20, 60));
+    } else {
+      eye.z = uni(1.2, 2.0);
+      pitch = -glm::radians(uni(0, 25));
+    }
+    if (!scene.IsFree(eye, 0.5)) continue;
+    const Rigid3d pose = LookAt(eye, eye + Direction(uni(-glm::pi<double>(), glm::pi<double>()),
+                                                     pitch));
+    EXO_ASSIGN_OR_RETURN(RasterOutput r, Rasterize(scene.mesh, camera, pose, ro));
+    int hits = 0;
+    float min_z = 1e30f;
+    for (float z : r.z_depth_m.span())
+      if (z > 0) {
+        ++hits;
+        min_z = std::min(min_z, z);
+      }
+    const double coverage = double(hits) / r.z_depth_m.size();
+    if (coverage < options.min_coverage || min_z < options.min_depth_m) continue;
+    poses.push_back(pose);
+  }
+  if (int(poses.size()) < options.count)
+    return absl::FailedPreconditionError(absl::StrCat(
+        "found only ", poses.size(), " of ", options.count, " test poses in scene '", scene.name,
+        "' (min_coverage ", options.min_coverage, ")"));
+  return poses;
+}
+
+}  // namespace exo::synth
