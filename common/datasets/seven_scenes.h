@@ -9,6 +9,7 @@
 // camera's pose. 7-Scenes has no timestamps: timestamp_s = index / 30 (Kinect v1 rate).
 #pragma once
 
+#include <array>
 #include <memory>
 #include <string>
 #include <vector>
@@ -41,7 +42,16 @@ class SevenScenesReader : public FrameSource {
   std::vector<int> indices_;
 };
 
-// Parses a whitespace-separated 4x4 row-major matrix file into a validated rigid transform.
+// Real 7-Scenes poses (KinectFusion, printed with limited precision) are not orthonormal to
+// kRotationTolerance (frame 0 of redkitchen: max|R^T R - I| = 1.1e-4). A rotation within
+// kPoseRepairTolerance of orthonormal (and det > 0) is replaced by its nearest rotation (polar
+// decomposition, SVD); anything farther, or NaN/Inf, is an error.
+inline constexpr double kPoseRepairTolerance = 1e-2;
+absl::Status OrthonormalizeNearRotation(std::array<double, 16>* row_major_4x4,
+                                        const std::string& what);
+
+// Parses a whitespace-separated 4x4 row-major matrix file into a validated rigid transform
+// (near-orthonormal rotations repaired as above).
 absl::StatusOr<Rigid3d> ReadPoseFile4x4(const std::string& path);
 
 }  // namespace exo
