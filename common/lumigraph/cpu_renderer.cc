@@ -1,0 +1,199 @@
+#include "common/lumigraph/cpu_renderer.h"
+
+#include <array>
+#include <chrono>
+#include <cmath>
+#include <thread>
+
+#include "common/raster/rasterizer.h"
+
+namespace exo {
+namespace {
+
+// sRGB8 -> linear lookup table (the texel decode of an _SRGB texture).
+const std::array<float, 256>& SrgbLut() {
+  static const std::array<float, 256> lut = [] {
+    std::array<float, 256> t{};
+    for (int i = 0; i < 256; ++i) t[i] = blend::SrgbToLinear(blend::U8ToUnit(uint8_t(i)));
+    return t;
+  }();
+  return lut;
+}
+
+// Bilinear sample of an RGB8 sRGB image at continuous pixel uv (centres at integers), texels
+// decoded to linear first, edges clamped.
+glm::vec3 SampleLinear(const ImageU8& img, const glm::vec2& uv) {
+  const auto& lut = SrgbLut();
+  const float fx = std::floor(uv.x), fy = std::floor(uv.y);
+  const float ax = uv.x - fx, ay = uv.y - fy;
+  const int w = img.width(), h = img.height();
+  const int x0 = std::clamp(int(fx), 0, w - 1), x1 = std::clamp(int(fx) + 1, 0, w - 1);
+  const int y0 = std::clamp(int(fy), 0, h - 1), y1 = std::clamp(int(fy) + 1, 0, h - 1);
+  const uint8_t* p00 = &img.at(x0, y0);
+  const uint8_t* p10 = &img.at(x1, y0);
+  const uint8_t* p01 = &img.at(x0, y1);
+  const uint8_t* p11 = &img.at(x1, y1);
+  glm::vec3 out;
+  for (int c = 0; c < 3; ++c) {
+    const float top = lut[p00[c]] + ax * (lut[p10[c]] - lut[p00[c]]);
+    const float bot = lut[p01[c]] + ax * (lut[p11[c]] - lut[p01[c]]);
+    out[c] = top + ay * (bot - top);
+  }
+  return out;
+}
+
+double MsSince(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+}
+
+}  // namespace
+
+absl::Status CpuRenderOptions::Validate() const {
+  EXO_RETURN_IF_ERROR(blend.Validate());
+  if (num_threads < 1 || num_threads > 64)
+    return absl::InvalidArgumentError("cpu renderer num_threads must be in [1,64]");
+  return absl::OkStatus();
+}
+
+blend::BlendView MakeBlendView(const StoredView& view) {
+  blend::BlendView b;
+  b.cam_from_local = glm::mat3(glm::transpose(view.local_from_cam.RotationMatrix()));
+  b.centre_local = glm::vec3(view.local_from_cam.translation);
+  b.intrinsics = glm::vec4(view.camera.fx, view.camera.fy, view.camera.cx, view.camera.cy);
+  b.size = {view.camera.width, view.camera.height};
+  b.exposure = view.exposure;
+  return b;
+}
+
+absl::StatusOr<std::unique_ptr<CpuLumigraphRenderer>> CpuLumigraphRenderer::Create(
+    const LumigraphModel& model, const CpuRenderOptions& options) {
+  EXO_RETURN_IF_ERROR(options.Validate());
+  std::unique_ptr<CpuLumigraphRenderer> r(new CpuLumigraphRenderer());
+  r->options_ = options;
+  r->grid_ = model.grid;
+  r->mesh_ = model.ProxyMesh();
+  EXO_RETURN_IF_ERROR(ValidateMesh(r->mesh_));
+  std::unordered_map<ViewId, int> index;
+  for (const auto& [id, v] : model.views) {
+    EXO_RETURN_IF_ERROR(v.camera.Validate());
+    if (v.color.width() != v.camera.width || v.color.height() != v.camera.height ||
+        v.color.channels() != 3)
+      return absl::InvalidArgumentError(absl::StrCat("view ", id, ": colour is not RGB8 of the camera size"));
+    if (v.depth_m.width() != v.camera.width || v.depth_m.height() != v.camera.height ||
+        v.depth_m.channels() != 1)
+      return absl::InvalidArgumentError(absl::StrCat("view ", id, ": depth is not of the camera size"));
+    if (!std::isfinite(v.exposure) || v.exposure < 0.0f)
+      return absl::InvalidArgumentError(absl::StrCat("view ", id, ": exposure must be finite, >= 0"));
+    EXO_RETURN_IF_ERROR(ValidateQuaternion(v.local_from_cam.rotation));
+    index[id] = static_cast<int>(r->views_.size());
+    r->views_.push_back({MakeBlendView(v), &v.color, &v.depth_m});
+  }
+  for (const auto& [cell, refs] : model.cell_refs) {
+    std::vector<int> idx;
+    for (ViewId v : refs)
+      if (auto it = index.find(v); it != index.end()) idx.push_back(it->second);  // skip stale
+    if (!idx.empty()) r->refs_.emplace(cell, std::move(idx));
+  }
+  return r;
+}
+
+absl::StatusOr<CpuRenderOutput> CpuLumigraphRenderer::Render(const PinholeCamera& camera,
+                                                             const Rigid3d& local_from_cam) const {
+  EXO_RETURN_IF_ERROR(camera.Validate());
+  EXO_RETURN_IF_ERROR(ValidateQuaternion(local_from_cam.rotation));
+  const int w = camera.width, h = camera.height;
+  CpuRenderOutput out;
+  out.color = ImageU8(w, h, 3);
+  out.coverage = ImageU8(w, h, 1, 0);
+  if (options_.debug_weights) {
+    out.weight_sum = ImageF(w, h, 1, 0.0f);
+    out.num_views = ImageU8(w, h, 1, 0);
+  }
+  const blend::BlendOptions& bo = options_.blend;
+  const std::array<uint8_t, 3> bg = {blend::UnitToU8(bo.background_srgb.x),
+                                     blend::UnitToU8(bo.background_srgb.y),
+                                     blend::UnitToU8(bo.background_srgb.z)};
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x)
+      for (int c = 0; c < 3; ++c) out.color.at(x, y, c) = bg[c];
+  if (mesh_.empty()) return out;
+
+  auto t0 = std::chrono::steady_clock::now();
+  RasterOptions ro;
+  ro.position = true;
+  ro.cell_id = true;
+  ro.cell_grid = grid_;
+  ro.cull_backfaces = options_.cull_backfaces;
+  ro.num_threads = options_.num_threads;
+  EXO_ASSIGN_OR_RETURN(RasterOutput raster, Rasterize(mesh_, camera, local_from_cam, ro));
+  out.raster_ms = MsSince(t0);
+  t0 = std::chrono::steady_clock::now();
+
+  const glm::vec3 c_o(local_from_cam.translation);
+  const int n = bo.n_best;
+  std::vector<size_t> covered(options_.num_threads, 0), surface(options_.num_threads, 0);
+  auto work = [&](int t) {
+    CellId last_cell = kNoCell;
+    const std::vector<int>* refs = nullptr;
+    for (int y = t; y < h; y += options_.num_threads) {
+      for (int x = 0; x < w; ++x) {
+        const CellId cell = raster.cell_id.at(x, y);
+        if (cell == kNoCell) continue;
+        ++surface[t];
+        if (cell != last_cell) {
+          last_cell = cell;
+          auto it = refs_.find(cell);
+          refs = it == refs_.end() ? nullptr : &it->second;
+        }
+        if (refs == nullptr) continue;  // empty reference set: background, uncovered
+        const glm::vec3 p(raster.position_local.at(x, y, 0), raster.position_local.at(x, y, 1),
+                          raster.position_local.at(x, y, 2));
+        blend::BestN best = blend::EmptyBestN();
+        for (int vi : *refs) {
+          const ViewData& vd = views_[vi];
+          const ImageF& depth = *vd.depth;
+          const float v = blend::Validity(p, vd.params, bo, [&](glm::ivec2 q) {
+            return depth.at(q.x, q.y);
+          });
+          if (v == 0.0f) continue;
+          const float wd = blend::DirectionalWeight(p, c_o, vd.params.centre_local);
+          const float wp = blend::PositionalWeight(p, c_o, vd.params.centre_local,
+                                                   bo.positional_mode);
+          blend::InsertBest(best, n, blend::CombinedWeight(v, wd, wp, bo.lambda, bo.min_weight), vi);
+        }
+        blend::BlendAccumulator acc;
+        int used = 0;
+        for (int s = 0; s < n; ++s) {
+          if (best.index[s] < 0) break;
+          const ViewData& vd = views_[best.index[s]];
+          const blend::Projection proj = blend::ProjectToView(p, vd.params);
+          blend::Accumulate(acc, SampleLinear(*vd.color, proj.uv), vd.params.exposure,
+                            best.weight[s]);
+          ++used;
+        }
+        glm::vec3 srgb;
+        if (blend::Resolve(acc, bo.background_srgb, &srgb)) {
+          for (int c = 0; c < 3; ++c) out.color.at(x, y, c) = blend::UnitToU8(srgb[c]);
+          out.coverage.at(x, y) = 255;
+          ++covered[t];
+        }
+        if (options_.debug_weights) {
+          out.weight_sum.at(x, y) = acc.sum_weight;
+          out.num_views.at(x, y) = static_cast<uint8_t>(used);
+        }
+      }
+    }
+  };
+  std::vector<std::thread> threads;
+  for (int t = 1; t < options_.num_threads; ++t) threads.emplace_back(work, t);
+  work(0);
+  for (auto& th : threads) th.join();
+  for (int t = 0; t < options_.num_threads; ++t) {
+    out.covered_pixels += covered[t];
+    out.surface_pixels += surface[t];
+  }
+  out.blend_ms = MsSince(t0);
+  return out;
+}
+
+}  // namespace exo

@@ -1,0 +1,352 @@
+#include "server/planning/view_planner.h"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <limits>
+
+#include "server/planning/coverage.h"
+
+namespace exo::planning {
+namespace {
+
+constexpr int kMaxRMax = 64;
+
+bool Finite(const glm::dvec3& v) {
+  return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z);
+}
+
+}  // namespace
+
+absl::Status PlannerOptions::Validate() const {
+  if (r_max < 2)
+    return absl::InvalidArgumentError(absl::StrCat(
+        "planner r_max must be >= 2 (R_max <= 1 makes the Tammes bound 1 - phi_d^max zero, "
+        "SPEC §4 erratum 2), got ",
+        r_max));
+  if (r_max > kMaxRMax)
+    return absl::InvalidArgumentError(absl::StrCat("planner r_max must be <= ", kMaxRMax));
+  if (max_views < 1) return absl::InvalidArgumentError("planner max_views must be >= 1");
+  if (max_bytes < 1) return absl::InvalidArgumentError("planner max_bytes must be >= 1");
+  if (!std::isfinite(lambda) || lambda < 0.0 || lambda > 1.0)
+    return absl::InvalidArgumentError(absl::StrCat("planner lambda must be in [0,1], got ", lambda));
+  if (!std::isfinite(d_max_m) || d_max_m < 0.0)
+    return absl::InvalidArgumentError("planner d_max_m must be finite and >= 0");
+  if (!std::isfinite(sigma_m) || sigma_m <= 0.0)
+    return absl::InvalidArgumentError("planner sigma_m must be finite and > 0");
+  if (!std::isfinite(tau_max) || tau_max <= 0.0)
+    return absl::InvalidArgumentError("planner tau_max must be finite and > 0");
+  if (!std::isfinite(delta_tau_sum) || delta_tau_sum < 0.0)
+    return absl::InvalidArgumentError("planner delta_tau_sum must be finite and >= 0");
+  if (!std::isfinite(delta_tau) || delta_tau < 0.0)
+    return absl::InvalidArgumentError("planner delta_tau must be finite and >= 0");
+  if (!std::isfinite(cell_size_m) || cell_size_m <= 0.0)
+    return absl::InvalidArgumentError("planner cell_size_m must be finite and > 0");
+  return absl::OkStatus();
+}
+
+PlannerOptions PlannerOptions::ForScene(double scene_diameter_m, double median_view_distance_m) {
+  PlannerOptions o;
+  if (std::isfinite(scene_diameter_m) && scene_diameter_m > 0.0)
+    o.cell_size_m = std::clamp(scene_diameter_m / 40.0, 0.3, 1.0);
+  if (std::isfinite(median_view_distance_m) && median_view_distance_m > 0.0)
+    o.d_max_m = median_view_distance_m;
+  o.sigma_m = std::max(o.d_max_m, 0.1 * (std::isfinite(scene_diameter_m) ? scene_diameter_m : 0.0));
+  return o;
+}
+
+std::vector<CellPixelCount> CountCellPixels(const uint64_t* cell_ids, size_t count) {
+  std::vector<CellPixelCount> out;
+  std::unordered_map<CellId, uint32_t> index;
+  size_t i = 0;
+  while (i < count) {
+    const CellId id = cell_ids[i];
+    size_t j = i + 1;
+    while (j < count && cell_ids[j] == id) ++j;  // runs along rows are long
+    if (id != kNoCell) {
+      auto [it, inserted] = index.try_emplace(id, static_cast<uint32_t>(out.size()));
+      if (inserted) out.push_back({id, 0});
+      out[it->second].pixels += static_cast<uint32_t>(j - i);
+    }
+    i = j;
+  }
+  return out;
+}
+
+ViewPlanner::ViewPlanner(const PlannerOptions& options) : options_(options) {
+  grid_.cell_size_m = options.cell_size_m;
+}
+
+absl::StatusOr<ViewPlanner> ViewPlanner::Create(const PlannerOptions& options) {
+  EXO_RETURN_IF_ERROR(options.Validate());
+  return ViewPlanner(options);
+}
+
+absl::Status ViewPlanner::SetCellArea(CellId cell, double area_m2) {
+  if (!std::isfinite(area_m2) || area_m2 < 0.0)
+    return absl::InvalidArgumentError(absl::StrCat("cell area must be finite and >= 0, got ", area_m2));
+  areas_[cell] = area_m2;
+  return absl::OkStatus();
+}
+
+int32_t ViewPlanner::CellIndex(CellId id) {
+  auto [it, inserted] = cell_index_.try_emplace(id, static_cast<int32_t>(cells_.size()));
+  if (inserted) {
+    cells_.push_back({});
+    cells_.back().id = id;
+  }
+  return it->second;
+}
+
+double ViewPlanner::CoverageOf(const glm::dvec3& cam, CellId cell, double pixels,
+                               double pixel_sr) const {
+  if (cell == kNoCell || !(pixels > 0.0) || !(pixel_sr > 0.0) || !Finite(cam)) return 0.0;
+  // Guard d -> 0 (SPEC §4, §11): a camera inside the cell has no defined direction to it and
+  // the 1/d^2 footprint model does not apply: it claims no coverage of that cell.
+  if (grid_.CoordOf(cam) == UnpackCell(cell)) return 0.0;
+  const glm::dvec3 v = cam - grid_.Centre(cell);
+  const double d = glm::length(v);
+  if (!(d > 0.0)) return 0.0;
+  const glm::dvec3 dir = v / d;
+
+  std::array<glm::dvec3, kMaxRMax> ref_dirs;
+  size_t n_refs = 0;
+  if (auto it = cell_index_.find(cell); it != cell_index_.end())
+    for (const Ref& r : cells_[it->second].refs) ref_dirs[n_refs++] = r.dir;
+  const double phi_d = DirectionalCoverage(
+      dir, std::span<const glm::dvec3>(ref_dirs.data(), n_refs), options_.r_max);
+
+  const double g = DistanceQuality(d, options_.d_max_m, options_.sigma_m);
+  const auto area_it = areas_.find(cell);
+  const double area = area_it != areas_.end() ? area_it->second : grid_.CellArea();
+  const double psi_total = PsiTotal(area, grid_.CellArea(), d, pixel_sr, 0.5 * grid_.cell_size_m);
+  const double phi_p = PositionalCoverage(g, pixels, psi_total);
+  return Coverage(options_.lambda, phi_d, phi_p);
+}
+
+void ViewPlanner::AddToCellTau(int32_t cell, double dphi) {
+  Cell& c = cells_[cell];
+  const double old_clamped = std::min(c.tau, options_.tau_max);
+  c.tau += dphi;
+  if (c.observers.empty()) c.tau = 0.0;  // no drift once a cell is unobserved again
+  tau_sum_ += std::min(c.tau, options_.tau_max) - old_clamped;
+}
+
+void ViewPlanner::AddView(View view, std::vector<CellId>* changed) {
+  for (const Entry& e : view.entries) {
+    Cell& c = cells_[e.cell];
+    const glm::dvec3 dir = glm::normalize(view.centre - grid_.Centre(c.id));
+    const Ref ref{view.id, e.phi, dir};
+    c.observers.push_back(ref);
+    AddToCellTau(e.cell, e.phi);
+    // Pre-selection (§3.1.4). τ(R ∪ I) - τ(R) = φ_I > 0 = Δτ while R has room.
+    if (static_cast<int>(c.refs.size()) < options_.r_max) {
+      c.refs.push_back(ref);
+      changed->push_back(c.id);
+    } else {
+      // v_k = argmax_{F_j ∈ R} τ(R ∪ I \ F_j) = the reference with the smallest φ.
+      auto victim = std::min_element(c.refs.begin(), c.refs.end(),
+                                     [](const Ref& a, const Ref& b) { return a.phi < b.phi; });
+      if (static_cast<double>(e.phi) - victim->phi > options_.delta_tau) {
+        *victim = ref;
+        changed->push_back(c.id);
+      }
+    }
+  }
+  bytes_ += view.bytes;
+  const ViewId id = view.id;
+  views_.emplace(id, std::move(view));
+}
+
+void ViewPlanner::RemoveView(ViewId id, std::vector<CellId>* changed) {
+  auto it = views_.find(id);
+  if (it == views_.end()) return;
+  const View& view = it->second;
+  for (const Entry& e : view.entries) {
+    Cell& c = cells_[e.cell];
+    std::erase_if(c.observers, [id](const Ref& r) { return r.view == id; });
+    AddToCellTau(e.cell, -static_cast<double>(e.phi));
+    const size_t before = c.refs.size();
+    std::erase_if(c.refs, [id](const Ref& r) { return r.view == id; });
+    if (c.refs.size() != before) {
+      changed->push_back(c.id);
+      // Refill from the remaining observers not yet referenced, best φ first.
+      const Ref* best = nullptr;
+      for (const Ref& o : c.observers) {
+        const bool in_refs = std::any_of(c.refs.begin(), c.refs.end(),
+                                         [&](const Ref& r) { return r.view == o.view; });
+        if (!in_refs && (best == nullptr || o.phi > best->phi)) best = &o;
+      }
+      if (best != nullptr) c.refs.push_back(*best);
+    }
+  }
+  bytes_ -= view.bytes;
+  views_.erase(it);
+}
+
+absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
+  if (views_.count(cand.id))
+    return absl::AlreadyExistsError(absl::StrCat("view ", cand.id, " is already in the store"));
+  EXO_RETURN_IF_ERROR(cand.id_camera.Validate());
+  EXO_RETURN_IF_ERROR(ValidateQuaternion(cand.local_from_cam.rotation));
+  if (!Finite(cand.local_from_cam.translation))
+    return absl::InvalidArgumentError("candidate pose translation is NaN or Inf");
+
+  Decision d;
+  if (cand.bytes > options_.max_bytes) {
+    d.reason = absl::StrCat("frame of ", cand.bytes, " bytes exceeds the store budget of ",
+                            options_.max_bytes, " bytes");
+    d.tau_sum = tau_sum_;
+    return d;
+  }
+
+  // φ(I, b_k) for every cell I sees (only these cells can change).
+  const glm::dvec3 centre = cand.local_from_cam.translation;
+  const double pixel_sr = cand.id_camera.PixelSolidAngle();
+  View view{cand.id, centre, cand.bytes, {}};
+  view.entries.reserve(cand.cells.size());
+  for (const CellPixelCount& c : cand.cells) {
+    if (c.cell == kNoCell || c.pixels == 0) continue;
+    const double phi = CoverageOf(centre, c.cell, c.pixels, pixel_sr);
+    if (!(phi > 0.0)) continue;
+    const int32_t idx = CellIndex(c.cell);
+    // Duplicate cells in the input are merged (φ is not additive, keep the larger).
+    auto dup = std::find_if(view.entries.begin(), view.entries.end(),
+                            [idx](const Entry& e) { return e.cell == idx; });
+    if (dup != view.entries.end()) {
+      dup->phi = std::max(dup->phi, static_cast<float>(phi));
+    } else {
+      view.entries.push_back({idx, static_cast<float>(phi)});
+    }
+  }
+  if (view.entries.empty()) {
+    d.reason = "candidate covers no cell";
+    d.tau_sum = tau_sum_;
+    return d;
+  }
+
+  const double tau_max = options_.tau_max;
+  double gain = 0.0;
+  for (const Entry& e : view.entries) {
+    const double t = cells_[e.cell].tau;
+    gain += std::min(t + e.phi, tau_max) - std::min(t, tau_max);
+  }
+
+  std::vector<ViewId> victims;
+  const bool full = views_.size() + 1 > options_.max_views ||
+                    bytes_ + cand.bytes > options_.max_bytes;
+  if (full) {
+    // Exact victim search over the whole store: τ_sum(F ∪ I \ F_v) via a dense scratch of the
+    // pending per-cell change s_k (φ_I added, chosen victims' φ removed).
+    scratch_.assign(cells_.size(), 0.0);
+    std::vector<uint8_t> touched_mark(cells_.size(), 0);
+    std::vector<int32_t> touched;
+    auto touch = [&](int32_t k, double ds) {
+      scratch_[k] += ds;
+      if (!touched_mark[k]) {
+        touched_mark[k] = 1;
+        touched.push_back(k);
+      }
+    };
+    for (const Entry& e : view.entries) touch(e.cell, e.phi);
+    size_t count = views_.size() + 1;
+    size_t bytes = bytes_ + cand.bytes;
+    while (count > options_.max_views || bytes > options_.max_bytes) {
+      const View* best = nullptr;
+      double best_loss = -std::numeric_limits<double>::infinity();
+      for (const auto& [vid, v] : views_) {
+        if (std::find(victims.begin(), victims.end(), vid) != victims.end()) continue;
+        double loss = 0.0;  // τ_sum change caused by removing v (<= 0)
+        for (const Entry& e : v.entries) {
+          const double t = cells_[e.cell].tau + scratch_[e.cell];
+          loss += std::min(t - e.phi, tau_max) - std::min(t, tau_max);
+        }
+        if (loss > best_loss || (loss == best_loss && best != nullptr && vid < best->id)) {
+          best_loss = loss;
+          best = &v;
+        }
+      }
+      if (best == nullptr) break;  // cannot happen: bytes <= max_bytes once the store is empty
+      victims.push_back(best->id);
+      for (const Entry& e : best->entries) touch(e.cell, -static_cast<double>(e.phi));
+      --count;
+      bytes -= best->bytes;
+    }
+    gain = 0.0;
+    for (int32_t k : touched) {
+      const double t = cells_[k].tau;
+      gain += std::min(t + scratch_[k], tau_max) - std::min(t, tau_max);
+    }
+  }
+
+  d.gain = gain;
+  if (!(gain > options_.delta_tau_sum)) {
+    d.reason = full ? absl::StrCat("store full and no victim gains more than delta_tau_sum (best ",
+                                   gain, ")")
+                    : absl::StrCat("coverage gain ", gain, " <= delta_tau_sum ",
+                                   options_.delta_tau_sum);
+    d.tau_sum = tau_sum_;
+    return d;
+  }
+
+  d.accepted = true;
+  d.reason = victims.empty() ? "accepted" : "accepted, replacing a victim";
+  for (ViewId v : victims) RemoveView(v, &d.changed_cells);
+  AddView(std::move(view), &d.changed_cells);
+  d.removed = std::move(victims);
+  std::sort(d.changed_cells.begin(), d.changed_cells.end());
+  d.changed_cells.erase(std::unique(d.changed_cells.begin(), d.changed_cells.end()),
+                        d.changed_cells.end());
+  d.tau_sum = tau_sum_;
+  return d;
+}
+
+std::vector<ViewId> ViewPlanner::ViewIds() const {
+  std::vector<ViewId> ids;
+  ids.reserve(views_.size());
+  for (const auto& [id, v] : views_) ids.push_back(id);
+  std::sort(ids.begin(), ids.end());
+  return ids;
+}
+
+double ViewPlanner::CellTau(CellId cell) const {
+  auto it = cell_index_.find(cell);
+  return it == cell_index_.end() ? 0.0 : cells_[it->second].tau;
+}
+
+std::vector<ViewId> ViewPlanner::Refs(CellId cell) const {
+  std::vector<ViewId> out;
+  auto it = cell_index_.find(cell);
+  if (it == cell_index_.end()) return out;
+  for (const Ref& r : cells_[it->second].refs) out.push_back(r.view);
+  return out;
+}
+
+double ViewPlanner::RecomputeTauSum() const {
+  std::vector<double> tau(cells_.size(), 0.0);
+  for (const auto& [id, v] : views_)
+    for (const Entry& e : v.entries) tau[e.cell] += e.phi;
+  double sum = 0.0;
+  for (double t : tau) sum += std::min(t, options_.tau_max);
+  return sum;
+}
+
+std::unordered_map<CellId, std::vector<ViewId>> ViewPlanner::CellRefs() const {
+  std::unordered_map<CellId, std::vector<ViewId>> out;
+  for (const Cell& c : cells_) {
+    if (c.refs.empty()) continue;
+    auto& v = out[c.id];
+    for (const Ref& r : c.refs) v.push_back(r.view);
+  }
+  return out;
+}
+
+size_t ViewPlanner::BookkeepingBytes() const {
+  size_t b = cells_.capacity() * sizeof(Cell) + cell_index_.size() * (sizeof(CellId) + 16) +
+             areas_.size() * (sizeof(CellId) + sizeof(double) + 16);
+  for (const Cell& c : cells_) b += (c.observers.capacity() + c.refs.capacity()) * sizeof(Ref);
+  for (const auto& [id, v] : views_) b += sizeof(View) + v.entries.capacity() * sizeof(Entry);
+  return b;
+}
+
+}  // namespace exo::planning

@@ -1,0 +1,162 @@
+// Online view planning in bounded memory (SPEC §4, thesis §3.1.2 and §3.1.4): decides for each
+// incoming frame whether it enters the view store, which stored view it replaces when the store
+// is full (bounded by view count AND bytes), and maintains per-cell reference lists R(b_k) of at
+// most R_max views, the pre-selection a render client blends from.
+//
+// Bookkeeping (everything incremental, only the cells a candidate sees are touched):
+//   per stored view i: its cells k with φ(F_i, b_k) > 0, φ frozen when the view was accepted
+//     (the directional term depends on R(b_k) at that time, as in the thesis);
+//   per cell k: τ(F, b_k) = Σ_i φ(F_i, b_k) (3.15), the observers (views with φ > 0), R(b_k);
+//   τ_sum(F) = Σ_k min(τ(F, b_k), τ_max) (3.16), kept as a running sum.
+// Candidate test: accept iff τ_sum(F ∪ I) > τ_sum(F) + Δτ_sum. When full, every stored view is
+// evaluated as a victim exactly (τ_sum(F ∪ I \ F_i) in O(|cells of F_i|) from a dense cell table;
+// cheap enough that no "lowest-ranked" shortlist is needed: the shortlist of the thesis is the
+// whole store); several victims are removed if the candidate needs more bytes than one frees.
+// Pre-selection (§3.1.4): I joins R(b_k) when R has room (Δτ = 0) or replaces the reference with
+// the smallest φ when φ_I - φ_v > Δτ. A reference removed with its view is refilled from the
+// remaining observers of that cell (best φ first).
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <unordered_map>
+#include <vector>
+
+#include <glm/glm.hpp>
+
+#include "common/camera.h"
+#include "common/cells.h"
+#include "common/lumigraph/model.h"
+#include "common/rigid3.h"
+#include "common/status.h"
+
+namespace exo::planning {
+
+struct PlannerOptions {
+  int r_max = 16;                    // |R(b_k)| <= R_max; >= 2 (erratum 2)
+  size_t max_views = 200;            // store capacity, views
+  size_t max_bytes = size_t{1} << 30;  // store capacity, bytes (colour + depth + header)
+  double lambda = 0.5;               // (3.6) directional vs positional
+  double d_max_m = 2.0;              // ideal view distance of (3.11)
+  double sigma_m = 2.0;              // σ of (3.11)
+  double tau_max = 4.0;              // per-cell clamp of (3.16)
+  double delta_tau_sum = 0.05;       // Δτ_sum: minimum gain for a candidate
+  double delta_tau = 0.0;            // Δτ: minimum per-cell gain to replace a reference when full
+  double cell_size_m = 0.5;          // q
+
+  absl::Status Validate() const;
+
+  // Defaults derived from the observed scene (SPEC §4: "cell size and d_max derived from the
+  // observed scene, not hard-coded"): q = diameter/40 clamped to [0.3, 1.0] m (thesis: 30-100 cm
+  // were best), d_max = the median camera-to-surface distance seen so far, σ = max(d_max, 0.1 ·
+  // diameter).
+  static PlannerOptions ForScene(double scene_diameter_m, double median_view_distance_m);
+};
+
+struct CellPixelCount {
+  CellId cell = kNoCell;
+  uint32_t pixels = 0;  // ψ_vis (3.12)
+};
+
+// Counts the pixels per cell of a cell-id buffer (kNoCell = background, ignored). Order: by
+// first appearance. Works on any resolution; pair it with the camera of that resolution.
+std::vector<CellPixelCount> CountCellPixels(const uint64_t* cell_ids, size_t count);
+
+struct Candidate {
+  ViewId id = 0;
+  Rigid3d local_from_cam;             // pose in the scene-local frame (double)
+  PinholeCamera id_camera;            // intrinsics of the cell-id buffer that produced the counts:
+                                      // A_px = id_camera.PixelSolidAngle() (reduced res ok)
+  std::vector<CellPixelCount> cells;  // ψ_vis per visible cell
+  size_t bytes = 0;                   // what storing this frame costs (StoredView::bytes())
+};
+
+struct Decision {
+  bool accepted = false;
+  std::string reason;                 // why (for logs / acks)
+  double gain = 0.0;                  // τ_sum(after) - τ_sum(before), as evaluated
+  std::vector<ViewId> removed;        // victims evicted to make room
+  std::vector<CellId> changed_cells;  // cells whose R(b_k) changed (publisher deltas), sorted
+  double tau_sum = 0.0;               // τ_sum of the store after the decision
+};
+
+class ViewPlanner {
+ public:
+  // Options must be valid (use Create).
+  static absl::StatusOr<ViewPlanner> Create(const PlannerOptions& options);
+
+  // Evaluates one candidate frame and updates the store. Bad input (NaN pose, invalid camera,
+  // duplicate id) is an error and changes nothing; a frame larger than the byte budget is a
+  // rejection with a reason.
+  absl::StatusOr<Decision> Consider(const Candidate& candidate);
+
+  // Per-cell surface area A(b_k) from the proxy (geometry's CellAreas). Cells without a known
+  // area use the face area A_cell (the upper bound of 3.13). Negative/NaN areas are an error.
+  absl::Status SetCellArea(CellId cell, double area_m2);
+
+  // The coverage φ(I, b_k) a candidate camera at `cam_centre_local` would get for `cell` with
+  // `pixels` visible pixels of solid angle `pixel_sr`, against the current R(b_k). 0 for a
+  // camera inside the cell (guard d -> 0). Exposed for tests and tools.
+  double CoverageOf(const glm::dvec3& cam_centre_local, CellId cell, double pixels,
+                    double pixel_sr) const;
+
+  const PlannerOptions& options() const { return options_; }
+  const CellGrid& grid() const { return grid_; }
+  double tau_sum() const { return tau_sum_; }
+  size_t num_views() const { return views_.size(); }
+  size_t bytes() const { return bytes_; }
+  size_t num_cells() const { return cells_.size(); }
+  bool HasView(ViewId id) const { return views_.count(id) > 0; }
+  std::vector<ViewId> ViewIds() const;
+  // τ(F, b_k) of a cell (0 if unknown), and R(b_k) (empty if unknown).
+  double CellTau(CellId cell) const;
+  std::vector<ViewId> Refs(CellId cell) const;
+  // τ_sum recomputed from scratch from the stored per-view φ (for tests / drift checks).
+  double RecomputeTauSum() const;
+  // Every non-empty R(b_k), e.g. to fill LumigraphModel::cell_refs.
+  std::unordered_map<CellId, std::vector<ViewId>> CellRefs() const;
+  // Approximate memory of the planner's own bookkeeping (bytes).
+  size_t BookkeepingBytes() const;
+
+ private:
+  explicit ViewPlanner(const PlannerOptions& options);
+
+  struct Ref {
+    ViewId view;
+    float phi;
+    glm::dvec3 dir;  // unit vector cell centre -> camera
+  };
+  struct Cell {
+    CellId id = kNoCell;
+    double tau = 0.0;
+    std::vector<Ref> observers;  // every stored view with φ > 0 for this cell
+    std::vector<Ref> refs;       // R(b_k) ⊆ observers, |refs| <= r_max
+  };
+  struct Entry {
+    int32_t cell;  // index into cells_
+    float phi;
+  };
+  struct View {
+    ViewId id;
+    glm::dvec3 centre;
+    size_t bytes;
+    std::vector<Entry> entries;
+  };
+
+  int32_t CellIndex(CellId id);  // creates the cell on first use
+  void AddToCellTau(int32_t cell, double dphi);
+  void RemoveView(ViewId id, std::vector<CellId>* changed);
+  void AddView(View view, std::vector<CellId>* changed);
+
+  PlannerOptions options_;
+  CellGrid grid_;
+  double tau_sum_ = 0.0;
+  size_t bytes_ = 0;
+  std::unordered_map<ViewId, View> views_;
+  std::unordered_map<CellId, int32_t> cell_index_;
+  std::vector<Cell> cells_;
+  std::unordered_map<CellId, double> areas_;
+  std::vector<double> scratch_;      // per-cell pending τ change during victim search
+};
+
+}  // namespace exo::planning

@@ -1,0 +1,400 @@
+#include "server/planning/view_planner.h"
+
+#include <cmath>
+#include <limits>
+#include <random>
+#include <set>
+
+#include <gtest/gtest.h>
+
+#include "server/planning/coverage.h"
+
+namespace exo::planning {
+namespace {
+
+// A real (tiny) cell-id buffer: rays of a pinhole camera cast onto the ground plane z = 0, each
+// hit pixel labelled with the cell of the hit point. Stands in for the proxy rasterizer.
+std::vector<uint64_t> GroundPlaneCellIds(const PinholeCamera& cam, const Rigid3d& local_from_cam,
+                                         const CellGrid& grid, double extent_m = 1e9) {
+  std::vector<uint64_t> ids(static_cast<size_t>(cam.width) * cam.height, kNoCell);
+  const glm::dmat3 r = local_from_cam.RotationMatrix();
+  const glm::dvec3 c = local_from_cam.translation;
+  for (int v = 0; v < cam.height; ++v)
+    for (int u = 0; u < cam.width; ++u) {
+      const glm::dvec3 ray = r * cam.RayZ1({double(u), double(v)});
+      if (!(std::abs(ray.z) > 1e-12)) continue;
+      const double t = -c.z / ray.z;
+      if (!(t > 0)) continue;
+      const glm::dvec3 p = c + t * ray;
+      if (std::abs(p.x) > extent_m || std::abs(p.y) > extent_m) continue;
+      ids[static_cast<size_t>(v) * cam.width + u] = grid.IdOf(p);
+    }
+  return ids;
+}
+
+// Camera at `centre` looking at `target` (OpenCV axes: z forward, y down), with world up +z.
+Rigid3d LookAt(const glm::dvec3& centre, const glm::dvec3& target) {
+  const glm::dvec3 z = glm::normalize(target - centre);
+  glm::dvec3 up(0, 0, 1);
+  if (std::abs(glm::dot(up, z)) > 0.99) up = glm::dvec3(0, 1, 0);
+  const glm::dvec3 x = glm::normalize(glm::cross(z, up));
+  const glm::dvec3 y = glm::cross(z, x);
+  Rigid3d t;
+  t.rotation = glm::normalize(glm::quat_cast(glm::dmat3(x, y, z)));
+  t.translation = centre;
+  return t;
+}
+
+Candidate MakeCandidate(ViewId id, const glm::dvec3& centre, const glm::dvec3& target,
+                        const CellGrid& grid, size_t bytes = 1000, double extent_m = 1e9) {
+  Candidate c;
+  c.id = id;
+  c.local_from_cam = LookAt(centre, target);
+  c.id_camera = PinholeCamera::FromFov(40, 30, 1.0);
+  const auto ids = GroundPlaneCellIds(c.id_camera, c.local_from_cam, grid, extent_m);
+  c.cells = CountCellPixels(ids.data(), ids.size());
+  c.bytes = bytes;
+  return c;
+}
+
+// ---- coverage math ----
+
+TEST(Coverage, TammesBound) {
+  EXPECT_DOUBLE_EQ(TammesMaxCos(2), -1.0);   // two views: opposite directions
+  EXPECT_DOUBLE_EQ(TammesMaxCos(4), -0.5);
+  EXPECT_NEAR(TammesMaxCos(16), 2 * 0.875 * 0.875 - 1, 1e-15);
+}
+
+// Guard: erratum 2 (R_max <= 1). Without it 1 - φ_d^max = 0 and φ_d is NaN (0/0) or Inf.
+TEST(Coverage, RMaxOneNeverDividesByZero) {
+  const glm::dvec3 dir(0, 0, 1);
+  const std::vector<glm::dvec3> refs = {dir};
+  const double phi = DirectionalCoverage(dir, refs, 1);
+  EXPECT_TRUE(std::isfinite(phi));
+  EXPECT_EQ(phi, 0.0);
+}
+
+TEST(Coverage, RMaxTwoWorks) {
+  const glm::dvec3 dir(0, 0, 1);
+  const std::vector<glm::dvec3> same = {dir}, opposite = {-dir}, side = {glm::dvec3(1, 0, 0)};
+  EXPECT_DOUBLE_EQ(DirectionalCoverage(dir, same, 2), 0.0);
+  EXPECT_DOUBLE_EQ(DirectionalCoverage(dir, opposite, 2), 1.0);
+  EXPECT_DOUBLE_EQ(DirectionalCoverage(dir, side, 2), 0.5);  // (1 - 0) / (1 - (-1))
+}
+
+// Guard: erratum 1. (3.8) as printed gives φ_d^min = 1, i.e. φ_d = 0, for an empty R(b_k).
+TEST(Coverage, EmptyReferenceSetIsMaximallyNovel) {
+  const glm::dvec3 dir(0, 0, 1);
+  EXPECT_EQ(PhiDMinPrinted(dir, {}), 1.0);  // the printed equation
+  EXPECT_EQ(DirectionalCoverage(dir, {}, 16), 1.0);
+}
+
+// Guard: φ_p clamp. A cell whose known area is tiny but which fills many pixels (ψ_vis > ψ_total).
+TEST(Coverage, PsiVisAboveTotalIsClamped) {
+  const double psi_total = PsiTotal(1e-6, 0.25, 2.0, 1e-4, 0.1);
+  EXPECT_DOUBLE_EQ(psi_total, 1.0);  // floor of one pixel
+  const double phi_p = PositionalCoverage(0.9, 500.0, psi_total);
+  EXPECT_EQ(phi_p, 1.0);
+  EXPECT_DOUBLE_EQ(PositionalCoverage(0.5, 10.0, 40.0), 0.125);
+}
+
+TEST(Coverage, PsiTotalGuardsZeroDistance) {
+  const double t = PsiTotal(0.25, 0.25, 0.0, 1e-4, 0.25);
+  EXPECT_TRUE(std::isfinite(t));
+  EXPECT_DOUBLE_EQ(t, 0.25 / (0.25 * 0.25) / 1e-4);
+}
+
+// ---- options ----
+
+TEST(PlannerOptions, RMaxOneRejectedTwoAccepted) {
+  PlannerOptions o;
+  o.r_max = 1;
+  EXPECT_FALSE(ViewPlanner::Create(o).ok());
+  EXPECT_NE(std::string(o.Validate().message()).find("erratum 2"), std::string::npos);
+  o.r_max = 2;
+  EXPECT_TRUE(ViewPlanner::Create(o).ok());
+  for (auto mutate : std::vector<std::function<void(PlannerOptions&)>>{
+           [](PlannerOptions& p) { p.lambda = -0.1; },
+           [](PlannerOptions& p) { p.sigma_m = 0; },
+           [](PlannerOptions& p) { p.tau_max = std::nan(""); },
+           [](PlannerOptions& p) { p.cell_size_m = 0; },
+           [](PlannerOptions& p) { p.max_views = 0; },
+           [](PlannerOptions& p) { p.delta_tau_sum = -1; }}) {
+    PlannerOptions p;
+    mutate(p);
+    EXPECT_FALSE(p.Validate().ok());
+  }
+}
+
+TEST(PlannerOptions, ForSceneDerivesCellSizeAndDistance) {
+  const PlannerOptions o = PlannerOptions::ForScene(20.0, 3.0);
+  EXPECT_DOUBLE_EQ(o.cell_size_m, 0.5);
+  EXPECT_DOUBLE_EQ(o.d_max_m, 3.0);
+  EXPECT_DOUBLE_EQ(PlannerOptions::ForScene(1000.0, 3.0).cell_size_m, 1.0);
+  EXPECT_DOUBLE_EQ(PlannerOptions::ForScene(2.0, 3.0).cell_size_m, 0.3);
+  EXPECT_TRUE(o.Validate().ok());
+}
+
+// ---- planner ----
+
+TEST(ViewPlanner, CountCellPixels) {
+  const std::vector<uint64_t> ids = {5, 5, kNoCell, 7, 5, 7, 7, kNoCell};
+  const auto c = CountCellPixels(ids.data(), ids.size());
+  ASSERT_EQ(c.size(), 2u);
+  EXPECT_EQ(c[0].cell, 5u);
+  EXPECT_EQ(c[0].pixels, 3u);
+  EXPECT_EQ(c[1].cell, 7u);
+  EXPECT_EQ(c[1].pixels, 3u);
+}
+
+TEST(ViewPlanner, FirstViewCoverageUsesErratum1) {
+  PlannerOptions o;
+  o.lambda = 1.0;  // directional only
+  auto p = ViewPlanner::Create(o).value();
+  const CellId cell = p.grid().IdOf({0.1, 0.1, 0.1});
+  EXPECT_DOUBLE_EQ(p.CoverageOf({0, 0, 3}, cell, 10, 1e-4), 1.0);
+}
+
+// Guard d -> 0: a camera inside the cell it sees claims no coverage (and never NaN).
+TEST(ViewPlanner, CameraInsideCell) {
+  PlannerOptions o;
+  o.cell_size_m = 1.0;
+  auto p = ViewPlanner::Create(o).value();
+  const CellId cell = PackCell({0, 0, 0});
+  const double at_centre = p.CoverageOf({0.5, 0.5, 0.5}, cell, 100, 1e-4);
+  EXPECT_TRUE(std::isfinite(at_centre));
+  EXPECT_EQ(at_centre, 0.0);
+  EXPECT_EQ(p.CoverageOf({0.2, 0.7, 0.4}, cell, 100, 1e-4), 0.0);  // inside, off-centre
+  EXPECT_GT(p.CoverageOf({0.5, 0.5, 2.5}, cell, 100, 1e-4), 0.0);  // outside: coverage
+  // A candidate sitting inside a cell it "sees": finite τ_sum, that cell gets no reference.
+  Candidate c;
+  c.id = 1;
+  c.local_from_cam.translation = {0.5, 0.5, 0.5};
+  c.id_camera = PinholeCamera::FromFov(40, 30, 1.0);
+  c.cells = {{cell, 1200}, {PackCell({0, 0, 3}), 50}};
+  c.bytes = 10;
+  auto d = p.Consider(c).value();
+  EXPECT_TRUE(std::isfinite(p.tau_sum()));
+  EXPECT_TRUE(p.Refs(cell).empty());
+  EXPECT_TRUE(d.accepted);
+  EXPECT_EQ(p.Refs(PackCell({0, 0, 3})), std::vector<ViewId>{1});
+}
+
+TEST(ViewPlanner, PsiVisAboveTotalBoundsPerViewCoverage) {
+  PlannerOptions o;
+  o.lambda = 0.0;  // positional only
+  o.d_max_m = 2.0;
+  o.cell_size_m = 1.0;
+  auto p = ViewPlanner::Create(o).value();
+  const CellId cell = PackCell({0, 0, 0});
+  ASSERT_TRUE(p.SetCellArea(cell, 1e-4).ok());  // underestimated area
+  const double phi = p.CoverageOf({0.5, 0.5, 2.5}, cell, 5000, 1e-4);
+  EXPECT_LE(phi, 1.0);
+  EXPECT_DOUBLE_EQ(phi, 1.0);  // g = 1 at d = d_max, ψ_vis/ψ_total clamped
+  EXPECT_FALSE(p.SetCellArea(cell, std::nan("")).ok());
+  EXPECT_FALSE(p.SetCellArea(cell, -1.0).ok());
+}
+
+TEST(ViewPlanner, BadInputIsAnErrorAndChangesNothing) {
+  auto p = ViewPlanner::Create({}).value();
+  const CellGrid& g = p.grid();
+  Candidate ok = MakeCandidate(1, {0, 0, 3}, {0, 0, 0}, g);
+  Candidate nan_pose = ok;
+  nan_pose.local_from_cam.translation.x = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_FALSE(p.Consider(nan_pose).ok());
+  Candidate bad_rot = ok;
+  bad_rot.local_from_cam.rotation = glm::dquat(std::nan(""), 0, 0, 0);
+  EXPECT_FALSE(p.Consider(bad_rot).ok());
+  Candidate bad_cam = ok;
+  bad_cam.id_camera.fx = 0;
+  EXPECT_FALSE(p.Consider(bad_cam).ok());
+  EXPECT_EQ(p.num_views(), 0u);
+  EXPECT_EQ(p.tau_sum(), 0.0);
+  ASSERT_TRUE(p.Consider(ok).value().accepted);
+  EXPECT_FALSE(p.Consider(ok).ok());  // duplicate id
+}
+
+TEST(ViewPlanner, GrazingViewGetsLittlePositionalCoverage) {
+  PlannerOptions o;
+  o.lambda = 0.0;
+  o.cell_size_m = 1.0;
+  o.d_max_m = 3.0;
+  auto p = ViewPlanner::Create(o).value();
+  const CellGrid& g = p.grid();
+  // Same distance to the target cell, looking straight down vs. at a grazing 3 degrees.
+  const glm::dvec3 target(0.5, 0.5, 0.0);
+  const double a = 3.0 * M_PI / 180.0;
+  const Candidate top = MakeCandidate(1, target + glm::dvec3(0, 0, 3), target, g);
+  const Candidate graze =
+      MakeCandidate(2, target + glm::dvec3(3 * std::cos(a), 0, 3 * std::sin(a)), target, g);
+  const CellId cell = g.IdOf(target);
+  auto pixels = [&](const Candidate& c) {
+    for (auto& cp : c.cells)
+      if (cp.cell == cell) return double(cp.pixels);
+    return 0.0;
+  };
+  const double sr = top.id_camera.PixelSolidAngle();
+  const double phi_top = p.CoverageOf(top.local_from_cam.translation, cell, pixels(top), sr);
+  const double phi_graze =
+      p.CoverageOf(graze.local_from_cam.translation, cell, pixels(graze), sr);
+  EXPECT_GT(phi_top, 0.5);
+  EXPECT_TRUE(std::isfinite(phi_graze));
+  EXPECT_LT(phi_graze, 0.15 * phi_top);  // ~sin(3°) of the footprint
+}
+
+// Invariants of the bookkeeping, checked after every step of a long stream.
+void CheckInvariants(const ViewPlanner& p, const PlannerOptions& o) {
+  ASSERT_LE(p.num_views(), o.max_views);
+  ASSERT_LE(p.bytes(), o.max_bytes);
+  const auto ids = p.ViewIds();
+  const std::set<ViewId> stored(ids.begin(), ids.end());
+  for (const auto& [cell, refs] : p.CellRefs()) {
+    ASSERT_LE(refs.size(), size_t(o.r_max));
+    for (ViewId r : refs) ASSERT_TRUE(stored.count(r)) << "reference to an evicted view";
+    ASSERT_EQ(std::set<ViewId>(refs.begin(), refs.end()).size(), refs.size());
+  }
+}
+
+// A long stream over a 12 m x 12 m ground plane; store bounded by count and bytes with
+// variable frame sizes; incremental τ_sum must equal a from-scratch recomputation.
+TEST(ViewPlanner, LongStreamRespectsBoundsAndIncrementalTauSumIsExact) {
+  PlannerOptions o;
+  o.max_views = 12;
+  o.max_bytes = 12 * 1000;  // byte bound binds before the count bound for large frames
+  o.r_max = 4;
+  o.cell_size_m = 1.0;
+  o.d_max_m = 3.0;
+  o.sigma_m = 2.0;
+  o.tau_max = 1.5;
+  o.delta_tau_sum = 0.01;
+  auto p = ViewPlanner::Create(o).value();
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> u(-6, 6), h(1.5, 5.0);
+  std::uniform_int_distribution<int> sz(600, 2500);
+  int accepted = 0, evictions = 0;
+  std::set<CellId> seen_cells;
+  size_t byte_sum_check = 0;
+  std::map<ViewId, size_t> bytes_of;
+  for (ViewId id = 1; id <= 400; ++id) {
+    const glm::dvec3 target(u(rng), u(rng), 0);
+    const glm::dvec3 centre = target + glm::dvec3(u(rng) * 0.5, u(rng) * 0.5, h(rng));
+    Candidate c = MakeCandidate(id, centre, target, p.grid(), size_t(sz(rng)), 6.0);
+    for (auto& cp : c.cells) seen_cells.insert(cp.cell);
+    auto d = p.Consider(c);
+    ASSERT_TRUE(d.ok()) << d.status();
+    if (d->accepted) {
+      ++accepted;
+      evictions += int(d->removed.size());
+      bytes_of[id] = c.bytes;
+      for (ViewId r : d->removed) bytes_of.erase(r);
+      EXPECT_GT(d->gain, o.delta_tau_sum);
+      EXPECT_FALSE(d->changed_cells.empty());
+    }
+    CheckInvariants(p, o);
+    byte_sum_check = 0;
+    for (auto& [v, b] : bytes_of) byte_sum_check += b;
+    ASSERT_EQ(p.bytes(), byte_sum_check);
+    ASSERT_NEAR(p.tau_sum(), p.RecomputeTauSum(), 1e-9 * (1 + p.tau_sum())) << "step " << id;
+  }
+  EXPECT_GT(accepted, 20);
+  EXPECT_GT(evictions, 5);
+  // Bookkeeping grows with observed cells, not frames.
+  EXPECT_LE(p.num_cells(), seen_cells.size());
+  EXPECT_LT(p.BookkeepingBytes(), 200000u);
+}
+
+// Exact victim choice on a hand-computable case. Cells: A = (0,0,0), B = (5,0,0), C = (10,0,0)
+// (cell size 1). Three views with fixed coverage via λ = 1 and distinct directions.
+TEST(ViewPlanner, VictimIsTheViewWhoseRemovalLosesLeast) {
+  PlannerOptions o;
+  o.max_views = 2;
+  o.lambda = 1.0;     // φ = φ_d: 1 for the first view of a cell
+  o.tau_max = 1.0;    // a second view of the same cell adds nothing
+  o.delta_tau_sum = 0.1;
+  o.cell_size_m = 1.0;
+  auto p = ViewPlanner::Create(o).value();
+  const PinholeCamera cam = PinholeCamera::FromFov(40, 30, 1.0);
+  auto cand = [&](ViewId id, std::vector<glm::ivec3> cells, glm::dvec3 centre) {
+    Candidate c;
+    c.id = id;
+    c.local_from_cam.translation = centre;
+    c.id_camera = cam;
+    for (auto& k : cells) c.cells.push_back({PackCell(k), 10});
+    c.bytes = 1;
+    return c;
+  };
+  // View 1 from +y sees A, B; view 2 from +z sees B (new direction: φ_d = 1, τ_B saturates) and C.
+  ASSERT_TRUE(p.Consider(cand(1, {{0, 0, 0}, {5, 0, 0}}, {0.5, 20.5, 0.5})).value().accepted);
+  ASSERT_TRUE(p.Consider(cand(2, {{5, 0, 0}, {10, 0, 0}}, {0.5, 0.5, 20.5})).value().accepted);
+  EXPECT_NEAR(p.tau_sum(), 3.0, 1e-6);
+  // Full. Candidate 3 sees A from the opposite side (φ_d = 1) and a new cell D: evicting 1
+  // loses nothing that 3 doesn't cover (A re-covered by 3, B still covered by 2); evicting 2
+  // loses C.
+  auto d = p.Consider(cand(3, {{0, 0, 0}, {15, 0, 0}}, {0.5, -19.5, 0.5})).value();
+  ASSERT_TRUE(d.accepted);
+  EXPECT_EQ(d.removed, std::vector<ViewId>{1});
+  EXPECT_NEAR(d.gain, 1.0, 1e-6);
+  EXPECT_NEAR(p.tau_sum(), 4.0, 1e-6);
+  // A duplicate of 3 (same direction to A and D as the reference 3) gains nothing: rejected.
+  auto dup = p.Consider(cand(4, {{0, 0, 0}, {15, 0, 0}}, {0.5, -19.5, 0.5})).value();
+  EXPECT_FALSE(dup.accepted);
+  EXPECT_EQ(p.ViewIds(), (std::vector<ViewId>{2, 3}));
+  // B lost view 1 from its references and was refilled from its remaining observer (view 2).
+  EXPECT_EQ(p.Refs(PackCell({5, 0, 0})), std::vector<ViewId>{2});
+}
+
+TEST(ViewPlanner, PreSelectionKeepsAtMostRMaxReferences) {
+  PlannerOptions o;
+  o.r_max = 2;
+  o.max_views = 10;
+  o.delta_tau_sum = 0.0;
+  o.tau_max = 100;
+  o.cell_size_m = 1.0;
+  auto p = ViewPlanner::Create(o).value();
+  const CellId cell = PackCell({0, 0, 0});
+  const PinholeCamera cam = PinholeCamera::FromFov(40, 30, 1.0);
+  for (ViewId id = 1; id <= 5; ++id) {
+    const double a = id * 1.1;
+    Candidate c;
+    c.id = id;
+    c.local_from_cam.translation = glm::dvec3(0.5 + 3 * std::cos(a), 0.5 + 3 * std::sin(a), 2.5);
+    c.id_camera = cam;
+    c.cells = {{cell, 50u * id}};
+    c.bytes = 1;
+    ASSERT_TRUE(p.Consider(c).ok());
+    EXPECT_LE(p.Refs(cell).size(), 2u);
+  }
+  EXPECT_EQ(p.Refs(cell).size(), 2u);
+}
+
+// Scene 1e5 m from the origin: expressed in a local frame (LocalOrigin) the planner makes the
+// same decisions as for the scene at the origin.
+TEST(ViewPlanner, SceneFarFromOriginInLocalFrame) {
+  PlannerOptions o;
+  o.max_views = 6;
+  o.cell_size_m = 1.0;
+  o.d_max_m = 3.0;
+  auto near = ViewPlanner::Create(o).value();
+  auto far = ViewPlanner::Create(o).value();
+  const glm::dvec3 offset(1e5, -1e5, 0);
+  LocalOrigin origin{offset};
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> u(-5, 5), h(2, 4);
+  for (ViewId id = 1; id <= 60; ++id) {
+    const glm::dvec3 t(u(rng), u(rng), 0), c = t + glm::dvec3(0.3, 0.2, h(rng));
+    Candidate a = MakeCandidate(id, c, t, near.grid());
+    // The far scene: world pose 1e5 m away, converted with the local origin.
+    Rigid3d world_from_cam = a.local_from_cam;
+    world_from_cam.translation += offset;
+    Candidate b = a;
+    b.local_from_cam = origin.ToLocal(world_from_cam);
+    const auto da = near.Consider(a).value();
+    const auto db = far.Consider(b).value();
+    ASSERT_EQ(da.accepted, db.accepted) << id;
+    ASSERT_EQ(da.removed, db.removed) << id;
+  }
+  EXPECT_NEAR(near.tau_sum(), far.tau_sum(), 1e-9);
+}
+
+}  // namespace
+}  // namespace exo::planning
