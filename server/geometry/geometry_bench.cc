@@ -1,0 +1,318 @@
+// geometry_bench: speed vs error of the sparse TSDF proxy over voxel sizes.
+//
+//   geometry_bench [--data DIR] [--frames N] [--synth_frames N] [--voxels 0.01,0.02,0.04,0.08]
+//                  [--chart docs/img/geometry_voxel_size.png]
+//
+// Datasets:
+// - 7-Scenes redkitchen (real Kinect v1): frames 0..N-1 via common/datasets' SevenScenesReader
+//   (depth camera's K and pose; colour not registered, used as is); every 10th frame is
+//   held out (not integrated) and its valid depth pixels, back-projected with its pose, give the
+//   geometric error: |TSDF(p)| at those points (median, mean; only where the field is observed)
+//   and the fraction of held-out points on observed field ("coverage").
+// - synthetic room (analytic): a 6 x 5 x 3 m box with spheres, depth rendered by exact ray
+//   intersection at 640x480 along a circling trajectory; error = distance of every mesh vertex
+//   to the true surface (mean, p95).
+// Prints one JSON object per (dataset, voxel size): integrate ms/frame (median, p95), incremental
+// extraction ms/frame (median, p95), full extraction ms, triangles, blocks, bytes, error.
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <fstream>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "common/datasets/seven_scenes.h"
+#include "server/geometry/test_scenes.h"
+#include "server/geometry/tsdf_volume.h"
+
+namespace exo {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double MsSince(Clock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+}
+double Percentile(std::vector<double> v, double q) {
+  if (v.empty()) return 0;
+  std::sort(v.begin(), v.end());
+  return v[std::min(v.size() - 1, size_t(q * (v.size() - 1) + 0.5))];
+}
+
+struct Result {
+  std::string dataset;
+  double voxel_m = 0;
+  int frames = 0;
+  double integrate_med = 0, integrate_p95 = 0, extract_med = 0, extract_p95 = 0, extract_all = 0;
+  size_t triangles = 0, blocks = 0, bytes = 0, mesh_bytes = 0;
+  double err_a = 0, err_b = 0, coverage = 0;  // meaning per dataset (see header)
+};
+
+void Print(const Result& r, const char* err_a_name, const char* err_b_name) {
+  std::printf(
+      "{\"bench\":\"geometry\",\"dataset\":\"%s\",\"frames\":%d,\"voxel_m\":%.3f,"
+      "\"integrate_ms_median\":%.2f,\"integrate_ms_p95\":%.2f,\"extract_dirty_ms_median\":%.2f,"
+      "\"extract_dirty_ms_p95\":%.2f,\"extract_all_ms\":%.1f,\"triangles\":%zu,\"blocks\":%zu,"
+      "\"tsdf_bytes\":%zu,\"mesh_bytes\":%zu,\"%s\":%.2f,\"%s\":%.2f,\"coverage\":%.3f}\n",
+      r.dataset.c_str(), r.frames, r.voxel_m, r.integrate_med, r.integrate_p95, r.extract_med,
+      r.extract_p95, r.extract_all, r.triangles, r.blocks, r.bytes, r.mesh_bytes, err_a_name,
+      r.err_a, err_b_name, r.err_b, r.coverage);
+  std::fflush(stdout);
+}
+
+// Integrates `frames` (a function giving frame i) and times each step.
+template <typename GetFrame>
+Result Run(const std::string& name, double voxel, int n, GetFrame get, std::vector<bool> skip,
+           TsdfVolume* vol) {
+  Result r;
+  r.dataset = name;
+  r.voxel_m = voxel;
+  std::vector<double> integ, extr;
+  for (int i = 0; i < n; ++i) {
+    if (!skip.empty() && skip[i]) continue;
+    const Frame f = get(i);
+    auto t0 = Clock::now();
+    auto s = vol->Integrate(f, LocalOrigin{});
+    integ.push_back(MsSince(t0));
+    if (!s.ok()) {
+      std::fprintf(stderr, "frame %d: %s\n", i, std::string(s.status().message()).c_str());
+      std::exit(1);
+    }
+    t0 = Clock::now();
+    auto chunks = vol->ExtractDirtyChunks();
+    extr.push_back(MsSince(t0));
+  }
+  r.frames = int(integ.size());
+  r.integrate_med = Percentile(integ, 0.5);
+  r.integrate_p95 = Percentile(integ, 0.95);
+  r.extract_med = Percentile(extr, 0.5);
+  r.extract_p95 = Percentile(extr, 0.95);
+  const auto t0 = Clock::now();
+  const TriangleMesh mesh = vol->ExtractAll();
+  r.extract_all = MsSince(t0);
+  r.triangles = mesh.num_triangles();
+  r.mesh_bytes = mesh.bytes();
+  r.blocks = vol->num_blocks();
+  r.bytes = vol->bytes();
+  return r;
+}
+
+// ---- synthetic room ----
+struct Primitive {
+  bool sphere;
+  glm::dvec3 a;  // centre or normal
+  double b;      // radius or offset
+  double Distance(const glm::dvec3& p) const {
+    return sphere ? std::abs(glm::length(p - a) - b) : std::abs(glm::dot(a, p) - b);
+  }
+};
+std::vector<Primitive> RoomPrimitives() {
+  return {{false, {1, 0, 0}, -3.0}, {false, {1, 0, 0}, 3.0},  {false, {0, 1, 0}, -2.5},
+          {false, {0, 1, 0}, 2.5},  {false, {0, 0, 1}, 0.0},  {false, {0, 0, 1}, 3.0},
+          {true, {1.2, 0.8, 0.6}, 0.6}, {true, {-1.5, -1.0, 0.4}, 0.4}, {true, {0.3, -1.6, 1.2}, 0.35},
+          {true, {-0.8, 1.4, 0.9}, 0.5}};
+}
+
+}  // namespace
+
+// Line chart drawn with OpenCV (matplotlib is not available here).
+void DrawChart(const std::vector<Result>& results, const std::string& path) {
+  const int pw = 330, ph = 260, W = 3 * pw, H = ph + 30;
+  cv::Mat img(H, W, CV_8UC3, cv::Scalar(255, 255, 255));
+  std::vector<std::string> datasets;
+  for (const auto& r : results)
+    if (std::find(datasets.begin(), datasets.end(), r.dataset) == datasets.end())
+      datasets.push_back(r.dataset);
+  const cv::Scalar colors[] = {cv::Scalar(200, 80, 20), cv::Scalar(30, 30, 200), cv::Scalar(30, 150, 30)};
+  struct Panel {
+    const char* title;
+    bool log_y;
+    double (*get)(const Result&);
+  };
+  const Panel panels[] = {
+      {"integrate ms/frame (median)", false, [](const Result& r) { return r.integrate_med; }},
+      {"triangles (log10)", true, [](const Result& r) { return double(r.triangles); }},
+      {"geometric error (mm)", false, [](const Result& r) { return r.err_a; }},
+  };
+  for (int p = 0; p < 3; ++p) {
+    const int x0 = p * pw + 50, x1 = (p + 1) * pw - 15, y0 = 30, y1 = ph - 35;
+    cv::rectangle(img, {x0, y0}, {x1, y1}, cv::Scalar(0, 0, 0));
+    cv::putText(img, panels[p].title, {p * pw + 40, 20}, cv::FONT_HERSHEY_SIMPLEX, 0.45,
+                cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
+    double lo = 1e300, hi = -1e300, vlo = 1e300, vhi = -1e300;
+    for (const auto& r : results) {
+      double v = panels[p].get(r);
+      if (panels[p].log_y) v = std::log10(std::max(1.0, v));
+      lo = std::min(lo, v), hi = std::max(hi, v);
+      vlo = std::min(vlo, std::log2(r.voxel_m * 100)), vhi = std::max(vhi, std::log2(r.voxel_m * 100));
+    }
+    if (!panels[p].log_y) lo = 0;
+    if (hi <= lo) hi = lo + 1;
+    hi += 0.08 * (hi - lo);
+    if (vhi <= vlo) vhi = vlo + 1;
+    auto X = [&](double voxel) { return int(x0 + (std::log2(voxel * 100) - vlo) / (vhi - vlo) * (x1 - x0)); };
+    auto Y = [&](double v) { return int(y1 - (v - lo) / (hi - lo) * (y1 - y0)); };
+    for (int k = 0; k <= 4; ++k) {
+      const double v = lo + (hi - lo) * k / 4;
+      char buf[32];
+      std::snprintf(buf, sizeof(buf), panels[p].log_y ? "%.1f" : (hi > 20 ? "%.0f" : "%.1f"), v);
+      cv::putText(img, buf, {p * pw + 5, Y(v) + 4}, cv::FONT_HERSHEY_SIMPLEX, 0.35, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
+      cv::line(img, {x0, Y(v)}, {x1, Y(v)}, cv::Scalar(225, 225, 225));
+    }
+    for (const auto& r : results) {
+      char buf[16];
+      std::snprintf(buf, sizeof(buf), "%gcm", r.voxel_m * 100);
+      cv::putText(img, buf, {X(r.voxel_m) - 12, y1 + 15}, cv::FONT_HERSHEY_SIMPLEX, 0.35, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
+    }
+    cv::putText(img, "voxel size", {(x0 + x1) / 2 - 30, y1 + 30}, cv::FONT_HERSHEY_SIMPLEX, 0.4, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
+    for (size_t d = 0; d < datasets.size(); ++d) {
+      cv::Point prev(-1, -1);
+      for (const auto& r : results) {
+        if (r.dataset != datasets[d]) continue;
+        double v = panels[p].get(r);
+        if (panels[p].log_y) v = std::log10(std::max(1.0, v));
+        const cv::Point pt(X(r.voxel_m), Y(v));
+        if (prev.x >= 0) cv::line(img, prev, pt, colors[d % 3], 2, cv::LINE_AA);
+        cv::circle(img, pt, 4, colors[d % 3], cv::FILLED, cv::LINE_AA);
+        prev = pt;
+      }
+    }
+  }
+  for (size_t d = 0; d < datasets.size(); ++d) {
+    cv::line(img, {60 + int(d) * 300, H - 10}, {85 + int(d) * 300, H - 10}, colors[d % 3], 2);
+    cv::putText(img, datasets[d], {90 + int(d) * 300, H - 6}, cv::FONT_HERSHEY_SIMPLEX, 0.4,
+                cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
+  }
+  cv::imwrite(path, img);
+}
+
+}  // namespace exo
+
+int main(int argc, char** argv) {
+  using namespace exo;
+  std::string data = std::string(EXOVIEW_SOURCE_DIR) + "/../shared/data/7scenes-redkitchen";
+  if (const char* e = std::getenv("EXOVIEW_SHARED_DIR")) data = std::string(e) + "/data/7scenes-redkitchen";
+  int frames = 300, synth_frames = 120;
+  std::vector<double> voxels = {0.01, 0.02, 0.04, 0.08};
+  std::string chart;
+  for (int i = 1; i + 1 < argc; i += 2) {
+    const std::string k = argv[i], v = argv[i + 1];
+    if (k == "--data") data = v;
+    else if (k == "--frames") frames = std::stoi(v);
+    else if (k == "--synth_frames") synth_frames = std::stoi(v);
+    else if (k == "--chart") chart = v;
+    else if (k == "--voxels") {
+      voxels.clear();
+      std::stringstream ss(v);
+      for (std::string t; std::getline(ss, t, ',');) voxels.push_back(std::stod(t));
+    } else {
+      std::fprintf(stderr, "unknown flag %s\n", k.c_str());
+      return 2;
+    }
+  }
+  std::vector<Result> results;
+
+  // Synthetic room: render once, reuse for every voxel size.
+  if (synth_frames > 0) {
+    const auto prims = RoomPrimitives();
+    std::vector<geometry_test::HitFn> fns;
+    for (const auto& p : prims)
+      fns.push_back(p.sphere ? geometry_test::Sphere(p.a, p.b) : geometry_test::Plane(p.a, p.b));
+    const auto hit = geometry_test::Union(fns);
+    const PinholeCamera cam = PinholeCamera::FromFov(640, 480, 65.0 * M_PI / 180);
+    std::vector<Frame> fr;
+    for (int i = 0; i < synth_frames; ++i) {
+      const double t = 2 * M_PI * i / synth_frames;
+      const glm::dvec3 eye(1.6 * std::cos(t), 1.3 * std::sin(t), 1.5 + 0.4 * std::sin(3 * t));
+      const glm::dvec3 target(-2.5 * std::cos(t + 0.9), -2.0 * std::sin(t + 0.9), 0.8);
+      const Rigid3d pose = geometry_test::LookAt(eye, target);
+      fr.push_back(geometry_test::MakeFrame(cam, pose, geometry_test::RenderDepth(cam, pose, hit),
+                                            [](const glm::dvec3& p) {
+                                              const int c = (int(std::floor(p.x * 4)) + int(std::floor(p.y * 4)) + int(std::floor(p.z * 4))) & 1;
+                                              return c ? glm::u8vec3(220, 200, 160) : glm::u8vec3(60, 90, 140);
+                                            }));
+    }
+    for (double vs : voxels) {
+      TsdfOptions o;
+      o.voxel_size_m = float(vs);
+      o.max_depth_m = 8.0f;
+      TsdfVolume vol(o);
+      Result r = Run("synthetic-room", vs, synth_frames, [&](int i) { return fr[i]; }, {}, &vol);
+      const TriangleMesh m = vol.ExtractAll();
+      std::vector<double> err;
+      err.reserve(m.positions.size());
+      for (const auto& p : m.positions) {
+        double d = 1e9;
+        for (const auto& pr : prims) d = std::min(d, pr.Distance(glm::dvec3(p)));
+        err.push_back(d * 1000);
+      }
+      double sum = 0;
+      for (double e : err) sum += e;
+      r.err_a = err.empty() ? 0 : sum / err.size();
+      r.err_b = Percentile(err, 0.95);
+      r.coverage = 1.0;
+      Print(r, "vertex_err_mm_mean", "vertex_err_mm_p95");
+      results.push_back(r);
+    }
+  }
+
+  // 7-Scenes redkitchen.
+  if (frames > 0) {
+    auto reader_or = SevenScenesReader::Open(data);
+    if (!reader_or.ok()) {
+      std::fprintf(stderr, "no 7-Scenes data at %s (%s); skipping\n", data.c_str(),
+                   std::string(reader_or.status().message()).c_str());
+    } else {
+      const SevenScenesReader& reader = **reader_or;
+      frames = std::min<int>(frames, int(reader.size()));
+      auto load = [&](int i) {
+        auto f = reader.Load(i);
+        if (!f.ok()) {
+          std::fprintf(stderr, "%s\n", std::string(f.status().message()).c_str());
+          std::exit(1);
+        }
+        return *std::move(f);
+      };
+      const PinholeCamera& kcam = reader.camera();
+      std::vector<bool> held_out(frames);
+      for (int i = 0; i < frames; ++i) held_out[i] = i % 10 == 0;
+      for (double vs : voxels) {
+        TsdfOptions o;
+        o.voxel_size_m = float(vs);
+        o.max_depth_m = 4.0f;
+        TsdfVolume vol(o);
+        Result r = Run("7scenes-redkitchen", vs, frames, load, held_out, &vol);
+        std::vector<double> err;
+        size_t total = 0;
+        for (int i = 0; i < frames; i += 10) {
+          const Frame f = load(i);
+          const glm::dmat3 rot = f.world_from_cam.RotationMatrix();
+          for (int v = 0; v < 480; v += 4)
+            for (int u = 0; u < 640; u += 4) {
+              const float d = f.depth_m.at(u, v);
+              if (!(d > 0.1f && d < 4.0f)) continue;
+              ++total;
+              const glm::dvec3 p = f.world_from_cam.translation + rot * kcam.Unproject({double(u), double(v)}, d);
+              float s;
+              if (vol.SdfAt(glm::vec3(p), &s)) err.push_back(std::abs(s) * 1000);
+            }
+        }
+        double sum = 0;
+        for (double e : err) sum += e;
+        r.err_a = err.empty() ? 0 : sum / err.size();
+        r.err_b = Percentile(err, 0.5);
+        r.coverage = total ? double(err.size()) / total : 0;
+        Print(r, "heldout_abs_sdf_mm_mean", "heldout_abs_sdf_mm_median");
+        results.push_back(r);
+      }
+    }
+  }
+  if (!chart.empty() && !results.empty()) DrawChart(results, chart);
+  return 0;
+}
