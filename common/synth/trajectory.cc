@@ -147,7 +147,7 @@ absl::StatusOr<std::vector<TimedPose>> MakeTrajectory(const SynthScene& scene, T
                                                       const TrajectoryOptions& options) {
   EXO_RETURN_IF_ERROR(options.Validate());
   std::vector<glm::dvec3> waypoints;
-  double heading_window = 1.0;
+  double heading_window = 2.5;
   if (kind == TrajectoryKind::kFlyover) {
     if (scene.flyover_altitude_m <= 0)
       return absl::InvalidArgumentError(
@@ -158,7 +158,7 @@ absl::StatusOr<std::vector<TimedPose>> MakeTrajectory(const SynthScene& scene, T
       waypoints.push_back({lo.x + inset + h.x * (hi.x - lo.x - 2 * inset),
                            lo.y + inset + h.y * (hi.y - lo.y - 2 * inset),
                            scene.flyover_altitude_m});
-    heading_window = 4.0;
+    heading_window = 6.0;
   } else {
     if (scene.walk_waypoints.size() < 2)
       return absl::InvalidArgumentError(absl::StrCat("scene '", scene.name, "' has no walk path"));
