@@ -7,4 +7,6 @@ BUILD="${EXOVIEW_BUILD_DIR:-$ROOT/build}"
 OUT="$ROOT/out/demo"
 while [ $# -gt 0 ]; do case "$1" in --out) OUT="$2"; shift 2;; *) echo "unknown option $1" >&2; exit 2;; esac; done
 mkdir -p "$OUT"
-exec "$BUILD/common/synth/exoview_synth" --out "$OUT"
+# 60 frames per trajectory + 200 ground-truth test views per scene keeps the default run short;
+# pass more with exoview_synth --frames N directly (thesis: 5000).
+exec "$BUILD/common/synth/exoview_synth" --out "$OUT" --frames 60 --test-poses 200

@@ -40,6 +40,7 @@ struct Args {
   double pose_noise_deg = 0, pose_noise_m = 0;
   bool specular = false;
   int threads = 2;
+  double preview_at = 0.33;  // fraction along each trajectory of the preview frame
 };
 
 void Usage() {
@@ -47,7 +48,7 @@ void Usage() {
                "usage: exoview_synth --out DIR [--scene village|apartment|all] "
                "[--trajectory flyover|walk|all] [--frames N] [--test-poses N] [--seed S] "
                "[--width W --height H] [--exposure-jitter X] [--pose-noise-deg D] "
-               "[--pose-noise-m M] [--specular] [--threads T]\n");
+               "[--pose-noise-m M] [--specular] [--threads T] [--preview-at F]\n");
 }
 
 absl::StatusOr<Args> ParseArgs(int argc, char** argv) {
@@ -94,6 +95,10 @@ absl::StatusOr<Args> ParseArgs(int argc, char** argv) {
       EXO_RETURN_IF_ERROR(number(&a.pose_noise_deg));
     } else if (k == "--pose-noise-m") {
       EXO_RETURN_IF_ERROR(number(&a.pose_noise_m));
+    } else if (k == "--preview-at") {
+      EXO_RETURN_IF_ERROR(number(&a.preview_at));
+      if (!(a.preview_at >= 0 && a.preview_at <= 1))
+        return absl::InvalidArgumentError("--preview-at must be in [0, 1]");
     } else if (k == "--specular") {
       a.specular = true;
     } else if (k == "--threads") {
@@ -251,7 +256,7 @@ absl::Status Run(const Args& args) {
         const auto t2 = Clock::now();
         render_ms += std::chrono::duration<double, std::milli>(t1 - t0).count();
         write_ms += std::chrono::duration<double, std::milli>(t2 - t1).count();
-        if (i == poses.size() / 3) {
+        if (i == static_cast<size_t>(args.preview_at * (poses.size() - 1) + 0.5)) {
           const std::string base = absl::StrCat("synth_", scene.name, "_", rep.trajectory);
           EXO_RETURN_IF_ERROR(WriteColorImage((out / "previews" / (base + ".png")).string(),
                                               Downscale(rf.frame.color, 2)));
