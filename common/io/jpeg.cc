@@ -67,8 +67,10 @@ absl::StatusOr<ImageU8> DecodeJpeg(std::span<const uint8_t> bytes) {
   TjHandle h(tjInitDecompress());
   if (!h) return absl::InternalError("tjInitDecompress failed");
   ImageU8 rgb(info.width, info.height, 3);
-  // TJFLAG_STOPONWARNING: a truncated stream is only a libjpeg *warning* (the rest of the image
-  // is filled with grey); we want an error instead.
+  // A truncated stream is only a libjpeg *warning* ("Premature end of JPEG file"; libjpeg fills
+  // the rest with grey and TurboJPEG 2.1 returns -1 with TJERR_WARNING). We treat any nonzero
+  // return, warning or fatal, as an error; TJFLAG_STOPONWARNING stops the decode at the first
+  // warning instead of finishing a useless image.
   const int rc = tjDecompress2(h.get(), bytes.data(), bytes.size(), rgb.data(), info.width, 0,
                                info.height, TJPF_RGB,
                                TJFLAG_STOPONWARNING);

@@ -51,7 +51,8 @@ TEST(JpegTest, EncodeRejectsBadInput) {
   EXPECT_FALSE(EncodeJpeg(testing::MakeTestRgb(8, 8), 101).ok());
 }
 
-// Guard: TJFLAG_STOPONWARNING. Without it a truncated stream "decodes" with grey padding.
+// Guard: warnings are errors. libjpeg only *warns* on a truncated stream (grey padding,
+// TJERR_WARNING); code that accepted TJERR_WARNING results would return a padded image here.
 TEST(JpegTest, TruncatedIsAnError) {
   const auto bytes = *EncodeJpeg(testing::MakeTestRgb(160, 120), 90);
   for (size_t len : {size_t{0}, size_t{1}, size_t{3}, size_t{50}, bytes.size() / 4,
