@@ -192,11 +192,19 @@ class Refiner {
     std::vector<int> idx;
     std::vector<double> c;  // candidate value at the current pose
   };
-  void BuildSamples();
+  void BuildSamples(int budget);
   Active ActiveSet(int level, const Pose& pose) const;
   bool ValidInCandidate(int level, const Pose& pose, const Sample& s, double* u,
                         double* v) const;
-  double Energy(int level, double e, const Pose& pose, double scale, int* valid) const;
+  // J of (e0, p0) and (e1, p1) over the samples valid at both (a fair comparison when the
+  // valid set changes); `raised` also when most of the samples valid before are lost.
+  struct EnergyPair {
+    double before = 0, after = 0;
+    int common = 0, valid_before = 0;
+    bool Raised() const { return after > before || common < valid_before / 2; }
+  };
+  EnergyPair CompareEnergy(int level, double e0, const Pose& p0, double e1, const Pose& p1,
+                           double scale) const;
   double ScaleFromResiduals(std::vector<double> r) const;
   double SolveExposure(int level, const Pose& pose, double e);
   Pose SolvePose(int level, double e, const Pose& pose);
@@ -213,12 +221,12 @@ class Refiner {
   RefinementResult res_;
 };
 
-void Refiner::BuildSamples() {
+void Refiner::BuildSamples(int budget) {
   const Pose cand0 = CamFromLocal(cand_.local_from_cam);
   const Level& c0 = cand_pyr_[0];
   const bool cand_depth = !cand_.depth_m.empty() && cand_.depth_m.width() == c0.w &&
                           cand_.depth_m.height() == c0.h;
-  const int per_ref = std::max(1, o_.max_samples / static_cast<int>(refs_.size()));
+  const int per_ref = std::max(1, budget / static_cast<int>(refs_.size()));
   std::vector<double> vals[kMaxLevels];
   std::vector<double> depths;
   for (size_t r = 0; r < refs_.size(); ++r) {
@@ -322,26 +330,25 @@ Refiner::Active Refiner::ActiveSet(int level, const Pose& pose) const {
   return a;
 }
 
-// J (3.17) at one level with a fixed Tukey scale; samples not valid in the candidate at this
-// pose cost the Tukey maximum, so moving samples out of view never lowers the energy.
-double Refiner::Energy(int level, double e, const Pose& pose, double scale, int* valid) const {
+// J (3.17) at one level with a fixed Tukey scale, before and after a step, on common samples.
+Refiner::EnergyPair Refiner::CompareEnergy(int level, double e0, const Pose& p0, double e1,
+                                           const Pose& p1, double scale) const {
   const Level& L = cand_pyr_[level];
-  double sum = 0.0;
-  int n = 0;
+  EnergyPair ep;
   for (const Sample& s : samples_) {
-    if (!s.has[level]) continue;
-    double u, v;
-    if (!ValidInCandidate(level, pose, s, &u, &v)) {
-      sum += scale * scale / 6.0;
-      continue;
-    }
-    double val;
-    L.interp->Evaluate(v, u, &val);
-    sum += TukeyRho(e * val - s.m[level], scale);
-    ++n;
+    double u0, v0, u1, v1;
+    const bool ok0 = ValidInCandidate(level, p0, s, &u0, &v0);
+    if (!ok0) continue;
+    ++ep.valid_before;
+    if (!ValidInCandidate(level, p1, s, &u1, &v1)) continue;
+    double c0, c1;
+    L.interp->Evaluate(v0, u0, &c0);
+    L.interp->Evaluate(v1, u1, &c1);
+    ep.before += TukeyRho(e0 * c0 - s.m[level], scale);
+    ep.after += TukeyRho(e1 * c1 - s.m[level], scale);
+    ++ep.common;
   }
-  if (valid) *valid = n;
-  return sum;
+  return ep;
 }
 
 double Refiner::ScaleFromResiduals(std::vector<double> r) const {
@@ -371,7 +378,6 @@ double Refiner::SolveExposure(int level, const Pose& pose, double e) {
   std::vector<double> r(a.idx.size());
   for (size_t k = 0; k < a.idx.size(); ++k) r[k] = e * a.c[k] - samples_[a.idx[k]].m[level];
   const double scale = ScaleFromResiduals(r);
-  const double before = Energy(level, e, pose, scale, nullptr);
   double x = e;
   const ceres::Solver::Options so = SolverOptions(o_);
   for (int stage = o_.warm_start ? 0 : 1; stage < 2; ++stage) {
@@ -391,7 +397,7 @@ double Refiner::SolveExposure(int level, const Pose& pose, double e) {
     ceres::Solve(so, &problem, &sum);
     res_.iterations += static_cast<int>(sum.iterations.size());
   }
-  if (!std::isfinite(x) || Energy(level, x, pose, scale, nullptr) > before) {
+  if (!std::isfinite(x) || CompareEnergy(level, e, pose, x, pose, scale).Raised()) {
     res_.step_reverted = true;  // guard: never accept a stage that raises J
     return e;
   }
@@ -405,7 +411,6 @@ Pose Refiner::SolvePose(int level, double e, const Pose& pose) {
   std::vector<double> r(a.idx.size());
   for (size_t k = 0; k < a.idx.size(); ++k) r[k] = e * a.c[k] - samples_[a.idx[k]].m[level];
   const double scale = ScaleFromResiduals(r);
-  const double before = Energy(level, e, pose, scale, nullptr);
   double q[4] = {pose.q.x(), pose.q.y(), pose.q.z(), pose.q.w()};
   double t[3] = {pose.t.x(), pose.t.y(), pose.t.z()};
   const ceres::Solver::Options so = SolverOptions(o_);
@@ -428,7 +433,7 @@ Pose Refiner::SolvePose(int level, double e, const Pose& pose) {
   out.q = Eigen::Quaterniond(q[3], q[0], q[1], q[2]).normalized();
   out.t = {t[0], t[1], t[2]};
   if (!out.t.allFinite() || !out.q.coeffs().allFinite() ||
-      Energy(level, e, out, scale, nullptr) > before) {
+      CompareEnergy(level, e, pose, e, out, scale).Raised()) {
     res_.step_reverted = true;  // guard: never accept a stage that raises J
     return pose;
   }
@@ -471,7 +476,12 @@ void Refiner::RankCheck(const Pose& pose, double e) {
     j.tail<3>() = Eigen::Map<Eigen::Vector3d>(jt) * (median_depth_m_ / f);
     h += w * j * j.transpose();
   }
-  h /= n;
+  // Per sample and relative to the intensity level (contrast, not absolute brightness, carries
+  // pose information; dark or strongly exposure-scaled views are not textureless).
+  std::vector<double> ms(n);
+  for (int k = 0; k < n; ++k) ms[k] = samples_[a.idx[k]].m[0];
+  const double med_m = std::max(1e-4, Median(ms));
+  h /= n * med_m * med_m;
   Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 6, 6>> es(h);
   const double lmin = std::max(0.0, es.eigenvalues()(0)), lmax = es.eigenvalues()(5);
   res_.pose_min_eigenvalue = lmin;
@@ -489,10 +499,18 @@ absl::StatusOr<RefinementResult> Refiner::Run() {
   cand_pyr_ = BuildPyramid(cand_.color, cand_.camera, levels_, o_);
   ref_pyr_.reserve(refs_.size());
   for (const StoredView* r : refs_) ref_pyr_.push_back(BuildPyramid(r->color, r->camera, levels_, o_));
-  BuildSamples();
-  res_.num_samples = static_cast<int>(samples_.size());
   const Pose pose0 = CamFromLocal(cand_.local_from_cam);
-  const Active a0 = ActiveSet(0, pose0);
+  // Saturated or black candidates leave few usable samples: densify the sampling (up to 16x).
+  Active a0;
+  for (int budget = o_.max_samples;; budget *= 4) {
+    samples_.clear();
+    BuildSamples(budget);
+    a0 = ActiveSet(0, pose0);
+    if (static_cast<int>(a0.idx.size()) >= 4 * o_.min_pose_samples ||
+        budget >= 16 * o_.max_samples || a0.idx.size() * 2 >= samples_.size())
+      break;
+  }
+  res_.num_samples = static_cast<int>(samples_.size());
   if (a0.idx.size() < 3)
     return absl::FailedPreconditionError(absl::StrCat(
         "refinement: only ", a0.idx.size(),
@@ -511,7 +529,6 @@ absl::StatusOr<RefinementResult> Refiner::Run() {
   std::vector<double> r0(a0.idx.size());
   for (size_t k = 0; k < a0.idx.size(); ++k) r0[k] = e0 * a0.c[k] - samples_[a0.idx[k]].m[0];
   const double report_scale = ScaleFromResiduals(r0);
-  res_.cost_before = Energy(0, e0, pose0, report_scale, nullptr);
 
   double e = SolveExposure(0, pose0, e0);
   const double e_exposure_only = e;
@@ -536,20 +553,22 @@ absl::StatusOr<RefinementResult> Refiner::Run() {
       e = SolveExposure(0, pose, e);
     }
   }
-  res_.cost_after = Energy(0, e, pose, report_scale, nullptr);
-  const double cost_exposure_only = Energy(0, e_exposure_only, pose0, report_scale, nullptr);
-  if (res_.cost_after > cost_exposure_only) {
-    // Guard: the pose stages raised J overall (e.g. drifted to another minimum): undo them.
+  // Guards on the whole call: the pose stages must lower J relative to the exposure-only
+  // result at the input pose, and that must not be worse than the initial exposure.
+  if (!(pose.q.coeffs() == pose0.q.coeffs() && pose.t == pose0.t) &&
+      CompareEnergy(0, e_exposure_only, pose0, e, pose, report_scale).Raised()) {
     res_.step_reverted = true;
     pose = pose0;
     e = e_exposure_only;
-    res_.cost_after = cost_exposure_only;
   }
-  if (res_.cost_after > res_.cost_before) {
+  if (CompareEnergy(0, e0, pose0, e, pose0, report_scale).Raised() && pose.t == pose0.t &&
+      pose.q.coeffs() == pose0.q.coeffs()) {
     res_.step_reverted = true;
     e = e0;
-    res_.cost_after = res_.cost_before;
   }
+  const EnergyPair final_pair = CompareEnergy(0, e0, pose0, e, pose, report_scale);
+  res_.cost_before = final_pair.before;
+  res_.cost_after = final_pair.after;
 
   // Pose-outlier decision on the final residuals.
   const Active af = ActiveSet(0, pose);
@@ -562,11 +581,14 @@ absl::StatusOr<RefinementResult> Refiner::Run() {
   }
   const double med_m = Median(ms);
   res_.relative_residual = med_m > 0 ? Median(absr) / med_m : 1.0;
-  const double valid_fraction = samples_.empty() ? 0.0 : double(af.idx.size()) / samples_.size();
+  // Fraction of the samples valid at the input pose that are still valid at the result.
+  const double valid_fraction = double(af.idx.size()) / std::max<size_t>(1, a0.idx.size());
   res_.rejected_outlier = res_.relative_residual > o_.outlier_max_relative_residual ||
                           valid_fraction < o_.outlier_min_valid_fraction;
   res_.exposure = e;
-  res_.local_from_cam = LocalFromCam(pose);
+  // An unchanged pose is returned bit-exact (no inverse round trip).
+  const bool pose_unchanged = pose.q.coeffs() == pose0.q.coeffs() && pose.t == pose0.t;
+  res_.local_from_cam = pose_unchanged ? cand_.local_from_cam : LocalFromCam(pose);
   res_.ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   return res_;
 }

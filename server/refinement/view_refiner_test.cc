@@ -52,24 +52,230 @@ double TransErrM(const Rigid3d& a, const Rigid3d& b) {
   return glm::length(a.translation - b.translation);
 }
 
-TEST(ViewRefinerTest, Explore) {
+
+// Relative exposure error against the truth 1/k (candidate rendered at k x the references).
+double ExposureRelErr(double e, double k) { return std::abs(e * k - 1.0); }
+
+TEST(ViewRefinerTest, ExposureHalfToDoubleRecoveredWithin2Percent) {
   const RoomSetup s = MakeSetup(4);
   const auto refs = s.RefPtrs();
-  RefinementOptions o;
-  for (int trial = 0; trial < 10; ++trial) {
-    StoredView cand = RenderRoom(s.scene, s.cam, s.cand_true, 0.7, 1.0, trial);
-    cand.local_from_cam = Perturb(s.cand_true, 2.0, 0.02, trial);
-    auto r = RefineView(cand, refs, o);
+  for (double k : {0.5, 0.7, 1.0, 1.4, 2.0}) {
+    StoredView cand = RenderRoom(s.scene, s.cam, s.cand_true, k, 1.0, 3);
+    cand.local_from_cam = Perturb(s.cand_true, 1.0, 0.01, 5);
+    auto r = RefineView(cand, refs, RefinementOptions{});
     ASSERT_TRUE(r.ok()) << r.status();
-    std::printf("trial %d E=%.4f (1/0.7=%.4f) rot %.3f->%.3f deg trans %.4f->%.4f m  it=%d "
-                "ns=%d nv=%d cost %.4f->%.4f rel=%.4f lmin=%.3g cond=%.3g refused=%d outl=%d rev=%d %.1f ms\n",
-                trial, r->exposure, 1 / 0.7, RotErrDeg(cand.local_from_cam, s.cand_true),
-                RotErrDeg(r->local_from_cam, s.cand_true), TransErrM(cand.local_from_cam, s.cand_true),
-                TransErrM(r->local_from_cam, s.cand_true), r->iterations, r->num_samples,
-                r->num_valid_final, r->cost_before, r->cost_after, r->relative_residual,
-                r->pose_min_eigenvalue, r->pose_condition, r->pose_refused_rank_deficient,
-                r->rejected_outlier, r->step_reverted, r->ms);
+    EXPECT_LT(ExposureRelErr(r->exposure, k), 0.02) << "k=" << k << " E=" << r->exposure;
+    EXPECT_FALSE(r->rejected_outlier);
   }
+}
+
+TEST(ViewRefinerTest, PoseUpTo2Deg2CmConvergesIn95PercentOfTrials) {
+  const RoomSetup s = MakeSetup(4);
+  const auto refs = s.RefPtrs();
+  RefinementStats stats;
+  int converged = 0;
+  const int trials = 20;
+  for (int t = 0; t < trials; ++t) {
+    const double k = 0.6 + 0.05 * t;  // exposure changes too
+    StoredView cand = RenderRoom(s.scene, s.cam, s.cand_true, k, 1.0, 100 + t);
+    cand.local_from_cam = Perturb(s.cand_true, 2.0 * (t % 4 + 1) / 4.0, 0.02 * ((t + 2) % 4 + 1) / 4.0, t);
+    auto r = RefineView(cand, refs, RefinementOptions{});
+    ASSERT_TRUE(r.ok()) << r.status();
+    stats.Add(*r);
+    const double rot = RotErrDeg(r->local_from_cam, s.cand_true);
+    const double tr = TransErrM(r->local_from_cam, s.cand_true);
+    if (rot < 0.2 && tr < 0.005 && !r->rejected_outlier)
+      ++converged;
+    else
+      std::printf("trial %d not converged: rot %.3f deg trans %.4f m refused %d outlier %d rel %.4f "
+                  "reverted %d\n", t, rot, tr, r->pose_refused_rank_deficient, r->rejected_outlier,
+                  r->relative_residual, r->step_reverted);
+    // Guard "never accept a step that raises the cost".
+    EXPECT_LE(r->cost_after, r->cost_before + 1e-12) << "trial " << t;
+    EXPECT_LT(ExposureRelErr(r->exposure, k), 0.02) << "trial " << t;
+  }
+  EXPECT_GE(converged, 19) << "converged " << converged << " of " << trials;
+  EXPECT_EQ(stats.refined, trials);
+  EXPECT_EQ(stats.pose_refused, 0);
+}
+
+TEST(ViewRefinerTest, TexturelessPlaneRefusesPoseKeepsExposure) {
+  // Guard: rank check of the pose block. A uniform room gives (almost) no pose information; the
+  // sensor noise would let Levenberg-Marquardt wander. Without the guard the flag stays false
+  // and the pose moves.
+  RoomScene flat;
+  flat.textureless = true;
+  flat.occluder = false;
+  const RoomSetup s = MakeSetup(3, 160, 120, flat);
+  const auto refs = s.RefPtrs();
+  StoredView cand = RenderRoom(s.scene, s.cam, s.cand_true, 0.6, 1.0, 9);
+  cand.local_from_cam = Perturb(s.cand_true, 1.5, 0.015, 2);
+  auto r = RefineView(cand, refs, RefinementOptions{});
+  ASSERT_TRUE(r.ok()) << r.status();
+  std::printf("textureless: pose information lmin %.3g cond %.3g\n", r->pose_min_eigenvalue,
+              r->pose_condition);
+  EXPECT_TRUE(r->pose_refused_rank_deficient) << "lmin " << r->pose_min_eigenvalue << " cond "
+                                              << r->pose_condition;
+  EXPECT_EQ(r->local_from_cam.rotation, cand.local_from_cam.rotation);
+  EXPECT_EQ(r->local_from_cam.translation, cand.local_from_cam.translation);
+  EXPECT_LT(ExposureRelErr(r->exposure, 0.6), 0.02) << r->exposure;
+}
+
+// Refines exposure only from E = 1 when the truth is 10 (candidate 10x darker) on a texture with
+// albedo >= 0.15: every initial residual is far beyond a fixed Tukey scale of 0.05.
+double ExposureFromFlatStart(bool scale_from_mad, bool warm_start) {
+  RoomScene bright;
+  bright.albedo_min = 0.15;
+  const RoomSetup s = MakeSetup(2, 160, 120, bright);
+  const auto refs = s.RefPtrs();
+  StoredView cand = RenderRoom(s.scene, s.cam, s.cand_true, 0.1, 0.0);
+  RefinementOptions o;
+  o.refine_pose = false;
+  o.init_exposure_from_ratio = false;
+  o.initial_exposure = 1.0;
+  o.fixed_scale = 0.05;
+  o.scale_from_mad = scale_from_mad;
+  o.warm_start = warm_start;
+  auto r = RefineView(cand, refs, o);
+  EXO_CHECK(r.ok());
+  return r->exposure;
+}
+
+TEST(ViewRefinerTest, AllResidualsBeyondTukeyScale) {
+  // The trap itself: fixed scale, no warm start -> Tukey is flat, E does not move.
+  EXPECT_LT(ExposureFromFlatStart(false, false), 1.5);
+  // Guard "scale from the MAD": the scale grows with the residuals, E converges.
+  EXPECT_LT(ExposureRelErr(ExposureFromFlatStart(true, false), 0.1), 0.02);
+  // Guard "Cauchy warm start": Cauchy has a gradient everywhere, E converges.
+  EXPECT_LT(ExposureRelErr(ExposureFromFlatStart(false, true), 0.1), 0.02);
+}
+
+TEST(ViewRefinerTest, ExposureTenthAndTenTimesAndSaturatedFrames) {
+  // Guard: saturated (>= 250) and black (<= 5) pixels are excluded. At 10x most of the candidate
+  // clips to 255; counting those pixels biases E towards the clip level.
+  RoomScene dark;  // darker texture so that part of it stays below the clip level at 10x
+  dark.albedo_min = 0.005;
+  dark.albedo_max = 0.3;
+  const RoomSetup s = MakeSetup(4, 160, 120, dark);
+  const auto refs = s.RefPtrs();
+  for (double k : {0.1, 10.0}) {
+    StoredView cand = RenderRoom(s.scene, s.cam, s.cand_true, k, 1.0, 4);
+    cand.local_from_cam = Perturb(s.cand_true, 1.0, 0.01, 8);
+    auto r = RefineView(cand, refs, RefinementOptions{});
+    ASSERT_TRUE(r.ok()) << r.status();
+    EXPECT_LT(ExposureRelErr(r->exposure, k), 0.02)
+        << "k=" << k << " E=" << r->exposure << " rot " << RotErrDeg(r->local_from_cam, s.cand_true)
+        << " refused " << r->pose_refused_rank_deficient << " reverted " << r->step_reverted
+        << " n " << r->num_samples << " valid " << r->num_valid_final << " lmin "
+        << r->pose_min_eigenvalue << " cond " << r->pose_condition;
+    EXPECT_LE(RotErrDeg(r->local_from_cam, s.cand_true), 1.0 + 1e-9) << "k=" << k;
+  }
+  // Demonstrates the trap: with the guard disabled the 10x estimate is far off.
+  StoredView cand = RenderRoom(s.scene, s.cam, s.cand_true, 10.0, 1.0, 4);
+  RefinementOptions off;
+  off.saturated_u8 = 256;
+  off.refine_pose = false;
+  auto r = RefineView(cand, refs, off);
+  ASSERT_TRUE(r.ok());
+  EXPECT_GT(ExposureRelErr(r->exposure, 10.0), 0.1) << r->exposure;
+}
+
+TEST(ViewRefinerTest, OneReferenceView) {
+  const RoomSetup s = MakeSetup(1);
+  const auto refs = s.RefPtrs();
+  for (int t = 0; t < 3; ++t) {
+    StoredView cand = RenderRoom(s.scene, s.cam, s.cand_true, 1.3, 1.0, t);
+    cand.local_from_cam = Perturb(s.cand_true, 2.0, 0.02, 40 + t);
+    auto r = RefineView(cand, refs, RefinementOptions{});
+    ASSERT_TRUE(r.ok()) << r.status();
+    EXPECT_LT(ExposureRelErr(r->exposure, 1.3), 0.02);
+    EXPECT_LT(RotErrDeg(r->local_from_cam, s.cand_true), 0.2) << t;
+    EXPECT_LT(TransErrM(r->local_from_cam, s.cand_true), 0.005) << t;
+  }
+}
+
+TEST(ViewRefinerTest, TwoReferenceViewsUseTheMeanAsMedian) {
+  // Guard: the median of two values is their mean. The two references disagree (rendered at 1.0
+  // and 1.2, both stored with E = 1), so the candidate's E must be 1.1 / k; taking either
+  // middle element instead gives 1.0 / k or 1.2 / k (9 % off).
+  RoomSetup s = MakeSetup(2);
+  s.refs[1] = RenderRoom(s.scene, s.cam, s.refs[1].local_from_cam, 1.2);
+  const auto refs = s.RefPtrs();
+  StoredView cand = RenderRoom(s.scene, s.cam, s.cand_true, 0.8, 0.0);
+  RefinementOptions o;
+  o.refine_pose = false;
+  auto r = RefineView(cand, refs, o);
+  ASSERT_TRUE(r.ok()) << r.status();
+  EXPECT_NEAR(r->exposure, 1.1 / 0.8, 0.02 * 1.1 / 0.8);
+  // And with pose noise, two consistent references still converge.
+  const RoomSetup s2 = MakeSetup(2);
+  StoredView cand2 = RenderRoom(s2.scene, s2.cam, s2.cand_true, 0.8, 1.0, 2);
+  cand2.local_from_cam = Perturb(s2.cand_true, 2.0, 0.02, 77);
+  auto r2 = RefineView(cand2, s2.RefPtrs(), RefinementOptions{});
+  ASSERT_TRUE(r2.ok());
+  EXPECT_LT(RotErrDeg(r2->local_from_cam, s2.cand_true), 0.2);
+  EXPECT_LT(TransErrM(r2->local_from_cam, s2.cand_true), 0.005);
+}
+
+TEST(ViewRefinerTest, GaugeFixedStoredExposureIsRespected) {
+  // References rendered at 0.5 but stored with E = 2: their corrected intensities are the
+  // albedo, so a candidate rendered at 1 needs E = 1.
+  RoomSetup s = MakeSetup(3);
+  for (auto& v : s.refs) {
+    v = RenderRoom(s.scene, s.cam, v.local_from_cam, 0.5);
+    v.exposure = 2.0f;
+  }
+  StoredView cand = RenderRoom(s.scene, s.cam, s.cand_true, 1.0, 1.0, 1);
+  auto r = RefineView(cand, s.RefPtrs(), RefinementOptions{});
+  ASSERT_TRUE(r.ok());
+  EXPECT_LT(ExposureRelErr(r->exposure, 1.0), 0.02) << r->exposure;
+  for (const auto& v : s.refs) EXPECT_EQ(v.exposure, 2.0f);
+}
+
+TEST(ViewRefinerTest, PoseOutlierIsRejectedAndCounted) {
+  // Guard: final residual threshold. A 12 degree pose error is outside the convergence basin.
+  const RoomSetup s = MakeSetup(4);
+  const auto refs = s.RefPtrs();
+  RefinementStats stats;
+  StoredView bad = RenderRoom(s.scene, s.cam, s.cand_true, 1.0, 1.0, 1);
+  bad.local_from_cam = Perturb(s.cand_true, 12.0, 0.15, 3);
+  auto r = RefineView(bad, refs, RefinementOptions{});
+  ASSERT_TRUE(r.ok()) << r.status();
+  stats.Add(*r);
+  EXPECT_TRUE(r->rejected_outlier) << "relative residual " << r->relative_residual;
+  EXPECT_LE(r->cost_after, r->cost_before + 1e-12);
+  StoredView good = RenderRoom(s.scene, s.cam, s.cand_true, 1.0, 1.0, 2);
+  auto g = RefineView(good, refs, RefinementOptions{});
+  ASSERT_TRUE(g.ok());
+  stats.Add(*g);
+  EXPECT_FALSE(g->rejected_outlier) << "relative residual " << g->relative_residual;
+  EXPECT_EQ(stats.refined, 2);
+  EXPECT_EQ(stats.rejected_outlier, 1);
+}
+
+TEST(ViewRefinerTest, BadInputsGiveClearErrors) {
+  const RoomSetup s = MakeSetup(1, 64, 48);
+  StoredView cand = RenderRoom(s.scene, s.cam, s.cand_true, 1.0);
+  RefinementOptions o;
+  EXPECT_EQ(RefineView(cand, {}, o).status().code(), absl::StatusCode::kInvalidArgument);
+  o.max_samples = 0;
+  EXPECT_FALSE(o.Validate().ok());
+  o = {};
+  o.pyramid_levels = 0;
+  EXPECT_FALSE(o.Validate().ok());
+  EXPECT_TRUE(RefinementOptions{}.Validate().ok());
+  StoredView nan_pose = cand;
+  nan_pose.local_from_cam.rotation.w = std::nan("");
+  const auto refs = s.RefPtrs();
+  EXPECT_FALSE(RefineView(nan_pose, refs, RefinementOptions{}).ok());
+  StoredView bad_size = cand;
+  bad_size.depth_m = ImageF(10, 10);
+  EXPECT_FALSE(RefineView(bad_size, refs, RefinementOptions{}).ok());
+  // No overlap: the candidate looks the other way.
+  StoredView away = cand;
+  away.local_from_cam = LookAt({0, 0, -1.4}, {0, 0, -2.5});
+  auto r = RefineView(away, refs, RefinementOptions{});
+  EXPECT_EQ(r.status().code(), absl::StatusCode::kFailedPrecondition) << r.status();
 }
 
 }  // namespace
