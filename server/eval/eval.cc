@@ -1,0 +1,923 @@
+#include "server/eval/eval.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <map>
+#include <memory>
+#include <queue>
+#include <unordered_map>
+#include <unordered_set>
+
+#include <absl/strings/str_cat.h>
+#include <absl/strings/str_format.h>
+
+#include "common/datasets/seven_scenes.h"
+#include "common/io/image_file.h"
+#include "common/lumigraph/cpu_renderer.h"
+#include "common/lumigraph/model.h"
+#include "common/metrics/metrics.h"
+#include "common/raster/rasterizer.h"
+#include "common/synth/render.h"
+#include "common/synth/scene.h"
+#include "common/synth/trajectory.h"
+#include "server/geometry/cell_areas.h"
+#include "server/geometry/scene_scale.h"
+#include "server/geometry/tsdf_volume.h"
+#include "server/planning/view_planner.h"
+
+namespace exo::eval {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double MsSince(Clock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+}
+double Pct(std::vector<double> v, double p) {
+  if (v.empty()) return 0;
+  std::sort(v.begin(), v.end());
+  return v[std::min(v.size() - 1, size_t(p * (v.size() - 1) + 0.5))];
+}
+double Mean(const std::vector<double>& v) {
+  double s = 0;
+  for (double x : v) s += x;
+  return v.empty() ? 0.0 : s / v.size();
+}
+
+// ---- proxy: TSDF chunks (frustum-culled concatenation) or one ground-truth chunk ----
+
+struct ChunkEntry {
+  MeshChunk chunk;
+  glm::vec3 centre{0.0f};
+  float radius = 0.0f;
+};
+
+ChunkEntry MakeEntry(MeshChunk c) {
+  ChunkEntry e;
+  glm::vec3 lo(1e30f), hi(-1e30f);
+  for (const glm::vec3& p : c.mesh.positions) {
+    lo = glm::min(lo, p);
+    hi = glm::max(hi, p);
+  }
+  e.centre = 0.5f * (lo + hi);
+  e.radius = 0.5f * glm::length(hi - lo);
+  e.chunk = std::move(c);
+  return e;
+}
+
+// Conservative sphere-vs-frustum test (side planes and near plane).
+bool SphereInFrustum(const glm::vec3& c_local, float r, const PinholeCamera& cam,
+                     const Rigid3d& local_from_cam, double max_range) {
+  const glm::dmat3 rot = local_from_cam.RotationMatrix();
+  const glm::dvec3 p = glm::transpose(rot) * (glm::dvec3(c_local) - local_from_cam.translation);
+  if (p.z < -r || p.z > max_range + r) return false;
+  const double tx = std::max(cam.cx, cam.width - cam.cx) / cam.fx;
+  const double ty = std::max(cam.cy, cam.height - cam.cy) / cam.fy;
+  if (std::abs(p.x) - tx * p.z > r * std::sqrt(1 + tx * tx)) return false;
+  if (std::abs(p.y) - ty * p.z > r * std::sqrt(1 + ty * ty)) return false;
+  return true;
+}
+
+class Proxy {
+ public:
+  void Set(uint64_t id, MeshChunk c) { chunks_[id] = MakeEntry(std::move(c)); }
+  void Remove(uint64_t id) { chunks_.erase(id); }
+  TriangleMesh Visible(const PinholeCamera& cam, const Rigid3d& pose, double max_range) const {
+    TriangleMesh m;
+    for (const auto& [id, e] : chunks_)
+      if (SphereInFrustum(e.centre, e.radius, cam, pose, max_range)) Append(m, e.chunk.mesh);
+    return m;
+  }
+  TriangleMesh All() const {
+    TriangleMesh m;
+    for (const auto& [id, e] : chunks_) Append(m, e.chunk.mesh);
+    return m;
+  }
+  std::map<uint64_t, MeshChunk> Chunks() const {
+    std::map<uint64_t, MeshChunk> out;
+    for (const auto& [id, e] : chunks_) out[id] = e.chunk;
+    return out;
+  }
+  size_t bytes() const {
+    size_t b = 0;
+    for (const auto& [id, e] : chunks_) b += e.chunk.mesh.bytes();
+    return b;
+  }
+  size_t triangles() const {
+    size_t t = 0;
+    for (const auto& [id, e] : chunks_) t += e.chunk.mesh.num_triangles();
+    return t;
+  }
+
+ private:
+  static void Append(TriangleMesh& m, const TriangleMesh& c) {
+    // Cell-id / position rendering needs positions + indices only (colour kept when all have it).
+    if (m.empty() && m.positions.empty()) {
+      m = c;
+      m.normals.clear();
+      m.material.clear();
+      return;
+    }
+    const uint32_t base = static_cast<uint32_t>(m.positions.size());
+    m.positions.insert(m.positions.end(), c.positions.begin(), c.positions.end());
+    if (!m.colors.empty() && c.colors.size() == c.positions.size())
+      m.colors.insert(m.colors.end(), c.colors.begin(), c.colors.end());
+    else
+      m.colors.clear();
+    for (uint32_t i : c.indices) m.indices.push_back(base + i);
+  }
+  std::map<uint64_t, ChunkEntry> chunks_;
+};
+
+std::vector<planning::CellPixelCount> CellCounts(const TriangleMesh& mesh, const CellGrid& grid,
+                                                 const PinholeCamera& cam, const Rigid3d& pose,
+                                                 int w, int h, PinholeCamera* id_cam) {
+  RasterOptions ro;
+  ro.z_depth = false;
+  ro.cell_id = true;
+  ro.cell_grid = grid;
+  ro.width = w;
+  ro.height = h;
+  *id_cam = cam.Scaled(w, h);
+  if (mesh.empty()) return {};
+  auto r = Rasterize(mesh, cam, pose, ro);
+  if (!r.ok()) return {};
+  *id_cam = r->camera;
+  return planning::CountCellPixels(r->cell_id.data(), r->cell_id.size());
+}
+
+// ---- policies other than the online planner ----
+
+// Pose distance for the minimum-distance policy: metres + scale * radians.
+double PoseDistance(const Rigid3d& a, const Rigid3d& b, double metres_per_rad) {
+  const double dt = glm::length(a.translation - b.translation);
+  const double dot = std::abs(glm::dot(a.rotation, b.rotation));
+  const double ang = 2.0 * std::acos(std::min(1.0, dot));
+  return dt + metres_per_rad * ang;
+}
+
+class MinDistanceSelector {
+ public:
+  MinDistanceSelector(size_t capacity, double metres_per_rad)
+      : cap_(capacity), mpr_(metres_per_rad) {}
+  void Offer(int idx, const Rigid3d& pose) {
+    if (sel_.size() < cap_) {
+      sel_.push_back({idx, pose});
+      return;
+    }
+    // Closest pair in the store (O(n^2) but n <= a few hundred and only when full).
+    if (pair_dirty_) {
+      pair_d_ = 1e300;
+      for (size_t i = 0; i < sel_.size(); ++i)
+        for (size_t j = i + 1; j < sel_.size(); ++j) {
+          const double d = PoseDistance(sel_[i].pose, sel_[j].pose, mpr_);
+          if (d < pair_d_) {
+            pair_d_ = d;
+            pair_i_ = i;
+            pair_j_ = j;
+          }
+        }
+      pair_dirty_ = false;
+    }
+    double nearest = 1e300;
+    size_t nearest_k = 0;
+    for (size_t k = 0; k < sel_.size(); ++k) {
+      const double d = PoseDistance(pose, sel_[k].pose, mpr_);
+      if (d < nearest) {
+        nearest = d;
+        nearest_k = k;
+      }
+    }
+    if (nearest <= pair_d_) return;
+    // Replace the member of the closest pair that is not the candidate's nearest neighbour's
+    // twin: drop pair_j_ unless that is the candidate's nearest (then drop pair_i_).
+    const size_t drop = nearest_k == pair_j_ ? pair_i_ : pair_j_;
+    sel_[drop] = {idx, pose};
+    pair_dirty_ = true;
+  }
+  std::vector<int> Selected() const {
+    std::vector<int> out;
+    for (const auto& s : sel_) out.push_back(s.idx);
+    std::sort(out.begin(), out.end());
+    return out;
+  }
+
+ private:
+  struct Sel {
+    int idx;
+    Rigid3d pose;
+  };
+  size_t cap_;
+  double mpr_;
+  std::vector<Sel> sel_;
+  bool pair_dirty_ = true;
+  double pair_d_ = 0;
+  size_t pair_i_ = 0, pair_j_ = 1;
+};
+
+// Gain of a candidate against the current store: τ_sum(F ∪ I) - τ_sum(F) (store not full).
+double GainOf(const planning::ViewPlanner& p, const Rigid3d& pose, const PinholeCamera& id_cam,
+              const std::vector<planning::CellPixelCount>& cells) {
+  const double sr = id_cam.PixelSolidAngle(), tmax = p.options().tau_max;
+  double g = 0;
+  for (const auto& c : cells) {
+    const double phi = p.CoverageOf(pose.translation, c.cell, c.pixels, sr);
+    if (!(phi > 0)) continue;
+    const double t = p.CellTau(c.cell);
+    g += std::min(t + phi, tmax) - std::min(t, tmax);
+  }
+  return g;
+}
+
+// ---- the shared engine: one stream, many configurations ----
+
+struct Source {
+  PinholeCamera camera;                       // input frames' camera
+  size_t frame_bytes = 0;
+  std::vector<Rigid3d> poses;                 // local_from_cam per input frame
+  SceneScale scale;
+  double default_lambda = 0.5;
+  double metres_per_rad = 1.0;                // min-distance policy
+  std::string dataset;                        // "village/flyover", "7scenes/redkitchen"
+  // Loads frame i as a stored view (colour + depth). Called on demand.
+  std::function<absl::StatusOr<StoredView>(int)> load_view;
+  // Test poses and their ground truth images.
+  PinholeCamera test_camera;
+  std::vector<Rigid3d> test_poses;
+  std::vector<ImageU8> test_gt;
+};
+
+struct Group {  // configurations sharing one cell size
+  CellGrid grid;
+  std::unique_ptr<CellAreas> areas;
+  std::vector<size_t> online;                  // config indices
+  std::vector<double> cellid_ms;               // per frame
+  bool needs_final = false;
+  std::vector<std::vector<planning::CellPixelCount>> final_cells;  // per frame, final proxy
+  PinholeCamera id_cam;
+};
+
+struct OnlineState {
+  std::unique_ptr<planning::ViewPlanner> planner;
+  std::vector<double> consider_ms;
+  size_t accepted = 0;
+  size_t group = 0;
+};
+
+planning::PlannerOptions PlannerFor(const PolicyConfig& c, const Source& src, double cell_m,
+                                    size_t frame_bytes) {
+  planning::PlannerOptions po;
+  po.r_max = c.r_max;
+  po.max_views = static_cast<size_t>(std::max(1, c.store));
+  po.max_bytes = po.max_views * frame_bytes;
+  po.lambda = c.lambda >= 0 ? c.lambda : src.default_lambda;
+  if (c.delta_tau_sum >= 0) po.delta_tau_sum = c.delta_tau_sum;
+  if (c.tau_max > 0) po.tau_max = c.tau_max;
+  po.cell_size_m = cell_m;
+  po.d_max_m = src.scale.d_max_m;
+  po.sigma_m = src.scale.sigma_m;
+  return po;
+}
+
+ImageU8 Hstack(const std::vector<const ImageU8*>& imgs) {
+  int w = 0, h = 0;
+  for (auto* i : imgs) {
+    w += i->width();
+    h = std::max(h, i->height());
+  }
+  ImageU8 out(w, h, 3, 0);
+  int x0 = 0;
+  for (auto* i : imgs) {
+    for (int y = 0; y < i->height(); ++y)
+      for (int x = 0; x < i->width(); ++x)
+        for (int c = 0; c < 3; ++c) out.at(x0 + x, y, c) = i->at(x, y, i->channels() == 3 ? c : 0);
+    x0 += i->width();
+  }
+  return out;
+}
+
+struct EvalSink {
+  std::vector<double> ssim, psnr, cov, ssim_cov, render_ms;
+  Quality Finish() const {
+    Quality q;
+    q.mssim = Mean(ssim);
+    q.psnr = Mean(psnr);
+    q.coverage = Mean(cov);
+    q.mssim_covered = Mean(ssim_cov);
+    q.views = int(ssim.size());
+    return q;
+  }
+  absl::Status Add(const ImageU8& img, const ImageU8& gt, const ImageU8& mask, double ms) {
+    EXO_ASSIGN_OR_RETURN(double s, Ssim(img, gt));
+    EXO_ASSIGN_OR_RETURN(double mse, Mse(img, gt));
+    EXO_ASSIGN_OR_RETURN(double c, CoveredFraction(mask));
+    ssim.push_back(s);
+    psnr.push_back(std::min(99.0, PsnrFromMse(mse)));
+    cov.push_back(c);
+    if (c > 0) {
+      auto ms_or = MaskedSsim(img, gt, mask);
+      if (ms_or.ok()) ssim_cov.push_back(*ms_or);
+    }
+    render_ms.push_back(ms);
+    return absl::OkStatus();
+  }
+};
+
+std::string ConfigJson(const std::string& dataset, const std::string& proxy, double voxel_m,
+                       int frames, const PolicyConfig& c, double lambda, double cell_m,
+                       double dts, const ConfigResult& r, int idw, int idh) {
+  return absl::StrFormat(
+      "{\"bench\":\"eval\",\"dataset\":\"%s\",\"proxy\":\"%s\",\"tag\":\"%s\","
+      "\"config\":{\"policy\":\"%s\",\"frames\":%d,\"store\":%d,\"r_max\":%d,\"lambda\":%.2f,"
+      "\"cell_m\":%.3f,\"voxel_m\":%.3f,\"delta_tau_sum\":%.3f,\"idbuf\":\"%dx%d\"},"
+      "\"quality\":{\"mssim\":%.4f,\"psnr\":%.2f,\"coverage\":%.4f,\"mssim_covered\":%.4f,"
+      "\"test_views\":%d},"
+      "\"speed\":{\"integrate_ms_median\":%.2f,\"integrate_ms_p95\":%.2f,\"plan_ms_median\":%.2f,"
+      "\"plan_ms_p95\":%.2f,\"consider_ms_median\":%.3f,\"render_ms_median\":%.1f},"
+      "\"memory\":{\"store_bytes\":%zu,\"geometry_bytes\":%zu,\"planner_bytes\":%zu},"
+      "\"views\":%zu,\"accepted\":%zu,\"tau_sum\":%.2f}",
+      dataset, proxy, c.tag, PolicyName(c.policy), frames, c.store, c.r_max, lambda, cell_m,
+      voxel_m, dts, idw, idh, r.quality.mssim, r.quality.psnr, r.quality.coverage,
+      r.quality.mssim_covered, r.quality.views, r.integrate_ms_median, r.integrate_ms_p95,
+      r.plan_ms_median, r.plan_ms_p95, r.consider_ms_median, r.render_ms_median, r.store_bytes,
+      r.geometry_bytes, r.planner_bytes, r.store_views, r.accepted, r.tau_sum);
+}
+
+struct EngineOptions {
+  ProxyKind proxy = ProxyKind::kTsdf;
+  TsdfOptions tsdf;
+  int id_w = 160, id_h = 120;
+  double max_range_m = 100;
+  blend::PositionalMode positional_mode = blend::PositionalMode::kUlrResolution;
+  bool vertex_color = true;
+  std::function<void(const std::string&)> emit;
+  std::string dump_dir;
+  int dump_views = 0;
+  TriangleMesh gt_mesh;  // used when proxy == kGroundTruth
+};
+
+class Engine {
+ public:
+  Engine(Source src, std::vector<PolicyConfig> configs, EngineOptions opt)
+      : src_(std::move(src)), configs_(std::move(configs)), opt_(std::move(opt)) {}
+
+  absl::Status Init() {
+    if (opt_.proxy == ProxyKind::kTsdf) {
+      EXO_RETURN_IF_ERROR(opt_.tsdf.Validate());
+      tsdf_ = std::make_unique<TsdfVolume>(opt_.tsdf);
+    } else {
+      MeshChunk c;
+      c.id = 0;
+      c.version = 1;
+      c.mesh = opt_.gt_mesh;
+      proxy_.Set(0, c);
+    }
+    for (size_t i = 0; i < configs_.size(); ++i) {
+      const PolicyConfig& c = configs_[i];
+      const double cell = c.cell_m > 0 ? c.cell_m : src_.scale.cell_size_m;
+      size_t g = 0;
+      for (; g < groups_.size(); ++g)
+        if (std::abs(groups_[g].grid.cell_size_m - cell) < 1e-9) break;
+      if (g == groups_.size()) {
+        Group gr;
+        gr.grid.cell_size_m = cell;
+        gr.areas = std::make_unique<CellAreas>(gr.grid);
+        groups_.push_back(std::move(gr));
+        if (opt_.proxy == ProxyKind::kGroundTruth) {
+          MeshChunk c0;
+          c0.id = 0;
+          c0.version = 1;
+          c0.mesh = opt_.gt_mesh;
+          groups_[g].areas->UpdateChunk(c0);
+        }
+      }
+      cfg_group_.push_back(g);
+      OnlineState st;
+      st.group = g;
+      if (c.policy == Policy::kOnline) {
+        EXO_ASSIGN_OR_RETURN(auto p, planning::ViewPlanner::Create(
+                                         PlannerFor(c, src_, cell, src_.frame_bytes)));
+        st.planner = std::make_unique<planning::ViewPlanner>(std::move(p));
+        groups_[g].online.push_back(i);
+        if (opt_.proxy == ProxyKind::kGroundTruth)
+          for (const auto& [cell_id, a] : groups_[g].areas->areas())
+            EXO_RETURN_IF_ERROR(st.planner->SetCellArea(cell_id, a));
+      } else if (c.policy == Policy::kOfflineGreedy || c.policy == Policy::kEveryN ||
+                 c.policy == Policy::kMinDistance || c.policy == Policy::kAll) {
+        groups_[g].needs_final = true;
+      }
+      if (c.policy == Policy::kMinDistance)
+        mindist_.emplace(i, MinDistanceSelector(size_t(std::max(1, c.store)), src_.metres_per_rad));
+      online_.push_back(std::move(st));
+    }
+    if (opt_.proxy == ProxyKind::kGroundTruth)
+      for (auto& g : groups_) (void)g.areas->TakeChangedCells();
+    return absl::OkStatus();
+  }
+
+  // One input frame (frame may be null for the ground-truth proxy).
+  absl::Status Step(int idx, const Frame* frame) {
+    const Rigid3d& pose = src_.poses[idx];
+    auto t0 = Clock::now();
+    if (tsdf_ != nullptr) {
+      if (frame == nullptr) return absl::InternalError("TSDF proxy needs frames");
+      EXO_RETURN_IF_ERROR(tsdf_->Integrate(*frame, origin_).status());
+      for (MeshChunk& c : tsdf_->ExtractDirtyChunks()) {
+        for (auto& g : groups_) g.areas->UpdateChunk(c);
+        const uint64_t id = c.id;
+        proxy_.Set(id, std::move(c));
+      }
+      for (uint64_t id : tsdf_->TakeRemovedChunkIds()) {
+        for (auto& g : groups_) g.areas->RemoveChunk(id);
+        proxy_.Remove(id);
+      }
+      integrate_ms_.push_back(MsSince(t0));
+    } else {
+      integrate_ms_.push_back(0.0);
+    }
+    for (auto& g : groups_) {
+      if (g.online.empty()) continue;
+      auto t1 = Clock::now();
+      const std::vector<CellId> changed = g.areas->TakeChangedCells();
+      for (size_t ci : g.online)
+        for (CellId k : changed) EXO_RETURN_IF_ERROR(online_[ci].planner->SetCellArea(k, g.areas->Area(k)));
+      const TriangleMesh mesh = proxy_.Visible(src_.camera, pose, opt_.max_range_m);
+      PinholeCamera id_cam;
+      const auto cells = CellCounts(mesh, g.grid, src_.camera, pose, opt_.id_w, opt_.id_h, &id_cam);
+      g.cellid_ms.push_back(MsSince(t1));
+      for (size_t ci : g.online) {
+        planning::Candidate c;
+        c.id = ViewId(idx + 1);
+        c.local_from_cam = pose;
+        c.id_camera = id_cam;
+        c.cells = cells;
+        c.bytes = src_.frame_bytes;
+        auto t2 = Clock::now();
+        auto d = online_[ci].planner->Consider(c);
+        online_[ci].consider_ms.push_back(MsSince(t2));
+        if (!d.ok()) return d.status();
+        if (d->accepted) ++online_[ci].accepted;
+      }
+    }
+    for (auto& [ci, sel] : mindist_) sel.Offer(idx, pose);
+    return absl::OkStatus();
+  }
+
+  absl::StatusOr<std::vector<ConfigResult>> Finish(const std::string& proxy_name, double voxel_m) {
+    const int n = int(src_.poses.size());
+    // Final proxy cell lists for the offline/baseline policies.
+    for (auto& g : groups_) {
+      if (!g.needs_final) continue;
+      g.final_cells.resize(n);
+      for (int i = 0; i < n; ++i) {
+        const TriangleMesh mesh = proxy_.Visible(src_.camera, src_.poses[i], opt_.max_range_m);
+        g.final_cells[i] = CellCounts(mesh, g.grid, src_.camera, src_.poses[i], opt_.id_w,
+                                      opt_.id_h, &g.id_cam);
+      }
+    }
+    const TriangleMesh proxy_mesh = proxy_.All();
+    const size_t geometry_bytes = (tsdf_ ? tsdf_->bytes() : 0) + proxy_.bytes();
+    std::vector<ConfigResult> results;
+    if (opt_.vertex_color && tsdf_ != nullptr) {
+      ConfigResult r;
+      r.config.policy = Policy::kVertexColor;
+      r.config.store = 0;
+      r.config.tag = "baseline";
+      EXO_ASSIGN_OR_RETURN(r.quality, EvalVertexColor(proxy_mesh, &r.render_ms_median));
+      r.integrate_ms_median = Pct(integrate_ms_, 0.5);
+      r.integrate_ms_p95 = Pct(integrate_ms_, 0.95);
+      r.geometry_bytes = geometry_bytes;
+      r.json = ConfigJson(src_.dataset, proxy_name, voxel_m, n, r.config, 0, 0, 0, r, opt_.id_w,
+                          opt_.id_h);
+      if (opt_.emit) opt_.emit(r.json);
+      results.push_back(std::move(r));
+    }
+    for (size_t ci = 0; ci < configs_.size(); ++ci) {
+      const PolicyConfig& c = configs_[ci];
+      Group& g = groups_[cfg_group_[ci]];
+      ConfigResult r;
+      r.config = c;
+      r.integrate_ms_median = Pct(integrate_ms_, 0.5);
+      r.integrate_ms_p95 = Pct(integrate_ms_, 0.95);
+      r.geometry_bytes = geometry_bytes;
+      const planning::PlannerOptions po = PlannerFor(c, src_, g.grid.cell_size_m, src_.frame_bytes);
+      std::vector<int> selected;
+      std::unordered_map<CellId, std::vector<ViewId>> refs;
+      if (c.policy == Policy::kOnline) {
+        OnlineState& st = online_[ci];
+        std::vector<double> plan(st.consider_ms.size());
+        for (size_t i = 0; i < plan.size(); ++i) plan[i] = st.consider_ms[i] + g.cellid_ms[i];
+        r.plan_ms_median = Pct(plan, 0.5);
+        r.plan_ms_p95 = Pct(plan, 0.95);
+        r.consider_ms_median = Pct(st.consider_ms, 0.5);
+        for (ViewId v : st.planner->ViewIds()) selected.push_back(int(v) - 1);
+        refs = st.planner->CellRefs();
+        r.planner_bytes = st.planner->BookkeepingBytes();
+        r.accepted = st.accepted;
+        r.tau_sum = st.planner->tau_sum();
+      } else {
+        auto t0 = Clock::now();
+        if (c.policy == Policy::kEveryN) {
+          const int step = std::max(1, n / std::max(1, c.store));
+          for (int i = 0; i < n && int(selected.size()) < c.store; i += step) selected.push_back(i);
+        } else if (c.policy == Policy::kMinDistance) {
+          selected = mindist_.at(ci).Selected();
+        } else if (c.policy == Policy::kAll) {
+          for (int i = 0; i < n; ++i) selected.push_back(i);
+        } else if (c.policy == Policy::kOfflineGreedy) {
+          EXO_ASSIGN_OR_RETURN(auto p, planning::ViewPlanner::Create(po));
+          for (const auto& [cell, a] : g.areas->areas()) EXO_RETURN_IF_ERROR(p.SetCellArea(cell, a));
+          using QE = std::pair<double, int>;
+          std::priority_queue<QE> pq;
+          for (int i = 0; i < n; ++i)
+            pq.push({GainOf(p, src_.poses[i], g.id_cam, g.final_cells[i]), i});
+          while (!pq.empty() && p.num_views() < size_t(c.store)) {
+            auto [gain_old, i] = pq.top();
+            pq.pop();
+            const double gnew = GainOf(p, src_.poses[i], g.id_cam, g.final_cells[i]);
+            if (!pq.empty() && gnew < pq.top().first - 1e-12) {
+              pq.push({gnew, i});
+              continue;
+            }
+            if (!(gnew > 0)) break;
+            planning::Candidate cand;
+            cand.id = ViewId(i + 1);
+            cand.local_from_cam = src_.poses[i];
+            cand.id_camera = g.id_cam;
+            cand.cells = g.final_cells[i];
+            cand.bytes = src_.frame_bytes;
+            EXO_RETURN_IF_ERROR(p.Consider(cand).status());
+          }
+          for (ViewId v : p.ViewIds()) selected.push_back(int(v) - 1);
+          refs = p.CellRefs();
+          r.tau_sum = p.tau_sum();
+          r.planner_bytes = p.BookkeepingBytes();
+        }
+        const double ms = MsSince(t0);
+        r.plan_ms_median = r.plan_ms_p95 = ms / std::max(1, n);
+        r.accepted = selected.size();
+        if (c.policy != Policy::kOfflineGreedy) {
+          for (int i : selected)
+            for (const auto& cc : g.final_cells[i])
+              if (cc.pixels > 0) refs[cc.cell].push_back(ViewId(i + 1));
+        }
+      }
+      r.store_views = selected.size();
+      r.store_bytes = selected.size() * src_.frame_bytes;
+      double render_ms = 0;
+      EXO_ASSIGN_OR_RETURN(r.quality, EvalStore(selected, refs, g.grid, proxy_mesh,
+                                                c.test_views, ci == 0, &render_ms,
+                                                c.lambda >= 0 ? c.lambda : src_.default_lambda));
+      r.render_ms_median = render_ms;
+      r.json = ConfigJson(src_.dataset, proxy_name, voxel_m, n, c, po.lambda, g.grid.cell_size_m,
+                          po.delta_tau_sum, r, opt_.id_w, opt_.id_h);
+      if (opt_.emit) opt_.emit(r.json);
+      results.push_back(std::move(r));
+    }
+    return results;
+  }
+
+  size_t proxy_triangles() const { return proxy_.triangles(); }
+  void set_origin(const LocalOrigin& o) { origin_ = o; }
+
+ private:
+  absl::StatusOr<Quality> EvalStore(const std::vector<int>& selected,
+                                    const std::unordered_map<CellId, std::vector<ViewId>>& refs,
+                                    const CellGrid& grid, const TriangleMesh& proxy_mesh,
+                                    int test_views, bool dump, double* render_ms_median,
+                                    double lambda) {
+    // Bring the selected views into the cache (evict others when it grows large).
+    std::unordered_set<int> need(selected.begin(), selected.end());
+    if (cache_.size() + selected.size() > kMaxCache)
+      for (auto it = cache_.begin(); it != cache_.end();)
+        it = need.count(it->first) ? std::next(it) : cache_.erase(it);
+    LumigraphModel model;
+    model.grid = grid;
+    MeshChunk chunk;
+    chunk.id = 0;
+    chunk.version = 1;
+    chunk.mesh.positions = proxy_mesh.positions;
+    chunk.mesh.indices = proxy_mesh.indices;
+    model.chunks[0] = std::move(chunk);
+    for (int i : selected) {
+      auto it = cache_.find(i);
+      if (it == cache_.end()) {
+        EXO_ASSIGN_OR_RETURN(StoredView v, src_.load_view(i));
+        v.id = ViewId(i + 1);
+        it = cache_.emplace(i, std::move(v)).first;
+      }
+      model.views.emplace(ViewId(i + 1), std::move(it->second));
+    }
+    model.cell_refs = refs;
+    CpuRenderOptions ro;
+    ro.blend.positional_mode = opt_.positional_mode;
+    ro.blend.lambda = float(lambda);
+    auto restore = [&] {
+      for (auto& [id, v] : model.views) cache_[int(id) - 1] = std::move(v);
+    };
+    auto renderer = CpuLumigraphRenderer::Create(model, ro);
+    if (!renderer.ok()) {
+      restore();
+      return renderer.status();
+    }
+    EvalSink sink;
+    const int nt = test_views < 0 ? int(src_.test_poses.size())
+                                  : std::min<int>(test_views, src_.test_poses.size());
+    absl::Status st;
+    for (int t = 0; t < nt && st.ok(); ++t) {
+      auto t0 = Clock::now();
+      auto out = (*renderer)->Render(src_.test_camera, src_.test_poses[t]);
+      const double ms = MsSince(t0);
+      if (!out.ok()) {
+        st = out.status();
+        break;
+      }
+      st = sink.Add(out->color, src_.test_gt[t], out->coverage, ms);
+      if (dump && !opt_.dump_dir.empty() && t < opt_.dump_views) {
+        std::filesystem::create_directories(opt_.dump_dir);
+        const ImageU8 img = Hstack({&out->color, &src_.test_gt[t], &out->coverage});
+        (void)WriteColorImage(absl::StrCat(opt_.dump_dir, "/view_", t, ".png"), img);
+      }
+    }
+    renderer->reset();
+    restore();
+    EXO_RETURN_IF_ERROR(st);
+    *render_ms_median = Pct(sink.render_ms, 0.5);
+    return sink.Finish();
+  }
+
+  absl::StatusOr<Quality> EvalVertexColor(const TriangleMesh& mesh, double* render_ms_median) {
+    EvalSink sink;
+    const PinholeCamera& cam = src_.test_camera;
+    const int w = cam.width, h = cam.height;
+    for (size_t t = 0; t < src_.test_poses.size(); ++t) {
+      auto t0 = Clock::now();
+      ImageU8 img(w, h, 3, 0), mask(w, h, 1, 0);
+      if (!mesh.empty() && mesh.colors.size() == mesh.positions.size()) {
+        RasterOptions ro;
+        ro.z_depth = false;
+        ro.position = true;
+        ro.triangle_id = true;
+        EXO_ASSIGN_OR_RETURN(RasterOutput r, Rasterize(mesh, cam, src_.test_poses[t], ro));
+        for (int y = 0; y < h; ++y)
+          for (int x = 0; x < w; ++x) {
+            const uint32_t tri = r.triangle_id.at(x, y);
+            if (tri == kNoTriangle) continue;
+            const glm::vec3 p(r.position_local.at(x, y, 0), r.position_local.at(x, y, 1),
+                              r.position_local.at(x, y, 2));
+            const uint32_t* ix = &mesh.indices[3 * size_t(tri)];
+            const glm::vec3 a = mesh.positions[ix[0]], b = mesh.positions[ix[1]],
+                            c = mesh.positions[ix[2]];
+            // Barycentric weights of p in the triangle (areas of the sub-triangles).
+            const glm::vec3 nrm = glm::cross(b - a, c - a);
+            const float nn = glm::dot(nrm, nrm);
+            glm::vec3 col;
+            if (nn > 0) {
+              const float wa = glm::dot(glm::cross(c - b, p - b), nrm) / nn;
+              const float wb = glm::dot(glm::cross(a - c, p - c), nrm) / nn;
+              const float wc = 1.0f - wa - wb;
+              col = wa * mesh.colors[ix[0]] + wb * mesh.colors[ix[1]] + wc * mesh.colors[ix[2]];
+            } else {
+              col = mesh.colors[ix[0]];
+            }
+            for (int ch = 0; ch < 3; ++ch)
+              img.at(x, y, ch) = blend::UnitToU8(blend::LinearToSrgb(col[ch]));
+            mask.at(x, y) = 255;
+          }
+      }
+      EXO_RETURN_IF_ERROR(sink.Add(img, src_.test_gt[t], mask, MsSince(t0)));
+    }
+    *render_ms_median = Pct(sink.render_ms, 0.5);
+    return sink.Finish();
+  }
+
+  static constexpr size_t kMaxCache = 700;
+  Source src_;
+  std::vector<PolicyConfig> configs_;
+  EngineOptions opt_;
+  LocalOrigin origin_;
+  std::unique_ptr<TsdfVolume> tsdf_;
+  Proxy proxy_;
+  std::vector<Group> groups_;
+  std::vector<size_t> cfg_group_;
+  std::vector<OnlineState> online_;
+  std::map<size_t, MinDistanceSelector> mindist_;
+  std::vector<double> integrate_ms_;
+  std::unordered_map<int, StoredView> cache_;
+};
+
+}  // namespace
+
+const char* PolicyName(Policy p) {
+  switch (p) {
+    case Policy::kOnline: return "online";
+    case Policy::kOfflineGreedy: return "offline_greedy";
+    case Policy::kEveryN: return "every_n";
+    case Policy::kMinDistance: return "min_distance";
+    case Policy::kAll: return "all_frames";
+    case Policy::kVertexColor: return "vertex_color";
+  }
+  return "?";
+}
+
+absl::Status SynthRunOptions::Validate() const {
+  if (frames < 2) return absl::InvalidArgumentError("eval: frames must be >= 2");
+  if (test_views < 1) return absl::InvalidArgumentError("eval: test_views must be >= 1");
+  if (id_width < 8 || id_height < 8) return absl::InvalidArgumentError("eval: id buffer too small");
+  if (voxel_m < 0 || !std::isfinite(voxel_m)) return absl::InvalidArgumentError("eval: bad voxel_m");
+  for (const PolicyConfig& c : configs) {
+    if (c.policy == Policy::kVertexColor)
+      return absl::InvalidArgumentError("eval: vertex_color is a per-run baseline, not a config");
+    if (c.store < 1) return absl::InvalidArgumentError("eval: store must be >= 1");
+    if (c.cell_m < 0) return absl::InvalidArgumentError("eval: cell_m must be >= 0");
+  }
+  return absl::OkStatus();
+}
+
+absl::StatusOr<std::vector<ConfigResult>> RunSynthetic(const SynthRunOptions& o) {
+  EXO_RETURN_IF_ERROR(o.Validate());
+  EXO_ASSIGN_OR_RETURN(synth::SceneKind kind, synth::ParseSceneKind(o.scene));
+  EXO_ASSIGN_OR_RETURN(synth::TrajectoryKind tkind, synth::ParseTrajectoryKind(o.traj));
+  EXO_ASSIGN_OR_RETURN(synth::SynthScene scene, synth::MakeScene(kind, {}));
+  synth::TrajectoryOptions to;
+  to.num_frames = o.frames;
+  EXO_ASSIGN_OR_RETURN(std::vector<synth::TimedPose> traj, synth::MakeTrajectory(scene, tkind, to));
+
+  synth::RenderOptions rop;
+  rop.width = o.frame_width;
+  rop.height = o.frame_height;
+  Source src;
+  src.camera = rop.Camera();
+  src.frame_bytes = size_t(src.camera.width) * src.camera.height * (3 + 4) + sizeof(StoredView);
+  for (const auto& tp : traj) src.poses.push_back(tp.local_from_cam);
+  src.scale = DeriveSceneScale(scene.bounds.min, scene.bounds.max);
+  src.default_lambda = tkind == synth::TrajectoryKind::kFlyover ? 0.5 : 0.4;
+  src.metres_per_rad = std::max(0.5, 0.05 * scene.ExtentM());
+  src.dataset = absl::StrCat(o.scene, "/", o.traj);
+  const synth::SynthScene* sp = &scene;
+  std::vector<Rigid3d> poses_copy = src.poses;
+  src.load_view = [sp, rop, poses_copy](int i) -> absl::StatusOr<StoredView> {
+    EXO_ASSIGN_OR_RETURN(synth::RenderedFrame f, synth::RenderFrame(*sp, poses_copy[i], rop));
+    StoredView v;
+    v.camera = rop.Camera();
+    v.local_from_cam = poses_copy[i];
+    v.color = std::move(f.frame.color);
+    v.depth_m = std::move(f.frame.depth_m);
+    return v;
+  };
+  synth::RenderOptions top = rop;
+  top.width = o.test_width;
+  top.height = o.test_height;
+  src.test_camera = top.Camera();
+  synth::TestPoseOptions tpo;
+  tpo.count = o.test_views;
+  tpo.seed = o.test_seed;
+  EXO_ASSIGN_OR_RETURN(src.test_poses, synth::MakeTestPoses(scene, src.test_camera, tpo));
+  for (const Rigid3d& p : src.test_poses) {
+    EXO_ASSIGN_OR_RETURN(ImageF lin, synth::RenderLinear(scene, p, top));
+    ImageU8 gt(top.width, top.height, 3);
+    for (size_t k = 0; k < gt.size(); ++k) gt.data()[k] = synth::LinearToSrgb8(lin.data()[k]);
+    src.test_gt.push_back(std::move(gt));
+  }
+
+  EngineOptions eo;
+  eo.proxy = o.proxy;
+  const double diameter = scene.ExtentM();
+  const double voxel = o.voxel_m > 0 ? o.voxel_m : std::clamp(diameter / 600.0, 0.02, 0.15);
+  eo.tsdf.voxel_size_m = float(voxel);
+  eo.tsdf.max_depth_m = float(std::max(6.0, diameter));
+  eo.tsdf.min_depth_m = 0.1f;
+  eo.max_range_m = std::max(6.0, diameter) * 1.5;
+  eo.id_w = o.id_width;
+  eo.id_h = o.id_height;
+  eo.positional_mode = o.positional_mode;
+  eo.vertex_color = o.vertex_color_baseline && o.proxy == ProxyKind::kTsdf;
+  eo.emit = o.emit;
+  eo.dump_dir = o.dump_dir;
+  eo.dump_views = o.dump_views;
+  if (o.proxy == ProxyKind::kGroundTruth) eo.gt_mesh = scene.mesh;
+  Engine engine(std::move(src), o.configs, std::move(eo));
+  engine.set_origin(scene.origin);
+  EXO_RETURN_IF_ERROR(engine.Init());
+  for (int i = 0; i < int(traj.size()); ++i) {
+    if (o.proxy == ProxyKind::kTsdf) {
+      EXO_ASSIGN_OR_RETURN(synth::RenderedFrame f,
+                           synth::RenderFrame(scene, traj[i].local_from_cam, rop, {}, i,
+                                              traj[i].timestamp_s));
+      EXO_RETURN_IF_ERROR(engine.Step(i, &f.frame));
+    } else {
+      EXO_RETURN_IF_ERROR(engine.Step(i, nullptr));
+    }
+  }
+  return engine.Finish(o.proxy == ProxyKind::kTsdf ? "tsdf" : "ground_truth",
+                       o.proxy == ProxyKind::kTsdf ? voxel : 0.0);
+}
+
+absl::StatusOr<SevenScenesReport> RunSevenScenes(const SevenScenesRunOptions& o) {
+  if (o.hold_out_every < 2) return absl::InvalidArgumentError("hold_out_every must be >= 2");
+  EXO_ASSIGN_OR_RETURN(auto reader, SevenScenesReader::Open(o.dir));
+  const size_t total = o.max_frames > 0 ? std::min<size_t>(o.max_frames, reader->size())
+                                        : reader->size();
+  SevenScenesReport rep;
+  // Split: every hold_out_every-th frame (0-based i % k == k - 1: frames 9, 19, ...) is never
+  // ingested.
+  std::vector<size_t> input, held;
+  for (size_t i = 0; i < total; ++i)
+    (i % o.hold_out_every == size_t(o.hold_out_every - 1) ? held : input).push_back(i);
+  rep.held_out = int(held.size());
+  // Load the input frames (kept: the stored views of every policy come from them).
+  std::vector<Frame> frames;
+  frames.reserve(input.size());
+  std::unordered_map<std::string, int> colour_hash;
+  for (size_t i : input) {
+    EXO_ASSIGN_OR_RETURN(Frame f, reader->Load(i));
+    colour_hash[std::string(reinterpret_cast<const char*>(f.color.data()), f.color.bytes())] = 1;
+    frames.push_back(std::move(f));
+  }
+  std::vector<Frame> test;
+  for (size_t i : held) {
+    EXO_ASSIGN_OR_RETURN(Frame f, reader->Load(i));
+    if (colour_hash.count(std::string(reinterpret_cast<const char*>(f.color.data()),
+                                      f.color.bytes()))) {
+      ++rep.dropped_duplicates;
+      continue;
+    }
+    test.push_back(std::move(f));
+  }
+  colour_hash.clear();
+  rep.ingested = int(frames.size());
+  if (frames.empty() || test.empty()) return absl::FailedPreconditionError("7-Scenes: no frames");
+  LocalOrigin origin;
+  origin.origin_in_world = frames[0].world_from_cam.translation;
+
+  // Scene scale from what the first frame observes (online: nothing later is known yet).
+  TsdfOptions to;
+  to.voxel_size_m = float(o.voxel_m);
+  to.max_depth_m = float(o.max_depth_m);
+  SceneScale scale;
+  {
+    TsdfVolume probe(to);
+    EXO_RETURN_IF_ERROR(probe.Integrate(frames[0], origin).status());
+    glm::dvec3 lo, hi;
+    if (!probe.Bounds(&lo, &hi)) return absl::FailedPreconditionError("7-Scenes: empty frame 0");
+    scale = DeriveSceneScale(lo, hi);
+  }
+  Source src;
+  src.camera = frames[0].depth_camera;
+  src.frame_bytes = size_t(src.camera.width) * src.camera.height * (3 + 4) + sizeof(StoredView);
+  for (const Frame& f : frames) src.poses.push_back(origin.ToLocal(f.world_from_cam));
+  src.scale = scale;
+  src.default_lambda = 0.4;
+  src.metres_per_rad = 1.0;
+  src.dataset = "7scenes/redkitchen";
+  const std::vector<Frame>* fp = &frames;
+  const LocalOrigin org = origin;
+  src.load_view = [fp, org](int i) -> absl::StatusOr<StoredView> {
+    const Frame& f = (*fp)[i];
+    StoredView v;
+    v.camera = f.color_camera;
+    v.local_from_cam = org.ToLocal(f.world_from_cam);
+    v.color = f.color;
+    v.depth_m = f.depth_m;
+    return v;
+  };
+  src.test_camera = frames[0].color_camera;
+  if (o.test_width != src.test_camera.width)
+    src.test_camera = src.test_camera.Scaled(o.test_width, o.test_height);
+  for (const Frame& f : test) {
+    src.test_poses.push_back(origin.ToLocal(f.world_from_cam));
+    if (o.test_width != f.color.width()) {
+      ImageU8 small(o.test_width, o.test_height, 3);
+      // Box-free nearest resample is enough for a smoke run; full runs use 640x480.
+      for (int y = 0; y < o.test_height; ++y)
+        for (int x = 0; x < o.test_width; ++x)
+          for (int c = 0; c < 3; ++c)
+            small.at(x, y, c) = f.color.at(x * f.color.width() / o.test_width,
+                                           y * f.color.height() / o.test_height, c);
+      src.test_gt.push_back(std::move(small));
+    } else {
+      src.test_gt.push_back(f.color);
+    }
+  }
+  EngineOptions eo;
+  eo.proxy = ProxyKind::kTsdf;
+  eo.tsdf = to;
+  eo.max_range_m = o.max_depth_m * 2;
+  eo.id_w = o.id_width;
+  eo.id_h = o.id_height;
+  eo.positional_mode = o.positional_mode;
+  eo.vertex_color = o.vertex_color_baseline;
+  eo.emit = o.emit;
+  eo.dump_dir = o.dump_dir;
+  eo.dump_views = o.dump_views;
+  Engine engine(std::move(src), o.configs, std::move(eo));
+  engine.set_origin(origin);
+  EXO_RETURN_IF_ERROR(engine.Init());
+  for (int i = 0; i < int(frames.size()); ++i) EXO_RETURN_IF_ERROR(engine.Step(i, &frames[i]));
+  EXO_ASSIGN_OR_RETURN(rep.results, engine.Finish("tsdf", o.voxel_m));
+  return rep;
+}
+
+}  // namespace exo::eval

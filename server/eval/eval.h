@@ -1,0 +1,117 @@
+// Evaluation benchmark of the modeling core (SPEC §9): streams RGB-D frames of a synthetic scene
+// (village / apartment, fly-over / walk) or of a real sequence (7-Scenes redkitchen, every 10th
+// frame held out) through the real pipeline (sparse TSDF proxy -> cell areas -> cell-id buffer
+// -> online ViewPlanner), and compares the resulting lumigraph (CPU renderer, SPEC §6) with
+// ground truth at test poses: MSSIM / PSNR / coverage via common/metrics, next to the speed of
+// integration and planning and the memory of store and geometry.
+//
+// Selection policies compared on the same input and the same store budget:
+//   kOnline        the thesis' online planner (SPEC §4), its per-cell pre-selection R(b_k)
+//   kOfflineGreedy greedy maximisation of the same τ_sum objective over ALL frames, seen at once
+//                  with the final proxy (lazy greedy; the upper bound the online planner chases)
+//   kEveryN        keep every N-th frame, N = frames / store
+//   kMinDistance   online dispersion: when full, a frame replaces one view of the closest pair
+//                  if its nearest-view pose distance exceeds that pair's distance
+//   kAll           every frame (unbounded store)
+// Baselines reference, per cell, EVERY selected view that sees the cell in the final proxy
+// (unbounded R; favours the baselines). A further baseline, the per-vertex averaged colour of the
+// TSDF mesh (KinectFusion class), is reported once per run (policy "vertex_color").
+//
+// Synthetic stored views are re-rendered from their pose when evaluated (deterministic,
+// exposure 1, no noise), so the stream keeps only poses and cell counts per frame.
+#pragma once
+
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "common/lumigraph/blend_math.h"
+#include "common/status.h"
+
+namespace exo::eval {
+
+enum class Policy { kOnline, kOfflineGreedy, kEveryN, kMinDistance, kAll, kVertexColor };
+const char* PolicyName(Policy p);
+enum class ProxyKind { kTsdf, kGroundTruth };
+
+// One store configuration evaluated on the shared stream.
+struct PolicyConfig {
+  Policy policy = Policy::kOnline;
+  int store = 200;              // views (and bytes = store x one frame)
+  int r_max = 16;
+  double lambda = -1;           // planner λ; < 0: 0.5 fly-over, 0.4 walk / real
+  double delta_tau_sum = -1;    // < 0: planner default
+  double tau_max = -1;          // < 0: planner default
+  double cell_m = 0;            // 0: scene-scale rule (server/geometry/scene_scale.h)
+  int test_views = -1;          // < 0: all test poses of the run
+  std::string tag;              // free label copied into the JSON ("sweep":"store" ...)
+};
+
+struct Quality {
+  double mssim = 0, psnr = 0, coverage = 0;
+  double mssim_covered = 0;     // SSIM over covered pixels only (masked), mean over views
+  int views = 0;
+};
+
+struct ConfigResult {
+  PolicyConfig config;
+  Quality quality;
+  double integrate_ms_median = 0, integrate_ms_p95 = 0;
+  double plan_ms_median = 0, plan_ms_p95 = 0;    // cell-id render + Consider, per input frame
+  double consider_ms_median = 0;                 // Consider only
+  double render_ms_median = 0;                   // CPU lumigraph render per test view
+  size_t store_views = 0, store_bytes = 0, geometry_bytes = 0, planner_bytes = 0;
+  size_t accepted = 0;
+  double tau_sum = 0;                            // τ_sum of the selection (final proxy, see .cc)
+  std::string json;                              // the printed line
+};
+
+struct SynthRunOptions {
+  std::string scene = "village";   // village | apartment
+  std::string traj = "flyover";    // flyover | walk
+  int frames = 600;
+  ProxyKind proxy = ProxyKind::kTsdf;
+  double voxel_m = 0;              // 0: scene diameter / 640 clamped to [0.02, 0.12]
+  int id_width = 160, id_height = 120;   // cell-id buffer resolution
+  int frame_width = 640, frame_height = 480;
+  int test_views = 200, test_width = 320, test_height = 240;
+  uint64_t test_seed = 7;
+  blend::PositionalMode positional_mode = blend::PositionalMode::kUlrResolution;
+  bool vertex_color_baseline = true;
+  std::vector<PolicyConfig> configs;
+  // Called with each JSON line as soon as it is ready (may be empty).
+  std::function<void(const std::string&)> emit;
+  // Directory to write render/GT/coverage PNGs of the first test views of the first config
+  // ("" = none), and how many.
+  std::string dump_dir;
+  int dump_views = 0;
+  absl::Status Validate() const;
+};
+
+absl::StatusOr<std::vector<ConfigResult>> RunSynthetic(const SynthRunOptions& options);
+
+struct SevenScenesRunOptions {
+  std::string dir;                 // .../7scenes-redkitchen
+  int max_frames = 0;              // 0 = all
+  int hold_out_every = 10;
+  double voxel_m = 0.02;
+  double max_depth_m = 4.0;
+  int id_width = 160, id_height = 120;
+  int test_width = 640, test_height = 480;
+  blend::PositionalMode positional_mode = blend::PositionalMode::kUlrResolution;
+  bool vertex_color_baseline = true;
+  std::vector<PolicyConfig> configs;
+  std::function<void(const std::string&)> emit;
+  std::string dump_dir;
+  int dump_views = 0;
+};
+
+struct SevenScenesReport {
+  std::vector<ConfigResult> results;
+  int held_out = 0;             // every hold_out_every-th frame
+  int dropped_duplicates = 0;   // held-out frames whose colour is byte-identical to an input frame
+  int ingested = 0;
+};
+absl::StatusOr<SevenScenesReport> RunSevenScenes(const SevenScenesRunOptions& options);
+
+}  // namespace exo::eval

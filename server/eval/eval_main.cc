@@ -1,0 +1,212 @@
+// exoview_eval: the evaluation benchmark of SPEC §9. Prints one JSON object per configuration
+// (config, quality, speed, memory) on stdout; progress on stderr.
+//
+//   exoview_eval --suite quick|full [--out results.jsonl]      predefined runs (docs/evaluation.md)
+//   exoview_eval --scene village --traj flyover --frames 600 --proxy tsdf|gt --voxel 0
+//                --test_views 200 --policies online,offline_greedy,every_n,min_distance,all
+//                --store 200 --r_max 16 [--lambda 0.5] [--cell 0] [--dts 0.05]
+//                [--sweep store|r_max|lambda|cell] [--sweep_test_views 50]
+//                [--dump DIR --dump_views 4]
+//   exoview_eval --sevenscenes DIR [--store 50] [--policies ...]
+#include <cstdio>
+#include <fstream>
+#include <map>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include <absl/strings/str_format.h>
+#include <absl/strings/str_split.h>
+
+#include "server/eval/eval.h"
+
+namespace exo::eval {
+namespace {
+
+struct Args {
+  std::map<std::string, std::string> kv;
+  std::string Get(const std::string& k, const std::string& d) const {
+    auto it = kv.find(k);
+    return it == kv.end() ? d : it->second;
+  }
+  double Num(const std::string& k, double d) const {
+    auto it = kv.find(k);
+    return it == kv.end() ? d : std::stod(it->second);
+  }
+};
+
+std::FILE* g_out = nullptr;
+void Emit(const std::string& line) {
+  std::printf("%s\n", line.c_str());
+  std::fflush(stdout);
+  if (g_out) {
+    std::fprintf(g_out, "%s\n", line.c_str());
+    std::fflush(g_out);
+  }
+}
+
+absl::StatusOr<Policy> ParsePolicy(const std::string& s) {
+  if (s == "online") return Policy::kOnline;
+  if (s == "offline_greedy" || s == "offline") return Policy::kOfflineGreedy;
+  if (s == "every_n") return Policy::kEveryN;
+  if (s == "min_distance") return Policy::kMinDistance;
+  if (s == "all" || s == "all_frames") return Policy::kAll;
+  return absl::InvalidArgumentError("unknown policy " + s);
+}
+
+// Configs of one run: the listed policies at (store, r_max, ...), plus an optional sweep of
+// online configs over one parameter.
+absl::StatusOr<std::vector<PolicyConfig>> Configs(const Args& a) {
+  PolicyConfig base;
+  base.store = int(a.Num("--store", 200));
+  base.r_max = int(a.Num("--r_max", 16));
+  base.lambda = a.Num("--lambda", -1);
+  base.cell_m = a.Num("--cell", 0);
+  base.delta_tau_sum = a.Num("--dts", -1);
+  base.tag = "main";
+  std::vector<PolicyConfig> out;
+  for (absl::string_view p : absl::StrSplit(a.Get("--policies", "online"), ',', absl::SkipEmpty())) {
+    PolicyConfig c = base;
+    EXO_ASSIGN_OR_RETURN(c.policy, ParsePolicy(std::string(p)));
+    out.push_back(c);
+  }
+  const std::string sweep = a.Get("--sweep", "");
+  const int stv = int(a.Num("--sweep_test_views", -1));
+  auto add = [&](auto set, std::vector<double> values) {
+    for (double v : values) {
+      PolicyConfig c = base;
+      c.policy = Policy::kOnline;
+      c.tag = "sweep_" + sweep;
+      c.test_views = stv;
+      set(c, v);
+      out.push_back(c);
+    }
+  };
+  if (sweep == "store") add([](PolicyConfig& c, double v) { c.store = int(v); }, {25, 50, 100, 200, 400});
+  else if (sweep == "r_max") add([](PolicyConfig& c, double v) { c.r_max = int(v); }, {4, 8, 16, 32});
+  else if (sweep == "lambda") add([](PolicyConfig& c, double v) { c.lambda = v; }, {0.0, 0.2, 0.4, 0.5, 0.6, 0.8, 1.0});
+  else if (sweep == "cell") add([](PolicyConfig& c, double v) { c.cell_m = v; }, {0.25, 0.5, 1.0, 2.0});
+  else if (sweep == "dts") add([](PolicyConfig& c, double v) { c.delta_tau_sum = v; }, {0.0, 0.05, 0.5, 2.0, 5.0});
+  else if (!sweep.empty()) return absl::InvalidArgumentError("unknown sweep " + sweep);
+  return out;
+}
+
+int RunOne(const Args& a) {
+  auto configs = Configs(a);
+  if (!configs.ok()) {
+    std::fprintf(stderr, "%s\n", std::string(configs.status().message()).c_str());
+    return 2;
+  }
+  if (a.kv.count("--sevenscenes")) {
+    SevenScenesRunOptions o;
+    o.dir = a.Get("--sevenscenes", "");
+    o.max_frames = int(a.Num("--frames", 0));
+    o.voxel_m = a.Num("--voxel", 0.02);
+    o.test_width = int(a.Num("--test_w", 640));
+    o.test_height = int(a.Num("--test_h", 480));
+    o.configs = *configs;
+    o.emit = Emit;
+    o.dump_dir = a.Get("--dump", "");
+    o.dump_views = int(a.Num("--dump_views", 0));
+    auto rep = RunSevenScenes(o);
+    if (!rep.ok()) {
+      std::fprintf(stderr, "%s\n", std::string(rep.status().message()).c_str());
+      return 1;
+    }
+    Emit(absl::StrFormat(
+        "{\"bench\":\"eval_split\",\"dataset\":\"7scenes/redkitchen\",\"ingested\":%d,"
+        "\"held_out\":%d,\"dropped_duplicate_colour\":%d,\"test_views\":%d}",
+        rep->ingested, rep->held_out, rep->dropped_duplicates,
+        rep->held_out - rep->dropped_duplicates));
+    return 0;
+  }
+  SynthRunOptions o;
+  o.scene = a.Get("--scene", "village");
+  o.traj = a.Get("--traj", o.scene == "apartment" ? "walk" : "flyover");
+  o.frames = int(a.Num("--frames", 600));
+  o.proxy = a.Get("--proxy", "tsdf") == "gt" ? ProxyKind::kGroundTruth : ProxyKind::kTsdf;
+  o.voxel_m = a.Num("--voxel", 0);
+  o.test_views = int(a.Num("--test_views", 200));
+  o.test_width = int(a.Num("--test_w", 320));
+  o.test_height = int(a.Num("--test_h", 240));
+  o.id_width = int(a.Num("--idw", 160));
+  o.id_height = int(a.Num("--idh", 120));
+  o.positional_mode = a.Get("--positional", "ulr") == "printed" ? blend::PositionalMode::kPrinted
+                                                               : blend::PositionalMode::kUlrResolution;
+  o.vertex_color_baseline = a.Num("--vertex_color", 1) != 0;
+  o.configs = *configs;
+  o.emit = Emit;
+  o.dump_dir = a.Get("--dump", "");
+  o.dump_views = int(a.Num("--dump_views", 0));
+  auto r = RunSynthetic(o);
+  if (!r.ok()) {
+    std::fprintf(stderr, "%s\n", std::string(r.status().message()).c_str());
+    return 1;
+  }
+  return 0;
+}
+
+// Predefined suites: each entry is one RunOne argument list.
+std::vector<std::vector<std::string>> Suite(const std::string& name, const std::string& data) {
+  const std::string all = "online,offline_greedy,every_n,min_distance,all";
+  if (name == "quick") {
+    return {{"--scene", "apartment", "--traj", "walk", "--frames", "60", "--store", "20",
+             "--test_views", "6", "--test_w", "160", "--test_h", "120", "--policies",
+             "online,every_n"}};
+  }
+  // full: main comparison on both scenes, then sweeps with fewer test views, then 7-Scenes.
+  std::vector<std::vector<std::string>> s = {
+      {"--scene", "village", "--traj", "flyover", "--frames", "1000", "--policies", all,
+       "--store", "200", "--test_views", "200"},
+      {"--scene", "apartment", "--traj", "walk", "--frames", "1000", "--policies", all,
+       "--store", "200", "--test_views", "200"},
+      {"--scene", "village", "--traj", "flyover", "--frames", "1000", "--proxy", "gt",
+       "--policies", "online,offline_greedy", "--store", "200", "--test_views", "200"},
+      {"--scene", "apartment", "--traj", "walk", "--frames", "1000", "--proxy", "gt",
+       "--policies", "online,offline_greedy", "--store", "200", "--test_views", "200"},
+  };
+  for (const char* sw : {"store", "r_max", "lambda", "cell"})
+    for (const char* sc : {"village", "apartment"})
+      s.push_back({"--scene", sc, "--frames", "600", "--policies", "", "--sweep", sw,
+                   "--test_views", "50", "--vertex_color", "0"});
+  for (const char* sc : {"village", "apartment"})
+    for (const char* vx : sc == std::string("village") ? std::vector<const char*>{"0.1", "0.15", "0.3"}
+                                                        : std::vector<const char*>{"0.03", "0.05", "0.1"})
+      s.push_back({"--scene", sc, "--frames", "600", "--voxel", vx, "--policies", "online",
+                   "--test_views", "50"});
+  if (!data.empty())
+    s.push_back({"--sevenscenes", data + "/7scenes-redkitchen", "--store", "50", "--policies", all});
+  return s;
+}
+
+}  // namespace
+}  // namespace exo::eval
+
+int main(int argc, char** argv) {
+  using namespace exo::eval;
+  Args a;
+  for (int i = 1; i < argc; ++i) {
+    std::string k = argv[i];
+    std::string v = (i + 1 < argc && std::string(argv[i + 1]).rfind("--", 0) != 0) ? argv[++i] : "";
+    a.kv[k] = v;
+  }
+  if (a.kv.count("--out")) g_out = std::fopen(a.Get("--out", "").c_str(), "w");
+  const std::string suite = a.Get("--suite", "");
+  if (suite.empty()) return RunOne(a);
+  std::string data = a.Get("--data", "");
+  if (data.empty()) {
+    const char* env = std::getenv("EXOVIEW_SHARED_DIR");
+    data = env ? std::string(env) + "/data" : "";
+  }
+  int rc = 0;
+  for (const auto& run : Suite(suite, data)) {
+    Args r;
+    for (size_t i = 0; i + 1 < run.size(); i += 2) r.kv[run[i]] = run[i + 1];
+    std::string line;
+    for (const auto& s : run) line += s + " ";
+    std::fprintf(stderr, "== %s\n", line.c_str());
+    rc |= RunOne(r);
+  }
+  if (g_out) std::fclose(g_out);
+  return rc;
+}
