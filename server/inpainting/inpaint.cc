@@ -329,6 +329,125 @@ void Sweep(Level& L, int level, int iter, int radius0, bool global_candidate, co
   }
 }
 
+// Cost (4.7) restricted to the window pixels already known (outside T or filled earlier):
+// the onion-peel initialisation of the coarsest level.
+float CostKnown(const Level& L, const std::vector<uint8_t>& known, int x, int y, int sx, int sy,
+                const SearchParams& p) {
+  float rs = 0.f;
+  int ns = 0;
+  static constexpr int kDx[4] = {-1, 1, 0, 0}, kDy[4] = {0, 0, -1, 1};
+  for (int k = 0; k < 4; ++k) {
+    const int nx = x + kDx[k], ny = y + kDy[k];
+    if (nx < 0 || ny < 0 || nx >= L.w || ny >= L.h) continue;
+    const size_t ni = L.Idx(nx, ny);
+    if (!known[ni]) continue;
+    const int fx = L.target[ni] ? L.src[ni * 2] : nx, fy = L.target[ni] ? L.src[ni * 2 + 1] : ny;
+    const float ex = static_cast<float>(sx + kDx[k] - fx), ey = static_cast<float>(sy + kDy[k] - fy);
+    rs += std::min(p.cap, ex * ex + ey * ey);
+    ++ns;
+  }
+  if (ns > 0) rs /= ns;
+  int ssd = 0, n = 0;
+  float g = 0.f;
+  int ng = 0;
+  for (int dy = -2; dy <= 2; ++dy) {
+    const int yy = y + dy;
+    if (yy < 0 || yy >= L.h) continue;
+    for (int dx = -2; dx <= 2; ++dx) {
+      const int xx = x + dx;
+      if (xx < 0 || xx >= L.w || !known[L.Idx(xx, yy)]) continue;
+      const size_t a = L.Idx(xx, yy), b = L.Idx(sx + dx, sy + dy);
+      for (int k = 0; k < 3; ++k) {
+        const int d = static_cast<int>(L.color[a * 3 + k]) - static_cast<int>(L.color[b * 3 + k]);
+        ssd += d * d;
+      }
+      n += 3;
+      if (p.geometry && (dx % 2 == 0) && (dy % 2 == 0)) {
+        const float* na = &L.normal[a * 3];
+        const float* nb = &L.normal[b * 3];
+        g += 1.f / std::max(p.kappa, na[0] * nb[0] + na[1] * nb[1] + na[2] * nb[2]);
+        ++ng;
+      }
+    }
+  }
+  const float rho_t = n ? static_cast<float>(ssd) / n : 0.f;
+  const float rho_g = ng ? g / ng : 1.f;
+  return p.w * rho_t * rho_g + p.one_minus_w * rs;
+}
+
+// Onion-peel initialisation: rings of T from the border inwards, each pixel matched against
+// the known part of its window (exhaustive over up to 4096 sources plus the shifted sources of
+// its known neighbours), then its colour and normal filled in before the next ring.
+void OnionPeelInit(Level& L, int level, const SearchParams& p, const InpaintOptions& o) {
+  const size_t n = static_cast<size_t>(L.w) * L.h;
+  std::vector<uint8_t> known(n);
+  for (size_t i = 0; i < n; ++i) known[i] = !L.target[i];
+  std::vector<int> ring;
+  const int ns = static_cast<int>(L.src_list.size());
+  const int max_cand = 4096;
+  static constexpr int kDx[4] = {-1, 1, 0, 0}, kDy[4] = {0, 0, -1, 1};
+  for (int round = 0;; ++round) {
+    ring.clear();
+    for (int y = 0; y < L.h; ++y) {
+      for (int x = L.row_x0[y]; x <= L.row_x1[y]; ++x) {
+        const size_t i = L.Idx(x, y);
+        if (!L.target[i] || known[i]) continue;
+        for (int k = 0; k < 4; ++k) {
+          const int nx = x + kDx[k], ny = y + kDy[k];
+          if (nx >= 0 && ny >= 0 && nx < L.w && ny < L.h && known[L.Idx(nx, ny)]) {
+            ring.push_back(static_cast<int>(i));
+            break;
+          }
+        }
+      }
+    }
+    if (ring.empty()) break;
+    std::vector<int32_t> choice(ring.size() * 2);
+    ForRows(static_cast<int>(ring.size()), o.num_threads, [&](int r) {
+      const int i = ring[r], x = i % L.w, y = i / L.w;
+      float best = std::numeric_limits<float>::infinity();
+      int bx = -1, by = -1;
+      auto consider = [&](int cx, int cy) {
+        if (cx < 0 || cy < 0 || cx >= L.w || cy >= L.h || !L.source_ok[L.Idx(cx, cy)]) return;
+        const float c = CostKnown(L, known, x, y, cx, cy, p);
+        if (c < best) {
+          best = c;
+          bx = cx;
+          by = cy;
+        }
+      };
+      for (int k = 0; k < 4; ++k) {
+        const int nx = x + kDx[k], ny = y + kDy[k];
+        if (nx < 0 || ny < 0 || nx >= L.w || ny >= L.h) continue;
+        const size_t ni = L.Idx(nx, ny);
+        if (known[ni] && L.target[ni]) consider(L.src[ni * 2] - kDx[k], L.src[ni * 2 + 1] - kDy[k]);
+      }
+      if (ns <= max_cand) {
+        for (int s : L.src_list) consider(s % L.w, s / L.w);
+      } else {
+        Rng rng(o.seed, level, -4 - round, i);
+        for (int c = 0; c < max_cand; ++c) {
+          const int s = L.src_list[rng.Uniform(ns)];
+          consider(s % L.w, s / L.w);
+        }
+      }
+      choice[r * 2] = bx;
+      choice[r * 2 + 1] = by;
+    });
+    for (size_t r = 0; r < ring.size(); ++r) {
+      const size_t i = ring[r];
+      L.src[i * 2] = choice[r * 2];
+      L.src[i * 2 + 1] = choice[r * 2 + 1];
+      const size_t s = L.Idx(choice[r * 2], choice[r * 2 + 1]);
+      for (int k = 0; k < 3; ++k) {
+        L.color[i * 3 + k] = L.color[s * 3 + k];
+        L.normal[i * 3 + k] = L.normal[s * 3 + k];
+      }
+      known[i] = 1;
+    }
+  }
+}
+
 // Random source for every unmapped, unfixed pixel of T.
 void RandomInit(Level& L, int level, uint64_t seed) {
   const int n = static_cast<int>(L.src_list.size());
@@ -657,8 +776,11 @@ absl::StatusOr<InpaintResult> InpaintKeyframe(const RgbdKeyframe& frame, const I
     for (int li = nl - 1; li >= 0; --li) {
       Level& L = levels[li];
       if (li == nl - 1) {
+        // T pixels not reached by the onion peel (cut off from every known pixel) keep the
+        // random source; the peel overwrites the rest.
         SmoothFillTarget(L);
         RandomInit(L, li, options.seed);
+        OnionPeelInit(L, li, params, options);
       } else {
         Upsample(levels[li + 1], L, li, options.seed);
         CopyFromSources(L, options.num_threads);
@@ -667,8 +789,6 @@ absl::StatusOr<InpaintResult> InpaintKeyframe(const RgbdKeyframe& frame, const I
                                 : options.fine_iterations +
                                       (options.coarse_iterations - options.fine_iterations) * li / (nl - 1);
       const int radius0 = li == nl - 1 ? std::max(L.w, L.h) : std::max(4, std::max(L.w, L.h) / 8);
-      // At the coarsest level the first sweep sees the smooth push-pull estimate of T (copying
-      // the random sources first would make the geometry term favour whatever they hit).
       for (int it = 0; it < iters; ++it) {
         Sweep(L, li, it, radius0, li == nl - 1, params, options);
         CopyFromSources(L, options.num_threads);

@@ -172,41 +172,47 @@ TEST(InpaintTest, GeometryCostKappaGuard) {
   for (float v : r->normals.span()) ASSERT_TRUE(std::isfinite(v));
 }
 
-// The geometry term keeps the search on surfaces whose normals agree: a textured wall above a
-// floor with the same texture, mask inside the wall.
+// The geometry term keeps the search on surfaces whose normals agree: a wall above a floor, both
+// painted with the same pattern in image space (so colour alone cannot tell them apart), the
+// mask inside the floor. Colour-only search takes matches from both; rho_g keeps it on the floor.
 TEST(InpaintTest, GeometryTermPrefersMatchingNormals) {
   const PinholeCamera cam = SmallCamera();
   const glm::dvec3 floor_n = glm::normalize(glm::dvec3(0, -1, -0.15));
   const std::vector<WorldPlane> planes = {
       {glm::dvec3(0, 0, -1), -3.0, [](const glm::dvec3& p) { return p.y < 0.05; }},
       {floor_n, glm::dot(floor_n, glm::dvec3(0, 0.05, 3.0)), nullptr}};
-  auto tex = [](const glm::dvec3& p) {  // same pattern on both planes (x and y+z coordinates)
-    const double u = p.x, v = p.y + p.z;
-    const double a = std::sin(9.0 * u) * std::sin(7.0 * v) + 0.3 * std::sin(31.0 * u + 17.0 * v);
-    return glm::dvec3(128 + 90 * a, 128 - 70 * a, 128 + 50 * std::sin(13.0 * v));
-  };
-  const RgbdKeyframe f = RenderPlanes(planes, cam, Rigid3d::Identity(), tex);
-  const ImageU8 mask = RectMask(cam.width, cam.height, 40, 12, 120, 46);
-  auto frac_on_wall = [&](const InpaintResult& r) {
+  RgbdKeyframe f = RenderPlanes(planes, cam, Rigid3d::Identity());
+  for (int y = 0; y < cam.height; ++y)  // periodic image-space pattern, 7 x 5 px
+    for (int x = 0; x < cam.width; ++x) {
+      const int u = x % 7, v = y % 5;
+      // Plus pixel noise: with exact ties rho_t == 0 and the product rho_t * rho_g could not
+      // prefer anything.
+      const int noise = static_cast<int>((static_cast<uint32_t>(x * 73856093) ^ static_cast<uint32_t>(y * 19349663)) % 13) - 6;
+      f.color.at(x, y, 0) = static_cast<uint8_t>(30 * u + 20 + noise);
+      f.color.at(x, y, 1) = static_cast<uint8_t>(40 * v + 10 - noise);
+      f.color.at(x, y, 2) = static_cast<uint8_t>((u * v * 37) % 200 + 20 + noise);
+    }
+  const ImageU8 mask = RectMask(cam.width, cam.height, 40, 78, 120, 108);
+  auto frac_on_floor = [&](const InpaintResult& r) {
     int on = 0, n = 0;
-    for (int y = 12; y < 46; ++y)
+    for (int y = 78; y < 108; ++y)
       for (int x = 40; x < 120; ++x) {
         const int sx = r.source.at(x, y, 0), sy = r.source.at(x, y, 1);
-        on += std::fabs(r.normals.at(sx, sy, 2) + 1.f) < 0.05f;  // wall normal (0,0,-1)
+        on += std::fabs(r.normals.at(sx, sy, 1) - static_cast<float>(floor_n.y)) < 0.02f;
         ++n;
       }
     return static_cast<double>(on) / n;
   };
   auto with = InpaintKeyframe(f, mask, FastOptions());
   ASSERT_TRUE(with.ok());
-  EXPECT_GT(frac_on_wall(*with), 0.97);
-  // The colour-only baseline (rho_g == 1) wanders onto the floor.
+  EXPECT_GT(frac_on_floor(*with), 0.97);
   InpaintOptions colour_only = FastOptions();
   colour_only.use_geometry = false;
   auto without = InpaintKeyframe(f, mask, colour_only);
   ASSERT_TRUE(without.ok());
-  EXPECT_LT(frac_on_wall(*without), 0.5);
-  EXPECT_LT(MeanAbsDepthErrorInMask(with->depth_m, f.depth_m, mask), 5e-3);
+  EXPECT_LT(frac_on_floor(*without), 0.8);
+  // (Depth is exact either way here: a harmonic fill of a planar surround in inverse depth is
+  // the plane itself, whatever gradients the sources give.)
 }
 
 // Hard case: depth in mm vs m. Guard 1: the units check (median depth) gives a clear error.

@@ -15,12 +15,98 @@ absl::Status PoissonOptions::Validate() const {
     return absl::InvalidArgumentError("PoissonOptions.tolerance must be in (0, 1)");
   }
   if (max_iterations < 1) return absl::InvalidArgumentError("PoissonOptions.max_iterations < 1");
+  if (direct_max_unknowns < 1) return absl::InvalidArgumentError("PoissonOptions.direct_max_unknowns < 1");
   return absl::OkStatus();
 }
+
+namespace {
+
+const float kNaN = std::numeric_limits<float>::quiet_NaN();
+
+// The same problem on a grid half the size (cascadic multigrid): R is any-of-2x2, known values
+// and gauge values are 2x2 means, a coarse gradient is the sum of the two fine gradients along
+// the way, averaged over the two fine rows (columns).
+struct CoarseProblem {
+  ImageU8 region;
+  ImageF values, gx, gy, gauge;
+};
+
+CoarseProblem Coarsen(const PoissonProblem& p) {
+  const int w = p.region->width(), h = p.region->height();
+  const int cw = (w + 1) / 2, ch = (h + 1) / 2;
+  CoarseProblem c{ImageU8(cw, ch, 1, 0), ImageF(cw, ch, 1, kNaN), ImageF(cw, ch, 1, kNaN),
+                  ImageF(cw, ch, 1, kNaN), ImageF(cw, ch, 1, kNaN)};
+  auto known = [&](int x, int y) { return !p.region->at(x, y) && std::isfinite(p.values->at(x, y)); };
+  // Effective fine gradient of pair (x,y)-(x+dx,y+dy): the target, or the known difference.
+  auto geff = [&](int x, int y, int dx, int dy) -> float {
+    const float g = dx ? p.gx->at(x, y) : p.gy->at(x, y);
+    if (std::isfinite(g)) return g;
+    if (known(x, y) && known(x + dx, y + dy)) return p.values->at(x, y) - p.values->at(x + dx, y + dy);
+    return kNaN;
+  };
+  for (int y = 0; y < ch; ++y) {
+    for (int x = 0; x < cw; ++x) {
+      bool reg = false;
+      double vs = 0, gs = 0;
+      int vn = 0, gn = 0;
+      for (int dy = 0; dy < 2; ++dy)
+        for (int dx = 0; dx < 2; ++dx) {
+          const int fx = 2 * x + dx, fy = 2 * y + dy;
+          if (fx >= w || fy >= h) continue;
+          if (p.region->at(fx, fy)) reg = true;
+          if (known(fx, fy)) {
+            vs += p.values->at(fx, fy);
+            ++vn;
+          }
+          if (p.gauge && std::isfinite(p.gauge->at(fx, fy))) {
+            gs += p.gauge->at(fx, fy);
+            ++gn;
+          }
+        }
+      c.region.at(x, y) = reg;
+      if (!reg && vn > 0) c.values.at(x, y) = static_cast<float>(vs / vn);
+      if (gn > 0) c.gauge.at(x, y) = static_cast<float>(gs / gn);
+      // Horizontal pair (x, y)-(x+1, y): fine 2x -> 2x+2 along rows 2y, 2y+1.
+      for (int dir = 0; dir < 2; ++dir) {
+        const int dx = dir == 0 ? 1 : 0, dy = 1 - dx;
+        if ((dx && x + 1 >= cw) || (dy && y + 1 >= ch)) continue;
+        double s = 0;
+        int n = 0;
+        for (int k = 0; k < 2; ++k) {
+          const int fx = 2 * x + (dy ? k : 0), fy = 2 * y + (dx ? k : 0);
+          const int mx = fx + dx, my = fy + dy, ex = fx + 2 * dx, ey = fy + 2 * dy;
+          if (ex >= w || ey >= h) continue;
+          const float a = geff(fx, fy, dx, dy), b = geff(mx, my, dx, dy);
+          if (std::isfinite(a) && std::isfinite(b)) {
+            s += a + b;
+            ++n;
+          }
+        }
+        if (n > 0) (dx ? c.gx : c.gy).at(x, y) = static_cast<float>(s / n);
+      }
+    }
+  }
+  return c;
+}
+
+absl::StatusOr<ImageF> SolveLevel(const PoissonProblem& p, const PoissonOptions& options,
+                                  PoissonStats& st, int depth);
+
+}  // namespace
 
 absl::StatusOr<ImageF> SolvePoisson(const PoissonProblem& p, const PoissonOptions& options,
                                     PoissonStats* stats) {
   EXO_RETURN_IF_ERROR(options.Validate());
+  PoissonStats local;
+  PoissonStats& st = stats ? *stats : local;
+  st = PoissonStats{};
+  return SolveLevel(p, options, st, 0);
+}
+
+namespace {
+
+absl::StatusOr<ImageF> SolveLevel(const PoissonProblem& p, const PoissonOptions& options,
+                                  PoissonStats& top_stats, int depth) {
   if (!p.region || !p.values || !p.gx || !p.gy) {
     return absl::InvalidArgumentError("SolvePoisson: region, values, gx and gy are required");
   }
@@ -41,9 +127,8 @@ absl::StatusOr<ImageF> SolvePoisson(const PoissonProblem& p, const PoissonOption
       pixel_of.push_back(static_cast<int>(i));
     }
   }
-  PoissonStats local;
-  PoissonStats& st = stats ? *stats : local;
-  st = PoissonStats{};
+  PoissonStats level_stats;
+  PoissonStats& st = depth == 0 ? top_stats : level_stats;
   st.unknowns = static_cast<int>(pixel_of.size());
   ImageF out = *p.values;
   if (pixel_of.empty()) return out;
@@ -121,38 +206,58 @@ absl::StatusOr<ImageF> SolvePoisson(const PoissonProblem& p, const PoissonOption
     }
     pinned.push_back(dirichlet ? -1 : s);
   }
+  // Initial guess: the caller's, else (large problems) the solution of the coarser problem.
+  Eigen::VectorXd x0 = Eigen::VectorXd::Zero(m);
+  bool have_guess = false;
+  if (p.initial) {
+    for (int i = 0; i < m; ++i) {
+      const float v = p.initial->data()[pixel_of[i]];
+      if (std::isfinite(v)) x0[i] = v;
+    }
+    have_guess = true;
+  }
+  if (m > options.direct_max_unknowns && std::min(w, h) >= 8) {
+    CoarseProblem c = Coarsen(p);
+    PoissonProblem cp{&c.region, &c.values, &c.gx, &c.gy, p.gauge ? &c.gauge : nullptr, nullptr};
+    PoissonStats cst;
+    auto coarse = SolveLevel(cp, options, cst, depth + 1);
+    if (coarse.ok()) {
+      for (int i = 0; i < m; ++i) {
+        const int px = pixel_of[i] % w, py = pixel_of[i] / w;
+        const float v = coarse->at(px / 2, py / 2);
+        if (std::isfinite(v)) x0[i] = v;
+      }
+      have_guess = true;
+    }
+  }
   for (int c = 0; c < st.components; ++c) {
     if (pinned[c] < 0) continue;
-    // Gauge guard: pin one unknown to 0 (any value works: the Neumann minimisers differ only
-    // by a constant); the constant is set from the gauge mean below.
+    // Gauge guard: pin one unknown (to its initial guess; any value works: the Neumann
+    // minimisers differ only by a constant), which is then set from the gauge mean below.
     ++st.neumann_components;
     diag[pinned[c]] += 1.0;
+    b[pinned[c]] += x0[pinned[c]];
   }
   for (int i = 0; i < m; ++i) trip.emplace_back(i, i, diag[i]);
   Eigen::SparseMatrix<double> A(m, m);
   A.setFromTriplets(trip.begin(), trip.end());
   A.makeCompressed();
 
-  Eigen::VectorXd x0 = Eigen::VectorXd::Zero(m);
-  if (p.initial) {
-    for (int i = 0; i < m; ++i) {
-      const float v = p.initial->data()[pixel_of[i]];
-      if (std::isfinite(v)) x0[i] = v;
-    }
-  }
   Eigen::VectorXd x;
-  Eigen::ConjugateGradient<Eigen::SparseMatrix<double>, Eigen::Lower | Eigen::Upper,
-                           Eigen::IncompleteCholesky<double>>
-      cg;
-  cg.setTolerance(options.tolerance);
-  cg.setMaxIterations(options.max_iterations);
-  cg.compute(A);
   bool ok = false;
-  if (cg.info() == Eigen::Success) {
-    x = cg.solveWithGuess(b, x0);
-    st.iterations = static_cast<int>(cg.iterations());
-    st.residual = cg.error();
-    ok = cg.info() == Eigen::Success && x.allFinite();
+  if (m > options.direct_max_unknowns) {
+    // Conjugate gradient (diagonal preconditioner) from the coarse-level guess.
+    Eigen::ConjugateGradient<Eigen::SparseMatrix<double>, Eigen::Lower | Eigen::Upper> cg;
+    cg.setTolerance(options.tolerance);
+    cg.setMaxIterations(options.max_iterations);
+    cg.compute(A);
+    if (cg.info() == Eigen::Success) {
+      if (have_guess) x = cg.solveWithGuess(b, x0);
+      else x = cg.solve(b);
+      st.iterations = static_cast<int>(cg.iterations());
+      st.residual = cg.error();
+      ok = cg.info() == Eigen::Success && x.allFinite();
+    }
   }
   if (!ok) {
     Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>> ldlt(A);
@@ -194,4 +299,5 @@ absl::StatusOr<ImageF> SolvePoisson(const PoissonProblem& p, const PoissonOption
   return out;
 }
 
+}  // namespace
 }  // namespace exo::inpaint

@@ -4,8 +4,9 @@
 // outside R with a known value is a Dirichlet boundary, a neighbour outside R without one (or
 // outside the image) is a natural (Neumann) boundary. A connected part of R that touches no
 // known value is pure Neumann: its solution is fixed up to a constant, which the gauge sets
-// (the mean over that part equals the mean of `gauge`). Solved with Eigen's conjugate
-// gradient and an incomplete-Cholesky preconditioner (a sparse direct LDL^T is the fallback).
+// (the mean over that part equals the mean of `gauge`). Small problems: Eigen's sparse LDL^T;
+// large ones: cascadic multigrid (coarse solutions as initial guesses of a conjugate gradient),
+// with LDL^T as the fallback when the iteration does not converge.
 #pragma once
 
 #include <cstdint>
@@ -18,6 +19,9 @@ namespace exo::inpaint {
 struct PoissonOptions {
   double tolerance = 1e-10;  // relative residual of the conjugate gradient
   int max_iterations = 2000;
+  // Up to this many unknowns: sparse direct LDL^T. Above: cascadic multigrid (the problem on a
+  // grid half the size, recursively, gives the initial guess of a conjugate gradient).
+  int direct_max_unknowns = 6000;
   absl::Status Validate() const;
 };
 

@@ -54,6 +54,30 @@ TEST(PoissonTest, ReproducesPlaneExactly) {
     for (int x = 0; x < 64; ++x) EXPECT_NEAR(out->at(x, y), plane(x, y), 1e-5) << x << "," << y;
 }
 
+// Same plane through the cascadic multigrid + conjugate gradient path (tiny direct threshold).
+TEST(PoissonTest, MultigridPathReproducesPlane) {
+  auto plane = [](int x, int y) { return 0.5 + 0.01 * x - 0.02 * y; };
+  Field f = MakeField(96, 80, plane, [](int x, int y) { return x >= 3 && x < 90 && y >= 4 && y < 70; }, true);
+  PoissonOptions o;
+  o.direct_max_unknowns = 50;
+  PoissonStats st;
+  auto out = SolvePoisson(Problem(f), o, &st);
+  ASSERT_TRUE(out.ok()) << out.status();
+  EXPECT_GT(st.iterations, 0);
+  EXPECT_FALSE(st.used_direct_solver);
+  for (int y = 0; y < 80; ++y)
+    for (int x = 0; x < 96; ++x) ASSERT_NEAR(out->at(x, y), plane(x, y), 1e-5) << x << "," << y;
+  // Pure Neumann through the same path.
+  Field g = MakeField(96, 80, plane, [](int x, int y) { return x >= 3 && x < 90 && y >= 4 && y < 70; }, false);
+  for (int y = 4; y < 70; ++y)
+    for (int x = 3; x < 90; ++x) g.gauge.at(x, y) = static_cast<float>(plane(x, y));
+  auto out2 = SolvePoisson(Problem(g), o, &st);
+  ASSERT_TRUE(out2.ok()) << out2.status();
+  EXPECT_EQ(st.neumann_components, 1);
+  for (int y = 4; y < 70; ++y)
+    for (int x = 3; x < 90; ++x) ASSERT_NEAR(out2->at(x, y), plane(x, y), 1e-4) << x << "," << y;
+}
+
 TEST(PoissonTest, ReproducesQuadraticExactlyWithRegionTouchingTheBorder) {
   // The region touches the left and top image borders: there the boundary is natural.
   auto quad = [](int x, int y) { return 1.0 + 1e-3 * (x * x - 0.5 * y * y + 0.3 * x * y); };

@@ -1,0 +1,764 @@
+// inpaint_bench: InpaintFusion keyframe inpainting on real 7-Scenes frames with ground truth.
+// Masks (committed, parametric: unions of ellipses, testdata/masks.jsonl) are placed over
+// regions whose colour and depth are known; the frame's own pixels under the mask are the truth.
+// Methods on the same masks: ours (PatchMatch + geometry term + Poisson on inverse depth), ours
+// with the thesis' literal depth domain, colour-only PatchMatch (no rho_g), OpenCV Telea (colour
+// and depth), a plane fitted to the ring around the mask (depth). Propagated keyframes: the mask
+// region re-projected into frame +5 and inpainted from the previous keyframe's map.
+// Prints one JSON object per (method, mask) and per-(method, class) summaries; writes a chart of
+// time against depth error and a contact sheet (PNG).
+//
+//   inpaint_bench [--data DIR] [--masks FILE] [--generate_masks] [--img_dir DIR]
+//                 [--threads N] [--repeats N] [--max_masks N]
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <map>
+#include <random>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include <Eigen/Dense>
+#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+#include <opencv2/photo.hpp>
+
+#include "server/inpainting/depth_maps.h"
+#include "server/inpainting/inpaint.h"
+
+namespace exo::inpaint {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+struct Ellipse {
+  double cx, cy, rx, ry, angle_deg;
+};
+struct MaskSpec {
+  std::string id, cls;
+  int frame = 0;
+  double fraction = 0;
+  std::vector<Ellipse> ellipses;
+};
+
+cv::Mat DrawMask(const MaskSpec& m, int w, int h) {
+  cv::Mat mask(h, w, CV_8UC1, cv::Scalar(0));
+  for (const Ellipse& e : m.ellipses) {
+    cv::ellipse(mask, cv::Point2d(e.cx, e.cy), cv::Size2d(e.rx, e.ry), e.angle_deg, 0, 360,
+                cv::Scalar(255), cv::FILLED, cv::LINE_8);
+  }
+  return mask;
+}
+
+std::string FramePath(const std::string& dir, int frame, const char* suffix) {
+  char buf[64];
+  std::snprintf(buf, sizeof(buf), "/frame-%06d.%s", frame, suffix);
+  return dir + buf;
+}
+
+struct RealFrame {
+  cv::Mat color_rgb;  // CV_8UC3 RGB
+  cv::Mat depth_m;    // CV_32F
+  Rigid3d world_from_cam;
+  bool ok = false;
+};
+
+RealFrame LoadFrame(const std::string& dir, int frame) {
+  RealFrame f;
+  cv::Mat bgr = cv::imread(FramePath(dir, frame, "color.jpg"), cv::IMREAD_COLOR);
+  cv::Mat d16 = cv::imread(FramePath(dir, frame, "depth.png"), cv::IMREAD_UNCHANGED);
+  if (bgr.empty() || d16.empty() || d16.type() != CV_16UC1) {
+    std::fprintf(stderr, "frame %d: cannot read colour/depth under %s\n", frame, dir.c_str());
+    return f;
+  }
+  cv::cvtColor(bgr, f.color_rgb, cv::COLOR_BGR2RGB);
+  d16.convertTo(f.depth_m, CV_32F, 1e-3);
+  std::ifstream pf(FramePath(dir, frame, "pose.txt"));
+  std::array<double, 16> m{};
+  for (double& v : m) pf >> v;
+  if (!pf) {
+    std::fprintf(stderr, "frame %d: cannot read the pose\n", frame);
+    return f;
+  }
+  // KinectFusion poses drift off orthonormal (|R^T R - I| up to ~2e-4 in this sequence, above
+  // ValidateRotation's 1e-4): project R onto SO(3) with an SVD first.
+  {
+    Eigen::Matrix3d r;
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j) r(i, j) = m[i * 4 + j];
+    Eigen::JacobiSVD<Eigen::Matrix3d> svd(r, Eigen::ComputeFullU | Eigen::ComputeFullV);
+    Eigen::Matrix3d q = svd.matrixU() * svd.matrixV().transpose();
+    if (q.determinant() < 0) q = -q;
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j) m[i * 4 + j] = q(i, j);
+  }
+  auto pose = RigidFromRowMajor4x4(m);
+  if (!pose.ok()) {
+    std::fprintf(stderr, "frame %d: %s\n", frame, pose.status().ToString().c_str());
+    return f;
+  }
+  f.world_from_cam = *pose;
+  f.ok = true;
+  return f;
+}
+
+PinholeCamera Camera7Scenes() {
+  PinholeCamera c;
+  c.fx = c.fy = 585.0;
+  c.cx = 320.0;
+  c.cy = 240.0;
+  c.width = 640;
+  c.height = 480;
+  return c;
+}
+
+RgbdKeyframe ToKeyframe(const RealFrame& f, const cv::Mat& mask) {
+  RgbdKeyframe k;
+  k.camera = Camera7Scenes();
+  k.world_from_cam = f.world_from_cam;
+  k.color = ImageU8(640, 480, 3);
+  k.depth_m = ImageF(640, 480, 1);
+  std::memcpy(k.color.data(), f.color_rgb.data, k.color.bytes());
+  std::memcpy(k.depth_m.data(), f.depth_m.data, k.depth_m.bytes());
+  // Nothing under the mask reaches any method.
+  for (int y = 0; y < 480; ++y)
+    for (int x = 0; x < 640; ++x)
+      if (mask.at<uint8_t>(y, x)) {
+        k.depth_m.at(x, y) = 0.f;
+        for (int c = 0; c < 3; ++c) k.color.at(x, y, c) = 0;
+      }
+  return k;
+}
+
+// ---------------------------------------------------------------- masks (generation + IO)
+std::string ToJson(const MaskSpec& m) {
+  std::ostringstream os;
+  os.precision(6);
+  os << "{\"id\":\"" << m.id << "\",\"frame\":" << m.frame << ",\"class\":\"" << m.cls
+     << "\",\"fraction\":" << m.fraction << ",\"ellipses\":[";
+  for (size_t i = 0; i < m.ellipses.size(); ++i) {
+    const Ellipse& e = m.ellipses[i];
+    os << (i ? "," : "") << "[" << e.cx << "," << e.cy << "," << e.rx << "," << e.ry << ","
+       << e.angle_deg << "]";
+  }
+  os << "]}";
+  return os.str();
+}
+
+bool ParseMask(const std::string& line, MaskSpec* m) {
+  auto str = [&](const std::string& key) {
+    const size_t p = line.find("\"" + key + "\":\"");
+    if (p == std::string::npos) return std::string();
+    const size_t s = p + key.size() + 4;
+    return line.substr(s, line.find('"', s) - s);
+  };
+  auto num = [&](const std::string& key) {
+    const size_t p = line.find("\"" + key + "\":");
+    return p == std::string::npos ? NAN : std::atof(line.c_str() + p + key.size() + 3);
+  };
+  m->id = str("id");
+  m->cls = str("class");
+  m->frame = static_cast<int>(num("frame"));
+  m->fraction = num("fraction");
+  m->ellipses.clear();
+  size_t p = line.find("\"ellipses\":[");
+  if (p == std::string::npos || m->id.empty()) return false;
+  p += 12;
+  while ((p = line.find('[', p)) != std::string::npos) {
+    Ellipse e;
+    if (std::sscanf(line.c_str() + p, "[%lf,%lf,%lf,%lf,%lf]", &e.cx, &e.cy, &e.rx, &e.ry, &e.angle_deg) != 5) break;
+    m->ellipses.push_back(e);
+    ++p;
+  }
+  return !m->ellipses.empty();
+}
+
+// Blob of 3 ellipses with a random layout, scaled to the target fraction; placed where the
+// frame's depth is valid under >= 97 % of the mask (the best of 200 tries).
+std::vector<MaskSpec> GenerateMasks(const std::string& data_dir) {
+  std::mt19937_64 rng(20260707);
+  std::vector<MaskSpec> out;
+  const std::vector<std::pair<std::string, std::pair<double, double>>> classes = {
+      {"2-5%", {0.02, 0.05}}, {"10-20%", {0.165, 0.175}}, {"30-40%", {0.30, 0.40}}};
+  for (int frame = 0; frame < 300; frame += 30) {
+    RealFrame f = LoadFrame(data_dir, frame);
+    if (!f.ok) continue;
+    for (const auto& [cls, range] : classes) {
+      std::uniform_real_distribution<double> U(0, 1);
+      const double target = range.first + (range.second - range.first) * U(rng);
+      MaskSpec best;
+      double best_valid = -1;
+      for (int attempt = 0; attempt < 200; ++attempt) {
+        MaskSpec m;
+        m.frame = frame;
+        m.cls = cls;
+        const double cx = 80 + 480 * U(rng), cy = 60 + 360 * U(rng);
+        std::vector<Ellipse> base;
+        for (int k = 0; k < 3; ++k) {
+          base.push_back({cx + (U(rng) - 0.5) * 120, cy + (U(rng) - 0.5) * 90, 0.5 + U(rng),
+                          0.5 + U(rng), 180 * U(rng)});
+        }
+        // Scale the radii until the area hits the target (bisection).
+        double lo = 1, hi = 600, frac = 0;
+        for (int it = 0; it < 30; ++it) {
+          const double mid = 0.5 * (lo + hi);
+          m.ellipses = base;
+          for (Ellipse& e : m.ellipses) {
+            e.rx *= mid;
+            e.ry *= mid;
+          }
+          frac = cv::countNonZero(DrawMask(m, 640, 480)) / (640.0 * 480.0);
+          (frac < target ? lo : hi) = mid;
+        }
+        const cv::Mat mk = DrawMask(m, 640, 480);
+        const int area = cv::countNonZero(mk);
+        const int valid = cv::countNonZero((f.depth_m > 0) & mk);
+        const double vf = area ? static_cast<double>(valid) / area : 0;
+        m.fraction = frac;
+        if (vf > best_valid) {
+          best_valid = vf;
+          best = m;
+        }
+        if (vf >= 0.97) break;
+      }
+      best.id = "f" + std::to_string(frame) + "_" + (cls == "2-5%" ? "s" : cls == "10-20%" ? "m" : "l");
+      for (Ellipse& e : best.ellipses) {
+        e.cx = std::round(e.cx * 10) / 10;
+        e.cy = std::round(e.cy * 10) / 10;
+        e.rx = std::round(e.rx * 10) / 10;
+        e.ry = std::round(e.ry * 10) / 10;
+        e.angle_deg = std::round(e.angle_deg * 10) / 10;
+      }
+      best.fraction = cv::countNonZero(DrawMask(best, 640, 480)) / (640.0 * 480.0);
+      out.push_back(best);
+    }
+  }
+  return out;
+}
+
+// ---------------------------------------------------------------- metrics
+struct Metrics {
+  double psnr = NAN, ssim = NAN, depth_mae_mm = NAN, depth_rmse_mm = NAN, normal_deg = NAN;
+  double seam_color = NAN, seam_color_gt = NAN, seam_depth_mm = NAN, seam_depth_gt_mm = NAN;
+  double depth_valid_frac = NAN;
+};
+
+cv::Mat SsimMap(const cv::Mat& a_rgb, const cv::Mat& b_rgb) {
+  cv::Mat a, b;
+  cv::cvtColor(a_rgb, a, cv::COLOR_RGB2GRAY);
+  cv::cvtColor(b_rgb, b, cv::COLOR_RGB2GRAY);
+  a.convertTo(a, CV_64F);
+  b.convertTo(b, CV_64F);
+  const double C1 = 6.5025, C2 = 58.5225;
+  cv::Mat mu1, mu2, s11, s22, s12;
+  cv::GaussianBlur(a, mu1, cv::Size(11, 11), 1.5);
+  cv::GaussianBlur(b, mu2, cv::Size(11, 11), 1.5);
+  cv::GaussianBlur(a.mul(a), s11, cv::Size(11, 11), 1.5);
+  cv::GaussianBlur(b.mul(b), s22, cv::Size(11, 11), 1.5);
+  cv::GaussianBlur(a.mul(b), s12, cv::Size(11, 11), 1.5);
+  cv::Mat mu11 = mu1.mul(mu1), mu22 = mu2.mul(mu2), mu12 = mu1.mul(mu2);
+  s11 -= mu11;
+  s22 -= mu22;
+  s12 -= mu12;
+  cv::Mat num = (2 * mu12 + C1).mul(2 * s12 + C2);
+  cv::Mat den = (mu11 + mu22 + C1).mul(s11 + s22 + C2);
+  cv::Mat out;
+  cv::divide(num, den, out);
+  return out;
+}
+
+ImageF FromMat(const cv::Mat& m) {
+  ImageF im(m.cols, m.rows, 1);
+  std::memcpy(im.data(), m.data, im.bytes());
+  return im;
+}
+
+Metrics Evaluate(const cv::Mat& mask, const cv::Mat* color_rgb, const cv::Mat* depth_m,
+                 const RealFrame& gt) {
+  Metrics r;
+  const int w = 640, h = 480;
+  if (color_rgb) {
+    double se = 0;
+    int n = 0;
+    cv::Mat ssim = SsimMap(*color_rgb, gt.color_rgb);
+    double ss = 0;
+    double seam = 0, seam_gt = 0;
+    int ns = 0;
+    for (int y = 0; y < h; ++y)
+      for (int x = 0; x < w; ++x) {
+        if (!mask.at<uint8_t>(y, x)) continue;
+        const cv::Vec3b a = color_rgb->at<cv::Vec3b>(y, x), b = gt.color_rgb.at<cv::Vec3b>(y, x);
+        for (int c = 0; c < 3; ++c) se += (a[c] - b[c]) * (a[c] - b[c]);
+        n += 3;
+        ss += ssim.at<double>(y, x);
+        const int nx[4] = {x - 1, x + 1, x, x}, ny[4] = {y, y, y - 1, y + 1};
+        for (int k = 0; k < 4; ++k) {
+          if (nx[k] < 0 || ny[k] < 0 || nx[k] >= w || ny[k] >= h || mask.at<uint8_t>(ny[k], nx[k])) continue;
+          const cv::Vec3b o = color_rgb->at<cv::Vec3b>(ny[k], nx[k]), og = gt.color_rgb.at<cv::Vec3b>(ny[k], nx[k]);
+          for (int c = 0; c < 3; ++c) {
+            seam += std::abs(a[c] - o[c]) / 3.0;
+            seam_gt += std::abs(b[c] - og[c]) / 3.0;
+          }
+          ++ns;
+        }
+      }
+    r.psnr = 10 * std::log10(255.0 * 255.0 / std::max(1e-12, se / n));
+    r.ssim = ss / (n / 3);
+    r.seam_color = seam / ns;
+    r.seam_color_gt = seam_gt / ns;
+  }
+  if (depth_m) {
+    const PinholeCamera cam = Camera7Scenes();
+    const ImageF nd = NormalsFromDepth(FromMat(*depth_m), cam);
+    const ImageF ng = NormalsFromDepth(FromMat(gt.depth_m), cam);
+    double ae = 0, se = 0, ang = 0, seam = 0, seam_gt = 0;
+    int n = 0, nang = 0, ns = 0, total = 0, valid_out = 0;
+    for (int y = 0; y < h; ++y)
+      for (int x = 0; x < w; ++x) {
+        if (!mask.at<uint8_t>(y, x)) continue;
+        const float g = gt.depth_m.at<float>(y, x), d = depth_m->at<float>(y, x);
+        if (!(g > 0.f)) continue;
+        ++total;
+        if (!(d > 0.f) || !std::isfinite(d)) continue;  // counted by depth_valid_frac
+        ++valid_out;
+        const double e = (d - g) * 1000.0;
+        ae += std::fabs(e);
+        se += e * e;
+        ++n;
+        const float* a = &nd.at(x, y, 0);
+        const float* b = &ng.at(x, y, 0);
+        const double dot = a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+        if ((a[0] != 0 || a[1] != 0 || a[2] != 0) && (b[0] != 0 || b[1] != 0 || b[2] != 0)) {
+          ang += std::acos(std::clamp(dot, -1.0, 1.0)) * 180.0 / M_PI;
+          ++nang;
+        }
+        const int nx[4] = {x - 1, x + 1, x, x}, ny[4] = {y, y, y - 1, y + 1};
+        for (int k = 0; k < 4; ++k) {
+          if (nx[k] < 0 || ny[k] < 0 || nx[k] >= w || ny[k] >= h || mask.at<uint8_t>(ny[k], nx[k])) continue;
+          const float o = depth_m->at<float>(ny[k], nx[k]), og = gt.depth_m.at<float>(ny[k], nx[k]);
+          if (!(og > 0.f) || !(o > 0.f)) continue;
+          seam += std::fabs(d - o) * 1000.0;
+          seam_gt += std::fabs(g - og) * 1000.0;
+          ++ns;
+        }
+      }
+    r.depth_mae_mm = n ? ae / n : NAN;
+    r.depth_rmse_mm = n ? std::sqrt(se / n) : NAN;
+    r.normal_deg = nang ? ang / nang : NAN;
+    r.seam_depth_mm = ns ? seam / ns : NAN;
+    r.seam_depth_gt_mm = ns ? seam_gt / ns : NAN;
+    r.depth_valid_frac = total ? static_cast<double>(valid_out) / total : NAN;
+  }
+  return r;
+}
+
+// ---------------------------------------------------------------- baselines
+// Telea on colour and on (pre-filled) depth.
+void Telea(const RgbdKeyframe& in, const cv::Mat& mask, cv::Mat* color, cv::Mat* depth) {
+  cv::Mat rgb(480, 640, CV_8UC3, const_cast<uint8_t*>(in.color.data()));
+  cv::inpaint(rgb, mask, *color, 5, cv::INPAINT_TELEA);
+  ImageF d = in.depth_m;
+  std::vector<uint8_t> outside(640 * 480);
+  for (int i = 0; i < 640 * 480; ++i) outside[i] = mask.data[i] == 0;
+  PrefillDepth(d, outside, outside);
+  // Telea on millimetres as 16-bit (its float path treats values as 8-bit intensities).
+  cv::Mat dm(480, 640, CV_32F, d.data()), mm16, out16;
+  dm.convertTo(mm16, CV_16U, 1000.0);
+  cv::inpaint(mm16, mask, out16, 5, cv::INPAINT_TELEA);
+  out16.convertTo(*depth, CV_32F, 1e-3);
+}
+
+// Plane through the ring (8 px) around the mask: inverse depth affine in (u, v) (exact for a
+// plane), least squares.
+void PlaneFit(const RgbdKeyframe& in, const cv::Mat& mask, cv::Mat* depth) {
+  cv::Mat dil;
+  cv::dilate(mask, dil, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(17, 17)));
+  cv::Mat ring = dil & ~mask;
+  Eigen::Matrix3d AtA = Eigen::Matrix3d::Zero();
+  Eigen::Vector3d Atb = Eigen::Vector3d::Zero();
+  for (int y = 0; y < 480; ++y)
+    for (int x = 0; x < 640; ++x) {
+      const float z = in.depth_m.at(x, y);
+      if (!ring.at<uint8_t>(y, x) || !(z > 0.f)) continue;
+      const Eigen::Vector3d a(x / 640.0, y / 480.0, 1.0);
+      AtA += a * a.transpose();
+      Atb += a / z;
+    }
+  const Eigen::Vector3d p = AtA.ldlt().solve(Atb);
+  *depth = cv::Mat(480, 640, CV_32F, const_cast<float*>(in.depth_m.data())).clone();
+  for (int y = 0; y < 480; ++y)
+    for (int x = 0; x < 640; ++x) {
+      if (!mask.at<uint8_t>(y, x)) continue;
+      const double q = p[0] * x / 640.0 + p[1] * y / 480.0 + p[2];
+      depth->at<float>(y, x) = q > 1e-6 ? static_cast<float>(1.0 / q) : 0.f;
+    }
+}
+
+// Re-projects the mask's 3D region (frame truth depth) into another frame.
+cv::Mat ReprojectMask(const cv::Mat& mask, const RealFrame& from, const RealFrame& to) {
+  const PinholeCamera cam = Camera7Scenes();
+  const Rigid3d to_from = to.world_from_cam.Inverse() * from.world_from_cam;
+  cv::Mat out(480, 640, CV_8UC1, cv::Scalar(0));
+  for (int y = 0; y < 480; ++y)
+    for (int x = 0; x < 640; ++x) {
+      if (!mask.at<uint8_t>(y, x)) continue;
+      const float z = from.depth_m.at<float>(y, x);
+      if (!(z > 0.f)) continue;
+      glm::dvec2 uv;
+      if (!cam.Project(to_from * cam.Unproject({x, y}, z), &uv) || !cam.InImage(uv)) continue;
+      out.at<uint8_t>(static_cast<int>(std::lround(uv.y)), static_cast<int>(std::lround(uv.x))) = 255;
+    }
+  cv::morphologyEx(out, out, cv::MORPH_CLOSE, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(9, 9)));
+  return out;
+}
+
+// ---------------------------------------------------------------- output
+struct Row {
+  std::string method, cls;
+  double ms;
+  Metrics m;
+};
+
+void PrintRow(const std::string& method, const MaskSpec& spec, double fraction, double ms,
+              const Metrics& m, const std::string& extra = "") {
+  auto f = [](double v) {
+    if (!std::isfinite(v)) return std::string("null");
+    char b[32];
+    std::snprintf(b, sizeof(b), "%.4g", v);
+    return std::string(b);
+  };
+  std::printf(
+      "{\"bench\":\"inpaint\",\"method\":\"%s\",\"mask\":\"%s\",\"class\":\"%s\",\"frame\":%d,"
+      "\"mask_fraction\":%s,\"ms\":%s,\"psnr\":%s,\"ssim\":%s,\"depth_mae_mm\":%s,"
+      "\"depth_rmse_mm\":%s,\"normal_err_deg\":%s,\"seam_color\":%s,\"seam_color_gt\":%s,"
+      "\"seam_depth_mm\":%s,\"seam_depth_gt_mm\":%s,\"depth_valid_frac\":%s%s}\n",
+      method.c_str(), spec.id.c_str(), spec.cls.c_str(), spec.frame, f(fraction).c_str(),
+      f(ms).c_str(), f(m.psnr).c_str(), f(m.ssim).c_str(), f(m.depth_mae_mm).c_str(),
+      f(m.depth_rmse_mm).c_str(), f(m.normal_deg).c_str(), f(m.seam_color).c_str(),
+      f(m.seam_color_gt).c_str(), f(m.seam_depth_mm).c_str(), f(m.seam_depth_gt_mm).c_str(),
+      f(m.depth_valid_frac).c_str(), extra.c_str());
+  std::fflush(stdout);
+}
+
+double Percentile(std::vector<double> v, double p) {
+  if (v.empty()) return NAN;
+  std::sort(v.begin(), v.end());
+  const double idx = p * (v.size() - 1);
+  const size_t i = static_cast<size_t>(idx);
+  return i + 1 < v.size() ? v[i] + (idx - i) * (v[i + 1] - v[i]) : v[i];
+}
+
+cv::Mat DepthVis(const cv::Mat& d) {
+  cv::Mat u8;
+  d.convertTo(u8, CV_8U, 255.0 / 4.0);
+  cv::Mat c;
+  cv::applyColorMap(u8, c, cv::COLORMAP_TURBO);
+  c.setTo(cv::Scalar(0, 0, 0), d <= 0);
+  return c;  // BGR
+}
+
+}  // namespace
+}  // namespace exo::inpaint
+
+int main(int argc, char** argv) {
+  using namespace exo::inpaint;
+  using exo::ImageU8;
+  using exo::Rigid3d;
+  std::string data_dir = std::string(EXOVIEW_SOURCE_DIR) + "/../shared/data/7scenes-redkitchen";
+  if (const char* env = std::getenv("EXOVIEW_SHARED_DIR")) data_dir = std::string(env) + "/data/7scenes-redkitchen";
+  std::string masks_path = std::string(EXOVIEW_SOURCE_DIR) + "/server/inpainting/testdata/masks.jsonl";
+  std::string img_dir;
+  bool generate = false;
+  int threads = 2, repeats = 1, max_masks = 1000, example_frame = 90;
+  double poisson_tol = InpaintOptions{}.poisson_tolerance;
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    auto next = [&]() { return i + 1 < argc ? std::string(argv[++i]) : std::string(); };
+    if (a == "--data") data_dir = next();
+    else if (a == "--masks") masks_path = next();
+    else if (a == "--generate_masks") generate = true;
+    else if (a == "--img_dir") img_dir = next();
+    else if (a == "--threads") threads = std::stoi(next());
+    else if (a == "--repeats") repeats = std::stoi(next());
+    else if (a == "--max_masks") max_masks = std::stoi(next());
+    else if (a == "--poisson_tol") poisson_tol = std::stod(next());
+    else if (a == "--example_frame") example_frame = std::stoi(next());
+    else {
+      std::fprintf(stderr, "unknown argument %s\n", a.c_str());
+      return 2;
+    }
+  }
+  if (generate) {
+    std::ofstream out(masks_path);
+    for (const MaskSpec& m : GenerateMasks(data_dir)) out << ToJson(m) << "\n";
+    std::fprintf(stderr, "wrote %s\n", masks_path.c_str());
+    return 0;
+  }
+  std::vector<MaskSpec> specs;
+  {
+    std::ifstream in(masks_path);
+    std::string line;
+    while (std::getline(in, line)) {
+      MaskSpec m;
+      if (ParseMask(line, &m)) specs.push_back(m);
+    }
+  }
+  if (specs.empty()) {
+    std::fprintf(stderr, "no masks in %s\n", masks_path.c_str());
+    return 1;
+  }
+  if (static_cast<int>(specs.size()) > max_masks) specs.resize(max_masks);
+
+  std::map<std::pair<std::string, std::string>, std::vector<Row>> rows;  // (method, class)
+  struct Example {
+    std::string id;
+    cv::Mat input, ours_c, cpm_c, telea_c, gt_c, ours_d, plane_d, telea_d, gt_d;
+  };
+  std::vector<Example> examples;
+  InpaintOptions base;
+  base.num_threads = threads;
+  base.poisson_tolerance = poisson_tol;
+  for (const MaskSpec& spec : specs) {
+    const RealFrame gt = LoadFrame(data_dir, spec.frame);
+    if (!gt.ok) {
+      std::fprintf(stderr, "cannot read frame %d under %s\n", spec.frame, data_dir.c_str());
+      return 1;
+    }
+    const cv::Mat mask = DrawMask(spec, 640, 480);
+    const double fraction = cv::countNonZero(mask) / (640.0 * 480.0);
+    const RgbdKeyframe in = ToKeyframe(gt, mask);
+    ImageU8 mask_img(640, 480, 1);
+    std::memcpy(mask_img.data(), mask.data, mask_img.bytes());
+    Example ex;
+    ex.id = spec.id;
+    auto run_ours = [&](const std::string& name, InpaintOptions o, cv::Mat* keep_c, cv::Mat* keep_d,
+                        InpaintResult* keep_result) {
+      std::vector<double> times;
+      absl::StatusOr<InpaintResult> r;
+      for (int rep = 0; rep < repeats; ++rep) {
+        r = InpaintKeyframe(in, mask_img, o);
+        if (!r.ok()) break;
+        times.push_back(r->stats.ms_total);
+      }
+      if (!r.ok()) {
+        std::fprintf(stderr, "%s on %s: %s\n", name.c_str(), spec.id.c_str(), r.status().ToString().c_str());
+        return;
+      }
+      cv::Mat c(480, 640, CV_8UC3, r->color.data()), d(480, 640, CV_32F, r->depth_m.data());
+      const Metrics m = Evaluate(mask, &c, &d, gt);
+      const double ms = Percentile(times, 0.5);
+      char extra[256];
+      std::snprintf(extra, sizeof(extra),
+                    ",\"threads\":%d,\"levels\":%d,\"ms_search\":%.1f,\"ms_poisson\":%.1f,\"poisson_iters\":%d",
+                    o.num_threads, r->stats.levels, r->stats.ms_search, r->stats.ms_poisson,
+                    r->stats.poisson_iterations);
+      PrintRow(name, spec, fraction, ms, m, extra);
+      for (double t : times) rows[{name, spec.cls}].push_back({name, spec.cls, t, m});
+      if (keep_c) *keep_c = c.clone();
+      if (keep_d) *keep_d = d.clone();
+      if (keep_result) *keep_result = std::move(*r);
+    };
+    InpaintResult ours_result;
+    run_ours("inpaintfusion", base, &ex.ours_c, &ex.ours_d, &ours_result);
+    InpaintOptions lit = base;
+    lit.depth_domain = DepthDomain::kDepth;
+    run_ours("inpaintfusion_depth_domain", lit, nullptr, nullptr, nullptr);
+    InpaintOptions cpm = base;
+    cpm.use_geometry = false;
+    run_ours("patchmatch_colour_only", cpm, &ex.cpm_c, nullptr, nullptr);
+    {
+      const auto t0 = Clock::now();
+      cv::Mat c, d;
+      Telea(in, mask, &c, &d);
+      const double ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+      const Metrics m = Evaluate(mask, &c, &d, gt);
+      PrintRow("telea", spec, fraction, ms, m);
+      rows[{"telea", spec.cls}].push_back({"telea", spec.cls, ms, m});
+      ex.telea_c = c;
+      ex.telea_d = d;
+    }
+    {
+      const auto t0 = Clock::now();
+      cv::Mat d;
+      PlaneFit(in, mask, &d);
+      const double ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+      const Metrics m = Evaluate(mask, nullptr, &d, gt);
+      PrintRow("plane_ring", spec, fraction, ms, m);
+      rows[{"plane_ring", spec.cls}].push_back({"plane_ring", spec.cls, ms, m});
+      ex.plane_d = d;
+    }
+    // Propagated keyframe: the same 3D region seen from frame + 5.
+    if (spec.cls == "10-20%" && !ours_result.color.empty() && spec.frame + 5 < 300) {
+      const RealFrame gt1 = LoadFrame(data_dir, spec.frame + 5);
+      const cv::Mat mask1 = ReprojectMask(mask, gt, gt1);
+      if (gt1.ok && cv::countNonZero(mask1) > 0) {
+        const RgbdKeyframe in1 = ToKeyframe(gt1, mask1);
+        ImageU8 m1(640, 480, 1);
+        std::memcpy(m1.data(), mask1.data, m1.bytes());
+        MaskSpec s1 = spec;
+        s1.id = spec.id + "+5";
+        s1.frame = spec.frame + 5;
+        for (const bool propagate : {true, false}) {
+          std::vector<double> times;
+          absl::StatusOr<InpaintResult> r;
+          for (int rep = 0; rep < repeats; ++rep) {
+            r = InpaintKeyframe(in1, m1, base, propagate ? &ours_result : nullptr);
+            if (!r.ok()) break;
+            times.push_back(r->stats.ms_total);
+          }
+          if (!r.ok()) {
+            std::fprintf(stderr, "propagated %s: %s\n", s1.id.c_str(), r.status().ToString().c_str());
+            continue;
+          }
+          cv::Mat c(480, 640, CV_8UC3, r->color.data()), d(480, 640, CV_32F, r->depth_m.data());
+          const Metrics m = Evaluate(mask1, &c, &d, gt1);
+          const std::string name = propagate ? "inpaintfusion_propagated" : "inpaintfusion_scratch_next";
+          char extra[128];
+          std::snprintf(extra, sizeof(extra), ",\"propagated_frac\":%.3f",
+                        static_cast<double>(r->stats.propagated_pixels) / r->stats.target_pixels);
+          PrintRow(name, s1, cv::countNonZero(mask1) / (640.0 * 480.0), Percentile(times, 0.5), m, extra);
+          for (double t : times) rows[{name, "10-20%"}].push_back({name, "10-20%", t, m});
+        }
+      }
+    }
+    cv::cvtColor(gt.color_rgb, ex.gt_c, cv::COLOR_RGB2BGR);
+    ex.input = ex.gt_c.clone();
+    ex.input.setTo(cv::Scalar(255, 0, 255), mask);
+    for (cv::Mat* m : {&ex.ours_c, &ex.cpm_c, &ex.telea_c}) {
+      if (!m->empty()) cv::cvtColor(*m, *m, cv::COLOR_RGB2BGR);
+    }
+    ex.gt_d = gt.depth_m.clone();
+    if (examples.size() < 3 && spec.frame == example_frame) examples.push_back(ex);
+  }
+
+  // Summaries per (method, class).
+  struct Summary {
+    std::string method, cls;
+    double p50, p95, psnr, ssim, mae, rmse, nerr, seam_c, seam_d;
+    int n;
+  };
+  std::vector<Summary> sums;
+  for (const auto& [key, v] : rows) {
+    std::vector<double> t;
+    Summary s{key.first, key.second, 0, 0, 0, 0, 0, 0, 0, 0, 0, static_cast<int>(v.size())};
+    auto mean = [&](auto get) {
+      double a = 0;
+      int n = 0;
+      for (const Row& r : v) {
+        const double x = get(r.m);
+        if (std::isfinite(x)) {
+          a += x;
+          ++n;
+        }
+      }
+      return n ? a / n : NAN;
+    };
+    for (const Row& r : v) t.push_back(r.ms);
+    s.p50 = Percentile(t, 0.5);
+    s.p95 = Percentile(t, 0.95);
+    s.psnr = mean([](const Metrics& m) { return m.psnr; });
+    s.ssim = mean([](const Metrics& m) { return m.ssim; });
+    s.mae = mean([](const Metrics& m) { return m.depth_mae_mm; });
+    s.rmse = mean([](const Metrics& m) { return m.depth_rmse_mm; });
+    s.nerr = mean([](const Metrics& m) { return m.normal_deg; });
+    s.seam_c = mean([](const Metrics& m) { return m.seam_color - m.seam_color_gt; });
+    s.seam_d = mean([](const Metrics& m) { return m.seam_depth_mm - m.seam_depth_gt_mm; });
+    sums.push_back(s);
+    auto f = [](double x) {
+      if (!std::isfinite(x)) return std::string("null");
+      char b[32];
+      std::snprintf(b, sizeof(b), "%.4g", x);
+      return std::string(b);
+    };
+    std::printf(
+        "{\"bench\":\"inpaint_summary\",\"method\":\"%s\",\"class\":\"%s\",\"runs\":%d,\"threads\":%d,"
+        "\"ms_p50\":%s,\"ms_p95\":%s,\"psnr\":%s,\"ssim\":%s,\"depth_mae_mm\":%s,\"depth_rmse_mm\":%s,"
+        "\"normal_err_deg\":%s,\"seam_color_excess\":%s,\"seam_depth_excess_mm\":%s}\n",
+        s.method.c_str(), s.cls.c_str(), s.n, threads, f(s.p50).c_str(), f(s.p95).c_str(),
+        f(s.psnr).c_str(), f(s.ssim).c_str(), f(s.mae).c_str(), f(s.rmse).c_str(), f(s.nerr).c_str(),
+        f(s.seam_c).c_str(), f(s.seam_d).c_str());
+  }
+
+  if (!img_dir.empty()) {
+    // Chart: time (log x) against depth MAE, one marker per (method, class).
+    const int W = 760, H = 460, L = 70, R = 230, T = 30, B = 50;
+    cv::Mat chart(H, W, CV_8UC3, cv::Scalar(255, 255, 255));
+    double ymax = 0;
+    for (const Summary& s : sums) if (std::isfinite(s.mae)) ymax = std::max(ymax, s.mae);
+    ymax = std::ceil(ymax / 20.0) * 20.0;
+    const double xmin = std::log10(0.5), xmax = std::log10(5000.0);
+    auto px = [&](double ms, double mae) {
+      const double lx = (std::log10(std::max(ms, 0.5)) - xmin) / (xmax - xmin);
+      return cv::Point(L + static_cast<int>(lx * (W - L - R)), H - B - static_cast<int>(mae / ymax * (H - T - B)));
+    };
+    cv::rectangle(chart, cv::Point(L, T), cv::Point(W - R, H - B), cv::Scalar(0, 0, 0));
+    for (double ms : {1.0, 10.0, 100.0, 1000.0}) {
+      const cv::Point p = px(ms, 0);
+      cv::line(chart, cv::Point(p.x, T), cv::Point(p.x, H - B), cv::Scalar(220, 220, 220));
+      cv::putText(chart, std::to_string(static_cast<int>(ms)), cv::Point(p.x - 10, H - B + 18), cv::FONT_HERSHEY_SIMPLEX, 0.45, cv::Scalar(0, 0, 0));
+    }
+    for (int k = 0; k <= 4; ++k) {
+      const double v = ymax * k / 4;
+      const cv::Point p = px(1000, v);
+      cv::line(chart, cv::Point(L, p.y), cv::Point(W - R, p.y), cv::Scalar(230, 230, 230));
+      cv::putText(chart, std::to_string(static_cast<int>(v)), cv::Point(L - 40, p.y + 5), cv::FONT_HERSHEY_SIMPLEX, 0.45, cv::Scalar(0, 0, 0));
+    }
+    cv::putText(chart, "ms per keyframe (p50, log), 640x480, 2 threads", cv::Point(L + 60, H - 12), cv::FONT_HERSHEY_SIMPLEX, 0.5, cv::Scalar(0, 0, 0));
+    cv::putText(chart, "depth MAE in mask [mm]", cv::Point(10, T - 10), cv::FONT_HERSHEY_SIMPLEX, 0.5, cv::Scalar(0, 0, 0));
+    const std::map<std::string, cv::Scalar> colors = {
+        {"inpaintfusion", {40, 40, 220}}, {"inpaintfusion_depth_domain", {0, 140, 255}},
+        {"patchmatch_colour_only", {200, 120, 0}}, {"telea", {0, 160, 0}}, {"plane_ring", {160, 0, 160}},
+        {"inpaintfusion_propagated", {0, 0, 120}}, {"inpaintfusion_scratch_next", {120, 120, 120}}};
+    const std::map<std::string, int> sizes = {{"2-5%", 4}, {"10-20%", 7}, {"30-40%", 10}};
+    int ly = T + 10;
+    for (const auto& [name, col] : colors) {
+      cv::circle(chart, cv::Point(W - R + 15, ly), 5, col, cv::FILLED);
+      cv::putText(chart, name, cv::Point(W - R + 25, ly + 5), cv::FONT_HERSHEY_SIMPLEX, 0.4, cv::Scalar(0, 0, 0));
+      ly += 20;
+    }
+    ly += 10;
+    for (const auto& [cls, r] : sizes) {
+      cv::circle(chart, cv::Point(W - R + 15, ly), r, cv::Scalar(0, 0, 0), 1);
+      cv::putText(chart, "mask " + cls, cv::Point(W - R + 30, ly + 5), cv::FONT_HERSHEY_SIMPLEX, 0.4, cv::Scalar(0, 0, 0));
+      ly += 26;
+    }
+    for (const Summary& s : sums) {
+      if (!std::isfinite(s.mae) || !colors.count(s.method)) continue;
+      cv::circle(chart, px(s.p50, s.mae), sizes.count(s.cls) ? sizes.at(s.cls) : 5, colors.at(s.method), 2, cv::LINE_AA);
+    }
+    cv::imwrite(img_dir + "/inpaint_time_vs_error.png", chart);
+
+    // Contact sheet: per example two rows (colour: input | ours | colour-only PM | Telea | truth;
+    // depth: ours | plane | Telea | truth | -), tiles 128x96.
+    const int tw = 160, th = 120;
+    std::vector<cv::Mat> rows_img;
+    auto tile = [&](const cv::Mat& m) {
+      cv::Mat t;
+      if (m.empty()) return cv::Mat(th, tw, CV_8UC3, cv::Scalar(255, 255, 255));
+      cv::resize(m, t, cv::Size(tw, th), 0, 0, cv::INTER_AREA);
+      return t;
+    };
+    for (const Example& e : examples) {
+      cv::Mat r1, r2;
+      cv::hconcat(std::vector<cv::Mat>{tile(e.input), tile(e.ours_c), tile(e.cpm_c), tile(e.telea_c), tile(e.gt_c)}, r1);
+      cv::hconcat(std::vector<cv::Mat>{tile(cv::Mat()), tile(DepthVis(e.ours_d)), tile(DepthVis(e.plane_d)), tile(DepthVis(e.telea_d)), tile(DepthVis(e.gt_d))}, r2);
+      cv::putText(r2, e.id, cv::Point(8, 30), cv::FONT_HERSHEY_SIMPLEX, 0.6, cv::Scalar(0, 0, 0), 1);
+      rows_img.push_back(r1);
+      rows_img.push_back(r2);
+    }
+    if (!rows_img.empty()) {
+      cv::Mat header(22, tw * 5, CV_8UC3, cv::Scalar(255, 255, 255));
+      const char* names[5] = {"input / depth:", "InpaintFusion", "colour-only PM | plane", "Telea", "truth"};
+      for (int k = 0; k < 5; ++k) cv::putText(header, names[k], cv::Point(k * tw + 4, 16), cv::FONT_HERSHEY_SIMPLEX, 0.38, cv::Scalar(0, 0, 0));
+      rows_img.insert(rows_img.begin(), header);
+      cv::Mat sheet;
+      cv::vconcat(rows_img, sheet);
+      cv::imwrite(img_dir + "/inpaint_examples.png", sheet, {cv::IMWRITE_PNG_COMPRESSION, 9});
+    }
+  }
+  return 0;
+}
