@@ -8,6 +8,7 @@
 #include <map>
 #include <memory>
 #include <queue>
+#include <random>
 #include <unordered_map>
 #include <unordered_set>
 
@@ -299,13 +300,14 @@ ImageU8 Hstack(const std::vector<const ImageU8*>& imgs) {
 }
 
 struct EvalSink {
-  std::vector<double> ssim, psnr, cov, ssim_cov, render_ms;
+  std::vector<double> ssim, psnr, cov, ssim_cov, render_ms, surface;
   Quality Finish() const {
     Quality q;
     q.mssim = Mean(ssim);
     q.psnr = Mean(psnr);
     q.coverage = Mean(cov);
     q.mssim_covered = Mean(ssim_cov);
+    q.surface = Mean(surface);
     q.views = int(ssim.size());
     return q;
   }
@@ -333,14 +335,14 @@ std::string ConfigJson(const std::string& dataset, const std::string& proxy, dou
       "\"config\":{\"policy\":\"%s\",\"frames\":%d,\"store\":%d,\"r_max\":%d,\"lambda\":%.2f,"
       "\"cell_m\":%.3f,\"voxel_m\":%.3f,\"delta_tau_sum\":%.3f,\"idbuf\":\"%dx%d\"},"
       "\"quality\":{\"mssim\":%.4f,\"psnr\":%.2f,\"coverage\":%.4f,\"mssim_covered\":%.4f,"
-      "\"test_views\":%d},"
+      "\"surface\":%.4f,\"test_views\":%d},"
       "\"speed\":{\"integrate_ms_median\":%.2f,\"integrate_ms_p95\":%.2f,\"plan_ms_median\":%.2f,"
       "\"plan_ms_p95\":%.2f,\"consider_ms_median\":%.3f,\"render_ms_median\":%.1f},"
       "\"memory\":{\"store_bytes\":%zu,\"geometry_bytes\":%zu,\"planner_bytes\":%zu},"
       "\"views\":%zu,\"accepted\":%zu,\"tau_sum\":%.2f}",
       dataset, proxy, c.tag, PolicyName(c.policy), frames, c.store, c.r_max, lambda, cell_m,
       voxel_m, dts, idw, idh, r.quality.mssim, r.quality.psnr, r.quality.coverage,
-      r.quality.mssim_covered, r.quality.views, r.integrate_ms_median, r.integrate_ms_p95,
+      r.quality.mssim_covered, r.quality.surface, r.quality.views, r.integrate_ms_median, r.integrate_ms_p95,
       r.plan_ms_median, r.plan_ms_p95, r.consider_ms_median, r.render_ms_median, r.store_bytes,
       r.geometry_bytes, r.planner_bytes, r.store_views, r.accepted, r.tau_sum);
 }
@@ -350,7 +352,7 @@ struct EngineOptions {
   TsdfOptions tsdf;
   int id_w = 160, id_h = 120;
   double max_range_m = 100;
-  blend::PositionalMode positional_mode = blend::PositionalMode::kUlrResolution;
+  blend::BlendOptions blend;
   bool vertex_color = true;
   std::function<void(const std::string&)> emit;
   std::string dump_dir;
@@ -612,7 +614,7 @@ class Engine {
     }
     model.cell_refs = refs;
     CpuRenderOptions ro;
-    ro.blend.positional_mode = opt_.positional_mode;
+    ro.blend = opt_.blend;
     ro.blend.lambda = float(lambda);
     auto restore = [&] {
       for (auto& [id, v] : model.views) cache_[int(id) - 1] = std::move(v);
@@ -635,6 +637,7 @@ class Engine {
         break;
       }
       st = sink.Add(out->color, src_.test_gt[t], out->coverage, ms);
+      sink.surface.push_back(double(out->surface_pixels) / (out->color.width() * out->color.height()));
       if (dump && !opt_.dump_dir.empty() && t < opt_.dump_views) {
         std::filesystem::create_directories(opt_.dump_dir);
         const ImageU8 img = Hstack({&out->color, &src_.test_gt[t], &out->coverage});
@@ -688,6 +691,7 @@ class Engine {
           }
       }
       EXO_RETURN_IF_ERROR(sink.Add(img, src_.test_gt[t], mask, MsSince(t0)));
+      sink.surface.push_back(sink.cov.back());
     }
     *render_ms_median = Pct(sink.render_ms, 0.5);
     return sink.Finish();
@@ -707,6 +711,49 @@ class Engine {
   std::vector<double> integrate_ms_;
   std::unordered_map<int, StoredView> cache_;
 };
+
+// See TestPoseMode::kNearTrajectory. Same acceptance rule as synth::MakeTestPoses (>= 90 % of a
+// 64-px-wide depth render hits geometry, nothing closer than 0.4 m, eye 0.5 m from solids).
+absl::StatusOr<std::vector<Rigid3d>> NearTrajectoryPoses(const synth::SynthScene& scene,
+                                                         const std::vector<Rigid3d>& input,
+                                                         const PinholeCamera& camera, int count,
+                                                         uint64_t seed, bool flyover) {
+  std::mt19937_64 rng(seed * 0x9E3779B97F4A7C15ull + 3);
+  auto uni = [&](double a, double b) { return std::uniform_real_distribution<double>(a, b)(rng); };
+  RasterOptions ro;
+  ro.z_depth = true;
+  ro.width = 64;
+  ro.height = std::max(8, int(std::lround(64.0 * camera.height / camera.width)));
+  ro.num_threads = 1;
+  ro.near_m = 0.05;
+  const double r_h = 0.1 * scene.ExtentM(), r_v = flyover ? 2.0 : 0.3;
+  std::vector<Rigid3d> out;
+  for (int attempt = 0; attempt < 400 * count && int(out.size()) < count; ++attempt) {
+    const Rigid3d& base = input[rng() % input.size()];
+    const glm::dvec3 eye = base.translation + glm::dvec3(uni(-r_h, r_h), uni(-r_h, r_h), uni(-r_v, r_v));
+    if (!scene.IsFree(eye, 0.5)) continue;
+    const glm::dvec3 fwd = base.RotationMatrix() * glm::dvec3(0, 0, 1);
+    const double yaw = std::atan2(fwd.y, fwd.x) + glm::radians(uni(-45, 45));
+    const double pitch = std::asin(std::clamp(fwd.z, -1.0, 1.0)) + glm::radians(uni(-10, 10));
+    const glm::dvec3 dir(std::cos(pitch) * std::cos(yaw), std::cos(pitch) * std::sin(yaw),
+                         std::sin(pitch));
+    const Rigid3d pose = synth::LookAt(eye, eye + dir);
+    EXO_ASSIGN_OR_RETURN(RasterOutput r, Rasterize(scene.mesh, camera, pose, ro));
+    int hits = 0;
+    float min_z = 1e30f;
+    for (float z : r.z_depth_m.span())
+      if (z > 0) {
+        ++hits;
+        min_z = std::min(min_z, z);
+      }
+    if (double(hits) / r.z_depth_m.size() < 0.9 || min_z < 0.4) continue;
+    out.push_back(pose);
+  }
+  if (int(out.size()) < count)
+    return absl::FailedPreconditionError(absl::StrCat("found only ", out.size(), " of ", count,
+                                                      " near-trajectory test poses"));
+  return out;
+}
 
 }  // namespace
 
@@ -774,7 +821,13 @@ absl::StatusOr<std::vector<ConfigResult>> RunSynthetic(const SynthRunOptions& o)
   synth::TestPoseOptions tpo;
   tpo.count = o.test_views;
   tpo.seed = o.test_seed;
-  EXO_ASSIGN_OR_RETURN(src.test_poses, synth::MakeTestPoses(scene, src.test_camera, tpo));
+  if (o.test_pose_mode == TestPoseMode::kSceneWide) {
+    EXO_ASSIGN_OR_RETURN(src.test_poses, synth::MakeTestPoses(scene, src.test_camera, tpo));
+  } else {
+    EXO_ASSIGN_OR_RETURN(src.test_poses,
+                         NearTrajectoryPoses(scene, src.poses, src.test_camera, o.test_views,
+                                             o.test_seed, tkind == synth::TrajectoryKind::kFlyover));
+  }
   for (const Rigid3d& p : src.test_poses) {
     EXO_ASSIGN_OR_RETURN(ImageF lin, synth::RenderLinear(scene, p, top));
     ImageU8 gt(top.width, top.height, 3);
@@ -792,7 +845,7 @@ absl::StatusOr<std::vector<ConfigResult>> RunSynthetic(const SynthRunOptions& o)
   eo.max_range_m = std::max(6.0, diameter) * 1.5;
   eo.id_w = o.id_width;
   eo.id_h = o.id_height;
-  eo.positional_mode = o.positional_mode;
+  eo.blend = o.blend;
   eo.vertex_color = o.vertex_color_baseline && o.proxy == ProxyKind::kTsdf;
   eo.emit = o.emit;
   eo.dump_dir = o.dump_dir;
@@ -907,7 +960,7 @@ absl::StatusOr<SevenScenesReport> RunSevenScenes(const SevenScenesRunOptions& o)
   eo.max_range_m = o.max_depth_m * 2;
   eo.id_w = o.id_width;
   eo.id_h = o.id_height;
-  eo.positional_mode = o.positional_mode;
+  eo.blend = o.blend;
   eo.vertex_color = o.vertex_color_baseline;
   eo.emit = o.emit;
   eo.dump_dir = o.dump_dir;

@@ -50,6 +50,7 @@ struct PolicyConfig {
 struct Quality {
   double mssim = 0, psnr = 0, coverage = 0;
   double mssim_covered = 0;     // SSIM over covered pixels only (masked), mean over views
+  double surface = 0;           // fraction of pixels where the proxy was hit (rest: sky/void)
   int views = 0;
 };
 
@@ -66,6 +67,15 @@ struct ConfigResult {
   std::string json;                              // the printed line
 };
 
+// Where synthetic test poses come from.
+enum class TestPoseMode {
+  kSceneWide,      // synth::MakeTestPoses: anywhere in the navigable region, eye level and
+                   // elevated, >= 90 % geometry in view (independent of the input trajectory)
+  kNearTrajectory  // a random input pose moved by up to 10 % of the scene diameter (horizontal),
+                   // +-2 m / +-0.3 m vertical (fly-over / walk), yaw +-45 deg, pitch +-10 deg,
+                   // free space and >= 90 % geometry in view: novel views in the input's range
+};
+
 struct SynthRunOptions {
   std::string scene = "village";   // village | apartment
   std::string traj = "flyover";    // flyover | walk
@@ -76,7 +86,8 @@ struct SynthRunOptions {
   int frame_width = 640, frame_height = 480;
   int test_views = 200, test_width = 320, test_height = 240;
   uint64_t test_seed = 7;
-  blend::PositionalMode positional_mode = blend::PositionalMode::kUlrResolution;
+  TestPoseMode test_pose_mode = TestPoseMode::kSceneWide;
+  blend::BlendOptions blend;       // lambda is overridden per config
   bool vertex_color_baseline = true;
   std::vector<PolicyConfig> configs;
   // Called with each JSON line as soon as it is ready (may be empty).
@@ -98,7 +109,7 @@ struct SevenScenesRunOptions {
   double max_depth_m = 4.0;
   int id_width = 160, id_height = 120;
   int test_width = 640, test_height = 480;
-  blend::PositionalMode positional_mode = blend::PositionalMode::kUlrResolution;
+  blend::BlendOptions blend;
   bool vertex_color_baseline = true;
   std::vector<PolicyConfig> configs;
   std::function<void(const std::string&)> emit;

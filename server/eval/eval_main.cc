@@ -70,25 +70,43 @@ absl::StatusOr<std::vector<PolicyConfig>> Configs(const Args& a) {
     EXO_ASSIGN_OR_RETURN(c.policy, ParsePolicy(std::string(p)));
     out.push_back(c);
   }
-  const std::string sweep = a.Get("--sweep", "");
+  const int btv = int(a.Num("--baseline_test_views", -1));
+  for (PolicyConfig& c : out)
+    if (c.policy != Policy::kOnline && c.policy != Policy::kOfflineGreedy) c.test_views = btv;
   const int stv = int(a.Num("--sweep_test_views", -1));
-  auto add = [&](auto set, std::vector<double> values) {
-    for (double v : values) {
-      PolicyConfig c = base;
-      c.policy = Policy::kOnline;
-      c.tag = "sweep_" + sweep;
-      c.test_views = stv;
-      set(c, v);
-      out.push_back(c);
-    }
-  };
-  if (sweep == "store") add([](PolicyConfig& c, double v) { c.store = int(v); }, {25, 50, 100, 200, 400});
-  else if (sweep == "r_max") add([](PolicyConfig& c, double v) { c.r_max = int(v); }, {4, 8, 16, 32});
-  else if (sweep == "lambda") add([](PolicyConfig& c, double v) { c.lambda = v; }, {0.0, 0.2, 0.4, 0.5, 0.6, 0.8, 1.0});
-  else if (sweep == "cell") add([](PolicyConfig& c, double v) { c.cell_m = v; }, {0.25, 0.5, 1.0, 2.0});
-  else if (sweep == "dts") add([](PolicyConfig& c, double v) { c.delta_tau_sum = v; }, {0.0, 0.05, 0.5, 2.0, 5.0});
-  else if (!sweep.empty()) return absl::InvalidArgumentError("unknown sweep " + sweep);
+  for (absl::string_view sw : absl::StrSplit(a.Get("--sweep", ""), ',', absl::SkipEmpty())) {
+    const std::string sweep(sw);
+    auto add = [&](auto set, std::vector<double> values) {
+      for (double v : values) {
+        PolicyConfig c = base;
+        c.policy = Policy::kOnline;
+        c.tag = "sweep_" + sweep;
+        c.test_views = stv;
+        set(c, v);
+        out.push_back(c);
+      }
+    };
+    if (sweep == "store") add([](PolicyConfig& c, double v) { c.store = int(v); }, {25, 50, 100, 200, 400});
+    else if (sweep == "r_max") add([](PolicyConfig& c, double v) { c.r_max = int(v); }, {4, 8, 16, 32});
+    else if (sweep == "lambda") add([](PolicyConfig& c, double v) { c.lambda = v; }, {0.0, 0.2, 0.4, 0.6, 0.8, 1.0});
+    else if (sweep == "cell") add([](PolicyConfig& c, double v) { c.cell_m = v; }, {0.3, 0.5, 1.0, 2.0});
+    else if (sweep == "dts") add([](PolicyConfig& c, double v) { c.delta_tau_sum = v; }, {0.0, 0.5, 2.0, 8.0});
+    else return absl::InvalidArgumentError("unknown sweep " + sweep);
+  }
   return out;
+}
+
+blend::BlendOptions Blend(const Args& a) {
+  blend::BlendOptions b;
+  b.positional_mode = a.Get("--positional", "ulr") == "printed" ? blend::PositionalMode::kPrinted
+                                                                : blend::PositionalMode::kUlrResolution;
+  b.discontinuity_radius_px = int(a.Num("--disc_r", b.discontinuity_radius_px));
+  b.discontinuity_delta_z_m = float(a.Num("--disc_m", b.discontinuity_delta_z_m));
+  b.discontinuity_delta_z_rel = float(a.Num("--disc_rel", b.discontinuity_delta_z_rel));
+  b.occlusion_epsilon_m = float(a.Num("--occ_m", b.occlusion_epsilon_m));
+  b.occlusion_epsilon_rel = float(a.Num("--occ_rel", b.occlusion_epsilon_rel));
+  b.n_best = int(a.Num("--n_best", b.n_best));
+  return b;
 }
 
 int RunOne(const Args& a) {
@@ -104,6 +122,7 @@ int RunOne(const Args& a) {
     o.voxel_m = a.Num("--voxel", 0.02);
     o.test_width = int(a.Num("--test_w", 640));
     o.test_height = int(a.Num("--test_h", 480));
+    o.blend = Blend(a);
     o.configs = *configs;
     o.emit = Emit;
     o.dump_dir = a.Get("--dump", "");
@@ -131,8 +150,9 @@ int RunOne(const Args& a) {
   o.test_height = int(a.Num("--test_h", 240));
   o.id_width = int(a.Num("--idw", 160));
   o.id_height = int(a.Num("--idh", 120));
-  o.positional_mode = a.Get("--positional", "ulr") == "printed" ? blend::PositionalMode::kPrinted
-                                                               : blend::PositionalMode::kUlrResolution;
+  o.blend = Blend(a);
+  o.test_pose_mode = a.Get("--test_poses", "scene") == "near" ? TestPoseMode::kNearTrajectory
+                                                              : TestPoseMode::kSceneWide;
   o.vertex_color_baseline = a.Num("--vertex_color", 1) != 0;
   o.configs = *configs;
   o.emit = Emit;
@@ -154,26 +174,25 @@ std::vector<std::vector<std::string>> Suite(const std::string& name, const std::
              "--test_views", "6", "--test_w", "160", "--test_h", "120", "--policies",
              "online,every_n"}};
   }
-  // full: main comparison on both scenes, then sweeps with fewer test views, then 7-Scenes.
-  std::vector<std::vector<std::string>> s = {
-      {"--scene", "village", "--traj", "flyover", "--frames", "1000", "--policies", all,
-       "--store", "200", "--test_views", "200"},
-      {"--scene", "apartment", "--traj", "walk", "--frames", "1000", "--policies", all,
-       "--store", "200", "--test_views", "200"},
-      {"--scene", "village", "--traj", "flyover", "--frames", "1000", "--proxy", "gt",
-       "--policies", "online,offline_greedy", "--store", "200", "--test_views", "200"},
-      {"--scene", "apartment", "--traj", "walk", "--frames", "1000", "--proxy", "gt",
-       "--policies", "online,offline_greedy", "--store", "200", "--test_views", "200"},
-  };
-  for (const char* sw : {"store", "r_max", "lambda", "cell"})
-    for (const char* sc : {"village", "apartment"})
-      s.push_back({"--scene", sc, "--frames", "600", "--policies", "", "--sweep", sw,
-                   "--test_views", "50", "--vertex_color", "0"});
+  // full: main comparison on both scenes (scene-wide and near-trajectory test poses), the
+  // ground-truth proxy, sweeps (fewer frames and test views), voxel sizes, 7-Scenes.
+  std::vector<std::vector<std::string>> s;
+  for (const char* sc : {"village", "apartment"}) {
+    s.push_back({"--scene", sc, "--frames", "500", "--policies", all, "--store", "200",
+                 "--test_views", "200", "--baseline_test_views", "100"});
+    s.push_back({"--scene", sc, "--frames", "500", "--policies", "online,offline_greedy",
+                 "--store", "200", "--test_views", "200", "--test_poses", "near"});
+    s.push_back({"--scene", sc, "--frames", "500", "--proxy", "gt", "--policies", "online",
+                 "--store", "200", "--test_views", "200"});
+  }
   for (const char* sc : {"village", "apartment"})
-    for (const char* vx : sc == std::string("village") ? std::vector<const char*>{"0.1", "0.15", "0.3"}
-                                                        : std::vector<const char*>{"0.03", "0.05", "0.1"})
-      s.push_back({"--scene", sc, "--frames", "600", "--voxel", vx, "--policies", "online",
-                   "--test_views", "50"});
+    s.push_back({"--scene", sc, "--frames", "300", "--policies", "", "--sweep",
+                 "store,r_max,lambda,cell,dts", "--test_views", "30", "--vertex_color", "0"});
+  for (const char* sc : {"village", "apartment"})
+    for (const char* vx : sc == std::string("village") ? std::vector<const char*>{"0.08", "0.3"}
+                                                        : std::vector<const char*>{"0.05", "0.1"})
+      s.push_back({"--scene", sc, "--frames", "300", "--voxel", vx, "--policies", "online",
+                   "--test_views", "30"});
   if (!data.empty())
     s.push_back({"--sevenscenes", data + "/7scenes-redkitchen", "--store", "50", "--policies", all});
   return s;
