@@ -811,72 +811,112 @@ absl::StatusOr<InpaintResult> InpaintKeyframe(const RgbdKeyframe& frame, const I
   }
   out.stats.ms_copy = MsSince(t_copy);
 
-  // Depth (4.13-4.16): Poisson on the mean bidirectional gradients of the copied samples.
+  // Depth (4.13-4.16): Poisson on the mean bidirectional gradients of the copied samples,
+  // set up on T's bounding box plus one pixel (every pair touching T lies inside it).
   const auto t_poisson = Clock::now();
   const bool inv = options.depth_domain == DepthDomain::kInverseDepth;
   const float nan = std::numeric_limits<float>::quiet_NaN();
-  ImageF q(w, h, 1, nan), gx(w, h, 1, nan), gy(w, h, 1, nan), gauge(w, h, 1, nan);
-  for (size_t i = 0; i < n; ++i) {
-    const float z = out.depth_m.data()[i];
-    if (!target[i] && z > 0.f) q.data()[i] = inv ? 1.f / z : z;
-  }
-  auto qsrc = [&](int x, int y) { return q.at(x, y); };  // sources and their 5x5 windows are valid
+  int bx0 = w, by0 = h, bx1 = -1, by1 = -1;
   for (int y = 0; y < h; ++y) {
-    for (int x = 0; x < w; ++x) {
+    if (L0.row_x0[y] > L0.row_x1[y]) continue;
+    bx0 = std::min(bx0, L0.row_x0[y]);
+    bx1 = std::max(bx1, L0.row_x1[y]);
+    by0 = std::min(by0, y);
+    by1 = y;
+  }
+  const int ox = std::max(0, bx0 - 1), oy = std::max(0, by0 - 1);
+  const int cw = std::min(w - 1, bx1 + 1) - ox + 1, ch = std::min(h - 1, by1 + 1) - oy + 1;
+  // Domain value of a pixel outside T (sources and their 5x5 windows have valid depth).
+  auto qv = [&](int x, int y) {
+    const float z = out.depth_m.at(x, y);
+    return z > 0.f ? (inv ? 1.f / z : z) : nan;
+  };
+  ImageF q(cw, ch, 1, nan), gx(cw, ch, 1, nan), gy(cw, ch, 1, nan), gauge(cw, ch, 1, nan);
+  ImageU8 region(cw, ch, 1, 0);
+  for (int cy = 0; cy < ch; ++cy) {
+    for (int cx = 0; cx < cw; ++cx) {
+      const int x = ox + cx, y = oy + cy;
       const size_t i = static_cast<size_t>(y) * w + x;
       const bool tp = target[i];
-      if (tp) gauge.data()[i] = qsrc(L0.src[i * 2], L0.src[i * 2 + 1]);
+      region.at(cx, cy) = tp;
+      if (!tp) q.at(cx, cy) = qv(x, y);
+      if (tp) gauge.at(cx, cy) = qv(L0.src[i * 2], L0.src[i * 2 + 1]);
       for (int dir = 0; dir < 2; ++dir) {
         const int dx = dir == 0 ? 1 : 0, dy = dir == 0 ? 0 : 1;
-        const int nx = x + dx, ny = y + dy;
-        if (nx >= w || ny >= h) continue;
-        const size_t j = static_cast<size_t>(ny) * w + nx;
+        if (cx + dx >= cw || cy + dy >= ch) continue;
+        const size_t j = static_cast<size_t>(y + dy) * w + x + dx;
         const bool tq = target[j];
         if (!tp && !tq) continue;
         float g = 0.f;
         int cnt = 0;
         if (tp) {  // gradient sampled at u's source: d(f(u)) - d(f(u) + v)
           const int sx = L0.src[i * 2], sy = L0.src[i * 2 + 1];
-          g += qsrc(sx, sy) - qsrc(sx + dx, sy + dy);
+          g += qv(sx, sy) - qv(sx + dx, sy + dy);
           ++cnt;
         }
         if (tq) {  // gradient sampled at (u+v)'s source: d(f(u+v) - v) - d(f(u+v))
           const int sx = L0.src[j * 2], sy = L0.src[j * 2 + 1];
-          g += qsrc(sx - dx, sy - dy) - qsrc(sx, sy);
+          g += qv(sx - dx, sy - dy) - qv(sx, sy);
           ++cnt;
         }
-        (dir == 0 ? gx : gy).data()[i] = g / cnt;
+        (dir == 0 ? gx : gy).at(cx, cy) = g / cnt;
       }
     }
   }
-  ImageU8 region(w, h, 1, 0);
-  for (size_t i = 0; i < n; ++i) region.data()[i] = target[i];
   PoissonProblem prob;
   prob.region = &region;
   prob.values = &q;
   prob.gx = &gx;
   prob.gy = &gy;
   prob.gauge = &gauge;
-  prob.initial = &gauge;
+  // No initial guess: the solver's coarse levels give a better one than the previous
+  // keyframe's forward-warped depth, whose splatting noise cost more iterations (measured).
   PoissonOptions popt;
   popt.tolerance = options.poisson_tolerance;
   PoissonStats pst;
   EXO_ASSIGN_OR_RETURN(ImageF solved, SolvePoisson(prob, popt, &pst));
   out.stats.poisson_iterations = pst.iterations;
   out.stats.neumann_components = pst.neumann_components;
-  for (size_t i = 0; i < n; ++i) {
-    if (!target[i]) continue;
-    const float v = solved.data()[i];
-    float z = 0.f;
-    if (std::isfinite(v) && v > 0.f) z = inv ? 1.f / v : v;
-    if (!(z > 0.f) || !std::isfinite(z)) {
-      z = 0.f;
-      ++out.stats.invalid_depth_pixels;
+  for (int cy = 0; cy < ch; ++cy) {
+    for (int cx = 0; cx < cw; ++cx) {
+      if (!region.at(cx, cy)) continue;
+      const float v = solved.at(cx, cy);
+      float z = 0.f;
+      if (std::isfinite(v) && v > 0.f) z = inv ? 1.f / v : v;
+      if (!(z > 0.f) || !std::isfinite(z)) {
+        z = 0.f;
+        ++out.stats.invalid_depth_pixels;
+      }
+      out.depth_m.at(ox + cx, oy + cy) = z;
     }
-    out.depth_m.data()[i] = z;
   }
   out.stats.ms_poisson = MsSince(t_poisson);
-  out.normals = NormalsFromDepth(out.depth_m, frame.camera, 2, options.normal_rel_discontinuity);
+  // Normals of the result: unchanged outside T's neighbourhood (the smoothing reaches 2 px, the
+  // differences 2 px more), recomputed on T's bounding box plus a margin.
+  out.normals = normals0;
+  {
+    const int margin = 8;
+    const int x0 = std::max(0, bx0 - margin), y0 = std::max(0, by0 - margin);
+    const int x1 = std::min(w - 1, bx1 + margin), y1 = std::min(h - 1, by1 + margin);
+    const int nw = x1 - x0 + 1, nh = y1 - y0 + 1;
+    ImageF crop(nw, nh, 1);
+    for (int y = 0; y < nh; ++y)
+      std::copy(out.depth_m.row(y0 + y) + x0, out.depth_m.row(y0 + y) + x0 + nw, crop.row(y));
+    PinholeCamera cc = frame.camera;
+    cc.cx -= x0;
+    cc.cy -= y0;
+    cc.width = nw;
+    cc.height = nh;
+    const ImageF nc = NormalsFromDepth(crop, cc, 2, options.normal_rel_discontinuity);
+    const int inner = 4;  // the crop's own border lacks neighbours: keep the full-image values
+    for (int y = 0; y < nh; ++y) {
+      if ((y0 + y >= inner && y < inner) || (y0 + y < h - inner && y >= nh - inner)) continue;
+      for (int x = 0; x < nw; ++x) {
+        if ((x0 + x >= inner && x < inner) || (x0 + x < w - inner && x >= nw - inner)) continue;
+        for (int k = 0; k < 3; ++k) out.normals.at(x0 + x, y0 + y, k) = nc.at(x, y, k);
+      }
+    }
+  }
   out.stats.ms_total = MsSince(t_start);
   return out;
 }

@@ -49,7 +49,7 @@ struct InpaintOptions {
   DepthDomain depth_domain = DepthDomain::kInverseDepth;
   double max_median_depth_m = 100.0;  // units check: larger medians are millimetres
   float normal_rel_discontinuity = 0.05f;
-  double poisson_tolerance = 1e-5;  // relative CG residual of the depth solve
+  double poisson_tolerance = 1e-4;  // relative CG residual of the depth solve
   absl::Status Validate() const;
 };
 

@@ -1,5 +1,6 @@
 #include "server/inpainting/poisson.h"
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 #include <vector>
@@ -222,10 +223,26 @@ absl::StatusOr<ImageF> SolveLevel(const PoissonProblem& p, const PoissonOptions&
     PoissonStats cst;
     auto coarse = SolveLevel(cp, options, cst, depth + 1);
     if (coarse.ok()) {
+      // Bilinear prolongation over the finite coarse values (solution inside, known outside);
+      // keeps the caller's guess where it exists.
+      const int cw = coarse->width(), ch = coarse->height();
       for (int i = 0; i < m; ++i) {
+        if (p.initial && std::isfinite(p.initial->data()[pixel_of[i]])) continue;
         const int px = pixel_of[i] % w, py = pixel_of[i] / w;
-        const float v = coarse->at(px / 2, py / 2);
-        if (std::isfinite(v)) x0[i] = v;
+        const double cx = (px - 0.5) / 2.0, cy = (py - 0.5) / 2.0;
+        const int x0i = static_cast<int>(std::floor(cx)), y0i = static_cast<int>(std::floor(cy));
+        const double fx = cx - x0i, fy = cy - y0i;
+        double s = 0, sw = 0;
+        for (int dy = 0; dy < 2; ++dy)
+          for (int dx = 0; dx < 2; ++dx) {
+            const int qx = std::clamp(x0i + dx, 0, cw - 1), qy = std::clamp(y0i + dy, 0, ch - 1);
+            const float v = coarse->at(qx, qy);
+            if (!std::isfinite(v)) continue;
+            const double wgt = (dx ? fx : 1 - fx) * (dy ? fy : 1 - fy) + 1e-6;
+            s += wgt * v;
+            sw += wgt;
+          }
+        if (sw > 0) x0[i] = s / sw;
       }
       have_guess = true;
     }
