@@ -29,10 +29,11 @@ class GeometryStage final : public PipelineStage {
 
 }  // namespace
 
-absl::StatusOr<std::unique_ptr<PipelineStage>> MakeGeometryStage(double voxel_size_m,
+absl::StatusOr<std::unique_ptr<PipelineStage>> MakeGeometryStage(double voxel_size_m, double max_depth_m,
                                                                  int mesh_every_n_frames) {
   TsdfOptions o;
   o.voxel_size_m = static_cast<float>(voxel_size_m);
+  o.max_depth_m = static_cast<float>(max_depth_m);
   o.num_threads = 1;  // the stage is one pipeline thread; other stages use the other core
   EXO_RETURN_IF_ERROR(o.Validate());
   if (mesh_every_n_frames < 1) return absl::InvalidArgumentError("mesh_every_n_frames must be >= 1");

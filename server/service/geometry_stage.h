@@ -8,6 +8,6 @@
 #include "server/service/pipeline.h"
 
 namespace exo {
-absl::StatusOr<std::unique_ptr<PipelineStage>> MakeGeometryStage(double voxel_size_m,
+absl::StatusOr<std::unique_ptr<PipelineStage>> MakeGeometryStage(double voxel_size_m, double max_depth_m,
                                                                  int mesh_every_n_frames);
 }  // namespace exo

@@ -3,6 +3,14 @@
 #include <chrono>
 
 namespace exo {
+namespace {
+thread_local double t_source_timestamp_s = 0.0;
+}  // namespace
+
+ScopedDeltaSource::ScopedDeltaSource(double timestamp_s) : previous_(t_source_timestamp_s) {
+  t_source_timestamp_s = timestamp_s;
+}
+ScopedDeltaSource::~ScopedDeltaSource() { t_source_timestamp_s = previous_; }
 
 absl::Status ModelStoreOptions::Validate() const {
   if (max_log_deltas < 1) return absl::InvalidArgumentError("max_log_deltas must be >= 1");
@@ -19,6 +27,7 @@ ModelStore::~ModelStore() { CloseAll(); }
 
 uint64_t ModelStore::CommitLocked(v1::Delta delta) {
   delta.set_version(++version_);
+  delta.set_source_timestamp_s(t_source_timestamp_s);
   auto ptr = std::make_shared<const v1::Delta>(std::move(delta));
   log_bytes_ += ptr->ByteSizeLong();
   log_.push_back(std::move(ptr));

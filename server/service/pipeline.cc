@@ -61,6 +61,7 @@ Pipeline::Admission Pipeline::Submit(PipelineFramePtr frame) {
 void Pipeline::RunStage(size_t i) {
   while (auto item = queues_[i]->Pop()) {
     const PipelineFramePtr& f = *item;
+    const ScopedDeltaSource source(f->frame.timestamp_s);
     if (auto s = stages_[i]->Process(*f, ctx_); !s.ok()) {
       errors_.fetch_add(1);
       std::fprintf(stderr, "[pipeline] stage %s, frame %llu: %s\n", stages_[i]->name().c_str(),

@@ -48,6 +48,7 @@ absl::Status ServerConfig::Validate() const {
   EXO_RETURN_IF_ERROR(store.Validate());
   EXO_RETURN_IF_ERROR(publish.Validate());
   if (!(voxel_size_m > 0.0)) return absl::InvalidArgumentError("voxel_size_m must be > 0");
+  EXO_RETURN_IF_ERROR(planning.Validate());
   if (mesh_every_n_frames < 1) return absl::InvalidArgumentError("mesh_every_n_frames must be >= 1");
   return absl::OkStatus();
 }
@@ -66,8 +67,16 @@ absl::Status ApplyConfigValue(const std::string& key, const std::string& value, 
   if (key == "publish_depth_downscale") return ParseNumber(key, value, &c->publish.depth_downscale);
   if (key == "geometry") return ParseNumber(key, value, &c->enable_geometry);
   if (key == "voxel_size_m") return ParseNumber(key, value, &c->voxel_size_m);
+  if (key == "max_depth_m") return ParseNumber(key, value, &c->max_depth_m);
   if (key == "mesh_every_n_frames") return ParseNumber(key, value, &c->mesh_every_n_frames);
   if (key == "planning") return ParseNumber(key, value, &c->enable_planning);
+  if (key == "max_views") return ParseNumber(key, value, &c->planning.max_views);
+  if (key == "max_store_bytes") return ParseNumber(key, value, &c->planning.max_bytes);
+  if (key == "r_max") return ParseNumber(key, value, &c->planning.r_max);
+  if (key == "d_max_m") return ParseNumber(key, value, &c->planning.d_max_m);
+  if (key == "sigma_m") return ParseNumber(key, value, &c->planning.sigma_m);
+  if (key == "delta_tau_sum") return ParseNumber(key, value, &c->planning.delta_tau_sum);
+  if (key == "id_buffer_stride") return ParseNumber(key, value, &c->planning.id_buffer_stride);
   if (key == "refinement") return ParseNumber(key, value, &c->enable_refinement);
   return absl::InvalidArgumentError(absl::StrCat("unknown config key '", key, "'"));
 }

@@ -14,6 +14,7 @@
 #include "server/service/model_proto.h"
 #include "server/service/model_store.h"
 #include "server/service/pipeline.h"
+#include "server/service/planning_stage.h"
 
 namespace grpc {
 class Server;
@@ -33,8 +34,10 @@ struct ServerConfig {
   // Stages (each only where the server was built with it).
   bool enable_geometry = true;
   double voxel_size_m = 0.04;
+  double max_depth_m = 6.0;          // depth beyond this is not fused
   int mesh_every_n_frames = 5;       // re-mesh dirty blocks every n fused frames
   bool enable_planning = true;
+  PlanningStageOptions planning;     // planning.publish is taken from `publish`
   bool enable_refinement = true;
   absl::Status Validate() const;
 };

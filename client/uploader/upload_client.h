@@ -1,0 +1,56 @@
+// Drone-side upload client: streams frames to the server's Upload RPC at a chosen rate with a
+// bounded number of frames in flight, reads the per-frame acks on a second thread and keeps
+// ack statistics (accepted / rejected with reasons / dropped, ack latency). Frames come from
+// any exo::FrameSource (datasets, the built-in synthetic scene) or as pre-encoded messages.
+#pragma once
+
+#include <cstdint>
+#include <functional>
+#include <map>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "common/datasets/frame_source.h"
+#include "common/status.h"
+#include "proto/exoview.pb.h"
+#include "server/service/frame_proto.h"
+
+namespace grpc {
+class Channel;
+}
+
+namespace exo {
+
+struct UploadOptions {
+  double rate_hz = 30.0;        // 0 = as fast as the server acks
+  int max_in_flight = 16;       // frames sent but not yet acked
+  FrameEncodeOptions encode;
+  bool progress = false;        // one line per second on stderr
+  absl::Status Validate() const;
+};
+
+struct UploadAckStats {
+  uint64_t sent = 0, accepted = 0, rejected = 0, dropped = 0;
+  std::map<std::string, uint64_t> reject_reasons;
+  std::vector<v1::Ack> acks;    // in arrival order
+  double elapsed_s = 0;
+  uint64_t bytes_sent = 0;
+  double ack_latency_p50_ms = 0, ack_latency_p95_ms = 0;
+  double fps() const { return elapsed_s > 0 ? sent / elapsed_s : 0; }
+  std::string ToJson() const;
+};
+
+std::shared_ptr<grpc::Channel> MakeChannel(const std::string& target, size_t max_message_bytes = 64 << 20);
+
+// Sends `count` messages produced by `next(i)` (which may fail: the error ends the upload).
+absl::StatusOr<UploadAckStats> UploadStream(
+    const std::shared_ptr<grpc::Channel>& channel, size_t count,
+    const std::function<absl::StatusOr<v1::Frame>(size_t)>& next, const UploadOptions& options);
+
+// Loads, encodes and sends frames [first, first + count) of a FrameSource.
+absl::StatusOr<UploadAckStats> UploadFrames(const std::shared_ptr<grpc::Channel>& channel,
+                                         const FrameSource& source, size_t first, size_t count,
+                                         const UploadOptions& options);
+
+}  // namespace exo

@@ -1,0 +1,34 @@
+// Pipeline stage "planning" (SPEC §4): turns each admitted frame into a view-planning candidate
+// (visible pixels per scene cell from the frame's own depth, back-projected at reduced
+// resolution), asks server/planning's ViewPlanner, and publishes its decision: ViewRemoved for
+// victims, ViewAdded (encoded per ViewEncodeOptions) for an accepted frame, CellRefsChanged for
+// every cell whose R(b_k) changed.
+#pragma once
+
+#include <memory>
+
+#include "server/service/model_proto.h"
+#include "server/service/pipeline.h"
+
+namespace exo {
+
+struct PlanningStageOptions {
+  int id_buffer_stride = 4;     // cell-id buffer = depth subsampled by this factor
+  size_t max_views = 200;
+  size_t max_bytes = size_t{1} << 30;
+  int r_max = 16;
+  double d_max_m = 2.0;         // ideal view distance (3.11)
+  double sigma_m = 2.0;
+  double delta_tau_sum = 0.05;
+  ViewEncodeOptions publish;
+  absl::Status Validate() const;
+};
+
+absl::StatusOr<std::unique_ptr<PipelineStage>> MakePlanningStage(const PlanningStageOptions& options,
+                                                                 double cell_size_m);
+
+// Depth registered to the colour camera (z-depth in the colour frame, colour size): identity
+// when depth is already registered, else a forward z-buffered warp (0 = no sample).
+ImageF RegisterDepthToColor(const Frame& frame);
+
+}  // namespace exo
