@@ -1,5 +1,5 @@
 // Ceres cost functors of view refinement (SPEC §5, thesis eq. 3.17). One residual per surface
-// sample p_j: E_I * C_I(pi(p_j, I)) - m_j, where C_I is the candidate's LINEAR luma (bicubic
+// sample p_j: E_I * C_I(pi(p_j, I)) - m_j (pose stage; the exposure stage uses its log form), where C_I is the candidate's LINEAR luma (bicubic
 // over a pyramid level), E_I its exposure factor and m_j the median of the stored views'
 // exposure-corrected linear intensities at p_j. The pose is cam_from_local as an Eigen
 // quaternion (x, y, z, w; use ceres::EigenQuaternionManifold) and a translation.
@@ -21,20 +21,25 @@ struct LevelIntrinsics {
   double fx = 0, fy = 0, cx = 0, cy = 0;
 };
 
-// Residual of the exposure stage: the candidate value c_j is fixed (pose held constant).
-// Parameter block: exposure[1].
+// Residual of the exposure stage, in log intensity: log(E) + log(c_j) - log(m_j), with the
+// candidate value c_j fixed (pose held constant). The exposure model is multiplicative; in the
+// log domain the fit is symmetric in c_j and m_j, so it is not attenuated when samples are
+// still misaligned (a linear fit of m = E c is biased towards 0 by the errors in c: regression
+// dilution), and 0.1x and 10x are equally well conditioned. Parameter block: exposure[1] (> 0).
 struct ExposureResidual {
-  ExposureResidual(double candidate_value, double target) : c(candidate_value), m(target) {}
+  ExposureResidual(double log_candidate, double log_target) : log_c(log_candidate), log_m(log_target) {}
   template <typename T>
   bool operator()(const T* exposure, T* residual) const {
-    residual[0] = exposure[0] * T(c) - T(m);
+    using std::log;
+    if (!(exposure[0] > T(0))) return false;
+    residual[0] = log(exposure[0]) + T(log_c) - T(log_m);
     return true;
   }
-  static ceres::CostFunction* Create(double candidate_value, double target) {
+  static ceres::CostFunction* Create(double log_candidate, double log_target) {
     return new ceres::AutoDiffCostFunction<ExposureResidual, 1, 1>(
-        new ExposureResidual(candidate_value, target));
+        new ExposureResidual(log_candidate, log_target));
   }
-  double c, m;
+  double log_c, log_m;
 };
 
 // Residual of the pose stage: the exposure is held constant. Parameter blocks:

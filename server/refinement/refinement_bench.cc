@@ -1,1 +1,267 @@
-int main(){return 0;}
+// refinement_bench: per-view refinement time at 640x480 and what refinement buys, on the
+// synthetic scenes (common/synth) with exposure changes and pose noise injected into the stored
+// views. One JSON object per configuration (speed and error side by side):
+//  - ms per refined view (median, p95), pose error (deg, mm) and exposure error before/after,
+//    rejections, refusals;
+//  - MSSIM / PSNR of CPU lumigraph renders (common/lumigraph/cpu_renderer, ground-truth proxy
+//    mesh) at held-out trajectory poses with refinement off, on, and with the true poses and
+//    exposures (oracle).
+//
+//   refinement_bench [--scene apartment|village|all] [--frames N] [--stride S]
+//                    [--rot-deg D] [--trans-m M] [--exposure-jitter X] [--width W --height H]
+//                    [--seed S] [--heldout N]
+// The first stored view is the gauge anchor (true pose, E = 1); views are refined in order, each
+// against the views stored (and refined) before it, as the planner does online.
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "common/lumigraph/cpu_renderer.h"
+#include "common/metrics/metrics.h"
+#include "common/synth/render.h"
+#include "common/synth/scene.h"
+#include "common/synth/trajectory.h"
+#include "server/refinement/view_refiner.h"
+
+namespace exo {
+namespace {
+
+struct Args {
+  std::string scene = "all";
+  int frames = 64, stride = 4, heldout = 12;
+  double rot_deg = 1.5, trans_m = 0.015, exposure_jitter = 0.7;  // exposure = 2^U(-X, X)
+  int width = 640, height = 480;
+  uint64_t seed = 1;
+  int levels = 0, samples = 0;  // 0: RefinementOptions defaults
+};
+
+double Percentile(std::vector<double> v, double p) {
+  if (v.empty()) return 0;
+  std::sort(v.begin(), v.end());
+  return v[std::min(v.size() - 1, static_cast<size_t>(p * (v.size() - 1) + 0.5))];
+}
+
+StoredView ToStored(const Frame& f, ViewId id) {
+  StoredView v;
+  v.id = id;
+  v.camera = f.color_camera;
+  v.local_from_cam = f.world_from_cam;  // scene origin is 0: local == world
+  v.color = f.color;
+  v.depth_m = f.depth_m;
+  v.exposure = 1.0f;
+  return v;
+}
+
+// Every stored view referenced by every cell the proxy touches (the renderer picks the best 3
+// per pixel); cells found by sampling each triangle at a quarter of the cell size.
+void FillCellRefs(const TriangleMesh& mesh, LumigraphModel* model) {
+  std::vector<ViewId> ids;
+  for (const auto& [id, v] : model->views) ids.push_back(id);
+  const double step = 0.25 * model->grid.cell_size_m;
+  for (size_t t = 0; t + 2 < mesh.indices.size(); t += 3) {
+    const glm::dvec3 a(mesh.positions[mesh.indices[t]]), b(mesh.positions[mesh.indices[t + 1]]),
+        c(mesh.positions[mesh.indices[t + 2]]);
+    const int n = std::max(1, static_cast<int>(std::ceil(std::max(glm::length(b - a), glm::length(c - a)) / step)));
+    for (int i = 0; i <= n; ++i)
+      for (int j = 0; i + j <= n; ++j) {
+        const glm::dvec3 p = a + (b - a) * (double(i) / n) + (c - a) * (double(j) / n);
+        auto& r = model->cell_refs[model->grid.IdOf(p)];
+        if (r.empty()) r = ids;
+      }
+  }
+}
+
+struct Quality {
+  double mssim = 0, psnr = 0, coverage = 0, render_ms = 0;
+};
+
+absl::StatusOr<Quality> RenderQuality(const synth::SynthScene& scene, std::vector<StoredView> views,
+                                      const std::vector<Rigid3d>& poses,
+                                      const std::vector<ImageU8>& truth, const PinholeCamera& cam) {
+  LumigraphModel model;
+  model.grid.cell_size_m = 1.0;
+  for (auto& v : views) model.views[v.id] = std::move(v);
+  FillCellRefs(scene.mesh, &model);
+  model.chunks[0].mesh = scene.mesh;
+  CpuRenderOptions ro;
+  EXO_ASSIGN_OR_RETURN(auto renderer, CpuLumigraphRenderer::Create(model, ro));
+  Quality q;
+  std::vector<ImageU8> out;
+  double psnr = 0;
+  for (size_t i = 0; i < poses.size(); ++i) {
+    const auto t0 = std::chrono::steady_clock::now();
+    EXO_ASSIGN_OR_RETURN(CpuRenderOutput r, renderer->Render(cam, poses[i]));
+    q.render_ms += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+    EXO_ASSIGN_OR_RETURN(double p, MaskedPsnr(r.color, truth[i], r.coverage));
+    psnr += std::min(p, 99.0);
+    q.coverage += double(r.covered_pixels) / (cam.width * cam.height);
+    out.push_back(std::move(r.color));
+  }
+  EXO_ASSIGN_OR_RETURN(q.mssim, MeanSsim(out, truth));
+  q.psnr = psnr / poses.size();
+  q.coverage /= poses.size();
+  q.render_ms /= poses.size();
+  return q;
+}
+
+absl::Status RunScene(synth::SceneKind kind, const Args& a) {
+  synth::SceneOptions so;
+  so.seed = a.seed;
+  EXO_ASSIGN_OR_RETURN(synth::SynthScene scene, synth::MakeScene(kind, so));
+  synth::TrajectoryOptions to;
+  to.num_frames = a.frames;
+  const auto traj_kind = scene.indoor ? synth::TrajectoryKind::kWalk : synth::TrajectoryKind::kFlyover;
+  EXO_ASSIGN_OR_RETURN(auto traj, synth::MakeTrajectory(scene, traj_kind, to));
+  synth::RenderOptions ro;
+  ro.width = a.width;
+  ro.height = a.height;
+  const PinholeCamera cam = ro.Camera();
+  std::mt19937_64 rng(a.seed * 1000 + static_cast<int>(kind));
+  std::uniform_real_distribution<double> uni(-a.exposure_jitter, a.exposure_jitter);
+
+  // Stored views: every stride-th frame; exposure k_i and pose noise (not on the anchor).
+  std::vector<StoredView> noisy;
+  std::vector<Rigid3d> truth_pose;
+  std::vector<double> k;
+  for (int i = 0, n = 0; i < static_cast<int>(traj.size()); i += a.stride, ++n) {
+    synth::FrameNoise fn;
+    fn.exposure = n == 0 ? 1.0 : std::exp2(uni(rng));
+    fn.rotation_deg = n == 0 ? 0.0 : a.rot_deg;
+    fn.translation_m = n == 0 ? 0.0 : a.trans_m;
+    fn.seed = a.seed * 7777 + n;
+    EXO_ASSIGN_OR_RETURN(auto rf, synth::RenderFrame(scene, traj[i].local_from_cam, ro, fn, n));
+    noisy.push_back(ToStored(rf.frame, static_cast<ViewId>(n + 1)));
+    truth_pose.push_back(rf.true_world_from_cam);
+    k.push_back(fn.exposure);
+  }
+  // Held-out poses between stored frames; ground truth at the anchor's exposure (1).
+  std::vector<Rigid3d> held;
+  std::vector<ImageU8> held_truth;
+  const int hstep = std::max(1, static_cast<int>(traj.size()) / std::max(1, a.heldout));
+  for (int i = a.stride / 2; i < static_cast<int>(traj.size()) && static_cast<int>(held.size()) < a.heldout;
+       i += hstep) {
+    EXO_ASSIGN_OR_RETURN(auto rf, synth::RenderFrame(scene, traj[i].local_from_cam, ro));
+    held.push_back(traj[i].local_from_cam);
+    held_truth.push_back(std::move(rf.frame.color));
+  }
+
+  // Refinement, online order.
+  RefinementOptions opt;
+  if (a.levels > 0) opt.pyramid_levels = a.levels;
+  if (a.samples > 0) opt.max_samples = a.samples;
+  RefinementStats stats;
+  std::vector<StoredView> refined;
+  refined.push_back(noisy[0]);
+  std::vector<double> ms, cpu_ms, rot_before, rot_after, tr_before, tr_after, e_before, e_after;
+  for (size_t i = 1; i < noisy.size(); ++i) {
+    std::vector<const StoredView*> refs;
+    for (const auto& r : refined) refs.push_back(&r);
+    auto res = RefineView(noisy[i], refs, opt);
+    StoredView v = noisy[i];
+    rot_before.push_back(RotationAngleRad(v.local_from_cam.rotation, truth_pose[i].rotation) * 180 / M_PI);
+    tr_before.push_back(1000 * glm::length(v.local_from_cam.translation - truth_pose[i].translation));
+    e_before.push_back(std::abs(1.0 * k[i] - 1.0));
+    bool keep = true;
+    if (res.ok()) {
+      if (std::getenv("REFINEMENT_BENCH_VERBOSE"))
+        std::fprintf(stderr,
+                     "view %zu k=%.3f E=%.3f rot %.3f->%.3f trans %.1f->%.1f mm n=%d valid=%d "
+                     "lmin=%.3g cond=%.3g refused=%d outlier=%d rel=%.3f %.1f ms\n",
+                     i, k[i], res->exposure, rot_before.back(),
+                     RotationAngleRad(res->local_from_cam.rotation, truth_pose[i].rotation) * 180 / M_PI,
+                     tr_before.back(),
+                     1000 * glm::length(res->local_from_cam.translation - truth_pose[i].translation),
+                     res->num_samples, res->num_valid_final, res->pose_min_eigenvalue,
+                     res->pose_condition, res->pose_refused_rank_deficient, res->rejected_outlier,
+                     res->relative_residual, res->ms, res->cpu_ms);
+      stats.Add(*res);
+      ms.push_back(res->ms);
+      cpu_ms.push_back(res->cpu_ms);
+      if (!res->rejected_outlier) {
+        v.local_from_cam = res->local_from_cam;
+        v.exposure = static_cast<float>(res->exposure);
+      } else {
+        keep = false;  // pose outliers are discarded (thesis §3.1.3), as the planner does
+      }
+    } else {
+      std::fprintf(stderr, "view %zu: %s\n", i, std::string(res.status().message()).c_str());
+    }
+    if (!keep) continue;  // errors "on" are over the views kept in the store
+    rot_after.push_back(RotationAngleRad(v.local_from_cam.rotation, truth_pose[i].rotation) * 180 / M_PI);
+    tr_after.push_back(1000 * glm::length(v.local_from_cam.translation - truth_pose[i].translation));
+    e_after.push_back(std::abs(v.exposure * k[i] - 1.0));
+    refined.push_back(std::move(v));
+  }
+  std::vector<StoredView> oracle = noisy;
+  for (size_t i = 0; i < oracle.size(); ++i) {
+    oracle[i].local_from_cam = truth_pose[i];
+    oracle[i].exposure = static_cast<float>(1.0 / k[i]);
+  }
+  EXO_ASSIGN_OR_RETURN(Quality q_off, RenderQuality(scene, noisy, held, held_truth, cam));
+  EXO_ASSIGN_OR_RETURN(Quality q_on, RenderQuality(scene, refined, held, held_truth, cam));
+  EXO_ASSIGN_OR_RETURN(Quality q_true, RenderQuality(scene, oracle, held, held_truth, cam));
+  std::printf(
+      "{\"bench\":\"refinement\",\"scene\":\"%s\",\"width\":%d,\"height\":%d,\"views_refined\":%zu,"
+      "\"refs_max\":%d,\"max_samples\":%d,\"noise_rot_deg\":%.3f,\"noise_trans_m\":%.3f,"
+      "\"exposure_jitter_log2\":%.2f,\"ms_median\":%.2f,\"ms_p95\":%.2f,\"cpu_ms_median\":%.2f,\"cpu_ms_p95\":%.2f,"
+      "\"rot_err_deg_median_off\":%.3f,\"rot_err_deg_median_on\":%.3f,\"rot_err_deg_p95_on\":%.3f,"
+      "\"trans_err_mm_median_off\":%.2f,\"trans_err_mm_median_on\":%.2f,\"trans_err_mm_p95_on\":%.2f,"
+      "\"exposure_relerr_median_off\":%.4f,\"exposure_relerr_median_on\":%.4f,"
+      "\"exposure_relerr_p95_on\":%.4f,\"stored_on\":%zu,\"rejected_outlier\":%lld,\"pose_refused\":%lld,"
+      "\"heldout_views\":%zu,\"mssim_off\":%.4f,\"mssim_on\":%.4f,\"mssim_true_poses\":%.4f,"
+      "\"psnr_off\":%.2f,\"psnr_on\":%.2f,\"psnr_true_poses\":%.2f,\"coverage\":%.3f,"
+      "\"render_ms\":%.1f}\n",
+      synth::SceneKindName(kind), a.width, a.height, noisy.size() - 1, opt.max_reference_views,
+      opt.max_samples, a.rot_deg, a.trans_m, a.exposure_jitter, Percentile(ms, 0.5),
+      Percentile(ms, 0.95), Percentile(cpu_ms, 0.5), Percentile(cpu_ms, 0.95), Percentile(rot_before, 0.5), Percentile(rot_after, 0.5),
+      Percentile(rot_after, 0.95), Percentile(tr_before, 0.5), Percentile(tr_after, 0.5),
+      Percentile(tr_after, 0.95), Percentile(e_before, 0.5), Percentile(e_after, 0.5),
+      Percentile(e_after, 0.95), refined.size(), static_cast<long long>(stats.rejected_outlier),
+      static_cast<long long>(stats.pose_refused), held.size(), q_off.mssim, q_on.mssim,
+      q_true.mssim, q_off.psnr, q_on.psnr, q_true.psnr, q_on.coverage, q_on.render_ms);
+  std::fflush(stdout);
+  return absl::OkStatus();
+}
+
+int Main(int argc, char** argv) {
+  Args a;
+  for (int i = 1; i + 1 < argc; i += 2) {
+    const std::string key = argv[i];
+    const char* v = argv[i + 1];
+    if (key == "--scene") a.scene = v;
+    else if (key == "--frames") a.frames = std::atoi(v);
+    else if (key == "--stride") a.stride = std::max(1, std::atoi(v));
+    else if (key == "--heldout") a.heldout = std::atoi(v);
+    else if (key == "--rot-deg") a.rot_deg = std::atof(v);
+    else if (key == "--trans-m") a.trans_m = std::atof(v);
+    else if (key == "--exposure-jitter") a.exposure_jitter = std::atof(v);
+    else if (key == "--width") a.width = std::atoi(v);
+    else if (key == "--height") a.height = std::atoi(v);
+    else if (key == "--levels") a.levels = std::atoi(v);
+    else if (key == "--samples") a.samples = std::atoi(v);
+    else if (key == "--seed") a.seed = std::strtoull(v, nullptr, 10);
+    else {
+      std::fprintf(stderr, "unknown flag %s\n", key.c_str());
+      return 2;
+    }
+  }
+  for (auto kind : {synth::SceneKind::kApartment, synth::SceneKind::kVillage}) {
+    if (a.scene != "all" && a.scene != synth::SceneKindName(kind)) continue;
+    const absl::Status s = RunScene(kind, a);
+    if (!s.ok()) {
+      std::fprintf(stderr, "%s: %s\n", synth::SceneKindName(kind), std::string(s.message()).c_str());
+      return 1;
+    }
+  }
+  return 0;
+}
+
+}  // namespace
+}  // namespace exo
+
+int main(int argc, char** argv) { return exo::Main(argc, argv); }

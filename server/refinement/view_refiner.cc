@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <array>
 #include <chrono>
+#include <ctime>
 #include <cmath>
 #include <memory>
 #include <vector>
@@ -51,6 +52,12 @@ struct Level {
   bool Inside(double u, double v, double border) const {
     return u >= border && v >= border && u <= w - 1 - border && v <= h - 1 - border;
   }
+  bool BadBilinear(double u, double v) const {
+    const int x0 = std::clamp(static_cast<int>(std::floor(u)), 0, w - 2);
+    const int y0 = std::clamp(static_cast<int>(std::floor(v)), 0, h - 2);
+    const uint8_t* b0 = &bad[static_cast<size_t>(y0) * w + x0];
+    return b0[0] | b0[1] | b0[w] | b0[w + 1];
+  }
   double Bilinear(double u, double v) const {
     const int x0 = std::clamp(static_cast<int>(std::floor(u)), 0, w - 2);
     const int y0 = std::clamp(static_cast<int>(std::floor(v)), 0, h - 2);
@@ -61,31 +68,38 @@ struct Level {
   }
 };
 
+// Box dilation (square of side 2*radius+1) with running counts: O(pixels) per pass.
 void Dilate(std::vector<uint8_t>& m, int w, int h, int radius) {
   if (radius <= 0) return;
   std::vector<uint8_t> tmp(m.size(), 0);
-  for (int y = 0; y < h; ++y)
+  for (int y = 0; y < h; ++y) {
+    const uint8_t* in = &m[static_cast<size_t>(y) * w];
+    uint8_t* out = &tmp[static_cast<size_t>(y) * w];
+    int count = 0;
+    for (int x = 0; x < std::min(radius, w); ++x) count += in[x] != 0;
     for (int x = 0; x < w; ++x) {
-      uint8_t a = 0;
-      for (int d = -radius; d <= radius && !a; ++d) {
-        const int xx = x + d;
-        if (xx >= 0 && xx < w) a = m[static_cast<size_t>(y) * w + xx];
-      }
-      tmp[static_cast<size_t>(y) * w + x] = a;
+      if (x + radius < w) count += in[x + radius] != 0;
+      if (x - radius - 1 >= 0) count -= in[x - radius - 1] != 0;
+      out[x] = count > 0;
     }
-  for (int y = 0; y < h; ++y)
-    for (int x = 0; x < w; ++x) {
-      uint8_t a = 0;
-      for (int d = -radius; d <= radius && !a; ++d) {
-        const int yy = y + d;
-        if (yy >= 0 && yy < h) a = tmp[static_cast<size_t>(yy) * w + x];
-      }
-      m[static_cast<size_t>(y) * w + x] = a;
-    }
+  }
+  std::vector<int> count(w, 0);
+  for (int y = 0; y < std::min(radius, h); ++y)
+    for (int x = 0; x < w; ++x) count[x] += tmp[static_cast<size_t>(y) * w + x];
+  for (int y = 0; y < h; ++y) {
+    if (y + radius < h)
+      for (int x = 0; x < w; ++x) count[x] += tmp[static_cast<size_t>(y + radius) * w + x];
+    if (y - radius - 1 >= 0)
+      for (int x = 0; x < w; ++x) count[x] -= tmp[static_cast<size_t>(y - radius - 1) * w + x];
+    uint8_t* out = &m[static_cast<size_t>(y) * w];
+    for (int x = 0; x < w; ++x) out[x] = count[x] > 0;
+  }
 }
 
+// `dilate_px`: the candidate's mask is dilated by the bicubic support; references are sampled
+// bilinearly and check their 2x2 support directly (no dilation, no interpolator).
 std::vector<Level> BuildPyramid(const ImageU8& color, const PinholeCamera& cam, int levels,
-                                const RefinementOptions& o) {
+                                const RefinementOptions& o, int dilate_px, bool interpolator) {
   const auto& lut = Lut().v;
   std::vector<Level> pyr(levels);
   Level& l0 = pyr[0];
@@ -117,7 +131,8 @@ std::vector<Level> BuildPyramid(const ImageU8& color, const PinholeCamera& cam, 
       }
   }
   for (Level& l : pyr) {
-    Dilate(l.bad, l.w, l.h, o.border_px);
+    Dilate(l.bad, l.w, l.h, dilate_px);
+    if (!interpolator) continue;
     l.grid = std::make_unique<LumaGrid>(l.luma.data(), 0, l.h, 0, l.w);
     l.interp = std::make_unique<LumaInterpolator>(*l.grid);
   }
@@ -182,8 +197,9 @@ double TukeyRho(double r, double c) {
 
 class Refiner {
  public:
-  Refiner(const StoredView& cand, std::vector<const StoredView*> refs, const RefinementOptions& o)
-      : cand_(cand), refs_(std::move(refs)), o_(o) {}
+  Refiner(const StoredView& cand, std::vector<const StoredView*> refs, std::vector<double> overlap,
+          const RefinementOptions& o)
+      : cand_(cand), refs_(std::move(refs)), overlap_(std::move(overlap)), o_(o) {}
 
   absl::StatusOr<RefinementResult> Run();
 
@@ -205,13 +221,15 @@ class Refiner {
   };
   EnergyPair CompareEnergy(int level, double e0, const Pose& p0, double e1, const Pose& p1,
                            double scale) const;
-  double ScaleFromResiduals(std::vector<double> r) const;
-  double SolveExposure(int level, const Pose& pose, double e);
+  double ScaleFromResiduals(std::vector<double> r, double fixed) const;
+  double SolveExposure(int level, const Pose& pose, double e, bool warm_start);
+  void LogValues(int level, const Active& a, std::vector<double>* lc, std::vector<double>* lm) const;
   Pose SolvePose(int level, double e, const Pose& pose);
   void RankCheck(const Pose& pose, double e);
 
   const StoredView& cand_;
   std::vector<const StoredView*> refs_;
+  std::vector<double> overlap_;  // fraction of each reference seen by the candidate
   const RefinementOptions& o_;
   int levels_ = 1;
   std::vector<Level> cand_pyr_;
@@ -226,14 +244,17 @@ void Refiner::BuildSamples(int budget) {
   const Level& c0 = cand_pyr_[0];
   const bool cand_depth = !cand_.depth_m.empty() && cand_.depth_m.width() == c0.w &&
                           cand_.depth_m.height() == c0.h;
-  const int per_ref = std::max(1, budget / static_cast<int>(refs_.size()));
+  // One block size for all references: each contributes in proportion to its overlap.
+  double overlap_sum = 0;
+  for (double f : overlap_) overlap_sum += f;
   std::vector<double> vals[kMaxLevels];
   std::vector<double> depths;
   for (size_t r = 0; r < refs_.size(); ++r) {
     const StoredView& ref = *refs_[r];
     const Level& rl = ref_pyr_[r][0];
     const int w = rl.w, h = rl.h;
-    const int block = std::max(2, static_cast<int>(std::ceil(std::sqrt(double(w) * h / per_ref))));
+    const int block =
+        std::max(2, static_cast<int>(std::ceil(std::sqrt(double(w) * h * overlap_sum / budget))));
     for (int by = o_.border_px; by < h - o_.border_px; by += block)
       for (int bx = o_.border_px; bx < w - o_.border_px; bx += block) {
         // The most textured pixel of the block with valid depth (DSO-style candidates).
@@ -289,7 +310,7 @@ void Refiner::BuildSamples(int budget) {
             const Level& L = ref_pyr_[i][l];
             const double s_l = 1.0 / (1 << l);
             const double ul = (uv.x + 0.5) * s_l - 0.5, vl = (uv.y + 0.5) * s_l - 0.5;
-            if (!L.Inside(ul, vl, 0.0) || L.Bad(ul, vl)) continue;
+            if (!L.Inside(ul, vl, 0.0) || L.BadBilinear(ul, vl)) continue;
             vals[l].push_back(ri.exposure * L.Bilinear(ul, vl));
           }
         }
@@ -319,7 +340,10 @@ bool Refiner::ValidInCandidate(int level, const Pose& pose, const Sample& s, dou
 Refiner::Active Refiner::ActiveSet(int level, const Pose& pose) const {
   Active a;
   const Level& L = cand_pyr_[level];
-  for (size_t j = 0; j < samples_.size(); ++j) {
+  // Coarse levels use a subset (every stride-th sample, at least ~400): they only need to bring
+  // the pose into the basin of the finer levels.
+  const size_t stride = std::max<size_t>(1, std::min<size_t>(size_t{1} << level, samples_.size() / 400));
+  for (size_t j = 0; j < samples_.size(); j += stride) {
     double u, v;
     if (!ValidInCandidate(level, pose, samples_[j], &u, &v)) continue;
     double val;
@@ -351,10 +375,12 @@ Refiner::EnergyPair Refiner::CompareEnergy(int level, double e0, const Pose& p0,
   return ep;
 }
 
-double Refiner::ScaleFromResiduals(std::vector<double> r) const {
-  if (!o_.scale_from_mad || r.empty()) return o_.fixed_scale;
-  const double med = Median(r);
-  for (double& x : r) x = std::abs(x - med);
+// Tukey scale from the median absolute residual (MAD about zero, not about the median: an
+// all-offset start, e.g. a wrong exposure, then gets a scale as large as the offset and is not
+// "converged" at once on Tukey's flat tails).
+double Refiner::ScaleFromResiduals(std::vector<double> r, double fixed) const {
+  if (!o_.scale_from_mad || r.empty()) return fixed;
+  for (double& x : r) x = std::abs(x);
   const double mad = Median(r);
   return std::max(o_.min_scale, o_.tukey_k * 1.4826 * mad);
 }
@@ -372,15 +398,39 @@ ceres::Solver::Options SolverOptions(const RefinementOptions& o) {
   return s;
 }
 
-double Refiner::SolveExposure(int level, const Pose& pose, double e) {
+// Log-domain Tukey energy of the exposure stage over the active samples.
+double LogExposureEnergy(const std::vector<double>& lc, const std::vector<double>& lm, double e,
+                         double scale) {
+  double sum = 0;
+  const double le = std::log(e);
+  for (size_t k = 0; k < lc.size(); ++k) sum += TukeyRho(le + lc[k] - lm[k], scale);
+  return sum;
+}
+
+void Refiner::LogValues(int level, const Active& a, std::vector<double>* lc,
+                        std::vector<double>* lm) const {
+  constexpr double kMinIntensity = 1e-4;
+  lc->clear();
+  lm->clear();
+  for (size_t k = 0; k < a.idx.size(); ++k) {
+    const double m = samples_[a.idx[k]].m[level];
+    if (a.c[k] < kMinIntensity || m < kMinIntensity) continue;
+    lc->push_back(std::log(a.c[k]));
+    lm->push_back(std::log(m));
+  }
+}
+
+double Refiner::SolveExposure(int level, const Pose& pose, double e, bool warm_start) {
   const Active a = ActiveSet(level, pose);
-  if (a.idx.size() < 3) return e;
-  std::vector<double> r(a.idx.size());
-  for (size_t k = 0; k < a.idx.size(); ++k) r[k] = e * a.c[k] - samples_[a.idx[k]].m[level];
-  const double scale = ScaleFromResiduals(r);
+  std::vector<double> lc, lm;
+  LogValues(level, a, &lc, &lm);
+  if (lc.size() < 3) return e;
+  std::vector<double> r(lc.size());
+  for (size_t k = 0; k < lc.size(); ++k) r[k] = std::log(e) + lc[k] - lm[k];
+  const double scale = ScaleFromResiduals(r, o_.fixed_scale);
   double x = e;
   const ceres::Solver::Options so = SolverOptions(o_);
-  for (int stage = o_.warm_start ? 0 : 1; stage < 2; ++stage) {
+  for (int stage = warm_start ? 0 : 1; stage < 2; ++stage) {
     ceres::Problem::Options po;
     po.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
     ceres::Problem problem(po);
@@ -389,16 +439,16 @@ double Refiner::SolveExposure(int level, const Pose& pose, double e) {
       loss = std::make_unique<ceres::CauchyLoss>(scale);
     else
       loss = std::make_unique<ceres::TukeyLoss>(scale);
-    for (size_t k = 0; k < a.idx.size(); ++k)
-      problem.AddResidualBlock(ExposureResidual::Create(a.c[k], samples_[a.idx[k]].m[level]),
-                               loss.get(), &x);
-    problem.SetParameterLowerBound(&x, 0, 1e-4);
+    for (size_t k = 0; k < lc.size(); ++k)
+      problem.AddResidualBlock(ExposureResidual::Create(lc[k], lm[k]), loss.get(), &x);
+    problem.SetParameterLowerBound(&x, 0, 1e-6);
     ceres::Solver::Summary sum;
     ceres::Solve(so, &problem, &sum);
     res_.iterations += static_cast<int>(sum.iterations.size());
   }
-  if (!std::isfinite(x) || CompareEnergy(level, e, pose, x, pose, scale).Raised()) {
-    res_.step_reverted = true;  // guard: never accept a stage that raises J
+  if (!std::isfinite(x) || !(x > 0) ||
+      LogExposureEnergy(lc, lm, x, scale) > LogExposureEnergy(lc, lm, e, scale)) {
+    res_.step_reverted = true;  // guard: never accept a stage that raises its energy
     return e;
   }
   return x;
@@ -410,7 +460,7 @@ Pose Refiner::SolvePose(int level, double e, const Pose& pose) {
   const Level& L = cand_pyr_[level];
   std::vector<double> r(a.idx.size());
   for (size_t k = 0; k < a.idx.size(); ++k) r[k] = e * a.c[k] - samples_[a.idx[k]].m[level];
-  const double scale = ScaleFromResiduals(r);
+  const double scale = ScaleFromResiduals(r, o_.fixed_scale);
   double q[4] = {pose.q.x(), pose.q.y(), pose.q.z(), pose.q.w()};
   double t[3] = {pose.t.x(), pose.t.y(), pose.t.z()};
   const ceres::Solver::Options so = SolverOptions(o_);
@@ -426,6 +476,10 @@ Pose Refiner::SolvePose(int level, double e, const Pose& pose) {
                              &loss, q, t);
   }
   problem.SetManifold(q, &manifold);
+  // Coarse levels cannot separate a small camera translation from a rotation (the image motion
+  // of 1-2 cm at metres is sub-pixel there): rotation only, the translation waits for the fine
+  // levels. Otherwise the coarse solve trades one for the other and lands in a wrong basin.
+  if (level >= o_.rotation_only_from_level) problem.SetParameterBlockConstant(t);
   ceres::Solver::Summary sum;
   ceres::Solve(so, &problem, &sum);
   res_.iterations += static_cast<int>(sum.iterations.size());
@@ -452,7 +506,7 @@ void Refiner::RankCheck(const Pose& pose, double e) {
   }
   std::vector<double> r(n);
   for (int k = 0; k < n; ++k) r[k] = e * a.c[k] - samples_[a.idx[k]].m[0];
-  const double scale = ScaleFromResiduals(r);
+  const double scale = ScaleFromResiduals(r, o_.fixed_scale);
   double q[4] = {pose.q.x(), pose.q.y(), pose.q.z(), pose.q.w()};
   double t[3] = {pose.t.x(), pose.t.y(), pose.t.z()};
   double plus_jac[12];
@@ -492,13 +546,15 @@ void Refiner::RankCheck(const Pose& pose, double e) {
 
 absl::StatusOr<RefinementResult> Refiner::Run() {
   const auto t0 = std::chrono::steady_clock::now();
+  timespec cpu0;
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &cpu0);
   levels_ = 1;
   while (levels_ < std::min(o_.pyramid_levels, kMaxLevels) &&
          (cand_.color.width() >> levels_) >= 40 && (cand_.color.height() >> levels_) >= 30)
     ++levels_;
-  cand_pyr_ = BuildPyramid(cand_.color, cand_.camera, levels_, o_);
+  cand_pyr_ = BuildPyramid(cand_.color, cand_.camera, levels_, o_, o_.border_px, true);
   ref_pyr_.reserve(refs_.size());
-  for (const StoredView* r : refs_) ref_pyr_.push_back(BuildPyramid(r->color, r->camera, levels_, o_));
+  for (const StoredView* r : refs_) ref_pyr_.push_back(BuildPyramid(r->color, r->camera, levels_, o_, 0, false));
   const Pose pose0 = CamFromLocal(cand_.local_from_cam);
   // Saturated or black candidates leave few usable samples: densify the sampling (up to 16x).
   Active a0;
@@ -520,17 +576,17 @@ absl::StatusOr<RefinementResult> Refiner::Run() {
   // Initial exposure: robust ratio of medians to candidate values, or the given value.
   double e0 = o_.initial_exposure;
   if (o_.init_exposure_from_ratio) {
-    std::vector<double> ratio;
-    for (size_t k = 0; k < a0.idx.size(); ++k)
-      if (a0.c[k] > 1e-3) ratio.push_back(samples_[a0.idx[k]].m[0] / a0.c[k]);
-    if (!ratio.empty()) e0 = Median(ratio);
+    std::vector<double> lc, lm;
+    LogValues(0, a0, &lc, &lm);
+    for (size_t k = 0; k < lc.size(); ++k) lm[k] -= lc[k];
+    if (!lm.empty()) e0 = std::exp(Median(lm));
   }
   // Reporting/guard scale, fixed for the whole call.
   std::vector<double> r0(a0.idx.size());
   for (size_t k = 0; k < a0.idx.size(); ++k) r0[k] = e0 * a0.c[k] - samples_[a0.idx[k]].m[0];
-  const double report_scale = ScaleFromResiduals(r0);
+  const double report_scale = ScaleFromResiduals(r0, o_.fixed_scale);
 
-  double e = SolveExposure(0, pose0, e0);
+  double e = SolveExposure(0, pose0, e0, o_.warm_start);
   const double e_exposure_only = e;
   Pose pose = pose0;
   if (o_.refine_pose) {
@@ -539,9 +595,9 @@ absl::StatusOr<RefinementResult> Refiner::Run() {
       for (int l = levels_ - 1; l >= 0; --l) {
         for (int it = 0; it < o_.max_outer_iterations; ++it) {
           const Pose p1 = SolvePose(l, e, pose);
-          const double e1 = SolveExposure(l, p1, e);
+          const double e1 = SolveExposure(l, p1, e, false);
           const double drot = p1.q.angularDistance(pose.q);
-          const double dt = (LocalFromCam(p1).translation - LocalFromCam(pose).translation).length();
+          const double dt = glm::length(LocalFromCam(p1).translation - LocalFromCam(pose).translation);
           const double de = std::abs(e1 - e) / std::max(e, 1e-9);
           pose = p1;
           e = e1;
@@ -550,7 +606,7 @@ absl::StatusOr<RefinementResult> Refiner::Run() {
             break;
         }
       }
-      e = SolveExposure(0, pose, e);
+      e = SolveExposure(0, pose, e, false);
     }
   }
   // Guards on the whole call: the pose stages must lower J relative to the exposure-only
@@ -561,10 +617,16 @@ absl::StatusOr<RefinementResult> Refiner::Run() {
     pose = pose0;
     e = e_exposure_only;
   }
-  if (CompareEnergy(0, e0, pose0, e, pose0, report_scale).Raised() && pose.t == pose0.t &&
-      pose.q.coeffs() == pose0.q.coeffs()) {
-    res_.step_reverted = true;
-    e = e0;
+  if (pose.t == pose0.t && pose.q.coeffs() == pose0.q.coeffs()) {
+    std::vector<double> lc, lm;
+    LogValues(0, a0, &lc, &lm);
+    std::vector<double> r(lc.size());
+    for (size_t k = 0; k < lc.size(); ++k) r[k] = std::log(e0) + lc[k] - lm[k];
+    const double s = ScaleFromResiduals(r, o_.fixed_scale);
+    if (LogExposureEnergy(lc, lm, e, s) > LogExposureEnergy(lc, lm, e0, s)) {
+      res_.step_reverted = true;
+      e = e0;
+    }
   }
   const EnergyPair final_pair = CompareEnergy(0, e0, pose0, e, pose, report_scale);
   res_.cost_before = final_pair.before;
@@ -590,7 +652,34 @@ absl::StatusOr<RefinementResult> Refiner::Run() {
   const bool pose_unchanged = pose.q.coeffs() == pose0.q.coeffs() && pose.t == pose0.t;
   res_.local_from_cam = pose_unchanged ? cand_.local_from_cam : LocalFromCam(pose);
   res_.ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  timespec cpu1;
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &cpu1);
+  res_.cpu_ms = (cpu1.tv_sec - cpu0.tv_sec) * 1e3 + (cpu1.tv_nsec - cpu0.tv_nsec) * 1e-6;
   return res_;
+}
+
+double OverlapFraction(const StoredView& ref, const StoredView& cand, const RefinementOptions& o) {
+  const Rigid3d cam_from_local = cand.local_from_cam.Inverse();
+  const bool cand_depth = !cand.depth_m.empty();
+  int valid = 0, seen = 0;
+  constexpr int kGx = 24, kGy = 18;
+  for (int gy = 0; gy < kGy; ++gy)
+    for (int gx = 0; gx < kGx; ++gx) {
+      const int x = (2 * gx + 1) * ref.color.width() / (2 * kGx);
+      const int y = (2 * gy + 1) * ref.color.height() / (2 * kGy);
+      const float z = ref.depth_m.at(x, y);
+      if (!(z > 0.f) || !std::isfinite(z)) continue;
+      ++valid;
+      const glm::dvec3 pc = cam_from_local * (ref.local_from_cam * ref.camera.Unproject({double(x), double(y)}, z));
+      glm::dvec2 uv;
+      if (!cand.camera.Project(pc, &uv) || !cand.camera.InImage(uv, o.border_px)) continue;
+      if (cand_depth) {
+        const float d = cand.depth_m.at(static_cast<int>(std::lround(uv.x)), static_cast<int>(std::lround(uv.y)));
+        if (d > 0.f && std::abs(pc.z - d) > o.cand_occlusion_abs_m + o.cand_occlusion_rel * d) continue;
+      }
+      ++seen;
+    }
+  return valid > 0 ? double(seen) / valid : 0.0;
 }
 
 absl::Status ValidateViewImages(const StoredView& v, const char* what) {
@@ -663,15 +752,21 @@ absl::StatusOr<RefinementResult> RefineView(const StoredView& candidate,
     use.push_back(r);
   }
   if (use.empty()) return absl::InvalidArgumentError("refinement: no reference views");
-  // The nearest references (camera centres) share the most surface with the candidate.
-  const glm::dvec3 c = candidate.local_from_cam.translation;
-  std::stable_sort(use.begin(), use.end(), [&](const StoredView* a, const StoredView* b) {
-    return glm::length(a->local_from_cam.translation - c) <
-           glm::length(b->local_from_cam.translation - c);
-  });
-  if (static_cast<int>(use.size()) > options.max_reference_views)
-    use.resize(options.max_reference_views);
-  Refiner refiner(candidate, std::move(use), options);
+  // Keep the references that share the most surface with the candidate (a coarse grid of each
+  // reference's depth projected into the candidate at its input pose).
+  std::vector<std::pair<double, const StoredView*>> scored;
+  for (const StoredView* r : use) scored.push_back({OverlapFraction(*r, candidate, options), r});
+  std::stable_sort(scored.begin(), scored.end(),
+                   [](const auto& a, const auto& b) { return a.first > b.first; });
+  use.clear();
+  std::vector<double> overlap;
+  for (const auto& [f, r] : scored) {
+    if (static_cast<int>(use.size()) >= options.max_reference_views) break;
+    if (f < 0.02 && !use.empty()) break;
+    use.push_back(r);
+    overlap.push_back(std::max(f, 1e-3));
+  }
+  Refiner refiner(candidate, std::move(use), std::move(overlap), options);
   return refiner.Run();
 }
 

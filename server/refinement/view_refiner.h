@@ -36,8 +36,9 @@ struct RefinementOptions {
   int border_px = 2;                    // bicubic support
 
   // --- optimisation ---
-  int pyramid_levels = 3;           // clipped so that the coarsest level is >= 40 px wide
-  int max_outer_iterations = 4;     // exposure <-> pose alternations per level
+  int pyramid_levels = 4;           // clipped so that the coarsest level is >= 40 px wide
+  int max_outer_iterations = 3;
+  int rotation_only_from_level = 2;  // pyramid levels >= this refine rotation only     // exposure <-> pose alternations per level
   int max_solver_iterations = 15;   // Levenberg-Marquardt iterations per stage
   bool refine_pose = true;
   bool init_exposure_from_ratio = true;  // E0 = median(m_j / c_j); else initial_exposure
@@ -80,7 +81,8 @@ struct RefinementResult {
   double relative_residual = 0.0;  // median |r_j| / median(m_j) at the end
   double pose_min_eigenvalue = 0.0;  // rank check figures (pixel-normalised, per sample)
   double pose_condition = 0.0;
-  double ms = 0.0;
+  double ms = 0.0;              // wall time of the call
+  double cpu_ms = 0.0;          // CPU time of the calling thread (robust to a loaded machine)
 };
 
 // Aggregated by the caller (e.g. the planner's refinement worker).
