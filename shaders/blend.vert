@@ -5,6 +5,9 @@
 
 layout(location = 0) in vec3 in_p_local;
 layout(location = 0) out vec3 out_p_local;
+// The blend pass tests EQUAL against the depth pre-pass: both pipelines run this same module on
+// the same vertices, so gl_Position is bit-identical (no `invariant`: glslang puts it on a
+// gl_PerVertex member, which the SPIR-V validator warns about).
 
 void main() {
   out_p_local = in_p_local;

@@ -89,33 +89,46 @@ bool InsideImage(vec2 uv, ivec2 size) {
 }
 
 // ---- best-n selection (§3.1.4) ----
+// Same result as blend_math.h InsertBest (slots 0..n-1 sorted by decreasing weight, w <= 0
+// ignored, ties keep the earlier reference), written as an unrolled compare-and-swap chain over
+// vec4/ivec4 components with CONSTANT indices: the array form with its data-dependent shift loop
+// was lowered by llvmpipe to per-lane scratch memory and cost ~60 % of the whole blend pass
+// (docs/vulkan.md). Once (w, idx) is placed at slot s, every later enabled slot shifts down by one
+// (the "moving" flag), exactly like the C++ shift loop; the last enabled slot's entry falls off.
 struct BestN {
-  float weight[kMaxBlendViews];
-  int index[kMaxBlendViews];
+  vec4 weight;
+  ivec4 index;  // -1 = empty slot
 };
 
 BestN EmptyBestN() {
   BestN b;
-  for (int s = 0; s < kMaxBlendViews; ++s) {
-    b.weight[s] = 0.0;
-    b.index[s] = -1;
-  }
+  b.weight = vec4(0.0);
+  b.index = ivec4(-1);
   return b;
+}
+
+void BestStep(inout float bw, inout int bi, inout float cw, inout int ci, inout bool moving,
+              bool enabled) {
+  if (enabled && (moving || bi < 0 || cw > bw)) {
+    const float tw = bw;
+    const int ti = bi;
+    bw = cw;
+    bi = ci;
+    cw = tw;
+    ci = ti;
+    moving = true;
+  }
 }
 
 void InsertBest(inout BestN b, int n, float w, int idx) {
   if (!(w > 0.0)) return;
-  for (int s = 0; s < n; ++s) {
-    if (b.index[s] < 0 || w > b.weight[s]) {
-      for (int t = n - 1; t > s; --t) {
-        b.weight[t] = b.weight[t - 1];
-        b.index[t] = b.index[t - 1];
-      }
-      b.weight[s] = w;
-      b.index[s] = idx;
-      return;
-    }
-  }
+  float cw = w;
+  int ci = idx;
+  bool moving = false;
+  BestStep(b.weight.x, b.index.x, cw, ci, moving, 0 < n);
+  BestStep(b.weight.y, b.index.y, cw, ci, moving, 1 < n);
+  BestStep(b.weight.z, b.index.z, cw, ci, moving, 2 < n);
+  BestStep(b.weight.w, b.index.w, cw, ci, moving, 3 < n);
 }
 
 // ---- blend (3.1) with exposure ----
@@ -163,5 +176,5 @@ layout(std140, set = 0, binding = 0) uniform Frame {
   vec4 cam_centre_cell;  // xyz = novel camera centre c_o (local), w = cell size q (metres)
   vec4 weights;          // lambda, min_weight, occlusion_epsilon_m, occlusion_epsilon_rel
   vec4 background;       // rgb = background sRGB
-  ivec4 iparams;         // positional mode, n_best, hash mask (capacity-1), unused
+  ivec4 iparams;         // positional mode, n_best, hash mask (capacity-1), max probe displacement
 } frame;

@@ -150,6 +150,7 @@ TEST_P(GoldenTest, VulkanMatchesCpuReference) {
   auto cpu = CpuLumigraphRenderer::Create(fx->model, co);
   ASSERT_TRUE(cpu.ok()) << cpu.status();
   size_t compared = 0, within = 0;
+  double min_psnr = 1e9;
   for (size_t i = 0; i < fx->novel.size(); i += 2) {
     auto e = (*cpu)->Render(fx->camera, fx->novel[i]);
     ASSERT_TRUE(e.ok()) << e.status();
@@ -158,6 +159,7 @@ TEST_P(GoldenTest, VulkanMatchesCpuReference) {
     const Agreement ag = Compare(a->color, e->color, e->coverage, a->coverage);
     compared += ag.compared;
     within += ag.within;
+    min_psnr = std::min(min_psnr, ag.psnr);
     EXPECT_GE(ag.psnr, 40.0) << "frame " << i << ": " << ag.coverage_mismatch
                              << " coverage mismatches, " << ag.value_mismatch
                              << " value mismatches > 2/255 of " << ag.compared;
@@ -167,6 +169,8 @@ TEST_P(GoldenTest, VulkanMatchesCpuReference) {
   }
   EXPECT_GT(compared, size_t(kW * kH) * fx->novel.size() / 2 / 4) << "frames barely covered";
   const double frac = double(within) / std::max<size_t>(1, compared);
+  fprintf(stderr, "[golden %s] %zu covered pixels, %.5f within 2/255, min PSNR %.1f dB\n",
+          synth::SceneKindName(GetParam()), compared, frac, min_psnr);
   EXPECT_GE(frac, 0.999) << within << " of " << compared << " covered pixels within 2/255";
   const auto errs = (*gpu)->ValidationErrors();
   EXPECT_TRUE(errs.empty()) << errs.size() << " validation messages, first: " << errs[0];

@@ -59,6 +59,7 @@ using UniqueBuffer = DeviceHandle<VkBuffer, vkDestroyBuffer>;
 using UniqueMemory = DeviceHandle<VkDeviceMemory, vkFreeMemory>;
 using UniqueImage = DeviceHandle<VkImage, vkDestroyImage>;
 using UniqueImageView = DeviceHandle<VkImageView, vkDestroyImageView>;
+using UniqueBufferView = DeviceHandle<VkBufferView, vkDestroyBufferView>;
 using UniqueSampler = DeviceHandle<VkSampler, vkDestroySampler>;
 using UniqueShaderModule = DeviceHandle<VkShaderModule, vkDestroyShaderModule>;
 using UniquePipeline = DeviceHandle<VkPipeline, vkDestroyPipeline>;

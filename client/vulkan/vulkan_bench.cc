@@ -1,14 +1,24 @@
 // vulkan_bench: ms per frame of the Vulkan lumigraph blend on lavapipe at 640x480, 1280x720 and
 // 1920x1080 for 8/16/32/60 references per cell (village scene, stored views rendered by
-// common/synth), first frame (shader JIT) separately, and SSIM of each configuration against the
-// synthetic ground truth, one JSON object per configuration. Usage:
-//   LP_NUM_THREADS=2 vulkan_bench [frames_per_config=5] [max_views=60]
+// common/synth), first frame (pipeline JIT) separately, and SSIM of each configuration against
+// the synthetic ground truth, one JSON object per configuration (median and min of the timed
+// frames, the 1-minute load average, since the machine is shared). Usage:
+//   LP_NUM_THREADS=2 vulkan_bench [--frames=5] [--views=60] [--refs=8,16,32,60]
+//       [--sizes=640x480,1280x720,1920x1080] [--scene=village|apartment] [--view_size=320x240]
+//       [--pose=k (all frames from novel pose k)]
+// Env: EXO_VULKAN_BENCH_DUMP=<dir> writes every frame + ground truth as PNG.
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
+#include <string>
+#include <vector>
+
+#include <sys/resource.h>
 
 #include "client/vulkan/vulkan_renderer.h"
+#include "common/io/image_file.h"
 #include "common/metrics/metrics.h"
 #include "common/raster/rasterizer.h"
 #include "common/synth/render.h"
@@ -17,16 +27,67 @@
 
 using namespace exo;
 
+namespace {
+
+std::vector<int> ParseInts(const char* s, char sep) {
+  std::vector<int> out;
+  while (*s) {
+    char* end;
+    out.push_back(int(std::strtol(s, &end, 10)));
+    s = end;
+    if (*s == sep || *s == ',') ++s;
+    else if (*s) break;
+  }
+  return out;
+}
+
+// CPU time of the whole process (all llvmpipe threads), ms: robust to other load on the machine.
+double ProcessCpuMs() {
+  rusage u{};
+  getrusage(RUSAGE_SELF, &u);
+  return (u.ru_utime.tv_sec + u.ru_stime.tv_sec) * 1e3 + (u.ru_utime.tv_usec + u.ru_stime.tv_usec) * 1e-3;
+}
+
+double Load1() {
+  double l[3] = {0, 0, 0};
+  return getloadavg(l, 3) > 0 ? l[0] : -1.0;
+}
+
+}  // namespace
+
 int main(int argc, char** argv) {
-  const int frames = argc > 1 ? std::atoi(argv[1]) : 5;
-  const int max_views = argc > 2 ? std::atoi(argv[2]) : 60;
-  auto scene = synth::MakeScene(synth::SceneKind::kVillage, {});
+  int frames = 5, max_views = 60;
+  int fixed_pose = -1;  // --pose=k: every frame from novel pose k (profiling)
+  std::vector<int> refs_list = {8, 16, 32, 60};
+  std::vector<int> sizes = {640, 480, 1280, 720, 1920, 1080};
+  std::vector<int> view_size = {320, 240};
+  synth::SceneKind kind = synth::SceneKind::kVillage;
+  std::string scene_name = "village";
+  for (int i = 1; i < argc; ++i) {
+    const char* a = argv[i];
+    if (!std::strncmp(a, "--frames=", 9)) frames = std::atoi(a + 9);
+    else if (!std::strncmp(a, "--views=", 8)) max_views = std::atoi(a + 8);
+    else if (!std::strncmp(a, "--refs=", 7)) refs_list = ParseInts(a + 7, ',');
+    else if (!std::strncmp(a, "--sizes=", 8)) sizes = ParseInts(a + 8, 'x');
+    else if (!std::strncmp(a, "--view_size=", 12)) view_size = ParseInts(a + 12, 'x');
+    else if (!std::strncmp(a, "--pose=", 7)) fixed_pose = std::atoi(a + 7);
+    else if (!std::strcmp(a, "--scene=apartment")) { kind = synth::SceneKind::kApartment; scene_name = "apartment"; }
+    else if (!std::strcmp(a, "--scene=village")) {}
+    else { fprintf(stderr, "unknown argument %s (see the header of vulkan_bench.cc)\n", a); return 2; }
+  }
+  if (frames < 1 || max_views < 1 || sizes.size() % 2 || sizes.empty() || view_size.size() != 2) {
+    fprintf(stderr, "bad arguments\n");
+    return 2;
+  }
+  auto scene = synth::MakeScene(kind, {});
   if (!scene.ok()) { fprintf(stderr, "%s\n", scene.status().ToString().c_str()); return 1; }
-  synth::RenderOptions vro;  // stored views 320x240 (kept small: the bench measures the client)
-  vro.width = 320; vro.height = 240;
+  synth::RenderOptions vro;  // stored views (kept small by default: the bench measures the client)
+  vro.width = view_size[0]; vro.height = view_size[1];
   synth::TrajectoryOptions to;
   to.num_frames = max_views + 2 * frames;
-  auto traj = synth::MakeTrajectory(*scene, synth::TrajectoryKind::kFlyover, to);
+  auto traj = synth::MakeTrajectory(*scene, kind == synth::SceneKind::kVillage
+                                                ? synth::TrajectoryKind::kFlyover
+                                                : synth::TrajectoryKind::kWalk, to);
   if (!traj.ok()) { fprintf(stderr, "%s\n", traj.status().ToString().c_str()); return 1; }
   LumigraphModel model;
   model.grid.cell_size_m = std::max(0.3, scene->ExtentM() / 60.0);
@@ -50,42 +111,73 @@ int main(int argc, char** argv) {
     }
     model.views[v.id] = std::move(v);
   }
-  const int sizes[3][2] = {{640, 480}, {1280, 720}, {1920, 1080}};
-  for (int n_refs : {8, 16, 32, 60}) {
+  for (int n_refs : refs_list) {
     model.cell_refs.clear();
-    for (auto& [c, refs] : all_refs)
+    double mean_refs = 0;
+    for (auto& [c, refs] : all_refs) {
       model.cell_refs[c] = std::vector<ViewId>(refs.begin(), refs.begin() + std::min<size_t>(refs.size(), n_refs));
-    for (auto& sz : sizes) {
-      VulkanRendererOptions vo; vo.max_refs_per_cell = 60;
+      mean_refs += model.cell_refs[c].size();
+    }
+    mean_refs /= std::max<size_t>(1, all_refs.size());
+    for (size_t si = 0; si + 1 < sizes.size(); si += 2) {
+      VulkanRendererOptions vo; vo.max_refs_per_cell = std::max(16, n_refs);
+      const auto tc = std::chrono::steady_clock::now();
       auto rr = VulkanRenderer::Create(vo);
       if (!rr.ok()) { fprintf(stderr, "%s\n", rr.status().ToString().c_str()); return 1; }
       auto& r = *rr;
-      if (!r->SyncModel(model).ok()) return 1;
-      synth::RenderOptions gro; gro.width = sz[0]; gro.height = sz[1];
+      const double create_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - tc).count();
+      const auto ts = std::chrono::steady_clock::now();
+      if (auto st = r->SyncModel(model); !st.ok()) { fprintf(stderr, "%s\n", st.ToString().c_str()); return 1; }
+      const double sync_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - ts).count();
+      synth::RenderOptions gro; gro.width = sizes[si]; gro.height = sizes[si + 1];
       const PinholeCamera cam = gro.Camera();
       blend::BlendOptions bo;
-      double first_ms = 0, sum_ms = 0, sum_gpu = 0, ssim_sum = 0;
+      double first_ms = 0, ssim_sum = 0;
+      std::vector<double> ms_v, cpu_v, gpu_v, rb_v;
+      int ssim_n = 0;
       for (int k = 0; k <= frames; ++k) {
-        const Rigid3d& pose = novel[std::max(0, k - 1) % novel.size()];
+        const Rigid3d& pose =
+            novel[fixed_pose >= 0 ? fixed_pose % novel.size() : std::max(0, k - 1) % novel.size()];
         const auto t0 = std::chrono::steady_clock::now();
+        const double c0 = ProcessCpuMs();
         auto out = r->Render(cam, pose, bo);
+        const double cpu_ms = ProcessCpuMs() - c0;
         const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
-        if (!out.ok()) return 1;
+        if (!out.ok()) { fprintf(stderr, "%s\n", out.status().ToString().c_str()); return 1; }
+        // EXO_VULKAN_BENCH_DUMP=<dir>: every frame and its ground truth as PNGs (docs, debugging).
+        if (const char* dir = getenv("EXO_VULKAN_BENCH_DUMP"); dir && *dir) {
+          const std::string base = std::string(dir) + "/" + scene_name + "_" +
+                                   std::to_string(sizes[si]) + "_r" + std::to_string(n_refs) +
+                                   "_f" + std::to_string(k);
+          (void)WriteColorImage(base + "_vulkan.png", out->color);
+          if (auto gt = synth::RenderFrame(*scene, pose, gro); gt.ok())
+            (void)WriteColorImage(base + "_gt.png", gt->frame.color);
+        }
         if (k == 0) { first_ms = ms; continue; }
-        sum_ms += ms; sum_gpu += out->gpu_ms;
-        if (k == 1 || sz[0] == 640) {
+        ms_v.push_back(ms); cpu_v.push_back(cpu_ms); gpu_v.push_back(out->gpu_ms); rb_v.push_back(out->readback_ms);
+        // SSIM on every timed frame at the smallest size, on the first one otherwise (GT
+        // rendering of 1080p frames on the CPU is slower than the bench itself).
+        if (k == 1 || si == 0) {
           auto gt = synth::RenderFrame(*scene, pose, gro);
+          if (!gt.ok()) return 1;
           auto s = Ssim(out->color, gt->frame.color);
-          ssim_sum += s.ok() ? *s : 0;
+          if (s.ok()) { ssim_sum += *s; ++ssim_n; }
         }
       }
-      const int ssim_n = sz[0] == 640 ? frames : 1;
-      printf("{\"bench\":\"vulkan_blend\",\"device\":\"%s\",\"width\":%d,\"height\":%d,\"refs_per_cell\":%d,"
-             "\"views\":%zu,\"triangles\":%zu,\"first_frame_ms\":%.1f,\"ms_per_frame\":%.2f,\"gpu_ms\":%.2f,"
-             "\"ssim\":%.4f,\"ssim_frames\":%d,\"lp_num_threads\":\"%s\"}\n",
-             r->DeviceName().c_str(), sz[0], sz[1], n_refs, model.views.size(), scene->mesh.num_triangles(),
-             first_ms, sum_ms / frames, sum_gpu / frames, ssim_sum / ssim_n, ssim_n,
-             getenv("LP_NUM_THREADS") ? getenv("LP_NUM_THREADS") : "default");
+      auto med = [](std::vector<double> v) { std::sort(v.begin(), v.end()); return v[v.size() / 2]; };
+      auto mn = [](const std::vector<double>& v) { return *std::min_element(v.begin(), v.end()); };
+      std::string frame_list;
+      for (double v : ms_v) frame_list += (frame_list.empty() ? "" : ",") + std::to_string(int(v + 0.5));
+      printf("{\"bench\":\"vulkan_blend\",\"scene\":\"%s\",\"device\":\"%s\",\"width\":%d,\"height\":%d,"
+             "\"refs_per_cell\":%d,\"mean_refs_per_cell\":%.1f,\"views\":%zu,\"view_size\":\"%dx%d\","
+             "\"triangles\":%zu,\"create_ms\":%.1f,\"upload_ms\":%.1f,\"first_frame_ms\":%.1f,"
+             "\"median_ms\":%.2f,\"min_ms\":%.2f,\"median_cpu_ms\":%.1f,\"median_gpu_ms\":%.2f,\"median_readback_ms\":%.2f,"
+             "\"frames\":%d,\"ssim\":%.4f,\"ssim_frames\":%d,\"lp_num_threads\":\"%s\",\"load1\":%.2f,\"frame_ms\":[%s]}\n",
+             scene_name.c_str(), r->DeviceName().c_str(), sizes[si], sizes[si + 1], n_refs, mean_refs,
+             model.views.size(), view_size[0], view_size[1], scene->mesh.num_triangles(), create_ms,
+             sync_ms, first_ms, med(ms_v), mn(ms_v), med(cpu_v), med(gpu_v), med(rb_v), frames,
+             ssim_n ? ssim_sum / ssim_n : 0.0, ssim_n,
+             getenv("LP_NUM_THREADS") ? getenv("LP_NUM_THREADS") : "default", Load1(), frame_list.c_str());
       fflush(stdout);
     }
   }
