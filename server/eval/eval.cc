@@ -242,6 +242,7 @@ struct Source {
   double default_lambda = 0.5;
   double metres_per_rad = 1.0;                // min-distance policy
   std::string dataset;                        // "village/flyover", "7scenes/redkitchen"
+  std::string test_pose_label;                // "scene" | "near" | "held_out"
   // Loads frame i as a stored view (colour + depth). Called on demand.
   std::function<absl::StatusOr<StoredView>(int)> load_view;
   // Test poses and their ground truth images.
@@ -327,11 +328,12 @@ struct EvalSink {
   }
 };
 
-std::string ConfigJson(const std::string& dataset, const std::string& proxy, double voxel_m,
+std::string ConfigJson(const std::string& dataset, const std::string& test_poses,
+                       const std::string& proxy, double voxel_m,
                        int frames, const PolicyConfig& c, double lambda, double cell_m,
                        double dts, const ConfigResult& r, int idw, int idh) {
   return absl::StrFormat(
-      "{\"bench\":\"eval\",\"dataset\":\"%s\",\"proxy\":\"%s\",\"tag\":\"%s\","
+      "{\"bench\":\"eval\",\"dataset\":\"%s\",\"test_poses\":\"%s\",\"proxy\":\"%s\",\"tag\":\"%s\","
       "\"config\":{\"policy\":\"%s\",\"frames\":%d,\"store\":%d,\"r_max\":%d,\"lambda\":%.2f,"
       "\"cell_m\":%.3f,\"voxel_m\":%.3f,\"delta_tau_sum\":%.3f,\"idbuf\":\"%dx%d\"},"
       "\"quality\":{\"mssim\":%.4f,\"psnr\":%.2f,\"coverage\":%.4f,\"mssim_covered\":%.4f,"
@@ -340,7 +342,7 @@ std::string ConfigJson(const std::string& dataset, const std::string& proxy, dou
       "\"plan_ms_p95\":%.2f,\"consider_ms_median\":%.3f,\"render_ms_median\":%.1f},"
       "\"memory\":{\"store_bytes\":%zu,\"geometry_bytes\":%zu,\"planner_bytes\":%zu},"
       "\"views\":%zu,\"accepted\":%zu,\"tau_sum\":%.2f}",
-      dataset, proxy, c.tag, PolicyName(c.policy), frames, c.store, c.r_max, lambda, cell_m,
+      dataset, test_poses, proxy, c.tag, PolicyName(c.policy), frames, c.store, c.r_max, lambda, cell_m,
       voxel_m, dts, idw, idh, r.quality.mssim, r.quality.psnr, r.quality.coverage,
       r.quality.mssim_covered, r.quality.surface, r.quality.views, r.integrate_ms_median, r.integrate_ms_p95,
       r.plan_ms_median, r.plan_ms_p95, r.consider_ms_median, r.render_ms_median, r.store_bytes,
@@ -491,7 +493,7 @@ class Engine {
       r.integrate_ms_median = Pct(integrate_ms_, 0.5);
       r.integrate_ms_p95 = Pct(integrate_ms_, 0.95);
       r.geometry_bytes = geometry_bytes;
-      r.json = ConfigJson(src_.dataset, proxy_name, voxel_m, n, r.config, 0, 0, 0, r, opt_.id_w,
+      r.json = ConfigJson(src_.dataset, src_.test_pose_label, proxy_name, voxel_m, n, r.config, 0, 0, 0, r, opt_.id_w,
                           opt_.id_h);
       if (opt_.emit) opt_.emit(r.json);
       results.push_back(std::move(r));
@@ -573,7 +575,7 @@ class Engine {
                                                 c.test_views, ci == 0, &render_ms,
                                                 c.lambda >= 0 ? c.lambda : src_.default_lambda));
       r.render_ms_median = render_ms;
-      r.json = ConfigJson(src_.dataset, proxy_name, voxel_m, n, c, po.lambda, g.grid.cell_size_m,
+      r.json = ConfigJson(src_.dataset, src_.test_pose_label, proxy_name, voxel_m, n, c, po.lambda, g.grid.cell_size_m,
                           po.delta_tau_sum, r, opt_.id_w, opt_.id_h);
       if (opt_.emit) opt_.emit(r.json);
       results.push_back(std::move(r));
@@ -803,6 +805,7 @@ absl::StatusOr<std::vector<ConfigResult>> RunSynthetic(const SynthRunOptions& o)
   src.default_lambda = tkind == synth::TrajectoryKind::kFlyover ? 0.5 : 0.4;
   src.metres_per_rad = std::max(0.5, 0.05 * scene.ExtentM());
   src.dataset = absl::StrCat(o.scene, "/", o.traj);
+  src.test_pose_label = o.test_pose_mode == TestPoseMode::kSceneWide ? "scene" : "near";
   const synth::SynthScene* sp = &scene;
   std::vector<Rigid3d> poses_copy = src.poses;
   src.load_view = [sp, rop, poses_copy](int i) -> absl::StatusOr<StoredView> {
@@ -925,6 +928,7 @@ absl::StatusOr<SevenScenesReport> RunSevenScenes(const SevenScenesRunOptions& o)
   src.default_lambda = 0.4;
   src.metres_per_rad = 1.0;
   src.dataset = "7scenes/redkitchen";
+  src.test_pose_label = "held_out";
   const std::vector<Frame>* fp = &frames;
   const LocalOrigin org = origin;
   src.load_view = [fp, org](int i) -> absl::StatusOr<StoredView> {

@@ -174,27 +174,29 @@ std::vector<std::vector<std::string>> Suite(const std::string& name, const std::
              "--test_views", "6", "--test_w", "160", "--test_h", "120", "--policies",
              "online,every_n"}};
   }
-  // full: main comparison on both scenes (scene-wide and near-trajectory test poses), the
-  // ground-truth proxy, sweeps (fewer frames and test views), voxel sizes, 7-Scenes.
+  // full, in priority order: main comparison on both scenes (scene-wide test poses, every
+  // policy on the same 200 poses), 7-Scenes hold-out, near-trajectory test poses, sweeps (fewer
+  // frames and test views), the ground-truth proxy, voxel sizes.
   std::vector<std::vector<std::string>> s;
-  for (const char* sc : {"village", "apartment"}) {
-    s.push_back({"--scene", sc, "--frames", "500", "--policies", all, "--store", "200",
-                 "--test_views", "200", "--baseline_test_views", "100"});
-    s.push_back({"--scene", sc, "--frames", "500", "--policies", "online,offline_greedy",
+  for (const char* sc : {"village", "apartment"})
+    s.push_back({"--scene", sc, "--frames", "400", "--policies", all, "--store", "200",
+                 "--test_views", "200"});
+  if (!data.empty())
+    s.push_back({"--sevenscenes", data + "/7scenes-redkitchen", "--store", "50", "--policies", all});
+  for (const char* sc : {"village", "apartment"})
+    s.push_back({"--scene", sc, "--frames", "400", "--policies", "online,offline_greedy",
                  "--store", "200", "--test_views", "200", "--test_poses", "near"});
-    s.push_back({"--scene", sc, "--frames", "500", "--proxy", "gt", "--policies", "online",
-                 "--store", "200", "--test_views", "200"});
-  }
   for (const char* sc : {"village", "apartment"})
     s.push_back({"--scene", sc, "--frames", "300", "--policies", "", "--sweep",
                  "store,r_max,lambda,cell,dts", "--test_views", "30", "--vertex_color", "0"});
+  for (const char* sc : {"village", "apartment"})
+    s.push_back({"--scene", sc, "--frames", "400", "--proxy", "gt", "--policies", "online",
+                 "--store", "200", "--test_views", "200"});
   for (const char* sc : {"village", "apartment"})
     for (const char* vx : sc == std::string("village") ? std::vector<const char*>{"0.08", "0.3"}
                                                         : std::vector<const char*>{"0.05", "0.1"})
       s.push_back({"--scene", sc, "--frames", "300", "--voxel", vx, "--policies", "online",
                    "--test_views", "30"});
-  if (!data.empty())
-    s.push_back({"--sevenscenes", data + "/7scenes-redkitchen", "--store", "50", "--policies", all});
   return s;
 }
 
