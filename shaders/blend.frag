@@ -7,66 +7,70 @@
 #include "lumigraph_common.glsl"
 
 // Store tables as uniform texel buffers (a fetch is a vector gather on llvmpipe; a divergent SSBO
-// load is a per-lane scalar loop, measured much slower):
-// Views: 6 RGBA32F texels per view record (see LoadView; size/layer/valid stored as floats).
+// load is a per-lane scalar loop per component, measured much slower, docs/vulkan.md):
+// Views: 5 RGBA32F texels per view record (GpuView in vulkan_renderer.cc):
+//   0..2 rows of P = K [R^T | -R^T c] (local -> homogeneous pixel; row 2 gives the camera z),
+//   3    centre c (local) and exposure E, 4 width, height, layer, valid (floats, exact < 2^24).
 layout(set = 0, binding = 1) uniform samplerBuffer view_texels;
 // Cell hash: (key lo, key hi, offset into Refs, count); empty = (~0, ~0), tombstone = (~1, ~0).
 layout(set = 0, binding = 2) uniform usamplerBuffer cell_entries;
 // Reference slots: view-record indices (the views' texture-array layers), ~0 = not resident.
 layout(set = 0, binding = 3) uniform usamplerBuffer ref_slots;
-layout(set = 0, binding = 4) uniform sampler2DArray colors;  // SRGB8_A8: fetch decodes to linear
+layout(set = 0, binding = 4) uniform sampler2DArray colors;  // SRGB8_A8 + bilinear sampler
 layout(set = 0, binding = 5) uniform sampler2DArray depths;  // R32F baked z-depth (0 = invalid)
 
 layout(location = 0) in vec3 in_p_local;
 layout(location = 0) out vec4 out_color;  // rgb = sRGB, a = coverage (1 blended, 0.5 surface)
 
-// Bilinear sample of SrgbToLinear(texels) at continuous pixel uv (centres at integers), edge
-// texels clamped: the convention of blend_math.h. One filtered fetch from the SRGB8_A8 array with
-// the linear sampler (the texture unit decodes to linear before filtering, as specified). uv is
-// clamped to the VIEW's [0, size-1] first: layers can be larger than the view (common layer
-// size), and at uv = size-1 the neighbour outside the view gets weight exactly 0. llvmpipe
-// filters with 8-bit fractional weights, so this differs from the float lerp of the CPU
-// reference by < 1/255 (the golden tests bound it). Four texelFetch + float lerp measured ~3x
-// slower per frame on llvmpipe (docs/vulkan.md).
-vec3 SampleLinear(int layer, vec2 uv, ivec2 size) {
-  const vec2 uvc = clamp(uv, vec2(0.0), vec2(size - 1));
-  const vec2 layer_size = vec2(textureSize(colors, 0).xy);
-  return texture(colors, vec3((uvc + 0.5) / layer_size, float(layer))).rgb;
+const int kViewTexels = 5;
+
+// ---- best-n with the sample parameters carried along ----
+// Same selection as blend_math.h InsertBest (decreasing weight, w <= 0 ignored, ties keep the
+// earlier reference), unrolled over slots with constant indices (see BestStep in
+// lumigraph_common.glsl). An empty slot has weight 0 and every inserted weight is > 0, so
+// "index < 0 || w > weight" is "w > weight". Each slot carries what the blend needs (clamped
+// uv, layer, exposure), so the chosen views are not fetched and projected a second time.
+struct BestSamples {
+  vec4 weight;
+  vec4 s0, s1, s2, s3;  // (u, v clamped to the view, layer, exposure)
+};
+
+void SampleStep(inout float bw, inout vec4 bs, inout float cw, inout vec4 cs, inout bool moving,
+                bool enabled) {
+  if (enabled && (moving || cw > bw)) {
+    const float tw = bw;
+    const vec4 ts = bs;
+    bw = cw;
+    bs = cs;
+    cw = tw;
+    cs = ts;
+    moving = true;
+  }
 }
 
-BlendView LoadView(uint slot) {
-  const int base = int(slot) * 6;
-  BlendView v;
-  v.cam_from_local_c0 = texelFetch(view_texels, base + 0);
-  v.cam_from_local_c1 = texelFetch(view_texels, base + 1);
-  v.cam_from_local_c2 = texelFetch(view_texels, base + 2);
-  v.centre_exposure = texelFetch(view_texels, base + 3);
-  v.intrinsics = texelFetch(view_texels, base + 4);
-  v.size_layer = ivec4(texelFetch(view_texels, base + 5));
-  return v;
+void InsertSample(inout BestSamples b, int n, float w, vec4 sample_params) {
+  if (!(w > 0.0)) return;
+  float cw = w;
+  vec4 cs = sample_params;
+  bool moving = false;
+  SampleStep(b.weight.x, b.s0, cw, cs, moving, 0 < n);
+  SampleStep(b.weight.y, b.s1, cw, cs, moving, 1 < n);
+  SampleStep(b.weight.z, b.s2, cw, cs, moving, 2 < n);
+  SampleStep(b.weight.w, b.s3, cw, cs, moving, 3 < n);
 }
 
-// blend_math.h Validity(), with the discontinuity test pre-baked into the depth layer.
-float Validity(vec3 x, BlendView view) {
-  const Projection proj = ProjectToView(x, view);
-  if (!proj.in_front || !InsideImage(proj.uv, view.size_layer.xy)) return 0.0;
-  const ivec2 px = ivec2(floor(proj.uv + 0.5));
-  const ivec2 pc = clamp(px, ivec2(0), view.size_layer.xy - 1);
-  const float z = texelFetch(depths, ivec3(pc, view.size_layer.z), 0).r;
-  if (!ValidDepth(z)) return 0.0;
-  const float range_d = RangeFromZDepth(proj.uv, z, view.intrinsics);
-  const float eps = frame.weights.z + frame.weights.w * range_d;
-  if (proj.range_m > range_d + eps) return 0.0;
-  return 1.0;
-}
-
-void AccumulateSlot(inout BlendAccumulator acc, vec3 x, uint offset, int index, float weight,
-                    bool enabled) {
-  if (!enabled || index < 0) return;
-  const BlendView view = LoadView(texelFetch(ref_slots, int(offset + uint(index))).x);
-  const Projection proj = ProjectToView(x, view);
-  const vec3 lin = SampleLinear(view.size_layer.z, proj.uv, view.size_layer.xy);
-  Accumulate(acc, lin, view.centre_exposure.w, weight);
+// Bilinear sample of SrgbToLinear(texels) at clamped continuous pixel uv (centres at integers):
+// the convention of blend_math.h. One filtered fetch from the SRGB8_A8 array with the linear
+// sampler (the texture unit decodes to linear before filtering, as specified). uv is clamped to
+// the VIEW's [0, size-1] (layers can be larger than the view; at uv = size-1 the neighbour
+// outside the view gets weight exactly 0). llvmpipe filters with 8-bit fractional weights, so
+// this differs from the float lerp of the CPU reference by < 1/255 (golden tests bound it).
+// Four texelFetch + float lerp measured ~3x slower per frame on llvmpipe (docs/vulkan.md).
+void AccumulateSample(inout BlendAccumulator acc, float weight, vec4 s, vec2 layer_size,
+                      bool enabled) {
+  if (!enabled || !(weight > 0.0)) return;
+  const vec3 lin = texture(colors, vec3((s.xy + 0.5) / layer_size, s.z)).rgb;
+  Accumulate(acc, lin, s.w, weight);
 }
 
 void main() {
@@ -94,29 +98,59 @@ void main() {
   }
 
   const int n = frame.iparams.y;
-  BestN best = EmptyBestN();
+  // Per-fragment parts of the weights (3.2)/(3.3): the ray to the novel camera.
+  const vec3 a = c_o - x;
+  const float la = length(a);
+  const float d_o = max(la, kMinDistance);
+  BestSamples best;
+  best.weight = vec4(0.0);
+  best.s0 = best.s1 = best.s2 = best.s3 = vec4(0.0);
   for (uint i = 0u; i < count; ++i) {
     const uint slot = texelFetch(ref_slots, int(offset + i)).x;
     if (slot == 0xFFFFFFFFu) continue;
-    const BlendView view = LoadView(slot);
-    if (view.size_layer.w == 0) continue;
-    const float v = Validity(x, view);
-    const vec3 c_i = view.centre_exposure.xyz;
-    const float w_d = DirectionalWeight(x, c_o, c_i);
-    const float w_p = PositionalWeight(x, c_o, c_i, frame.iparams.x);
-    const float w = CombinedWeight(v, w_d, w_p, frame.weights.x, frame.weights.y);
-    InsertBest(best, n, w, int(i));
+    const int base = int(slot) * kViewTexels;
+    const vec4 size_layer = texelFetch(view_texels, base + 4);
+    if (size_layer.w == 0.0) continue;
+    // ---- validity (3.4), blend_math.h Validity() with the discontinuity test baked into the
+    // depth layer. Projection by P = K [R^T | -R^T c]: hp = (z u, z v, z) with z the camera
+    // z-depth, so in_front is z > kMinDistance and uv = hp.xy / z, algebraically the same as
+    // K (R^T (x - c)). The range of x is |x - c| (a rotation keeps lengths), and the stored
+    // range along the same ray is z_stored * range / z (= z_stored * |ray|, RangeFromZDepth).
+    const vec4 hx = vec4(x, 1.0);
+    const float z = dot(texelFetch(view_texels, base + 2), hx);
+    if (!(z > kMinDistance)) continue;
+    const vec2 uv = vec2(dot(texelFetch(view_texels, base + 0), hx),
+                         dot(texelFetch(view_texels, base + 1), hx)) / z;
+    const vec2 size = size_layer.xy;
+    if (!(uv.x >= -0.5 && uv.y >= -0.5 && uv.x < size.x - 0.5 && uv.y < size.y - 0.5)) continue;
+    const vec2 pc = clamp(floor(uv + 0.5), vec2(0.0), size - 1.0);
+    const float z_stored = texelFetch(depths, ivec3(ivec2(pc), int(size_layer.z)), 0).r;
+    if (!ValidDepth(z_stored)) continue;
+    const vec4 centre_exposure = texelFetch(view_texels, base + 3);
+    const vec3 b = centre_exposure.xyz - x;
+    const float range_m = length(b);
+    const float range_d = z_stored * range_m / z;
+    if (range_m > range_d + frame.weights.z + frame.weights.w * range_d) continue;
+    // ---- weights: DirectionalWeight / PositionalWeight / CombinedWeight with v = 1 ----
+    const float lb = range_m;
+    const float w_d = (!(la > kMinDistance) || !(lb > kMinDistance))
+                          ? 0.0 : max(0.0, dot(a, b) / (la * lb));
+    const float w_p = frame.iparams.x == kPositionalPrinted
+                          ? max(0.0, 1.0 - lb / d_o)
+                          : max(0.0, 1.0 - max(0.0, lb - d_o) / d_o);
+    const float w = CombinedWeight(1.0, w_d, w_p, frame.weights.x, frame.weights.y);
+    InsertSample(best, n, w,
+                 vec4(clamp(uv, vec2(0.0), size - 1.0), size_layer.z, centre_exposure.w));
   }
 
   BlendAccumulator acc;
   acc.sum_linear = vec3(0.0);
   acc.sum_weight = 0.0;
-  // Slots unrolled with constant component indices (see BestN); empty slots (-1) are the tail,
-  // so skipping them equals blend_math.h's "break at the first empty slot".
-  AccumulateSlot(acc, x, offset, best.index.x, best.weight.x, 0 < n);
-  AccumulateSlot(acc, x, offset, best.index.y, best.weight.y, 1 < n);
-  AccumulateSlot(acc, x, offset, best.index.z, best.weight.z, 2 < n);
-  AccumulateSlot(acc, x, offset, best.index.w, best.weight.w, 3 < n);
+  const vec2 layer_size = vec2(textureSize(colors, 0).xy);
+  AccumulateSample(acc, best.weight.x, best.s0, layer_size, 0 < n);
+  AccumulateSample(acc, best.weight.y, best.s1, layer_size, 1 < n);
+  AccumulateSample(acc, best.weight.z, best.s2, layer_size, 2 < n);
+  AccumulateSample(acc, best.weight.w, best.s3, layer_size, 3 < n);
   vec3 srgb;
   const bool covered = Resolve(acc, frame.background.rgb, srgb);
   out_color = vec4(srgb, covered ? 1.0 : 128.0 / 255.0);

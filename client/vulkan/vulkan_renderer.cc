@@ -29,15 +29,15 @@ double MsSince(Clock::time_point t0) {
 }
 
 // std430 record of one stored view (lumigraph_common.glsl BlendView), 96 bytes.
-// A view record: 6 RGBA32F texels of the Views texel buffer (lumigraph_common.glsl LoadView).
-// size_layer holds width, height, layer, valid as floats (exact below 2^24).
+// A view record: 5 RGBA32F texels of the Views texel buffer (shaders/blend.frag): rows of
+// P = K [R^T | -R^T c] (local point -> (z u, z v, z)), centre + exposure, and width, height,
+// layer, valid as floats (exact below 2^24).
 struct GpuView {
-  glm::vec4 c0, c1, c2;
+  glm::vec4 p0, p1, p2;
   glm::vec4 centre_exposure;
-  glm::vec4 intrinsics;
   glm::vec4 size_layer;
 };
-static_assert(sizeof(GpuView) == 96);
+static_assert(sizeof(GpuView) == 80);
 
 // std140 Frame block (lumigraph_common.glsl).
 struct GpuFrame {
@@ -621,14 +621,19 @@ class VulkanRenderer::Impl {
       }
     }));
     // The record (mirrors blend::BlendView as the CPU reference builds it).
-    const glm::mat3 cam_from_local(glm::transpose(v.local_from_cam.RotationMatrix()));
+    // P = K [R^T | -R^T c] in double, rounded once to float.
+    const glm::dmat3 cam_from_local = glm::transpose(v.local_from_cam.RotationMatrix());
+    const glm::dvec3 c = v.local_from_cam.translation;
+    const glm::dvec3 tr = -(cam_from_local * c);
     GpuView rec;
-    rec.c0 = glm::vec4(cam_from_local[0], 0.0f);
-    rec.c1 = glm::vec4(cam_from_local[1], 0.0f);
-    rec.c2 = glm::vec4(cam_from_local[2], 0.0f);
-    rec.centre_exposure = glm::vec4(glm::vec3(v.local_from_cam.translation), v.exposure);
-    rec.intrinsics = glm::vec4(float(v.camera.fx), float(v.camera.fy), float(v.camera.cx),
-                               float(v.camera.cy));
+    // Row r of R^T (glm is column-major: element (r, k) is [k][r]), with its translation.
+    auto row_of = [&](int r) {
+      return glm::dvec4(cam_from_local[0][r], cam_from_local[1][r], cam_from_local[2][r], tr[r]);
+    };
+    rec.p0 = glm::vec4(v.camera.fx * row_of(0) + v.camera.cx * row_of(2));
+    rec.p1 = glm::vec4(v.camera.fy * row_of(1) + v.camera.cy * row_of(2));
+    rec.p2 = glm::vec4(row_of(2));
+    rec.centre_exposure = glm::vec4(glm::vec3(c), v.exposure);
     rec.size_layer = glm::vec4(float(w), float(h), float(slot), 1.0f);
     std::memcpy(static_cast<GpuView*>(view_records.mapped) + slot, &rec, sizeof(rec));
     stats.bytes += color_bytes + depth_bytes + sizeof(GpuView);

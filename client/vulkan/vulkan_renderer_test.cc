@@ -169,7 +169,7 @@ TEST(VulkanRendererTest, IncrementalUploadsOnlyWhatChanged) {
   auto r = Make(m);
   auto before = r->Render(Cam(), Rigid3d::Identity(), blend::BlendOptions{});
   ASSERT_TRUE(before.ok());
-  const uint64_t view_bytes = uint64_t(kW) * kH * 8 + 96;  // RGBA8 + R32F + record
+  const uint64_t view_bytes = uint64_t(kW) * kH * 8 + 80;  // RGBA8 + R32F + 5-texel record
 
   // 1. Exposure of one view changes: one view upload, the output doubles in linear light.
   r->ResetStats();
@@ -231,7 +231,8 @@ TEST(VulkanRendererTest, IncrementalUploadsOnlyWhatChanged) {
 }
 
 TEST(VulkanRendererTest, ManyCellsGrowTheHashTable) {
-  // 5000 cells force several table rebuilds and slab regrowths; every cell stays findable.
+  // 14400 cells force several table rebuilds and slab regrowths; every cell stays findable.
+  // Guard: fails if inserts do not raise the lookup bound max_probe (displaced keys missed).
   LumigraphModel m = PlaneModel(0.05);  // 0.05 m cells: the plane spans 120 x 120 cells
   m.cell_refs.clear();
   for (int x = -60; x < 60; ++x)
@@ -241,6 +242,38 @@ TEST(VulkanRendererTest, ManyCellsGrowTheHashTable) {
   auto out = r->Render(Cam(), Rigid3d::Identity(), blend::BlendOptions{});
   ASSERT_TRUE(out.ok());
   EXPECT_LE(MaxDiff(out->color, m.views.at(1).color), 1);
+}
+
+TEST(VulkanRendererTest, RemovedAndReinsertedCellsStayFindable) {
+  // Removal (tombstones) and re-insertion into tombstones with the bounded lookup (the shader
+  // probes at most max_probe + 1 slots). The displacement bound itself is guarded by
+  // ManyCellsGrowTheHashTable (it fails when inserts do not update max_probe).
+  LumigraphModel m = PlaneModel(0.05);
+  m.cell_refs.clear();
+  for (int x = -60; x < 60; ++x)
+    for (int y = -60; y < 60; ++y) m.cell_refs[PackCell({x, y, 40})] = {1};
+  auto r = Make(m);
+  // Remove every other column of cells: those pixels become "surface, no view" (background).
+  for (int x = -60; x < 60; x += 2)
+    for (int y = -60; y < 60; ++y) ASSERT_TRUE(r->SetCellRefs(PackCell({x, y, 40}), {}).ok());
+  EXPECT_EQ(r->num_cells(), 7200u);
+  auto half = r->Render(Cam(), Rigid3d::Identity(), blend::BlendOptions{});
+  ASSERT_TRUE(half.ok());
+  int blended = 0, surface_only = 0;
+  for (size_t i = 0; i < half->coverage.size(); ++i) {
+    blended += half->coverage.data()[i] == 2;
+    surface_only += half->coverage.data()[i] == 1;
+  }
+  EXPECT_GT(blended, kW * kH / 3);
+  EXPECT_GT(surface_only, kW * kH / 3);
+  // Re-insert them (into tombstones): everything is found again.
+  const ViewId one[] = {1};
+  for (int x = -60; x < 60; x += 2)
+    for (int y = -60; y < 60; ++y) ASSERT_TRUE(r->SetCellRefs(PackCell({x, y, 40}), one).ok());
+  auto full = r->Render(Cam(), Rigid3d::Identity(), blend::BlendOptions{});
+  ASSERT_TRUE(full.ok());
+  EXPECT_LE(MaxDiff(full->color, m.views.at(1).color), 1);
+  EXPECT_TRUE(r->ValidationErrors().empty());
 }
 
 TEST(VulkanRendererTest, CellIdPassMatchesCpuRasterizer) {
