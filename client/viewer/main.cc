@@ -3,10 +3,11 @@
 // with the Vulkan engine (lavapipe) or the CPU reference renderer and writes PNG frames, an MJPEG
 // stream, per-frame timings and (for the synthetic scene) MSSIM against ground truth.
 //   exoview_viewer --server=HOST:PORT [--journal=FILE] [--state_json=FILE]
-//                  [--follow] [--max_seconds=S] [--settle_ms=MS]
+//                  [--follow] [--until_frames=N] [--max_seconds=S] [--settle_ms=MS]
 //                  [--path=synthetic:SCENE:TRAJECTORY] [--render_frames=N]
 //                  [--width=W --height=H] [--out=DIR] [--renderer=auto|vulkan|cpu] [--no_png]
-// --follow: keep following the stream until SIGTERM/--max_seconds (default: stop when synced).
+// --follow: keep following the stream until SIGTERM/--max_seconds (default: stop when synced,
+// i.e. same version as the server, its pipeline drained, and >= --until_frames frames received).
 #include <signal.h>
 
 #include <chrono>
@@ -80,6 +81,7 @@ int main(int argc, char** argv) {
   so.until_synced = !a.count("follow");
   so.max_seconds = num("max_seconds", 60);
   so.settle_ms = static_cast<int>(num("settle_ms", 400));
+  so.min_server_frames = static_cast<uint64_t>(num("until_frames", 0));
   const auto t_sync = std::chrono::steady_clock::now();
   if (auto s = (*session)->Sync(so); !s.ok()) {
     std::fprintf(stderr, "exoview_viewer: %s\n", std::string(s.message()).c_str());

@@ -27,6 +27,7 @@ struct SyncOptions {
   // accepted frame, and nothing changed for `settle_ms`.
   bool until_synced = true;
   int settle_ms = 400;
+  uint64_t min_server_frames = 0;  // ...and the server has received at least this many frames
   double max_seconds = 60.0;
   std::string client_name = "viewer";
 };

@@ -20,7 +20,7 @@ void Usage() {
   std::fprintf(stderr,
                "usage: exoview_server [--config=FILE] [--port_file=FILE] [--key=value ...]\n"
                "keys: listen max_frame_bytes transport_max_bytes admission_queue stage_queue\n"
-               "      cell_size_m max_log_deltas max_log_bytes max_subscriber_lag\n"
+               "      cell_size_m max_log_deltas max_log_bytes max_subscriber_lag snapshot_when_cheaper\n"
                "      publish_jpeg_quality publish_depth_downscale geometry voxel_size_m max_depth_m\n"
                "      mesh_every_n_frames planning max_views max_store_bytes r_max d_max_m\n"
                "      sigma_m delta_tau_sum id_buffer_stride refinement\n");

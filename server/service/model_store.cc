@@ -200,7 +200,7 @@ std::shared_ptr<Subscription> ModelStore::Subscribe(uint64_t last_version) {
     const uint64_t first = log_.empty() ? version_ + 1 : log_.front()->version();
     if (last_version + 1 < first) {
       snapshot = true;  // compacted away
-    } else {
+    } else if (options_.snapshot_when_cheaper) {
       size_t missed_bytes = 0;
       for (auto it = log_.rbegin(); it != log_.rend() && (*it)->version() > last_version; ++it)
         missed_bytes += (*it)->ByteSizeLong();

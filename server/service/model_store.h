@@ -29,6 +29,9 @@ struct ModelStoreOptions {
   size_t max_log_deltas = 4096;
   size_t max_log_bytes = size_t{64} << 20;
   size_t max_subscriber_lag = 2048;   // deltas behind the head before a forced resync
+  // On resume, send a snapshot instead of the missed deltas when it is fewer bytes. Off: resume
+  // with deltas whenever the log still holds them.
+  bool snapshot_when_cheaper = true;
   absl::Status Validate() const;
 };
 

@@ -63,6 +63,7 @@ absl::Status ApplyConfigValue(const std::string& key, const std::string& value, 
   if (key == "max_log_deltas") return ParseNumber(key, value, &c->store.max_log_deltas);
   if (key == "max_log_bytes") return ParseNumber(key, value, &c->store.max_log_bytes);
   if (key == "max_subscriber_lag") return ParseNumber(key, value, &c->store.max_subscriber_lag);
+  if (key == "snapshot_when_cheaper") return ParseNumber(key, value, &c->store.snapshot_when_cheaper);
   if (key == "publish_jpeg_quality") return ParseNumber(key, value, &c->publish.jpeg_quality);
   if (key == "publish_depth_downscale") return ParseNumber(key, value, &c->publish.depth_downscale);
   if (key == "geometry") return ParseNumber(key, value, &c->enable_geometry);
@@ -152,9 +153,7 @@ class ExoviewServer::Service final : public v1::Exoview::Service {
     while (!ctx->IsCancelled() && !shutting_down_->load()) {
       const std::vector<DeltaPtr> batch = sub->Next(100);
       for (size_t i = 0; i < batch.size(); ++i) {
-        grpc::WriteOptions opts;
-        if (i + 1 < batch.size()) opts.set_buffer_hint();
-        if (!writer->Write(*batch[i], opts)) return grpc::Status::OK;
+        if (!writer->Write(*batch[i])) return grpc::Status::OK;
         bytes_published_.fetch_add(batch[i]->ByteSizeLong());
       }
     }
