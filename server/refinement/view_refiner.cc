@@ -164,6 +164,10 @@ struct Sample {
   Eigen::Vector3d p_in_local;
   std::array<float, kMaxLevels> m{};     // median of E_i * C_i per level
   std::array<bool, kMaxLevels> has{};
+  // Flat samples (the least textured pixel of a block) estimate the exposure: their values do
+  // not depend on sub-pixel alignment or on the views' different texture blur, so the ratio
+  // is unbiased; textured samples (the most textured pixel) drive the pose.
+  bool flat = false;
 };
 
 // Depth edge test of SPEC §6: within 2 px of a discontinuity larger than dz, or of a hole.
@@ -209,7 +213,8 @@ class Refiner {
     std::vector<double> c;  // candidate value at the current pose
   };
   void BuildSamples(int budget);
-  Active ActiveSet(int level, const Pose& pose) const;
+  enum class Kind { kAll, kTextured, kFlat };
+  Active ActiveSet(int level, const Pose& pose, Kind kind = Kind::kAll) const;
   bool ValidInCandidate(int level, const Pose& pose, const Sample& s, double* u,
                         double* v) const;
   // J of (e0, p0) and (e1, p1) over the samples valid at both (a fair comparison when the
@@ -257,9 +262,10 @@ void Refiner::BuildSamples(int budget) {
         std::max(2, static_cast<int>(std::ceil(std::sqrt(double(w) * h * overlap_sum / budget))));
     for (int by = o_.border_px; by < h - o_.border_px; by += block)
       for (int bx = o_.border_px; bx < w - o_.border_px; bx += block) {
-        // The most textured pixel of the block with valid depth (DSO-style candidates).
-        int best_x = -1, best_y = -1;
-        double best_g = -1.0;
+        // The most textured pixel of the block with valid depth (DSO-style candidates) and the
+        // flattest one (relative gradient).
+        int best_x = -1, best_y = -1, flat_x = -1, flat_y = -1;
+        double best_g = -1.0, flat_g = 1e30;
         for (int y = by; y < std::min(by + block, h - o_.border_px); ++y)
           for (int x = bx; x < std::min(bx + block, w - o_.border_px); ++x) {
             const size_t i = static_cast<size_t>(y) * w + x;
@@ -272,13 +278,22 @@ void Refiner::BuildSamples(int budget) {
               best_x = x;
               best_y = y;
             }
+            const double gr = g / (rl.luma[i] + 0.01);
+            if (gr < flat_g) {
+              flat_g = gr;
+              flat_x = x;
+              flat_y = y;
+            }
           }
         if (best_x < 0) continue;
-        const float z = ref.depth_m.at(best_x, best_y);
-        if (NearDepthEdge(ref.depth_m, best_x, best_y, z, o_.depth_discontinuity_m)) continue;
-        const glm::dvec3 pc = ref.camera.Unproject({double(best_x), double(best_y)}, z);
+        for (int pass = 0; pass < 2; ++pass) {
+        const int sx = pass == 0 ? best_x : flat_x, sy = pass == 0 ? best_y : flat_y;
+        const float z = ref.depth_m.at(sx, sy);
+        if (NearDepthEdge(ref.depth_m, sx, sy, z, o_.depth_discontinuity_m)) continue;
+        const glm::dvec3 pc = ref.camera.Unproject({double(sx), double(sy)}, z);
         const glm::dvec3 pl = ref.local_from_cam * pc;
         Sample s;
+        s.flat = pass == 1;
         s.p_in_local = {pl.x, pl.y, pl.z};
         // Valid in the candidate at its initial pose (SPEC §6, looser occlusion tolerance).
         const Eigen::Vector3d q = cand0.Apply(s.p_in_local);
@@ -321,6 +336,7 @@ void Refiner::BuildSamples(int budget) {
         if (!s.has[0]) continue;
         samples_.push_back(s);
         depths.push_back(q.z());
+        }
       }
   }
   if (!depths.empty()) median_depth_m_ = Median(depths);
@@ -337,13 +353,17 @@ bool Refiner::ValidInCandidate(int level, const Pose& pose, const Sample& s, dou
   return L.Inside(*u, *v, o_.border_px) && !L.Bad(*u, *v);
 }
 
-Refiner::Active Refiner::ActiveSet(int level, const Pose& pose) const {
+Refiner::Active Refiner::ActiveSet(int level, const Pose& pose, Kind kind) const {
   Active a;
   const Level& L = cand_pyr_[level];
   // Coarse levels use a subset (every stride-th sample, at least ~400): they only need to bring
   // the pose into the basin of the finer levels.
   const size_t stride = std::max<size_t>(1, std::min<size_t>(size_t{1} << level, samples_.size() / 400));
-  for (size_t j = 0; j < samples_.size(); j += stride) {
+  size_t counter = 0;
+  for (size_t j = 0; j < samples_.size(); ++j) {
+    if ((kind == Kind::kFlat && !samples_[j].flat) || (kind == Kind::kTextured && samples_[j].flat))
+      continue;
+    if (counter++ % stride != 0) continue;
     double u, v;
     if (!ValidInCandidate(level, pose, samples_[j], &u, &v)) continue;
     double val;
@@ -360,6 +380,7 @@ Refiner::EnergyPair Refiner::CompareEnergy(int level, double e0, const Pose& p0,
   const Level& L = cand_pyr_[level];
   EnergyPair ep;
   for (const Sample& s : samples_) {
+    if (s.flat) continue;  // the pose energy: textured samples
     double u0, v0, u1, v1;
     const bool ok0 = ValidInCandidate(level, p0, s, &u0, &v0);
     if (!ok0) continue;
@@ -421,7 +442,8 @@ void Refiner::LogValues(int level, const Active& a, std::vector<double>* lc,
 }
 
 double Refiner::SolveExposure(int level, const Pose& pose, double e, bool warm_start) {
-  const Active a = ActiveSet(level, pose);
+  Active a = ActiveSet(level, pose, Kind::kFlat);
+  if (a.idx.size() < 30) a = ActiveSet(level, pose, Kind::kAll);
   std::vector<double> lc, lm;
   LogValues(level, a, &lc, &lm);
   if (lc.size() < 3) return e;
@@ -455,7 +477,7 @@ double Refiner::SolveExposure(int level, const Pose& pose, double e, bool warm_s
 }
 
 Pose Refiner::SolvePose(int level, double e, const Pose& pose) {
-  const Active a = ActiveSet(level, pose);
+  const Active a = ActiveSet(level, pose, Kind::kTextured);
   if (static_cast<int>(a.idx.size()) < o_.min_pose_samples) return pose;
   const Level& L = cand_pyr_[level];
   std::vector<double> r(a.idx.size());
@@ -497,7 +519,7 @@ Pose Refiner::SolvePose(int level, double e, const Pose& pose) {
 // Gauss-Newton information of the 6-DoF pose block at level 0, robust-weighted, with columns
 // normalised to "one pixel of image motion" so rotation and translation are comparable.
 void Refiner::RankCheck(const Pose& pose, double e) {
-  const Active a = ActiveSet(0, pose);
+  const Active a = ActiveSet(0, pose, Kind::kTextured);
   const Level& L = cand_pyr_[0];
   const int n = static_cast<int>(a.idx.size());
   if (n < o_.min_pose_samples) {
@@ -577,7 +599,8 @@ absl::StatusOr<RefinementResult> Refiner::Run() {
   double e0 = o_.initial_exposure;
   if (o_.init_exposure_from_ratio) {
     std::vector<double> lc, lm;
-    LogValues(0, a0, &lc, &lm);
+    const Active a0f = ActiveSet(0, pose0, Kind::kFlat);
+    LogValues(0, a0f.idx.size() >= 30 ? a0f : a0, &lc, &lm);
     for (size_t k = 0; k < lc.size(); ++k) lm[k] -= lc[k];
     if (!lm.empty()) e0 = std::exp(Median(lm));
   }
@@ -619,7 +642,8 @@ absl::StatusOr<RefinementResult> Refiner::Run() {
   }
   if (pose.t == pose0.t && pose.q.coeffs() == pose0.q.coeffs()) {
     std::vector<double> lc, lm;
-    LogValues(0, a0, &lc, &lm);
+    const Active a0f = ActiveSet(0, pose0, Kind::kFlat);
+    LogValues(0, a0f.idx.size() >= 30 ? a0f : a0, &lc, &lm);
     std::vector<double> r(lc.size());
     for (size_t k = 0; k < lc.size(); ++k) r[k] = std::log(e0) + lc[k] - lm[k];
     const double s = ScaleFromResiduals(r, o_.fixed_scale);
@@ -628,7 +652,7 @@ absl::StatusOr<RefinementResult> Refiner::Run() {
       e = e0;
     }
   }
-  const EnergyPair final_pair = CompareEnergy(0, e0, pose0, e, pose, report_scale);
+  const EnergyPair final_pair = CompareEnergy(0, e_exposure_only, pose0, e, pose, report_scale);
   res_.cost_before = final_pair.before;
   res_.cost_after = final_pair.after;
 

@@ -76,8 +76,12 @@ struct RefinementResult {
   int num_samples = 0;         // surface samples with a median
   int num_valid_final = 0;     // of those, valid in the candidate at the final pose
   int iterations = 0;          // Ceres iterations, all stages
-  double cost_before = 0.0;    // J (Tukey, fixed scale) at the input pose, initial exposure
-  double cost_after = 0.0;     // J at the result, same scale and samples
+  // J (3.17) over the textured samples (Tukey, one fixed scale, samples valid at both poses):
+  // at the input pose with the exposure-only estimate, and at the result. The pose guard keeps
+  // cost_after <= cost_before. (The exposure itself is fitted in log intensity on flat samples,
+  // with its own guarded energy: see cost_functors.h.)
+  double cost_before = 0.0;
+  double cost_after = 0.0;
   double relative_residual = 0.0;  // median |r_j| / median(m_j) at the end
   double pose_min_eigenvalue = 0.0;  // rank check figures (pixel-normalised, per sample)
   double pose_condition = 0.0;
