@@ -877,12 +877,32 @@ absl::StatusOr<InpaintResult> InpaintKeyframe(const RgbdKeyframe& frame, const I
   EXO_ASSIGN_OR_RETURN(ImageF solved, SolvePoisson(prob, popt, &pst));
   out.stats.poisson_iterations = pst.iterations;
   out.stats.neumann_components = pst.neumann_components;
+  // Range guard: the solved depth stays within [1/2, 2] x the range of the depths it was
+  // built from (boundary and copied samples). In inverse depth a solution drifting towards 0
+  // would otherwise become an arbitrarily distant surface.
+  float zlo = std::numeric_limits<float>::infinity(), zhi = 0.f;
+  for (int cy = 0; cy < ch; ++cy) {
+    for (int cx = 0; cx < cw; ++cx) {
+      for (float v : {q.at(cx, cy), gauge.at(cx, cy)}) {
+        if (!std::isfinite(v) || !(v > 0.f)) continue;
+        const float z = inv ? 1.f / v : v;
+        zlo = std::min(zlo, z);
+        zhi = std::max(zhi, z);
+      }
+    }
+  }
   for (int cy = 0; cy < ch; ++cy) {
     for (int cx = 0; cx < cw; ++cx) {
       if (!region.at(cx, cy)) continue;
       const float v = solved.at(cx, cy);
       float z = 0.f;
       if (std::isfinite(v) && v > 0.f) z = inv ? 1.f / v : v;
+      if (inv && !(v > 0.f) && std::isfinite(v)) z = 2.f * zhi;  // beyond infinity: farthest
+      if (z > 0.f && zhi > 0.f) {
+        const float zc = std::clamp(z, 0.5f * zlo, 2.f * zhi);
+        if (zc != z) ++out.stats.clamped_depth_pixels;
+        z = zc;
+      }
       if (!(z > 0.f) || !std::isfinite(z)) {
         z = 0.f;
         ++out.stats.invalid_depth_pixels;

@@ -35,7 +35,7 @@ enum class DepthDomain { kInverseDepth, kDepth };
 
 struct InpaintOptions {
   double w = 0.9;            // texture*geometry vs spatial coherence weight (4.7), in (0, 1]
-  double kappa = 0.1;        // lower bound of n . n' in rho_g (4.10), in (0, 1]
+  double kappa = 0.6;        // lower bound of n . n' in rho_g (4.10), in (0, 1]; see docs
   bool use_geometry = true;  // false: colour-only PatchMatch (rho_g == 1), the baseline
   double spatial_cap_px2 = 16.0;  // cap of one neighbour's squared offset incoherence (4.9)
   int pyramid_levels = 0;         // 0 = automatic (coarsest side >= min_coarse_side)
@@ -68,7 +68,8 @@ struct InpaintStats {
   int levels = 0;
   int poisson_iterations = 0;
   int neumann_components = 0;
-  int invalid_depth_pixels = 0;  // T pixels whose solved depth came out non-positive
+  int invalid_depth_pixels = 0;  // T pixels whose solved depth came out non-finite
+  int clamped_depth_pixels = 0;  // T pixels clamped to [zmin/2, 2 zmax] of the input depths
   double ms_prepare = 0, ms_search = 0, ms_copy = 0, ms_poisson = 0, ms_total = 0;
 };
 

@@ -121,8 +121,10 @@ TEST(InpaintTest, NoValidSourceIsAClearError) {
 }
 
 // Hard case: 1-2 px slivers. The texture varies along x only, so a horizontal sliver has an
-// exact answer (the pixel above). Guard: the any-of-2x2 mask pyramid keeps slivers at every
-// level, so their sources come from the coarse-to-fine search rather than a random guess.
+// exact answer (the pixel above); depth must be the plane. The mask pyramid is any-of-2x2 so
+// slivers exist at every level; note that this test was checked to still pass with a
+// top-left-only pooling (the full-resolution sweeps repair the random start), so it covers the
+// outcome (exact fill, valid sources right next to the sliver), not that pooling rule.
 TEST(InpaintTest, OneAndTwoPixelSlivers) {
   const PinholeCamera cam = SmallCamera();
   const std::vector<WorldPlane> wall = {{glm::dvec3(0, 0, -1), -2.0, nullptr}};
@@ -187,7 +189,7 @@ TEST(InpaintTest, GeometryTermPrefersMatchingNormals) {
       const int u = x % 7, v = y % 5;
       // Plus pixel noise: with exact ties rho_t == 0 and the product rho_t * rho_g could not
       // prefer anything.
-      const int noise = static_cast<int>((static_cast<uint32_t>(x * 73856093) ^ static_cast<uint32_t>(y * 19349663)) % 13) - 6;
+      const int noise = static_cast<int>(((static_cast<uint32_t>(x) * 73856093u) ^ (static_cast<uint32_t>(y) * 19349663u)) % 13u) - 6;
       f.color.at(x, y, 0) = static_cast<uint8_t>(30 * u + 20 + noise);
       f.color.at(x, y, 1) = static_cast<uint8_t>(40 * v + 10 - noise);
       f.color.at(x, y, 2) = static_cast<uint8_t>((u * v * 37) % 200 + 20 + noise);
@@ -203,10 +205,12 @@ TEST(InpaintTest, GeometryTermPrefersMatchingNormals) {
       }
     return static_cast<double>(on) / n;
   };
-  auto with = InpaintKeyframe(f, mask, FastOptions());
+  InpaintOptions geo = FastOptions();
+  geo.kappa = 0.1;  // the floor/wall normals differ by 81 deg: penalty 1/max(0.1, 0.15) = 6.7
+  auto with = InpaintKeyframe(f, mask, geo);
   ASSERT_TRUE(with.ok());
   EXPECT_GT(frac_on_floor(*with), 0.97);
-  InpaintOptions colour_only = FastOptions();
+  InpaintOptions colour_only = geo;
   colour_only.use_geometry = false;
   auto without = InpaintKeyframe(f, mask, colour_only);
   ASSERT_TRUE(without.ok());
@@ -217,13 +221,14 @@ TEST(InpaintTest, GeometryTermPrefersMatchingNormals) {
 
 // Hard case: depth in mm vs m. Guard 1: the units check (median depth) gives a clear error.
 // Guard 2: every threshold is relative to depth, so the same scene 10x larger (still metres)
-// gives the same source map and 10x the depth. The scene has a 3 % depth step: an absolute
-// discontinuity threshold would treat it differently at the two scales.
+// gives the same source map and 10x the depth. The scene has a 2 cm (1 %) depth step: an absolute
+// 5 cm discontinuity threshold would smooth across it at 1x and cut it at 10x, and the normals
+// check below fails (checked by making the thresholds absolute).
 TEST(InpaintTest, DepthUnitsAndScaleInvariance) {
   const PinholeCamera cam = SmallCamera();
   const std::vector<WorldPlane> planes = {
       {glm::dvec3(0, 0, -1), -2.0, [](const glm::dvec3& p) { return p.x < 0.0; }},
-      {glm::dvec3(0, 0, -1), -2.06, nullptr}};
+      {glm::dvec3(0, 0, -1), -2.02, nullptr}};
   const RgbdKeyframe f = RenderPlanes(planes, cam, Rigid3d::Identity());
   const ImageU8 mask = RectMask(cam.width, cam.height, 60, 40, 100, 80);
   RgbdKeyframe mm = f;
@@ -234,6 +239,9 @@ TEST(InpaintTest, DepthUnitsAndScaleInvariance) {
 
   RgbdKeyframe big = f;
   for (float& z : big.depth_m.span()) z *= 10.f;
+  // The normals themselves are scale invariant, step included.
+  const ImageF n1 = NormalsFromDepth(f.depth_m, cam), n10 = NormalsFromDepth(big.depth_m, cam);
+  for (size_t i = 0; i < n1.size(); ++i) ASSERT_NEAR(n1.data()[i], n10.data()[i], 1e-4) << i;
   auto a = InpaintKeyframe(f, mask, FastOptions());
   auto b = InpaintKeyframe(big, mask, FastOptions());
   ASSERT_TRUE(a.ok() && b.ok());
