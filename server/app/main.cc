@@ -22,7 +22,7 @@ void Usage() {
                "keys: listen max_frame_bytes transport_max_bytes admission_queue stage_queue\n"
                "      cell_size_m max_log_deltas max_log_bytes max_subscriber_lag snapshot_when_cheaper\n"
                "      publish_jpeg_quality publish_depth_downscale geometry voxel_size_m max_depth_m\n"
-               "      mesh_every_n_frames planning max_views max_store_bytes r_max d_max_m\n"
+               "      mesh_every_n_frames fuse_depth_downscale chunk_republish_change chunk_republish_interval_s planning max_views max_store_bytes r_max d_max_m\n"
                "      sigma_m delta_tau_sum id_buffer_stride refinement\n");
 }
 

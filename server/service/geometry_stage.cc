@@ -1,43 +1,108 @@
 #include "server/service/geometry_stage.h"
 
+#include <cmath>
+#include <unordered_map>
+
 #include "server/geometry/tsdf_volume.h"
 
 namespace exo {
+
 namespace {
 
 class GeometryStage final : public PipelineStage {
  public:
-  GeometryStage(const TsdfOptions& options, int mesh_every)
-      : volume_(options), mesh_every_(mesh_every) {}
+  GeometryStage(const TsdfOptions& tsdf, const GeometryStageOptions& options)
+      : volume_(tsdf), options_(options) {}
   std::string name() const override { return "geometry"; }
 
   absl::Status Process(const PipelineFrame& f, const SceneContext& ctx) override {
     if (f.frame.depth_m.empty()) return absl::OkStatus();  // colour-only frame: nothing to fuse
-    EXO_RETURN_IF_ERROR(volume_.Integrate(f.frame, ctx.origin).status());
-    if (++fused_ % mesh_every_ != 0) return absl::OkStatus();
-    for (const MeshChunk& c : volume_.ExtractDirtyChunks())
-      ctx.store->UpsertChunk(c.id, c.version, c.mesh);
-    for (uint64_t id : volume_.TakeRemovedChunkIds()) (void)ctx.store->RemoveChunk(id);
+    const int k = options_.fuse_depth_downscale;
+    if (k == 1) {
+      EXO_RETURN_IF_ERROR(volume_.Integrate(f.frame, ctx.origin).status());
+    } else {
+      // Every k-th depth sample with the depth camera scaled to match (pixel centres kept).
+      const ImageF& d = f.frame.depth_m;
+      const int w = d.width() / k, h = d.height() / k;
+      ImageF small(w, h);
+      for (int y = 0; y < h; ++y)
+        for (int x = 0; x < w; ++x) small.at(x, y) = d.at(x * k + k / 2, y * k + k / 2);
+      PinholeCamera cam = f.frame.depth_camera;
+      cam.fx /= k;
+      cam.fy /= k;
+      cam.cx = (cam.cx - k / 2) / k;
+      cam.cy = (cam.cy - k / 2) / k;
+      cam.width = w;
+      cam.height = h;
+      const Rigid3d local_from_depth =
+          ctx.origin.ToLocal(f.frame.world_from_cam) * f.frame.color_from_depth;
+      EXO_RETURN_IF_ERROR(volume_
+                              .IntegrateDepth(small, cam, local_from_depth, &f.frame.color,
+                                              &f.frame.color_camera, &f.frame.color_from_depth)
+                              .status());
+    }
+    if (++fused_ % options_.mesh_every_n_frames != 0) return absl::OkStatus();
+    const int64_t now = SteadyNowNs();
+    for (MeshChunk& c : volume_.ExtractDirtyChunks()) {
+      auto it = published_.find(c.id);
+      if (it != published_.end()) {
+        const double old_n = static_cast<double>(it->second.triangles);
+        const double change = std::abs(static_cast<double>(c.mesh.num_triangles()) - old_n) /
+                              std::max(1.0, old_n);
+        const double age_s = (now - it->second.time_ns) * 1e-9;
+        if (change <= options_.republish_change_fraction && age_s < options_.republish_interval_s) {
+          pending_[c.id] = std::move(c);  // newest mesh, published when due
+          continue;
+        }
+      }
+      Publish(std::move(c), now, ctx);
+    }
+    // Held-back chunks whose interval has passed.
+    for (auto it = pending_.begin(); it != pending_.end();) {
+      auto pub = published_.find(it->first);
+      if (pub == published_.end() ||
+          (now - pub->second.time_ns) * 1e-9 >= options_.republish_interval_s) {
+        MeshChunk c = std::move(it->second);
+        it = pending_.erase(it);
+        Publish(std::move(c), now, ctx);
+      } else {
+        ++it;
+      }
+    }
+    for (uint64_t id : volume_.TakeRemovedChunkIds()) {
+      pending_.erase(id);
+      if (published_.erase(id)) (void)ctx.store->RemoveChunk(id);
+    }
     return absl::OkStatus();
   }
 
  private:
+  struct Published {
+    size_t triangles = 0;
+    int64_t time_ns = 0;
+  };
+  void Publish(MeshChunk c, int64_t now, const SceneContext& ctx) {
+    published_[c.id] = {c.mesh.num_triangles(), now};
+    ctx.store->UpsertChunk(c.id, c.version, c.mesh);
+  }
+
   TsdfVolume volume_;
-  const int mesh_every_;
+  const GeometryStageOptions options_;
   uint64_t fused_ = 0;
+  std::unordered_map<uint64_t, Published> published_;
+  std::unordered_map<uint64_t, MeshChunk> pending_;
 };
 
 }  // namespace
 
-absl::StatusOr<std::unique_ptr<PipelineStage>> MakeGeometryStage(double voxel_size_m, double max_depth_m,
-                                                                 int mesh_every_n_frames) {
+absl::StatusOr<std::unique_ptr<PipelineStage>> MakeGeometryStage(const GeometryStageOptions& options) {
+  EXO_RETURN_IF_ERROR(options.Validate());
   TsdfOptions o;
-  o.voxel_size_m = static_cast<float>(voxel_size_m);
-  o.max_depth_m = static_cast<float>(max_depth_m);
+  o.voxel_size_m = static_cast<float>(options.voxel_size_m);
+  o.max_depth_m = static_cast<float>(options.max_depth_m);
   o.num_threads = 1;  // the stage is one pipeline thread; other stages use the other core
   EXO_RETURN_IF_ERROR(o.Validate());
-  if (mesh_every_n_frames < 1) return absl::InvalidArgumentError("mesh_every_n_frames must be >= 1");
-  return std::unique_ptr<PipelineStage>(new GeometryStage(o, mesh_every_n_frames));
+  return std::unique_ptr<PipelineStage>(new GeometryStage(o, options));
 }
 
 }  // namespace exo

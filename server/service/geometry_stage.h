@@ -1,13 +1,39 @@
 // Pipeline stage "geometry" (SPEC §3): fuses each admitted frame into the sparse TSDF of
-// server/geometry and publishes the re-meshed dirty chunks (MeshChunkUpserted/Removed deltas)
-// every `mesh_every_n_frames` frames.
+// server/geometry and publishes re-meshed chunks (MeshChunkUpserted/Removed deltas). Re-meshing
+// runs every `mesh_every_n_frames` frames; a chunk that already exists on the clients is only
+// re-published when its triangle count changed by more than `republish_change_fraction` or its
+// last publication is older than `republish_interval_s` (fusion noise would otherwise re-send
+// the whole visible proxy every few frames: the steady-state bandwidth target of SPEC §10).
 #pragma once
 
+#include <cmath>
 #include <memory>
 
 #include "server/service/pipeline.h"
 
 namespace exo {
-absl::StatusOr<std::unique_ptr<PipelineStage>> MakeGeometryStage(double voxel_size_m, double max_depth_m,
-                                                                 int mesh_every_n_frames);
+
+struct GeometryStageOptions {
+  double voxel_size_m = 0.08;     // proxy only: coarse is enough for projective texturing
+  double max_depth_m = 6.0;
+  int mesh_every_n_frames = 5;
+  int fuse_depth_downscale = 2;   // depth fused at 1/k resolution (nearest sample): speed knob
+  double republish_change_fraction = 0.2;
+  double republish_interval_s = 10.0;
+  absl::Status Validate() const {
+    if (!(voxel_size_m > 0.0)) return absl::InvalidArgumentError("voxel_size_m must be > 0");
+    if (!(max_depth_m > 0.0)) return absl::InvalidArgumentError("max_depth_m must be > 0");
+    if (mesh_every_n_frames < 1) return absl::InvalidArgumentError("mesh_every_n_frames must be >= 1");
+    if (fuse_depth_downscale < 1 || fuse_depth_downscale > 8)
+      return absl::InvalidArgumentError("fuse_depth_downscale must be in [1, 8]");
+    if (!(republish_change_fraction >= 0.0))
+      return absl::InvalidArgumentError("republish_change_fraction must be >= 0");
+    if (!(republish_interval_s >= 0.0))
+      return absl::InvalidArgumentError("republish_interval_s must be >= 0");
+    return absl::OkStatus();
+  }
+};
+
+absl::StatusOr<std::unique_ptr<PipelineStage>> MakeGeometryStage(const GeometryStageOptions& options);
+
 }  // namespace exo

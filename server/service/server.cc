@@ -47,9 +47,8 @@ absl::Status ServerConfig::Validate() const {
   EXO_RETURN_IF_ERROR(pipeline.Validate());
   EXO_RETURN_IF_ERROR(store.Validate());
   EXO_RETURN_IF_ERROR(publish.Validate());
-  if (!(voxel_size_m > 0.0)) return absl::InvalidArgumentError("voxel_size_m must be > 0");
+  EXO_RETURN_IF_ERROR(geometry.Validate());
   EXO_RETURN_IF_ERROR(planning.Validate());
-  if (mesh_every_n_frames < 1) return absl::InvalidArgumentError("mesh_every_n_frames must be >= 1");
   return absl::OkStatus();
 }
 
@@ -67,9 +66,12 @@ absl::Status ApplyConfigValue(const std::string& key, const std::string& value, 
   if (key == "publish_jpeg_quality") return ParseNumber(key, value, &c->publish.jpeg_quality);
   if (key == "publish_depth_downscale") return ParseNumber(key, value, &c->publish.depth_downscale);
   if (key == "geometry") return ParseNumber(key, value, &c->enable_geometry);
-  if (key == "voxel_size_m") return ParseNumber(key, value, &c->voxel_size_m);
-  if (key == "max_depth_m") return ParseNumber(key, value, &c->max_depth_m);
-  if (key == "mesh_every_n_frames") return ParseNumber(key, value, &c->mesh_every_n_frames);
+  if (key == "voxel_size_m") return ParseNumber(key, value, &c->geometry.voxel_size_m);
+  if (key == "max_depth_m") return ParseNumber(key, value, &c->geometry.max_depth_m);
+  if (key == "mesh_every_n_frames") return ParseNumber(key, value, &c->geometry.mesh_every_n_frames);
+  if (key == "fuse_depth_downscale") return ParseNumber(key, value, &c->geometry.fuse_depth_downscale);
+  if (key == "chunk_republish_change") return ParseNumber(key, value, &c->geometry.republish_change_fraction);
+  if (key == "chunk_republish_interval_s") return ParseNumber(key, value, &c->geometry.republish_interval_s);
   if (key == "planning") return ParseNumber(key, value, &c->enable_planning);
   if (key == "max_views") return ParseNumber(key, value, &c->planning.max_views);
   if (key == "max_store_bytes") return ParseNumber(key, value, &c->planning.max_bytes);

@@ -13,6 +13,7 @@
 #include "server/service/ingest.h"
 #include "server/service/model_proto.h"
 #include "server/service/model_store.h"
+#include "server/service/geometry_stage.h"
 #include "server/service/pipeline.h"
 #include "server/service/planning_stage.h"
 
@@ -33,9 +34,7 @@ struct ServerConfig {
   ViewEncodeOptions publish;         // what clients receive per view
   // Stages (each only where the server was built with it).
   bool enable_geometry = true;
-  double voxel_size_m = 0.04;
-  double max_depth_m = 6.0;          // depth beyond this is not fused
-  int mesh_every_n_frames = 5;       // re-mesh dirty blocks every n fused frames
+  GeometryStageOptions geometry;
   bool enable_planning = true;
   PlanningStageOptions planning;     // planning.publish is taken from `publish`
   bool enable_refinement = true;

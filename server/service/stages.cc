@@ -25,7 +25,7 @@ absl::StatusOr<std::vector<std::unique_ptr<PipelineStage>>> MakeStages(const Ser
   std::vector<std::unique_ptr<PipelineStage>> stages;
 #ifdef EXOVIEW_HAVE_GEOMETRY
   if (config.enable_geometry) {
-    EXO_ASSIGN_OR_RETURN(auto g, MakeGeometryStage(config.voxel_size_m, config.max_depth_m, config.mesh_every_n_frames));
+    EXO_ASSIGN_OR_RETURN(auto g, MakeGeometryStage(config.geometry));
     stages.push_back(std::move(g));
   }
 #endif
