@@ -1,5 +1,6 @@
 #version 450
-// Lumigraph blend pass (SPEC §6, eq. 3.1-3.5): per fragment of the proxy mesh, look up the
+// Lumigraph blend pass (SPEC §6, eq. 3.1-3.5), deferred: per pixel of the G-buffer (surface point
+// of the proxy mesh, shaded once by a full-screen triangle), look up the
 // fragment's cell in the resident cell-hash table, evaluate validity and weights for every
 // reference of the cell, keep the best n (<= 4, default 3) and blend their exposure-corrected
 // linear colours. Mirrors common/lumigraph/blend_math.h (see lumigraph_common.glsl).
@@ -19,7 +20,8 @@ layout(set = 0, binding = 3) uniform usamplerBuffer ref_slots;
 layout(set = 0, binding = 4) uniform sampler2DArray colors;  // SRGB8_A8 + bilinear sampler
 layout(set = 0, binding = 5) uniform sampler2DArray depths;  // R32F baked z-depth (0 = invalid)
 
-layout(location = 0) in vec3 in_p_local;
+// Deferred: the surface point per pixel from gbuffer.frag (w = 0: no proxy surface).
+layout(set = 0, binding = 6) uniform sampler2D gbuffer;
 layout(location = 0) out vec4 out_color;  // rgb = sRGB, a = coverage (1 blended, 0.5 surface)
 
 const int kViewTexels = 5;
@@ -74,7 +76,12 @@ void AccumulateSample(inout BlendAccumulator acc, float weight, vec4 s, vec2 lay
 }
 
 void main() {
-  const vec3 x = in_p_local;
+  const vec4 g = texelFetch(gbuffer, ivec2(gl_FragCoord.xy), 0);
+  if (g.w == 0.0) {
+    out_color = vec4(frame.background.rgb, 0.0);  // no proxy surface: coverage 0
+    return;
+  }
+  const vec3 x = g.xyz;
   const vec3 c_o = frame.cam_centre_cell.xyz;
   const float q = frame.cam_centre_cell.w;
   const uvec2 key = PackCell(ivec3(floor(x / q)));

@@ -17,6 +17,8 @@
 #include "shaders/blend.vert.h"
 #include "shaders/cellid.frag.h"
 #include "shaders/viewdepth.frag.h"
+#include "shaders/gbuffer.frag.h"
+#include "shaders/fullscreen.vert.h"
 
 namespace exo {
 namespace {
@@ -189,8 +191,8 @@ class VulkanRenderer::Impl {
   bool descriptors_dirty = true;
   vk::UniqueSampler sampler, linear_sampler;
   vk::UniqueBufferView buffer_views[3];  // views, cell table, refs (recreated when regrown)
-  vk::UniqueRenderPass color_pass, cellid_pass, zdepth_pass;
-  vk::UniquePipeline prepass_pipe, blend_pipe, cellid_pipe, zdepth_pipe;
+  vk::UniqueRenderPass color_pass, cellid_pass, zdepth_pass, gbuffer_pass;
+  vk::UniquePipeline gbuffer_pipe, blend_pipe, cellid_pipe, zdepth_pipe;
   Buffer frame_ubo;
 
   // ---- render targets (per size) ----
@@ -198,9 +200,13 @@ class VulkanRenderer::Impl {
     uint32_t w = 0, h = 0;
     vk::Image color, depth;
     vk::UniqueFramebuffer fb;
+    // Deferred blend only: RGBA32F surface point per pixel + its framebuffer (shares `depth`).
+    vk::Image gbuffer;
+    vk::UniqueFramebuffer gbuffer_fb;
     Buffer readback;
   };
   Target color_target, cellid_target;
+  vk::Image placeholder_gbuffer;
 
   // ===================== setup =====================
   absl::Status Init() {
@@ -212,6 +218,8 @@ class VulkanRenderer::Impl {
     EXO_RETURN_IF_ERROR(CreateSampler());
     EXO_RETURN_IF_ERROR(CreateDescriptors());
     EXO_ASSIGN_OR_RETURN(color_pass, CreateRenderPass(VK_FORMAT_R8G8B8A8_UNORM));
+    EXO_ASSIGN_OR_RETURN(gbuffer_pass,
+                         CreateRenderPass(VK_FORMAT_R32G32B32A32_SFLOAT, /*sampled_output=*/true));
     EXO_ASSIGN_OR_RETURN(cellid_pass, CreateRenderPass(VK_FORMAT_R32G32_UINT));
     EXO_ASSIGN_OR_RETURN(zdepth_pass, CreateRenderPass(VK_FORMAT_R32_SFLOAT));
     {
@@ -238,11 +246,22 @@ class VulkanRenderer::Impl {
                                                         override_spv.size() * 4, true));
       }
     }
-    EXO_ASSIGN_OR_RETURN(prepass_pipe, CreatePipeline(color_pass.get(), nullptr, 0));
+    EXO_ASSIGN_OR_RETURN(gbuffer_pipe, CreatePipeline(gbuffer_pass.get(), kSpvGbufferFrag,
+                                                      sizeof(kSpvGbufferFrag)));
     EXO_ASSIGN_OR_RETURN(cellid_pipe, CreatePipeline(cellid_pass.get(), kSpvCellidFrag,
                                                      sizeof(kSpvCellidFrag)));
     EXO_ASSIGN_OR_RETURN(zdepth_pipe, CreatePipeline(zdepth_pass.get(), kSpvViewdepthFrag,
                                                      sizeof(kSpvViewdepthFrag)));
+    // Binding 6 before any blend target exists (lavapipe reads every binding of a bound set): a
+    // 1x1 G-buffer placeholder in SHADER_READ_ONLY_OPTIMAL.
+    EXO_ASSIGN_OR_RETURN(placeholder_gbuffer,
+                         vk::Image::Create(*ctx, 1, 1, 1, VK_FORMAT_R32G32B32A32_SFLOAT,
+                                           VK_IMAGE_USAGE_SAMPLED_BIT, VK_IMAGE_ASPECT_COLOR_BIT,
+                                           false));
+    EXO_RETURN_IF_ERROR(ctx->Submit([&](VkCommandBuffer cmd) {
+      vk::TransitionImage(cmd, placeholder_gbuffer.image.get(), VK_IMAGE_ASPECT_COLOR_BIT,
+                          VK_IMAGE_LAYOUT_UNDEFINED, VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL, 0, 1);
+    }));
     // Empty store: 1 slot, 1x1 layers, a 64-entry table, 1 slab, so every descriptor is valid.
     EXO_RETURN_IF_ERROR(GrowViewStorage(1, 1, 1));
     EXO_RETURN_IF_ERROR(RebuildTable(64));
@@ -269,8 +288,8 @@ class VulkanRenderer::Impl {
   }
 
   absl::Status CreateDescriptors() {
-    VkDescriptorSetLayoutBinding b[6]{};
-    for (uint32_t i = 0; i < 6; ++i) {
+    VkDescriptorSetLayoutBinding b[7]{};
+    for (uint32_t i = 0; i < 7; ++i) {
       b[i].binding = i;
       b[i].descriptorCount = 1;
       b[i].stageFlags = VK_SHADER_STAGE_FRAGMENT_BIT;
@@ -282,9 +301,10 @@ class VulkanRenderer::Impl {
     // to a vector gather (measured: docs/vulkan.md).
     b[1].descriptorType = b[2].descriptorType = b[3].descriptorType =
         VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER;
-    b[4].descriptorType = b[5].descriptorType = VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER;
+    b[4].descriptorType = b[5].descriptorType = b[6].descriptorType =
+        VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER;
     VkDescriptorSetLayoutCreateInfo li{VK_STRUCTURE_TYPE_DESCRIPTOR_SET_LAYOUT_CREATE_INFO};
-    li.bindingCount = 6;
+    li.bindingCount = 7;
     li.pBindings = b;
     VkDescriptorSetLayout raw_layout;
     EXO_VK_RETURN(vkCreateDescriptorSetLayout(ctx->device(), &li, nullptr, &raw_layout));
@@ -297,7 +317,7 @@ class VulkanRenderer::Impl {
     pipe_layout = vk::UniquePipelineLayout(ctx->device(), raw_pl);
     VkDescriptorPoolSize sizes[3] = {{VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER, 1},
                                      {VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER, 3},
-                                     {VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER, 2}};
+                                     {VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER, 3}};
     VkDescriptorPoolCreateInfo pi{VK_STRUCTURE_TYPE_DESCRIPTOR_POOL_CREATE_INFO};
     pi.maxSets = 1;
     pi.poolSizeCount = 3;
@@ -336,8 +356,13 @@ class VulkanRenderer::Impl {
     VkDescriptorImageInfo ii[2] = {
         {linear_sampler.get(), colors.view.get(), VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL},
         {sampler.get(), depths.view.get(), VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL}};
-    VkWriteDescriptorSet w[6]{};
-    for (uint32_t i = 0; i < 6; ++i) {
+    VkDescriptorImageInfo gi{sampler.get(),
+                             color_target.gbuffer.image ? color_target.gbuffer.view.get()
+                                                        : placeholder_gbuffer.view.get(),
+                             VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL};
+    const uint32_t writes = 7;
+    VkWriteDescriptorSet w[7]{};
+    for (uint32_t i = 0; i < writes; ++i) {
       w[i].sType = VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET;
       w[i].dstSet = desc_set;
       w[i].dstBinding = i;
@@ -350,15 +375,18 @@ class VulkanRenderer::Impl {
         w[i].pTexelBufferView = &tb[i - 1];
       } else {
         w[i].descriptorType = VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER;
-        w[i].pImageInfo = &ii[i - 4];
+        w[i].pImageInfo = i == 6 ? &gi : &ii[i - 4];
       }
     }
-    vkUpdateDescriptorSets(ctx->device(), 6, w, 0, nullptr);
+    vkUpdateDescriptorSets(ctx->device(), writes, w, 0, nullptr);
     descriptors_dirty = false;
     return absl::OkStatus();
   }
 
-  absl::StatusOr<vk::UniqueRenderPass> CreateRenderPass(VkFormat color_format) {
+  // sampled_output: the colour attachment ends in SHADER_READ_ONLY_OPTIMAL for a later pass's
+  // fragment shader (the G-buffer); otherwise in TRANSFER_SRC_OPTIMAL for read-back.
+  absl::StatusOr<vk::UniqueRenderPass> CreateRenderPass(VkFormat color_format,
+                                                        bool sampled_output = false) {
     VkAttachmentDescription att[2]{};
     att[0].format = color_format;
     att[0].samples = VK_SAMPLE_COUNT_1_BIT;
@@ -367,7 +395,8 @@ class VulkanRenderer::Impl {
     att[0].stencilLoadOp = VK_ATTACHMENT_LOAD_OP_DONT_CARE;
     att[0].stencilStoreOp = VK_ATTACHMENT_STORE_OP_DONT_CARE;
     att[0].initialLayout = VK_IMAGE_LAYOUT_UNDEFINED;
-    att[0].finalLayout = VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL;
+    att[0].finalLayout = sampled_output ? VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL
+                                        : VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL;
     att[1] = att[0];
     att[1].format = VK_FORMAT_D32_SFLOAT;
     att[1].storeOp = VK_ATTACHMENT_STORE_OP_DONT_CARE;
@@ -384,7 +413,8 @@ class VulkanRenderer::Impl {
     dep[0].dstSubpass = 0;
     dep[0].srcStageMask = VK_PIPELINE_STAGE_TRANSFER_BIT |
                           VK_PIPELINE_STAGE_COLOR_ATTACHMENT_OUTPUT_BIT |
-                          VK_PIPELINE_STAGE_LATE_FRAGMENT_TESTS_BIT;
+                          VK_PIPELINE_STAGE_LATE_FRAGMENT_TESTS_BIT |
+                          VK_PIPELINE_STAGE_FRAGMENT_SHADER_BIT;
     dep[0].dstStageMask = VK_PIPELINE_STAGE_COLOR_ATTACHMENT_OUTPUT_BIT |
                           VK_PIPELINE_STAGE_EARLY_FRAGMENT_TESTS_BIT;
     dep[0].srcAccessMask = VK_ACCESS_TRANSFER_READ_BIT |
@@ -395,9 +425,10 @@ class VulkanRenderer::Impl {
     dep[1].srcSubpass = 0;
     dep[1].dstSubpass = VK_SUBPASS_EXTERNAL;
     dep[1].srcStageMask = VK_PIPELINE_STAGE_COLOR_ATTACHMENT_OUTPUT_BIT;
-    dep[1].dstStageMask = VK_PIPELINE_STAGE_TRANSFER_BIT;
+    dep[1].dstStageMask = sampled_output ? VK_PIPELINE_STAGE_FRAGMENT_SHADER_BIT
+                                         : VK_PIPELINE_STAGE_TRANSFER_BIT;
     dep[1].srcAccessMask = VK_ACCESS_COLOR_ATTACHMENT_WRITE_BIT;
-    dep[1].dstAccessMask = VK_ACCESS_TRANSFER_READ_BIT;
+    dep[1].dstAccessMask = sampled_output ? VK_ACCESS_SHADER_READ_BIT : VK_ACCESS_TRANSFER_READ_BIT;
     VkRenderPassCreateInfo ri{VK_STRUCTURE_TYPE_RENDER_PASS_CREATE_INFO};
     ri.attachmentCount = 2;
     ri.pAttachments = att;
@@ -419,16 +450,17 @@ class VulkanRenderer::Impl {
     return vk::UniqueShaderModule(ctx->device(), raw);
   }
 
-  // frag == nullptr: depth-only pipeline (pre-pass: no fragment stage, no colour writes).
-  // depth_equal: test EQUAL against the pre-pass depth without writing it, so the expensive
-  // fragment stage runs once per pixel (measured overdraw of the proxy: docs/vulkan.md).
+  // fullscreen: one triangle over the viewport (no vertex input, no depth test) for the deferred
+  // blend pass; otherwise the proxy-mesh pipeline (depth test LESS + write).
   absl::StatusOr<vk::UniquePipeline> CreatePipeline(VkRenderPass pass, const uint32_t* frag,
-                                                    size_t frag_bytes, bool depth_equal = false) {
-    EXO_ASSIGN_OR_RETURN(auto vs, CreateModule(kSpvBlendVert, sizeof(kSpvBlendVert)));
-    vk::UniqueShaderModule fs;
-    if (frag != nullptr) {
-      EXO_ASSIGN_OR_RETURN(fs, CreateModule(frag, frag_bytes));
+                                                    size_t frag_bytes, bool fullscreen = false) {
+    vk::UniqueShaderModule vs;
+    if (fullscreen) {
+      EXO_ASSIGN_OR_RETURN(vs, CreateModule(kSpvFullscreenVert, sizeof(kSpvFullscreenVert)));
+    } else {
+      EXO_ASSIGN_OR_RETURN(vs, CreateModule(kSpvBlendVert, sizeof(kSpvBlendVert)));
     }
+    EXO_ASSIGN_OR_RETURN(auto fs, CreateModule(frag, frag_bytes));
     VkPipelineShaderStageCreateInfo stages[2]{};
     stages[0].sType = stages[1].sType = VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO;
     stages[0].stage = VK_SHADER_STAGE_VERTEX_BIT;
@@ -441,9 +473,9 @@ class VulkanRenderer::Impl {
     VkVertexInputAttributeDescription va{0, 0, VK_FORMAT_R32G32B32_SFLOAT, 0};
     VkPipelineVertexInputStateCreateInfo vi{
         VK_STRUCTURE_TYPE_PIPELINE_VERTEX_INPUT_STATE_CREATE_INFO};
-    vi.vertexBindingDescriptionCount = 1;
+    vi.vertexBindingDescriptionCount = fullscreen ? 0 : 1;
     vi.pVertexBindingDescriptions = &vb;
-    vi.vertexAttributeDescriptionCount = 1;
+    vi.vertexAttributeDescriptionCount = fullscreen ? 0 : 1;
     vi.pVertexAttributeDescriptions = &va;
     VkPipelineInputAssemblyStateCreateInfo ia{
         VK_STRUCTURE_TYPE_PIPELINE_INPUT_ASSEMBLY_STATE_CREATE_INFO};
@@ -462,13 +494,12 @@ class VulkanRenderer::Impl {
     ms.rasterizationSamples = VK_SAMPLE_COUNT_1_BIT;
     VkPipelineDepthStencilStateCreateInfo ds{
         VK_STRUCTURE_TYPE_PIPELINE_DEPTH_STENCIL_STATE_CREATE_INFO};
-    ds.depthTestEnable = VK_TRUE;
-    ds.depthWriteEnable = depth_equal ? VK_FALSE : VK_TRUE;
-    ds.depthCompareOp = depth_equal ? VK_COMPARE_OP_EQUAL : VK_COMPARE_OP_LESS;
+    ds.depthTestEnable = fullscreen ? VK_FALSE : VK_TRUE;
+    ds.depthWriteEnable = fullscreen ? VK_FALSE : VK_TRUE;
+    ds.depthCompareOp = VK_COMPARE_OP_LESS;
     VkPipelineColorBlendAttachmentState cba{};
-    cba.colorWriteMask = frag == nullptr ? 0
-                                         : VK_COLOR_COMPONENT_R_BIT | VK_COLOR_COMPONENT_G_BIT |
-                                               VK_COLOR_COMPONENT_B_BIT | VK_COLOR_COMPONENT_A_BIT;
+    cba.colorWriteMask = VK_COLOR_COMPONENT_R_BIT | VK_COLOR_COMPONENT_G_BIT |
+                         VK_COLOR_COMPONENT_B_BIT | VK_COLOR_COMPONENT_A_BIT;
     VkPipelineColorBlendStateCreateInfo cb{VK_STRUCTURE_TYPE_PIPELINE_COLOR_BLEND_STATE_CREATE_INFO};
     cb.attachmentCount = 1;
     cb.pAttachments = &cba;
@@ -477,7 +508,7 @@ class VulkanRenderer::Impl {
     dy.dynamicStateCount = 2;
     dy.pDynamicStates = dyn;
     VkGraphicsPipelineCreateInfo gi{VK_STRUCTURE_TYPE_GRAPHICS_PIPELINE_CREATE_INFO};
-    gi.stageCount = frag != nullptr ? 2 : 1;
+    gi.stageCount = 2;
     gi.pStages = stages;
     gi.pVertexInputState = &vi;
     gi.pInputAssemblyState = &ia;
@@ -855,6 +886,18 @@ class VulkanRenderer::Impl {
     VkFramebuffer raw;
     EXO_VK_RETURN(vkCreateFramebuffer(ctx->device(), &fi, nullptr, &raw));
     t.fb = vk::UniqueFramebuffer(ctx->device(), raw);
+    if (&t == &color_target) {
+      EXO_ASSIGN_OR_RETURN(t.gbuffer, vk::Image::Create(*ctx, w, h, 1, VK_FORMAT_R32G32B32A32_SFLOAT,
+                                                        VK_IMAGE_USAGE_COLOR_ATTACHMENT_BIT |
+                                                            VK_IMAGE_USAGE_SAMPLED_BIT,
+                                                        VK_IMAGE_ASPECT_COLOR_BIT, false));
+      VkImageView gatts[2] = {t.gbuffer.view.get(), t.depth.view.get()};
+      fi.renderPass = gbuffer_pass.get();
+      fi.pAttachments = gatts;
+      EXO_VK_RETURN(vkCreateFramebuffer(ctx->device(), &fi, nullptr, &raw));
+      t.gbuffer_fb = vk::UniqueFramebuffer(ctx->device(), raw);
+      descriptors_dirty = true;  // binding 6 points at the new G-buffer
+    }
     EXO_ASSIGN_OR_RETURN(t.readback,
                          Buffer::Create(*ctx, VkDeviceSize(w) * h * 8,
                                         VK_BUFFER_USAGE_TRANSFER_DST_BIT));
@@ -884,29 +927,17 @@ class VulkanRenderer::Impl {
   }
 
   // Records the proxy draw with `pipe` into `t`, copies the colour attachment to t.readback.
+  // deferred == false: draws the proxy chunks with `pipe` into t.fb. deferred == true (blend):
+  // first the proxy into the G-buffer (gbuffer_pipe, t.gbuffer_fb), then one full-screen
+  // triangle with `pipe` into t.fb; one command buffer, one submit. Then the colour attachment
+  // is copied to t.readback.
   absl::Status Draw(Target& t, VkRenderPass pass, VkPipeline pipe, const VkClearValue& clear,
-                    uint32_t texel_bytes, VkPipeline prepass = VK_NULL_HANDLE) {
+                    uint32_t texel_bytes, bool deferred = false) {
     EXO_RETURN_IF_ERROR(UpdateDescriptors());
     return ctx->Submit([&](VkCommandBuffer cmd) {
-      VkClearValue clears[2];
-      clears[0] = clear;
-      clears[1].depthStencil = {1.0f, 0};
-      VkRenderPassBeginInfo bi{VK_STRUCTURE_TYPE_RENDER_PASS_BEGIN_INFO};
-      bi.renderPass = pass;
-      bi.framebuffer = t.fb.get();
-      bi.renderArea = {{0, 0}, {t.w, t.h}};
-      bi.clearValueCount = 2;
-      bi.pClearValues = clears;
-      vkCmdBeginRenderPass(cmd, &bi, VK_SUBPASS_CONTENTS_INLINE);
       VkViewport vp{0, 0, float(t.w), float(t.h), 0.0f, 1.0f};
       VkRect2D sc{{0, 0}, {t.w, t.h}};
-      vkCmdSetViewport(cmd, 0, 1, &vp);
-      vkCmdSetScissor(cmd, 0, 1, &sc);
-      vkCmdBindDescriptorSets(cmd, VK_PIPELINE_BIND_POINT_GRAPHICS, pipe_layout.get(), 0, 1,
-                              &desc_set, 0, nullptr);
-      for (VkPipeline p : {prepass, pipe}) {
-        if (p == VK_NULL_HANDLE) continue;
-        vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_GRAPHICS, p);
+      auto draw_chunks = [&] {
         for (const auto& [id, c] : chunks) {
           VkBuffer vb = c.vertices.buffer.get();
           VkDeviceSize off = 0;
@@ -914,8 +945,38 @@ class VulkanRenderer::Impl {
           vkCmdBindIndexBuffer(cmd, c.indices.buffer.get(), 0, VK_INDEX_TYPE_UINT32);
           vkCmdDrawIndexed(cmd, c.index_count, 1, 0, 0, 0);
         }
+      };
+      auto begin = [&](VkRenderPass rp, VkFramebuffer fb, const VkClearValue& c0,
+                       VkPipeline p) {
+        VkClearValue cv[2];
+        cv[0] = c0;
+        cv[1].depthStencil = {1.0f, 0};
+        VkRenderPassBeginInfo bi{VK_STRUCTURE_TYPE_RENDER_PASS_BEGIN_INFO};
+        bi.renderPass = rp;
+        bi.framebuffer = fb;
+        bi.renderArea = {{0, 0}, {t.w, t.h}};
+        bi.clearValueCount = 2;
+        bi.pClearValues = cv;
+        vkCmdBeginRenderPass(cmd, &bi, VK_SUBPASS_CONTENTS_INLINE);
+        vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_GRAPHICS, p);
+        vkCmdSetViewport(cmd, 0, 1, &vp);
+        vkCmdSetScissor(cmd, 0, 1, &sc);
+        vkCmdBindDescriptorSets(cmd, VK_PIPELINE_BIND_POINT_GRAPHICS, pipe_layout.get(), 0, 1,
+                                &desc_set, 0, nullptr);
+      };
+      if (deferred) {
+        VkClearValue zero{};  // G-buffer w = 0: no surface
+        begin(gbuffer_pass.get(), t.gbuffer_fb.get(), zero, gbuffer_pipe.get());
+        draw_chunks();
+        vkCmdEndRenderPass(cmd);
+        begin(pass, t.fb.get(), clear, pipe);
+        vkCmdDraw(cmd, 3, 1, 0, 0);
+        vkCmdEndRenderPass(cmd);
+      } else {
+        begin(pass, t.fb.get(), clear, pipe);
+        draw_chunks();
+        vkCmdEndRenderPass(cmd);
       }
-      vkCmdEndRenderPass(cmd);
       VkBufferImageCopy region{};
       region.imageSubresource = {VK_IMAGE_ASPECT_COLOR_BIT, 0, 0, 1};
       region.imageExtent = {t.w, t.h, 1};
@@ -957,7 +1018,7 @@ class VulkanRenderer::Impl {
     clear.color = {{bo.background_srgb.x, bo.background_srgb.y, bo.background_srgb.z, 0.0f}};
     const auto t0 = Clock::now();
     EXO_RETURN_IF_ERROR(Draw(color_target, color_pass.get(), blend_pipe.get(), clear, 4,
-                             prepass_pipe.get()));
+                             /*deferred=*/true));
     RenderResult r;
     r.gpu_ms = MsSince(t0);
     const auto t1 = Clock::now();

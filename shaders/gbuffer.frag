@@ -1,0 +1,9 @@
+#version 450
+// G-buffer pass of the deferred blend: the proxy surface point (scene-local frame) per pixel,
+// w = 1 where there is a surface (the target is cleared to 0). blend.frag then shades every pixel
+// exactly once from a full-screen triangle (see docs/vulkan.md for why this is faster on
+// llvmpipe than shading the proxy triangles directly).
+layout(location = 0) in vec3 in_p_local;
+layout(location = 0) out vec4 out_p_local;
+
+void main() { out_p_local = vec4(in_p_local, 1.0); }
