@@ -9,7 +9,8 @@
 //
 //   refinement_bench [--scene apartment|village|all] [--frames N] [--stride S]
 //                    [--rot-deg D] [--trans-m M] [--exposure-jitter X] [--width W --height H]
-//                    [--seed S] [--heldout N]
+//                    [--seed S] [--heldout N] [--levels L] [--samples N] [--oracle-refs 1]
+//                    [--outlier-rel X]
 // The first stored view is the gauge anchor (true pose, E = 1); views are refined in order, each
 // against the views stored (and refined) before it, as the planner does online.
 #include <algorithm>
@@ -38,6 +39,8 @@ struct Args {
   int width = 640, height = 480;
   uint64_t seed = 1;
   int levels = 0, samples = 0;  // 0: RefinementOptions defaults
+  double outlier_rel = 0;       // 0: default
+  bool oracle_refs = false;     // refine each view against true-pose references (diagnostic)
 };
 
 double Percentile(std::vector<double> v, double p) {
@@ -154,13 +157,24 @@ absl::Status RunScene(synth::SceneKind kind, const Args& a) {
   RefinementOptions opt;
   if (a.levels > 0) opt.pyramid_levels = a.levels;
   if (a.samples > 0) opt.max_samples = a.samples;
+  if (a.outlier_rel > 0) opt.outlier_max_relative_residual = a.outlier_rel;
   RefinementStats stats;
   std::vector<StoredView> refined;
   refined.push_back(noisy[0]);
   std::vector<double> ms, cpu_ms, rot_before, rot_after, tr_before, tr_after, e_before, e_after;
   for (size_t i = 1; i < noisy.size(); ++i) {
     std::vector<const StoredView*> refs;
-    for (const auto& r : refined) refs.push_back(&r);
+    std::vector<StoredView> oracle_refs;
+    if (a.oracle_refs) {
+      for (size_t j = 0; j < i; ++j) {
+        oracle_refs.push_back(noisy[j]);
+        oracle_refs.back().local_from_cam = truth_pose[j];
+        oracle_refs.back().exposure = static_cast<float>(1.0 / k[j]);
+      }
+      for (const auto& r : oracle_refs) refs.push_back(&r);
+    } else {
+      for (const auto& r : refined) refs.push_back(&r);
+    }
     auto res = RefineView(noisy[i], refs, opt);
     StoredView v = noisy[i];
     rot_before.push_back(RotationAngleRad(v.local_from_cam.rotation, truth_pose[i].rotation) * 180 / M_PI);
@@ -207,7 +221,7 @@ absl::Status RunScene(synth::SceneKind kind, const Args& a) {
   EXO_ASSIGN_OR_RETURN(Quality q_true, RenderQuality(scene, oracle, held, held_truth, cam));
   std::printf(
       "{\"bench\":\"refinement\",\"scene\":\"%s\",\"width\":%d,\"height\":%d,\"views_refined\":%zu,"
-      "\"refs_max\":%d,\"max_samples\":%d,\"noise_rot_deg\":%.3f,\"noise_trans_m\":%.3f,"
+      "\"refs_max\":%d,\"outlier_rel\":%.3f,\"max_samples\":%d,\"noise_rot_deg\":%.3f,\"noise_trans_m\":%.3f,"
       "\"exposure_jitter_log2\":%.2f,\"ms_median\":%.2f,\"ms_p95\":%.2f,\"cpu_ms_median\":%.2f,\"cpu_ms_p95\":%.2f,"
       "\"rot_err_deg_median_off\":%.3f,\"rot_err_deg_median_on\":%.3f,\"rot_err_deg_p95_on\":%.3f,"
       "\"trans_err_mm_median_off\":%.2f,\"trans_err_mm_median_on\":%.2f,\"trans_err_mm_p95_on\":%.2f,"
@@ -217,6 +231,7 @@ absl::Status RunScene(synth::SceneKind kind, const Args& a) {
       "\"psnr_off\":%.2f,\"psnr_on\":%.2f,\"psnr_true_poses\":%.2f,\"coverage\":%.3f,"
       "\"render_ms\":%.1f}\n",
       synth::SceneKindName(kind), a.width, a.height, noisy.size() - 1, opt.max_reference_views,
+      opt.outlier_max_relative_residual,
       opt.max_samples, a.rot_deg, a.trans_m, a.exposure_jitter, Percentile(ms, 0.5),
       Percentile(ms, 0.95), Percentile(cpu_ms, 0.5), Percentile(cpu_ms, 0.95), Percentile(rot_before, 0.5), Percentile(rot_after, 0.5),
       Percentile(rot_after, 0.95), Percentile(tr_before, 0.5), Percentile(tr_after, 0.5),
@@ -242,6 +257,8 @@ int Main(int argc, char** argv) {
     else if (key == "--exposure-jitter") a.exposure_jitter = std::atof(v);
     else if (key == "--width") a.width = std::atoi(v);
     else if (key == "--height") a.height = std::atoi(v);
+    else if (key == "--outlier-rel") a.outlier_rel = std::atof(v);
+    else if (key == "--oracle-refs") a.oracle_refs = std::atoi(v) != 0;
     else if (key == "--levels") a.levels = std::atoi(v);
     else if (key == "--samples") a.samples = std::atoi(v);
     else if (key == "--seed") a.seed = std::strtoull(v, nullptr, 10);
