@@ -114,9 +114,11 @@ int main(int argc, char** argv) {
   for (int n_refs : refs_list) {
     model.cell_refs.clear();
     double mean_refs = 0;
+    size_t max_refs = 0;
     for (auto& [c, refs] : all_refs) {
       model.cell_refs[c] = std::vector<ViewId>(refs.begin(), refs.begin() + std::min<size_t>(refs.size(), n_refs));
       mean_refs += model.cell_refs[c].size();
+      max_refs = std::max(max_refs, model.cell_refs[c].size());
     }
     mean_refs /= std::max<size_t>(1, all_refs.size());
     for (size_t si = 0; si + 1 < sizes.size(); si += 2) {
@@ -169,11 +171,11 @@ int main(int argc, char** argv) {
       std::string frame_list;
       for (double v : ms_v) frame_list += (frame_list.empty() ? "" : ",") + std::to_string(int(v + 0.5));
       printf("{\"bench\":\"vulkan_blend\",\"scene\":\"%s\",\"device\":\"%s\",\"width\":%d,\"height\":%d,"
-             "\"refs_per_cell\":%d,\"mean_refs_per_cell\":%.1f,\"views\":%zu,\"view_size\":\"%dx%d\","
+             "\"refs_per_cell\":%d,\"mean_refs_per_cell\":%.1f,\"max_refs_per_cell\":%zu,\"views\":%zu,\"view_size\":\"%dx%d\","
              "\"triangles\":%zu,\"create_ms\":%.1f,\"upload_ms\":%.1f,\"first_frame_ms\":%.1f,"
              "\"median_ms\":%.2f,\"min_ms\":%.2f,\"median_cpu_ms\":%.1f,\"median_gpu_ms\":%.2f,\"median_readback_ms\":%.2f,"
              "\"frames\":%d,\"ssim\":%.4f,\"ssim_frames\":%d,\"lp_num_threads\":\"%s\",\"load1\":%.2f,\"frame_ms\":[%s]}\n",
-             scene_name.c_str(), r->DeviceName().c_str(), sizes[si], sizes[si + 1], n_refs, mean_refs,
+             scene_name.c_str(), r->DeviceName().c_str(), sizes[si], sizes[si + 1], n_refs, mean_refs, max_refs,
              model.views.size(), view_size[0], view_size[1], scene->mesh.num_triangles(), create_ms,
              sync_ms, first_ms, med(ms_v), mn(ms_v), med(cpu_v), med(gpu_v), med(rb_v), frames,
              ssim_n ? ssim_sum / ssim_n : 0.0, ssim_n,

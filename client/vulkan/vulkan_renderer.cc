@@ -205,7 +205,7 @@ class VulkanRenderer::Impl {
     vk::UniqueFramebuffer gbuffer_fb;
     Buffer readback;
   };
-  Target color_target, cellid_target;
+  Target color_target, cellid_target, zdepth_target;
   vk::Image placeholder_gbuffer;
 
   // ===================== setup =====================
@@ -1057,6 +1057,23 @@ class VulkanRenderer::Impl {
     return out;
   }
 
+  absl::StatusOr<ImageF> RenderProxyDepth(const PinholeCamera& camera,
+                                          const Rigid3d& local_from_cam) {
+    EXO_RETURN_IF_ERROR(CheckCamera(camera, local_from_cam));
+    const uint32_t w = camera.width, h = camera.height;
+    EXO_RETURN_IF_ERROR(EnsureTarget(zdepth_target, zdepth_pass.get(), VK_FORMAT_R32_SFLOAT, w, h));
+    GpuFrame f{};
+    FillFrame(camera, local_from_cam, &f);
+    // viewdepth.frag: background.xyz = optical axis (third column of local_from_cam's rotation).
+    f.background = glm::vec4(glm::vec3(local_from_cam.RotationMatrix()[2]), 0.0f);
+    std::memcpy(frame_ubo.mapped, &f, sizeof(f));
+    VkClearValue clear{};  // 0 = no surface (invalid depth)
+    EXO_RETURN_IF_ERROR(Draw(zdepth_target, zdepth_pass.get(), zdepth_pipe.get(), clear, 4));
+    ImageF out(w, h, 1, 0.0f);
+    std::memcpy(out.data(), zdepth_target.readback.mapped, size_t(w) * h * sizeof(float));
+    return out;
+  }
+
   uint64_t ResidentBytes() const {
     uint64_t b = 0;
     b += uint64_t(layer_w) * layer_h * slot_capacity * 8;  // RGBA8 + R32F layers
@@ -1151,6 +1168,10 @@ absl::StatusOr<RenderResult> VulkanRenderer::Render(const PinholeCamera& camera,
                                                     const Rigid3d& local_from_cam,
                                                     const blend::BlendOptions& options) {
   return impl_->Render(camera, local_from_cam, options);
+}
+absl::StatusOr<ImageF> VulkanRenderer::RenderProxyDepth(const PinholeCamera& camera,
+                                                        const Rigid3d& local_from_cam) {
+  return impl_->RenderProxyDepth(camera, local_from_cam);
 }
 absl::StatusOr<Image<uint64_t>> VulkanRenderer::RenderCellIds(const PinholeCamera& camera,
                                                               const Rigid3d& local_from_cam) {

@@ -95,6 +95,12 @@ class VulkanRenderer {
   absl::StatusOr<Image<uint64_t>> RenderCellIds(const PinholeCamera& camera,
                                                 const Rigid3d& local_from_cam);
 
+  // Z-depth (metres along the optical axis) of the resident proxy mesh seen from a camera, 0
+  // where there is no surface: what a client would use if views did not carry depth
+  // (shaders/viewdepth.frag; measured against stored sensor depth in docs/vulkan.md).
+  absl::StatusOr<ImageF> RenderProxyDepth(const PinholeCamera& camera,
+                                          const Rigid3d& local_from_cam);
+
   // ---- introspection ----
   const UploadStats& stats() const;
   void ResetStats();

@@ -276,6 +276,25 @@ TEST(VulkanRendererTest, RemovedAndReinsertedCellsStayFindable) {
   EXPECT_TRUE(r->ValidationErrors().empty());
 }
 
+TEST(VulkanRendererTest, ProxyDepthPassGivesPlaneDepth) {
+  // The plane z = 2 from cameras at z = 0 and z = 0.5 (looking +z): z-depth 2 and 1.5 where the
+  // plane is seen, 0 (invalid) where it is not (a camera turned away sees nothing).
+  auto r = Make(PlaneModel());
+  for (double tz : {0.0, 0.5}) {
+    Rigid3d pose;
+    pose.translation = {0.1, -0.2, tz};
+    auto d = r->RenderProxyDepth(Cam(), pose);
+    ASSERT_TRUE(d.ok()) << d.status();
+    for (float z : d->span()) EXPECT_NEAR(z, 2.0 - tz, 1e-5);
+  }
+  Rigid3d away;
+  away.rotation = glm::angleAxis(M_PI, glm::dvec3(0, 1, 0));  // looks -z
+  auto d = r->RenderProxyDepth(Cam(), away);
+  ASSERT_TRUE(d.ok());
+  for (float z : d->span()) EXPECT_EQ(z, 0.0f);
+  EXPECT_TRUE(r->ValidationErrors().empty());
+}
+
 TEST(VulkanRendererTest, CellIdPassMatchesCpuRasterizer) {
   const LumigraphModel m = PlaneModel(0.3);  // z = 2 m is not on a cell boundary
   auto r = Make(m);
