@@ -3,7 +3,7 @@
 //   exoview_uploader --server=HOST:PORT (--synthetic[=village|apartment] | --dataset=DIR
 //                    --format=7scenes|tum|exo) [--trajectory=flyover|walk] [--frames=N]
 //                    [--first=I] [--width=W --height=H] [--rate_hz=R] [--jpeg_quality=Q]
-//                    [--max_in_flight=N] [--stats_json=FILE] [--progress]
+//                    [--max_in_flight=N] [--stats_json=FILE] [--send_log=FILE] [--progress]
 // Exit status: 0 when the stream completed (rejections are reported, not fatal), 1 on error.
 #include <cstdio>
 #include <cstring>
@@ -95,5 +95,10 @@ int main(int argc, char** argv) {
   const std::string json = stats->ToJson();
   std::printf("%s\n", json.c_str());
   if (a.count("stats_json")) std::ofstream(a["stats_json"]) << json << "\n";
+  if (a.count("send_log")) {  // "timestamp_s steady_ns" per frame (CLOCK_MONOTONIC)
+    std::ofstream log(a["send_log"]);
+    log.precision(17);
+    for (const auto& [t, ns] : stats->send_times) log << t << " " << ns << "\n";
+  }
   return 0;
 }

@@ -112,6 +112,9 @@ absl::StatusOr<UploadAckStats> UploadStream(
       cv.wait(lock, [&] { return in_flight < static_cast<uint64_t>(options.max_in_flight); });
       ++in_flight;
       sent_at[msg->sequence()] = Clock::now();
+      st.send_times.emplace_back(msg->timestamp_s(),
+                                 std::chrono::duration_cast<std::chrono::nanoseconds>(
+                                     Clock::now().time_since_epoch()).count());
     }
     st.bytes_sent += msg->ByteSizeLong();
     if (!stream->Write(*msg)) {

@@ -34,6 +34,8 @@ struct UploadAckStats {
   uint64_t sent = 0, accepted = 0, rejected = 0, dropped = 0;
   std::map<std::string, uint64_t> reject_reasons;
   std::vector<v1::Ack> acks;    // in arrival order
+  // (frame timestamp_s, steady-clock ns when written): cross-process latency joins on one host.
+  std::vector<std::pair<double, int64_t>> send_times;
   double elapsed_s = 0;
   uint64_t bytes_sent = 0;
   double ack_latency_p50_ms = 0, ack_latency_p95_ms = 0;

@@ -3,7 +3,7 @@
 // with the Vulkan engine (lavapipe) or the CPU reference renderer and writes PNG frames, an MJPEG
 // stream, per-frame timings and (for the synthetic scene) MSSIM against ground truth.
 //   exoview_viewer --server=HOST:PORT [--journal=FILE] [--state_json=FILE]
-//                  [--follow] [--until_frames=N] [--max_seconds=S] [--settle_ms=MS]
+//                  [--delta_log=FILE] [--follow] [--until_frames=N] [--max_seconds=S] [--settle_ms=MS]
 //                  [--path=synthetic:SCENE:TRAJECTORY] [--render_frames=N]
 //                  [--width=W --height=H] [--out=DIR] [--renderer=auto|vulkan|cpu] [--no_png]
 // --follow: keep following the stream until SIGTERM/--max_seconds (default: stop when synced,
@@ -77,6 +77,14 @@ int main(int argc, char** argv) {
   g_session = session->get();
   signal(SIGTERM, OnSignal);
   signal(SIGINT, OnSignal);
+  std::ofstream delta_log;
+  if (a.count("delta_log")) {  // "source_timestamp_s steady_ns bytes" per delta (CLOCK_MONOTONIC)
+    delta_log.open(a["delta_log"]);
+    delta_log.precision(17);
+    (*session)->SetOnDelta([&](const exo::v1::Delta& d, int64_t recv_ns) {
+      delta_log << d.source_timestamp_s() << " " << recv_ns << " " << d.ByteSizeLong() << "\n";
+    });
+  }
   exo::SyncOptions so;
   so.until_synced = !a.count("follow");
   so.max_seconds = num("max_seconds", 60);
