@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <thread>
 
 namespace exo::inpaint {
 
@@ -112,13 +113,28 @@ int PrefillDepth(ImageF& depth_m, const std::vector<uint8_t>& fill_here,
   return filled;
 }
 
+namespace {
+// Runs fn(y) for every row, rows split into contiguous blocks over `threads` threads.
+template <typename Fn>
+void ParallelRows(int h, int threads, const Fn& fn) {
+  const int t_count = std::max(1, std::min(threads, h));
+  auto worker = [&](int t) {
+    for (int y = t * h / t_count; y < (t + 1) * h / t_count; ++y) fn(y);
+  };
+  std::vector<std::thread> pool;
+  for (int t = 1; t < t_count; ++t) pool.emplace_back(worker, t);
+  worker(0);
+  for (auto& th : pool) th.join();
+}
+}  // namespace
+
 ImageF NormalsFromDepth(const ImageF& depth_m, const PinholeCamera& camera, int step,
-                        float rel_discontinuity) {
+                        float rel_discontinuity, int num_threads) {
   const int w = depth_m.width(), h = depth_m.height();
   auto valid = [](float z) { return std::isfinite(z) && z > 0.f; };
   // 5x5 smoothing that only averages neighbours on the same surface (relative test).
   ImageF smooth(w, h, 1, 0.f);
-  for (int y = 0; y < h; ++y) {
+  ParallelRows(h, num_threads, [&](int y) {
     for (int x = 0; x < w; ++x) {
       const float zc = depth_m.at(x, y);
       if (!valid(zc)) continue;
@@ -141,7 +157,7 @@ ImageF NormalsFromDepth(const ImageF& depth_m, const PinholeCamera& camera, int 
       }
       smooth.at(x, y) = s / cnt;
     }
-  }
+  });
   ImageF normals(w, h, 3, 0.f);
   const double ifx = 1.0 / camera.fx, ify = 1.0 / camera.fy;
   auto point = [&](int x, int y) {
@@ -153,7 +169,7 @@ ImageF NormalsFromDepth(const ImageF& depth_m, const PinholeCamera& camera, int 
     const float z = smooth.at(x, y);
     return valid(z) && std::fabs(z - zc) <= rel_discontinuity * zc * step;
   };
-  for (int y = 0; y < h; ++y) {
+  ParallelRows(h, num_threads, [&](int y) {
     for (int x = 0; x < w; ++x) {
       const float zc = smooth.at(x, y);
       if (!valid(zc)) continue;
@@ -178,7 +194,7 @@ ImageF NormalsFromDepth(const ImageF& depth_m, const PinholeCamera& camera, int 
       normals.at(x, y, 1) = static_cast<float>(n.y);
       normals.at(x, y, 2) = static_cast<float>(n.z);
     }
-  }
+  });
   return normals;
 }
 

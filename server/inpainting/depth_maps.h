@@ -31,8 +31,9 @@ int PrefillDepth(ImageF& depth_m, const std::vector<uint8_t>& fill_here,
 // `rel_discontinuity` * z (Kinect depth is quantised); the normal is the cross product of
 // central differences at +-`step` px, falling back to one-sided differences across a relative
 // discontinuity. Pixels without a usable neighbourhood get (0,0,0).
+// `num_threads` splits the rows; the result does not depend on it.
 ImageF NormalsFromDepth(const ImageF& depth_m, const PinholeCamera& camera, int step = 2,
-                        float rel_discontinuity = 0.05f);
+                        float rel_discontinuity = 0.05f, int num_threads = 1);
 
 // Depth-unit check: the median of the valid depth must not exceed `max_median_depth_m`
 // (millimetre depth passed as metres is the usual cause). Negative depth is rejected too.

@@ -713,7 +713,8 @@ absl::StatusOr<InpaintResult> InpaintKeyframe(const RgbdKeyframe& frame, const I
     if (target[i]) z = 0.f;  // T's own depth (the object to remove / a hole) is never used
   }
   out.stats.prefilled_pixels = PrefillDepth(out.depth_m, outside, outside);
-  const ImageF normals0 = NormalsFromDepth(out.depth_m, frame.camera, 2, options.normal_rel_discontinuity);
+  const ImageF normals0 = NormalsFromDepth(out.depth_m, frame.camera, 2, options.normal_rel_discontinuity,
+                                          options.num_threads);
 
   std::vector<Level> levels(1);
   {
@@ -927,7 +928,8 @@ absl::StatusOr<InpaintResult> InpaintKeyframe(const RgbdKeyframe& frame, const I
     cc.cy -= y0;
     cc.width = nw;
     cc.height = nh;
-    const ImageF nc = NormalsFromDepth(crop, cc, 2, options.normal_rel_discontinuity);
+    const ImageF nc =
+        NormalsFromDepth(crop, cc, 2, options.normal_rel_discontinuity, options.num_threads);
     const int inner = 4;  // the crop's own border lacks neighbours: keep the full-image values
     for (int y = 0; y < nh; ++y) {
       if ((y0 + y >= inner && y < inner) || (y0 + y < h - inner && y >= nh - inner)) continue;
