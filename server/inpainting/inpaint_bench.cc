@@ -28,6 +28,7 @@
 #include <opencv2/imgproc.hpp>
 #include <opencv2/photo.hpp>
 
+#include "common/metrics/metrics.h"
 #include "server/inpainting/depth_maps.h"
 #include "server/inpainting/inpaint.h"
 
@@ -255,28 +256,10 @@ struct Metrics {
   double depth_valid_frac = NAN;
 };
 
-cv::Mat SsimMap(const cv::Mat& a_rgb, const cv::Mat& b_rgb) {
-  cv::Mat a, b;
-  cv::cvtColor(a_rgb, a, cv::COLOR_RGB2GRAY);
-  cv::cvtColor(b_rgb, b, cv::COLOR_RGB2GRAY);
-  a.convertTo(a, CV_64F);
-  b.convertTo(b, CV_64F);
-  const double C1 = 6.5025, C2 = 58.5225;
-  cv::Mat mu1, mu2, s11, s22, s12;
-  cv::GaussianBlur(a, mu1, cv::Size(11, 11), 1.5);
-  cv::GaussianBlur(b, mu2, cv::Size(11, 11), 1.5);
-  cv::GaussianBlur(a.mul(a), s11, cv::Size(11, 11), 1.5);
-  cv::GaussianBlur(b.mul(b), s22, cv::Size(11, 11), 1.5);
-  cv::GaussianBlur(a.mul(b), s12, cv::Size(11, 11), 1.5);
-  cv::Mat mu11 = mu1.mul(mu1), mu22 = mu2.mul(mu2), mu12 = mu1.mul(mu2);
-  s11 -= mu11;
-  s22 -= mu22;
-  s12 -= mu12;
-  cv::Mat num = (2 * mu12 + C1).mul(2 * s12 + C2);
-  cv::Mat den = (mu11 + mu22 + C1).mul(s11 + s22 + C2);
-  cv::Mat out;
-  cv::divide(num, den, out);
-  return out;
+exo::ImageU8 U8FromMat(const cv::Mat& m) {
+  exo::ImageU8 im(m.cols, m.rows, m.channels());
+  for (int y = 0; y < m.rows; ++y) std::memcpy(im.row(y), m.ptr(y), im.stride());
+  return im;
 }
 
 ImageF FromMat(const cv::Mat& m) {
@@ -290,19 +273,18 @@ Metrics Evaluate(const cv::Mat& mask, const cv::Mat* color_rgb, const cv::Mat* d
   Metrics r;
   const int w = 640, h = 480;
   if (color_rgb) {
-    double se = 0;
-    int n = 0;
-    cv::Mat ssim = SsimMap(*color_rgb, gt.color_rgb);
-    double ss = 0;
+    // PSNR and SSIM from common/metrics (SSIM map on BT.601 luma, averaged over the mask).
+    const exo::ImageU8 a8 = U8FromMat(*color_rgb), b8 = U8FromMat(gt.color_rgb), m8 = U8FromMat(mask);
+    auto psnr = exo::MaskedPsnr(a8, b8, m8);
+    auto ssim = exo::MaskedSsim(a8, b8, m8);
+    r.psnr = psnr.ok() ? *psnr : NAN;
+    r.ssim = ssim.ok() ? *ssim : NAN;
     double seam = 0, seam_gt = 0;
     int ns = 0;
     for (int y = 0; y < h; ++y)
       for (int x = 0; x < w; ++x) {
         if (!mask.at<uint8_t>(y, x)) continue;
         const cv::Vec3b a = color_rgb->at<cv::Vec3b>(y, x), b = gt.color_rgb.at<cv::Vec3b>(y, x);
-        for (int c = 0; c < 3; ++c) se += (a[c] - b[c]) * (a[c] - b[c]);
-        n += 3;
-        ss += ssim.at<double>(y, x);
         const int nx[4] = {x - 1, x + 1, x, x}, ny[4] = {y, y, y - 1, y + 1};
         for (int k = 0; k < 4; ++k) {
           if (nx[k] < 0 || ny[k] < 0 || nx[k] >= w || ny[k] >= h || mask.at<uint8_t>(ny[k], nx[k])) continue;
@@ -314,8 +296,6 @@ Metrics Evaluate(const cv::Mat& mask, const cv::Mat* color_rgb, const cv::Mat* d
           ++ns;
         }
       }
-    r.psnr = 10 * std::log10(255.0 * 255.0 / std::max(1e-12, se / n));
-    r.ssim = ss / (n / 3);
     r.seam_color = seam / ns;
     r.seam_color_gt = seam_gt / ns;
   }
