@@ -468,12 +468,14 @@ double Refiner::SolveExposure(int level, const Pose& pose, double e, bool warm_s
     ceres::Solve(so, &problem, &sum);
     res_.iterations += static_cast<int>(sum.iterations.size());
   }
-  if (!std::isfinite(x) || !(x > 0) ||
-      LogExposureEnergy(lc, lm, x, scale) > LogExposureEnergy(lc, lm, e, scale)) {
+  RefinementStage st{level, false, LogExposureEnergy(lc, lm, e, scale), 0.0, true};
+  st.after = std::isfinite(x) && x > 0 ? LogExposureEnergy(lc, lm, x, scale) : st.before + 1.0;
+  if (st.after > st.before) {
+    st.accepted = false;
     res_.step_reverted = true;  // guard: never accept a stage that raises its energy
-    return e;
   }
-  return x;
+  res_.stages.push_back(st);
+  return st.accepted ? x : e;
 }
 
 Pose Refiner::SolvePose(int level, double e, const Pose& pose) {
@@ -508,8 +510,11 @@ Pose Refiner::SolvePose(int level, double e, const Pose& pose) {
   Pose out;
   out.q = Eigen::Quaterniond(q[3], q[0], q[1], q[2]).normalized();
   out.t = {t[0], t[1], t[2]};
-  if (!out.t.allFinite() || !out.q.coeffs().allFinite() ||
-      CompareEnergy(level, e, pose, e, out, scale).Raised()) {
+  const bool finite = out.t.allFinite() && out.q.coeffs().allFinite();
+  const EnergyPair ep = finite ? CompareEnergy(level, e, pose, e, out, scale) : EnergyPair{};
+  RefinementStage st{level, true, ep.before, ep.after, finite && !ep.Raised()};
+  res_.stages.push_back(st);
+  if (!st.accepted) {
     res_.step_reverted = true;  // guard: never accept a stage that raises J
     return pose;
   }

@@ -15,6 +15,7 @@
 #include <cstdint>
 #include <span>
 #include <string>
+#include <vector>
 
 #include "common/lumigraph/model.h"
 #include "common/rigid3.h"
@@ -67,6 +68,15 @@ struct RefinementOptions {
   absl::Status Validate() const;
 };
 
+// One optimisation stage as evaluated by the cost guard (its own energy, before and after, on
+// the samples valid at both). `accepted` = false: the stage raised it and was undone.
+struct RefinementStage {
+  int level = 0;
+  bool pose = false;  // pose stage (J of 3.17) or exposure stage (log-domain energy)
+  double before = 0.0, after = 0.0;
+  bool accepted = true;
+};
+
 struct RefinementResult {
   double exposure = 1.0;       // E_I (linear factor applied to the candidate when blending)
   Rigid3d local_from_cam;      // corrected pose
@@ -85,6 +95,7 @@ struct RefinementResult {
   double relative_residual = 0.0;  // median |r_j| / median(m_j) at the end
   double pose_min_eigenvalue = 0.0;  // rank check figures (pixel-normalised, per sample)
   double pose_condition = 0.0;
+  std::vector<RefinementStage> stages;
   double ms = 0.0;              // wall time of the call
   double cpu_ms = 0.0;          // CPU time of the calling thread (robust to a loaded machine)
 };
