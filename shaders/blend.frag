@@ -112,17 +112,34 @@ void main() {
   BestSamples best;
   best.weight = vec4(0.0);
   best.s0 = best.s1 = best.s2 = best.s3 = vec4(0.0);
+  // Weight of the n-th best so far (0 while a slot is free): a reference whose weight, even if
+  // valid, is not above it cannot enter the best n (InsertSample needs w > weight of some slot,
+  // the slots are sorted), so its validity test (projection + depth fetch) is skipped. Exact:
+  // the selection is unchanged; it halves the per-reference work once n good views are found.
+  float nth = 0.0;
   for (uint i = 0u; i < count; ++i) {
     const uint slot = texelFetch(ref_slots, int(offset + i)).x;
     if (slot == 0xFFFFFFFFu) continue;
     const int base = int(slot) * kViewTexels;
+    // ---- weights: DirectionalWeight / PositionalWeight / CombinedWeight with v = 1 ----
+    const vec4 centre_exposure = texelFetch(view_texels, base + 3);
+    const vec3 b = centre_exposure.xyz - x;
+    const float lb = length(b);  // also the range of x from the view (a rotation keeps lengths)
+    const float w_d = (!(la > kMinDistance) || !(lb > kMinDistance))
+                          ? 0.0 : max(0.0, dot(a, b) / (la * lb));
+    const float w_p = frame.iparams.x == kPositionalPrinted
+                          ? max(0.0, 1.0 - lb / d_o)
+                          : max(0.0, 1.0 - max(0.0, lb - d_o) / d_o);
+    const float w = CombinedWeight(1.0, w_d, w_p, frame.weights.x, frame.weights.y);
+    if (!(w > nth)) continue;
+    // Removed views are also unlinked from every slab (~0); the flag is a second guard.
     const vec4 size_layer = texelFetch(view_texels, base + 4);
     if (size_layer.w == 0.0) continue;
     // ---- validity (3.4), blend_math.h Validity() with the discontinuity test baked into the
     // depth layer. Projection by P = K [R^T | -R^T c]: hp = (z u, z v, z) with z the camera
     // z-depth, so in_front is z > kMinDistance and uv = hp.xy / z, algebraically the same as
-    // K (R^T (x - c)). The range of x is |x - c| (a rotation keeps lengths), and the stored
-    // range along the same ray is z_stored * range / z (= z_stored * |ray|, RangeFromZDepth).
+    // K (R^T (x - c)). The range of x is |x - c| = lb, and the stored range along the same ray
+    // is z_stored * range / z (= z_stored * |ray|, RangeFromZDepth).
     const vec4 hx = vec4(x, 1.0);
     const float z = dot(texelFetch(view_texels, base + 2), hx);
     if (!(z > kMinDistance)) continue;
@@ -133,22 +150,14 @@ void main() {
     const vec2 pc = clamp(floor(uv + 0.5), vec2(0.0), size - 1.0);
     const float z_stored = texelFetch(depths, ivec3(ivec2(pc), int(size_layer.z)), 0).r;
     if (!ValidDepth(z_stored)) continue;
-    const vec4 centre_exposure = texelFetch(view_texels, base + 3);
-    const vec3 b = centre_exposure.xyz - x;
-    const float range_m = length(b);
+    const float range_m = lb;
     const float range_d = z_stored * range_m / z;
     if (range_m > range_d + frame.weights.z + frame.weights.w * range_d) continue;
-    // ---- weights: DirectionalWeight / PositionalWeight / CombinedWeight with v = 1 ----
-    const float lb = range_m;
-    const float w_d = (!(la > kMinDistance) || !(lb > kMinDistance))
-                          ? 0.0 : max(0.0, dot(a, b) / (la * lb));
-    const float w_p = frame.iparams.x == kPositionalPrinted
-                          ? max(0.0, 1.0 - lb / d_o)
-                          : max(0.0, 1.0 - max(0.0, lb - d_o) / d_o);
-    const float w = CombinedWeight(1.0, w_d, w_p, frame.weights.x, frame.weights.y);
     InsertSample(best, n, w,
                  vec4(clamp(uv, vec2(0.0), size - 1.0), size_layer.z, centre_exposure.w));
+    nth = n == 1 ? best.weight.x : n == 2 ? best.weight.y : n == 3 ? best.weight.z : best.weight.w;
   }
+
 
   BlendAccumulator acc;
   acc.sum_linear = vec3(0.0);
