@@ -23,7 +23,8 @@ void Usage() {
                "      cell_size_m max_log_deltas max_log_bytes max_subscriber_lag snapshot_when_cheaper\n"
                "      publish_jpeg_quality publish_depth_downscale geometry voxel_size_m max_depth_m\n"
                "      mesh_every_n_frames fuse_depth_downscale chunk_republish_change chunk_republish_interval_s planning max_views max_store_bytes r_max d_max_m\n"
-               "      sigma_m delta_tau_sum id_buffer_stride refinement\n");
+               "      sigma_m delta_tau_sum id_buffer_stride udp_pose_port udp_pose_address\n"
+               "      udp_pose_tolerance_s\n");
 }
 
 }  // namespace
@@ -78,6 +79,8 @@ int main(int argc, char** argv) {
   for (const auto& n : exo::AvailableStages()) stages += " " + n;
   std::fprintf(stderr, "exoview_server: listening on port %d, stages built:%s\n", server.port(),
                stages.empty() ? " (none)" : stages.c_str());
+  if (server.udp_pose_port() >= 0)
+    std::fprintf(stderr, "exoview_server: UDP poses on port %d\n", server.udp_pose_port());
   if (!port_file.empty()) {
     const std::string tmp = port_file + ".tmp";
     std::ofstream(tmp) << server.port() << "\n";

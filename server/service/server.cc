@@ -13,6 +13,7 @@
 #include "absl/strings/strip.h"
 #include "proto/exoview.grpc.pb.h"
 #include "server/service/stages.h"
+#include "server/service/udp_pose_input.h"
 
 namespace exo {
 namespace {
@@ -80,7 +81,15 @@ absl::Status ApplyConfigValue(const std::string& key, const std::string& value, 
   if (key == "sigma_m") return ParseNumber(key, value, &c->planning.sigma_m);
   if (key == "delta_tau_sum") return ParseNumber(key, value, &c->planning.delta_tau_sum);
   if (key == "id_buffer_stride") return ParseNumber(key, value, &c->planning.id_buffer_stride);
-  if (key == "refinement") return ParseNumber(key, value, &c->enable_refinement);
+  if (key == "udp_pose_address") { c->udp_pose_address = value; return absl::OkStatus(); }
+  if (key == "udp_pose_tolerance_s") return ParseNumber(key, value, &c->udp_pose_tolerance_s);
+  if (key == "udp_pose_port") {
+    int64_t p;
+    if (!absl::SimpleAtoi(value, &p) || p < -1 || p > 65535)
+      return absl::InvalidArgumentError("config udp_pose_port: -1 (off) or 0..65535");
+    c->udp_pose_port = static_cast<int>(p);
+    return absl::OkStatus();
+  }
   return absl::InvalidArgumentError(absl::StrCat("unknown config key '", key, "'"));
 }
 
@@ -110,12 +119,15 @@ absl::Status LoadConfigFile(const std::string& path, ServerConfig* c) {
 class ExoviewServer::Service final : public v1::Exoview::Service {
  public:
   Service(const ServerConfig& config, ModelStore* store, Pipeline* pipeline,
-          const std::atomic<bool>* shutting_down)
-      : config_(config), store_(store), pipeline_(pipeline), shutting_down_(shutting_down) {}
+          const std::atomic<bool>* shutting_down, const UdpPoseInput* udp)
+      : config_(config), store_(store), pipeline_(pipeline), shutting_down_(shutting_down),
+        udp_(udp) {}
 
   grpc::Status Upload(grpc::ServerContext* ctx,
                       grpc::ServerReaderWriter<v1::Ack, v1::Frame>* stream) override {
-    IngestStream ingest(config_.ingest);
+    IngestOptions io = config_.ingest;
+    io.decode.pose_required = udp_ == nullptr;
+    IngestStream ingest(io);
     v1::Frame msg;
     while (stream->Read(&msg)) {
       received_.fetch_add(1);
@@ -129,6 +141,10 @@ class ExoviewServer::Service final : public v1::Exoview::Service {
       } else if (auto frame = ingest.Admit(msg, msg.ByteSizeLong()); !frame.ok()) {
         ack.set_status(v1::Ack::REJECTED);
         ack.set_reason(std::string(frame.status().message()));
+        rejected_.fetch_add(1);
+      } else if (absl::Status pose = FillPoseFromUdp(msg, &*frame); !pose.ok()) {
+        ack.set_status(v1::Ack::REJECTED);
+        ack.set_reason(std::string(pose.message()));
         rejected_.fetch_add(1);
       } else {
         auto pf = std::make_shared<PipelineFrame>();
@@ -183,10 +199,22 @@ class ExoviewServer::Service final : public v1::Exoview::Service {
   }
 
  private:
+  // A frame without a pose takes it from the UDP pose stream at its timestamp (SPEC §2).
+  absl::Status FillPoseFromUdp(const v1::Frame& msg, Frame* frame) const {
+    if (msg.has_world_from_cam() || udp_ == nullptr) return absl::OkStatus();
+    auto pose = udp_->PoseAt(frame->timestamp_s, config_.udp_pose_tolerance_s);
+    if (!pose.ok())
+      return absl::InvalidArgumentError(
+          absl::StrCat("no pose for the frame from the UDP pose stream: ", pose.status().message()));
+    frame->world_from_cam = *pose;
+    return frame->Validate();
+  }
+
   const ServerConfig& config_;
   ModelStore* store_;
   Pipeline* pipeline_;
   const std::atomic<bool>* shutting_down_;
+  const UdpPoseInput* udp_;
   std::atomic<uint64_t> received_{0}, accepted_{0}, rejected_{0}, dropped_{0}, bytes_published_{0};
 };
 
@@ -199,7 +227,11 @@ absl::Status ExoviewServer::Start() {
   store_ = std::make_unique<ModelStore>(config_.store);
   EXO_ASSIGN_OR_RETURN(auto stages, MakeStages(config_));
   pipeline_ = std::make_unique<Pipeline>(config_.pipeline, store_.get(), std::move(stages));
-  service_ = std::make_unique<Service>(config_, store_.get(), pipeline_.get(), &shutting_down_);
+  if (config_.udp_pose_port >= 0) {
+    EXO_ASSIGN_OR_RETURN(udp_, UdpPoseInput::Start(config_.udp_pose_address, config_.udp_pose_port));
+  }
+  service_ = std::make_unique<Service>(config_, store_.get(), pipeline_.get(), &shutting_down_,
+                                       udp_.get());
   grpc::EnableDefaultHealthCheckService(true);
   grpc::ServerBuilder builder;
   builder.AddListeningPort(config_.listen, grpc::InsecureServerCredentials(), &port_);
@@ -219,7 +251,10 @@ void ExoviewServer::Shutdown() {
   if (store_) store_->CloseAll();  // wakes subscription loops
   if (server_) server_->Shutdown(std::chrono::system_clock::now() + std::chrono::seconds(2));
   if (pipeline_) pipeline_->Stop();  // every admitted frame is processed before we return
+  udp_.reset();
 }
+
+int ExoviewServer::udp_pose_port() const { return udp_ ? udp_->port() : -1; }
 
 void ExoviewServer::Wait() {
   if (server_) server_->Wait();

@@ -37,7 +37,10 @@ struct ServerConfig {
   GeometryStageOptions geometry;
   bool enable_planning = true;
   PlanningStageOptions planning;     // planning.publish is taken from `publish`
-  bool enable_refinement = true;
+  // Optional UDP pose input: -1 = off; 0 = any free port (see ExoviewServer::udp_pose_port).
+  int udp_pose_port = -1;
+  std::string udp_pose_address = "127.0.0.1";
+  double udp_pose_tolerance_s = 0.02;  // a frame with no pose sample this close is rejected
   absl::Status Validate() const;
 };
 
@@ -54,6 +57,7 @@ class ExoviewServer {
   ~ExoviewServer();
   absl::Status Start();
   int port() const { return port_; }
+  int udp_pose_port() const;
   // Graceful: stops taking frames, ends subscriptions, drains the pipeline, stops gRPC.
   void Shutdown();
   void Wait();
@@ -61,6 +65,7 @@ class ExoviewServer {
 
  private:
   class Service;
+  std::unique_ptr<class UdpPoseInput> udp_;
   ServerConfig config_;
   std::unique_ptr<ModelStore> store_;
   std::unique_ptr<Pipeline> pipeline_;

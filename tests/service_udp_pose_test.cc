@@ -1,0 +1,80 @@
+// UDP pose input on the real server process (SPEC §2): frames uploaded without a pose get it from
+// the UDP pose stream at their timestamp; a frame with no pose sample within the tolerance is
+// rejected with a clear reason and the stream goes on.
+#include <filesystem>
+#include <regex>
+#include <utility>  // before Boost.Asio 1.74 (awaitable.hpp needs std::exchange)
+
+#include <boost/asio.hpp>
+#include <grpcpp/grpcpp.h>
+#include <gtest/gtest.h>
+
+#include "client/uploader/upload_client.h"
+#include "proto/exoview.grpc.pb.h"
+#include "tests/subprocess.h"
+
+namespace exo {
+namespace {
+
+v1::Frame PoselessFrame(uint64_t seq, double t) {
+  Frame f;
+  f.sequence = seq;
+  f.timestamp_s = t;
+  f.color_camera = PinholeCamera::FromFov(64, 48, 1.2);
+  f.depth_camera = f.color_camera;
+  f.color = ImageU8(64, 48, 3, 128);
+  f.depth_m = ImageF(64, 48, 1, 2.0f);
+  auto m = FrameToProto(f, {});
+  EXO_CHECK(m.ok());
+  m->clear_world_from_cam();
+  return *m;
+}
+
+TEST(ServiceUdpPose, PoselessFramesTakeTheirPoseFromUdp) {
+  char tmpl[] = "/tmp/exoview_udp_XXXXXX";
+  ASSERT_NE(mkdtemp(tmpl), nullptr);
+  const std::string dir = tmpl;
+  testing::Subprocess server(EXOVIEW_SERVER_BIN,
+                             {"--listen=127.0.0.1:0", "--port_file=" + dir + "/port",
+                              "--udp_pose_port=0", "--udp_pose_tolerance_s=0.02"},
+                             dir + "/server.log");
+  ASSERT_TRUE(testing::WaitForFile(dir + "/port", 20)) << server.Log();
+  std::smatch m;
+  const std::string log = server.Log();
+  ASSERT_TRUE(std::regex_search(log, m, std::regex("UDP poses on port ([0-9]+)"))) << log;
+  const int udp_port = std::stoi(m[1]);
+  const std::string target = "127.0.0.1:" + std::to_string(std::stoi(testing::ReadAll(dir + "/port")));
+
+  // Poses at 120 Hz for t in [1, 2] s and [3, 4] s (a one-second gap in between).
+  boost::asio::io_context io;
+  boost::asio::ip::udp::socket s(io, boost::asio::ip::udp::v4());
+  const boost::asio::ip::udp::endpoint to(boost::asio::ip::make_address("127.0.0.1"),
+                                          static_cast<unsigned short>(udp_port));
+  for (double start : {1.0, 3.0})
+    for (int i = 0; i <= 120; ++i) {
+      const std::string d =
+          std::to_string(start + i / 120.0) + " " + std::to_string(0.01 * i) + " 0 0 0 0 0 1";
+      s.send_to(boost::asio::buffer(d), to);
+    }
+  std::this_thread::sleep_for(std::chrono::milliseconds(200));
+
+  std::vector<v1::Frame> frames{PoselessFrame(1, 1.5), PoselessFrame(2, 2.5), PoselessFrame(3, 3.5)};
+  UploadOptions opt;
+  opt.rate_hz = 0;
+  opt.max_in_flight = 1;
+  auto st = UploadStream(MakeChannel(target), frames.size(),
+                         [&](size_t i) -> absl::StatusOr<v1::Frame> { return frames[i]; }, opt);
+  ASSERT_TRUE(st.ok()) << st.status();
+  ASSERT_EQ(st->acks.size(), 3u);
+  EXPECT_EQ(st->acks[0].status(), v1::Ack::ACCEPTED) << st->acks[0].reason();
+  EXPECT_EQ(st->acks[1].status(), v1::Ack::REJECTED);
+  EXPECT_NE(st->acks[1].reason().find("no pose for the frame from the UDP pose stream"),
+            std::string::npos) << st->acks[1].reason();
+  EXPECT_EQ(st->acks[2].status(), v1::Ack::ACCEPTED) << st->acks[2].reason();
+  server.Signal(SIGTERM);
+  EXPECT_EQ(server.Wait(15), 0) << server.Log();
+  std::filesystem::remove_all(dir);
+}
+
+}  // namespace
+}  // namespace exo
