@@ -59,7 +59,7 @@ void Panel(cv::Mat& img, cv::Rect r, const std::string& title, const std::string
   const double py = 0.08 * (y1 - y0);
   y0 -= py;
   y1 += py;
-  const int L = r.x + 60, R = r.x + r.width - 15, T = r.y + 30, B = r.y + r.height - 45;
+  const int L = r.x + 60, R = r.x + r.width - 15, T = r.y + 48, B = r.y + r.height - 45;
   auto px = [&](double x) { return L + (tx(x) - x0) / (x1 - x0) * (R - L); };
   auto py_ = [&](double y) { return B - (y - y0) / (y1 - y0) * (B - T); };
   cv::rectangle(img, cv::Point(L, T), cv::Point(R, B), cv::Scalar(0, 0, 0), 1);
@@ -156,9 +156,8 @@ int main(int argc, char** argv) {
         if (Field(l, "dataset") != scenes[k] || Field(l, "proxy") != "tsdf") continue;
         std::string name = Field(l, "policy");
         const std::string tag = Field(l, "tag");
-        if (tag == "sweep_store" || tag == "sweep_r_max") name = tag.substr(6);
+        if (tag == "sweep_store" || tag == "sweep_r_max") name = "online, " + tag.substr(6) + " sweep";
         else if (tag.rfind("sweep", 0) == 0) continue;
-        if (name == "online" && Num(l, "voxel_m") > 0) name = "online (voxel sweep)";
         auto it = by.find(name);
         if (it == by.end()) it = by.emplace(name, Series{name, kColors[c++ % 7], {}, false}).first;
         it->second.pts.push_back({Num(l, "integrate_ms_median") + Num(l, "plan_ms_median"),

@@ -174,29 +174,27 @@ std::vector<std::vector<std::string>> Suite(const std::string& name, const std::
              "--test_views", "6", "--test_w", "160", "--test_h", "120", "--policies",
              "online,every_n"}};
   }
-  // full, in priority order: main comparison on both scenes (scene-wide test poses, every
-  // policy on the same 200 poses), 7-Scenes hold-out, near-trajectory test poses, sweeps (fewer
-  // frames and test views), the ground-truth proxy, voxel sizes.
+  // full: exactly the runs of docs/evaluation.md, in priority order: main comparison on both
+  // scenes (scene-wide test poses, every bounded policy on the same 200 poses), 7-Scenes
+  // hold-out, sweeps (200 frames, 20 test views), all-frames vs online on the ground-truth proxy
+  // (20 views: rendering from every frame is slow), near-trajectory test poses (50 views).
   std::vector<std::vector<std::string>> s;
-  for (const char* sc : {"village", "apartment"})
-    s.push_back({"--scene", sc, "--frames", "400", "--policies", all, "--store", "200",
-                 "--test_views", "200"});
+  const std::string bounded = "online,offline_greedy,every_n,min_distance";
+  s.push_back({"--scene", "village", "--frames", "400", "--policies", bounded, "--store", "200",
+               "--test_views", "200"});
+  s.push_back({"--scene", "apartment", "--frames", "400", "--voxel", "0.04", "--policies",
+               bounded, "--store", "200", "--test_views", "200"});
   if (!data.empty())
     s.push_back({"--sevenscenes", data + "/7scenes-redkitchen", "--store", "50", "--policies", all});
+  for (const char* sc : {"apartment", "village"})
+    s.push_back({"--scene", sc, "--frames", "200", "--policies", "", "--sweep",
+                 "store,r_max,dts,lambda,cell", "--test_views", "20", "--vertex_color", "0"});
+  s.push_back({"--scene", "village", "--frames", "400", "--proxy", "gt", "--policies",
+               "online,all", "--store", "100", "--test_views", "20"});
   for (const char* sc : {"village", "apartment"})
-    s.push_back({"--scene", sc, "--frames", "400", "--policies", "online,offline_greedy",
-                 "--store", "200", "--test_views", "200", "--test_poses", "near"});
-  for (const char* sc : {"village", "apartment"})
-    s.push_back({"--scene", sc, "--frames", "300", "--policies", "", "--sweep",
-                 "store,r_max,lambda,cell,dts", "--test_views", "30", "--vertex_color", "0"});
-  for (const char* sc : {"village", "apartment"})
-    s.push_back({"--scene", sc, "--frames", "400", "--proxy", "gt", "--policies", "online",
-                 "--store", "200", "--test_views", "200"});
-  for (const char* sc : {"village", "apartment"})
-    for (const char* vx : sc == std::string("village") ? std::vector<const char*>{"0.08", "0.3"}
-                                                        : std::vector<const char*>{"0.05", "0.1"})
-      s.push_back({"--scene", sc, "--frames", "300", "--voxel", vx, "--policies", "online",
-                   "--test_views", "30"});
+    s.push_back({"--scene", sc, "--frames", "300", "--voxel", sc == std::string("village") ? "0.15" : "0.04",
+                 "--policies", "online,offline_greedy", "--store", "200", "--test_views", "50",
+                 "--test_poses", "near"});
   return s;
 }
 
