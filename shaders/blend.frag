@@ -22,6 +22,11 @@ layout(set = 0, binding = 5) uniform sampler2DArray depths;  // R32F baked z-dep
 
 // Deferred: the surface point per pixel from gbuffer.frag (w = 0: no proxy surface).
 layout(set = 0, binding = 6) uniform sampler2D gbuffer;
+// Per-frame ranked references (vulkan_renderer.cc RankRefs), 2 texels per reference slot, same
+// slot index as ref_slots, sorted per cell by an upper bound of the weight this frame:
+//   (c_i.xyz, bound) as float bits; (layer, position in the cell's list, width | height << 16,
+//   exposure bits). bound = -1: reference not resident.
+layout(set = 0, binding = 7) uniform usamplerBuffer ranked_refs;
 layout(location = 0) out vec4 out_color;  // rgb = sRGB, a = coverage (1 blended, 0.5 surface)
 
 const int kViewTexels = 5;
@@ -30,35 +35,43 @@ const int kViewTexels = 5;
 // Same selection as blend_math.h InsertBest (decreasing weight, w <= 0 ignored, ties keep the
 // earlier reference), unrolled over slots with constant indices (see BestStep in
 // lumigraph_common.glsl). An empty slot has weight 0 and every inserted weight is > 0, so
-// "index < 0 || w > weight" is "w > weight". Each slot carries what the blend needs (clamped
+// "index < 0" needs no test. Each slot carries what the blend needs (clamped
 // uv, layer, exposure), so the chosen views are not fetched and projected a second time.
 struct BestSamples {
   vec4 weight;
+  ivec4 index;          // position of the reference in the cell's list (ties: lower first)
   vec4 s0, s1, s2, s3;  // (u, v clamped to the view, layer, exposure)
 };
 
-void SampleStep(inout float bw, inout vec4 bs, inout float cw, inout vec4 cs, inout bool moving,
-                bool enabled) {
-  if (enabled && (moving || cw > bw)) {
+// The references arrive in ranked (not list) order, so equal weights are ordered by the list
+// position explicitly: (weight desc, position asc) is the order blend_math.h's in-order
+// InsertBest produces (a later equal weight never displaces an earlier one).
+void SampleStep(inout float bw, inout int bi, inout vec4 bs, inout float cw, inout int ci,
+                inout vec4 cs, inout bool moving, bool enabled) {
+  if (enabled && (moving || cw > bw || (cw == bw && ci < bi))) {
     const float tw = bw;
+    const int ti = bi;
     const vec4 ts = bs;
     bw = cw;
+    bi = ci;
     bs = cs;
     cw = tw;
+    ci = ti;
     cs = ts;
     moving = true;
   }
 }
 
-void InsertSample(inout BestSamples b, int n, float w, vec4 sample_params) {
+void InsertSample(inout BestSamples b, int n, float w, int idx, vec4 sample_params) {
   if (!(w > 0.0)) return;
   float cw = w;
+  int ci = idx;
   vec4 cs = sample_params;
   bool moving = false;
-  SampleStep(b.weight.x, b.s0, cw, cs, moving, 0 < n);
-  SampleStep(b.weight.y, b.s1, cw, cs, moving, 1 < n);
-  SampleStep(b.weight.z, b.s2, cw, cs, moving, 2 < n);
-  SampleStep(b.weight.w, b.s3, cw, cs, moving, 3 < n);
+  SampleStep(b.weight.x, b.index.x, b.s0, cw, ci, cs, moving, 0 < n);
+  SampleStep(b.weight.y, b.index.y, b.s1, cw, ci, cs, moving, 1 < n);
+  SampleStep(b.weight.z, b.index.z, b.s2, cw, ci, cs, moving, 2 < n);
+  SampleStep(b.weight.w, b.index.w, b.s3, cw, ci, cs, moving, 3 < n);
 }
 
 // Bilinear sample of SrgbToLinear(texels) at clamped continuous pixel uv (centres at integers):
@@ -111,19 +124,19 @@ void main() {
   const float d_o = max(la, kMinDistance);
   BestSamples best;
   best.weight = vec4(0.0);
+  best.index = ivec4(0x7FFFFFFF);  // empty: weight 0 (every inserted weight is > 0)
   best.s0 = best.s1 = best.s2 = best.s3 = vec4(0.0);
-  // Weight of the n-th best so far (0 while a slot is free): a reference whose weight, even if
-  // valid, is not above it cannot enter the best n (InsertSample needs w > weight of some slot,
-  // the slots are sorted), so its validity test (projection + depth fetch) is skipped. Exact:
-  // the selection is unchanged; it halves the per-reference work once n good views are found.
+  // Weight of the n-th best so far (0 while a slot is free). References come in decreasing
+  // order of their per-frame weight BOUND: once a bound is below nth, neither this reference
+  // nor any later one can enter the best n (break); a reference whose actual weight is below
+  // nth is skipped before its validity test. Both exact: the selection is unchanged.
   float nth = 0.0;
   for (uint i = 0u; i < count; ++i) {
-    const uint slot = texelFetch(ref_slots, int(offset + i)).x;
-    if (slot == 0xFFFFFFFFu) continue;
-    const int base = int(slot) * kViewTexels;
+    const int t = int(2u * (offset + i));
+    const uvec4 r0 = texelFetch(ranked_refs, t);
+    if (uintBitsToFloat(r0.w) < nth) break;  // also: bound -1 = not resident (sorted last)
     // ---- weights: DirectionalWeight / PositionalWeight / CombinedWeight with v = 1 ----
-    const vec4 centre_exposure = texelFetch(view_texels, base + 3);
-    const vec3 b = centre_exposure.xyz - x;
+    const vec3 b = uintBitsToFloat(r0.xyz) - x;
     const float lb = length(b);  // also the range of x from the view (a rotation keeps lengths)
     const float w_d = (!(la > kMinDistance) || !(lb > kMinDistance))
                           ? 0.0 : max(0.0, dot(a, b) / (la * lb));
@@ -131,10 +144,10 @@ void main() {
                           ? max(0.0, 1.0 - lb / d_o)
                           : max(0.0, 1.0 - max(0.0, lb - d_o) / d_o);
     const float w = CombinedWeight(1.0, w_d, w_p, frame.weights.x, frame.weights.y);
-    if (!(w > nth)) continue;
-    // Removed views are also unlinked from every slab (~0); the flag is a second guard.
-    const vec4 size_layer = texelFetch(view_texels, base + 4);
-    if (size_layer.w == 0.0) continue;
+    if (!(w >= nth)) continue;
+    const uvec4 r1 = texelFetch(ranked_refs, t + 1);
+    const int layer = int(r1.x);
+    const int base = layer * kViewTexels;
     // ---- validity (3.4), blend_math.h Validity() with the discontinuity test baked into the
     // depth layer. Projection by P = K [R^T | -R^T c]: hp = (z u, z v, z) with z the camera
     // z-depth, so in_front is z > kMinDistance and uv = hp.xy / z, algebraically the same as
@@ -145,19 +158,18 @@ void main() {
     if (!(z > kMinDistance)) continue;
     const vec2 uv = vec2(dot(texelFetch(view_texels, base + 0), hx),
                          dot(texelFetch(view_texels, base + 1), hx)) / z;
-    const vec2 size = size_layer.xy;
+    const vec2 size = vec2(float(r1.z & 0xFFFFu), float(r1.z >> 16));
     if (!(uv.x >= -0.5 && uv.y >= -0.5 && uv.x < size.x - 0.5 && uv.y < size.y - 0.5)) continue;
     const vec2 pc = clamp(floor(uv + 0.5), vec2(0.0), size - 1.0);
-    const float z_stored = texelFetch(depths, ivec3(ivec2(pc), int(size_layer.z)), 0).r;
+    const float z_stored = texelFetch(depths, ivec3(ivec2(pc), layer), 0).r;
     if (!ValidDepth(z_stored)) continue;
     const float range_m = lb;
     const float range_d = z_stored * range_m / z;
     if (range_m > range_d + frame.weights.z + frame.weights.w * range_d) continue;
-    InsertSample(best, n, w,
-                 vec4(clamp(uv, vec2(0.0), size - 1.0), size_layer.z, centre_exposure.w));
+    InsertSample(best, n, w, int(r1.y),
+                 vec4(clamp(uv, vec2(0.0), size - 1.0), float(layer), uintBitsToFloat(r1.w)));
     nth = n == 1 ? best.weight.x : n == 2 ? best.weight.y : n == 3 ? best.weight.z : best.weight.w;
   }
-
 
   BlendAccumulator acc;
   acc.sum_linear = vec3(0.0);

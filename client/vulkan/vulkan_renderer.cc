@@ -174,6 +174,10 @@ class VulkanRenderer::Impl {
   std::vector<uint32_t> free_slabs;
   uint32_t slab_capacity = 0;
   Buffer refs_buf;
+  // Per-frame ranked copy of every slab (RankRefs): 2 RGBA32UI texels per reference slot, same
+  // slot index as refs_buf, sorted per cell by an upper bound of the blend weight this frame.
+  Buffer ranked_buf;
+  std::vector<std::pair<float, uint32_t>> rank_scratch;
 
   // ---- chunks ----
   struct ChunkGpu {
@@ -190,7 +194,7 @@ class VulkanRenderer::Impl {
   VkDescriptorSet desc_set = VK_NULL_HANDLE;
   bool descriptors_dirty = true;
   vk::UniqueSampler sampler, linear_sampler;
-  vk::UniqueBufferView buffer_views[3];  // views, cell table, refs (recreated when regrown)
+  vk::UniqueBufferView buffer_views[4];  // views, cell table, refs, ranked refs (recreated when regrown)
   vk::UniqueRenderPass color_pass, cellid_pass, zdepth_pass, gbuffer_pass;
   vk::UniquePipeline gbuffer_pipe, blend_pipe, cellid_pipe, zdepth_pipe;
   Buffer frame_ubo;
@@ -288,8 +292,8 @@ class VulkanRenderer::Impl {
   }
 
   absl::Status CreateDescriptors() {
-    VkDescriptorSetLayoutBinding b[7]{};
-    for (uint32_t i = 0; i < 7; ++i) {
+    VkDescriptorSetLayoutBinding b[8]{};
+    for (uint32_t i = 0; i < 8; ++i) {
       b[i].binding = i;
       b[i].descriptorCount = 1;
       b[i].stageFlags = VK_SHADER_STAGE_FRAGMENT_BIT;
@@ -303,8 +307,9 @@ class VulkanRenderer::Impl {
         VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER;
     b[4].descriptorType = b[5].descriptorType = b[6].descriptorType =
         VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER;
+    b[7].descriptorType = VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER;  // ranked refs (per frame)
     VkDescriptorSetLayoutCreateInfo li{VK_STRUCTURE_TYPE_DESCRIPTOR_SET_LAYOUT_CREATE_INFO};
-    li.bindingCount = 7;
+    li.bindingCount = 8;
     li.pBindings = b;
     VkDescriptorSetLayout raw_layout;
     EXO_VK_RETURN(vkCreateDescriptorSetLayout(ctx->device(), &li, nullptr, &raw_layout));
@@ -316,7 +321,7 @@ class VulkanRenderer::Impl {
     EXO_VK_RETURN(vkCreatePipelineLayout(ctx->device(), &pli, nullptr, &raw_pl));
     pipe_layout = vk::UniquePipelineLayout(ctx->device(), raw_pl);
     VkDescriptorPoolSize sizes[3] = {{VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER, 1},
-                                     {VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER, 3},
+                                     {VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER, 4},
                                      {VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER, 3}};
     VkDescriptorPoolCreateInfo pi{VK_STRUCTURE_TYPE_DESCRIPTOR_POOL_CREATE_INFO};
     pi.maxSets = 1;
@@ -351,8 +356,10 @@ class VulkanRenderer::Impl {
                          MakeBufferView(view_records, VK_FORMAT_R32G32B32A32_SFLOAT));
     EXO_ASSIGN_OR_RETURN(buffer_views[1], MakeBufferView(table_buf, VK_FORMAT_R32G32B32A32_UINT));
     EXO_ASSIGN_OR_RETURN(buffer_views[2], MakeBufferView(refs_buf, VK_FORMAT_R32_UINT));
+    EXO_ASSIGN_OR_RETURN(buffer_views[3], MakeBufferView(ranked_buf, VK_FORMAT_R32G32B32A32_UINT));
     VkDescriptorBufferInfo ubo{frame_ubo.buffer.get(), 0, VK_WHOLE_SIZE};
     VkBufferView tb[3] = {buffer_views[0].get(), buffer_views[1].get(), buffer_views[2].get()};
+    VkBufferView ranked_view = buffer_views[3].get();
     VkDescriptorImageInfo ii[2] = {
         {linear_sampler.get(), colors.view.get(), VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL},
         {sampler.get(), depths.view.get(), VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL}};
@@ -360,8 +367,8 @@ class VulkanRenderer::Impl {
                              color_target.gbuffer.image ? color_target.gbuffer.view.get()
                                                         : placeholder_gbuffer.view.get(),
                              VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL};
-    const uint32_t writes = 7;
-    VkWriteDescriptorSet w[7]{};
+    const uint32_t writes = 8;
+    VkWriteDescriptorSet w[8]{};
     for (uint32_t i = 0; i < writes; ++i) {
       w[i].sType = VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET;
       w[i].dstSet = desc_set;
@@ -373,6 +380,9 @@ class VulkanRenderer::Impl {
       } else if (i < 4) {
         w[i].descriptorType = VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER;
         w[i].pTexelBufferView = &tb[i - 1];
+      } else if (i == 7) {
+        w[i].descriptorType = VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER;
+        w[i].pTexelBufferView = &ranked_view;
       } else {
         w[i].descriptorType = VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER;
         w[i].pImageInfo = i == 6 ? &gi : &ii[i - 4];
@@ -706,7 +716,11 @@ class VulkanRenderer::Impl {
     // Device-to-device copy of the old slabs (on lavapipe both are host memory).
     if (refs_buf.buffer) std::memcpy(nb.mapped, refs_buf.mapped, slab_capacity * slab_bytes);
     for (uint32_t s = ns; s-- > slab_capacity;) free_slabs.push_back(s);
+    EXO_ASSIGN_OR_RETURN(Buffer nr, Buffer::Create(*ctx, ns * slab_bytes * 8,
+                                                   VK_BUFFER_USAGE_UNIFORM_TEXEL_BUFFER_BIT));
+    std::memset(nr.mapped, 0, ns * slab_bytes * 8);
     refs_buf = std::move(nb);
+    ranked_buf = std::move(nr);
     slab_capacity = ns;
     descriptors_dirty = true;
     return absl::OkStatus();
@@ -993,6 +1007,83 @@ class VulkanRenderer::Impl {
     });
   }
 
+  // Per-frame reference ranking (exact). For every resident cell and every reference, an UPPER
+  // BOUND of the blend weight (3.5) the fragment shader can compute for any surface point x of
+  // the cell this frame (validity = 1):
+  //   x lies in the ball B(m, r) around the cell centre (r = half diagonal, inflated for the
+  //   float cell assignment); with D_o = |c_o - m|, D_i = |c_i - m|:
+  //   w_d = cos(angle(c_o - x, c_i - x)) <= cos(max(0, angle(c_o - m, c_i - m) - asin(r / D_o)
+  //         - asin(r / D_i)))  (each ray turns by at most asin(r / D) as x moves in the ball;
+  //         1 when a camera is inside the ball),
+  //   w_p is decreasing in |c_i - x| >= D_i - r and increasing in |c_o - x| <= D_o + r,
+  //   bound = max(lambda W_d + (1 - lambda) W_p, min_weight), plus a slack for float rounding.
+  // The cell's references are written to ranked_buf sorted by (bound desc, position in the
+  // cell's list asc): per slot (c_i.xyz, bound) and (layer, position, width | height << 16,
+  // exposure). blend.frag stops at the first reference whose bound is below the n-th best
+  // weight found so far (no later one can enter the best n) and breaks weight ties by the
+  // position in the cell's list, so the selection equals blend_math.h's in-order InsertBest.
+  // Non-resident references get bound -1 (sorted last, never evaluated).
+  void RankRefs(const glm::vec3& c_o_f, const blend::BlendOptions& bo) {
+    const double q = grid.cell_size_m;
+    const double lambda = bo.lambda;
+    const bool printed = bo.positional_mode == blend::PositionalMode::kPrinted;
+    const glm::dvec3 c_o(c_o_f);
+    const size_t per_slab = size_t(opt.max_refs_per_cell);
+    const uint32_t* slabs = static_cast<const uint32_t*>(refs_buf.mapped);
+    const GpuView* recs = static_cast<const GpuView*>(view_records.mapped);
+    glm::uvec4* out = static_cast<glm::uvec4*>(ranked_buf.mapped);
+    auto bits = [](float f) { uint32_t u; std::memcpy(&u, &f, 4); return u; };
+    for (const auto& [id, c] : cells) {
+      const glm::dvec3 m = (glm::dvec3(UnpackCell(id)) + 0.5) * q;
+      // Half diagonal, + 0.1 % of q and 1e-5 relative to |m| for floor(x / q) in float.
+      const double r = q * (0.5 * std::sqrt(3.0) * 1.001) + 1e-5 * (glm::length(m) + q);
+      const glm::dvec3 a = c_o - m;
+      const double d_o = glm::length(a);
+      const double asin_o = d_o > r ? std::asin(r / d_o) : 0.0;
+      const double do_max = std::max(d_o + r, double(blend::kMinDistance));
+      const uint32_t* slots = slabs + size_t(c.slab) * per_slab;
+      const size_t n = c.refs.size();
+      rank_scratch.clear();
+      for (size_t i = 0; i < n; ++i) {
+        const uint32_t slot = slots[i];
+        if (slot == kNoSlot || recs[slot].size_layer.w == 0.0f) {
+          rank_scratch.emplace_back(-1.0f, uint32_t(i));
+          continue;
+        }
+        const glm::dvec3 b = glm::dvec3(glm::vec3(recs[slot].centre_exposure)) - m;
+        const double d_i = glm::length(b);
+        double w_d = 1.0;
+        if (d_o > r && d_i > r) {
+          const double cos_m = std::clamp(glm::dot(a, b) / (d_o * d_i), -1.0, 1.0);
+          const double theta = std::acos(cos_m) - asin_o - std::asin(r / d_i);
+          w_d = theta <= 0.0 ? 1.0 : std::max(0.0, std::cos(theta));
+        }
+        const double ratio = std::max(0.0, d_i - r) / do_max;
+        const double w_p = std::clamp(printed ? 1.0 - ratio : 2.0 - ratio, 0.0, 1.0);
+        double w = std::max(lambda * w_d + (1.0 - lambda) * w_p, double(bo.min_weight));
+        w = w * (1.0 + 1e-4) + 1e-6;  // float rounding of the shader's weight
+        rank_scratch.emplace_back(float(w), uint32_t(i));
+      }
+      std::stable_sort(rank_scratch.begin(), rank_scratch.end(),
+                       [](const auto& x, const auto& y) { return x.first > y.first; });
+      glm::uvec4* dst = out + 2 * size_t(c.slab) * per_slab;
+      for (size_t k = 0; k < n; ++k) {
+        const auto [bound, i] = rank_scratch[k];
+        if (bound < 0.0f) {
+          dst[2 * k] = glm::uvec4(0u, 0u, 0u, bits(-1.0f));
+          dst[2 * k + 1] = glm::uvec4(0u);
+          continue;
+        }
+        const GpuView& v = recs[slots[i]];
+        dst[2 * k] = glm::uvec4(bits(v.centre_exposure.x), bits(v.centre_exposure.y),
+                                bits(v.centre_exposure.z), bits(bound));
+        dst[2 * k + 1] = glm::uvec4(uint32_t(v.size_layer.z), i,
+                                    uint32_t(v.size_layer.x) | (uint32_t(v.size_layer.y) << 16),
+                                    bits(v.centre_exposure.w));
+      }
+    }
+  }
+
   absl::StatusOr<RenderResult> Render(const PinholeCamera& camera, const Rigid3d& local_from_cam,
                                       const blend::BlendOptions& bo) {
     EXO_RETURN_IF_ERROR(bo.Validate());
@@ -1014,6 +1105,9 @@ class VulkanRenderer::Impl {
     f.iparams.x = static_cast<int>(bo.positional_mode);
     f.iparams.y = bo.n_best;
     std::memcpy(frame_ubo.mapped, &f, sizeof(f));
+    const auto tr = Clock::now();
+    RankRefs(glm::vec3(f.cam_centre_cell), bo);
+    const double rank_ms = MsSince(tr);
     VkClearValue clear{};
     clear.color = {{bo.background_srgb.x, bo.background_srgb.y, bo.background_srgb.z, 0.0f}};
     const auto t0 = Clock::now();
@@ -1021,6 +1115,7 @@ class VulkanRenderer::Impl {
                              /*deferred=*/true));
     RenderResult r;
     r.gpu_ms = MsSince(t0);
+    r.rank_ms = rank_ms;
     const auto t1 = Clock::now();
     r.color = ImageU8(w, h, 3);
     r.coverage = ImageU8(w, h, 1);

@@ -56,6 +56,7 @@ struct RenderResult {
   ImageU8 coverage;  // 1 ch: 0 = no proxy surface, 1 = surface but no valid view, 2 = blended
   double gpu_ms = 0;       // submit-to-fence time of the render pass
   double readback_ms = 0;  // copy-out of the colour attachment to ImageU8
+  double rank_ms = 0;      // host: per-frame ranking of every cell's references (RankRefs)
 };
 
 // Packs a 64-bit CellId into the 2 x 32-bit form of the cell-id pass (R32G32_UINT, lo = x).
