@@ -1,6 +1,7 @@
 #include "client/vulkan/vulkan_renderer.h"
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
@@ -50,6 +51,23 @@ struct GpuFrame {
   glm::ivec4 iparams;
 };
 static_assert(sizeof(GpuFrame) == 128);
+
+// Colour layers: the stored sRGB8 texels decoded to LINEAR once at upload and kept as UNORM16
+// (quantisation 1.5e-5 in linear, far below the golden tolerance), so the texture unit filters
+// linear values directly: the decode-before-filter convention of blend_math.h without the
+// per-texel sRGB decode of an _SRGB format in every fetch (measured: docs/vulkan.md).
+constexpr VkFormat kColorFormat = VK_FORMAT_R16G16B16A16_UNORM;
+constexpr uint32_t kColorTexelBytes = 8;
+
+const std::array<uint16_t, 256>& Linear16Lut() {
+  static const std::array<uint16_t, 256> lut = [] {
+    std::array<uint16_t, 256> t{};
+    for (int i = 0; i < 256; ++i)
+      t[i] = uint16_t(std::lround(blend::SrgbToLinear(blend::U8ToUnit(uint8_t(i))) * 65535.0));
+    return t;
+  }();
+  return lut;
+}
 
 constexpr uint32_t kEmptyKey = 0xFFFFFFFFu;
 constexpr uint32_t kTombKeyLo = 0xFFFFFFFEu;
@@ -547,7 +565,7 @@ class VulkanRenderer::Impl {
     const VkImageUsageFlags usage = VK_IMAGE_USAGE_SAMPLED_BIT | VK_IMAGE_USAGE_TRANSFER_DST_BIT |
                                     VK_IMAGE_USAGE_TRANSFER_SRC_BIT;
     EXO_ASSIGN_OR_RETURN(vk::Image nc, vk::Image::Create(*ctx, nw, nh, ns,
-                                                         VK_FORMAT_R8G8B8A8_SRGB, usage,
+                                                         kColorFormat, usage,
                                                          VK_IMAGE_ASPECT_COLOR_BIT, true));
     EXO_ASSIGN_OR_RETURN(vk::Image nd, vk::Image::Create(*ctx, nw, nh, ns, VK_FORMAT_R32_SFLOAT,
                                                          usage, VK_IMAGE_ASPECT_COLOR_BIT, true));
@@ -627,18 +645,24 @@ class VulkanRenderer::Impl {
     }
 
     // Staging: RGBA8 colour then R32F baked depth.
-    const VkDeviceSize color_bytes = VkDeviceSize(w) * h * 4, depth_bytes = color_bytes;
+    const VkDeviceSize color_bytes = VkDeviceSize(w) * h * kColorTexelBytes,
+                       depth_bytes = VkDeviceSize(w) * h * 4;
     if (!staging.buffer || staging.size < color_bytes + depth_bytes) {
       EXO_ASSIGN_OR_RETURN(staging, Buffer::Create(*ctx, color_bytes + depth_bytes,
                                                    VK_BUFFER_USAGE_TRANSFER_SRC_BIT));
     }
     uint8_t* dst = static_cast<uint8_t*>(staging.mapped);
     const uint8_t* src = v.color.data();
-    for (size_t i = 0, n = size_t(w) * h; i < n; ++i) {
-      dst[4 * i + 0] = src[3 * i + 0];
-      dst[4 * i + 1] = src[3 * i + 1];
-      dst[4 * i + 2] = src[3 * i + 2];
-      dst[4 * i + 3] = 255;
+    {
+      // sRGB8 -> linear UNORM16 (the texel decode of blend_math.h, done once at upload).
+      const auto& lut = Linear16Lut();
+      uint16_t* d16 = reinterpret_cast<uint16_t*>(dst);
+      for (size_t i = 0, n = size_t(w) * h; i < n; ++i) {
+        d16[4 * i + 0] = lut[src[3 * i + 0]];
+        d16[4 * i + 1] = lut[src[3 * i + 1]];
+        d16[4 * i + 2] = lut[src[3 * i + 2]];
+        d16[4 * i + 3] = 65535;
+      }
     }
     const ImageF baked =
         BakeDiscontinuities(v.depth_m, opt.bake_discontinuity_radius_px,
@@ -1171,7 +1195,7 @@ class VulkanRenderer::Impl {
 
   uint64_t ResidentBytes() const {
     uint64_t b = 0;
-    b += uint64_t(layer_w) * layer_h * slot_capacity * 8;  // RGBA8 + R32F layers
+    b += uint64_t(layer_w) * layer_h * slot_capacity * (kColorTexelBytes + 4);  // colour + R32F
     b += view_records.size + table_buf.size + refs_buf.size + staging.size;
     for (const auto& [id, c] : chunks) b += c.vertices.size + c.indices.size;
     return b;

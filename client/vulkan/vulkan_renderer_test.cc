@@ -169,7 +169,7 @@ TEST(VulkanRendererTest, IncrementalUploadsOnlyWhatChanged) {
   auto r = Make(m);
   auto before = r->Render(Cam(), Rigid3d::Identity(), blend::BlendOptions{});
   ASSERT_TRUE(before.ok());
-  const uint64_t view_bytes = uint64_t(kW) * kH * 8 + 80;  // RGBA8 + R32F + 5-texel record
+  const uint64_t view_bytes = uint64_t(kW) * kH * 12 + 80;  // linear RGBA16 + R32F + record
 
   // 1. Exposure of one view changes: one view upload, the output doubles in linear light.
   r->ResetStats();
