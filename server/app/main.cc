@@ -23,7 +23,7 @@ void Usage() {
                "      cell_size_m max_log_deltas max_log_bytes max_subscriber_lag snapshot_when_cheaper\n"
                "      publish_jpeg_quality publish_depth_downscale geometry voxel_size_m max_depth_m\n"
                "      mesh_every_n_frames fuse_depth_downscale chunk_republish_change chunk_republish_interval_s planning max_views max_store_bytes r_max d_max_m\n"
-               "      sigma_m delta_tau_sum id_buffer_stride udp_pose_port udp_pose_address\n"
+               "      sigma_m delta_tau_sum max_candidates_per_s_when_full id_buffer_stride udp_pose_port udp_pose_address\n"
                "      udp_pose_tolerance_s\n");
 }
 

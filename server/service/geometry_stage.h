@@ -19,7 +19,7 @@ struct GeometryStageOptions {
   int mesh_every_n_frames = 5;
   int fuse_depth_downscale = 2;   // depth fused at 1/k resolution (nearest sample): speed knob
   double republish_change_fraction = 0.2;
-  double republish_interval_s = 10.0;
+  double republish_interval_s = 60.0;
   absl::Status Validate() const {
     if (!(voxel_size_m > 0.0)) return absl::InvalidArgumentError("voxel_size_m must be > 0");
     if (!(max_depth_m > 0.0)) return absl::InvalidArgumentError("max_depth_m must be > 0");

@@ -18,7 +18,7 @@
 namespace exo {
 
 struct ViewEncodeOptions {
-  int jpeg_quality = 65;
+  int jpeg_quality = 50;
   int depth_downscale = 4;            // depth sent at 1/k resolution (nearest valid sample)
   double depth_metres_per_unit = 0.001;
   absl::Status Validate() const;

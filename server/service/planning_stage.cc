@@ -8,6 +8,8 @@
 namespace exo {
 
 absl::Status PlanningStageOptions::Validate() const {
+  if (!(max_candidates_per_s_when_full >= 0.0))
+    return absl::InvalidArgumentError("max_candidates_per_s_when_full must be >= 0");
   if (id_buffer_stride < 1 || id_buffer_stride > 32)
     return absl::InvalidArgumentError("id_buffer_stride must be in [1, 32]");
   return publish.Validate();
@@ -48,6 +50,13 @@ class PlanningStage final : public PipelineStage {
   absl::Status Process(const PipelineFrame& pf, const SceneContext& ctx) override {
     const Frame& f = pf.frame;
     if (f.depth_m.empty()) return absl::OkStatus();  // no depth: no cells to cover
+    if (options_.max_candidates_per_s_when_full > 0 &&
+        planner_.num_views() >= options_.max_views) {
+      const double min_gap_s = 1.0 / options_.max_candidates_per_s_when_full;
+      if (f.timestamp_s - last_candidate_s_ < min_gap_s && f.timestamp_s >= last_candidate_s_)
+        return absl::OkStatus();  // governed: not a candidate
+      last_candidate_s_ = f.timestamp_s;
+    }
     const Rigid3d local_from_cam = ctx.origin.ToLocal(f.world_from_cam);
     const Rigid3d local_from_depth = local_from_cam * f.color_from_depth;
     // Cell-id buffer from the frame's own depth (the visible surface), reduced resolution.
@@ -97,6 +106,7 @@ class PlanningStage final : public PipelineStage {
   planning::ViewPlanner planner_;
   const PlanningStageOptions options_;
   ViewId next_id_ = 1;
+  double last_candidate_s_ = -1e300;
   std::vector<uint64_t> ids_;
 };
 

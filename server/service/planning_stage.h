@@ -20,6 +20,10 @@ struct PlanningStageOptions {
   double d_max_m = 2.0;         // ideal view distance (3.11)
   double sigma_m = 2.0;
   double delta_tau_sum = 0.05;
+  // Bandwidth governor: at most this many candidates per second (by frame timestamp) go to the
+  // planner once the store is full; the others are skipped. 0 = off. Each accepted view costs
+  // clients ~30 KB, so 3/s keeps the steady state near 1 Mbit/s (docs/service.md).
+  double max_candidates_per_s_when_full = 2.0;
   ViewEncodeOptions publish;
   absl::Status Validate() const;
 };

@@ -80,6 +80,8 @@ absl::Status ApplyConfigValue(const std::string& key, const std::string& value, 
   if (key == "d_max_m") return ParseNumber(key, value, &c->planning.d_max_m);
   if (key == "sigma_m") return ParseNumber(key, value, &c->planning.sigma_m);
   if (key == "delta_tau_sum") return ParseNumber(key, value, &c->planning.delta_tau_sum);
+  if (key == "max_candidates_per_s_when_full")
+    return ParseNumber(key, value, &c->planning.max_candidates_per_s_when_full);
   if (key == "id_buffer_stride") return ParseNumber(key, value, &c->planning.id_buffer_stride);
   if (key == "udp_pose_address") { c->udp_pose_address = value; return absl::OkStatus(); }
   if (key == "udp_pose_tolerance_s") return ParseNumber(key, value, &c->udp_pose_tolerance_s);
