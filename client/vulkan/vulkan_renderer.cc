@@ -144,6 +144,29 @@ ImageF BakeDiscontinuities(const ImageF& depth_m, int radius_px, float delta_z_m
   return out;
 }
 
+float BlendWeightUpperBound(const glm::dvec3& m, double r, const glm::dvec3& c_o,
+                            const glm::dvec3& c_i, const blend::BlendOptions& bo) {
+  // See Impl::RankRefs for the derivation. Directional: each ray turns by at most asin(r / D)
+  // as x moves in the ball, so the angle at x is >= the angle at m minus both turns.
+  const glm::dvec3 a = c_o - m, b = c_i - m;
+  const double d_o = glm::length(a), d_i = glm::length(b);
+  double w_d = 1.0;
+  if (d_o > r && d_i > r) {
+    const double cos_m = std::clamp(glm::dot(a, b) / (d_o * d_i), -1.0, 1.0);
+    const double theta = std::acos(cos_m) - std::asin(r / d_o) - std::asin(r / d_i);
+    w_d = theta <= 0.0 ? 1.0 : std::max(0.0, std::cos(theta));
+  }
+  // Positional: decreasing in |c_i - x| >= d_i - r, increasing in |c_o - x| <= d_o + r.
+  const double ratio =
+      std::max(0.0, d_i - r) / std::max(d_o + r, double(blend::kMinDistance));
+  const double w_p = std::clamp(
+      bo.positional_mode == blend::PositionalMode::kPrinted ? 1.0 - ratio : 2.0 - ratio, 0.0,
+      1.0);
+  const double w =
+      std::max(bo.lambda * w_d + (1.0 - bo.lambda) * w_p, double(bo.min_weight));
+  return float(w * (1.0 + 1e-4) + 1e-6);  // slack for the shader's float rounding
+}
+
 absl::Status VulkanRendererOptions::Validate() const {
   if (max_refs_per_cell < 1 || max_refs_per_cell > 1024)
     return absl::InvalidArgumentError(
@@ -617,6 +640,9 @@ class VulkanRenderer::Impl {
   absl::Status UpsertView(const StoredView& v, uint64_t fingerprint) {
     EXO_RETURN_IF_ERROR(v.camera.Validate());
     const int w = v.camera.width, h = v.camera.height;
+    if (w > 16384 || h > 16384)  // the ranked record packs width | height << 16
+      return absl::InvalidArgumentError(
+          absl::StrCat("view ", v.id, ": size ", w, "x", h, " above 16384"));
     if (v.color.width() != w || v.color.height() != h || v.color.channels() != 3)
       return absl::InvalidArgumentError(absl::StrCat(
           "view ", v.id, ": colour must be RGB8 ", w, "x", h, ", got ", v.color.width(), "x",
@@ -1049,8 +1075,6 @@ class VulkanRenderer::Impl {
   // Non-resident references get bound -1 (sorted last, never evaluated).
   void RankRefs(const glm::vec3& c_o_f, const blend::BlendOptions& bo) {
     const double q = grid.cell_size_m;
-    const double lambda = bo.lambda;
-    const bool printed = bo.positional_mode == blend::PositionalMode::kPrinted;
     const glm::dvec3 c_o(c_o_f);
     const size_t per_slab = size_t(opt.max_refs_per_cell);
     const uint32_t* slabs = static_cast<const uint32_t*>(refs_buf.mapped);
@@ -1061,10 +1085,6 @@ class VulkanRenderer::Impl {
       const glm::dvec3 m = (glm::dvec3(UnpackCell(id)) + 0.5) * q;
       // Half diagonal, + 0.1 % of q and 1e-5 relative to |m| for floor(x / q) in float.
       const double r = q * (0.5 * std::sqrt(3.0) * 1.001) + 1e-5 * (glm::length(m) + q);
-      const glm::dvec3 a = c_o - m;
-      const double d_o = glm::length(a);
-      const double asin_o = d_o > r ? std::asin(r / d_o) : 0.0;
-      const double do_max = std::max(d_o + r, double(blend::kMinDistance));
       const uint32_t* slots = slabs + size_t(c.slab) * per_slab;
       const size_t n = c.refs.size();
       rank_scratch.clear();
@@ -1074,19 +1094,8 @@ class VulkanRenderer::Impl {
           rank_scratch.emplace_back(-1.0f, uint32_t(i));
           continue;
         }
-        const glm::dvec3 b = glm::dvec3(glm::vec3(recs[slot].centre_exposure)) - m;
-        const double d_i = glm::length(b);
-        double w_d = 1.0;
-        if (d_o > r && d_i > r) {
-          const double cos_m = std::clamp(glm::dot(a, b) / (d_o * d_i), -1.0, 1.0);
-          const double theta = std::acos(cos_m) - asin_o - std::asin(r / d_i);
-          w_d = theta <= 0.0 ? 1.0 : std::max(0.0, std::cos(theta));
-        }
-        const double ratio = std::max(0.0, d_i - r) / do_max;
-        const double w_p = std::clamp(printed ? 1.0 - ratio : 2.0 - ratio, 0.0, 1.0);
-        double w = std::max(lambda * w_d + (1.0 - lambda) * w_p, double(bo.min_weight));
-        w = w * (1.0 + 1e-4) + 1e-6;  // float rounding of the shader's weight
-        rank_scratch.emplace_back(float(w), uint32_t(i));
+        const glm::dvec3 c_i(glm::vec3(recs[slot].centre_exposure));
+        rank_scratch.emplace_back(BlendWeightUpperBound(m, r, c_o, c_i, bo), uint32_t(i));
       }
       std::stable_sort(rank_scratch.begin(), rank_scratch.end(),
                        [](const auto& x, const auto& y) { return x.first > y.first; });

@@ -128,4 +128,13 @@ class VulkanRenderer {
 ImageF BakeDiscontinuities(const ImageF& depth_m, int radius_px, float delta_z_m,
                            float delta_z_rel);
 
+// Upper bound of the blend weight (3.5) with validity 1, blend::CombinedWeight(1,
+// DirectionalWeight(x, c_o, c_i), PositionalWeight(x, c_o, c_i, mode), lambda, min_weight), over
+// every surface point x with |x - m| <= r, including a slack for float rounding. The renderer
+// ranks each cell's references by it per frame (m, r: the cell's centre and inflated half
+// diagonal) and stops evaluating a pixel's references once the bound is below the n-th best
+// weight: exact as long as this is a true bound (tested by sampling). Pure CPU.
+float BlendWeightUpperBound(const glm::dvec3& m, double r, const glm::dvec3& c_o,
+                            const glm::dvec3& c_i, const blend::BlendOptions& options);
+
 }  // namespace exo

@@ -1,6 +1,7 @@
 #include "client/vulkan/vulkan_renderer.h"
 
 #include <cmath>
+#include <random>
 
 #include <gtest/gtest.h>
 
@@ -319,6 +320,55 @@ TEST(VulkanRendererTest, BakeDiscontinuitiesInvalidatesNearJumps) {
   const ImageF b = BakeDiscontinuities(d, 2, 0.1f, 0.05f);
   // Pixels whose +-2 neighbour crosses the jump: x = 3, 4 (see 5, 6) and 5, 6 (see 3, 4).
   for (int x = 0; x < 10; ++x) EXPECT_EQ(b.at(x, 0) == 0.0f, x >= 3 && x <= 6) << x;
+}
+
+// The per-frame reference ranking is exact only if BlendWeightUpperBound is a true upper bound of
+// the weight blend_math.h computes (in float) for every surface point in the cell's ball. Samples
+// points on the ball's surface (where the extremes lie) and inside, for random cameras near and
+// far, both positional modes and random lambda. Guards: without the asin(r/D) turn terms of the
+// directional bound, or with the positional bound taken at the centre distances, sampled weights
+// exceed the bound (checked by mutation). The tightness check guards against a trivial bound.
+TEST(BlendWeightUpperBoundTest, BoundsEveryPointOfTheCellBallAndIsInformative) {
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> u(-1.0, 1.0), u01(0.0, 1.0);
+  auto unit = [&] {
+    glm::dvec3 d;
+    do d = {u(rng), u(rng), u(rng)}; while (glm::length(d) < 0.1 || glm::length(d) > 1.0);
+    return glm::normalize(d);
+  };
+  int configs = 0, informative = 0;
+  double slack_sum = 0.0;
+  for (int t = 0; t < 2000; ++t) {
+    blend::BlendOptions bo;
+    bo.positional_mode = t % 2 ? blend::PositionalMode::kPrinted
+                               : blend::PositionalMode::kUlrResolution;
+    bo.lambda = float(u01(rng));
+    const glm::dvec3 m(20.0 * u(rng), 20.0 * u(rng), 5.0 * u(rng));
+    const double r = 0.05 + 1.5 * u01(rng);
+    // Cameras from inside the ball (bound 1) to 40 m away; c_i often near c_o's direction.
+    const glm::dvec3 c_o = m + unit() * (r * 0.5 + 40.0 * u01(rng));
+    const glm::dvec3 dir_i = t % 3 ? glm::normalize(c_o - m + 0.3 * glm::length(c_o - m) * unit())
+                                   : unit();
+    const glm::dvec3 c_i = m + dir_i * (r * 0.5 + 40.0 * u01(rng));
+    const float bound = BlendWeightUpperBound(m, r, c_o, c_i, bo);
+    const glm::vec3 fo(c_o), fi(c_i);
+    float max_w = 0.0f;
+    for (int k = 0; k < 400; ++k) {
+      const double radius = k % 4 == 0 ? r * std::cbrt(u01(rng)) : r;  // mostly on the surface
+      const glm::vec3 x(m + unit() * radius);
+      const float w = blend::CombinedWeight(1.0f, blend::DirectionalWeight(x, fo, fi),
+                                            blend::PositionalWeight(x, fo, fi, bo.positional_mode),
+                                            bo.lambda, bo.min_weight);
+      max_w = std::max(max_w, w);
+      ASSERT_LE(w, bound) << "config " << t << " sample " << k << " r " << r;
+    }
+    ++configs;
+    if (bound < 0.999f) ++informative;
+    slack_sum += bound - max_w;
+  }
+  // Informative: most configurations bound below 1, and the bound is close to the sampled max.
+  EXPECT_GT(informative, configs / 2);
+  EXPECT_LT(slack_sum / configs, 0.05) << "mean bound - sampled max";
 }
 
 TEST(VulkanRendererTest, RejectsBadInput) {
