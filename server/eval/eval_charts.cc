@@ -71,7 +71,7 @@ void Panel(cv::Mat& img, cv::Rect r, const std::string& title, const std::string
     std::snprintf(buf, sizeof buf, "%.3f", y);
     cv::putText(img, buf, cv::Point(r.x + 4, yy + 4), cv::FONT_HERSHEY_SIMPLEX, 0.38, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
     const double xv = x0 + (x1 - x0) * i / 4;
-    std::snprintf(buf, sizeof buf, "%.3g", logx ? std::exp2(xv) : xv);
+    std::snprintf(buf, sizeof buf, "%.4g", logx ? std::exp2(xv) : xv);
     cv::putText(img, buf, cv::Point(int(L + (R - L) * i / 4.0) - 12, B + 16), cv::FONT_HERSHEY_SIMPLEX, 0.38, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
   }
   cv::putText(img, title, cv::Point(L, r.y + 20), cv::FONT_HERSHEY_SIMPLEX, 0.5, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
