@@ -30,6 +30,9 @@ layout(set = 0, binding = 7) uniform usamplerBuffer ranked_refs;
 layout(location = 0) out vec4 out_color;  // rgb = sRGB, a = coverage (1 blended, 0.5 surface)
 
 const int kViewTexels = 5;
+// n of §3.1.4 (BlendOptions::n_best), a specialisation constant: one pipeline per n, so the
+// disabled best-n slots and the n-th-best pick fold away at compile time.
+layout(constant_id = 0) const int kNBest = 3;
 
 // ---- best-n with the sample parameters carried along ----
 // Same selection as blend_math.h InsertBest (decreasing weight, w <= 0 ignored, ties keep the
@@ -117,7 +120,7 @@ void main() {
     h = (h + 1u) & mask;
   }
 
-  const int n = frame.iparams.y;
+  const int n = kNBest;
   // Per-fragment parts of the weights (3.2)/(3.3): the ray to the novel camera.
   const vec3 a = c_o - x;
   const float la = length(a);

@@ -183,6 +183,51 @@ TEST_P(GoldenTest, VulkanMatchesCpuReference) {
   EXPECT_TRUE(errs.empty()) << errs.size() << " validation messages, first: " << errs[0];
 }
 
+// Other blend settings on the village fixture: every n of §3.1.4 (the shader is specialised per
+// n, each a separate pipeline) and the printed positional weight with another lambda (the
+// per-frame reference ranking bounds both positional modes). Same tolerance as above.
+TEST(GoldenBlendOptionsTest, EveryNBestAndPositionalModeMatchCpuReference) {
+  auto fx = MakeFixture(synth::SceneKind::kVillage);
+  ASSERT_TRUE(fx.ok()) << fx.status();
+  VulkanRendererOptions vo;
+  vo.enable_validation = true;
+  auto gpu = VulkanRenderer::Create(vo);
+  ASSERT_TRUE(gpu.ok()) << gpu.status();
+  ASSERT_TRUE((*gpu)->SyncModel(fx->model).ok());
+  struct Case { int n; blend::PositionalMode mode; float lambda; };
+  for (const Case& k : {Case{1, blend::PositionalMode::kUlrResolution, 0.5f},
+                        Case{2, blend::PositionalMode::kPrinted, 0.3f},
+                        Case{4, blend::PositionalMode::kUlrResolution, 0.8f}}) {
+    CpuRenderOptions co;
+    co.blend.n_best = k.n;
+    co.blend.positional_mode = k.mode;
+    co.blend.lambda = k.lambda;
+    auto cpu = CpuLumigraphRenderer::Create(fx->model, co);
+    ASSERT_TRUE(cpu.ok()) << cpu.status();
+    size_t compared = 0, within = 0;
+    for (size_t i = 1; i < fx->novel.size(); i += 4) {
+      auto e = (*cpu)->Render(fx->camera, fx->novel[i]);
+      ASSERT_TRUE(e.ok()) << e.status();
+      auto a = (*gpu)->Render(fx->camera, fx->novel[i], co.blend);
+      ASSERT_TRUE(a.ok()) << a.status();
+      const Agreement ag = Compare(a->color, e->color, e->coverage, a->coverage);
+      compared += ag.compared;
+      within += ag.within;
+      EXPECT_GE(ag.psnr, 40.0) << "n " << k.n << " frame " << i;
+      if (ag.psnr < 40.0)
+        WriteFailure("village_n" + std::to_string(k.n) + "_" + std::to_string(i), a->color,
+                     e->color, ag.diff);
+    }
+    const double frac = double(within) / std::max<size_t>(1, compared);
+    fprintf(stderr, "[golden village n=%d mode=%d lambda=%.1f] %zu px, %.5f within 2/255\n", k.n,
+            int(k.mode), k.lambda, compared, frac);
+    EXPECT_GT(compared, size_t(kW * kH) / 4);
+    EXPECT_GE(frac, 0.999) << "n " << k.n;
+  }
+  const auto errs = (*gpu)->ValidationErrors();
+  EXPECT_TRUE(errs.empty()) << errs.size() << " validation messages, first: " << errs[0];
+}
+
 INSTANTIATE_TEST_SUITE_P(Scenes, GoldenTest,
                          ::testing::Values(synth::SceneKind::kVillage,
                                            synth::SceneKind::kApartment),
