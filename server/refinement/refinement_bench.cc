@@ -41,6 +41,11 @@ struct Args {
   int levels = 0, samples = 0;  // 0: RefinementOptions defaults
   double outlier_rel = 0;       // 0: default
   bool oracle_refs = false;     // refine each view against true-pose references (diagnostic)
+  int freeze = -1, rot_only_level = -1;  // -1: defaults
+  double min_info = -1;
+  int iters = 0, outer = 0;
+  double depth_weight = -1;
+  bool render = true;           // held-out MSSIM/PSNR (slow); --render 0 for pose diagnostics
 };
 
 double Percentile(std::vector<double> v, double p) {
@@ -158,9 +163,16 @@ absl::Status RunScene(synth::SceneKind kind, const Args& a) {
   if (a.levels > 0) opt.pyramid_levels = a.levels;
   if (a.samples > 0) opt.max_samples = a.samples;
   if (a.outlier_rel > 0) opt.outlier_max_relative_residual = a.outlier_rel;
+  if (a.iters > 0) opt.max_solver_iterations = a.iters;
+  if (a.depth_weight >= 0) opt.depth_weight = a.depth_weight;
+  if (a.outer > 0) opt.max_outer_iterations = a.outer;
+  if (a.freeze >= 0) opt.freeze_weak_directions = a.freeze != 0;
+  if (a.rot_only_level >= 0) opt.rotation_only_from_level = a.rot_only_level;
+  if (a.min_info >= 0) opt.min_pose_information = a.min_info;
   RefinementStats stats;
   std::vector<StoredView> refined;
   refined.push_back(noisy[0]);
+  int converged = 0;  // kept views within 0.2 deg and 5 mm of the truth (the target)
   std::vector<double> ms, cpu_ms, rot_before, rot_after, tr_before, tr_after, e_before, e_after;
   for (size_t i = 1; i < noisy.size(); ++i) {
     std::vector<const StoredView*> refs;
@@ -185,14 +197,18 @@ absl::Status RunScene(synth::SceneKind kind, const Args& a) {
       if (std::getenv("REFINEMENT_BENCH_VERBOSE"))
         std::fprintf(stderr,
                      "view %zu k=%.3f E=%.3f rot %.3f->%.3f trans %.1f->%.1f mm n=%d valid=%d "
-                     "lmin=%.3g cond=%.3g refused=%d outlier=%d rel=%.3f %.1f ms (cpu %.1f)\n",
+                     "lmin=%.3g cond=%.3g free=%d refused=%d outlier=%d rel=%.3f %.1f ms (cpu %.1f)\n",
                      i, k[i], res->exposure, rot_before.back(),
                      RotationAngleRad(res->local_from_cam.rotation, truth_pose[i].rotation) * 180 / M_PI,
                      tr_before.back(),
                      1000 * glm::length(res->local_from_cam.translation - truth_pose[i].translation),
                      res->num_samples, res->num_valid_final, res->pose_min_eigenvalue,
-                     res->pose_condition, res->pose_refused_rank_deficient, res->rejected_outlier,
+                     res->pose_condition, res->pose_free_directions, res->pose_refused_rank_deficient, res->rejected_outlier,
                      res->relative_residual, res->ms, res->cpu_ms);
+      if (std::getenv("REFINEMENT_BENCH_STAGES"))
+        for (const auto& st : res->stages)
+          std::fprintf(stderr, "   L%d %s %.4g -> %.4g %s\n", st.level, st.pose ? "pose" : "expo",
+                       st.before, st.after, st.accepted ? "" : "UNDONE");
       stats.Add(*res);
       ms.push_back(res->ms);
       cpu_ms.push_back(res->cpu_ms);
@@ -206,6 +222,9 @@ absl::Status RunScene(synth::SceneKind kind, const Args& a) {
       std::fprintf(stderr, "view %zu: %s\n", i, std::string(res.status().message()).c_str());
     }
     if (!keep) continue;  // errors "on" are over the views kept in the store
+    const double rot_err = RotationAngleRad(v.local_from_cam.rotation, truth_pose[i].rotation) * 180 / M_PI;
+    const double tr_err = 1000 * glm::length(v.local_from_cam.translation - truth_pose[i].translation);
+    converged += rot_err < 0.2 && tr_err < 5.0;
     rot_after.push_back(RotationAngleRad(v.local_from_cam.rotation, truth_pose[i].rotation) * 180 / M_PI);
     tr_after.push_back(1000 * glm::length(v.local_from_cam.translation - truth_pose[i].translation));
     e_after.push_back(std::abs(v.exposure * k[i] - 1.0));
@@ -216,13 +235,16 @@ absl::Status RunScene(synth::SceneKind kind, const Args& a) {
     oracle[i].local_from_cam = truth_pose[i];
     oracle[i].exposure = static_cast<float>(1.0 / k[i]);
   }
-  EXO_ASSIGN_OR_RETURN(Quality q_off, RenderQuality(scene, noisy, held, held_truth, cam));
-  EXO_ASSIGN_OR_RETURN(Quality q_on, RenderQuality(scene, refined, held, held_truth, cam));
-  EXO_ASSIGN_OR_RETURN(Quality q_true, RenderQuality(scene, oracle, held, held_truth, cam));
+  Quality q_off, q_on, q_true;
+  if (a.render) {
+    EXO_ASSIGN_OR_RETURN(q_off, RenderQuality(scene, noisy, held, held_truth, cam));
+    EXO_ASSIGN_OR_RETURN(q_on, RenderQuality(scene, refined, held, held_truth, cam));
+    EXO_ASSIGN_OR_RETURN(q_true, RenderQuality(scene, oracle, held, held_truth, cam));
+  }
   std::printf(
       "{\"bench\":\"refinement\",\"scene\":\"%s\",\"width\":%d,\"height\":%d,\"views_refined\":%zu,"
       "\"refs_max\":%d,\"outlier_rel\":%.3f,\"max_samples\":%d,\"noise_rot_deg\":%.3f,\"noise_trans_m\":%.3f,"
-      "\"exposure_jitter_log2\":%.2f,\"ms_median\":%.2f,\"ms_p95\":%.2f,\"cpu_ms_median\":%.2f,\"cpu_ms_p95\":%.2f,"
+      "\"exposure_jitter_log2\":%.2f,\"oracle_refs\":%d,\"converged_0p2deg_5mm\":%d,\"ms_median\":%.2f,\"ms_p95\":%.2f,\"cpu_ms_median\":%.2f,\"cpu_ms_p95\":%.2f,"
       "\"rot_err_deg_median_off\":%.3f,\"rot_err_deg_median_on\":%.3f,\"rot_err_deg_p95_on\":%.3f,"
       "\"trans_err_mm_median_off\":%.2f,\"trans_err_mm_median_on\":%.2f,\"trans_err_mm_p95_on\":%.2f,"
       "\"exposure_relerr_median_off\":%.4f,\"exposure_relerr_median_on\":%.4f,"
@@ -232,7 +254,7 @@ absl::Status RunScene(synth::SceneKind kind, const Args& a) {
       "\"render_ms\":%.1f}\n",
       synth::SceneKindName(kind), a.width, a.height, noisy.size() - 1, opt.max_reference_views,
       opt.outlier_max_relative_residual,
-      opt.max_samples, a.rot_deg, a.trans_m, a.exposure_jitter, Percentile(ms, 0.5),
+      opt.max_samples, a.rot_deg, a.trans_m, a.exposure_jitter, a.oracle_refs ? 1 : 0, converged, Percentile(ms, 0.5),
       Percentile(ms, 0.95), Percentile(cpu_ms, 0.5), Percentile(cpu_ms, 0.95), Percentile(rot_before, 0.5), Percentile(rot_after, 0.5),
       Percentile(rot_after, 0.95), Percentile(tr_before, 0.5), Percentile(tr_after, 0.5),
       Percentile(tr_after, 0.95), Percentile(e_before, 0.5), Percentile(e_after, 0.5),
@@ -259,6 +281,13 @@ int Main(int argc, char** argv) {
     else if (key == "--height") a.height = std::atoi(v);
     else if (key == "--outlier-rel") a.outlier_rel = std::atof(v);
     else if (key == "--oracle-refs") a.oracle_refs = std::atoi(v) != 0;
+    else if (key == "--render") a.render = std::atoi(v) != 0;
+    else if (key == "--freeze") a.freeze = std::atoi(v);
+    else if (key == "--iters") a.iters = std::atoi(v);
+    else if (key == "--depth-weight") a.depth_weight = std::atof(v);
+    else if (key == "--outer") a.outer = std::atoi(v);
+    else if (key == "--rot-only-level") a.rot_only_level = std::atoi(v);
+    else if (key == "--min-info") a.min_info = std::atof(v);
     else if (key == "--levels") a.levels = std::atoi(v);
     else if (key == "--samples") a.samples = std::atoi(v);
     else if (key == "--seed") a.seed = std::strtoull(v, nullptr, 10);

@@ -19,7 +19,8 @@ using refinement::ExposureResidual;
 using refinement::LevelIntrinsics;
 using refinement::LumaGrid;
 using refinement::LumaInterpolator;
-using refinement::PoseResidual;
+using refinement::PoseDeltaResidual;
+using refinement::DepthDeltaResidual;
 
 constexpr int kMaxLevels = 5;
 
@@ -122,13 +123,27 @@ std::vector<Level> BuildPyramid(const ImageU8& color, const PinholeCamera& cam, 
     c.k = {p.k.fx * 0.5, p.k.fy * 0.5, (p.k.cx + 0.5) * 0.5 - 0.5, (p.k.cy + 0.5) * 0.5 - 0.5};
     c.luma.resize(static_cast<size_t>(c.w) * c.h);
     c.bad.resize(c.luma.size());
-    for (int y = 0; y < c.h; ++y)
+    // Binomial [1 3 3 1]/8 per axis (same phase as the 2x2 box, but low-pass: a box lets the
+    // fine texture alias into the coarse levels, which then have no smooth basin).
+    std::vector<float> rows(static_cast<size_t>(c.w) * p.h);
+    for (int y = 0; y < p.h; ++y) {
+      const float* in = &p.luma[static_cast<size_t>(y) * p.w];
       for (int x = 0; x < c.w; ++x) {
-        const size_t a = static_cast<size_t>(2 * y) * p.w + 2 * x, b = a + p.w;
+        const int x0 = std::max(0, 2 * x - 1), x3 = std::min(p.w - 1, 2 * x + 2);
+        rows[static_cast<size_t>(y) * c.w + x] =
+            0.125f * (in[x0] + 3.f * in[2 * x] + 3.f * in[2 * x + 1] + in[x3]);
+      }
+    }
+    for (int y = 0; y < c.h; ++y) {
+      const int y0 = std::max(0, 2 * y - 1), y3 = std::min(p.h - 1, 2 * y + 2);
+      for (int x = 0; x < c.w; ++x) {
+        const auto r = [&](int yy) { return rows[static_cast<size_t>(yy) * c.w + x]; };
         c.luma[static_cast<size_t>(y) * c.w + x] =
-            0.25f * (p.luma[a] + p.luma[a + 1] + p.luma[b] + p.luma[b + 1]);
+            0.125f * (r(y0) + 3.f * r(2 * y) + 3.f * r(2 * y + 1) + r(y3));
+        const size_t a = static_cast<size_t>(2 * y) * p.w + 2 * x, b = a + p.w;
         c.bad[static_cast<size_t>(y) * c.w + x] = p.bad[a] | p.bad[a + 1] | p.bad[b] | p.bad[b + 1];
       }
+    }
   }
   for (Level& l : pyr) {
     Dilate(l.bad, l.w, l.h, dilate_px);
@@ -231,6 +246,15 @@ class Refiner {
   void LogValues(int level, const Active& a, std::vector<double>* lc, std::vector<double>* lm) const;
   Pose SolvePose(int level, double e, const Pose& pose);
   void RankCheck(const Pose& pose, double e);
+  // Depth term (RGB-D candidates): relative depth residual of sample j at `pose`, false when
+  // the candidate has no usable depth there (hole, depth edge, outside).
+  bool DepthResidual(const Sample& s, const Pose& pose, double* r) const;
+  // Weight that maps the depth residuals' robust scale onto the photometric scale `scale`.
+  double DepthWeight(const std::vector<int>& idx, const Pose& pose, double scale) const;
+  // Tukey energy of the depth term before/after, on samples valid at both poses.
+  void AddDepthEnergy(const std::vector<int>& idx, const Pose& p0, const Pose& p1, double w,
+                      double scale, double* before, double* after) const;
+  Eigen::Matrix<double, 6, 6> Information(int level, const Pose& pose, double e) const;
 
   const StoredView& cand_;
   std::vector<const StoredView*> refs_;
@@ -241,6 +265,14 @@ class Refiner {
   std::vector<std::vector<Level>> ref_pyr_;
   std::vector<Sample> samples_;
   double median_depth_m_ = 1.0;
+  std::vector<float> cand_depth_;        // candidate z-depth (holes 0), for the depth term
+  std::vector<uint8_t> cand_depth_bad_;  // hole or within 2 px of a depth step
+  std::unique_ptr<refinement::DepthGrid> depth_grid_;
+  std::unique_ptr<refinement::DepthInterpolator> depth_interp_;
+  // Pose directions updated (orthonormal columns in the PoseDeltaResidual chart): all
+  // well-conditioned ones at fine levels, the rotation ones at coarse levels.
+  Eigen::Matrix<double, 6, Eigen::Dynamic> free_basis_ = Eigen::Matrix<double, 6, 6>::Identity();
+  Eigen::Matrix<double, 6, Eigen::Dynamic> rot_basis_ = Eigen::Matrix<double, 6, 6>::Identity().leftCols(3);
   RefinementResult res_;
 };
 
@@ -479,39 +511,66 @@ double Refiner::SolveExposure(int level, const Pose& pose, double e, bool warm_s
 }
 
 Pose Refiner::SolvePose(int level, double e, const Pose& pose) {
+  // Coarse levels cannot separate a small camera translation from a rotation (1-2 cm at metres
+  // is sub-pixel there): rotation only (about the camera centre), the translation waits for the
+  // fine levels. Weak directions (eigen-analysis of the level-0 information) stay frozen.
+  const bool rot_only = level >= o_.rotation_only_from_level;
+  const Eigen::Matrix<double, 6, Eigen::Dynamic>& basis = rot_only ? rot_basis_ : free_basis_;
+  if (basis.cols() == 0) return pose;
   const Active a = ActiveSet(level, pose, Kind::kTextured);
   if (static_cast<int>(a.idx.size()) < o_.min_pose_samples) return pose;
   const Level& L = cand_pyr_[level];
   std::vector<double> r(a.idx.size());
   for (size_t k = 0; k < a.idx.size(); ++k) r[k] = e * a.c[k] - samples_[a.idx[k]].m[level];
   const double scale = ScaleFromResiduals(r, o_.fixed_scale);
-  double q[4] = {pose.q.x(), pose.q.y(), pose.q.z(), pose.q.w()};
-  double t[3] = {pose.t.x(), pose.t.y(), pose.t.z()};
-  const ceres::Solver::Options so = SolverOptions(o_);
+  double xi[6] = {0, 0, 0, 0, 0, 0};
+  ceres::Solver::Options so = SolverOptions(o_);
+  if (level > 0) so.max_num_iterations = std::max(3, o_.max_solver_iterations / 2);
   ceres::Problem::Options po;
   po.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
   po.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
-  ceres::EigenQuaternionManifold manifold;
-  ceres::TukeyLoss loss(scale);
+  refinement::SubspaceManifold manifold(basis);
+  // Tukey at the finest level; Cauchy (same influence scale) on the coarse levels, whose job is
+  // to bring the pose into the basin: Tukey gives misaligned samples zero weight, which there
+  // are the very samples that carry the alignment signal.
+  std::unique_ptr<ceres::LossFunction> lossp;
+  if (level == 0)
+    lossp = std::make_unique<ceres::TukeyLoss>(scale);
+  else
+    lossp = std::make_unique<ceres::CauchyLoss>(scale / o_.tukey_k);
+  ceres::LossFunction& loss = *lossp;
   ceres::Problem problem(po);
   for (size_t k = 0; k < a.idx.size(); ++k) {
     const Sample& s = samples_[a.idx[k]];
-    problem.AddResidualBlock(PoseResidual::Create(L.interp.get(), L.k, s.p_in_local, e, s.m[level]),
-                             &loss, q, t);
+    problem.AddResidualBlock(PoseDeltaResidual::Create(L.interp.get(), L.k, pose.Apply(s.p_in_local),
+                                                       median_depth_m_, e, s.m[level]),
+                             &loss, xi);
   }
-  problem.SetManifold(q, &manifold);
-  // Coarse levels cannot separate a small camera translation from a rotation (the image motion
-  // of 1-2 cm at metres is sub-pixel there): rotation only, the translation waits for the fine
-  // levels. Otherwise the coarse solve trades one for the other and lands in a wrong basin.
-  if (level >= o_.rotation_only_from_level) problem.SetParameterBlockConstant(t);
+  const double dw = depth_interp_ ? DepthWeight(a.idx, pose, scale) : 0.0;
+  if (dw > 0)
+    for (size_t k = 0; k < a.idx.size(); ++k) {
+      const Sample& s = samples_[a.idx[k]];
+      double rd;
+      if (!DepthResidual(s, pose, &rd)) continue;
+      problem.AddResidualBlock(DepthDeltaResidual::Create(depth_interp_.get(), cand_pyr_[0].k,
+                                                          pose.Apply(s.p_in_local), median_depth_m_, dw),
+                               &loss, xi);
+    }
+  if (basis.cols() < 6) problem.SetManifold(xi, &manifold);
   ceres::Solver::Summary sum;
   ceres::Solve(so, &problem, &sum);
   res_.iterations += static_cast<int>(sum.iterations.size());
+  const Eigen::Vector3d w(xi[0], xi[1], xi[2]);
+  const Eigen::Vector3d dt = median_depth_m_ * Eigen::Vector3d(xi[3], xi[4], xi[5]);
+  const double angle = w.norm();
+  const Eigen::Quaterniond dq =
+      angle > 0 ? Eigen::Quaterniond(Eigen::AngleAxisd(angle, w / angle)) : Eigen::Quaterniond::Identity();
   Pose out;
-  out.q = Eigen::Quaterniond(q[3], q[0], q[1], q[2]).normalized();
-  out.t = {t[0], t[1], t[2]};
+  out.q = (dq * pose.q).normalized();
+  out.t = dq * pose.t + dt;
   const bool finite = out.t.allFinite() && out.q.coeffs().allFinite();
-  const EnergyPair ep = finite ? CompareEnergy(level, e, pose, e, out, scale) : EnergyPair{};
+  EnergyPair ep = finite ? CompareEnergy(level, e, pose, e, out, scale) : EnergyPair{};
+  if (finite && dw > 0) AddDepthEnergy(a.idx, pose, out, dw, scale, &ep.before, &ep.after);
   RefinementStage st{level, true, ep.before, ep.after, finite && !ep.Raised()};
   res_.stages.push_back(st);
   if (!st.accepted) {
@@ -521,54 +580,114 @@ Pose Refiner::SolvePose(int level, double e, const Pose& pose) {
   return out;
 }
 
-// Gauss-Newton information of the 6-DoF pose block at level 0, robust-weighted, with columns
-// normalised to "one pixel of image motion" so rotation and translation are comparable.
-void Refiner::RankCheck(const Pose& pose, double e) {
-  const Active a = ActiveSet(0, pose, Kind::kTextured);
+bool Refiner::DepthResidual(const Sample& s, const Pose& pose, double* r) const {
   const Level& L = cand_pyr_[0];
+  const Eigen::Vector3d q = pose.Apply(s.p_in_local);
+  if (!(q.z() > 1e-6)) return false;
+  const double u = L.k.fx * q.x() / q.z() + L.k.cx, v = L.k.fy * q.y() / q.z() + L.k.cy;
+  if (!L.Inside(u, v, o_.border_px)) return false;
+  const int x = static_cast<int>(std::lround(u)), y = static_cast<int>(std::lround(v));
+  if (cand_depth_bad_[static_cast<size_t>(y) * L.w + x]) return false;
+  double d;
+  depth_interp_->Evaluate(v, u, &d);
+  *r = (d - q.z()) / q.z();
+  return std::isfinite(*r);
+}
+
+double Refiner::DepthWeight(const std::vector<int>& idx, const Pose& pose, double scale) const {
+  std::vector<double> r;
+  for (int j : idx) {
+    double rd;
+    if (DepthResidual(samples_[j], pose, &rd)) r.push_back(std::abs(rd));
+  }
+  if (r.size() < 10) return 0.0;
+  const double scale_d = std::max(o_.min_depth_scale_rel, o_.tukey_k * 1.4826 * Median(r));
+  return o_.depth_weight * scale / scale_d;
+}
+
+void Refiner::AddDepthEnergy(const std::vector<int>& idx, const Pose& p0, const Pose& p1, double w,
+                             double scale, double* before, double* after) const {
+  for (int j : idx) {
+    double r0, r1;
+    if (!DepthResidual(samples_[j], p0, &r0) || !DepthResidual(samples_[j], p1, &r1)) continue;
+    *before += TukeyRho(w * r0, scale);
+    *after += TukeyRho(w * r1, scale);
+  }
+}
+
+Eigen::Matrix<double, 6, 6> Refiner::Information(int level, const Pose& pose, double e) const {
+  const Active a = ActiveSet(level, pose, Kind::kTextured);
+  const Level& L = cand_pyr_[level];
   const int n = static_cast<int>(a.idx.size());
+  Eigen::Matrix<double, 6, 6> h = Eigen::Matrix<double, 6, 6>::Zero();
+  if (n < 6) return h;
+  std::vector<double> r(n), ms(n);
+  for (int k = 0; k < n; ++k) {
+    r[k] = e * a.c[k] - samples_[a.idx[k]].m[level];
+    ms[k] = samples_[a.idx[k]].m[level];
+  }
+  const double scale = ScaleFromResiduals(r, o_.fixed_scale);
+  double xi[6] = {0, 0, 0, 0, 0, 0};
+  const double* params[1] = {xi};
+  for (int k = 0; k < n; ++k) {
+    const Sample& s = samples_[a.idx[k]];
+    std::unique_ptr<ceres::CostFunction> cf(PoseDeltaResidual::Create(
+        L.interp.get(), L.k, pose.Apply(s.p_in_local), median_depth_m_, e, s.m[level]));
+    double res;
+    Eigen::Matrix<double, 6, 1> j;
+    double* jac[1] = {j.data()};
+    if (!cf->Evaluate(params, &res, jac)) continue;
+    const double s2 = res * res / (scale * scale);
+    const double w = s2 < 1.0 ? (1.0 - s2) * (1.0 - s2) : 0.0;
+    h += w * j * j.transpose();
+  }
+  const double med_m = std::max(1e-4, Median(ms));
+  return h / (n * med_m * med_m);
+}
+
+// Gauss-Newton information of the 6-DoF pose correction at level 1 (chart of PoseDeltaResidual:
+// radians about the camera centre, translation in median-depth units), robust-weighted, per
+// sample and relative to the squared median intensity: (relative contrast / radian)^2. Image
+// gradients per pixel shrink with resolution while radians per pixel grow, so the figure does
+// not depend on the resolution. Directions with little information (or a large condition
+// number) are frozen; the pose is refused when none is left or there are too few samples.
+void Refiner::RankCheck(const Pose& pose, double e) {
+  free_basis_.resize(6, 0);
+  rot_basis_.resize(6, 0);
+  // Level 1 (the first low-passed level) when there is one: uncorrelated pixel noise carries
+  // spurious "information" at level 0 (a uniform room with sensor noise scores like a weakly
+  // textured one) and is suppressed ~30x by one binomial level, texture is not.
+  const int rank_level = std::min(1, levels_ - 1);
+  const int n = static_cast<int>(ActiveSet(rank_level, pose, Kind::kTextured).idx.size());
   if (n < o_.min_pose_samples) {
     res_.pose_refused_rank_deficient = true;
     return;
   }
-  std::vector<double> r(n);
-  for (int k = 0; k < n; ++k) r[k] = e * a.c[k] - samples_[a.idx[k]].m[0];
-  const double scale = ScaleFromResiduals(r, o_.fixed_scale);
-  double q[4] = {pose.q.x(), pose.q.y(), pose.q.z(), pose.q.w()};
-  double t[3] = {pose.t.x(), pose.t.y(), pose.t.z()};
-  double plus_jac[12];
-  ceres::EigenQuaternionManifold().PlusJacobian(q, plus_jac);
-  const Eigen::Map<const Eigen::Matrix<double, 4, 3, Eigen::RowMajor>> pj(plus_jac);
-  const double f = 0.5 * (L.k.fx + L.k.fy);
-  Eigen::Matrix<double, 6, 6> h = Eigen::Matrix<double, 6, 6>::Zero();
-  const double* params[2] = {q, t};
-  for (int k = 0; k < n; ++k) {
-    const Sample& s = samples_[a.idx[k]];
-    std::unique_ptr<ceres::CostFunction> cf(
-        PoseResidual::Create(L.interp.get(), L.k, s.p_in_local, e, s.m[0]));
-    double res, jq[4], jt[3];
-    double* jac[2] = {jq, jt};
-    if (!cf->Evaluate(params, &res, jac)) continue;
-    const double s2 = res * res / (scale * scale);
-    const double w = s2 < 1.0 ? (1.0 - s2) * (1.0 - s2) : 0.0;
-    Eigen::Matrix<double, 6, 1> j;
-    // Tangent delta of the manifold is half the rotation angle: d/dtheta = d/ddelta / 2.
-    j.head<3>() = (Eigen::Map<Eigen::Matrix<double, 1, 4>>(jq) * pj).transpose() / (2.0 * f);
-    j.tail<3>() = Eigen::Map<Eigen::Vector3d>(jt) * (median_depth_m_ / f);
-    h += w * j * j.transpose();
-  }
-  // Per sample and relative to the intensity level (contrast, not absolute brightness, carries
-  // pose information; dark or strongly exposure-scaled views are not textureless).
-  std::vector<double> ms(n);
-  for (int k = 0; k < n; ++k) ms[k] = samples_[a.idx[k]].m[0];
-  const double med_m = std::max(1e-4, Median(ms));
-  h /= n * med_m * med_m;
+  const Eigen::Matrix<double, 6, 6> h = Information(rank_level, pose, e);
   Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 6, 6>> es(h);
   const double lmin = std::max(0.0, es.eigenvalues()(0)), lmax = es.eigenvalues()(5);
   res_.pose_min_eigenvalue = lmin;
   res_.pose_condition = lmin > 0 ? lmax / lmin : std::numeric_limits<double>::infinity();
-  if (lmin < o_.min_pose_information || res_.pose_condition > o_.max_pose_condition)
+  const double floor = std::max(o_.min_pose_information, lmax / o_.max_pose_condition);
+  std::vector<int> keep;
+  for (int i = 0; i < 6; ++i)
+    if (es.eigenvalues()(i) >= floor) keep.push_back(i);
+  if (!o_.freeze_weak_directions && static_cast<int>(keep.size()) < 6) keep.clear();
+  res_.pose_free_directions = static_cast<int>(keep.size());
+  if (keep.empty()) {
     res_.pose_refused_rank_deficient = true;
+    return;
+  }
+  free_basis_.resize(6, static_cast<int>(keep.size()));
+  for (size_t i = 0; i < keep.size(); ++i) free_basis_.col(i) = es.eigenvectors().col(keep[i]);
+  // Coarse levels: rotation only, its own well-conditioned directions.
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> er(h.topLeftCorner<3, 3>());
+  std::vector<int> keep_r;
+  for (int i = 0; i < 3; ++i)
+    if (er.eigenvalues()(i) >= floor) keep_r.push_back(i);
+  if (!o_.freeze_weak_directions && static_cast<int>(keep_r.size()) < 3) keep_r.clear();
+  rot_basis_ = Eigen::Matrix<double, 6, Eigen::Dynamic>::Zero(6, static_cast<int>(keep_r.size()));
+  for (size_t i = 0; i < keep_r.size(); ++i) rot_basis_.block<3, 1>(0, i) = er.eigenvectors().col(keep_r[i]);
 }
 
 absl::StatusOr<RefinementResult> Refiner::Run() {
@@ -582,6 +701,22 @@ absl::StatusOr<RefinementResult> Refiner::Run() {
   cand_pyr_ = BuildPyramid(cand_.color, cand_.camera, levels_, o_, o_.border_px, true);
   ref_pyr_.reserve(refs_.size());
   for (const StoredView* r : refs_) ref_pyr_.push_back(BuildPyramid(r->color, r->camera, levels_, o_, 0, false));
+  if (o_.depth_weight > 0 && !cand_.depth_m.empty()) {
+    const int w = cand_pyr_[0].w, h = cand_pyr_[0].h;
+    cand_depth_.assign(static_cast<size_t>(w) * h, 0.f);
+    cand_depth_bad_.assign(cand_depth_.size(), 0);
+    for (int y = 0; y < h; ++y)
+      for (int x = 0; x < w; ++x) {
+        const float z = cand_.depth_m.at(x, y);
+        const bool ok = z > 0.f && std::isfinite(z);
+        cand_depth_[static_cast<size_t>(y) * w + x] = ok ? z : 0.f;
+        cand_depth_bad_[static_cast<size_t>(y) * w + x] =
+            !ok || NearDepthEdge(cand_.depth_m, x, y, z, o_.depth_discontinuity_m);
+      }
+    Dilate(cand_depth_bad_, w, h, 1);  // bicubic support
+    depth_grid_ = std::make_unique<refinement::DepthGrid>(cand_depth_.data(), 0, h, 0, w);
+    depth_interp_ = std::make_unique<refinement::DepthInterpolator>(*depth_grid_);
+  }
   const Pose pose0 = CamFromLocal(cand_.local_from_cam);
   // Saturated or black candidates leave few usable samples: densify the sampling (up to 16x).
   Active a0;

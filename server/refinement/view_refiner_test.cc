@@ -233,12 +233,14 @@ TEST(ViewRefinerTest, GaugeFixedStoredExposureIsRespected) {
 }
 
 TEST(ViewRefinerTest, PoseOutlierIsRejectedAndCounted) {
-  // Guard: final residual threshold. A 12 degree pose error is outside the convergence basin.
+  // Guard: final residual threshold. A 25 degree / 30 cm pose error is outside the convergence
+  // basin (12 degrees used to be; the decoupled chart, the depth term and the Cauchy coarse
+  // levels now converge from there).
   const RoomSetup s = MakeSetup(4);
   const auto refs = s.RefPtrs();
   RefinementStats stats;
   StoredView bad = RenderRoom(s.scene, s.cam, s.cand_true, 1.0, 1.0, 1);
-  bad.local_from_cam = Perturb(s.cand_true, 12.0, 0.15, 3);
+  bad.local_from_cam = Perturb(s.cand_true, 25.0, 0.30, 3);
   auto r = RefineView(bad, refs, RefinementOptions{});
   ASSERT_TRUE(r.ok()) << r.status();
   stats.Add(*r);
