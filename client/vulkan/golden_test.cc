@@ -194,6 +194,10 @@ TEST(GoldenBlendOptionsTest, EveryNBestAndPositionalModeMatchCpuReference) {
   auto gpu = VulkanRenderer::Create(vo);
   ASSERT_TRUE(gpu.ok()) << gpu.status();
   ASSERT_TRUE((*gpu)->SyncModel(fx->model).ok());
+  vo.blend_in_compute = true;  // the compute-dispatch blend (blend.comp), same tolerance
+  auto gpu_cs = VulkanRenderer::Create(vo);
+  ASSERT_TRUE(gpu_cs.ok()) << gpu_cs.status();
+  ASSERT_TRUE((*gpu_cs)->SyncModel(fx->model).ok());
   struct Case { int n; blend::PositionalMode mode; float lambda; };
   for (const Case& k : {Case{1, blend::PositionalMode::kUlrResolution, 0.5f},
                         Case{2, blend::PositionalMode::kPrinted, 0.3f},
@@ -214,6 +218,11 @@ TEST(GoldenBlendOptionsTest, EveryNBestAndPositionalModeMatchCpuReference) {
       compared += ag.compared;
       within += ag.within;
       EXPECT_GE(ag.psnr, 40.0) << "n " << k.n << " frame " << i;
+      auto a_cs = (*gpu_cs)->Render(fx->camera, fx->novel[i], co.blend);
+      ASSERT_TRUE(a_cs.ok()) << a_cs.status();
+      const Agreement ag_cs = Compare(a_cs->color, e->color, e->coverage, a_cs->coverage);
+      EXPECT_GE(double(ag_cs.within), 0.999 * double(ag_cs.compared)) << "compute, n " << k.n;
+      EXPECT_GE(ag_cs.psnr, 40.0) << "compute, n " << k.n << " frame " << i;
       if (ag.psnr < 40.0)
         WriteFailure("village_n" + std::to_string(k.n) + "_" + std::to_string(i), a->color,
                      e->color, ag.diff);
@@ -224,8 +233,10 @@ TEST(GoldenBlendOptionsTest, EveryNBestAndPositionalModeMatchCpuReference) {
     EXPECT_GT(compared, size_t(kW * kH) / 4);
     EXPECT_GE(frac, 0.999) << "n " << k.n;
   }
-  const auto errs = (*gpu)->ValidationErrors();
-  EXPECT_TRUE(errs.empty()) << errs.size() << " validation messages, first: " << errs[0];
+  for (auto* r : {gpu->get(), gpu_cs->get()}) {
+    const auto errs = r->ValidationErrors();
+    EXPECT_TRUE(errs.empty()) << errs.size() << " validation messages, first: " << errs[0];
+  }
 }
 
 INSTANTIATE_TEST_SUITE_P(Scenes, GoldenTest,

@@ -14,6 +14,7 @@
 #include "absl/hash/hash.h"
 #include "absl/types/span.h"
 #include "client/vulkan/vk_core_internal.h"
+#include "shaders/blend.comp.h"
 #include "shaders/blend.frag.h"
 #include "shaders/blend.vert.h"
 #include "shaders/cellid.frag.h"
@@ -241,6 +242,10 @@ class VulkanRenderer::Impl {
   // Blend pipelines per n_best (specialisation constant 0 of blend.frag: the best-n slots and
   // the n-th-best pick are then compile-time; measured ~6 % of the frame), created on first use.
   vk::UniquePipeline blend_pipes[blend::kMaxBlendViews + 1];
+  vk::UniquePipeline blend_comp_pipes[blend::kMaxBlendViews + 1];
+  // VulkanRendererOptions::blend_in_compute; EXO_VK_BLEND_PATH=fragment|compute overrides it
+  // (profiling).
+  bool blend_compute = false;
   std::vector<uint32_t> override_spv;
   Buffer frame_ubo;
 
@@ -253,9 +258,11 @@ class VulkanRenderer::Impl {
     vk::Image gbuffer;
     vk::UniqueFramebuffer gbuffer_fb;
     Buffer readback;
+    Buffer blend_out;  // blend.comp output, W*H RGBA8 (host-visible)
   };
   Target color_target, cellid_target, zdepth_target;
   vk::Image placeholder_gbuffer;
+  Buffer placeholder_out;
 
   // ===================== setup =====================
   absl::Status Init() {
@@ -287,6 +294,11 @@ class VulkanRenderer::Impl {
           return absl::DataLossError(absl::StrCat("EXO_VK_BLEND_FRAG_SPV: short read of ", path));
       }
     }
+    blend_compute = opt.blend_in_compute;
+    if (const char* path = std::getenv("EXO_VK_BLEND_PATH"); path && *path)
+      blend_compute = std::string(path) == "compute";
+    if (!override_spv.empty()) blend_compute = false;  // the hook replaces the fragment shader
+    EXO_ASSIGN_OR_RETURN(placeholder_out, Buffer::Create(*ctx, 4, VK_BUFFER_USAGE_STORAGE_BUFFER_BIT));
     EXO_RETURN_IF_ERROR(EnsureBlendPipe(blend::BlendOptions{}.n_best));
     EXO_ASSIGN_OR_RETURN(gbuffer_pipe, CreatePipeline(gbuffer_pass.get(), kSpvGbufferFrag,
                                                       sizeof(kSpvGbufferFrag)));
@@ -314,14 +326,29 @@ class VulkanRenderer::Impl {
   absl::Status EnsureBlendPipe(int n_best) {
     if (n_best < 1 || n_best > blend::kMaxBlendViews)
       return absl::InvalidArgumentError("n_best out of range");
-    if (blend_pipes[n_best]) return absl::OkStatus();
+    if (blend_compute ? bool(blend_comp_pipes[n_best]) : bool(blend_pipes[n_best]))
+      return absl::OkStatus();
     const int32_t value = n_best;
     VkSpecializationMapEntry entry{0, 0, sizeof(int32_t)};
     VkSpecializationInfo spec{1, &entry, sizeof(int32_t), &value};
     const uint32_t* code = override_spv.empty() ? kSpvBlendFrag : override_spv.data();
     const size_t bytes = override_spv.empty() ? sizeof(kSpvBlendFrag) : override_spv.size() * 4;
-    EXO_ASSIGN_OR_RETURN(blend_pipes[n_best],
-                         CreatePipeline(color_pass.get(), code, bytes, true, &spec));
+    if (!blend_compute) {
+      EXO_ASSIGN_OR_RETURN(blend_pipes[n_best],
+                           CreatePipeline(color_pass.get(), code, bytes, true, &spec));
+      return absl::OkStatus();
+    }
+    EXO_ASSIGN_OR_RETURN(auto cs, CreateModule(kSpvBlendComp, sizeof(kSpvBlendComp)));
+    VkComputePipelineCreateInfo ci{VK_STRUCTURE_TYPE_COMPUTE_PIPELINE_CREATE_INFO};
+    ci.stage.sType = VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO;
+    ci.stage.stage = VK_SHADER_STAGE_COMPUTE_BIT;
+    ci.stage.module = cs.get();
+    ci.stage.pName = "main";
+    ci.stage.pSpecializationInfo = &spec;
+    ci.layout = pipe_layout.get();
+    VkPipeline raw;
+    EXO_VK_RETURN(vkCreateComputePipelines(ctx->device(), VK_NULL_HANDLE, 1, &ci, nullptr, &raw));
+    blend_comp_pipes[n_best] = vk::UniquePipeline(ctx->device(), raw);
     return absl::OkStatus();
   }
 
@@ -344,11 +371,11 @@ class VulkanRenderer::Impl {
   }
 
   absl::Status CreateDescriptors() {
-    VkDescriptorSetLayoutBinding b[8]{};
-    for (uint32_t i = 0; i < 8; ++i) {
+    VkDescriptorSetLayoutBinding b[9]{};
+    for (uint32_t i = 0; i < 9; ++i) {
       b[i].binding = i;
       b[i].descriptorCount = 1;
-      b[i].stageFlags = VK_SHADER_STAGE_FRAGMENT_BIT;
+      b[i].stageFlags = VK_SHADER_STAGE_FRAGMENT_BIT | VK_SHADER_STAGE_COMPUTE_BIT;
     }
     b[0].descriptorType = VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER;
     b[0].stageFlags |= VK_SHADER_STAGE_VERTEX_BIT;
@@ -360,8 +387,9 @@ class VulkanRenderer::Impl {
     b[4].descriptorType = b[5].descriptorType = b[6].descriptorType =
         VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER;
     b[7].descriptorType = VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER;  // ranked refs (per frame)
+    b[8].descriptorType = VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;        // blend.comp output (RGBA8)
     VkDescriptorSetLayoutCreateInfo li{VK_STRUCTURE_TYPE_DESCRIPTOR_SET_LAYOUT_CREATE_INFO};
-    li.bindingCount = 8;
+    li.bindingCount = 9;
     li.pBindings = b;
     VkDescriptorSetLayout raw_layout;
     EXO_VK_RETURN(vkCreateDescriptorSetLayout(ctx->device(), &li, nullptr, &raw_layout));
@@ -372,12 +400,13 @@ class VulkanRenderer::Impl {
     VkPipelineLayout raw_pl;
     EXO_VK_RETURN(vkCreatePipelineLayout(ctx->device(), &pli, nullptr, &raw_pl));
     pipe_layout = vk::UniquePipelineLayout(ctx->device(), raw_pl);
-    VkDescriptorPoolSize sizes[3] = {{VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER, 1},
+    VkDescriptorPoolSize sizes[4] = {{VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER, 1},
                                      {VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER, 4},
-                                     {VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER, 3}};
+                                     {VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER, 3},
+                                     {VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, 1}};
     VkDescriptorPoolCreateInfo pi{VK_STRUCTURE_TYPE_DESCRIPTOR_POOL_CREATE_INFO};
     pi.maxSets = 1;
-    pi.poolSizeCount = 3;
+    pi.poolSizeCount = 4;
     pi.pPoolSizes = sizes;
     VkDescriptorPool raw_pool;
     EXO_VK_RETURN(vkCreateDescriptorPool(ctx->device(), &pi, nullptr, &raw_pool));
@@ -419,8 +448,13 @@ class VulkanRenderer::Impl {
                              color_target.gbuffer.image ? color_target.gbuffer.view.get()
                                                         : placeholder_gbuffer.view.get(),
                              VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL};
-    const uint32_t writes = 8;
-    VkWriteDescriptorSet w[8]{};
+    // Binding 8: the compute output of the colour target (a placeholder before one exists).
+    VkDescriptorBufferInfo out_info{color_target.blend_out.buffer
+                                        ? color_target.blend_out.buffer.get()
+                                        : placeholder_out.buffer.get(),
+                                    0, VK_WHOLE_SIZE};
+    const uint32_t writes = 9;
+    VkWriteDescriptorSet w[9]{};
     for (uint32_t i = 0; i < writes; ++i) {
       w[i].sType = VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET;
       w[i].dstSet = desc_set;
@@ -435,6 +469,9 @@ class VulkanRenderer::Impl {
       } else if (i == 7) {
         w[i].descriptorType = VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER;
         w[i].pTexelBufferView = &ranked_view;
+      } else if (i == 8) {
+        w[i].descriptorType = VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;
+        w[i].pBufferInfo = &out_info;
       } else {
         w[i].descriptorType = VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER;
         w[i].pImageInfo = i == 6 ? &gi : &ii[i - 4];
@@ -487,7 +524,8 @@ class VulkanRenderer::Impl {
     dep[1].srcSubpass = 0;
     dep[1].dstSubpass = VK_SUBPASS_EXTERNAL;
     dep[1].srcStageMask = VK_PIPELINE_STAGE_COLOR_ATTACHMENT_OUTPUT_BIT;
-    dep[1].dstStageMask = sampled_output ? VK_PIPELINE_STAGE_FRAGMENT_SHADER_BIT
+    dep[1].dstStageMask = sampled_output ? (VK_PIPELINE_STAGE_FRAGMENT_SHADER_BIT |
+                                            VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT)
                                          : VK_PIPELINE_STAGE_TRANSFER_BIT;
     dep[1].srcAccessMask = VK_ACCESS_COLOR_ATTACHMENT_WRITE_BIT;
     dep[1].dstAccessMask = sampled_output ? VK_ACCESS_SHADER_READ_BIT : VK_ACCESS_TRANSFER_READ_BIT;
@@ -973,6 +1011,8 @@ class VulkanRenderer::Impl {
       fi.pAttachments = gatts;
       EXO_VK_RETURN(vkCreateFramebuffer(ctx->device(), &fi, nullptr, &raw));
       t.gbuffer_fb = vk::UniqueFramebuffer(ctx->device(), raw);
+      EXO_ASSIGN_OR_RETURN(t.blend_out, Buffer::Create(*ctx, VkDeviceSize(w) * h * 4,
+                                                       VK_BUFFER_USAGE_STORAGE_BUFFER_BIT));
       descriptors_dirty = true;  // binding 6 points at the new G-buffer
     }
     EXO_ASSIGN_OR_RETURN(t.readback,
@@ -1009,7 +1049,8 @@ class VulkanRenderer::Impl {
   // triangle with `pipe` into t.fb; one command buffer, one submit. Then the colour attachment
   // is copied to t.readback.
   absl::Status Draw(Target& t, VkRenderPass pass, VkPipeline pipe, const VkClearValue& clear,
-                    uint32_t texel_bytes, bool deferred = false) {
+                    uint32_t texel_bytes, bool deferred = false,
+                    VkPipeline compute_pipe = VK_NULL_HANDLE) {
     EXO_RETURN_IF_ERROR(UpdateDescriptors());
     return ctx->Submit([&](VkCommandBuffer cmd) {
       VkViewport vp{0, 0, float(t.w), float(t.h), 0.0f, 1.0f};
@@ -1046,6 +1087,23 @@ class VulkanRenderer::Impl {
         begin(gbuffer_pass.get(), t.gbuffer_fb.get(), zero, gbuffer_pipe.get());
         draw_chunks();
         vkCmdEndRenderPass(cmd);
+        if (compute_pipe != VK_NULL_HANDLE) {
+          // blend.comp over the G-buffer (the render pass's dependency covers the compute read)
+          // straight into t.blend_out; then make its writes visible to the host.
+          vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, compute_pipe);
+          vkCmdBindDescriptorSets(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, pipe_layout.get(), 0, 1,
+                                  &desc_set, 0, nullptr);
+          vkCmdDispatch(cmd, (t.w + 7) / 8, (t.h + 7) / 8, 1);
+          VkBufferMemoryBarrier ob{VK_STRUCTURE_TYPE_BUFFER_MEMORY_BARRIER};
+          ob.srcAccessMask = VK_ACCESS_SHADER_WRITE_BIT;
+          ob.dstAccessMask = VK_ACCESS_HOST_READ_BIT;
+          ob.srcQueueFamilyIndex = ob.dstQueueFamilyIndex = VK_QUEUE_FAMILY_IGNORED;
+          ob.buffer = t.blend_out.buffer.get();
+          ob.size = VK_WHOLE_SIZE;
+          vkCmdPipelineBarrier(cmd, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
+                               VK_PIPELINE_STAGE_HOST_BIT, 0, 0, nullptr, 1, &ob, 0, nullptr);
+          return;
+        }
         begin(pass, t.fb.get(), clear, pipe);
         vkCmdDraw(cmd, 3, 1, 0, 0);
         vkCmdEndRenderPass(cmd);
@@ -1158,15 +1216,18 @@ class VulkanRenderer::Impl {
     clear.color = {{bo.background_srgb.x, bo.background_srgb.y, bo.background_srgb.z, 0.0f}};
     const auto t0 = Clock::now();
     EXO_RETURN_IF_ERROR(EnsureBlendPipe(bo.n_best));
-    EXO_RETURN_IF_ERROR(Draw(color_target, color_pass.get(), blend_pipes[bo.n_best].get(), clear, 4,
-                             /*deferred=*/true));
+    EXO_RETURN_IF_ERROR(Draw(color_target, color_pass.get(),
+                             blend_compute ? VK_NULL_HANDLE : blend_pipes[bo.n_best].get(), clear, 4,
+                             /*deferred=*/true,
+                             blend_compute ? blend_comp_pipes[bo.n_best].get() : VK_NULL_HANDLE));
     RenderResult r;
     r.gpu_ms = MsSince(t0);
     r.rank_ms = rank_ms;
     const auto t1 = Clock::now();
     r.color = ImageU8(w, h, 3);
     r.coverage = ImageU8(w, h, 1);
-    const uint8_t* src = static_cast<const uint8_t*>(color_target.readback.mapped);
+    const uint8_t* src = static_cast<const uint8_t*>(
+        blend_compute ? color_target.blend_out.mapped : color_target.readback.mapped);
     uint8_t* dst = r.color.data();
     uint8_t* cov = r.coverage.data();
     for (size_t i = 0, n = size_t(w) * h; i < n; ++i) {

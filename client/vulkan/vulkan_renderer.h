@@ -37,6 +37,10 @@ struct VulkanRendererOptions {
   int bake_discontinuity_radius_px = blend::BlendOptions{}.discontinuity_radius_px;
   float bake_discontinuity_delta_z_m = blend::BlendOptions{}.discontinuity_delta_z_m;
   float bake_discontinuity_delta_z_rel = blend::BlendOptions{}.discontinuity_delta_z_rel;
+  // Runs the blend as a compute dispatch over the G-buffer (shaders/blend.comp) instead of a
+  // full-screen triangle (blend.frag); same per-pixel code and result. Off by default: measured
+  // 5-7 % slower on lavapipe (docs/vulkan.md); kept for devices where compute is the better path.
+  bool blend_in_compute = false;
 
   absl::Status Validate() const;
 };

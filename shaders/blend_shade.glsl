@@ -1,0 +1,183 @@
+// Body of the lumigraph blend pass, shared by blend.frag (full-screen triangle) and blend.comp
+// (compute dispatch over the G-buffer), included after lumigraph_common.glsl: ShadePixel().
+// SPEC §6, eq. 3.1-3.5, deferred: per pixel of the G-buffer (surface point of the proxy mesh),
+// look up the fragment's cell in the resident cell-hash table, evaluate validity and weights for every
+// reference of the cell, keep the best n (<= 4, default 3) and blend their exposure-corrected
+// linear colours. Mirrors common/lumigraph/blend_math.h (see lumigraph_common.glsl).
+
+// Store tables as uniform texel buffers (a fetch is a vector gather on llvmpipe; a divergent SSBO
+// load is a per-lane scalar loop per component, measured much slower, docs/vulkan.md):
+// Views: 5 RGBA32F texels per view record (GpuView in vulkan_renderer.cc):
+//   0..2 rows of P = K [R^T | -R^T c] (local -> homogeneous pixel; row 2 gives the camera z),
+//   3    centre c (local) and exposure E, 4 width, height, layer, valid (floats, exact < 2^24).
+layout(set = 0, binding = 1) uniform samplerBuffer view_texels;
+// Cell hash: (key lo, key hi, offset into Refs, count); empty = (~0, ~0), tombstone = (~1, ~0).
+layout(set = 0, binding = 2) uniform usamplerBuffer cell_entries;
+// Reference slots: view-record indices (the views' texture-array layers), ~0 = not resident.
+layout(set = 0, binding = 3) uniform usamplerBuffer ref_slots;
+layout(set = 0, binding = 4) uniform sampler2DArray colors;  // SRGB8_A8 + bilinear sampler
+layout(set = 0, binding = 5) uniform sampler2DArray depths;  // R32F baked z-depth (0 = invalid)
+
+// Deferred: the surface point per pixel from gbuffer.frag (w = 0: no proxy surface).
+layout(set = 0, binding = 6) uniform sampler2D gbuffer;
+// Per-frame ranked references (vulkan_renderer.cc RankRefs), 2 texels per reference slot, same
+// slot index as ref_slots, sorted per cell by an upper bound of the weight this frame:
+//   (c_i.xyz, bound) as float bits; (layer, position in the cell's list, width | height << 16,
+//   exposure bits). bound = -1: reference not resident.
+layout(set = 0, binding = 7) uniform usamplerBuffer ranked_refs;
+
+const int kViewTexels = 5;
+// n of §3.1.4 (BlendOptions::n_best), a specialisation constant: one pipeline per n, so the
+// disabled best-n slots and the n-th-best pick fold away at compile time.
+layout(constant_id = 0) const int kNBest = 3;
+
+// ---- best-n with the sample parameters carried along ----
+// Same selection as blend_math.h InsertBest (decreasing weight, w <= 0 ignored, ties keep the
+// earlier reference), unrolled over slots with constant indices (see BestStep in
+// lumigraph_common.glsl). An empty slot has weight 0 and every inserted weight is > 0, so
+// "index < 0" needs no test. Each slot carries what the blend needs (clamped
+// uv, layer, exposure), so the chosen views are not fetched and projected a second time.
+struct BestSamples {
+  vec4 weight;
+  ivec4 index;          // position of the reference in the cell's list (ties: lower first)
+  vec4 s0, s1, s2, s3;  // (u, v clamped to the view, layer, exposure)
+};
+
+// The references arrive in ranked (not list) order, so equal weights are ordered by the list
+// position explicitly: (weight desc, position asc) is the order blend_math.h's in-order
+// InsertBest produces (a later equal weight never displaces an earlier one).
+void SampleStep(inout float bw, inout int bi, inout vec4 bs, inout float cw, inout int ci,
+                inout vec4 cs, inout bool moving, bool enabled) {
+  if (enabled && (moving || cw > bw || (cw == bw && ci < bi))) {
+    const float tw = bw;
+    const int ti = bi;
+    const vec4 ts = bs;
+    bw = cw;
+    bi = ci;
+    bs = cs;
+    cw = tw;
+    ci = ti;
+    cs = ts;
+    moving = true;
+  }
+}
+
+void InsertSample(inout BestSamples b, int n, float w, int idx, vec4 sample_params) {
+  if (!(w > 0.0)) return;
+  float cw = w;
+  int ci = idx;
+  vec4 cs = sample_params;
+  bool moving = false;
+  SampleStep(b.weight.x, b.index.x, b.s0, cw, ci, cs, moving, 0 < n);
+  SampleStep(b.weight.y, b.index.y, b.s1, cw, ci, cs, moving, 1 < n);
+  SampleStep(b.weight.z, b.index.z, b.s2, cw, ci, cs, moving, 2 < n);
+  SampleStep(b.weight.w, b.index.w, b.s3, cw, ci, cs, moving, 3 < n);
+}
+
+// Bilinear sample of SrgbToLinear(texels) at clamped continuous pixel uv (centres at integers):
+// the convention of blend_math.h. One filtered fetch from the SRGB8_A8 array with the linear
+// sampler (the texture unit decodes to linear before filtering, as specified). uv is clamped to
+// the VIEW's [0, size-1] (layers can be larger than the view; at uv = size-1 the neighbour
+// outside the view gets weight exactly 0). llvmpipe filters with 8-bit fractional weights, so
+// this differs from the float lerp of the CPU reference by < 1/255 (golden tests bound it).
+// Four texelFetch + float lerp measured ~3x slower per frame on llvmpipe (docs/vulkan.md).
+void AccumulateSample(inout BlendAccumulator acc, float weight, vec4 s, vec2 layer_size,
+                      bool enabled) {
+  if (!enabled || !(weight > 0.0)) return;
+  const vec3 lin = textureLod(colors, vec3((s.xy + 0.5) / layer_size, s.z), 0.0).rgb;
+  Accumulate(acc, lin, s.w, weight);
+}
+
+// rgb = sRGB, a = coverage (1 blended, 128/255 surface without a valid view, 0 no surface).
+vec4 ShadePixel(ivec2 pixel) {
+  const vec4 g = texelFetch(gbuffer, pixel, 0);
+  if (g.w == 0.0) return vec4(frame.background.rgb, 0.0);  // no proxy surface: coverage 0
+  const vec3 x = g.xyz;
+  const vec3 c_o = frame.cam_centre_cell.xyz;
+  const float q = frame.cam_centre_cell.w;
+  const uvec2 key = PackCell(ivec3(floor(x / q)));
+
+  // Cell-hash lookup (linear probing), at most max_probe + 1 probes: no resident key is displaced
+  // further from its home slot (tracked on the host), so a miss stops there. The former bound,
+  // the table size, made llvmpipe run ~1000x slower (see docs/vulkan.md).
+  const uint mask = uint(frame.iparams.z);
+  const uint max_probe = uint(frame.iparams.w);
+  uint h = CellHash32(key) & mask;
+  uint offset = 0u, count = 0u;
+  for (uint probe = 0u; probe <= max_probe; ++probe) {
+    const uvec4 e = texelFetch(cell_entries, int(h));
+    if (e.x == key.x && e.y == key.y) {
+      offset = e.z;
+      count = e.w;
+      break;
+    }
+    if (e.x == 0xFFFFFFFFu && e.y == 0xFFFFFFFFu) break;
+    h = (h + 1u) & mask;
+  }
+
+  const int n = kNBest;
+  // Per-fragment parts of the weights (3.2)/(3.3): the ray to the novel camera.
+  const vec3 a = c_o - x;
+  const float la = length(a);
+  const float d_o = max(la, kMinDistance);
+  BestSamples best;
+  best.weight = vec4(0.0);
+  best.index = ivec4(0x7FFFFFFF);  // empty: weight 0 (every inserted weight is > 0)
+  best.s0 = best.s1 = best.s2 = best.s3 = vec4(0.0);
+  // Weight of the n-th best so far (0 while a slot is free). References come in decreasing
+  // order of their per-frame weight BOUND: once a bound is below nth, neither this reference
+  // nor any later one can enter the best n (break); a reference whose actual weight is below
+  // nth is skipped before its validity test. Both exact: the selection is unchanged.
+  float nth = 0.0;
+  for (uint i = 0u; i < count; ++i) {
+    const int t = int(2u * (offset + i));
+    const uvec4 r0 = texelFetch(ranked_refs, t);
+    if (uintBitsToFloat(r0.w) < nth) break;  // also: bound -1 = not resident (sorted last)
+    // ---- weights: DirectionalWeight / PositionalWeight / CombinedWeight with v = 1 ----
+    const vec3 b = uintBitsToFloat(r0.xyz) - x;
+    const float lb = length(b);  // also the range of x from the view (a rotation keeps lengths)
+    const float w_d = (!(la > kMinDistance) || !(lb > kMinDistance))
+                          ? 0.0 : max(0.0, dot(a, b) / (la * lb));
+    const float w_p = frame.iparams.x == kPositionalPrinted
+                          ? max(0.0, 1.0 - lb / d_o)
+                          : max(0.0, 1.0 - max(0.0, lb - d_o) / d_o);
+    const float w = CombinedWeight(1.0, w_d, w_p, frame.weights.x, frame.weights.y);
+    if (!(w >= nth)) continue;
+    const uvec4 r1 = texelFetch(ranked_refs, t + 1);
+    const int layer = int(r1.x);
+    const int base = layer * kViewTexels;
+    // ---- validity (3.4), blend_math.h Validity() with the discontinuity test baked into the
+    // depth layer. Projection by P = K [R^T | -R^T c]: hp = (z u, z v, z) with z the camera
+    // z-depth, so in_front is z > kMinDistance and uv = hp.xy / z, algebraically the same as
+    // K (R^T (x - c)). The range of x is |x - c| = lb, and the stored range along the same ray
+    // is z_stored * range / z (= z_stored * |ray|, RangeFromZDepth).
+    const vec4 hx = vec4(x, 1.0);
+    const float z = dot(texelFetch(view_texels, base + 2), hx);
+    if (!(z > kMinDistance)) continue;
+    const vec2 uv = vec2(dot(texelFetch(view_texels, base + 0), hx),
+                         dot(texelFetch(view_texels, base + 1), hx)) / z;
+    const vec2 size = vec2(float(r1.z & 0xFFFFu), float(r1.z >> 16));
+    if (!(uv.x >= -0.5 && uv.y >= -0.5 && uv.x < size.x - 0.5 && uv.y < size.y - 0.5)) continue;
+    const vec2 pc = clamp(floor(uv + 0.5), vec2(0.0), size - 1.0);
+    const float z_stored = texelFetch(depths, ivec3(ivec2(pc), layer), 0).r;
+    if (!ValidDepth(z_stored)) continue;
+    const float range_m = lb;
+    const float range_d = z_stored * range_m / z;
+    if (range_m > range_d + frame.weights.z + frame.weights.w * range_d) continue;
+    InsertSample(best, n, w, int(r1.y),
+                 vec4(clamp(uv, vec2(0.0), size - 1.0), float(layer), uintBitsToFloat(r1.w)));
+    nth = n == 1 ? best.weight.x : n == 2 ? best.weight.y : n == 3 ? best.weight.z : best.weight.w;
+  }
+
+  BlendAccumulator acc;
+  acc.sum_linear = vec3(0.0);
+  acc.sum_weight = 0.0;
+  const vec2 layer_size = vec2(textureSize(colors, 0).xy);
+  AccumulateSample(acc, best.weight.x, best.s0, layer_size, 0 < n);
+  AccumulateSample(acc, best.weight.y, best.s1, layer_size, 1 < n);
+  AccumulateSample(acc, best.weight.z, best.s2, layer_size, 2 < n);
+  AccumulateSample(acc, best.weight.w, best.s3, layer_size, 3 < n);
+  vec3 srgb;
+  const bool covered = Resolve(acc, frame.background.rgb, srgb);
+  return vec4(srgb, covered ? 1.0 : 128.0 / 255.0);
+}
