@@ -44,7 +44,7 @@ struct Args {
   int freeze = -1, rot_only_level = -1;  // -1: defaults
   double min_info = -1;
   int iters = 0, outer = 0;
-  double depth_weight = -1;
+  double depth_weight = -1, min_tinfo = -1;
   bool render = true;           // held-out MSSIM/PSNR (slow); --render 0 for pose diagnostics
 };
 
@@ -165,6 +165,7 @@ absl::Status RunScene(synth::SceneKind kind, const Args& a) {
   if (a.outlier_rel > 0) opt.outlier_max_relative_residual = a.outlier_rel;
   if (a.iters > 0) opt.max_solver_iterations = a.iters;
   if (a.depth_weight >= 0) opt.depth_weight = a.depth_weight;
+  if (a.min_tinfo >= 0) opt.min_translation_information = a.min_tinfo;
   if (a.outer > 0) opt.max_outer_iterations = a.outer;
   if (a.freeze >= 0) opt.freeze_weak_directions = a.freeze != 0;
   if (a.rot_only_level >= 0) opt.rotation_only_from_level = a.rot_only_level;
@@ -197,12 +198,12 @@ absl::Status RunScene(synth::SceneKind kind, const Args& a) {
       if (std::getenv("REFINEMENT_BENCH_VERBOSE"))
         std::fprintf(stderr,
                      "view %zu k=%.3f E=%.3f rot %.3f->%.3f trans %.1f->%.1f mm n=%d valid=%d "
-                     "lmin=%.3g cond=%.3g free=%d refused=%d outlier=%d rel=%.3f %.1f ms (cpu %.1f)\n",
+                     "lmin=%.3g tinfo=%.3g cond=%.3g free=%d refused=%d outlier=%d rel=%.3f %.1f ms (cpu %.1f)\n",
                      i, k[i], res->exposure, rot_before.back(),
                      RotationAngleRad(res->local_from_cam.rotation, truth_pose[i].rotation) * 180 / M_PI,
                      tr_before.back(),
                      1000 * glm::length(res->local_from_cam.translation - truth_pose[i].translation),
-                     res->num_samples, res->num_valid_final, res->pose_min_eigenvalue,
+                     res->num_samples, res->num_valid_final, res->pose_min_eigenvalue, res->pose_translation_information,
                      res->pose_condition, res->pose_free_directions, res->pose_refused_rank_deficient, res->rejected_outlier,
                      res->relative_residual, res->ms, res->cpu_ms);
       if (std::getenv("REFINEMENT_BENCH_STAGES"))
@@ -285,6 +286,7 @@ int Main(int argc, char** argv) {
     else if (key == "--freeze") a.freeze = std::atoi(v);
     else if (key == "--iters") a.iters = std::atoi(v);
     else if (key == "--depth-weight") a.depth_weight = std::atof(v);
+    else if (key == "--min-tinfo") a.min_tinfo = std::atof(v);
     else if (key == "--outer") a.outer = std::atoi(v);
     else if (key == "--rot-only-level") a.rot_only_level = std::atoi(v);
     else if (key == "--min-info") a.min_info = std::atof(v);

@@ -641,6 +641,24 @@ Eigen::Matrix<double, 6, 6> Refiner::Information(int level, const Pose& pose, do
     const double w = s2 < 1.0 ? (1.0 - s2) * (1.0 - s2) : 0.0;
     h += w * j * j.transpose();
   }
+  // The depth term (as weighted in SolvePose) adds its own information; it is what separates
+  // a rotation from a translation in front of a wall.
+  const double dw = depth_interp_ ? DepthWeight(a.idx, pose, scale) : 0.0;
+  if (dw > 0)
+    for (int k = 0; k < n; ++k) {
+      const Sample& s = samples_[a.idx[k]];
+      double rd;
+      if (!DepthResidual(s, pose, &rd)) continue;
+      std::unique_ptr<ceres::CostFunction> cf(DepthDeltaResidual::Create(
+          depth_interp_.get(), cand_pyr_[0].k, pose.Apply(s.p_in_local), median_depth_m_, dw));
+      double res;
+      Eigen::Matrix<double, 6, 1> j;
+      double* jac[1] = {j.data()};
+      if (!cf->Evaluate(params, &res, jac)) continue;
+      const double s2 = res * res / (scale * scale);
+      const double w = s2 < 1.0 ? (1.0 - s2) * (1.0 - s2) : 0.0;
+      h += w * j * j.transpose();
+    }
   const double med_m = std::max(1e-4, Median(ms));
   return h / (n * med_m * med_m);
 }
@@ -669,9 +687,33 @@ void Refiner::RankCheck(const Pose& pose, double e) {
   res_.pose_min_eigenvalue = lmin;
   res_.pose_condition = lmin > 0 ? lmax / lmin : std::numeric_limits<double>::infinity();
   const double floor = std::max(o_.min_pose_information, lmax / o_.max_pose_condition);
+  // Translation in metres: information of the translation given the rotation (Schur
+  // complement), per m^2. At altitude (village: 20-60 m) a centimetre of camera motion is far
+  // below a pixel and its directions are frozen, instead of letting them wander along the
+  // energy's flat valley (measured: hundreds of mm).
+  Eigen::Matrix<double, 6, Eigen::Dynamic> allowed = Eigen::Matrix<double, 6, 6>::Identity();
+  {
+    const Eigen::Matrix3d hrr = h.topLeftCorner<3, 3>(), htt = h.bottomRightCorner<3, 3>();
+    const Eigen::Matrix3d hrt = h.topRightCorner<3, 3>();
+    const Eigen::Matrix3d schur =
+        (htt - hrt.transpose() * hrr.ldlt().solve(hrt)) / (median_depth_m_ * median_depth_m_);
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> et(schur);
+    res_.pose_translation_information = std::max(0.0, et.eigenvalues()(0));
+    std::vector<int> keep_t;
+    for (int i = 0; i < 3; ++i)
+      if (et.eigenvalues()(i) >= o_.min_translation_information) keep_t.push_back(i);
+    if (!o_.freeze_weak_directions && keep_t.size() < 3) keep_t.clear();
+    allowed = Eigen::Matrix<double, 6, Eigen::Dynamic>::Zero(6, 3 + static_cast<int>(keep_t.size()));
+    allowed.topLeftCorner<3, 3>().setIdentity();
+    for (size_t i = 0; i < keep_t.size(); ++i)
+      allowed.block<3, 1>(3, 3 + i) = et.eigenvectors().col(keep_t[i]);
+  }
+  // Weak directions of the information restricted to the allowed subspace.
+  const Eigen::MatrixXd ha = allowed.transpose() * h * allowed;
+  Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> ea(ha);
   std::vector<int> keep;
-  for (int i = 0; i < 6; ++i)
-    if (es.eigenvalues()(i) >= floor) keep.push_back(i);
+  for (int i = 0; i < ha.rows(); ++i)
+    if (ea.eigenvalues()(i) >= floor) keep.push_back(i);
   if (!o_.freeze_weak_directions && static_cast<int>(keep.size()) < 6) keep.clear();
   res_.pose_free_directions = static_cast<int>(keep.size());
   if (keep.empty()) {
@@ -679,7 +721,7 @@ void Refiner::RankCheck(const Pose& pose, double e) {
     return;
   }
   free_basis_.resize(6, static_cast<int>(keep.size()));
-  for (size_t i = 0; i < keep.size(); ++i) free_basis_.col(i) = es.eigenvectors().col(keep[i]);
+  for (size_t i = 0; i < keep.size(); ++i) free_basis_.col(i) = allowed * ea.eigenvectors().col(keep[i]);
   // Coarse levels: rotation only, its own well-conditioned directions.
   Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> er(h.topLeftCorner<3, 3>());
   std::vector<int> keep_r;

@@ -67,6 +67,10 @@ struct RefinementOptions {
   double min_pose_information = 0.3;
   double max_pose_condition = 1e4;
   bool freeze_weak_directions = true;
+  // Translation directions whose information given the rotation (Schur complement, same
+  // normalisation, per m^2) is below this are frozen. Measured (level 1, oracle references):
+  // apartment (1-4 m) 0.5-50, village fly-over (20-60 m) 1e-4-1e-2.
+  double min_translation_information = 0.05;
   // Depth term of the pose stage (candidate z-depth vs the samples' z, relative), weighted so
   // that its robust scale equals the photometric one times this factor; 0: photometric only
   // (e.g. colour and depth not registered). Needs a candidate depth map.
@@ -107,6 +111,7 @@ struct RefinementResult {
   double pose_min_eigenvalue = 0.0;  // rank check figures (pixel-normalised, per sample)
   double pose_condition = 0.0;
   int pose_free_directions = 0;      // pose directions updated (0..6)
+  double pose_translation_information = 0.0;  // smallest, per m^2 (see options)
   std::vector<RefinementStage> stages;
   double ms = 0.0;              // wall time of the call
   double cpu_ms = 0.0;          // CPU time of the calling thread (robust to a loaded machine)
