@@ -62,5 +62,61 @@ TEST(CostFunctorsTest, PoseResidualRejectsPointsBehindCamera) {
   EXPECT_FALSE(f(q, t, &r));
 }
 
+// The refiner's pose chart: xi = (angle-axis about the camera centre, translation in units of
+// the median depth). Checked at xi != 0 (the chart is re-centred per stage, but LM evaluates
+// away from 0) for the photometric and the depth residual.
+TEST(CostFunctorsTest, PoseDeltaAndDepthDeltaResidualGradients) {
+  const int w = 64, h = 48;
+  std::vector<float> img(w * h), depth(w * h);
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      img[y * w + x] = 0.5f + 0.3f * std::sin(0.21 * x + 0.1 * y) * std::cos(0.17 * y);
+      depth[y * w + x] = 2.0f + 0.01f * x + 0.02f * y + 0.05f * std::sin(0.1 * x);
+    }
+  LumaGrid grid(img.data(), 0, h, 0, w);
+  LumaInterpolator interp(grid);
+  DepthGrid dgrid(depth.data(), 0, h, 0, w);
+  DepthInterpolator dinterp(dgrid);
+  LevelIntrinsics k{50.0, 52.0, 31.5, 23.5};
+  ceres::NumericDiffOptions nd;
+  nd.ridders_relative_initial_step_size = 1e-5;  // stay inside one bicubic cell (see above)
+  for (int trial = 0; trial < 5; ++trial) {
+    const Eigen::Vector3d p(0.1 * trial - 0.2, 0.05 * trial - 0.1, 2.0 + 0.1 * trial);
+    double xi[6] = {0.01 * trial, -0.02, 0.015, 0.002 * trial, 0.003, -0.004};
+    double* params[1] = {xi};
+    for (int which = 0; which < 2; ++which) {
+      std::unique_ptr<ceres::CostFunction> cf(
+          which == 0 ? PoseDeltaResidual::Create(&interp, k, p, 2.5, 1.2, 0.4)
+                     : DepthDeltaResidual::Create(&dinterp, k, p, 2.5, 3.0));
+      const std::vector<const ceres::Manifold*>* no_manifolds = nullptr;
+      ceres::GradientChecker checker(cf.get(), no_manifolds, nd);
+      ceres::GradientChecker::ProbeResults results;
+      EXPECT_TRUE(checker.Probe(params, 1e-5, &results))
+          << (which ? "depth" : "photometric") << " trial " << trial << results.error_log;
+    }
+  }
+}
+
+TEST(CostFunctorsTest, SubspaceManifoldUpdatesOnlyItsDirections) {
+  Eigen::Matrix<double, 6, Eigen::Dynamic> b = Eigen::Matrix<double, 6, 2>::Zero();
+  b(0, 0) = 1.0;
+  b(3, 1) = std::sqrt(0.5);
+  b(4, 1) = std::sqrt(0.5);
+  SubspaceManifold m(b);
+  EXPECT_EQ(m.TangentSize(), 2);
+  const double x[6] = {1, 2, 3, 4, 5, 6}, d[2] = {0.5, 2.0};
+  double y[6], back[2];
+  ASSERT_TRUE(m.Plus(x, d, y));
+  EXPECT_DOUBLE_EQ(y[0], 1.5);
+  EXPECT_DOUBLE_EQ(y[1], 2.0);  // frozen direction unchanged
+  EXPECT_DOUBLE_EQ(y[2], 3.0);
+  EXPECT_NEAR(y[3], 4.0 + std::sqrt(2.0), 1e-12);
+  EXPECT_NEAR(y[4], 5.0 + std::sqrt(2.0), 1e-12);
+  EXPECT_DOUBLE_EQ(y[5], 6.0);
+  ASSERT_TRUE(m.Minus(y, x, back));
+  EXPECT_NEAR(back[0], 0.5, 1e-12);
+  EXPECT_NEAR(back[1], 2.0, 1e-12);
+}
+
 }  // namespace
 }  // namespace exo::refinement
