@@ -153,9 +153,15 @@ float BlendWeightUpperBound(const glm::dvec3& m, double r, const glm::dvec3& c_o
   const double d_o = glm::length(a), d_i = glm::length(b);
   double w_d = 1.0;
   if (d_o > r && d_i > r) {
-    const double cos_m = std::clamp(glm::dot(a, b) / (d_o * d_i), -1.0, 1.0);
-    const double theta = std::acos(cos_m) - std::asin(r / d_o) - std::asin(r / d_i);
-    w_d = theta <= 0.0 ? 1.0 : std::max(0.0, std::cos(theta));
+    // cos(max(0, theta - delta)) with theta = angle(a, b), delta = asin(r/d_o) + asin(r/d_i) < pi,
+    // without trigonometric calls: cos/sin of delta by angle addition, then
+    // theta <= delta <=> cos(theta) >= cos(delta), else cos(theta - delta) by angle subtraction.
+    const double cos_t = std::clamp(glm::dot(a, b) / (d_o * d_i), -1.0, 1.0);
+    const double sin_t = std::sqrt(std::max(0.0, 1.0 - cos_t * cos_t));
+    const double so = r / d_o, si = r / d_i;
+    const double co = std::sqrt(1.0 - so * so), ci = std::sqrt(1.0 - si * si);
+    const double cos_d = co * ci - so * si, sin_d = so * ci + co * si;
+    w_d = cos_t >= cos_d ? 1.0 : std::max(0.0, cos_t * cos_d + sin_t * sin_d);
   }
   // Positional: decreasing in |c_i - x| >= d_i - r, increasing in |c_o - x| <= d_o + r.
   const double ratio =
@@ -1144,9 +1150,20 @@ class VulkanRenderer::Impl {
   // weight found so far (no later one can enter the best n) and breaks weight ties by the
   // position in the cell's list, so the selection equals blend_math.h's in-order InsertBest.
   // Non-resident references get bound -1 (sorted last, never evaluated).
-  void RankRefs(const glm::vec3& c_o_f, const blend::BlendOptions& bo) {
+  // Cells whose ball lies entirely outside the novel camera's frustum (side planes through the
+  // centre, z >= 0) are skipped: no pixel's surface point can fall in them this frame, so their
+  // stale records are never read (exact).
+  void RankRefs(const glm::vec3& c_o_f, const PinholeCamera& cam, const Rigid3d& local_from_cam,
+                const blend::BlendOptions& bo) {
     const double q = grid.cell_size_m;
     const glm::dvec3 c_o(c_o_f);
+    const glm::dmat3 cam_from_local = glm::transpose(local_from_cam.RotationMatrix());
+    const glm::dvec3 planes[5] = {
+        glm::normalize(glm::dvec3(cam.fx, 0.0, cam.cx + 0.5)),
+        glm::normalize(glm::dvec3(-cam.fx, 0.0, cam.width - 0.5 - cam.cx)),
+        glm::normalize(glm::dvec3(0.0, cam.fy, cam.cy + 0.5)),
+        glm::normalize(glm::dvec3(0.0, -cam.fy, cam.height - 0.5 - cam.cy)),
+        glm::dvec3(0.0, 0.0, 1.0)};
     const size_t per_slab = size_t(opt.max_refs_per_cell);
     const uint32_t* slabs = static_cast<const uint32_t*>(refs_buf.mapped);
     const GpuView* recs = static_cast<const GpuView*>(view_records.mapped);
@@ -1156,6 +1173,10 @@ class VulkanRenderer::Impl {
       const glm::dvec3 m = (glm::dvec3(UnpackCell(id)) + 0.5) * q;
       // Half diagonal, + 0.1 % of q and 1e-5 relative to |m| for floor(x / q) in float.
       const double r = q * (0.5 * std::sqrt(3.0) * 1.001) + 1e-5 * (glm::length(m) + q);
+      const glm::dvec3 m_cam = cam_from_local * (m - c_o);
+      bool outside = false;
+      for (const glm::dvec3& n : planes) outside = outside || glm::dot(n, m_cam) < -1.01 * r;
+      if (outside) continue;
       const uint32_t* slots = slabs + size_t(c.slab) * per_slab;
       const size_t n = c.refs.size();
       rank_scratch.clear();
@@ -1210,7 +1231,7 @@ class VulkanRenderer::Impl {
     f.iparams.y = bo.n_best;
     std::memcpy(frame_ubo.mapped, &f, sizeof(f));
     const auto tr = Clock::now();
-    RankRefs(glm::vec3(f.cam_centre_cell), bo);
+    RankRefs(glm::vec3(f.cam_centre_cell), camera, local_from_cam, bo);
     const double rank_ms = MsSince(tr);
     VkClearValue clear{};
     clear.color = {{bo.background_srgb.x, bo.background_srgb.y, bo.background_srgb.z, 0.0f}};
