@@ -205,7 +205,7 @@ absl::Status RunScene(synth::SceneKind kind, const Args& a) {
                      1000 * glm::length(res->local_from_cam.translation - truth_pose[i].translation),
                      res->num_samples, res->num_valid_final, res->pose_min_eigenvalue, res->pose_translation_information,
                      res->pose_condition, res->pose_free_directions, res->pose_refused_rank_deficient, res->rejected_outlier,
-                     res->relative_residual, res->ms, res->cpu_ms);
+                     res->relative_residual, res->outlier_threshold, res->reference_disagreement, res->ms, res->cpu_ms);
       if (std::getenv("REFINEMENT_BENCH_STAGES"))
         for (const auto& st : res->stages)
           std::fprintf(stderr, "   L%d %s %.4g -> %.4g %s\n", st.level, st.pose ? "pose" : "expo",

@@ -183,6 +183,10 @@ struct Sample {
   // not depend on sub-pixel alignment or on the views' different texture blur, so the ratio
   // is unbiased; textured samples (the most textured pixel) drive the pose.
   bool flat = false;
+  // How much the references disagree here: median |E_i C_i - m| over the references (level 0;
+  // 0 with one reference). Calibrates the outlier threshold per scene.
+  float spread = 0.f;
+  int num_refs = 0;
 };
 
 // Depth edge test of SPEC §6: within 2 px of a discontinuity larger than dz, or of a hole.
@@ -364,6 +368,11 @@ void Refiner::BuildSamples(int budget) {
         for (int l = 0; l < levels_; ++l) {
           s.has[l] = !vals[l].empty();
           if (s.has[l]) s.m[l] = static_cast<float>(Median(vals[l]));
+        }
+        s.num_refs = static_cast<int>(vals[0].size());
+        if (s.num_refs >= 2) {
+          for (double& x : vals[0]) x = std::abs(x - s.m[0]);
+          s.spread = static_cast<float>(Median(vals[0]));
         }
         if (!s.has[0]) continue;
         samples_.push_back(s);
@@ -747,15 +756,25 @@ absl::StatusOr<RefinementResult> Refiner::Run() {
     const int w = cand_pyr_[0].w, h = cand_pyr_[0].h;
     cand_depth_.assign(static_cast<size_t>(w) * h, 0.f);
     cand_depth_bad_.assign(cand_depth_.size(), 0);
+    // Bad: a hole or a step > depth_discontinuity_m to a 4-neighbour, dilated by 2 px (the
+    // bicubic support plus the SPEC §6 edge margin). O(pixels), no per-pixel 8-probe test.
     for (int y = 0; y < h; ++y)
       for (int x = 0; x < w; ++x) {
         const float z = cand_.depth_m.at(x, y);
         const bool ok = z > 0.f && std::isfinite(z);
         cand_depth_[static_cast<size_t>(y) * w + x] = ok ? z : 0.f;
-        cand_depth_bad_[static_cast<size_t>(y) * w + x] =
-            !ok || NearDepthEdge(cand_.depth_m, x, y, z, o_.depth_discontinuity_m);
       }
-    Dilate(cand_depth_bad_, w, h, 1);  // bicubic support
+    const float dz = static_cast<float>(o_.depth_discontinuity_m);
+    for (int y = 0; y < h; ++y)
+      for (int x = 0; x < w; ++x) {
+        const size_t i = static_cast<size_t>(y) * w + x;
+        const float z = cand_depth_[i];
+        bool bad = !(z > 0.f);
+        if (!bad && x + 1 < w) bad = !(std::abs(cand_depth_[i + 1] - z) <= dz);
+        if (!bad && y + 1 < h) bad = !(std::abs(cand_depth_[i + w] - z) <= dz);
+        if (bad) cand_depth_bad_[i] = 1;
+      }
+    Dilate(cand_depth_bad_, w, h, 2);
     depth_grid_ = std::make_unique<refinement::DepthGrid>(cand_depth_.data(), 0, h, 0, w);
     depth_interp_ = std::make_unique<refinement::DepthInterpolator>(*depth_grid_);
   }
@@ -851,7 +870,20 @@ absl::StatusOr<RefinementResult> Refiner::Run() {
   res_.relative_residual = med_m > 0 ? Median(absr) / med_m : 1.0;
   // Fraction of the samples valid at the input pose that are still valid at the result.
   const double valid_fraction = double(af.idx.size()) / std::max<size_t>(1, a0.idx.size());
-  res_.rejected_outlier = res_.relative_residual > o_.outlier_max_relative_residual ||
+  // Threshold relative to what the references themselves disagree about (texture blur,
+  // resampling, their own residual pose errors), so it adapts per scene: factor x the median
+  // relative spread of the references at the same samples, within [min, max].
+  std::vector<double> spreads;
+  for (int j : af.idx)
+    if (samples_[j].num_refs >= 2) spreads.push_back(samples_[j].spread);
+  res_.reference_disagreement =
+      spreads.size() >= 30 && med_m > 0 ? Median(spreads) / med_m : -1.0;
+  res_.outlier_threshold =
+      res_.reference_disagreement < 0
+          ? o_.outlier_max_relative_residual
+          : std::clamp(o_.outlier_disagreement_factor * res_.reference_disagreement,
+                       o_.outlier_min_relative_residual, o_.outlier_max_relative_residual);
+  res_.rejected_outlier = res_.relative_residual > res_.outlier_threshold ||
                           valid_fraction < o_.outlier_min_valid_fraction;
   res_.exposure = e;
   // An unchanged pose is returned bit-exact (no inverse round trip).
@@ -933,6 +965,11 @@ absl::Status RefinementOptions::Validate() const {
   if (min_pose_samples < 6) return absl::InvalidArgumentError("refinement: min_pose_samples >= 6");
   if (!(min_pose_information >= 0) || !(max_pose_condition > 1))
     return absl::InvalidArgumentError("refinement: rank thresholds invalid");
+  if (!(outlier_min_relative_residual > 0) ||
+      !(outlier_max_relative_residual >= outlier_min_relative_residual) ||
+      !(outlier_disagreement_factor > 0) || !(min_translation_information >= 0) ||
+      !(depth_weight >= 0) || !(min_depth_scale_rel > 0) || rotation_only_from_level < 0)
+    return absl::InvalidArgumentError("refinement: outlier/depth/translation options invalid");
   if (!(outlier_max_relative_residual > 0) || !(outlier_min_valid_fraction >= 0) ||
       outlier_min_valid_fraction > 1)
     return absl::InvalidArgumentError("refinement: outlier thresholds invalid");

@@ -77,7 +77,13 @@ struct RefinementOptions {
   double depth_weight = 1.0;
   double min_depth_scale_rel = 0.003;  // false: refuse the whole pose if any direction is weak
   // Pose outlier: median |r_j| / median(m_j) above this at the end, or too few samples valid.
+  // The threshold is outlier_disagreement_factor x the references' own relative disagreement
+  // at the same samples (median over samples of median_i |E_i C_i - m_j|, / median m), clamped
+  // to [outlier_min_relative_residual, outlier_max_relative_residual]; with fewer than two
+  // references per sample the maximum is used.
   double outlier_max_relative_residual = 0.12;
+  double outlier_min_relative_residual = 0.02;
+  double outlier_disagreement_factor = 4.0;
   double outlier_min_valid_fraction = 0.3;
 
   absl::Status Validate() const;
@@ -108,6 +114,8 @@ struct RefinementResult {
   double cost_before = 0.0;
   double cost_after = 0.0;
   double relative_residual = 0.0;  // median |r_j| / median(m_j) at the end
+  double reference_disagreement = -1.0;  // relative spread of the references (-1: < 2 refs)
+  double outlier_threshold = 0.0;        // the relative-residual threshold used
   double pose_min_eigenvalue = 0.0;  // rank check figures (pixel-normalised, per sample)
   double pose_condition = 0.0;
   int pose_free_directions = 0;      // pose directions updated (0..6)
