@@ -1301,7 +1301,7 @@ class VulkanRenderer::Impl {
   uint64_t ResidentBytes() const {
     uint64_t b = 0;
     b += uint64_t(layer_w) * layer_h * slot_capacity * (kColorTexelBytes + 4);  // colour + R32F
-    b += view_records.size + table_buf.size + refs_buf.size + staging.size;
+    b += view_records.size + table_buf.size + refs_buf.size + ranked_buf.size + staging.size;
     for (const auto& [id, c] : chunks) b += c.vertices.size + c.indices.size;
     return b;
   }
