@@ -27,6 +27,7 @@
 #include "server/geometry/cell_areas.h"
 #include "server/geometry/scene_scale.h"
 #include "server/geometry/tsdf_volume.h"
+#include "server/planning/cell_id_proxy.h"
 #include "server/planning/view_planner.h"
 
 namespace exo::eval {
@@ -51,6 +52,7 @@ double Mean(const std::vector<double>& v) {
 
 struct ChunkEntry {
   MeshChunk chunk;
+  TriangleMesh lod;  // cell-id LOD (planning::ClusterSimplify); empty when LODs are off
   glm::vec3 centre{0.0f};
   float radius = 0.0f;
 };
@@ -83,13 +85,37 @@ bool SphereInFrustum(const glm::vec3& c_local, float r, const PinholeCamera& cam
 
 class Proxy {
  public:
-  void Set(uint64_t id, MeshChunk c) { chunks_[id] = MakeEntry(std::move(c)); }
+  // cluster_m > 0: keep a vertex-clustered LOD of every chunk for cell-id buffers.
+  void set_lod_cluster_m(double m) { lod_cluster_m_ = m; }
+  double lod_cluster_m() const { return lod_cluster_m_; }
+  void Set(uint64_t id, MeshChunk c) {
+    ChunkEntry e = MakeEntry(std::move(c));
+    if (lod_cluster_m_ > 0) {
+      auto lod = planning::ClusterSimplify(e.chunk.mesh, lod_cluster_m_);
+      if (lod.ok()) e.lod = std::move(*lod);
+    }
+    chunks_[id] = std::move(e);
+  }
   void Remove(uint64_t id) { chunks_.erase(id); }
   TriangleMesh Visible(const PinholeCamera& cam, const Rigid3d& pose, double max_range) const {
     TriangleMesh m;
     for (const auto& [id, e] : chunks_)
       if (SphereInFrustum(e.centre, e.radius, cam, pose, max_range)) Append(m, e.chunk.mesh);
     return m;
+  }
+  // What the cell-id buffers are rendered from: the LOD when enabled, else the full mesh.
+  TriangleMesh VisibleForCellIds(const PinholeCamera& cam, const Rigid3d& pose,
+                                 double max_range) const {
+    if (!(lod_cluster_m_ > 0)) return Visible(cam, pose, max_range);
+    TriangleMesh m;
+    for (const auto& [id, e] : chunks_)
+      if (SphereInFrustum(e.centre, e.radius, cam, pose, max_range)) Append(m, e.lod);
+    return m;
+  }
+  size_t lod_triangles() const {
+    size_t t = 0;
+    for (const auto& [id, e] : chunks_) t += e.lod.num_triangles();
+    return t;
   }
   TriangleMesh All() const {
     TriangleMesh m;
@@ -130,6 +156,7 @@ class Proxy {
     for (uint32_t i : c.indices) m.indices.push_back(base + i);
   }
   std::map<uint64_t, ChunkEntry> chunks_;
+  double lod_cluster_m_ = 0;
 };
 
 std::vector<planning::CellPixelCount> CellCounts(const TriangleMesh& mesh, const CellGrid& grid,
@@ -239,6 +266,8 @@ struct Source {
   size_t frame_bytes = 0;
   std::vector<Rigid3d> poses;                 // local_from_cam per input frame
   SceneScale scale;
+  ScaleMode scale_mode = ScaleMode::kBounds;
+  double view_depth_m = 0;                    // median valid depth of the first input frame
   double default_lambda = 0.5;
   double metres_per_rad = 1.0;                // min-distance policy
   std::string dataset;                        // "village/flyover", "7scenes/redkitchen"
@@ -280,7 +309,24 @@ planning::PlannerOptions PlannerFor(const PolicyConfig& c, const Source& src, do
   po.cell_size_m = cell_m;
   po.d_max_m = src.scale.d_max_m;
   po.sigma_m = src.scale.sigma_m;
+  if (src.scale_mode == ScaleMode::kViewDepth && src.view_depth_m > 0) {
+    const planning::PlannerOptions f =
+        planning::PlannerOptions::ForScene(src.scale.diameter_m, src.view_depth_m);
+    po.d_max_m = f.d_max_m;
+    po.sigma_m = f.sigma_m;
+  }
   return po;
+}
+
+// Median of the valid (> 0, finite) depths of an image (0 when none).
+double MedianDepth(const ImageF& depth) {
+  std::vector<float> v;
+  v.reserve(depth.size());
+  for (float z : depth.span())
+    if (z > 0 && std::isfinite(z)) v.push_back(z);
+  if (v.empty()) return 0;
+  std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
+  return v[v.size() / 2];
 }
 
 ImageU8 Hstack(const std::vector<const ImageU8*>& imgs) {
@@ -331,19 +377,27 @@ struct EvalSink {
 std::string ConfigJson(const std::string& dataset, const std::string& test_poses,
                        const std::string& proxy, double voxel_m,
                        int frames, const PolicyConfig& c, double lambda, double cell_m,
-                       double dts, const ConfigResult& r, int idw, int idh) {
+                       double dts, const ConfigResult& r, int idw, int idh,
+                       const planning::PlannerOptions& po, const std::string& scale,
+                       double lod_m) {
+  const bool baseline = c.policy == Policy::kEveryN || c.policy == Policy::kMinDistance ||
+                        c.policy == Policy::kAll;
+  const char* refs = c.policy == Policy::kVertexColor ? "none"
+                     : baseline && c.uncapped_refs    ? "uncapped"
+                                                      : "preselect";
   return absl::StrFormat(
       "{\"bench\":\"eval\",\"dataset\":\"%s\",\"test_poses\":\"%s\",\"proxy\":\"%s\",\"tag\":\"%s\","
-      "\"config\":{\"policy\":\"%s\",\"frames\":%d,\"store\":%d,\"r_max\":%d,\"lambda\":%.2f,"
-      "\"cell_m\":%.3f,\"voxel_m\":%.3f,\"delta_tau_sum\":%.3f,\"idbuf\":\"%dx%d\"},"
+      "\"config\":{\"policy\":\"%s\",\"refs\":\"%s\",\"frames\":%d,\"store\":%d,\"r_max\":%d,\"lambda\":%.2f,"
+      "\"cell_m\":%.3f,\"voxel_m\":%.3f,\"delta_tau_sum\":%.3f,\"idbuf\":\"%dx%d\","
+      "\"scale\":\"%s\",\"d_max_m\":%.2f,\"sigma_m\":%.2f,\"cellid_lod_m\":%.3f},"
       "\"quality\":{\"mssim\":%.4f,\"psnr\":%.2f,\"coverage\":%.4f,\"mssim_covered\":%.4f,"
       "\"surface\":%.4f,\"test_views\":%d},"
       "\"speed\":{\"integrate_ms_median\":%.2f,\"integrate_ms_p95\":%.2f,\"plan_ms_median\":%.2f,"
       "\"plan_ms_p95\":%.2f,\"consider_ms_median\":%.3f,\"render_ms_median\":%.1f},"
       "\"memory\":{\"store_bytes\":%zu,\"geometry_bytes\":%zu,\"planner_bytes\":%zu},"
       "\"views\":%zu,\"accepted\":%zu,\"tau_sum\":%.2f}",
-      dataset, test_poses, proxy, c.tag, PolicyName(c.policy), frames, c.store, c.r_max, lambda, cell_m,
-      voxel_m, dts, idw, idh, r.quality.mssim, r.quality.psnr, r.quality.coverage,
+      dataset, test_poses, proxy, c.tag, PolicyName(c.policy), refs, frames, c.store, c.r_max, lambda,
+      cell_m, voxel_m, dts, idw, idh, scale, po.d_max_m, po.sigma_m, lod_m, r.quality.mssim, r.quality.psnr, r.quality.coverage,
       r.quality.mssim_covered, r.quality.surface, r.quality.views, r.integrate_ms_median, r.integrate_ms_p95,
       r.plan_ms_median, r.plan_ms_p95, r.consider_ms_median, r.render_ms_median, r.store_bytes,
       r.geometry_bytes, r.planner_bytes, r.store_views, r.accepted, r.tau_sum);
@@ -360,6 +414,8 @@ struct EngineOptions {
   std::string dump_dir;
   int dump_views = 0;
   TriangleMesh gt_mesh;  // used when proxy == kGroundTruth
+  // Cell-id LOD: cluster size as a fraction of the (smallest) cell size; 0 = full proxy mesh.
+  double cellid_lod_frac = 0;
 };
 
 class Engine {
@@ -368,6 +424,13 @@ class Engine {
       : src_(std::move(src)), configs_(std::move(configs)), opt_(std::move(opt)) {}
 
   absl::Status Init() {
+    if (opt_.cellid_lod_frac > 0) {
+      double min_cell = 1e30;
+      for (const PolicyConfig& c : configs_)
+        min_cell = std::min(min_cell, c.cell_m > 0 ? c.cell_m : src_.scale.cell_size_m);
+      if (configs_.empty()) min_cell = src_.scale.cell_size_m;
+      proxy_.set_lod_cluster_m(opt_.cellid_lod_frac * min_cell);
+    }
     if (opt_.proxy == ProxyKind::kTsdf) {
       EXO_RETURN_IF_ERROR(opt_.tsdf.Validate());
       tsdf_ = std::make_unique<TsdfVolume>(opt_.tsdf);
@@ -424,6 +487,7 @@ class Engine {
   // One input frame (frame may be null for the ground-truth proxy).
   absl::Status Step(int idx, const Frame* frame) {
     const Rigid3d& pose = src_.poses[idx];
+    double lod_ms = 0;
     auto t0 = Clock::now();
     if (tsdf_ != nullptr) {
       if (frame == nullptr) return absl::InternalError("TSDF proxy needs frames");
@@ -431,13 +495,16 @@ class Engine {
       for (MeshChunk& c : tsdf_->ExtractDirtyChunks()) {
         for (auto& g : groups_) g.areas->UpdateChunk(c);
         const uint64_t id = c.id;
+        // Storing a dirty chunk includes its cell-id LOD: planning time, not integration.
+        const auto t_lod = Clock::now();
         proxy_.Set(id, std::move(c));
+        lod_ms += MsSince(t_lod);
       }
       for (uint64_t id : tsdf_->TakeRemovedChunkIds()) {
         for (auto& g : groups_) g.areas->RemoveChunk(id);
         proxy_.Remove(id);
       }
-      integrate_ms_.push_back(MsSince(t0));
+      integrate_ms_.push_back(MsSince(t0) - lod_ms);
     } else {
       integrate_ms_.push_back(0.0);
     }
@@ -447,10 +514,10 @@ class Engine {
       const std::vector<CellId> changed = g.areas->TakeChangedCells();
       for (size_t ci : g.online)
         for (CellId k : changed) EXO_RETURN_IF_ERROR(online_[ci].planner->SetCellArea(k, g.areas->Area(k)));
-      const TriangleMesh mesh = proxy_.Visible(src_.camera, pose, opt_.max_range_m);
+      const TriangleMesh mesh = proxy_.VisibleForCellIds(src_.camera, pose, opt_.max_range_m);
       PinholeCamera id_cam;
       const auto cells = CellCounts(mesh, g.grid, src_.camera, pose, opt_.id_w, opt_.id_h, &id_cam);
-      g.cellid_ms.push_back(MsSince(t1));
+      g.cellid_ms.push_back(MsSince(t1) + lod_ms);
       for (size_t ci : g.online) {
         planning::Candidate c;
         c.id = ViewId(idx + 1);
@@ -476,7 +543,8 @@ class Engine {
       if (!g.needs_final) continue;
       g.final_cells.resize(n);
       for (int i = 0; i < n; ++i) {
-        const TriangleMesh mesh = proxy_.Visible(src_.camera, src_.poses[i], opt_.max_range_m);
+        const TriangleMesh mesh =
+            proxy_.VisibleForCellIds(src_.camera, src_.poses[i], opt_.max_range_m);
         g.final_cells[i] = CellCounts(mesh, g.grid, src_.camera, src_.poses[i], opt_.id_w,
                                       opt_.id_h, &g.id_cam);
       }
@@ -494,7 +562,8 @@ class Engine {
       r.integrate_ms_p95 = Pct(integrate_ms_, 0.95);
       r.geometry_bytes = geometry_bytes;
       r.json = ConfigJson(src_.dataset, src_.test_pose_label, proxy_name, voxel_m, n, r.config, 0, 0, 0, r, opt_.id_w,
-                          opt_.id_h);
+                          opt_.id_h, PlannerFor(r.config, src_, src_.scale.cell_size_m, src_.frame_bytes),
+                          ScaleModeName(src_.scale_mode), proxy_.lod_cluster_m());
       if (opt_.emit) opt_.emit(r.json);
       results.push_back(std::move(r));
     }
@@ -562,12 +631,34 @@ class Engine {
         const double ms = MsSince(t0);
         r.plan_ms_median = r.plan_ms_p95 = ms / std::max(1, n);
         r.accepted = selected.size();
-        if (c.policy != Policy::kOfflineGreedy) {
+        if (c.policy != Policy::kOfflineGreedy && c.uncapped_refs) {
           for (int i : selected)
             for (const auto& cc : g.final_cells[i])
               if (cc.pixels > 0) refs[cc.cell].push_back(ViewId(i + 1));
+        } else if (c.policy != Policy::kOfflineGreedy) {
+          // Fair rule: the planner's pre-selection (§3.1.4) with the same options, every
+          // selected view accepted (τ_max huge and Δτ_sum 0 make the gain Σφ > 0 for any view
+          // that covers a cell; φ and R(b_k) do not depend on τ_max), in frame order.
+          planning::PlannerOptions pre = po;
+          pre.max_views = std::max<size_t>(1, selected.size());
+          pre.max_bytes = std::max<size_t>(1, selected.size()) * src_.frame_bytes;
+          pre.tau_max = 1e30;
+          pre.delta_tau_sum = 0;
+          EXO_ASSIGN_OR_RETURN(auto p, planning::ViewPlanner::Create(pre));
+          for (const auto& [cell, a] : g.areas->areas()) EXO_RETURN_IF_ERROR(p.SetCellArea(cell, a));
+          for (int i : selected) {
+            planning::Candidate cand;
+            cand.id = ViewId(i + 1);
+            cand.local_from_cam = src_.poses[i];
+            cand.id_camera = g.id_cam;
+            cand.cells = g.final_cells[i];
+            cand.bytes = src_.frame_bytes;
+            EXO_RETURN_IF_ERROR(p.Consider(cand).status());
+          }
+          refs = p.CellRefs();
         }
       }
+      for (const auto& [cell, rs] : refs) r.max_refs = std::max(r.max_refs, rs.size());
       r.store_views = selected.size();
       r.store_bytes = selected.size() * src_.frame_bytes;
       double render_ms = 0;
@@ -576,7 +667,8 @@ class Engine {
                                                 c.lambda >= 0 ? c.lambda : src_.default_lambda));
       r.render_ms_median = render_ms;
       r.json = ConfigJson(src_.dataset, src_.test_pose_label, proxy_name, voxel_m, n, c, po.lambda, g.grid.cell_size_m,
-                          po.delta_tau_sum, r, opt_.id_w, opt_.id_h);
+                          po.delta_tau_sum, r, opt_.id_w, opt_.id_h, po, ScaleModeName(src_.scale_mode),
+                          proxy_.lod_cluster_m());
       if (opt_.emit) opt_.emit(r.json);
       results.push_back(std::move(r));
     }
@@ -759,6 +851,10 @@ absl::StatusOr<std::vector<Rigid3d>> NearTrajectoryPoses(const synth::SynthScene
 
 }  // namespace
 
+const char* ScaleModeName(ScaleMode m) {
+  return m == ScaleMode::kBounds ? "bounds" : "view_depth";
+}
+
 const char* PolicyName(Policy p) {
   switch (p) {
     case Policy::kOnline: return "online";
@@ -802,6 +898,11 @@ absl::StatusOr<std::vector<ConfigResult>> RunSynthetic(const SynthRunOptions& o)
   src.frame_bytes = size_t(src.camera.width) * src.camera.height * (3 + 4) + sizeof(StoredView);
   for (const auto& tp : traj) src.poses.push_back(tp.local_from_cam);
   src.scale = DeriveSceneScale(scene.bounds.min, scene.bounds.max);
+  src.scale_mode = o.scale_mode;
+  if (o.scale_mode == ScaleMode::kViewDepth) {
+    EXO_ASSIGN_OR_RETURN(synth::RenderedFrame f0, synth::RenderFrame(scene, src.poses[0], rop));
+    src.view_depth_m = MedianDepth(f0.frame.depth_m);
+  }
   src.default_lambda = tkind == synth::TrajectoryKind::kFlyover ? 0.5 : 0.4;
   src.metres_per_rad = std::max(0.5, 0.05 * scene.ExtentM());
   src.dataset = absl::StrCat(o.scene, "/", o.traj);
@@ -853,6 +954,7 @@ absl::StatusOr<std::vector<ConfigResult>> RunSynthetic(const SynthRunOptions& o)
   eo.emit = o.emit;
   eo.dump_dir = o.dump_dir;
   eo.dump_views = o.dump_views;
+  eo.cellid_lod_frac = o.cellid_lod_frac;
   if (o.proxy == ProxyKind::kGroundTruth) eo.gt_mesh = scene.mesh;
   Engine engine(std::move(src), o.configs, std::move(eo));
   engine.set_origin(scene.origin);
@@ -925,6 +1027,8 @@ absl::StatusOr<SevenScenesReport> RunSevenScenes(const SevenScenesRunOptions& o)
   src.frame_bytes = size_t(src.camera.width) * src.camera.height * (3 + 4) + sizeof(StoredView);
   for (const Frame& f : frames) src.poses.push_back(origin.ToLocal(f.world_from_cam));
   src.scale = scale;
+  src.scale_mode = o.scale_mode;
+  src.view_depth_m = MedianDepth(frames[0].depth_m);
   src.default_lambda = 0.4;
   src.metres_per_rad = 1.0;
   src.dataset = "7scenes/redkitchen";
@@ -969,6 +1073,7 @@ absl::StatusOr<SevenScenesReport> RunSevenScenes(const SevenScenesRunOptions& o)
   eo.emit = o.emit;
   eo.dump_dir = o.dump_dir;
   eo.dump_views = o.dump_views;
+  eo.cellid_lod_frac = o.cellid_lod_frac;
   Engine engine(std::move(src), o.configs, std::move(eo));
   engine.set_origin(origin);
   EXO_RETURN_IF_ERROR(engine.Init());

@@ -13,8 +13,9 @@
 //   kMinDistance   online dispersion: when full, a frame replaces one view of the closest pair
 //                  if its nearest-view pose distance exceeds that pair's distance
 //   kAll           every frame (unbounded store)
-// Baselines reference, per cell, EVERY selected view that sees the cell in the final proxy
-// (unbounded R; favours the baselines). A further baseline, the per-vertex averaged colour of the
+// Baselines get their per-cell references R(b_k) from the same pre-selection rule as the
+// planner (R_max cap, fed the selected views in frame order); an "uncapped" variant references
+// every selected view that sees the cell in the final proxy (unbounded R). A further baseline, the per-vertex averaged colour of the
 // TSDF mesh (KinectFusion class), is reported once per run (policy "vertex_color").
 //
 // Synthetic stored views are re-rendered from their pose when evaluated (deterministic,
@@ -44,6 +45,12 @@ struct PolicyConfig {
   double tau_max = -1;          // < 0: planner default
   double cell_m = 0;            // 0: scene-scale rule (server/geometry/scene_scale.h)
   int test_views = -1;          // < 0: all test poses of the run
+  // Baselines only (every_n, min_distance, all): how R(b_k) is built from the selected views.
+  //   false (default, fair): the planner's own per-cell pre-selection (§3.1.4, R_max cap, same
+  //          d_max/σ/λ/cell), fed the selected views in frame order, so only the CHOICE of
+  //          stored views differs from the online policy;
+  //   true  ("uncapped"): every selected view that sees the cell in the final proxy.
+  bool uncapped_refs = false;
   std::string tag;              // free label copied into the JSON ("sweep":"store" ...)
 };
 
@@ -63,6 +70,7 @@ struct ConfigResult {
   double render_ms_median = 0;                   // CPU lumigraph render per test view
   size_t store_views = 0, store_bytes = 0, geometry_bytes = 0, planner_bytes = 0;
   size_t accepted = 0;
+  size_t max_refs = 0;                           // largest |R(b_k)| the renderer was given
   double tau_sum = 0;                            // τ_sum of the selection (final proxy, see .cc)
   std::string json;                              // the printed line
 };
@@ -76,6 +84,14 @@ enum class TestPoseMode {
                    // free space and >= 90 % geometry in view: novel views in the input's range
 };
 
+// How d_max and σ of (3.11) are chosen (the cell size always follows scene_scale.h).
+enum class ScaleMode {
+  kBounds,     // server/geometry/scene_scale.h: d_max = clamp(0.15 D, 1, 50), σ = clamp(0.2 D, .5, 50)
+  kViewDepth   // PlannerOptions::ForScene: d_max = median valid depth of the first frame (the
+               // distance the operator actually views the surface from), σ = max(d_max, 0.1 D)
+};
+const char* ScaleModeName(ScaleMode m);
+
 struct SynthRunOptions {
   std::string scene = "village";   // village | apartment
   std::string traj = "flyover";    // flyover | walk
@@ -87,6 +103,10 @@ struct SynthRunOptions {
   int test_views = 200, test_width = 320, test_height = 240;
   uint64_t test_seed = 7;
   TestPoseMode test_pose_mode = TestPoseMode::kSceneWide;
+  ScaleMode scale_mode = ScaleMode::kBounds;
+  // Cell-id buffers from a vertex-clustered LOD of the proxy (planning::ClusterSimplify) with
+  // clusters of this fraction of the cell size; 0 = the full TSDF mesh.
+  double cellid_lod_frac = 0;
   blend::BlendOptions blend;       // lambda is overridden per config
   bool vertex_color_baseline = true;
   std::vector<PolicyConfig> configs;
@@ -109,6 +129,8 @@ struct SevenScenesRunOptions {
   double max_depth_m = 4.0;
   int id_width = 160, id_height = 120;
   int test_width = 640, test_height = 480;
+  ScaleMode scale_mode = ScaleMode::kViewDepth;
+  double cellid_lod_frac = 0;      // see SynthRunOptions
   blend::BlendOptions blend;
   bool vertex_color_baseline = true;
   std::vector<PolicyConfig> configs;

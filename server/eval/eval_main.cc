@@ -8,6 +8,11 @@
 //                [--sweep store|r_max|lambda|cell] [--sweep_test_views 50]
 //                [--dump DIR --dump_views 4]
 //   exoview_eval --sevenscenes DIR [--store 50] [--policies ...]
+//   --lod F               cell-id buffers from a vertex-clustered proxy LOD, clusters F x cell size
+//   --scale bounds|depth  d_max/σ from scene_scale.h or from the first frame's median depth
+//                         (synthetic default bounds, 7-Scenes default depth)
+//   policies every_n_uncapped, min_distance_uncapped, all_uncapped: baseline referencing every
+//   selected observer per cell (no R_max cap); plain names use the planner's pre-selection
 #include <cstdio>
 #include <fstream>
 #include <map>
@@ -67,7 +72,13 @@ absl::StatusOr<std::vector<PolicyConfig>> Configs(const Args& a) {
   std::vector<PolicyConfig> out;
   for (absl::string_view p : absl::StrSplit(a.Get("--policies", "online"), ',', absl::SkipEmpty())) {
     PolicyConfig c = base;
-    EXO_ASSIGN_OR_RETURN(c.policy, ParsePolicy(std::string(p)));
+    std::string name(p);
+    // "<baseline>_uncapped": R(b_k) = every selected observer instead of the fair pre-selection.
+    if (name.size() > 9 && name.substr(name.size() - 9) == "_uncapped") {
+      c.uncapped_refs = true;
+      name.resize(name.size() - 9);
+    }
+    EXO_ASSIGN_OR_RETURN(c.policy, ParsePolicy(name));
     out.push_back(c);
   }
   const int btv = int(a.Num("--baseline_test_views", -1));
@@ -122,6 +133,8 @@ int RunOne(const Args& a) {
     o.voxel_m = a.Num("--voxel", 0.02);
     o.test_width = int(a.Num("--test_w", 640));
     o.test_height = int(a.Num("--test_h", 480));
+    o.cellid_lod_frac = a.Num("--lod", o.cellid_lod_frac);
+    if (a.kv.count("--scale")) o.scale_mode = a.Get("--scale", "") == "bounds" ? ScaleMode::kBounds : ScaleMode::kViewDepth;
     o.blend = Blend(a);
     o.configs = *configs;
     o.emit = Emit;
@@ -150,10 +163,12 @@ int RunOne(const Args& a) {
   o.test_height = int(a.Num("--test_h", 240));
   o.id_width = int(a.Num("--idw", 160));
   o.id_height = int(a.Num("--idh", 120));
+  o.cellid_lod_frac = a.Num("--lod", o.cellid_lod_frac);
   o.blend = Blend(a);
   o.test_pose_mode = a.Get("--test_poses", "scene") == "near" ? TestPoseMode::kNearTrajectory
                                                               : TestPoseMode::kSceneWide;
   o.vertex_color_baseline = a.Num("--vertex_color", 1) != 0;
+  if (a.kv.count("--scale")) o.scale_mode = a.Get("--scale", "") == "bounds" ? ScaleMode::kBounds : ScaleMode::kViewDepth;
   o.configs = *configs;
   o.emit = Emit;
   o.dump_dir = a.Get("--dump", "");

@@ -30,14 +30,19 @@ SynthRunOptions Tiny() {
   online.store = 12;
   PolicyConfig every = online;
   every.policy = Policy::kEveryN;
-  o.configs = {online, every};
+  // Fair vs uncapped baseline references (R_max 3, so the cap binds with 12 stored views).
+  PolicyConfig every_capped = every;
+  every_capped.r_max = 3;
+  PolicyConfig every_uncapped = every_capped;
+  every_uncapped.uncapped_refs = true;
+  o.configs = {online, every, every_capped, every_uncapped};
   return o;
 }
 
 TEST(EvalSmokeTest, TinyApartmentWalkBeatsVertexColourBaseline) {
   auto r = RunSynthetic(Tiny());
   ASSERT_TRUE(r.ok()) << r.status();
-  ASSERT_EQ(r->size(), 3u);  // vertex colour + 2 configs
+  ASSERT_EQ(r->size(), 5u);  // vertex colour + 4 configs
   const ConfigResult& vc = (*r)[0];
   const ConfigResult& on = (*r)[1];
   const ConfigResult& ev = (*r)[2];
@@ -49,6 +54,18 @@ TEST(EvalSmokeTest, TinyApartmentWalkBeatsVertexColourBaseline) {
   EXPECT_GT(on.store_views, 0u);
   EXPECT_LE(on.store_views, 12u);
   EXPECT_EQ(ev.store_views, 12u);
+  // Baselines get the planner's R_max cap (fairness guard: removing the pre-selection of the
+  // baselines' references makes every_capped reference more than 3 views per cell), the
+  // labelled uncapped variant does not; both store the same 12 views.
+  const ConfigResult& capped = (*r)[3];
+  const ConfigResult& uncapped = (*r)[4];
+  EXPECT_EQ(capped.store_views, 12u);
+  EXPECT_EQ(uncapped.store_views, 12u);
+  EXPECT_GE(capped.max_refs, 2u);
+  EXPECT_LE(capped.max_refs, 3u);
+  EXPECT_GT(uncapped.max_refs, 3u);
+  EXPECT_LE(on.max_refs, 16u);
+  EXPECT_NE(uncapped.json.find("\"refs\":\"uncapped\""), std::string::npos);
   // Loose floors (a broken renderer, wrong poses or a black image give SSIM < 0.3).
   EXPECT_GT(on.quality.coverage, 0.5);
   EXPECT_GT(on.quality.mssim, 0.45);
