@@ -4,6 +4,7 @@
 
 #include <cmath>
 #include <cstring>
+#include <memory>
 #include <opencv2/imgcodecs.hpp>
 
 #include "common/io/cv_adapter.h"
@@ -55,11 +56,21 @@ void Reconstruct(ImageU16* d, Get get) {
   }
 }
 
+// One zstd context per thread, reused across calls and freed when the thread exits (a raw
+// thread_local pointer leaked ~96 KB per short-lived thread: found by LeakSanitizer).
+struct ZstdCCtxDeleter {
+  void operator()(ZSTD_CCtx* c) const { ZSTD_freeCCtx(c); }
+};
+struct ZstdDCtxDeleter {
+  void operator()(ZSTD_DCtx* c) const { ZSTD_freeDCtx(c); }
+};
+
 absl::StatusOr<std::vector<uint8_t>> ZstdCompress(const uint8_t* src, size_t n, int level,
                                                   std::vector<uint8_t> out) {
   const size_t offset = out.size();
   out.resize(offset + ZSTD_compressBound(n));
-  thread_local ZSTD_CCtx* cctx = ZSTD_createCCtx();
+  thread_local std::unique_ptr<ZSTD_CCtx, ZstdCCtxDeleter> cctx_owner(ZSTD_createCCtx());
+  ZSTD_CCtx* cctx = cctx_owner.get();
   ZSTD_CCtx_reset(cctx, ZSTD_reset_session_and_parameters);
   ZSTD_CCtx_setParameter(cctx, ZSTD_c_compressionLevel, level);
   ZSTD_CCtx_setParameter(cctx, ZSTD_c_checksumFlag, 1);
@@ -77,7 +88,8 @@ absl::Status ZstdDecompress(std::span<const uint8_t> src, uint8_t* dst, size_t e
   if (content != ZSTD_CONTENTSIZE_UNKNOWN && content != expected)
     return absl::InvalidArgumentError(absl::StrCat("depth payload decodes to ", content,
                                                    " bytes, header says ", expected));
-  thread_local ZSTD_DCtx* dctx = ZSTD_createDCtx();
+  thread_local std::unique_ptr<ZSTD_DCtx, ZstdDCtxDeleter> dctx_owner(ZSTD_createDCtx());
+  ZSTD_DCtx* dctx = dctx_owner.get();
   const size_t r = ZSTD_decompressDCtx(dctx, dst, expected, src.data(), src.size());
   if (ZSTD_isError(r))
     return absl::InvalidArgumentError(
