@@ -62,6 +62,7 @@ const char* KindName(const v1::Delta& d) {
 
 int Main(int argc, char** argv) {
   int distinct = 300, long_frames = 1800, max_frames = 300, width = 640, height = 480;
+  int rss_frames = 0;  // phase 5 (off by default): unpaced long upload, RSS per 1000 frames
   std::vector<std::string> server_args;
   for (int i = 1; i < argc; ++i) {
     std::string a = argv[i];
@@ -71,7 +72,7 @@ int Main(int argc, char** argv) {
       return false;
     };
     if (val("distinct", &distinct) || val("long", &long_frames) || val("max", &max_frames) ||
-        val("width", &width) || val("height", &height))
+        val("width", &width) || val("height", &height) || val("rss_frames", &rss_frames))
       continue;
     if (a.rfind("--server_arg=", 0) == 0) {
       server_args.push_back(a.substr(13));
@@ -128,7 +129,7 @@ int Main(int argc, char** argv) {
   auto wait_drained = [&] {
     for (int i = 0; i < 6000; ++i) {
       const v1::Stats s = stats();
-      if (s.frames_processed() == s.frames_accepted()) return s;
+      if (s.frames_processed() == s.frames_accepted() && s.async_pending() == 0) return s;
       std::this_thread::sleep_for(std::chrono::milliseconds(10));
     }
     return stats();
@@ -193,6 +194,14 @@ int Main(int argc, char** argv) {
       up1->ack_latency_p50_ms, up1->ack_latency_p95_ms,
       [&] { std::string s; for (auto& n : s1.stages()) s += (s.empty() ? "" : "+") + n; return s; }().c_str());
   std::fflush(stdout);
+  auto print_counters = [&](const char* phase, const v1::Stats& st) {
+    std::string c;
+    for (const auto& [k, v] : std::map<std::string, double>(st.counters().begin(), st.counters().end()))
+      c += (c.empty() ? "" : ", ") + ("\"" + k + "\": " + std::to_string(v));
+    std::printf("{\"phase\": \"%s_counters\", %s}\n", phase, c.c_str());
+    std::fflush(stdout);
+  };
+  print_counters("ingest_paced", s1);
 
   // Phase 2: initial sync of the store by a fresh viewer.
   {
@@ -277,6 +286,35 @@ int Main(int argc, char** argv) {
         up.ok() ? (unsigned long long)up->dropped : 0ull,
         up.ok() ? up->dropped / static_cast<double>(up->sent) : 0);
     std::fflush(stdout);
+  }
+  // Phase 5: long unpaced upload (frames cycle through the trajectory): server RSS every 1000
+  // frames sent, the pipeline drained before each sample.
+  if (rss_frames > 0) {
+    UploadOptions fast;
+    fast.rate_hz = 0;
+    fast.max_in_flight = 8;
+    std::string samples;
+    uint64_t accepted = 0, dropped = 0;
+    const auto t0 = Clock::now();
+    for (int done = 0; done < rss_frames; done += 1000) {
+      auto up = UploadStream(channel, std::min(1000, rss_frames - done), make, fast);
+      if (up.ok()) {
+        accepted += up->accepted;
+        dropped += up->dropped;
+      }
+      (void)wait_drained();
+      samples += (samples.empty() ? "" : ", ") + std::to_string(RssKb(server.pid()) / 1024);
+    }
+    const v1::Stats s = stats();
+    std::printf(
+        "{\"phase\": \"rss_long\", \"frames\": %d, \"seconds\": %.1f, \"accepted\": %llu, "
+        "\"dropped\": %llu, \"views\": %u, \"chunks\": %u, \"version\": %llu, "
+        "\"rss_mb_per_1000_frames\": [%s]}\n",
+        rss_frames, std::chrono::duration<double>(Clock::now() - t0).count(),
+        (unsigned long long)accepted, (unsigned long long)dropped, s.num_views(), s.num_chunks(),
+        (unsigned long long)s.model_version(), samples.c_str());
+    std::fflush(stdout);
+    print_counters("rss_long", s);
   }
   (*viewer)->Stop();
   viewer_thread.join();

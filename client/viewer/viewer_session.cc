@@ -131,7 +131,7 @@ absl::Status ViewerSession::Sync(const SyncOptions& options) {
       in_snapshot = store_.in_snapshot();
     }
     if (!in_snapshot && local == st->model_version() &&
-        st->frames_processed() == st->frames_accepted() &&
+        st->frames_processed() == st->frames_accepted() && st->async_pending() == 0 &&
         st->frames_received() >= options.min_server_frames)
       break;
   }

@@ -24,7 +24,8 @@ void Usage() {
                "      publish_jpeg_quality publish_depth_downscale geometry voxel_size_m max_depth_m\n"
                "      mesh_every_n_frames fuse_depth_downscale chunk_republish_change chunk_republish_interval_s planning max_views max_store_bytes r_max d_max_m\n"
                "      sigma_m delta_tau_sum max_candidates_per_s_when_full id_buffer_stride udp_pose_port udp_pose_address\n"
-               "      udp_pose_tolerance_s\n");
+               "      udp_pose_tolerance_s refinement refine_queue refine_downscale refine_remove_outliers\n"
+               "      planning_cell_areas\n");
 }
 
 }  // namespace

@@ -184,6 +184,15 @@ void ViewPlanner::RemoveView(ViewId id, std::vector<CellId>* changed) {
   views_.erase(it);
 }
 
+absl::StatusOr<std::vector<CellId>> ViewPlanner::Remove(ViewId id) {
+  if (!views_.count(id)) return absl::NotFoundError(absl::StrCat("view ", id, " is not stored"));
+  std::vector<CellId> changed;
+  RemoveView(id, &changed);
+  std::sort(changed.begin(), changed.end());
+  changed.erase(std::unique(changed.begin(), changed.end()), changed.end());
+  return changed;
+}
+
 absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
   if (views_.count(cand.id))
     return absl::AlreadyExistsError(absl::StrCat("view ", cand.id, " is already in the store"));

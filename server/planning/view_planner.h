@@ -94,6 +94,11 @@ class ViewPlanner {
   // area use the face area A_cell (the upper bound of 3.13). Negative/NaN areas are an error.
   absl::Status SetCellArea(CellId cell, double area_m2);
 
+  // Removes a stored view from outside the planner (e.g. refinement flagged it as a pose
+  // outlier): its coverage leaves τ, references to it are refilled from the remaining observers.
+  // Returns the cells whose R(b_k) changed (sorted); NotFound for an unknown id.
+  absl::StatusOr<std::vector<CellId>> Remove(ViewId id);
+
   // The coverage φ(I, b_k) a candidate camera at `cam_centre_local` would get for `cell` with
   // `pixels` visible pixels of solid angle `pixel_sr`, against the current R(b_k). 0 for a
   // camera inside the cell (guard d -> 0). Exposed for tests and tools.

@@ -3,16 +3,40 @@
 #include <cmath>
 #include <unordered_map>
 
+#include "server/geometry/cell_areas.h"
 #include "server/geometry/tsdf_volume.h"
 
 namespace exo {
+
+SharedCellAreas::SharedCellAreas(double cell_size_m)
+    : areas_(std::make_unique<CellAreas>(CellGrid{cell_size_m})) {}
+SharedCellAreas::~SharedCellAreas() = default;
+void SharedCellAreas::Update(const MeshChunk& chunk) {
+  std::lock_guard lock(mu_);
+  areas_->UpdateChunk(chunk);
+}
+void SharedCellAreas::Remove(uint64_t chunk_id) {
+  std::lock_guard lock(mu_);
+  areas_->RemoveChunk(chunk_id);
+}
+std::vector<std::pair<CellId, double>> SharedCellAreas::TakeChanges() {
+  std::lock_guard lock(mu_);
+  std::vector<std::pair<CellId, double>> out;
+  for (CellId c : areas_->TakeChangedCells()) out.emplace_back(c, areas_->Area(c));
+  return out;
+}
+double SharedCellAreas::TotalArea() const {
+  std::lock_guard lock(mu_);
+  return areas_->TotalArea();
+}
 
 namespace {
 
 class GeometryStage final : public PipelineStage {
  public:
-  GeometryStage(const TsdfOptions& tsdf, const GeometryStageOptions& options)
-      : volume_(tsdf), options_(options) {}
+  GeometryStage(const TsdfOptions& tsdf, const GeometryStageOptions& options,
+                std::shared_ptr<SharedCellAreas> areas)
+      : volume_(tsdf), options_(options), areas_(std::move(areas)) {}
   std::string name() const override { return "geometry"; }
 
   absl::Status Process(const PipelineFrame& f, const SceneContext& ctx) override {
@@ -44,6 +68,7 @@ class GeometryStage final : public PipelineStage {
     if (++fused_ % options_.mesh_every_n_frames != 0) return absl::OkStatus();
     const int64_t now = SteadyNowNs();
     for (MeshChunk& c : volume_.ExtractDirtyChunks()) {
+      if (areas_) areas_->Update(c);  // the planner sees the newest proxy, published or not
       auto it = published_.find(c.id);
       if (it != published_.end()) {
         const double old_n = static_cast<double>(it->second.triangles);
@@ -71,6 +96,7 @@ class GeometryStage final : public PipelineStage {
     }
     for (uint64_t id : volume_.TakeRemovedChunkIds()) {
       pending_.erase(id);
+      if (areas_) areas_->Remove(id);
       if (published_.erase(id)) (void)ctx.store->RemoveChunk(id);
     }
     return absl::OkStatus();
@@ -88,6 +114,7 @@ class GeometryStage final : public PipelineStage {
 
   TsdfVolume volume_;
   const GeometryStageOptions options_;
+  std::shared_ptr<SharedCellAreas> areas_;
   uint64_t fused_ = 0;
   std::unordered_map<uint64_t, Published> published_;
   std::unordered_map<uint64_t, MeshChunk> pending_;
@@ -95,14 +122,15 @@ class GeometryStage final : public PipelineStage {
 
 }  // namespace
 
-absl::StatusOr<std::unique_ptr<PipelineStage>> MakeGeometryStage(const GeometryStageOptions& options) {
+absl::StatusOr<std::unique_ptr<PipelineStage>> MakeGeometryStage(
+    const GeometryStageOptions& options, std::shared_ptr<SharedCellAreas> areas) {
   EXO_RETURN_IF_ERROR(options.Validate());
   TsdfOptions o;
   o.voxel_size_m = static_cast<float>(options.voxel_size_m);
   o.max_depth_m = static_cast<float>(options.max_depth_m);
   o.num_threads = 1;  // the stage is one pipeline thread; other stages use the other core
   EXO_RETURN_IF_ERROR(o.Validate());
-  return std::unique_ptr<PipelineStage>(new GeometryStage(o, options));
+  return std::unique_ptr<PipelineStage>(new GeometryStage(o, options, std::move(areas)));
 }
 
 }  // namespace exo

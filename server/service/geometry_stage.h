@@ -8,6 +8,12 @@
 
 #include <cmath>
 #include <memory>
+#include <mutex>
+#include <utility>
+#include <vector>
+
+#include "common/cells.h"
+#include "common/lumigraph/model.h"
 
 #include "server/service/pipeline.h"
 
@@ -34,6 +40,24 @@ struct GeometryStageOptions {
   }
 };
 
-absl::StatusOr<std::unique_ptr<PipelineStage>> MakeGeometryStage(const GeometryStageOptions& options);
+// Per-cell proxy areas A(b_k) (server/geometry CellAreas) maintained by the geometry stage from
+// every re-meshed chunk and read by the planning stage (ViewPlanner::SetCellArea). Thread-safe.
+class SharedCellAreas {
+ public:
+  explicit SharedCellAreas(double cell_size_m);
+  ~SharedCellAreas();
+  void Update(const MeshChunk& chunk);
+  void Remove(uint64_t chunk_id);
+  // Cells whose area changed since the last call, with their current area (0 = no surface).
+  std::vector<std::pair<CellId, double>> TakeChanges();
+  double TotalArea() const;
+
+ private:
+  mutable std::mutex mu_;
+  std::unique_ptr<class CellAreas> areas_;
+};
+
+absl::StatusOr<std::unique_ptr<PipelineStage>> MakeGeometryStage(
+    const GeometryStageOptions& options, std::shared_ptr<SharedCellAreas> areas = nullptr);
 
 }  // namespace exo

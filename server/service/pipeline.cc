@@ -41,11 +41,15 @@ Pipeline::Admission Pipeline::Submit(PipelineFramePtr frame) {
     static std::mutex origin_mu;
     std::lock_guard lock(origin_mu);
     if (!origin_set_.load()) {
-      const glm::dvec3 p = frame->frame.world_from_cam.translation;
-      const double q = options_.cell_size_m;
-      ctx_.origin.origin_in_world = {std::round(p.x / q) * q, std::round(p.y / q) * q,
-                                     std::round(p.z / q) * q};
-      ctx_.store->SetSceneParams(ctx_.origin, options_.cell_size_m);
+      if (restored_origin_) {
+        ctx_.origin = *restored_origin_;
+      } else {
+        const glm::dvec3 p = frame->frame.world_from_cam.translation;
+        const double q = options_.cell_size_m;
+        ctx_.origin.origin_in_world = {std::round(p.x / q) * q, std::round(p.y / q) * q,
+                                       std::round(p.z / q) * q};
+        ctx_.store->SetSceneParams(ctx_.origin, options_.cell_size_m);
+      }
       for (size_t i = 0; i < stages_.size(); ++i) threads_.emplace_back([this, i] { RunStage(i); });
       origin_set_.store(true, std::memory_order_release);
     }
@@ -75,6 +79,7 @@ void Pipeline::RunStage(size_t i) {
       last_latency_ns_.store(SteadyNowNs() - f->received_ns);
     }
   }
+  stages_[i]->Finish(ctx_);
   // Upstream closed and drained: close ours so the next stage drains too.
   if (i + 1 < queues_.size()) queues_[i + 1]->Close();
 }
@@ -85,6 +90,18 @@ void Pipeline::Stop() {
   if (!queues_.empty()) queues_[0]->Close();
   for (auto& t : threads_) t.join();
   threads_.clear();
+}
+
+uint64_t Pipeline::async_pending() const {
+  uint64_t n = 0;
+  for (const auto& s : stages_) n += s->pending();
+  return n;
+}
+
+std::map<std::string, double> Pipeline::counters() const {
+  std::map<std::string, double> out;
+  for (const auto& s : stages_) s->AddCounters(&out);
+  return out;
 }
 
 std::vector<std::string> Pipeline::stage_names() const {

@@ -9,7 +9,9 @@
 
 #include <atomic>
 #include <cstdint>
+#include <map>
 #include <memory>
+#include <optional>
 #include <string>
 #include <thread>
 #include <vector>
@@ -44,6 +46,12 @@ class PipelineStage {
   // Processes one admitted frame; publishes its model changes to ctx.store. An error is counted
   // and logged; the pipeline goes on with the next frame.
   virtual absl::Status Process(const PipelineFrame& frame, const SceneContext& ctx) = 0;
+  // Called once on the stage's thread after its last frame (shutdown): finish async work.
+  virtual void Finish(const SceneContext& /*ctx*/) {}
+  // Work the stage still does asynchronously for frames it already processed (e.g. refinement).
+  virtual uint64_t pending() const { return 0; }
+  // Named counters for GetStats ("<stage>.<name>").
+  virtual void AddCounters(std::map<std::string, double>* /*out*/) const {}
 };
 
 struct PipelineOptions {
@@ -66,6 +74,12 @@ class Pipeline {
   void Stop();
 
   std::vector<std::string> stage_names() const;
+  uint64_t async_pending() const;
+  std::map<std::string, double> counters() const;
+  // A restarted server keeps the origin of its checkpoint (call before the first Submit; the
+  // store already holds the scene parameters).
+  void RestoreOrigin(const LocalOrigin& origin) { restored_origin_ = origin; }
+  const SceneContext& context() const { return ctx_; }
   uint64_t frames_processed() const { return processed_.load(); }
   uint64_t stage_errors() const { return errors_.load(); }
   // Latency from admission to the end of the last stage (ns), for stats.
@@ -83,6 +97,7 @@ class Pipeline {
   std::atomic<uint64_t> processed_{0}, errors_{0};
   std::atomic<int64_t> last_latency_ns_{0};
   bool stopped_ = false;
+  std::optional<LocalOrigin> restored_origin_;
 };
 
 int64_t SteadyNowNs();

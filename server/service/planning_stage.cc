@@ -3,13 +3,22 @@
 #include <cmath>
 #include <cstdio>
 
+#include <map>
+#include <mutex>
+
 #include "server/planning/view_planner.h"
+#ifdef EXOVIEW_HAVE_REFINEMENT
+#include "server/service/refinement_worker.h"
+#endif
 
 namespace exo {
 
 absl::Status PlanningStageOptions::Validate() const {
   if (!(max_candidates_per_s_when_full >= 0.0))
     return absl::InvalidArgumentError("max_candidates_per_s_when_full must be >= 0");
+  if (refine_queue < 1) return absl::InvalidArgumentError("refine_queue must be >= 1");
+  if (refine_downscale < 1 || refine_downscale > 8)
+    return absl::InvalidArgumentError("refine_downscale must be in [1, 8]");
   if (id_buffer_stride < 1 || id_buffer_stride > 32)
     return absl::InvalidArgumentError("id_buffer_stride must be in [1, 32]");
   return publish.Validate();
@@ -44,17 +53,39 @@ namespace {
 class PlanningStage final : public PipelineStage {
  public:
   PlanningStage(planning::ViewPlanner planner, const PlanningStageOptions& options)
-      : planner_(std::move(planner)), options_(options) {}
+      : planner_(std::move(planner)), options_(options) {
+#ifdef EXOVIEW_HAVE_REFINEMENT
+    if (options_.refine) {
+      RefinementWorkerOptions wo;
+      wo.queue = options_.refine_queue;
+      wo.downscale = options_.refine_downscale;
+      worker_ = std::make_unique<RefinementWorker>(
+          wo, [this](const RefinementJob& job, const absl::StatusOr<RefinementResult>& r) {
+            ApplyRefinement(job, r);
+          });
+    }
+#endif
+  }
+  ~PlanningStage() override {
+#ifdef EXOVIEW_HAVE_REFINEMENT
+    if (worker_) worker_->Stop();
+#endif
+  }
   std::string name() const override { return "planning"; }
 
   absl::Status Process(const PipelineFrame& pf, const SceneContext& ctx) override {
+    std::lock_guard lock(mu_);
+    store_ = ctx.store;
+    EXO_RETURN_IF_ERROR(ApplyAreaChangesLocked());
     const Frame& f = pf.frame;
     if (f.depth_m.empty()) return absl::OkStatus();  // no depth: no cells to cover
     if (options_.max_candidates_per_s_when_full > 0 &&
         planner_.num_views() >= options_.max_views) {
       const double min_gap_s = 1.0 / options_.max_candidates_per_s_when_full;
-      if (f.timestamp_s - last_candidate_s_ < min_gap_s && f.timestamp_s >= last_candidate_s_)
+      if (f.timestamp_s - last_candidate_s_ < min_gap_s && f.timestamp_s >= last_candidate_s_) {
+        ++governed_;
         return absl::OkStatus();  // governed: not a candidate
+      }
       last_candidate_s_ = f.timestamp_s;
     }
     const Rigid3d local_from_cam = ctx.origin.ToLocal(f.world_from_cam);
@@ -80,10 +111,15 @@ class PlanningStage final : public PipelineStage {
     cand.cells = planning::CountCellPixels(ids_.data(), ids_.size());
     cand.bytes = f.color.bytes() + static_cast<size_t>(f.color.width()) * f.color.height() * sizeof(float) +
                  sizeof(StoredView);
+    ++candidates_;
     EXO_ASSIGN_OR_RETURN(planning::Decision d, planner_.Consider(cand));
     if (!d.accepted) return absl::OkStatus();
+    ++accepted_;
     ++next_id_;
-    for (ViewId victim : d.removed) (void)ctx.store->RemoveView(victim);
+    for (ViewId victim : d.removed) {
+      (void)ctx.store->RemoveView(victim);
+      ref_cache_.erase(victim);
+    }
     StoredView view;
     view.id = cand.id;
     view.camera = f.color_camera;
@@ -93,21 +129,127 @@ class PlanningStage final : public PipelineStage {
     view.exposure = f.exposure ? static_cast<float>(*f.exposure) : 1.0f;
     EXO_ASSIGN_OR_RETURN(v1::ViewAdded msg, ViewToProto(view, options_.publish));
     ctx.store->AddView(std::move(msg));
-    if (!d.changed_cells.empty()) {
-      std::vector<std::pair<CellId, std::vector<ViewId>>> cells;
-      cells.reserve(d.changed_cells.size());
-      for (CellId c : d.changed_cells) cells.emplace_back(c, planner_.Refs(c));
-      ctx.store->SetCellRefs(cells);
+    PublishCellRefsLocked(d.changed_cells);
+#ifdef EXOVIEW_HAVE_REFINEMENT
+    if (worker_) {
+      // The first view fixes the exposure gauge (E = 1); later ones are refined against the
+      // stored views (as cached at 1/k resolution) off this thread.
+      auto small = std::make_shared<const StoredView>(DownscaleView(view, options_.refine_downscale));
+      if (!ref_cache_.empty()) {
+        RefinementJob job;
+        job.id = view.id;
+        job.source_timestamp_s = f.timestamp_s;
+        job.candidate = small;
+        job.refs.reserve(ref_cache_.size());
+        for (const auto& [id, v] : ref_cache_) job.refs.push_back(v);
+        worker_->TrySubmit(std::move(job));
+      }
+      ref_cache_[view.id] = std::move(small);
+    }
+#endif
+    return absl::OkStatus();
+  }
+
+  void Finish(const SceneContext&) override {
+#ifdef EXOVIEW_HAVE_REFINEMENT
+    if (worker_) worker_->Stop();  // applies every queued refinement
+#endif
+    std::lock_guard lock(mu_);
+    (void)ApplyAreaChangesLocked();
+  }
+
+  uint64_t pending() const override {
+#ifdef EXOVIEW_HAVE_REFINEMENT
+    if (worker_) return worker_->pending();
+#endif
+    return 0;
+  }
+
+  void AddCounters(std::map<std::string, double>* out) const override {
+    std::lock_guard lock(mu_);
+    (*out)["planning.candidates"] = static_cast<double>(candidates_);
+    (*out)["planning.accepted"] = static_cast<double>(accepted_);
+    (*out)["planning.governed"] = static_cast<double>(governed_);
+    (*out)["planning.cell_areas_set"] = static_cast<double>(areas_set_);
+    (*out)["planning.views"] = static_cast<double>(planner_.num_views());
+#ifdef EXOVIEW_HAVE_REFINEMENT
+    if (worker_) {
+      const RefinementWorkerStats w = worker_->stats();
+      (*out)["refinement.submitted"] = static_cast<double>(w.submitted);
+      (*out)["refinement.skipped_under_load"] = static_cast<double>(w.skipped_under_load);
+      (*out)["refinement.refined"] = static_cast<double>(w.refined);
+      (*out)["refinement.errors"] = static_cast<double>(w.errors);
+      (*out)["refinement.pose_refused"] = static_cast<double>(w.pose_refused);
+      (*out)["refinement.outliers"] = static_cast<double>(w.outliers);
+      (*out)["refinement.outliers_removed"] = static_cast<double>(outliers_removed_);
+      (*out)["refinement.updated"] = static_cast<double>(updated_);
+      (*out)["refinement.stale"] = static_cast<double>(stale_);
+      (*out)["refinement.mean_ms"] = w.refined ? w.total_ms / static_cast<double>(w.refined) : 0.0;
+    }
+#endif
+  }
+
+ private:
+  absl::Status ApplyAreaChangesLocked() {
+    if (!options_.take_area_changes) return absl::OkStatus();
+    for (const auto& [cell, area] : options_.take_area_changes()) {
+      EXO_RETURN_IF_ERROR(planner_.SetCellArea(cell, area));
+      ++areas_set_;
     }
     return absl::OkStatus();
   }
 
- private:
+  void PublishCellRefsLocked(const std::vector<CellId>& changed) {
+    if (changed.empty()) return;
+    std::vector<std::pair<CellId, std::vector<ViewId>>> cells;
+    cells.reserve(changed.size());
+    for (CellId c : changed) cells.emplace_back(c, planner_.Refs(c));
+    store_->SetCellRefs(cells);
+  }
+
+#ifdef EXOVIEW_HAVE_REFINEMENT
+  // On the refinement thread. The view may have been evicted meanwhile (stale: nothing to do).
+  void ApplyRefinement(const RefinementJob& job, const absl::StatusOr<RefinementResult>& r) {
+    if (!r.ok()) return;  // counted by the worker; the view stays as published
+    std::lock_guard lock(mu_);
+    if (store_ == nullptr || !planner_.HasView(job.id)) {
+      ++stale_;
+      return;
+    }
+    if (r->rejected_outlier && options_.refine_remove_outliers) {
+      // Consistently out of planner (its coverage leaves τ, references refilled), store (ViewRemoved)
+      // and clients (CellRefsChanged for the refilled cells).
+      auto changed = planner_.Remove(job.id);
+      if (!changed.ok()) return;
+      (void)store_->RemoveView(job.id);
+      PublishCellRefsLocked(*changed);
+      ref_cache_.erase(job.id);
+      ++outliers_removed_;
+      return;
+    }
+    if (!store_->UpdateView(job.id, r->local_from_cam, static_cast<float>(r->exposure)).ok()) return;
+    ++updated_;
+    auto it = ref_cache_.find(job.id);
+    if (it != ref_cache_.end()) {
+      auto v = std::make_shared<StoredView>(*it->second);
+      v->local_from_cam = r->local_from_cam;
+      v->exposure = static_cast<float>(r->exposure);
+      it->second = std::move(v);
+    }
+  }
+  std::unique_ptr<RefinementWorker> worker_;
+#endif
+
+  mutable std::mutex mu_;  // planner, store writes of views/cell refs, caches (ingest vs refinement)
   planning::ViewPlanner planner_;
   const PlanningStageOptions options_;
+  ModelStore* store_ = nullptr;
   ViewId next_id_ = 1;
   double last_candidate_s_ = -1e300;
   std::vector<uint64_t> ids_;
+  std::map<ViewId, std::shared_ptr<const StoredView>> ref_cache_;
+  uint64_t candidates_ = 0, accepted_ = 0, governed_ = 0, areas_set_ = 0;
+  uint64_t outliers_removed_ = 0, updated_ = 0, stale_ = 0;
 };
 
 }  // namespace

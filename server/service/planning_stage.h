@@ -5,7 +5,10 @@
 // every cell whose R(b_k) changed.
 #pragma once
 
+#include <functional>
 #include <memory>
+#include <utility>
+#include <vector>
 
 #include "server/service/model_proto.h"
 #include "server/service/pipeline.h"
@@ -25,6 +28,16 @@ struct PlanningStageOptions {
   // clients ~30 KB, so 3/s keeps the steady state near 1 Mbit/s (docs/service.md).
   double max_candidates_per_s_when_full = 2.0;
   ViewEncodeOptions publish;
+  // Per-cell proxy areas A(b_k) changed since the last call (geometry's CellAreas); null = every
+  // cell uses the face area A_cell.
+  std::function<std::vector<std::pair<CellId, double>>()> take_area_changes;
+  // Refinement (SPEC §5), async after acceptance (where the server is built with it): the view is
+  // published at once and a ViewUpdated (exposure, pose) follows; a pose outlier is removed from
+  // planner and store (ViewRemoved + CellRefsChanged). Under load views stay unrefined (skipped).
+  bool refine = true;
+  size_t refine_queue = 2;
+  int refine_downscale = 2;     // refined at 1/k resolution; the reference cache is kept at 1/k
+  bool refine_remove_outliers = true;
   absl::Status Validate() const;
 };
 

@@ -82,6 +82,11 @@ absl::Status ApplyConfigValue(const std::string& key, const std::string& value, 
   if (key == "delta_tau_sum") return ParseNumber(key, value, &c->planning.delta_tau_sum);
   if (key == "max_candidates_per_s_when_full")
     return ParseNumber(key, value, &c->planning.max_candidates_per_s_when_full);
+  if (key == "refinement") return ParseNumber(key, value, &c->planning.refine);
+  if (key == "refine_queue") return ParseNumber(key, value, &c->planning.refine_queue);
+  if (key == "refine_downscale") return ParseNumber(key, value, &c->planning.refine_downscale);
+  if (key == "refine_remove_outliers") return ParseNumber(key, value, &c->planning.refine_remove_outliers);
+  if (key == "planning_cell_areas") return ParseNumber(key, value, &c->planning_cell_areas);
   if (key == "id_buffer_stride") return ParseNumber(key, value, &c->planning.id_buffer_stride);
   if (key == "udp_pose_address") { c->udp_pose_address = value; return absl::OkStatus(); }
   if (key == "udp_pose_tolerance_s") return ParseNumber(key, value, &c->udp_pose_tolerance_s);
@@ -197,6 +202,8 @@ class ExoviewServer::Service final : public v1::Exoview::Service {
     out->set_log_first_version(s.log_first_version);
     for (const auto& n : pipeline_->stage_names()) out->add_stages(n);
     out->set_frames_processed(pipeline_->frames_processed());
+    out->set_async_pending(pipeline_->async_pending());
+    for (const auto& [k, v] : pipeline_->counters()) (*out->mutable_counters())[k] = v;
     return grpc::Status::OK;
   }
 

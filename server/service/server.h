@@ -37,6 +37,7 @@ struct ServerConfig {
   GeometryStageOptions geometry;
   bool enable_planning = true;
   PlanningStageOptions planning;     // planning.publish is taken from `publish`
+  bool planning_cell_areas = true;   // planner uses geometry's per-cell proxy areas A(b_k)
   // Optional UDP pose input: -1 = off; 0 = any free port (see ExoviewServer::udp_pose_port).
   int udp_pose_port = -1;
   std::string udp_pose_address = "127.0.0.1";

@@ -18,14 +18,20 @@ std::vector<std::string> AvailableStages() {
 #ifdef EXOVIEW_HAVE_PLANNING
   s.push_back("planning");
 #endif
+#ifdef EXOVIEW_HAVE_REFINEMENT
+  s.push_back("refinement");
+#endif
   return s;
 }
 
 absl::StatusOr<std::vector<std::unique_ptr<PipelineStage>>> MakeStages(const ServerConfig& config) {
   std::vector<std::unique_ptr<PipelineStage>> stages;
 #ifdef EXOVIEW_HAVE_GEOMETRY
+  std::shared_ptr<SharedCellAreas> areas;
   if (config.enable_geometry) {
-    EXO_ASSIGN_OR_RETURN(auto g, MakeGeometryStage(config.geometry));
+    if (config.enable_planning && config.planning_cell_areas)
+      areas = std::make_shared<SharedCellAreas>(config.pipeline.cell_size_m);
+    EXO_ASSIGN_OR_RETURN(auto g, MakeGeometryStage(config.geometry, areas));
     stages.push_back(std::move(g));
   }
 #endif
@@ -33,6 +39,12 @@ absl::StatusOr<std::vector<std::unique_ptr<PipelineStage>>> MakeStages(const Ser
   if (config.enable_planning) {
     PlanningStageOptions p = config.planning;
     p.publish = config.publish;
+#ifdef EXOVIEW_HAVE_GEOMETRY
+    if (areas) p.take_area_changes = [areas] { return areas->TakeChanges(); };
+#endif
+#ifndef EXOVIEW_HAVE_REFINEMENT
+    p.refine = false;
+#endif
     EXO_ASSIGN_OR_RETURN(auto s, MakePlanningStage(p, config.pipeline.cell_size_m));
     stages.push_back(std::move(s));
   }
