@@ -2,11 +2,15 @@
 // its exposure factor E_I and correct small pose errors by minimising the robust photometric
 // energy J(I) = sum_j m(E_I * C_I(pi(p_j, I)) - median_i(E_i * C_i(pi(p_j, F_i)))) (3.17) over
 // surface samples p_j valid in I, alternating exposure and 6-DoF pose (Ceres, Tukey loss with a
-// Cauchy warm start and a MAD scale, bicubic sampling, quaternion manifold, image pyramid).
+// Cauchy warm start and a MAD scale, bicubic sampling, binomial image pyramid). The pose is
+// updated in a chart centred at the camera (rotation about the camera centre, composed into a
+// unit quaternion after each stage), with a depth term for RGB-D candidates, and only along the
+// directions the data determine (weak ones frozen).
 // Intensities are linear luma (sRGB decoded); saturated and black pixels are ignored. The gauge
 // is fixed: stored views keep their E_i. Safety: a stage that raises the energy is undone,
 // rank-deficient pose problems (textureless surfaces, too few samples) keep the initial pose,
-// and a view whose final residual stays high is flagged as a pose outlier.
+// and a view whose final residual stays high relative to the references' own disagreement is
+// flagged as a pose outlier.
 //
 // Pure library, no global state: RefineView may run on any thread (one call per thread; the
 // inputs are read-only). RefinementStats is owned and aggregated by the caller.
