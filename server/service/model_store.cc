@@ -41,6 +41,91 @@ uint64_t ModelStore::CommitLocked(v1::Delta delta) {
   return version_;
 }
 
+v1::Checkpoint ModelStore::MakeCheckpoint(size_t max_log_bytes) const {
+  v1::Checkpoint c;
+  std::lock_guard lock(mu_);
+  c.set_format(1);
+  c.set_version(version_);
+  for (const DeltaPtr& d : SnapshotLocked()) {
+    if (d->has_snapshot_begin() || d->has_snapshot_end()) continue;
+    *c.add_model() = *d;
+  }
+  // Newest log entries that fit, kept contiguous up to version_.
+  size_t bytes = 0, n = 0;
+  for (auto it = log_.rbegin(); it != log_.rend(); ++it, ++n) {
+    bytes += (*it)->ByteSizeLong();
+    if (bytes > max_log_bytes) break;
+  }
+  for (size_t i = log_.size() - n; i < log_.size(); ++i) *c.add_log() = *log_[i];
+  return c;
+}
+
+absl::Status ModelStore::ApplyModelDeltaLocked(const v1::Delta& d) {
+  switch (d.kind_case()) {
+    case v1::Delta::kSceneParams:
+      scene_ = d.scene_params();
+      has_scene_ = true;
+      return absl::OkStatus();
+    case v1::Delta::kViewAdded: {
+      auto ptr = std::make_shared<v1::ViewAdded>(d.view_added());
+      view_bytes_ += ptr->ByteSizeLong();
+      view_records_[ptr->view_id()] = DigestRecordFromProto(*ptr);
+      views_[ptr->view_id()] = std::move(ptr);
+      return absl::OkStatus();
+    }
+    case v1::Delta::kMeshChunkUpserted: {
+      const auto& m = d.mesh_chunk_upserted();
+      EXO_ASSIGN_OR_RETURN(TriangleMesh mesh, MeshFromProto(m));
+      auto ptr = std::make_shared<const v1::MeshChunkUpserted>(m);
+      chunk_bytes_ += ptr->ByteSizeLong();
+      chunks_[m.chunk_id()] = std::move(ptr);
+      chunk_records_[m.chunk_id()] = {m.chunk_version(), MeshHash(mesh)};
+      return absl::OkStatus();
+    }
+    case v1::Delta::kCellRefsChanged:
+      for (const auto& e : d.cell_refs_changed().cells())
+        if (e.view_ids_size() > 0) cell_refs_[e.cell_id()].assign(e.view_ids().begin(), e.view_ids().end());
+      return absl::OkStatus();
+    default:
+      return absl::DataLossError("checkpoint: unexpected delta kind in the model");
+  }
+}
+
+absl::Status ModelStore::RestoreCheckpoint(const v1::Checkpoint& c) {
+  if (c.format() != 1)
+    return absl::DataLossError(absl::StrCat("checkpoint: unknown format ", c.format()));
+  std::lock_guard lock(mu_);
+  if (version_ != 0) return absl::FailedPreconditionError("checkpoint: the store is not empty");
+  for (const auto& d : c.model()) {
+    if (d.version() != c.version()) return absl::DataLossError("checkpoint: model delta version mismatch");
+    EXO_RETURN_IF_ERROR(ApplyModelDeltaLocked(d));
+  }
+  for (int i = 0; i < c.log_size(); ++i)
+    if (c.log(i).version() != c.version() - static_cast<uint64_t>(c.log_size() - 1 - i))
+      return absl::DataLossError("checkpoint: delta log tail is not contiguous");
+  version_ = c.version();
+  for (const auto& d : c.log()) {
+    auto ptr = std::make_shared<const v1::Delta>(d);
+    log_bytes_ += ptr->ByteSizeLong();
+    log_.push_back(std::move(ptr));
+  }
+  return absl::OkStatus();
+}
+
+std::vector<std::shared_ptr<const v1::ViewAdded>> ModelStore::Views() const {
+  std::lock_guard lock(mu_);
+  std::vector<std::shared_ptr<const v1::ViewAdded>> out;
+  for (const auto& [id, v] : views_) out.push_back(v);
+  return out;
+}
+
+std::vector<CellId> ModelStore::CellIds() const {
+  std::lock_guard lock(mu_);
+  std::vector<CellId> out;
+  for (const auto& [c, r] : cell_refs_) out.push_back(c);
+  return out;
+}
+
 uint64_t ModelStore::SetSceneParams(const LocalOrigin& origin, double cell_size_m) {
   std::lock_guard lock(mu_);
   scene_.mutable_origin_in_world()->set_x(origin.origin_in_world.x);

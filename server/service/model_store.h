@@ -93,6 +93,14 @@ class ModelStore {
   uint64_t UpsertChunk(uint64_t chunk_id, uint64_t chunk_version, const TriangleMesh& mesh);
   absl::StatusOr<uint64_t> RemoveChunk(uint64_t chunk_id);
 
+  // Checkpoint (SPEC §12): the model as published + at most `max_log_bytes` of the log tail.
+  v1::Checkpoint MakeCheckpoint(size_t max_log_bytes) const;
+  // Restores a checkpoint into an empty store (version 0): versions continue from it.
+  absl::Status RestoreCheckpoint(const v1::Checkpoint& checkpoint);
+  // The published views (for a restarted planner), ordered by id.
+  std::vector<std::shared_ptr<const v1::ViewAdded>> Views() const;
+  std::vector<CellId> CellIds() const;
+
   // Subscribe from the client's last applied version: only the missed deltas, or a snapshot
   // when the log no longer holds them, when they would cost more bytes than a snapshot, or when
   // the client claims a version from the future (e.g. the server restarted).
@@ -119,6 +127,7 @@ class ModelStore {
   std::vector<DeltaPtr> SnapshotLocked() const;    // SnapshotBegin, model, SnapshotEnd
   size_t SnapshotBytesLocked() const;
   uint64_t DigestLocked() const;
+  absl::Status ApplyModelDeltaLocked(const v1::Delta& d);  // restore: state only, no commit
 
   const ModelStoreOptions options_;
   mutable std::mutex mu_;

@@ -105,5 +105,51 @@ TEST(ModelStore, DigestChangesWithEveryKindOfMutation) {
   EXPECT_FALSE(store.RemoveView(42).ok());
 }
 
+// Checkpoint round trip (SPEC §12): the restored store has the same version and digest, the
+// log tail lets a client behind the checkpoint resume with only its missed deltas (without the
+// tail it would need a snapshot), new versions continue after the checkpoint, and a corrupt
+// (non-contiguous) tail is refused.
+TEST(ModelStore, CheckpointRestoresVersionDigestAndLogTail) {
+  ModelStore a;
+  LocalOrigin origin;
+  origin.origin_in_world = {1.0, 2.0, 3.0};
+  a.SetSceneParams(origin, 0.5);
+  for (ViewId i = 1; i <= 6; ++i) a.AddView(View(i));
+  a.SetCellRefs({{42, {1, 2}}, {43, {3}}});
+  TriangleMesh m;
+  m.positions = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}};
+  m.indices = {0, 1, 2};
+  a.UpsertChunk(9, 3, m);
+  ASSERT_TRUE(a.RemoveView(2).ok());
+  const v1::Checkpoint c = a.MakeCheckpoint(size_t{1} << 20);
+  ASSERT_EQ(c.version(), a.version());
+
+  ModelStore b;
+  ASSERT_TRUE(b.RestoreCheckpoint(c).ok());
+  EXPECT_EQ(b.version(), a.version());
+  EXPECT_EQ(b.GetSummary().digest, a.GetSummary().digest);
+  EXPECT_EQ(b.GetSummary().num_views, 5u);
+  auto sub = b.Subscribe(a.version() - 2);
+  auto d = Drain(*sub);
+  ASSERT_EQ(d.size(), 2u);
+  EXPECT_EQ(sub->snapshots(), 0u);
+  EXPECT_TRUE(d.back()->has_view_removed());
+  EXPECT_EQ(b.AddView(View(7)), a.version() + 1);  // versions continue
+  EXPECT_FALSE(b.RestoreCheckpoint(c).ok());       // only into an empty store
+
+  // A checkpoint without the tail: the same client needs a snapshot.
+  ModelStore no_tail;
+  ASSERT_TRUE(no_tail.RestoreCheckpoint(a.MakeCheckpoint(0)).ok());
+  auto sub2 = no_tail.Subscribe(a.version() - 2);
+  auto d2 = Drain(*sub2);
+  ASSERT_FALSE(d2.empty());
+  EXPECT_TRUE(d2.front()->has_snapshot_begin());
+
+  v1::Checkpoint bad = c;
+  bad.mutable_log()->SwapElements(0, 1);
+  ModelStore e;
+  EXPECT_FALSE(e.RestoreCheckpoint(bad).ok());
+}
+
 }  // namespace
 }  // namespace exo

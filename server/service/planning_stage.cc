@@ -77,6 +77,10 @@ class PlanningStage final : public PipelineStage {
     std::lock_guard lock(mu_);
     store_ = ctx.store;
     EXO_RETURN_IF_ERROR(ApplyAreaChangesLocked());
+    if (!rebuilt_) {
+      rebuilt_ = true;
+      EXO_RETURN_IF_ERROR(RebuildFromStoreLocked());
+    }
     const Frame& f = pf.frame;
     if (f.depth_m.empty()) return absl::OkStatus();  // no depth: no cells to cover
     if (options_.max_candidates_per_s_when_full > 0 &&
@@ -89,28 +93,9 @@ class PlanningStage final : public PipelineStage {
       last_candidate_s_ = f.timestamp_s;
     }
     const Rigid3d local_from_cam = ctx.origin.ToLocal(f.world_from_cam);
-    const Rigid3d local_from_depth = local_from_cam * f.color_from_depth;
-    // Cell-id buffer from the frame's own depth (the visible surface), reduced resolution.
-    const int s = options_.id_buffer_stride;
-    const int w = f.depth_m.width() / s, h = f.depth_m.height() / s;
-    if (w < 1 || h < 1) return absl::InvalidArgumentError("depth smaller than the id-buffer stride");
-    ids_.assign(static_cast<size_t>(w) * h, kNoCell);
-    const CellGrid& grid = planner_.grid();
-    for (int y = 0; y < h; ++y)
-      for (int x = 0; x < w; ++x) {
-        const int dx = x * s + s / 2, dy = y * s + s / 2;
-        const float z = f.depth_m.at(dx, dy);
-        if (!(z > 0.0f) || !std::isfinite(z)) continue;
-        const glm::dvec3 p_local = local_from_depth * f.depth_camera.Unproject({dx, dy}, z);
-        ids_[static_cast<size_t>(y) * w + x] = grid.IdOf(p_local);
-      }
-    planning::Candidate cand;
-    cand.id = next_id_;
-    cand.local_from_cam = local_from_cam;
-    cand.id_camera = f.depth_camera.Scaled(w, h);
-    cand.cells = planning::CountCellPixels(ids_.data(), ids_.size());
-    cand.bytes = f.color.bytes() + static_cast<size_t>(f.color.width()) * f.color.height() * sizeof(float) +
-                 sizeof(StoredView);
+    EXO_ASSIGN_OR_RETURN(planning::Candidate cand,
+                         MakeCandidate(next_id_, f.depth_m, f.depth_camera,
+                                       local_from_cam * f.color_from_depth, local_from_cam, f.color));
     ++candidates_;
     EXO_ASSIGN_OR_RETURN(planning::Decision d, planner_.Consider(cand));
     if (!d.accepted) return absl::OkStatus();
@@ -172,6 +157,8 @@ class PlanningStage final : public PipelineStage {
     (*out)["planning.governed"] = static_cast<double>(governed_);
     (*out)["planning.cell_areas_set"] = static_cast<double>(areas_set_);
     (*out)["planning.views"] = static_cast<double>(planner_.num_views());
+    (*out)["planning.rebuilt_views"] = static_cast<double>(rebuilt_views_);
+    (*out)["planning.rebuild_removed"] = static_cast<double>(rebuild_removed_);
 #ifdef EXOVIEW_HAVE_REFINEMENT
     if (worker_) {
       const RefinementWorkerStats w = worker_->stats();
@@ -190,6 +177,74 @@ class PlanningStage final : public PipelineStage {
   }
 
  private:
+  // Cell-id buffer from a depth map (the visible surface) at reduced resolution -> candidate.
+  absl::StatusOr<planning::Candidate> MakeCandidate(ViewId id, const ImageF& depth,
+                                                    const PinholeCamera& depth_camera,
+                                                    const Rigid3d& local_from_depth,
+                                                    const Rigid3d& local_from_cam,
+                                                    const ImageU8& color) {
+    const int s = options_.id_buffer_stride;
+    const int w = depth.width() / s, h = depth.height() / s;
+    if (w < 1 || h < 1) return absl::InvalidArgumentError("depth smaller than the id-buffer stride");
+    ids_.assign(static_cast<size_t>(w) * h, kNoCell);
+    const CellGrid& grid = planner_.grid();
+    for (int y = 0; y < h; ++y)
+      for (int x = 0; x < w; ++x) {
+        const int dx = x * s + s / 2, dy = y * s + s / 2;
+        const float z = depth.at(dx, dy);
+        if (!(z > 0.0f) || !std::isfinite(z)) continue;
+        const glm::dvec3 p_local = local_from_depth * depth_camera.Unproject({dx, dy}, z);
+        ids_[static_cast<size_t>(y) * w + x] = grid.IdOf(p_local);
+      }
+    planning::Candidate cand;
+    cand.id = id;
+    cand.local_from_cam = local_from_cam;
+    cand.id_camera = depth_camera.Scaled(w, h);
+    cand.cells = planning::CountCellPixels(ids_.data(), ids_.size());
+    cand.bytes = color.bytes() + static_cast<size_t>(color.width()) * color.height() * sizeof(float) +
+                 sizeof(StoredView);
+    return cand;
+  }
+
+  // A server restarted from a checkpoint: the planner's state is recomputed from the stored views
+  // (their published depth, the same cell-id buffer as live) in id order, i.e. the order they
+  // were accepted in. A view the rebuilt planner does not keep is removed (ViewRemoved), and the
+  // store's cell references are replaced by the planner's (one CellRefsChanged), so planner and
+  // store agree again. View ids continue after the largest stored id.
+  absl::Status RebuildFromStoreLocked() {
+    const auto views = store_->Views();
+    if (views.empty()) return absl::OkStatus();
+    for (const auto& msg : views) {
+      EXO_ASSIGN_OR_RETURN(StoredView v, ViewFromProto(*msg));
+      next_id_ = std::max<ViewId>(next_id_, v.id + 1);
+      EXO_ASSIGN_OR_RETURN(planning::Candidate cand,
+                           MakeCandidate(v.id, v.depth_m, v.camera, v.local_from_cam,
+                                         v.local_from_cam, v.color));
+      absl::StatusOr<planning::Decision> d = planner_.Consider(cand);
+      if (!d.ok() || !d->accepted) {
+        (void)store_->RemoveView(v.id);
+        ++rebuild_removed_;
+        continue;
+      }
+      for (ViewId victim : d->removed) {
+        (void)store_->RemoveView(victim);
+        ref_cache_.erase(victim);
+        ++rebuild_removed_;
+      }
+#ifdef EXOVIEW_HAVE_REFINEMENT
+      if (worker_)
+        ref_cache_[v.id] = std::make_shared<const StoredView>(DownscaleView(v, options_.refine_downscale));
+#endif
+      ++rebuilt_views_;
+    }
+    std::map<CellId, std::vector<ViewId>> refs;
+    for (CellId c : store_->CellIds()) refs[c];  // cells the planner no longer references: cleared
+    for (auto& [c, r] : planner_.CellRefs()) refs[c] = std::move(r);
+    std::vector<std::pair<CellId, std::vector<ViewId>>> cells(refs.begin(), refs.end());
+    if (!cells.empty()) store_->SetCellRefs(cells);
+    return absl::OkStatus();
+  }
+
   absl::Status ApplyAreaChangesLocked() {
     if (!options_.take_area_changes) return absl::OkStatus();
     for (const auto& [cell, area] : options_.take_area_changes()) {
@@ -250,6 +305,8 @@ class PlanningStage final : public PipelineStage {
   std::map<ViewId, std::shared_ptr<const StoredView>> ref_cache_;
   uint64_t candidates_ = 0, accepted_ = 0, governed_ = 0, areas_set_ = 0;
   uint64_t outliers_removed_ = 0, updated_ = 0, stale_ = 0;
+  bool rebuilt_ = false;
+  uint64_t rebuilt_views_ = 0, rebuild_removed_ = 0;
 };
 
 }  // namespace

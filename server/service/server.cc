@@ -1,5 +1,9 @@
 #include "server/service/server.h"
 
+#include <unistd.h>
+
+#include <filesystem>
+
 #include <chrono>
 #include <cstdio>
 #include <fstream>
@@ -50,6 +54,8 @@ absl::Status ServerConfig::Validate() const {
   EXO_RETURN_IF_ERROR(publish.Validate());
   EXO_RETURN_IF_ERROR(geometry.Validate());
   EXO_RETURN_IF_ERROR(planning.Validate());
+  if (!(checkpoint_interval_s >= 0.0))
+    return absl::InvalidArgumentError("checkpoint_interval_s must be >= 0 (0 = only at shutdown)");
   return absl::OkStatus();
 }
 
@@ -88,6 +94,9 @@ absl::Status ApplyConfigValue(const std::string& key, const std::string& value, 
   if (key == "refine_remove_outliers") return ParseNumber(key, value, &c->planning.refine_remove_outliers);
   if (key == "planning_cell_areas") return ParseNumber(key, value, &c->planning_cell_areas);
   if (key == "id_buffer_stride") return ParseNumber(key, value, &c->planning.id_buffer_stride);
+  if (key == "checkpoint_path") { c->checkpoint_path = value; return absl::OkStatus(); }
+  if (key == "checkpoint_interval_s") return ParseNumber(key, value, &c->checkpoint_interval_s);
+  if (key == "checkpoint_max_log_bytes") return ParseNumber(key, value, &c->checkpoint_max_log_bytes);
   if (key == "udp_pose_address") { c->udp_pose_address = value; return absl::OkStatus(); }
   if (key == "udp_pose_tolerance_s") return ParseNumber(key, value, &c->udp_pose_tolerance_s);
   if (key == "udp_pose_port") {
@@ -236,6 +245,39 @@ absl::Status ExoviewServer::Start() {
   store_ = std::make_unique<ModelStore>(config_.store);
   EXO_ASSIGN_OR_RETURN(auto stages, MakeStages(config_));
   pipeline_ = std::make_unique<Pipeline>(config_.pipeline, store_.get(), std::move(stages));
+  if (!config_.checkpoint_path.empty() && std::filesystem::exists(config_.checkpoint_path)) {
+    std::ifstream in(config_.checkpoint_path, std::ios::binary);
+    v1::Checkpoint c;
+    if (!in || !c.ParseFromIstream(&in))
+      return absl::DataLossError(absl::StrCat("cannot parse checkpoint ", config_.checkpoint_path));
+    EXO_RETURN_IF_ERROR(store_->RestoreCheckpoint(c));
+    for (const auto& d : c.model())
+      if (d.has_scene_params()) {
+        const auto& o = d.scene_params().origin_in_world();
+        LocalOrigin origin;
+        origin.origin_in_world = {o.x(), o.y(), o.z()};
+        if (d.scene_params().cell_size_m() != config_.pipeline.cell_size_m)
+          return absl::FailedPreconditionError("checkpoint: cell_size_m differs from the config");
+        pipeline_->RestoreOrigin(origin);
+      }
+    restored_version_ = checkpoint_version_ = c.version();
+    std::fprintf(stderr, "exoview_server: restored checkpoint %s at version %llu (%u views)\n",
+                 config_.checkpoint_path.c_str(), static_cast<unsigned long long>(c.version()),
+                 store_->GetSummary().num_views);
+  }
+  if (!config_.checkpoint_path.empty() && config_.checkpoint_interval_s > 0) {
+    checkpoint_thread_ = std::thread([this] {
+      std::unique_lock lock(checkpoint_mu_);
+      while (!checkpoint_cv_.wait_for(lock,
+                                      std::chrono::duration<double>(config_.checkpoint_interval_s),
+                                      [this] { return shutting_down_.load(); })) {
+        lock.unlock();
+        if (auto s = WriteCheckpoint(); !s.ok())
+          std::fprintf(stderr, "exoview_server: checkpoint: %s\n", std::string(s.message()).c_str());
+        lock.lock();
+      }
+    });
+  }
   if (config_.udp_pose_port >= 0) {
     EXO_ASSIGN_OR_RETURN(udp_, UdpPoseInput::Start(config_.udp_pose_address, config_.udp_pose_port));
   }
@@ -261,6 +303,35 @@ void ExoviewServer::Shutdown() {
   if (server_) server_->Shutdown(std::chrono::system_clock::now() + std::chrono::seconds(2));
   if (pipeline_) pipeline_->Stop();  // every admitted frame is processed before we return
   udp_.reset();
+  {
+    std::lock_guard lock(checkpoint_mu_);
+    checkpoint_cv_.notify_all();
+  }
+  if (checkpoint_thread_.joinable()) checkpoint_thread_.join();
+  if (store_ && !config_.checkpoint_path.empty())
+    if (auto s = WriteCheckpoint(); !s.ok())
+      std::fprintf(stderr, "exoview_server: checkpoint: %s\n", std::string(s.message()).c_str());
+}
+
+absl::Status ExoviewServer::WriteCheckpoint() {
+  if (config_.checkpoint_path.empty() || !store_) return absl::OkStatus();
+  if (store_->version() == checkpoint_version_) return absl::OkStatus();  // unchanged
+  const v1::Checkpoint c = store_->MakeCheckpoint(config_.checkpoint_max_log_bytes);
+  const std::string tmp = config_.checkpoint_path + ".tmp";
+  {
+    FILE* f = std::fopen(tmp.c_str(), "wb");
+    if (!f) return absl::UnavailableError(absl::StrCat("cannot write ", tmp));
+    const std::string bytes = c.SerializeAsString();
+    const bool ok = std::fwrite(bytes.data(), 1, bytes.size(), f) == bytes.size() &&
+                    std::fflush(f) == 0 && ::fsync(fileno(f)) == 0;
+    std::fclose(f);
+    if (!ok) return absl::UnavailableError(absl::StrCat("short write to ", tmp));
+  }
+  // Atomic: a reader (a restarted server) sees the old or the new file, never a partial one.
+  if (std::rename(tmp.c_str(), config_.checkpoint_path.c_str()) != 0)
+    return absl::UnavailableError(absl::StrCat("cannot rename ", tmp));
+  checkpoint_version_ = c.version();
+  return absl::OkStatus();
 }
 
 int ExoviewServer::udp_pose_port() const { return udp_ ? udp_->port() : -1; }

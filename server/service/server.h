@@ -5,6 +5,9 @@
 #pragma once
 
 #include <atomic>
+#include <condition_variable>
+#include <mutex>
+#include <thread>
 #include <memory>
 #include <string>
 #include <vector>
@@ -42,6 +45,11 @@ struct ServerConfig {
   int udp_pose_port = -1;
   std::string udp_pose_address = "127.0.0.1";
   double udp_pose_tolerance_s = 0.02;  // a frame with no pose sample this close is rejected
+  // Checkpoint (SPEC §12): empty path = off. Written every `checkpoint_interval_s` when the model
+  // changed (tmp + fsync + rename) and at graceful shutdown; loaded at start when present.
+  std::string checkpoint_path;
+  double checkpoint_interval_s = 30.0;
+  size_t checkpoint_max_log_bytes = size_t{16} << 20;  // delta log tail kept in the checkpoint
   absl::Status Validate() const;
 };
 
@@ -63,6 +71,9 @@ class ExoviewServer {
   void Shutdown();
   void Wait();
   ModelStore& store() { return *store_; }
+  // Writes the checkpoint now (atomic). No-op without checkpoint_path.
+  absl::Status WriteCheckpoint();
+  uint64_t restored_version() const { return restored_version_; }
 
  private:
   class Service;
@@ -74,6 +85,11 @@ class ExoviewServer {
   std::unique_ptr<grpc::Server> server_;
   int port_ = 0;
   std::atomic<bool> shutting_down_{false};
+  uint64_t restored_version_ = 0;
+  uint64_t checkpoint_version_ = 0;  // last written
+  std::mutex checkpoint_mu_;
+  std::condition_variable checkpoint_cv_;
+  std::thread checkpoint_thread_;
 };
 
 }  // namespace exo
