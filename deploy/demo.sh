@@ -46,7 +46,9 @@ cleanup() {
 }
 trap cleanup EXIT
 rm -f "$OUT/port"
-"$BUILD/server/app/exoview_server" --listen=127.0.0.1:0 --port_file="$OUT/port" \
+# EXOVIEW_SERVER_ARGS: extra server flags (e.g. "--refinement=0" for an A/B run).
+# shellcheck disable=SC2086
+"$BUILD/server/app/exoview_server" --listen=127.0.0.1:0 --port_file="$OUT/port" ${EXOVIEW_SERVER_ARGS:-} \
   > "$OUT/server.log" 2>&1 &
 SERVER_PID=$!
 for _ in $(seq 200); do [ -s "$OUT/port" ] && break; sleep 0.05; done

@@ -25,7 +25,7 @@ void Usage() {
                "      mesh_every_n_frames fuse_depth_downscale chunk_republish_change chunk_republish_interval_s planning max_views max_store_bytes r_max d_max_m\n"
                "      sigma_m delta_tau_sum max_candidates_per_s_when_full id_buffer_stride udp_pose_port udp_pose_address\n"
                "      udp_pose_tolerance_s refinement refine_queue refine_downscale refine_remove_outliers\n"
-               "      planning_cell_areas checkpoint_path checkpoint_interval_s checkpoint_max_log_bytes\n");
+               "      planning_cell_areas planning_id_from_proxy checkpoint_path checkpoint_interval_s checkpoint_max_log_bytes\n");
 }
 
 }  // namespace

@@ -14,10 +14,26 @@ SharedCellAreas::~SharedCellAreas() = default;
 void SharedCellAreas::Update(const MeshChunk& chunk) {
   std::lock_guard lock(mu_);
   areas_->UpdateChunk(chunk);
+  chunks_[chunk.id] = chunk.mesh;
+  dirty_ = true;
 }
 void SharedCellAreas::Remove(uint64_t chunk_id) {
   std::lock_guard lock(mu_);
   areas_->RemoveChunk(chunk_id);
+  dirty_ |= chunks_.erase(chunk_id) > 0;
+}
+std::shared_ptr<const TriangleMesh> SharedCellAreas::ProxyMesh() {
+  std::lock_guard lock(mu_);
+  if (!dirty_) return merged_;
+  auto m = std::make_shared<TriangleMesh>();
+  for (const auto& [id, c] : chunks_) {
+    const uint32_t base = static_cast<uint32_t>(m->positions.size());
+    m->positions.insert(m->positions.end(), c.positions.begin(), c.positions.end());
+    for (uint32_t i : c.indices) m->indices.push_back(base + i);
+  }
+  merged_ = m->indices.empty() ? nullptr : std::move(m);
+  dirty_ = false;
+  return merged_;
 }
 std::vector<std::pair<CellId, double>> SharedCellAreas::TakeChanges() {
   std::lock_guard lock(mu_);

@@ -8,6 +8,7 @@
 
 #include <cmath>
 #include <memory>
+#include <map>
 #include <mutex>
 #include <utility>
 #include <vector>
@@ -51,10 +52,16 @@ class SharedCellAreas {
   // Cells whose area changed since the last call, with their current area (0 = no surface).
   std::vector<std::pair<CellId, double>> TakeChanges();
   double TotalArea() const;
+  // The current proxy (every chunk's newest mesh) merged into one mesh; rebuilt only when a
+  // chunk changed since the last call. Null when there is no proxy yet.
+  std::shared_ptr<const TriangleMesh> ProxyMesh();
 
  private:
   mutable std::mutex mu_;
   std::unique_ptr<class CellAreas> areas_;
+  std::map<uint64_t, TriangleMesh> chunks_;
+  std::shared_ptr<const TriangleMesh> merged_;
+  bool dirty_ = false;
 };
 
 absl::StatusOr<std::unique_ptr<PipelineStage>> MakeGeometryStage(

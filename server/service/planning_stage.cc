@@ -6,6 +6,7 @@
 #include <map>
 #include <mutex>
 
+#include "common/raster/rasterizer.h"
 #include "server/planning/view_planner.h"
 #ifdef EXOVIEW_HAVE_REFINEMENT
 #include "server/service/refinement_worker.h"
@@ -93,9 +94,32 @@ class PlanningStage final : public PipelineStage {
       last_candidate_s_ = f.timestamp_s;
     }
     const Rigid3d local_from_cam = ctx.origin.ToLocal(f.world_from_cam);
-    EXO_ASSIGN_OR_RETURN(planning::Candidate cand,
-                         MakeCandidate(next_id_, f.depth_m, f.depth_camera,
-                                       local_from_cam * f.color_from_depth, local_from_cam, f.color));
+    const int64_t t_ids = SteadyNowNs();
+    std::shared_ptr<const TriangleMesh> proxy;
+    if (options_.id_from_proxy && options_.proxy_mesh) proxy = options_.proxy_mesh();
+    planning::Candidate cand;
+    if (proxy) {
+      RasterOptions ro;
+      ro.z_depth = false;
+      ro.cell_id = true;
+      ro.cell_grid = planner_.grid();
+      ro.width = f.color_camera.width / options_.id_buffer_stride;
+      ro.height = f.color_camera.height / options_.id_buffer_stride;
+      ro.num_threads = 1;
+      EXO_ASSIGN_OR_RETURN(RasterOutput r, Rasterize(*proxy, f.color_camera, local_from_cam, ro));
+      cand.id = next_id_;
+      cand.local_from_cam = local_from_cam;
+      cand.id_camera = r.camera;
+      cand.cells = planning::CountCellPixels(r.cell_id.data(), r.cell_id.size());
+      cand.bytes = f.color.bytes() + static_cast<size_t>(f.color.width()) * f.color.height() * sizeof(float) +
+                   sizeof(StoredView);
+      ++ids_from_proxy_;
+    } else {
+      EXO_ASSIGN_OR_RETURN(cand, MakeCandidate(next_id_, f.depth_m, f.depth_camera,
+                                               local_from_cam * f.color_from_depth, local_from_cam,
+                                               f.color));
+    }
+    id_buffer_ns_ += SteadyNowNs() - t_ids;
     ++candidates_;
     EXO_ASSIGN_OR_RETURN(planning::Decision d, planner_.Consider(cand));
     if (!d.accepted) return absl::OkStatus();
@@ -157,6 +181,9 @@ class PlanningStage final : public PipelineStage {
     (*out)["planning.governed"] = static_cast<double>(governed_);
     (*out)["planning.cell_areas_set"] = static_cast<double>(areas_set_);
     (*out)["planning.views"] = static_cast<double>(planner_.num_views());
+    (*out)["planning.ids_from_proxy"] = static_cast<double>(ids_from_proxy_);
+    (*out)["planning.id_buffer_ms_mean"] =
+        candidates_ ? id_buffer_ns_ * 1e-6 / static_cast<double>(candidates_) : 0.0;
     (*out)["planning.rebuilt_views"] = static_cast<double>(rebuilt_views_);
     (*out)["planning.rebuild_removed"] = static_cast<double>(rebuild_removed_);
 #ifdef EXOVIEW_HAVE_REFINEMENT
@@ -306,6 +333,8 @@ class PlanningStage final : public PipelineStage {
   uint64_t candidates_ = 0, accepted_ = 0, governed_ = 0, areas_set_ = 0;
   uint64_t outliers_removed_ = 0, updated_ = 0, stale_ = 0;
   bool rebuilt_ = false;
+  uint64_t ids_from_proxy_ = 0;
+  int64_t id_buffer_ns_ = 0;
   uint64_t rebuilt_views_ = 0, rebuild_removed_ = 0;
 };
 

@@ -31,6 +31,11 @@ struct PlanningStageOptions {
   // Per-cell proxy areas A(b_k) changed since the last call (geometry's CellAreas); null = every
   // cell uses the face area A_cell.
   std::function<std::vector<std::pair<CellId, double>>()> take_area_changes;
+  // SPEC §4: the cell-id buffer rendered from the proxy mesh (common/raster, at 1/id_buffer_stride
+  // of the colour size) instead of back-projected from the frame's depth. Needs `proxy_mesh`;
+  // falls back to depth while there is no proxy. Measured cost in docs/service.md.
+  bool id_from_proxy = false;
+  std::function<std::shared_ptr<const TriangleMesh>()> proxy_mesh;
   // Refinement (SPEC §5), async after acceptance (where the server is built with it): the view is
   // published at once and a ViewUpdated (exposure, pose) follows; a pose outlier is removed from
   // planner and store (ViewRemoved + CellRefsChanged). Under load views stay unrefined (skipped).

@@ -92,6 +92,7 @@ absl::Status ApplyConfigValue(const std::string& key, const std::string& value, 
   if (key == "refine_queue") return ParseNumber(key, value, &c->planning.refine_queue);
   if (key == "refine_downscale") return ParseNumber(key, value, &c->planning.refine_downscale);
   if (key == "refine_remove_outliers") return ParseNumber(key, value, &c->planning.refine_remove_outliers);
+  if (key == "planning_id_from_proxy") return ParseNumber(key, value, &c->planning.id_from_proxy);
   if (key == "planning_cell_areas") return ParseNumber(key, value, &c->planning_cell_areas);
   if (key == "id_buffer_stride") return ParseNumber(key, value, &c->planning.id_buffer_stride);
   if (key == "checkpoint_path") { c->checkpoint_path = value; return absl::OkStatus(); }

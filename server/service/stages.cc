@@ -29,7 +29,7 @@ absl::StatusOr<std::vector<std::unique_ptr<PipelineStage>>> MakeStages(const Ser
 #ifdef EXOVIEW_HAVE_GEOMETRY
   std::shared_ptr<SharedCellAreas> areas;
   if (config.enable_geometry) {
-    if (config.enable_planning && config.planning_cell_areas)
+    if (config.enable_planning && (config.planning_cell_areas || config.planning.id_from_proxy))
       areas = std::make_shared<SharedCellAreas>(config.pipeline.cell_size_m);
     EXO_ASSIGN_OR_RETURN(auto g, MakeGeometryStage(config.geometry, areas));
     stages.push_back(std::move(g));
@@ -40,7 +40,10 @@ absl::StatusOr<std::vector<std::unique_ptr<PipelineStage>>> MakeStages(const Ser
     PlanningStageOptions p = config.planning;
     p.publish = config.publish;
 #ifdef EXOVIEW_HAVE_GEOMETRY
-    if (areas) p.take_area_changes = [areas] { return areas->TakeChanges(); };
+    if (areas) {
+      if (config.planning_cell_areas) p.take_area_changes = [areas] { return areas->TakeChanges(); };
+      p.proxy_mesh = [areas] { return areas->ProxyMesh(); };
+    }
 #endif
 #ifndef EXOVIEW_HAVE_REFINEMENT
     p.refine = false;
