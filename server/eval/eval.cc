@@ -53,6 +53,7 @@ double Mean(const std::vector<double>& v) {
 struct ChunkEntry {
   MeshChunk chunk;
   TriangleMesh lod;  // cell-id LOD (planning::ClusterSimplify); empty when LODs are off
+  size_t lod_source_tris = 0;  // triangles of the chunk mesh the LOD was built from
   glm::vec3 centre{0.0f};
   float radius = 0.0f;
 };
@@ -88,11 +89,24 @@ class Proxy {
   // cluster_m > 0: keep a vertex-clustered LOD of every chunk for cell-id buffers.
   void set_lod_cluster_m(double m) { lod_cluster_m_ = m; }
   double lod_cluster_m() const { return lod_cluster_m_; }
+  // The LOD of an updated chunk is rebuilt only when its triangle count moved by more than 10 %
+  // since the last build (a converging TSDF chunk moves by fractions of a voxel, far below the
+  // cluster size): most dirty chunks of a frame keep their LOD.
   void Set(uint64_t id, MeshChunk c) {
     ChunkEntry e = MakeEntry(std::move(c));
     if (lod_cluster_m_ > 0) {
-      auto lod = planning::ClusterSimplify(e.chunk.mesh, lod_cluster_m_);
-      if (lod.ok()) e.lod = std::move(*lod);
+      auto old = chunks_.find(id);
+      const size_t n = e.chunk.mesh.num_triangles();
+      if (old != chunks_.end() && old->second.lod_source_tris > 0 &&
+          10 * std::max(n, old->second.lod_source_tris) <
+              11 * std::min(n, old->second.lod_source_tris)) {
+        e.lod = std::move(old->second.lod);
+        e.lod_source_tris = old->second.lod_source_tris;
+      } else {
+        auto lod = planning::ClusterSimplify(e.chunk.mesh, lod_cluster_m_);
+        if (lod.ok()) e.lod = std::move(*lod);
+        e.lod_source_tris = n;
+      }
     }
     chunks_[id] = std::move(e);
   }
@@ -168,6 +182,7 @@ std::vector<planning::CellPixelCount> CellCounts(const TriangleMesh& mesh, const
   ro.cell_grid = grid;
   ro.width = w;
   ro.height = h;
+  ro.num_threads = 1;  // a 160x120 buffer: thread start-up costs more than it saves
   *id_cam = cam.Scaled(w, h);
   if (mesh.empty()) return {};
   auto r = Rasterize(mesh, cam, pose, ro);
@@ -514,9 +529,15 @@ class Engine {
       const std::vector<CellId> changed = g.areas->TakeChangedCells();
       for (size_t ci : g.online)
         for (CellId k : changed) EXO_RETURN_IF_ERROR(online_[ci].planner->SetCellArea(k, g.areas->Area(k)));
+      const auto t_mesh = Clock::now();
       const TriangleMesh mesh = proxy_.VisibleForCellIds(src_.camera, pose, opt_.max_range_m);
+      concat_ms_.push_back(MsSince(t_mesh));
+      const auto t_r = Clock::now();
       PinholeCamera id_cam;
       const auto cells = CellCounts(mesh, g.grid, src_.camera, pose, opt_.id_w, opt_.id_h, &id_cam);
+      raster_ms_.push_back(MsSince(t_r));
+      lod_ms_.push_back(lod_ms);
+      idbuf_tris_.push_back(double(mesh.num_triangles()));
       g.cellid_ms.push_back(MsSince(t1) + lod_ms);
       for (size_t ci : g.online) {
         planning::Candidate c;
@@ -549,6 +570,11 @@ class Engine {
                                       opt_.id_h, &g.id_cam);
       }
     }
+    std::fprintf(stderr,
+                 "cell-id buffer per frame (median ms): lod %.2f, visible-mesh concat %.2f, "
+                 "raster+count %.2f; triangles rendered median %.0f (full proxy %zu, lod %zu)\n",
+                 Pct(lod_ms_, 0.5), Pct(concat_ms_, 0.5), Pct(raster_ms_, 0.5),
+                 Pct(idbuf_tris_, 0.5), proxy_.triangles(), proxy_.lod_triangles());
     const TriangleMesh proxy_mesh = proxy_.All();
     const size_t geometry_bytes = (tsdf_ ? tsdf_->bytes() : 0) + proxy_.bytes();
     std::vector<ConfigResult> results;
@@ -593,8 +619,10 @@ class Engine {
       } else {
         auto t0 = Clock::now();
         if (c.policy == Policy::kEveryN) {
-          const int step = std::max(1, n / std::max(1, c.store));
-          for (int i = 0; i < n && int(selected.size()) < c.store; i += step) selected.push_back(i);
+          // Evenly over the WHOLE stream: index floor(k n / store), k = 0..store-1 (an integer
+          // step n / store would leave the tail unsampled when store does not divide n).
+          const int m = std::min(n, c.store);
+          for (int k = 0; k < m; ++k) selected.push_back(int((int64_t(k) * n) / m));
         } else if (c.policy == Policy::kMinDistance) {
           selected = mindist_.at(ci).Selected();
         } else if (c.policy == Policy::kAll) {
@@ -803,6 +831,7 @@ class Engine {
   std::vector<OnlineState> online_;
   std::map<size_t, MinDistanceSelector> mindist_;
   std::vector<double> integrate_ms_;
+  std::vector<double> lod_ms_, concat_ms_, raster_ms_, idbuf_tris_;  // cell-id buffer breakdown
   std::unordered_map<int, StoredView> cache_;
 };
 

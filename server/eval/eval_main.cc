@@ -200,7 +200,8 @@ std::vector<std::vector<std::string>> Suite(const std::string& name, const std::
   s.push_back({"--scene", "apartment", "--frames", "400", "--voxel", "0.04", "--policies",
                bounded, "--store", "200", "--test_views", "200"});
   if (!data.empty())
-    s.push_back({"--sevenscenes", data + "/7scenes-redkitchen", "--store", "50", "--policies", all});
+    s.push_back({"--sevenscenes", data + "/7scenes-redkitchen", "--store", "50", "--policies",
+                 all + ",every_n_uncapped,min_distance_uncapped"});
   for (const char* sc : {"apartment", "village"})
     s.push_back({"--scene", sc, "--frames", "200", "--policies", "", "--sweep",
                  "store,r_max,dts,lambda,cell", "--test_views", "20", "--vertex_color", "0"});

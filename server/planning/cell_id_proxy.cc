@@ -1,6 +1,7 @@
 #include "server/planning/cell_id_proxy.h"
 
 #include <cmath>
+#include <limits>
 #include <unordered_map>
 
 #include "common/cells.h"
@@ -18,22 +19,40 @@ absl::StatusOr<TriangleMesh> ClusterSimplify(const TriangleMesh& mesh, double cl
       return absl::InvalidArgumentError("ClusterSimplify: index out of range");
   TriangleMesh out;
   const CellGrid grid{cluster_m};
-  std::unordered_map<CellId, uint32_t> cluster_of_key;
-  cluster_of_key.reserve(mesh.positions.size() / 2 + 1);
   std::vector<uint32_t> cluster(mesh.positions.size());
   std::vector<glm::dvec3> sum;
   std::vector<uint32_t> count;
-  for (size_t v = 0; v < mesh.positions.size(); ++v) {
-    const glm::dvec3 p(mesh.positions[v]);
-    const CellId key = grid.IdOf(p);
-    auto [it, inserted] = cluster_of_key.try_emplace(key, uint32_t(sum.size()));
-    if (inserted) {
+  auto add = [&](size_t v, uint32_t& slot) {
+    if (slot == ~0u) {
+      slot = uint32_t(sum.size());
       sum.emplace_back(0.0);
       count.push_back(0);
     }
-    cluster[v] = it->second;
-    sum[it->second] += p;
-    ++count[it->second];
+    cluster[v] = slot;
+    sum[slot] += glm::dvec3(mesh.positions[v]);
+    ++count[slot];
+  };
+  // A mesh chunk spans few clusters: a dense table over its cluster-coordinate bounding box
+  // (no hashing); a hash map for large extents.
+  glm::ivec3 lo(std::numeric_limits<int>::max()), hi(std::numeric_limits<int>::min());
+  for (const glm::vec3& p : mesh.positions) {
+    const glm::ivec3 c = grid.CoordOf(glm::dvec3(p));
+    lo = glm::min(lo, c);
+    hi = glm::max(hi, c);
+  }
+  const glm::i64vec3 dim = glm::i64vec3(hi) - glm::i64vec3(lo) + int64_t{1};
+  if (!mesh.positions.empty() && dim.x * dim.y * dim.z <= int64_t{1} << 22) {
+    std::vector<uint32_t> table(size_t(dim.x * dim.y * dim.z), ~0u);
+    for (size_t v = 0; v < mesh.positions.size(); ++v) {
+      const glm::i64vec3 c = glm::i64vec3(grid.CoordOf(glm::dvec3(mesh.positions[v]))) -
+                             glm::i64vec3(lo);
+      add(v, table[size_t(c.x + dim.x * (c.y + dim.y * c.z))]);
+    }
+  } else {
+    std::unordered_map<CellId, uint32_t> table;
+    table.reserve(mesh.positions.size() / 2 + 1);
+    for (size_t v = 0; v < mesh.positions.size(); ++v)
+      add(v, table.try_emplace(grid.IdOf(glm::dvec3(mesh.positions[v])), ~0u).first->second);
   }
   out.positions.resize(sum.size());
   for (size_t c = 0; c < sum.size(); ++c) out.positions[c] = glm::vec3(sum[c] / double(count[c]));
