@@ -311,7 +311,9 @@ TEST(ViewRefinerTest, LargePoseErrorsNeverRaiseTheCost) {
     EXPECT_LE(r->cost_after, r->cost_before + 1e-12) << "trial " << t;
     for (const RefinementStage& st : r->stages) {
       // Every stage that was kept lowered (or kept) its energy.
-      if (st.accepted) EXPECT_LE(st.after, st.before) << "trial " << t << " level " << st.level;
+      if (st.accepted) {
+        EXPECT_LE(st.after, st.before) << "trial " << t << " level " << st.level;
+      }
       undone_stages += !st.accepted;
     }
     reverted += r->step_reverted;
