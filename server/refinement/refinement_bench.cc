@@ -292,7 +292,8 @@ absl::Status RunScene(synth::SceneKind kind, const Args& a) {
       if (std::getenv("REFINEMENT_BENCH_VERBOSE"))
         std::fprintf(stderr,
                      "view %zu k=%.3f E=%.3f rot %.3f->%.3f trans %.1f->%.1f mm n=%d valid=%d "
-                     "lmin=%.3g tinfo=%.3g cond=%.3g free=%d refused=%d outlier=%d rel=%.3f %.1f ms (cpu %.1f)\n",
+                     "lmin=%.3g tinfo=%.3g cond=%.3g free=%d refused=%d outlier=%d rel=%.3f thr=%.3f "
+                     "disagree=%.3f %.1f ms (cpu %.1f)\n",
                      i, k[i], res->exposure, rot_before.back(),
                      RotationAngleRad(res->local_from_cam.rotation, truth_pose[i].rotation) * 180 / M_PI,
                      tr_before.back(),

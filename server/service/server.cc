@@ -22,10 +22,6 @@
 namespace exo {
 namespace {
 
-grpc::Status ToGrpc(const absl::Status& s) {
-  return grpc::Status(static_cast<grpc::StatusCode>(s.code()), std::string(s.message()));
-}
-
 template <typename T>
 absl::Status ParseNumber(const std::string& key, const std::string& v, T* out) {
   if constexpr (std::is_same_v<T, double>) {
