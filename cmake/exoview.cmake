@@ -27,10 +27,13 @@ function(exoview_test name)
   if(NOT T_TIMEOUT)
     set(T_TIMEOUT 600)
   endif()
-  gtest_discover_tests(${name}
-    DISCOVERY_TIMEOUT 60
-    PROPERTIES TIMEOUT ${T_TIMEOUT}
-      ENVIRONMENT "${EXOVIEW_TEST_ENV}")
+  # One ctest entry per test binary (gtest prints every case and the failures in full). Not
+  # gtest_discover_tests: its PROPERTIES pass a list-valued ENVIRONMENT through a post-build
+  # script that splits it, so only the first variable reached the tests.
+  add_test(NAME ${name} COMMAND ${name} --gtest_color=no)
+  set_tests_properties(${name} PROPERTIES
+    TIMEOUT ${T_TIMEOUT}
+    ENVIRONMENT "${EXOVIEW_TEST_ENV}")
 endfunction()
 
 # exoview_bench(NAME SOURCES... LIBS ...): a benchmark binary (not run by ctest).
