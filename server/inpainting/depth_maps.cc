@@ -1,5 +1,7 @@
 #include "server/inpainting/depth_maps.h"
 
+#include "server/inpainting/parallel_rows.h"
+
 #include <algorithm>
 #include <cmath>
 #include <thread>
@@ -113,20 +115,6 @@ int PrefillDepth(ImageF& depth_m, const std::vector<uint8_t>& fill_here,
   return filled;
 }
 
-namespace {
-// Runs fn(y) for every row, rows split into contiguous blocks over `threads` threads.
-template <typename Fn>
-void ParallelRows(int h, int threads, const Fn& fn) {
-  const int t_count = std::max(1, std::min(threads, h));
-  auto worker = [&](int t) {
-    for (int y = t * h / t_count; y < (t + 1) * h / t_count; ++y) fn(y);
-  };
-  std::vector<std::thread> pool;
-  for (int t = 1; t < t_count; ++t) pool.emplace_back(worker, t);
-  worker(0);
-  for (auto& th : pool) th.join();
-}
-}  // namespace
 
 ImageF NormalsFromDepth(const ImageF& depth_m, const PinholeCamera& camera, int step,
                         float rel_discontinuity, int num_threads) {

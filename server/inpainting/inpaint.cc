@@ -1,5 +1,7 @@
 #include "server/inpainting/inpaint.h"
 
+#include "server/inpainting/parallel_rows.h"
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -241,21 +243,9 @@ void ForBands(int num_bands, int phase, int threads, const Fn& fn) {
   for (auto& th : pool) th.join();
 }
 
-template <typename Fn>
-void ForRows(int h, int threads, const Fn& fn) {
-  const int t_count = std::max(1, std::min(threads, h));
-  auto worker = [&](int t) {
-    for (int y = t * h / t_count; y < (t + 1) * h / t_count; ++y) fn(y);
-  };
-  std::vector<std::thread> pool;
-  for (int t = 1; t < t_count; ++t) pool.emplace_back(worker, t);
-  worker(0);
-  for (auto& th : pool) th.join();
-}
-
 // Copies colour and normals of T from the sources (4.11-4.12); sources lie outside T.
 void CopyFromSources(Level& L, int threads) {
-  ForRows(L.h, threads, [&](int y) {
+  ParallelRows(L.h, threads, [&](int y) {
     for (int x = L.row_x0[y]; x <= L.row_x1[y]; ++x) {
       const size_t i = L.Idx(x, y);
       if (!L.target[i] || L.src[i * 2] < 0) continue;
@@ -403,7 +393,7 @@ void OnionPeelInit(Level& L, int level, const SearchParams& p, const InpaintOpti
     }
     if (ring.empty()) break;
     std::vector<int32_t> choice(ring.size() * 2);
-    ForRows(static_cast<int>(ring.size()), o.num_threads, [&](int r) {
+    ParallelRows(static_cast<int>(ring.size()), o.num_threads, [&](int r) {
       const int i = ring[r], x = i % L.w, y = i / L.w;
       float best = std::numeric_limits<float>::infinity();
       int bx = -1, by = -1;
