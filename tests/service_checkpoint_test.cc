@@ -12,6 +12,7 @@
 
 #include "client/uploader/upload_client.h"
 #include "proto/exoview.grpc.pb.h"
+#include "tests/server_fixture.h"
 #include "tests/subprocess.h"
 
 namespace exo {
@@ -23,37 +24,12 @@ using testing::ReadAll;
 using testing::Subprocess;
 using testing::WaitForFile;
 
-class ServiceCheckpoint : public ::testing::Test {
+class ServiceCheckpoint : public testing::ServerProcessTest {
  protected:
-  void SetUp() override {
-    char tmpl[] = "/tmp/exoview_ckpt_XXXXXX";
-    ASSERT_NE(mkdtemp(tmpl), nullptr);
-    dir_ = tmpl;
-  }
-  void TearDown() override {
-    if (server_) {
-      server_->Signal(SIGTERM);
-      server_->Wait(10);
-    }
-    if (!HasFailure()) std::filesystem::remove_all(dir_);
-  }
-  void StartServer(const std::string& log) {
-    std::filesystem::remove(dir_ + "/port");
-    server_ = std::make_unique<Subprocess>(
-        EXOVIEW_SERVER_BIN,
-        std::vector<std::string>{"--listen=127.0.0.1:0", "--port_file=" + dir_ + "/port",
-                                 "--checkpoint_path=" + dir_ + "/model.ckpt",
-                                 "--checkpoint_interval_s=0.2", "--snapshot_when_cheaper=false"},
-        dir_ + "/" + log);
-    ASSERT_TRUE(WaitForFile(dir_ + "/port", 20)) << server_->Log();
-    target_ = "127.0.0.1:" + std::to_string(std::stoi(ReadAll(dir_ + "/port")));
-  }
-  v1::Stats Stats() {
-    auto stub = v1::Exoview::NewStub(MakeChannel(target_));
-    grpc::ClientContext ctx;
-    v1::Stats s;
-    EXPECT_TRUE(stub->GetStats(&ctx, v1::StatsRequest{}, &s).ok());
-    return s;
+  void StartCheckpointedServer(const std::string& log) {
+    StartServer({"--checkpoint_path=" + dir_ + "/model.ckpt", "--checkpoint_interval_s=0.2",
+                 "--snapshot_when_cheaper=false"},
+                log);
   }
   int Upload(int first, int frames, const std::string& name) {
     Subprocess up(EXOVIEW_UPLOADER_BIN,
@@ -71,12 +47,10 @@ class ServiceCheckpoint : public ::testing::Test {
                  dir_ + "/" + log);
     return v.Wait(60).value_or(-1);
   }
-  std::string dir_, target_;
-  std::unique_ptr<Subprocess> server_;
 };
 
 TEST_F(ServiceCheckpoint, KilledServerResumesFromCheckpointAndViewerGetsOnlyWhatItMissed) {
-  StartServer("server1.log");
+  StartCheckpointedServer("server1.log");
   ASSERT_EQ(Upload(0, 16, "up1"), 0);
   ASSERT_EQ(View("v1.log"), 0);
   const v1::Stats s1 = Stats();
@@ -98,7 +72,7 @@ TEST_F(ServiceCheckpoint, KilledServerResumesFromCheckpointAndViewerGetsOnlyWhat
   EXPECT_FALSE(std::filesystem::exists(dir_ + "/model.ckpt.tmp"));  // atomic write: no leftovers
 
   // A fresh process: same version and digest as before the kill (restored, not re-modelled).
-  StartServer("server2.log");
+  StartCheckpointedServer("server2.log");
   const v1::Stats s2 = Stats();
   EXPECT_EQ(s2.model_version(), s1.model_version()) << server_->Log();
   EXPECT_EQ(s2.model_digest(), s1.model_digest());

@@ -18,6 +18,7 @@
 #include "common/synth/scene.h"
 #include "common/synth/trajectory.h"
 #include "proto/exoview.grpc.pb.h"
+#include "tests/server_fixture.h"
 #include "tests/subprocess.h"
 
 namespace exo {
@@ -31,37 +32,7 @@ using testing::WaitForFile;
 
 constexpr int kFrames = 40;
 
-class ServiceE2E : public ::testing::Test {
- protected:
-  void SetUp() override {
-    char tmpl[] = "/tmp/exoview_e2e_XXXXXX";
-    ASSERT_NE(mkdtemp(tmpl), nullptr);
-    dir_ = tmpl;
-  }
-  void TearDown() override {
-    if (server_) {
-      server_->Signal(SIGTERM);
-      server_->Wait(10);
-    }
-    if (!HasFailure()) std::filesystem::remove_all(dir_);
-  }
-  void StartServer(std::vector<std::string> extra) {
-    std::vector<std::string> args{"--listen=127.0.0.1:0", "--port_file=" + dir_ + "/port"};
-    args.insert(args.end(), extra.begin(), extra.end());
-    server_ = std::make_unique<Subprocess>(EXOVIEW_SERVER_BIN, args, dir_ + "/server.log");
-    ASSERT_TRUE(WaitForFile(dir_ + "/port", 20)) << server_->Log();
-    target_ = "127.0.0.1:" + std::to_string(std::stoi(ReadAll(dir_ + "/port")));
-  }
-  v1::Stats Stats() {
-    auto stub = v1::Exoview::NewStub(MakeChannel(target_));
-    grpc::ClientContext ctx;
-    v1::Stats s;
-    EXPECT_TRUE(stub->GetStats(&ctx, v1::StatsRequest{}, &s).ok());
-    return s;
-  }
-  std::string dir_, target_;
-  std::unique_ptr<Subprocess> server_;
-};
+class ServiceE2E : public testing::ServerProcessTest {};
 
 TEST_F(ServiceE2E, ViewersEqualServerModelAndRestartedViewerCatchesUpExactly) {
   // A log that holds the whole run and no snapshot shortcut, so the restarted viewer must resume
