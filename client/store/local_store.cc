@@ -80,6 +80,7 @@ absl::Status LocalStore::Apply(const v1::Delta& d) {
     if (!in_snapshot_) return absl::FailedPreconditionError("snapshot end without begin");
     in_snapshot_ = false;
     pending_.version = d.version();
+    epoch_ = d.model_epoch();
     model_ = std::move(pending_);
     view_records_ = std::move(pending_views_);
     chunk_records_ = std::move(pending_chunks_);
@@ -93,6 +94,7 @@ absl::Status LocalStore::Apply(const v1::Delta& d) {
         "delta version ", d.version(), " does not follow the local version ", model_.version));
   EXO_RETURN_IF_ERROR(ApplyKind(d, &model_, &view_records_, &chunk_records_));
   model_.version = d.version();
+  epoch_ = d.model_epoch();
   ++deltas_applied_;
   return absl::OkStatus();
 }

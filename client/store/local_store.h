@@ -24,6 +24,9 @@ class LocalStore {
 
   const LumigraphModel& model() const { return model_; }
   uint64_t version() const { return model_.version; }
+  // Server epoch of the last applied delta (or of the snapshot): sent with version() on
+  // Subscribe so a restarted server can tell whether the client's state is on its history.
+  uint64_t epoch() const { return epoch_; }
   uint64_t Digest() const;
   bool in_snapshot() const { return in_snapshot_; }
   uint64_t deltas_applied() const { return deltas_applied_; }
@@ -43,6 +46,7 @@ class LocalStore {
   std::map<ViewId, ViewDigestRecord> pending_views_;
   std::map<uint64_t, ChunkDigestRecord> pending_chunks_;
   uint64_t deltas_applied_ = 0, snapshots_applied_ = 0;
+  uint64_t epoch_ = 0;
 };
 
 }  // namespace exo

@@ -45,7 +45,7 @@ TEST(LocalStore, DeltasSnapshotAndResumeReachTheServerDigest) {
   server.SetSceneParams(LocalOrigin{{10.0, 0.0, 0.0}}, 0.5);
   Mutate(server, 1, 4);
   LocalStore a;
-  auto sub = server.Subscribe(a.version());
+  auto sub = server.Subscribe(a.version(), a.epoch());
   ASSERT_TRUE(Pump(*sub, a).ok());
   EXPECT_EQ(a.version(), server.version());
   EXPECT_EQ(a.Digest(), server.GetSummary().digest);
@@ -59,14 +59,16 @@ TEST(LocalStore, DeltasSnapshotAndResumeReachTheServerDigest) {
   ASSERT_TRUE(server.RemoveView(2).ok());
   ASSERT_TRUE(server.UpdateView(3, Rigid3d{{1, 0, 0, 0}, {5, 5, 5}}, 1.5f).ok());
   const uint64_t before = a.version();
-  auto sub2 = server.Subscribe(a.version());
+  const uint64_t snapshots_before = a.snapshots_applied(), deltas_before = a.deltas_applied();
+  auto sub2 = server.Subscribe(a.version(), a.epoch());
   ASSERT_TRUE(Pump(*sub2, a).ok());
-  EXPECT_EQ(a.snapshots_applied(), 0u);  // resumed with deltas only
-  EXPECT_EQ(a.deltas_applied(), server.version());
+  EXPECT_EQ(a.snapshots_applied(), snapshots_before);  // resumed with deltas only
+  EXPECT_EQ(a.deltas_applied() - deltas_before, server.version() - before);
   EXPECT_GT(a.version(), before);
   EXPECT_EQ(a.Digest(), server.GetSummary().digest);
   EXPECT_EQ(a.model().views.count(2), 0u);
   EXPECT_EQ(a.model().views.at(3).exposure, 1.5f);
+  EXPECT_EQ(a.epoch(), server.epoch());  // what the client sends on its next Subscribe
 
   // A fresh client from a compacted server gets a snapshot and the same digest.
   ModelStoreOptions small;
@@ -74,7 +76,7 @@ TEST(LocalStore, DeltasSnapshotAndResumeReachTheServerDigest) {
   ModelStore compact(small);
   Mutate(compact, 1, 5);
   LocalStore b;
-  auto sub3 = compact.Subscribe(0);
+  auto sub3 = compact.Subscribe(0, 0);
   ASSERT_TRUE(Pump(*sub3, b).ok());
   EXPECT_EQ(b.snapshots_applied(), 1u);
   EXPECT_EQ(b.Digest(), compact.GetSummary().digest);
@@ -85,7 +87,7 @@ TEST(LocalStore, GapOrReplayedVersionIsAnError) {
   ModelStore server;
   Mutate(server, 1, 2);
   LocalStore a;
-  auto sub = server.Subscribe(0);
+  auto sub = server.Subscribe(0, 0);
   auto batch = sub->Next(0);
   ASSERT_GE(batch.size(), 3u);
   ASSERT_TRUE(a.Apply(*batch[0]).ok());

@@ -87,6 +87,7 @@ absl::Status ViewerSession::Sync(const SyncOptions& options) {
     std::lock_guard lock(mu_);
     // Mid-snapshot in the journal: resume from the last consistent version.
     req.set_last_version(store_.version());
+    req.set_last_model_epoch(store_.epoch());
   }
   req.set_client_name(options.client_name);
   stats_.resumed_from = req.last_version();

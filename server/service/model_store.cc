@@ -1,10 +1,18 @@
 #include "server/service/model_store.h"
 
 #include <chrono>
+#include <random>
 
 namespace exo {
 namespace {
 thread_local double t_source_timestamp_s = 0.0;
+
+uint64_t NewEpochId() {
+  std::random_device rd;
+  uint64_t id = 0;
+  while (id == 0) id = (uint64_t{rd()} << 32) ^ rd();
+  return id;
+}
 }  // namespace
 
 ScopedDeltaSource::ScopedDeltaSource(double timestamp_s) : previous_(t_source_timestamp_s) {
@@ -21,6 +29,24 @@ absl::Status ModelStoreOptions::Validate() const {
 
 ModelStore::ModelStore(const ModelStoreOptions& options) : options_(options) {
   EXO_CHECK(options_.Validate().ok());
+  lineage_.push_back({NewEpochId(), 0});
+}
+
+uint64_t ModelStore::EpochAtLocked(uint64_t version) const {
+  if (version == 0 || version > version_) return 0;
+  for (auto it = lineage_.rbegin(); it != lineage_.rend(); ++it)
+    if (version > it->start_version) return it->id;
+  return 0;  // older than the kept history
+}
+
+uint64_t ModelStore::epoch() const {
+  std::lock_guard lock(mu_);
+  return lineage_.back().id;
+}
+
+uint64_t ModelStore::EpochAt(uint64_t version) const {
+  std::lock_guard lock(mu_);
+  return EpochAtLocked(version);
 }
 
 ModelStore::~ModelStore() { CloseAll(); }
@@ -28,6 +54,7 @@ ModelStore::~ModelStore() { CloseAll(); }
 uint64_t ModelStore::CommitLocked(v1::Delta delta) {
   delta.set_version(++version_);
   delta.set_source_timestamp_s(t_source_timestamp_s);
+  delta.set_model_epoch(lineage_.back().id);
   auto ptr = std::make_shared<const v1::Delta>(std::move(delta));
   log_bytes_ += ptr->ByteSizeLong();
   log_.push_back(std::move(ptr));
@@ -46,6 +73,11 @@ v1::Checkpoint ModelStore::MakeCheckpoint(size_t max_log_bytes) const {
   std::lock_guard lock(mu_);
   c.set_format(1);
   c.set_version(version_);
+  for (const EpochSpan& e : lineage_) {
+    auto* out = c.add_lineage();
+    out->set_id(e.id);
+    out->set_start_version(e.start_version);
+  }
   for (const DeltaPtr& d : SnapshotLocked()) {
     if (d->has_snapshot_begin() || d->has_snapshot_end()) continue;
     *c.add_model() = *d;
@@ -103,6 +135,18 @@ absl::Status ModelStore::RestoreCheckpoint(const v1::Checkpoint& c) {
   for (int i = 0; i < c.log_size(); ++i)
     if (c.log(i).version() != c.version() - static_cast<uint64_t>(c.log_size() - 1 - i))
       return absl::DataLossError("checkpoint: delta log tail is not contiguous");
+  std::vector<EpochSpan> lineage;
+  for (const auto& e : c.lineage()) {
+    if (e.id() == 0 || e.start_version() > c.version() ||
+        (!lineage.empty() && e.start_version() < lineage.back().start_version))
+      return absl::DataLossError("checkpoint: malformed epoch lineage");
+    lineage.push_back({e.id(), e.start_version()});
+  }
+  // This process continues the checkpoint's history under a new epoch: versions after
+  // c.version() are new content even if an earlier process already produced those numbers.
+  lineage.push_back({lineage_.back().id, c.version()});
+  if (lineage.size() > kMaxLineage) lineage.erase(lineage.begin(), lineage.end() - kMaxLineage);
+  lineage_ = std::move(lineage);
   version_ = c.version();
   for (const auto& d : c.log()) {
     auto ptr = std::make_shared<const v1::Delta>(d);
@@ -271,16 +315,19 @@ std::vector<DeltaPtr> ModelStore::SnapshotLocked() const {
   {
     v1::Delta d;
     d.mutable_snapshot_end();
+    d.set_model_epoch(EpochAtLocked(version_));
     push(std::move(d));
   }
   return out;
 }
 
-std::shared_ptr<Subscription> ModelStore::Subscribe(uint64_t last_version) {
+std::shared_ptr<Subscription> ModelStore::Subscribe(uint64_t last_version, uint64_t last_epoch) {
   std::lock_guard lock(mu_);
   bool snapshot = false;
   if (last_version > version_) {
     snapshot = true;  // a version from the future: the client's model is not ours
+  } else if (last_version > 0 && last_epoch != EpochAtLocked(last_version)) {
+    snapshot = true;  // same version number, another history (or an unknown epoch)
   } else if (last_version < version_) {
     const uint64_t first = log_.empty() ? version_ + 1 : log_.front()->version();
     if (last_version + 1 < first) {

@@ -101,10 +101,20 @@ class ModelStore {
   std::vector<std::shared_ptr<const v1::ViewAdded>> Views() const;
   std::vector<CellId> CellIds() const;
 
-  // Subscribe from the client's last applied version: only the missed deltas, or a snapshot
-  // when the log no longer holds them, when they would cost more bytes than a snapshot, or when
-  // the client claims a version from the future (e.g. the server restarted).
-  std::shared_ptr<Subscription> Subscribe(uint64_t last_version);
+  // Subscribe from the client's last applied (version, epoch): only the missed deltas, or a
+  // snapshot when the log no longer holds them, when they would cost more bytes than a
+  // snapshot, when the client claims a version from the future, or when the client's state is
+  // not on this store's history (its epoch is not the one that produced `last_version` here,
+  // e.g. a server restarted from a checkpoint older than the client and produced the same
+  // version numbers again with other content). last_version 0 needs no epoch.
+  std::shared_ptr<Subscription> Subscribe(uint64_t last_version, uint64_t last_epoch);
+
+  // Model epochs: every store starts a new random epoch (non-zero); RestoreCheckpoint continues
+  // the checkpoint's history and starts a new epoch after its version. EpochAt(v) is the epoch
+  // that produced version v (0 for v = 0 or a version older than the kept history).
+  static constexpr size_t kMaxLineage = 64;
+  uint64_t epoch() const;
+  uint64_t EpochAt(uint64_t version) const;
   // Wakes every subscription (shutdown); later Next() calls return empty.
   void CloseAll();
 
@@ -127,6 +137,7 @@ class ModelStore {
   std::vector<DeltaPtr> SnapshotLocked() const;    // SnapshotBegin, model, SnapshotEnd
   size_t SnapshotBytesLocked() const;
   uint64_t DigestLocked() const;
+  uint64_t EpochAtLocked(uint64_t version) const;
   absl::Status ApplyModelDeltaLocked(const v1::Delta& d);  // restore: state only, no commit
 
   const ModelStoreOptions options_;
@@ -148,6 +159,12 @@ class ModelStore {
   size_t log_bytes_ = 0;
   int subscribers_ = 0;
   uint64_t snapshots_sent_ = 0;
+  // Epoch history, oldest first; lineage_[i].id produced versions (start, next start].
+  struct EpochSpan {
+    uint64_t id;
+    uint64_t start_version;
+  };
+  std::vector<EpochSpan> lineage_;
 };
 
 }  // namespace exo

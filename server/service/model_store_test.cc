@@ -29,7 +29,7 @@ std::vector<DeltaPtr> Drain(Subscription& s) {
 TEST(ModelStore, ResumeGetsOnlyMissedDeltas) {
   ModelStore store;
   for (ViewId i = 1; i <= 5; ++i) store.AddView(View(i));
-  auto sub = store.Subscribe(3);
+  auto sub = store.Subscribe(3, store.EpochAt(3));
   auto d = Drain(*sub);
   ASSERT_EQ(d.size(), 2u);  // versions 4 and 5 only
   EXPECT_EQ(d[0]->version(), 4u);
@@ -43,7 +43,7 @@ TEST(ModelStore, CompactedLogGivesSnapshot) {
   ModelStore store(o);
   for (ViewId i = 1; i <= 10; ++i) store.AddView(View(i));
   ASSERT_TRUE(store.RemoveView(2).ok());
-  auto sub = store.Subscribe(2);  // versions 3..8 are compacted away
+  auto sub = store.Subscribe(2, store.EpochAt(2));  // versions 3..8 are compacted away
   auto d = Drain(*sub);
   ASSERT_GE(d.size(), 2u);
   EXPECT_TRUE(d.front()->has_snapshot_begin());
@@ -58,7 +58,7 @@ TEST(ModelStore, SlowSubscriberIsResyncedAndDoesNotBlockWriters) {
   ModelStoreOptions o;
   o.max_subscriber_lag = 4;
   ModelStore store(o);
-  auto slow = store.Subscribe(0);
+  auto slow = store.Subscribe(0, 0);
   for (ViewId i = 1; i <= 20; ++i) store.AddView(View(i));  // never blocks
   auto d = slow->Next(0);
   ASSERT_FALSE(d.empty());
@@ -74,7 +74,7 @@ TEST(ModelStore, SnapshotWhenCheaperThanDeltas) {
   // Many large adds that are later removed: replaying costs more than the tiny final model.
   for (ViewId i = 2; i <= 6; ++i) store.AddView(View(i, 20000));
   for (ViewId i = 2; i <= 6; ++i) ASSERT_TRUE(store.RemoveView(i).ok());
-  auto sub = store.Subscribe(1);
+  auto sub = store.Subscribe(1, store.EpochAt(1));
   auto d = Drain(*sub);
   ASSERT_FALSE(d.empty());
   EXPECT_TRUE(d.front()->has_snapshot_begin());
@@ -129,7 +129,7 @@ TEST(ModelStore, CheckpointRestoresVersionDigestAndLogTail) {
   EXPECT_EQ(b.version(), a.version());
   EXPECT_EQ(b.GetSummary().digest, a.GetSummary().digest);
   EXPECT_EQ(b.GetSummary().num_views, 5u);
-  auto sub = b.Subscribe(a.version() - 2);
+  auto sub = b.Subscribe(a.version() - 2, a.EpochAt(a.version() - 2));
   auto d = Drain(*sub);
   ASSERT_EQ(d.size(), 2u);
   EXPECT_EQ(sub->snapshots(), 0u);
@@ -140,13 +140,69 @@ TEST(ModelStore, CheckpointRestoresVersionDigestAndLogTail) {
   // A checkpoint without the tail: the same client needs a snapshot.
   ModelStore no_tail;
   ASSERT_TRUE(no_tail.RestoreCheckpoint(a.MakeCheckpoint(0)).ok());
-  auto sub2 = no_tail.Subscribe(a.version() - 2);
+  auto sub2 = no_tail.Subscribe(a.version() - 2, a.EpochAt(a.version() - 2));
   auto d2 = Drain(*sub2);
   ASSERT_FALSE(d2.empty());
   EXPECT_TRUE(d2.front()->has_snapshot_begin());
 
   v1::Checkpoint bad = c;
   bad.mutable_log()->SwapElements(0, 1);
+  ModelStore e;
+  EXPECT_FALSE(e.RestoreCheckpoint(bad).ok());
+}
+
+// Guard under test: the epoch check in Subscribe. A server restored from a checkpoint older than
+// a client produces the client's version numbers again with other content; resuming by version
+// alone would apply the new deltas on top of the other history (silently wrong model).
+TEST(ModelStore, ClientAheadOfRestoredCheckpointGetsSnapshot) {
+  ModelStore a;
+  for (ViewId i = 1; i <= 3; ++i) a.AddView(View(i));
+  const v1::Checkpoint c = a.MakeCheckpoint(size_t{1} << 20);  // version 3
+  a.AddView(View(4));
+  a.AddView(View(5));  // a client follows `a` to version 5, then `a` crashes
+  const uint64_t client_version = a.version();
+  const uint64_t client_epoch = a.EpochAt(client_version);
+  EXPECT_EQ(client_epoch, a.epoch());
+
+  ModelStore b;
+  ASSERT_TRUE(b.RestoreCheckpoint(c).ok());
+  EXPECT_NE(b.epoch(), a.epoch());
+  EXPECT_EQ(b.EpochAt(3), a.epoch());  // the checkpoint's history is shared
+  for (ViewId i = 14; i <= 16; ++i) b.AddView(View(i));  // versions 4..6, other content
+  ASSERT_GT(b.version(), client_version);
+  EXPECT_EQ(b.EpochAt(5), b.epoch());
+
+  auto ahead = b.Subscribe(client_version, client_epoch);
+  auto d = Drain(*ahead);
+  ASSERT_FALSE(d.empty());
+  EXPECT_TRUE(d.front()->has_snapshot_begin());
+  EXPECT_TRUE(d.back()->has_snapshot_end());
+  EXPECT_EQ(d.back()->model_epoch(), b.epoch());
+  EXPECT_EQ(ahead->snapshots(), 1u);
+
+  // A client that stopped at the checkpoint's version is on b's history: deltas only, each
+  // tagged with b's epoch.
+  auto behind = b.Subscribe(3, a.EpochAt(3));
+  auto d2 = Drain(*behind);
+  ASSERT_EQ(d2.size(), 3u);
+  EXPECT_EQ(behind->snapshots(), 0u);
+  for (const auto& x : d2) EXPECT_EQ(x->model_epoch(), b.epoch());
+
+  // An unknown epoch with a non-zero version cannot be placed on any history.
+  auto unknown = b.Subscribe(3, 0);
+  EXPECT_TRUE(Drain(*unknown).front()->has_snapshot_begin());
+
+  // The lineage survives a second restart: b's checkpoint restored into c3.
+  ModelStore c3;
+  ASSERT_TRUE(c3.RestoreCheckpoint(b.MakeCheckpoint(size_t{1} << 20)).ok());
+  EXPECT_EQ(c3.EpochAt(3), a.epoch());
+  EXPECT_EQ(c3.EpochAt(5), b.epoch());
+  auto again = c3.Subscribe(3, a.epoch());
+  EXPECT_EQ(Drain(*again).size(), 3u);
+  EXPECT_EQ(again->snapshots(), 0u);
+
+  v1::Checkpoint bad = c;
+  bad.mutable_lineage(0)->set_id(0);
   ModelStore e;
   EXPECT_FALSE(e.RestoreCheckpoint(bad).ok());
 }

@@ -180,7 +180,7 @@ class ExoviewServer::Service final : public v1::Exoview::Service {
 
   grpc::Status Subscribe(grpc::ServerContext* ctx, const v1::SubscribeRequest* req,
                          grpc::ServerWriter<v1::Delta>* writer) override {
-    auto sub = store_->Subscribe(req->last_version());
+    auto sub = store_->Subscribe(req->last_version(), req->last_model_epoch());
     while (!ctx->IsCancelled() && !shutting_down_->load()) {
       const std::vector<DeltaPtr> batch = sub->Next(100);
       for (size_t i = 0; i < batch.size(); ++i) {
