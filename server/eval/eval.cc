@@ -4,6 +4,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <ctime>
 #include <filesystem>
 #include <map>
 #include <memory>
@@ -36,6 +37,13 @@ namespace {
 using Clock = std::chrono::steady_clock;
 double MsSince(Clock::time_point t0) {
   return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+}
+// CPU time of the calling thread (ms): steadier than wall time on a shared machine. The planning
+// path (LOD, concat, 160x120 raster, Consider) runs on this thread only.
+double ThreadCpuMs() {
+  timespec ts{};
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+  return ts.tv_sec * 1e3 + ts.tv_nsec * 1e-6;
 }
 double Pct(std::vector<double> v, double p) {
   if (v.empty()) return 0;
@@ -286,20 +294,24 @@ struct Source {
   double default_lambda = 0.5;
   double metres_per_rad = 1.0;                // min-distance policy
   std::string dataset;                        // "village/flyover", "7scenes/redkitchen"
-  std::string test_pose_label;                // "scene" | "near" | "held_out"
   // Loads frame i as a stored view (colour + depth). Called on demand.
   std::function<absl::StatusOr<StoredView>(int)> load_view;
-  // Test poses and their ground truth images.
+  // Test pose sets ("scene" | "near" | "held_out"), each with its ground-truth images; every
+  // configuration is evaluated on every set (one JSON line per set).
   PinholeCamera test_camera;
-  std::vector<Rigid3d> test_poses;
-  std::vector<ImageU8> test_gt;
+  struct TestSet {
+    std::string label;
+    std::vector<Rigid3d> poses;
+    std::vector<ImageU8> gt;
+  };
+  std::vector<TestSet> test_sets;
 };
 
 struct Group {  // configurations sharing one cell size
   CellGrid grid;
   std::unique_ptr<CellAreas> areas;
   std::vector<size_t> online;                  // config indices
-  std::vector<double> cellid_ms;               // per frame
+  std::vector<double> cellid_ms, cellid_cpu_ms;  // per frame (wall, thread CPU)
   bool needs_final = false;
   std::vector<std::vector<planning::CellPixelCount>> final_cells;  // per frame, final proxy
   PinholeCamera id_cam;
@@ -307,7 +319,7 @@ struct Group {  // configurations sharing one cell size
 
 struct OnlineState {
   std::unique_ptr<planning::ViewPlanner> planner;
-  std::vector<double> consider_ms;
+  std::vector<double> consider_ms, consider_cpu_ms;
   size_t accepted = 0;
   size_t group = 0;
 };
@@ -389,6 +401,37 @@ struct EvalSink {
   }
 };
 
+// ",\"key\":[v0,v1,...]" with the given precision.
+std::string JsonArray(const char* key, const std::vector<double>& v, int prec) {
+  std::string out = absl::StrCat(",\"", key, "\":[");
+  for (size_t i = 0; i < v.size(); ++i)
+    absl::StrAppend(&out, i ? "," : "", absl::StrFormat("%.*f", prec, v[i]));
+  return out + "]";
+}
+
+std::string PlanCpuJson(const ConfigResult& r) {
+  if (!(r.plan_cpu_ms_median > 0)) return "";
+  return absl::StrFormat(",\"plan_cpu_ms\":{\"median\":%.2f,\"p95\":%.2f}", r.plan_cpu_ms_median,
+                         r.plan_cpu_ms_p95);
+}
+
+// Per-test-view diagnostics (only when requested): SSIM, distance / angle to the nearest stored
+// view, the pixel fraction whose cell references that view, the stored frame indices.
+std::string PerViewJson(const ConfigResult& r) {
+  if (r.per_view_ssim.empty()) return "";
+  std::string out = ",\"per_view\":{\"x\":0";
+  out += JsonArray("ssim", r.per_view_ssim, 4);
+  if (!r.per_view_near_m.empty()) {
+    out += JsonArray("near_m", r.per_view_near_m, 3);
+    out += JsonArray("near_deg", r.per_view_near_deg, 1);
+    out += JsonArray("near_frame", r.per_view_near_frame, 0);
+    out += JsonArray("ref_hit", r.per_view_ref_hit, 3);
+  }
+  std::vector<double> sel(r.selected.begin(), r.selected.end());
+  if (!sel.empty()) out += JsonArray("selected", sel, 0);
+  return out + "}";
+}
+
 std::string ConfigJson(const std::string& dataset, const std::string& test_poses,
                        const std::string& proxy, double voxel_m,
                        int frames, const PolicyConfig& c, double lambda, double cell_m,
@@ -410,12 +453,13 @@ std::string ConfigJson(const std::string& dataset, const std::string& test_poses
       "\"speed\":{\"integrate_ms_median\":%.2f,\"integrate_ms_p95\":%.2f,\"plan_ms_median\":%.2f,"
       "\"plan_ms_p95\":%.2f,\"consider_ms_median\":%.3f,\"render_ms_median\":%.1f},"
       "\"memory\":{\"store_bytes\":%zu,\"geometry_bytes\":%zu,\"planner_bytes\":%zu},"
-      "\"views\":%zu,\"accepted\":%zu,\"tau_sum\":%.2f}",
+      "\"views\":%zu,\"accepted\":%zu,\"tau_sum\":%.2f,\"mean_refs\":%.2f,\"max_refs\":%zu",
       dataset, test_poses, proxy, c.tag, PolicyName(c.policy), refs, frames, c.store, c.r_max, lambda,
       cell_m, voxel_m, dts, idw, idh, scale, po.d_max_m, po.sigma_m, lod_m, r.quality.mssim, r.quality.psnr, r.quality.coverage,
       r.quality.mssim_covered, r.quality.surface, r.quality.views, r.integrate_ms_median, r.integrate_ms_p95,
       r.plan_ms_median, r.plan_ms_p95, r.consider_ms_median, r.render_ms_median, r.store_bytes,
-      r.geometry_bytes, r.planner_bytes, r.store_views, r.accepted, r.tau_sum);
+      r.geometry_bytes, r.planner_bytes, r.store_views, r.accepted, r.tau_sum, r.mean_refs,
+      r.max_refs) + PlanCpuJson(r) + PerViewJson(r) + "}";
 }
 
 struct EngineOptions {
@@ -429,6 +473,7 @@ struct EngineOptions {
   std::string dump_dir;
   int dump_views = 0;
   TriangleMesh gt_mesh;  // used when proxy == kGroundTruth
+  bool per_view = false;  // per-test-view diagnostics in the JSON
   // Cell-id LOD: cluster size as a fraction of the (smallest) cell size; 0 = full proxy mesh.
   double cellid_lod_frac = 0;
 };
@@ -502,7 +547,7 @@ class Engine {
   // One input frame (frame may be null for the ground-truth proxy).
   absl::Status Step(int idx, const Frame* frame) {
     const Rigid3d& pose = src_.poses[idx];
-    double lod_ms = 0;
+    double lod_ms = 0, lod_cpu_ms = 0;
     auto t0 = Clock::now();
     if (tsdf_ != nullptr) {
       if (frame == nullptr) return absl::InternalError("TSDF proxy needs frames");
@@ -512,8 +557,10 @@ class Engine {
         const uint64_t id = c.id;
         // Storing a dirty chunk includes its cell-id LOD: planning time, not integration.
         const auto t_lod = Clock::now();
+        const double c_lod = ThreadCpuMs();
         proxy_.Set(id, std::move(c));
         lod_ms += MsSince(t_lod);
+        lod_cpu_ms += ThreadCpuMs() - c_lod;
       }
       for (uint64_t id : tsdf_->TakeRemovedChunkIds()) {
         for (auto& g : groups_) g.areas->RemoveChunk(id);
@@ -526,6 +573,7 @@ class Engine {
     for (auto& g : groups_) {
       if (g.online.empty()) continue;
       auto t1 = Clock::now();
+      const double c1 = ThreadCpuMs();
       const std::vector<CellId> changed = g.areas->TakeChangedCells();
       for (size_t ci : g.online)
         for (CellId k : changed) EXO_RETURN_IF_ERROR(online_[ci].planner->SetCellArea(k, g.areas->Area(k)));
@@ -539,6 +587,7 @@ class Engine {
       lod_ms_.push_back(lod_ms);
       idbuf_tris_.push_back(double(mesh.num_triangles()));
       g.cellid_ms.push_back(MsSince(t1) + lod_ms);
+      g.cellid_cpu_ms.push_back(ThreadCpuMs() - c1 + lod_cpu_ms);
       for (size_t ci : g.online) {
         planning::Candidate c;
         c.id = ViewId(idx + 1);
@@ -547,8 +596,10 @@ class Engine {
         c.cells = cells;
         c.bytes = src_.frame_bytes;
         auto t2 = Clock::now();
+        const double c2 = ThreadCpuMs();
         auto d = online_[ci].planner->Consider(c);
         online_[ci].consider_ms.push_back(MsSince(t2));
+        online_[ci].consider_cpu_ms.push_back(ThreadCpuMs() - c2);
         if (!d.ok()) return d.status();
         if (d->accepted) ++online_[ci].accepted;
       }
@@ -579,19 +630,24 @@ class Engine {
     const size_t geometry_bytes = (tsdf_ ? tsdf_->bytes() : 0) + proxy_.bytes();
     std::vector<ConfigResult> results;
     if (opt_.vertex_color && tsdf_ != nullptr) {
-      ConfigResult r;
-      r.config.policy = Policy::kVertexColor;
-      r.config.store = 0;
-      r.config.tag = "baseline";
-      EXO_ASSIGN_OR_RETURN(r.quality, EvalVertexColor(proxy_mesh, &r.render_ms_median));
-      r.integrate_ms_median = Pct(integrate_ms_, 0.5);
-      r.integrate_ms_p95 = Pct(integrate_ms_, 0.95);
-      r.geometry_bytes = geometry_bytes;
-      r.json = ConfigJson(src_.dataset, src_.test_pose_label, proxy_name, voxel_m, n, r.config, 0, 0, 0, r, opt_.id_w,
-                          opt_.id_h, PlannerFor(r.config, src_, src_.scale.cell_size_m, src_.frame_bytes),
-                          ScaleModeName(src_.scale_mode), proxy_.lod_cluster_m());
-      if (opt_.emit) opt_.emit(r.json);
-      results.push_back(std::move(r));
+      for (const Source::TestSet& ts : src_.test_sets) {
+        ConfigResult r;
+        r.config.policy = Policy::kVertexColor;
+        r.config.store = 0;
+        r.config.tag = "baseline";
+        r.test_poses = ts.label;
+        EvalSink sink;
+        EXO_ASSIGN_OR_RETURN(r.quality, EvalVertexColor(proxy_mesh, ts, &r.render_ms_median, &sink));
+        if (opt_.per_view) r.per_view_ssim = sink.ssim;
+        r.integrate_ms_median = Pct(integrate_ms_, 0.5);
+        r.integrate_ms_p95 = Pct(integrate_ms_, 0.95);
+        r.geometry_bytes = geometry_bytes;
+        r.json = ConfigJson(src_.dataset, ts.label, proxy_name, voxel_m, n, r.config, 0, 0, 0, r, opt_.id_w,
+                            opt_.id_h, PlannerFor(r.config, src_, src_.scale.cell_size_m, src_.frame_bytes),
+                            ScaleModeName(src_.scale_mode), proxy_.lod_cluster_m());
+        if (opt_.emit) opt_.emit(r.json);
+        results.push_back(std::move(r));
+      }
     }
     for (size_t ci = 0; ci < configs_.size(); ++ci) {
       const PolicyConfig& c = configs_[ci];
@@ -610,6 +666,11 @@ class Engine {
         for (size_t i = 0; i < plan.size(); ++i) plan[i] = st.consider_ms[i] + g.cellid_ms[i];
         r.plan_ms_median = Pct(plan, 0.5);
         r.plan_ms_p95 = Pct(plan, 0.95);
+        std::vector<double> plan_cpu(st.consider_cpu_ms.size());
+        for (size_t i = 0; i < plan_cpu.size(); ++i)
+          plan_cpu[i] = st.consider_cpu_ms[i] + g.cellid_cpu_ms[i];
+        r.plan_cpu_ms_median = Pct(plan_cpu, 0.5);
+        r.plan_cpu_ms_p95 = Pct(plan_cpu, 0.95);
         r.consider_ms_median = Pct(st.consider_ms, 0.5);
         for (ViewId v : st.planner->ViewIds()) selected.push_back(int(v) - 1);
         refs = st.planner->CellRefs();
@@ -686,19 +747,35 @@ class Engine {
           refs = p.CellRefs();
         }
       }
-      for (const auto& [cell, rs] : refs) r.max_refs = std::max(r.max_refs, rs.size());
+      double ref_sum = 0;
+      for (const auto& [cell, rs] : refs) {
+        r.max_refs = std::max(r.max_refs, rs.size());
+        ref_sum += double(rs.size());
+      }
+      r.mean_refs = refs.empty() ? 0.0 : ref_sum / double(refs.size());
       r.store_views = selected.size();
       r.store_bytes = selected.size() * src_.frame_bytes;
-      double render_ms = 0;
-      EXO_ASSIGN_OR_RETURN(r.quality, EvalStore(selected, refs, g.grid, proxy_mesh,
-                                                c.test_views, ci == 0, &render_ms,
-                                                c.lambda >= 0 ? c.lambda : src_.default_lambda));
-      r.render_ms_median = render_ms;
-      r.json = ConfigJson(src_.dataset, src_.test_pose_label, proxy_name, voxel_m, n, c, po.lambda, g.grid.cell_size_m,
-                          po.delta_tau_sum, r, opt_.id_w, opt_.id_h, po, ScaleModeName(src_.scale_mode),
-                          proxy_.lod_cluster_m());
-      if (opt_.emit) opt_.emit(r.json);
-      results.push_back(std::move(r));
+      r.selected = selected;
+      for (const Source::TestSet& ts : src_.test_sets) {
+        ConfigResult rt = r;
+        rt.test_poses = ts.label;
+        double render_ms = 0;
+        EvalSink sink;
+        EXO_ASSIGN_OR_RETURN(rt.quality, EvalStore(selected, refs, g.grid, proxy_mesh, ts,
+                                                   c.test_views, ci == 0, &render_ms,
+                                                   c.lambda >= 0 ? c.lambda : src_.default_lambda,
+                                                   &sink));
+        rt.render_ms_median = render_ms;
+        if (opt_.per_view) {
+          rt.per_view_ssim = sink.ssim;
+          PerViewDiagnostics(selected, refs, g.grid, proxy_mesh, ts, int(sink.ssim.size()), &rt);
+        }
+        rt.json = ConfigJson(src_.dataset, ts.label, proxy_name, voxel_m, n, c, po.lambda,
+                             g.grid.cell_size_m, po.delta_tau_sum, rt, opt_.id_w, opt_.id_h, po,
+                             ScaleModeName(src_.scale_mode), proxy_.lod_cluster_m());
+        if (opt_.emit) opt_.emit(rt.json);
+        results.push_back(std::move(rt));
+      }
     }
     return results;
   }
@@ -710,8 +787,8 @@ class Engine {
   absl::StatusOr<Quality> EvalStore(const std::vector<int>& selected,
                                     const std::unordered_map<CellId, std::vector<ViewId>>& refs,
                                     const CellGrid& grid, const TriangleMesh& proxy_mesh,
-                                    int test_views, bool dump, double* render_ms_median,
-                                    double lambda) {
+                                    const Source::TestSet& ts, int test_views, bool dump,
+                                    double* render_ms_median, double lambda, EvalSink* sink_out) {
     // Bring the selected views into the cache (evict others when it grows large).
     std::unordered_set<int> need(selected.begin(), selected.end());
     if (cache_.size() + selected.size() > kMaxCache)
@@ -746,24 +823,24 @@ class Engine {
       restore();
       return renderer.status();
     }
-    EvalSink sink;
-    const int nt = test_views < 0 ? int(src_.test_poses.size())
-                                  : std::min<int>(test_views, src_.test_poses.size());
+    EvalSink& sink = *sink_out;
+    const int nt = test_views < 0 ? int(ts.poses.size())
+                                  : std::min<int>(test_views, ts.poses.size());
     absl::Status st;
     for (int t = 0; t < nt && st.ok(); ++t) {
       auto t0 = Clock::now();
-      auto out = (*renderer)->Render(src_.test_camera, src_.test_poses[t]);
+      auto out = (*renderer)->Render(src_.test_camera, ts.poses[t]);
       const double ms = MsSince(t0);
       if (!out.ok()) {
         st = out.status();
         break;
       }
-      st = sink.Add(out->color, src_.test_gt[t], out->coverage, ms);
+      st = sink.Add(out->color, ts.gt[t], out->coverage, ms);
       sink.surface.push_back(double(out->surface_pixels) / (out->color.width() * out->color.height()));
       if (dump && !opt_.dump_dir.empty() && t < opt_.dump_views) {
         std::filesystem::create_directories(opt_.dump_dir);
-        const ImageU8 img = Hstack({&out->color, &src_.test_gt[t], &out->coverage});
-        (void)WriteColorImage(absl::StrCat(opt_.dump_dir, "/view_", t, ".png"), img);
+        const ImageU8 img = Hstack({&out->color, &ts.gt[t], &out->coverage});
+        (void)WriteColorImage(absl::StrCat(opt_.dump_dir, "/", ts.label, "_view_", t, ".png"), img);
       }
     }
     renderer->reset();
@@ -773,11 +850,57 @@ class Engine {
     return sink.Finish();
   }
 
-  absl::StatusOr<Quality> EvalVertexColor(const TriangleMesh& mesh, double* render_ms_median) {
-    EvalSink sink;
+  // See ConfigResult::per_view_*: for each of the first nt test poses, the nearest stored view
+  // (camera-centre distance) and whether the cells the test view sees reference it.
+  void PerViewDiagnostics(const std::vector<int>& selected,
+                          const std::unordered_map<CellId, std::vector<ViewId>>& refs,
+                          const CellGrid& grid, const TriangleMesh& proxy_mesh,
+                          const Source::TestSet& ts, int nt, ConfigResult* r) {
+    for (int t = 0; t < nt; ++t) {
+      const Rigid3d& pose = ts.poses[t];
+      double best = 1e300;
+      int best_i = -1;
+      for (int i : selected) {
+        const double d = glm::length(src_.poses[i].translation - pose.translation);
+        if (d < best) {
+          best = d;
+          best_i = i;
+        }
+      }
+      if (best_i < 0) {
+        r->per_view_near_m.push_back(-1);
+        r->per_view_near_deg.push_back(-1);
+        r->per_view_near_frame.push_back(-1);
+        r->per_view_ref_hit.push_back(0);
+        continue;
+      }
+      const glm::dvec3 za = pose.RotationMatrix() * glm::dvec3(0, 0, 1);
+      const glm::dvec3 zb = src_.poses[best_i].RotationMatrix() * glm::dvec3(0, 0, 1);
+      r->per_view_near_m.push_back(best);
+      r->per_view_near_deg.push_back(
+          glm::degrees(std::acos(std::clamp(glm::dot(za, zb), -1.0, 1.0))));
+      r->per_view_near_frame.push_back(best_i);
+      PinholeCamera id_cam;
+      const auto cells =
+          CellCounts(proxy_mesh, grid, src_.test_camera, pose, opt_.id_w, opt_.id_h, &id_cam);
+      double hit = 0, total = 0;
+      for (const auto& c : cells) {
+        total += c.pixels;
+        auto it = refs.find(c.cell);
+        if (it != refs.end() &&
+            std::find(it->second.begin(), it->second.end(), ViewId(best_i + 1)) != it->second.end())
+          hit += c.pixels;
+      }
+      r->per_view_ref_hit.push_back(total > 0 ? hit / total : 0.0);
+    }
+  }
+
+  absl::StatusOr<Quality> EvalVertexColor(const TriangleMesh& mesh, const Source::TestSet& ts,
+                                          double* render_ms_median, EvalSink* sink_out) {
+    EvalSink& sink = *sink_out;
     const PinholeCamera& cam = src_.test_camera;
     const int w = cam.width, h = cam.height;
-    for (size_t t = 0; t < src_.test_poses.size(); ++t) {
+    for (size_t t = 0; t < ts.poses.size(); ++t) {
       auto t0 = Clock::now();
       ImageU8 img(w, h, 3, 0), mask(w, h, 1, 0);
       if (!mesh.empty() && mesh.colors.size() == mesh.positions.size()) {
@@ -785,7 +908,7 @@ class Engine {
         ro.z_depth = false;
         ro.position = true;
         ro.triangle_id = true;
-        EXO_ASSIGN_OR_RETURN(RasterOutput r, Rasterize(mesh, cam, src_.test_poses[t], ro));
+        EXO_ASSIGN_OR_RETURN(RasterOutput r, Rasterize(mesh, cam, ts.poses[t], ro));
         for (int y = 0; y < h; ++y)
           for (int x = 0; x < w; ++x) {
             const uint32_t tri = r.triangle_id.at(x, y);
@@ -812,7 +935,7 @@ class Engine {
             mask.at(x, y) = 255;
           }
       }
-      EXO_RETURN_IF_ERROR(sink.Add(img, src_.test_gt[t], mask, MsSince(t0)));
+      EXO_RETURN_IF_ERROR(sink.Add(img, ts.gt[t], mask, MsSince(t0)));
       sink.surface.push_back(sink.cov.back());
     }
     *render_ms_median = Pct(sink.render_ms, 0.5);
@@ -917,6 +1040,7 @@ absl::StatusOr<std::vector<ConfigResult>> RunSynthetic(const SynthRunOptions& o)
   EXO_ASSIGN_OR_RETURN(synth::SynthScene scene, synth::MakeScene(kind, {}));
   synth::TrajectoryOptions to;
   to.num_frames = o.frames;
+  if (o.walk_look_around_deg >= 0) to.walk_look_around_deg = o.walk_look_around_deg;
   EXO_ASSIGN_OR_RETURN(std::vector<synth::TimedPose> traj, synth::MakeTrajectory(scene, tkind, to));
 
   synth::RenderOptions rop;
@@ -935,7 +1059,6 @@ absl::StatusOr<std::vector<ConfigResult>> RunSynthetic(const SynthRunOptions& o)
   src.default_lambda = tkind == synth::TrajectoryKind::kFlyover ? 0.5 : 0.4;
   src.metres_per_rad = std::max(0.5, 0.05 * scene.ExtentM());
   src.dataset = absl::StrCat(o.scene, "/", o.traj);
-  src.test_pose_label = o.test_pose_mode == TestPoseMode::kSceneWide ? "scene" : "near";
   const synth::SynthScene* sp = &scene;
   std::vector<Rigid3d> poses_copy = src.poses;
   src.load_view = [sp, rop, poses_copy](int i) -> absl::StatusOr<StoredView> {
@@ -954,18 +1077,26 @@ absl::StatusOr<std::vector<ConfigResult>> RunSynthetic(const SynthRunOptions& o)
   synth::TestPoseOptions tpo;
   tpo.count = o.test_views;
   tpo.seed = o.test_seed;
-  if (o.test_pose_mode == TestPoseMode::kSceneWide) {
-    EXO_ASSIGN_OR_RETURN(src.test_poses, synth::MakeTestPoses(scene, src.test_camera, tpo));
-  } else {
-    EXO_ASSIGN_OR_RETURN(src.test_poses,
-                         NearTrajectoryPoses(scene, src.poses, src.test_camera, o.test_views,
-                                             o.test_seed, tkind == synth::TrajectoryKind::kFlyover));
-  }
-  for (const Rigid3d& p : src.test_poses) {
-    EXO_ASSIGN_OR_RETURN(ImageF lin, synth::RenderLinear(scene, p, top));
-    ImageU8 gt(top.width, top.height, 3);
-    for (size_t k = 0; k < gt.size(); ++k) gt.data()[k] = synth::LinearToSrgb8(lin.data()[k]);
-    src.test_gt.push_back(std::move(gt));
+  std::vector<TestPoseMode> modes = o.test_pose_modes;
+  if (modes.empty()) modes.push_back(o.test_pose_mode);
+  for (TestPoseMode mode : modes) {
+    Source::TestSet ts;
+    if (mode == TestPoseMode::kSceneWide) {
+      ts.label = "scene";
+      EXO_ASSIGN_OR_RETURN(ts.poses, synth::MakeTestPoses(scene, src.test_camera, tpo));
+    } else {
+      ts.label = "near";
+      EXO_ASSIGN_OR_RETURN(ts.poses, NearTrajectoryPoses(scene, src.poses, src.test_camera,
+                                                         o.test_views, o.test_seed,
+                                                         tkind == synth::TrajectoryKind::kFlyover));
+    }
+    for (const Rigid3d& p : ts.poses) {
+      EXO_ASSIGN_OR_RETURN(ImageF lin, synth::RenderLinear(scene, p, top));
+      ImageU8 gt(top.width, top.height, 3);
+      for (size_t k = 0; k < gt.size(); ++k) gt.data()[k] = synth::LinearToSrgb8(lin.data()[k]);
+      ts.gt.push_back(std::move(gt));
+    }
+    src.test_sets.push_back(std::move(ts));
   }
 
   EngineOptions eo;
@@ -984,6 +1115,7 @@ absl::StatusOr<std::vector<ConfigResult>> RunSynthetic(const SynthRunOptions& o)
   eo.dump_dir = o.dump_dir;
   eo.dump_views = o.dump_views;
   eo.cellid_lod_frac = o.cellid_lod_frac;
+  eo.per_view = o.per_view;
   if (o.proxy == ProxyKind::kGroundTruth) eo.gt_mesh = scene.mesh;
   Engine engine(std::move(src), o.configs, std::move(eo));
   engine.set_origin(scene.origin);
@@ -1061,7 +1193,6 @@ absl::StatusOr<SevenScenesReport> RunSevenScenes(const SevenScenesRunOptions& o)
   src.default_lambda = 0.4;
   src.metres_per_rad = 1.0;
   src.dataset = "7scenes/redkitchen";
-  src.test_pose_label = "held_out";
   const std::vector<Frame>* fp = &frames;
   const LocalOrigin org = origin;
   src.load_view = [fp, org](int i) -> absl::StatusOr<StoredView> {
@@ -1076,8 +1207,11 @@ absl::StatusOr<SevenScenesReport> RunSevenScenes(const SevenScenesRunOptions& o)
   src.test_camera = frames[0].color_camera;
   if (o.test_width != src.test_camera.width)
     src.test_camera = src.test_camera.Scaled(o.test_width, o.test_height);
+  src.test_sets.emplace_back();
+  Source::TestSet& ts = src.test_sets.back();
+  ts.label = "held_out";
   for (const Frame& f : test) {
-    src.test_poses.push_back(origin.ToLocal(f.world_from_cam));
+    ts.poses.push_back(origin.ToLocal(f.world_from_cam));
     if (o.test_width != f.color.width()) {
       ImageU8 small(o.test_width, o.test_height, 3);
       // Box-free nearest resample is enough for a smoke run; full runs use 640x480.
@@ -1086,9 +1220,9 @@ absl::StatusOr<SevenScenesReport> RunSevenScenes(const SevenScenesRunOptions& o)
           for (int c = 0; c < 3; ++c)
             small.at(x, y, c) = f.color.at(x * f.color.width() / o.test_width,
                                            y * f.color.height() / o.test_height, c);
-      src.test_gt.push_back(std::move(small));
+      ts.gt.push_back(std::move(small));
     } else {
-      src.test_gt.push_back(f.color);
+      ts.gt.push_back(f.color);
     }
   }
   EngineOptions eo;
@@ -1103,6 +1237,7 @@ absl::StatusOr<SevenScenesReport> RunSevenScenes(const SevenScenesRunOptions& o)
   eo.dump_dir = o.dump_dir;
   eo.dump_views = o.dump_views;
   eo.cellid_lod_frac = o.cellid_lod_frac;
+  eo.per_view = o.per_view;
   Engine engine(std::move(src), o.configs, std::move(eo));
   engine.set_origin(origin);
   EXO_RETURN_IF_ERROR(engine.Init());

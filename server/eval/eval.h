@@ -72,6 +72,15 @@ struct ConfigResult {
   size_t accepted = 0;
   size_t max_refs = 0;                           // largest |R(b_k)| the renderer was given
   double tau_sum = 0;                            // τ_sum of the selection (final proxy, see .cc)
+  double mean_refs = 0;                          // mean |R(b_k)| over cells with references
+  double plan_cpu_ms_median = 0, plan_cpu_ms_p95 = 0;  // thread CPU ms of plan (online only)
+  std::string test_poses;                        // label of the test pose set ("scene", ...)
+  std::vector<int> selected;                     // stored input frame indices (stream order)
+  // Per test view (only with per_view diagnostics on): SSIM; distance (m), angle between the
+  // optical axes (deg) and stream index of the nearest stored view; the fraction of the view's
+  // cell-id pixels whose R(b_k) contains that nearest view.
+  std::vector<double> per_view_ssim, per_view_near_m, per_view_near_deg, per_view_near_frame,
+      per_view_ref_hit;
   std::string json;                              // the printed line
 };
 
@@ -103,6 +112,11 @@ struct SynthRunOptions {
   int test_views = 200, test_width = 320, test_height = 240;
   uint64_t test_seed = 7;
   TestPoseMode test_pose_mode = TestPoseMode::kSceneWide;
+  // Several test pose sets evaluated on the same stream and stores (one JSON line per config and
+  // set); empty = {test_pose_mode}.
+  std::vector<TestPoseMode> test_pose_modes;
+  double walk_look_around_deg = -1;  // walk yaw-sweep amplitude; < 0: synth's default (20 deg)
+  bool per_view = false;             // per-test-view diagnostics in the JSON (ConfigResult)
   ScaleMode scale_mode = ScaleMode::kBounds;
   // Cell-id buffers from a vertex-clustered LOD of the proxy (planning::ClusterSimplify) with
   // clusters of this fraction of the cell size; 0 = the full TSDF mesh.
@@ -131,6 +145,7 @@ struct SevenScenesRunOptions {
   int test_width = 640, test_height = 480;
   ScaleMode scale_mode = ScaleMode::kViewDepth;
   double cellid_lod_frac = 0;      // see SynthRunOptions
+  bool per_view = false;           // see SynthRunOptions
   blend::BlendOptions blend;
   bool vertex_color_baseline = true;
   std::vector<PolicyConfig> configs;

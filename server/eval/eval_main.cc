@@ -8,6 +8,9 @@
 //                [--sweep store|r_max|lambda|cell] [--sweep_test_views 50]
 //                [--dump DIR --dump_views 4]
 //   exoview_eval --sevenscenes DIR [--store 50] [--policies ...]
+//   --test_poses scene|near|scene,near   test pose set(s), all evaluated on the same stores
+//   --look_around DEG     walk yaw-sweep amplitude (synth default 20)
+//   --per_view 1          per-test-view SSIM, nearest stored view, reference hit in the JSON
 //   --lod F               cell-id buffers from a vertex-clustered proxy LOD, clusters F x cell size
 //   --scale bounds|depth  d_max/σ from scene_scale.h or from the first frame's median depth
 //                         (synthetic default bounds, 7-Scenes default depth)
@@ -134,6 +137,7 @@ int RunOne(const Args& a) {
     o.test_width = int(a.Num("--test_w", 640));
     o.test_height = int(a.Num("--test_h", 480));
     o.cellid_lod_frac = a.Num("--lod", o.cellid_lod_frac);
+    o.per_view = a.Num("--per_view", 0) != 0;
     if (a.kv.count("--scale")) o.scale_mode = a.Get("--scale", "") == "bounds" ? ScaleMode::kBounds : ScaleMode::kViewDepth;
     o.blend = Blend(a);
     o.configs = *configs;
@@ -165,8 +169,17 @@ int RunOne(const Args& a) {
   o.id_height = int(a.Num("--idh", 120));
   o.cellid_lod_frac = a.Num("--lod", o.cellid_lod_frac);
   o.blend = Blend(a);
-  o.test_pose_mode = a.Get("--test_poses", "scene") == "near" ? TestPoseMode::kNearTrajectory
-                                                              : TestPoseMode::kSceneWide;
+  // --test_poses scene | near | scene,near (both sets on the same stream and stores)
+  for (absl::string_view m : absl::StrSplit(a.Get("--test_poses", "scene"), ',', absl::SkipEmpty())) {
+    if (m == "near") o.test_pose_modes.push_back(TestPoseMode::kNearTrajectory);
+    else if (m == "scene") o.test_pose_modes.push_back(TestPoseMode::kSceneWide);
+    else {
+      std::fprintf(stderr, "unknown --test_poses %s\n", std::string(m).c_str());
+      return 2;
+    }
+  }
+  o.walk_look_around_deg = a.Num("--look_around", -1);
+  o.per_view = a.Num("--per_view", 0) != 0;
   o.vertex_color_baseline = a.Num("--vertex_color", 1) != 0;
   if (a.kv.count("--scale")) o.scale_mode = a.Get("--scale", "") == "bounds" ? ScaleMode::kBounds : ScaleMode::kViewDepth;
   o.configs = *configs;
