@@ -4,9 +4,12 @@
 // outside R with a known value is a Dirichlet boundary, a neighbour outside R without one (or
 // outside the image) is a natural (Neumann) boundary. A connected part of R that touches no
 // known value is pure Neumann: its solution is fixed up to a constant, which the gauge sets
-// (the mean over that part equals the mean of `gauge`). Small problems: Eigen's sparse LDL^T;
-// large ones: cascadic multigrid (coarse solutions as initial guesses of a conjugate gradient),
-// with LDL^T as the fallback when the iteration does not converge.
+// (the mean over that part equals the mean of `gauge`). Only the pixels of R are assembled,
+// directly as a 4-neighbour stencil. Small problems: Eigen's sparse LDL^T; large ones: a
+// conjugate gradient preconditioned by a multigrid V-cycle (Galerkin 2x2-aggregation coarse
+// levels, symmetric red-black Gauss-Seidel, LDL^T on the coarsest level; ~10-20 iterations to a
+// relative residual of 1e-4 on a 640x480 frame's 17 % region), LDL^T as the fallback when the
+// iteration does not converge.
 #pragma once
 
 #include <cstdint>
@@ -19,8 +22,7 @@ namespace exo::inpaint {
 struct PoissonOptions {
   double tolerance = 1e-10;  // relative residual of the conjugate gradient
   int max_iterations = 2000;
-  // Up to this many unknowns: sparse direct LDL^T. Above: cascadic multigrid (the problem on a
-  // grid half the size, recursively, gives the initial guess of a conjugate gradient).
+  // Up to this many unknowns: sparse direct LDL^T. Above: multigrid-preconditioned CG.
   int direct_max_unknowns = 6000;
   absl::Status Validate() const;
 };
@@ -45,7 +47,7 @@ struct PoissonProblem {
   // Per-pixel values whose mean over a pure-Neumann component sets its constant (NaN = not
   // used). May be null when every component has a Dirichlet boundary.
   const ImageF* gauge = nullptr;
-  // Optional initial guess inside R (NaN = none).
+  // Optional initial guess inside R (NaN = none: the gauge value there, else 0).
   const ImageF* initial = nullptr;
 };
 
