@@ -31,6 +31,8 @@ namespace exo::blend {
 
 // Maximum number of views blended per fragment (n of §3.1.4 is configurable up to this).
 inline constexpr int kMaxBlendViews = 4;
+// Maximum number of background (sky) views per frame (BlendOptions::background_views).
+inline constexpr int kMaxBackgroundViews = 8;
 // Denominator guard: distances below this (metres) are treated as this.
 inline constexpr float kMinDistance = 1e-6f;
 
@@ -52,6 +54,16 @@ struct BlendOptions {
   // positional term) still gets this weight so a pixel seen by a valid view is never a hole.
   float min_weight = 1e-4f;
   glm::vec3 background_srgb{0.0f};  // colour of uncovered pixels, sRGB in [0,1]
+  // Background at infinity (sky, docs/vulkan.md "Background at infinity"): a pixel whose ray
+  // hits no proxy surface is blended, as a DIRECTION (a point at infinity: rotation only), from
+  // the stored views that saw nothing within range there (depth 0). Up to this many views per
+  // frame are candidates (SelectBackgroundViews), the best n_best of them per pixel by
+  // BackgroundWeight. 0 = off: such pixels keep background_srgb (the output before this pass).
+  int background_views = 8;
+  // A stored pixel is background only if EVERY in-image pixel within this Chebyshev radius has
+  // invalid depth (BackgroundMask): sensor holes next to surfaces and silhouette edges (incl. the
+  // 2x2 bilinear footprint of the sample) never bring foreground colour into the sky.
+  int background_guard_radius_px = 3;
 
   absl::Status Validate() const {
     auto finite = [](float v) { return std::isfinite(v); };
@@ -74,6 +86,13 @@ struct BlendOptions {
           absl::StrCat("n_best must be in [1,", kMaxBlendViews, "], got ", n_best));
     if (!finite(min_weight) || min_weight < 0.0f || min_weight > 1.0f)
       return absl::InvalidArgumentError("min_weight must be in [0,1]");
+    if (background_views < 0 || background_views > kMaxBackgroundViews)
+      return absl::InvalidArgumentError(absl::StrCat("background_views must be in [0,",
+                                                     kMaxBackgroundViews, "], got ",
+                                                     background_views));
+    if (background_guard_radius_px < 1 || background_guard_radius_px > 16)
+      return absl::InvalidArgumentError(absl::StrCat(
+          "background_guard_radius_px must be in [1,16], got ", background_guard_radius_px));
     for (int c = 0; c < 3; ++c)
       if (!finite(background_srgb[c]) || background_srgb[c] < 0.0f || background_srgb[c] > 1.0f)
         return absl::InvalidArgumentError("background colour must be in [0,1]");
@@ -275,6 +294,51 @@ inline bool Resolve(const BlendAccumulator& acc, const glm::vec3& background_srg
     if (!std::isfinite(lin[c])) lin[c] = 0.0f;
   *out_srgb = LinearToSrgb(lin);
   return true;
+}
+
+// ---- background at infinity (sky) ----
+// A novel pixel without proxy surface has the local-frame ray direction d = local_from_pixel *
+// (x, y, 1) (local_from_pixel = R_local_from_cam K^-1). A stored view sees the point at infinity
+// in direction d at u = project(K, cam_from_local * d) (no translation). The sample is valid when
+// u is inside the view, in front of it, and the view's background mask (BackgroundMask: depth
+// invalid in the whole guard window) is set at the nearest pixel of u. Its weight is the
+// feathering BorderWeight (all stored rays towards a point at infinity are parallel to d, so the
+// direction term of (3.2) carries no information); the best n by weight are blended with
+// exposure exactly like surface samples (Accumulate / Resolve).
+
+// Projection of the direction d (local frame) into `view`; range_m is unused (infinite).
+inline Projection ProjectDirection(const glm::vec3& d_local, const BlendView& view) {
+  Projection p;
+  const glm::vec3 d_cam = view.cam_from_local * d_local;
+  if (!(d_cam.z > kMinDistance * glm::length(d_cam))) return p;
+  p.in_front = true;
+  p.uv = glm::vec2(view.intrinsics.x * d_cam.x / d_cam.z + view.intrinsics.z,
+                   view.intrinsics.y * d_cam.y / d_cam.z + view.intrinsics.w);
+  return p;
+}
+
+// Feathering weight: distance (px) of uv from the nearest border of the image area
+// [-0.5, W-0.5) x [-0.5, H-0.5), divided by half the smaller side: 1 at the centre of a square
+// image, -> 0 at its border (so the blend fades out instead of cutting at a view's edge).
+inline float BorderWeight(const glm::vec2& uv, const glm::ivec2& size) {
+  const float dx = glm::min(uv.x + 0.5f, float(size.x) - 0.5f - uv.x);
+  const float dy = glm::min(uv.y + 0.5f, float(size.y) - 0.5f - uv.y);
+  return glm::max(0.0f, glm::min(dx, dy)) / (0.5f * float(glm::min(size.x, size.y)));
+}
+
+// Weight of view `view` for the background direction d; 0 = invalid. `is_background(ivec2)`
+// reads the view's background mask at an in-image pixel. *uv receives the sample position.
+template <typename IsBackground>
+inline float BackgroundWeight(const glm::vec3& d_local, const BlendView& view,
+                              IsBackground&& is_background, glm::vec2* uv) {
+  const Projection proj = ProjectDirection(d_local, view);
+  if (!proj.in_front || !InsideImage(proj.uv, view.size)) return 0.0f;
+  const glm::ivec2 px(static_cast<int>(std::floor(proj.uv.x + 0.5f)),
+                      static_cast<int>(std::floor(proj.uv.y + 0.5f)));
+  const glm::ivec2 pc = glm::clamp(px, glm::ivec2(0), view.size - 1);
+  if (!is_background(pc)) return 0.0f;
+  *uv = proj.uv;
+  return BorderWeight(proj.uv, view.size);
 }
 
 // sRGB8 byte <-> [0,1] float, round to nearest.

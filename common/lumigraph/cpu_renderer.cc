@@ -1,5 +1,6 @@
 #include "common/lumigraph/cpu_renderer.h"
 
+#include <algorithm>
 #include <array>
 #include <chrono>
 #include <cmath>
@@ -55,6 +56,78 @@ absl::Status CpuRenderOptions::Validate() const {
   return absl::OkStatus();
 }
 
+ImageU8 BackgroundMask(const ImageF& depth_m, int guard_radius_px) {
+  const int w = depth_m.width(), h = depth_m.height(), r = std::max(0, guard_radius_px);
+  ImageU8 out(w, h, 1, 0);
+  if (w == 0 || h == 0) return out;
+  // Horizontal pass: near_valid(x, y) = some valid depth in row y within [x - r, x + r]; then
+  // vertical: background(x, y) = no near_valid in column x within [y - r, y + r]. Prefix sums.
+  std::vector<int> row(w + 1), near_valid(size_t(w) * h), col(h + 1);
+  for (int y = 0; y < h; ++y) {
+    row[0] = 0;
+    for (int x = 0; x < w; ++x) row[x + 1] = row[x] + (blend::ValidDepth(depth_m.at(x, y)) ? 1 : 0);
+    for (int x = 0; x < w; ++x)
+      near_valid[size_t(y) * w + x] = row[std::min(w, x + r + 1)] - row[std::max(0, x - r)] > 0;
+  }
+  for (int x = 0; x < w; ++x) {
+    col[0] = 0;
+    for (int y = 0; y < h; ++y) col[y + 1] = col[y] + near_valid[size_t(y) * w + x];
+    for (int y = 0; y < h; ++y)
+      out.at(x, y) = col[std::min(h, y + r + 1)] - col[std::max(0, y - r)] == 0 ? 1 : 0;
+  }
+  return out;
+}
+
+glm::mat3 LocalFromPixel(const PinholeCamera& camera, const Rigid3d& local_from_cam) {
+  // K^-1 maps (x, y, 1) to ((x - cx) / fx, (y - cy) / fy, 1); column-major glm.
+  glm::dmat3 k_inv(1.0);
+  k_inv[0][0] = 1.0 / camera.fx;
+  k_inv[1][1] = 1.0 / camera.fy;
+  k_inv[2][0] = -camera.cx / camera.fx;
+  k_inv[2][1] = -camera.cy / camera.fy;
+  return glm::mat3(local_from_cam.RotationMatrix() * k_inv);
+}
+
+double HalfDiagonalFov(const glm::vec4& intr, const glm::ivec2& size) {
+  double best = 0.0;
+  for (double u : {-0.5, double(size.x) - 0.5})
+    for (double v : {-0.5, double(size.y) - 0.5}) {
+      const double rx = (u - intr.z) / intr.x, ry = (v - intr.w) / intr.y;
+      best = std::max(best, std::atan(std::sqrt(rx * rx + ry * ry)));
+    }
+  return best;
+}
+
+std::vector<int> SelectBackgroundViews(const PinholeCamera& camera, const Rigid3d& local_from_cam,
+                                       std::span<const blend::BlendView> views,
+                                       std::span<const ViewId> ids, int max_views,
+                                       const std::function<bool(int)>& has_background) {
+  std::vector<int> out;
+  if (max_views <= 0 || views.size() != ids.size()) return out;
+  const glm::dvec3 axis_o = local_from_cam.RotationMatrix()[2];
+  const double fov_o = HalfDiagonalFov(
+      glm::vec4(camera.fx, camera.fy, camera.cx, camera.cy), {camera.width, camera.height});
+  std::vector<std::pair<double, int>> ranked;
+  for (size_t i = 0; i < views.size(); ++i) {
+    const glm::mat3& m = views[i].cam_from_local;
+    // Optical axis of view i in the local frame: row 2 of cam_from_local (glm: m[col][row]).
+    const glm::dvec3 axis_i(m[0][2], m[1][2], m[2][2]);
+    const double cos_a =
+        std::clamp(glm::dot(axis_o, axis_i) / std::max(1e-12, glm::length(axis_i)), -1.0, 1.0);
+    const double angle = std::acos(cos_a);
+    if (angle >= fov_o + HalfDiagonalFov(views[i].intrinsics, views[i].size)) continue;
+    ranked.emplace_back(angle, int(i));
+  }
+  std::sort(ranked.begin(), ranked.end(), [&](const auto& a, const auto& b) {
+    return a.first != b.first ? a.first < b.first : ids[a.second] < ids[b.second];
+  });
+  for (const auto& [angle, i] : ranked) {
+    if (int(out.size()) >= max_views) break;
+    if (has_background(i)) out.push_back(i);
+  }
+  return out;
+}
+
 blend::BlendView MakeBlendView(const StoredView& view) {
   blend::BlendView b;
   b.cam_from_local = glm::mat3(glm::transpose(view.local_from_cam.RotationMatrix()));
@@ -86,7 +159,8 @@ absl::StatusOr<std::unique_ptr<CpuLumigraphRenderer>> CpuLumigraphRenderer::Crea
       return absl::InvalidArgumentError(absl::StrCat("view ", id, ": exposure must be finite, >= 0"));
     EXO_RETURN_IF_ERROR(ValidateQuaternion(v.local_from_cam.rotation));
     index[id] = static_cast<int>(r->views_.size());
-    r->views_.push_back({MakeBlendView(v), &v.color, &v.depth_m});
+    r->views_.push_back({MakeBlendView(v), id, &v.color, &v.depth_m});
+    r->masks_.push_back(std::make_unique<BackgroundMaskEntry>());
   }
   for (const auto& [cell, refs] : model.cell_refs) {
     std::vector<int> idx;
@@ -95,6 +169,17 @@ absl::StatusOr<std::unique_ptr<CpuLumigraphRenderer>> CpuLumigraphRenderer::Crea
     if (!idx.empty()) r->refs_.emplace(cell, std::move(idx));
   }
   return r;
+}
+
+const CpuLumigraphRenderer::BackgroundMaskEntry& CpuLumigraphRenderer::MaskOf(int vi) const {
+  std::lock_guard<std::mutex> lock(mask_mutex_);
+  BackgroundMaskEntry& e = *masks_[vi];
+  if (!e.computed) {
+    e.mask = BackgroundMask(*views_[vi].depth, options_.blend.background_guard_radius_px);
+    e.any = std::any_of(e.mask.span().begin(), e.mask.span().end(), [](uint8_t b) { return b != 0; });
+    e.computed = true;
+  }
+  return e;
 }
 
 absl::StatusOr<CpuRenderOutput> CpuLumigraphRenderer::Render(const PinholeCamera& camera,
@@ -116,29 +201,94 @@ absl::StatusOr<CpuRenderOutput> CpuLumigraphRenderer::Render(const PinholeCamera
   for (int y = 0; y < h; ++y)
     for (int x = 0; x < w; ++x)
       for (int c = 0; c < 3; ++c) out.color.at(x, y, c) = bg[c];
-  if (mesh_.empty()) return out;
+  out.background = ImageU8(w, h, 1, 0);
+  const bool background_on = bo.background_views > 0;
+  if (mesh_.empty() && !background_on) return out;
 
   auto t0 = std::chrono::steady_clock::now();
+  RasterOutput raster;
   RasterOptions ro;
   ro.position = true;
   ro.cell_id = true;
   ro.cell_grid = grid_;
   ro.cull_backfaces = options_.cull_backfaces;
   ro.num_threads = options_.num_threads;
-  EXO_ASSIGN_OR_RETURN(RasterOutput raster, Rasterize(mesh_, camera, local_from_cam, ro));
+  if (!mesh_.empty()) {
+    EXO_ASSIGN_OR_RETURN(raster, Rasterize(mesh_, camera, local_from_cam, ro));
+  } else {
+    raster.cell_id = Image<uint64_t>(w, h, 1, kNoCell);  // no proxy: every ray is background
+  }
   out.raster_ms = MsSince(t0);
   t0 = std::chrono::steady_clock::now();
 
+  // Background at infinity: the per-frame view list (only when some ray misses the proxy, so a
+  // fully covered frame, e.g. indoors, pays one scan of the cell-id buffer).
+  struct BackgroundView {
+    const ViewData* view;
+    const ImageU8* mask;
+  };
+  std::vector<BackgroundView> bg_views;
+  const glm::mat3 local_from_pixel = LocalFromPixel(camera, local_from_cam);
+  if (background_on) {
+    const auto ids_span = raster.cell_id.span();
+    if (std::find(ids_span.begin(), ids_span.end(), kNoCell) != ids_span.end()) {
+      std::vector<blend::BlendView> params;
+      std::vector<ViewId> ids;
+      params.reserve(views_.size());
+      ids.reserve(views_.size());
+      for (const ViewData& v : views_) {
+        params.push_back(v.params);
+        ids.push_back(v.id);
+      }
+      const std::vector<int> chosen = SelectBackgroundViews(
+          camera, local_from_cam, params, ids, bo.background_views,
+          [&](int i) { return MaskOf(i).any; });
+      for (int i : chosen) {
+        bg_views.push_back({&views_[i], &MaskOf(i).mask});
+        out.background_views.push_back(views_[i].id);
+      }
+    }
+  }
+  out.background_ms = MsSince(t0);
+
   const glm::vec3 c_o(local_from_cam.translation);
   const int n = bo.n_best;
-  std::vector<size_t> covered(options_.num_threads, 0), surface(options_.num_threads, 0);
+  std::vector<size_t> covered(options_.num_threads, 0), surface(options_.num_threads, 0),
+      background(options_.num_threads, 0);
+  const int num_bg = static_cast<int>(bg_views.size());
   auto work = [&](int t) {
     CellId last_cell = kNoCell;
     const std::vector<int>* refs = nullptr;
     for (int y = t; y < h; y += options_.num_threads) {
       for (int x = 0; x < w; ++x) {
         const CellId cell = raster.cell_id.at(x, y);
-        if (cell == kNoCell) continue;
+        if (cell == kNoCell) {
+          if (num_bg == 0) continue;
+          // Background at infinity (blend_math.h BackgroundWeight), best n, normalised blend.
+          const glm::vec3 d = local_from_pixel * glm::vec3(float(x), float(y), 1.0f);
+          blend::BestN best = blend::EmptyBestN();
+          glm::vec2 uvs[blend::kMaxBackgroundViews];
+          for (int j = 0; j < num_bg; ++j) {
+            const ImageU8& mask = *bg_views[j].mask;
+            const float wgt = blend::BackgroundWeight(
+                d, bg_views[j].view->params, [&](glm::ivec2 q) { return mask.at(q.x, q.y) != 0; },
+                &uvs[j]);
+            blend::InsertBest(best, n, wgt, j);
+          }
+          blend::BlendAccumulator acc;
+          for (int s = 0; s < n && best.index[s] >= 0; ++s) {
+            const ViewData& vd = *bg_views[best.index[s]].view;
+            blend::Accumulate(acc, SampleLinear(*vd.color, uvs[best.index[s]]),
+                              vd.params.exposure, best.weight[s]);
+          }
+          glm::vec3 srgb;
+          if (blend::Resolve(acc, bo.background_srgb, &srgb)) {
+            for (int c = 0; c < 3; ++c) out.color.at(x, y, c) = blend::UnitToU8(srgb[c]);
+            out.background.at(x, y) = 255;
+            ++background[t];
+          }
+          continue;
+        }
         ++surface[t];
         if (cell != last_cell) {
           last_cell = cell;
@@ -191,6 +341,7 @@ absl::StatusOr<CpuRenderOutput> CpuLumigraphRenderer::Render(const PinholeCamera
   for (int t = 0; t < options_.num_threads; ++t) {
     out.covered_pixels += covered[t];
     out.surface_pixels += surface[t];
+    out.background_pixels += background[t];
   }
   out.blend_ms = MsSince(t0);
   return out;

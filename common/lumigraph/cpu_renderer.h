@@ -3,11 +3,17 @@
 // R(b_k) from LumigraphModel::cell_refs, evaluates validity and weights (blend_math.h), keeps the
 // best n = 3 and blends their colours with exposure in linear intensity. This is the oracle the
 // Vulkan client is golden-tested against, and the renderer of the evaluation benchmarks.
+// Pixels whose ray hits no proxy surface are filled from the stored views' "nothing within range"
+// pixels, treating the ray as a direction (background at infinity, e.g. sky;
+// BlendOptions::background_views, blend_math.h BackgroundWeight).
 // Output is always defined: pixels with no surface, an empty reference set or no valid view get
 // the background colour and coverage 0 (never NaN).
 #pragma once
 
+#include <functional>
 #include <memory>
+#include <mutex>
+#include <span>
 #include <unordered_map>
 #include <vector>
 
@@ -31,11 +37,17 @@ struct CpuRenderOptions {
 struct CpuRenderOutput {
   ImageU8 color;       // RGB8 sRGB
   ImageU8 coverage;    // 1 channel: 255 = blended from >= 1 valid view, 0 = background
+  // 1 channel: 255 = no proxy surface, filled at infinity from >= 1 stored view (coverage stays
+  // 0 there: coverage measures the lumigraph's surface blend), 0 otherwise.
+  ImageU8 background;
   ImageF weight_sum;   // debug: Σ w_i of the selected views (0 where uncovered)
   ImageU8 num_views;   // debug: number of views blended per pixel
   size_t covered_pixels = 0;
   size_t surface_pixels = 0;  // pixels where the proxy was hit
+  size_t background_pixels = 0;       // pixels filled at infinity (see `background`)
+  std::vector<ViewId> background_views;  // this frame's background view list, in rank order
   double raster_ms = 0.0, blend_ms = 0.0;
+  double background_ms = 0.0;  // view selection + masks of the background pass (in blend_ms)
 };
 
 class CpuLumigraphRenderer {
@@ -55,19 +67,54 @@ class CpuLumigraphRenderer {
  private:
   struct ViewData {
     blend::BlendView params;
+    ViewId id = 0;
     const ImageU8* color = nullptr;
     const ImageF* depth = nullptr;
   };
+  struct BackgroundMaskEntry {
+    bool computed = false;
+    bool any = false;  // at least one background pixel
+    ImageU8 mask;      // BackgroundMask of the view's depth
+  };
   CpuLumigraphRenderer() = default;
+  // The view's background mask, computed on first use (thread-safe; views never used as a
+  // background view cost nothing).
+  const BackgroundMaskEntry& MaskOf(int view_index) const;
 
   CpuRenderOptions options_;
   CellGrid grid_;
   TriangleMesh mesh_;
   std::vector<ViewData> views_;
   std::unordered_map<CellId, std::vector<int>> refs_;  // cell -> indices into views_
+  mutable std::mutex mask_mutex_;
+  mutable std::vector<std::unique_ptr<BackgroundMaskEntry>> masks_;  // per view, lazily
 };
 
 // Converts a stored view into the fragment-stage parameters of blend_math.h.
 blend::BlendView MakeBlendView(const StoredView& view);
+
+// ---- background at infinity (shared by the CPU reference and the Vulkan client) ----
+
+// 1 where the pixel and every in-image pixel within Chebyshev radius `guard_radius_px` have
+// invalid depth (0, NaN, Inf: nothing observed within range), else 0. O(W H) (separable).
+ImageU8 BackgroundMask(const ImageF& depth_m, int guard_radius_px);
+
+// Local-frame ray direction of pixel (x, y) is local_from_pixel * (x, y, 1): R K^-1, computed in
+// double and rounded once to float (the same matrix is handed to the shader).
+glm::mat3 LocalFromPixel(const PinholeCamera& camera, const Rigid3d& local_from_cam);
+
+// Half-angle (radians) of the cone around the optical axis that contains every pixel ray of a
+// view: the largest angle to the four image corners (-0.5, -0.5) .. (W-0.5, H-0.5).
+double HalfDiagonalFov(const glm::vec4& intrinsics, const glm::ivec2& size);
+
+// The per-frame background view list, identical in CPU and Vulkan: the views whose direction
+// cone can overlap the novel view's (angle between the optical axes < the sum of both
+// HalfDiagonalFov) and that have a background pixel (`has_background(i)`, asked only for views
+// that pass the cone test, in rank order), ranked by the angle between optical axes (ties: lower
+// id first), at most `max_views`. Returns indices into `views` / `ids` (same length).
+std::vector<int> SelectBackgroundViews(const PinholeCamera& camera, const Rigid3d& local_from_cam,
+                                       std::span<const blend::BlendView> views,
+                                       std::span<const ViewId> ids, int max_views,
+                                       const std::function<bool(int)>& has_background);
 
 }  // namespace exo
