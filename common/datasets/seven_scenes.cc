@@ -57,6 +57,11 @@ absl::StatusOr<Rigid3d> ReadPoseFile4x4(const std::string& path) {
 
 absl::StatusOr<std::unique_ptr<SevenScenesReader>> SevenScenesReader::Open(
     const std::string& dir) {
+  return Open(dir, SevenScenesOptions{});
+}
+
+absl::StatusOr<std::unique_ptr<SevenScenesReader>> SevenScenesReader::Open(
+    const std::string& dir, const SevenScenesOptions& options) {
   std::error_code ec;
   if (!std::filesystem::is_directory(dir, ec))
     return absl::NotFoundError(absl::StrCat("7-Scenes directory not found: ", dir));
@@ -93,6 +98,19 @@ absl::StatusOr<std::unique_ptr<SevenScenesReader>> SevenScenesReader::Open(
   reader->camera_ = PinholeCamera{k[0], k[4], k[2], k[5], d0.width(), d0.height()};
   if (auto s = reader->camera_.Validate(); !s.ok())
     return absl::InvalidArgumentError(absl::StrCat(k_path, ": ", s.message()));
+  if (options.register_depth) {
+    reader->registered_ = true;
+    reader->calibration_ = options.calibration.value_or(SevenScenesKinectV1Calibration());
+    if (auto s = reader->calibration_.Validate(); !s.ok())
+      return absl::InvalidArgumentError(absl::StrCat("7-Scenes registration: ", s.message()));
+    // 7-Scenes colour and depth images have the same size (640x480).
+    if (reader->calibration_.color_camera.width != d0.width() ||
+        reader->calibration_.color_camera.height != d0.height())
+      return absl::InvalidArgumentError(absl::StrCat(
+          "7-Scenes registration: calibration colour camera is ",
+          reader->calibration_.color_camera.width, "x", reader->calibration_.color_camera.height,
+          ", the images are ", d0.width(), "x", d0.height()));
+  }
   return reader;
 }
 
@@ -101,7 +119,9 @@ absl::StatusOr<Rigid3d> SevenScenesReader::LoadPose(size_t i) const {
     return absl::OutOfRangeError(absl::StrCat("frame ", i, " of ", indices_.size()));
   char name[64];
   std::snprintf(name, sizeof(name), "/frame-%06d.pose.txt", indices_[i]);
-  return ReadPoseFile4x4(dir_ + name);
+  EXO_ASSIGN_OR_RETURN(Rigid3d world_from_depth, ReadPoseFile4x4(dir_ + name));
+  if (!registered_) return world_from_depth;
+  return world_from_depth * calibration_.color_from_depth.Inverse();  // RegisterFrame's pose
 }
 
 absl::StatusOr<Frame> SevenScenesReader::Load(size_t i) const {
@@ -122,7 +142,11 @@ absl::StatusOr<Frame> SevenScenesReader::Load(size_t i) const {
   f.depth_m = DepthMetersFromU16(depth_mm, kDepthMetresPerUnit);
   if (auto s = f.Validate(); !s.ok())
     return absl::InvalidArgumentError(absl::StrCat(base, ": ", s.message()));
-  return f;
+  if (!registered_) return f;
+  auto registered = RegisterFrame(f, calibration_);
+  if (!registered.ok())
+    return absl::InvalidArgumentError(absl::StrCat(base, ": ", registered.status().message()));
+  return registered;
 }
 
 }  // namespace exo
