@@ -6,12 +6,18 @@
 // and on a disjoint set of held-out frames.
 //
 //   exoview_calibrate_7scenes --dir /work/shared/data/7scenes-redkitchen [--step 10] [--first 0]
-//       [--count 30] [--levels 3] [--iterations 25] [--same_focal] [--threads 2]
+//       [--count 30] [--levels 3] [--iterations 25] [--same_focal] [--fixed_rotation]
+//       [--rotation_sigma_deg 0.5] [--threads 2] [--png out.png --png_frame 150]
+// --png writes depth discontinuities over the (grey) colour image of one frame, cropped to
+// x 120-520, y 40-340: left = identity registration (raw depth pixels taken as colour pixels),
+// right = the committed calibration.
+// It also times RegisterDepthToColor (CPU and wall ms per 640x480 frame) on the loaded frames.
 #include <sys/resource.h>
 
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <chrono>
 #include <ctime>
 #include <string>
 #include <vector>
@@ -19,6 +25,7 @@
 #include "absl/strings/str_format.h"
 #include "common/datasets/rgbd_registration.h"
 #include "common/datasets/seven_scenes.h"
+#include "common/io/image_file.h"
 
 namespace {
 
@@ -35,11 +42,30 @@ std::string MeasuresJson(const exo::AlignmentMeasures& m) {
       m.photometric_median_abs, m.photometric_samples, m.edge_median_px, m.edge_samples);
 }
 
+// Marks pixels of `depth` on the near side of a discontinuity (neighbour farther by > 6 % and
+// 8 cm, the estimator's thresholds) in `rgb`, dimmed to make them visible.
+void DrawDepthEdges(const exo::ImageF& depth, const uint8_t color[3], exo::ImageU8* rgb) {
+  for (int v = 1; v + 1 < depth.height(); ++v)
+    for (int u = 1; u + 1 < depth.width(); ++u) {
+      const float z = depth.at(u, v);
+      if (z <= 0) continue;
+      bool edge = false;
+      const int du[4] = {1, -1, 0, 0}, dv[4] = {0, 0, 1, -1};
+      for (int k = 0; k < 4; ++k) {
+        const float n = depth.at(u + du[k], v + dv[k]);
+        if (n > 0 && n - z > std::max(0.08f, 0.06f * z)) edge = true;
+      }
+      if (!edge) continue;
+      for (int c = 0; c < 3; ++c) rgb->at(u, v, c) = color[c];
+    }
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
   std::string dir = std::string(EXOVIEW_SOURCE_DIR) + "/../shared/data/7scenes-redkitchen";
-  int step = 10, first = 0, count = 30;
+  int step = 10, first = 0, count = 30, png_frame = 150;
+  std::string png;
   exo::CalibrationOptions o;
   for (int a = 1; a < argc; ++a) {
     auto next = [&](const char* name) -> const char* {
@@ -59,6 +85,8 @@ int main(int argc, char** argv) {
     else if (!std::strcmp(argv[a], "--photo_weight")) o.photometric_weight = std::atof(next("--photo_weight"));
     else if (!std::strcmp(argv[a], "--edge_weight")) o.edge_weight = std::atof(next("--edge_weight"));
     else if (!std::strcmp(argv[a], "--same_focal")) o.same_focal = true;
+    else if (!std::strcmp(argv[a], "--png")) png = next("--png");
+    else if (!std::strcmp(argv[a], "--png_frame")) png_frame = std::atoi(next("--png_frame"));
     else if (!std::strcmp(argv[a], "--fixed_rotation")) o.estimate_rotation = false;
     else if (!std::strcmp(argv[a], "--rotation_sigma_deg")) o.rotation_prior_sigma_deg = std::atof(next("--rotation_sigma_deg"));
     else {
@@ -121,10 +149,53 @@ int main(int argc, char** argv) {
     measures += absl::StrFormat("%s\"%s\":{\"frames\":%d,%s}", measures.empty() ? "" : ",",
                                 set_name, set->size(), part);
   }
+  // RegisterDepthToColor timing with the committed calibration.
+  double reg_cpu_ms = 0, reg_wall_ms = 0;
+  for (const auto& f : frames) {
+    const double c0 = CpuSeconds();
+    const auto w0 = std::chrono::steady_clock::now();
+    auto d = exo::RegisterDepthToColor(f.depth_m, depth_camera, committed);
+    reg_wall_ms += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - w0).count();
+    reg_cpu_ms += 1e3 * (CpuSeconds() - c0);
+    if (!d.ok()) return 1;
+  }
+  reg_cpu_ms /= frames.size();
+  reg_wall_ms /= frames.size();
+  if (!png.empty()) {
+    auto f = (*reader)->Load(png_frame);
+    if (!f.ok()) {
+      std::fprintf(stderr, "%s\n", std::string(f.status().message()).c_str());
+      return 1;
+    }
+    auto reg = exo::RegisterDepthToColor(f->depth_m, depth_camera, committed);
+    if (!reg.ok()) return 1;
+    // Crop x in [120, 520), y in [40, 340) of each side (keeps the PNG small), grey background.
+    const int x0 = 120, y0 = 40, CW = 400, CH = 300;
+    exo::ImageU8 out(2 * CW, CH, 3);
+    const uint8_t red[3] = {255, 40, 40}, green[3] = {40, 255, 40};
+    for (int side = 0; side < 2; ++side) {
+      exo::ImageU8 half = f->color;
+      for (int y = 0; y < half.height(); ++y)
+        for (int x = 0; x < half.width(); ++x) {
+          const int g = (half.at(x, y, 0) * 3 + half.at(x, y, 1) * 6 + half.at(x, y, 2)) / 14;
+          for (int c = 0; c < 3; ++c) half.at(x, y, c) = static_cast<uint8_t>(g);
+        }
+      DrawDepthEdges(side == 0 ? f->depth_m : *reg, side == 0 ? red : green, &half);
+      for (int y = 0; y < CH; ++y)
+        for (int x = 0; x < CW; ++x)
+          for (int c = 0; c < 3; ++c)
+            out.at(side * CW + x, y, c) = x == 0 && side == 1 ? 255 : half.at(x0 + x, y0 + y, c);
+    }
+    if (auto s = exo::WriteColorImage(png, out); !s.ok()) {
+      std::fprintf(stderr, "%s\n", std::string(s.message()).c_str());
+      return 1;
+    }
+  }
   absl::PrintF(
       "{\"dir\":\"%s\",\"first\":%d,\"step\":%d,\"frames\":%d,\"levels\":%d,\"same_focal\":%s,\"estimate_rotation\":%s,"
-      "\"report\":%s,\"cpu_s\":%.2f,\"measures\":{%s}}\n",
+      "\"report\":%s,\"cpu_s\":%.2f,\"register_depth_cpu_ms\":%.3f,"
+      "\"register_depth_wall_ms\":%.3f,\"measures\":{%s}}\n",
       dir, first, step, frames.size(), o.pyramid_levels, o.same_focal ? "true" : "false", o.estimate_rotation ? "true" : "false",
-      rep->ToJson(), cpu_s, measures);
+      rep->ToJson(), cpu_s, reg_cpu_ms, reg_wall_ms, measures);
   return 0;
 }

@@ -69,44 +69,40 @@ absl::StatusOr<ImageF> RegisterDepthToColor(const ImageF& depth_m,
       const double a = (u - depth_camera.cx) / depth_camera.fx;
       const glm::dvec3 p = z * (a * R[0] + rb) + t;
       if (!(p.z > 1e-6)) continue;
-      const double x = cc.fx * p.x / p.z + cc.cx, y = cc.fy * p.y / p.z + cc.cy;
-      const int xi = static_cast<int>(std::floor(x + 0.5)), yi = static_cast<int>(std::floor(y + 0.5));
-      if (xi < 0 || yi < 0 || xi >= W || yi >= H) continue;
+      const double inv_z = 1.0 / p.z;
+      const double x = cc.fx * p.x * inv_z + cc.cx + 0.5, y = cc.fy * p.y * inv_z + cc.cy + 0.5;
+      if (!(x >= 0.0 && y >= 0.0 && x < W && y < H)) continue;  // nearest pixel in the image
+      const int xi = static_cast<int>(x), yi = static_cast<int>(y);  // floor (x, y >= 0)
       float& dst = z_buffer.at(xi, yi);
       dst = std::min(dst, static_cast<float>(p.z));
     }
   }
+  // 1-px cracks, judged on the z-buffer before filling (so fills never chain into a hole).
   ImageF out(W, H, 1, 0.0f);
-  for (size_t i = 0; i < out.size(); ++i) {
-    const float z = z_buffer.data()[i];
-    out.data()[i] = std::isfinite(z) ? z : 0.0f;
-  }
-  // 1-px cracks, from the z-buffer before filling (so fills never chain into a hole).
   const float tol = static_cast<float>(kCrackRelativeTolerance);
-  auto agree = [tol](float a, float b) {
-    return a > 0.0f && b > 0.0f && std::abs(a - b) <= tol * std::min(a, b);
-  };
   for (int y = 0; y < H; ++y) {
+    const float* zb = z_buffer.row(y);
+    float* dst = out.row(y);
+    const bool interior_row = y > 0 && y + 1 < H;
     for (int x = 0; x < W; ++x) {
-      const float c = z_buffer.at(x, y);
-      float best = 0.0f;
-      auto consider = [&](float a, float b) {
-        a = std::isfinite(a) ? a : 0.0f;
-        b = std::isfinite(b) ? b : 0.0f;
-        if (!agree(a, b)) return;
-        const float m = 0.5f * (a + b);
-        // Empty pixel: fill. See-through pixel: both neighbours nearer than it beyond tol.
-        if (!std::isfinite(c) || std::max(a, b) < c * (1.0f - tol))
-          if (best == 0.0f || m < best) best = m;
-      };
-      if (x > 0 && x + 1 < W) consider(z_buffer.at(x - 1, y), z_buffer.at(x + 1, y));
-      if (y > 0 && y + 1 < H) consider(z_buffer.at(x, y - 1), z_buffer.at(x, y + 1));
-      // Diagonals: where an empty row crosses an empty column (magnifying warps).
-      if (x > 0 && y > 0 && x + 1 < W && y + 1 < H) {
-        consider(z_buffer.at(x - 1, y - 1), z_buffer.at(x + 1, y + 1));
-        consider(z_buffer.at(x + 1, y - 1), z_buffer.at(x - 1, y + 1));
+      const float c = zb[x];
+      dst[x] = c < kEmpty ? c : 0.0f;
+      if (!interior_row || x == 0 || x + 1 == W) continue;
+      const float* up = zb - W;
+      const float* dn = zb + W;
+      // A pair (a, b) of opposite neighbours fills c when both are valid, agree within tol, and
+      // c is empty or farther than both by more than tol (see-through). Empty = +inf.
+      const float thr = c * (1.0f - tol);  // +inf when c is empty
+      const float pairs[4][2] = {{zb[x - 1], zb[x + 1]}, {up[x], dn[x]},
+                                 {up[x - 1], dn[x + 1]}, {up[x + 1], dn[x - 1]}};
+      float best = kEmpty;
+      for (const auto& pr : pairs) {
+        const float a = pr[0], b = pr[1];
+        if (!(a < thr && b < thr)) continue;  // also rejects empty neighbours (+inf)
+        if (std::abs(a - b) > tol * std::min(a, b)) continue;
+        best = std::min(best, 0.5f * (a + b));
       }
-      if (best > 0.0f) out.at(x, y) = best;
+      if (best < kEmpty) dst[x] = best;
     }
   }
   return out;

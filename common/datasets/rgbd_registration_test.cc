@@ -1,6 +1,7 @@
 #include "common/datasets/rgbd_registration.h"
 
 #include <cmath>
+#include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 
@@ -279,11 +280,14 @@ TEST(EstimateDepthColorCalibration, RecoversAKnownCalibrationOnSyntheticRgbd) {
   auto rep = EstimateDepthColorCalibration(frames, depth_cam, o);
   ASSERT_TRUE(rep.ok()) << rep.status();
   const DepthColorCalibration& est = rep->calibration;
-  if (std::getenv("EXO_REG_DEBUG")) {
+  if (std::getenv("EXO_REG_DEBUG")) {  // diagnostics: residuals at the truth vs the estimate
     auto mt = MeasureDepthColorAlignment(frames, depth_cam, truth, o);
     auto me = MeasureDepthColorAlignment(frames, depth_cam, est, o);
-    std::printf("truth photo %f edge %f | est photo %f edge %f\n", mt->photometric_median_abs,
-                mt->edge_median_px, me->photometric_median_abs, me->edge_median_px);
+    std::printf("truth photo %f edge %f | est photo %f edge %f\n%s\nt err %.5f m rot err %.4f deg\n",
+                mt->photometric_median_abs, mt->edge_median_px, me->photometric_median_abs,
+                me->edge_median_px, rep->ToJson().c_str(),
+                glm::length(est.color_from_depth.translation - truth.color_from_depth.translation),
+                RotationAngleRad(est.color_from_depth.rotation, truth.color_from_depth.rotation) / kDeg);
   }
   SCOPED_TRACE(rep->ToJson());
   EXPECT_NEAR(est.color_camera.fx, 528.0, 0.005 * 528.0);
