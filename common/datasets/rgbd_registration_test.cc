@@ -4,6 +4,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
+#include <limits>
 
 #include <glm/gtc/quaternion.hpp>
 #include <gtest/gtest.h>
@@ -161,7 +162,18 @@ TEST(RegisterDepthToColor, BadInputGivesClearErrors) {
   auto r2 = RegisterDepthToColor(nan_depth, cam, calib);
   ASSERT_FALSE(r2.ok());
   EXPECT_NE(r2.status().message().find("NaN"), std::string::npos) << r2.status();
+  ImageF inf_depth(64, 48, 1, 1.0f);
+  inf_depth.at(5, 6) = std::numeric_limits<float>::infinity();
+  EXPECT_FALSE(RegisterDepthToColor(inf_depth, cam, calib).ok());
+  ImageF negative_depth(64, 48, 1, 1.0f);
+  negative_depth.at(5, 6) = -1.0f;
+  EXPECT_FALSE(RegisterDepthToColor(negative_depth, cam, calib).ok());
   DepthColorCalibration bad = calib;
+  bad.color_from_depth.translation.x = 25.0;  // millimetres passed as metres
+  auto mm = RegisterDepthToColor(ImageF(64, 48, 1, 1.0f), cam, bad);
+  ASSERT_FALSE(mm.ok());
+  EXPECT_NE(mm.status().message().find("metres"), std::string::npos) << mm.status();
+  bad = calib;
   bad.color_camera.fx = 0;
   EXPECT_FALSE(RegisterDepthToColor(ImageF(64, 48, 1, 1.0f), cam, bad).ok());
   bad = calib;
@@ -197,6 +209,15 @@ TEST(EstimateDepthColorCalibration, BadInputGivesClearErrors) {
   auto sizes = EstimateDepthColorCalibration(frames, cam, o);
   ASSERT_FALSE(sizes.ok());
   EXPECT_NE(sizes.status().message().find("frame 1"), std::string::npos) << sizes.status();
+
+  // Byte-identical colour under different poses (7-Scenes repeats colour frames): the colour
+  // does not belong to the pose, both frames are dropped -> nothing left here.
+  frames = {testing::MakeFrame(0), testing::MakeFrame(1)};
+  frames[1].color = frames[0].color;
+  auto dup = EstimateDepthColorCalibration(frames, cam, o);
+  ASSERT_FALSE(dup.ok());
+  EXPECT_NE(dup.status().message().find("dropping 2 with duplicate colour"), std::string::npos)
+      << dup.status();
 
   CalibrationOptions bad = o;
   bad.pyramid_levels = 0;
