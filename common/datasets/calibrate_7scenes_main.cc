@@ -38,8 +38,9 @@ double CpuSeconds() {
 std::string MeasuresJson(const exo::AlignmentMeasures& m) {
   return absl::StrFormat(
       "{\"photometric_median_abs\":%.5f,\"photometric_samples\":%d,\"edge_median_px\":%.3f,"
-      "\"edge_samples\":%d}",
-      m.photometric_median_abs, m.photometric_samples, m.edge_median_px, m.edge_samples);
+      "\"edge_p90_px\":%.3f,\"edge_samples\":%d}",
+      m.photometric_median_abs, m.photometric_samples, m.edge_median_px, m.edge_p90_px,
+      m.edge_samples);
 }
 
 // Marks pixels of `depth` on the near side of a discontinuity (neighbour farther by > 6 % and

@@ -154,6 +154,7 @@ struct AlignmentMeasures {
   double photometric_median_abs = 0;
   size_t photometric_samples = 0;
   double edge_median_px = 0;
+  double edge_p90_px = 0;  // 90th percentile (large offsets at occluding contours)
   size_t edge_samples = 0;
 };
 absl::StatusOr<AlignmentMeasures> MeasureDepthColorAlignment(

@@ -596,6 +596,11 @@ absl::StatusOr<AlignmentMeasures> MeasureDepthColorAlignment(
   m.edge_samples = edge.size();
   m.photometric_median_abs = median(photo);
   m.edge_median_px = median(edge);
+  if (!edge.empty()) {
+    const size_t k90 = std::min(edge.size() - 1, edge.size() * 9 / 10);
+    std::nth_element(edge.begin(), edge.begin() + k90, edge.end());
+    m.edge_p90_px = edge[k90];
+  }
   return m;
 }
 
