@@ -120,30 +120,36 @@ ImageF NormalsFromDepth(const ImageF& depth_m, const PinholeCamera& camera, int 
                         float rel_discontinuity, int num_threads) {
   const int w = depth_m.width(), h = depth_m.height();
   auto valid = [](float z) { return std::isfinite(z) && z > 0.f; };
-  // 5x5 smoothing that only averages neighbours on the same surface (relative test).
+  // 5x5 smoothing that only averages neighbours on the same surface (relative test). The depth
+  // is sanitised first (invalid -> 0), so the relative test alone rejects invalid neighbours
+  // (|0 - zc| > tol for tol < zc) and the interior loop runs without branches.
+  const float rel = std::min(rel_discontinuity, 0.999f);
+  ImageF clean(w, h, 1, 0.f);
+  for (size_t i = 0; i < depth_m.size(); ++i) {
+    const float z = depth_m.data()[i];
+    clean.data()[i] = valid(z) ? z : 0.f;
+  }
   ImageF smooth(w, h, 1, 0.f);
   ParallelRows(h, num_threads, [&](int y) {
+    const int y0 = std::max(0, y - 2), y1 = std::min(h - 1, y + 2);
+    const float* crow = clean.row(y);
+    float* srow = smooth.row(y);
     for (int x = 0; x < w; ++x) {
-      const float zc = depth_m.at(x, y);
-      if (!valid(zc)) continue;
-      const float tol = rel_discontinuity * zc;
-      float s = 0.f;
-      int cnt = 0;
-      for (int dy = -2; dy <= 2; ++dy) {
-        const int yy = y + dy;
-        if (yy < 0 || yy >= h) continue;
-        const float* row = depth_m.row(yy);
-        for (int dx = -2; dx <= 2; ++dx) {
-          const int xx = x + dx;
-          if (xx < 0 || xx >= w) continue;
+      const float zc = crow[x];
+      if (!(zc > 0.f)) continue;
+      const float tol = rel * zc;
+      const int x0 = std::max(0, x - 2), x1 = std::min(w - 1, x + 2);
+      float s = 0.f, cnt = 0.f;
+      for (int yy = y0; yy <= y1; ++yy) {
+        const float* row = clean.row(yy);
+        for (int xx = x0; xx <= x1; ++xx) {
           const float z = row[xx];
-          if (valid(z) && std::fabs(z - zc) <= tol) {
-            s += z;
-            ++cnt;
-          }
+          const float in = std::fabs(z - zc) <= tol ? 1.f : 0.f;
+          s += in * z;
+          cnt += in;
         }
       }
-      smooth.at(x, y) = s / cnt;
+      srow[x] = s / cnt;
     }
   });
   ImageF normals(w, h, 3, 0.f);

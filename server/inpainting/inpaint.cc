@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <ctime>
 #include <limits>
 #include <thread>
 #include <vector>
@@ -18,6 +19,11 @@ namespace {
 using Clock = std::chrono::steady_clock;
 double MsSince(Clock::time_point t0) {
   return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+}
+double CpuMs() {
+  timespec ts;
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+  return ts.tv_sec * 1e3 + ts.tv_nsec * 1e-6;
 }
 
 // splitmix64: the per-(seed, level, iteration, pixel) random stream.
@@ -149,6 +155,38 @@ struct SearchParams {
 
 }  // namespace
 
+FusedGradient FuseGradientSamples(bool has1, float g1, float ref1, bool has2, float g2, float ref2,
+                                  const InpaintOptions& options) {
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  if (!has1 && !has2) return {nan, 1.f};
+  if (options.gradient_fusion == GradientFusion::kMean) {
+    return {has1 && has2 ? 0.5f * (g1 + g2) : has1 ? g1 : g2, 1.f};
+  }
+  const float rel = static_cast<float>(options.jump_rel);
+  // Jump test relative to the value the sample starts from (scale-invariant, any domain).
+  const bool jump1 = has1 && std::fabs(g1) > rel * std::fabs(ref1);
+  const bool jump2 = has2 && std::fabs(g2) > rel * std::fabs(ref2);
+  float g;
+  bool jump;
+  if (has1 && has2) {
+    if (jump1 != jump2) {
+      g = jump1 ? g2 : g1;  // the other sample crossed a discontinuity at its source
+      jump = false;
+    } else if (std::fabs(g1 - g2) > rel * std::min(std::fabs(ref1), std::fabs(ref2))) {
+      const bool first = std::fabs(g1) < std::fabs(g2);  // disagreeing: the smaller one
+      g = first ? g1 : g2;
+      jump = first ? jump1 : jump2;
+    } else {
+      g = 0.5f * (g1 + g2);
+      jump = jump1 && jump2;
+    }
+  } else {
+    g = has1 ? g1 : g2;
+    jump = has1 ? jump1 : jump2;
+  }
+  return {g, jump ? static_cast<float>(options.jump_weight) : 1.f};
+}
+
 float GeometryCost(const float* a, const float* b, int count, float kappa) {
   if (count <= 0) return 1.f;
   float s = 0.f;
@@ -258,11 +296,13 @@ void CopyFromSources(Level& L, int threads) {
   });
 }
 
-// One PatchMatch sweep (propagation + random search) over T.
-void Sweep(Level& L, int level, int iter, int radius0, bool global_candidate, const SearchParams& p,
-           const InpaintOptions& o) {
+// One PatchMatch sweep (propagation + random search) over T. Returns how many pixels changed
+// their source (a per-band count, summed in band order: deterministic).
+int Sweep(Level& L, int level, int iter, int radius0, bool global_candidate, const SearchParams& p,
+          const InpaintOptions& o) {
   const int band_rows = o.band_rows;
   const int num_bands = (L.h + band_rows - 1) / band_rows;
+  std::vector<int> changed(num_bands, 0);
   const bool forward = (iter % 2) == 0;
   const int d = forward ? 1 : -1;
   for (int phase = 0; phase < 2; ++phase) {
@@ -311,12 +351,16 @@ void Sweep(Level& L, int level, int iter, int radius0, bool global_candidate, co
             const int cy = by + rng.Uniform(2 * r + 1) - r;
             consider(cx, cy);
           }
+          if (bx != L.src[i * 2] || by != L.src[i * 2 + 1]) ++changed[band];
           L.src[i * 2] = bx;
           L.src[i * 2 + 1] = by;
         }
       }
     });
   }
+  int total = 0;
+  for (int c : changed) total += c;
+  return total;
 }
 
 // Cost (4.7) restricted to the window pixels already known (outside T or filled earlier):
@@ -637,11 +681,18 @@ absl::Status InpaintOptions::Validate() const {
     return absl::InvalidArgumentError("iteration counts must be >= 1");
   }
   if (band_rows < 2) return absl::InvalidArgumentError("band_rows must be >= 2");
+  if (!(converged_fraction >= 0.0 && converged_fraction < 1.0)) {
+    return absl::InvalidArgumentError("converged_fraction must be in [0, 1)");
+  }
   if (num_threads < 1 || num_threads > 64) return absl::InvalidArgumentError("num_threads in [1, 64]");
   if (!(max_median_depth_m > 0.0)) return absl::InvalidArgumentError("max_median_depth_m > 0");
   if (!(normal_rel_discontinuity > 0.f)) return absl::InvalidArgumentError("normal_rel_discontinuity > 0");
   if (!(poisson_tolerance > 0.0 && poisson_tolerance < 1.0)) {
     return absl::InvalidArgumentError("poisson_tolerance in (0, 1)");
+  }
+  if (!(jump_rel > 0.0)) return absl::InvalidArgumentError("jump_rel must be > 0");
+  if (!(jump_weight > 0.0 && jump_weight <= 1.0)) {
+    return absl::InvalidArgumentError("jump_weight must be in (0, 1]");
   }
   return absl::OkStatus();
 }
@@ -650,6 +701,7 @@ absl::StatusOr<InpaintResult> InpaintKeyframe(const RgbdKeyframe& frame, const I
                                               const InpaintOptions& options,
                                               const InpaintResult* previous) {
   const auto t_start = Clock::now();
+  const double c_start = CpuMs();
   EXO_RETURN_IF_ERROR(options.Validate());
   EXO_RETURN_IF_ERROR(frame.camera.Validate());
   const int w = frame.color.width(), h = frame.color.height();
@@ -736,6 +788,8 @@ absl::StatusOr<InpaintResult> InpaintKeyframe(const RgbdKeyframe& frame, const I
   if (previous) propagated = Propagate(*previous, frame, levels[0]);
   out.stats.propagated_pixels = propagated;
   out.stats.ms_prepare = MsSince(t_start);
+  const double c_search = CpuMs();
+  out.stats.cpu_ms_prepare = c_search - c_start;
   const auto t_search = Clock::now();
   const bool fine_only = propagated > 0 && propagated * 2 >= target_count;
   if (fine_only) {
@@ -780,14 +834,20 @@ absl::StatusOr<InpaintResult> InpaintKeyframe(const RgbdKeyframe& frame, const I
                                 : options.fine_iterations +
                                       (options.coarse_iterations - options.fine_iterations) * li / (nl - 1);
       const int radius0 = li == nl - 1 ? std::max(L.w, L.h) : std::max(4, std::max(L.w, L.h) / 8);
+      int level_target = 0;
+      for (uint8_t t : L.target) level_target += t != 0;
       for (int it = 0; it < iters; ++it) {
-        Sweep(L, li, it, radius0, li == nl - 1, params, options);
+        const int changed = Sweep(L, li, it, radius0, li == nl - 1, params, options);
         CopyFromSources(L, options.num_threads);
+        ++out.stats.sweeps;
+        // Converged: the sweep changed (almost) nothing, later sweeps would repeat it.
+        if (it + 1 < iters && changed <= options.converged_fraction * level_target) break;
       }
       if (li > 0) levels[li].color.shrink_to_fit();
     }
   }
   out.stats.ms_search = MsSince(t_search);
+  out.stats.cpu_ms_search = CpuMs() - c_search;
 
   // Copy colour (4.11) and the source map.
   const auto t_copy = Clock::now();
@@ -805,6 +865,7 @@ absl::StatusOr<InpaintResult> InpaintKeyframe(const RgbdKeyframe& frame, const I
   // Depth (4.13-4.16): Poisson on the mean bidirectional gradients of the copied samples,
   // set up on T's bounding box plus one pixel (every pair touching T lies inside it).
   const auto t_poisson = Clock::now();
+  const double c_poisson = CpuMs();
   const bool inv = options.depth_domain == DepthDomain::kInverseDepth;
   const float nan = std::numeric_limits<float>::quiet_NaN();
   int bx0 = w, by0 = h, bx1 = -1, by1 = -1;
@@ -823,6 +884,7 @@ absl::StatusOr<InpaintResult> InpaintKeyframe(const RgbdKeyframe& frame, const I
     return z > 0.f ? (inv ? 1.f / z : z) : nan;
   };
   ImageF q(cw, ch, 1, nan), gx(cw, ch, 1, nan), gy(cw, ch, 1, nan), gauge(cw, ch, 1, nan);
+  ImageF wx(cw, ch, 1, nan), wy(cw, ch, 1, nan);  // pair weights (NaN = 1)
   ImageU8 region(cw, ch, 1, 0);
   for (int cy = 0; cy < ch; ++cy) {
     for (int cx = 0; cx < cw; ++cx) {
@@ -838,19 +900,22 @@ absl::StatusOr<InpaintResult> InpaintKeyframe(const RgbdKeyframe& frame, const I
         const size_t j = static_cast<size_t>(y + dy) * w + x + dx;
         const bool tq = target[j];
         if (!tp && !tq) continue;
-        float g = 0.f;
-        int cnt = 0;
+        // The two copied samples of this pair's gradient and the value they start from.
+        float g1 = nan, g2 = nan, ref1 = nan, ref2 = nan;
         if (tp) {  // gradient sampled at u's source: d(f(u)) - d(f(u) + v)
           const int sx = L0.src[i * 2], sy = L0.src[i * 2 + 1];
-          g += qv(sx, sy) - qv(sx + dx, sy + dy);
-          ++cnt;
+          ref1 = qv(sx, sy);
+          g1 = ref1 - qv(sx + dx, sy + dy);
         }
         if (tq) {  // gradient sampled at (u+v)'s source: d(f(u+v) - v) - d(f(u+v))
           const int sx = L0.src[j * 2], sy = L0.src[j * 2 + 1];
-          g += qv(sx - dx, sy - dy) - qv(sx, sy);
-          ++cnt;
+          ref2 = qv(sx, sy);
+          g2 = qv(sx - dx, sy - dy) - ref2;
         }
-        (dir == 0 ? gx : gy).at(cx, cy) = g / cnt;
+        const FusedGradient fg = FuseGradientSamples(tp, g1, ref1, tq, g2, ref2, options);
+        const float g = fg.g, wgt = fg.weight;
+        (dir == 0 ? gx : gy).at(cx, cy) = g;
+        if (wgt != 1.f) (dir == 0 ? wx : wy).at(cx, cy) = wgt;
       }
     }
   }
@@ -860,6 +925,8 @@ absl::StatusOr<InpaintResult> InpaintKeyframe(const RgbdKeyframe& frame, const I
   prob.gx = &gx;
   prob.gy = &gy;
   prob.gauge = &gauge;
+  prob.wx = &wx;
+  prob.wy = &wy;
   // No initial guess: the solver's coarse levels give a better one than the previous
   // keyframe's forward-warped depth, whose splatting noise cost more iterations (measured).
   PoissonOptions popt;
@@ -902,6 +969,7 @@ absl::StatusOr<InpaintResult> InpaintKeyframe(const RgbdKeyframe& frame, const I
     }
   }
   out.stats.ms_poisson = MsSince(t_poisson);
+  out.stats.cpu_ms_poisson = CpuMs() - c_poisson;
   // Normals of the result: unchanged outside T's neighbourhood (the smoothing reaches 2 px, the
   // differences 2 px more), recomputed on T's bounding box plus a margin.
   out.normals = normals0;
@@ -930,6 +998,7 @@ absl::StatusOr<InpaintResult> InpaintKeyframe(const RgbdKeyframe& frame, const I
     }
   }
   out.stats.ms_total = MsSince(t_start);
+  out.stats.cpu_ms_total = CpuMs() - c_start;
   return out;
 }
 

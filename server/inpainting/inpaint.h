@@ -33,6 +33,14 @@ using ImageI32 = Image<int32_t>;
 
 enum class DepthDomain { kInverseDepth, kDepth };
 
+// How the two copied samples of a pixel pair's depth gradient (4.13-4.16) become the Poisson
+// target. kMean: their mean with unit weight (the thesis). kRobust: a sample that crosses a
+// depth discontinuity at its source (|g| > jump_rel * value) while the other does not is
+// dropped, two disagreeing samples keep the smaller one, and a pair whose target is still a
+// discontinuity gets weight `jump_weight` (the solve then follows the boundary and the other
+// paths instead of a copied occlusion edge).
+enum class GradientFusion { kMean, kRobust };
+
 struct InpaintOptions {
   double w = 0.9;            // texture*geometry vs spatial coherence weight (4.7), in (0, 1]
   double kappa = 0.6;        // lower bound of n . n' in rho_g (4.10), in (0, 1]; see docs
@@ -43,6 +51,9 @@ struct InpaintOptions {
   int coarse_iterations = 8;  // sweeps at the coarsest level ...
   int fine_iterations = 2;    // ... falling linearly to this at full resolution
   int propagated_iterations = 3;  // sweeps over the unmapped pixels of a propagated keyframe
+  // A level stops sweeping once a sweep changes the source of at most this fraction of its T
+  // pixels (0 = always run all sweeps).
+  double converged_fraction = 0.0;
   int band_rows = 8;              // rows per band of the deterministic parallel sweep
   int num_threads = 2;
   uint64_t seed = 1;
@@ -50,6 +61,9 @@ struct InpaintOptions {
   double max_median_depth_m = 100.0;  // units check: larger medians are millimetres
   float normal_rel_discontinuity = 0.05f;
   double poisson_tolerance = 1e-4;  // relative CG residual of the depth solve
+  GradientFusion gradient_fusion = GradientFusion::kRobust;
+  double jump_rel = 0.02;     // relative gradient (in the depth domain) that counts as a jump
+  double jump_weight = 0.01;  // weight of a pair whose fused target is a jump, in (0, 1]
   absl::Status Validate() const;
 };
 
@@ -66,11 +80,15 @@ struct InpaintStats {
   int prefilled_pixels = 0;  // depth holes outside T filled before the search
   int propagated_pixels = 0; // pixels of T initialised from the previous keyframe
   int levels = 0;
+  int sweeps = 0;  // PatchMatch sweeps run over all levels
   int poisson_iterations = 0;
   int neumann_components = 0;
   int invalid_depth_pixels = 0;  // T pixels whose solved depth came out non-finite
   int clamped_depth_pixels = 0;  // T pixels clamped to [zmin/2, 2 zmax] of the input depths
-  double ms_prepare = 0, ms_search = 0, ms_copy = 0, ms_poisson = 0, ms_total = 0;
+  double ms_prepare = 0, ms_search = 0, ms_copy = 0, ms_poisson = 0, ms_total = 0;  // wall
+  // Process CPU time (CLOCK_PROCESS_CPUTIME_ID, all threads; includes any other thread of the
+  // calling process running at the same time): steadier than wall time on a shared machine.
+  double cpu_ms_prepare = 0, cpu_ms_search = 0, cpu_ms_poisson = 0, cpu_ms_total = 0;
 };
 
 struct InpaintResult {
@@ -92,6 +110,16 @@ struct InpaintResult {
 absl::StatusOr<InpaintResult> InpaintKeyframe(const RgbdKeyframe& frame, const ImageU8& mask,
                                               const InpaintOptions& options,
                                               const InpaintResult* previous = nullptr);
+
+// Robust / mean fusion of one pixel pair's two copied gradient samples (see GradientFusion):
+// g1 (has1) sampled at u's source whose value is ref1, g2 (has2) at (u+v)'s source (ref2).
+// Returns the Poisson target and the pair's weight. Exposed for tests.
+struct FusedGradient {
+  float g;
+  float weight;
+};
+FusedGradient FuseGradientSamples(bool has1, float g1, float ref1, bool has2, float g2, float ref2,
+                                  const InpaintOptions& options);
 
 // rho_g of 4.10 for `count` normal pairs (3 floats each): mean of 1/max(kappa, a . b). Exposed
 // for tests; opposite or zero normals cost 1/kappa instead of dividing by <= 0.

@@ -8,9 +8,13 @@
 // Prints one JSON object per (method, mask) and per-(method, class) summaries; writes a chart of
 // time against depth error and a contact sheet (PNG).
 //
-//   inpaint_bench [--data DIR] [--masks FILE] [--generate_masks] [--img_dir DIR]
-//                 [--threads N] [--repeats N] [--max_masks N]
+// Depth is registered to colour (the committed 7-Scenes calibration) unless --raw.
+//
+//   inpaint_bench [--data DIR] [--masks FILE] [--generate_masks [--mask_seed S --mask_frame0 F]]
+//                 [--img_dir DIR] [--threads N] [--repeats N] [--max_masks N] [--raw]
+//                 [--fusion mean|robust] [--jump_rel R] [--jump_weight W] [--converged F]
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <ctime>
 #include <cmath>
@@ -28,6 +32,7 @@
 #include <opencv2/imgproc.hpp>
 #include <opencv2/photo.hpp>
 
+#include "common/datasets/rgbd_registration.h"
 #include "common/metrics/metrics.h"
 #include "server/inpainting/depth_maps.h"
 #include "server/inpainting/inpaint.h"
@@ -36,6 +41,12 @@ namespace exo::inpaint {
 namespace {
 
 using Clock = std::chrono::steady_clock;
+
+// Depth registered to colour (common/datasets/rgbd_registration.h, the committed 7-Scenes
+// calibration) unless --raw: camera = colour camera, pose = colour-camera pose.
+bool g_register = true;
+
+PinholeCamera RawDepthCamera7Scenes();
 
 // Process CPU time (all threads): robust to other processes competing for the 2 cores.
 double CpuMs() {
@@ -111,11 +122,23 @@ RealFrame LoadFrame(const std::string& dir, int frame) {
     return f;
   }
   f.world_from_cam = *pose;
+  if (g_register) {
+    const DepthColorCalibration calib = SevenScenesKinectV1Calibration();
+    ImageF raw(640, 480, 1);
+    std::memcpy(raw.data(), f.depth_m.data, raw.bytes());
+    auto reg = RegisterDepthToColor(raw, RawDepthCamera7Scenes(), calib);
+    if (!reg.ok()) {
+      std::fprintf(stderr, "frame %d: %s\n", frame, reg.status().ToString().c_str());
+      return f;
+    }
+    f.depth_m = cv::Mat(480, 640, CV_32F, reg->data()).clone();
+    f.world_from_cam = f.world_from_cam * calib.color_from_depth.Inverse();
+  }
   f.ok = true;
   return f;
 }
 
-PinholeCamera Camera7Scenes() {
+PinholeCamera RawDepthCamera7Scenes() {
   PinholeCamera c;
   c.fx = c.fy = 585.0;
   c.cx = 320.0;
@@ -123,6 +146,10 @@ PinholeCamera Camera7Scenes() {
   c.width = 640;
   c.height = 480;
   return c;
+}
+
+PinholeCamera Camera7Scenes() {
+  return g_register ? SevenScenesKinectV1Calibration().color_camera : RawDepthCamera7Scenes();
 }
 
 RgbdKeyframe ToKeyframe(const RealFrame& f, const cv::Mat& mask) {
@@ -188,12 +215,12 @@ bool ParseMask(const std::string& line, MaskSpec* m) {
 
 // Blob of 3 ellipses with a random layout, scaled to the target fraction; placed where the
 // frame's depth is valid under >= 97 % of the mask (the best of 200 tries).
-std::vector<MaskSpec> GenerateMasks(const std::string& data_dir) {
-  std::mt19937_64 rng(20260707);
+std::vector<MaskSpec> GenerateMasks(const std::string& data_dir, uint64_t seed, int frame0) {
+  std::mt19937_64 rng(seed);
   std::vector<MaskSpec> out;
   const std::vector<std::pair<std::string, std::pair<double, double>>> classes = {
       {"2-5%", {0.02, 0.05}}, {"10-20%", {0.165, 0.175}}, {"30-40%", {0.30, 0.40}}};
-  for (int frame = 0; frame < 300; frame += 30) {
+  for (int frame = frame0; frame + 5 < 300; frame += 30) {
     RealFrame f = LoadFrame(data_dir, frame);
     if (!f.ok) continue;
     for (const auto& [cls, range] : classes) {
@@ -405,10 +432,19 @@ cv::Mat ReprojectMask(const cv::Mat& mask, const RealFrame& from, const RealFram
 }
 
 // ---------------------------------------------------------------- output
+// Per-stage times of one run: wall prepare, search, Poisson, total, then the same in process
+// CPU time (NaN for the baselines).
+using Stages = std::array<double, 8>;
+constexpr const char* kStageNames[4] = {"prepare", "search", "poisson", "total"};
+Stages StagesOf(const InpaintStats& s) {
+  return {s.ms_prepare, s.ms_search, s.ms_poisson, s.ms_total,
+          s.cpu_ms_prepare, s.cpu_ms_search, s.cpu_ms_poisson, s.cpu_ms_total};
+}
 struct Row {
   std::string method, cls;
   double ms;
   Metrics m;
+  Stages st{NAN, NAN, NAN, NAN, NAN, NAN, NAN, NAN};
 };
 
 void PrintRow(const std::string& method, const MaskSpec& spec, double fraction, double ms,
@@ -461,16 +497,24 @@ int main(int argc, char** argv) {
   std::string masks_path = std::string(EXOVIEW_SOURCE_DIR) + "/server/inpainting/testdata/masks.jsonl";
   std::string img_dir;
   bool generate = false;
+  uint64_t mask_seed = 20260707;  // the committed TEST set; the training set uses 777
+  int mask_frame0 = 0;            // test: frames 0, 30, ...; training: 15, 45, ...
   int threads = 2, repeats = 1, max_masks = 1000, example_frame = 90;
   double poisson_tol = InpaintOptions{}.poisson_tolerance;
   double w_opt = InpaintOptions{}.w, kappa_opt = InpaintOptions{}.kappa;
   bool ours_only = false;
+  double converged = InpaintOptions{}.converged_fraction;
+  int fine_iterations = InpaintOptions{}.fine_iterations;
+  bool fusion_mean = InpaintOptions{}.gradient_fusion == GradientFusion::kMean;
+  double jump_rel = InpaintOptions{}.jump_rel, jump_weight = InpaintOptions{}.jump_weight;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     auto next = [&]() { return i + 1 < argc ? std::string(argv[++i]) : std::string(); };
     if (a == "--data") data_dir = next();
     else if (a == "--masks") masks_path = next();
     else if (a == "--generate_masks") generate = true;
+    else if (a == "--mask_seed") mask_seed = std::stoull(next());
+    else if (a == "--mask_frame0") mask_frame0 = std::stoi(next());
     else if (a == "--img_dir") img_dir = next();
     else if (a == "--threads") threads = std::stoi(next());
     else if (a == "--repeats") repeats = std::stoi(next());
@@ -479,6 +523,12 @@ int main(int argc, char** argv) {
     else if (a == "--w") w_opt = std::stod(next());
     else if (a == "--kappa") kappa_opt = std::stod(next());
     else if (a == "--ours_only") ours_only = true;
+    else if (a == "--raw") g_register = false;
+    else if (a == "--fusion") fusion_mean = next() == "mean";
+    else if (a == "--jump_rel") jump_rel = std::stod(next());
+    else if (a == "--jump_weight") jump_weight = std::stod(next());
+    else if (a == "--converged") converged = std::stod(next());
+    else if (a == "--fine_iterations") fine_iterations = std::stoi(next());
     else if (a == "--example_frame") example_frame = std::stoi(next());
     else {
       std::fprintf(stderr, "unknown argument %s\n", a.c_str());
@@ -486,8 +536,9 @@ int main(int argc, char** argv) {
     }
   }
   if (generate) {
+    g_register = false;  // masks are placed on the raw depth (reproduces the committed sets)
     std::ofstream out(masks_path);
-    for (const MaskSpec& m : GenerateMasks(data_dir)) out << ToJson(m) << "\n";
+    for (const MaskSpec& m : GenerateMasks(data_dir, mask_seed, mask_frame0)) out << ToJson(m) << "\n";
     std::fprintf(stderr, "wrote %s\n", masks_path.c_str());
     return 0;
   }
@@ -517,6 +568,11 @@ int main(int argc, char** argv) {
   base.poisson_tolerance = poisson_tol;
   base.w = w_opt;
   base.kappa = kappa_opt;
+  base.gradient_fusion = fusion_mean ? GradientFusion::kMean : GradientFusion::kRobust;
+  base.jump_rel = jump_rel;
+  base.jump_weight = jump_weight;
+  base.converged_fraction = converged;
+  base.fine_iterations = fine_iterations;
   for (const MaskSpec& spec : specs) {
     const RealFrame gt = LoadFrame(data_dir, spec.frame);
     if (!gt.ok) {
@@ -533,6 +589,7 @@ int main(int argc, char** argv) {
     auto run_ours = [&](const std::string& name, InpaintOptions o, cv::Mat* keep_c, cv::Mat* keep_d,
                         InpaintResult* keep_result) {
       std::vector<double> times, cpu;
+      std::vector<Stages> stages;
       absl::StatusOr<InpaintResult> r;
       for (int rep = 0; rep < repeats; ++rep) {
         const double c0 = CpuMs();
@@ -540,6 +597,7 @@ int main(int argc, char** argv) {
         cpu.push_back(CpuMs() - c0);
         if (!r.ok()) break;
         times.push_back(r->stats.ms_total);
+        stages.push_back(StagesOf(r->stats));
       }
       if (!r.ok()) {
         std::fprintf(stderr, "%s on %s: %s\n", name.c_str(), spec.id.c_str(), r.status().ToString().c_str());
@@ -550,11 +608,12 @@ int main(int argc, char** argv) {
       const double ms = Percentile(times, 0.5);
       char extra[256];
       std::snprintf(extra, sizeof(extra),
-                    ",\"cpu_ms\":%.1f,\"threads\":%d,\"levels\":%d,\"ms_prepare\":%.1f,\"ms_search\":%.1f,\"ms_poisson\":%.1f,\"poisson_iters\":%d",
+                    ",\"cpu_ms\":%.1f,\"threads\":%d,\"levels\":%d,\"ms_prepare\":%.1f,\"ms_search\":%.1f,\"ms_poisson\":%.1f,\"poisson_iters\":%d,\"sweeps\":%d",
                     Percentile(cpu, 0.5), o.num_threads, r->stats.levels, r->stats.ms_prepare, r->stats.ms_search, r->stats.ms_poisson,
-                    r->stats.poisson_iterations);
+                    r->stats.poisson_iterations, r->stats.sweeps);
       PrintRow(name, spec, fraction, ms, m, extra);
-      for (double t : times) rows[{name, spec.cls}].push_back({name, spec.cls, t, m});
+      for (size_t k = 0; k < times.size(); ++k)
+        rows[{name, spec.cls}].push_back({name, spec.cls, times[k], m, stages[k]});
       if (keep_c) *keep_c = c.clone();
       if (keep_d) *keep_d = d.clone();
       if (keep_result) *keep_result = std::move(*r);
@@ -601,6 +660,7 @@ int main(int argc, char** argv) {
         s1.frame = spec.frame + 5;
         for (const bool propagate : {true, false}) {
           std::vector<double> times, cpu;
+          std::vector<Stages> stages;
           absl::StatusOr<InpaintResult> r;
           for (int rep = 0; rep < repeats; ++rep) {
             const double c0 = CpuMs();
@@ -608,6 +668,7 @@ int main(int argc, char** argv) {
             cpu.push_back(CpuMs() - c0);
             if (!r.ok()) break;
             times.push_back(r->stats.ms_total);
+            stages.push_back(StagesOf(r->stats));
           }
           if (!r.ok()) {
             std::fprintf(stderr, "propagated %s: %s\n", s1.id.c_str(), r.status().ToString().c_str());
@@ -624,7 +685,8 @@ int main(int argc, char** argv) {
                         Percentile(cpu, 0.5), r->stats.levels, r->stats.ms_prepare, r->stats.ms_search,
                         r->stats.ms_poisson, r->stats.poisson_iterations);
           PrintRow(name, s1, cv::countNonZero(mask1) / (640.0 * 480.0), Percentile(times, 0.5), m, extra);
-          for (double t : times) rows[{name, "10-20%"}].push_back({name, "10-20%", t, m});
+          for (size_t k = 0; k < times.size(); ++k)
+            rows[{name, "10-20%"}].push_back({name, "10-20%", times[k], m, stages[k]});
         }
       }
     }
@@ -677,13 +739,23 @@ int main(int argc, char** argv) {
       std::snprintf(b, sizeof(b), "%.4g", x);
       return std::string(b);
     };
+    // Per-stage p50/p95, wall and process CPU (ours only; the baselines have no stages).
+    std::string stage_json;
+    for (int k = 0; k < 8; ++k) {
+      std::vector<double> vals;
+      for (const Row& r : v)
+        if (std::isfinite(r.st[k])) vals.push_back(r.st[k]);
+      if (vals.empty()) continue;
+      stage_json += std::string(",\"") + (k < 4 ? "ms_" : "cpu_ms_") + kStageNames[k % 4] + "\":[" +
+                    f(Percentile(vals, 0.5)) + "," + f(Percentile(vals, 0.95)) + "]";
+    }
     std::printf(
         "{\"bench\":\"inpaint_summary\",\"method\":\"%s\",\"class\":\"%s\",\"runs\":%d,\"threads\":%d,"
         "\"ms_p50\":%s,\"ms_p95\":%s,\"psnr\":%s,\"ssim\":%s,\"depth_mae_mm\":%s,\"depth_rmse_mm\":%s,"
-        "\"normal_err_deg\":%s,\"seam_color_excess\":%s,\"seam_depth_excess_mm\":%s}\n",
+        "\"normal_err_deg\":%s,\"seam_color_excess\":%s,\"seam_depth_excess_mm\":%s%s}\n",
         s.method.c_str(), s.cls.c_str(), s.n, threads, f(s.p50).c_str(), f(s.p95).c_str(),
         f(s.psnr).c_str(), f(s.ssim).c_str(), f(s.mae).c_str(), f(s.rmse).c_str(), f(s.nerr).c_str(),
-        f(s.seam_c).c_str(), f(s.seam_d).c_str());
+        f(s.seam_c).c_str(), f(s.seam_d).c_str(), stage_json.c_str());
   }
 
   if (!img_dir.empty()) {

@@ -328,6 +328,38 @@ TEST(InpaintTest, PropagationReusesThePreviousMap) {
   EXPECT_GT(checked, 50);
 }
 
+// Robust gradient fusion (4.13-4.16 with a discontinuity test). Guards: dropping the sample
+// that crossed a jump at its source, keeping the smaller of two disagreeing samples, and the
+// jump weight; with kMean the first two cases return the (wrong) average instead.
+TEST(InpaintTest, RobustGradientFusion) {
+  InpaintOptions o;  // kRobust, jump_rel 0.02, jump_weight 0.01
+  const float ref = 0.5f;  // inverse depth of a surface at 2 m
+  // Agreeing smooth samples: their mean, weight 1.
+  FusedGradient a = FuseGradientSamples(true, 0.001f, ref, true, 0.003f, ref, o);
+  EXPECT_FLOAT_EQ(a.g, 0.002f);
+  EXPECT_FLOAT_EQ(a.weight, 1.f);
+  // One sample crossed an occlusion edge (0.2 = 40 % of the value): the other one is kept.
+  FusedGradient b = FuseGradientSamples(true, 0.2f, ref, true, 0.001f, ref, o);
+  EXPECT_FLOAT_EQ(b.g, 0.001f);
+  EXPECT_FLOAT_EQ(b.weight, 1.f);
+  // Both jumps, disagreeing: the smaller, down-weighted.
+  FusedGradient c = FuseGradientSamples(true, 0.3f, ref, true, -0.1f, ref, o);
+  EXPECT_FLOAT_EQ(c.g, -0.1f);
+  EXPECT_FLOAT_EQ(c.weight, 0.01f);
+  // A single sample that is a jump (pair on T's border): kept, down-weighted.
+  FusedGradient d = FuseGradientSamples(false, 0.f, 0.f, true, 0.2f, ref, o);
+  EXPECT_FLOAT_EQ(d.g, 0.2f);
+  EXPECT_FLOAT_EQ(d.weight, 0.01f);
+  // Scale invariance: the same relative step in millimetres-as-metres scale gives the same choice.
+  FusedGradient e = FuseGradientSamples(true, 200.f, 500.f, true, 1.f, 500.f, o);
+  EXPECT_FLOAT_EQ(e.g, 1.f);
+  // The thesis' mean for comparison.
+  InpaintOptions m;
+  m.gradient_fusion = GradientFusion::kMean;
+  EXPECT_FLOAT_EQ(FuseGradientSamples(true, 0.2f, ref, true, 0.f, ref, m).g, 0.1f);
+  EXPECT_FLOAT_EQ(FuseGradientSamples(true, 0.2f, ref, true, 0.f, ref, m).weight, 1.f);
+}
+
 TEST(InpaintTest, OptionsValidate) {
   InpaintOptions o;
   EXPECT_TRUE(o.Validate().ok());

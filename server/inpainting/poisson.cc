@@ -209,7 +209,7 @@ absl::StatusOr<ImageF> SolvePoisson(const PoissonProblem& p, const PoissonOption
     return im == nullptr || (im->width() == w && im->height() == h && im->channels() == 1);
   };
   if (p.region->channels() != 1 || !same(p.values) || !same(p.gx) || !same(p.gy) ||
-      !same(p.gauge) || !same(p.initial)) {
+      !same(p.gauge) || !same(p.initial) || !same(p.wx) || !same(p.wy)) {
     return absl::InvalidArgumentError("SolvePoisson: all images must be 1-channel, same size");
   }
   const size_t n = static_cast<size_t>(w) * h;
@@ -238,39 +238,46 @@ absl::StatusOr<ImageF> SolvePoisson(const PoissonProblem& p, const PoissonOption
   S.diag.assign(m, 0.0);
   S.nb.assign(static_cast<size_t>(m) * 4, -1);
   S.wt.assign(static_cast<size_t>(m) * 4, 0.0);
-  auto add_pair = [&](int xp, int yp, int xq, int yq, float g, int kp, int kq) {
-    // Residual x_p - x_q - g; kp: direction p -> q in (left, right, up, down), kq the reverse.
+  auto add_pair = [&](int xp, int yp, int xq, int yq, float g, float wgt, int kp, int kq) {
+    // Residual wgt * (x_p - x_q - g)^2; kp: direction p -> q in (left, right, up, down), kq the
+    // reverse.
     if (!std::isfinite(g)) return;
+    const double a = std::isfinite(wgt) && wgt > 0.f ? wgt : 1.0;
     const int ip = S.index[static_cast<size_t>(yp) * w + xp];
     const int iq = S.index[static_cast<size_t>(yq) * w + xq];
     if (ip >= 0 && iq >= 0) {
-      S.diag[ip] += 1.0;
-      S.diag[iq] += 1.0;
+      S.diag[ip] += a;
+      S.diag[iq] += a;
       S.nb[4 * ip + kp] = iq;
-      S.wt[4 * ip + kp] = 1.0;
+      S.wt[4 * ip + kp] = a;
       S.nb[4 * iq + kq] = ip;
-      S.wt[4 * iq + kq] = 1.0;
-      b[ip] += g;
-      b[iq] -= g;
+      S.wt[4 * iq + kq] = a;
+      b[ip] += a * g;
+      b[iq] -= a * g;
     } else if (ip >= 0) {
       if (!known(xq, yq)) return;  // Neumann
-      S.diag[ip] += 1.0;
-      b[ip] += g + p.values->at(xq, yq);
+      S.diag[ip] += a;
+      b[ip] += a * (g + p.values->at(xq, yq));
       has_dirichlet_px[ip] = 1;
     } else if (iq >= 0) {
       if (!known(xp, yp)) return;
-      S.diag[iq] += 1.0;
-      b[iq] += p.values->at(xp, yp) - g;
+      S.diag[iq] += a;
+      b[iq] += a * (p.values->at(xp, yp) - g);
       has_dirichlet_px[iq] = 1;
     }
   };
+  const float kOne = 1.f;
+  auto wxa = [&](int x, int y) { return p.wx ? p.wx->at(x, y) : kOne; };
+  auto wya = [&](int x, int y) { return p.wy ? p.wy->at(x, y) : kOne; };
   for (int i = 0; i < m; ++i) {
     const int x = S.cell_of[i] % w, y = S.cell_of[i] / w;
     // Each pair once: from its unknown end, or from its left/upper end when both are unknown.
-    if (x + 1 < w) add_pair(x, y, x + 1, y, p.gx->at(x, y), 1, 0);
-    if (y + 1 < h) add_pair(x, y, x, y + 1, p.gy->at(x, y), 3, 2);
-    if (x > 0 && S.index[static_cast<size_t>(y) * w + x - 1] < 0) add_pair(x - 1, y, x, y, p.gx->at(x - 1, y), 1, 0);
-    if (y > 0 && S.index[static_cast<size_t>(y - 1) * w + x] < 0) add_pair(x, y - 1, x, y, p.gy->at(x, y - 1), 3, 2);
+    if (x + 1 < w) add_pair(x, y, x + 1, y, p.gx->at(x, y), wxa(x, y), 1, 0);
+    if (y + 1 < h) add_pair(x, y, x, y + 1, p.gy->at(x, y), wya(x, y), 3, 2);
+    if (x > 0 && S.index[static_cast<size_t>(y) * w + x - 1] < 0)
+      add_pair(x - 1, y, x, y, p.gx->at(x - 1, y), wxa(x - 1, y), 1, 0);
+    if (y > 0 && S.index[static_cast<size_t>(y - 1) * w + x] < 0)
+      add_pair(x, y - 1, x, y, p.gy->at(x, y - 1), wya(x, y - 1), 3, 2);
   }
   // Connected components of R through constrained pairs; a component without a Dirichlet pixel
   // gets pinned at one pixel and shifted to the gauge mean afterwards.

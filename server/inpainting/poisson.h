@@ -47,6 +47,11 @@ struct PoissonProblem {
   // Per-pixel values whose mean over a pure-Neumann component sets its constant (NaN = not
   // used). May be null when every component has a Dirichlet boundary.
   const ImageF* gauge = nullptr;
+  // Optional per-pair weights of the (x_p - x_q - g)^2 terms, same indexing as gx / gy
+  // (NaN or absent = 1; must be > 0 where the pair carries a constraint). Robust gradient fusion
+  // down-weights pairs whose copied gradient is unreliable.
+  const ImageF* wx = nullptr;
+  const ImageF* wy = nullptr;
   // Optional initial guess inside R (NaN = none: the gauge value there, else 0).
   const ImageF* initial = nullptr;
 };

@@ -122,6 +122,30 @@ TEST(PoissonTest, MultigridPreconditionedCgMatchesDirectInFewIterations) {
   EXPECT_LT(max_diff, 1e-5);
 }
 
+// Pair weights: one wrong target (a copied occlusion edge of +1 across a column of the region)
+// barely moves the solution when its pairs weigh 0.01, and moves it by ~0.5 at weight 1. Guard:
+// the weights in the assembly (ignored weights would give the weight-1 result).
+TEST(PoissonTest, DownWeightedPairsFollowTheBoundary) {
+  auto plane = [](int x, int y) { return 1.0 + 0.01 * x + 0.005 * y; };
+  Field f = MakeField(40, 20, plane, [](int x, int y) { return x >= 5 && x < 35 && y >= 3 && y < 17; }, true);
+  for (int y = 3; y < 17; ++y) f.gx.at(20, y) += 1.f;  // spurious jump between x = 20 and 21
+  ImageF wx(40, 20, 1, kNan);
+  for (int y = 3; y < 17; ++y) wx.at(20, y) = 0.01f;
+  PoissonProblem p = Problem(f);
+  auto unweighted = SolvePoisson(p, PoissonOptions{});
+  p.wx = &wx;
+  auto weighted = SolvePoisson(p, PoissonOptions{});
+  ASSERT_TRUE(unweighted.ok() && weighted.ok());
+  double err_w = 0.0, err_u = 0.0;
+  for (int y = 3; y < 17; ++y)
+    for (int x = 5; x < 35; ++x) {
+      err_w = std::max(err_w, std::fabs(weighted->at(x, y) - plane(x, y)));
+      err_u = std::max(err_u, std::fabs(unweighted->at(x, y) - plane(x, y)));
+    }
+  EXPECT_LT(err_w, 0.05);
+  EXPECT_GT(err_u, 0.3);
+}
+
 TEST(PoissonTest, ReproducesQuadraticExactlyWithRegionTouchingTheBorder) {
   // The region touches the left and top image borders: there the boundary is natural.
   auto quad = [](int x, int y) { return 1.0 + 1e-3 * (x * x - 0.5 * y * y + 0.3 * x * y); };
