@@ -151,7 +151,7 @@ int main(int argc, char** argv) {
                                 set_name, set->size(), part);
   }
   // RegisterDepthToColor timing with the committed calibration.
-  double reg_cpu_ms = 0, reg_wall_ms = 0;
+  double reg_cpu_ms = 0, reg_wall_ms = 0, raw_valid_fraction = 0, reg_valid_fraction = 0;
   for (const auto& f : frames) {
     const double c0 = CpuSeconds();
     const auto w0 = std::chrono::steady_clock::now();
@@ -159,7 +159,14 @@ int main(int argc, char** argv) {
     reg_wall_ms += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - w0).count();
     reg_cpu_ms += 1e3 * (CpuSeconds() - c0);
     if (!d.ok()) return 1;
+    size_t raw_valid = 0, reg_valid = 0;
+    for (float z : f.depth_m.span()) raw_valid += z > 0;
+    for (float z : d->span()) reg_valid += z > 0;
+    raw_valid_fraction += double(raw_valid) / f.depth_m.size();
+    reg_valid_fraction += double(reg_valid) / d->size();
   }
+  raw_valid_fraction /= frames.size();
+  reg_valid_fraction /= frames.size();
   reg_cpu_ms /= frames.size();
   reg_wall_ms /= frames.size();
   if (!png.empty()) {
@@ -195,8 +202,10 @@ int main(int argc, char** argv) {
   absl::PrintF(
       "{\"dir\":\"%s\",\"first\":%d,\"step\":%d,\"frames\":%d,\"levels\":%d,\"same_focal\":%s,\"estimate_rotation\":%s,"
       "\"report\":%s,\"cpu_s\":%.2f,\"register_depth_cpu_ms\":%.3f,"
-      "\"register_depth_wall_ms\":%.3f,\"measures\":{%s}}\n",
+      "\"register_depth_wall_ms\":%.3f,\"raw_depth_valid_fraction\":%.4f,"
+      "\"registered_depth_valid_fraction\":%.4f,\"measures\":{%s}}\n",
       dir, first, step, frames.size(), o.pyramid_levels, o.same_focal ? "true" : "false", o.estimate_rotation ? "true" : "false",
-      rep->ToJson(), cpu_s, reg_cpu_ms, reg_wall_ms, measures);
+      rep->ToJson(), cpu_s, reg_cpu_ms, reg_wall_ms, raw_valid_fraction, reg_valid_fraction,
+      measures);
   return 0;
 }

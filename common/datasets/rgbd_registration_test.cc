@@ -388,8 +388,10 @@ TEST(SevenScenesRegistration, ReaderReturnsRegisteredFramesWithMatchingPoses) {
   size_t valid_raw = 0, valid_reg = 0;
   for (float z : raw->depth_m.span()) valid_raw += z > 0;
   for (float z : reg->depth_m.span()) valid_reg += z > 0;
-  // The colour view is ~11 % narrower than depth's: it stays almost fully covered.
-  EXPECT_GT(valid_reg, 0.8 * valid_raw);
+  // The colour view is ~11 % WIDER than depth's (f 522 vs 585): a ~30 px band at the colour
+  // border has no depth, so ~(522/585)^2 = 0.80 of the depth pixels' count remains (measured
+  // over 30 frames: 72.7 % of colour pixels valid vs 90.3 % raw).
+  EXPECT_GT(valid_reg, 0.72 * valid_raw);
   EXPECT_EQ(reg->color, raw->color);
 }
 
