@@ -271,7 +271,10 @@ TEST(EstimateDepthColorCalibration, RecoversAKnownCalibrationOnSyntheticRgbd) {
   truth.color_from_depth = {glm::angleAxis(0.4 * kDeg, glm::normalize(glm::dvec3(0.5, 1, 0.3))),
                             glm::dvec3(-0.025, 0.003, 0.004)};
   synth::TestPoseOptions tpo;
-  tpo.count = 3;
+  // 5 base poses (15 views): with 3 (9 views) translation is only observable to ~1.5 cm on
+  // some seeds (12, 13: little depth range in view); with 5, seeds 11-14 all recover t within
+  // 3 mm (docs/registration.md).
+  tpo.count = 5;
   tpo.seed = 11;
   tpo.min_depth_m = 0.8;
   auto bases = synth::MakeTestPoses(*scene, depth_cam.Scaled(160, 120), tpo);
