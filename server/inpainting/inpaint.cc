@@ -10,6 +10,8 @@
 #include <thread>
 #include <vector>
 
+#include <Eigen/Dense>
+
 #include "server/inpainting/depth_maps.h"
 #include "server/inpainting/poisson.h"
 
@@ -691,6 +693,7 @@ absl::Status InpaintOptions::Validate() const {
     return absl::InvalidArgumentError("poisson_tolerance in (0, 1)");
   }
   if (!(jump_rel > 0.0)) return absl::InvalidArgumentError("jump_rel must be > 0");
+  if (!(plane_prior_weight >= 0.0)) return absl::InvalidArgumentError("plane_prior_weight >= 0");
   if (!(jump_weight > 0.0 && jump_weight <= 1.0)) {
     return absl::InvalidArgumentError("jump_weight must be in (0, 1]");
   }
@@ -919,7 +922,41 @@ absl::StatusOr<InpaintResult> InpaintKeyframe(const RgbdKeyframe& frame, const I
       }
     }
   }
+  // Optional plane prior: least-squares affine fit of the domain value over the known pixels
+  // next to T (the Dirichlet border).
+  ImageF prior, prior_w;
+  if (options.plane_prior_weight > 0.0) {
+    Eigen::Matrix3d ata = Eigen::Matrix3d::Zero();
+    Eigen::Vector3d atb = Eigen::Vector3d::Zero();
+    int used = 0;
+    for (int cy = 0; cy < ch; ++cy)
+      for (int cx = 0; cx < cw; ++cx) {
+        if (region.at(cx, cy) || !std::isfinite(q.at(cx, cy))) continue;
+        bool border = false;
+        const int nx[4] = {cx - 1, cx + 1, cx, cx}, ny[4] = {cy, cy, cy - 1, cy + 1};
+        for (int k = 0; k < 4; ++k)
+          border |= nx[k] >= 0 && ny[k] >= 0 && nx[k] < cw && ny[k] < ch && region.at(nx[k], ny[k]);
+        if (!border) continue;
+        const Eigen::Vector3d a((ox + cx) / 640.0, (oy + cy) / 640.0, 1.0);
+        ata += a * a.transpose();
+        atb += a * q.at(cx, cy);
+        ++used;
+      }
+    if (used >= 3 && std::fabs(ata.determinant()) > 1e-12) {
+      const Eigen::Vector3d c = ata.ldlt().solve(atb);
+      prior = ImageF(cw, ch, 1, nan);
+      prior_w = ImageF(cw, ch, 1, static_cast<float>(options.plane_prior_weight));
+      for (int cy = 0; cy < ch; ++cy)
+        for (int cx = 0; cx < cw; ++cx)
+          if (region.at(cx, cy))
+            prior.at(cx, cy) = static_cast<float>(c[0] * (ox + cx) / 640.0 + c[1] * (oy + cy) / 640.0 + c[2]);
+    }
+  }
   PoissonProblem prob;
+  if (!prior.empty()) {
+    prob.prior = &prior;
+    prob.prior_weight = &prior_w;
+  }
   prob.region = &region;
   prob.values = &q;
   prob.gx = &gx;

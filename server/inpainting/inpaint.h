@@ -64,6 +64,9 @@ struct InpaintOptions {
   GradientFusion gradient_fusion = GradientFusion::kRobust;
   double jump_rel = 0.02;     // relative gradient (in the depth domain) that counts as a jump
   double jump_weight = 0.01;  // weight of a pair whose fused target is a jump, in (0, 1]
+  // Screening term towards the plane (affine in the depth domain) fitted to T's known border:
+  // weight per pixel (0 = off). Anchors the far side of regions that touch the image border.
+  double plane_prior_weight = 0.0;
   absl::Status Validate() const;
 };
 

@@ -503,6 +503,7 @@ int main(int argc, char** argv) {
   double poisson_tol = InpaintOptions{}.poisson_tolerance;
   double w_opt = InpaintOptions{}.w, kappa_opt = InpaintOptions{}.kappa;
   bool ours_only = false;
+  double plane_prior = InpaintOptions{}.plane_prior_weight;
   double converged = InpaintOptions{}.converged_fraction;
   int fine_iterations = InpaintOptions{}.fine_iterations;
   bool fusion_mean = InpaintOptions{}.gradient_fusion == GradientFusion::kMean;
@@ -524,6 +525,7 @@ int main(int argc, char** argv) {
     else if (a == "--kappa") kappa_opt = std::stod(next());
     else if (a == "--ours_only") ours_only = true;
     else if (a == "--raw") g_register = false;
+    else if (a == "--plane_prior") plane_prior = std::stod(next());
     else if (a == "--fusion") fusion_mean = next() == "mean";
     else if (a == "--jump_rel") jump_rel = std::stod(next());
     else if (a == "--jump_weight") jump_weight = std::stod(next());
@@ -572,6 +574,7 @@ int main(int argc, char** argv) {
   base.jump_rel = jump_rel;
   base.jump_weight = jump_weight;
   base.converged_fraction = converged;
+  base.plane_prior_weight = plane_prior;
   base.fine_iterations = fine_iterations;
   for (const MaskSpec& spec : specs) {
     const RealFrame gt = LoadFrame(data_dir, spec.frame);

@@ -209,7 +209,8 @@ absl::StatusOr<ImageF> SolvePoisson(const PoissonProblem& p, const PoissonOption
     return im == nullptr || (im->width() == w && im->height() == h && im->channels() == 1);
   };
   if (p.region->channels() != 1 || !same(p.values) || !same(p.gx) || !same(p.gy) ||
-      !same(p.gauge) || !same(p.initial) || !same(p.wx) || !same(p.wy)) {
+      !same(p.gauge) || !same(p.initial) || !same(p.wx) || !same(p.wy) || !same(p.prior) ||
+      !same(p.prior_weight)) {
     return absl::InvalidArgumentError("SolvePoisson: all images must be 1-channel, same size");
   }
   const size_t n = static_cast<size_t>(w) * h;
@@ -278,6 +279,15 @@ absl::StatusOr<ImageF> SolvePoisson(const PoissonProblem& p, const PoissonOption
       add_pair(x - 1, y, x, y, p.gx->at(x - 1, y), wxa(x - 1, y), 1, 0);
     if (y > 0 && S.index[static_cast<size_t>(y - 1) * w + x] < 0)
       add_pair(x, y - 1, x, y, p.gy->at(x, y - 1), wya(x, y - 1), 3, 2);
+  }
+  if (p.prior && p.prior_weight) {
+    for (int i = 0; i < m; ++i) {
+      const float v = p.prior->data()[S.cell_of[i]], a = p.prior_weight->data()[S.cell_of[i]];
+      if (!std::isfinite(v) || !(a > 0.f) || !std::isfinite(a)) continue;
+      S.diag[i] += a;
+      b[i] += static_cast<double>(a) * v;
+      has_dirichlet_px[i] = 1;
+    }
   }
   // Connected components of R through constrained pairs; a component without a Dirichlet pixel
   // gets pinned at one pixel and shifted to the gauge mean afterwards.

@@ -52,6 +52,10 @@ struct PoissonProblem {
   // down-weights pairs whose copied gradient is unreliable.
   const ImageF* wx = nullptr;
   const ImageF* wy = nullptr;
+  // Optional screening (data) term prior_weight * (x - prior)^2 per pixel of R (NaN / absent
+  // = none). A pixel with a prior anchors its component (no gauge needed).
+  const ImageF* prior = nullptr;
+  const ImageF* prior_weight = nullptr;
   // Optional initial guess inside R (NaN = none: the gauge value there, else 0).
   const ImageF* initial = nullptr;
 };

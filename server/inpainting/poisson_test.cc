@@ -146,6 +146,28 @@ TEST(PoissonTest, DownWeightedPairsFollowTheBoundary) {
   EXPECT_GT(err_u, 0.3);
 }
 
+// Screening prior: a region with no known value around it (pure Neumann by its pairs) and no
+// gauge is anchored by the prior. Guard: the prior counts as an anchor (without that the part
+// would need a gauge and the solve returns an error); with gradients consistent with the prior
+// the minimiser is the prior's plane.
+TEST(PoissonTest, PriorAnchorsAPureNeumannRegion) {
+  auto plane = [](int x, int y) { return 0.8 + 0.01 * x - 0.004 * y; };
+  Field f = MakeField(30, 20, plane, [](int x, int y) { return x >= 4 && x < 26 && y >= 3 && y < 17; }, false);
+  ImageF prior(30, 20, 1, kNan), weight(30, 20, 1, 1e-3f);
+  for (int y = 3; y < 17; ++y)
+    for (int x = 4; x < 26; ++x) prior.at(x, y) = static_cast<float>(plane(x, y));
+  PoissonProblem p = Problem(f);
+  p.gauge = nullptr;
+  p.prior = &prior;
+  p.prior_weight = &weight;
+  PoissonStats st;
+  auto out = SolvePoisson(p, PoissonOptions{}, &st);
+  ASSERT_TRUE(out.ok()) << out.status();
+  EXPECT_EQ(st.neumann_components, 0);
+  for (int y = 3; y < 17; ++y)
+    for (int x = 4; x < 26; ++x) EXPECT_NEAR(out->at(x, y), plane(x, y), 1e-4);
+}
+
 TEST(PoissonTest, ReproducesQuadraticExactlyWithRegionTouchingTheBorder) {
   // The region touches the left and top image borders: there the boundary is natural.
   auto quad = [](int x, int y) { return 1.0 + 1e-3 * (x * x - 0.5 * y * y + 0.3 * x * y); };
