@@ -88,10 +88,53 @@ void AccumulateSample(inout BlendAccumulator acc, float weight, vec4 s, vec2 lay
   Accumulate(acc, lin, s.w, weight);
 }
 
-// rgb = sRGB, a = coverage (1 blended, 128/255 surface without a valid view, 0 no surface).
+// Background at infinity for a pixel without proxy surface (cpu_renderer.cc, the no-cell branch;
+// blend_math.h BackgroundWeight): the ray is a direction d, every background view j of this frame
+// is a candidate, valid where its baked depth is -1 (the guarded background mask) at the nearest
+// pixel of u_j, weighted by BorderWeight; best n (ties: lower j), normalised blend with exposure.
+// a = 64/255 where filled, 0 (background colour) where no view is valid or the pass is off.
+vec4 ShadeBackground(ivec2 pixel) {
+  const int count = frame.bg_params.x;
+  if (count == 0) return vec4(frame.background.rgb, 0.0);
+  const vec3 d = mat3(frame.local_from_pixel[0].xyz, frame.local_from_pixel[1].xyz,
+                      frame.local_from_pixel[2].xyz) * vec3(vec2(pixel), 1.0);
+  const int n = kNBest;
+  BestSamples best;
+  best.weight = vec4(0.0);
+  best.index = ivec4(0x7FFFFFFF);
+  best.s0 = best.s1 = best.s2 = best.s3 = vec4(0.0);
+  for (int j = 0; j < count; ++j) {
+    const int b = kBgViewTexels * j;
+    const mat3 cam_from_local = mat3(frame.bg_views[b].xyz, frame.bg_views[b + 1].xyz,
+                                     frame.bg_views[b + 2].xyz);
+    const vec4 wh = frame.bg_views[b + 4];
+    vec2 uv;
+    if (!ProjectDirection(d, cam_from_local, frame.bg_views[b + 3], uv)) continue;
+    const vec2 size = wh.xy;
+    if (!(uv.x >= -0.5 && uv.y >= -0.5 && uv.x < size.x - 0.5 && uv.y < size.y - 0.5)) continue;
+    const vec2 pc = clamp(floor(uv + 0.5), vec2(0.0), size - 1.0);
+    if (!(texelFetch(depths, ivec3(ivec2(pc), int(wh.z)), 0).r < 0.0)) continue;
+    InsertSample(best, n, BorderWeight(uv, size), j,
+                 vec4(clamp(uv, vec2(0.0), size - 1.0), wh.z, wh.w));
+  }
+  BlendAccumulator acc;
+  acc.sum_linear = vec3(0.0);
+  acc.sum_weight = 0.0;
+  const vec2 layer_size = vec2(textureSize(colors, 0).xy);
+  AccumulateSample(acc, best.weight.x, best.s0, layer_size, 0 < n);
+  AccumulateSample(acc, best.weight.y, best.s1, layer_size, 1 < n);
+  AccumulateSample(acc, best.weight.z, best.s2, layer_size, 2 < n);
+  AccumulateSample(acc, best.weight.w, best.s3, layer_size, 3 < n);
+  vec3 srgb;
+  const bool filled = Resolve(acc, frame.background.rgb, srgb);
+  return vec4(srgb, filled ? 64.0 / 255.0 : 0.0);
+}
+
+// rgb = sRGB, a = coverage (1 blended, 128/255 surface without a valid view, 64/255 no surface
+// but filled at infinity, 0 no surface).
 vec4 ShadePixel(ivec2 pixel) {
   const vec4 g = texelFetch(gbuffer, pixel, 0);
-  if (g.w == 0.0) return vec4(frame.background.rgb, 0.0);  // no proxy surface: coverage 0
+  if (g.w == 0.0) return ShadeBackground(pixel);  // no proxy surface
   const vec3 x = g.xyz;
   const vec3 c_o = frame.cam_centre_cell.xyz;
   const float q = frame.cam_centre_cell.w;

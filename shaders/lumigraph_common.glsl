@@ -4,6 +4,8 @@
 
 const float kMinDistance = 1e-6;
 const int kMaxBlendViews = 4;
+const int kMaxBackgroundViews = 8;
+const int kBgViewTexels = 5;
 const int kPositionalPrinted = 0;
 const int kPositionalUlrResolution = 1;
 
@@ -154,6 +156,23 @@ bool Resolve(BlendAccumulator acc, vec3 background_srgb, out vec3 out_srgb) {
   return true;
 }
 
+// ---- background at infinity (sky) ----
+// blend_math.h ProjectDirection / BorderWeight / BackgroundWeight; the per-frame background views
+// come from the Frame block (bg_views) instead of a BlendView record.
+bool ProjectDirection(vec3 d_local, mat3 cam_from_local, vec4 intr, out vec2 uv) {
+  const vec3 d_cam = cam_from_local * d_local;
+  uv = vec2(0.0);
+  if (!(d_cam.z > kMinDistance * length(d_cam))) return false;
+  uv = vec2(intr.x * d_cam.x / d_cam.z + intr.z, intr.y * d_cam.y / d_cam.z + intr.w);
+  return true;
+}
+
+float BorderWeight(vec2 uv, vec2 size) {
+  const float dx = min(uv.x + 0.5, size.x - 0.5 - uv.x);
+  const float dy = min(uv.y + 0.5, size.y - 0.5 - uv.y);
+  return max(0.0, min(dx, dy)) / (0.5 * min(size.x, size.y));
+}
+
 // ---- cells (common/cells.h): 21 bits per axis, offset 2^20, lo word = x | y << 21 ----
 uvec2 PackCell(ivec3 c) {
   const uint mask = (1u << 21) - 1u;
@@ -177,4 +196,10 @@ layout(std140, set = 0, binding = 0) uniform Frame {
   vec4 weights;          // lambda, min_weight, occlusion_epsilon_m, occlusion_epsilon_rel
   vec4 background;       // rgb = background sRGB
   ivec4 iparams;         // positional mode, n_best, hash mask (capacity-1), max probe displacement
+  // Background at infinity (vulkan_renderer.cc FillBackground): ray direction of pixel (x, y) is
+  // mat3(local_from_pixel) * (x, y, 1); bg_params.x background views, each kBgViewTexels vec4:
+  // cam_from_local columns 0..2, intrinsics (fx, fy, cx, cy), (width, height, layer, exposure).
+  vec4 local_from_pixel[3];
+  ivec4 bg_params;
+  vec4 bg_views[kBgViewTexels * kMaxBackgroundViews];
 } frame;

@@ -14,6 +14,7 @@
 #include "absl/hash/hash.h"
 #include "absl/types/span.h"
 #include "client/vulkan/vk_core_internal.h"
+#include "common/lumigraph/cpu_renderer.h"
 #include "shaders/blend.comp.h"
 #include "shaders/blend.frag.h"
 #include "shaders/blend.vert.h"
@@ -44,14 +45,21 @@ struct GpuView {
 static_assert(sizeof(GpuView) == 80);
 
 // std140 Frame block (lumigraph_common.glsl).
+constexpr int kBgViewTexels = 5;  // per background view: cam_from_local columns, K, size/layer/E
 struct GpuFrame {
   glm::mat4 clip_from_local;
   glm::vec4 cam_centre_cell;
   glm::vec4 weights;
   glm::vec4 background;
   glm::ivec4 iparams;
+  // Background at infinity: columns of local_from_pixel (R K^-1), the number of background
+  // views, and per view (blend::BlendView): cam_from_local columns 0..2, intrinsics,
+  // (width, height, texture layer, exposure).
+  glm::vec4 local_from_pixel[3];
+  glm::ivec4 bg_params;
+  glm::vec4 bg_views[kBgViewTexels * blend::kMaxBackgroundViews];
 };
-static_assert(sizeof(GpuFrame) == 128);
+static_assert(sizeof(GpuFrame) == 128 + 48 + 16 + 16 * kBgViewTexels * blend::kMaxBackgroundViews);
 
 // Colour layers: the stored sRGB8 texels decoded to LINEAR once at upload and kept as UNORM16
 // (quantisation 1.5e-5 in linear, far below the golden tolerance), so the texture unit filters
@@ -184,6 +192,7 @@ absl::Status VulkanRendererOptions::Validate() const {
   b.discontinuity_radius_px = bake_discontinuity_radius_px;
   b.discontinuity_delta_z_m = bake_discontinuity_delta_z_m;
   b.discontinuity_delta_z_rel = bake_discontinuity_delta_z_rel;
+  b.background_guard_radius_px = bake_background_guard_radius_px;
   return b.Validate();
 }
 
@@ -198,6 +207,8 @@ class VulkanRenderer::Impl {
   struct ViewEntry {
     uint32_t slot = 0;
     uint64_t fingerprint = 0;
+    blend::BlendView params;      // as the CPU reference builds it (MakeBlendView)
+    bool has_background = false;  // some pixel of the baked background mask is set
   };
   std::unordered_map<ViewId, ViewEntry> views;
   std::vector<uint32_t> free_slots;
@@ -747,9 +758,17 @@ class VulkanRenderer::Impl {
         d16[4 * i + 3] = 65535;
       }
     }
-    const ImageF baked =
+    ImageF baked =
         BakeDiscontinuities(v.depth_m, opt.bake_discontinuity_radius_px,
                             opt.bake_discontinuity_delta_z_m, opt.bake_discontinuity_delta_z_rel);
+    // Background at infinity: -1 marks the guarded background mask (invalid for surfaces too).
+    const ImageU8 bg_mask = BackgroundMask(v.depth_m, opt.bake_background_guard_radius_px);
+    bool has_background = false;
+    for (size_t i = 0, n = baked.size(); i < n; ++i)
+      if (bg_mask.data()[i]) {
+        baked.data()[i] = -1.0f;
+        has_background = true;
+      }
     std::memcpy(dst + color_bytes, baked.data(), depth_bytes);
     EXO_RETURN_IF_ERROR(ctx->Submit([&](VkCommandBuffer cmd) {
       const VkImageAspectFlags a = VK_IMAGE_ASPECT_COLOR_BIT;
@@ -786,7 +805,7 @@ class VulkanRenderer::Impl {
     std::memcpy(static_cast<GpuView*>(view_records.mapped) + slot, &rec, sizeof(rec));
     stats.bytes += color_bytes + depth_bytes + sizeof(GpuView);
     ++stats.view_uploads;
-    views[v.id] = ViewEntry{slot, fingerprint};
+    views[v.id] = ViewEntry{slot, fingerprint, MakeBlendView(v), has_background};
     if (is_new) {
       // Cells that already referenced this id now resolve to the slot.
       auto rit = cells_of_view.find(v.id);
@@ -1209,6 +1228,40 @@ class VulkanRenderer::Impl {
     }
   }
 
+  // The per-frame background view list (SelectBackgroundViews over the resident views in id
+  // order: the CPU reference's order) and the pixel-to-direction matrix, into the Frame block.
+  void FillBackground(const PinholeCamera& camera, const Rigid3d& local_from_cam, int max_views,
+                      GpuFrame* f, std::vector<ViewId>* chosen_ids) const {
+    std::vector<std::pair<ViewId, const ViewEntry*>> sorted;
+    sorted.reserve(views.size());
+    for (const auto& [id, e] : views) sorted.emplace_back(id, &e);
+    std::sort(sorted.begin(), sorted.end(),
+              [](const auto& a, const auto& b) { return a.first < b.first; });
+    std::vector<blend::BlendView> params;
+    std::vector<ViewId> ids;
+    params.reserve(sorted.size());
+    ids.reserve(sorted.size());
+    for (const auto& [id, e] : sorted) {
+      params.push_back(e->params);
+      ids.push_back(id);
+    }
+    const std::vector<int> chosen = SelectBackgroundViews(
+        camera, local_from_cam, params, ids, max_views,
+        [&](int i) { return sorted[i].second->has_background; });
+    const glm::mat3 m = LocalFromPixel(camera, local_from_cam);
+    for (int c = 0; c < 3; ++c) f->local_from_pixel[c] = glm::vec4(m[c], 0.0f);
+    f->bg_params = glm::ivec4(int(chosen.size()), 0, 0, 0);
+    for (size_t j = 0; j < chosen.size(); ++j) {
+      const ViewEntry& e = *sorted[chosen[j]].second;
+      glm::vec4* dst = f->bg_views + kBgViewTexels * j;
+      for (int c = 0; c < 3; ++c) dst[c] = glm::vec4(e.params.cam_from_local[c], 0.0f);
+      dst[3] = e.params.intrinsics;
+      dst[4] = glm::vec4(float(e.params.size.x), float(e.params.size.y), float(e.slot),
+                         e.params.exposure);
+      chosen_ids->push_back(ids[chosen[j]]);
+    }
+  }
+
   absl::StatusOr<RenderResult> Render(const PinholeCamera& camera, const Rigid3d& local_from_cam,
                                       const blend::BlendOptions& bo) {
     EXO_RETURN_IF_ERROR(bo.Validate());
@@ -1229,6 +1282,14 @@ class VulkanRenderer::Impl {
     f.background = glm::vec4(bo.background_srgb, 0.0f);
     f.iparams.x = static_cast<int>(bo.positional_mode);
     f.iparams.y = bo.n_best;
+    std::vector<ViewId> bg_ids;
+    if (bo.background_views > 0) {
+      if (bo.background_guard_radius_px != opt.bake_background_guard_radius_px)
+        return absl::InvalidArgumentError(
+            "BlendOptions::background_guard_radius_px differs from the one baked into the "
+            "resident depth layers (VulkanRendererOptions::bake_background_guard_radius_px)");
+      FillBackground(camera, local_from_cam, bo.background_views, &f, &bg_ids);
+    }
     std::memcpy(frame_ubo.mapped, &f, sizeof(f));
     const auto tr = Clock::now();
     RankRefs(glm::vec3(f.cam_centre_cell), camera, local_from_cam, bo);
@@ -1244,6 +1305,7 @@ class VulkanRenderer::Impl {
     RenderResult r;
     r.gpu_ms = MsSince(t0);
     r.rank_ms = rank_ms;
+    r.background_views = std::move(bg_ids);
     const auto t1 = Clock::now();
     r.color = ImageU8(w, h, 3);
     r.coverage = ImageU8(w, h, 1);
@@ -1256,7 +1318,7 @@ class VulkanRenderer::Impl {
       dst[3 * i + 1] = src[4 * i + 1];
       dst[3 * i + 2] = src[4 * i + 2];
       const uint8_t a = src[4 * i + 3];
-      cov[i] = a == 0 ? 0 : (a == 255 ? 2 : 1);
+      cov[i] = a == 0 ? 0 : a == 255 ? 2 : a == 64 ? 3 : 1;  // blend_shade.glsl alpha codes
     }
     r.readback_ms = MsSince(t1);
     return r;

@@ -37,6 +37,11 @@ struct VulkanRendererOptions {
   int bake_discontinuity_radius_px = blend::BlendOptions{}.discontinuity_radius_px;
   float bake_discontinuity_delta_z_m = blend::BlendOptions{}.discontinuity_delta_z_m;
   float bake_discontinuity_delta_z_rel = blend::BlendOptions{}.discontinuity_delta_z_rel;
+  // Background at infinity: each view's BackgroundMask (cpu_renderer.h) with this guard radius
+  // is baked into its depth layer at upload (-1 = background, 0 = invalid, > 0 = depth), so the
+  // shader needs one depth fetch per background view. Render() requires
+  // BlendOptions::background_guard_radius_px to equal it when background_views > 0.
+  int bake_background_guard_radius_px = blend::BlendOptions{}.background_guard_radius_px;
   // Runs the blend as a compute dispatch over the G-buffer (shaders/blend.comp) instead of a
   // full-screen triangle (blend.frag); same per-pixel code and result. Off by default: measured
   // 5-7 % slower on lavapipe (docs/vulkan.md); kept for devices where compute is the better path.
@@ -57,10 +62,13 @@ struct UploadStats {
 
 struct RenderResult {
   ImageU8 color;     // RGB8, sRGB
-  ImageU8 coverage;  // 1 ch: 0 = no proxy surface, 1 = surface but no valid view, 2 = blended
+  // 1 ch: 0 = no proxy surface, 1 = surface but no valid view, 2 = blended, 3 = no proxy
+  // surface, filled at infinity from the stored views (BlendOptions::background_views).
+  ImageU8 coverage;
   double gpu_ms = 0;       // submit-to-fence time of the render pass
   double readback_ms = 0;  // copy-out of the colour attachment to ImageU8
   double rank_ms = 0;      // host: per-frame ranking of every cell's references (RankRefs)
+  std::vector<ViewId> background_views;  // this frame's background view list (rank order)
 };
 
 // Packs a 64-bit CellId into the 2 x 32-bit form of the cell-id pass (R32G32_UINT, lo = x).
