@@ -32,7 +32,19 @@ struct SetupTriangle {
   std::array<glm::dvec3, 3> w_plane;
   glm::dvec3 inv_z_plane;
   std::array<glm::dvec3, 3> bary;  // barycentrics (in the mesh triangle) of the 3 vertices
-  uint32_t triangle;
+  uint32_t triangle;               // global index (over all parts, in order)
+  uint32_t part;                   // which mesh of the part list
+  uint32_t local_triangle;         // index inside that mesh
+};
+
+// A vertex transformed once per render (shared by ~6 triangles): camera-frame position, the
+// outcode of the 5 clip planes (bit k set = outside plane k) and, when inside every plane, the
+// projection (unrounded and 1/256 px fixed point) exactly as Setup::Emit computes it.
+struct CamVertex {
+  glm::dvec3 p_cam;
+  glm::dvec2 s;
+  int64_t fx, fy;
+  uint32_t outcode;
 };
 
 // Clip plane f(p) = dot(n, p) + d >= 0 in the camera frame.
@@ -92,9 +104,59 @@ class Setup {
     planes_[4] = {{0, -cam.fy, (cam.height - 1 + g) - cam.cy}, 0};      // v <= H-1+g
   }
 
+  glm::dvec2 Project(const glm::dvec3& p) const {
+    return glm::dvec2(cam_.fx * p.x / p.z + cam_.cx, cam_.fy * p.y / p.z + cam_.cy);
+  }
+  static int64_t Fix(double x) { return static_cast<int64_t>(std::llround(x * kSubpixel)); }
+
+  CamVertex MakeVertex(const glm::dvec3& p_cam) const {
+    CamVertex v;
+    v.p_cam = p_cam;
+    v.outcode = 0;
+    for (int k = 0; k < 5; ++k)
+      if (!(planes_[k].Eval(p_cam) >= 0)) v.outcode |= 1u << k;  // NaN = outside
+    if (v.outcode == 0) {
+      v.s = Project(p_cam);
+      v.fx = Fix(v.s.x);
+      v.fy = Fix(v.s.y);
+    }
+    return v;
+  }
+
+  // Same result as Add(t, a.p_cam, b.p_cam, c.p_cam) from precomputed vertices: a triangle
+  // outside one plane with all three vertices is rejected, one inside every plane is emitted
+  // from the cached projections (no clipping), the rest go through the clipper.
+  bool AddCached(uint32_t t, const CamVertex& a, const CamVertex& b, const CamVertex& c,
+                 std::vector<SetupTriangle>* out) const {
+    if ((a.outcode & b.outcode & c.outcode) != 0) return false;
+    if ((a.outcode | b.outcode | c.outcode) != 0) return Add(t, a.p_cam, b.p_cam, c.p_cam, out);
+    // Pixel bounding box first: most triangles of a fine mesh in a small buffer cover no pixel
+    // centre and end here.
+    const int64_t min_x = std::min({a.fx, b.fx, c.fx}), max_x = std::max({a.fx, b.fx, c.fx});
+    const int64_t min_y = std::min({a.fy, b.fy, c.fy}), max_y = std::max({a.fy, b.fy, c.fy});
+    if (std::max<int64_t>(0, CeilDiv(min_x, kSubpixel)) >
+            std::min<int64_t>(cam_.width - 1, FloorDiv(max_x, kSubpixel)) ||
+        std::max<int64_t>(0, CeilDiv(min_y, kSubpixel)) >
+            std::min<int64_t>(cam_.height - 1, FloorDiv(max_y, kSubpixel)))
+      return false;
+    EmitProjected(t, {a.p_cam, {1, 0, 0}}, {b.p_cam, {0, 1, 0}}, {c.p_cam, {0, 0, 1}}, a.s, b.s,
+                  c.s, a.fx, a.fy, b.fx, b.fy, c.fx, c.fy, out);
+    return false;
+  }
+
   // Appends the screen triangles of mesh triangle `t`; returns true when it was clipped.
   bool Add(uint32_t t, const glm::dvec3& a, const glm::dvec3& b, const glm::dvec3& c,
            std::vector<SetupTriangle>* out) const {
+    {  // Trivial reject (every vertex outside the same plane), as AddCached does.
+      uint32_t common = 31;
+      for (const glm::dvec3* p : {&a, &b, &c}) {
+        uint32_t oc = 0;
+        for (int k = 0; k < 5; ++k)
+          if (!(planes_[k].Eval(*p) >= 0)) oc |= 1u << k;
+        common &= oc;
+      }
+      if (common != 0) return false;
+    }
     ClipVertex poly[2][16];
     poly[0][0] = {a, {1, 0, 0}};
     poly[0][1] = {b, {0, 1, 0}};
@@ -121,15 +183,16 @@ class Setup {
   }
 
  private:
-  void Emit(uint32_t t, ClipVertex v0, ClipVertex v1, ClipVertex v2,
+  void Emit(uint32_t t, const ClipVertex& v0, const ClipVertex& v1, const ClipVertex& v2,
             std::vector<SetupTriangle>* out) const {
-    auto project = [&](const glm::dvec3& p) {
-      return glm::dvec2(cam_.fx * p.x / p.z + cam_.cx, cam_.fy * p.y / p.z + cam_.cy);
-    };
-    glm::dvec2 s0 = project(v0.p_cam), s1 = project(v1.p_cam), s2 = project(v2.p_cam);
-    auto fix = [](double x) { return static_cast<int64_t>(std::llround(x * kSubpixel)); };
-    int64_t x0 = fix(s0.x), y0 = fix(s0.y), x1 = fix(s1.x), y1 = fix(s1.y), x2 = fix(s2.x),
-            y2 = fix(s2.y);
+    const glm::dvec2 s0 = Project(v0.p_cam), s1 = Project(v1.p_cam), s2 = Project(v2.p_cam);
+    EmitProjected(t, v0, v1, v2, s0, s1, s2, Fix(s0.x), Fix(s0.y), Fix(s1.x), Fix(s1.y),
+                  Fix(s2.x), Fix(s2.y), out);
+  }
+
+  void EmitProjected(uint32_t t, ClipVertex v0, ClipVertex v1, ClipVertex v2, glm::dvec2 s0,
+                     glm::dvec2 s1, glm::dvec2 s2, int64_t x0, int64_t y0, int64_t x1,
+                     int64_t y1, int64_t x2, int64_t y2, std::vector<SetupTriangle>* out) const {
     int64_t area = (x1 - x0) * (y2 - y0) - (y1 - y0) * (x2 - x0);
     if (area == 0) return;
     // Positive screen area (y down) <=> geometric normal points away from the camera.
@@ -236,48 +299,87 @@ absl::Status ValidateMesh(const TriangleMesh& mesh) {
 absl::StatusOr<RasterOutput> Rasterize(const TriangleMesh& mesh, const PinholeCamera& camera,
                                        const Rigid3d& local_from_cam,
                                        const RasterOptions& options) {
+  return RasterizeParts({&mesh}, camera, local_from_cam, options);
+}
+
+absl::StatusOr<RasterOutput> RasterizeParts(const std::vector<const TriangleMesh*>& parts,
+                                            const PinholeCamera& camera,
+                                            const Rigid3d& local_from_cam,
+                                            const RasterOptions& options) {
   EXO_RETURN_IF_ERROR(options.Validate());
   EXO_RETURN_IF_ERROR(camera.Validate());
   EXO_RETURN_IF_ERROR(ValidateQuaternion(local_from_cam.rotation));
   const glm::dvec3& tr = local_from_cam.translation;
   if (!std::isfinite(tr.x) || !std::isfinite(tr.y) || !std::isfinite(tr.z))
     return absl::InvalidArgumentError("raster pose translation has NaN or Inf");
-  EXO_RETURN_IF_ERROR(ValidateMesh(mesh));
+  size_t total_tris = 0;
+  for (const TriangleMesh* m : parts) {
+    if (m == nullptr) return absl::InvalidArgumentError("raster part is null");
+    if (!options.meshes_prevalidated) EXO_RETURN_IF_ERROR(ValidateMesh(*m));
+    total_tris += m->num_triangles();
+  }
+  if (total_tris >= size_t{kNoTriangle})
+    return absl::InvalidArgumentError("raster: too many triangles for 32-bit ids");
 
   RasterOutput out;
   out.camera = options.width > 0 ? camera.Scaled(options.width, options.height) : camera;
   const PinholeCamera& cam = out.camera;
   const int W = cam.width, H = cam.height;
   const int threads = options.num_threads;
-  out.triangles_in = mesh.num_triangles();
+  out.triangles_in = total_tris;
 
-  // 1. Vertices into the camera frame (double).
+  // 1. Vertices into the camera frame (double), with clip outcodes and projections.
   const Rigid3d cam_from_local = local_from_cam.Inverse();
   const glm::dmat3 R = cam_from_local.RotationMatrix();
   const glm::dvec3 t = cam_from_local.translation;
-  std::vector<glm::dvec3> p_cam(mesh.positions.size());
-  for (size_t i = 0; i < p_cam.size(); ++i) p_cam[i] = R * glm::dvec3(mesh.positions[i]) + t;
+  Setup setup(cam, options);
+  std::vector<std::vector<CamVertex>> verts(parts.size());
+  for (size_t k = 0; k < parts.size(); ++k) {
+    const auto& pos = parts[k]->positions;
+    verts[k].resize(pos.size());
+    for (size_t i = 0; i < pos.size(); ++i)
+      verts[k][i] = setup.MakeVertex(R * glm::dvec3(pos[i]) + t);
+  }
 
-  // 2. Triangle setup (clipping, projection, edge and plane equations), in parallel chunks
-  // concatenated in triangle order.
-  const int num_tris = static_cast<int>(mesh.num_triangles());
-  const int chunks = std::max(1, std::min(threads * 4, num_tris / 256 + 1));
+  // 2. Triangle setup (clipping, projection, edge and plane equations), in parallel chunks of
+  // the global triangle sequence, concatenated in triangle order.
+  std::vector<size_t> part_begin(parts.size() + 1, 0);  // global index of each part's first tri
+  for (size_t k = 0; k < parts.size(); ++k)
+    part_begin[k + 1] = part_begin[k] + parts[k]->num_triangles();
+  const int num_tris = static_cast<int>(total_tris);
+  // One chunk per thread when single-threaded (no concatenation copy), else 4 per thread.
+  const int chunks =
+      threads == 1 ? 1 : std::max(1, std::min(threads * 4, num_tris / 256 + 1));
   std::vector<std::vector<SetupTriangle>> chunk_setups(chunks);
   std::vector<size_t> chunk_clipped(chunks, 0);
-  Setup setup(cam, options);
   ParallelFor(threads, chunks, [&](int c, int) {
     const int begin = static_cast<int>(int64_t{num_tris} * c / chunks);
     const int end = static_cast<int>(int64_t{num_tris} * (c + 1) / chunks);
     auto& v = chunk_setups[c];
-    v.reserve(end - begin);
+    v.reserve(std::min<size_t>(end - begin, 4096));
+    size_t part = static_cast<size_t>(
+        std::upper_bound(part_begin.begin(), part_begin.end(), size_t(begin)) -
+        part_begin.begin() - 1);
     for (int tri = begin; tri < end; ++tri) {
-      const uint32_t* idx = &mesh.indices[3 * static_cast<size_t>(tri)];
-      if (setup.Add(static_cast<uint32_t>(tri), p_cam[idx[0]], p_cam[idx[1]], p_cam[idx[2]], &v))
+      while (size_t(tri) >= part_begin[part + 1]) ++part;
+      const size_t local = size_t(tri) - part_begin[part];
+      const uint32_t* idx = &parts[part]->indices[3 * local];
+      const std::vector<CamVertex>& pv = verts[part];
+      const size_t before = v.size();
+      if (setup.AddCached(static_cast<uint32_t>(tri), pv[idx[0]], pv[idx[1]], pv[idx[2]], &v))
         ++chunk_clipped[c];
+      for (size_t i = before; i < v.size(); ++i) {
+        v[i].part = static_cast<uint32_t>(part);
+        v[i].local_triangle = static_cast<uint32_t>(local);
+      }
     }
   });
   std::vector<SetupTriangle> tris;
-  for (int c = 0; c < chunks; ++c) {
+  if (chunks == 1) {
+    tris = std::move(chunk_setups[0]);
+    out.triangles_clipped = chunk_clipped[0];
+  }
+  for (int c = 0; c < chunks && chunks > 1; ++c) {
     tris.insert(tris.end(), chunk_setups[c].begin(), chunk_setups[c].end());
     out.triangles_clipped += chunk_clipped[c];
   }
@@ -343,7 +445,7 @@ absl::StatusOr<RasterOutput> Rasterize(const TriangleMesh& mesh, const PinholeCa
   if (options.triangle_id) out.triangle_id = ImageU32(W, H, 1, kNoTriangle);
   if (options.cell_id) out.cell_id = Image<uint64_t>(W, H, 1, kNoCell);
   const bool need_bary = options.position || options.cell_id || options.normal;
-  const bool vertex_normals = options.interpolate_normals && !mesh.normals.empty();
+  const bool want_vertex_normals = options.interpolate_normals;
   std::vector<size_t> covered(threads, 0);
   ParallelFor(threads, H, [&](int y, int thread) {
     for (int x = 0; x < W; ++x) {
@@ -363,7 +465,8 @@ absl::StatusOr<RasterOutput> Rasterize(const TriangleMesh& mesh, const PinholeCa
         const double w = s.w_plane[k].x * x + s.w_plane[k].y * y + s.w_plane[k].z;
         beta += (w * z) * s.bary[k];
       }
-      const uint32_t* vi = &mesh.indices[3 * static_cast<size_t>(s.triangle)];
+      const TriangleMesh& mesh = *parts[s.part];
+      const uint32_t* vi = &mesh.indices[3 * static_cast<size_t>(s.local_triangle)];
       if (options.position || options.cell_id) {
         const glm::dvec3 p = beta.x * glm::dvec3(mesh.positions[vi[0]]) +
                              beta.y * glm::dvec3(mesh.positions[vi[1]]) +
@@ -374,7 +477,7 @@ absl::StatusOr<RasterOutput> Rasterize(const TriangleMesh& mesh, const PinholeCa
       }
       if (options.normal) {
         glm::dvec3 n;
-        if (vertex_normals) {
+        if (want_vertex_normals && !mesh.normals.empty()) {
           n = beta.x * glm::dvec3(mesh.normals[vi[0]]) + beta.y * glm::dvec3(mesh.normals[vi[1]]) +
               beta.z * glm::dvec3(mesh.normals[vi[2]]);
         } else {

@@ -13,6 +13,7 @@
 
 #include <cstdint>
 #include <limits>
+#include <vector>
 
 #include "common/camera.h"
 #include "common/cells.h"
@@ -44,6 +45,9 @@ struct RasterOptions {
   // Render at a reduced resolution: 0 = camera's size, otherwise camera.Scaled(width, height).
   int width = 0, height = 0;
   int num_threads = 2;         // row bands are interleaved across threads; result independent
+  // The caller has already checked every mesh with ValidateMesh() (e.g. once when caching it);
+  // skips the per-call index scan. Unvalidated meshes with this set are undefined behaviour.
+  bool meshes_prevalidated = false;
 
   absl::Status Validate() const;
 };
@@ -69,6 +73,15 @@ struct RasterOutput {
 absl::StatusOr<RasterOutput> Rasterize(const TriangleMesh& mesh, const PinholeCamera& camera,
                                        const Rigid3d& local_from_cam,
                                        const RasterOptions& options);
+
+// Renders the concatenation of `parts` (in order) without building it: the output is identical
+// to Rasterize() of the concatenated mesh (triangle ids are global: part k's triangles follow
+// those of parts 0..k-1; depth ties go to the lower global id). Lets a caller keep its proxy
+// as chunks and pass only the visible ones. Errors as Rasterize(), plus a null part.
+absl::StatusOr<RasterOutput> RasterizeParts(const std::vector<const TriangleMesh*>& parts,
+                                            const PinholeCamera& camera,
+                                            const Rigid3d& local_from_cam,
+                                            const RasterOptions& options);
 
 // Checks index range and attribute sizes of a mesh.
 absl::Status ValidateMesh(const TriangleMesh& mesh);

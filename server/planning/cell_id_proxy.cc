@@ -1,10 +1,12 @@
 #include "server/planning/cell_id_proxy.h"
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 #include <unordered_map>
 
 #include "common/cells.h"
+#include "common/raster/rasterizer.h"
 
 namespace exo::planning {
 
@@ -78,6 +80,172 @@ absl::StatusOr<TriangleMesh> ClusterSimplify(const TriangleMesh& mesh, double cl
     stats->triangles_out = out.num_triangles();
   }
   return out;
+}
+
+}  // namespace exo::planning
+
+namespace exo::planning {
+
+absl::Status CellIdRendererOptions::Validate() const {
+  if (!std::isfinite(grid.cell_size_m) || !(grid.cell_size_m > 0.0))
+    return absl::InvalidArgumentError("CellIdRenderer: grid cell size must be finite and > 0");
+  if (!std::isfinite(lod_cluster_m) || lod_cluster_m < 0.0)
+    return absl::InvalidArgumentError("CellIdRenderer: lod_cluster_m must be finite and >= 0");
+  if (!std::isfinite(lod_keep_fraction) || lod_keep_fraction < 0.0 || lod_keep_fraction >= 1.0)
+    return absl::InvalidArgumentError("CellIdRenderer: lod_keep_fraction must be in [0, 1)");
+  if (!std::isfinite(max_range_m) || max_range_m < 0.0)
+    return absl::InvalidArgumentError("CellIdRenderer: max_range_m must be finite and >= 0");
+  if (!std::isfinite(near_m) || !(near_m > 0.0))
+    return absl::InvalidArgumentError("CellIdRenderer: near_m must be finite and > 0");
+  if (num_threads < 1 || num_threads > 64)
+    return absl::InvalidArgumentError("CellIdRenderer: num_threads must be in [1, 64]");
+  return absl::OkStatus();
+}
+
+double DefaultCellIdLodM(double cell_size_m, double voxel_m) {
+  double m = 0.5 * cell_size_m;
+  if (voxel_m > 0.0) m = std::min(m, 4.0 * voxel_m);
+  return m;
+}
+
+absl::StatusOr<CellIdRenderer> CellIdRenderer::Create(const CellIdRendererOptions& options) {
+  EXO_RETURN_IF_ERROR(options.Validate());
+  return CellIdRenderer(options);
+}
+
+absl::Status CellIdRenderer::Update(const std::vector<MeshChunk>& changed) {
+  absl::Status first_error = absl::OkStatus();
+  for (const MeshChunk& c : changed) {
+    auto it = chunks_.find(c.id);
+    if (it != chunks_.end() && c.version <= it->second.version) continue;
+    if (c.mesh.empty()) {
+      if (it != chunks_.end()) chunks_.erase(it);
+      continue;
+    }
+    if (absl::Status s = ValidateMesh(c.mesh); !s.ok()) {
+      if (first_error.ok())
+        first_error = absl::InvalidArgumentError(
+            absl::StrCat("CellIdRenderer: chunk ", c.id, ": ", s.message()));
+      continue;
+    }
+    const size_t n = c.mesh.num_triangles();
+    if (it != chunks_.end() && options_.lod_cluster_m > 0.0 && options_.lod_keep_fraction > 0.0) {
+      Entry& e = it->second;
+      const double lo = double(std::min(n, e.lod_source_triangles));
+      const double hi = double(std::max(n, e.lod_source_triangles));
+      if (hi <= (1.0 + options_.lod_keep_fraction) * lo) {  // keep the LOD
+        e.version = c.version;
+        e.source_triangles = n;
+        continue;
+      }
+    }
+    Entry e;
+    e.version = c.version;
+    e.source_triangles = e.lod_source_triangles = n;
+    if (options_.lod_cluster_m > 0.0) {
+      EXO_ASSIGN_OR_RETURN(e.mesh, ClusterSimplify(c.mesh, options_.lod_cluster_m));
+      ++lod_builds_;
+    } else {
+      e.mesh.positions = c.mesh.positions;  // cell ids need positions + indices only
+      e.mesh.indices = c.mesh.indices;
+    }
+    if (e.mesh.empty()) {  // everything collapsed: nothing to render
+      if (it != chunks_.end()) chunks_.erase(it);
+      continue;
+    }
+    e.lo = glm::dvec3(std::numeric_limits<double>::infinity());
+    e.hi = -e.lo;
+    for (const glm::vec3& p : e.mesh.positions) {
+      e.lo = glm::min(e.lo, glm::dvec3(p));
+      e.hi = glm::max(e.hi, glm::dvec3(p));
+    }
+    chunks_[c.id] = std::move(e);
+  }
+  return first_error;
+}
+
+absl::StatusOr<CellIdBuffer> CellIdRenderer::Render(const Rigid3d& local_from_cam,
+                                                    const PinholeCamera& camera, int width,
+                                                    int height) const {
+  if (width < 1 || height < 1 || width > 32768 || height > 32768)
+    return absl::InvalidArgumentError(
+        absl::StrCat("CellIdRenderer: buffer size must be in [1, 32768], got ", width, "x", height));
+  EXO_RETURN_IF_ERROR(camera.Validate());
+  EXO_RETURN_IF_ERROR(ValidateQuaternion(local_from_cam.rotation));
+  const glm::dvec3& tr = local_from_cam.translation;
+  if (!std::isfinite(tr.x) || !std::isfinite(tr.y) || !std::isfinite(tr.z))
+    return absl::InvalidArgumentError("CellIdRenderer: pose translation has NaN or Inf");
+  const PinholeCamera cam = camera.Scaled(width, height);
+  // Frustum half-spaces in the camera frame (n . p >= 0 inside), conservative by half a pixel
+  // around the outermost pixel centres: a box with all 8 corners outside one of them cannot
+  // cover a pixel centre, so skipping it leaves the buffer unchanged.
+  const glm::dvec4 planes[6] = {
+      {0, 0, 1, -options_.near_m},
+      {cam.fx, 0, cam.cx + 0.5, 0},                        // u >= -0.5
+      {-cam.fx, 0, (cam.width - 0.5) - cam.cx, 0},         // u <= W-0.5
+      {0, cam.fy, cam.cy + 0.5, 0},                        // v >= -0.5
+      {0, -cam.fy, (cam.height - 0.5) - cam.cy, 0},        // v <= H-0.5
+      {0, 0, -1, options_.max_range_m},                    // z <= max range (when set)
+  };
+  const int num_planes = options_.max_range_m > 0.0 ? 6 : 5;
+  const Rigid3d cam_from_local = local_from_cam.Inverse();
+  const glm::dmat3 R = cam_from_local.RotationMatrix();
+  const glm::dvec3 t = cam_from_local.translation;
+  CellIdBuffer out;
+  std::vector<const TriangleMesh*> parts;
+  parts.reserve(chunks_.size());
+  for (const auto& [id, e] : chunks_) {
+    glm::dvec3 corners[8];
+    for (int k = 0; k < 8; ++k)
+      corners[k] = R * glm::dvec3((k & 1) ? e.hi.x : e.lo.x, (k & 2) ? e.hi.y : e.lo.y,
+                                  (k & 4) ? e.hi.z : e.lo.z) + t;
+    bool outside = false;
+    for (int p = 0; p < num_planes && !outside; ++p) {
+      outside = true;
+      for (int k = 0; k < 8 && outside; ++k)
+        outside = glm::dot(glm::dvec3(planes[p]), corners[k]) + planes[p].w < 0.0;
+    }
+    if (outside) continue;
+    parts.push_back(&e.mesh);
+    out.triangles_rendered += e.mesh.num_triangles();
+  }
+  out.chunks_rendered = parts.size();
+  RasterOptions ro;
+  ro.z_depth = false;
+  ro.cell_id = true;
+  ro.cell_grid = options_.grid;
+  ro.near_m = options_.near_m;
+  ro.width = width;
+  ro.height = height;
+  ro.num_threads = options_.num_threads;
+  ro.meshes_prevalidated = true;  // every cached mesh passed ValidateMesh in Update()
+  EXO_ASSIGN_OR_RETURN(RasterOutput r, RasterizeParts(parts, camera, local_from_cam, ro));
+  out.camera = r.camera;
+  out.cell_id = std::move(r.cell_id);
+  return out;
+}
+
+size_t CellIdRenderer::render_triangles() const {
+  size_t n = 0;
+  for (const auto& [id, e] : chunks_) n += e.mesh.num_triangles();
+  return n;
+}
+
+size_t CellIdRenderer::source_triangles() const {
+  size_t n = 0;
+  for (const auto& [id, e] : chunks_) n += e.source_triangles;
+  return n;
+}
+
+const TriangleMesh* CellIdRenderer::RenderMesh(uint64_t chunk_id) const {
+  auto it = chunks_.find(chunk_id);
+  return it == chunks_.end() ? nullptr : &it->second.mesh;
+}
+
+std::vector<const TriangleMesh*> CellIdRenderer::RenderMeshes() const {
+  std::vector<const TriangleMesh*> v;
+  for (const auto& [id, e] : chunks_) v.push_back(&e.mesh);
+  return v;
 }
 
 }  // namespace exo::planning

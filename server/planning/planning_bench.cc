@@ -4,12 +4,23 @@
 //
 //   planning_bench --scene village --traj flyover --frames 600 --r_max 16 --store 200
 //                  [--idw 160 --idh 120] [--quality 1 --test_views 50 --test_w 320 --test_h 240]
-// The proxy is the scene's ground-truth mesh (isolates planning from TSDF error).
+//                  [--proxy gt|tsdf --voxel M] [--lod F | --lod_m M] [--lod_keep 0.1]
+//                  [--path renderer|concat] [--threads 1]
+// --proxy gt: the scene's ground-truth mesh as one chunk (isolates planning from TSDF error);
+// --proxy tsdf: the 640x480 synthetic depth frames fused into a TsdfVolume as eval does, its
+// dirty chunks fed to the cell-id renderer every frame (integration is not timed; the LOD
+// builds of the dirty chunks are, as cell-id time). --lod F: clusters of F x cell size
+// (planning::CellIdRenderer); -1 = planning::DefaultCellIdLodM. --path concat: the session-1
+// path (sphere-culled chunks concatenated, then Rasterize) for comparison.
+// Times: wall (steady clock) and process CPU (CLOCK_PROCESS_CPUTIME_ID) per frame.
 #include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <ctime>
 #include <map>
+#include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -22,6 +33,8 @@
 #include "common/synth/trajectory.h"
 #include "server/geometry/cell_areas.h"
 #include "server/geometry/scene_scale.h"
+#include "server/geometry/tsdf_volume.h"
+#include "server/planning/cell_id_proxy.h"
 #include "server/planning/view_planner.h"
 
 namespace exo {
@@ -30,6 +43,11 @@ namespace {
 using Clock = std::chrono::steady_clock;
 double Ms(Clock::time_point a, Clock::time_point b) {
   return std::chrono::duration<double, std::milli>(b - a).count();
+}
+double CpuMs() {
+  timespec ts{};
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+  return ts.tv_sec * 1e3 + ts.tv_nsec * 1e-6;
 }
 double Pct(std::vector<double> v, double p) {
   if (v.empty()) return 0;
@@ -42,6 +60,10 @@ struct Args {
   int frames = 600, r_max = 16, store = 200, idw = 160, idh = 120;
   double lambda = -1, cell = 0;
   int quality = 0, test_views = 50, test_w = 320, test_h = 240;
+  std::string proxy = "gt", path = "renderer";
+  double voxel = 0, lod = 0, lod_m = 0, lod_keep = 0;
+  int threads = 1;
+  int rerender = 0;  // after the run: render the final proxy from every pose this many times
 };
 
 Args Parse(int argc, char** argv) {
@@ -61,6 +83,14 @@ Args Parse(int argc, char** argv) {
     else if (k == "--test_views") a.test_views = std::stoi(v);
     else if (k == "--test_w") a.test_w = std::stoi(v);
     else if (k == "--test_h") a.test_h = std::stoi(v);
+    else if (k == "--proxy") a.proxy = v;
+    else if (k == "--path") a.path = v;
+    else if (k == "--voxel") a.voxel = std::stod(v);
+    else if (k == "--lod") a.lod = std::stod(v);
+    else if (k == "--lod_m") a.lod_m = std::stod(v);
+    else if (k == "--lod_keep") a.lod_keep = std::stod(v);
+    else if (k == "--threads") a.threads = std::stoi(v);
+    else if (k == "--rerender") a.rerender = std::stoi(v);
     else std::fprintf(stderr, "unknown flag %s\n", k.c_str());
   }
   return a;
@@ -143,8 +173,10 @@ int Run(const Args& args) {
   chunk.id = 0;
   chunk.version = 1;
   chunk.mesh = scene.mesh;
-  areas.UpdateChunk(chunk);
-  for (const auto& [cell, a] : areas.areas()) (void)planner.SetCellArea(cell, a);
+  if (args.proxy != "tsdf") {  // tsdf: areas arrive with the TSDF chunks
+    areas.UpdateChunk(chunk);
+    for (const auto& [cell, a] : areas.areas()) (void)planner.SetCellArea(cell, a);
+  }
 
   synth::TrajectoryOptions to;
   to.num_frames = args.frames;
@@ -154,64 +186,174 @@ int Run(const Args& args) {
     return 1;
   }
 
-  RasterOptions ro;
-  ro.cell_id = true;
-  ro.cell_grid = planner.grid();
-  ro.width = args.idw;
-  ro.height = args.idh;
-  std::vector<double> cellid_ms, plan_ms, total_ms;
+  const bool tsdf_proxy = args.proxy == "tsdf";
+  const double diameter = scene.ExtentM();
+  const double voxel_m = args.voxel > 0 ? args.voxel : std::clamp(diameter / 600.0, 0.02, 0.15);
+  const double max_range_m = std::max(6.0, diameter) * 1.5;
+  std::unique_ptr<TsdfVolume> tsdf;
+  if (tsdf_proxy) {
+    TsdfOptions to_tsdf;
+    to_tsdf.voxel_size_m = float(voxel_m);
+    to_tsdf.max_depth_m = float(std::max(6.0, diameter));
+    to_tsdf.min_depth_m = 0.1f;
+    tsdf = std::make_unique<TsdfVolume>(to_tsdf);
+  }
+  planning::CellIdRendererOptions cro;
+  cro.grid = planner.grid();
+  cro.lod_cluster_m = args.lod_m > 0 ? args.lod_m
+                      : args.lod < 0 ? planning::DefaultCellIdLodM(po.cell_size_m,
+                                                                   tsdf_proxy ? voxel_m : 0.0)
+                                     : args.lod * po.cell_size_m;
+  cro.lod_keep_fraction = args.lod_keep;
+  cro.max_range_m = max_range_m;
+  cro.num_threads = args.threads;
+  auto cid_or = planning::CellIdRenderer::Create(cro);
+  if (!cid_or.ok()) {
+    std::fprintf(stderr, "%s\n", std::string(cid_or.status().message()).c_str());
+    return 2;
+  }
+  planning::CellIdRenderer& cid = *cid_or;
+  // Session-1 path: per-chunk LOD (same cache) + bounding-sphere cull + concatenation + Rasterize.
+  const bool concat_path = args.path == "concat";
+  if (!tsdf_proxy) (void)cid.Update({chunk});
+
+  std::vector<double> update_cpu, dirty_chunks;
+  std::vector<double> cellid_ms, cellid_cpu, plan_ms, plan_cpu, total_ms, total_cpu, tris;
   std::map<ViewId, StoredView> stored;
   int accepted = 0, evicted = 0;
-  double render_store_ms = 0;
+  double render_store_ms = 0, integrate_ms = 0;
   for (size_t i = 0; i < traj->size(); ++i) {
     const Rigid3d& pose = (*traj)[i].local_from_cam;
+    std::vector<MeshChunk> dirty;
+    std::vector<uint64_t> removed;
+    std::optional<synth::RenderedFrame> frame;
+    if (tsdf_proxy || args.quality) {
+      const auto tf = Clock::now();
+      auto f = synth::RenderFrame(scene, pose, render_opt, {}, i, (*traj)[i].timestamp_s);
+      if (!f.ok()) continue;
+      frame = std::move(*f);
+      if (tsdf_proxy) {
+        if (!tsdf->Integrate(frame->frame, scene.origin).ok()) continue;
+        dirty = tsdf->ExtractDirtyChunks();
+        removed = tsdf->TakeRemovedChunkIds();
+        for (const MeshChunk& c : dirty) areas.UpdateChunk(c);
+        for (uint64_t id : removed) areas.RemoveChunk(id);
+        for (CellId k : areas.TakeChangedCells()) (void)planner.SetCellArea(k, areas.Area(k));
+      }
+      integrate_ms += Ms(tf, Clock::now());
+    }
     const auto t0 = Clock::now();
-    auto r = Rasterize(scene.mesh, cam, pose, ro);
-    if (!r.ok()) continue;
+    const double c0 = CpuMs();
+    for (uint64_t id : removed) cid.Remove(id);
+    if (!dirty.empty()) (void)cid.Update(dirty);
+    const double c_upd = CpuMs();
+    update_cpu.push_back(c_upd - c0);
+    dirty_chunks.push_back(double(dirty.size()));
+    PinholeCamera id_cam;
+    std::vector<planning::CellPixelCount> cells;
+    if (concat_path) {
+      TriangleMesh m;
+      for (const TriangleMesh* part : cid.RenderMeshes()) {
+        glm::vec3 lo(1e30f), hi(-1e30f);
+        for (const glm::vec3& p : part->positions) {
+          lo = glm::min(lo, p);
+          hi = glm::max(hi, p);
+        }
+        const glm::dvec3 c = glm::dvec3(0.5f * (lo + hi));
+        const double r = 0.5 * glm::length(glm::dvec3(hi - lo));
+        const glm::dvec3 pc = glm::transpose(pose.RotationMatrix()) * (c - pose.translation);
+        if (pc.z < -r || pc.z > max_range_m + r) continue;
+        const uint32_t base = uint32_t(m.positions.size());
+        m.positions.insert(m.positions.end(), part->positions.begin(), part->positions.end());
+        for (uint32_t k : part->indices) m.indices.push_back(base + k);
+      }
+      RasterOptions ro;
+      ro.z_depth = false;
+      ro.cell_id = true;
+      ro.cell_grid = planner.grid();
+      ro.width = args.idw;
+      ro.height = args.idh;
+      ro.num_threads = args.threads;
+      auto r = Rasterize(m, cam, pose, ro);
+      if (!r.ok()) continue;
+      id_cam = r->camera;
+      tris.push_back(double(m.num_triangles()));
+      cells = planning::CountCellPixels(r->cell_id.data(), r->cell_id.size());
+    } else {
+      auto r = cid.Render(pose, cam, args.idw, args.idh);
+      if (!r.ok()) continue;
+      id_cam = r->camera;
+      tris.push_back(double(r->triangles_rendered));
+      cells = planning::CountCellPixels(r->cell_id.data(), r->cell_id.size());
+    }
     const auto t1 = Clock::now();
+    const double c1 = CpuMs();
     planning::Candidate c;
     c.id = ViewId(i + 1);
     c.local_from_cam = pose;
-    c.id_camera = r->camera;
-    c.cells = planning::CountCellPixels(r->cell_id.data(), r->cell_id.size());
+    c.id_camera = id_cam;
+    c.cells = std::move(cells);
     c.bytes = frame_bytes;
     auto d = planner.Consider(c);
     const auto t2 = Clock::now();
+    const double c2 = CpuMs();
     cellid_ms.push_back(Ms(t0, t1));
     plan_ms.push_back(Ms(t1, t2));
     total_ms.push_back(Ms(t0, t2));
+    cellid_cpu.push_back(c1 - c0);
+    plan_cpu.push_back(c2 - c1);
+    total_cpu.push_back(c2 - c0);
     if (!d.ok() || !d->accepted) continue;
     ++accepted;
     evicted += int(d->removed.size());
-    if (args.quality) {
+    if (args.quality && frame) {
       for (ViewId v : d->removed) stored.erase(v);
-      const auto t3 = Clock::now();
-      auto f = synth::RenderFrame(scene, pose, render_opt);
-      render_store_ms += Ms(t3, Clock::now());
-      if (!f.ok()) continue;
       StoredView sv;
       sv.id = c.id;
       sv.camera = cam;
       sv.local_from_cam = pose;
-      sv.color = std::move(f->frame.color);
-      sv.depth_m = std::move(f->frame.depth_m);
+      sv.color = std::move(frame->frame.color);
+      sv.depth_m = std::move(frame->frame.depth_m);
       stored[c.id] = std::move(sv);
     }
   }
   std::printf(
       "{\"bench\":\"planning\",\"scene\":\"%s\",\"traj\":\"%s\",\"frames\":%zu,\"r_max\":%d,"
       "\"store\":%d,\"lambda\":%.2f,\"cell_m\":%.3f,\"d_max_m\":%.2f,\"sigma_m\":%.2f,"
-      "\"idbuf\":\"%dx%d\",\"cellid_ms_median\":%.3f,\"cellid_ms_p95\":%.3f,"
-      "\"plan_ms_median\":%.3f,\"plan_ms_p95\":%.3f,\"total_ms_median\":%.3f,\"total_ms_p95\":%.3f,"
+      "\"idbuf\":\"%dx%d\",\"proxy\":\"%s\",\"voxel_m\":%.3f,\"path\":\"%s\",\"lod_m\":%.3f,"
+      "\"lod_keep\":%.2f,\"threads\":%d,\"tris_median\":%.0f,\"lod_builds\":%zu,"
+      "\"dirty_chunks_median\":%.0f,\"update_cpu_median\":%.3f,"
+      "\"cellid_ms_median\":%.3f,\"cellid_ms_p95\":%.3f,\"cellid_cpu_median\":%.3f,"
+      "\"cellid_cpu_p95\":%.3f,\"plan_ms_median\":%.3f,\"plan_ms_p95\":%.3f,"
+      "\"plan_cpu_median\":%.3f,\"plan_cpu_p95\":%.3f,\"total_ms_median\":%.3f,"
+      "\"total_ms_p95\":%.3f,\"total_cpu_median\":%.3f,\"total_cpu_p95\":%.3f,"
+      "\"integrate_s\":%.1f,"
       "\"accepted\":%d,\"evicted\":%d,\"views\":%zu,\"store_bytes\":%zu,\"cells\":%zu,"
       "\"planner_bytes\":%zu,\"tau_sum\":%.2f}\n",
       args.scene.c_str(), args.traj.c_str(), total_ms.size(), po.r_max, args.store, po.lambda,
-      po.cell_size_m, po.d_max_m, po.sigma_m, args.idw, args.idh, Pct(cellid_ms, 0.5),
-      Pct(cellid_ms, 0.95), Pct(plan_ms, 0.5), Pct(plan_ms, 0.95), Pct(total_ms, 0.5),
-      Pct(total_ms, 0.95), accepted, evicted, planner.num_views(), planner.bytes(),
+      po.cell_size_m, po.d_max_m, po.sigma_m, args.idw, args.idh, args.proxy.c_str(),
+      tsdf_proxy ? voxel_m : 0.0, args.path.c_str(), cro.lod_cluster_m, cro.lod_keep_fraction,
+      args.threads, Pct(tris, 0.5), cid.lod_builds(), Pct(dirty_chunks, 0.5),
+      Pct(update_cpu, 0.5), Pct(cellid_ms, 0.5), Pct(cellid_ms, 0.95),
+      Pct(cellid_cpu, 0.5), Pct(cellid_cpu, 0.95), Pct(plan_ms, 0.5), Pct(plan_ms, 0.95),
+      Pct(plan_cpu, 0.5), Pct(plan_cpu, 0.95), Pct(total_ms, 0.5), Pct(total_ms, 0.95),
+      Pct(total_cpu, 0.5), Pct(total_cpu, 0.95), integrate_ms / 1e3, accepted, evicted, planner.num_views(), planner.bytes(),
       planner.num_cells(), planner.BookkeepingBytes(), planner.tau_sum());
   std::fflush(stdout);
+  if (args.rerender > 0) {  // render-only timing of the final proxy (profiling aid)
+    std::vector<double> rr;
+    for (int k = 0; k < args.rerender; ++k)
+      for (const auto& tp : *traj) {
+        const double r0 = CpuMs();
+        auto r = cid.Render(tp.local_from_cam, cam, args.idw, args.idh);
+        rr.push_back(CpuMs() - r0);
+        if (!r.ok()) return 1;
+      }
+    std::printf("{\"bench\":\"cellid_rerender\",\"renders\":%zu,\"tris\":%zu,\"cpu_ms_median\":%.3f}\n",
+                rr.size(), cid.render_triangles(), Pct(rr, 0.5));
+  }
   if (!args.quality) return 0;
+  (void)render_store_ms;
 
   LumigraphModel model;
   model.grid = planner.grid();
