@@ -10,7 +10,8 @@
 //   refinement_bench [--scene apartment|village|all] [--frames N] [--stride S]
 //                    [--rot-deg D] [--trans-m M] [--exposure-jitter X] [--width W --height H]
 //                    [--seed S] [--heldout N] [--levels L] [--samples N] [--oracle-refs 1]
-//                    [--outlier-rel X]
+//                    [--outlier-rel X] [--retry 0|1] [--depth-weight W]
+//   refinement_bench --scene 7scenes [--register 0|1 (default 1: depth registered to colour)]
 // The first stored view is the gauge anchor (true pose, E = 1); views are refined in order, each
 // against the views stored (and refined) before it, as the planner does online.
 #include <algorithm>
@@ -48,6 +49,8 @@ struct Args {
   int iters = 0, outer = 0;
   double depth_weight = -1, min_tinfo = -1;
   bool refine_pose = true;
+  int retry = -1;  // -1: default
+  int reg = 1;     // 7scenes: register depth to colour (common/datasets rgbd_registration)
   bool keep_rejected = false;  // 7scenes: keep outlier views at their input pose
   bool render = true;           // held-out MSSIM/PSNR (slow); --render 0 for pose diagnostics
 };
@@ -132,7 +135,9 @@ absl::StatusOr<Quality> RenderQuality(const TriangleMesh& mesh, std::vector<Stor
 absl::Status RunSevenScenes(const Args& a) {
   const char* env = std::getenv("EXOVIEW_SHARED_DIR");
   const std::string dir = std::string(env ? env : EXOVIEW_SOURCE_DIR "/../shared") + "/data/7scenes-redkitchen";
-  EXO_ASSIGN_OR_RETURN(auto reader, SevenScenesReader::Open(dir));
+  SevenScenesOptions so;
+  so.register_depth = a.reg != 0;
+  EXO_ASSIGN_OR_RETURN(auto reader, SevenScenesReader::Open(dir, so));
   const int n = std::min<int>(a.frames, static_cast<int>(reader->size()));
   std::vector<StoredView> views;
   TsdfOptions to;
@@ -162,7 +167,8 @@ absl::Status RunSevenScenes(const Args& a) {
     held_truth.push_back(std::move(f.color));
   }
   RefinementOptions opt;
-  opt.depth_weight = a.depth_weight >= 0 ? a.depth_weight : 0.0;
+  // Registered: the depth term is valid (the library default); raw: photometric only.
+  opt.depth_weight = a.depth_weight >= 0 ? a.depth_weight : (a.reg ? opt.depth_weight : 0.0);
   opt.refine_pose = a.refine_pose;
   if (a.samples > 0) opt.max_samples = a.samples;
   RefinementStats stats;
@@ -197,12 +203,12 @@ absl::Status RunSevenScenes(const Args& a) {
   EXO_ASSIGN_OR_RETURN(Quality q_on, RenderQuality(mesh, refined, held, held_truth, cam));
   std::printf(
       "{\"bench\":\"refinement\",\"scene\":\"7scenes-redkitchen\",\"frames\":%d,\"stride\":%d,"
-      "\"refine_pose\":%d,\"keep_rejected\":%d,\"stored\":%zu,\"heldout\":%zu,\"heldout_dropped_duplicate_colour\":%d,\"depth_weight\":%.1f,"
+      "\"registered\":%d,\"refine_pose\":%d,\"keep_rejected\":%d,\"stored\":%zu,\"heldout\":%zu,\"heldout_dropped_duplicate_colour\":%d,\"depth_weight\":%.1f,"
       "\"cpu_ms_median\":%.1f,\"cpu_ms_p95\":%.1f,\"pose_change_deg_median\":%.3f,\"pose_change_deg_p95\":%.3f,"
       "\"pose_change_mm_median\":%.1f,\"pose_change_mm_p95\":%.1f,\"exposure_min\":%.3f,\"exposure_max\":%.3f,"
       "\"rejected_outlier\":%lld,\"pose_refused\":%lld,\"mssim_off\":%.4f,\"mssim_on\":%.4f,"
       "\"psnr_off\":%.2f,\"psnr_on\":%.2f,\"coverage_on\":%.3f}\n",
-      n, a.stride, a.refine_pose ? 1 : 0, a.keep_rejected ? 1 : 0, views.size(), held.size(), dropped, opt.depth_weight, Percentile(cpu_ms, 0.5),
+      n, a.stride, a.reg != 0 ? 1 : 0, a.refine_pose ? 1 : 0, a.keep_rejected ? 1 : 0, views.size(), held.size(), dropped, opt.depth_weight, Percentile(cpu_ms, 0.5),
       Percentile(cpu_ms, 0.95), Percentile(moved_deg, 0.5), Percentile(moved_deg, 0.95),
       Percentile(moved_mm, 0.5), Percentile(moved_mm, 0.95), Percentile(expo, 0.0), Percentile(expo, 1.0),
       static_cast<long long>(stats.rejected_outlier), static_cast<long long>(stats.pose_refused),
@@ -264,6 +270,7 @@ absl::Status RunScene(synth::SceneKind kind, const Args& a) {
   if (a.freeze >= 0) opt.freeze_weak_directions = a.freeze != 0;
   if (a.rot_only_level >= 0) opt.rotation_only_from_level = a.rot_only_level;
   if (a.min_info >= 0) opt.min_pose_information = a.min_info;
+  if (a.retry >= 0) opt.retry_on_outlier = a.retry != 0;
   RefinementStats stats;
   std::vector<StoredView> refined;
   refined.push_back(noisy[0]);
@@ -292,7 +299,7 @@ absl::Status RunScene(synth::SceneKind kind, const Args& a) {
       if (std::getenv("REFINEMENT_BENCH_VERBOSE"))
         std::fprintf(stderr,
                      "view %zu k=%.3f E=%.3f rot %.3f->%.3f trans %.1f->%.1f mm n=%d valid=%d "
-                     "lmin=%.3g tinfo=%.3g cond=%.3g free=%d refused=%d outlier=%d rel=%.3f thr=%.3f "
+                     "lmin=%.3g tinfo=%.3g cond=%.3g free=%d refused=%d outlier=%d attempts=%d rel=%.3f thr=%.3f "
                      "disagree=%.3f %.1f ms (cpu %.1f)\n",
                      i, k[i], res->exposure, rot_before.back(),
                      RotationAngleRad(res->local_from_cam.rotation, truth_pose[i].rotation) * 180 / M_PI,
@@ -300,11 +307,20 @@ absl::Status RunScene(synth::SceneKind kind, const Args& a) {
                      1000 * glm::length(res->local_from_cam.translation - truth_pose[i].translation),
                      res->num_samples, res->num_valid_final, res->pose_min_eigenvalue, res->pose_translation_information,
                      res->pose_condition, res->pose_free_directions, res->pose_refused_rank_deficient, res->rejected_outlier,
-                     res->relative_residual, res->outlier_threshold, res->reference_disagreement, res->ms, res->cpu_ms);
+                     res->attempts, res->relative_residual, res->outlier_threshold, res->reference_disagreement, res->ms, res->cpu_ms);
+      if (std::getenv("REFINEMENT_BENCH_VERBOSE")) {
+        const glm::dvec3 d_cam = glm::conjugate(truth_pose[i].rotation) *
+                                 (res->local_from_cam.translation - truth_pose[i].translation);
+        std::fprintf(stderr, "   camera-centre error in the true camera frame: (%.1f, %.1f, %.1f) mm\n",
+                     1000 * d_cam.x, 1000 * d_cam.y, 1000 * d_cam.z);
+      }
       if (std::getenv("REFINEMENT_BENCH_STAGES"))
         for (const auto& st : res->stages)
-          std::fprintf(stderr, "   L%d %s %.4g -> %.4g %s\n", st.level, st.pose ? "pose" : "expo",
-                       st.before, st.after, st.accepted ? "" : "UNDONE");
+          std::fprintf(stderr, "   L%d %s %.4g -> %.4g %s rot %.3f deg trans %.1f mm E %.3f\n", st.level,
+                       st.pose ? "pose" : "expo", st.before, st.after, st.accepted ? "" : "UNDONE",
+                       RotationAngleRad(st.local_from_cam.rotation, truth_pose[i].rotation) * 180 / M_PI,
+                       1000 * glm::length(st.local_from_cam.translation - truth_pose[i].translation),
+                       st.exposure * k[i]);
       stats.Add(*res);
       ms.push_back(res->ms);
       cpu_ms.push_back(res->cpu_ms);
@@ -382,6 +398,8 @@ int Main(int argc, char** argv) {
     else if (key == "--iters") a.iters = std::atoi(v);
     else if (key == "--depth-weight") a.depth_weight = std::atof(v);
     else if (key == "--pose") a.refine_pose = std::atoi(v) != 0;
+    else if (key == "--retry") a.retry = std::atoi(v);
+    else if (key == "--register") a.reg = std::atoi(v);
     else if (key == "--keep-rejected") a.keep_rejected = std::atoi(v) != 0;
     else if (key == "--min-tinfo") a.min_tinfo = std::atof(v);
     else if (key == "--outer") a.outer = std::atoi(v);

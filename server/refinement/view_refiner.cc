@@ -259,6 +259,12 @@ class Refiner {
   void AddDepthEnergy(const std::vector<int>& idx, const Pose& p0, const Pose& p1, double w,
                       double scale, double* before, double* after) const;
   Eigen::Matrix<double, 6, 6> Information(int level, const Pose& pose, double e) const;
+  // Pose/exposure alternation over the pyramid from the coarsest level; attempt 0 is the
+  // default schedule, attempt 1 the retry (6-DoF at every level, 3x the LM iterations).
+  void CoarseToFine(int attempt, Pose* pose, double* e);
+  // median |E c_j - m_j| / median(m_j) over the samples valid at `pose`, level 0.
+  double RelativeResidual(const Pose& pose, double e) const;
+  int attempt_ = 0;
 
   const StoredView& cand_;
   std::vector<const StoredView*> refs_;
@@ -509,12 +515,13 @@ double Refiner::SolveExposure(int level, const Pose& pose, double e, bool warm_s
     ceres::Solve(so, &problem, &sum);
     res_.iterations += static_cast<int>(sum.iterations.size());
   }
-  RefinementStage st{level, false, LogExposureEnergy(lc, lm, e, scale), 0.0, true};
+  RefinementStage st{level, false, LogExposureEnergy(lc, lm, e, scale), 0.0, true, LocalFromCam(pose), e};
   st.after = std::isfinite(x) && x > 0 ? LogExposureEnergy(lc, lm, x, scale) : st.before + 1.0;
   if (st.after > st.before) {
     st.accepted = false;
     res_.step_reverted = true;  // guard: never accept a stage that raises its energy
   }
+  if (st.accepted) st.exposure = x;
   res_.stages.push_back(st);
   return st.accepted ? x : e;
 }
@@ -523,7 +530,7 @@ Pose Refiner::SolvePose(int level, double e, const Pose& pose) {
   // Coarse levels cannot separate a small camera translation from a rotation (1-2 cm at metres
   // is sub-pixel there): rotation only (about the camera centre), the translation waits for the
   // fine levels. Weak directions (eigen-analysis of the level-0 information) stay frozen.
-  const bool rot_only = level >= o_.rotation_only_from_level;
+  const bool rot_only = attempt_ == 0 && level >= o_.rotation_only_from_level;
   const Eigen::Matrix<double, 6, Eigen::Dynamic>& basis = rot_only ? rot_basis_ : free_basis_;
   if (basis.cols() == 0) return pose;
   const Active a = ActiveSet(level, pose, Kind::kTextured);
@@ -535,6 +542,7 @@ Pose Refiner::SolvePose(int level, double e, const Pose& pose) {
   double xi[6] = {0, 0, 0, 0, 0, 0};
   ceres::Solver::Options so = SolverOptions(o_);
   if (level > 0) so.max_num_iterations = std::max(3, o_.max_solver_iterations / 2);
+  if (attempt_ > 0) so.max_num_iterations = 3 * o_.max_solver_iterations;
   ceres::Problem::Options po;
   po.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
   po.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
@@ -580,7 +588,8 @@ Pose Refiner::SolvePose(int level, double e, const Pose& pose) {
   const bool finite = out.t.allFinite() && out.q.coeffs().allFinite();
   EnergyPair ep = finite ? CompareEnergy(level, e, pose, e, out, scale) : EnergyPair{};
   if (finite && dw > 0) AddDepthEnergy(a.idx, pose, out, dw, scale, &ep.before, &ep.after);
-  RefinementStage st{level, true, ep.before, ep.after, finite && !ep.Raised()};
+  RefinementStage st{level, true, ep.before, ep.after, finite && !ep.Raised(), {}, e};
+  st.local_from_cam = LocalFromCam(st.accepted ? out : pose);
   res_.stages.push_back(st);
   if (!st.accepted) {
     res_.step_reverted = true;  // guard: never accept a stage that raises J
@@ -741,6 +750,40 @@ void Refiner::RankCheck(const Pose& pose, double e) {
   for (size_t i = 0; i < keep_r.size(); ++i) rot_basis_.block<3, 1>(0, i) = er.eigenvectors().col(keep_r[i]);
 }
 
+void Refiner::CoarseToFine(int attempt, Pose* pose_io, double* e_io) {
+  Pose pose = *pose_io;
+  double e = *e_io;
+  attempt_ = attempt;
+  for (int l = levels_ - 1; l >= 0; --l) {
+    for (int it = 0; it < o_.max_outer_iterations; ++it) {
+      const Pose p1 = SolvePose(l, e, pose);
+      const double e1 = SolveExposure(l, p1, e, false);
+      const double drot = p1.q.angularDistance(pose.q);
+      const double dt = (p1.q.conjugate() * p1.t - pose.q.conjugate() * pose.t).norm();
+      const double de = std::abs(e1 - e) / std::max(e, 1e-9);
+      pose = p1;
+      e = e1;
+      if (drot < o_.convergence_rotation_rad && dt < o_.convergence_translation_m &&
+          de < o_.convergence_exposure_rel)
+        break;
+    }
+  }
+  *pose_io = pose;
+  *e_io = SolveExposure(0, pose, e, false);
+}
+
+double Refiner::RelativeResidual(const Pose& pose, double e) const {
+  const Active a = ActiveSet(0, pose);
+  std::vector<double> absr, ms;
+  for (size_t k = 0; k < a.idx.size(); ++k) {
+    const double m = samples_[a.idx[k]].m[0];
+    absr.push_back(std::abs(e * a.c[k] - m));
+    ms.push_back(m);
+  }
+  const double med_m = Median(ms);
+  return med_m > 0 ? Median(absr) / med_m : 1.0;
+}
+
 absl::StatusOr<RefinementResult> Refiner::Run() {
   const auto t0 = std::chrono::steady_clock::now();
   timespec cpu0;
@@ -816,21 +859,20 @@ absl::StatusOr<RefinementResult> Refiner::Run() {
   if (o_.refine_pose) {
     if (o_.check_rank) RankCheck(pose0, e);
     if (!res_.pose_refused_rank_deficient) {
-      for (int l = levels_ - 1; l >= 0; --l) {
-        for (int it = 0; it < o_.max_outer_iterations; ++it) {
-          const Pose p1 = SolvePose(l, e, pose);
-          const double e1 = SolveExposure(l, p1, e, false);
-          const double drot = p1.q.angularDistance(pose.q);
-          const double dt = glm::length(LocalFromCam(p1).translation - LocalFromCam(pose).translation);
-          const double de = std::abs(e1 - e) / std::max(e, 1e-9);
-          pose = p1;
-          e = e1;
-          if (drot < o_.convergence_rotation_rad && dt < o_.convergence_translation_m &&
-              de < o_.convergence_exposure_rel)
-            break;
+      CoarseToFine(/*attempt=*/0, &pose, &e);
+      // Second start when the first one ends far from agreement (close-range views, where a
+      // 2 cm error is tens of pixels and the coarse levels land in a side basin): all levels
+      // 6-DoF with three times the iterations; the attempt with the lower final residual wins.
+      if (o_.retry_on_outlier && RelativeResidual(pose, e) > o_.outlier_max_relative_residual / 4) {
+        Pose pose_b = pose0;
+        double e_b = e_exposure_only;
+        CoarseToFine(/*attempt=*/1, &pose_b, &e_b);
+        ++res_.attempts;
+        if (RelativeResidual(pose_b, e_b) < RelativeResidual(pose, e)) {
+          pose = pose_b;
+          e = e_b;
         }
       }
-      e = SolveExposure(0, pose, e, false);
     }
   }
   // Guards on the whole call: the pose stages must lower J relative to the exposure-only
@@ -867,7 +909,7 @@ absl::StatusOr<RefinementResult> Refiner::Run() {
     ms.push_back(m);
   }
   const double med_m = Median(ms);
-  res_.relative_residual = med_m > 0 ? Median(absr) / med_m : 1.0;
+  res_.relative_residual = med_m > 0 ? Median(absr) / med_m : 1.0;  // == RelativeResidual()
   // Fraction of the samples valid at the input pose that are still valid at the result.
   const double valid_fraction = double(af.idx.size()) / std::max<size_t>(1, a0.idx.size());
   // Threshold relative to what the references themselves disagree about (texture blur,
