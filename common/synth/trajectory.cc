@@ -90,8 +90,9 @@ absl::Status TrajectoryOptions::Validate() const {
     return absl::InvalidArgumentError("hilbert_order must be in [1, 8]");
   if (!(flyover_pitch_deg > 0 && flyover_pitch_deg < 90))
     return absl::InvalidArgumentError("flyover_pitch_deg must be in (0, 90)");
-  if (!(walk_look_around_deg >= 0 && walk_look_around_deg < 90))
-    return absl::InvalidArgumentError("walk_look_around_deg must be in [0, 90)");
+  // Up to 180: a sweep of +-180 deg turns the walker fully around (looks at every wall of a room).
+  if (!(walk_look_around_deg >= 0 && walk_look_around_deg <= 180))
+    return absl::InvalidArgumentError("walk_look_around_deg must be in [0, 180]");
   if (!(frame_rate_hz > 0) || !std::isfinite(frame_rate_hz))
     return absl::InvalidArgumentError("frame_rate_hz must be > 0");
   return absl::OkStatus();

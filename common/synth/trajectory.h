@@ -22,7 +22,7 @@ struct TrajectoryOptions {
   int num_frames = 120;           // thesis: 5000
   int hilbert_order = 3;          // 4^order curve vertices over the scene footprint
   double flyover_pitch_deg = 40;  // below the horizon
-  double walk_look_around_deg = 20;  // amplitude of a slow yaw sweep while walking
+  double walk_look_around_deg = 20;  // amplitude of a slow yaw sweep while walking, [0, 180]
   double frame_rate_hz = 30;      // timestamps
   absl::Status Validate() const;
 };
