@@ -1136,7 +1136,9 @@ absl::StatusOr<std::vector<ConfigResult>> RunSynthetic(const SynthRunOptions& o)
 
 absl::StatusOr<SevenScenesReport> RunSevenScenes(const SevenScenesRunOptions& o) {
   if (o.hold_out_every < 2) return absl::InvalidArgumentError("hold_out_every must be >= 2");
-  EXO_ASSIGN_OR_RETURN(auto reader, SevenScenesReader::Open(o.dir));
+  SevenScenesOptions reader_options;
+  reader_options.register_depth = o.register_depth;
+  EXO_ASSIGN_OR_RETURN(auto reader, SevenScenesReader::Open(o.dir, reader_options));
   const size_t total = o.max_frames > 0 ? std::min<size_t>(o.max_frames, reader->size())
                                         : reader->size();
   SevenScenesReport rep;

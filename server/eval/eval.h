@@ -139,6 +139,8 @@ struct SevenScenesRunOptions {
   std::string dir;                 // .../7scenes-redkitchen
   int max_frames = 0;              // 0 = all
   int hold_out_every = 10;
+  // Depth registered to colour (common/datasets rgbd_registration; colour camera K and pose).
+  bool register_depth = true;
   double voxel_m = 0.02;
   double max_depth_m = 4.0;
   int id_width = 160, id_height = 120;

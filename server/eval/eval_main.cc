@@ -7,7 +7,8 @@
 //                --store 200 --r_max 16 [--lambda 0.5] [--cell 0] [--dts 0.05]
 //                [--sweep store|r_max|lambda|cell] [--sweep_test_views 50]
 //                [--dump DIR --dump_views 4]
-//   exoview_eval --sevenscenes DIR [--store 50] [--policies ...]
+//   exoview_eval --sevenscenes DIR [--store 50] [--policies ...] [--register 0|1 (default 1:
+//                depth registered to colour, docs/registration.md)]
 //   --test_poses scene|near|scene,near   test pose set(s), all evaluated on the same stores
 //   --look_around DEG     walk yaw-sweep amplitude (synth default 20)
 //   --per_view 1          per-test-view SSIM, nearest stored view, reference hit in the JSON
@@ -133,6 +134,7 @@ int RunOne(const Args& a) {
     SevenScenesRunOptions o;
     o.dir = a.Get("--sevenscenes", "");
     o.max_frames = int(a.Num("--frames", 0));
+    o.register_depth = a.Num("--register", 1) != 0;
     o.voxel_m = a.Num("--voxel", 0.02);
     o.test_width = int(a.Num("--test_w", 640));
     o.test_height = int(a.Num("--test_h", 480));
@@ -150,9 +152,9 @@ int RunOne(const Args& a) {
       return 1;
     }
     Emit(absl::StrFormat(
-        "{\"bench\":\"eval_split\",\"dataset\":\"7scenes/redkitchen\",\"ingested\":%d,"
+        "{\"bench\":\"eval_split\",\"dataset\":\"7scenes/redkitchen\",\"registered\":%d,\"ingested\":%d,"
         "\"held_out\":%d,\"dropped_duplicate_colour\":%d,\"test_views\":%d}",
-        rep->ingested, rep->held_out, rep->dropped_duplicates,
+        o.register_depth ? 1 : 0, rep->ingested, rep->held_out, rep->dropped_duplicates,
         rep->held_out - rep->dropped_duplicates));
     return 0;
   }
