@@ -88,6 +88,20 @@ void AccumulateSample(inout BlendAccumulator acc, float weight, vec4 s, vec2 lay
   Accumulate(acc, lin, s.w, weight);
 }
 
+// Normalised blend of the best n samples in linear intensity (with exposure), to sRGB; false
+// (and the background colour) when no sample has weight.
+bool BlendBest(BestSamples best, int n, out vec3 srgb) {
+  BlendAccumulator acc;
+  acc.sum_linear = vec3(0.0);
+  acc.sum_weight = 0.0;
+  const vec2 layer_size = vec2(textureSize(colors, 0).xy);
+  AccumulateSample(acc, best.weight.x, best.s0, layer_size, 0 < n);
+  AccumulateSample(acc, best.weight.y, best.s1, layer_size, 1 < n);
+  AccumulateSample(acc, best.weight.z, best.s2, layer_size, 2 < n);
+  AccumulateSample(acc, best.weight.w, best.s3, layer_size, 3 < n);
+  return Resolve(acc, frame.background.rgb, srgb);
+}
+
 // Background at infinity for a pixel without proxy surface (cpu_renderer.cc, the no-cell branch;
 // blend_math.h BackgroundWeight): the ray is a direction d, every background view j of this frame
 // is a candidate, valid where its baked depth is -1 (the guarded background mask) at the nearest
@@ -117,16 +131,8 @@ vec4 ShadeBackground(ivec2 pixel) {
     InsertSample(best, n, BorderWeight(uv, size), j,
                  vec4(clamp(uv, vec2(0.0), size - 1.0), wh.z, wh.w));
   }
-  BlendAccumulator acc;
-  acc.sum_linear = vec3(0.0);
-  acc.sum_weight = 0.0;
-  const vec2 layer_size = vec2(textureSize(colors, 0).xy);
-  AccumulateSample(acc, best.weight.x, best.s0, layer_size, 0 < n);
-  AccumulateSample(acc, best.weight.y, best.s1, layer_size, 1 < n);
-  AccumulateSample(acc, best.weight.z, best.s2, layer_size, 2 < n);
-  AccumulateSample(acc, best.weight.w, best.s3, layer_size, 3 < n);
   vec3 srgb;
-  const bool filled = Resolve(acc, frame.background.rgb, srgb);
+  const bool filled = BlendBest(best, n, srgb);
   return vec4(srgb, filled ? 64.0 / 255.0 : 0.0);
 }
 
@@ -212,15 +218,7 @@ vec4 ShadePixel(ivec2 pixel) {
     nth = n == 1 ? best.weight.x : n == 2 ? best.weight.y : n == 3 ? best.weight.z : best.weight.w;
   }
 
-  BlendAccumulator acc;
-  acc.sum_linear = vec3(0.0);
-  acc.sum_weight = 0.0;
-  const vec2 layer_size = vec2(textureSize(colors, 0).xy);
-  AccumulateSample(acc, best.weight.x, best.s0, layer_size, 0 < n);
-  AccumulateSample(acc, best.weight.y, best.s1, layer_size, 1 < n);
-  AccumulateSample(acc, best.weight.z, best.s2, layer_size, 2 < n);
-  AccumulateSample(acc, best.weight.w, best.s3, layer_size, 3 < n);
   vec3 srgb;
-  const bool covered = Resolve(acc, frame.background.rgb, srgb);
+  const bool covered = BlendBest(best, n, srgb);
   return vec4(srgb, covered ? 1.0 : 128.0 / 255.0);
 }
