@@ -371,6 +371,37 @@ TEST(BlendWeightUpperBoundTest, BoundsEveryPointOfTheCellBallAndIsInformative) {
   EXPECT_LT(slack_sum / configs, 0.05) << "mean bound - sampled max";
 }
 
+// Background at infinity without any proxy: a stored view that saw nothing within range (depth 0
+// everywhere) fills every pixel of the same pose with its own colour (coverage 3); a removed view
+// is no longer a background view; the guard radius must match the baked one.
+TEST(VulkanRendererTest, BackgroundAtInfinityFromASkyOnlyView) {
+  LumigraphModel m;
+  m.grid.cell_size_m = 0.5;
+  StoredView v = PlaneView(5, Rigid3d::Identity());
+  for (float& z : v.depth_m.span()) z = 0.0f;
+  m.views[5] = v;
+  auto r = Make(m);
+  auto out = r->Render(Cam(), Rigid3d::Identity(), blend::BlendOptions{});
+  ASSERT_TRUE(out.ok()) << out.status();
+  EXPECT_EQ(out->background_views, std::vector<ViewId>{5});
+  for (uint8_t c : out->coverage.span()) ASSERT_EQ(c, 3);
+  EXPECT_LE(MaxDiff(out->color, v.color), 1);
+  blend::BlendOptions bad;
+  bad.background_guard_radius_px = 2;
+  EXPECT_EQ(r->Render(Cam(), Rigid3d::Identity(), bad).status().code(),
+            absl::StatusCode::kInvalidArgument);
+  bad.background_views = 0;  // off: the baked radius does not matter
+  auto off = r->Render(Cam(), Rigid3d::Identity(), bad);
+  ASSERT_TRUE(off.ok()) << off.status();
+  for (uint8_t c : off->coverage.span()) ASSERT_EQ(c, 0);
+  ASSERT_TRUE(r->RemoveView(5).ok());
+  auto gone = r->Render(Cam(), Rigid3d::Identity(), blend::BlendOptions{});
+  ASSERT_TRUE(gone.ok()) << gone.status();
+  EXPECT_TRUE(gone->background_views.empty());
+  for (uint8_t c : gone->coverage.span()) ASSERT_EQ(c, 0);
+  EXPECT_TRUE(r->ValidationErrors().empty());
+}
+
 TEST(VulkanRendererTest, RejectsBadInput) {
   auto r = Make(PlaneModel());
   StoredView v = PlaneView(9, Rigid3d::Identity());
