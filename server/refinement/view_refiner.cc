@@ -264,6 +264,11 @@ class Refiner {
   void CoarseToFine(int attempt, Pose* pose, double* e);
   // median |E c_j - m_j| / median(m_j) over the samples valid at `pose`, level 0.
   double RelativeResidual(const Pose& pose, double e) const;
+  struct ResidualSummary {
+    double relative = 1.0;  // median |E c_j - m_j| / median(m_j)
+    double median_m = 0.0;  // median(m_j)
+  };
+  ResidualSummary SummarizeResiduals(const Active& a, double e) const;
   int attempt_ = 0;
 
   const StoredView& cand_;
@@ -772,16 +777,21 @@ void Refiner::CoarseToFine(int attempt, Pose* pose_io, double* e_io) {
   *e_io = SolveExposure(0, pose, e, false);
 }
 
-double Refiner::RelativeResidual(const Pose& pose, double e) const {
-  const Active a = ActiveSet(0, pose);
+Refiner::ResidualSummary Refiner::SummarizeResiduals(const Active& a, double e) const {
   std::vector<double> absr, ms;
   for (size_t k = 0; k < a.idx.size(); ++k) {
     const double m = samples_[a.idx[k]].m[0];
     absr.push_back(std::abs(e * a.c[k] - m));
     ms.push_back(m);
   }
-  const double med_m = Median(ms);
-  return med_m > 0 ? Median(absr) / med_m : 1.0;
+  ResidualSummary out;
+  out.median_m = Median(ms);
+  out.relative = out.median_m > 0 ? Median(absr) / out.median_m : 1.0;
+  return out;
+}
+
+double Refiner::RelativeResidual(const Pose& pose, double e) const {
+  return SummarizeResiduals(ActiveSet(0, pose), e).relative;
 }
 
 absl::StatusOr<RefinementResult> Refiner::Run() {
@@ -902,14 +912,9 @@ absl::StatusOr<RefinementResult> Refiner::Run() {
   // Pose-outlier decision on the final residuals.
   const Active af = ActiveSet(0, pose);
   res_.num_valid_final = static_cast<int>(af.idx.size());
-  std::vector<double> absr, ms;
-  for (size_t k = 0; k < af.idx.size(); ++k) {
-    const double m = samples_[af.idx[k]].m[0];
-    absr.push_back(std::abs(e * af.c[k] - m));
-    ms.push_back(m);
-  }
-  const double med_m = Median(ms);
-  res_.relative_residual = med_m > 0 ? Median(absr) / med_m : 1.0;  // == RelativeResidual()
+  const ResidualSummary final_residuals = SummarizeResiduals(af, e);
+  const double med_m = final_residuals.median_m;
+  res_.relative_residual = final_residuals.relative;
   // Fraction of the samples valid at the input pose that are still valid at the result.
   const double valid_fraction = double(af.idx.size()) / std::max<size_t>(1, a0.idx.size());
   // Threshold relative to what the references themselves disagree about (texture blur,
