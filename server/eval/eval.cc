@@ -60,8 +60,6 @@ double Mean(const std::vector<double>& v) {
 
 struct ChunkEntry {
   MeshChunk chunk;
-  TriangleMesh lod;  // cell-id LOD (planning::ClusterSimplify); empty when LODs are off
-  size_t lod_source_tris = 0;  // triangles of the chunk mesh the LOD was built from
   glm::vec3 centre{0.0f};
   float radius = 0.0f;
 };
@@ -79,66 +77,13 @@ ChunkEntry MakeEntry(MeshChunk c) {
   return e;
 }
 
-// Conservative sphere-vs-frustum test (side planes and near plane).
-bool SphereInFrustum(const glm::vec3& c_local, float r, const PinholeCamera& cam,
-                     const Rigid3d& local_from_cam, double max_range) {
-  const glm::dmat3 rot = local_from_cam.RotationMatrix();
-  const glm::dvec3 p = glm::transpose(rot) * (glm::dvec3(c_local) - local_from_cam.translation);
-  if (p.z < -r || p.z > max_range + r) return false;
-  const double tx = std::max(cam.cx, cam.width - cam.cx) / cam.fx;
-  const double ty = std::max(cam.cy, cam.height - cam.cy) / cam.fy;
-  if (std::abs(p.x) - tx * p.z > r * std::sqrt(1 + tx * tx)) return false;
-  if (std::abs(p.y) - ty * p.z > r * std::sqrt(1 + ty * ty)) return false;
-  return true;
-}
-
+// The full proxy (what the lumigraph renders and the vertex-colour baseline shows). The planner's
+// cell-id buffers come from planning::CellIdRenderer (per-chunk LOD cache, frustum culling), one
+// per cell grid, fed with the same chunks.
 class Proxy {
  public:
-  // cluster_m > 0: keep a vertex-clustered LOD of every chunk for cell-id buffers.
-  void set_lod_cluster_m(double m) { lod_cluster_m_ = m; }
-  double lod_cluster_m() const { return lod_cluster_m_; }
-  // The LOD of an updated chunk is rebuilt only when its triangle count moved by more than 10 %
-  // since the last build (a converging TSDF chunk moves by fractions of a voxel, far below the
-  // cluster size): most dirty chunks of a frame keep their LOD.
-  void Set(uint64_t id, MeshChunk c) {
-    ChunkEntry e = MakeEntry(std::move(c));
-    if (lod_cluster_m_ > 0) {
-      auto old = chunks_.find(id);
-      const size_t n = e.chunk.mesh.num_triangles();
-      if (old != chunks_.end() && old->second.lod_source_tris > 0 &&
-          10 * std::max(n, old->second.lod_source_tris) <
-              11 * std::min(n, old->second.lod_source_tris)) {
-        e.lod = std::move(old->second.lod);
-        e.lod_source_tris = old->second.lod_source_tris;
-      } else {
-        auto lod = planning::ClusterSimplify(e.chunk.mesh, lod_cluster_m_);
-        if (lod.ok()) e.lod = std::move(*lod);
-        e.lod_source_tris = n;
-      }
-    }
-    chunks_[id] = std::move(e);
-  }
+  void Set(uint64_t id, MeshChunk c) { chunks_[id] = MakeEntry(std::move(c)); }
   void Remove(uint64_t id) { chunks_.erase(id); }
-  TriangleMesh Visible(const PinholeCamera& cam, const Rigid3d& pose, double max_range) const {
-    TriangleMesh m;
-    for (const auto& [id, e] : chunks_)
-      if (SphereInFrustum(e.centre, e.radius, cam, pose, max_range)) Append(m, e.chunk.mesh);
-    return m;
-  }
-  // What the cell-id buffers are rendered from: the LOD when enabled, else the full mesh.
-  TriangleMesh VisibleForCellIds(const PinholeCamera& cam, const Rigid3d& pose,
-                                 double max_range) const {
-    if (!(lod_cluster_m_ > 0)) return Visible(cam, pose, max_range);
-    TriangleMesh m;
-    for (const auto& [id, e] : chunks_)
-      if (SphereInFrustum(e.centre, e.radius, cam, pose, max_range)) Append(m, e.lod);
-    return m;
-  }
-  size_t lod_triangles() const {
-    size_t t = 0;
-    for (const auto& [id, e] : chunks_) t += e.lod.num_triangles();
-    return t;
-  }
   TriangleMesh All() const {
     TriangleMesh m;
     for (const auto& [id, e] : chunks_) Append(m, e.chunk.mesh);
@@ -178,7 +123,6 @@ class Proxy {
     for (uint32_t i : c.indices) m.indices.push_back(base + i);
   }
   std::map<uint64_t, ChunkEntry> chunks_;
-  double lod_cluster_m_ = 0;
 };
 
 std::vector<planning::CellPixelCount> CellCounts(const TriangleMesh& mesh, const CellGrid& grid,
@@ -197,6 +141,16 @@ std::vector<planning::CellPixelCount> CellCounts(const TriangleMesh& mesh, const
   if (!r.ok()) return {};
   *id_cam = r->camera;
   return planning::CountCellPixels(r->cell_id.data(), r->cell_id.size());
+}
+
+// The cell-id buffer of a frame from the planner's CellIdRenderer (frustum-culled chunk LODs).
+absl::StatusOr<std::vector<planning::CellPixelCount>> CellCounts(
+    const planning::CellIdRenderer& cid, const PinholeCamera& cam, const Rigid3d& pose, int w,
+    int h, PinholeCamera* id_cam, size_t* triangles = nullptr) {
+  EXO_ASSIGN_OR_RETURN(planning::CellIdBuffer b, cid.Render(pose, cam, w, h));
+  *id_cam = b.camera;
+  if (triangles != nullptr) *triangles = b.triangles_rendered;
+  return planning::CountCellPixels(b.cell_id.data(), b.cell_id.size());
 }
 
 // ---- policies other than the online planner ----
@@ -310,6 +264,7 @@ struct Source {
 struct Group {  // configurations sharing one cell size
   CellGrid grid;
   std::unique_ptr<CellAreas> areas;
+  std::unique_ptr<planning::CellIdRenderer> cid;  // cell-id buffers of this grid
   std::vector<size_t> online;                  // config indices
   std::vector<double> cellid_ms, cellid_cpu_ms;  // per frame (wall, thread CPU)
   bool needs_final = false;
@@ -474,8 +429,9 @@ struct EngineOptions {
   int dump_views = 0;
   TriangleMesh gt_mesh;  // used when proxy == kGroundTruth
   bool per_view = false;  // per-test-view diagnostics in the JSON
-  // Cell-id LOD: cluster size as a fraction of the (smallest) cell size; 0 = full proxy mesh.
-  double cellid_lod_frac = 0;
+  // Cell-id LOD: cluster size as a fraction of the (smallest) cell size; 0 = full proxy mesh;
+  // < 0 = planning::DefaultCellIdLodM.
+  double cellid_lod_frac = -1;
 };
 
 class Engine {
@@ -489,7 +445,13 @@ class Engine {
       for (const PolicyConfig& c : configs_)
         min_cell = std::min(min_cell, c.cell_m > 0 ? c.cell_m : src_.scale.cell_size_m);
       if (configs_.empty()) min_cell = src_.scale.cell_size_m;
-      proxy_.set_lod_cluster_m(opt_.cellid_lod_frac * min_cell);
+      lod_cluster_m_ = opt_.cellid_lod_frac * min_cell;
+    } else if (opt_.cellid_lod_frac < 0) {  // planning::DefaultCellIdLodM of the smallest cell
+      double min_cell = src_.scale.cell_size_m;
+      for (const PolicyConfig& c : configs_)
+        min_cell = std::min(min_cell, c.cell_m > 0 ? c.cell_m : src_.scale.cell_size_m);
+      lod_cluster_m_ = planning::DefaultCellIdLodM(
+          min_cell, opt_.proxy == ProxyKind::kTsdf ? opt_.tsdf.voxel_size_m : 0.0);
     }
     if (opt_.proxy == ProxyKind::kTsdf) {
       EXO_RETURN_IF_ERROR(opt_.tsdf.Validate());
@@ -511,6 +473,16 @@ class Engine {
         Group gr;
         gr.grid.cell_size_m = cell;
         gr.areas = std::make_unique<CellAreas>(gr.grid);
+        planning::CellIdRendererOptions co;
+        co.grid = gr.grid;
+        co.lod_cluster_m = lod_cluster_m_;
+        // Every new chunk version gets a new LOD: keeping the LOD while the triangle count stays
+        // within 10 % (lod_keep_fraction 0.1) kept stale surfaces early in a walk (tiny eval run:
+        // coverage 0.815 -> 0.566).
+        co.lod_keep_fraction = 0.0;
+        co.max_range_m = opt_.max_range_m;
+        EXO_ASSIGN_OR_RETURN(auto cid, planning::CellIdRenderer::Create(co));
+        gr.cid = std::make_unique<planning::CellIdRenderer>(std::move(cid));
         groups_.push_back(std::move(gr));
         if (opt_.proxy == ProxyKind::kGroundTruth) {
           MeshChunk c0;
@@ -518,6 +490,7 @@ class Engine {
           c0.version = 1;
           c0.mesh = opt_.gt_mesh;
           groups_[g].areas->UpdateChunk(c0);
+          EXO_RETURN_IF_ERROR(groups_[g].cid->Update({c0}));
         }
       }
       cfg_group_.push_back(g);
@@ -552,18 +525,24 @@ class Engine {
     if (tsdf_ != nullptr) {
       if (frame == nullptr) return absl::InternalError("TSDF proxy needs frames");
       EXO_RETURN_IF_ERROR(tsdf_->Integrate(*frame, origin_).status());
-      for (MeshChunk& c : tsdf_->ExtractDirtyChunks()) {
+      std::vector<MeshChunk> dirty = tsdf_->ExtractDirtyChunks();
+      for (const MeshChunk& c : dirty)
         for (auto& g : groups_) g.areas->UpdateChunk(c);
+      // The cell-id renderers' LOD cache update is planning time, not integration.
+      const auto t_lod = Clock::now();
+      const double c_lod = ThreadCpuMs();
+      for (auto& g : groups_) EXO_RETURN_IF_ERROR(g.cid->Update(dirty));
+      lod_ms += MsSince(t_lod);
+      lod_cpu_ms += ThreadCpuMs() - c_lod;
+      for (MeshChunk& c : dirty) {
         const uint64_t id = c.id;
-        // Storing a dirty chunk includes its cell-id LOD: planning time, not integration.
-        const auto t_lod = Clock::now();
-        const double c_lod = ThreadCpuMs();
         proxy_.Set(id, std::move(c));
-        lod_ms += MsSince(t_lod);
-        lod_cpu_ms += ThreadCpuMs() - c_lod;
       }
       for (uint64_t id : tsdf_->TakeRemovedChunkIds()) {
-        for (auto& g : groups_) g.areas->RemoveChunk(id);
+        for (auto& g : groups_) {
+          g.areas->RemoveChunk(id);
+          g.cid->Remove(id);
+        }
         proxy_.Remove(id);
       }
       integrate_ms_.push_back(MsSince(t0) - lod_ms);
@@ -577,15 +556,14 @@ class Engine {
       const std::vector<CellId> changed = g.areas->TakeChangedCells();
       for (size_t ci : g.online)
         for (CellId k : changed) EXO_RETURN_IF_ERROR(online_[ci].planner->SetCellArea(k, g.areas->Area(k)));
-      const auto t_mesh = Clock::now();
-      const TriangleMesh mesh = proxy_.VisibleForCellIds(src_.camera, pose, opt_.max_range_m);
-      concat_ms_.push_back(MsSince(t_mesh));
       const auto t_r = Clock::now();
       PinholeCamera id_cam;
-      const auto cells = CellCounts(mesh, g.grid, src_.camera, pose, opt_.id_w, opt_.id_h, &id_cam);
+      size_t tris = 0;
+      EXO_ASSIGN_OR_RETURN(const auto cells, CellCounts(*g.cid, src_.camera, pose, opt_.id_w,
+                                                        opt_.id_h, &id_cam, &tris));
       raster_ms_.push_back(MsSince(t_r));
       lod_ms_.push_back(lod_ms);
-      idbuf_tris_.push_back(double(mesh.num_triangles()));
+      idbuf_tris_.push_back(double(tris));
       g.cellid_ms.push_back(MsSince(t1) + lod_ms);
       g.cellid_cpu_ms.push_back(ThreadCpuMs() - c1 + lod_cpu_ms);
       for (size_t ci : g.online) {
@@ -615,17 +593,15 @@ class Engine {
       if (!g.needs_final) continue;
       g.final_cells.resize(n);
       for (int i = 0; i < n; ++i) {
-        const TriangleMesh mesh =
-            proxy_.VisibleForCellIds(src_.camera, src_.poses[i], opt_.max_range_m);
-        g.final_cells[i] = CellCounts(mesh, g.grid, src_.camera, src_.poses[i], opt_.id_w,
-                                      opt_.id_h, &g.id_cam);
+        EXO_ASSIGN_OR_RETURN(g.final_cells[i], CellCounts(*g.cid, src_.camera, src_.poses[i],
+                                                          opt_.id_w, opt_.id_h, &g.id_cam));
       }
     }
     std::fprintf(stderr,
-                 "cell-id buffer per frame (median ms): lod %.2f, visible-mesh concat %.2f, "
-                 "raster+count %.2f; triangles rendered median %.0f (full proxy %zu, lod %zu)\n",
-                 Pct(lod_ms_, 0.5), Pct(concat_ms_, 0.5), Pct(raster_ms_, 0.5),
-                 Pct(idbuf_tris_, 0.5), proxy_.triangles(), proxy_.lod_triangles());
+                 "cell-id buffer per frame (median ms): lod cache %.2f, render+count %.2f; "
+                 "triangles rendered median %.0f (full proxy %zu, cell-id meshes %zu)\n",
+                 Pct(lod_ms_, 0.5), Pct(raster_ms_, 0.5), Pct(idbuf_tris_, 0.5),
+                 proxy_.triangles(), groups_.empty() ? size_t(0) : groups_[0].cid->render_triangles());
     const TriangleMesh proxy_mesh = proxy_.All();
     const size_t geometry_bytes = (tsdf_ ? tsdf_->bytes() : 0) + proxy_.bytes();
     std::vector<ConfigResult> results;
@@ -644,7 +620,7 @@ class Engine {
         r.geometry_bytes = geometry_bytes;
         r.json = ConfigJson(src_.dataset, ts.label, proxy_name, voxel_m, n, r.config, 0, 0, 0, r, opt_.id_w,
                             opt_.id_h, PlannerFor(r.config, src_, src_.scale.cell_size_m, src_.frame_bytes),
-                            ScaleModeName(src_.scale_mode), proxy_.lod_cluster_m());
+                            ScaleModeName(src_.scale_mode), lod_cluster_m_);
         if (opt_.emit) opt_.emit(r.json);
         results.push_back(std::move(r));
       }
@@ -772,7 +748,7 @@ class Engine {
         }
         rt.json = ConfigJson(src_.dataset, ts.label, proxy_name, voxel_m, n, c, po.lambda,
                              g.grid.cell_size_m, po.delta_tau_sum, rt, opt_.id_w, opt_.id_h, po,
-                             ScaleModeName(src_.scale_mode), proxy_.lod_cluster_m());
+                             ScaleModeName(src_.scale_mode), lod_cluster_m_);
         if (opt_.emit) opt_.emit(rt.json);
         results.push_back(std::move(rt));
       }
@@ -954,7 +930,8 @@ class Engine {
   std::vector<OnlineState> online_;
   std::map<size_t, MinDistanceSelector> mindist_;
   std::vector<double> integrate_ms_;
-  std::vector<double> lod_ms_, concat_ms_, raster_ms_, idbuf_tris_;  // cell-id buffer breakdown
+  double lod_cluster_m_ = 0;  // cell-id LOD cluster size (0: full chunk meshes)
+  std::vector<double> lod_ms_, raster_ms_, idbuf_tris_;  // cell-id buffer breakdown
   std::unordered_map<int, StoredView> cache_;
 };
 

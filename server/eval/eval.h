@@ -118,9 +118,10 @@ struct SynthRunOptions {
   double walk_look_around_deg = -1;  // walk yaw-sweep amplitude; < 0: synth's default (20 deg)
   bool per_view = false;             // per-test-view diagnostics in the JSON (ConfigResult)
   ScaleMode scale_mode = ScaleMode::kBounds;
-  // Cell-id buffers from a vertex-clustered LOD of the proxy (planning::ClusterSimplify) with
-  // clusters of this fraction of the cell size; 0 = the full TSDF mesh.
-  double cellid_lod_frac = 0;
+  // Cell-id buffers (planning::CellIdRenderer) from a vertex-clustered LOD of the proxy
+  // (planning::ClusterSimplify) with clusters of this fraction of the cell size; 0 = the full
+  // TSDF mesh; < 0 (default) = planning::DefaultCellIdLodM (0.5 x cell, at most 4 x voxel).
+  double cellid_lod_frac = -1;
   blend::BlendOptions blend;       // lambda is overridden per config
   bool vertex_color_baseline = true;
   std::vector<PolicyConfig> configs;
@@ -146,7 +147,7 @@ struct SevenScenesRunOptions {
   int id_width = 160, id_height = 120;
   int test_width = 640, test_height = 480;
   ScaleMode scale_mode = ScaleMode::kViewDepth;
-  double cellid_lod_frac = 0;      // see SynthRunOptions
+  double cellid_lod_frac = -1;     // see SynthRunOptions
   bool per_view = false;           // see SynthRunOptions
   blend::BlendOptions blend;
   bool vertex_color_baseline = true;

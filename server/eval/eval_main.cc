@@ -13,6 +13,7 @@
 //   --look_around DEG     walk yaw-sweep amplitude (synth default 20)
 //   --per_view 1          per-test-view SSIM, nearest stored view, reference hit in the JSON
 //   --lod F               cell-id buffers from a vertex-clustered proxy LOD, clusters F x cell size
+//                         (0: full proxy mesh; default -1: planning::DefaultCellIdLodM)
 //   --scale bounds|depth  d_max/σ from scene_scale.h or from the first frame's median depth
 //                         (synthetic default bounds, 7-Scenes default depth)
 //   policies every_n_uncapped, min_distance_uncapped, all_uncapped: baseline referencing every
