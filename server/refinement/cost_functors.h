@@ -160,6 +160,126 @@ struct DepthDeltaResidual {
   double unit, w;
 };
 
+// --- Analytic Jacobians (what the refiner uses; the autodiff functors above are the reference
+// they are tested against) ---------------------------------------------------------------------
+//
+// Both residuals below live in the PoseDeltaResidual chart: p_cam = R(w) p_cam0 + unit * s.
+// Chain rule: d p_cam / d w = -[R(w) p_cam0]_x J_l(w) (J_l the left Jacobian of SO(3): exact at
+// any w, not only at w = 0, which LM needs because it evaluates away from the chart centre),
+// d p_cam / d s = unit * I; the projection u = fx x / z + cx, v = fy y / z + cy; the image value
+// and its gradient come from the SAME bicubic (Catmull-Rom) kernel (BiCubicInterpolator's
+// Evaluate with derivatives), so the Jacobian is the exact derivative of the sampled residual.
+// Autodiff Jets through AngleAxisRotatePoint and the interpolator cost ~3x more per residual.
+
+// J_l(w) = I + (1 - cos t)/t^2 [w]_x + (t - sin t)/t^3 [w]_x^2, t = |w| (series near 0).
+inline Eigen::Matrix3d SkewSymmetric(const Eigen::Vector3d& v) {
+  Eigen::Matrix3d m;
+  m << 0, -v.z(), v.y(), v.z(), 0, -v.x(), -v.y(), v.x(), 0;
+  return m;
+}
+inline Eigen::Matrix3d So3LeftJacobian(const Eigen::Vector3d& w) {
+  const double t2 = w.squaredNorm();
+  const Eigen::Matrix3d wx = SkewSymmetric(w);
+  double a, b;
+  if (t2 < 1e-10) {
+    a = 0.5 - t2 / 24.0;
+    b = 1.0 / 6.0 - t2 / 120.0;
+  } else {
+    const double t = std::sqrt(t2);
+    a = (1.0 - std::cos(t)) / t2;
+    b = (t - std::sin(t)) / (t2 * t);
+  }
+  return Eigen::Matrix3d::Identity() + a * wx + b * wx * wx;
+}
+
+// Point in the camera frame for chart coordinates xi, and (optionally) d p_cam / d xi (3 x 6).
+inline Eigen::Vector3d ChartPoint(const double* xi, const Eigen::Vector3d& p_cam0, double unit,
+                                  Eigen::Matrix<double, 3, 6>* d_p_d_xi) {
+  const Eigen::Vector3d w(xi[0], xi[1], xi[2]);
+  const double t = w.norm();
+  const Eigen::Vector3d rp =
+      t > 0 ? Eigen::AngleAxisd(t, w / t).toRotationMatrix() * p_cam0 : p_cam0;
+  if (d_p_d_xi != nullptr) {
+    d_p_d_xi->leftCols<3>() = -SkewSymmetric(rp) * So3LeftJacobian(w);
+    d_p_d_xi->rightCols<3>() = unit * Eigen::Matrix3d::Identity();
+  }
+  return rp + unit * Eigen::Vector3d(xi[3], xi[4], xi[5]);
+}
+
+// Photometric residual E * C_I(pi(p_cam)) - m with the analytic Jacobian (same value as
+// PoseDeltaResidual). Parameter block: xi[6].
+class PoseDeltaAnalytic final : public ceres::SizedCostFunction<1, 6> {
+ public:
+  PoseDeltaAnalytic(const LumaInterpolator* candidate, const LevelIntrinsics& k,
+                    const Eigen::Vector3d& p_in_cam0, double trans_unit_m, double exposure,
+                    double target)
+      : interp_(candidate), k_(k), p_(p_in_cam0), unit_(trans_unit_m), e_(exposure), m_(target) {}
+
+  bool Evaluate(double const* const* parameters, double* residuals,
+                double** jacobians) const override {
+    const bool want_j = jacobians != nullptr && jacobians[0] != nullptr;
+    Eigen::Matrix<double, 3, 6> dp;
+    const Eigen::Vector3d pc = ChartPoint(parameters[0], p_, unit_, want_j ? &dp : nullptr);
+    if (!(pc.z() > 1e-6)) return false;  // behind the camera: reject the step
+    const double iz = 1.0 / pc.z();
+    const double u = k_.fx * pc.x() * iz + k_.cx, v = k_.fy * pc.y() * iz + k_.cy;
+    double f, dfdv, dfdu;
+    interp_->Evaluate(v, u, &f, &dfdv, &dfdu);  // (row, col)
+    residuals[0] = e_ * f - m_;
+    if (want_j) {
+      const Eigen::RowVector3d g(e_ * dfdu * k_.fx * iz, e_ * dfdv * k_.fy * iz,
+                                 -e_ * (dfdu * k_.fx * pc.x() + dfdv * k_.fy * pc.y()) * iz * iz);
+      Eigen::Map<Eigen::Matrix<double, 1, 6>> jac(jacobians[0]);
+      jac = g * dp;
+    }
+    return true;
+  }
+
+ private:
+  const LumaInterpolator* interp_;
+  LevelIntrinsics k_;
+  Eigen::Vector3d p_;
+  double unit_, e_, m_;
+};
+
+// Depth residual weight * (D_I(pi(p_cam)) - z) / z with the analytic Jacobian (same value as
+// DepthDeltaResidual). Parameter block: xi[6].
+class DepthDeltaAnalytic final : public ceres::SizedCostFunction<1, 6> {
+ public:
+  DepthDeltaAnalytic(const DepthInterpolator* depth, const LevelIntrinsics& k,
+                     const Eigen::Vector3d& p_in_cam0, double trans_unit_m, double weight)
+      : depth_(depth), k_(k), p_(p_in_cam0), unit_(trans_unit_m), w_(weight) {}
+
+  bool Evaluate(double const* const* parameters, double* residuals,
+                double** jacobians) const override {
+    const bool want_j = jacobians != nullptr && jacobians[0] != nullptr;
+    Eigen::Matrix<double, 3, 6> dp;
+    const Eigen::Vector3d pc = ChartPoint(parameters[0], p_, unit_, want_j ? &dp : nullptr);
+    if (!(pc.z() > 1e-6)) return false;
+    const double iz = 1.0 / pc.z();
+    const double u = k_.fx * pc.x() * iz + k_.cx, v = k_.fy * pc.y() * iz + k_.cy;
+    double d, ddv, ddu;
+    depth_->Evaluate(v, u, &d, &ddv, &ddu);
+    residuals[0] = w_ * (d * iz - 1.0);  // = w (d - z) / z
+    if (want_j) {
+      // d(d/z)/dp = (grad d . d(u,v)/dp) / z - d / z^2 e_z
+      const double a = w_ * iz;
+      const Eigen::RowVector3d g(
+          a * ddu * k_.fx * iz, a * ddv * k_.fy * iz,
+          -a * (ddu * k_.fx * pc.x() + ddv * k_.fy * pc.y()) * iz * iz - w_ * d * iz * iz);
+      Eigen::Map<Eigen::Matrix<double, 1, 6>> jac(jacobians[0]);
+      jac = g * dp;
+    }
+    return true;
+  }
+
+ private:
+  const DepthInterpolator* depth_;
+  LevelIntrinsics k_;
+  Eigen::Vector3d p_;
+  double unit_, w_;
+};
+
 // Euclidean 6-vector restricted to the span of the orthonormal columns of `basis` (6 x k):
 // Plus(x, d) = x + B d. Used to update only the well-conditioned directions of the pose.
 class SubspaceManifold : public ceres::Manifold {

@@ -52,6 +52,7 @@ struct Args {
   int retry = -1;  // -1: default
   int reg = 1;     // 7scenes: register depth to colour (common/datasets rgbd_registration)
   bool keep_rejected = false;  // 7scenes: keep outlier views at their input pose
+  bool cache = true;            // RefinementCache for the references' pyramids (--cache 0: off)
   bool render = true;           // held-out MSSIM/PSNR (slow); --render 0 for pose diagnostics
 };
 
@@ -172,13 +173,14 @@ absl::Status RunSevenScenes(const Args& a) {
   opt.refine_pose = a.refine_pose;
   if (a.samples > 0) opt.max_samples = a.samples;
   RefinementStats stats;
+  RefinementCache cache(64);  // stored views' pyramids, kept between calls (--cache 0: off)
   std::vector<StoredView> refined;
   refined.push_back(views[0]);
   std::vector<double> cpu_ms, moved_deg, moved_mm, expo;
   for (size_t i = 1; i < views.size(); ++i) {
     std::vector<const StoredView*> refs;
     for (const auto& r : refined) refs.push_back(&r);
-    auto res = RefineView(views[i], refs, opt);
+    auto res = RefineView(views[i], refs, opt, a.cache ? &cache : nullptr);
     if (!res.ok()) {
       std::fprintf(stderr, "view %zu: %s\n", i, std::string(res.status().message()).c_str());
       refined.push_back(views[i]);
@@ -272,6 +274,7 @@ absl::Status RunScene(synth::SceneKind kind, const Args& a) {
   if (a.min_info >= 0) opt.min_pose_information = a.min_info;
   if (a.retry >= 0) opt.retry_on_outlier = a.retry != 0;
   RefinementStats stats;
+  RefinementCache cache(64);  // stored views' pyramids, kept between calls (--cache 0: off)
   std::vector<StoredView> refined;
   refined.push_back(noisy[0]);
   int converged = 0;  // kept views within 0.2 deg and 5 mm of the truth (the target)
@@ -289,7 +292,7 @@ absl::Status RunScene(synth::SceneKind kind, const Args& a) {
     } else {
       for (const auto& r : refined) refs.push_back(&r);
     }
-    auto res = RefineView(noisy[i], refs, opt);
+    auto res = RefineView(noisy[i], refs, opt, a.cache ? &cache : nullptr);
     StoredView v = noisy[i];
     rot_before.push_back(RotationAngleRad(v.local_from_cam.rotation, truth_pose[i].rotation) * 180 / M_PI);
     tr_before.push_back(1000 * glm::length(v.local_from_cam.translation - truth_pose[i].translation));
@@ -300,14 +303,15 @@ absl::Status RunScene(synth::SceneKind kind, const Args& a) {
         std::fprintf(stderr,
                      "view %zu k=%.3f E=%.3f rot %.3f->%.3f trans %.1f->%.1f mm n=%d valid=%d "
                      "lmin=%.3g tinfo=%.3g cond=%.3g free=%d refused=%d outlier=%d attempts=%d rel=%.3f thr=%.3f "
-                     "disagree=%.3f %.1f ms (cpu %.1f)\n",
+                     "disagree=%.3f %.1f ms (cpu %.1f: pyr %.1f samples %.1f solve %.1f)\n",
                      i, k[i], res->exposure, rot_before.back(),
                      RotationAngleRad(res->local_from_cam.rotation, truth_pose[i].rotation) * 180 / M_PI,
                      tr_before.back(),
                      1000 * glm::length(res->local_from_cam.translation - truth_pose[i].translation),
                      res->num_samples, res->num_valid_final, res->pose_min_eigenvalue, res->pose_translation_information,
                      res->pose_condition, res->pose_free_directions, res->pose_refused_rank_deficient, res->rejected_outlier,
-                     res->attempts, res->relative_residual, res->outlier_threshold, res->reference_disagreement, res->ms, res->cpu_ms);
+                     res->attempts, res->relative_residual, res->outlier_threshold, res->reference_disagreement, res->ms, res->cpu_ms,
+                     res->cpu_ms_pyramids, res->cpu_ms_samples, res->cpu_ms_solve);
       if (std::getenv("REFINEMENT_BENCH_VERBOSE")) {
         const glm::dvec3 d_cam = glm::conjugate(truth_pose[i].rotation) *
                                  (res->local_from_cam.translation - truth_pose[i].translation);
@@ -399,6 +403,7 @@ int Main(int argc, char** argv) {
     else if (key == "--depth-weight") a.depth_weight = std::atof(v);
     else if (key == "--pose") a.refine_pose = std::atoi(v) != 0;
     else if (key == "--retry") a.retry = std::atoi(v);
+    else if (key == "--cache") a.cache = std::atoi(v) != 0;
     else if (key == "--register") a.reg = std::atoi(v);
     else if (key == "--keep-rejected") a.keep_rejected = std::atoi(v) != 0;
     else if (key == "--min-tinfo") a.min_tinfo = std::atof(v);

@@ -5,7 +5,11 @@
 #include <chrono>
 #include <ctime>
 #include <cmath>
+#include <list>
+#include <map>
 #include <memory>
+#include <mutex>
+#include <tuple>
 #include <vector>
 
 #include <Eigen/Eigenvalues>
@@ -19,8 +23,8 @@ using refinement::ExposureResidual;
 using refinement::LevelIntrinsics;
 using refinement::LumaGrid;
 using refinement::LumaInterpolator;
-using refinement::PoseDeltaResidual;
-using refinement::DepthDeltaResidual;
+using refinement::DepthDeltaAnalytic;
+using refinement::PoseDeltaAnalytic;
 
 constexpr int kMaxLevels = 5;
 
@@ -218,11 +222,87 @@ double TukeyRho(double r, double c) {
   return c2 / 6.0 * (1.0 - a * a * a);
 }
 
+}  // namespace
+
+struct RefinementCache::Impl {
+  // id, width, height, levels, saturated_u8, black_u8, fingerprint
+  using Key = std::tuple<ViewId, int, int, int, int, int, uint64_t>;
+  struct Entry {
+    std::shared_ptr<const std::vector<Level>> pyramid;
+    std::list<Key>::iterator lru;
+  };
+  size_t max_views;
+  std::mutex mu;
+  std::map<Key, Entry> entries;
+  std::list<Key> lru;  // front: most recently used
+  int64_t hits = 0, misses = 0;
+};
+
+RefinementCache::RefinementCache(size_t max_views) : impl_(std::make_unique<Impl>()) {
+  impl_->max_views = std::max<size_t>(1, max_views);
+}
+RefinementCache::~RefinementCache() = default;
+int64_t RefinementCache::hits() const {
+  std::lock_guard<std::mutex> l(impl_->mu);
+  return impl_->hits;
+}
+int64_t RefinementCache::misses() const {
+  std::lock_guard<std::mutex> l(impl_->mu);
+  return impl_->misses;
+}
+
+class RefinementCacheAccess {
+ public:
+  // The reference's pyramid (no interpolator, mask not dilated), from the cache when present.
+  static std::shared_ptr<const std::vector<Level>> Pyramid(RefinementCache* cache,
+                                                           const StoredView& v, int levels,
+                                                           const RefinementOptions& o) {
+    if (cache == nullptr)
+      return std::make_shared<const std::vector<Level>>(
+          BuildPyramid(v.color, v.camera, levels, o, 0, false));
+    // FNV-1a over 256 pixels on a 16x16 grid (cheap; catches a view replaced under its id).
+    uint64_t fp = 1469598103934665603ull;
+    const int w = v.color.width(), h = v.color.height();
+    for (int gy = 0; gy < 16; ++gy)
+      for (int gx = 0; gx < 16; ++gx) {
+        const uint8_t* px = v.color.data() + 3 * (static_cast<size_t>((2 * gy + 1) * h / 32) * w +
+                                                  (2 * gx + 1) * w / 32);
+        for (int c = 0; c < 3; ++c) fp = (fp ^ px[c]) * 1099511628211ull;
+      }
+    const RefinementCache::Impl::Key key{v.id, w, h, levels, o.saturated_u8, o.black_u8, fp};
+    RefinementCache::Impl& c = *cache->impl_;
+    {
+      std::lock_guard<std::mutex> l(c.mu);
+      auto it = c.entries.find(key);
+      if (it != c.entries.end()) {
+        c.lru.splice(c.lru.begin(), c.lru, it->second.lru);
+        ++c.hits;
+        return it->second.pyramid;
+      }
+      ++c.misses;
+    }
+    auto pyr = std::make_shared<const std::vector<Level>>(
+        BuildPyramid(v.color, v.camera, levels, o, 0, false));  // outside the lock
+    std::lock_guard<std::mutex> l(c.mu);
+    if (c.entries.count(key) == 0) {
+      c.lru.push_front(key);
+      c.entries[key] = {pyr, c.lru.begin()};
+      while (c.entries.size() > c.max_views) {
+        c.entries.erase(c.lru.back());
+        c.lru.pop_back();
+      }
+    }
+    return pyr;
+  }
+};
+
+namespace {
+
 class Refiner {
  public:
   Refiner(const StoredView& cand, std::vector<const StoredView*> refs, std::vector<double> overlap,
-          const RefinementOptions& o)
-      : cand_(cand), refs_(std::move(refs)), overlap_(std::move(overlap)), o_(o) {}
+          const RefinementOptions& o, RefinementCache* cache)
+      : cand_(cand), refs_(std::move(refs)), overlap_(std::move(overlap)), o_(o), cache_(cache) {}
 
   absl::StatusOr<RefinementResult> Run();
 
@@ -277,7 +357,8 @@ class Refiner {
   const RefinementOptions& o_;
   int levels_ = 1;
   std::vector<Level> cand_pyr_;
-  std::vector<std::vector<Level>> ref_pyr_;
+  RefinementCache* cache_ = nullptr;
+  std::vector<std::shared_ptr<const std::vector<Level>>> ref_pyr_;
   std::vector<Sample> samples_;
   double median_depth_m_ = 1.0;
   std::vector<float> cand_depth_;        // candidate z-depth (holes 0), for the depth term
@@ -303,7 +384,7 @@ void Refiner::BuildSamples(int budget) {
   std::vector<double> depths;
   for (size_t r = 0; r < refs_.size(); ++r) {
     const StoredView& ref = *refs_[r];
-    const Level& rl = ref_pyr_[r][0];
+    const Level& rl = (*ref_pyr_[r])[0];
     const int w = rl.w, h = rl.h;
     const int block =
         std::max(2, static_cast<int>(std::ceil(std::sqrt(double(w) * h * overlap_sum / budget))));
@@ -361,7 +442,7 @@ void Refiner::BuildSamples(int budget) {
           const glm::dvec3 pi = ri.local_from_cam.Inverse() * pl;
           glm::dvec2 uv;
           if (!ri.camera.Project(pi, &uv)) continue;
-          const Level& L0 = ref_pyr_[i][0];
+          const Level& L0 = (*ref_pyr_[i])[0];
           if (!L0.Inside(uv.x, uv.y, 1.0)) continue;
           const int xi = static_cast<int>(std::lround(uv.x)), yi = static_cast<int>(std::lround(uv.y));
           const float di = ri.depth_m.at(xi, yi);
@@ -369,7 +450,7 @@ void Refiner::BuildSamples(int budget) {
           if (std::abs(pi.z - di) > o_.ref_occlusion_abs_m + o_.ref_occlusion_rel * di) continue;
           if (NearDepthEdge(ri.depth_m, xi, yi, di, o_.depth_discontinuity_m)) continue;
           for (int l = 0; l < levels_; ++l) {
-            const Level& L = ref_pyr_[i][l];
+            const Level& L = (*ref_pyr_[i])[l];
             const double s_l = 1.0 / (1 << l);
             const double ul = (uv.x + 0.5) * s_l - 0.5, vl = (uv.y + 0.5) * s_l - 0.5;
             if (!L.Inside(ul, vl, 0.0) || L.BadBilinear(ul, vl)) continue;
@@ -564,8 +645,8 @@ Pose Refiner::SolvePose(int level, double e, const Pose& pose) {
   ceres::Problem problem(po);
   for (size_t k = 0; k < a.idx.size(); ++k) {
     const Sample& s = samples_[a.idx[k]];
-    problem.AddResidualBlock(PoseDeltaResidual::Create(L.interp.get(), L.k, pose.Apply(s.p_in_local),
-                                                       median_depth_m_, e, s.m[level]),
+    problem.AddResidualBlock(new PoseDeltaAnalytic(L.interp.get(), L.k, pose.Apply(s.p_in_local),
+                                                   median_depth_m_, e, s.m[level]),
                              &loss, xi);
   }
   const double dw = depth_interp_ ? DepthWeight(a.idx, pose, scale) : 0.0;
@@ -574,8 +655,8 @@ Pose Refiner::SolvePose(int level, double e, const Pose& pose) {
       const Sample& s = samples_[a.idx[k]];
       double rd;
       if (!DepthResidual(s, pose, &rd)) continue;
-      problem.AddResidualBlock(DepthDeltaResidual::Create(depth_interp_.get(), cand_pyr_[0].k,
-                                                          pose.Apply(s.p_in_local), median_depth_m_, dw),
+      problem.AddResidualBlock(new DepthDeltaAnalytic(depth_interp_.get(), cand_pyr_[0].k,
+                                                      pose.Apply(s.p_in_local), median_depth_m_, dw),
                                &loss, xi);
     }
   if (basis.cols() < 6) problem.SetManifold(xi, &manifold);
@@ -654,12 +735,12 @@ Eigen::Matrix<double, 6, 6> Refiner::Information(int level, const Pose& pose, do
   const double* params[1] = {xi};
   for (int k = 0; k < n; ++k) {
     const Sample& s = samples_[a.idx[k]];
-    std::unique_ptr<ceres::CostFunction> cf(PoseDeltaResidual::Create(
-        L.interp.get(), L.k, pose.Apply(s.p_in_local), median_depth_m_, e, s.m[level]));
+    const PoseDeltaAnalytic cf(L.interp.get(), L.k, pose.Apply(s.p_in_local), median_depth_m_, e,
+                               s.m[level]);
     double res;
     Eigen::Matrix<double, 6, 1> j;
     double* jac[1] = {j.data()};
-    if (!cf->Evaluate(params, &res, jac)) continue;
+    if (!cf.Evaluate(params, &res, jac)) continue;
     const double s2 = res * res / (scale * scale);
     const double w = s2 < 1.0 ? (1.0 - s2) * (1.0 - s2) : 0.0;
     h += w * j * j.transpose();
@@ -672,12 +753,12 @@ Eigen::Matrix<double, 6, 6> Refiner::Information(int level, const Pose& pose, do
       const Sample& s = samples_[a.idx[k]];
       double rd;
       if (!DepthResidual(s, pose, &rd)) continue;
-      std::unique_ptr<ceres::CostFunction> cf(DepthDeltaResidual::Create(
-          depth_interp_.get(), cand_pyr_[0].k, pose.Apply(s.p_in_local), median_depth_m_, dw));
+      const DepthDeltaAnalytic cf(depth_interp_.get(), cand_pyr_[0].k, pose.Apply(s.p_in_local),
+                                  median_depth_m_, dw);
       double res;
       Eigen::Matrix<double, 6, 1> j;
       double* jac[1] = {j.data()};
-      if (!cf->Evaluate(params, &res, jac)) continue;
+      if (!cf.Evaluate(params, &res, jac)) continue;
       const double s2 = res * res / (scale * scale);
       const double w = s2 < 1.0 ? (1.0 - s2) * (1.0 - s2) : 0.0;
       h += w * j * j.transpose();
@@ -768,9 +849,10 @@ void Refiner::CoarseToFine(int attempt, Pose* pose_io, double* e_io) {
       const double de = std::abs(e1 - e) / std::max(e, 1e-9);
       pose = p1;
       e = e1;
-      if (drot < o_.convergence_rotation_rad && dt < o_.convergence_translation_m &&
-          de < o_.convergence_exposure_rel)
-        break;
+      const double motion_px = cand_pyr_[l].k.fx * (drot + dt / median_depth_m_);
+      // Coarse levels: the exposure of each level differs by its blur (0.2-0.5 %), so only the
+      // pose decides; the final exposure is solved at level 0 anyway.
+      if (motion_px < o_.convergence_px && (l > 0 || de < o_.convergence_exposure_rel)) break;
     }
   }
   *pose_io = pose;
@@ -794,17 +876,22 @@ double Refiner::RelativeResidual(const Pose& pose, double e) const {
   return SummarizeResiduals(ActiveSet(0, pose), e).relative;
 }
 
+double ThreadCpuMs() {
+  timespec t;
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
+  return t.tv_sec * 1e3 + t.tv_nsec * 1e-6;
+}
+
 absl::StatusOr<RefinementResult> Refiner::Run() {
   const auto t0 = std::chrono::steady_clock::now();
-  timespec cpu0;
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &cpu0);
+  const double cpu0 = ThreadCpuMs();
   levels_ = 1;
   while (levels_ < std::min(o_.pyramid_levels, kMaxLevels) &&
          (cand_.color.width() >> levels_) >= 40 && (cand_.color.height() >> levels_) >= 30)
     ++levels_;
   cand_pyr_ = BuildPyramid(cand_.color, cand_.camera, levels_, o_, o_.border_px, true);
   ref_pyr_.reserve(refs_.size());
-  for (const StoredView* r : refs_) ref_pyr_.push_back(BuildPyramid(r->color, r->camera, levels_, o_, 0, false));
+  for (const StoredView* r : refs_) ref_pyr_.push_back(RefinementCacheAccess::Pyramid(cache_, *r, levels_, o_));
   if (o_.depth_weight > 0 && !cand_.depth_m.empty()) {
     const int w = cand_pyr_[0].w, h = cand_pyr_[0].h;
     cand_depth_.assign(static_cast<size_t>(w) * h, 0.f);
@@ -831,6 +918,8 @@ absl::StatusOr<RefinementResult> Refiner::Run() {
     depth_grid_ = std::make_unique<refinement::DepthGrid>(cand_depth_.data(), 0, h, 0, w);
     depth_interp_ = std::make_unique<refinement::DepthInterpolator>(*depth_grid_);
   }
+  const double cpu_pyr = ThreadCpuMs();
+  res_.cpu_ms_pyramids = cpu_pyr - cpu0;
   const Pose pose0 = CamFromLocal(cand_.local_from_cam);
   // Saturated or black candidates leave few usable samples: densify the sampling (up to 16x).
   Active a0;
@@ -843,6 +932,8 @@ absl::StatusOr<RefinementResult> Refiner::Run() {
       break;
   }
   res_.num_samples = static_cast<int>(samples_.size());
+  const double cpu_samples = ThreadCpuMs();
+  res_.cpu_ms_samples = cpu_samples - cpu_pyr;
   if (a0.idx.size() < 3)
     return absl::FailedPreconditionError(absl::StrCat(
         "refinement: only ", a0.idx.size(),
@@ -937,9 +1028,9 @@ absl::StatusOr<RefinementResult> Refiner::Run() {
   const bool pose_unchanged = pose.q.coeffs() == pose0.q.coeffs() && pose.t == pose0.t;
   res_.local_from_cam = pose_unchanged ? cand_.local_from_cam : LocalFromCam(pose);
   res_.ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
-  timespec cpu1;
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &cpu1);
-  res_.cpu_ms = (cpu1.tv_sec - cpu0.tv_sec) * 1e3 + (cpu1.tv_nsec - cpu0.tv_nsec) * 1e-6;
+  const double cpu1 = ThreadCpuMs();
+  res_.cpu_ms = cpu1 - cpu0;
+  res_.cpu_ms_solve = cpu1 - cpu_samples;
   return res_;
 }
 
@@ -1007,6 +1098,8 @@ absl::Status RefinementOptions::Validate() const {
     return absl::InvalidArgumentError("refinement: iteration limits must be >= 1");
   if (!(initial_exposure > 0) || !std::isfinite(initial_exposure))
     return absl::InvalidArgumentError("refinement: initial_exposure must be > 0");
+  if (!(convergence_px > 0) || !(convergence_exposure_rel > 0))
+    return absl::InvalidArgumentError("refinement: convergence thresholds must be > 0");
   if (!(tukey_k > 0) || !(fixed_scale > 0) || !(min_scale > 0))
     return absl::InvalidArgumentError("refinement: Tukey scales must be > 0");
   if (min_pose_samples < 6) return absl::InvalidArgumentError("refinement: min_pose_samples >= 6");
@@ -1025,7 +1118,8 @@ absl::Status RefinementOptions::Validate() const {
 
 absl::StatusOr<RefinementResult> RefineView(const StoredView& candidate,
                                             std::span<const StoredView* const> refs,
-                                            const RefinementOptions& options) {
+                                            const RefinementOptions& options,
+                                            RefinementCache* cache) {
   EXO_RETURN_IF_ERROR(options.Validate());
   EXO_RETURN_IF_ERROR(ValidateViewImages(candidate, "candidate"));
   if (!candidate.depth_m.empty() && (candidate.depth_m.width() != candidate.color.width() ||
@@ -1056,7 +1150,7 @@ absl::StatusOr<RefinementResult> RefineView(const StoredView& candidate,
     use.push_back(r);
     overlap.push_back(std::max(f, 1e-3));
   }
-  Refiner refiner(candidate, std::move(use), std::move(overlap), options);
+  Refiner refiner(candidate, std::move(use), std::move(overlap), options, cache);
   return refiner.Run();
 }
 

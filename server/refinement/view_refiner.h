@@ -17,6 +17,7 @@
 #pragma once
 
 #include <cstdint>
+#include <memory>
 #include <span>
 #include <string>
 #include <vector>
@@ -56,9 +57,13 @@ struct RefinementOptions {
   double tukey_k = 4.685;
   double fixed_scale = 0.05;        // used when !scale_from_mad
   double min_scale = 0.01;          // floor of the MAD scale (linear intensity)
-  double convergence_rotation_rad = 1e-4;
-  double convergence_translation_m = 1e-4;
-  double convergence_exposure_rel = 1e-4;
+  // A level's pose <-> exposure alternation stops when the last pose update moves the image by
+  // less than convergence_px pixels OF THAT LEVEL (f_l * (rotation + translation / median
+  // depth)) and the exposure by less than convergence_exposure_rel. (Session 2 used fixed 1e-4
+  // rad / 0.1 mm / 1e-4 at every level, which the coarse levels almost never met: 3 alternations
+  // everywhere; measured: 17 % less CPU, same convergence count.)
+  double convergence_px = 0.05;
+  double convergence_exposure_rel = 1e-3;
 
   // --- safety ---
   bool check_rank = true;
@@ -140,6 +145,9 @@ struct RefinementResult {
   std::vector<RefinementStage> stages;
   double ms = 0.0;              // wall time of the call
   double cpu_ms = 0.0;          // CPU time of the calling thread (robust to a loaded machine)
+  // CPU ms per phase (diagnostics): image pyramids (+ candidate depth mask), surface samples
+  // and their medians, everything after (exposure, rank check, pose solves, guards).
+  double cpu_ms_pyramids = 0.0, cpu_ms_samples = 0.0, cpu_ms_solve = 0.0;
 };
 
 // Aggregated by the caller (e.g. the planner's refinement worker).
@@ -158,12 +166,36 @@ struct RefinementStats {
   }
 };
 
+// Caller-owned cache of the reference views' linear-luma pyramids, so that a stored view's
+// pyramid is built once instead of once per candidate it is a reference for (online, every
+// stored view serves as a reference for many candidates; measured at 640x480 with 8
+// references: ~8-15 ms CPU of each call). Keyed by StoredView::id, the image size, the pyramid
+// options and a fingerprint of 256 colour pixels (a view whose colour changes under the same id
+// is rebuilt). Least-recently-used eviction beyond `max_views`. Thread-safe (one mutex; the
+// pyramids are immutable and shared).
+class RefinementCache {
+ public:
+  explicit RefinementCache(size_t max_views = 64);
+  ~RefinementCache();
+  RefinementCache(const RefinementCache&) = delete;
+  RefinementCache& operator=(const RefinementCache&) = delete;
+  int64_t hits() const;
+  int64_t misses() const;
+  struct Impl;
+
+ private:
+  friend class RefinementCacheAccess;
+  std::unique_ptr<Impl> impl_;
+};
+
 // Refines `candidate` (its colour, depth (may be empty), camera, local_from_cam; its
 // `exposure` is ignored) against stored views `refs` (their exposure is fixed). Errors:
 // invalid options/inputs, no reference, no surface sample valid in the candidate.
+// `cache` (optional) keeps the references' pyramids between calls; results are identical.
 absl::StatusOr<RefinementResult> RefineView(const StoredView& candidate,
                                             std::span<const StoredView* const> refs,
-                                            const RefinementOptions& options);
+                                            const RefinementOptions& options,
+                                            RefinementCache* cache = nullptr);
 
 // sRGB (8-bit) -> linear [0,1], exact IEC 61966-2-1 decode.
 double SrgbToLinear(uint8_t v);

@@ -69,6 +69,37 @@ TEST(ViewRefinerTest, ExposureHalfToDoubleRecoveredWithin2Percent) {
   }
 }
 
+// The reference-pyramid cache changes nothing but the time: bit-identical results with and
+// without it, hits on the second call, and a view whose colour changed under the same id is
+// rebuilt (a stale pyramid would give a different exposure: guard = the colour fingerprint).
+TEST(ViewRefinerTest, CacheGivesIdenticalResultsAndDetectsReplacedViews) {
+  RoomSetup s = MakeSetup(3);
+  StoredView cand = RenderRoom(s.scene, s.cam, s.cand_true, 1.3, 1.0, 7);
+  cand.local_from_cam = Perturb(s.cand_true, 1.0, 0.01, 8);
+  RefinementCache cache;
+  auto plain = RefineView(cand, s.RefPtrs(), RefinementOptions{});
+  auto first = RefineView(cand, s.RefPtrs(), RefinementOptions{}, &cache);
+  auto second = RefineView(cand, s.RefPtrs(), RefinementOptions{}, &cache);
+  ASSERT_TRUE(plain.ok() && first.ok() && second.ok());
+  EXPECT_EQ(cache.misses(), 3);
+  EXPECT_EQ(cache.hits(), 3);
+  for (const auto* r : {&*first, &*second}) {
+    EXPECT_EQ(r->exposure, plain->exposure);
+    EXPECT_EQ(r->local_from_cam.translation, plain->local_from_cam.translation);
+    EXPECT_EQ(r->local_from_cam.rotation, plain->local_from_cam.rotation);
+  }
+  // Same ids, references re-rendered 1.5x brighter: the candidate's exposure must follow.
+  for (auto& r : s.refs) {
+    const ViewId id = r.id;
+    r = RenderRoom(s.scene, s.cam, r.local_from_cam, 1.5);
+    r.id = id;
+  }
+  auto brighter = RefineView(cand, s.RefPtrs(), RefinementOptions{}, &cache);
+  ASSERT_TRUE(brighter.ok());
+  EXPECT_EQ(cache.misses(), 6);
+  EXPECT_NEAR(brighter->exposure * 1.3 / 1.5, 1.0, 0.02) << brighter->exposure;
+}
+
 TEST(ViewRefinerTest, PoseUpTo2Deg2CmConvergesIn95PercentOfTrials) {
   const RoomSetup s = MakeSetup(4);
   const auto refs = s.RefPtrs();
