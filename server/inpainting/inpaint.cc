@@ -11,6 +11,7 @@
 #include <vector>
 
 #include <Eigen/Dense>
+#include <opencv2/imgproc.hpp>
 
 #include "server/inpainting/depth_maps.h"
 #include "server/inpainting/poisson.h"
@@ -669,6 +670,133 @@ void GrowFromMapped(Level& L, uint64_t seed) {
 
 }  // namespace
 
+int BuildSurfacePrior(const ImageU8& region, const ImageF& values, int ox, int oy, int frame_w,
+                      int frame_h, const InpaintOptions& o, ImageF* prior, ImageF* prior_weight) {
+  if (!(o.plane_prior_weight > 0.0) && !(o.neumann_prior_weight > 0.0)) return 0;
+  const int cw = region.width(), ch = region.height();
+  if (cw == 0 || ch == 0 || values.width() != cw || values.height() != ch) return 0;
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  // Seeds of the two borders (0 = seed, for the distance transforms): Dirichlet = known pixel
+  // 4-adjacent to T (also the samples of the fit), Neumann = T pixel on the frame's edge or
+  // next to a pixel that is neither in T nor known.
+  cv::Mat not_dir(ch, cw, CV_8U, cv::Scalar(1)), not_neu(ch, cw, CV_8U, cv::Scalar(1));
+  struct Sample {
+    double x, y, v;  // x, y in units of 640 px (conditioning), v = known value
+  };
+  std::vector<Sample> ring;
+  bool any_neumann = false;
+  for (int cy = 0; cy < ch; ++cy) {
+    for (int cx = 0; cx < cw; ++cx) {
+      const int nx[4] = {cx - 1, cx + 1, cx, cx}, ny[4] = {cy, cy, cy - 1, cy + 1};
+      if (region.at(cx, cy)) {
+        const int x = ox + cx, y = oy + cy;
+        bool neu = x == 0 || y == 0 || x == frame_w - 1 || y == frame_h - 1;
+        for (int k = 0; k < 4 && !neu; ++k) {
+          if (nx[k] < 0 || ny[k] < 0 || nx[k] >= cw || ny[k] >= ch) continue;
+          neu = !region.at(nx[k], ny[k]) && !std::isfinite(values.at(nx[k], ny[k]));
+        }
+        if (neu) {
+          not_neu.at<uint8_t>(cy, cx) = 0;
+          any_neumann = true;
+        }
+        continue;
+      }
+      if (!std::isfinite(values.at(cx, cy))) continue;
+      bool border = false;
+      for (int k = 0; k < 4; ++k)
+        border |= nx[k] >= 0 && ny[k] >= 0 && nx[k] < cw && ny[k] < ch && region.at(nx[k], ny[k]);
+      if (!border) continue;
+      not_dir.at<uint8_t>(cy, cx) = 0;
+      ring.push_back({(ox + cx) / 640.0, (oy + cy) / 640.0, values.at(cx, cy)});
+    }
+  }
+  if (ring.size() < 3) return 0;
+  // Global least-squares plane (normal equations averaged per sample).
+  Eigen::Matrix3d ata_g = Eigen::Matrix3d::Zero();
+  Eigen::Vector3d atb_g = Eigen::Vector3d::Zero();
+  double vlo = std::numeric_limits<double>::infinity(), vhi = -vlo;
+  for (const Sample& p : ring) {
+    const Eigen::Vector3d a(p.x, p.y, 1.0);
+    ata_g += a * a.transpose();
+    atb_g += a * p.v;
+    vlo = std::min(vlo, p.v);
+    vhi = std::max(vhi, p.v);
+  }
+  ata_g /= static_cast<double>(ring.size());
+  atb_g /= static_cast<double>(ring.size());
+  if (!(std::fabs(ata_g.determinant()) > 1e-14)) return 0;  // collinear border: no plane
+  const Eigen::Vector3d global = ata_g.ldlt().solve(atb_g);
+  if (!global.allFinite()) return 0;
+  // Locally weighted planes (prior_local_px > 0): per 8x8 block of the crop, least squares over
+  // the border pixels with Gaussian weights of their distance to the block centre (cut at 3
+  // sigma), plus the global fit's normal equations with the weight of one border pixel (keeps
+  // a collinear local border well-posed).
+  constexpr int kBlock = 8;
+  const int bw = (cw + kBlock - 1) / kBlock, bh = (ch + kBlock - 1) / kBlock;
+  std::vector<Eigen::Vector3d> block_plane;
+  if (o.prior_local_px > 0.0) {
+    block_plane.assign(static_cast<size_t>(bw) * bh, global);
+    const double inv2s2 = 1.0 / (2.0 * o.prior_local_px * o.prior_local_px);
+    const double cut2 = 9.0 * o.prior_local_px * o.prior_local_px;
+    for (int by = 0; by < bh; ++by) {
+      for (int bx = 0; bx < bw; ++bx) {
+        bool any = false;
+        for (int cy = by * kBlock; cy < std::min(ch, (by + 1) * kBlock) && !any; ++cy)
+          for (int cx = bx * kBlock; cx < std::min(cw, (bx + 1) * kBlock) && !any; ++cx)
+            any = region.at(cx, cy) != 0;
+        if (!any) continue;
+        const double px = ox + bx * kBlock + 0.5 * kBlock, py = oy + by * kBlock + 0.5 * kBlock;
+        Eigen::Matrix3d ata = ata_g;
+        Eigen::Vector3d atb = atb_g;
+        for (const Sample& p : ring) {
+          const double dx = p.x * 640.0 - px, dy = p.y * 640.0 - py, d2 = dx * dx + dy * dy;
+          if (d2 > cut2) continue;
+          const double wr = std::exp(-d2 * inv2s2);
+          const Eigen::Vector3d a(p.x, p.y, 1.0);
+          ata += wr * a * a.transpose();
+          atb += wr * a * p.v;
+        }
+        const Eigen::Vector3d cl = ata.ldlt().solve(atb);
+        if (cl.allFinite()) block_plane[static_cast<size_t>(by) * bw + bx] = cl;
+      }
+    }
+  }
+  cv::Mat d_dir, d_neu;
+  if (o.neumann_prior_weight > 0.0 && any_neumann) {
+    cv::distanceTransform(not_dir, d_dir, cv::DIST_L2, cv::DIST_MASK_5);
+    cv::distanceTransform(not_neu, d_neu, cv::DIST_L2, cv::DIST_MASK_5);
+  }
+  *prior = ImageF(cw, ch, 1, nan);
+  *prior_weight = ImageF(cw, ch, 1, nan);
+  int count = 0;
+  for (int cy = 0; cy < ch; ++cy) {
+    for (int cx = 0; cx < cw; ++cx) {
+      if (!region.at(cx, cy)) continue;
+      double wgt = o.plane_prior_weight;
+      if (!d_neu.empty()) {
+        const double dd = d_dir.at<float>(cy, cx), dn = d_neu.at<float>(cy, cx);
+        const double share = dd / std::max(1e-6, dd + dn);  // 0 at the known border, 1 at the free one
+        wgt += o.neumann_prior_weight * share * share;
+      }
+      if (!(wgt > 0.0)) continue;
+      const Eigen::Vector3d& c =
+          block_plane.empty() ? global : block_plane[static_cast<size_t>(cy / kBlock) * bw + cx / kBlock];
+      // Extrapolated beyond the border (regions on the image edge), a plane is clamped to the
+      // range of the border values it was fitted to: a tilt never runs off to a surface nearer
+      // or farther than anything around T (in inverse depth: never through 0).
+      const double v = c[0] * (ox + cx) / 640.0 + c[1] * (oy + cy) / 640.0 + c[2];
+      prior->at(cx, cy) = static_cast<float>(std::clamp(v, vlo, vhi));
+      prior_weight->at(cx, cy) = static_cast<float>(wgt);
+      ++count;
+    }
+  }
+  if (count == 0) {
+    *prior = ImageF();
+    *prior_weight = ImageF();
+  }
+  return count;
+}
+
 absl::Status InpaintOptions::Validate() const {
   if (!(w > 0.0 && w <= 1.0)) return absl::InvalidArgumentError("InpaintOptions.w must be in (0, 1]");
   if (!(kappa > 0.0 && kappa <= 1.0)) {
@@ -694,6 +822,8 @@ absl::Status InpaintOptions::Validate() const {
   }
   if (!(jump_rel > 0.0)) return absl::InvalidArgumentError("jump_rel must be > 0");
   if (!(plane_prior_weight >= 0.0)) return absl::InvalidArgumentError("plane_prior_weight >= 0");
+  if (!(neumann_prior_weight >= 0.0)) return absl::InvalidArgumentError("neumann_prior_weight >= 0");
+  if (!(prior_local_px >= 0.0)) return absl::InvalidArgumentError("prior_local_px must be >= 0");
   if (!(jump_weight > 0.0 && jump_weight <= 1.0)) {
     return absl::InvalidArgumentError("jump_weight must be in (0, 1]");
   }
@@ -922,36 +1052,11 @@ absl::StatusOr<InpaintResult> InpaintKeyframe(const RgbdKeyframe& frame, const I
       }
     }
   }
-  // Optional plane prior: least-squares affine fit of the domain value over the known pixels
-  // next to T (the Dirichlet border).
+  // Optional surface prior (screening term): a robust plane (affine in the depth domain) fitted
+  // to the known pixels next to T, weighted per pixel by how weakly the Dirichlet border anchors
+  // it (see SurfacePrior).
   ImageF prior, prior_w;
-  if (options.plane_prior_weight > 0.0) {
-    Eigen::Matrix3d ata = Eigen::Matrix3d::Zero();
-    Eigen::Vector3d atb = Eigen::Vector3d::Zero();
-    int used = 0;
-    for (int cy = 0; cy < ch; ++cy)
-      for (int cx = 0; cx < cw; ++cx) {
-        if (region.at(cx, cy) || !std::isfinite(q.at(cx, cy))) continue;
-        bool border = false;
-        const int nx[4] = {cx - 1, cx + 1, cx, cx}, ny[4] = {cy, cy, cy - 1, cy + 1};
-        for (int k = 0; k < 4; ++k)
-          border |= nx[k] >= 0 && ny[k] >= 0 && nx[k] < cw && ny[k] < ch && region.at(nx[k], ny[k]);
-        if (!border) continue;
-        const Eigen::Vector3d a((ox + cx) / 640.0, (oy + cy) / 640.0, 1.0);
-        ata += a * a.transpose();
-        atb += a * q.at(cx, cy);
-        ++used;
-      }
-    if (used >= 3 && std::fabs(ata.determinant()) > 1e-12) {
-      const Eigen::Vector3d c = ata.ldlt().solve(atb);
-      prior = ImageF(cw, ch, 1, nan);
-      prior_w = ImageF(cw, ch, 1, static_cast<float>(options.plane_prior_weight));
-      for (int cy = 0; cy < ch; ++cy)
-        for (int cx = 0; cx < cw; ++cx)
-          if (region.at(cx, cy))
-            prior.at(cx, cy) = static_cast<float>(c[0] * (ox + cx) / 640.0 + c[1] * (oy + cy) / 640.0 + c[2]);
-    }
-  }
+  out.stats.prior_pixels = BuildSurfacePrior(region, q, ox, oy, w, h, options, &prior, &prior_w);
   PoissonProblem prob;
   if (!prior.empty()) {
     prob.prior = &prior;

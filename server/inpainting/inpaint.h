@@ -64,9 +64,18 @@ struct InpaintOptions {
   GradientFusion gradient_fusion = GradientFusion::kRobust;
   double jump_rel = 0.02;     // relative gradient (in the depth domain) that counts as a jump
   double jump_weight = 0.01;  // weight of a pair whose fused target is a jump, in (0, 1]
-  // Screening term towards the plane (affine in the depth domain) fitted to T's known border:
-  // weight per pixel (0 = off). Anchors the far side of regions that touch the image border.
+  // Screening (data) term of the depth solve towards a surface prior: the least-squares plane
+  // (affine in the depth domain) through the known pixels 4-adjacent to T, or with
+  // prior_local_px > 0 a plane per 8x8 block fitted with Gaussian weights (sigma prior_local_px)
+  // of the border pixels' distance, clamped to the range of the border values. Weight at u:
+  //   plane_prior_weight + neumann_prior_weight * (dD(u) / (dD(u) + dN(u)))^2,
+  // dD / dN the distances to the nearest Dirichlet (known depth) / Neumann (image edge or a
+  // pixel without depth) border pixel: ~0 near known depth, ~1 where only the free border is
+  // near, so it anchors the parts of T that the copied gradients alone would let drift (regions
+  // touching the image border). Chosen on the training masks (docs/inpainting.md).
   double plane_prior_weight = 0.0;
+  double neumann_prior_weight = 0.01;
+  double prior_local_px = 50.0;
   absl::Status Validate() const;
 };
 
@@ -88,6 +97,7 @@ struct InpaintStats {
   int neumann_components = 0;
   int invalid_depth_pixels = 0;  // T pixels whose solved depth came out non-finite
   int clamped_depth_pixels = 0;  // T pixels clamped to [zmin/2, 2 zmax] of the input depths
+  int prior_pixels = 0;          // T pixels with a surface-prior (screening) term
   double ms_prepare = 0, ms_search = 0, ms_copy = 0, ms_poisson = 0, ms_total = 0;  // wall
   // Process CPU time (CLOCK_PROCESS_CPUTIME_ID, all threads; includes any other thread of the
   // calling process running at the same time): steadier than wall time on a shared machine.
@@ -113,6 +123,16 @@ struct InpaintResult {
 absl::StatusOr<InpaintResult> InpaintKeyframe(const RgbdKeyframe& frame, const ImageU8& mask,
                                               const InpaintOptions& options,
                                               const InpaintResult* previous = nullptr);
+
+// The screening prior of the depth solve (see InpaintOptions::neumann_prior_weight) on a crop
+// of the frame at (ox, oy): `region` (!= 0 = T) and `values` (known domain values, NaN =
+// unknown) are the crop's, frame_w x frame_h the frame's size (its edge is a Neumann border).
+// Writes `prior` / `prior_weight` (crop size, NaN = no term) and returns the number of T pixels
+// with a term; 0 (outputs empty) when both weights are 0, or fewer than 3 / collinear border
+// samples. Exposed for tests; InpaintKeyframe calls it on its Poisson crop.
+int BuildSurfacePrior(const ImageU8& region, const ImageF& values, int ox, int oy, int frame_w,
+                      int frame_h, const InpaintOptions& options, ImageF* prior,
+                      ImageF* prior_weight);
 
 // Robust / mean fusion of one pixel pair's two copied gradient samples (see GradientFusion):
 // g1 (has1) sampled at u's source whose value is ref1, g2 (has2) at (u+v)'s source (ref2).

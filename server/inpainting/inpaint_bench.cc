@@ -13,6 +13,7 @@
 //   inpaint_bench [--data DIR] [--masks FILE] [--generate_masks [--mask_seed S --mask_frame0 F]]
 //                 [--img_dir DIR] [--threads N] [--repeats N] [--max_masks N] [--raw]
 //                 [--fusion mean|robust] [--jump_rel R] [--jump_weight W] [--converged F]
+//                 [--plane_prior W] [--neumann_prior W] [--prior_local SIGMA_PX]
 #include <algorithm>
 #include <array>
 #include <chrono>
@@ -504,6 +505,8 @@ int main(int argc, char** argv) {
   double w_opt = InpaintOptions{}.w, kappa_opt = InpaintOptions{}.kappa;
   bool ours_only = false;
   double plane_prior = InpaintOptions{}.plane_prior_weight;
+  double neumann_prior = InpaintOptions{}.neumann_prior_weight;
+  double prior_local = InpaintOptions{}.prior_local_px;
   double converged = InpaintOptions{}.converged_fraction;
   int fine_iterations = InpaintOptions{}.fine_iterations;
   bool fusion_mean = InpaintOptions{}.gradient_fusion == GradientFusion::kMean;
@@ -526,6 +529,8 @@ int main(int argc, char** argv) {
     else if (a == "--ours_only") ours_only = true;
     else if (a == "--raw") g_register = false;
     else if (a == "--plane_prior") plane_prior = std::stod(next());
+    else if (a == "--neumann_prior") neumann_prior = std::stod(next());
+    else if (a == "--prior_local") prior_local = std::stod(next());
     else if (a == "--fusion") fusion_mean = next() == "mean";
     else if (a == "--jump_rel") jump_rel = std::stod(next());
     else if (a == "--jump_weight") jump_weight = std::stod(next());
@@ -575,6 +580,8 @@ int main(int argc, char** argv) {
   base.jump_weight = jump_weight;
   base.converged_fraction = converged;
   base.plane_prior_weight = plane_prior;
+  base.neumann_prior_weight = neumann_prior;
+  base.prior_local_px = prior_local;
   base.fine_iterations = fine_iterations;
   for (const MaskSpec& spec : specs) {
     const RealFrame gt = LoadFrame(data_dir, spec.frame);
