@@ -43,6 +43,25 @@ struct ExposureResidual {
   double log_c, log_m;
 };
 
+// The exposure stage as the refiner solves it: the same log residual with x = log(E) as the
+// parameter, x + log(c_j) - log(m_j), linear in x (Jacobian 1): no positivity bound is needed
+// (Ceres' bounded LM does a projected line search per step) and LM converges in 1-3 steps
+// under the robust loss. Parameter block: log_exposure[1].
+class LogExposureResidual final : public ceres::SizedCostFunction<1, 1> {
+ public:
+  LogExposureResidual(double log_candidate, double log_target)
+      : offset_(log_candidate - log_target) {}
+  bool Evaluate(double const* const* parameters, double* residuals,
+                double** jacobians) const override {
+    residuals[0] = parameters[0][0] + offset_;
+    if (jacobians != nullptr && jacobians[0] != nullptr) jacobians[0][0] = 1.0;
+    return true;
+  }
+
+ private:
+  double offset_;
+};
+
 // Residual of the pose stage: the exposure is held constant. Parameter blocks:
 // cam_from_local rotation as Eigen quaternion [x, y, z, w] and translation [3].
 struct PoseResidual {

@@ -25,6 +25,18 @@ TEST(CostFunctorsTest, ExposureResidualGradient) {
   EXPECT_NEAR(results.residuals[0], std::log(1.3 * 0.37 / 0.52), 1e-12);
 }
 
+TEST(CostFunctorsTest, LogExposureResidualGradient) {
+  LogExposureResidual cf(std::log(0.37), std::log(0.52));
+  ceres::NumericDiffOptions nd;
+  const std::vector<const ceres::Manifold*>* no_manifolds = nullptr;
+  ceres::GradientChecker checker(&cf, no_manifolds, nd);
+  double x = std::log(1.3);
+  double* params[1] = {&x};
+  ceres::GradientChecker::ProbeResults results;
+  EXPECT_TRUE(checker.Probe(params, 1e-7, &results)) << results.error_log;
+  EXPECT_NEAR(results.residuals[0], std::log(1.3 * 0.37 / 0.52), 1e-12);
+}
+
 TEST(CostFunctorsTest, PoseResidualGradientWithQuaternionManifold) {
   // A smooth analytic image so the bicubic interpolant is well resolved.
   const int w = 64, h = 48;
