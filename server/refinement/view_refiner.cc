@@ -341,7 +341,10 @@ class Refiner {
   Eigen::Matrix<double, 6, 6> Information(int level, const Pose& pose, double e) const;
   // Pose/exposure alternation over the pyramid from the coarsest level; attempt 0 is the
   // default schedule, attempt 1 the retry (6-DoF at every level, 3x the LM iterations).
-  void CoarseToFine(int attempt, Pose* pose, double* e);
+  void CoarseToFine(int attempt, Pose* pose, double* e, int start_level = -1);
+  // Relative residual at `pose` and the outlier threshold for it (references' disagreement).
+  void OutlierTest(const Pose& pose, double e, double* relative, double* threshold,
+                   double* disagreement = nullptr, int* num_valid = nullptr) const;
   // median |E c_j - m_j| / median(m_j) over the samples valid at `pose`, level 0.
   double RelativeResidual(const Pose& pose, double e) const;
   struct ResidualSummary {
@@ -649,7 +652,7 @@ Pose Refiner::SolvePose(int level, double e, const Pose& pose) {
   double xi[6] = {0, 0, 0, 0, 0, 0};
   ceres::Solver::Options so = SolverOptions(o_);
   if (level > 0) so.max_num_iterations = std::max(3, o_.max_solver_iterations / 2);
-  if (attempt_ > 0) so.max_num_iterations = 3 * o_.max_solver_iterations;
+  if (attempt_ == 1) so.max_num_iterations = 3 * o_.max_solver_iterations;
   ceres::Problem::Options po;
   po.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
   po.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
@@ -857,11 +860,12 @@ void Refiner::RankCheck(const Pose& pose, double e) {
   for (size_t i = 0; i < keep_r.size(); ++i) rot_basis_.block<3, 1>(0, i) = er.eigenvectors().col(keep_r[i]);
 }
 
-void Refiner::CoarseToFine(int attempt, Pose* pose_io, double* e_io) {
+void Refiner::CoarseToFine(int attempt, Pose* pose_io, double* e_io, int start_level) {
   Pose pose = *pose_io;
   double e = *e_io;
   attempt_ = attempt;
-  for (int l = levels_ - 1; l >= 0; --l) {
+  const int first = start_level < 0 ? levels_ - 1 : std::min(start_level, levels_ - 1);
+  for (int l = first; l >= 0; --l) {
     for (int it = 0; it < o_.max_outer_iterations; ++it) {
       const Pose p1 = SolvePose(l, e, pose);
       const double e1 = SolveExposure(l, p1, e, false);
@@ -895,6 +899,25 @@ Refiner::ResidualSummary Refiner::SummarizeResiduals(const Active& a, double e) 
 
 double Refiner::RelativeResidual(const Pose& pose, double e) const {
   return SummarizeResiduals(ActiveSet(0, pose), e).relative;
+}
+
+void Refiner::OutlierTest(const Pose& pose, double e, double* relative, double* threshold,
+                          double* disagreement, int* num_valid) const {
+  const Active af = ActiveSet(0, pose);
+  const ResidualSummary sum = SummarizeResiduals(af, e);
+  *relative = sum.relative;
+  // Threshold relative to what the references themselves disagree about (texture blur,
+  // resampling, their own residual pose errors), so it adapts per scene: factor x the median
+  // relative spread of the references at the same samples, within [min, max].
+  std::vector<double> spreads;
+  for (int j : af.idx)
+    if (samples_[j].num_refs >= 2) spreads.push_back(samples_[j].spread);
+  const double dis = spreads.size() >= 30 && sum.median_m > 0 ? Median(spreads) / sum.median_m : -1.0;
+  *threshold = dis < 0 ? o_.outlier_max_relative_residual
+                       : std::clamp(o_.outlier_disagreement_factor * dis,
+                                    o_.outlier_min_relative_residual, o_.outlier_max_relative_residual);
+  if (disagreement != nullptr) *disagreement = dis;
+  if (num_valid != nullptr) *num_valid = static_cast<int>(af.idx.size());
 }
 
 double ThreadCpuMs() {
@@ -982,6 +1005,43 @@ absl::StatusOr<RefinementResult> Refiner::Run() {
     if (o_.check_rank) RankCheck(pose0, e);
     if (!res_.pose_refused_rank_deficient) {
       CoarseToFine(/*attempt=*/0, &pose, &e);
+      // Multi-start (close-range views): the first pass can end with the rotation right and
+      // the camera centre in a side basin 2-3 cm away (sideways motion along a wall changes
+      // neither its depth nor, with repetitive texture, the photometric energy much), where the
+      // view would be rejected as an outlier. Restart the fine levels from that pose shifted
+      // by +-1 and +-2 x multistart_step_m along the camera's x and y axes; the first start
+      // that passes the outlier test (or else the lowest relative residual) wins. Only runs
+      // when the view would otherwise be rejected, so it cannot change a kept view; the cost
+      // guard below still compares the winner with the input pose.
+      double rel1 = 0, thr1 = 0;
+      if (o_.multistart_step_m > 0) OutlierTest(pose, e, &rel1, &thr1);
+      if (o_.multistart_step_m > 0 && rel1 > thr1) {
+        Pose best = pose;
+        double best_e = e, best_rel = rel1;
+        bool passed = false;
+        const Eigen::Vector3d axes[2] = {Eigen::Vector3d::UnitX(), Eigen::Vector3d::UnitY()};
+        for (int mult : {1, -1, 2, -2}) {
+          for (const Eigen::Vector3d& axis : axes) {
+            Pose start = pose;
+            start.t += mult * o_.multistart_step_m * axis;  // camera-frame shift of the centre
+            double e_s = e;
+            CoarseToFine(/*attempt=*/2, &start, &e_s, o_.multistart_from_level);
+            ++res_.attempts;
+            double rel_s = 0, thr_s = 0;
+            OutlierTest(start, e_s, &rel_s, &thr_s);
+            if (rel_s < best_rel) {
+              best = start;
+              best_e = e_s;
+              best_rel = rel_s;
+              passed = rel_s <= thr_s;
+            }
+            if (passed) break;
+          }
+          if (passed) break;
+        }
+        pose = best;
+        e = best_e;
+      }
       // Second start when the first one ends far from agreement (close-range views, where a
       // 2 cm error is tens of pixels and the coarse levels land in a side basin): all levels
       // 6-DoF with three times the iterations; the attempt with the lower final residual wins.
@@ -1022,26 +1082,10 @@ absl::StatusOr<RefinementResult> Refiner::Run() {
   res_.cost_after = final_pair.after;
 
   // Pose-outlier decision on the final residuals.
-  const Active af = ActiveSet(0, pose);
-  res_.num_valid_final = static_cast<int>(af.idx.size());
-  const ResidualSummary final_residuals = SummarizeResiduals(af, e);
-  const double med_m = final_residuals.median_m;
-  res_.relative_residual = final_residuals.relative;
+  OutlierTest(pose, e, &res_.relative_residual, &res_.outlier_threshold,
+              &res_.reference_disagreement, &res_.num_valid_final);
   // Fraction of the samples valid at the input pose that are still valid at the result.
-  const double valid_fraction = double(af.idx.size()) / std::max<size_t>(1, a0.idx.size());
-  // Threshold relative to what the references themselves disagree about (texture blur,
-  // resampling, their own residual pose errors), so it adapts per scene: factor x the median
-  // relative spread of the references at the same samples, within [min, max].
-  std::vector<double> spreads;
-  for (int j : af.idx)
-    if (samples_[j].num_refs >= 2) spreads.push_back(samples_[j].spread);
-  res_.reference_disagreement =
-      spreads.size() >= 30 && med_m > 0 ? Median(spreads) / med_m : -1.0;
-  res_.outlier_threshold =
-      res_.reference_disagreement < 0
-          ? o_.outlier_max_relative_residual
-          : std::clamp(o_.outlier_disagreement_factor * res_.reference_disagreement,
-                       o_.outlier_min_relative_residual, o_.outlier_max_relative_residual);
+  const double valid_fraction = double(res_.num_valid_final) / std::max<size_t>(1, a0.idx.size());
   res_.rejected_outlier = res_.relative_residual > res_.outlier_threshold ||
                           valid_fraction < o_.outlier_min_valid_fraction;
   res_.exposure = e;
@@ -1119,6 +1163,8 @@ absl::Status RefinementOptions::Validate() const {
     return absl::InvalidArgumentError("refinement: iteration limits must be >= 1");
   if (!(initial_exposure > 0) || !std::isfinite(initial_exposure))
     return absl::InvalidArgumentError("refinement: initial_exposure must be > 0");
+  if (!(multistart_step_m >= 0) || multistart_from_level < 0)
+    return absl::InvalidArgumentError("refinement: multistart options invalid");
   if (!(convergence_px > 0) || !(convergence_exposure_rel > 0))
     return absl::InvalidArgumentError("refinement: convergence thresholds must be > 0");
   if (!(tukey_k > 0) || !(fixed_scale > 0) || !(min_scale > 0))

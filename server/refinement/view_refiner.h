@@ -103,6 +103,13 @@ struct RefinementOptions {
   // references (36 -> 37 of 39) but in the online chain (1.5 deg / 15 mm) the lower-residual
   // pass is often the wrong one: converged 36 -> 11, held-out MSSIM 0.910 -> 0.873.
   bool retry_on_outlier = false;
+  // Multi-start when the first pass ends as a pose outlier: restart from levels <=
+  // multistart_from_level at the result shifted by +-1, +-2 x multistart_step_m along the
+  // camera x and y axes (8 starts at most; the first that passes the outlier test, else the
+  // lowest residual, wins). 0 disables it. Close-range views (apartment) otherwise end with the
+  // rotation right and the centre 2-3 cm off in a side basin.
+  double multistart_step_m = 0.015;
+  int multistart_from_level = 2;
 
   absl::Status Validate() const;
 };
