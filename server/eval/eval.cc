@@ -432,6 +432,7 @@ struct EngineOptions {
   // Cell-id LOD: cluster size as a fraction of the (smallest) cell size; 0 = full proxy mesh;
   // < 0 = planning::DefaultCellIdLodM.
   double cellid_lod_frac = -1;
+  double cellid_lod_keep = 0.1;  // planning::CellIdRendererOptions::lod_keep_fraction
 };
 
 class Engine {
@@ -476,10 +477,7 @@ class Engine {
         planning::CellIdRendererOptions co;
         co.grid = gr.grid;
         co.lod_cluster_m = lod_cluster_m_;
-        // Every new chunk version gets a new LOD: keeping the LOD while the triangle count stays
-        // within 10 % (lod_keep_fraction 0.1) kept stale surfaces early in a walk (tiny eval run:
-        // coverage 0.815 -> 0.566).
-        co.lod_keep_fraction = 0.0;
+        co.lod_keep_fraction = opt_.cellid_lod_keep;
         co.max_range_m = opt_.max_range_m;
         EXO_ASSIGN_OR_RETURN(auto cid, planning::CellIdRenderer::Create(co));
         gr.cid = std::make_unique<planning::CellIdRenderer>(std::move(cid));
@@ -1092,6 +1090,7 @@ absl::StatusOr<std::vector<ConfigResult>> RunSynthetic(const SynthRunOptions& o)
   eo.dump_dir = o.dump_dir;
   eo.dump_views = o.dump_views;
   eo.cellid_lod_frac = o.cellid_lod_frac;
+  eo.cellid_lod_keep = o.cellid_lod_keep;
   eo.per_view = o.per_view;
   if (o.proxy == ProxyKind::kGroundTruth) eo.gt_mesh = scene.mesh;
   Engine engine(std::move(src), o.configs, std::move(eo));
@@ -1216,6 +1215,7 @@ absl::StatusOr<SevenScenesReport> RunSevenScenes(const SevenScenesRunOptions& o)
   eo.dump_dir = o.dump_dir;
   eo.dump_views = o.dump_views;
   eo.cellid_lod_frac = o.cellid_lod_frac;
+  eo.cellid_lod_keep = o.cellid_lod_keep;
   eo.per_view = o.per_view;
   Engine engine(std::move(src), o.configs, std::move(eo));
   engine.set_origin(origin);

@@ -14,6 +14,7 @@
 //   --per_view 1          per-test-view SSIM, nearest stored view, reference hit in the JSON
 //   --lod F               cell-id buffers from a vertex-clustered proxy LOD, clusters F x cell size
 //                         (0: full proxy mesh; default -1: planning::DefaultCellIdLodM)
+//   --lod_keep F          keep a chunk's LOD while its triangle count is within F (default 0.1)
 //   --scale bounds|depth  d_max/σ from scene_scale.h or from the first frame's median depth
 //                         (synthetic default bounds, 7-Scenes default depth)
 //   policies every_n_uncapped, min_distance_uncapped, all_uncapped: baseline referencing every
@@ -140,6 +141,7 @@ int RunOne(const Args& a) {
     o.test_width = int(a.Num("--test_w", 640));
     o.test_height = int(a.Num("--test_h", 480));
     o.cellid_lod_frac = a.Num("--lod", o.cellid_lod_frac);
+    o.cellid_lod_keep = a.Num("--lod_keep", o.cellid_lod_keep);
     o.per_view = a.Num("--per_view", 0) != 0;
     if (a.kv.count("--scale")) o.scale_mode = a.Get("--scale", "") == "bounds" ? ScaleMode::kBounds : ScaleMode::kViewDepth;
     o.blend = Blend(a);
@@ -171,6 +173,7 @@ int RunOne(const Args& a) {
   o.id_width = int(a.Num("--idw", 160));
   o.id_height = int(a.Num("--idh", 120));
   o.cellid_lod_frac = a.Num("--lod", o.cellid_lod_frac);
+  o.cellid_lod_keep = a.Num("--lod_keep", o.cellid_lod_keep);
   o.blend = Blend(a);
   // --test_poses scene | near | scene,near (both sets on the same stream and stores)
   for (absl::string_view m : absl::StrSplit(a.Get("--test_poses", "scene"), ',', absl::SkipEmpty())) {
