@@ -52,6 +52,10 @@ struct Args {
   int retry = -1;  // -1: default
   int reg = 1;     // 7scenes: register depth to colour (common/datasets rgbd_registration)
   bool keep_rejected = false;  // 7scenes: keep outlier views at their input pose
+  double multistart_step = -1;  // RefinementOptions::multistart_step_m (0: off; <0: default)
+  double gate = -1;             // RefinementOptions::min_pose_gain_over_disagreement (<0: default)
+  double conv_px = -1;          // RefinementOptions::convergence_px (<0: default)
+  double ftol = -1;             // RefinementOptions::function_tolerance (<0: default)
   bool cache = true;            // RefinementCache for the references' pyramids (--cache 0: off)
   bool render = true;           // held-out MSSIM/PSNR (slow); --render 0 for pose diagnostics
 };
@@ -172,6 +176,8 @@ absl::Status RunSevenScenes(const Args& a) {
   opt.depth_weight = a.depth_weight >= 0 ? a.depth_weight : (a.reg ? opt.depth_weight : 0.0);
   opt.refine_pose = a.refine_pose;
   if (a.samples > 0) opt.max_samples = a.samples;
+  if (a.gate >= 0) opt.min_pose_gain_over_disagreement = a.gate;
+  if (a.multistart_step >= 0) opt.multistart_step_m = a.multistart_step;
   RefinementStats stats;
   RefinementCache cache(64);  // stored views' pyramids, kept between calls (--cache 0: off)
   std::vector<StoredView> refined;
@@ -273,6 +279,10 @@ absl::Status RunScene(synth::SceneKind kind, const Args& a) {
   if (a.rot_only_level >= 0) opt.rotation_only_from_level = a.rot_only_level;
   if (a.min_info >= 0) opt.min_pose_information = a.min_info;
   if (a.retry >= 0) opt.retry_on_outlier = a.retry != 0;
+  if (a.multistart_step >= 0) opt.multistart_step_m = a.multistart_step;
+  if (a.ftol > 0) opt.function_tolerance = a.ftol;
+  if (a.conv_px > 0) opt.convergence_px = a.conv_px;
+  if (a.gate >= 0) opt.min_pose_gain_over_disagreement = a.gate;
   RefinementStats stats;
   RefinementCache cache(64);  // stored views' pyramids, kept between calls (--cache 0: off)
   std::vector<StoredView> refined;
@@ -404,6 +414,10 @@ int Main(int argc, char** argv) {
     else if (key == "--pose") a.refine_pose = std::atoi(v) != 0;
     else if (key == "--retry") a.retry = std::atoi(v);
     else if (key == "--cache") a.cache = std::atoi(v) != 0;
+    else if (key == "--multistart-step") a.multistart_step = std::atof(v);
+    else if (key == "--ftol") a.ftol = std::atof(v);
+    else if (key == "--conv-px") a.conv_px = std::atof(v);
+    else if (key == "--gate") a.gate = std::atof(v);
     else if (key == "--register") a.reg = std::atoi(v);
     else if (key == "--keep-rejected") a.keep_rejected = std::atoi(v) != 0;
     else if (key == "--min-tinfo") a.min_tinfo = std::atof(v);

@@ -571,7 +571,7 @@ ceres::Solver::Options SolverOptions(const RefinementOptions& o) {
   s.use_nonmonotonic_steps = false;  // every accepted LM step lowers the cost
   s.minimizer_progress_to_stdout = false;
   s.logging_type = ceres::SILENT;
-  s.function_tolerance = 1e-5;
+  s.function_tolerance = o.function_tolerance;
   s.parameter_tolerance = 1e-8;
   return s;
 }
@@ -1077,6 +1077,19 @@ absl::StatusOr<RefinementResult> Refiner::Run() {
       e = e0;
     }
   }
+  // Significance gate: a pose update that explains less than the references' own
+  // disagreement is not evidence against the input pose.
+  if (o_.min_pose_gain_over_disagreement > 0 &&
+      !(pose.t == pose0.t && pose.q.coeffs() == pose0.q.coeffs())) {
+    double rel0 = 0, thr0 = 0, rel1 = 0, thr1 = 0, dis1 = -1;
+    OutlierTest(pose0, e_exposure_only, &rel0, &thr0);
+    OutlierTest(pose, e, &rel1, &thr1, &dis1);
+    if (dis1 >= 0 && rel0 - rel1 < o_.min_pose_gain_over_disagreement * dis1) {
+      res_.pose_update_insignificant = true;
+      pose = pose0;
+      e = e_exposure_only;
+    }
+  }
   const EnergyPair final_pair = CompareEnergy(0, e_exposure_only, pose0, e, pose, report_scale);
   res_.cost_before = final_pair.before;
   res_.cost_after = final_pair.after;
@@ -1163,6 +1176,10 @@ absl::Status RefinementOptions::Validate() const {
     return absl::InvalidArgumentError("refinement: iteration limits must be >= 1");
   if (!(initial_exposure > 0) || !std::isfinite(initial_exposure))
     return absl::InvalidArgumentError("refinement: initial_exposure must be > 0");
+  if (!(function_tolerance > 0) || !(function_tolerance < 1))
+    return absl::InvalidArgumentError("refinement: function_tolerance must be in (0, 1)");
+  if (!(min_pose_gain_over_disagreement >= 0))
+    return absl::InvalidArgumentError("refinement: min_pose_gain_over_disagreement must be >= 0");
   if (!(multistart_step_m >= 0) || multistart_from_level < 0)
     return absl::InvalidArgumentError("refinement: multistart options invalid");
   if (!(convergence_px > 0) || !(convergence_exposure_rel > 0))

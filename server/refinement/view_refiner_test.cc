@@ -100,6 +100,41 @@ TEST(ViewRefinerTest, CacheGivesIdenticalResultsAndDetectsReplacedViews) {
   EXPECT_NEAR(brighter->exposure * 1.3 / 1.5, 1.0, 0.02) << brighter->exposure;
 }
 
+// Significance gate (guard: min_pose_gain_over_disagreement): a candidate already at its
+// true pose, with noisy references, gains less than the references' own disagreement from any
+// pose update, so the input pose is returned bit-exact; with the gate off the pose moves
+// (fails if the gate is removed). A 1 deg / 1 cm error is still corrected with the gate on.
+TEST(ViewRefinerTest, InsignificantPoseUpdateKeepsTheInputPose) {
+  RoomSetup s = MakeSetup(0);
+  const glm::dvec3 target{0.3, 0.3, 2.5};
+  const glm::dvec3 eyes[4] = {{-0.35, -0.2, -1.6}, {0.4, 0.0, -1.5}, {0.1, -0.35, -1.2},
+                              {-0.2, 0.15, -1.8}};
+  for (int i = 0; i < 4; ++i) {
+    StoredView v = RenderRoom(s.scene, s.cam, LookAt(eyes[i], target), 1.0, 3.0, 40 + i);
+    v.id = i + 1;
+    s.refs.push_back(std::move(v));
+  }
+  StoredView cand = RenderRoom(s.scene, s.cam, s.cand_true, 1.2, 3.0, 50);
+  cand.local_from_cam = s.cand_true;
+  RefinementOptions gate_on, gate_off;
+  gate_off.min_pose_gain_over_disagreement = 0.0;
+  auto on = RefineView(cand, s.RefPtrs(), gate_on);
+  auto off = RefineView(cand, s.RefPtrs(), gate_off);
+  ASSERT_TRUE(on.ok() && off.ok());
+  EXPECT_TRUE(on->pose_update_insignificant);
+  EXPECT_EQ(on->local_from_cam.translation, s.cand_true.translation);
+  EXPECT_EQ(on->local_from_cam.rotation, s.cand_true.rotation);
+  EXPECT_LT(ExposureRelErr(on->exposure, 1.2), 0.02);
+  EXPECT_FALSE(off->pose_update_insignificant);
+  EXPECT_NE(off->local_from_cam.translation, s.cand_true.translation);
+  cand.local_from_cam = Perturb(s.cand_true, 1.0, 0.01, 51);
+  auto moved = RefineView(cand, s.RefPtrs(), gate_on);
+  ASSERT_TRUE(moved.ok());
+  EXPECT_FALSE(moved->pose_update_insignificant);
+  EXPECT_LT(RotErrDeg(moved->local_from_cam, s.cand_true), 0.2);
+  EXPECT_LT(TransErrM(moved->local_from_cam, s.cand_true), 0.005);
+}
+
 TEST(ViewRefinerTest, PoseUpTo2Deg2CmConvergesIn95PercentOfTrials) {
   const RoomSetup s = MakeSetup(4);
   const auto refs = s.RefPtrs();
