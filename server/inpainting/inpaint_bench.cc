@@ -13,7 +13,7 @@
 //   inpaint_bench [--data DIR] [--masks FILE] [--generate_masks [--mask_seed S --mask_frame0 F]]
 //                 [--img_dir DIR] [--threads N] [--repeats N] [--max_masks N] [--raw]
 //                 [--fusion mean|robust] [--jump_rel R] [--jump_weight W] [--converged F]
-//                 [--plane_prior W] [--neumann_prior W] [--prior_local SIGMA_PX]
+//                 [--plane_prior W] [--neumann_prior W] [--prior_local SIGMA_PX] [--seed S]
 #include <algorithm>
 #include <array>
 #include <chrono>
@@ -507,6 +507,7 @@ int main(int argc, char** argv) {
   double plane_prior = InpaintOptions{}.plane_prior_weight;
   double neumann_prior = InpaintOptions{}.neumann_prior_weight;
   double prior_local = InpaintOptions{}.prior_local_px;
+  uint64_t seed = InpaintOptions{}.seed;
   double converged = InpaintOptions{}.converged_fraction;
   int fine_iterations = InpaintOptions{}.fine_iterations;
   bool fusion_mean = InpaintOptions{}.gradient_fusion == GradientFusion::kMean;
@@ -531,6 +532,7 @@ int main(int argc, char** argv) {
     else if (a == "--plane_prior") plane_prior = std::stod(next());
     else if (a == "--neumann_prior") neumann_prior = std::stod(next());
     else if (a == "--prior_local") prior_local = std::stod(next());
+    else if (a == "--seed") seed = std::stoull(next());
     else if (a == "--fusion") fusion_mean = next() == "mean";
     else if (a == "--jump_rel") jump_rel = std::stod(next());
     else if (a == "--jump_weight") jump_weight = std::stod(next());
@@ -582,6 +584,7 @@ int main(int argc, char** argv) {
   base.plane_prior_weight = plane_prior;
   base.neumann_prior_weight = neumann_prior;
   base.prior_local_px = prior_local;
+  base.seed = seed;
   base.fine_iterations = fine_iterations;
   for (const MaskSpec& spec : specs) {
     const RealFrame gt = LoadFrame(data_dir, spec.frame);
