@@ -154,6 +154,7 @@ Level Downsample(const Level& f) {
 struct SearchParams {
   float w, one_minus_w, kappa, cap;
   bool geometry;
+  bool peel_measured_normals_only;  // onion peel: rho_g over window pixels outside T only
 };
 
 }  // namespace
@@ -367,7 +368,8 @@ int Sweep(Level& L, int level, int iter, int radius0, bool global_candidate, con
 }
 
 // Cost (4.7) restricted to the window pixels already known (outside T or filled earlier):
-// the onion-peel initialisation of the coarsest level.
+// the onion-peel initialisation of the coarsest level. With peel_measured_normals_only, rho_g
+// uses only the window pixels outside T.
 float CostKnown(const Level& L, const std::vector<uint8_t>& known, int x, int y, int sx, int sy,
                 const SearchParams& p) {
   float rs = 0.f;
@@ -399,7 +401,10 @@ float CostKnown(const Level& L, const std::vector<uint8_t>& known, int x, int y,
         ssd += d * d;
       }
       n += 3;
-      if (p.geometry && (dx % 2 == 0) && (dy % 2 == 0)) {
+      // rho_g against the measured normals of the window only (optionally): the normals the
+      // peel has copied into T so far would otherwise reinforce its own earlier choices.
+      if (p.geometry && (dx % 2 == 0) && (dy % 2 == 0) &&
+          !(p.peel_measured_normals_only && L.target[a])) {
         const float* na = &L.normal[a * 3];
         const float* nb = &L.normal[b * 3];
         g += 1.f / std::max(p.kappa, na[0] * nb[0] + na[1] * nb[1] + na[2] * nb[2]);
@@ -915,7 +920,8 @@ absl::StatusOr<InpaintResult> InpaintKeyframe(const RgbdKeyframe& frame, const I
   }
   const SearchParams params{static_cast<float>(options.w), static_cast<float>(1.0 - options.w),
                             static_cast<float>(options.kappa),
-                            static_cast<float>(options.spatial_cap_px2), options.use_geometry};
+                            static_cast<float>(options.spatial_cap_px2), options.use_geometry,
+                            options.peel_measured_normals_only};
 
   int propagated = 0;
   if (previous) propagated = Propagate(*previous, frame, levels[0]);

@@ -14,6 +14,7 @@
 //                 [--img_dir DIR] [--threads N] [--repeats N] [--max_masks N] [--raw]
 //                 [--fusion mean|robust] [--jump_rel R] [--jump_weight W] [--converged F]
 //                 [--plane_prior W] [--neumann_prior W] [--prior_local SIGMA_PX] [--seed S]
+//                 [--peel_all_normals]
 #include <algorithm>
 #include <array>
 #include <chrono>
@@ -508,6 +509,7 @@ int main(int argc, char** argv) {
   double neumann_prior = InpaintOptions{}.neumann_prior_weight;
   double prior_local = InpaintOptions{}.prior_local_px;
   uint64_t seed = InpaintOptions{}.seed;
+  bool peel_measured = InpaintOptions{}.peel_measured_normals_only;
   double converged = InpaintOptions{}.converged_fraction;
   int fine_iterations = InpaintOptions{}.fine_iterations;
   bool fusion_mean = InpaintOptions{}.gradient_fusion == GradientFusion::kMean;
@@ -533,6 +535,7 @@ int main(int argc, char** argv) {
     else if (a == "--neumann_prior") neumann_prior = std::stod(next());
     else if (a == "--prior_local") prior_local = std::stod(next());
     else if (a == "--seed") seed = std::stoull(next());
+    else if (a == "--peel_all_normals") peel_measured = false;
     else if (a == "--fusion") fusion_mean = next() == "mean";
     else if (a == "--jump_rel") jump_rel = std::stod(next());
     else if (a == "--jump_weight") jump_weight = std::stod(next());
@@ -585,6 +588,7 @@ int main(int argc, char** argv) {
   base.neumann_prior_weight = neumann_prior;
   base.prior_local_px = prior_local;
   base.seed = seed;
+  base.peel_measured_normals_only = peel_measured;
   base.fine_iterations = fine_iterations;
   for (const MaskSpec& spec : specs) {
     const RealFrame gt = LoadFrame(data_dir, spec.frame);
