@@ -56,6 +56,7 @@ struct Args {
   double gate = -1;             // RefinementOptions::min_pose_gain_over_disagreement (<0: default)
   double conv_px = -1;          // RefinementOptions::convergence_px (<0: default)
   double ftol = -1;             // RefinementOptions::function_tolerance (<0: default)
+  int batched = -1;            // --batched 0: pose stages on a ceres::Problem (reference)
   bool cache = true;            // RefinementCache for the references' pyramids (--cache 0: off)
   bool render = true;           // held-out MSSIM/PSNR (slow); --render 0 for pose diagnostics
 };
@@ -283,6 +284,7 @@ absl::Status RunScene(synth::SceneKind kind, const Args& a) {
   if (a.ftol > 0) opt.function_tolerance = a.ftol;
   if (a.conv_px > 0) opt.convergence_px = a.conv_px;
   if (a.gate >= 0) opt.min_pose_gain_over_disagreement = a.gate;
+  if (a.batched >= 0) opt.batched_pose_solver = a.batched != 0;
   RefinementStats stats;
   RefinementCache cache(64);  // stored views' pyramids, kept between calls (--cache 0: off)
   std::vector<StoredView> refined;
@@ -414,6 +416,7 @@ int Main(int argc, char** argv) {
     else if (key == "--pose") a.refine_pose = std::atoi(v) != 0;
     else if (key == "--retry") a.retry = std::atoi(v);
     else if (key == "--cache") a.cache = std::atoi(v) != 0;
+    else if (key == "--batched") a.batched = std::atoi(v);
     else if (key == "--multistart-step") a.multistart_step = std::atof(v);
     else if (key == "--ftol") a.ftol = std::atof(v);
     else if (key == "--conv-px") a.conv_px = std::atof(v);

@@ -15,6 +15,7 @@
 #include <Eigen/Eigenvalues>
 
 #include "server/refinement/cost_functors.h"
+#include "server/refinement/pose_lm.h"
 
 namespace exo {
 namespace {
@@ -666,27 +667,50 @@ Pose Refiner::SolvePose(int level, double e, const Pose& pose) {
   else
     lossp = std::make_unique<ceres::CauchyLoss>(scale / o_.tukey_k);
   ceres::LossFunction& loss = *lossp;
-  ceres::Problem problem(po);
-  for (size_t k = 0; k < a.idx.size(); ++k) {
-    const Sample& s = samples_[a.idx[k]];
-    problem.AddResidualBlock(new PoseDeltaAnalytic(L.interp.get(), L.k, pose.Apply(s.p_in_local),
-                                                   median_depth_m_, e, s.m[level]),
-                             &loss, xi);
-  }
   const double dw = depth_interp_ ? DepthWeight(a.idx, pose, scale) : 0.0;
-  if (dw > 0)
+  if (o_.batched_pose_solver) {
+    // One batched evaluation per LM iteration (pose_lm.h): same residuals, loss and LM rules
+    // as the Ceres problem below without its per-residual-block overhead.
+    refinement::PoseBatchCost batch(L.interp.get(), L.k, e, depth_interp_.get(), cand_pyr_[0].k, dw,
+                                    median_depth_m_);
     for (size_t k = 0; k < a.idx.size(); ++k) {
       const Sample& s = samples_[a.idx[k]];
-      double rd;
-      if (!DepthResidual(s, pose, &rd)) continue;
-      problem.AddResidualBlock(new DepthDeltaAnalytic(depth_interp_.get(), cand_pyr_[0].k,
-                                                      pose.Apply(s.p_in_local), median_depth_m_, dw),
+      batch.AddPhotometric(pose.Apply(s.p_in_local), s.m[level]);
+    }
+    if (dw > 0)
+      for (size_t k = 0; k < a.idx.size(); ++k) {
+        const Sample& s = samples_[a.idx[k]];
+        double rd;
+        if (DepthResidual(s, pose, &rd)) batch.AddDepth(pose.Apply(s.p_in_local));
+      }
+    refinement::PoseLmOptions lo;
+    lo.max_iterations = so.max_num_iterations;
+    lo.function_tolerance = so.function_tolerance;
+    lo.parameter_tolerance = so.parameter_tolerance;
+    lo.gradient_tolerance = so.gradient_tolerance;
+    res_.iterations += refinement::SolvePoseLm(batch, &loss, basis, lo, xi).iterations;
+  } else {
+    ceres::Problem problem(po);
+    for (size_t k = 0; k < a.idx.size(); ++k) {
+      const Sample& s = samples_[a.idx[k]];
+      problem.AddResidualBlock(new PoseDeltaAnalytic(L.interp.get(), L.k, pose.Apply(s.p_in_local),
+                                                     median_depth_m_, e, s.m[level]),
                                &loss, xi);
     }
-  if (basis.cols() < 6) problem.SetManifold(xi, &manifold);
-  ceres::Solver::Summary sum;
-  ceres::Solve(so, &problem, &sum);
-  res_.iterations += static_cast<int>(sum.iterations.size());
+    if (dw > 0)
+      for (size_t k = 0; k < a.idx.size(); ++k) {
+        const Sample& s = samples_[a.idx[k]];
+        double rd;
+        if (!DepthResidual(s, pose, &rd)) continue;
+        problem.AddResidualBlock(new DepthDeltaAnalytic(depth_interp_.get(), cand_pyr_[0].k,
+                                                        pose.Apply(s.p_in_local), median_depth_m_, dw),
+                                 &loss, xi);
+      }
+    if (basis.cols() < 6) problem.SetManifold(xi, &manifold);
+    ceres::Solver::Summary sum;
+    ceres::Solve(so, &problem, &sum);
+    res_.iterations += static_cast<int>(sum.iterations.size());
+  }
   const Eigen::Vector3d w(xi[0], xi[1], xi[2]);
   const Eigen::Vector3d dt = median_depth_m_ * Eigen::Vector3d(xi[3], xi[4], xi[5]);
   const double angle = w.norm();

@@ -53,6 +53,10 @@ struct RefinementOptions {
   // measured on the apartment oracle run: 1e-5 gives the same pose errors at 15 % less CPU).
   double function_tolerance = 1e-5;
   bool refine_pose = true;
+  // Pose stages solved by the batched LM of pose_lm.h (same residuals, loss and Ceres LM rules,
+  // without Ceres' per-residual-block overhead); false: a ceres::Problem with one block per
+  // residual (the reference it is compared with).
+  bool batched_pose_solver = true;
   bool init_exposure_from_ratio = true;  // E0 = median(m_j / c_j); else initial_exposure
   double initial_exposure = 1.0;
   bool warm_start = true;           // Cauchy before Tukey (Tukey is flat for large residuals)

@@ -1,0 +1,230 @@
+#include "server/refinement/pose_lm.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include <Eigen/Cholesky>
+#include <Eigen/Geometry>
+
+namespace exo::refinement {
+
+PoseBatchCost::PoseBatchCost(const LumaInterpolator* luma, const LevelIntrinsics& k_luma,
+                             double exposure, const DepthInterpolator* depth,
+                             const LevelIntrinsics& k_depth, double depth_weight, double unit_m)
+    : luma_(luma), k_luma_(k_luma), e_(exposure), depth_(depth), k_depth_(k_depth),
+      w_depth_(depth_weight), unit_(unit_m) {
+  mutable_parameter_block_sizes()->push_back(6);
+  set_num_residuals(0);
+}
+
+void PoseBatchCost::AddPhotometric(const Eigen::Vector3d& p_in_cam0, double target) {
+  photo_.push_back({p_in_cam0, target});
+  set_num_residuals(num_photometric() + num_depth());
+}
+
+void PoseBatchCost::AddDepth(const Eigen::Vector3d& p_in_cam0) {
+  depth_pts_.push_back(p_in_cam0);
+  set_num_residuals(num_photometric() + num_depth());
+}
+
+bool PoseBatchCost::Evaluate(double const* const* parameters, double* residuals,
+                             double** jacobians) const {
+  const double* xi = parameters[0];
+  const bool want_j = jacobians != nullptr && jacobians[0] != nullptr;
+  // Once per evaluation (ChartPoint does this per residual): R(w), and for the Jacobian
+  // d p / d w = -[R p0]_x J_l(w).
+  const Eigen::Vector3d w(xi[0], xi[1], xi[2]);
+  const double t = w.norm();
+  const Eigen::Matrix3d r = t > 0 ? Eigen::AngleAxisd(t, w / t).toRotationMatrix()
+                                  : Eigen::Matrix3d::Identity();
+  const Eigen::Matrix3d jl = want_j ? So3LeftJacobian(w) : Eigen::Matrix3d::Identity();
+  const Eigen::Vector3d s = unit_ * Eigen::Vector3d(xi[3], xi[4], xi[5]);
+  // Fills the 1x6 Jacobian row from the gradient g of the residual w.r.t. p_cam.
+  const auto jac_row = [&](const Eigen::Vector3d& rp, const Eigen::RowVector3d& g, double* row) {
+    // Row of g * (-[rp]_x J_l): g [a]_x = (g x a)^T, so -g [rp]_x = (rp x g)^T.
+    const Eigen::Vector3d gr = rp.cross(g.transpose());
+    const Eigen::RowVector3d jw = gr.transpose() * jl;
+    row[0] = jw[0];
+    row[1] = jw[1];
+    row[2] = jw[2];
+    row[3] = unit_ * g[0];
+    row[4] = unit_ * g[1];
+    row[5] = unit_ * g[2];
+  };
+  const int np = num_photometric();
+  for (int i = 0; i < np; ++i) {
+    const Eigen::Vector3d rp = r * photo_[i].p;
+    const Eigen::Vector3d pc = rp + s;
+    if (!(pc.z() > 1e-6)) return false;  // behind the camera: reject the step
+    const double iz = 1.0 / pc.z();
+    const double u = k_luma_.fx * pc.x() * iz + k_luma_.cx, v = k_luma_.fy * pc.y() * iz + k_luma_.cy;
+    double f, dfdv, dfdu;
+    luma_->Evaluate(v, u, &f, &dfdv, &dfdu);  // (row, col)
+    residuals[i] = e_ * f - photo_[i].m;
+    if (want_j) {
+      const Eigen::RowVector3d g(e_ * dfdu * k_luma_.fx * iz, e_ * dfdv * k_luma_.fy * iz,
+                                 -e_ * (dfdu * k_luma_.fx * pc.x() + dfdv * k_luma_.fy * pc.y()) * iz * iz);
+      jac_row(rp, g, jacobians[0] + 6 * i);
+    }
+  }
+  for (int i = 0; i < num_depth(); ++i) {
+    const Eigen::Vector3d rp = r * depth_pts_[i];
+    const Eigen::Vector3d pc = rp + s;
+    if (!(pc.z() > 1e-6)) return false;
+    const double iz = 1.0 / pc.z();
+    const double u = k_depth_.fx * pc.x() * iz + k_depth_.cx,
+                 v = k_depth_.fy * pc.y() * iz + k_depth_.cy;
+    double d, ddv, ddu;
+    depth_->Evaluate(v, u, &d, &ddv, &ddu);
+    residuals[np + i] = w_depth_ * (d * iz - 1.0);
+    if (want_j) {
+      const double a = w_depth_ * iz;
+      const Eigen::RowVector3d g(
+          a * ddu * k_depth_.fx * iz, a * ddv * k_depth_.fy * iz,
+          -a * (ddu * k_depth_.fx * pc.x() + ddv * k_depth_.fy * pc.y()) * iz * iz -
+              w_depth_ * d * iz * iz);
+      jac_row(rp, g, jacobians[0] + 6 * (np + i));
+    }
+  }
+  return true;
+}
+
+namespace {
+
+// Cost 0.5 * sum rho(r^2) and, when `jac` is given, the robust-corrected normal equations in
+// the subspace: h = Jt^T Jt, g = Jt^T rt (Ceres' Corrector applied per residual).
+struct Eval {
+  double cost = 0;
+  Eigen::MatrixXd h;
+  Eigen::VectorXd g;
+};
+
+bool EvaluateAt(const PoseBatchCost& cost, const ceres::LossFunction* loss,
+                const Eigen::Matrix<double, 6, Eigen::Dynamic>& basis, const double* xi,
+                bool with_jacobian, std::vector<double>* r, std::vector<double>* j, Eval* out) {
+  const int n = cost.num_residuals();
+  r->resize(n);
+  if (with_jacobian) j->resize(static_cast<size_t>(n) * 6);
+  double* jp = with_jacobian ? j->data() : nullptr;
+  const double* params[1] = {xi};
+  if (!cost.Evaluate(params, r->data(), with_jacobian ? &jp : nullptr)) return false;
+  out->cost = 0;
+  Eigen::Matrix<double, 6, 6> h6 = Eigen::Matrix<double, 6, 6>::Zero();
+  Eigen::Matrix<double, 6, 1> g6 = Eigen::Matrix<double, 6, 1>::Zero();
+  for (int i = 0; i < n; ++i) {
+    const double ri = (*r)[i];
+    if (!std::isfinite(ri)) return false;
+    const double s = ri * ri;
+    double scale_r = 1.0, scale_j = 1.0;
+    if (loss != nullptr) {
+      double rho[3];
+      loss->Evaluate(s, rho);
+      out->cost += 0.5 * rho[0];
+      if (!with_jacobian) continue;
+      // Ceres' Corrector (corrector.cc): for rho'' <= 0 (Tukey, Cauchy) plain sqrt(rho')
+      // scaling; otherwise the second-order (Triggs) correction.
+      const double sqrt_rho1 = std::sqrt(std::max(0.0, rho[1]));
+      if (s == 0.0 || rho[2] <= 0.0) {
+        scale_r = scale_j = sqrt_rho1;
+      } else {
+        const double d = 1.0 + 2.0 * s * rho[2] / rho[1];
+        const double alpha = 1.0 - std::sqrt(std::max(0.0, d));
+        scale_r = sqrt_rho1 / (1.0 - alpha);
+        scale_j = sqrt_rho1 * (1.0 - alpha);  // scalar residual: J - alpha r r^T J / s
+      }
+    } else {
+      out->cost += 0.5 * s;
+      if (!with_jacobian) continue;
+    }
+    if (scale_j == 0.0 && scale_r == 0.0) continue;
+    const Eigen::Map<const Eigen::Matrix<double, 6, 1>> row(jp + 6 * i);
+    const Eigen::Matrix<double, 6, 1> jt = scale_j * row;
+    h6.selfadjointView<Eigen::Lower>().rankUpdate(jt);
+    g6 += jt * (scale_r * ri);
+  }
+  if (with_jacobian) {
+    const Eigen::Matrix<double, 6, 6> hf = h6.selfadjointView<Eigen::Lower>();
+    out->h = basis.transpose() * hf * basis;
+    out->g = basis.transpose() * g6;
+  }
+  return std::isfinite(out->cost);
+}
+
+}  // namespace
+
+PoseLmSummary SolvePoseLm(const PoseBatchCost& cost, const ceres::LossFunction* loss,
+                          const Eigen::Matrix<double, 6, Eigen::Dynamic>& basis,
+                          const PoseLmOptions& o, double xi_io[6]) {
+  PoseLmSummary sum;
+  const int k = static_cast<int>(basis.cols());
+  if (k == 0) return sum;
+  std::vector<double> r, j;
+  Eigen::Matrix<double, 6, 1> x = Eigen::Map<Eigen::Matrix<double, 6, 1>>(xi_io);
+  Eval cur;
+  if (!EvaluateAt(cost, loss, basis, x.data(), true, &r, &j, &cur)) return sum;
+  sum.solved = true;
+  sum.initial_cost = sum.final_cost = cur.cost;
+  sum.iterations = 1;  // iteration 0
+  double radius = 1e4, decrease_factor = 2.0;
+  constexpr double kMaxRadius = 1e16, kMinRadius = 1e-32, kMinDiag = 1e-6, kMaxDiag = 1e32;
+  constexpr double kMinRelativeDecrease = 1e-3;
+  constexpr int kMaxInvalid = 5;
+  int invalid = 0;
+  const auto gradient_small = [&](const Eval& e) {
+    return (basis * e.g).lpNorm<Eigen::Infinity>() <= o.gradient_tolerance;
+  };
+  if (gradient_small(cur)) return sum;
+  for (int iteration = 1; iteration <= o.max_iterations; ++iteration) {
+    ++sum.iterations;
+    // Step: (H + diag(H)/radius) delta = -g (Marquardt damping; Ceres' Jacobi scaling leaves
+    // this scale-invariant form unchanged).
+    Eigen::MatrixXd a = cur.h;
+    for (int i = 0; i < k; ++i) a(i, i) += std::clamp(cur.h(i, i), kMinDiag, kMaxDiag) / radius;
+    Eigen::LLT<Eigen::MatrixXd> llt(a);
+    Eigen::VectorXd delta;
+    bool valid = llt.info() == Eigen::Success;
+    double model_change = 0;
+    if (valid) {
+      delta = llt.solve(-cur.g);
+      // -(J d)^T (r + J d / 2) = -g^T d - d^T H d / 2
+      model_change = -cur.g.dot(delta) - 0.5 * delta.dot(cur.h * delta);
+      valid = delta.allFinite() && model_change > 0.0;
+    }
+    if (!valid) {
+      if (++invalid >= kMaxInvalid) break;
+      radius /= decrease_factor;
+      decrease_factor *= 2.0;
+      if (radius < kMinRadius) break;
+      continue;
+    }
+    invalid = 0;
+    const Eigen::Matrix<double, 6, 1> cand = x + basis * delta;
+    // Parameter tolerance (Ceres: the step is not taken).
+    if ((cand - x).norm() <= o.parameter_tolerance * (x.norm() + o.parameter_tolerance)) break;
+    Eval trial;
+    const bool ok = EvaluateAt(cost, loss, basis, cand.data(), false, &r, &j, &trial);
+    const double cand_cost = ok ? trial.cost : std::numeric_limits<double>::max();
+    // Function tolerance (Ceres: terminates without taking the step).
+    if (std::abs(cur.cost - cand_cost) <= o.function_tolerance * cur.cost) break;
+    const double quality = (cur.cost - cand_cost) / model_change;
+    if (ok && quality > kMinRelativeDecrease) {
+      x = cand;
+      Eval next;
+      if (!EvaluateAt(cost, loss, basis, x.data(), true, &r, &j, &next)) break;  // not expected
+      cur = next;
+      sum.final_cost = cur.cost;
+      radius = std::min(kMaxRadius, radius / std::max(1.0 / 3.0, 1.0 - std::pow(2.0 * quality - 1.0, 3)));
+      decrease_factor = 2.0;
+      if (gradient_small(cur)) break;
+    } else {
+      radius /= decrease_factor;
+      decrease_factor *= 2.0;
+      if (radius < kMinRadius) break;
+    }
+  }
+  for (int i = 0; i < 6; ++i) xi_io[i] = x[i];
+  return sum;
+}
+
+}  // namespace exo::refinement
