@@ -196,6 +196,7 @@ class PlanningStage final : public PipelineStage {
       (*out)["refinement.pose_refused"] = static_cast<double>(w.pose_refused);
       (*out)["refinement.outliers"] = static_cast<double>(w.outliers);
       (*out)["refinement.outliers_removed"] = static_cast<double>(outliers_removed_);
+      (*out)["refinement.outliers_kept"] = static_cast<double>(outliers_kept_);
       (*out)["refinement.updated"] = static_cast<double>(updated_);
       (*out)["refinement.stale"] = static_cast<double>(stale_);
       (*out)["refinement.mean_ms"] = w.refined ? w.total_ms / static_cast<double>(w.refined) : 0.0;
@@ -309,6 +310,10 @@ class PlanningStage final : public PipelineStage {
       ++outliers_removed_;
       return;
     }
+    if (r->rejected_outlier) {  // kept as published: input pose and exposure, not refined
+      ++outliers_kept_;
+      return;
+    }
     if (!store_->UpdateView(job.id, r->local_from_cam, static_cast<float>(r->exposure)).ok()) return;
     ++updated_;
     auto it = ref_cache_.find(job.id);
@@ -331,7 +336,7 @@ class PlanningStage final : public PipelineStage {
   std::vector<uint64_t> ids_;
   std::map<ViewId, std::shared_ptr<const StoredView>> ref_cache_;
   uint64_t candidates_ = 0, accepted_ = 0, governed_ = 0, areas_set_ = 0;
-  uint64_t outliers_removed_ = 0, updated_ = 0, stale_ = 0;
+  uint64_t outliers_removed_ = 0, outliers_kept_ = 0, updated_ = 0, stale_ = 0;
   bool rebuilt_ = false;
   uint64_t ids_from_proxy_ = 0;
   int64_t id_buffer_ns_ = 0;

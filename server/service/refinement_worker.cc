@@ -53,6 +53,7 @@ StoredView DownscaleView(const StoredView& v, int k) {
 RefinementWorker::RefinementWorker(const RefinementWorkerOptions& options, ApplyFn apply)
     : options_(options), apply_(std::move(apply)), queue_(options.queue) {
   EXO_CHECK(options_.Validate().ok());
+  if (options_.cache_views > 0) cache_ = std::make_unique<RefinementCache>(options_.cache_views);
   thread_ = std::thread([this] { Run(); });
 }
 
@@ -76,7 +77,8 @@ void RefinementWorker::Run() {
     std::vector<const StoredView*> refs;
     refs.reserve(job->refs.size());
     for (const auto& r : job->refs) refs.push_back(r.get());
-    absl::StatusOr<RefinementResult> r = RefineView(*job->candidate, refs, options_.refine);
+    absl::StatusOr<RefinementResult> r =
+        RefineView(*job->candidate, refs, options_.refine, cache_.get());
     {
       std::lock_guard lock(mu_);
       if (r.ok()) {

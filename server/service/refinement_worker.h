@@ -22,6 +22,9 @@ namespace exo {
 struct RefinementWorkerOptions {
   size_t queue = 2;        // views waiting for refinement (beyond: skipped)
   int downscale = 2;       // candidate and references refined at 1/k resolution (speed, memory)
+  // Reference pyramids kept between jobs (RefinementCache, LRU); 0 = no cache. A stored view is
+  // a reference for many candidates; at 1/2 resolution each pyramid is ~0.4 MB.
+  size_t cache_views = 64;
   RefinementOptions refine;
   absl::Status Validate() const;
 };
@@ -58,6 +61,7 @@ class RefinementWorker {
   const RefinementWorkerOptions options_;
   ApplyFn apply_;
   BoundedQueue<RefinementJob> queue_;
+  std::unique_ptr<RefinementCache> cache_;  // used by the worker thread only (null: off)
   std::thread thread_;
   std::atomic<size_t> pending_{0};
   mutable std::mutex mu_;
