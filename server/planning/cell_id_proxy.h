@@ -10,8 +10,8 @@
 // its bounding box) and renders the cell-id buffer from the chunks whose box meets the view
 // frustum, without concatenating them (common/raster RasterizeParts, cell ids only). Its output
 // is identical to rasterizing the concatenation of every cached render mesh (LOD or full chunk).
-// Measured in planning_bench (docs/planning.md). Not yet wired into server/eval (which still
-// concatenates sphere-culled chunks) nor into server/service's planning stage (frame-depth ids).
+// Measured in planning_bench (docs/planning.md); server/eval renders its planner buffers with it.
+// Not wired into server/service's planning stage (frame-depth ids by default).
 #pragma once
 
 #include <cstdint>
