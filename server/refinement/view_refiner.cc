@@ -5,6 +5,7 @@
 #include <chrono>
 #include <ctime>
 #include <cmath>
+#include <cstring>
 #include <list>
 #include <map>
 #include <memory>
@@ -49,6 +50,14 @@ struct Level {
   LevelIntrinsics k;
   std::unique_ptr<LumaGrid> grid;
   std::unique_ptr<LumaInterpolator> interp;
+  // Reference views, level 0 only: per kPickCell x kPickCell cell (from border_px), the most
+  // textured and the flattest pixel with valid depth (see BuildPicks).
+  struct Pick {
+    int32_t best = -1, flat = -1;  // pixel index, -1: none
+    float best_g = -1.f, flat_g = 1e30f;
+  };
+  std::vector<Pick> picks;
+  int picks_w = 0, picks_h = 0;
 
   bool Bad(double u, double v) const {
     const int x = static_cast<int>(std::lround(u)), y = static_cast<int>(std::lround(v));
@@ -159,6 +168,42 @@ std::vector<Level> BuildPyramid(const ImageU8& color, const PinholeCamera& cam, 
   return pyr;
 }
 
+constexpr int kPickCell = 4;
+
+// Sample selection, precomputed once per reference view (and cached with its pyramid): for
+// every 4x4 cell of level 0 starting at border_px, the pixel with the largest gradient
+// |dI/dx| + |dI/dy| (central differences) and the one with the smallest relative gradient
+// g / (I + 0.01), among pixels with valid depth and not saturated/black. BuildSamples then picks
+// per block of 4k x 4k pixels from k x k cells instead of scanning every pixel of every
+// reference for every candidate (measured: ~15 ms of a 640x480 call with 8 references).
+void BuildPicks(Level& l0, const ImageF& depth, int border) {
+  const int w = l0.w, h = l0.h;
+  l0.picks_w = std::max(0, (w - 2 * border + kPickCell - 1) / kPickCell);
+  l0.picks_h = std::max(0, (h - 2 * border + kPickCell - 1) / kPickCell);
+  l0.picks.assign(static_cast<size_t>(l0.picks_w) * l0.picks_h, Level::Pick{});
+  for (int y = border; y < h - border; ++y) {
+    const float* zr = &depth.at(0, y);
+    Level::Pick* prow = &l0.picks[static_cast<size_t>((y - border) / kPickCell) * l0.picks_w];
+    for (int x = border; x < w - border; ++x) {
+      const size_t i = static_cast<size_t>(y) * w + x;
+      const float z = zr[x];
+      if (!(z > 0.f) || !std::isfinite(z) || l0.bad[i]) continue;
+      const double g = std::abs(l0.luma[i + 1] - l0.luma[i - 1]) +
+                       std::abs(l0.luma[i + w] - l0.luma[i - w]);
+      const double gr = g / (l0.luma[i] + 0.01);
+      Level::Pick& pk = prow[(x - border) / kPickCell];
+      if (g > pk.best_g) {
+        pk.best_g = static_cast<float>(g);
+        pk.best = static_cast<int32_t>(i);
+      }
+      if (gr < pk.flat_g) {
+        pk.flat_g = static_cast<float>(gr);
+        pk.flat = static_cast<int32_t>(i);
+      }
+    }
+  }
+}
+
 struct Pose {  // cam_from_local
   Eigen::Quaterniond q{1, 0, 0, 0};
   Eigen::Vector3d t{0, 0, 0};
@@ -226,8 +271,8 @@ double TukeyRho(double r, double c) {
 }  // namespace
 
 struct RefinementCache::Impl {
-  // id, width, height, levels, saturated_u8, black_u8, fingerprint
-  using Key = std::tuple<ViewId, int, int, int, int, int, uint64_t>;
+  // id, width, height, levels, saturated_u8, black_u8, border_px, fingerprint
+  using Key = std::tuple<ViewId, int, int, int, int, int, int, uint64_t>;
   struct Entry {
     std::shared_ptr<const std::vector<Level>> pyramid;
     std::list<Key>::iterator lru;
@@ -258,9 +303,12 @@ class RefinementCacheAccess {
   static std::shared_ptr<const std::vector<Level>> Pyramid(RefinementCache* cache,
                                                            const StoredView& v, int levels,
                                                            const RefinementOptions& o) {
-    if (cache == nullptr)
-      return std::make_shared<const std::vector<Level>>(
-          BuildPyramid(v.color, v.camera, levels, o, 0, false));
+    const auto build = [&] {
+      std::vector<Level> pyr = BuildPyramid(v.color, v.camera, levels, o, 0, false);
+      BuildPicks(pyr[0], v.depth_m, o.border_px);
+      return std::make_shared<const std::vector<Level>>(std::move(pyr));
+    };
+    if (cache == nullptr) return build();
     // FNV-1a over 256 pixels on a 16x16 grid (cheap; catches a view replaced under its id).
     uint64_t fp = 1469598103934665603ull;
     const int w = v.color.width(), h = v.color.height();
@@ -269,8 +317,13 @@ class RefinementCacheAccess {
         const uint8_t* px = v.color.data() + 3 * (static_cast<size_t>((2 * gy + 1) * h / 32) * w +
                                                   (2 * gx + 1) * w / 32);
         for (int c = 0; c < 3; ++c) fp = (fp ^ px[c]) * 1099511628211ull;
+        // The depth too: the cached sample picks depend on where it is valid.
+        uint32_t zb;
+        const float z = v.depth_m.at((2 * gx + 1) * w / 32, (2 * gy + 1) * h / 32);
+        std::memcpy(&zb, &z, sizeof(zb));
+        fp = (fp ^ zb) * 1099511628211ull;
       }
-    const RefinementCache::Impl::Key key{v.id, w, h, levels, o.saturated_u8, o.black_u8, fp};
+    const RefinementCache::Impl::Key key{v.id, w, h, levels, o.saturated_u8, o.black_u8, o.border_px, fp};
     RefinementCache::Impl& c = *cache->impl_;
     {
       std::lock_guard<std::mutex> l(c.mu);
@@ -282,8 +335,7 @@ class RefinementCacheAccess {
       }
       ++c.misses;
     }
-    auto pyr = std::make_shared<const std::vector<Level>>(
-        BuildPyramid(v.color, v.camera, levels, o, 0, false));  // outside the lock
+    auto pyr = build();  // outside the lock
     std::lock_guard<std::mutex> l(c.mu);
     if (c.entries.count(key) == 0) {
       c.lru.push_front(key);
@@ -392,8 +444,12 @@ void Refiner::BuildSamples(int budget) {
     const StoredView& ref = *refs_[r];
     const Level& rl = (*ref_pyr_[r])[0];
     const int w = rl.w, h = rl.h;
-    const int block =
+    int block =
         std::max(2, static_cast<int>(std::ceil(std::sqrt(double(w) * h * overlap_sum / budget))));
+    // Blocks of >= 2 cells pick from the cached per-cell picks (block rounded to whole cells);
+    // smaller blocks (small images, densified sampling) scan their pixels.
+    const bool use_picks = block >= 2 * kPickCell && !rl.picks.empty();
+    if (use_picks) block = kPickCell * (block / kPickCell);
     const Rigid3d cand_from_ref = cand_.local_from_cam.Inverse() * ref.local_from_cam;
     const double margin_px = 3.0 * block * c0.k.fx / ref.camera.fx + o_.border_px;
     for (int by = o_.border_px; by < h - o_.border_px; by += block)
@@ -419,7 +475,32 @@ void Refiner::BuildSamples(int budget) {
         // flattest one (relative gradient).
         int best_x = -1, best_y = -1, flat_x = -1, flat_y = -1;
         double best_g = -1.0, flat_g = 1e30;
-        for (int y = by; y < std::min(by + block, h - o_.border_px); ++y)
+        if (use_picks) {
+          const int c0x = (bx - o_.border_px) / kPickCell, c0y = (by - o_.border_px) / kPickCell;
+          const int nc = block / kPickCell;
+          int best = -1, flat = -1;
+          float bg = -1.f, fg = 1e30f;
+          for (int cy = c0y; cy < std::min(c0y + nc, rl.picks_h); ++cy)
+            for (int cx = c0x; cx < std::min(c0x + nc, rl.picks_w); ++cx) {
+              const Level::Pick& pk = rl.picks[static_cast<size_t>(cy) * rl.picks_w + cx];
+              if (pk.best < 0) continue;
+              if (pk.best_g > bg) {
+                bg = pk.best_g;
+                best = pk.best;
+              }
+              if (pk.flat_g < fg) {
+                fg = pk.flat_g;
+                flat = pk.flat;
+              }
+            }
+          if (best >= 0) {
+            best_x = best % w;
+            best_y = best / w;
+            flat_x = flat % w;
+            flat_y = flat / w;
+          }
+        }
+        for (int y = by; !use_picks && y < std::min(by + block, h - o_.border_px); ++y)
           for (int x = bx; x < std::min(bx + block, w - o_.border_px); ++x) {
             const size_t i = static_cast<size_t>(y) * w + x;
             const float z = ref.depth_m.at(x, y);
@@ -1043,23 +1124,25 @@ absl::StatusOr<RefinementResult> Refiner::Run() {
         Pose best = pose;
         double best_e = e, best_rel = rel1;
         bool passed = false;
+        std::vector<Pose> starts;
         const Eigen::Vector3d axes[2] = {Eigen::Vector3d::UnitX(), Eigen::Vector3d::UnitY()};
-        for (int mult : {1, -1, 2, -2}) {
+        for (int mult : {1, -1, 2, -2})
           for (const Eigen::Vector3d& axis : axes) {
             Pose start = pose;
             start.t += mult * o_.multistart_step_m * axis;  // camera-frame shift of the centre
-            double e_s = e;
-            CoarseToFine(/*attempt=*/2, &start, &e_s, o_.multistart_from_level);
-            ++res_.attempts;
-            double rel_s = 0, thr_s = 0;
-            OutlierTest(start, e_s, &rel_s, &thr_s);
-            if (rel_s < best_rel) {
-              best = start;
-              best_e = e_s;
-              best_rel = rel_s;
-              passed = rel_s <= thr_s;
-            }
-            if (passed) break;
+            starts.push_back(start);
+          }
+        for (Pose start : starts) {
+          double e_s = e;
+          CoarseToFine(/*attempt=*/2, &start, &e_s, o_.multistart_from_level);
+          ++res_.attempts;
+          double rel_s = 0, thr_s = 0;
+          OutlierTest(start, e_s, &rel_s, &thr_s);
+          if (rel_s < best_rel) {
+            best = start;
+            best_e = e_s;
+            best_rel = rel_s;
+            passed = rel_s <= thr_s;
           }
           if (passed) break;
         }

@@ -98,6 +98,27 @@ TEST(ViewRefinerTest, CacheGivesIdenticalResultsAndDetectsReplacedViews) {
   ASSERT_TRUE(brighter.ok());
   EXPECT_EQ(cache.misses(), 6);
   EXPECT_NEAR(brighter->exposure * 1.3 / 1.5, 1.0, 0.02) << brighter->exposure;
+  // Large sample blocks (max_samples 300: blocks of >= 2 cells) select samples from the cached
+  // per-cell picks: identical to the uncached call. A reference whose depth changes under the
+  // same id (colour unchanged) is rebuilt (the picks depend on its valid depth).
+  RefinementOptions sparse;
+  sparse.max_samples = 300;
+  auto sparse_plain = RefineView(cand, s.RefPtrs(), sparse);
+  auto sparse_cached = RefineView(cand, s.RefPtrs(), sparse, &cache);
+  ASSERT_TRUE(sparse_plain.ok() && sparse_cached.ok());
+  EXPECT_EQ(cache.misses(), 6);
+  EXPECT_EQ(sparse_cached->exposure, sparse_plain->exposure);
+  EXPECT_EQ(sparse_cached->local_from_cam.translation, sparse_plain->local_from_cam.translation);
+  EXPECT_EQ(sparse_cached->num_samples, sparse_plain->num_samples);
+  ImageF& d = s.refs[0].depth_m;
+  for (int y = 0; y < d.height(); ++y)
+    for (int x = 0; x < d.width() / 2; ++x) d.at(x, y) = 0.f;  // left half: no depth
+  auto holes_plain = RefineView(cand, s.RefPtrs(), sparse);
+  auto holes_cached = RefineView(cand, s.RefPtrs(), sparse, &cache);
+  ASSERT_TRUE(holes_plain.ok() && holes_cached.ok());
+  EXPECT_EQ(cache.misses(), 7);
+  EXPECT_EQ(holes_cached->num_samples, holes_plain->num_samples);
+  EXPECT_EQ(holes_cached->exposure, holes_plain->exposure);
 }
 
 // Significance gate (guard: min_pose_gain_over_disagreement): a candidate already at its
