@@ -9,8 +9,8 @@
 
 namespace exo::refinement {
 
-PoseBatchCost::PoseBatchCost(const LumaInterpolator* luma, const LevelIntrinsics& k_luma,
-                             double exposure, const DepthInterpolator* depth,
+PoseBatchCost::PoseBatchCost(const FastBicubic* luma, const LevelIntrinsics& k_luma,
+                             double exposure, const FastBicubic* depth,
                              const LevelIntrinsics& k_depth, double depth_weight, double unit_m)
     : luma_(luma), k_luma_(k_luma), e_(exposure), depth_(depth), k_depth_(k_depth),
       w_depth_(depth_weight), unit_(unit_m) {

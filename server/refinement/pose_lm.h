@@ -21,7 +21,8 @@
 
 namespace exo::refinement {
 
-// The residuals of one pose stage: photometric ones E * C(pi(p)) - m on a luma level, then
+// The residuals of one pose stage (images sampled with FastBicubic, the same spline as the
+// functors' ceres::BiCubicInterpolator): photometric ones E * C(pi(p)) - m on a luma level, then
 // depth ones w * (D(pi(p)) - z) / z on the candidate's depth. Also a ceres::CostFunction (one
 // parameter block xi[6], all residuals in one block) so that GradientChecker can verify it;
 // note that as ONE Ceres block a loss would apply to the whole block, so the refiner solves it
@@ -30,8 +31,8 @@ class PoseBatchCost final : public ceres::CostFunction {
  public:
   // `unit_m`: chart translation unit (median sample depth). `luma` / `depth` may be null when
   // no residual of that kind is added.
-  PoseBatchCost(const LumaInterpolator* luma, const LevelIntrinsics& k_luma, double exposure,
-                const DepthInterpolator* depth, const LevelIntrinsics& k_depth,
+  PoseBatchCost(const FastBicubic* luma, const LevelIntrinsics& k_luma, double exposure,
+                const FastBicubic* depth, const LevelIntrinsics& k_depth,
                 double depth_weight, double unit_m);
 
   void AddPhotometric(const Eigen::Vector3d& p_in_cam0, double target);
@@ -49,10 +50,10 @@ class PoseBatchCost final : public ceres::CostFunction {
     Eigen::Vector3d p;
     double m;
   };
-  const LumaInterpolator* luma_;
+  const FastBicubic* luma_;
   LevelIntrinsics k_luma_;
   double e_;
-  const DepthInterpolator* depth_;
+  const FastBicubic* depth_;
   LevelIntrinsics k_depth_;
   double w_depth_;
   double unit_;

@@ -21,6 +21,7 @@ struct SmoothScene {
   std::unique_ptr<LumaInterpolator> interp;
   std::unique_ptr<DepthGrid> dgrid;
   std::unique_ptr<DepthInterpolator> dinterp;
+  FastBicubic fast, dfast;  // what PoseBatchCost samples with
   LevelIntrinsics k{100.0, 102.0, 63.5, 47.5};
   SmoothScene() : img(kW * kH), depth(kW * kH) {
     for (int y = 0; y < kH; ++y)
@@ -32,15 +33,36 @@ struct SmoothScene {
     interp = std::make_unique<LumaInterpolator>(*grid);
     dgrid = std::make_unique<DepthGrid>(depth.data(), 0, kH, 0, kW);
     dinterp = std::make_unique<DepthInterpolator>(*dgrid);
+    fast = FastBicubic(img.data(), kH, kW);
+    dfast = FastBicubic(depth.data(), kH, kW);
   }
 };
+
+// FastBicubic is ceres::BiCubicInterpolator's spline: same value and derivatives inside, at
+// the border (clamped support) and outside the grid, value-only path included.
+TEST(PoseLmTest, FastBicubicMatchesCeresBiCubicInterpolator) {
+  SmoothScene sc;
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> ur(-3.0, SmoothScene::kH + 2.0), uc(-3.0, SmoothScene::kW + 2.0);
+  for (int i = 0; i < 2000; ++i) {
+    const double r = i == 0 ? 10.0 : ur(rng), c = i == 0 ? 20.0 : uc(rng);  // integer knot
+    double f0, dr0, dc0, f1, dr1, dc1, fv;
+    sc.interp->Evaluate(r, c, &f0, &dr0, &dc0);
+    sc.fast.Evaluate(r, c, &f1, &dr1, &dc1);
+    sc.fast.Evaluate(r, c, &fv);
+    EXPECT_NEAR(f1, f0, 1e-12) << r << " " << c;
+    EXPECT_NEAR(fv, f0, 1e-12) << r << " " << c;
+    EXPECT_NEAR(dr1, dr0, 1e-12) << r << " " << c;
+    EXPECT_NEAR(dc1, dc0, 1e-12) << r << " " << c;
+  }
+}
 
 // Multi-residual block: GradientChecker (numeric) and, row by row, the same residual and
 // Jacobian as PoseDeltaAnalytic / DepthDeltaAnalytic (the functors with their own checks).
 TEST(PoseLmTest, BatchCostMatchesGradientCheckerAndSingleResidualFunctors) {
   SmoothScene sc;
   const double unit = 2.5, e = 1.2, wd = 3.0;
-  PoseBatchCost batch(sc.interp.get(), sc.k, e, sc.dinterp.get(), sc.k, wd, unit);
+  PoseBatchCost batch(&sc.fast, sc.k, e, &sc.dfast, sc.k, wd, unit);
   std::vector<Eigen::Vector3d> pts;
   std::vector<double> ms;
   for (int i = 0; i < 12; ++i) {
@@ -80,7 +102,7 @@ TEST(PoseLmTest, BatchCostMatchesGradientCheckerAndSingleResidualFunctors) {
     }
   }
   // Behind the camera: the evaluation fails (the solver then rejects the step).
-  PoseBatchCost behind(sc.interp.get(), sc.k, 1.0, nullptr, sc.k, 0.0, 1.0);
+  PoseBatchCost behind(&sc.fast, sc.k, 1.0, nullptr, sc.k, 0.0, 1.0);
   behind.AddPhotometric(Eigen::Vector3d(0, 0, -1), 0.5);
   double xi0[6] = {0, 0, 0, 0, 0, 0}, r0;
   const double* p0[1] = {xi0};
@@ -99,7 +121,7 @@ Problem MakeProblem(const SmoothScene& sc, const double xi_true[6], double unit,
   std::mt19937 rng(seed);
   std::uniform_real_distribution<double> ux(-0.35, 0.35), uz(2.0, 3.0), u01(0, 1);
   Problem p;
-  PoseBatchCost truth(sc.interp.get(), sc.k, e, nullptr, sc.k, 0.0, unit);
+  PoseBatchCost truth(&sc.fast, sc.k, e, nullptr, sc.k, 0.0, unit);
   for (int i = 0; i < n; ++i) {
     const double z = uz(rng);
     p.pts.emplace_back(ux(rng) * z, 0.75 * ux(rng) * z, z);
@@ -132,7 +154,7 @@ TEST(PoseLmTest, MatchesCeresSolveWithRobustLossAndSubspace) {
     std::unique_ptr<ceres::LossFunction> loss;
     if (variant == 0) loss = std::make_unique<ceres::TukeyLoss>(0.1);
     if (variant == 1) loss = std::make_unique<ceres::CauchyLoss>(0.02);
-    PoseBatchCost batch(sc.interp.get(), sc.k, e, nullptr, sc.k, 0.0, unit);
+    PoseBatchCost batch(&sc.fast, sc.k, e, nullptr, sc.k, 0.0, unit);
     ceres::Problem::Options po;
     po.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
     po.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;

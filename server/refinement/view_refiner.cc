@@ -50,6 +50,7 @@ struct Level {
   LevelIntrinsics k;
   std::unique_ptr<LumaGrid> grid;
   std::unique_ptr<LumaInterpolator> interp;
+  refinement::FastBicubic fast;  // same spline as interp, used on the hot paths
   // Reference views, level 0 only: per kPickCell x kPickCell cell (from border_px), the most
   // textured and the flattest pixel with valid depth (see BuildPicks).
   struct Pick {
@@ -164,6 +165,7 @@ std::vector<Level> BuildPyramid(const ImageU8& color, const PinholeCamera& cam, 
     if (!interpolator) continue;
     l.grid = std::make_unique<LumaGrid>(l.luma.data(), 0, l.h, 0, l.w);
     l.interp = std::make_unique<LumaInterpolator>(*l.grid);
+    l.fast = refinement::FastBicubic(l.luma.data(), l.h, l.w);
   }
   return pyr;
 }
@@ -421,6 +423,7 @@ class Refiner {
   std::vector<uint8_t> cand_depth_bad_;  // hole or within 2 px of a depth step
   std::unique_ptr<refinement::DepthGrid> depth_grid_;
   std::unique_ptr<refinement::DepthInterpolator> depth_interp_;
+  refinement::FastBicubic depth_fast_;  // same spline as depth_interp_
   // Pose directions updated (orthonormal columns in the PoseDeltaResidual chart): all
   // well-conditioned ones at fine levels, the rotation ones at coarse levels.
   Eigen::Matrix<double, 6, Eigen::Dynamic> free_basis_ = Eigen::Matrix<double, 6, 6>::Identity();
@@ -606,7 +609,7 @@ Refiner::Active Refiner::ActiveSet(int level, const Pose& pose, Kind kind) const
     double u, v;
     if (!ValidInCandidate(level, pose, samples_[j], &u, &v)) continue;
     double val;
-    L.interp->Evaluate(v, u, &val);
+    L.fast.Evaluate(v, u, &val);
     a.idx.push_back(static_cast<int>(j));
     a.c.push_back(val);
   }
@@ -626,8 +629,8 @@ Refiner::EnergyPair Refiner::CompareEnergy(int level, double e0, const Pose& p0,
     ++ep.valid_before;
     if (!ValidInCandidate(level, p1, s, &u1, &v1)) continue;
     double c0, c1;
-    L.interp->Evaluate(v0, u0, &c0);
-    L.interp->Evaluate(v1, u1, &c1);
+    L.fast.Evaluate(v0, u0, &c0);
+    L.fast.Evaluate(v1, u1, &c1);
     ep.before += TukeyRho(e0 * c0 - s.m[level], scale);
     ep.after += TukeyRho(e1 * c1 - s.m[level], scale);
     ++ep.common;
@@ -752,7 +755,7 @@ Pose Refiner::SolvePose(int level, double e, const Pose& pose) {
   if (o_.batched_pose_solver) {
     // One batched evaluation per LM iteration (pose_lm.h): same residuals, loss and LM rules
     // as the Ceres problem below without its per-residual-block overhead.
-    refinement::PoseBatchCost batch(L.interp.get(), L.k, e, depth_interp_.get(), cand_pyr_[0].k, dw,
+    refinement::PoseBatchCost batch(&L.fast, L.k, e, &depth_fast_, cand_pyr_[0].k, dw,
                                     median_depth_m_);
     for (size_t k = 0; k < a.idx.size(); ++k) {
       const Sample& s = samples_[a.idx[k]];
@@ -822,7 +825,7 @@ bool Refiner::DepthResidual(const Sample& s, const Pose& pose, double* r) const 
   const int x = static_cast<int>(std::lround(u)), y = static_cast<int>(std::lround(v));
   if (cand_depth_bad_[static_cast<size_t>(y) * L.w + x]) return false;
   double d;
-  depth_interp_->Evaluate(v, u, &d);
+  depth_fast_.Evaluate(v, u, &d);
   *r = (d - q.z()) / q.z();
   return std::isfinite(*r);
 }
@@ -1066,6 +1069,7 @@ absl::StatusOr<RefinementResult> Refiner::Run() {
     Dilate(cand_depth_bad_, w, h, 2);
     depth_grid_ = std::make_unique<refinement::DepthGrid>(cand_depth_.data(), 0, h, 0, w);
     depth_interp_ = std::make_unique<refinement::DepthInterpolator>(*depth_grid_);
+    depth_fast_ = refinement::FastBicubic(cand_depth_.data(), h, w);
   }
   const double cpu_pyr = ThreadCpuMs();
   res_.cpu_ms_pyramids = cpu_pyr - cpu0;
