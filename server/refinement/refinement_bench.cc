@@ -53,6 +53,8 @@ struct Args {
   int reg = 1;     // 7scenes: register depth to colour (common/datasets rgbd_registration)
   bool keep_rejected = false;  // 7scenes: keep outlier views at their input pose
   double multistart_step = -1;  // RefinementOptions::multistart_step_m (0: off; <0: default)
+  int multistart_level = -1;    // RefinementOptions::multistart_from_level (<0: default)
+  double egate = -1;            // RefinementOptions::min_exposure_gain_over_disagreement
   double gate = -1;             // RefinementOptions::min_pose_gain_over_disagreement (<0: default)
   double conv_px = -1;          // RefinementOptions::convergence_px (<0: default)
   double ftol = -1;             // RefinementOptions::function_tolerance (<0: default)
@@ -179,6 +181,8 @@ absl::Status RunSevenScenes(const Args& a) {
   if (a.samples > 0) opt.max_samples = a.samples;
   if (a.gate >= 0) opt.min_pose_gain_over_disagreement = a.gate;
   if (a.multistart_step >= 0) opt.multistart_step_m = a.multistart_step;
+  if (a.multistart_level >= 0) opt.multistart_from_level = a.multistart_level;
+  if (a.egate >= 0) opt.min_exposure_gain_over_disagreement = a.egate;
   RefinementStats stats;
   RefinementCache cache(64);  // stored views' pyramids, kept between calls (--cache 0: off)
   std::vector<StoredView> refined;
@@ -281,6 +285,8 @@ absl::Status RunScene(synth::SceneKind kind, const Args& a) {
   if (a.min_info >= 0) opt.min_pose_information = a.min_info;
   if (a.retry >= 0) opt.retry_on_outlier = a.retry != 0;
   if (a.multistart_step >= 0) opt.multistart_step_m = a.multistart_step;
+  if (a.multistart_level >= 0) opt.multistart_from_level = a.multistart_level;
+  if (a.egate >= 0) opt.min_exposure_gain_over_disagreement = a.egate;
   if (a.ftol > 0) opt.function_tolerance = a.ftol;
   if (a.conv_px > 0) opt.convergence_px = a.conv_px;
   if (a.gate >= 0) opt.min_pose_gain_over_disagreement = a.gate;
@@ -291,6 +297,7 @@ absl::Status RunScene(synth::SceneKind kind, const Args& a) {
   refined.push_back(noisy[0]);
   int converged = 0;  // kept views within 0.2 deg and 5 mm of the truth (the target)
   std::vector<double> ms, cpu_ms, rot_before, rot_after, tr_before, tr_after, e_before, e_after;
+  std::vector<double> cpu_pyr, cpu_samples, cpu_solve;  // per-phase CPU ms
   for (size_t i = 1; i < noisy.size(); ++i) {
     std::vector<const StoredView*> refs;
     std::vector<StoredView> oracle_refs;
@@ -340,6 +347,9 @@ absl::Status RunScene(synth::SceneKind kind, const Args& a) {
       stats.Add(*res);
       ms.push_back(res->ms);
       cpu_ms.push_back(res->cpu_ms);
+      cpu_pyr.push_back(res->cpu_ms_pyramids);
+      cpu_samples.push_back(res->cpu_ms_samples);
+      cpu_solve.push_back(res->cpu_ms_solve);
       if (!res->rejected_outlier) {
         v.local_from_cam = res->local_from_cam;
         v.exposure = static_cast<float>(res->exposure);
@@ -379,7 +389,8 @@ absl::Status RunScene(synth::SceneKind kind, const Args& a) {
       "\"exposure_relerr_p95_on\":%.4f,\"stored_on\":%zu,\"rejected_outlier\":%lld,\"pose_refused\":%lld,"
       "\"heldout_views\":%zu,\"mssim_off\":%.4f,\"mssim_on\":%.4f,\"mssim_true_poses\":%.4f,"
       "\"psnr_off\":%.2f,\"psnr_on\":%.2f,\"psnr_true_poses\":%.2f,\"coverage\":%.3f,"
-      "\"render_ms\":%.1f}\n",
+      "\"render_ms\":%.1f,\"cpu_ms_pyramids_median\":%.2f,\"cpu_ms_samples_median\":%.2f,"
+      "\"cpu_ms_solve_median\":%.2f,\"cache\":%d,\"batched_pose_solver\":%d}\n",
       synth::SceneKindName(kind), a.width, a.height, noisy.size() - 1, opt.max_reference_views,
       opt.outlier_max_relative_residual,
       opt.max_samples, a.rot_deg, a.trans_m, a.exposure_jitter, a.oracle_refs ? 1 : 0, converged, Percentile(ms, 0.5),
@@ -388,7 +399,9 @@ absl::Status RunScene(synth::SceneKind kind, const Args& a) {
       Percentile(tr_after, 0.95), Percentile(e_before, 0.5), Percentile(e_after, 0.5),
       Percentile(e_after, 0.95), refined.size(), static_cast<long long>(stats.rejected_outlier),
       static_cast<long long>(stats.pose_refused), held.size(), q_off.mssim, q_on.mssim,
-      q_true.mssim, q_off.psnr, q_on.psnr, q_true.psnr, q_on.coverage, q_on.render_ms);
+      q_true.mssim, q_off.psnr, q_on.psnr, q_true.psnr, q_on.coverage, q_on.render_ms,
+      Percentile(cpu_pyr, 0.5), Percentile(cpu_samples, 0.5), Percentile(cpu_solve, 0.5), a.cache ? 1 : 0,
+      opt.batched_pose_solver ? 1 : 0);
   std::fflush(stdout);
   return absl::OkStatus();
 }
@@ -418,6 +431,8 @@ int Main(int argc, char** argv) {
     else if (key == "--cache") a.cache = std::atoi(v) != 0;
     else if (key == "--batched") a.batched = std::atoi(v);
     else if (key == "--multistart-step") a.multistart_step = std::atof(v);
+    else if (key == "--multistart-level") a.multistart_level = std::atoi(v);
+    else if (key == "--egate") a.egate = std::atof(v);
     else if (key == "--ftol") a.ftol = std::atof(v);
     else if (key == "--conv-px") a.conv_px = std::atof(v);
     else if (key == "--gate") a.gate = std::atof(v);

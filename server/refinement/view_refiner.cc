@@ -1201,6 +1201,18 @@ absl::StatusOr<RefinementResult> Refiner::Run() {
       e = e_exposure_only;
     }
   }
+  // Exposure gate: an exposure that explains less than the references' own disagreement
+  // (relative to the prior) is not evidence of an exposure change (real cameras with stable
+  // exposure: otherwise small misfits accumulate along the chain of references).
+  if (o_.min_exposure_gain_over_disagreement > 0 && e != o_.prior_exposure) {
+    double rel_e = 0, thr_e = 0, dis_e = -1, rel_p = 0, thr_p = 0;
+    OutlierTest(pose, e, &rel_e, &thr_e, &dis_e);
+    OutlierTest(pose, o_.prior_exposure, &rel_p, &thr_p);
+    if (dis_e >= 0 && rel_p - rel_e < o_.min_exposure_gain_over_disagreement * dis_e) {
+      res_.exposure_update_insignificant = true;
+      e = o_.prior_exposure;
+    }
+  }
   const EnergyPair final_pair = CompareEnergy(0, e_exposure_only, pose0, e, pose, report_scale);
   res_.cost_before = final_pair.before;
   res_.cost_after = final_pair.after;
@@ -1289,6 +1301,10 @@ absl::Status RefinementOptions::Validate() const {
     return absl::InvalidArgumentError("refinement: initial_exposure must be > 0");
   if (!(function_tolerance > 0) || !(function_tolerance < 1))
     return absl::InvalidArgumentError("refinement: function_tolerance must be in (0, 1)");
+  if (!(min_exposure_gain_over_disagreement >= 0) || !(prior_exposure > 0) ||
+      !std::isfinite(prior_exposure))
+    return absl::InvalidArgumentError(
+        "refinement: min_exposure_gain_over_disagreement must be >= 0, prior_exposure > 0");
   if (!(min_pose_gain_over_disagreement >= 0))
     return absl::InvalidArgumentError("refinement: min_pose_gain_over_disagreement must be >= 0");
   if (!(multistart_step_m >= 0) || multistart_from_level < 0)

@@ -156,6 +156,43 @@ TEST(ViewRefinerTest, InsignificantPoseUpdateKeepsTheInputPose) {
   EXPECT_LT(TransErrM(moved->local_from_cam, s.cand_true), 0.005);
 }
 
+// Exposure gate (guard: min_exposure_gain_over_disagreement): a candidate with the references'
+// exposure, noisy references: the estimate differs from 1 by less than the references'
+// disagreement explains, so prior_exposure (1) is returned exactly; with the gate off it is
+// not (fails if the gate is removed). A real 1.2x exposure change is still estimated.
+TEST(ViewRefinerTest, InsignificantExposureUpdateKeepsThePrior) {
+  RoomSetup s = MakeSetup(0);
+  const glm::dvec3 target{0.3, 0.3, 2.5};
+  const glm::dvec3 eyes[4] = {{-0.35, -0.2, -1.6}, {0.4, 0.0, -1.5}, {0.1, -0.35, -1.2},
+                              {-0.2, 0.15, -1.8}};
+  for (int i = 0; i < 4; ++i) {
+    StoredView v = RenderRoom(s.scene, s.cam, LookAt(eyes[i], target), 1.0, 3.0, 60 + i);
+    v.id = i + 1;
+    s.refs.push_back(std::move(v));
+  }
+  StoredView cand = RenderRoom(s.scene, s.cam, s.cand_true, 1.0, 3.0, 70);
+  cand.local_from_cam = Perturb(s.cand_true, 0.5, 0.005, 71);
+  RefinementOptions gate_on, gate_off;  // gate_on: the default (2)
+  gate_off.min_exposure_gain_over_disagreement = 0.0;
+  auto on = RefineView(cand, s.RefPtrs(), gate_on);
+  auto off = RefineView(cand, s.RefPtrs(), gate_off);
+  ASSERT_TRUE(on.ok() && off.ok());
+  EXPECT_TRUE(on->exposure_update_insignificant);
+  EXPECT_EQ(on->exposure, 1.0);
+  EXPECT_FALSE(off->exposure_update_insignificant);
+  EXPECT_NE(off->exposure, 1.0);
+  EXPECT_LT(ExposureRelErr(off->exposure, 1.0), 0.02);
+  StoredView brighter = RenderRoom(s.scene, s.cam, s.cand_true, 1.2, 3.0, 72);
+  brighter.local_from_cam = cand.local_from_cam;
+  auto b = RefineView(brighter, s.RefPtrs(), gate_on);
+  ASSERT_TRUE(b.ok());
+  EXPECT_FALSE(b->exposure_update_insignificant);
+  EXPECT_LT(ExposureRelErr(b->exposure, 1.2), 0.02) << b->exposure;
+  RefinementOptions bad;
+  bad.prior_exposure = 0.0;
+  EXPECT_FALSE(bad.Validate().ok());
+}
+
 TEST(ViewRefinerTest, PoseUpTo2Deg2CmConvergesIn95PercentOfTrials) {
   const RoomSetup s = MakeSetup(4);
   const auto refs = s.RefPtrs();
