@@ -13,8 +13,9 @@
 //   inpaint_bench [--data DIR] [--masks FILE] [--generate_masks [--mask_seed S --mask_frame0 F]]
 //                 [--img_dir DIR] [--threads N] [--repeats N] [--max_masks N] [--raw]
 //                 [--fusion mean|robust] [--jump_rel R] [--jump_weight W] [--converged F]
-//                 [--plane_prior W] [--neumann_prior W] [--prior_local SIGMA_PX] [--seed S]
-//                 [--peel_all_normals]
+//                 [--plane_prior W] [--neumann_prior W] [--prior_local SIGMA_PX] [--prefill_trust PX]
+//                 [--prefill_color SIGMA] [--prefill_ray PX] [--prefill_front PX] [--prefill_front_radius F] [--seed S]
+//                 [--peel_all_normals] [--dump_depth DIR]
 #include <algorithm>
 #include <array>
 #include <chrono>
@@ -498,6 +499,7 @@ int main(int argc, char** argv) {
   if (const char* env = std::getenv("EXOVIEW_SHARED_DIR")) data_dir = std::string(env) + "/data/7scenes-redkitchen";
   std::string masks_path = std::string(EXOVIEW_SOURCE_DIR) + "/server/inpainting/testdata/masks.jsonl";
   std::string img_dir;
+  std::string dump_depth_dir;  // --dump_depth DIR: per-mask depth views (truth | ours)
   bool generate = false;
   uint64_t mask_seed = 20260707;  // the committed TEST set; the training set uses 777
   int mask_frame0 = 0;            // test: frames 0, 30, ...; training: 15, 45, ...
@@ -508,6 +510,11 @@ int main(int argc, char** argv) {
   double plane_prior = InpaintOptions{}.plane_prior_weight;
   double neumann_prior = InpaintOptions{}.neumann_prior_weight;
   double prior_local = InpaintOptions{}.prior_local_px;
+  double prefill_trust = InpaintOptions{}.prefill_trust_px;
+  double prefill_front = InpaintOptions{}.prefill_front_px;
+  double prefill_color = InpaintOptions{}.prefill_color_sigma;
+  double prefill_ray = InpaintOptions{}.prefill_ray_px;
+  double prefill_front_radius = InpaintOptions{}.prefill_front_radius;
   uint64_t seed = InpaintOptions{}.seed;
   bool peel_measured = InpaintOptions{}.peel_measured_normals_only;
   double converged = InpaintOptions{}.converged_fraction;
@@ -523,6 +530,7 @@ int main(int argc, char** argv) {
     else if (a == "--mask_seed") mask_seed = std::stoull(next());
     else if (a == "--mask_frame0") mask_frame0 = std::stoi(next());
     else if (a == "--img_dir") img_dir = next();
+    else if (a == "--dump_depth") dump_depth_dir = next();
     else if (a == "--threads") threads = std::stoi(next());
     else if (a == "--repeats") repeats = std::stoi(next());
     else if (a == "--max_masks") max_masks = std::stoi(next());
@@ -534,6 +542,11 @@ int main(int argc, char** argv) {
     else if (a == "--plane_prior") plane_prior = std::stod(next());
     else if (a == "--neumann_prior") neumann_prior = std::stod(next());
     else if (a == "--prior_local") prior_local = std::stod(next());
+    else if (a == "--prefill_trust") prefill_trust = std::stod(next());
+    else if (a == "--prefill_front") prefill_front = std::stod(next());
+    else if (a == "--prefill_color") prefill_color = std::stod(next());
+    else if (a == "--prefill_ray") prefill_ray = std::stod(next());
+    else if (a == "--prefill_front_radius") prefill_front_radius = std::stod(next());
     else if (a == "--seed") seed = std::stoull(next());
     else if (a == "--peel_all_normals") peel_measured = false;
     else if (a == "--fusion") fusion_mean = next() == "mean";
@@ -587,6 +600,11 @@ int main(int argc, char** argv) {
   base.plane_prior_weight = plane_prior;
   base.neumann_prior_weight = neumann_prior;
   base.prior_local_px = prior_local;
+  base.prefill_trust_px = prefill_trust;
+  base.prefill_front_px = prefill_front;
+  base.prefill_color_sigma = prefill_color;
+  base.prefill_ray_px = prefill_ray;
+  base.prefill_front_radius = prefill_front_radius;
   base.seed = seed;
   base.peel_measured_normals_only = peel_measured;
   base.fine_iterations = fine_iterations;
@@ -631,6 +649,23 @@ int main(int argc, char** argv) {
       PrintRow(name, spec, fraction, ms, m, extra);
       for (size_t k = 0; k < times.size(); ++k)
         rows[{name, spec.cls}].push_back({name, spec.cls, times[k], m, stages[k]});
+      if (!dump_depth_dir.empty() && name == "inpaintfusion") {
+        // --dump_depth: truth depth | ours (with the pre-fill outside T), 0-4 m, T outlined.
+        cv::Mat both(480, 1280, CV_8UC3), g8, o8;
+        gt.depth_m.convertTo(g8, CV_8U, 255.0 / 4.0);
+        d.convertTo(o8, CV_8U, 255.0 / 4.0);
+        cv::Mat gc, oc;
+        cv::applyColorMap(g8, gc, cv::COLORMAP_JET);
+        cv::applyColorMap(o8, oc, cv::COLORMAP_JET);
+        gc.setTo(cv::Scalar(0, 0, 0), gt.depth_m <= 0.f);
+        std::vector<std::vector<cv::Point>> cs;
+        cv::findContours(mask.clone(), cs, cv::RETR_EXTERNAL, cv::CHAIN_APPROX_NONE);
+        cv::drawContours(gc, cs, -1, cv::Scalar(255, 255, 255), 1);
+        cv::drawContours(oc, cs, -1, cv::Scalar(255, 255, 255), 1);
+        gc.copyTo(both(cv::Rect(0, 0, 640, 480)));
+        oc.copyTo(both(cv::Rect(640, 0, 640, 480)));
+        cv::imwrite(dump_depth_dir + "/" + spec.id + ".png", both);
+      }
       if (keep_c) *keep_c = c.clone();
       if (keep_d) *keep_d = d.clone();
       if (keep_result) *keep_result = std::move(*r);
