@@ -4,11 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
-#include <limits>
 #include <thread>
-
-#include <Eigen/Dense>
-#include <opencv2/imgproc.hpp>
 
 namespace exo::inpaint {
 
@@ -119,110 +115,6 @@ int PrefillDepth(ImageF& depth_m, const std::vector<uint8_t>& fill_here,
   return filled;
 }
 
-int FrontFillFarHoles(ImageF& depth_m, const std::vector<uint8_t>& filled,
-                      const std::vector<uint8_t>& measured, const std::vector<float>& dist_px,
-                      float far_px, float radius_factor) {
-  const int w = depth_m.width(), h = depth_m.height();
-  const float inf = std::numeric_limits<float>::infinity();
-  // Min-pyramid of measured depth: level k holds the minimum over blocks of 2^k x 2^k.
-  struct Lv {
-    int w, h;
-    std::vector<float> v;
-  };
-  std::vector<Lv> pyr;
-  pyr.push_back({w, h, std::vector<float>(static_cast<size_t>(w) * h, inf)});
-  for (size_t i = 0; i < pyr[0].v.size(); ++i)
-    if (measured[i] && depth_m.data()[i] > 0.f) pyr[0].v[i] = depth_m.data()[i];
-  while (pyr.back().w > 1 || pyr.back().h > 1) {
-    const Lv& f = pyr.back();
-    Lv c{(f.w + 1) / 2, (f.h + 1) / 2, {}};
-    c.v.assign(static_cast<size_t>(c.w) * c.h, inf);
-    for (int y = 0; y < f.h; ++y)
-      for (int x = 0; x < f.w; ++x) {
-        float& m = c.v[static_cast<size_t>(y / 2) * c.w + x / 2];
-        m = std::min(m, f.v[static_cast<size_t>(y) * f.w + x]);
-      }
-    pyr.push_back(std::move(c));
-  }
-  int changed = 0;
-  for (int y = 0; y < h; ++y) {
-    for (int x = 0; x < w; ++x) {
-      const size_t i = static_cast<size_t>(y) * w + x;
-      if (!filled[i] || !(dist_px[i] > far_px)) continue;
-      const float r = radius_factor * dist_px[i];
-      int k = 0;
-      while (k + 1 < static_cast<int>(pyr.size()) && static_cast<float>(2 << k) <= r) ++k;
-      const Lv& L = pyr[k];
-      const int s = 1 << k;
-      const int x0 = std::max(0, static_cast<int>(std::floor((x - r) / s)));
-      const int x1 = std::min(L.w - 1, static_cast<int>(std::floor((x + r) / s)));
-      const int y0 = std::max(0, static_cast<int>(std::floor((y - r) / s)));
-      const int y1 = std::min(L.h - 1, static_cast<int>(std::floor((y + r) / s)));
-      float m = inf;
-      for (int by = y0; by <= y1; ++by)
-        for (int bx = x0; bx <= x1; ++bx) m = std::min(m, L.v[static_cast<size_t>(by) * L.w + bx]);
-      float& z = depth_m.data()[i];
-      if (m < inf && (!(z > 0.f) || m < z)) {
-        z = m;
-        ++changed;
-      }
-    }
-  }
-  return changed;
-}
-int PlaneFillFarHoles(ImageF& depth_m, const std::vector<uint8_t>& filled,
-                      const std::vector<uint8_t>& measured, float far_px, int window_px) {
-  const int w = depth_m.width(), h = depth_m.height();
-  const size_t n = static_cast<size_t>(w) * h;
-  cv::Mat not_measured(h, w, CV_8U), dist, labels;
-  for (size_t i = 0; i < n; ++i) not_measured.data[i] = measured[i] && depth_m.data()[i] > 0.f ? 0 : 1;
-  cv::distanceTransform(not_measured, dist, labels, cv::DIST_L2, cv::DIST_MASK_5, cv::DIST_LABEL_PIXEL);
-  // Label -> pixel of the measured seed.
-  std::vector<int> seed_of_label;
-  for (size_t i = 0; i < n; ++i) {
-    if (not_measured.data[i]) continue;
-    const int lab = labels.ptr<int>(0)[i];
-    if (lab >= static_cast<int>(seed_of_label.size())) seed_of_label.resize(lab + 1, -1);
-    seed_of_label[lab] = static_cast<int>(i);
-  }
-  // Per seed: plane of inverse depth over the same-surface measured pixels in its window.
-  std::vector<Eigen::Vector3f> plane(seed_of_label.size());
-  std::vector<uint8_t> done(seed_of_label.size(), 0);
-  int changed = 0;
-  for (int y = 0; y < h; ++y) {
-    for (int x = 0; x < w; ++x) {
-      const size_t i = static_cast<size_t>(y) * w + x;
-      if (!filled[i] || !(dist.at<float>(y, x) > far_px)) continue;
-      const int lab = labels.at<int>(y, x);
-      if (lab < 0 || lab >= static_cast<int>(seed_of_label.size()) || seed_of_label[lab] < 0) continue;
-      const int si = seed_of_label[lab], sx = si % w, sy = si / w;
-      const float zs = depth_m.data()[si];
-      if (!done[lab]) {
-        done[lab] = 1;
-        Eigen::Matrix3d ata = Eigen::Matrix3d::Zero();
-        Eigen::Vector3d atb = Eigen::Vector3d::Zero();
-        for (int yy = std::max(0, sy - window_px); yy <= std::min(h - 1, sy + window_px); ++yy)
-          for (int xx = std::max(0, sx - window_px); xx <= std::min(w - 1, sx + window_px); ++xx) {
-            const size_t j = static_cast<size_t>(yy) * w + xx;
-            const float z = depth_m.data()[j];
-            if (not_measured.data[j] || std::fabs(z - zs) > 0.05f * zs) continue;
-            const Eigen::Vector3d a((xx - sx) / 16.0, (yy - sy) / 16.0, 1.0);
-            ata += a * a.transpose();
-            atb += a * (1.0 / z);
-          }
-        ata += 1e-3 * Eigen::Matrix3d::Identity() * ata(2, 2);  // collinear support: flat
-        const Eigen::Vector3d c = ata.ldlt().solve(atb);
-        plane[lab] = c.allFinite() ? c.cast<float>() : Eigen::Vector3f(0.f, 0.f, 1.f / zs);
-      }
-      const Eigen::Vector3f& c = plane[lab];
-      const float v = c[0] * (x - sx) / 16.f + c[1] * (y - sy) / 16.f + c[2];
-      const float z = v > 0.f ? std::clamp(1.f / v, zs / 1.5f, zs * 1.5f) : zs * 1.5f;
-      depth_m.data()[i] = z;
-      ++changed;
-    }
-  }
-  return changed;
-}
 
 ImageF NormalsFromDepth(const ImageF& depth_m, const PinholeCamera& camera, int step,
                         float rel_discontinuity, int num_threads) {

@@ -26,23 +26,6 @@ bool PushPullFill(std::vector<float>& data, int channels, const std::vector<uint
 int PrefillDepth(ImageF& depth_m, const std::vector<uint8_t>& fill_here,
                  const std::vector<uint8_t>& use_as_data);
 
-// Front-most fill of far holes: every pixel of `filled` (!= 0) whose distance `dist_px` to the
-// nearest `measured` (!= 0) pixel exceeds `far_px` takes the smallest measured depth within a
-// square of half-size radius_factor * distance around it (min-pyramid, blocks of 2^k px), if
-// that is nearer than its current value. A large unmeasured region (the registration gap at
-// the image edge) then continues the front-most surface around it rather than the far one a
-// push-pull average favours. Returns the number of pixels changed.
-int FrontFillFarHoles(ImageF& depth_m, const std::vector<uint8_t>& filled,
-                      const std::vector<uint8_t>& measured, const std::vector<float>& dist_px,
-                      float far_px, float radius_factor);
-
-// Plane extrapolation of far holes: every pixel of `filled` farther than `far_px` from measured
-// depth takes the plane (inverse depth affine in pixels) fitted to the same-surface measured
-// pixels within +-window_px of its nearest measured pixel, clamped to [1/1.5, 1.5] x that
-// pixel's depth. Returns the number of pixels changed.
-int PlaneFillFarHoles(ImageF& depth_m, const std::vector<uint8_t>& filled,
-                      const std::vector<uint8_t>& measured, float far_px, int window_px);
-
 // Camera-frame unit normals (3 channels, facing the camera) from z-depth. The depth is first
 // smoothed with a 5x5 valid-weighted filter that ignores neighbours differing by more than
 // `rel_discontinuity` * z (Kinect depth is quantised); the normal is the cross product of

@@ -828,13 +828,6 @@ absl::Status InpaintOptions::Validate() const {
   if (!(jump_rel > 0.0)) return absl::InvalidArgumentError("jump_rel must be > 0");
   if (!(plane_prior_weight >= 0.0)) return absl::InvalidArgumentError("plane_prior_weight >= 0");
   if (!(neumann_prior_weight >= 0.0)) return absl::InvalidArgumentError("neumann_prior_weight >= 0");
-  if (!(prefill_trust_px >= 0.0)) return absl::InvalidArgumentError("prefill_trust_px >= 0");
-  if (!(prefill_color_sigma >= 0.0)) return absl::InvalidArgumentError("prefill_color_sigma >= 0");
-  if (!(prefill_ray_px >= 0.0)) return absl::InvalidArgumentError("prefill_ray_px >= 0");
-  if (!(prefill_front_px >= 0.0)) return absl::InvalidArgumentError("prefill_front_px >= 0");
-  if (!(prefill_front_radius >= -64.0 && prefill_front_radius <= 8.0)) {
-    return absl::InvalidArgumentError("prefill_front_radius in (0, 8]");
-  }
   if (!(prior_local_px >= 0.0)) return absl::InvalidArgumentError("prior_local_px must be >= 0");
   if (!(jump_weight > 0.0 && jump_weight <= 1.0)) {
     return absl::InvalidArgumentError("jump_weight must be in (0, 1]");
@@ -899,94 +892,7 @@ absl::StatusOr<InpaintResult> InpaintKeyframe(const RgbdKeyframe& frame, const I
     if (!std::isfinite(z) || z < 0.f) z = 0.f;
     if (target[i]) z = 0.f;  // T's own depth (the object to remove / a hole) is never used
   }
-  // Distance (px) of every pixel to the nearest measured depth outside T, for the confidence
-  // of pre-filled values in the depth solve (prefill_trust_px).
-  cv::Mat dist_to_measured;
-  std::vector<uint8_t> measured;
-  if (options.prefill_trust_px > 0.0 || options.prefill_front_px > 0.0 ||
-      options.prefill_color_sigma > 0.0) {
-    cv::Mat not_measured(h, w, CV_8U);
-    measured.assign(n, 0);
-    for (size_t i = 0; i < n; ++i) {
-      measured[i] = out.depth_m.data()[i] > 0.f;
-      not_measured.data[i] = measured[i] ? 0 : 1;
-    }
-    cv::distanceTransform(not_measured, dist_to_measured, cv::DIST_L2, cv::DIST_MASK_5);
-  }
   out.stats.prefilled_pixels = PrefillDepth(out.depth_m, outside, outside);
-  if (options.prefill_front_px > 0.0 && out.stats.prefilled_pixels > 0) {
-    std::vector<uint8_t> filled(n);
-    for (size_t i = 0; i < n; ++i) filled[i] = outside[i] && !measured[i];
-    const float* dp = dist_to_measured.ptr<float>(0);
-    const std::vector<float> dist(dp, dp + n);
-    if (options.prefill_front_radius >= 0.0) {
-      FrontFillFarHoles(out.depth_m, filled, measured, dist, static_cast<float>(options.prefill_front_px),
-                        static_cast<float>(options.prefill_front_radius));
-    } else {
-      PlaneFillFarHoles(out.depth_m, filled, measured, static_cast<float>(options.prefill_front_px),
-                        static_cast<int>(-options.prefill_front_radius));
-    }
-  }
-  // Per-pixel confidence of the pre-filled depth (1 = measured or fully trusted).
-  std::vector<float> prefill_trust;
-  if (out.stats.prefilled_pixels > 0 &&
-      (options.prefill_trust_px > 0.0 || options.prefill_color_sigma > 0.0)) {
-    prefill_trust.assign(n, 1.f);
-    std::vector<float> cfill;
-    if (options.prefill_color_sigma > 0.0) {
-      cfill.resize(n * 3);
-      for (size_t i = 0; i < n * 3; ++i) cfill[i] = frame.color.data()[i];
-      PushPullFill(cfill, 3, measured, w, h);
-    }
-    const float* dp = dist_to_measured.ptr<float>(0);
-    const double inv_s2 = options.prefill_color_sigma > 0.0
-                              ? 1.0 / (options.prefill_color_sigma * options.prefill_color_sigma)
-                              : 0.0;
-    for (size_t i = 0; i < n; ++i) {
-      if (!outside[i] || measured[i]) continue;
-      double t = 1.0;
-      bool two_sided = false;
-      if (options.prefill_ray_px > 0.0) {
-        // Only pixels next to T matter for the solve.
-        const int x = static_cast<int>(i % w), y = static_cast<int>(i / w);
-        bool next_to_t = false;
-        if (x > 0) next_to_t |= target[i - 1] != 0;
-        if (x + 1 < w) next_to_t |= target[i + 1] != 0;
-        if (y > 0) next_to_t |= target[i - w] != 0;
-        if (y + 1 < h) next_to_t |= target[i + w] != 0;
-        if (!next_to_t) continue;
-        static const int kDx[8] = {1, 1, 0, -1, -1, -1, 0, 1}, kDy[8] = {0, 1, 1, 1, 0, -1, -1, -1};
-        bool hit[8] = {};
-        for (int r = 0; r < 8; ++r) {
-          for (int s = 1; s <= options.prefill_ray_px; ++s) {
-            const int xx = x + kDx[r] * s, yy = y + kDy[r] * s;
-            if (xx < 0 || yy < 0 || xx >= w || yy >= h) break;
-            const size_t j = static_cast<size_t>(yy) * w + xx;
-            if (target[j]) break;
-            if (measured[j]) {
-              hit[r] = true;
-              break;
-            }
-          }
-        }
-        // Two sides: hits in two directions at least 90 degrees apart.
-        for (int r = 0; r < 8 && !two_sided; ++r) {
-          if (!hit[r]) continue;
-          for (int k = 2; k <= 6 && !two_sided; ++k) two_sided = hit[(r + k) % 8];
-        }
-      }
-      if (options.prefill_trust_px > 0.0 && !two_sided) t *= std::exp(-dp[i] / options.prefill_trust_px);
-      if (!cfill.empty()) {
-        double d2 = 0.0;
-        for (int k = 0; k < 3; ++k) {
-          const double dc = frame.color.data()[i * 3 + k] - cfill[i * 3 + k];
-          d2 += dc * dc;
-        }
-        t *= std::exp(-d2 / 3.0 * inv_s2);
-      }
-      prefill_trust[i] = std::max(1e-3f, static_cast<float>(t));
-    }
-  }
   const ImageF normals0 = NormalsFromDepth(out.depth_m, frame.camera, 2, options.normal_rel_discontinuity,
                                           options.num_threads);
 
@@ -1146,9 +1052,7 @@ absl::StatusOr<InpaintResult> InpaintKeyframe(const RgbdKeyframe& frame, const I
           g2 = qv(sx - dx, sy - dy) - ref2;
         }
         const FusedGradient fg = FuseGradientSamples(tp, g1, ref1, tq, g2, ref2, options);
-        float wgt = fg.weight;
-        const float g = fg.g;
-        if (tp != tq && !prefill_trust.empty()) wgt *= prefill_trust[tp ? j : i];
+        const float g = fg.g, wgt = fg.weight;
         (dir == 0 ? gx : gy).at(cx, cy) = g;
         if (wgt != 1.f) (dir == 0 ? wx : wy).at(cx, cy) = wgt;
       }

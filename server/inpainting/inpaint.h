@@ -80,27 +80,6 @@ struct InpaintOptions {
   double plane_prior_weight = 0.0;
   double neumann_prior_weight = 0.01;
   double prior_local_px = 50.0;
-  // Confidence of depth pre-filled outside T (sensor holes, e.g. the registration gap at the
-  // image edge): a Poisson pair between T and a pre-filled pixel at distance d (px) from the
-  // nearest measured depth weighs exp(-d / prefill_trust_px) instead of 1 (a soft Dirichlet
-  // value that fades where the fill extrapolates far). 0 = pre-filled values are hard Dirichlet
-  // values, like measured ones.
-  double prefill_trust_px = 0.0;
-  // Pre-filled pixels farther than prefill_front_px from measured depth take the front-most
-  // measured depth within prefill_front_radius * their distance when it is nearer than the
-  // push-pull value (FrontFillFarHoles). 0 = push-pull only.
-  // Colour consistency of pre-filled pixels: a Poisson pair between T and a pre-filled pixel b
-  // weighs exp(-(|c(b) - c_fill(b)| / prefill_color_sigma)^2), c_fill the colour push-pulled from
-  // the same measured pixels as b's depth (RGB distance / sqrt(3), 8-bit units): a fill that
-  // came from a surface of another colour than b's own is not trusted. 0 = off.
-  double prefill_color_sigma = 0.0;
-  // With prefill_trust_px > 0: the distance decay applies only to one-sided fills, pre-filled
-  // pixels next to T from which 8 rays (stopped by T, up to prefill_ray_px) find measured depth
-  // on one side only (no two hit directions at least 90 degrees apart): an extrapolation, not an
-  // interpolation between surfaces on both sides. 0 = decay every pre-filled pixel.
-  double prefill_ray_px = 0.0;
-  double prefill_front_px = 0.0;
-  double prefill_front_radius = 2.0;
   absl::Status Validate() const;
 };
 

@@ -13,8 +13,7 @@
 //   inpaint_bench [--data DIR] [--masks FILE] [--generate_masks [--mask_seed S --mask_frame0 F]]
 //                 [--img_dir DIR] [--threads N] [--repeats N] [--max_masks N] [--raw]
 //                 [--fusion mean|robust] [--jump_rel R] [--jump_weight W] [--converged F]
-//                 [--plane_prior W] [--neumann_prior W] [--prior_local SIGMA_PX] [--prefill_trust PX]
-//                 [--prefill_color SIGMA] [--prefill_ray PX] [--prefill_front PX] [--prefill_front_radius F] [--seed S]
+//                 [--plane_prior W] [--neumann_prior W] [--prior_local SIGMA_PX] [--seed S]
 //                 [--peel_all_normals] [--dump_depth DIR]
 #include <algorithm>
 #include <array>
@@ -510,11 +509,6 @@ int main(int argc, char** argv) {
   double plane_prior = InpaintOptions{}.plane_prior_weight;
   double neumann_prior = InpaintOptions{}.neumann_prior_weight;
   double prior_local = InpaintOptions{}.prior_local_px;
-  double prefill_trust = InpaintOptions{}.prefill_trust_px;
-  double prefill_front = InpaintOptions{}.prefill_front_px;
-  double prefill_color = InpaintOptions{}.prefill_color_sigma;
-  double prefill_ray = InpaintOptions{}.prefill_ray_px;
-  double prefill_front_radius = InpaintOptions{}.prefill_front_radius;
   uint64_t seed = InpaintOptions{}.seed;
   bool peel_measured = InpaintOptions{}.peel_measured_normals_only;
   double converged = InpaintOptions{}.converged_fraction;
@@ -542,11 +536,6 @@ int main(int argc, char** argv) {
     else if (a == "--plane_prior") plane_prior = std::stod(next());
     else if (a == "--neumann_prior") neumann_prior = std::stod(next());
     else if (a == "--prior_local") prior_local = std::stod(next());
-    else if (a == "--prefill_trust") prefill_trust = std::stod(next());
-    else if (a == "--prefill_front") prefill_front = std::stod(next());
-    else if (a == "--prefill_color") prefill_color = std::stod(next());
-    else if (a == "--prefill_ray") prefill_ray = std::stod(next());
-    else if (a == "--prefill_front_radius") prefill_front_radius = std::stod(next());
     else if (a == "--seed") seed = std::stoull(next());
     else if (a == "--peel_all_normals") peel_measured = false;
     else if (a == "--fusion") fusion_mean = next() == "mean";
@@ -600,11 +589,6 @@ int main(int argc, char** argv) {
   base.plane_prior_weight = plane_prior;
   base.neumann_prior_weight = neumann_prior;
   base.prior_local_px = prior_local;
-  base.prefill_trust_px = prefill_trust;
-  base.prefill_front_px = prefill_front;
-  base.prefill_color_sigma = prefill_color;
-  base.prefill_ray_px = prefill_ray;
-  base.prefill_front_radius = prefill_front_radius;
   base.seed = seed;
   base.peel_measured_normals_only = peel_measured;
   base.fine_iterations = fine_iterations;
