@@ -129,11 +129,23 @@ absl::Status CellIdRenderer::Update(const std::vector<MeshChunk>& changed) {
       continue;
     }
     const size_t n = c.mesh.num_triangles();
+    glm::dvec3 src_lo(std::numeric_limits<double>::infinity()), src_hi(-src_lo);
+    for (const glm::vec3& p : c.mesh.positions) {
+      src_lo = glm::min(src_lo, glm::dvec3(p));
+      src_hi = glm::max(src_hi, glm::dvec3(p));
+    }
     if (it != chunks_.end() && options_.lod_cluster_m > 0.0 && options_.lod_keep_fraction > 0.0) {
       Entry& e = it->second;
       const double lo = double(std::min(n, e.lod_source_triangles));
       const double hi = double(std::max(n, e.lod_source_triangles));
-      if (hi <= (1.0 + options_.lod_keep_fraction) * lo) {  // keep the LOD
+      // Keep the LOD while the chunk's triangle count AND its bounding box stay put: a surface
+      // that appeared or was carved away moves the box (the count alone kept stale LODs in
+      // walks that look around: apartment eval -0.005 MSSIM, docs/evaluation.md).
+      const glm::dvec3 moved = glm::max(glm::abs(src_lo - e.lod_source_lo),
+                                        glm::abs(src_hi - e.lod_source_hi));
+      const double max_moved = std::max(moved.x, std::max(moved.y, moved.z));
+      if (hi <= (1.0 + options_.lod_keep_fraction) * lo &&
+          max_moved <= 0.5 * options_.lod_cluster_m) {  // keep the LOD
         e.version = c.version;
         e.source_triangles = n;
         continue;
@@ -142,6 +154,8 @@ absl::Status CellIdRenderer::Update(const std::vector<MeshChunk>& changed) {
     Entry e;
     e.version = c.version;
     e.source_triangles = e.lod_source_triangles = n;
+    e.lod_source_lo = src_lo;
+    e.lod_source_hi = src_hi;
     if (options_.lod_cluster_m > 0.0) {
       EXO_ASSIGN_OR_RETURN(e.mesh, ClusterSimplify(c.mesh, options_.lod_cluster_m));
       ++lod_builds_;

@@ -47,8 +47,9 @@ struct CellIdRendererOptions {
   // meshes themselves. Chosen per scene: see DefaultCellIdLodM().
   double lod_cluster_m = 0.0;
   // 0: the LOD is rebuilt for every new chunk version. > 0: a new version keeps the chunk's LOD
-  // while its triangle count is within this fraction of the count the LOD was built from (a
-  // converging TSDF chunk moves by a fraction of a voxel, far below a cluster).
+  // while its triangle count is within this fraction of the count the LOD was built from AND its
+  // bounding box moved by at most half a cluster (a converging TSDF chunk moves by a fraction of
+  // a voxel, far below a cluster; a surface appearing or carved away moves the box).
   double lod_keep_fraction = 0.0;
   // Chunks whose box lies entirely beyond this camera z are skipped (0 = no far limit).
   double max_range_m = 0.0;
@@ -101,6 +102,7 @@ class CellIdRenderer {
     uint64_t version = 0;
     size_t source_triangles = 0;     // of the current version
     size_t lod_source_triangles = 0; // of the version the LOD was built from
+    glm::dvec3 lod_source_lo{0.0}, lod_source_hi{0.0};  // box of that version's mesh
     TriangleMesh mesh;               // rendered (LOD or copy)
     glm::dvec3 lo{0.0}, hi{0.0};     // box of `mesh`
   };

@@ -276,16 +276,29 @@ TEST(CellIdRendererTest, VersionsLodKeepAndRemoval) {
   c.mesh.positions[0].z += 5.0f;
   ASSERT_TRUE(r->Update({c}).ok());
   EXPECT_EQ(r->lod_builds(), builds);
-  // Newer version with the same triangle count: the LOD is kept (keep fraction 0.1).
+  // Newer version with the same triangle count and a box within half a cluster: the LOD is kept
+  // (keep fraction 0.1).
+  c.mesh = chunks[0].mesh;
+  for (glm::vec3& p : c.mesh.positions) p += glm::vec3(0.01f, 0.0f, 0.0f);
   c.version = 2;
   ASSERT_TRUE(r->Update({c}).ok());
   EXPECT_EQ(r->lod_builds(), builds);
   EXPECT_EQ(r->RenderMesh(c.id)->positions, before.positions);
-  // Newer version with 50 % fewer triangles: rebuilt.
+  // Same triangle count, but one vertex moved 5 m (a surface appeared elsewhere in the chunk):
+  // rebuilt. Guard: without the box test the stale LOD is kept.
+  c.mesh.positions[0].z += 5.0f;
   c.version = 3;
-  c.mesh.indices.resize(c.mesh.indices.size() / 6 * 3);
   ASSERT_TRUE(r->Update({c}).ok());
   EXPECT_EQ(r->lod_builds(), builds + 1);
+  c.mesh = chunks[0].mesh;
+  c.version = 4;
+  ASSERT_TRUE(r->Update({c}).ok());  // back to the original box: rebuilt again
+  ASSERT_EQ(r->lod_builds(), builds + 2);
+  // Newer version with 50 % fewer triangles: rebuilt.
+  c.version = 5;
+  c.mesh.indices.resize(c.mesh.indices.size() / 6 * 3);
+  ASSERT_TRUE(r->Update({c}).ok());
+  EXPECT_EQ(r->lod_builds(), builds + 3);
   // With keep fraction 0 every new version is rebuilt.
   o.lod_keep_fraction = 0.0;
   auto exact = CellIdRenderer::Create(o);
