@@ -90,6 +90,107 @@ bool PoseBatchCost::Evaluate(double const* const* parameters, double* residuals,
   return true;
 }
 
+void RobustLoss::Evaluate(double s, double* q, double* d) const {
+  switch (kind) {
+    case Kind::kNone:
+      *q = *d = 1.0;
+      return;
+    case Kind::kTukey: {
+      const double a2 = scale * scale, x = s / a2;
+      if (x > 1.0) {
+        *q = a2 / (3.0 * s);
+        *d = 0.0;
+      } else {
+        *q = 1.0 - x + x * x / 3.0;  // (1 - (1 - x)^3) / (3 x)
+        *d = (1.0 - x) * (1.0 - x);
+      }
+      return;
+    }
+    case Kind::kCauchy: {
+      const double x = s / (scale * scale);
+      *q = x > 0.0 ? std::log1p(x) / x : 1.0;
+      *d = 1.0 / (1.0 + x);
+      return;
+    }
+  }
+}
+
+RobustBatchCost::RobustBatchCost(const PoseBatchCost& cost, const RobustLoss& loss)
+    : cost_(cost), loss_(loss) {
+  mutable_parameter_block_sizes()->push_back(6);
+  set_num_residuals(cost.num_residuals());
+}
+
+bool RobustBatchCost::Evaluate(double const* const* parameters, double* residuals,
+                               double** jacobians) const {
+  if (!cost_.Evaluate(parameters, residuals, jacobians)) return false;
+  const bool want_j = jacobians != nullptr && jacobians[0] != nullptr;
+  if (loss_.kind == RobustLoss::Kind::kNone) return true;
+  for (int i = 0; i < num_residuals(); ++i) {
+    const double r = residuals[i];
+    if (!std::isfinite(r)) return false;
+    double q, d;
+    loss_.Evaluate(r * r, &q, &d);
+    const double sq = std::sqrt(q);
+    residuals[i] = r * sq;  // sign(r) sqrt(rho(r^2))
+    if (want_j) {
+      // rho'(s) r / rhat = rho'(s) / sqrt(q); at r = 0: rho'(0) / sqrt(rho'(0)).
+      const double f = d / sq;
+      double* row = jacobians[0] + 6 * i;
+      for (int c = 0; c < 6; ++c) row[c] *= f;
+    }
+  }
+  return true;
+}
+
+bool RobustBatchCost::RobustCost(const double xi[6], double* cost) const {
+  std::vector<double> r(num_residuals());
+  const double* params[1] = {xi};
+  if (!cost_.Evaluate(params, r.data(), nullptr)) return false;
+  double sum = 0.0;
+  for (double ri : r) {
+    double q, d;
+    loss_.Evaluate(ri * ri, &q, &d);
+    sum += q * ri * ri;
+  }
+  *cost = 0.5 * sum;
+  return std::isfinite(*cost);
+}
+
+PoseSolveSummary SolvePoseCeres(const PoseBatchCost& cost, const RobustLoss& loss,
+                                const Eigen::Matrix<double, 6, Eigen::Dynamic>& basis,
+                                const PoseSolveOptions& o, double xi[6]) {
+  PoseSolveSummary sum;
+  if (basis.cols() == 0 || cost.num_residuals() == 0) return sum;
+  ceres::Problem::Options po;
+  po.cost_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+  po.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+  ceres::Problem problem(po);
+  RobustBatchCost robust(cost, loss);
+  problem.AddResidualBlock(&robust, nullptr, xi);
+  SubspaceManifold manifold(basis);
+  if (basis.cols() < 6) problem.SetManifold(xi, &manifold);
+  ceres::Solver::Options so;
+  so.minimizer_type = ceres::TRUST_REGION;
+  so.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
+  so.linear_solver_type = ceres::DENSE_NORMAL_CHOLESKY;
+  so.max_num_iterations = o.max_iterations;
+  so.num_threads = 1;
+  so.use_nonmonotonic_steps = false;
+  so.minimizer_progress_to_stdout = false;
+  so.logging_type = ceres::SILENT;
+  so.function_tolerance = o.function_tolerance;
+  so.parameter_tolerance = o.parameter_tolerance;
+  so.gradient_tolerance = o.gradient_tolerance;
+  ceres::Solver::Summary cs;
+  ceres::Solve(so, &problem, &cs);
+  sum.iterations = static_cast<int>(cs.iterations.size());
+  sum.solved = cs.initial_cost >= 0.0 && !cs.iterations.empty();
+  sum.initial_cost = cs.initial_cost;
+  sum.final_cost = cs.final_cost;
+  return sum;
+}
+
 namespace {
 
 // Cost 0.5 * sum rho(r^2) and, when `jac` is given, the robust-corrected normal equations in

@@ -61,6 +61,60 @@ class PoseBatchCost final : public ceres::CostFunction {
   std::vector<Eigen::Vector3d> depth_pts_;
 };
 
+// Robust loss of a pose stage, applied per residual inside RobustBatchCost. The forms are
+// Ceres' (TukeyLoss(a): rho = a^2/3 (1 - (1 - s/a^2)^3) for s <= a^2, a^2/3 beyond;
+// CauchyLoss(b): rho = b^2 log(1 + s/b^2)), written through rho(s)/s so that they stay exact
+// near s = 0 (Ceres' Tukey expression cancels there).
+struct RobustLoss {
+  enum class Kind { kNone, kTukey, kCauchy };
+  Kind kind = Kind::kNone;
+  double scale = 1.0;  // a (Tukey) or b (Cauchy), same units as the residuals
+  // q = rho(s) / s (q(0) = rho'(0) = 1) and d = rho'(s), s = r^2 >= 0.
+  void Evaluate(double s, double* q, double* d) const;
+};
+
+// PoseBatchCost with the robust loss applied per residual, as ONE Ceres residual block:
+// rhat_j = r_j * sqrt(rho(r_j^2) / r_j^2) = sign(r_j) sqrt(rho(r_j^2)), Jacobian
+// d rhat_j / d xi = rho'(r_j^2) r_j / rhat_j * J_j (limit sqrt(rho'(0)) J_j at r_j = 0), so that
+// 0.5 * sum rhat_j^2 = 0.5 * sum rho(r_j^2) exactly: the cost Ceres minimises (and accepts
+// steps on) is the robust cost. Tukey beyond its scale: rhat_j constant, zero Jacobian row.
+// (The Gauss-Newton model differs from Ceres' per-block Corrector, the cost does not.)
+class RobustBatchCost final : public ceres::CostFunction {
+ public:
+  // `cost` must outlive this object and have all its residuals added already.
+  RobustBatchCost(const PoseBatchCost& cost, const RobustLoss& loss);
+  bool Evaluate(double const* const* parameters, double* residuals,
+                double** jacobians) const override;
+  // 0.5 * sum rho(r_j^2) at xi from the inner residuals (the cost Ceres sees). False when the
+  // inner cost cannot be evaluated.
+  bool RobustCost(const double xi[6], double* cost) const;
+
+ private:
+  const PoseBatchCost& cost_;
+  RobustLoss loss_;
+};
+
+struct PoseSolveOptions {
+  int max_iterations = 15;          // Ceres' max_num_iterations
+  double function_tolerance = 1e-5;
+  double parameter_tolerance = 1e-8;
+  double gradient_tolerance = 1e-10;
+};
+
+struct PoseSolveSummary {
+  bool solved = false;   // false: the cost could not be evaluated at the start (xi unchanged)
+  int iterations = 0;    // summary.iterations.size() (includes iteration 0)
+  double initial_cost = 0.0, final_cost = 0.0;  // 0.5 * sum rho(r^2)
+};
+
+// Minimises 0.5 * sum_j rho(r_j(xi)^2) over xi restricted to xi0 + span(basis) (orthonormal
+// columns, 6 x k, k >= 1; SubspaceManifold when k < 6), starting at `xi` (updated in place),
+// with ceres::Solve on ONE residual block (RobustBatchCost): Levenberg-Marquardt,
+// DENSE_NORMAL_CHOLESKY, one thread, monotonic steps.
+PoseSolveSummary SolvePoseCeres(const PoseBatchCost& cost, const RobustLoss& loss,
+                                const Eigen::Matrix<double, 6, Eigen::Dynamic>& basis,
+                                const PoseSolveOptions& options, double xi[6]);
+
 struct PoseLmOptions {
   int max_iterations = 15;          // Ceres' max_num_iterations (iteration 0 not counted)
   double function_tolerance = 1e-5;

@@ -109,6 +109,106 @@ TEST(PoseLmTest, BatchCostMatchesGradientCheckerAndSingleResidualFunctors) {
   EXPECT_FALSE(behind.Evaluate(p0, &r0, nullptr));
 }
 
+// RobustLoss is Ceres' TukeyLoss / CauchyLoss (rho(s) = q s, rho'(s) = d) away from s = 0, and
+// stays exact near 0 where Ceres' Tukey expression cancels.
+TEST(PoseLmTest, RobustLossMatchesCeresLosses) {
+  const double a = 0.07;
+  ceres::TukeyLoss tukey(a);
+  ceres::CauchyLoss cauchy(a);
+  RobustLoss rt{RobustLoss::Kind::kTukey, a}, rc{RobustLoss::Kind::kCauchy, a};
+  for (double s : {1e-6 * a * a, 0.01 * a * a, 0.5 * a * a, a * a, 1.5 * a * a, 40 * a * a}) {
+    double rho[3], q, d;
+    tukey.Evaluate(s, rho);
+    rt.Evaluate(s, &q, &d);
+    EXPECT_NEAR(q * s, rho[0], 1e-9 * rho[0]) << s;
+    EXPECT_NEAR(d, rho[1], 1e-9) << s;
+    cauchy.Evaluate(s, rho);
+    rc.Evaluate(s, &q, &d);
+    EXPECT_NEAR(q * s, rho[0], 1e-9 * rho[0]) << s;
+    EXPECT_NEAR(d, rho[1], 1e-9) << s;
+  }
+  double q, d;
+  rt.Evaluate(0.0, &q, &d);
+  EXPECT_EQ(q, 1.0);
+  EXPECT_EQ(d, 1.0);
+  rc.Evaluate(0.0, &q, &d);
+  EXPECT_EQ(q, 1.0);
+  EXPECT_EQ(d, 1.0);
+  // Tiny s: q must stay 1 - s/a^2 + ..., not the cancelled (1 - (1 - x)^3) / (3 x).
+  rt.Evaluate(1e-20 * a * a, &q, &d);
+  EXPECT_NEAR(q, 1.0, 1e-15);
+}
+
+// RobustBatchCost: GradientChecker on rows with r_j = 0, |r_j| ~ 1e-9, inside and beyond the
+// Tukey scale (and with Cauchy); the zero-residual row is sqrt(rho'(0)) J = J, rows beyond the
+// Tukey scale are exactly zero with |rhat| = a / sqrt(3); and 0.5 sum rhat^2 equals
+// 0.5 sum rho(r^2) of ceres::TukeyLoss / CauchyLoss on the inner residuals (fails if the
+// per-residual transform is removed: then 0.5 sum r^2 is returned, ~3x larger here).
+TEST(PoseLmTest, RobustBatchCostGradientCheckerAndExactRobustCost) {
+  SmoothScene sc;
+  const double unit = 2.5, e = 1.1, a = 0.05;
+  const double xi[6] = {0.01, -0.02, 0.015, 0.003, -0.002, 0.004};
+  const double* cparams[1] = {xi};
+  std::vector<Eigen::Vector3d> pts;
+  PoseBatchCost probe(&sc.fast, sc.k, e, nullptr, sc.k, 0.0, unit);
+  for (int i = 0; i < 9; ++i) {
+    pts.emplace_back(0.06 * i - 0.25, 0.04 * i - 0.12, 2.1 + 0.06 * i);
+    probe.AddPhotometric(pts.back(), 0.0);
+  }
+  std::vector<double> f(9);
+  ASSERT_TRUE(probe.Evaluate(cparams, f.data(), nullptr));  // E C(pi(p)) at xi
+  // Wanted residuals at xi: zero, tiny, inside the Tukey scale, beyond it.
+  const double want[9] = {0.0, 1e-9, -1e-7, 0.3 * a, -0.6 * a, 0.95 * a, 1.5 * a, -3 * a, 8 * a};
+  PoseBatchCost batch(&sc.fast, sc.k, e, nullptr, sc.k, 0.0, unit);
+  for (int i = 0; i < 9; ++i) batch.AddPhotometric(pts[i], f[i] - want[i]);
+  std::vector<double> r(9), j(9 * 6);
+  double* jp[1] = {j.data()};
+  ASSERT_TRUE(batch.Evaluate(cparams, r.data(), jp));
+  for (int i = 0; i < 9; ++i) ASSERT_NEAR(r[i], want[i], 1e-12);
+  ceres::TukeyLoss ceres_tukey(a);
+  ceres::CauchyLoss ceres_cauchy(a);
+  for (int kind = 0; kind < 2; ++kind) {
+    const RobustLoss loss{kind == 0 ? RobustLoss::Kind::kTukey : RobustLoss::Kind::kCauchy, a};
+    const ceres::LossFunction& cl = kind == 0 ? static_cast<const ceres::LossFunction&>(ceres_tukey)
+                                              : ceres_cauchy;
+    RobustBatchCost robust(batch, loss);
+    ASSERT_EQ(robust.num_residuals(), 9);
+    ceres::NumericDiffOptions nd;
+    nd.ridders_relative_initial_step_size = 1e-5;
+    double xv[6];
+    std::copy(xi, xi + 6, xv);
+    double* params[1] = {xv};
+    const std::vector<const ceres::Manifold*>* no_manifolds = nullptr;
+    ceres::GradientChecker checker(&robust, no_manifolds, nd);
+    ceres::GradientChecker::ProbeResults results;
+    EXPECT_TRUE(checker.Probe(params, 1e-5, &results)) << "kind " << kind << results.error_log;
+    std::vector<double> rh(9), jh(9 * 6);
+    double* jhp[1] = {jh.data()};
+    ASSERT_TRUE(robust.Evaluate(cparams, rh.data(), jhp));
+    double half_sum_rhat2 = 0, half_sum_rho = 0, half_sum_r2 = 0;
+    for (int i = 0; i < 9; ++i) {
+      double rho[3];
+      cl.Evaluate(r[i] * r[i], rho);
+      half_sum_rho += 0.5 * rho[0];
+      half_sum_rhat2 += 0.5 * rh[i] * rh[i];
+      half_sum_r2 += 0.5 * r[i] * r[i];
+      EXPECT_TRUE(rh[i] == 0.0 ? r[i] == 0.0 : std::signbit(rh[i]) == std::signbit(r[i])) << i;
+    }
+    EXPECT_NEAR(half_sum_rhat2, half_sum_rho, 1e-12 * half_sum_rho) << kind;
+    EXPECT_GT(half_sum_r2, 2.0 * half_sum_rho) << kind;  // the loss does matter here
+    double rc = 0;
+    ASSERT_TRUE(robust.RobustCost(xi, &rc));
+    EXPECT_NEAR(rc, half_sum_rho, 1e-12 * half_sum_rho);
+    for (int c = 0; c < 6; ++c) EXPECT_NEAR(jh[c], j[c], 1e-12 * (1 + std::abs(j[c])));  // r = 0
+    if (kind == 0) {
+      for (int i = 6; i < 9; ++i) {
+        EXPECT_NEAR(std::abs(rh[i]), a / std::sqrt(3.0), 1e-15) << i;
+        for (int c = 0; c < 6; ++c) EXPECT_EQ(jh[6 * i + c], 0.0) << i << " " << c;
+      }
+    }
+  }
+}
+
 struct Problem {
   std::vector<Eigen::Vector3d> pts;
   std::vector<double> ms;
@@ -195,6 +295,80 @@ TEST(PoseLmTest, MatchesCeresSolveWithRobustLossAndSubspace) {
       for (int c = 3; c < 6; ++c) EXPECT_EQ(xi[c], 0.0);  // frozen translation untouched
     }
   }
+}
+
+// SolvePoseCeres (ceres::Solve on ONE block, robust loss per residual inside it) reaches the
+// true pose despite 15 % outliers with Tukey (fails if the per-residual loss were dropped: the
+// outliers then bias the pose far beyond 1e-6) and Cauchy-then-free subspace handling, and its
+// final cost equals the per-residual ceres::Problem's (same robust cost, same minimum).
+TEST(PoseLmTest, SolvePoseCeresSingleBlockMatchesPerResidualProblem) {
+  SmoothScene sc;
+  const double unit = 2.5, e = 0.9;
+  const double xi_true[6] = {0.012, -0.008, 0.005, 0.004, -0.003, 0.002};
+  const Problem pr = MakeProblem(sc, xi_true, unit, e, 400, 7);
+  for (int variant = 0; variant < 3; ++variant) {
+    // 0: all 6 directions, Tukey; 1: rotation only (3 columns), Cauchy; 2: no loss, inliers only.
+    Eigen::Matrix<double, 6, Eigen::Dynamic> basis = Eigen::Matrix<double, 6, 6>::Identity();
+    if (variant == 1) basis = Eigen::Matrix<double, 6, 6>::Identity().leftCols(3);
+    std::unique_ptr<ceres::LossFunction> loss;
+    RobustLoss rl;
+    if (variant == 0) {
+      loss = std::make_unique<ceres::TukeyLoss>(0.1);
+      rl = {RobustLoss::Kind::kTukey, 0.1};
+    }
+    if (variant == 1) {
+      loss = std::make_unique<ceres::CauchyLoss>(0.02);
+      rl = {RobustLoss::Kind::kCauchy, 0.02};
+    }
+    PoseBatchCost batch(&sc.fast, sc.k, e, nullptr, sc.k, 0.0, unit);
+    ceres::Problem::Options po;
+    po.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+    po.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+    ceres::Problem problem(po);
+    double xi_ref[6] = {0, 0, 0, 0, 0, 0};
+    for (size_t i = 0; i < pr.pts.size(); ++i) {
+      if (variant == 2 && pr.outlier[i]) continue;
+      batch.AddPhotometric(pr.pts[i], pr.ms[i]);
+      problem.AddResidualBlock(new PoseDeltaAnalytic(sc.interp.get(), sc.k, pr.pts[i], unit, e, pr.ms[i]),
+                               loss.get(), xi_ref);
+    }
+    SubspaceManifold manifold(basis);
+    if (basis.cols() < 6) problem.SetManifold(xi_ref, &manifold);
+    ceres::Solver::Options so;
+    so.linear_solver_type = ceres::DENSE_NORMAL_CHOLESKY;
+    so.max_num_iterations = 30;
+    so.function_tolerance = 1e-10;
+    so.logging_type = ceres::SILENT;
+    ceres::Solver::Summary cs;
+    ceres::Solve(so, &problem, &cs);
+    PoseSolveOptions lo;
+    lo.max_iterations = 30;
+    lo.function_tolerance = 1e-10;
+    double xi[6] = {0, 0, 0, 0, 0, 0};
+    const PoseSolveSummary s = SolvePoseCeres(batch, rl, basis, lo, xi);
+    ASSERT_TRUE(s.solved);
+    EXPECT_LT(s.final_cost, s.initial_cost);
+    EXPECT_NEAR(s.initial_cost, cs.initial_cost, 1e-9 * cs.initial_cost) << variant;
+    EXPECT_NEAR(s.final_cost, cs.final_cost, 1e-6 * cs.initial_cost + 1e-14) << variant;
+    EXPECT_LE(s.iterations, lo.max_iterations + 1);
+    for (int c = 0; c < 6; ++c) {
+      EXPECT_NEAR(xi[c], xi_ref[c], 1e-6) << "variant " << variant << " xi" << c;
+      if (variant != 1) {
+        EXPECT_NEAR(xi[c], xi_true[c], 1e-6) << "variant " << variant << " xi" << c;
+      }
+    }
+    if (variant == 1) {
+      for (int c = 3; c < 6; ++c) EXPECT_EQ(xi[c], 0.0);  // frozen translation untouched
+    }
+  }
+  // A point behind the camera at the start: not solved, xi unchanged.
+  PoseBatchCost behind(&sc.fast, sc.k, 1.0, nullptr, sc.k, 0.0, 1.0);
+  behind.AddPhotometric(Eigen::Vector3d(0, 0, -1), 0.5);
+  double xi0[6] = {0.001, 0, 0, 0, 0, 0};
+  const PoseSolveSummary sb = SolvePoseCeres(behind, RobustLoss{RobustLoss::Kind::kTukey, 0.1},
+                                             Eigen::Matrix<double, 6, 6>::Identity(), PoseSolveOptions{}, xi0);
+  EXPECT_FALSE(sb.solved);
+  EXPECT_EQ(xi0[0], 0.001);
 }
 
 }  // namespace

@@ -58,7 +58,7 @@ struct Args {
   double gate = -1;             // RefinementOptions::min_pose_gain_over_disagreement (<0: default)
   double conv_px = -1;          // RefinementOptions::convergence_px (<0: default)
   double ftol = -1;             // RefinementOptions::function_tolerance (<0: default)
-  int batched = -1;            // --batched 0: pose stages on a ceres::Problem (reference)
+  int batched = -1;  // --batched 1: Ceres, one block (default); 2: SolvePoseLm; 0: per-residual
   bool cache = true;            // RefinementCache for the references' pyramids (--cache 0: off)
   bool render = true;           // held-out MSSIM/PSNR (slow); --render 0 for pose diagnostics
 };
@@ -290,7 +290,10 @@ absl::Status RunScene(synth::SceneKind kind, const Args& a) {
   if (a.ftol > 0) opt.function_tolerance = a.ftol;
   if (a.conv_px > 0) opt.convergence_px = a.conv_px;
   if (a.gate >= 0) opt.min_pose_gain_over_disagreement = a.gate;
-  if (a.batched >= 0) opt.batched_pose_solver = a.batched != 0;
+  if (a.batched >= 0)
+    opt.pose_solver = a.batched == 0   ? RefinementOptions::PoseSolver::kCeresPerResidual
+                      : a.batched == 2 ? RefinementOptions::PoseSolver::kHandLm
+                                       : RefinementOptions::PoseSolver::kCeresBatched;
   RefinementStats stats;
   RefinementCache cache(64);  // stored views' pyramids, kept between calls (--cache 0: off)
   std::vector<StoredView> refined;
@@ -390,7 +393,7 @@ absl::Status RunScene(synth::SceneKind kind, const Args& a) {
       "\"heldout_views\":%zu,\"mssim_off\":%.4f,\"mssim_on\":%.4f,\"mssim_true_poses\":%.4f,"
       "\"psnr_off\":%.2f,\"psnr_on\":%.2f,\"psnr_true_poses\":%.2f,\"coverage\":%.3f,"
       "\"render_ms\":%.1f,\"cpu_ms_pyramids_median\":%.2f,\"cpu_ms_samples_median\":%.2f,"
-      "\"cpu_ms_solve_median\":%.2f,\"cache\":%d,\"batched_pose_solver\":%d}\n",
+      "\"cpu_ms_solve_median\":%.2f,\"cache\":%d,\"pose_solver\":\"%s\"}\n",
       synth::SceneKindName(kind), a.width, a.height, noisy.size() - 1, opt.max_reference_views,
       opt.outlier_max_relative_residual,
       opt.max_samples, a.rot_deg, a.trans_m, a.exposure_jitter, a.oracle_refs ? 1 : 0, converged, Percentile(ms, 0.5),
@@ -401,7 +404,9 @@ absl::Status RunScene(synth::SceneKind kind, const Args& a) {
       static_cast<long long>(stats.pose_refused), held.size(), q_off.mssim, q_on.mssim,
       q_true.mssim, q_off.psnr, q_on.psnr, q_true.psnr, q_on.coverage, q_on.render_ms,
       Percentile(cpu_pyr, 0.5), Percentile(cpu_samples, 0.5), Percentile(cpu_solve, 0.5), a.cache ? 1 : 0,
-      opt.batched_pose_solver ? 1 : 0);
+      opt.pose_solver == RefinementOptions::PoseSolver::kCeresBatched ? "ceres_batched"
+      : opt.pose_solver == RefinementOptions::PoseSolver::kHandLm     ? "hand_lm"
+                                                                      : "ceres_per_residual");
   std::fflush(stdout);
   return absl::OkStatus();
 }

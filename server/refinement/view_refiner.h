@@ -53,10 +53,13 @@ struct RefinementOptions {
   // measured on the apartment oracle run: 1e-5 gives the same pose errors at 15 % less CPU).
   double function_tolerance = 1e-5;
   bool refine_pose = true;
-  // Pose stages solved by the batched LM of pose_lm.h (same residuals, loss and Ceres LM rules,
-  // without Ceres' per-residual-block overhead); false: a ceres::Problem with one block per
-  // residual (the reference it is compared with).
-  bool batched_pose_solver = true;
+  // How a pose stage is solved (pose_lm.h). kCeresBatched: ceres::Solve (LM) on ONE residual
+  // block holding all residuals of the stage, the robust loss applied per residual inside it
+  // (RobustBatchCost). kHandLm: the hand-written LM SolvePoseLm on the same residuals (Ceres'
+  // per-block corrector model). kCeresPerResidual: a ceres::Problem with one block per residual
+  // (the session-2 reference; slow).
+  enum class PoseSolver { kCeresBatched, kHandLm, kCeresPerResidual };
+  PoseSolver pose_solver = PoseSolver::kCeresBatched;
   bool init_exposure_from_ratio = true;  // E0 = median(m_j / c_j); else initial_exposure
   double initial_exposure = 1.0;
   bool warm_start = true;           // Cauchy before Tukey (Tukey is flat for large residuals)
