@@ -21,6 +21,7 @@
 #include <cstdlib>
 #include <random>
 #include <string>
+#include <numeric>
 #include <vector>
 
 #include "common/datasets/seven_scenes.h"
@@ -58,7 +59,7 @@ struct Args {
   double gate = -1;             // RefinementOptions::min_pose_gain_over_disagreement (<0: default)
   double conv_px = -1;          // RefinementOptions::convergence_px (<0: default)
   double ftol = -1;             // RefinementOptions::function_tolerance (<0: default)
-  int batched = -1;  // --batched 1: Ceres, one block (default); 2: SolvePoseLm; 0: per-residual
+  int batched = -1;  // --batched 1: Ceres, one block (default); 0: one block per residual
   bool cache = true;            // RefinementCache for the references' pyramids (--cache 0: off)
   bool render = true;           // held-out MSSIM/PSNR (slow); --render 0 for pose diagnostics
 };
@@ -291,9 +292,8 @@ absl::Status RunScene(synth::SceneKind kind, const Args& a) {
   if (a.conv_px > 0) opt.convergence_px = a.conv_px;
   if (a.gate >= 0) opt.min_pose_gain_over_disagreement = a.gate;
   if (a.batched >= 0)
-    opt.pose_solver = a.batched == 0   ? RefinementOptions::PoseSolver::kCeresPerResidual
-                      : a.batched == 2 ? RefinementOptions::PoseSolver::kHandLm
-                                       : RefinementOptions::PoseSolver::kCeresBatched;
+    opt.pose_solver = a.batched == 0 ? RefinementOptions::PoseSolver::kCeresPerResidual
+                                     : RefinementOptions::PoseSolver::kCeresBatched;
   RefinementStats stats;
   RefinementCache cache(64);  // stored views' pyramids, kept between calls (--cache 0: off)
   std::vector<StoredView> refined;
@@ -301,6 +301,7 @@ absl::Status RunScene(synth::SceneKind kind, const Args& a) {
   int converged = 0;  // kept views within 0.2 deg and 5 mm of the truth (the target)
   std::vector<double> ms, cpu_ms, rot_before, rot_after, tr_before, tr_after, e_before, e_after;
   std::vector<double> cpu_pyr, cpu_samples, cpu_solve;  // per-phase CPU ms
+  std::vector<double> solver_iters;  // solver iterations per view, all stages (deterministic)
   for (size_t i = 1; i < noisy.size(); ++i) {
     std::vector<const StoredView*> refs;
     std::vector<StoredView> oracle_refs;
@@ -353,6 +354,7 @@ absl::Status RunScene(synth::SceneKind kind, const Args& a) {
       cpu_pyr.push_back(res->cpu_ms_pyramids);
       cpu_samples.push_back(res->cpu_ms_samples);
       cpu_solve.push_back(res->cpu_ms_solve);
+      solver_iters.push_back(res->iterations);
       if (!res->rejected_outlier) {
         v.local_from_cam = res->local_from_cam;
         v.exposure = static_cast<float>(res->exposure);
@@ -393,7 +395,8 @@ absl::Status RunScene(synth::SceneKind kind, const Args& a) {
       "\"heldout_views\":%zu,\"mssim_off\":%.4f,\"mssim_on\":%.4f,\"mssim_true_poses\":%.4f,"
       "\"psnr_off\":%.2f,\"psnr_on\":%.2f,\"psnr_true_poses\":%.2f,\"coverage\":%.3f,"
       "\"render_ms\":%.1f,\"cpu_ms_pyramids_median\":%.2f,\"cpu_ms_samples_median\":%.2f,"
-      "\"cpu_ms_solve_median\":%.2f,\"cache\":%d,\"pose_solver\":\"%s\"}\n",
+      "\"cpu_ms_solve_median\":%.2f,\"cpu_ms_sum\":%.1f,\"iterations_median\":%.0f,\"iterations_p95\":%.0f,\"iterations_total\":%.0f,"
+      "\"cache\":%d,\"pose_solver\":\"%s\"}\n",
       synth::SceneKindName(kind), a.width, a.height, noisy.size() - 1, opt.max_reference_views,
       opt.outlier_max_relative_residual,
       opt.max_samples, a.rot_deg, a.trans_m, a.exposure_jitter, a.oracle_refs ? 1 : 0, converged, Percentile(ms, 0.5),
@@ -403,9 +406,11 @@ absl::Status RunScene(synth::SceneKind kind, const Args& a) {
       Percentile(e_after, 0.95), refined.size(), static_cast<long long>(stats.rejected_outlier),
       static_cast<long long>(stats.pose_refused), held.size(), q_off.mssim, q_on.mssim,
       q_true.mssim, q_off.psnr, q_on.psnr, q_true.psnr, q_on.coverage, q_on.render_ms,
-      Percentile(cpu_pyr, 0.5), Percentile(cpu_samples, 0.5), Percentile(cpu_solve, 0.5), a.cache ? 1 : 0,
+      Percentile(cpu_pyr, 0.5), Percentile(cpu_samples, 0.5), Percentile(cpu_solve, 0.5), std::accumulate(cpu_ms.begin(), cpu_ms.end(), 0.0),
+      Percentile(solver_iters, 0.5),
+      Percentile(solver_iters, 0.95), std::accumulate(solver_iters.begin(), solver_iters.end(), 0.0),
+      a.cache ? 1 : 0,
       opt.pose_solver == RefinementOptions::PoseSolver::kCeresBatched ? "ceres_batched"
-      : opt.pose_solver == RefinementOptions::PoseSolver::kHandLm     ? "hand_lm"
                                                                       : "ceres_per_residual");
   std::fflush(stdout);
   return absl::OkStatus();

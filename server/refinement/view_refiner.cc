@@ -16,7 +16,7 @@
 #include <Eigen/Eigenvalues>
 
 #include "server/refinement/cost_functors.h"
-#include "server/refinement/pose_lm.h"
+#include "server/refinement/pose_batch.h"
 
 namespace exo {
 namespace {
@@ -752,9 +752,10 @@ Pose Refiner::SolvePose(int level, double e, const Pose& pose) {
     lossp = std::make_unique<ceres::CauchyLoss>(scale / o_.tukey_k);
   ceres::LossFunction& loss = *lossp;
   const double dw = depth_interp_ ? DepthWeight(a.idx, pose, scale) : 0.0;
-  if (o_.pose_solver != RefinementOptions::PoseSolver::kCeresPerResidual) {
-    // One batched evaluation per LM iteration (pose_lm.h): same residuals, loss and LM rules
-    // as the Ceres problem below without its per-residual-block overhead.
+  if (o_.pose_solver == RefinementOptions::PoseSolver::kCeresBatched) {
+    // ceres::Solve on ONE residual block holding all residuals (pose_batch.h), the loss folded
+    // into the residuals per residual: same residuals and robust energy as the per-residual
+    // problem below without its per-residual-block overhead.
     refinement::PoseBatchCost batch(&L.fast, L.k, e, &depth_fast_, cand_pyr_[0].k, dw,
                                     median_depth_m_);
     for (size_t k = 0; k < a.idx.size(); ++k) {
@@ -767,24 +768,15 @@ Pose Refiner::SolvePose(int level, double e, const Pose& pose) {
         double rd;
         if (DepthResidual(s, pose, &rd)) batch.AddDepth(pose.Apply(s.p_in_local));
       }
-    if (o_.pose_solver == RefinementOptions::PoseSolver::kCeresBatched) {
-      refinement::RobustLoss rl;
-      rl.kind = level == 0 ? refinement::RobustLoss::Kind::kTukey : refinement::RobustLoss::Kind::kCauchy;
-      rl.scale = level == 0 ? scale : scale / o_.tukey_k;  // as lossp above
-      refinement::PoseSolveOptions lo;
-      lo.max_iterations = so.max_num_iterations;
-      lo.function_tolerance = so.function_tolerance;
-      lo.parameter_tolerance = so.parameter_tolerance;
-      lo.gradient_tolerance = so.gradient_tolerance;
-      res_.iterations += refinement::SolvePoseCeres(batch, rl, basis, lo, xi).iterations;
-    } else {
-      refinement::PoseLmOptions lo;
-      lo.max_iterations = so.max_num_iterations;
-      lo.function_tolerance = so.function_tolerance;
-      lo.parameter_tolerance = so.parameter_tolerance;
-      lo.gradient_tolerance = so.gradient_tolerance;
-      res_.iterations += refinement::SolvePoseLm(batch, &loss, basis, lo, xi).iterations;
-    }
+    refinement::RobustLoss rl;
+    rl.kind = level == 0 ? refinement::RobustLoss::Kind::kTukey : refinement::RobustLoss::Kind::kCauchy;
+    rl.scale = level == 0 ? scale : scale / o_.tukey_k;  // as lossp above
+    refinement::PoseSolveOptions lo;
+    lo.max_iterations = so.max_num_iterations;
+    lo.function_tolerance = so.function_tolerance;
+    lo.parameter_tolerance = so.parameter_tolerance;
+    lo.gradient_tolerance = so.gradient_tolerance;
+    res_.iterations += refinement::SolvePoseCeres(batch, rl, basis, lo, xi).iterations;
   } else {
     ceres::Problem problem(po);
     for (size_t k = 0; k < a.idx.size(); ++k) {

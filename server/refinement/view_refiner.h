@@ -53,12 +53,11 @@ struct RefinementOptions {
   // measured on the apartment oracle run: 1e-5 gives the same pose errors at 15 % less CPU).
   double function_tolerance = 1e-5;
   bool refine_pose = true;
-  // How a pose stage is solved (pose_lm.h). kCeresBatched: ceres::Solve (LM) on ONE residual
+  // How a pose stage is solved (pose_batch.h). kCeresBatched: ceres::Solve (LM) on ONE residual
   // block holding all residuals of the stage, the robust loss applied per residual inside it
-  // (RobustBatchCost). kHandLm: the hand-written LM SolvePoseLm on the same residuals (Ceres'
-  // per-block corrector model). kCeresPerResidual: a ceres::Problem with one block per residual
-  // (the session-2 reference; slow).
-  enum class PoseSolver { kCeresBatched, kHandLm, kCeresPerResidual };
+  // (RobustBatchCost). kCeresPerResidual: a ceres::Problem with one block per residual and the
+  // loss per block (the session-2 reference; same energy, ~2.5x the CPU per solve).
+  enum class PoseSolver { kCeresBatched, kCeresPerResidual };
   PoseSolver pose_solver = PoseSolver::kCeresBatched;
   bool init_exposure_from_ratio = true;  // E0 = median(m_j / c_j); else initial_exposure
   double initial_exposure = 1.0;

@@ -1,15 +1,15 @@
 // Batched pose stage of view refinement: all photometric and depth residuals of one pose solve
 // (the PoseDeltaAnalytic / DepthDeltaAnalytic residuals of cost_functors.h, same chart, same
-// values and Jacobians) evaluated in one pass, and a small Levenberg-Marquardt solver for the
-// 6-vector chart xi that reproduces Ceres' LM on those residual blocks (robust loss per
-// residual with Ceres' corrector, Marquardt diagonal, same trust-region update and stopping
-// rules) without Ceres' per-residual-block machinery.
+// values and Jacobians) evaluated in one pass (PoseBatchCost), the robust loss applied per
+// residual inside that one block (RobustBatchCost), and SolvePoseCeres: ceres::Solve (LM) on
+// that ONE residual block.
 //
-// Why: with ~1500-3000 one-residual blocks per stage, Ceres' per-block overhead (program
-// evaluation, residual-block preparation, dense Jacobian writes, the angle-axis rotation and
-// the SO(3) left Jacobian recomputed for every residual) was most of the pose stages' CPU time.
-// Here R(w) and J_l(w) are computed once per evaluation and the normal equations (6x6) are
-// accumulated directly.
+// Why one block: with ~1500-3000 one-residual blocks per stage, Ceres' per-block overhead
+// (program evaluation, residual-block preparation, the angle-axis rotation and the SO(3) left
+// Jacobian recomputed for every residual) was most of the pose stages' CPU time. Here R(w) and
+// J_l(w) are computed once per evaluation. Ceres applies a LossFunction per residual block,
+// i.e. to the whole block, so the loss is folded into the residuals instead (exactly: the cost
+// Ceres sees is 0.5 * sum rho(r_j^2)).
 #pragma once
 
 #include <vector>
@@ -24,9 +24,8 @@ namespace exo::refinement {
 // The residuals of one pose stage (images sampled with FastBicubic, the same spline as the
 // functors' ceres::BiCubicInterpolator): photometric ones E * C(pi(p)) - m on a luma level, then
 // depth ones w * (D(pi(p)) - z) / z on the candidate's depth. Also a ceres::CostFunction (one
-// parameter block xi[6], all residuals in one block) so that GradientChecker can verify it;
-// note that as ONE Ceres block a loss would apply to the whole block, so the refiner solves it
-// with SolvePoseLm, which applies the loss per residual.
+// parameter block xi[6], all residuals in one block); plain least squares: wrap it in
+// RobustBatchCost for a robust loss.
 class PoseBatchCost final : public ceres::CostFunction {
  public:
   // `unit_m`: chart translation unit (median sample depth). `luma` / `depth` may be null when
@@ -114,28 +113,5 @@ struct PoseSolveSummary {
 PoseSolveSummary SolvePoseCeres(const PoseBatchCost& cost, const RobustLoss& loss,
                                 const Eigen::Matrix<double, 6, Eigen::Dynamic>& basis,
                                 const PoseSolveOptions& options, double xi[6]);
-
-struct PoseLmOptions {
-  int max_iterations = 15;          // Ceres' max_num_iterations (iteration 0 not counted)
-  double function_tolerance = 1e-5;
-  double parameter_tolerance = 1e-8;
-  double gradient_tolerance = 1e-10;
-};
-
-struct PoseLmSummary {
-  bool solved = false;   // false: the cost could not be evaluated at the start (xi unchanged)
-  int iterations = 0;    // as Ceres' summary.iterations.size() (includes iteration 0)
-  double initial_cost = 0.0, final_cost = 0.0;  // 0.5 * sum rho(r^2)
-};
-
-// Minimises 0.5 * sum_i loss(r_i(xi)^2) over xi restricted to xi0 + span(basis) (orthonormal
-// columns, 6 x k, k >= 1), starting at `xi` (updated in place). Ceres' Levenberg-Marquardt:
-// per-residual corrector (for losses with rho'' <= 0 such as Tukey and Cauchy: residual and
-// Jacobian scaled by sqrt(rho')), damping diag(J^T J) / radius clamped to [1e-6, 1e32], initial
-// radius 1e4, step quality threshold 1e-3, radius update / max(1/3, 1 - (2 rho - 1)^3), stops on
-// function / parameter / gradient tolerance. `loss` null: plain least squares.
-PoseLmSummary SolvePoseLm(const PoseBatchCost& cost, const ceres::LossFunction* loss,
-                          const Eigen::Matrix<double, 6, Eigen::Dynamic>& basis,
-                          const PoseLmOptions& options, double xi[6]);
 
 }  // namespace exo::refinement

@@ -1,6 +1,7 @@
-// The batched pose stage (pose_lm.h): PoseBatchCost against GradientChecker and against the
-// one-residual analytic functors, and SolvePoseLm against ceres::Solve on the same residuals.
-#include "server/refinement/pose_lm.h"
+// The batched pose stage (pose_batch.h): PoseBatchCost and RobustBatchCost against
+// GradientChecker and against the one-residual analytic functors / Ceres' losses, and
+// SolvePoseCeres (one block) against ceres::Solve on one block per residual.
+#include "server/refinement/pose_batch.h"
 
 #include <algorithm>
 #include <cmath>
@@ -40,7 +41,7 @@ struct SmoothScene {
 
 // FastBicubic is ceres::BiCubicInterpolator's spline: same value and derivatives inside, at
 // the border (clamped support) and outside the grid, value-only path included.
-TEST(PoseLmTest, FastBicubicMatchesCeresBiCubicInterpolator) {
+TEST(PoseBatchTest, FastBicubicMatchesCeresBiCubicInterpolator) {
   SmoothScene sc;
   std::mt19937 rng(3);
   std::uniform_real_distribution<double> ur(-3.0, SmoothScene::kH + 2.0), uc(-3.0, SmoothScene::kW + 2.0);
@@ -59,7 +60,7 @@ TEST(PoseLmTest, FastBicubicMatchesCeresBiCubicInterpolator) {
 
 // Multi-residual block: GradientChecker (numeric) and, row by row, the same residual and
 // Jacobian as PoseDeltaAnalytic / DepthDeltaAnalytic (the functors with their own checks).
-TEST(PoseLmTest, BatchCostMatchesGradientCheckerAndSingleResidualFunctors) {
+TEST(PoseBatchTest, BatchCostMatchesGradientCheckerAndSingleResidualFunctors) {
   SmoothScene sc;
   const double unit = 2.5, e = 1.2, wd = 3.0;
   PoseBatchCost batch(&sc.fast, sc.k, e, &sc.dfast, sc.k, wd, unit);
@@ -111,7 +112,7 @@ TEST(PoseLmTest, BatchCostMatchesGradientCheckerAndSingleResidualFunctors) {
 
 // RobustLoss is Ceres' TukeyLoss / CauchyLoss (rho(s) = q s, rho'(s) = d) away from s = 0, and
 // stays exact near 0 where Ceres' Tukey expression cancels.
-TEST(PoseLmTest, RobustLossMatchesCeresLosses) {
+TEST(PoseBatchTest, RobustLossMatchesCeresLosses) {
   const double a = 0.07;
   ceres::TukeyLoss tukey(a);
   ceres::CauchyLoss cauchy(a);
@@ -144,7 +145,7 @@ TEST(PoseLmTest, RobustLossMatchesCeresLosses) {
 // Tukey scale are exactly zero with |rhat| = a / sqrt(3); and 0.5 sum rhat^2 equals
 // 0.5 sum rho(r^2) of ceres::TukeyLoss / CauchyLoss on the inner residuals (fails if the
 // per-residual transform is removed: then 0.5 sum r^2 is returned, ~3x larger here).
-TEST(PoseLmTest, RobustBatchCostGradientCheckerAndExactRobustCost) {
+TEST(PoseBatchTest, RobustBatchCostGradientCheckerAndExactRobustCost) {
   SmoothScene sc;
   const double unit = 2.5, e = 1.1, a = 0.05;
   const double xi[6] = {0.01, -0.02, 0.015, 0.003, -0.002, 0.004};
@@ -238,70 +239,11 @@ Problem MakeProblem(const SmoothScene& sc, const double xi_true[6], double unit,
   return p;
 }
 
-// SolvePoseLm reproduces Ceres' LM on the same residuals (one block per residual, same loss,
-// SubspaceManifold): both reach the true pose despite 15 % outliers (Tukey gives them zero
-// weight; the test fails if the per-residual loss were dropped: the outliers then bias the
-// pose by far more than the tolerance), with the same final cost; frozen directions stay 0.
-TEST(PoseLmTest, MatchesCeresSolveWithRobustLossAndSubspace) {
-  SmoothScene sc;
-  const double unit = 2.5, e = 0.9;
-  const double xi_true[6] = {0.012, -0.008, 0.005, 0.004, -0.003, 0.002};
-  const Problem pr = MakeProblem(sc, xi_true, unit, e, 400, 7);
-  for (int variant = 0; variant < 3; ++variant) {
-    // 0: all 6 directions, Tukey; 1: rotation only (3 columns), Cauchy; 2: no loss, inliers only.
-    Eigen::Matrix<double, 6, Eigen::Dynamic> basis = Eigen::Matrix<double, 6, 6>::Identity();
-    if (variant == 1) basis = Eigen::Matrix<double, 6, 6>::Identity().leftCols(3);
-    std::unique_ptr<ceres::LossFunction> loss;
-    if (variant == 0) loss = std::make_unique<ceres::TukeyLoss>(0.1);
-    if (variant == 1) loss = std::make_unique<ceres::CauchyLoss>(0.02);
-    PoseBatchCost batch(&sc.fast, sc.k, e, nullptr, sc.k, 0.0, unit);
-    ceres::Problem::Options po;
-    po.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
-    po.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
-    ceres::Problem problem(po);
-    double xi_ceres[6] = {0, 0, 0, 0, 0, 0};
-    for (size_t i = 0; i < pr.pts.size(); ++i) {
-      if (variant == 2 && pr.outlier[i]) continue;
-      batch.AddPhotometric(pr.pts[i], pr.ms[i]);
-      problem.AddResidualBlock(new PoseDeltaAnalytic(sc.interp.get(), sc.k, pr.pts[i], unit, e, pr.ms[i]),
-                               loss.get(), xi_ceres);
-    }
-    SubspaceManifold manifold(basis);
-    if (basis.cols() < 6) problem.SetManifold(xi_ceres, &manifold);
-    ceres::Solver::Options so;
-    so.linear_solver_type = ceres::DENSE_NORMAL_CHOLESKY;
-    so.max_num_iterations = 30;
-    so.function_tolerance = 1e-10;
-    so.logging_type = ceres::SILENT;
-    ceres::Solver::Summary cs;
-    ceres::Solve(so, &problem, &cs);
-    PoseLmOptions lo;
-    lo.max_iterations = 30;
-    lo.function_tolerance = 1e-10;
-    double xi[6] = {0, 0, 0, 0, 0, 0};
-    const PoseLmSummary s = SolvePoseLm(batch, loss.get(), basis, lo, xi);
-    ASSERT_TRUE(s.solved);
-    EXPECT_LT(s.final_cost, s.initial_cost);
-    EXPECT_NEAR(s.initial_cost, cs.initial_cost, 1e-9 * cs.initial_cost) << variant;
-    EXPECT_NEAR(s.final_cost, cs.final_cost, 1e-6 * cs.initial_cost + 1e-14) << variant;
-    EXPECT_LE(s.iterations, lo.max_iterations + 1);
-    for (int c = 0; c < 6; ++c) {
-      EXPECT_NEAR(xi[c], xi_ceres[c], 1e-6) << "variant " << variant << " xi" << c;
-      if (variant != 1) {
-        EXPECT_NEAR(xi[c], xi_true[c], 1e-6) << "variant " << variant << " xi" << c;
-      }
-    }
-    if (variant == 1) {
-      for (int c = 3; c < 6; ++c) EXPECT_EQ(xi[c], 0.0);  // frozen translation untouched
-    }
-  }
-}
-
 // SolvePoseCeres (ceres::Solve on ONE block, robust loss per residual inside it) reaches the
 // true pose despite 15 % outliers with Tukey (fails if the per-residual loss were dropped: the
 // outliers then bias the pose far beyond 1e-6) and Cauchy-then-free subspace handling, and its
 // final cost equals the per-residual ceres::Problem's (same robust cost, same minimum).
-TEST(PoseLmTest, SolvePoseCeresSingleBlockMatchesPerResidualProblem) {
+TEST(PoseBatchTest, SolvePoseCeresSingleBlockMatchesPerResidualProblem) {
   SmoothScene sc;
   const double unit = 2.5, e = 0.9;
   const double xi_true[6] = {0.012, -0.008, 0.005, 0.004, -0.003, 0.002};
