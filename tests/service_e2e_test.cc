@@ -143,5 +143,34 @@ TEST_F(ServiceE2E, ViewersEqualServerModelAndRestartedViewerCatchesUpExactly) {
   server_.reset();
 }
 
+// SPEC §4 on the server: with planning_id_from_proxy=1 the planning stage renders its cell-id
+// buffers from the geometry stage's re-meshed chunks (planning::CellIdRenderer fed through
+// SharedCellAreas::TakeChunkChanges) instead of back-projecting the frame's depth. Every candidate
+// after the first meshed chunks takes that path, no chunk update fails, and views are planned.
+TEST_F(ServiceE2E, PlanningRendersCellIdsFromTheProxyChunks) {
+  StartServer({"--planning_id_from_proxy=1", "--refinement=0"});
+  constexpr int kProxyFrames = 30;
+  Subprocess up(EXOVIEW_UPLOADER_BIN,
+                {"--server=" + target_, "--synthetic=apartment", "--trajectory=walk",
+                 "--frames=" + std::to_string(kProxyFrames), "--width=160", "--height=120",
+                 "--rate_hz=20"},
+                dir_ + "/up.log");
+  ASSERT_EQ(up.Wait(60), 0) << up.Log();
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(30);
+  v1::Stats s = Stats();
+  while (s.frames_processed() < s.frames_accepted() || s.frames_accepted() == 0) {
+    ASSERT_LT(std::chrono::steady_clock::now(), deadline) << server_->Log();
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    s = Stats();
+  }
+  const auto& c = s.counters();
+  ASSERT_TRUE(c.contains("planning.ids_from_proxy")) << server_->Log();
+  EXPECT_GT(c.at("planning.ids_from_proxy"), kProxyFrames / 2);
+  EXPECT_EQ(c.at("planning.cellid_update_errors"), 0.0);
+  EXPECT_GT(s.num_chunks(), 0u);
+  EXPECT_GT(s.num_views(), 0u);
+  EXPECT_GT(s.num_cells(), 0u);
+}
+
 }  // namespace
 }  // namespace exo

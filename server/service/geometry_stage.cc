@@ -8,32 +8,36 @@
 
 namespace exo {
 
-SharedCellAreas::SharedCellAreas(double cell_size_m)
-    : areas_(std::make_unique<CellAreas>(CellGrid{cell_size_m})) {}
+SharedCellAreas::SharedCellAreas(double cell_size_m, bool keep_chunk_changes)
+    : areas_(std::make_unique<CellAreas>(CellGrid{cell_size_m})),
+      keep_chunk_changes_(keep_chunk_changes) {}
 SharedCellAreas::~SharedCellAreas() = default;
 void SharedCellAreas::Update(const MeshChunk& chunk) {
   std::lock_guard lock(mu_);
   areas_->UpdateChunk(chunk);
-  chunks_[chunk.id] = chunk.mesh;
-  dirty_ = true;
+  versions_[chunk.id] = chunk.version;
+  if (keep_chunk_changes_) pending_[chunk.id] = chunk;
 }
 void SharedCellAreas::Remove(uint64_t chunk_id) {
   std::lock_guard lock(mu_);
   areas_->RemoveChunk(chunk_id);
-  dirty_ |= chunks_.erase(chunk_id) > 0;
-}
-std::shared_ptr<const TriangleMesh> SharedCellAreas::ProxyMesh() {
-  std::lock_guard lock(mu_);
-  if (!dirty_) return merged_;
-  auto m = std::make_shared<TriangleMesh>();
-  for (const auto& [id, c] : chunks_) {
-    const uint32_t base = static_cast<uint32_t>(m->positions.size());
-    m->positions.insert(m->positions.end(), c.positions.begin(), c.positions.end());
-    for (uint32_t i : c.indices) m->indices.push_back(base + i);
+  auto it = versions_.find(chunk_id);
+  if (it == versions_.end()) return;
+  if (keep_chunk_changes_) {
+    MeshChunk gone;  // an empty mesh with a newer version removes the chunk downstream
+    gone.id = chunk_id;
+    gone.version = it->second + 1;
+    pending_[chunk_id] = std::move(gone);
   }
-  merged_ = m->indices.empty() ? nullptr : std::move(m);
-  dirty_ = false;
-  return merged_;
+  versions_.erase(it);
+}
+std::vector<MeshChunk> SharedCellAreas::TakeChunkChanges() {
+  std::lock_guard lock(mu_);
+  std::vector<MeshChunk> out;
+  out.reserve(pending_.size());
+  for (auto& [id, c] : pending_) out.push_back(std::move(c));
+  pending_.clear();
+  return out;
 }
 std::vector<std::pair<CellId, double>> SharedCellAreas::TakeChanges() {
   std::lock_guard lock(mu_);

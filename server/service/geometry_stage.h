@@ -42,26 +42,30 @@ struct GeometryStageOptions {
 };
 
 // Per-cell proxy areas A(b_k) (server/geometry CellAreas) maintained by the geometry stage from
-// every re-meshed chunk and read by the planning stage (ViewPlanner::SetCellArea). Thread-safe.
+// every re-meshed chunk and read by the planning stage (ViewPlanner::SetCellArea); optionally
+// also the re-meshed chunks themselves, for the planning stage's cell-id renderer. Thread-safe.
 class SharedCellAreas {
  public:
-  explicit SharedCellAreas(double cell_size_m);
+  // keep_chunk_changes: also queue the changed chunks for TakeChunkChanges (one entry per chunk
+  // id, the newest; bounded by the number of chunks).
+  explicit SharedCellAreas(double cell_size_m, bool keep_chunk_changes = false);
   ~SharedCellAreas();
   void Update(const MeshChunk& chunk);
   void Remove(uint64_t chunk_id);
   // Cells whose area changed since the last call, with their current area (0 = no surface).
   std::vector<std::pair<CellId, double>> TakeChanges();
+  // Chunks re-meshed or removed (empty mesh, newer version) since the last call, newest version
+  // per id (planning::CellIdRenderer::Update takes them as they are). Empty unless
+  // keep_chunk_changes.
+  std::vector<MeshChunk> TakeChunkChanges();
   double TotalArea() const;
-  // The current proxy (every chunk's newest mesh) merged into one mesh; rebuilt only when a
-  // chunk changed since the last call. Null when there is no proxy yet.
-  std::shared_ptr<const TriangleMesh> ProxyMesh();
 
  private:
   mutable std::mutex mu_;
   std::unique_ptr<class CellAreas> areas_;
-  std::map<uint64_t, TriangleMesh> chunks_;
-  std::shared_ptr<const TriangleMesh> merged_;
-  bool dirty_ = false;
+  const bool keep_chunk_changes_;
+  std::map<uint64_t, uint64_t> versions_;      // newest version per live chunk
+  std::map<uint64_t, MeshChunk> pending_;      // changes not yet taken
 };
 
 absl::StatusOr<std::unique_ptr<PipelineStage>> MakeGeometryStage(

@@ -6,7 +6,7 @@
 #include <map>
 #include <mutex>
 
-#include "common/raster/rasterizer.h"
+#include "server/planning/cell_id_proxy.h"
 #include "server/planning/view_planner.h"
 #ifdef EXOVIEW_HAVE_REFINEMENT
 #include "server/service/refinement_worker.h"
@@ -22,6 +22,8 @@ absl::Status PlanningStageOptions::Validate() const {
     return absl::InvalidArgumentError("refine_downscale must be in [1, 8]");
   if (id_buffer_stride < 1 || id_buffer_stride > 32)
     return absl::InvalidArgumentError("id_buffer_stride must be in [1, 32]");
+  if (!std::isfinite(cellid_lod_m) || !std::isfinite(proxy_voxel_m))
+    return absl::InvalidArgumentError("cellid_lod_m and proxy_voxel_m must be finite");
   return publish.Validate();
 }
 
@@ -53,8 +55,9 @@ namespace {
 
 class PlanningStage final : public PipelineStage {
  public:
-  PlanningStage(planning::ViewPlanner planner, const PlanningStageOptions& options)
-      : planner_(std::move(planner)), options_(options) {
+  PlanningStage(planning::ViewPlanner planner, const PlanningStageOptions& options,
+                std::unique_ptr<planning::CellIdRenderer> cell_ids)
+      : planner_(std::move(planner)), options_(options), cell_ids_(std::move(cell_ids)) {
 #ifdef EXOVIEW_HAVE_REFINEMENT
     if (options_.refine) {
       RefinementWorkerOptions wo;
@@ -95,18 +98,17 @@ class PlanningStage final : public PipelineStage {
     }
     const Rigid3d local_from_cam = ctx.origin.ToLocal(f.world_from_cam);
     const int64_t t_ids = SteadyNowNs();
-    std::shared_ptr<const TriangleMesh> proxy;
-    if (options_.id_from_proxy && options_.proxy_mesh) proxy = options_.proxy_mesh();
+    if (cell_ids_ && options_.take_chunk_changes) {
+      // A malformed chunk is skipped (the rest applied) and counted; the frame goes on.
+      if (!cell_ids_->Update(options_.take_chunk_changes()).ok()) ++cellid_update_errors_;
+    }
     planning::Candidate cand;
-    if (proxy) {
-      RasterOptions ro;
-      ro.z_depth = false;
-      ro.cell_id = true;
-      ro.cell_grid = planner_.grid();
-      ro.width = f.color_camera.width / options_.id_buffer_stride;
-      ro.height = f.color_camera.height / options_.id_buffer_stride;
-      ro.num_threads = 1;
-      EXO_ASSIGN_OR_RETURN(RasterOutput r, Rasterize(*proxy, f.color_camera, local_from_cam, ro));
+    if (cell_ids_ && cell_ids_->num_chunks() > 0) {
+      EXO_ASSIGN_OR_RETURN(
+          planning::CellIdBuffer r,
+          cell_ids_->Render(local_from_cam, f.color_camera,
+                            f.color_camera.width / options_.id_buffer_stride,
+                            f.color_camera.height / options_.id_buffer_stride));
       cand.id = next_id_;
       cand.local_from_cam = local_from_cam;
       cand.id_camera = r.camera;
@@ -182,6 +184,7 @@ class PlanningStage final : public PipelineStage {
     (*out)["planning.cell_areas_set"] = static_cast<double>(areas_set_);
     (*out)["planning.views"] = static_cast<double>(planner_.num_views());
     (*out)["planning.ids_from_proxy"] = static_cast<double>(ids_from_proxy_);
+    (*out)["planning.cellid_update_errors"] = static_cast<double>(cellid_update_errors_);
     (*out)["planning.id_buffer_ms_mean"] =
         candidates_ ? id_buffer_ns_ * 1e-6 / static_cast<double>(candidates_) : 0.0;
     (*out)["planning.rebuilt_views"] = static_cast<double>(rebuilt_views_);
@@ -338,7 +341,8 @@ class PlanningStage final : public PipelineStage {
   uint64_t candidates_ = 0, accepted_ = 0, governed_ = 0, areas_set_ = 0;
   uint64_t outliers_removed_ = 0, outliers_kept_ = 0, updated_ = 0, stale_ = 0;
   bool rebuilt_ = false;
-  uint64_t ids_from_proxy_ = 0;
+  uint64_t ids_from_proxy_ = 0, cellid_update_errors_ = 0;
+  std::unique_ptr<planning::CellIdRenderer> cell_ids_;  // null unless id_from_proxy
   int64_t id_buffer_ns_ = 0;
   uint64_t rebuilt_views_ = 0, rebuild_removed_ = 0;
 };
@@ -357,7 +361,19 @@ absl::StatusOr<std::unique_ptr<PipelineStage>> MakePlanningStage(const PlanningS
   po.delta_tau_sum = options.delta_tau_sum;
   po.cell_size_m = cell_size_m;
   EXO_ASSIGN_OR_RETURN(planning::ViewPlanner planner, planning::ViewPlanner::Create(po));
-  return std::unique_ptr<PipelineStage>(new PlanningStage(std::move(planner), options));
+  std::unique_ptr<planning::CellIdRenderer> cell_ids;
+  if (options.id_from_proxy) {
+    planning::CellIdRendererOptions co;
+    co.grid = planner.grid();
+    co.lod_cluster_m = options.cellid_lod_m >= 0.0
+                           ? options.cellid_lod_m
+                           : planning::DefaultCellIdLodM(cell_size_m, options.proxy_voxel_m);
+    co.lod_keep_fraction = 0.1;
+    EXO_ASSIGN_OR_RETURN(auto r, planning::CellIdRenderer::Create(co));
+    cell_ids = std::make_unique<planning::CellIdRenderer>(std::move(r));
+  }
+  return std::unique_ptr<PipelineStage>(
+      new PlanningStage(std::move(planner), options, std::move(cell_ids)));
 }
 
 }  // namespace exo

@@ -31,11 +31,14 @@ struct PlanningStageOptions {
   // Per-cell proxy areas A(b_k) changed since the last call (geometry's CellAreas); null = every
   // cell uses the face area A_cell.
   std::function<std::vector<std::pair<CellId, double>>()> take_area_changes;
-  // SPEC §4: the cell-id buffer rendered from the proxy mesh (common/raster, at 1/id_buffer_stride
-  // of the colour size) instead of back-projected from the frame's depth. Needs `proxy_mesh`;
-  // falls back to depth while there is no proxy. Measured cost in docs/service.md.
+  // SPEC §4: the cell-id buffer rendered from the proxy (planning::CellIdRenderer: per-chunk LOD,
+  // frustum culling; at 1/id_buffer_stride of the colour size) instead of back-projected from the
+  // frame's depth. Needs `take_chunk_changes` (the geometry stage's re-meshed chunks); falls back
+  // to depth while there is no proxy. Measured cost in docs/service.md.
   bool id_from_proxy = false;
-  std::function<std::shared_ptr<const TriangleMesh>()> proxy_mesh;
+  std::function<std::vector<MeshChunk>()> take_chunk_changes;
+  double proxy_voxel_m = 0.0;   // TSDF voxel, bounds the LOD (planning::DefaultCellIdLodM)
+  double cellid_lod_m = -1.0;   // LOD cluster size; < 0: DefaultCellIdLodM; 0: full chunk meshes
   // Refinement (SPEC §5), async after acceptance (where the server is built with it): the view is
   // published at once and a ViewUpdated (exposure, pose) follows; a pose outlier is removed from
   // planner and store (ViewRemoved + CellRefsChanged). Under load views stay unrefined (skipped).

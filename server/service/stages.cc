@@ -30,7 +30,8 @@ absl::StatusOr<std::vector<std::unique_ptr<PipelineStage>>> MakeStages(const Ser
   std::shared_ptr<SharedCellAreas> areas;
   if (config.enable_geometry) {
     if (config.enable_planning && (config.planning_cell_areas || config.planning.id_from_proxy))
-      areas = std::make_shared<SharedCellAreas>(config.pipeline.cell_size_m);
+      areas = std::make_shared<SharedCellAreas>(config.pipeline.cell_size_m,
+                                                /*keep_chunk_changes=*/config.planning.id_from_proxy);
     EXO_ASSIGN_OR_RETURN(auto g, MakeGeometryStage(config.geometry, areas));
     stages.push_back(std::move(g));
   }
@@ -42,7 +43,10 @@ absl::StatusOr<std::vector<std::unique_ptr<PipelineStage>>> MakeStages(const Ser
 #ifdef EXOVIEW_HAVE_GEOMETRY
     if (areas) {
       if (config.planning_cell_areas) p.take_area_changes = [areas] { return areas->TakeChanges(); };
-      p.proxy_mesh = [areas] { return areas->ProxyMesh(); };
+      if (config.planning.id_from_proxy) {
+        p.take_chunk_changes = [areas] { return areas->TakeChunkChanges(); };
+        p.proxy_voxel_m = config.geometry.voxel_size_m;
+      }
     }
 #endif
 #ifndef EXOVIEW_HAVE_REFINEMENT
