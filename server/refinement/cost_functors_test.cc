@@ -76,22 +76,39 @@ TEST(CostFunctorsTest, PoseResidualRejectsPointsBehindCamera) {
   EXPECT_FALSE(f(q, t, &r));
 }
 
+// A smooth 64x48 luma image and a slanted, rippled depth map with their bicubic interpolators
+// and intrinsics: the input of the pose/depth functor Jacobian tests.
+struct SmoothLevel {
+  static constexpr int w = 64, h = 48;
+  template <typename F>
+  static std::vector<float> Fill(F f) {
+    std::vector<float> v(w * h);
+    for (int y = 0; y < h; ++y)
+      for (int x = 0; x < w; ++x) v[y * w + x] = f(x, y);
+    return v;
+  }
+  // Filled before the grids below are built on them (members initialise in this order).
+  const std::vector<float> img = Fill([](int x, int y) {
+    return float(0.5 + 0.3 * std::sin(0.21 * x + 0.1 * y) * std::cos(0.17 * y));
+  });
+  const std::vector<float> depth = Fill([](int x, int y) {
+    return float(2.0 + 0.01 * x + 0.02 * y + 0.05 * std::sin(0.1 * x));
+  });
+  LumaGrid grid{img.data(), 0, h, 0, w};
+  LumaInterpolator interp{grid};
+  DepthGrid dgrid{depth.data(), 0, h, 0, w};
+  DepthInterpolator dinterp{dgrid};
+  LevelIntrinsics k{50.0, 52.0, 31.5, 23.5};
+};
+
 // The refiner's pose chart: xi = (angle-axis about the camera centre, translation in units of
 // the median depth). Checked at xi != 0 (the chart is re-centred per stage, but LM evaluates
 // away from 0) for the photometric and the depth residual.
 TEST(CostFunctorsTest, PoseDeltaAndDepthDeltaResidualGradients) {
-  const int w = 64, h = 48;
-  std::vector<float> img(w * h), depth(w * h);
-  for (int y = 0; y < h; ++y)
-    for (int x = 0; x < w; ++x) {
-      img[y * w + x] = 0.5f + 0.3f * std::sin(0.21 * x + 0.1 * y) * std::cos(0.17 * y);
-      depth[y * w + x] = 2.0f + 0.01f * x + 0.02f * y + 0.05f * std::sin(0.1 * x);
-    }
-  LumaGrid grid(img.data(), 0, h, 0, w);
-  LumaInterpolator interp(grid);
-  DepthGrid dgrid(depth.data(), 0, h, 0, w);
-  DepthInterpolator dinterp(dgrid);
-  LevelIntrinsics k{50.0, 52.0, 31.5, 23.5};
+  const SmoothLevel level;
+  const auto& interp = level.interp;
+  const auto& dinterp = level.dinterp;
+  const LevelIntrinsics& k = level.k;
   ceres::NumericDiffOptions nd;
   nd.ridders_relative_initial_step_size = 1e-5;  // stay inside one bicubic cell (see above)
   for (int trial = 0; trial < 5; ++trial) {
@@ -115,18 +132,10 @@ TEST(CostFunctorsTest, PoseDeltaAndDepthDeltaResidualGradients) {
 // xi != 0 including rotations of up to ~10 degrees (where J_l(w) != I matters), and the same
 // residual and Jacobian as the autodiff functors (to 1e-9 relative).
 TEST(CostFunctorsTest, AnalyticPoseAndDepthJacobiansMatchNumericAndAutodiff) {
-  const int w = 64, h = 48;
-  std::vector<float> img(w * h), depth(w * h);
-  for (int y = 0; y < h; ++y)
-    for (int x = 0; x < w; ++x) {
-      img[y * w + x] = 0.5f + 0.3f * std::sin(0.21 * x + 0.1 * y) * std::cos(0.17 * y);
-      depth[y * w + x] = 2.0f + 0.01f * x + 0.02f * y + 0.05f * std::sin(0.1 * x);
-    }
-  LumaGrid grid(img.data(), 0, h, 0, w);
-  LumaInterpolator interp(grid);
-  DepthGrid dgrid(depth.data(), 0, h, 0, w);
-  DepthInterpolator dinterp(dgrid);
-  LevelIntrinsics k{50.0, 52.0, 31.5, 23.5};
+  const SmoothLevel level;
+  const auto& interp = level.interp;
+  const auto& dinterp = level.dinterp;
+  const LevelIntrinsics& k = level.k;
   ceres::NumericDiffOptions nd;
   nd.ridders_relative_initial_step_size = 1e-5;  // stay inside one bicubic cell (see above)
   for (int trial = 0; trial < 6; ++trial) {
