@@ -56,52 +56,29 @@ double Mean(const std::vector<double>& v) {
   return v.empty() ? 0.0 : s / v.size();
 }
 
-// ---- proxy: TSDF chunks (frustum-culled concatenation) or one ground-truth chunk ----
-
-struct ChunkEntry {
-  MeshChunk chunk;
-  glm::vec3 centre{0.0f};
-  float radius = 0.0f;
-};
-
-ChunkEntry MakeEntry(MeshChunk c) {
-  ChunkEntry e;
-  glm::vec3 lo(1e30f), hi(-1e30f);
-  for (const glm::vec3& p : c.mesh.positions) {
-    lo = glm::min(lo, p);
-    hi = glm::max(hi, p);
-  }
-  e.centre = 0.5f * (lo + hi);
-  e.radius = 0.5f * glm::length(hi - lo);
-  e.chunk = std::move(c);
-  return e;
-}
+// ---- proxy: TSDF chunks or one ground-truth chunk ----
 
 // The full proxy (what the lumigraph renders and the vertex-colour baseline shows). The planner's
 // cell-id buffers come from planning::CellIdRenderer (per-chunk LOD cache, frustum culling), one
 // per cell grid, fed with the same chunks.
 class Proxy {
  public:
-  void Set(uint64_t id, MeshChunk c) { chunks_[id] = MakeEntry(std::move(c)); }
+  void Set(uint64_t id, MeshChunk c) { chunks_[id] = std::move(c); }
   void Remove(uint64_t id) { chunks_.erase(id); }
   TriangleMesh All() const {
     TriangleMesh m;
-    for (const auto& [id, e] : chunks_) Append(m, e.chunk.mesh);
+    for (const auto& [id, c] : chunks_) Append(m, c.mesh);
     return m;
   }
-  std::map<uint64_t, MeshChunk> Chunks() const {
-    std::map<uint64_t, MeshChunk> out;
-    for (const auto& [id, e] : chunks_) out[id] = e.chunk;
-    return out;
-  }
+  const std::map<uint64_t, MeshChunk>& Chunks() const { return chunks_; }
   size_t bytes() const {
     size_t b = 0;
-    for (const auto& [id, e] : chunks_) b += e.chunk.mesh.bytes();
+    for (const auto& [id, c] : chunks_) b += c.mesh.bytes();
     return b;
   }
   size_t triangles() const {
     size_t t = 0;
-    for (const auto& [id, e] : chunks_) t += e.chunk.mesh.num_triangles();
+    for (const auto& [id, c] : chunks_) t += c.mesh.num_triangles();
     return t;
   }
 
@@ -122,7 +99,7 @@ class Proxy {
       m.colors.clear();
     for (uint32_t i : c.indices) m.indices.push_back(base + i);
   }
-  std::map<uint64_t, ChunkEntry> chunks_;
+  std::map<uint64_t, MeshChunk> chunks_;
 };
 
 std::vector<planning::CellPixelCount> CellCounts(const TriangleMesh& mesh, const CellGrid& grid,
