@@ -291,6 +291,41 @@ inline Eigen::Vector3d ChartPoint(const double* xi, const Eigen::Vector3d& p_cam
   return rp + unit * Eigen::Vector3d(xi[3], xi[4], xi[5]);
 }
 
+// d f(pi(p)) / d p for an image gradient (df/du, df/dv) at the projection of camera point p
+// (iz = 1 / p.z): the chain through the pinhole projection of a level.
+inline Eigen::RowVector3d ImageGradientToPoint(const LevelIntrinsics& k, const Eigen::Vector3d& p,
+                                               double iz, double dfdu, double dfdv) {
+  return {dfdu * k.fx * iz, dfdv * k.fy * iz, -(dfdu * k.fx * p.x() + dfdv * k.fy * p.y()) * iz * iz};
+}
+
+// The two pose residuals at camera point pc (pc.z() > 0, checked by the caller) and, when
+// `d_r_d_p` is given, their derivative with respect to pc. Shared by the single-residual
+// functors below and PoseBatchCost (pose_batch.h); `Interp` is any bicubic interpolator with
+// Evaluate(row, col, &f, &df/drow, &df/dcol).
+// Photometric: E * C(pi(pc)) - m.
+template <typename Interp>
+inline double PhotometricAt(const Interp& image, const LevelIntrinsics& k, const Eigen::Vector3d& pc,
+                            double exposure, double target, Eigen::RowVector3d* d_r_d_p) {
+  const double iz = 1.0 / pc.z();
+  double f, dfdv, dfdu;
+  image.Evaluate(k.fy * pc.y() * iz + k.cy, k.fx * pc.x() * iz + k.cx, &f, &dfdv, &dfdu);
+  if (d_r_d_p != nullptr) *d_r_d_p = exposure * ImageGradientToPoint(k, pc, iz, dfdu, dfdv);
+  return exposure * f - target;
+}
+// Depth: weight * (D(pi(pc)) - z) / z; d(D/z)/dp = (grad D . d(u,v)/dp) / z - D / z^2 e_z.
+template <typename Interp>
+inline double DepthAt(const Interp& depth, const LevelIntrinsics& k, const Eigen::Vector3d& pc,
+                      double weight, Eigen::RowVector3d* d_r_d_p) {
+  const double iz = 1.0 / pc.z();
+  double d, ddv, ddu;
+  depth.Evaluate(k.fy * pc.y() * iz + k.cy, k.fx * pc.x() * iz + k.cx, &d, &ddv, &ddu);
+  if (d_r_d_p != nullptr) {
+    *d_r_d_p = (weight * iz) * ImageGradientToPoint(k, pc, iz, ddu, ddv);
+    (*d_r_d_p)(2) -= weight * d * iz * iz;
+  }
+  return weight * (d * iz - 1.0);
+}
+
 // Photometric residual E * C_I(pi(p_cam)) - m with the analytic Jacobian (same value as
 // PoseDeltaResidual). Parameter block: xi[6].
 class PoseDeltaAnalytic final : public ceres::SizedCostFunction<1, 6> {
@@ -306,17 +341,9 @@ class PoseDeltaAnalytic final : public ceres::SizedCostFunction<1, 6> {
     Eigen::Matrix<double, 3, 6> dp;
     const Eigen::Vector3d pc = ChartPoint(parameters[0], p_, unit_, want_j ? &dp : nullptr);
     if (!(pc.z() > 1e-6)) return false;  // behind the camera: reject the step
-    const double iz = 1.0 / pc.z();
-    const double u = k_.fx * pc.x() * iz + k_.cx, v = k_.fy * pc.y() * iz + k_.cy;
-    double f, dfdv, dfdu;
-    interp_->Evaluate(v, u, &f, &dfdv, &dfdu);  // (row, col)
-    residuals[0] = e_ * f - m_;
-    if (want_j) {
-      const Eigen::RowVector3d g(e_ * dfdu * k_.fx * iz, e_ * dfdv * k_.fy * iz,
-                                 -e_ * (dfdu * k_.fx * pc.x() + dfdv * k_.fy * pc.y()) * iz * iz);
-      Eigen::Map<Eigen::Matrix<double, 1, 6>> jac(jacobians[0]);
-      jac = g * dp;
-    }
+    Eigen::RowVector3d g;
+    residuals[0] = PhotometricAt(*interp_, k_, pc, e_, m_, want_j ? &g : nullptr);
+    if (want_j) Eigen::Map<Eigen::Matrix<double, 1, 6>>{jacobians[0]} = g * dp;
     return true;
   }
 
@@ -341,20 +368,9 @@ class DepthDeltaAnalytic final : public ceres::SizedCostFunction<1, 6> {
     Eigen::Matrix<double, 3, 6> dp;
     const Eigen::Vector3d pc = ChartPoint(parameters[0], p_, unit_, want_j ? &dp : nullptr);
     if (!(pc.z() > 1e-6)) return false;
-    const double iz = 1.0 / pc.z();
-    const double u = k_.fx * pc.x() * iz + k_.cx, v = k_.fy * pc.y() * iz + k_.cy;
-    double d, ddv, ddu;
-    depth_->Evaluate(v, u, &d, &ddv, &ddu);
-    residuals[0] = w_ * (d * iz - 1.0);  // = w (d - z) / z
-    if (want_j) {
-      // d(d/z)/dp = (grad d . d(u,v)/dp) / z - d / z^2 e_z
-      const double a = w_ * iz;
-      const Eigen::RowVector3d g(
-          a * ddu * k_.fx * iz, a * ddv * k_.fy * iz,
-          -a * (ddu * k_.fx * pc.x() + ddv * k_.fy * pc.y()) * iz * iz - w_ * d * iz * iz);
-      Eigen::Map<Eigen::Matrix<double, 1, 6>> jac(jacobians[0]);
-      jac = g * dp;
-    }
+    Eigen::RowVector3d g;
+    residuals[0] = DepthAt(*depth_, k_, pc, w_, want_j ? &g : nullptr);
+    if (want_j) Eigen::Map<Eigen::Matrix<double, 1, 6>>{jacobians[0]} = g * dp;
     return true;
   }
 

@@ -54,35 +54,17 @@ bool PoseBatchCost::Evaluate(double const* const* parameters, double* residuals,
     const Eigen::Vector3d rp = r * photo_[i].p;
     const Eigen::Vector3d pc = rp + s;
     if (!(pc.z() > 1e-6)) return false;  // behind the camera: reject the step
-    const double iz = 1.0 / pc.z();
-    const double u = k_luma_.fx * pc.x() * iz + k_luma_.cx, v = k_luma_.fy * pc.y() * iz + k_luma_.cy;
-    double f, dfdv, dfdu;
-    luma_->Evaluate(v, u, &f, &dfdv, &dfdu);  // (row, col)
-    residuals[i] = e_ * f - photo_[i].m;
-    if (want_j) {
-      const Eigen::RowVector3d g(e_ * dfdu * k_luma_.fx * iz, e_ * dfdv * k_luma_.fy * iz,
-                                 -e_ * (dfdu * k_luma_.fx * pc.x() + dfdv * k_luma_.fy * pc.y()) * iz * iz);
-      jac_row(rp, g, jacobians[0] + 6 * i);
-    }
+    Eigen::RowVector3d g;
+    residuals[i] = PhotometricAt(*luma_, k_luma_, pc, e_, photo_[i].m, want_j ? &g : nullptr);
+    if (want_j) jac_row(rp, g, jacobians[0] + 6 * i);
   }
   for (int i = 0; i < num_depth(); ++i) {
     const Eigen::Vector3d rp = r * depth_pts_[i];
     const Eigen::Vector3d pc = rp + s;
     if (!(pc.z() > 1e-6)) return false;
-    const double iz = 1.0 / pc.z();
-    const double u = k_depth_.fx * pc.x() * iz + k_depth_.cx,
-                 v = k_depth_.fy * pc.y() * iz + k_depth_.cy;
-    double d, ddv, ddu;
-    depth_->Evaluate(v, u, &d, &ddv, &ddu);
-    residuals[np + i] = w_depth_ * (d * iz - 1.0);
-    if (want_j) {
-      const double a = w_depth_ * iz;
-      const Eigen::RowVector3d g(
-          a * ddu * k_depth_.fx * iz, a * ddv * k_depth_.fy * iz,
-          -a * (ddu * k_depth_.fx * pc.x() + ddv * k_depth_.fy * pc.y()) * iz * iz -
-              w_depth_ * d * iz * iz);
-      jac_row(rp, g, jacobians[0] + 6 * (np + i));
-    }
+    Eigen::RowVector3d g;
+    residuals[np + i] = DepthAt(*depth_, k_depth_, pc, w_depth_, want_j ? &g : nullptr);
+    if (want_j) jac_row(rp, g, jacobians[0] + 6 * (np + i));
   }
   return true;
 }
