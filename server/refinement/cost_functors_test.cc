@@ -99,6 +99,12 @@ struct SmoothLevel {
   DepthGrid dgrid{depth.data(), 0, h, 0, w};
   DepthInterpolator dinterp{dgrid};
   LevelIntrinsics k{50.0, 52.0, 31.5, 23.5};
+  // Numeric differentiation that stays inside one bicubic cell (see above).
+  ceres::NumericDiffOptions nd = [] {
+    ceres::NumericDiffOptions o;
+    o.ridders_relative_initial_step_size = 1e-5;
+    return o;
+  }();
 };
 
 // The refiner's pose chart: xi = (angle-axis about the camera centre, translation in units of
@@ -109,8 +115,7 @@ TEST(CostFunctorsTest, PoseDeltaAndDepthDeltaResidualGradients) {
   const auto& interp = level.interp;
   const auto& dinterp = level.dinterp;
   const LevelIntrinsics& k = level.k;
-  ceres::NumericDiffOptions nd;
-  nd.ridders_relative_initial_step_size = 1e-5;  // stay inside one bicubic cell (see above)
+  const ceres::NumericDiffOptions& nd = level.nd;
   for (int trial = 0; trial < 5; ++trial) {
     const Eigen::Vector3d p(0.1 * trial - 0.2, 0.05 * trial - 0.1, 2.0 + 0.1 * trial);
     double xi[6] = {0.01 * trial, -0.02, 0.015, 0.002 * trial, 0.003, -0.004};
@@ -136,8 +141,7 @@ TEST(CostFunctorsTest, AnalyticPoseAndDepthJacobiansMatchNumericAndAutodiff) {
   const auto& interp = level.interp;
   const auto& dinterp = level.dinterp;
   const LevelIntrinsics& k = level.k;
-  ceres::NumericDiffOptions nd;
-  nd.ridders_relative_initial_step_size = 1e-5;  // stay inside one bicubic cell (see above)
+  const ceres::NumericDiffOptions& nd = level.nd;
   for (int trial = 0; trial < 6; ++trial) {
     const Eigen::Vector3d p(0.1 * trial - 0.2, 0.05 * trial - 0.1, 2.0 + 0.1 * trial);
     const double a = trial == 5 ? 0.0 : 0.03 * trial;  // trial 5: the chart centre (series)
