@@ -45,6 +45,13 @@ double ThreadCpuMs() {
   clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
   return ts.tv_sec * 1e3 + ts.tv_nsec * 1e-6;
 }
+// CPU time of the whole process (ms): integration runs on TsdfOptions::num_threads threads, so
+// its CPU cost is the process's (every other stage of Step() runs on the calling thread alone).
+double ProcessCpuMs() {
+  timespec ts{};
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+  return ts.tv_sec * 1e3 + ts.tv_nsec * 1e-6;
+}
 double Pct(std::vector<double> v, double p) {
   if (v.empty()) return 0;
   std::sort(v.begin(), v.end());
@@ -347,6 +354,15 @@ std::string PlanCpuJson(const ConfigResult& r) {
                          r.plan_cpu_ms_p95);
 }
 
+// Integration CPU (process CPU ms per input frame) and the final proxy's size (session 4: the
+// voxel-size sweep). Keys are unique per line (eval_charts reads flat keys).
+std::string ProxyCostJson(const ConfigResult& r) {
+  return absl::StrFormat(
+      ",\"integrate_cpu\":{\"integrate_cpu_ms_median\":%.2f,\"integrate_cpu_ms_p95\":%.2f},"
+      "\"proxy_triangles\":%zu",
+      r.integrate_cpu_ms_median, r.integrate_cpu_ms_p95, r.proxy_triangles);
+}
+
 // Per-test-view diagnostics (only when requested): SSIM, distance / angle to the nearest stored
 // view, the pixel fraction whose cell references that view, the stored frame indices.
 std::string PerViewJson(const ConfigResult& r) {
@@ -391,7 +407,7 @@ std::string ConfigJson(const std::string& dataset, const std::string& test_poses
       r.quality.mssim_covered, r.quality.surface, r.quality.views, r.integrate_ms_median, r.integrate_ms_p95,
       r.plan_ms_median, r.plan_ms_p95, r.consider_ms_median, r.render_ms_median, r.store_bytes,
       r.geometry_bytes, r.planner_bytes, r.store_views, r.accepted, r.tau_sum, r.mean_refs,
-      r.max_refs) + PlanCpuJson(r) + PerViewJson(r) + "}";
+      r.max_refs) + PlanCpuJson(r) + ProxyCostJson(r) + PerViewJson(r) + "}";
 }
 
 struct EngineOptions {
@@ -409,6 +425,7 @@ struct EngineOptions {
   // Cell-id LOD: cluster size as a fraction of the (smallest) cell size; 0 = full proxy mesh;
   // < 0 = planning::DefaultCellIdLodM.
   double cellid_lod_frac = -1;
+  double cellid_lod_m = 0;       // > 0: cluster size in metres (wins over cellid_lod_frac)
   double cellid_lod_keep = 0.1;  // planning::CellIdRendererOptions::lod_keep_fraction
 };
 
@@ -418,7 +435,9 @@ class Engine {
       : src_(std::move(src)), configs_(std::move(configs)), opt_(std::move(opt)) {}
 
   absl::Status Init() {
-    if (opt_.cellid_lod_frac > 0) {
+    if (opt_.cellid_lod_m > 0) {
+      lod_cluster_m_ = opt_.cellid_lod_m;
+    } else if (opt_.cellid_lod_frac > 0) {
       double min_cell = 1e30;
       for (const PolicyConfig& c : configs_)
         min_cell = std::min(min_cell, c.cell_m > 0 ? c.cell_m : src_.scale.cell_size_m);
@@ -495,8 +514,9 @@ class Engine {
   // One input frame (frame may be null for the ground-truth proxy).
   absl::Status Step(int idx, const Frame* frame) {
     const Rigid3d& pose = src_.poses[idx];
-    double lod_ms = 0, lod_cpu_ms = 0;
+    double lod_ms = 0, lod_cpu_ms = 0, lod_proc_cpu_ms = 0;
     auto t0 = Clock::now();
+    const double p0 = ProcessCpuMs();
     if (tsdf_ != nullptr) {
       if (frame == nullptr) return absl::InternalError("TSDF proxy needs frames");
       EXO_RETURN_IF_ERROR(tsdf_->Integrate(*frame, origin_).status());
@@ -506,9 +526,11 @@ class Engine {
       // The cell-id renderers' LOD cache update is planning time, not integration.
       const auto t_lod = Clock::now();
       const double c_lod = ThreadCpuMs();
+      const double p_lod = ProcessCpuMs();
       for (auto& g : groups_) EXO_RETURN_IF_ERROR(g.cid->Update(dirty));
       lod_ms += MsSince(t_lod);
       lod_cpu_ms += ThreadCpuMs() - c_lod;
+      lod_proc_cpu_ms += ProcessCpuMs() - p_lod;
       for (MeshChunk& c : dirty) {
         const uint64_t id = c.id;
         proxy_.Set(id, std::move(c));
@@ -521,8 +543,10 @@ class Engine {
         proxy_.Remove(id);
       }
       integrate_ms_.push_back(MsSince(t0) - lod_ms);
+      integrate_cpu_ms_.push_back(ProcessCpuMs() - p0 - lod_proc_cpu_ms);
     } else {
       integrate_ms_.push_back(0.0);
+      integrate_cpu_ms_.push_back(0.0);
     }
     for (auto& g : groups_) {
       if (g.online.empty()) continue;
@@ -592,6 +616,9 @@ class Engine {
         if (opt_.per_view) r.per_view_ssim = sink.ssim;
         r.integrate_ms_median = Pct(integrate_ms_, 0.5);
         r.integrate_ms_p95 = Pct(integrate_ms_, 0.95);
+        r.integrate_cpu_ms_median = Pct(integrate_cpu_ms_, 0.5);
+        r.integrate_cpu_ms_p95 = Pct(integrate_cpu_ms_, 0.95);
+        r.proxy_triangles = proxy_.triangles();
         r.geometry_bytes = geometry_bytes;
         r.json = ConfigJson(src_.dataset, ts.label, proxy_name, voxel_m, n, r.config, 0, 0, 0, r, opt_.id_w,
                             opt_.id_h, PlannerFor(r.config, src_, src_.scale.cell_size_m, src_.frame_bytes),
@@ -607,6 +634,9 @@ class Engine {
       r.config = c;
       r.integrate_ms_median = Pct(integrate_ms_, 0.5);
       r.integrate_ms_p95 = Pct(integrate_ms_, 0.95);
+      r.integrate_cpu_ms_median = Pct(integrate_cpu_ms_, 0.5);
+      r.integrate_cpu_ms_p95 = Pct(integrate_cpu_ms_, 0.95);
+      r.proxy_triangles = proxy_.triangles();
       r.geometry_bytes = geometry_bytes;
       const planning::PlannerOptions po = PlannerFor(c, src_, g.grid.cell_size_m, src_.frame_bytes);
       std::vector<int> selected;
@@ -905,6 +935,7 @@ class Engine {
   std::vector<OnlineState> online_;
   std::map<size_t, MinDistanceSelector> mindist_;
   std::vector<double> integrate_ms_;
+  std::vector<double> integrate_cpu_ms_;  // process CPU ms (TSDF worker threads included)
   double lod_cluster_m_ = 0;  // cell-id LOD cluster size (0: full chunk meshes)
   std::vector<double> lod_ms_, raster_ms_, idbuf_tris_;  // cell-id buffer breakdown
   std::unordered_map<int, StoredView> cache_;
@@ -976,6 +1007,8 @@ absl::Status SynthRunOptions::Validate() const {
   if (test_views < 1) return absl::InvalidArgumentError("eval: test_views must be >= 1");
   if (id_width < 8 || id_height < 8) return absl::InvalidArgumentError("eval: id buffer too small");
   if (voxel_m < 0 || !std::isfinite(voxel_m)) return absl::InvalidArgumentError("eval: bad voxel_m");
+  if (cellid_lod_m < 0 || !std::isfinite(cellid_lod_m))
+    return absl::InvalidArgumentError("eval: cellid_lod_m must be finite and >= 0");
   for (const PolicyConfig& c : configs) {
     if (c.policy == Policy::kVertexColor)
       return absl::InvalidArgumentError("eval: vertex_color is a per-run baseline, not a config");
@@ -1067,6 +1100,7 @@ absl::StatusOr<std::vector<ConfigResult>> RunSynthetic(const SynthRunOptions& o)
   eo.dump_dir = o.dump_dir;
   eo.dump_views = o.dump_views;
   eo.cellid_lod_frac = o.cellid_lod_frac;
+  eo.cellid_lod_m = o.cellid_lod_m;
   eo.cellid_lod_keep = o.cellid_lod_keep;
   eo.per_view = o.per_view;
   if (o.proxy == ProxyKind::kGroundTruth) eo.gt_mesh = scene.mesh;
@@ -1192,6 +1226,7 @@ absl::StatusOr<SevenScenesReport> RunSevenScenes(const SevenScenesRunOptions& o)
   eo.dump_dir = o.dump_dir;
   eo.dump_views = o.dump_views;
   eo.cellid_lod_frac = o.cellid_lod_frac;
+  eo.cellid_lod_m = o.cellid_lod_m;
   eo.cellid_lod_keep = o.cellid_lod_keep;
   eo.per_view = o.per_view;
   Engine engine(std::move(src), o.configs, std::move(eo));

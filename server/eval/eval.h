@@ -74,6 +74,10 @@ struct ConfigResult {
   double tau_sum = 0;                            // τ_sum of the selection (final proxy, see .cc)
   double mean_refs = 0;                          // mean |R(b_k)| over cells with references
   double plan_cpu_ms_median = 0, plan_cpu_ms_p95 = 0;  // thread CPU ms of plan (online only)
+  // Process CPU ms per input frame of integrate (TSDF integrate on its worker threads + dirty
+  // extraction + cell areas; the cell-id LOD update excluded, as in integrate_ms_*).
+  double integrate_cpu_ms_median = 0, integrate_cpu_ms_p95 = 0;
+  size_t proxy_triangles = 0;                    // triangles of the final proxy mesh
   std::string test_poses;                        // label of the test pose set ("scene", ...)
   std::vector<int> selected;                     // stored input frame indices (stream order)
   // Per test view (only with per_view diagnostics on): SSIM; distance (m), angle between the
@@ -122,6 +126,9 @@ struct SynthRunOptions {
   // (planning::ClusterSimplify) with clusters of this fraction of the cell size; 0 = the full
   // TSDF mesh; < 0 (default) = planning::DefaultCellIdLodM (0.5 x cell, at most 4 x voxel).
   double cellid_lod_frac = -1;
+  // > 0: cell-id LOD cluster size in metres, wins over cellid_lod_frac (a LOD held fixed while
+  // the voxel size is swept).
+  double cellid_lod_m = 0;
   // A chunk keeps its cell-id LOD while its triangle count stays within this fraction of the
   // count the LOD was built from (planning::CellIdRendererOptions::lod_keep_fraction; 0 = rebuild
   // for every new chunk version). Village 200 frames: 0.1 cuts planning CPU 14.0 -> 10.2 ms at
@@ -153,6 +160,7 @@ struct SevenScenesRunOptions {
   int test_width = 640, test_height = 480;
   ScaleMode scale_mode = ScaleMode::kViewDepth;
   double cellid_lod_frac = -1;     // see SynthRunOptions
+  double cellid_lod_m = 0;         // see SynthRunOptions
   double cellid_lod_keep = 0.1;    // see SynthRunOptions
   bool per_view = false;           // see SynthRunOptions
   blend::BlendOptions blend;

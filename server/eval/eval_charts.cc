@@ -1,7 +1,10 @@
 // eval_charts: draws the charts of docs/evaluation.md from exoview_eval's JSON lines (OpenCV).
 //   eval_charts results.jsonl OUT_DIR
 // Writes OUT_DIR/eval_store.png (MSSIM vs store size), eval_sweeps.png (MSSIM vs R_max, lambda,
-// cell size, delta_tau_sum), eval_speed_error.png (per-frame ms vs 1 - MSSIM, every config).
+// cell size, delta_tau_sum), eval_voxel.png (MSSIM vs integrate CPU ms over the voxel-size sweep,
+// points labelled with the voxel size), eval_speed_error.png (per-frame ms vs 1 - MSSIM, every config).
+#include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <fstream>
 #include <map>
@@ -38,6 +41,8 @@ struct Series {
   cv::Scalar color;
   std::vector<cv::Point2d> pts;
   bool line = true;
+  std::vector<std::string> labels;  // optional text beside each point (same order as pts)
+  bool hollow = false;              // open circles (contrast points)
 };
 
 // One chart panel: axes, ticks, series, legend.
@@ -79,15 +84,27 @@ void Panel(cv::Mat& img, cv::Rect r, const std::string& title, const std::string
   cv::putText(img, ylab, cv::Point(r.x + 4, T - 8), cv::FONT_HERSHEY_SIMPLEX, 0.42, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
   int ly = T + 14;
   for (auto& s : series) {
-    std::sort(s.pts.begin(), s.pts.end(), [](auto a, auto b) { return a.x < b.x; });
+    std::vector<size_t> ord(s.pts.size());
+    for (size_t i = 0; i < ord.size(); ++i) ord[i] = i;
+    std::sort(ord.begin(), ord.end(), [&](size_t a, size_t b) { return s.pts[a].x < s.pts[b].x; });
+    std::vector<cv::Point2d> sorted;
+    std::vector<std::string> labels;
+    for (size_t i : ord) {
+      sorted.push_back(s.pts[i]);
+      if (i < s.labels.size()) labels.push_back(s.labels[i]);
+    }
+    s.pts = sorted;
     for (size_t i = 0; i < s.pts.size(); ++i) {
       const cv::Point p(int(px(s.pts[i].x)), int(py_(s.pts[i].y)));
-      cv::circle(img, p, 4, s.color, cv::FILLED, cv::LINE_AA);
+      cv::circle(img, p, s.hollow ? 6 : 4, s.color, s.hollow ? 2 : cv::FILLED, cv::LINE_AA);
+      if (i < labels.size())
+        cv::putText(img, labels[i], p + cv::Point(6, s.hollow ? 14 : -6), cv::FONT_HERSHEY_SIMPLEX,
+                    0.36, s.color, 1, cv::LINE_AA);
       if (s.line && i > 0)
         cv::line(img, cv::Point(int(px(s.pts[i - 1].x)), int(py_(s.pts[i - 1].y))), p, s.color, 2, cv::LINE_AA);
     }
-    cv::circle(img, cv::Point(R - 150, ly - 4), 4, s.color, cv::FILLED, cv::LINE_AA);
-    cv::putText(img, s.name, cv::Point(R - 140, ly), cv::FONT_HERSHEY_SIMPLEX, 0.4, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
+    cv::circle(img, cv::Point(R - 190, ly - 4), 4, s.color, s.hollow ? 1 : cv::FILLED, cv::LINE_AA);
+    cv::putText(img, s.name, cv::Point(R - 180, ly), cv::FONT_HERSHEY_SIMPLEX, 0.4, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
     ly += 16;
   }
 }
@@ -145,6 +162,38 @@ int main(int argc, char** argv) {
             sw[i].second, "MSSIM", ss, sw[i].second == "r_max");
     }
     cv::imwrite(out + "/eval_sweeps.png", img);
+  }
+  // Voxel size as a speed-vs-error knob (session 4): MSSIM vs integrate CPU ms per input frame,
+  // one line per scene (runs tagged voxel_fixedlod: cell-id LOD held fixed), points labelled
+  // with the voxel size; runs tagged voxel_defaultlod (voxel-dependent LOD) as open circles.
+  // Left: near-trajectory test poses, right: scene-wide.
+  {
+    cv::Mat img(400, 1120, CV_8UC3, cv::Scalar(255, 255, 255));
+    const std::vector<std::string> sets = {"near", "scene"};
+    for (size_t k = 0; k < sets.size(); ++k) {
+      std::vector<Series> ss;
+      int c = 0;
+      for (const auto& sc : scenes) {
+        const cv::Scalar col = kColors[c++];
+        for (const char* tag : {"voxel_fixedlod", "voxel_defaultlod"}) {
+          const bool fixed = std::string(tag) == "voxel_fixedlod";
+          Series s{sc + (fixed ? " (fixed LOD)" : " (default LOD)"), col, {}, fixed, {}, !fixed};
+          for (const auto& l : lines) {
+            if (Field(l, "dataset") != sc || Field(l, "tag") != tag || Field(l, "test_poses") != sets[k])
+              continue;
+            s.pts.push_back({Num(l, "integrate_cpu_ms_median"), Num(l, "mssim")});
+            char buf[32];
+            std::snprintf(buf, sizeof buf, "%.0f cm", 100.0 * Num(l, "voxel_m"));
+            s.labels.push_back(buf);
+          }
+          if (!s.pts.empty()) ss.push_back(s);
+        }
+      }
+      Panel(img, cv::Rect(560 * k, 0, 560, 400),
+            "MSSIM (" + sets[k] + " test poses) vs TSDF voxel size",
+            "integrate, process CPU ms per input frame (median, log2)", "MSSIM", ss, true);
+    }
+    cv::imwrite(out + "/eval_voxel.png", img);
   }
   // Speed vs error: integrate + plan median ms per input frame vs 1 - MSSIM, per policy.
   {

@@ -14,6 +14,9 @@
 //   --per_view 1          per-test-view SSIM, nearest stored view, reference hit in the JSON
 //   --lod F               cell-id buffers from a vertex-clustered proxy LOD, clusters F x cell size
 //                         (0: full proxy mesh; default -1: planning::DefaultCellIdLodM)
+//   --lod_m M             cell-id LOD cluster size in metres (wins over --lod; held fixed across a
+//                         voxel sweep)
+//   --tag NAME            label of the policy configs in the JSON (default "main")
 //   --lod_keep F          keep a chunk's LOD while its triangle count is within F (default 0.1)
 //   --scale bounds|depth  d_max/σ from scene_scale.h or from the first frame's median depth
 //                         (synthetic default bounds, 7-Scenes default depth)
@@ -74,7 +77,7 @@ absl::StatusOr<std::vector<PolicyConfig>> Configs(const Args& a) {
   base.lambda = a.Num("--lambda", -1);
   base.cell_m = a.Num("--cell", 0);
   base.delta_tau_sum = a.Num("--dts", -1);
-  base.tag = "main";
+  base.tag = a.Get("--tag", "main");
   std::vector<PolicyConfig> out;
   for (absl::string_view p : absl::StrSplit(a.Get("--policies", "online"), ',', absl::SkipEmpty())) {
     PolicyConfig c = base;
@@ -141,6 +144,7 @@ int RunOne(const Args& a) {
     o.test_width = int(a.Num("--test_w", 640));
     o.test_height = int(a.Num("--test_h", 480));
     o.cellid_lod_frac = a.Num("--lod", o.cellid_lod_frac);
+    o.cellid_lod_m = a.Num("--lod_m", o.cellid_lod_m);
     o.cellid_lod_keep = a.Num("--lod_keep", o.cellid_lod_keep);
     o.per_view = a.Num("--per_view", 0) != 0;
     if (a.kv.count("--scale")) o.scale_mode = a.Get("--scale", "") == "bounds" ? ScaleMode::kBounds : ScaleMode::kViewDepth;
@@ -173,6 +177,7 @@ int RunOne(const Args& a) {
   o.id_width = int(a.Num("--idw", 160));
   o.id_height = int(a.Num("--idh", 120));
   o.cellid_lod_frac = a.Num("--lod", o.cellid_lod_frac);
+  o.cellid_lod_m = a.Num("--lod_m", o.cellid_lod_m);
   o.cellid_lod_keep = a.Num("--lod_keep", o.cellid_lod_keep);
   o.blend = Blend(a);
   // --test_poses scene | near | scene,near (both sets on the same stream and stores)

@@ -4,7 +4,9 @@
 // baseline of the same TSDF; bad options are rejected.
 #include "server/eval/eval.h"
 
+#include <cmath>
 #include <cstdio>
+#include <string>
 
 #include <gtest/gtest.h>
 
@@ -81,6 +83,49 @@ TEST(EvalSmokeTest, TinyApartmentWalkBeatsVertexColourBaseline) {
   EXPECT_NE(on.json.find("\"policy\":\"online\""), std::string::npos);
 }
 
+// The voxel-size sweep (session 4): a coarser TSDF must give a smaller proxy (triangles scale
+// with surface / voxel^2: 10 cm vs 5 cm is ~4x fewer), the cell-id LOD given in metres must be
+// the one used (not the voxel-dependent default: 0.4 m here vs min(0.5 x cell, 4 x voxel)), and
+// the integrate CPU time is measured. Fails if proxy_triangles is not filled from the final proxy,
+// if cellid_lod_m is ignored, or if integrate CPU ms are not recorded.
+TEST(EvalSmokeTest, VoxelSizeScalesProxyAndLodStaysFixed) {
+  auto run = [](double voxel_m) {
+    SynthRunOptions o = Tiny();
+    o.frames = 12;
+    o.voxel_m = voxel_m;
+    o.test_views = 1;
+    o.vertex_color_baseline = false;
+    o.cellid_lod_frac = -1;
+    o.cellid_lod_m = 0.4;
+    o.configs.resize(1);
+    o.configs[0].store = 6;
+    o.configs[0].tag = "voxel_fixedlod";
+    return RunSynthetic(o);
+  };
+  auto coarse = run(0.10);
+  auto fine = run(0.05);
+  ASSERT_TRUE(coarse.ok()) << coarse.status();
+  ASSERT_TRUE(fine.ok()) << fine.status();
+  ASSERT_EQ(coarse->size(), 1u);
+  ASSERT_EQ(fine->size(), 1u);
+  const ConfigResult& c = (*coarse)[0];
+  const ConfigResult& f = (*fine)[0];
+  std::printf("coarse %s\nfine %s\n", c.json.c_str(), f.json.c_str());
+  EXPECT_GT(c.proxy_triangles, 100u);
+  EXPECT_GT(f.proxy_triangles, 2 * c.proxy_triangles);
+  EXPECT_LT(f.proxy_triangles, 8 * c.proxy_triangles);
+  EXPECT_GT(f.geometry_bytes, c.geometry_bytes);
+  EXPECT_GT(c.integrate_cpu_ms_median, 0.0);
+  EXPECT_GE(c.integrate_cpu_ms_p95, c.integrate_cpu_ms_median);
+  for (const ConfigResult* r : {&c, &f}) {
+    EXPECT_NE(r->json.find("\"cellid_lod_m\":0.400"), std::string::npos) << r->json;
+    EXPECT_NE(r->json.find("\"tag\":\"voxel_fixedlod\""), std::string::npos);
+    EXPECT_NE(r->json.find("\"proxy_triangles\":" + std::to_string(r->proxy_triangles)),
+              std::string::npos);
+    EXPECT_NE(r->json.find("\"integrate_cpu_ms_median\":"), std::string::npos);
+  }
+}
+
 TEST(EvalSmokeTest, RejectsBadOptions) {
   SynthRunOptions o = Tiny();
   o.frames = 1;
@@ -93,6 +138,11 @@ TEST(EvalSmokeTest, RejectsBadOptions) {
   EXPECT_FALSE(RunSynthetic(o).ok());
   o = Tiny();
   o.configs[0].r_max = 1;  // planner validation (erratum 2) surfaces as an error
+  EXPECT_FALSE(RunSynthetic(o).ok());
+  o = Tiny();
+  o.cellid_lod_m = -0.5;
+  EXPECT_FALSE(RunSynthetic(o).ok());
+  o.cellid_lod_m = std::nan("");
   EXPECT_FALSE(RunSynthetic(o).ok());
 }
 
