@@ -1,27 +1,5 @@
 // exoview_eval: the evaluation benchmark of SPEC §9. Prints one JSON object per configuration
-// (config, quality, speed, memory) on stdout; progress on stderr.
-//
-//   exoview_eval --suite quick|full [--out results.jsonl]      predefined runs (docs/evaluation.md)
-//   exoview_eval --scene village --traj flyover --frames 600 --proxy tsdf|gt --voxel 0
-//                --test_views 200 --policies online,offline_greedy,every_n,min_distance,all
-//                --store 200 --r_max 16 [--lambda 0.5] [--cell 0] [--dts 0.05]
-//                [--sweep store|r_max|lambda|cell] [--sweep_test_views 50]
-//                [--dump DIR --dump_views 4]
-//   exoview_eval --sevenscenes DIR [--store 50] [--policies ...] [--register 0|1 (default 1:
-//                depth registered to colour, docs/registration.md)]
-//   --test_poses scene|near|scene,near   test pose set(s), all evaluated on the same stores
-//   --look_around DEG     walk yaw-sweep amplitude (synth default 20)
-//   --per_view 1          per-test-view SSIM, nearest stored view, reference hit in the JSON
-//   --lod F               cell-id buffers from a vertex-clustered proxy LOD, clusters F x cell size
-//                         (0: full proxy mesh; default -1: planning::DefaultCellIdLodM)
-//   --lod_m M             cell-id LOD cluster size in metres (wins over --lod; held fixed across a
-//                         voxel sweep)
-//   --tag NAME            label of the policy configs in the JSON (default "main")
-//   --lod_keep F          keep a chunk's LOD while its triangle count is within F (default 0.1)
-//   --scale bounds|depth  d_max/σ from scene_scale.h or from the first frame's median depth
-//                         (synthetic default bounds, 7-Scenes default depth)
-//   policies every_n_uncapped, min_distance_uncapped, all_uncapped: baseline referencing every
-//   selected observer per cell (no R_max cap); plain names use the planner's pre-selection
+// (config, quality, speed, memory) on stdout; progress on stderr. Flags: kUsage below (--help).
 #include <cstdio>
 #include <fstream>
 #include <map>
@@ -36,6 +14,32 @@
 
 namespace exo::eval {
 namespace {
+
+constexpr char kUsage[] =
+    "exoview_eval: the evaluation benchmark of SPEC §9. Prints one JSON object per configuration\n"
+    "(config, quality, speed, memory) on stdout; progress on stderr.\n"
+    "\n"
+    "  exoview_eval --suite quick|full [--out results.jsonl]      predefined runs (docs/evaluation.md)\n"
+    "  exoview_eval --scene village --traj flyover --frames 600 --proxy tsdf|gt --voxel 0\n"
+    "               --test_views 200 --policies online,offline_greedy,every_n,min_distance,all\n"
+    "               --store 200 --r_max 16 [--lambda 0.5] [--cell 0] [--dts 0.05]\n"
+    "               [--sweep store|r_max|lambda|cell] [--sweep_test_views 50]\n"
+    "               [--dump DIR --dump_views 4]\n"
+    "  exoview_eval --sevenscenes DIR [--store 50] [--policies ...] [--register 0|1 (default 1:\n"
+    "               depth registered to colour, docs/registration.md)]\n"
+    "  --test_poses scene|near|scene,near   test pose set(s), all evaluated on the same stores\n"
+    "  --look_around DEG     walk yaw-sweep amplitude (synth default 20)\n"
+    "  --per_view 1          per-test-view SSIM, nearest stored view, reference hit in the JSON\n"
+    "  --lod F               cell-id buffers from a vertex-clustered proxy LOD, clusters F x cell size\n"
+    "                        (0: full proxy mesh; default -1: planning::DefaultCellIdLodM)\n"
+    "  --lod_m M             cell-id LOD cluster size in metres (wins over --lod; held fixed across a\n"
+    "                        voxel sweep)\n"
+    "  --tag NAME            label of the policy configs in the JSON (default \"main\")\n"
+    "  --lod_keep F          keep a chunk's LOD while its triangle count is within F (default 0.1)\n"
+    "  --scale bounds|depth  d_max/σ from scene_scale.h or from the first frame's median depth\n"
+    "                        (synthetic default bounds, 7-Scenes default depth)\n"
+    "  policies every_n_uncapped, min_distance_uncapped, all_uncapped: baseline referencing every\n"
+    "  selected observer per cell (no R_max cap); plain names use the planner's pre-selection\n";
 
 struct Args {
   std::map<std::string, std::string> kv;
@@ -244,6 +248,13 @@ std::vector<std::vector<std::string>> Suite(const std::string& name, const std::
 int main(int argc, char** argv) {
   using namespace exo::eval;
   Args a;
+  for (int i = 1; i < argc; ++i) {
+    const std::string arg = argv[i];
+    if (arg == "--help" || arg == "-h") {  // (an unknown flag alone would start a default run)
+      std::printf("%s", kUsage);
+      return 0;
+    }
+  }
   for (int i = 1; i < argc; ++i) {
     std::string k = argv[i];
     std::string v = (i + 1 < argc && std::string(argv[i + 1]).rfind("--", 0) != 0) ? argv[++i] : "";
