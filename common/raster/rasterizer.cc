@@ -13,6 +13,9 @@ constexpr int kSubpixelBits = 8;
 constexpr int64_t kSubpixel = int64_t{1} << kSubpixelBits;
 constexpr double kGuardBandPx = 16384.0;
 constexpr int kBandRows = 16;
+// Triangles whose clamped pixel box has at most this many pixel centres are tested for
+// coverage before their floating-point setup (most LOD triangles of a 160x120 buffer).
+constexpr int64_t kSmallBoxPixels = 16;
 
 // A clip-polygon vertex: camera-frame position plus barycentric coordinates w.r.t. the
 // original mesh triangle (so any attribute can be recovered exactly after clipping).
@@ -134,13 +137,47 @@ class Setup {
     // centre and end here.
     const int64_t min_x = std::min({a.fx, b.fx, c.fx}), max_x = std::max({a.fx, b.fx, c.fx});
     const int64_t min_y = std::min({a.fy, b.fy, c.fy}), max_y = std::max({a.fy, b.fy, c.fy});
-    if (std::max<int64_t>(0, CeilDiv(min_x, kSubpixel)) >
-            std::min<int64_t>(cam_.width - 1, FloorDiv(max_x, kSubpixel)) ||
-        std::max<int64_t>(0, CeilDiv(min_y, kSubpixel)) >
-            std::min<int64_t>(cam_.height - 1, FloorDiv(max_y, kSubpixel)))
+    const int64_t px0 = std::max<int64_t>(0, CeilDiv(min_x, kSubpixel));
+    const int64_t px1 = std::min<int64_t>(cam_.width - 1, FloorDiv(max_x, kSubpixel));
+    const int64_t py0 = std::max<int64_t>(0, CeilDiv(min_y, kSubpixel));
+    const int64_t py1 = std::min<int64_t>(cam_.height - 1, FloorDiv(max_y, kSubpixel));
+    if (px0 > px1 || py0 > py1) return false;
+    // Small box: test its few pixel centres with the exact edge functions of the scan before
+    // the floating-point setup; a triangle that covers none of them writes nothing.
+    if ((px1 - px0 + 1) * (py1 - py0 + 1) <= kSmallBoxPixels &&
+        !CoversAPixelCentre(a.fx, a.fy, b.fx, b.fy, c.fx, c.fy, px0, px1, py0, py1))
       return false;
     EmitProjected(t, {a.p_cam, {1, 0, 0}}, {b.p_cam, {0, 1, 0}}, {c.p_cam, {0, 0, 1}}, a.s, b.s,
                   c.s, a.fx, a.fy, b.fx, b.fy, c.fx, c.fy, out);
+    return false;
+  }
+
+  // Whether the fixed-point triangle (any winding) covers a pixel centre of [px0,px1]x[py0,py1]
+  // under the rules of the scan (EmitProjected + step 4 of RasterizeParts): zero area and, when
+  // culling, back faces cover nothing; the winding is made positive; top-left fill rule.
+  bool CoversAPixelCentre(int64_t x0, int64_t y0, int64_t x1, int64_t y1, int64_t x2,
+                          int64_t y2, int64_t px0, int64_t px1, int64_t py0,
+                          int64_t py1) const {
+    const int64_t area = (x1 - x0) * (y2 - y0) - (y1 - y0) * (x2 - x0);
+    if (area == 0 || (area > 0 && opt_.cull_backfaces)) return false;
+    if (area < 0) {
+      std::swap(x1, x2);
+      std::swap(y1, y2);
+    }
+    const int64_t ax[3] = {x0, x1, x2}, ay[3] = {y0, y1, y2};
+    const int64_t bx[3] = {x1, x2, x0}, by[3] = {y1, y2, y0};
+    int64_t bias[3];
+    for (int k = 0; k < 3; ++k) bias[k] = IsTopLeft(ax[k], ay[k], bx[k], by[k]) ? 0 : -1;
+    for (int64_t y = py0; y <= py1; ++y) {
+      const int64_t py = y * kSubpixel;
+      for (int64_t x = px0; x <= px1; ++x) {
+        const int64_t px = x * kSubpixel;
+        int64_t e[3];
+        for (int k = 0; k < 3; ++k)
+          e[k] = (bx[k] - ax[k]) * (py - ay[k]) - (by[k] - ay[k]) * (px - ax[k]) + bias[k];
+        if ((e[0] | e[1] | e[2]) >= 0) return true;
+      }
+    }
     return false;
   }
 
@@ -333,12 +370,15 @@ absl::StatusOr<RasterOutput> RasterizeParts(const std::vector<const TriangleMesh
   const glm::dmat3 R = cam_from_local.RotationMatrix();
   const glm::dvec3 t = cam_from_local.translation;
   Setup setup(cam, options);
-  std::vector<std::vector<CamVertex>> verts(parts.size());
+  // One buffer for all parts (a part list holds thousands of small chunks).
+  std::vector<size_t> part_vertex_begin(parts.size() + 1, 0);
+  for (size_t k = 0; k < parts.size(); ++k)
+    part_vertex_begin[k + 1] = part_vertex_begin[k] + parts[k]->positions.size();
+  std::vector<CamVertex> verts(part_vertex_begin.back());
   for (size_t k = 0; k < parts.size(); ++k) {
     const auto& pos = parts[k]->positions;
-    verts[k].resize(pos.size());
-    for (size_t i = 0; i < pos.size(); ++i)
-      verts[k][i] = setup.MakeVertex(R * glm::dvec3(pos[i]) + t);
+    CamVertex* v = verts.data() + part_vertex_begin[k];
+    for (size_t i = 0; i < pos.size(); ++i) v[i] = setup.MakeVertex(R * glm::dvec3(pos[i]) + t);
   }
 
   // 2. Triangle setup (clipping, projection, edge and plane equations), in parallel chunks of
@@ -364,7 +404,7 @@ absl::StatusOr<RasterOutput> RasterizeParts(const std::vector<const TriangleMesh
       while (size_t(tri) >= part_begin[part + 1]) ++part;
       const size_t local = size_t(tri) - part_begin[part];
       const uint32_t* idx = &parts[part]->indices[3 * local];
-      const std::vector<CamVertex>& pv = verts[part];
+      const CamVertex* pv = verts.data() + part_vertex_begin[part];
       const size_t before = v.size();
       if (setup.AddCached(static_cast<uint32_t>(tri), pv[idx[0]], pv[idx[1]], pv[idx[2]], &v))
         ++chunk_clipped[c];

@@ -3,7 +3,9 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <tuple>
 #include <unordered_map>
+#include <utility>
 
 #include "common/cells.h"
 #include "common/raster/rasterizer.h"
@@ -85,6 +87,22 @@ absl::StatusOr<TriangleMesh> ClusterSimplify(const TriangleMesh& mesh, double cl
 }  // namespace exo::planning
 
 namespace exo::planning {
+namespace {
+
+// Bounding box of float positions, as doubles (min/max in float then widened: the same values
+// as widening first, since float -> double is exact and monotonic).
+std::pair<glm::dvec3, glm::dvec3> Box(const std::vector<glm::vec3>& positions) {
+  const float inf = std::numeric_limits<float>::infinity();
+  float lo[3] = {inf, inf, inf}, hi[3] = {-inf, -inf, -inf};
+  for (const glm::vec3& p : positions)
+    for (int k = 0; k < 3; ++k) {
+      lo[k] = std::min(lo[k], p[k]);
+      hi[k] = std::max(hi[k], p[k]);
+    }
+  return {glm::dvec3(lo[0], lo[1], lo[2]), glm::dvec3(hi[0], hi[1], hi[2])};
+}
+
+}  // namespace
 
 absl::Status CellIdRendererOptions::Validate() const {
   if (!std::isfinite(grid.cell_size_m) || !(grid.cell_size_m > 0.0))
@@ -113,13 +131,23 @@ absl::StatusOr<CellIdRenderer> CellIdRenderer::Create(const CellIdRendererOption
   return CellIdRenderer(options);
 }
 
+void CellIdRenderer::RebuildItems() {
+  items_.clear();
+  items_.reserve(chunks_.size());
+  for (const auto& [id, e] : chunks_) items_.push_back({id, e.lo, e.hi, &e.mesh});
+}
+
 absl::Status CellIdRenderer::Update(const std::vector<MeshChunk>& changed) {
   absl::Status first_error = absl::OkStatus();
+  bool ids_changed = false;  // a chunk id appeared or vanished: items_ rebuilt at the end
   for (const MeshChunk& c : changed) {
     auto it = chunks_.find(c.id);
     if (it != chunks_.end() && c.version <= it->second.version) continue;
     if (c.mesh.empty()) {
-      if (it != chunks_.end()) chunks_.erase(it);
+      if (it != chunks_.end()) {
+        chunks_.erase(it);
+        ids_changed = true;
+      }
       continue;
     }
     if (absl::Status s = ValidateMesh(c.mesh); !s.ok()) {
@@ -129,11 +157,7 @@ absl::Status CellIdRenderer::Update(const std::vector<MeshChunk>& changed) {
       continue;
     }
     const size_t n = c.mesh.num_triangles();
-    glm::dvec3 src_lo(std::numeric_limits<double>::infinity()), src_hi(-src_lo);
-    for (const glm::vec3& p : c.mesh.positions) {
-      src_lo = glm::min(src_lo, glm::dvec3(p));
-      src_hi = glm::max(src_hi, glm::dvec3(p));
-    }
+    const auto [src_lo, src_hi] = Box(c.mesh.positions);
     if (it != chunks_.end() && options_.lod_cluster_m > 0.0 && options_.lod_keep_fraction > 0.0) {
       Entry& e = it->second;
       const double lo = double(std::min(n, e.lod_source_triangles));
@@ -164,17 +188,28 @@ absl::Status CellIdRenderer::Update(const std::vector<MeshChunk>& changed) {
       e.mesh.indices = c.mesh.indices;
     }
     if (e.mesh.empty()) {  // everything collapsed: nothing to render
-      if (it != chunks_.end()) chunks_.erase(it);
+      if (it != chunks_.end()) {
+        chunks_.erase(it);
+        ids_changed = true;
+      }
       continue;
     }
-    e.lo = glm::dvec3(std::numeric_limits<double>::infinity());
-    e.hi = -e.lo;
-    for (const glm::vec3& p : e.mesh.positions) {
-      e.lo = glm::min(e.lo, glm::dvec3(p));
-      e.hi = glm::max(e.hi, glm::dvec3(p));
+    std::tie(e.lo, e.hi) = Box(e.mesh.positions);
+    if (it == chunks_.end()) {
+      chunks_.emplace(c.id, std::move(e));
+      ids_changed = true;
+    } else {
+      it->second = std::move(e);  // same node: the item's mesh pointer stays valid
+      if (!ids_changed) {         // else items_ is rebuilt below anyway
+        auto item = std::lower_bound(items_.begin(), items_.end(), c.id,
+                                     [](const Item& a, uint64_t id) { return a.id < id; });
+        EXO_CHECK(item != items_.end() && item->id == c.id);
+        item->lo = it->second.lo;
+        item->hi = it->second.hi;
+      }
     }
-    chunks_[c.id] = std::move(e);
   }
+  if (ids_changed) RebuildItems();
   return first_error;
 }
 
@@ -191,37 +226,64 @@ absl::StatusOr<CellIdBuffer> CellIdRenderer::Render(const Rigid3d& local_from_ca
     return absl::InvalidArgumentError("CellIdRenderer: pose translation has NaN or Inf");
   const PinholeCamera cam = camera.Scaled(width, height);
   // Frustum half-spaces in the camera frame (n . p >= 0 inside), conservative by half a pixel
-  // around the outermost pixel centres: a box with all 8 corners outside one of them cannot
-  // cover a pixel centre, so skipping it leaves the buffer unchanged.
-  const glm::dvec4 planes[6] = {
+  // around the outermost pixel centres: a box entirely outside one of them cannot cover a pixel
+  // centre, so skipping it leaves the buffer unchanged.
+  const glm::dvec4 planes[5] = {
       {0, 0, 1, -options_.near_m},
       {cam.fx, 0, cam.cx + 0.5, 0},                        // u >= -0.5
       {-cam.fx, 0, (cam.width - 0.5) - cam.cx, 0},         // u <= W-0.5
       {0, cam.fy, cam.cy + 0.5, 0},                        // v >= -0.5
       {0, -cam.fy, (cam.height - 0.5) - cam.cy, 0},        // v <= H-0.5
-      {0, 0, -1, options_.max_range_m},                    // z <= max range (when set)
   };
-  const int num_planes = options_.max_range_m > 0.0 ? 6 : 5;
   const Rigid3d cam_from_local = local_from_cam.Inverse();
   const glm::dmat3 R = cam_from_local.RotationMatrix();
   const glm::dvec3 t = cam_from_local.translation;
+  // The planes in the local frame (n_cam . (R p + t) + d = (R^T n_cam) . p + n_cam . t + d), so
+  // a box is tested through its centre and half extent: its largest plane value is
+  // n . centre + |n| . half. Culled only when that is below -margin (a relative bound far above
+  // the rounding of either form): a conservative cull, it never drops a covering chunk.
+  glm::dvec3 n_local[6];
+  double d_local[5];
+  for (int p = 0; p < 5; ++p) {
+    n_local[p] = glm::transpose(R) * glm::dvec3(planes[p]);
+    d_local[p] = glm::dot(glm::dvec3(planes[p]), t) + planes[p].w;
+  }
+  // The far limit is not a raster clip plane: which chunks it drops changes the buffer, so a
+  // box near it is decided exactly as before (all 8 corners beyond max_range_m in camera z).
+  const bool far_limit = options_.max_range_m > 0.0;
+  n_local[5] = glm::transpose(R) * glm::dvec3(0, 0, -1);  // -(camera z axis) in local
   CellIdBuffer out;
   std::vector<const TriangleMesh*> parts;
-  parts.reserve(chunks_.size());
-  for (const auto& [id, e] : chunks_) {
-    glm::dvec3 corners[8];
-    for (int k = 0; k < 8; ++k)
-      corners[k] = R * glm::dvec3((k & 1) ? e.hi.x : e.lo.x, (k & 2) ? e.hi.y : e.lo.y,
-                                  (k & 4) ? e.hi.z : e.lo.z) + t;
+  parts.reserve(items_.size());
+  for (const Item& e : items_) {
+    const glm::dvec3 centre = 0.5 * (e.lo + e.hi), half = 0.5 * (e.hi - e.lo);
+    const double scale = glm::dot(glm::abs(centre) + half, glm::dvec3(1.0)) + glm::length(t);
     bool outside = false;
-    for (int p = 0; p < num_planes && !outside; ++p) {
-      outside = true;
-      for (int k = 0; k < 8 && outside; ++k)
-        outside = glm::dot(glm::dvec3(planes[p]), corners[k]) + planes[p].w < 0.0;
+    for (int p = 0; p < 5 && !outside; ++p) {
+      const double hi_value = glm::dot(n_local[p], centre) + glm::dot(glm::abs(n_local[p]), half);
+      const double margin = 1e-9 * (glm::length(n_local[p]) * scale + std::abs(d_local[p]));
+      outside = hi_value + d_local[p] < -margin;
     }
     if (outside) continue;
-    parts.push_back(&e.mesh);
-    out.triangles_rendered += e.mesh.num_triangles();
+    if (far_limit) {
+      // Smallest camera z over the box.
+      const double z_lo =
+          t.z - (glm::dot(n_local[5], centre) + glm::dot(glm::abs(n_local[5]), half));
+      const double margin = 1e-9 * (scale + options_.max_range_m);
+      if (z_lo > options_.max_range_m + margin) continue;  // surely beyond
+      if (z_lo >= options_.max_range_m - margin) {         // close: the exact corner test
+        bool beyond = true;
+        for (int k = 0; k < 8 && beyond; ++k) {
+          const glm::dvec3 corner =
+              R * glm::dvec3((k & 1) ? e.hi.x : e.lo.x, (k & 2) ? e.hi.y : e.lo.y,
+                             (k & 4) ? e.hi.z : e.lo.z) + t;
+          beyond = glm::dot(glm::dvec3(0, 0, -1), corner) + options_.max_range_m < 0.0;
+        }
+        if (beyond) continue;
+      }
+    }
+    parts.push_back(e.mesh);
+    out.triangles_rendered += e.mesh->num_triangles();
   }
   out.chunks_rendered = parts.size();
   RasterOptions ro;

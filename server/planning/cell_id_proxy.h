@@ -78,8 +78,13 @@ class CellIdRenderer {
   // skipped; an empty mesh removes the chunk. Errors (the cache is unchanged for that chunk and
   // the rest are still applied): malformed mesh.
   absl::Status Update(const std::vector<MeshChunk>& changed);
-  void Remove(uint64_t chunk_id) { chunks_.erase(chunk_id); }
-  void Clear() { chunks_.clear(); }
+  void Remove(uint64_t chunk_id) {
+    if (chunks_.erase(chunk_id) > 0) RebuildItems();
+  }
+  void Clear() {
+    chunks_.clear();
+    items_.clear();
+  }
 
   // Cell ids of the first surface per pixel of a width x height buffer of `camera` at
   // `local_from_cam` (per-pixel floor(p_local / q), as common/raster). Errors: bad camera, pose,
@@ -106,9 +111,18 @@ class CellIdRenderer {
     TriangleMesh mesh;               // rendered (LOD or copy)
     glm::dvec3 lo{0.0}, hi{0.0};     // box of `mesh`
   };
+  // What Render reads per chunk, contiguous and in chunk-id order (a walk of the map per
+  // render cost more than the rest of the frustum test).
+  struct Item {
+    uint64_t id;
+    glm::dvec3 lo, hi;               // box of the render mesh
+    const TriangleMesh* mesh;        // the map node's mesh (stable while the node lives)
+  };
   explicit CellIdRenderer(const CellIdRendererOptions& o) : options_(o) {}
+  void RebuildItems();
   CellIdRendererOptions options_;
   std::map<uint64_t, Entry> chunks_;
+  std::vector<Item> items_;          // one per chunk, same order as chunks_
   size_t lod_builds_ = 0;
 };
 

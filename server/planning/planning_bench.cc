@@ -49,6 +49,18 @@ double CpuMs() {
   clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
   return ts.tv_sec * 1e3 + ts.tv_nsec * 1e-6;
 }
+// FNV-1a 64 over the bytes of a cell-id buffer, chained over the frames of a run: equal sums
+// over a stream mean bit-identical buffers (used to prove that rasterizer speed-ups change
+// nothing; docs/planning.md).
+uint64_t Fnv1a(uint64_t h, const Image<uint64_t>& img) {
+  const auto* p = reinterpret_cast<const unsigned char*>(img.data());
+  for (size_t i = 0; i < img.size() * sizeof(uint64_t); ++i) {
+    h ^= p[i];
+    h *= 1099511628211ull;
+  }
+  return h;
+}
+
 double Pct(std::vector<double> v, double p) {
   if (v.empty()) return 0;
   std::sort(v.begin(), v.end());
@@ -64,6 +76,7 @@ struct Args {
   double voxel = 0, lod = 0, lod_m = 0, lod_keep = 0;
   int threads = 1;
   int rerender = 0;  // after the run: render the final proxy from every pose this many times
+  int checksum = 0;  // 1: FNV-1a 64 over every frame's cell-id buffer (identity checks)
 };
 
 Args Parse(int argc, char** argv) {
@@ -91,6 +104,7 @@ Args Parse(int argc, char** argv) {
     else if (k == "--lod_keep") a.lod_keep = std::stod(v);
     else if (k == "--threads") a.threads = std::stoi(v);
     else if (k == "--rerender") a.rerender = std::stoi(v);
+    else if (k == "--checksum") a.checksum = std::stoi(v);
     else std::fprintf(stderr, "unknown flag %s\n", k.c_str());
   }
   return a;
@@ -221,6 +235,7 @@ int Run(const Args& args) {
   std::vector<double> cellid_ms, cellid_cpu, plan_ms, plan_cpu, total_ms, total_cpu, tris;
   std::map<ViewId, StoredView> stored;
   int accepted = 0, evicted = 0;
+  uint64_t id_checksum = 14695981039346656037ull;
   double render_store_ms = 0, integrate_ms = 0;
   for (size_t i = 0; i < traj->size(); ++i) {
     const Rigid3d& pose = (*traj)[i].local_from_cam;
@@ -250,6 +265,7 @@ int Run(const Args& args) {
     update_cpu.push_back(c_upd - c0);
     dirty_chunks.push_back(double(dirty.size()));
     PinholeCamera id_cam;
+    Image<uint64_t> id_img;  // kept (outside the timed part) for --checksum
     std::vector<planning::CellPixelCount> cells;
     if (concat_path) {
       TriangleMesh m;
@@ -279,12 +295,14 @@ int Run(const Args& args) {
       id_cam = r->camera;
       tris.push_back(double(m.num_triangles()));
       cells = planning::CountCellPixels(r->cell_id.data(), r->cell_id.size());
+      if (args.checksum) id_img = std::move(r->cell_id);
     } else {
       auto r = cid.Render(pose, cam, args.idw, args.idh);
       if (!r.ok()) continue;
       id_cam = r->camera;
       tris.push_back(double(r->triangles_rendered));
       cells = planning::CountCellPixels(r->cell_id.data(), r->cell_id.size());
+      if (args.checksum) id_img = std::move(r->cell_id);
     }
     const auto t1 = Clock::now();
     const double c1 = CpuMs();
@@ -297,6 +315,7 @@ int Run(const Args& args) {
     auto d = planner.Consider(c);
     const auto t2 = Clock::now();
     const double c2 = CpuMs();
+    if (args.checksum) id_checksum = Fnv1a(id_checksum, id_img);
     cellid_ms.push_back(Ms(t0, t1));
     plan_ms.push_back(Ms(t1, t2));
     total_ms.push_back(Ms(t0, t2));
@@ -329,7 +348,7 @@ int Run(const Args& args) {
       "\"total_ms_p95\":%.3f,\"total_cpu_median\":%.3f,\"total_cpu_p95\":%.3f,"
       "\"integrate_s\":%.1f,"
       "\"accepted\":%d,\"evicted\":%d,\"views\":%zu,\"store_bytes\":%zu,\"cells\":%zu,"
-      "\"planner_bytes\":%zu,\"tau_sum\":%.2f}\n",
+      "\"planner_bytes\":%zu,\"tau_sum\":%.6f,\"id_checksum\":\"%016llx\"}\n",
       args.scene.c_str(), args.traj.c_str(), total_ms.size(), po.r_max, args.store, po.lambda,
       po.cell_size_m, po.d_max_m, po.sigma_m, args.idw, args.idh, args.proxy.c_str(),
       tsdf_proxy ? voxel_m : 0.0, args.path.c_str(), cro.lod_cluster_m, cro.lod_keep_fraction,
@@ -338,7 +357,8 @@ int Run(const Args& args) {
       Pct(cellid_cpu, 0.5), Pct(cellid_cpu, 0.95), Pct(plan_ms, 0.5), Pct(plan_ms, 0.95),
       Pct(plan_cpu, 0.5), Pct(plan_cpu, 0.95), Pct(total_ms, 0.5), Pct(total_ms, 0.95),
       Pct(total_cpu, 0.5), Pct(total_cpu, 0.95), integrate_ms / 1e3, accepted, evicted, planner.num_views(), planner.bytes(),
-      planner.num_cells(), planner.BookkeepingBytes(), planner.tau_sum());
+      planner.num_cells(), planner.BookkeepingBytes(), planner.tau_sum(),
+      static_cast<unsigned long long>(args.checksum ? id_checksum : 0));
   std::fflush(stdout);
   if (args.rerender > 0) {  // render-only timing of the final proxy (profiling aid)
     std::vector<double> rr;
