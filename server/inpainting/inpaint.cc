@@ -832,6 +832,8 @@ absl::Status InpaintOptions::Validate() const {
   if (!(jump_weight > 0.0 && jump_weight <= 1.0)) {
     return absl::InvalidArgumentError("jump_weight must be in (0, 1]");
   }
+  if (joint_hole_px < 0) return absl::InvalidArgumentError("joint_hole_px must be >= 0");
+  if (joint_iterations < 1) return absl::InvalidArgumentError("joint_iterations must be >= 1");
   return absl::OkStatus();
 }
 
@@ -885,6 +887,35 @@ absl::StatusOr<InpaintResult> InpaintKeyframe(const RgbdKeyframe& frame, const I
     outside[i] = !target[i];
     out.mask.data()[i] = target[i] ? 255 : 0;
   }
+  // Depth holes solved jointly with T (joint_hole_px): outside T, no measured depth, reached
+  // from T through such pixels within joint_hole_px 4-neighbour steps (breadth-first).
+  std::vector<uint8_t> measured(n), joint(n, 0);
+  for (size_t i = 0; i < n; ++i) {
+    const float z = frame.depth_m.data()[i];
+    measured[i] = !target[i] && std::isfinite(z) && z > 0.f;
+  }
+  std::vector<int> joint_list;
+  if (options.joint_hole_px > 0) {
+    std::vector<int> frontier, next;
+    for (size_t i = 0; i < n; ++i)
+      if (target[i]) frontier.push_back(static_cast<int>(i));
+    for (int d = 1; d <= options.joint_hole_px && !frontier.empty(); ++d) {
+      next.clear();
+      for (int i : frontier) {
+        const int x = i % w, y = i / w;
+        const int nb[4] = {x > 0 ? i - 1 : -1, x + 1 < w ? i + 1 : -1, y > 0 ? i - w : -1,
+                           y + 1 < h ? i + w : -1};
+        for (int j : nb) {
+          if (j < 0 || target[j] || measured[j] || joint[j]) continue;
+          joint[j] = 1;
+          next.push_back(j);
+          joint_list.push_back(j);
+        }
+      }
+      std::swap(frontier, next);
+    }
+  }
+  out.stats.joint_pixels = static_cast<int>(joint_list.size());
   // Pre-processing: fill sensor holes outside T, normals from the densified depth.
   out.depth_m = frame.depth_m;
   for (size_t i = 0; i < n; ++i) {
@@ -907,7 +938,7 @@ absl::StatusOr<InpaintResult> InpaintKeyframe(const RgbdKeyframe& frame, const I
     L.data_ok.assign(n, 0);
     for (size_t i = 0; i < n; ++i) {
       const float* nn = &L.normal[i * 3];
-      L.data_ok[i] = !target[i] && out.depth_m.data()[i] > 0.f &&
+      L.data_ok[i] = !target[i] && !joint[i] && out.depth_m.data()[i] > 0.f &&
                      (nn[0] != 0.f || nn[1] != 0.f || nn[2] != 0.f);
     }
     FinishLevel(L);
@@ -985,6 +1016,45 @@ absl::StatusOr<InpaintResult> InpaintKeyframe(const RgbdKeyframe& frame, const I
       if (li > 0) levels[li].color.shrink_to_fit();
     }
   }
+  if (!joint_list.empty()) {
+    // Sources for the joined holes S: the same cost at full resolution on S's known colour
+    // (never overwritten), with T's sources fixed; S starts from its T neighbours' sources
+    // shifted (breadth-first), its normals follow its sources like T's.
+    Level& L = levels[0];
+    Level J;
+    J.w = w;
+    J.h = h;
+    J.color = L.color;
+    J.normal = L.normal;
+    J.data_ok = L.data_ok;
+    J.target.assign(n, 0);
+    J.fixed.assign(n, 0);
+    for (size_t i = 0; i < n; ++i) {
+      J.target[i] = target[i] || joint[i];
+      J.fixed[i] = target[i];
+    }
+    J.src = L.src;
+    FinishLevel(J);
+    GrowFromMapped(J, options.seed);
+    auto copy_normals = [&]() {
+      for (int i : joint_list) {
+        const size_t s = J.Idx(J.src[i * 2], J.src[i * 2 + 1]);
+        for (int k = 0; k < 3; ++k) J.normal[i * 3 + k] = J.normal[s * 3 + k];
+      }
+    };
+    copy_normals();
+    const int radius0 = std::max(w, h) / 4;
+    constexpr int kJointLevel = 16;  // random streams distinct from the pyramid's
+    for (int it = 0; it < options.joint_iterations; ++it) {
+      Sweep(J, kJointLevel, it, radius0, true, params, options);
+      copy_normals();
+      ++out.stats.sweeps;
+    }
+    for (int i : joint_list) {
+      L.src[i * 2] = J.src[i * 2];
+      L.src[i * 2 + 1] = J.src[i * 2 + 1];
+    }
+  }
   out.stats.ms_search = MsSince(t_search);
   out.stats.cpu_ms_search = CpuMs() - c_search;
 
@@ -1007,13 +1077,18 @@ absl::StatusOr<InpaintResult> InpaintKeyframe(const RgbdKeyframe& frame, const I
   const double c_poisson = CpuMs();
   const bool inv = options.depth_domain == DepthDomain::kInverseDepth;
   const float nan = std::numeric_limits<float>::quiet_NaN();
+  // The solve's region: T and the joined holes S (both have sources in L0.src).
+  std::vector<uint8_t> in_region(n);
+  for (size_t i = 0; i < n; ++i) in_region[i] = target[i] || joint[i];
   int bx0 = w, by0 = h, bx1 = -1, by1 = -1;
   for (int y = 0; y < h; ++y) {
-    if (L0.row_x0[y] > L0.row_x1[y]) continue;
-    bx0 = std::min(bx0, L0.row_x0[y]);
-    bx1 = std::max(bx1, L0.row_x1[y]);
-    by0 = std::min(by0, y);
-    by1 = y;
+    for (int x = 0; x < w; ++x) {
+      if (!in_region[static_cast<size_t>(y) * w + x]) continue;
+      bx0 = std::min(bx0, x);
+      bx1 = std::max(bx1, x);
+      by0 = std::min(by0, y);
+      by1 = y;
+    }
   }
   const int ox = std::max(0, bx0 - 1), oy = std::max(0, by0 - 1);
   const int cw = std::min(w - 1, bx1 + 1) - ox + 1, ch = std::min(h - 1, by1 + 1) - oy + 1;
@@ -1022,6 +1097,12 @@ absl::StatusOr<InpaintResult> InpaintKeyframe(const RgbdKeyframe& frame, const I
     const float z = out.depth_m.at(x, y);
     return z > 0.f ? (inv ? 1.f / z : z) : nan;
   };
+  // Boundary (Dirichlet) value of a pixel outside the region: with the joint solve only
+  // measured depth, otherwise also the push-pull pre-fill.
+  const bool joint_on = options.joint_hole_px > 0;
+  auto qb = [&](int x, int y) {
+    return joint_on && !measured[static_cast<size_t>(y) * w + x] ? nan : qv(x, y);
+  };
   ImageF q(cw, ch, 1, nan), gx(cw, ch, 1, nan), gy(cw, ch, 1, nan), gauge(cw, ch, 1, nan);
   ImageF wx(cw, ch, 1, nan), wy(cw, ch, 1, nan);  // pair weights (NaN = 1)
   ImageU8 region(cw, ch, 1, 0);
@@ -1029,15 +1110,15 @@ absl::StatusOr<InpaintResult> InpaintKeyframe(const RgbdKeyframe& frame, const I
     for (int cx = 0; cx < cw; ++cx) {
       const int x = ox + cx, y = oy + cy;
       const size_t i = static_cast<size_t>(y) * w + x;
-      const bool tp = target[i];
+      const bool tp = in_region[i];
       region.at(cx, cy) = tp;
-      if (!tp) q.at(cx, cy) = qv(x, y);
+      if (!tp) q.at(cx, cy) = qb(x, y);
       if (tp) gauge.at(cx, cy) = qv(L0.src[i * 2], L0.src[i * 2 + 1]);
       for (int dir = 0; dir < 2; ++dir) {
         const int dx = dir == 0 ? 1 : 0, dy = dir == 0 ? 0 : 1;
         if (cx + dx >= cw || cy + dy >= ch) continue;
         const size_t j = static_cast<size_t>(y + dy) * w + x + dx;
-        const bool tq = target[j];
+        const bool tq = in_region[j];
         if (!tp && !tq) continue;
         // The two copied samples of this pair's gradient and the value they start from.
         float g1 = nan, g2 = nan, ref1 = nan, ref2 = nan;

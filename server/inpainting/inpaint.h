@@ -80,6 +80,15 @@ struct InpaintOptions {
   double plane_prior_weight = 0.0;
   double neumann_prior_weight = 0.01;
   double prior_local_px = 50.0;
+  // Joint solve of depth holes next to T (session 4): pixels outside T without measured depth
+  // that are connected to T through such pixels within this geodesic (4-neighbour) distance
+  // form the set S. S keeps its colour but gets sources from the same PatchMatch cost (T's
+  // sources fixed, `joint_iterations` full-resolution sweeps), its depth gradients are copied
+  // through f like T's, and one Poisson solve runs over T u S with Dirichlet values only at
+  // measured depth (S's push-pull pre-fill is then no boundary value). S pixels are no source
+  // pixels. 0 = off: holes keep the push-pull fill and border T as Dirichlet values.
+  int joint_hole_px = 0;
+  int joint_iterations = 4;
   absl::Status Validate() const;
 };
 
@@ -102,6 +111,7 @@ struct InpaintStats {
   int invalid_depth_pixels = 0;  // T pixels whose solved depth came out non-finite
   int clamped_depth_pixels = 0;  // T pixels clamped to [zmin/2, 2 zmax] of the input depths
   int prior_pixels = 0;          // T pixels with a surface-prior (screening) term
+  int joint_pixels = 0;          // depth-hole pixels solved jointly with T (joint_hole_px)
   double ms_prepare = 0, ms_search = 0, ms_copy = 0, ms_poisson = 0, ms_total = 0;  // wall
   // Process CPU time (CLOCK_PROCESS_CPUTIME_ID, all threads; includes any other thread of the
   // calling process running at the same time): steadier than wall time on a shared machine.

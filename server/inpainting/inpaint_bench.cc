@@ -14,7 +14,7 @@
 //                 [--img_dir DIR] [--threads N] [--repeats N] [--max_masks N] [--raw]
 //                 [--fusion mean|robust] [--jump_rel R] [--jump_weight W] [--converged F]
 //                 [--plane_prior W] [--neumann_prior W] [--prior_local SIGMA_PX] [--seed S]
-//                 [--peel_all_normals] [--dump_depth DIR]
+//                 [--peel_all_normals] [--dump_depth DIR] [--joint_hole PX] [--joint_iters N]
 #include <algorithm>
 #include <array>
 #include <chrono>
@@ -515,6 +515,7 @@ int main(int argc, char** argv) {
   int fine_iterations = InpaintOptions{}.fine_iterations;
   bool fusion_mean = InpaintOptions{}.gradient_fusion == GradientFusion::kMean;
   double jump_rel = InpaintOptions{}.jump_rel, jump_weight = InpaintOptions{}.jump_weight;
+  int joint_hole = InpaintOptions{}.joint_hole_px, joint_iters = InpaintOptions{}.joint_iterations;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     auto next = [&]() { return i + 1 < argc ? std::string(argv[++i]) : std::string(); };
@@ -544,6 +545,8 @@ int main(int argc, char** argv) {
     else if (a == "--converged") converged = std::stod(next());
     else if (a == "--fine_iterations") fine_iterations = std::stoi(next());
     else if (a == "--example_frame") example_frame = std::stoi(next());
+    else if (a == "--joint_hole") joint_hole = std::stoi(next());
+    else if (a == "--joint_iters") joint_iters = std::stoi(next());
     else {
       std::fprintf(stderr, "unknown argument %s\n", a.c_str());
       return 2;
@@ -592,6 +595,8 @@ int main(int argc, char** argv) {
   base.seed = seed;
   base.peel_measured_normals_only = peel_measured;
   base.fine_iterations = fine_iterations;
+  base.joint_hole_px = joint_hole;
+  base.joint_iterations = joint_iters;
   for (const MaskSpec& spec : specs) {
     const RealFrame gt = LoadFrame(data_dir, spec.frame);
     if (!gt.ok) {
@@ -627,9 +632,9 @@ int main(int argc, char** argv) {
       const double ms = Percentile(times, 0.5);
       char extra[256];
       std::snprintf(extra, sizeof(extra),
-                    ",\"cpu_ms\":%.1f,\"threads\":%d,\"levels\":%d,\"ms_prepare\":%.1f,\"ms_search\":%.1f,\"ms_poisson\":%.1f,\"poisson_iters\":%d,\"sweeps\":%d",
+                    ",\"cpu_ms\":%.1f,\"threads\":%d,\"levels\":%d,\"ms_prepare\":%.1f,\"ms_search\":%.1f,\"ms_poisson\":%.1f,\"poisson_iters\":%d,\"sweeps\":%d,\"joint_px\":%d",
                     Percentile(cpu, 0.5), o.num_threads, r->stats.levels, r->stats.ms_prepare, r->stats.ms_search, r->stats.ms_poisson,
-                    r->stats.poisson_iterations, r->stats.sweeps);
+                    r->stats.poisson_iterations, r->stats.sweeps, r->stats.joint_pixels);
       PrintRow(name, spec, fraction, ms, m, extra);
       for (size_t k = 0; k < times.size(); ++k)
         rows[{name, spec.cls}].push_back({name, spec.cls, times[k], m, stages[k]});
