@@ -18,9 +18,10 @@ absl::StatusOr<TriangleMesh> ClusterSimplify(const TriangleMesh& mesh, double cl
     return absl::InvalidArgumentError("ClusterSimplify: cluster_m must be finite and > 0");
   if (mesh.indices.size() % 3 != 0)
     return absl::InvalidArgumentError("ClusterSimplify: index count is not a multiple of 3");
-  for (uint32_t i : mesh.indices)
-    if (i >= mesh.positions.size())
-      return absl::InvalidArgumentError("ClusterSimplify: index out of range");
+  uint32_t max_index = 0;
+  for (uint32_t i : mesh.indices) max_index = std::max(max_index, i);
+  if (!mesh.indices.empty() && max_index >= mesh.positions.size())
+    return absl::InvalidArgumentError("ClusterSimplify: index out of range");
   TriangleMesh out;
   const CellGrid grid{cluster_m};
   std::vector<uint32_t> cluster(mesh.positions.size());
@@ -39,17 +40,17 @@ absl::StatusOr<TriangleMesh> ClusterSimplify(const TriangleMesh& mesh, double cl
   // A mesh chunk spans few clusters: a dense table over its cluster-coordinate bounding box
   // (no hashing); a hash map for large extents.
   glm::ivec3 lo(std::numeric_limits<int>::max()), hi(std::numeric_limits<int>::min());
-  for (const glm::vec3& p : mesh.positions) {
-    const glm::ivec3 c = grid.CoordOf(glm::dvec3(p));
-    lo = glm::min(lo, c);
-    hi = glm::max(hi, c);
+  std::vector<glm::ivec3> coords(mesh.positions.size());  // computed once (two floor divisions
+  for (size_t v = 0; v < mesh.positions.size(); ++v) {    // per axis were half the cost)
+    coords[v] = grid.CoordOf(glm::dvec3(mesh.positions[v]));
+    lo = glm::min(lo, coords[v]);
+    hi = glm::max(hi, coords[v]);
   }
   const glm::i64vec3 dim = glm::i64vec3(hi) - glm::i64vec3(lo) + int64_t{1};
   if (!mesh.positions.empty() && dim.x * dim.y * dim.z <= int64_t{1} << 22) {
     std::vector<uint32_t> table(size_t(dim.x * dim.y * dim.z), ~0u);
     for (size_t v = 0; v < mesh.positions.size(); ++v) {
-      const glm::i64vec3 c = glm::i64vec3(grid.CoordOf(glm::dvec3(mesh.positions[v]))) -
-                             glm::i64vec3(lo);
+      const glm::i64vec3 c = glm::i64vec3(coords[v]) - glm::i64vec3(lo);
       add(v, table[size_t(c.x + dim.x * (c.y + dim.y * c.z))]);
     }
   } else {
@@ -91,6 +92,8 @@ namespace {
 
 // Bounding box of float positions, as doubles (min/max in float then widened: the same values
 // as widening first, since float -> double is exact and monotonic).
+// Bounding box of float positions, as doubles (min/max in float, then widened: the same values
+// as widening each position first, since float -> double is exact and monotonic).
 std::pair<glm::dvec3, glm::dvec3> Box(const std::vector<glm::vec3>& positions) {
   const float inf = std::numeric_limits<float>::infinity();
   float lo[3] = {inf, inf, inf}, hi[3] = {-inf, -inf, -inf};
@@ -131,22 +134,45 @@ absl::StatusOr<CellIdRenderer> CellIdRenderer::Create(const CellIdRendererOption
   return CellIdRenderer(options);
 }
 
-void CellIdRenderer::RebuildItems() {
-  items_.clear();
-  items_.reserve(chunks_.size());
-  for (const auto& [id, e] : chunks_) items_.push_back({id, e.lo, e.hi, &e.mesh});
+void CellIdRenderer::SyncItems(std::vector<uint64_t>* touched) {
+  std::sort(touched->begin(), touched->end());
+  touched->erase(std::unique(touched->begin(), touched->end()), touched->end());
+  std::vector<Item> merged;
+  merged.reserve(items_.size() + touched->size());
+  size_t j = 0;
+  auto take = [&](uint64_t id) {  // the current state of a touched id (absent = erased)
+    auto it = chunks_.find(id);
+    if (it != chunks_.end()) merged.push_back({id, it->second.lo, it->second.hi, &it->second.mesh});
+  };
+  for (const Item& item : items_) {
+    while (j < touched->size() && (*touched)[j] < item.id) take((*touched)[j++]);
+    if (j < touched->size() && (*touched)[j] == item.id) {
+      take((*touched)[j++]);
+      continue;
+    }
+    merged.push_back(item);
+  }
+  while (j < touched->size()) take((*touched)[j++]);
+  items_ = std::move(merged);
+}
+
+void CellIdRenderer::Remove(uint64_t chunk_id) {
+  if (chunks_.erase(chunk_id) == 0) return;
+  auto item = std::lower_bound(items_.begin(), items_.end(), chunk_id,
+                               [](const Item& a, uint64_t id) { return a.id < id; });
+  if (item != items_.end() && item->id == chunk_id) items_.erase(item);
 }
 
 absl::Status CellIdRenderer::Update(const std::vector<MeshChunk>& changed) {
   absl::Status first_error = absl::OkStatus();
-  bool ids_changed = false;  // a chunk id appeared or vanished: items_ rebuilt at the end
+  std::vector<uint64_t> touched;  // ids whose render mesh changed: items_ synced at the end
   for (const MeshChunk& c : changed) {
     auto it = chunks_.find(c.id);
     if (it != chunks_.end() && c.version <= it->second.version) continue;
     if (c.mesh.empty()) {
       if (it != chunks_.end()) {
         chunks_.erase(it);
-        ids_changed = true;
+        touched.push_back(c.id);
       }
       continue;
     }
@@ -181,7 +207,12 @@ absl::Status CellIdRenderer::Update(const std::vector<MeshChunk>& changed) {
     e.lod_source_lo = src_lo;
     e.lod_source_hi = src_hi;
     if (options_.lod_cluster_m > 0.0) {
-      EXO_ASSIGN_OR_RETURN(e.mesh, ClusterSimplify(c.mesh, options_.lod_cluster_m));
+      absl::StatusOr<TriangleMesh> lod = ClusterSimplify(c.mesh, options_.lod_cluster_m);
+      if (!lod.ok()) {  // not reached after ValidateMesh; the items must still be synced
+        if (first_error.ok()) first_error = lod.status();
+        continue;
+      }
+      e.mesh = std::move(*lod);
       ++lod_builds_;
     } else {
       e.mesh.positions = c.mesh.positions;  // cell ids need positions + indices only
@@ -190,26 +221,15 @@ absl::Status CellIdRenderer::Update(const std::vector<MeshChunk>& changed) {
     if (e.mesh.empty()) {  // everything collapsed: nothing to render
       if (it != chunks_.end()) {
         chunks_.erase(it);
-        ids_changed = true;
+        touched.push_back(c.id);
       }
       continue;
     }
     std::tie(e.lo, e.hi) = Box(e.mesh.positions);
-    if (it == chunks_.end()) {
-      chunks_.emplace(c.id, std::move(e));
-      ids_changed = true;
-    } else {
-      it->second = std::move(e);  // same node: the item's mesh pointer stays valid
-      if (!ids_changed) {         // else items_ is rebuilt below anyway
-        auto item = std::lower_bound(items_.begin(), items_.end(), c.id,
-                                     [](const Item& a, uint64_t id) { return a.id < id; });
-        EXO_CHECK(item != items_.end() && item->id == c.id);
-        item->lo = it->second.lo;
-        item->hi = it->second.hi;
-      }
-    }
+    chunks_[c.id] = std::move(e);
+    touched.push_back(c.id);
   }
-  if (ids_changed) RebuildItems();
+  if (!touched.empty()) SyncItems(&touched);
   return first_error;
 }
 
@@ -320,7 +340,8 @@ const TriangleMesh* CellIdRenderer::RenderMesh(uint64_t chunk_id) const {
 
 std::vector<const TriangleMesh*> CellIdRenderer::RenderMeshes() const {
   std::vector<const TriangleMesh*> v;
-  for (const auto& [id, e] : chunks_) v.push_back(&e.mesh);
+  v.reserve(items_.size());
+  for (const Item& item : items_) v.push_back(item.mesh);
   return v;
 }
 

@@ -15,7 +15,7 @@
 #pragma once
 
 #include <cstdint>
-#include <map>
+#include <unordered_map>
 #include <vector>
 
 #include "common/camera.h"
@@ -78,9 +78,7 @@ class CellIdRenderer {
   // skipped; an empty mesh removes the chunk. Errors (the cache is unchanged for that chunk and
   // the rest are still applied): malformed mesh.
   absl::Status Update(const std::vector<MeshChunk>& changed);
-  void Remove(uint64_t chunk_id) {
-    if (chunks_.erase(chunk_id) > 0) RebuildItems();
-  }
+  void Remove(uint64_t chunk_id);
   void Clear() {
     chunks_.clear();
     items_.clear();
@@ -111,18 +109,20 @@ class CellIdRenderer {
     TriangleMesh mesh;               // rendered (LOD or copy)
     glm::dvec3 lo{0.0}, hi{0.0};     // box of `mesh`
   };
-  // What Render reads per chunk, contiguous and in chunk-id order (a walk of the map per
-  // render cost more than the rest of the frustum test).
+  // What Render reads per chunk, contiguous and in chunk-id order (the render order; walking a
+  // std::map of thousands of chunks per render cost more than the frustum test itself).
   struct Item {
     uint64_t id;
     glm::dvec3 lo, hi;               // box of the render mesh
-    const TriangleMesh* mesh;        // the map node's mesh (stable while the node lives)
+    const TriangleMesh* mesh;        // the node's mesh (stable while the node lives)
   };
   explicit CellIdRenderer(const CellIdRendererOptions& o) : options_(o) {}
-  void RebuildItems();
+  // Re-reads the items of the `touched` chunk ids (inserted, replaced or erased) from chunks_,
+  // keeping items_ sorted by id; one merge pass, no walk of chunks_.
+  void SyncItems(std::vector<uint64_t>* touched);
   CellIdRendererOptions options_;
-  std::map<uint64_t, Entry> chunks_;
-  std::vector<Item> items_;          // one per chunk, same order as chunks_
+  std::unordered_map<uint64_t, Entry> chunks_;
+  std::vector<Item> items_;          // one per chunk, sorted by id
   size_t lod_builds_ = 0;
 };
 
