@@ -938,7 +938,7 @@ absl::StatusOr<InpaintResult> InpaintKeyframe(const RgbdKeyframe& frame, const I
     L.data_ok.assign(n, 0);
     for (size_t i = 0; i < n; ++i) {
       const float* nn = &L.normal[i * 3];
-      L.data_ok[i] = !target[i] && !joint[i] && out.depth_m.data()[i] > 0.f &&
+      L.data_ok[i] = !target[i] && out.depth_m.data()[i] > 0.f &&
                      (nn[0] != 0.f || nn[1] != 0.f || nn[2] != 0.f);
     }
     FinishLevel(L);
@@ -1019,7 +1019,8 @@ absl::StatusOr<InpaintResult> InpaintKeyframe(const RgbdKeyframe& frame, const I
   if (!joint_list.empty()) {
     // Sources for the joined holes S: the same cost at full resolution on S's known colour
     // (never overwritten), with T's sources fixed; S starts from its T neighbours' sources
-    // shifted (breadth-first), its normals follow its sources like T's.
+    // shifted (breadth-first), its normals follow its sources like T's. T's own search is
+    // unchanged (S's pre-filled pixels stay usable there), so T's colour is too.
     Level& L = levels[0];
     Level J;
     J.w = w;
@@ -1027,6 +1028,7 @@ absl::StatusOr<InpaintResult> InpaintKeyframe(const RgbdKeyframe& frame, const I
     J.color = L.color;
     J.normal = L.normal;
     J.data_ok = L.data_ok;
+    for (int i : joint_list) J.data_ok[i] = 0;  // S never copies from S (it would copy itself)
     J.target.assign(n, 0);
     J.fixed.assign(n, 0);
     for (size_t i = 0; i < n; ++i) {

@@ -85,8 +85,10 @@ struct InpaintOptions {
   // form the set S. S keeps its colour but gets sources from the same PatchMatch cost (T's
   // sources fixed, `joint_iterations` full-resolution sweeps), its depth gradients are copied
   // through f like T's, and one Poisson solve runs over T u S with Dirichlet values only at
-  // measured depth (S's push-pull pre-fill is then no boundary value). S pixels are no source
-  // pixels. 0 = off: holes keep the push-pull fill and border T as Dirichlet values.
+  // measured depth (S's push-pull pre-fill is then no boundary value). S's search never picks
+  // S pixels as sources; T's search is unchanged, so T's colour is the same as with 0.
+  // 0 = off (default; docs/inpainting.md): holes keep the push-pull fill and border T as
+  // Dirichlet values.
   int joint_hole_px = 0;
   int joint_iterations = 4;
   absl::Status Validate() const;

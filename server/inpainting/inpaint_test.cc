@@ -470,6 +470,8 @@ TEST(InpaintTest, JointSolveOfDepthHolesNextToTheMask) {
   EXPECT_EQ(rp->stats.joint_pixels, 0);
   EXPECT_LT(err_joint, 0.02) << "plain " << err_plain;
   EXPECT_GT(err_plain, 3.0 * err_joint) << "joint " << err_joint;
+  // T's own search is unchanged by the joint solve: same colour.
+  for (size_t i = 0; i < rj->color.bytes(); ++i) ASSERT_EQ(rj->color.data()[i], rp->color.data()[i]);
   // Only pixels within joint_hole_px of T join; the rest of the band keeps its push-pull fill.
   EXPECT_LT(rj->stats.joint_pixels, gap * (cam.width + cam.height));
 }
