@@ -47,7 +47,8 @@ struct Series {
 
 // One chart panel: axes, ticks, series, legend.
 void Panel(cv::Mat& img, cv::Rect r, const std::string& title, const std::string& xlab,
-           const std::string& ylab, std::vector<Series> series, bool logx = false) {
+           const std::string& ylab, std::vector<Series> series, bool logx = false,
+           bool legend_bottom = false) {
   cv::rectangle(img, r, cv::Scalar(255, 255, 255), cv::FILLED);
   double x0 = 1e300, x1 = -1e300, y0 = 1e300, y1 = -1e300;
   auto tx = [&](double x) { return logx ? std::log2(std::max(x, 1e-9)) : x; };
@@ -60,6 +61,9 @@ void Panel(cv::Mat& img, cv::Rect r, const std::string& title, const std::string
     }
   if (x0 > x1) return;
   if (x1 - x0 < 1e-9) { x0 -= 1; x1 += 1; }
+  const double padx = 0.07 * (x1 - x0);  // room for the points' labels at both ends
+  x0 -= padx;
+  x1 += padx;
   if (y1 - y0 < 1e-3) { y0 -= 0.01; y1 += 0.01; }
   const double py = 0.08 * (y1 - y0);
   y0 -= py;
@@ -76,13 +80,14 @@ void Panel(cv::Mat& img, cv::Rect r, const std::string& title, const std::string
     std::snprintf(buf, sizeof buf, "%.3f", y);
     cv::putText(img, buf, cv::Point(r.x + 4, yy + 4), cv::FONT_HERSHEY_SIMPLEX, 0.38, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
     const double xv = x0 + (x1 - x0) * i / 4;
-    std::snprintf(buf, sizeof buf, "%.4g", logx ? std::exp2(xv) : xv);
+    const double xt = logx ? std::exp2(xv) : xv;
+    std::snprintf(buf, sizeof buf, std::abs(xt) >= 10 ? "%.0f" : "%.4g", xt);
     cv::putText(img, buf, cv::Point(int(L + (R - L) * i / 4.0) - 12, B + 16), cv::FONT_HERSHEY_SIMPLEX, 0.38, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
   }
   cv::putText(img, title, cv::Point(L, r.y + 20), cv::FONT_HERSHEY_SIMPLEX, 0.5, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
   cv::putText(img, xlab, cv::Point((L + R) / 2 - 60, B + 36), cv::FONT_HERSHEY_SIMPLEX, 0.42, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
   cv::putText(img, ylab, cv::Point(r.x + 4, T - 8), cv::FONT_HERSHEY_SIMPLEX, 0.42, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
-  int ly = T + 14;
+  int ly = legend_bottom ? B - 8 - 16 * (int(series.size()) - 1) : T + 14;
   for (auto& s : series) {
     std::vector<size_t> ord(s.pts.size());
     for (size_t i = 0; i < ord.size(); ++i) ord[i] = i;
@@ -175,23 +180,39 @@ int main(int argc, char** argv) {
       int c = 0;
       for (const auto& sc : scenes) {
         const cv::Scalar col = kColors[c++];
+        const std::string name = sc.substr(0, sc.find('/'));
         for (const char* tag : {"voxel_fixedlod", "voxel_defaultlod"}) {
           const bool fixed = std::string(tag) == "voxel_fixedlod";
-          Series s{sc + (fixed ? " (fixed LOD)" : " (default LOD)"), col, {}, fixed, {}, !fixed};
+          Series s{name + (fixed ? ", fixed LOD" : ", default LOD"), col, {}, fixed, {}, !fixed};
           for (const auto& l : lines) {
             if (Field(l, "dataset") != sc || Field(l, "tag") != tag || Field(l, "test_poses") != sets[k])
               continue;
             s.pts.push_back({Num(l, "integrate_cpu_ms_median"), Num(l, "mssim")});
             char buf[32];
-            std::snprintf(buf, sizeof buf, "%.0f cm", 100.0 * Num(l, "voxel_m"));
+            std::snprintf(buf, sizeof buf, "%.3g cm", 100.0 * Num(l, "voxel_m"));
             s.labels.push_back(buf);
           }
           if (!s.pts.empty()) ss.push_back(s);
         }
+        // The same protocol with the ground-truth mesh as proxy (runs tagged gt_ref): a
+        // horizontal line over the scene's TSDF points, the ceiling a finer voxel approaches.
+        double xmin = 1e300, xmax = -1e300;
+        for (const auto& l : lines)
+          if (Field(l, "dataset") == sc && Field(l, "tag") == "voxel_fixedlod") {
+            xmin = std::min(xmin, Num(l, "integrate_cpu_ms_median"));
+            xmax = std::max(xmax, Num(l, "integrate_cpu_ms_median"));
+          }
+        for (const auto& l : lines)
+          if (xmin <= xmax && Field(l, "dataset") == sc && Field(l, "tag") == "gt_ref" &&
+              Field(l, "test_poses") == sets[k]) {
+            const cv::Scalar light = 0.45 * col + 0.55 * cv::Scalar(255, 255, 255);
+            Series g{name + ", GT mesh proxy", light, {{xmin, Num(l, "mssim")}, {xmax, Num(l, "mssim")}}};
+            ss.push_back(g);
+          }
       }
       Panel(img, cv::Rect(560 * k, 0, 560, 400),
             "MSSIM (" + sets[k] + " test poses) vs TSDF voxel size",
-            "integrate, process CPU ms per input frame (median, log2)", "MSSIM", ss, true);
+            "integrate CPU ms per frame (median, log)", "MSSIM", ss, true, true);
     }
     cv::imwrite(out + "/eval_voxel.png", img);
   }
