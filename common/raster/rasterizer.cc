@@ -110,7 +110,16 @@ class Setup {
   glm::dvec2 Project(const glm::dvec3& p) const {
     return glm::dvec2(cam_.fx * p.x / p.z + cam_.cx, cam_.fy * p.y / p.z + cam_.cy);
   }
-  static int64_t Fix(double x) { return static_cast<int64_t>(std::llround(x * kSubpixel)); }
+  // std::llround(x * kSubpixel) (half away from zero) without the libm call: x - trunc(x) is
+  // exact, and |x| stays far below 2^53 inside the guard band.
+  static int64_t Fix(double x) {
+    const double v = x * kSubpixel;
+    int64_t i = static_cast<int64_t>(v);
+    const double frac = v - static_cast<double>(i);
+    if (frac >= 0.5) ++i;
+    else if (frac <= -0.5) --i;
+    return i;
+  }
 
   CamVertex MakeVertex(const glm::dvec3& p_cam) const {
     CamVertex v;
@@ -282,6 +291,32 @@ class Setup {
   Plane planes_[5];
 };
 
+// Working buffers of one render, kept per calling thread between renders: a small render
+// (a 160x120 cell-id buffer) otherwise spends a good part of its time in page faults of freshly
+// allocated buffers. Released after a render that needed more than kKeepBytes.
+struct Scratch {
+  static constexpr size_t kKeepBytes = size_t{32} << 20;
+  std::vector<CamVertex> verts;
+  std::vector<std::vector<SetupTriangle>> chunk_setups;
+  std::vector<SetupTriangle> tris;  // the concatenation when setup ran in several chunks
+  std::vector<std::vector<uint32_t>> bands;
+  std::vector<double> inv_z;
+  std::vector<uint32_t> winner;
+
+  void ReleaseIfLarge() {
+    size_t bytes = verts.capacity() * sizeof(CamVertex) + tris.capacity() * sizeof(SetupTriangle) +
+                   inv_z.capacity() * sizeof(double) + winner.capacity() * sizeof(uint32_t);
+    for (const auto& v : chunk_setups) bytes += v.capacity() * sizeof(SetupTriangle);
+    for (const auto& b : bands) bytes += b.capacity() * sizeof(uint32_t);
+    if (bytes > kKeepBytes) *this = Scratch();
+  }
+};
+
+Scratch& ThreadScratch() {
+  thread_local Scratch scratch;
+  return scratch;
+}
+
 template <typename F>
 void ParallelFor(int num_threads, int n, F&& f) {
   num_threads = std::max(1, std::min(num_threads, n));
@@ -374,7 +409,9 @@ absl::StatusOr<RasterOutput> RasterizeParts(const std::vector<const TriangleMesh
   std::vector<size_t> part_vertex_begin(parts.size() + 1, 0);
   for (size_t k = 0; k < parts.size(); ++k)
     part_vertex_begin[k + 1] = part_vertex_begin[k] + parts[k]->positions.size();
-  std::vector<CamVertex> verts(part_vertex_begin.back());
+  Scratch& scratch = ThreadScratch();
+  std::vector<CamVertex>& verts = scratch.verts;
+  verts.resize(part_vertex_begin.back());
   for (size_t k = 0; k < parts.size(); ++k) {
     const auto& pos = parts[k]->positions;
     CamVertex* v = verts.data() + part_vertex_begin[k];
@@ -390,7 +427,9 @@ absl::StatusOr<RasterOutput> RasterizeParts(const std::vector<const TriangleMesh
   // One chunk per thread when single-threaded (no concatenation copy), else 4 per thread.
   const int chunks =
       threads == 1 ? 1 : std::max(1, std::min(threads * 4, num_tris / 256 + 1));
-  std::vector<std::vector<SetupTriangle>> chunk_setups(chunks);
+  std::vector<std::vector<SetupTriangle>>& chunk_setups = scratch.chunk_setups;
+  if (chunk_setups.size() < size_t(chunks)) chunk_setups.resize(chunks);
+  for (int c = 0; c < chunks; ++c) chunk_setups[c].clear();
   std::vector<size_t> chunk_clipped(chunks, 0);
   ParallelFor(threads, chunks, [&](int c, int) {
     const int begin = static_cast<int>(int64_t{num_tris} * c / chunks);
@@ -414,11 +453,9 @@ absl::StatusOr<RasterOutput> RasterizeParts(const std::vector<const TriangleMesh
       }
     }
   });
-  std::vector<SetupTriangle> tris;
-  if (chunks == 1) {
-    tris = std::move(chunk_setups[0]);
-    out.triangles_clipped = chunk_clipped[0];
-  }
+  std::vector<SetupTriangle>& tris = chunks == 1 ? chunk_setups[0] : scratch.tris;
+  if (chunks == 1) out.triangles_clipped = chunk_clipped[0];
+  if (chunks > 1) tris.clear();
   for (int c = 0; c < chunks && chunks > 1; ++c) {
     tris.insert(tris.end(), chunk_setups[c].begin(), chunk_setups[c].end());
     out.triangles_clipped += chunk_clipped[c];
@@ -427,14 +464,18 @@ absl::StatusOr<RasterOutput> RasterizeParts(const std::vector<const TriangleMesh
 
   // 3. Bin into row bands (in triangle order, so depth ties resolve deterministically).
   const int num_bands = (H + kBandRows - 1) / kBandRows;
-  std::vector<std::vector<uint32_t>> bands(num_bands);
+  std::vector<std::vector<uint32_t>>& bands = scratch.bands;
+  if (bands.size() < size_t(num_bands)) bands.resize(num_bands);
+  for (int b = 0; b < num_bands; ++b) bands[b].clear();
   for (uint32_t i = 0; i < tris.size(); ++i)
     for (int b = tris[i].min_y / kBandRows; b <= tris[i].max_y / kBandRows; ++b)
       bands[b].push_back(i);
 
   // 4. Scan conversion with incremental fixed-point edge functions + 1/z depth test.
-  std::vector<double> inv_z(static_cast<size_t>(W) * H, 0.0);
-  std::vector<uint32_t> winner(static_cast<size_t>(W) * H, kNoTriangle);
+  std::vector<double>& inv_z = scratch.inv_z;
+  std::vector<uint32_t>& winner = scratch.winner;
+  inv_z.assign(static_cast<size_t>(W) * H, 0.0);
+  winner.assign(static_cast<size_t>(W) * H, kNoTriangle);
   ParallelFor(threads, num_bands, [&](int b, int) {
     const int band_y0 = b * kBandRows, band_y1 = std::min(H - 1, band_y0 + kBandRows - 1);
     for (uint32_t ti : bands[b]) {
@@ -532,6 +573,7 @@ absl::StatusOr<RasterOutput> RasterizeParts(const std::vector<const TriangleMesh
     }
   });
   for (size_t c : covered) out.pixels_covered += c;
+  scratch.ReleaseIfLarge();
   return out;
 }
 
