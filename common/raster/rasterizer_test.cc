@@ -10,6 +10,9 @@
 namespace exo {
 namespace {
 
+// See StreamChecksumUnchangedBySpeedWork.
+constexpr uint64_t kStreamChecksum = 0x3db44c0612f02b58ull;
+
 // A camera whose pixel -> z=1 plane mapping is exact in float: f = 64, c = 31.5.
 PinholeCamera ExactCamera() {
   PinholeCamera c;
@@ -447,6 +450,159 @@ TEST(RasterizerTest, PartsEqualConcatenation) {
   std::vector<const TriangleMesh*> with_null = {&all, nullptr};
   EXPECT_FALSE(RasterizeParts(with_null, cam, pose, opt).ok());
   EXPECT_TRUE(RasterizeParts({}, cam, pose, opt).ok());  // nothing to draw: background
+}
+
+// ---- Output identity over a stream (speed work must not change a single bit) ----
+
+// Deterministic on every platform: splitmix64 -> float in [a, b) (no <random> distributions,
+// no libm calls in the scene or the poses).
+struct Lcg {
+  uint64_t state;
+  uint64_t Next() {
+    uint64_t z = (state += 0x9e3779b97f4a7c15ull);
+    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
+    z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
+    return z ^ (z >> 31);
+  }
+  float Uniform(float a, float b) { return a + (b - a) * float(Next() >> 40) / float(1 << 24); }
+};
+
+// A proxy-like scene in 3 parts: a 120 x 120 height field of 0.2 m quads (shared edges, most
+// triangles below a pixel of a 160x120 buffer), 4000 small random triangles of both windings,
+// 300 slivers (two vertices 1e-4 m apart), 200 exact duplicates (depth ties) and 40 large
+// triangles (near-plane and guard-band clipping).
+std::vector<TriangleMesh> StreamScene() {
+  Lcg rng{2024};
+  std::vector<TriangleMesh> parts(3);
+  TriangleMesh& field = parts[0];
+  const int n = 120;
+  for (int j = 0; j <= n; ++j)
+    for (int i = 0; i <= n; ++i) {
+      const float x = -12 + 0.2f * i, y = -12 + 0.2f * j;
+      field.positions.emplace_back(x, y, 0.02f * x * y * 0.1f + rng.Uniform(-0.05f, 0.05f));
+    }
+  for (int j = 0; j < n; ++j)
+    for (int i = 0; i < n; ++i) {
+      const uint32_t a = j * (n + 1) + i, b = a + 1, c = a + n + 1, d = c + 1;
+      field.indices.insert(field.indices.end(), {a, b, d, a, d, c});
+    }
+  TriangleMesh& soup = parts[1];
+  for (int t = 0; t < 4000; ++t) {
+    const glm::vec3 c(rng.Uniform(-10, 10), rng.Uniform(-10, 10), rng.Uniform(0, 4));
+    const float size = rng.Uniform(0.01f, 0.3f);
+    for (int k = 0; k < 3; ++k)
+      soup.positions.push_back(c + size * glm::vec3(rng.Uniform(-1, 1), rng.Uniform(-1, 1),
+                                                    rng.Uniform(-1, 1)));
+    const uint32_t b = 3 * t;
+    soup.indices.insert(soup.indices.end(), {b, b + 1, b + 2});
+  }
+  for (int t = 0; t < 300; ++t) {  // slivers
+    const glm::vec3 a(rng.Uniform(-10, 10), rng.Uniform(-10, 10), rng.Uniform(0, 4));
+    const glm::vec3 b = a + glm::vec3(rng.Uniform(-2, 2), rng.Uniform(-2, 2), rng.Uniform(-1, 1));
+    const uint32_t base = uint32_t(soup.positions.size());
+    soup.positions.insert(soup.positions.end(), {a, b, b + glm::vec3(1e-4f, -1e-4f, 0)});
+    soup.indices.insert(soup.indices.end(), {base, base + 1, base + 2});
+  }
+  TriangleMesh& misc = parts[2];
+  misc.positions = soup.positions;
+  for (uint32_t t = 0; t < 200; ++t)  // exact duplicates of part 1 triangles (ties)
+    misc.indices.insert(misc.indices.end(), {3 * t * 7, 3 * t * 7 + 1, 3 * t * 7 + 2});
+  for (int t = 0; t < 40; ++t) {  // large triangles
+    const uint32_t base = uint32_t(misc.positions.size());
+    for (int k = 0; k < 3; ++k)
+      misc.positions.emplace_back(rng.Uniform(-15, 15), rng.Uniform(-15, 15), rng.Uniform(-1, 6));
+    misc.indices.insert(misc.indices.end(), {base, base + 1, base + 2});
+  }
+  return parts;
+}
+
+// Seen from the identity pose by the test camera scaled to 160x120 (f = 125, c = (79.5, 59.5)),
+// a vertex (u - 79.5, v - 59.5, 125) projects exactly to pixel (u, v). Tiny triangles with
+// vertices on pixel centres (edges through pixel centres: the fill rule decides), on half
+// sub-pixel steps (1/512 px: the rounding of the fixed-point snap decides), both windings,
+// overlapping at equal depth (ties).
+TriangleMesh ExactPixelTriangles() {
+  TriangleMesh m;
+  auto vertex = [&](double u, double v) {
+    m.positions.emplace_back(float(u - 79.5), float(v - 59.5), 125.0f);
+    return uint32_t(m.positions.size() - 1);
+  };
+  for (int j = 0; j < 28; ++j)
+    for (int i = 0; i < 38; ++i) {
+      const double u = 2 + 4 * i, v = 2 + 4 * j, d = ((i + 2 * j) % 4) / 512.0;
+      const uint32_t a = vertex(u + d, v), b = vertex(u + 2, v - d), c = vertex(u, v + 2 + d),
+                     e = vertex(u + 2 - d, v + 2);
+      if ((i + j) % 2 == 0) m.indices.insert(m.indices.end(), {a, b, c, b, e, c});
+      else m.indices.insert(m.indices.end(), {a, c, b, b, c, e});
+      const uint32_t f = vertex(u + 1 + d, v + 1), g = vertex(u + 3, v + 1 + d),
+                     h = vertex(u + 1, v + 3);  // overlaps the quad at the same depth
+      m.indices.insert(m.indices.end(), {f, g, h});
+    }
+  return m;
+}
+
+// Camera at `eye` looking at `target` (up = +z), without libm calls.
+Rigid3d StreamPose(const glm::dvec3& eye, const glm::dvec3& target) {
+  const glm::dvec3 z = glm::normalize(target - eye);
+  const glm::dvec3 x = glm::normalize(glm::cross(z, glm::dvec3(0, 0, 1)));
+  const glm::dvec3 y = glm::cross(z, x);
+  Rigid3d r;
+  r.rotation = glm::normalize(glm::quat_cast(glm::dmat3(x, y, z)));
+  r.translation = eye;
+  return r;
+}
+
+uint64_t Fnv1a(uint64_t h, const void* data, size_t bytes) {
+  const auto* p = static_cast<const unsigned char*>(data);
+  for (size_t i = 0; i < bytes; ++i) h = (h ^ p[i]) * 1099511628211ull;
+  return h;
+}
+
+// FNV-1a of z-depth, triangle id and cell id of 14 renders (6 poses of StreamScene with
+// RasterizeParts and ExactPixelTriangles from the identity pose; 160x120, then 320x240). The constant was computed with the rasterizer BEFORE the session-4 speed work
+// (commit 8756a9a: no small-box pre-test, per-part vertex buffers, fresh buffers per render,
+// std::llround); the speed-ups must reproduce it bit for bit, for 1 and 2 threads, and a render
+// must not depend on the one before it (per-thread scratch reuse). Guards every one of them: a
+// pre-test that disagrees with the scan's fill rule on one pixel centre, a rounding change in
+// Fix(), a stale depth or winner buffer, all change the sum.
+TEST(RasterizerTest, StreamChecksumUnchangedBySpeedWork) {
+  const std::vector<TriangleMesh> parts = StreamScene();
+  const std::vector<const TriangleMesh*> part_ptrs = {&parts[0], &parts[1], &parts[2]};
+  const TriangleMesh exact = ExactPixelTriangles();
+  PinholeCamera cam;
+  cam.fx = cam.fy = 500;
+  cam.cx = 319.5;
+  cam.cy = 239.5;
+  cam.width = 640;
+  cam.height = 480;
+  const std::vector<Rigid3d> poses = {
+      StreamPose({0, -14, 6}, {0, 0, 0}),  StreamPose({-9, -9, 2.5}, {3, 2, 0.5}),
+      StreamPose({2, 1, 1.5}, {8, 3, 1}),  StreamPose({0, 0, 20}, {0.5, 0.3, 0}),
+      StreamPose({5, 5, 0.3}, {-5, 4, 0.2}), StreamPose({-3, 2, 1.0}, {-3, 9, 1.1})};
+  for (int threads : {1, 2}) {
+    uint64_t h = 14695981039346656037ull;
+    size_t covered = 0;
+    for (int size : {160, 320})
+      for (size_t k = 0; k <= poses.size(); ++k) {  // the last: exact triangles, identity pose
+        const bool exact_view = k == poses.size();
+        const Rigid3d pose = exact_view ? Rigid3d::Identity() : poses[k];
+        RasterOptions o;
+        o.z_depth = o.triangle_id = o.cell_id = true;
+        o.cell_grid.cell_size_m = 0.5;
+        o.width = size;
+        o.height = size * 3 / 4;
+        o.num_threads = threads;
+        auto r = exact_view ? Rasterize(exact, cam, pose, o)
+                            : RasterizeParts(part_ptrs, cam, pose, o);
+        ASSERT_TRUE(r.ok()) << r.status();
+        h = Fnv1a(h, r->z_depth_m.data(), r->z_depth_m.size() * sizeof(float));
+        h = Fnv1a(h, r->triangle_id.data(), r->triangle_id.size() * sizeof(uint32_t));
+        h = Fnv1a(h, r->cell_id.data(), r->cell_id.size() * sizeof(uint64_t));
+        covered += r->pixels_covered;
+      }
+    EXPECT_GT(covered, 200000u);  // the renders see the scene (not a sum over background)
+    EXPECT_EQ(h, kStreamChecksum) << "threads " << threads << ": got 0x" << std::hex << h;
+  }
 }
 
 TEST(RasterizerTest, BadInputIsAnError) {
