@@ -24,20 +24,27 @@ struct ClipVertex {
   glm::dvec3 bary;
 };
 
+struct CamVertex;
+
 // One screen-space triangle ready for scan conversion.
 struct SetupTriangle {
+  // What the scan reads first (the first 2 cache lines), what the resolve reads after.
   // Fixed-point vertex positions (1/256 px) and the edge data derived from them.
   int64_t x0, y0, x1, y1, x2, y2;
-  bool top_left[3];
   int min_x, max_x, min_y, max_y;  // pixel bounding box, clamped to the image
+  bool top_left[3];
   // Perspective weights w_k(u,v) = lambda_k(u,v) / z_k as planes a*u + b*v + c (double, from
   // the unrounded projection) and their sum, the 1/z plane.
-  std::array<glm::dvec3, 3> w_plane;
   glm::dvec3 inv_z_plane;
+  std::array<glm::dvec3, 3> w_plane;
   std::array<glm::dvec3, 3> bary;  // barycentrics (in the mesh triangle) of the 3 vertices
   uint32_t triangle;               // global index (over all parts, in order)
   uint32_t part;                   // which mesh of the part list
   uint32_t local_triangle;         // index inside that mesh
+  // The mesh triangle's 3 transformed vertices (their local positions are what the resolve
+  // interpolates; read there instead of the mesh's index and position arrays, which are
+  // scattered over thousands of chunk allocations and missed the cache on every pixel).
+  const CamVertex* vertex[3];
 };
 
 // A vertex transformed once per render (shared by ~6 triangles): camera-frame position, the
@@ -45,6 +52,7 @@ struct SetupTriangle {
 // projection (unrounded and 1/256 px fixed point) exactly as Setup::Emit computes it.
 struct CamVertex {
   glm::dvec3 p_cam;
+  glm::vec3 p_local;  // the mesh position, as stored
   glm::dvec2 s;
   int64_t fx, fy;
   uint32_t outcode;
@@ -415,7 +423,10 @@ absl::StatusOr<RasterOutput> RasterizeParts(const std::vector<const TriangleMesh
   for (size_t k = 0; k < parts.size(); ++k) {
     const auto& pos = parts[k]->positions;
     CamVertex* v = verts.data() + part_vertex_begin[k];
-    for (size_t i = 0; i < pos.size(); ++i) v[i] = setup.MakeVertex(R * glm::dvec3(pos[i]) + t);
+    for (size_t i = 0; i < pos.size(); ++i) {
+      v[i] = setup.MakeVertex(R * glm::dvec3(pos[i]) + t);
+      v[i].p_local = pos[i];
+    }
   }
 
   // 2. Triangle setup (clipping, projection, edge and plane equations), in parallel chunks of
@@ -450,6 +461,7 @@ absl::StatusOr<RasterOutput> RasterizeParts(const std::vector<const TriangleMesh
       for (size_t i = before; i < v.size(); ++i) {
         v[i].part = static_cast<uint32_t>(part);
         v[i].local_triangle = static_cast<uint32_t>(local);
+        for (int k = 0; k < 3; ++k) v[i].vertex[k] = &pv[idx[k]];
       }
     }
   });
@@ -546,17 +558,17 @@ absl::StatusOr<RasterOutput> RasterizeParts(const std::vector<const TriangleMesh
         const double w = s.w_plane[k].x * x + s.w_plane[k].y * y + s.w_plane[k].z;
         beta += (w * z) * s.bary[k];
       }
-      const TriangleMesh& mesh = *parts[s.part];
-      const uint32_t* vi = &mesh.indices[3 * static_cast<size_t>(s.local_triangle)];
       if (options.position || options.cell_id) {
-        const glm::dvec3 p = beta.x * glm::dvec3(mesh.positions[vi[0]]) +
-                             beta.y * glm::dvec3(mesh.positions[vi[1]]) +
-                             beta.z * glm::dvec3(mesh.positions[vi[2]]);
+        const glm::dvec3 p = beta.x * glm::dvec3(s.vertex[0]->p_local) +
+                             beta.y * glm::dvec3(s.vertex[1]->p_local) +
+                             beta.z * glm::dvec3(s.vertex[2]->p_local);
         if (options.position)
           for (int c = 0; c < 3; ++c) out.position_local.at(x, y, c) = static_cast<float>(p[c]);
         if (options.cell_id) out.cell_id.at(x, y) = options.cell_grid.IdOf(p);
       }
       if (options.normal) {
+        const TriangleMesh& mesh = *parts[s.part];
+        const uint32_t* vi = &mesh.indices[3 * static_cast<size_t>(s.local_triangle)];
         glm::dvec3 n;
         if (want_vertex_normals && !mesh.normals.empty()) {
           n = beta.x * glm::dvec3(mesh.normals[vi[0]]) + beta.y * glm::dvec3(mesh.normals[vi[1]]) +

@@ -76,7 +76,8 @@ class CellIdRenderer {
 
   // New or re-extracted chunks. A chunk whose version is not newer than the cached one is
   // skipped; an empty mesh removes the chunk. Errors (the cache is unchanged for that chunk and
-  // the rest are still applied): malformed mesh.
+  // the rest are still applied): malformed mesh. A new version whose LOD is kept (see
+  // lod_keep_fraction) is not read beyond its box and triangle count, so it is not validated.
   absl::Status Update(const std::vector<MeshChunk>& changed);
   void Remove(uint64_t chunk_id);
   void Clear() {

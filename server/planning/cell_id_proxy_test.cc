@@ -318,6 +318,22 @@ TEST(CellIdRendererTest, VersionsLodKeepAndRemoval) {
   EXPECT_EQ(r->RenderMesh(gone.id), nullptr);
   r->Remove(chunks[2].id);
   EXPECT_EQ(r->num_chunks(), n - 2);
+  // A malformed new version is an error when its LOD is rebuilt (the cache keeps the old one),
+  // but not read (and not validated) when the LOD is kept: the render is unchanged either way.
+  MeshChunk m = chunks[3];
+  const TriangleMesh kept = *r->RenderMesh(m.id);
+  m.version = 7;
+  m.mesh.indices.back() = 1u << 30;  // same box and triangle count: LOD kept
+  EXPECT_TRUE(r->Update({m}).ok());
+  EXPECT_EQ(r->RenderMesh(m.id)->positions, kept.positions);
+  m.version = 8;
+  m.mesh.indices.resize(m.mesh.indices.size() / 2 / 3 * 3);  // half the triangles: rebuilt
+  m.mesh.indices.back() = 1u << 30;
+  EXPECT_FALSE(r->Update({m}).ok());
+  EXPECT_EQ(r->RenderMesh(m.id)->positions, kept.positions);
+  EXPECT_EQ(r->RenderMesh(m.id)->indices, kept.indices);
+  auto b = r->Render(RoomPoses()[0], kCam, 160, 120);
+  ASSERT_TRUE(b.ok());
 }
 
 TEST(CellIdRendererTest, BadInput) {
