@@ -253,6 +253,7 @@ struct Group {  // configurations sharing one cell size
   std::vector<double> cellid_ms, cellid_cpu_ms;  // per frame (wall, thread CPU)
   bool needs_final = false;
   std::vector<std::vector<planning::CellPixelCount>> final_cells;  // per frame, final proxy
+                                                                   // (or the frame's depth)
   PinholeCamera id_cam;
 };
 
@@ -385,7 +386,7 @@ std::string ConfigJson(const std::string& dataset, const std::string& test_poses
                        int frames, const PolicyConfig& c, double lambda, double cell_m,
                        double dts, const ConfigResult& r, int idw, int idh,
                        const planning::PlannerOptions& po, const std::string& scale,
-                       double lod_m) {
+                       double lod_m, const char* ids) {
   const bool baseline = c.policy == Policy::kEveryN || c.policy == Policy::kMinDistance ||
                         c.policy == Policy::kAll;
   const char* refs = c.policy == Policy::kVertexColor ? "none"
@@ -394,7 +395,7 @@ std::string ConfigJson(const std::string& dataset, const std::string& test_poses
   return absl::StrFormat(
       "{\"bench\":\"eval\",\"dataset\":\"%s\",\"test_poses\":\"%s\",\"proxy\":\"%s\",\"tag\":\"%s\","
       "\"config\":{\"policy\":\"%s\",\"refs\":\"%s\",\"frames\":%d,\"store\":%d,\"r_max\":%d,\"lambda\":%.2f,"
-      "\"cell_m\":%.3f,\"voxel_m\":%.3f,\"delta_tau_sum\":%.3f,\"idbuf\":\"%dx%d\","
+      "\"cell_m\":%.3f,\"voxel_m\":%.3f,\"delta_tau_sum\":%.3f,\"idbuf\":\"%dx%d\",\"ids\":\"%s\","
       "\"scale\":\"%s\",\"d_max_m\":%.2f,\"sigma_m\":%.2f,\"cellid_lod_m\":%.3f},"
       "\"quality\":{\"mssim\":%.4f,\"psnr\":%.2f,\"coverage\":%.4f,\"mssim_covered\":%.4f,"
       "\"surface\":%.4f,\"test_views\":%d},"
@@ -403,7 +404,7 @@ std::string ConfigJson(const std::string& dataset, const std::string& test_poses
       "\"memory\":{\"store_bytes\":%zu,\"geometry_bytes\":%zu,\"planner_bytes\":%zu},"
       "\"views\":%zu,\"accepted\":%zu,\"tau_sum\":%.2f,\"mean_refs\":%.2f,\"max_refs\":%zu",
       dataset, test_poses, proxy, c.tag, PolicyName(c.policy), refs, frames, c.store, c.r_max, lambda,
-      cell_m, voxel_m, dts, idw, idh, scale, po.d_max_m, po.sigma_m, lod_m, r.quality.mssim, r.quality.psnr, r.quality.coverage,
+      cell_m, voxel_m, dts, idw, idh, ids, scale, po.d_max_m, po.sigma_m, lod_m, r.quality.mssim, r.quality.psnr, r.quality.coverage,
       r.quality.mssim_covered, r.quality.surface, r.quality.views, r.integrate_ms_median, r.integrate_ms_p95,
       r.plan_ms_median, r.plan_ms_p95, r.consider_ms_median, r.render_ms_median, r.store_bytes,
       r.geometry_bytes, r.planner_bytes, r.store_views, r.accepted, r.tau_sum, r.mean_refs,
@@ -427,6 +428,7 @@ struct EngineOptions {
   double cellid_lod_frac = -1;
   double cellid_lod_m = 0;       // > 0: cluster size in metres (wins over cellid_lod_frac)
   double cellid_lod_keep = 0.1;  // planning::CellIdRendererOptions::lod_keep_fraction
+  CellIdSource cell_ids = CellIdSource::kProxy;
 };
 
 class Engine {
@@ -549,7 +551,8 @@ class Engine {
       integrate_cpu_ms_.push_back(0.0);
     }
     for (auto& g : groups_) {
-      if (g.online.empty()) continue;
+      if (g.online.empty() && !(g.needs_final && opt_.cell_ids == CellIdSource::kFrameDepth))
+        continue;
       auto t1 = Clock::now();
       const double c1 = ThreadCpuMs();
       const std::vector<CellId> changed = g.areas->TakeChangedCells();
@@ -558,8 +561,24 @@ class Engine {
       const auto t_r = Clock::now();
       PinholeCamera id_cam;
       size_t tris = 0;
-      EXO_ASSIGN_OR_RETURN(const auto cells, CellCounts(*g.cid, src_.camera, pose, opt_.id_w,
-                                                        opt_.id_h, &id_cam, &tris));
+      std::vector<planning::CellPixelCount> cells;
+      if (opt_.cell_ids == CellIdSource::kFrameDepth) {
+        // ψ_vis from the frame's own depth (the server's default, planning_stage.cc); the same
+        // lists serve the offline / baseline policies (no final-proxy re-render).
+        if (frame == nullptr) return absl::InvalidArgumentError("cell ids from depth need frames");
+        EXO_ASSIGN_OR_RETURN(cells, planning::CountDepthCellPixels(
+                                        frame->depth_m, frame->depth_camera,
+                                        pose * frame->color_from_depth, g.grid,
+                                        std::max(1, frame->depth_m.width() / opt_.id_w), &id_cam));
+        if (g.needs_final) {
+          g.final_cells.resize(src_.poses.size());
+          g.final_cells[idx] = cells;
+          g.id_cam = id_cam;
+        }
+      } else {
+        EXO_ASSIGN_OR_RETURN(cells, CellCounts(*g.cid, src_.camera, pose, opt_.id_w, opt_.id_h,
+                                               &id_cam, &tris));
+      }
       raster_ms_.push_back(MsSince(t_r));
       lod_ms_.push_back(lod_ms);
       idbuf_tris_.push_back(double(tris));
@@ -589,7 +608,7 @@ class Engine {
     const int n = int(src_.poses.size());
     // Final proxy cell lists for the offline/baseline policies.
     for (auto& g : groups_) {
-      if (!g.needs_final) continue;
+      if (!g.needs_final || opt_.cell_ids == CellIdSource::kFrameDepth) continue;
       g.final_cells.resize(n);
       for (int i = 0; i < n; ++i) {
         EXO_ASSIGN_OR_RETURN(g.final_cells[i], CellCounts(*g.cid, src_.camera, src_.poses[i],
@@ -622,7 +641,8 @@ class Engine {
         r.geometry_bytes = geometry_bytes;
         r.json = ConfigJson(src_.dataset, ts.label, proxy_name, voxel_m, n, r.config, 0, 0, 0, r, opt_.id_w,
                             opt_.id_h, PlannerFor(r.config, src_, src_.scale.cell_size_m, src_.frame_bytes),
-                            ScaleModeName(src_.scale_mode), lod_cluster_m_);
+                            ScaleModeName(src_.scale_mode), lod_cluster_m_,
+                            CellIdSourceName(opt_.cell_ids));
         if (opt_.emit) opt_.emit(r.json);
         results.push_back(std::move(r));
       }
@@ -753,7 +773,8 @@ class Engine {
         }
         rt.json = ConfigJson(src_.dataset, ts.label, proxy_name, voxel_m, n, c, po.lambda,
                              g.grid.cell_size_m, po.delta_tau_sum, rt, opt_.id_w, opt_.id_h, po,
-                             ScaleModeName(src_.scale_mode), lod_cluster_m_);
+                             ScaleModeName(src_.scale_mode), lod_cluster_m_,
+                            CellIdSourceName(opt_.cell_ids));
         if (opt_.emit) opt_.emit(rt.json);
         results.push_back(std::move(rt));
       }
@@ -986,6 +1007,10 @@ absl::StatusOr<std::vector<Rigid3d>> NearTrajectoryPoses(const synth::SynthScene
 
 }  // namespace
 
+const char* CellIdSourceName(CellIdSource s) {
+  return s == CellIdSource::kProxy ? "proxy" : "depth";
+}
+
 const char* ScaleModeName(ScaleMode m) {
   return m == ScaleMode::kBounds ? "bounds" : "view_depth";
 }
@@ -1102,6 +1127,7 @@ absl::StatusOr<std::vector<ConfigResult>> RunSynthetic(const SynthRunOptions& o)
   eo.cellid_lod_frac = o.cellid_lod_frac;
   eo.cellid_lod_m = o.cellid_lod_m;
   eo.cellid_lod_keep = o.cellid_lod_keep;
+  eo.cell_ids = o.cell_ids;
   eo.per_view = o.per_view;
   if (o.proxy == ProxyKind::kGroundTruth) eo.gt_mesh = scene.mesh;
   Engine engine(std::move(src), o.configs, std::move(eo));
@@ -1228,6 +1254,7 @@ absl::StatusOr<SevenScenesReport> RunSevenScenes(const SevenScenesRunOptions& o)
   eo.cellid_lod_frac = o.cellid_lod_frac;
   eo.cellid_lod_m = o.cellid_lod_m;
   eo.cellid_lod_keep = o.cellid_lod_keep;
+  eo.cell_ids = o.cell_ids;
   eo.per_view = o.per_view;
   Engine engine(std::move(src), o.configs, std::move(eo));
   engine.set_origin(origin);

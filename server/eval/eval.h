@@ -105,6 +105,13 @@ enum class ScaleMode {
 };
 const char* ScaleModeName(ScaleMode m);
 
+// Where ψ_vis (3.12) of a frame comes from.
+enum class CellIdSource {
+  kProxy,      // a render of the current proxy (planning::CellIdRenderer, SPEC §4 as written)
+  kFrameDepth  // the frame's own depth, back-projected (the server's default, planning_stage.cc)
+};
+const char* CellIdSourceName(CellIdSource s);
+
 struct SynthRunOptions {
   std::string scene = "village";   // village | apartment
   std::string traj = "flyover";    // flyover | walk
@@ -134,6 +141,7 @@ struct SynthRunOptions {
   // for every new chunk version). Village 200 frames: 0.1 cuts planning CPU 14.0 -> 10.2 ms at
   // -0.0006 MSSIM (docs/evaluation.md).
   double cellid_lod_keep = 0.1;
+  CellIdSource cell_ids = CellIdSource::kProxy;
   blend::BlendOptions blend;       // lambda is overridden per config
   bool vertex_color_baseline = true;
   std::vector<PolicyConfig> configs;
@@ -162,6 +170,7 @@ struct SevenScenesRunOptions {
   double cellid_lod_frac = -1;     // see SynthRunOptions
   double cellid_lod_m = 0;         // see SynthRunOptions
   double cellid_lod_keep = 0.1;    // see SynthRunOptions
+  CellIdSource cell_ids = CellIdSource::kProxy;  // see SynthRunOptions
   bool per_view = false;           // see SynthRunOptions
   blend::BlendOptions blend;
   bool vertex_color_baseline = true;

@@ -73,6 +73,31 @@ std::vector<CellPixelCount> CountCellPixels(const uint64_t* cell_ids, size_t cou
   return out;
 }
 
+absl::StatusOr<std::vector<CellPixelCount>> CountDepthCellPixels(
+    const ImageF& depth_m, const PinholeCamera& depth_camera, const Rigid3d& local_from_depth,
+    const CellGrid& grid, int stride, PinholeCamera* id_camera) {
+  if (depth_m.width() != depth_camera.width || depth_m.height() != depth_camera.height)
+    return absl::InvalidArgumentError(absl::StrCat("depth image ", depth_m.width(), "x",
+                                                   depth_m.height(), " does not match its camera ",
+                                                   depth_camera.width, "x", depth_camera.height));
+  const int w = stride >= 1 ? depth_m.width() / stride : 0;
+  const int h = stride >= 1 ? depth_m.height() / stride : 0;
+  if (w < 1 || h < 1)
+    return absl::InvalidArgumentError(absl::StrCat("cell-id stride ", stride, " does not fit a ",
+                                                   depth_m.width(), "x", depth_m.height(), " depth image"));
+  std::vector<uint64_t> ids(static_cast<size_t>(w) * h, kNoCell);
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      const int dx = x * stride + stride / 2, dy = y * stride + stride / 2;
+      const float z = depth_m.at(dx, dy);
+      if (!(z > 0.0f) || !std::isfinite(z)) continue;
+      ids[static_cast<size_t>(y) * w + x] =
+          grid.IdOf(local_from_depth * depth_camera.Unproject({dx, dy}, z));
+    }
+  *id_camera = depth_camera.Scaled(w, h);
+  return CountCellPixels(ids.data(), ids.size());
+}
+
 ViewPlanner::ViewPlanner(const PlannerOptions& options) : options_(options) {
   grid_.cell_size_m = options.cell_size_m;
 }

@@ -26,6 +26,7 @@
 
 #include "common/camera.h"
 #include "common/cells.h"
+#include "common/image.h"
 #include "common/lumigraph/model.h"
 #include "common/rigid3.h"
 #include "common/status.h"
@@ -61,6 +62,15 @@ struct CellPixelCount {
 // Counts the pixels per cell of a cell-id buffer (kNoCell = background, ignored). Order: by
 // first appearance. Works on any resolution; pair it with the camera of that resolution.
 std::vector<CellPixelCount> CountCellPixels(const uint64_t* cell_ids, size_t count);
+
+// ψ_vis from the frame's own depth instead of a render of the proxy: the centre pixel of every
+// `stride` x `stride` block of `depth_m` is back-projected (local_from_depth) and labelled with
+// its cell (invalid depth: background). The counts refer to `*id_camera` = depth_camera scaled to
+// the block grid. Unlike a proxy render it does not depend on how much of the scene is fused yet.
+// Errors: stride < 1 or larger than the image, depth size != camera size.
+absl::StatusOr<std::vector<CellPixelCount>> CountDepthCellPixels(
+    const ImageF& depth_m, const PinholeCamera& depth_camera, const Rigid3d& local_from_depth,
+    const CellGrid& grid, int stride, PinholeCamera* id_camera);
 
 struct Candidate {
   ViewId id = 0;

@@ -214,24 +214,12 @@ class PlanningStage final : public PipelineStage {
                                                     const Rigid3d& local_from_depth,
                                                     const Rigid3d& local_from_cam,
                                                     const ImageU8& color) {
-    const int s = options_.id_buffer_stride;
-    const int w = depth.width() / s, h = depth.height() / s;
-    if (w < 1 || h < 1) return absl::InvalidArgumentError("depth smaller than the id-buffer stride");
-    ids_.assign(static_cast<size_t>(w) * h, kNoCell);
-    const CellGrid& grid = planner_.grid();
-    for (int y = 0; y < h; ++y)
-      for (int x = 0; x < w; ++x) {
-        const int dx = x * s + s / 2, dy = y * s + s / 2;
-        const float z = depth.at(dx, dy);
-        if (!(z > 0.0f) || !std::isfinite(z)) continue;
-        const glm::dvec3 p_local = local_from_depth * depth_camera.Unproject({dx, dy}, z);
-        ids_[static_cast<size_t>(y) * w + x] = grid.IdOf(p_local);
-      }
     planning::Candidate cand;
+    EXO_ASSIGN_OR_RETURN(cand.cells, planning::CountDepthCellPixels(
+                                         depth, depth_camera, local_from_depth, planner_.grid(),
+                                         options_.id_buffer_stride, &cand.id_camera));
     cand.id = id;
     cand.local_from_cam = local_from_cam;
-    cand.id_camera = depth_camera.Scaled(w, h);
-    cand.cells = planning::CountCellPixels(ids_.data(), ids_.size());
     cand.bytes = color.bytes() + static_cast<size_t>(color.width()) * color.height() * sizeof(float) +
                  sizeof(StoredView);
     return cand;
@@ -336,7 +324,6 @@ class PlanningStage final : public PipelineStage {
   ModelStore* store_ = nullptr;
   ViewId next_id_ = 1;
   double last_candidate_s_ = -1e300;
-  std::vector<uint64_t> ids_;
   std::map<ViewId, std::shared_ptr<const StoredView>> ref_cache_;
   uint64_t candidates_ = 0, accepted_ = 0, governed_ = 0, areas_set_ = 0;
   uint64_t outliers_removed_ = 0, outliers_kept_ = 0, updated_ = 0, stale_ = 0;
