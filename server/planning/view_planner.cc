@@ -125,6 +125,13 @@ int32_t ViewPlanner::CellIndex(CellId id) {
 
 double ViewPlanner::CoverageOf(const glm::dvec3& cam, CellId cell, double pixels,
                                double pixel_sr) const {
+  std::span<const Ref> refs;
+  if (auto it = cell_index_.find(cell); it != cell_index_.end()) refs = cells_[it->second].refs;
+  return CoverageAgainst(cam, cell, pixels, pixel_sr, refs);
+}
+
+double ViewPlanner::CoverageAgainst(const glm::dvec3& cam, CellId cell, double pixels,
+                                    double pixel_sr, std::span<const Ref> refs) const {
   if (cell == kNoCell || !(pixels > 0.0) || !(pixel_sr > 0.0) || !Finite(cam)) return 0.0;
   // Guard d -> 0 (SPEC §4, §11): a camera inside the cell has no defined direction to it and
   // the 1/d^2 footprint model does not apply: it claims no coverage of that cell.
@@ -136,8 +143,7 @@ double ViewPlanner::CoverageOf(const glm::dvec3& cam, CellId cell, double pixels
 
   std::array<glm::dvec3, kMaxRMax> ref_dirs;
   size_t n_refs = 0;
-  if (auto it = cell_index_.find(cell); it != cell_index_.end())
-    for (const Ref& r : cells_[it->second].refs) ref_dirs[n_refs++] = r.dir;
+  for (const Ref& r : refs) ref_dirs[n_refs++] = r.dir;
   const double phi_d = DirectionalCoverage(
       dir, std::span<const glm::dvec3>(ref_dirs.data(), n_refs), options_.r_max);
 
@@ -158,10 +164,11 @@ void ViewPlanner::AddToCellTau(int32_t cell, double dphi) {
 }
 
 void ViewPlanner::AddView(View view, std::vector<CellId>* changed) {
-  for (const Entry& e : view.entries) {
+  for (size_t i = 0; i < view.entries.size(); ++i) {
+    const Entry& e = view.entries[i];
     Cell& c = cells_[e.cell];
     const glm::dvec3 dir = glm::normalize(view.centre - grid_.Centre(c.id));
-    const Ref ref{view.id, e.phi, dir};
+    const Ref ref{view.id, e.phi, dir, static_cast<uint32_t>(i)};
     c.observers.push_back(ref);
     AddToCellTau(e.cell, e.phi);
     // Pre-selection (§3.1.4). τ(R ∪ I) - τ(R) = φ_I > 0 = Δτ while R has room.
@@ -183,7 +190,7 @@ void ViewPlanner::AddView(View view, std::vector<CellId>* changed) {
   views_.emplace(id, std::move(view));
 }
 
-void ViewPlanner::RemoveView(ViewId id, std::vector<CellId>* changed) {
+void ViewPlanner::RemoveView(ViewId id, std::vector<int32_t>* stale) {
   auto it = views_.find(id);
   if (it == views_.end()) return;
   const View& view = it->second;
@@ -191,28 +198,53 @@ void ViewPlanner::RemoveView(ViewId id, std::vector<CellId>* changed) {
     Cell& c = cells_[e.cell];
     std::erase_if(c.observers, [id](const Ref& r) { return r.view == id; });
     AddToCellTau(e.cell, -static_cast<double>(e.phi));
-    const size_t before = c.refs.size();
-    std::erase_if(c.refs, [id](const Ref& r) { return r.view == id; });
-    if (c.refs.size() != before) {
-      changed->push_back(c.id);
-      // Refill from the remaining observers not yet referenced, best φ first.
-      const Ref* best = nullptr;
-      for (const Ref& o : c.observers) {
-        const bool in_refs = std::any_of(c.refs.begin(), c.refs.end(),
-                                         [&](const Ref& r) { return r.view == o.view; });
-        if (!in_refs && (best == nullptr || o.phi > best->phi)) best = &o;
-      }
-      if (best != nullptr) c.refs.push_back(*best);
-    }
+    if (std::any_of(c.refs.begin(), c.refs.end(), [id](const Ref& r) { return r.view == id; }))
+      stale->push_back(e.cell);
   }
   bytes_ -= view.bytes;
   views_.erase(it);
 }
 
+bool ViewPlanner::RebuildRefs(int32_t cell) {
+  Cell& c = cells_[cell];
+  std::vector<const Ref*> order;
+  order.reserve(c.observers.size());
+  for (const Ref& o : c.observers) order.push_back(&o);
+  std::sort(order.begin(), order.end(), [](const Ref* a, const Ref* b) { return a->view < b->view; });
+  std::vector<Ref> refs;
+  refs.reserve(static_cast<size_t>(options_.r_max));
+  for (const Ref* o : order) {
+    const View& v = views_.at(o->view);
+    const double phi = CoverageAgainst(v.centre, c.id, v.pixels[o->entry], v.pixel_sr, refs);
+    if (!(phi > 0.0)) continue;
+    Ref r = *o;
+    r.phi = static_cast<float>(phi);
+    if (static_cast<int>(refs.size()) < options_.r_max) {
+      refs.push_back(r);
+    } else {
+      auto victim = std::min_element(refs.begin(), refs.end(),
+                                     [](const Ref& a, const Ref& b) { return a.phi < b.phi; });
+      if (phi - victim->phi > options_.delta_tau) *victim = r;
+    }
+  }
+  auto ids = [](const std::vector<Ref>& rs) {
+    std::vector<ViewId> v;
+    for (const Ref& r : rs) v.push_back(r.view);
+    std::sort(v.begin(), v.end());
+    return v;
+  };
+  const bool changed = ids(refs) != ids(c.refs);
+  c.refs = std::move(refs);
+  return changed;
+}
+
 absl::StatusOr<std::vector<CellId>> ViewPlanner::Remove(ViewId id) {
   if (!views_.count(id)) return absl::NotFoundError(absl::StrCat("view ", id, " is not stored"));
+  std::vector<int32_t> stale;
+  RemoveView(id, &stale);
   std::vector<CellId> changed;
-  RemoveView(id, &changed);
+  for (int32_t k : stale)
+    if (RebuildRefs(k)) changed.push_back(cells_[k].id);
   std::sort(changed.begin(), changed.end());
   changed.erase(std::unique(changed.begin(), changed.end()), changed.end());
   return changed;
@@ -237,8 +269,9 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
   // φ(I, b_k) for every cell I sees (only these cells can change).
   const glm::dvec3 centre = cand.local_from_cam.translation;
   const double pixel_sr = cand.id_camera.PixelSolidAngle();
-  View view{cand.id, centre, cand.bytes, {}};
+  View view{cand.id, centre, cand.bytes, pixel_sr, {}, {}};
   view.entries.reserve(cand.cells.size());
+  view.pixels.reserve(cand.cells.size());
   for (const CellPixelCount& c : cand.cells) {
     if (c.cell == kNoCell || c.pixels == 0) continue;
     const double phi = CoverageOf(centre, c.cell, c.pixels, pixel_sr);
@@ -248,9 +281,13 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
     auto dup = std::find_if(view.entries.begin(), view.entries.end(),
                             [idx](const Entry& e) { return e.cell == idx; });
     if (dup != view.entries.end()) {
-      dup->phi = std::max(dup->phi, static_cast<float>(phi));
+      if (static_cast<float>(phi) > dup->phi) {
+        dup->phi = static_cast<float>(phi);
+        view.pixels[static_cast<size_t>(dup - view.entries.begin())] = c.pixels;
+      }
     } else {
       view.entries.push_back({idx, static_cast<float>(phi)});
+      view.pixels.push_back(c.pixels);
     }
   }
   if (view.entries.empty()) {
@@ -325,8 +362,15 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
 
   d.accepted = true;
   d.reason = victims.empty() ? "accepted" : "accepted, replacing a victim";
-  for (ViewId v : victims) RemoveView(v, &d.changed_cells);
+  // Victims leave first; the cells whose R(b_k) lost a victim are rebuilt from the final store
+  // (the candidate included), the others get the candidate by the incremental rule.
+  std::vector<int32_t> stale;
+  for (ViewId v : victims) RemoveView(v, &stale);
+  std::sort(stale.begin(), stale.end());
+  stale.erase(std::unique(stale.begin(), stale.end()), stale.end());
   AddView(std::move(view), &d.changed_cells);
+  for (int32_t k : stale)
+    if (RebuildRefs(k)) d.changed_cells.push_back(cells_[k].id);
   d.removed = std::move(victims);
   std::sort(d.changed_cells.begin(), d.changed_cells.end());
   d.changed_cells.erase(std::unique(d.changed_cells.begin(), d.changed_cells.end()),
@@ -379,7 +423,8 @@ size_t ViewPlanner::BookkeepingBytes() const {
   size_t b = cells_.capacity() * sizeof(Cell) + cell_index_.size() * (sizeof(CellId) + 16) +
              areas_.size() * (sizeof(CellId) + sizeof(double) + 16);
   for (const Cell& c : cells_) b += (c.observers.capacity() + c.refs.capacity()) * sizeof(Ref);
-  for (const auto& [id, v] : views_) b += sizeof(View) + v.entries.capacity() * sizeof(Entry);
+  for (const auto& [id, v] : views_)
+    b += sizeof(View) + v.entries.capacity() * sizeof(Entry) + v.pixels.capacity() * sizeof(uint32_t);
   return b;
 }
 

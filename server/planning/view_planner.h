@@ -13,11 +13,16 @@
 // cheap enough that no "lowest-ranked" shortlist is needed: the shortlist of the thesis is the
 // whole store); several victims are removed if the candidate needs more bytes than one frees.
 // Pre-selection (§3.1.4): I joins R(b_k) when R has room (Δτ = 0) or replaces the reference with
-// the smallest φ when φ_I - φ_v > Δτ. A reference removed with its view is refilled from the
-// remaining observers of that cell (best φ first).
+// the smallest φ when φ_I - φ_v > Δτ. R(b_k) is always the pre-selection replayed over the views
+// STORED NOW, in acceptance order (each φ against the references chosen before it): when a view
+// leaves the store, the R(b_k) of its cells are rebuilt that way, so R does not depend on views
+// that were evicted (patching the hole with the best remaining observer, as sessions 1-4 did,
+// kept references whose φ had been judged against views long gone: apartment walk, 400 frames,
+// store 200, near test poses 0.788 -> see docs/evaluation.md).
 #pragma once
 
 #include <cstdint>
+#include <span>
 #include <string>
 #include <unordered_map>
 #include <vector>
@@ -139,7 +144,8 @@ class ViewPlanner {
   struct Ref {
     ViewId view;
     float phi;
-    glm::dvec3 dir;  // unit vector cell centre -> camera
+    glm::dvec3 dir;      // unit vector cell centre -> camera
+    uint32_t entry = 0;  // index of this cell in views_[view].entries
   };
   struct Cell {
     CellId id = kNoCell;
@@ -155,12 +161,22 @@ class ViewPlanner {
     ViewId id;
     glm::dvec3 centre;
     size_t bytes;
+    double pixel_sr = 0;            // A_px of the candidate's cell-id buffer
     std::vector<Entry> entries;
+    std::vector<uint32_t> pixels;   // ψ_vis per entry (to replay the pre-selection)
   };
+  // φ of a camera for a cell against an explicit reference set (CoverageOf uses R(b_k)).
+  double CoverageAgainst(const glm::dvec3& cam_centre_local, CellId cell, double pixels,
+                         double pixel_sr, std::span<const Ref> refs) const;
+  // Replays the pre-selection over the cell's current observers in acceptance (id) order;
+  // true if the set of references changed.
+  bool RebuildRefs(int32_t cell);
 
   int32_t CellIndex(CellId id);  // creates the cell on first use
   void AddToCellTau(int32_t cell, double dphi);
-  void RemoveView(ViewId id, std::vector<CellId>* changed);
+  // Removes the view's coverage and observer entries; the cells whose R(b_k) lost it are appended
+  // to `stale` (rebuild them with RebuildRefs once the store is final).
+  void RemoveView(ViewId id, std::vector<int32_t>* stale);
   void AddView(View view, std::vector<CellId>* changed);
 
   PlannerOptions options_;

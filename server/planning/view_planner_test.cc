@@ -275,11 +275,13 @@ TEST(ViewPlanner, LongStreamRespectsBoundsAndIncrementalTauSumIsExact) {
   std::set<CellId> seen_cells;
   size_t byte_sum_check = 0;
   std::map<ViewId, size_t> bytes_of;
+  std::map<ViewId, Candidate> candidates;
   for (ViewId id = 1; id <= 400; ++id) {
     const glm::dvec3 target(u(rng), u(rng), 0);
     const glm::dvec3 centre = target + glm::dvec3(u(rng) * 0.5, u(rng) * 0.5, h(rng));
     Candidate c = MakeCandidate(id, centre, target, p.grid(), size_t(sz(rng)), 6.0);
     for (auto& cp : c.cells) seen_cells.insert(cp.cell);
+    candidates.emplace(id, c);
     auto d = p.Consider(c);
     ASSERT_TRUE(d.ok()) << d.status();
     if (d->accepted) {
@@ -298,6 +300,33 @@ TEST(ViewPlanner, LongStreamRespectsBoundsAndIncrementalTauSumIsExact) {
   }
   EXPECT_GT(accepted, 20);
   EXPECT_GT(evictions, 5);
+  // R(b_k) is the pre-selection replayed over the views stored now, in acceptance order,
+  // whatever was evicted on the way (guard: RebuildRefs after evictions; the old refill from the
+  // best remaining observer fails this): a fresh planner that accepts every stored view in id
+  // order (τ_max huge, Δτ_sum 0, room for all) must end with the same references in every cell.
+  {
+    PlannerOptions fo = o;
+    fo.max_views = 1000;
+    fo.max_bytes = size_t{1} << 40;
+    fo.tau_max = 1e30;
+    fo.delta_tau_sum = 0;
+    auto fresh = ViewPlanner::Create(fo).value();
+    for (ViewId id : p.ViewIds()) {
+      auto d = fresh.Consider(candidates.at(id));
+      ASSERT_TRUE(d.ok());
+      ASSERT_TRUE(d->accepted);
+    }
+    size_t cells_checked = 0;
+    for (const auto& [cell, refs] : p.CellRefs()) {
+      std::vector<ViewId> a = refs, b = fresh.Refs(cell);
+      std::sort(a.begin(), a.end());
+      std::sort(b.begin(), b.end());
+      EXPECT_EQ(a, b) << "cell " << cell;
+      ++cells_checked;
+    }
+    EXPECT_EQ(fresh.CellRefs().size(), cells_checked);
+    EXPECT_GT(cells_checked, 20u);
+  }
   // Bookkeeping grows with observed cells, not frames.
   EXPECT_LE(p.num_cells(), seen_cells.size());
   EXPECT_LT(p.BookkeepingBytes(), 200000u);
