@@ -395,7 +395,7 @@ std::string ConfigJson(const std::string& dataset, const std::string& test_poses
   return absl::StrFormat(
       "{\"bench\":\"eval\",\"dataset\":\"%s\",\"test_poses\":\"%s\",\"proxy\":\"%s\",\"tag\":\"%s\","
       "\"config\":{\"policy\":\"%s\",\"refs\":\"%s\",\"frames\":%d,\"store\":%d,\"r_max\":%d,\"lambda\":%.2f,"
-      "\"cell_m\":%.3f,\"voxel_m\":%.3f,\"delta_tau_sum\":%.3f,\"idbuf\":\"%dx%d\",\"ids\":\"%s\","
+      "\"cell_m\":%.3f,\"voxel_m\":%.4f,\"delta_tau_sum\":%.3f,\"idbuf\":\"%dx%d\",\"ids\":\"%s\","
       "\"scale\":\"%s\",\"d_max_m\":%.2f,\"sigma_m\":%.2f,\"cellid_lod_m\":%.3f},"
       "\"quality\":{\"mssim\":%.4f,\"psnr\":%.2f,\"coverage\":%.4f,\"mssim_covered\":%.4f,"
       "\"surface\":%.4f,\"test_views\":%d},"

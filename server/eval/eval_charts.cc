@@ -212,7 +212,8 @@ int main(int argc, char** argv) {
       }
       Panel(img, cv::Rect(560 * k, 0, 560, 400),
             "MSSIM (" + sets[k] + " test poses) vs TSDF voxel size",
-            "integrate CPU ms per frame (median, log)", "MSSIM", ss, true, true);
+            "integrate CPU ms per frame (median, log)", "MSSIM", ss, true,
+            /*legend_bottom=*/sets[k] == "near");  // where each panel has room
     }
     cv::imwrite(out + "/eval_voxel.png", img);
   }

@@ -265,33 +265,36 @@ absl::StatusOr<CellIdBuffer> CellIdRenderer::Render(const Rigid3d& local_from_ca
   // a box is tested through its centre and half extent: its largest plane value is
   // n . centre + |n| . half. Culled only when that is below -margin (a relative bound far above
   // the rounding of either form): a conservative cull, it never drops a covering chunk.
-  glm::dvec3 n_local[6];
-  double d_local[5];
+  glm::dvec3 n_local[6], n_abs[6];
+  double d_local[5], n_len[5];
   for (int p = 0; p < 5; ++p) {
     n_local[p] = glm::transpose(R) * glm::dvec3(planes[p]);
+    n_abs[p] = glm::abs(n_local[p]);
+    n_len[p] = glm::length(n_local[p]);
     d_local[p] = glm::dot(glm::dvec3(planes[p]), t) + planes[p].w;
   }
+  const double t_len = glm::length(t);
   // The far limit is not a raster clip plane: which chunks it drops changes the buffer, so a
   // box near it is decided exactly as before (all 8 corners beyond max_range_m in camera z).
   const bool far_limit = options_.max_range_m > 0.0;
   n_local[5] = glm::transpose(R) * glm::dvec3(0, 0, -1);  // -(camera z axis) in local
+  n_abs[5] = glm::abs(n_local[5]);
   CellIdBuffer out;
   std::vector<const TriangleMesh*> parts;
   parts.reserve(items_.size());
   for (const Item& e : items_) {
     const glm::dvec3 centre = 0.5 * (e.lo + e.hi), half = 0.5 * (e.hi - e.lo);
-    const double scale = glm::dot(glm::abs(centre) + half, glm::dvec3(1.0)) + glm::length(t);
+    const double scale = glm::dot(glm::abs(centre) + half, glm::dvec3(1.0)) + t_len;
     bool outside = false;
     for (int p = 0; p < 5 && !outside; ++p) {
-      const double hi_value = glm::dot(n_local[p], centre) + glm::dot(glm::abs(n_local[p]), half);
-      const double margin = 1e-9 * (glm::length(n_local[p]) * scale + std::abs(d_local[p]));
+      const double hi_value = glm::dot(n_local[p], centre) + glm::dot(n_abs[p], half);
+      const double margin = 1e-9 * (n_len[p] * scale + std::abs(d_local[p]));
       outside = hi_value + d_local[p] < -margin;
     }
     if (outside) continue;
     if (far_limit) {
       // Smallest camera z over the box.
-      const double z_lo =
-          t.z - (glm::dot(n_local[5], centre) + glm::dot(glm::abs(n_local[5]), half));
+      const double z_lo = t.z - (glm::dot(n_local[5], centre) + glm::dot(n_abs[5], half));
       const double margin = 1e-9 * (scale + options_.max_range_m);
       if (z_lo > options_.max_range_m + margin) continue;  // surely beyond
       if (z_lo >= options_.max_range_m - margin) {         // close: the exact corner test
