@@ -428,7 +428,7 @@ struct EngineOptions {
   double cellid_lod_frac = -1;
   double cellid_lod_m = 0;       // > 0: cluster size in metres (wins over cellid_lod_frac)
   double cellid_lod_keep = 0.1;  // planning::CellIdRendererOptions::lod_keep_fraction
-  CellIdSource cell_ids = CellIdSource::kProxy;
+  CellIdSource cell_ids = CellIdSource::kFrameDepth;
 };
 
 class Engine {
@@ -529,7 +529,9 @@ class Engine {
       const auto t_lod = Clock::now();
       const double c_lod = ThreadCpuMs();
       const double p_lod = ProcessCpuMs();
-      for (auto& g : groups_) EXO_RETURN_IF_ERROR(g.cid->Update(dirty));
+      // (Cell ids from frame depth need no cell-id meshes.)
+      if (opt_.cell_ids == CellIdSource::kProxy)
+        for (auto& g : groups_) EXO_RETURN_IF_ERROR(g.cid->Update(dirty));
       lod_ms += MsSince(t_lod);
       lod_cpu_ms += ThreadCpuMs() - c_lod;
       lod_proc_cpu_ms += ProcessCpuMs() - p_lod;
@@ -1134,7 +1136,9 @@ absl::StatusOr<std::vector<ConfigResult>> RunSynthetic(const SynthRunOptions& o)
   engine.set_origin(scene.origin);
   EXO_RETURN_IF_ERROR(engine.Init());
   for (int i = 0; i < int(traj.size()); ++i) {
-    if (o.proxy == ProxyKind::kTsdf) {
+    // Frames are rendered for the TSDF and for cell ids from depth (the ground-truth proxy with
+    // proxy-rendered ids needs poses only).
+    if (o.proxy == ProxyKind::kTsdf || o.cell_ids == CellIdSource::kFrameDepth) {
       EXO_ASSIGN_OR_RETURN(synth::RenderedFrame f,
                            synth::RenderFrame(scene, traj[i].local_from_cam, rop, {}, i,
                                               traj[i].timestamp_s));

@@ -141,7 +141,8 @@ struct SynthRunOptions {
   // for every new chunk version). Village 200 frames: 0.1 cuts planning CPU 14.0 -> 10.2 ms at
   // -0.0006 MSSIM (docs/evaluation.md).
   double cellid_lod_keep = 0.1;
-  CellIdSource cell_ids = CellIdSource::kProxy;
+  // ψ_vis from the frame's depth (the server's default; since session 4) or a proxy render.
+  CellIdSource cell_ids = CellIdSource::kFrameDepth;
   blend::BlendOptions blend;       // lambda is overridden per config
   bool vertex_color_baseline = true;
   std::vector<PolicyConfig> configs;
@@ -170,7 +171,7 @@ struct SevenScenesRunOptions {
   double cellid_lod_frac = -1;     // see SynthRunOptions
   double cellid_lod_m = 0;         // see SynthRunOptions
   double cellid_lod_keep = 0.1;    // see SynthRunOptions
-  CellIdSource cell_ids = CellIdSource::kProxy;  // see SynthRunOptions
+  CellIdSource cell_ids = CellIdSource::kFrameDepth;  // see SynthRunOptions
   bool per_view = false;           // see SynthRunOptions
   blend::BlendOptions blend;
   bool vertex_color_baseline = true;

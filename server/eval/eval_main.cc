@@ -36,8 +36,8 @@ constexpr char kUsage[] =
     "                        voxel sweep)\n"
     "  --tag NAME            label of the policy configs in the JSON (default \"main\")\n"
     "  --lod_keep F          keep a chunk's LOD while its triangle count is within F (default 0.1)\n"
-    "  --ids proxy|depth     psi_vis from a render of the proxy (default, SPEC 3.12) or from the\n"
-    "                        frame's own depth (the server's default)\n"
+    "  --ids depth|proxy     psi_vis from the frame's own depth (default, as the server does) or\n"
+    "                        from a render of the proxy (SPEC 3.12 as written)\n"
     "  --scale bounds|depth  d_max/σ from scene_scale.h or from the first frame's median depth\n"
     "                        (synthetic default bounds, 7-Scenes default depth)\n"
     "  policies every_n_uncapped, min_distance_uncapped, all_uncapped: baseline referencing every\n"
@@ -152,7 +152,7 @@ int RunOne(const Args& a) {
     o.cellid_lod_frac = a.Num("--lod", o.cellid_lod_frac);
     o.cellid_lod_m = a.Num("--lod_m", o.cellid_lod_m);
     o.cellid_lod_keep = a.Num("--lod_keep", o.cellid_lod_keep);
-    if (a.kv.count("--ids")) o.cell_ids = a.Get("--ids", "") == "depth" ? CellIdSource::kFrameDepth : CellIdSource::kProxy;
+    if (a.kv.count("--ids")) o.cell_ids = a.Get("--ids", "") == "proxy" ? CellIdSource::kProxy : CellIdSource::kFrameDepth;
     o.per_view = a.Num("--per_view", 0) != 0;
     if (a.kv.count("--scale")) o.scale_mode = a.Get("--scale", "") == "bounds" ? ScaleMode::kBounds : ScaleMode::kViewDepth;
     o.blend = Blend(a);
@@ -186,7 +186,7 @@ int RunOne(const Args& a) {
   o.cellid_lod_frac = a.Num("--lod", o.cellid_lod_frac);
   o.cellid_lod_m = a.Num("--lod_m", o.cellid_lod_m);
   o.cellid_lod_keep = a.Num("--lod_keep", o.cellid_lod_keep);
-  if (a.kv.count("--ids")) o.cell_ids = a.Get("--ids", "") == "depth" ? CellIdSource::kFrameDepth : CellIdSource::kProxy;
+  if (a.kv.count("--ids")) o.cell_ids = a.Get("--ids", "") == "proxy" ? CellIdSource::kProxy : CellIdSource::kFrameDepth;
   o.blend = Blend(a);
   // --test_poses scene | near | scene,near (both sets on the same stream and stores)
   for (absl::string_view m : absl::StrSplit(a.Get("--test_poses", "scene"), ',', absl::SkipEmpty())) {

@@ -125,13 +125,6 @@ int32_t ViewPlanner::CellIndex(CellId id) {
 
 double ViewPlanner::CoverageOf(const glm::dvec3& cam, CellId cell, double pixels,
                                double pixel_sr) const {
-  std::span<const Ref> refs;
-  if (auto it = cell_index_.find(cell); it != cell_index_.end()) refs = cells_[it->second].refs;
-  return CoverageAgainst(cam, cell, pixels, pixel_sr, refs);
-}
-
-double ViewPlanner::CoverageAgainst(const glm::dvec3& cam, CellId cell, double pixels,
-                                    double pixel_sr, std::span<const Ref> refs) const {
   if (cell == kNoCell || !(pixels > 0.0) || !(pixel_sr > 0.0) || !Finite(cam)) return 0.0;
   // Guard d -> 0 (SPEC §4, §11): a camera inside the cell has no defined direction to it and
   // the 1/d^2 footprint model does not apply: it claims no coverage of that cell.
@@ -143,16 +136,23 @@ double ViewPlanner::CoverageAgainst(const glm::dvec3& cam, CellId cell, double p
 
   std::array<glm::dvec3, kMaxRMax> ref_dirs;
   size_t n_refs = 0;
-  for (const Ref& r : refs) ref_dirs[n_refs++] = r.dir;
+  if (auto it = cell_index_.find(cell); it != cell_index_.end())
+    for (const Ref& r : cells_[it->second].refs) ref_dirs[n_refs++] = r.dir;
   const double phi_d = DirectionalCoverage(
       dir, std::span<const glm::dvec3>(ref_dirs.data(), n_refs), options_.r_max);
-
   const double g = DistanceQuality(d, options_.d_max_m, options_.sigma_m);
-  const auto area_it = areas_.find(cell);
-  const double area = area_it != areas_.end() ? area_it->second : grid_.CellArea();
-  const double psi_total = PsiTotal(area, grid_.CellArea(), d, pixel_sr, 0.5 * grid_.cell_size_m);
-  const double phi_p = PositionalCoverage(g, pixels, psi_total);
-  return Coverage(options_.lambda, phi_d, phi_p);
+  return Coverage(options_.lambda, phi_d, PositionalPart(AreaOf(cell), d, g, pixels, pixel_sr));
+}
+
+double ViewPlanner::AreaOf(CellId cell) const {
+  const auto it = areas_.find(cell);
+  return it != areas_.end() ? it->second : grid_.CellArea();
+}
+
+double ViewPlanner::PositionalPart(double area_m2, double d, double g, double pixels,
+                                   double pixel_sr) const {
+  const double psi_total = PsiTotal(area_m2, grid_.CellArea(), d, pixel_sr, 0.5 * grid_.cell_size_m);
+  return PositionalCoverage(g, pixels, psi_total);
 }
 
 void ViewPlanner::AddToCellTau(int32_t cell, double dphi) {
@@ -167,8 +167,12 @@ void ViewPlanner::AddView(View view, std::vector<CellId>* changed) {
   for (size_t i = 0; i < view.entries.size(); ++i) {
     const Entry& e = view.entries[i];
     Cell& c = cells_[e.cell];
-    const glm::dvec3 dir = glm::normalize(view.centre - grid_.Centre(c.id));
-    const Ref ref{view.id, e.phi, dir, static_cast<uint32_t>(i)};
+    // The same d and direction CoverageOf computed for this view (the replay in RebuildRefs
+    // reproduces its φ exactly).
+    const glm::dvec3 v = view.centre - grid_.Centre(c.id);
+    const double d = glm::length(v);
+    const Ref ref{view.id, e.phi, v / d, static_cast<uint32_t>(i), view.pixels[i], d,
+                  DistanceQuality(d, options_.d_max_m, options_.sigma_m), view.pixel_sr};
     c.observers.push_back(ref);
     AddToCellTau(e.cell, e.phi);
     // Pre-selection (§3.1.4). τ(R ∪ I) - τ(R) = φ_I > 0 = Δτ while R has room.
@@ -206,36 +210,41 @@ void ViewPlanner::RemoveView(ViewId id, std::vector<int32_t>* stale) {
 }
 
 bool ViewPlanner::RebuildRefs(int32_t cell) {
+  // Replays §3.1.4 over the observers in acceptance order (the order AddView appended them):
+  // each φ is what CoverageOf gave that view against the references chosen before it.
   Cell& c = cells_[cell];
-  std::vector<const Ref*> order;
-  order.reserve(c.observers.size());
-  for (const Ref& o : c.observers) order.push_back(&o);
-  std::sort(order.begin(), order.end(), [](const Ref* a, const Ref* b) { return a->view < b->view; });
-  std::vector<Ref> refs;
-  refs.reserve(static_cast<size_t>(options_.r_max));
-  for (const Ref* o : order) {
-    const View& v = views_.at(o->view);
-    const double phi = CoverageAgainst(v.centre, c.id, v.pixels[o->entry], v.pixel_sr, refs);
+  const double area = AreaOf(c.id);
+  std::array<ViewId, kMaxRMax> before;
+  size_t n_before = 0;
+  for (const Ref& r : c.refs) before[n_before++] = r.view;
+  std::array<glm::dvec3, kMaxRMax> dirs;
+  c.refs.clear();
+  for (const Ref& o : c.observers) {
+    const double phi_d = DirectionalCoverage(
+        o.dir, std::span<const glm::dvec3>(dirs.data(), c.refs.size()), options_.r_max);
+    const double phi = Coverage(options_.lambda, phi_d,
+                                PositionalPart(area, o.d, o.g, o.pixels, o.pixel_sr));
     if (!(phi > 0.0)) continue;
-    Ref r = *o;
+    Ref r = o;
     r.phi = static_cast<float>(phi);
-    if (static_cast<int>(refs.size()) < options_.r_max) {
-      refs.push_back(r);
+    if (static_cast<int>(c.refs.size()) < options_.r_max) {
+      dirs[c.refs.size()] = r.dir;
+      c.refs.push_back(r);
     } else {
-      auto victim = std::min_element(refs.begin(), refs.end(),
+      auto victim = std::min_element(c.refs.begin(), c.refs.end(),
                                      [](const Ref& a, const Ref& b) { return a.phi < b.phi; });
-      if (phi - victim->phi > options_.delta_tau) *victim = r;
+      if (phi - victim->phi > options_.delta_tau) {
+        dirs[static_cast<size_t>(victim - c.refs.begin())] = r.dir;
+        *victim = r;
+      }
     }
   }
-  auto ids = [](const std::vector<Ref>& rs) {
-    std::vector<ViewId> v;
-    for (const Ref& r : rs) v.push_back(r.view);
-    std::sort(v.begin(), v.end());
-    return v;
-  };
-  const bool changed = ids(refs) != ids(c.refs);
-  c.refs = std::move(refs);
-  return changed;
+  if (c.refs.size() != n_before) return true;
+  std::array<ViewId, kMaxRMax> after;
+  for (size_t i = 0; i < c.refs.size(); ++i) after[i] = c.refs[i].view;
+  std::sort(before.begin(), before.begin() + n_before);
+  std::sort(after.begin(), after.begin() + n_before);
+  return !std::equal(before.begin(), before.begin() + n_before, after.begin());
 }
 
 absl::StatusOr<std::vector<CellId>> ViewPlanner::Remove(ViewId id) {

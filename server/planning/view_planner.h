@@ -22,7 +22,6 @@
 #pragma once
 
 #include <cstdint>
-#include <span>
 #include <string>
 #include <unordered_map>
 #include <vector>
@@ -146,6 +145,10 @@ class ViewPlanner {
     float phi;
     glm::dvec3 dir;      // unit vector cell centre -> camera
     uint32_t entry = 0;  // index of this cell in views_[view].entries
+    uint32_t pixels = 0; // ψ_vis
+    double d = 0;        // |camera - cell centre|
+    double g = 0;        // distance quality (3.11) at d
+    double pixel_sr = 0; // A_px of the view's cell-id buffer
   };
   struct Cell {
     CellId id = kNoCell;
@@ -163,12 +166,12 @@ class ViewPlanner {
     size_t bytes;
     double pixel_sr = 0;            // A_px of the candidate's cell-id buffer
     std::vector<Entry> entries;
-    std::vector<uint32_t> pixels;   // ψ_vis per entry (to replay the pre-selection)
+    std::vector<uint32_t> pixels;   // ψ_vis per entry
   };
-  // φ of a camera for a cell against an explicit reference set (CoverageOf uses R(b_k)).
-  double CoverageAgainst(const glm::dvec3& cam_centre_local, CellId cell, double pixels,
-                         double pixel_sr, std::span<const Ref> refs) const;
-  // Replays the pre-selection over the cell's current observers in acceptance (id) order;
+  double AreaOf(CellId cell) const;  // A(b_k), or A_cell when unknown
+  // φ_p (3.13-3.14) of a view at distance d with distance quality g and ψ_vis = pixels.
+  double PositionalPart(double area_m2, double d, double g, double pixels, double pixel_sr) const;
+  // Replays the pre-selection over the cell's current observers in acceptance order;
   // true if the set of references changed.
   bool RebuildRefs(int32_t cell);
 
