@@ -171,7 +171,7 @@ void ViewPlanner::AddView(View view, std::vector<CellId>* changed) {
     // reproduces its φ exactly).
     const glm::dvec3 v = view.centre - grid_.Centre(c.id);
     const double d = glm::length(v);
-    const Ref ref{view.id, e.phi, v / d, static_cast<uint32_t>(i), view.pixels[i], d,
+    const Ref ref{view.id, e.phi, v / d, view.pixels[i], d,
                   DistanceQuality(d, options_.d_max_m, options_.sigma_m), view.pixel_sr};
     c.observers.push_back(ref);
     AddToCellTau(e.cell, e.phi);

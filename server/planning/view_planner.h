@@ -144,7 +144,6 @@ class ViewPlanner {
     ViewId view;
     float phi;
     glm::dvec3 dir;      // unit vector cell centre -> camera
-    uint32_t entry = 0;  // index of this cell in views_[view].entries
     uint32_t pixels = 0; // ψ_vis
     double d = 0;        // |camera - cell centre|
     double g = 0;        // distance quality (3.11) at d
@@ -166,7 +165,7 @@ class ViewPlanner {
     size_t bytes;
     double pixel_sr = 0;            // A_px of the candidate's cell-id buffer
     std::vector<Entry> entries;
-    std::vector<uint32_t> pixels;   // ψ_vis per entry
+    std::vector<uint32_t> pixels;   // ψ_vis per entry (copied into the cell's Ref by AddView)
   };
   double AreaOf(CellId cell) const;  // A(b_k), or A_cell when unknown
   // φ_p (3.13-3.14) of a view at distance d with distance quality g and ψ_vis = pixels.
