@@ -513,6 +513,11 @@ class Engine {
     return absl::OkStatus();
   }
 
+  // The cell-id LOD in the JSON: 0 when the ids come from frame depth (no cell-id meshes).
+  double ReportedLodM() const {
+    return opt_.cell_ids == CellIdSource::kProxy ? lod_cluster_m_ : 0.0;
+  }
+
   // One input frame (frame may be null for the ground-truth proxy).
   absl::Status Step(int idx, const Frame* frame) {
     const Rigid3d& pose = src_.poses[idx];
@@ -643,7 +648,7 @@ class Engine {
         r.geometry_bytes = geometry_bytes;
         r.json = ConfigJson(src_.dataset, ts.label, proxy_name, voxel_m, n, r.config, 0, 0, 0, r, opt_.id_w,
                             opt_.id_h, PlannerFor(r.config, src_, src_.scale.cell_size_m, src_.frame_bytes),
-                            ScaleModeName(src_.scale_mode), lod_cluster_m_,
+                            ScaleModeName(src_.scale_mode), ReportedLodM(),
                             CellIdSourceName(opt_.cell_ids));
         if (opt_.emit) opt_.emit(r.json);
         results.push_back(std::move(r));
@@ -775,7 +780,7 @@ class Engine {
         }
         rt.json = ConfigJson(src_.dataset, ts.label, proxy_name, voxel_m, n, c, po.lambda,
                              g.grid.cell_size_m, po.delta_tau_sum, rt, opt_.id_w, opt_.id_h, po,
-                             ScaleModeName(src_.scale_mode), lod_cluster_m_,
+                             ScaleModeName(src_.scale_mode), ReportedLodM(),
                             CellIdSourceName(opt_.cell_ids));
         if (opt_.emit) opt_.emit(rt.json);
         results.push_back(std::move(rt));

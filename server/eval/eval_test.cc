@@ -97,6 +97,7 @@ TEST(EvalSmokeTest, VoxelSizeScalesProxyAndLodStaysFixed) {
     o.vertex_color_baseline = false;
     o.cellid_lod_frac = -1;
     o.cellid_lod_m = 0.4;
+    o.cell_ids = CellIdSource::kProxy;  // the LOD only exists on the proxy-render path
     o.configs.resize(1);
     o.configs[0].store = 6;
     o.configs[0].tag = "voxel_fixedlod";
