@@ -1321,6 +1321,13 @@ class VulkanRenderer::Impl {
       cov[i] = a == 0 ? 0 : a == 255 ? 2 : a == 64 ? 3 : 1;  // blend_shade.glsl alpha codes
     }
     r.readback_ms = MsSince(t1);
+    if (bo.fill_holes) {  // host post-pass on the read-back frame, same function as the CPU oracle
+      const auto tf = Clock::now();
+      ImageU8 known(w, h, 1, 0);
+      for (size_t i = 0; i < known.size(); ++i) known.data()[i] = cov[i] >= 2;
+      r.filled_pixels = FillHoles(r.color, known);
+      r.fill_ms = MsSince(tf);
+    }
     return r;
   }
 

@@ -67,6 +67,10 @@ struct RenderResult {
   ImageU8 coverage;
   double gpu_ms = 0;       // submit-to-fence time of the render pass
   double readback_ms = 0;  // copy-out of the colour attachment to ImageU8
+  // BlendOptions::fill_holes: uncovered pixels (coverage 0 / 1) filled on the host after the
+  // read-back by FillHoles (cpu_renderer.h), the CPU oracle's function.
+  size_t filled_pixels = 0;
+  double fill_ms = 0;
   double rank_ms = 0;      // host: per-frame ranking of every cell's references (RankRefs)
   std::vector<ViewId> background_views;  // this frame's background view list (rank order)
 };

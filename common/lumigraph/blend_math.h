@@ -64,6 +64,12 @@ struct BlendOptions {
   // invalid depth (BackgroundMask): sensor holes next to surfaces and silhouette edges (incl. the
   // 2x2 bilinear footprint of the sample) never bring foreground colour into the sky.
   int background_guard_radius_px = 3;
+  // Hole fill (a post-pass, not per-fragment math): pixels that end uncovered (no valid stored
+  // view for the surface, or no surface and no background sample) are filled by push-pull from
+  // the covered and background pixels of the same frame (FillHoles, cpu_renderer.h), in both
+  // renderers. Coverage stays 0 there: it still measures what the lumigraph blended. Off: such
+  // pixels keep background_srgb (the output before session 5).
+  bool fill_holes = true;
 
   absl::Status Validate() const {
     auto finite = [](float v) { return std::isfinite(v); };

@@ -6,6 +6,7 @@
 #include <cmath>
 #include <thread>
 
+#include "common/image_fill.h"
 #include "common/raster/rasterizer.h"
 
 namespace exo {
@@ -344,7 +345,38 @@ absl::StatusOr<CpuRenderOutput> CpuLumigraphRenderer::Render(const PinholeCamera
     out.background_pixels += background[t];
   }
   out.blend_ms = MsSince(t0);
+  if (bo.fill_holes && out.covered_pixels + out.background_pixels < size_t(w) * h) {
+    const auto tf = std::chrono::steady_clock::now();
+    ImageU8 known(w, h, 1, 0);
+    for (size_t i = 0; i < known.size(); ++i)
+      known.data()[i] = out.coverage.data()[i] | out.background.data()[i];
+    out.filled_pixels = FillHoles(out.color, known);
+    out.fill_ms = MsSince(tf);
+  }
   return out;
+}
+
+size_t FillHoles(ImageU8& rgb, const ImageU8& known) {
+  EXO_CHECK(rgb.channels() == 3 && known.channels() == 1 && known.width() == rgb.width() &&
+            known.height() == rgb.height());
+  const size_t n = static_cast<size_t>(rgb.width()) * rgb.height();
+  std::vector<uint8_t> k(n);
+  size_t unknown = 0;
+  for (size_t i = 0; i < n; ++i) {
+    k[i] = known.data()[i] != 0;
+    unknown += !k[i];
+  }
+  if (unknown == 0 || unknown == n) return 0;
+  const std::array<float, 256>& lin = SrgbLut();
+  std::vector<float> data(n * 3);
+  for (size_t i = 0; i < n * 3; ++i) data[i] = lin[rgb.data()[i]];
+  PushPullFill(data, 3, k, rgb.width(), rgb.height(), PullFilter::kBilinear);
+  for (size_t i = 0; i < n; ++i) {
+    if (k[i]) continue;
+    for (int c = 0; c < 3; ++c)
+      rgb.data()[i * 3 + c] = blend::UnitToU8(blend::LinearToSrgb(data[i * 3 + c]));
+  }
+  return unknown;
 }
 
 }  // namespace exo

@@ -7,7 +7,8 @@
 // pixels, treating the ray as a direction (background at infinity, e.g. sky;
 // BlendOptions::background_views, blend_math.h BackgroundWeight).
 // Output is always defined: pixels with no surface, an empty reference set or no valid view get
-// the background colour and coverage 0 (never NaN).
+// coverage 0 (never NaN) and, by default, a push-pull fill from the covered pixels around them
+// (BlendOptions::fill_holes; off: the background colour).
 #pragma once
 
 #include <functional>
@@ -46,7 +47,9 @@ struct CpuRenderOutput {
   size_t surface_pixels = 0;  // pixels where the proxy was hit
   size_t background_pixels = 0;       // pixels filled at infinity (see `background`)
   std::vector<ViewId> background_views;  // this frame's background view list, in rank order
+  size_t filled_pixels = 0;  // uncovered pixels filled by FillHoles (BlendOptions::fill_holes)
   double raster_ms = 0.0, blend_ms = 0.0;
+  double fill_ms = 0.0;      // FillHoles (not in blend_ms)
   double background_ms = 0.0;  // view selection + masks of the background pass (in blend_ms)
 };
 
@@ -89,6 +92,13 @@ class CpuLumigraphRenderer {
   mutable std::mutex mask_mutex_;
   mutable std::vector<std::unique_ptr<BackgroundMaskEntry>> masks_;  // per view, lazily
 };
+
+// Hole fill of a rendered frame (BlendOptions::fill_holes; shared by the CPU reference and the
+// Vulkan client, which runs it on the read-back frame): pixels where `known` (1 channel, same
+// size) is 0 get a push-pull fill (PushPullFill, bilinear pull) of the known pixels' colour in
+// linear intensity (sRGB decoded, filled, encoded). Known pixels are not changed. Returns the
+// number of pixels filled: 0 when every pixel is known or none is.
+size_t FillHoles(ImageU8& rgb, const ImageU8& known);
 
 // Converts a stored view into the fragment-stage parameters of blend_math.h.
 blend::BlendView MakeBlendView(const StoredView& view);

@@ -126,6 +126,70 @@ TEST(CpuRenderer, EmptyReferenceSetAndInvalidDepthGiveBackground) {
   EXPECT_EQ(out.color.at(30, 20, 1), 255);
 }
 
+// BlendOptions::fill_holes: a plane covering the left part of the view, no background pass. With
+// the fill every uncovered pixel takes the stored views' colour (uniform here, so exactly it, to
+// the sRGB rounding); covered pixels and coverage are bit-identical to the render without it,
+// which leaves the uncovered pixels at the background colour.
+TEST(CpuRenderer, HoleFillTakesCoveredColourAndChangesNothingElse) {
+  LumigraphModel m = OnePlaneModel(Plane(2.1f, glm::vec3(-10.4f, 0.0f, 0.0f)));
+  m.views[1] = MakeView(1, m.chunks[0].mesh, Rigid3d::Identity(), 1.0f, /*uniform=*/true);
+  ReferenceAllCells(&m);
+  CpuRenderOptions on, off;
+  on.blend.background_views = off.blend.background_views = 0;
+  on.blend.background_srgb = off.blend.background_srgb = glm::vec3(0.0f, 1.0f, 0.0f);
+  off.blend.fill_holes = false;
+  ASSERT_TRUE(on.blend.fill_holes);  // the default
+  auto a = CpuLumigraphRenderer::Create(m, on).value()->Render(SmallCam(), Rigid3d::Identity()).value();
+  auto b = CpuLumigraphRenderer::Create(m, off).value()->Render(SmallCam(), Rigid3d::Identity()).value();
+  ASSERT_GT(a.covered_pixels, 300u);
+  ASSERT_LT(a.covered_pixels, 64u * 48u - 300u);
+  EXPECT_EQ(a.covered_pixels, b.covered_pixels);
+  EXPECT_EQ(a.filled_pixels, 64u * 48u - a.covered_pixels);
+  EXPECT_EQ(b.filled_pixels, 0u);
+  for (int y = 0; y < 48; ++y)
+    for (int x = 0; x < 64; ++x) {
+      ASSERT_EQ(a.coverage.at(x, y), b.coverage.at(x, y));
+      for (int k = 0; k < 3; ++k) {
+        if (a.coverage.at(x, y) != 0) {
+          ASSERT_EQ(a.color.at(x, y, k), b.color.at(x, y, k));
+        } else {
+          ASSERT_EQ(b.color.at(x, y, k), k == 1 ? 255 : 0);
+          ASSERT_NEAR(a.color.at(x, y, k), 128, 1) << x << "," << y;
+        }
+      }
+    }
+}
+
+// FillHoles alone: known pixels are kept, unknown ones fall between the colours around them;
+// nothing happens when every pixel or no pixel is known.
+TEST(FillHoles, FillsBetweenKnownColoursOnly) {
+  ImageU8 rgb(40, 20, 3, 0), known(40, 20, 1, 0);
+  for (int y = 0; y < 20; ++y)
+    for (int x = 0; x < 40; ++x) {
+      const bool k = x < 10 || x >= 30;
+      known.at(x, y) = k ? 255 : 0;
+      for (int c = 0; c < 3; ++c) rgb.at(x, y, c) = k ? (x < 10 ? 20 : 220) : 99;
+    }
+  ImageU8 filled = rgb;
+  EXPECT_EQ(FillHoles(filled, known), 20u * 20u);
+  for (int y = 0; y < 20; ++y)
+    for (int x = 0; x < 40; ++x)
+      for (int c = 0; c < 3; ++c) {
+        if (known.at(x, y)) {
+          ASSERT_EQ(filled.at(x, y, c), rgb.at(x, y, c));
+        } else {
+          ASSERT_GE(filled.at(x, y, c), 20);
+          ASSERT_LE(filled.at(x, y, c), 220);
+        }
+      }
+  EXPECT_LT(filled.at(12, 10, 0), filled.at(27, 10, 0));
+  ImageU8 all(40, 20, 1, 255), none(40, 20, 1, 0);
+  ImageU8 copy = rgb;
+  EXPECT_EQ(FillHoles(copy, all), 0u);
+  EXPECT_EQ(FillHoles(copy, none), 0u);
+  EXPECT_EQ(copy, rgb);
+}
+
 TEST(CpuRenderer, OccludedViewIsNotUsed) {
   // View 1 sees the plane; view 2 is "occluded": its depth says a surface at 1 m in front.
   LumigraphModel m = OnePlaneModel(Plane(2.1f));
@@ -329,6 +393,7 @@ TEST(CpuRendererBackground, OptionOffLeavesNoSurfacePixelsAtBackgroundColour) {
   CpuRenderOptions on, off;
   off.blend.background_views = 0;
   off.blend.background_srgb = on.blend.background_srgb = glm::vec3(0.2f, 0.4f, 0.6f);
+  on.blend.fill_holes = off.blend.fill_holes = false;  // this test is about the background pass
   const Rigid3d novel = Yawed(0.05, {0.1, 0.0, 0.0});
   auto a = CpuLumigraphRenderer::Create(m, on).value()->Render(SmallCam(), novel).value();
   auto b = CpuLumigraphRenderer::Create(m, off).value()->Render(SmallCam(), novel).value();

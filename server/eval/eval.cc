@@ -315,6 +315,7 @@ ImageU8 Hstack(const std::vector<const ImageU8*>& imgs) {
 
 struct EvalSink {
   std::vector<double> ssim, psnr, cov, ssim_cov, render_ms, surface;
+  std::vector<double> ssim_unfilled, psnr_unfilled;
   Quality Finish() const {
     Quality q;
     q.mssim = Mean(ssim);
@@ -322,15 +323,28 @@ struct EvalSink {
     q.coverage = Mean(cov);
     q.mssim_covered = Mean(ssim_cov);
     q.surface = Mean(surface);
+    q.mssim_unfilled = Mean(ssim_unfilled);
+    q.psnr_unfilled = Mean(psnr_unfilled);
     q.views = int(ssim.size());
     return q;
   }
-  absl::Status Add(const ImageU8& img, const ImageU8& gt, const ImageU8& mask, double ms) {
-    EXO_ASSIGN_OR_RETURN(double s, Ssim(img, gt));
-    EXO_ASSIGN_OR_RETURN(double mse, Mse(img, gt));
+  // `img` as rendered without the hole fill; `mask` = covered (blended) pixels, `known` =
+  // covered or filled at infinity. The headline metrics are of the frame the product shows:
+  // `img` with its unknown pixels filled by FillHoles (BlendOptions::fill_holes, the renderers'
+  // default); *_unfilled and mssim_covered are of `img` as it is (the metrics of sessions 1-4).
+  absl::Status Add(const ImageU8& img, const ImageU8& gt, const ImageU8& mask,
+                   const ImageU8& known, double ms) {
+    ImageU8 filled = img;
+    FillHoles(filled, known);
+    EXO_ASSIGN_OR_RETURN(double s, Ssim(filled, gt));
+    EXO_ASSIGN_OR_RETURN(double mse, Mse(filled, gt));
+    EXO_ASSIGN_OR_RETURN(double s_raw, Ssim(img, gt));
+    EXO_ASSIGN_OR_RETURN(double mse_raw, Mse(img, gt));
     EXO_ASSIGN_OR_RETURN(double c, CoveredFraction(mask));
     ssim.push_back(s);
     psnr.push_back(std::min(99.0, PsnrFromMse(mse)));
+    ssim_unfilled.push_back(s_raw);
+    psnr_unfilled.push_back(std::min(99.0, PsnrFromMse(mse_raw)));
     cov.push_back(c);
     if (c > 0) {
       auto ms_or = MaskedSsim(img, gt, mask);
@@ -398,14 +412,14 @@ std::string ConfigJson(const std::string& dataset, const std::string& test_poses
       "\"cell_m\":%.3f,\"voxel_m\":%.4f,\"delta_tau_sum\":%.3f,\"idbuf\":\"%dx%d\",\"ids\":\"%s\","
       "\"scale\":\"%s\",\"d_max_m\":%.2f,\"sigma_m\":%.2f,\"cellid_lod_m\":%.3f},"
       "\"quality\":{\"mssim\":%.4f,\"psnr\":%.2f,\"coverage\":%.4f,\"mssim_covered\":%.4f,"
-      "\"surface\":%.4f,\"test_views\":%d},"
+      "\"surface\":%.4f,\"mssim_unfilled\":%.4f,\"psnr_unfilled\":%.2f,\"test_views\":%d},"
       "\"speed\":{\"integrate_ms_median\":%.2f,\"integrate_ms_p95\":%.2f,\"plan_ms_median\":%.2f,"
       "\"plan_ms_p95\":%.2f,\"consider_ms_median\":%.3f,\"render_ms_median\":%.1f},"
       "\"memory\":{\"store_bytes\":%zu,\"geometry_bytes\":%zu,\"planner_bytes\":%zu},"
       "\"views\":%zu,\"accepted\":%zu,\"tau_sum\":%.2f,\"mean_refs\":%.2f,\"max_refs\":%zu",
       dataset, test_poses, proxy, c.tag, PolicyName(c.policy), refs, frames, c.store, c.r_max, lambda,
       cell_m, voxel_m, dts, idw, idh, ids, scale, po.d_max_m, po.sigma_m, lod_m, r.quality.mssim, r.quality.psnr, r.quality.coverage,
-      r.quality.mssim_covered, r.quality.surface, r.quality.views, r.integrate_ms_median, r.integrate_ms_p95,
+      r.quality.mssim_covered, r.quality.surface, r.quality.mssim_unfilled, r.quality.psnr_unfilled, r.quality.views, r.integrate_ms_median, r.integrate_ms_p95,
       r.plan_ms_median, r.plan_ms_p95, r.consider_ms_median, r.render_ms_median, r.store_bytes,
       r.geometry_bytes, r.planner_bytes, r.store_views, r.accepted, r.tau_sum, r.mean_refs,
       r.max_refs) + PlanCpuJson(r) + ProxyCostJson(r) + PerViewJson(r) + "}";
@@ -824,6 +838,7 @@ class Engine {
     CpuRenderOptions ro;
     ro.blend = opt_.blend;
     ro.blend.lambda = float(lambda);
+    ro.blend.fill_holes = false;  // EvalSink::Add fills (FillHoles) so both versions are measured
     auto restore = [&] {
       for (auto& [id, v] : model.views) cache_[int(id) - 1] = std::move(v);
     };
@@ -844,7 +859,11 @@ class Engine {
         st = out.status();
         break;
       }
-      st = sink.Add(out->color, ts.gt[t], out->coverage, ms);
+      {
+        ImageU8 known = out->coverage;  // blended or filled at infinity
+        for (size_t i = 0; i < known.size(); ++i) known.data()[i] |= out->background.data()[i];
+        st = sink.Add(out->color, ts.gt[t], out->coverage, known, ms);
+      }
       sink.surface.push_back(double(out->surface_pixels) / (out->color.width() * out->color.height()));
       if (dump && !opt_.dump_dir.empty() && t < opt_.dump_views) {
         std::filesystem::create_directories(opt_.dump_dir);
@@ -944,7 +963,7 @@ class Engine {
             mask.at(x, y) = 255;
           }
       }
-      EXO_RETURN_IF_ERROR(sink.Add(img, ts.gt[t], mask, MsSince(t0)));
+      EXO_RETURN_IF_ERROR(sink.Add(img, ts.gt[t], mask, mask, MsSince(t0)));
       sink.surface.push_back(sink.cov.back());
     }
     *render_ms_median = Pct(sink.render_ms, 0.5);

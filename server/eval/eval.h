@@ -58,6 +58,9 @@ struct Quality {
   double mssim = 0, psnr = 0, coverage = 0;
   double mssim_covered = 0;     // SSIM over covered pixels only (masked), mean over views
   double surface = 0;           // fraction of pixels where the proxy was hit (rest: sky/void)
+  // mssim / psnr are of the frame the product shows (uncovered pixels filled by FillHoles, the
+  // renderers' default since session 5); *_unfilled of the frame without the fill (sessions 1-4).
+  double mssim_unfilled = 0, psnr_unfilled = 0;
   int views = 0;
 };
 
