@@ -17,11 +17,14 @@ enum class PullFilter {
   kBilinear,  // bilinear between the four nearest parents (smooth fills)
 };
 
+inline constexpr int kPushPullMaxChannels = 4;
+
 // Fills unknown samples of a float image with `channels` interleaved channels: valid-weighted
 // 2x2 averaging down a pyramid (weights saturate at 1, so dense data is not outvoted by a
 // single sample), then unknowns take the coarser level's value on the way up. `known[i]` != 0
 // marks known pixels; they are never changed. Returns false when no pixel is known (nothing is
-// changed). Sizes: data = width*height*channels, known = width*height.
+// changed). Sizes: data = width*height*channels, known = width*height; 1 <= channels <= 4.
+// Level 0 is not copied: the cost is one pass over the input plus the coarser levels.
 bool PushPullFill(std::span<float> data, int channels, std::span<const uint8_t> known, int width,
                   int height, PullFilter filter = PullFilter::kNearest);
 

@@ -138,7 +138,7 @@ int main(int argc, char** argv) {
       blend::BlendOptions bo;
       bo.background_views = background_views;
       double first_ms = 0, ssim_sum = 0;
-      std::vector<double> ms_v, cpu_v, gpu_v, rb_v, rank_v;
+      std::vector<double> ms_v, cpu_v, gpu_v, rb_v, rank_v, fill_v, filled_v;
       int ssim_n = 0;
       for (int k = 0; k <= frames; ++k) {
         const Rigid3d& pose =
@@ -160,6 +160,7 @@ int main(int argc, char** argv) {
         }
         if (k == 0) { first_ms = ms; continue; }
         ms_v.push_back(ms); cpu_v.push_back(cpu_ms); gpu_v.push_back(out->gpu_ms); rb_v.push_back(out->readback_ms); rank_v.push_back(out->rank_ms);
+        fill_v.push_back(out->fill_ms); filled_v.push_back(double(out->filled_pixels));
         // SSIM on every timed frame at the smallest size, on the first one otherwise (GT
         // rendering of 1080p frames on the CPU is slower than the bench itself).
         if (k == 1 || si == 0) {
@@ -177,10 +178,11 @@ int main(int argc, char** argv) {
              "\"refs_per_cell\":%d,\"mean_refs_per_cell\":%.1f,\"max_refs_per_cell\":%zu,\"views\":%zu,\"view_size\":\"%dx%d\","
              "\"triangles\":%zu,\"create_ms\":%.1f,\"upload_ms\":%.1f,\"first_frame_ms\":%.1f,"
              "\"median_ms\":%.2f,\"min_ms\":%.2f,\"median_cpu_ms\":%.1f,\"median_gpu_ms\":%.2f,\"median_readback_ms\":%.2f,\"median_rank_ms\":%.2f,"
+             "\"median_fill_ms\":%.2f,\"median_filled_px\":%.0f,"
              "\"background_views\":%d,\"frames\":%d,\"ssim\":%.4f,\"ssim_frames\":%d,\"lp_num_threads\":\"%s\",\"load1\":%.2f,\"frame_ms\":[%s]}\n",
              scene_name.c_str(), r->DeviceName().c_str(), sizes[si], sizes[si + 1], n_refs, mean_refs, max_refs,
              model.views.size(), view_size[0], view_size[1], scene->mesh.num_triangles(), create_ms,
-             sync_ms, first_ms, med(ms_v), mn(ms_v), med(cpu_v), med(gpu_v), med(rb_v), med(rank_v), background_views, frames,
+             sync_ms, first_ms, med(ms_v), mn(ms_v), med(cpu_v), med(gpu_v), med(rb_v), med(rank_v), med(fill_v), med(filled_v), background_views, frames,
              ssim_n ? ssim_sum / ssim_n : 0.0, ssim_n,
              getenv("LP_NUM_THREADS") ? getenv("LP_NUM_THREADS") : "default", Load1(), frame_list.c_str());
       fflush(stdout);

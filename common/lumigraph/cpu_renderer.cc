@@ -7,6 +7,7 @@
 #include <thread>
 
 #include "common/image_fill.h"
+#include "common/image_fill_impl.h"
 #include "common/raster/rasterizer.h"
 
 namespace exo {
@@ -360,22 +361,37 @@ size_t FillHoles(ImageU8& rgb, const ImageU8& known) {
   EXO_CHECK(rgb.channels() == 3 && known.channels() == 1 && known.width() == rgb.width() &&
             known.height() == rgb.height());
   const size_t n = static_cast<size_t>(rgb.width()) * rgb.height();
-  std::vector<uint8_t> k(n);
+  const uint8_t* k = known.data();
   size_t unknown = 0;
-  for (size_t i = 0; i < n; ++i) {
-    k[i] = known.data()[i] != 0;
-    unknown += !k[i];
-  }
+  for (size_t i = 0; i < n; ++i) unknown += k[i] == 0;
   if (unknown == 0 || unknown == n) return 0;
+  // Reads the frame's sRGB8 texels as linear intensity on the fly (no float copy of the frame)
+  // and encodes a filled value exactly as UnitToU8(LinearToSrgb(v)) up to ties, without a pow:
+  // a guess from a 4096-entry table, corrected against the linear values halfway between
+  // consecutive sRGB8 codes.
   const std::array<float, 256>& lin = SrgbLut();
-  std::vector<float> data(n * 3);
-  for (size_t i = 0; i < n * 3; ++i) data[i] = lin[rgb.data()[i]];
-  PushPullFill(data, 3, k, rgb.width(), rgb.height(), PullFilter::kBilinear);
-  for (size_t i = 0; i < n; ++i) {
-    if (k[i]) continue;
-    for (int c = 0; c < 3; ++c)
-      rgb.data()[i * 3 + c] = blend::UnitToU8(blend::LinearToSrgb(data[i * 3 + c]));
-  }
+  struct Encoder {
+    std::array<float, 255> mid;       // mid[i]: linear value between codes i and i + 1
+    std::array<uint8_t, 4097> guess;  // code of linear i / 4096
+  };
+  static const Encoder enc = [] {
+    Encoder e{};
+    for (int i = 0; i < 255; ++i) e.mid[i] = blend::SrgbToLinear((i + 0.5f) / 255.0f);
+    for (int i = 0; i <= 4096; ++i) e.guess[i] = blend::UnitToU8(blend::LinearToSrgb(i / 4096.0f));
+    return e;
+  }();
+  auto encode = [](float v) {
+    v = std::clamp(v, 0.0f, 1.0f);
+    int c = enc.guess[static_cast<int>(v * 4096.0f)];
+    while (c < 255 && v >= enc.mid[c]) ++c;
+    while (c > 0 && v < enc.mid[c - 1]) --c;
+    return static_cast<uint8_t>(c);
+  };
+  uint8_t* px = rgb.data();
+  image_fill_internal::PushPull<3>(
+      rgb.width(), rgb.height(), 3, PullFilter::kBilinear, [&](size_t i) { return k[i] != 0; },
+      [&](size_t i, int c) { return lin[px[i * 3 + c]]; },
+      [&](size_t i, int c, float v) { px[i * 3 + c] = encode(v); });
   return unknown;
 }
 
