@@ -6,6 +6,7 @@
 //   LP_NUM_THREADS=2 vulkan_bench [--frames=5] [--views=60] [--refs=8,16,32,60]
 //       [--sizes=640x480,1280x720,1920x1080] [--scene=village|apartment] [--view_size=320x240]
 //       [--pose=k (all frames from novel pose k)] [--background_views=N (sky pass; 0 = off)]
+//       [--fill_holes=0|1 (push-pull fill of uncovered pixels; default 1)]
 // Env: EXO_VULKAN_BENCH_DUMP=<dir> writes every frame + ground truth as PNG.
 #include <algorithm>
 #include <chrono>
@@ -59,6 +60,7 @@ int main(int argc, char** argv) {
   int frames = 5, max_views = 60;
   int fixed_pose = -1;  // --pose=k: every frame from novel pose k (profiling)
   int background_views = blend::BlendOptions{}.background_views;
+  bool fill_holes = blend::BlendOptions{}.fill_holes;
   std::vector<int> refs_list = {8, 16, 32, 60};
   std::vector<int> sizes = {640, 480, 1280, 720, 1920, 1080};
   std::vector<int> view_size = {320, 240};
@@ -73,6 +75,7 @@ int main(int argc, char** argv) {
     else if (!std::strncmp(a, "--view_size=", 12)) view_size = ParseInts(a + 12, 'x');
     else if (!std::strncmp(a, "--pose=", 7)) fixed_pose = std::atoi(a + 7);
     else if (!std::strncmp(a, "--background_views=", 19)) background_views = std::atoi(a + 19);
+    else if (!std::strncmp(a, "--fill_holes=", 13)) fill_holes = std::atoi(a + 13) != 0;
     else if (!std::strcmp(a, "--scene=apartment")) { kind = synth::SceneKind::kApartment; scene_name = "apartment"; }
     else if (!std::strcmp(a, "--scene=village")) {}
     else { fprintf(stderr, "unknown argument %s (see the header of vulkan_bench.cc)\n", a); return 2; }
@@ -137,6 +140,7 @@ int main(int argc, char** argv) {
       const PinholeCamera cam = gro.Camera();
       blend::BlendOptions bo;
       bo.background_views = background_views;
+      bo.fill_holes = fill_holes;
       double first_ms = 0, ssim_sum = 0;
       std::vector<double> ms_v, cpu_v, gpu_v, rb_v, rank_v, fill_v, filled_v;
       int ssim_n = 0;
@@ -178,11 +182,11 @@ int main(int argc, char** argv) {
              "\"refs_per_cell\":%d,\"mean_refs_per_cell\":%.1f,\"max_refs_per_cell\":%zu,\"views\":%zu,\"view_size\":\"%dx%d\","
              "\"triangles\":%zu,\"create_ms\":%.1f,\"upload_ms\":%.1f,\"first_frame_ms\":%.1f,"
              "\"median_ms\":%.2f,\"min_ms\":%.2f,\"median_cpu_ms\":%.1f,\"median_gpu_ms\":%.2f,\"median_readback_ms\":%.2f,\"median_rank_ms\":%.2f,"
-             "\"median_fill_ms\":%.2f,\"median_filled_px\":%.0f,"
+             "\"fill_holes\":%d,\"median_fill_ms\":%.2f,\"median_filled_px\":%.0f,"
              "\"background_views\":%d,\"frames\":%d,\"ssim\":%.4f,\"ssim_frames\":%d,\"lp_num_threads\":\"%s\",\"load1\":%.2f,\"frame_ms\":[%s]}\n",
              scene_name.c_str(), r->DeviceName().c_str(), sizes[si], sizes[si + 1], n_refs, mean_refs, max_refs,
              model.views.size(), view_size[0], view_size[1], scene->mesh.num_triangles(), create_ms,
-             sync_ms, first_ms, med(ms_v), mn(ms_v), med(cpu_v), med(gpu_v), med(rb_v), med(rank_v), med(fill_v), med(filled_v), background_views, frames,
+             sync_ms, first_ms, med(ms_v), mn(ms_v), med(cpu_v), med(gpu_v), med(rb_v), med(rank_v), int(fill_holes), med(fill_v), med(filled_v), background_views, frames,
              ssim_n ? ssim_sum / ssim_n : 0.0, ssim_n,
              getenv("LP_NUM_THREADS") ? getenv("LP_NUM_THREADS") : "default", Load1(), frame_list.c_str());
       fflush(stdout);
