@@ -1,5 +1,5 @@
 // Per-pixel geometry helpers for RGB-D inpainting (thesis §4.1.7 "frame pre-processing"):
-// hole pre-fill by push-pull (normalised convolution over a pyramid), normals from z-depth, and
+// hole pre-fill by push-pull (common/image_fill.h), normals from z-depth, and
 // the depth-unit sanity check. Every threshold here is relative to depth, so the results are
 // invariant to the unit scale of the scene (a scene 10x larger gives the same normals).
 #pragma once
@@ -9,16 +9,10 @@
 
 #include "common/camera.h"
 #include "common/image.h"
+#include "common/image_fill.h"  // PushPullFill (nearest pull: what the tables were measured with)
 #include "common/status.h"
 
 namespace exo::inpaint {
-
-// Fills unknown samples of a float image with `channels` interleaved channels by push-pull:
-// valid-weighted 2x2 averaging down a pyramid, then filling unknowns from the coarser level
-// on the way up. `known[i]` != 0 marks known pixels; they are never changed. Returns false
-// when no pixel is known (nothing can be filled).
-bool PushPullFill(std::vector<float>& data, int channels, const std::vector<uint8_t>& known,
-                  int width, int height);
 
 // Fills invalid depth (0 / non-finite) of pixels where `fill_here` != 0 from the valid depth of
 // pixels where `use_as_data` != 0 (push-pull). Pixels outside `fill_here` keep their value.
