@@ -14,6 +14,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "server/inpainting/depth_maps.h"
+#include "server/inpainting/graph_cut.h"
 #include "server/inpainting/poisson.h"
 
 namespace exo::inpaint {
@@ -802,6 +803,304 @@ int BuildSurfacePrior(const ImageU8& region, const ImageF& values, int ox, int o
   return count;
 }
 
+namespace {
+
+// Layered depth setup (InpaintOptions::layered_depth) on the Poisson crop at (ox, oy): clusters
+// the measured border of T in inverse depth, labels T's pixels with layers (Potts, graph_cut.h),
+// and rewrites the problem so that each layer is solved on its own: pairs between layers and
+// pairs from a T pixel to a border pixel of another layer lose their constraint (NaN target =
+// natural boundary), border values that match no layer are dropped, and the surface prior is
+// built per layer region. Returns the number of layers (<= 1: nothing was changed).
+struct LayerPlane {
+  Eigen::Vector3d c = Eigen::Vector3d::Zero();  // v = c0 * x / 640 + c1 * y / 640 + c2
+  double vlo = 0, vhi = 0;                      // range of the cluster's values
+  double At(double x, double y) const { return c[0] * x / 640.0 + c[1] * y / 640.0 + c[2]; }
+};
+
+LayerPlane FitLayerPlane(const std::vector<Eigen::Vector3d>& pts) {  // (x, y, v), frame px
+  LayerPlane pl;
+  std::vector<double> vs;
+  for (const auto& p : pts) vs.push_back(p[2]);
+  std::nth_element(vs.begin(), vs.begin() + vs.size() / 2, vs.end());
+  const double med = vs[vs.size() / 2];
+  pl.vlo = *std::min_element(vs.begin(), vs.end());
+  pl.vhi = *std::max_element(vs.begin(), vs.end());
+  pl.c = Eigen::Vector3d(0, 0, med);  // fallback: fronto-parallel at the median
+  // Iteratively reweighted least squares, Huber weights on the relative residual (2 %).
+  std::vector<double> wt(pts.size(), 1.0);
+  for (int iter = 0; iter < 4; ++iter) {
+    Eigen::Matrix3d ata = Eigen::Matrix3d::Zero();
+    Eigen::Vector3d atb = Eigen::Vector3d::Zero();
+    double sw = 0;
+    for (size_t k = 0; k < pts.size(); ++k) {
+      const Eigen::Vector3d a(pts[k][0] / 640.0, pts[k][1] / 640.0, 1.0);
+      ata += wt[k] * a * a.transpose();
+      atb += wt[k] * a * pts[k][2];
+      sw += wt[k];
+    }
+    ata /= sw;
+    atb /= sw;
+    if (!(std::fabs(ata.determinant()) > 1e-12)) break;  // collinear border: keep the fallback
+    const Eigen::Vector3d c = ata.ldlt().solve(atb);
+    if (!c.allFinite()) break;
+    pl.c = c;
+    for (size_t k = 0; k < pts.size(); ++k) {
+      const double r = std::fabs(pl.At(pts[k][0], pts[k][1]) - pts[k][2]) / std::max(1e-9, std::fabs(pts[k][2]));
+      wt[k] = r <= 0.02 ? 1.0 : 0.02 / r;
+    }
+  }
+  return pl;
+}
+
+int SetupLayers(const ImageU8& region, const std::vector<uint8_t>& measured, int ox, int oy, int w,
+                int h, const PinholeCamera& cam, const std::vector<float>& t_normals,
+                const ImageU8& color, const InpaintOptions& o, ImageF* q, ImageF* gx, ImageF* gy,
+                const ImageF& wx, const ImageF& wy, ImageF* prior, ImageF* prior_w,
+                std::vector<int>* layer_pixels) {
+  const int cw = region.width(), ch = region.height();
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  auto in_r = [&](int cx, int cy) {
+    return cx >= 0 && cy >= 0 && cx < cw && cy < ch && region.at(cx, cy) != 0;
+  };
+  auto next_to_r = [&](int cx, int cy) {
+    return in_r(cx - 1, cy) || in_r(cx + 1, cy) || in_r(cx, cy - 1) || in_r(cx, cy + 1);
+  };
+  // 1. The measured ring, clustered in inverse depth.
+  struct RingPx {
+    int cx, cy;
+    float v;
+  };
+  std::vector<RingPx> ring;
+  for (int cy = 0; cy < ch; ++cy)
+    for (int cx = 0; cx < cw; ++cx) {
+      if (region.at(cx, cy) || !std::isfinite(q->at(cx, cy)) || !(q->at(cx, cy) > 0.f)) continue;
+      if (!measured[static_cast<size_t>(oy + cy) * w + ox + cx] || !next_to_r(cx, cy)) continue;
+      ring.push_back({cx, cy, q->at(cx, cy)});
+    }
+  if (ring.size() < 16) return 1;
+  std::vector<int> order(ring.size());
+  for (size_t k = 0; k < order.size(); ++k) order[k] = static_cast<int>(k);
+  std::stable_sort(order.begin(), order.end(), [&](int a, int b) { return ring[a].v < ring[b].v; });
+  std::vector<std::pair<int, int>> runs;  // [begin, end) in `order`
+  int start = 0;
+  for (size_t k = 1; k <= order.size(); ++k) {
+    if (k == order.size() ||
+        ring[order[k]].v - ring[order[k - 1]].v > o.layer_gap_rel * ring[order[k]].v) {
+      runs.push_back({start, static_cast<int>(k)});
+      start = static_cast<int>(k);
+    }
+  }
+  const int min_size = std::max(8, static_cast<int>(std::ceil(o.layer_min_share * ring.size())));
+  std::vector<std::pair<int, int>> kept;
+  for (const auto& r : runs)
+    if (r.second - r.first >= min_size) kept.push_back(r);
+  if (kept.size() < 2) return 1;
+  if (static_cast<int>(kept.size()) > o.max_layers) {
+    std::stable_sort(kept.begin(), kept.end(), [](const auto& a, const auto& b) {
+      return a.second - a.first > b.second - b.first;
+    });
+    kept.resize(o.max_layers);
+    std::sort(kept.begin(), kept.end());
+  }
+  const int K = static_cast<int>(kept.size());
+  // 2. A robust inverse-depth plane per layer; its camera-frame normal: 1/z = a u + b v + c
+  // (u, v pixels) is the plane a fx X + b fy Y + (a cx + b cy + c) Z = 1.
+  std::vector<LayerPlane> planes(K);
+  std::vector<Eigen::Vector3d> plane_n(K);
+  ImageI32 blabel(cw, ch, 1, -1);  // border pixel labels (-1: none)
+  for (int l = 0; l < K; ++l) {
+    std::vector<Eigen::Vector3d> pts;
+    for (int k = kept[l].first; k < kept[l].second; ++k) {
+      const RingPx& r = ring[order[k]];
+      pts.emplace_back(ox + r.cx, oy + r.cy, r.v);
+      blabel.at(r.cx, r.cy) = l;
+    }
+    planes[l] = FitLayerPlane(pts);
+    const double a = planes[l].c[0] / 640.0, b = planes[l].c[1] / 640.0, c = planes[l].c[2];
+    Eigen::Vector3d nn(a * cam.fx, b * cam.fy, a * cam.cx + b * cam.cy + c);
+    plane_n[l] = nn.norm() > 0 ? nn.normalized() : Eigen::Vector3d(0, 0, 1);
+  }
+  // Other border values (push-pull-filled, measured in no kept cluster): the layer whose plane
+  // they match; none -> no boundary value at all.
+  for (int cy = 0; cy < ch; ++cy)
+    for (int cx = 0; cx < cw; ++cx) {
+      if (region.at(cx, cy) || !std::isfinite(q->at(cx, cy)) || !next_to_r(cx, cy)) continue;
+      if (blabel.at(cx, cy) >= 0) continue;
+      const double v = q->at(cx, cy);
+      int best = -1;
+      double best_r = o.layer_agree_rel;
+      for (int l = 0; l < K; ++l) {
+        const double p = std::clamp(planes[l].At(ox + cx, oy + cy), 0.5 * planes[l].vlo, 2.0 * planes[l].vhi);
+        const double r = std::fabs(v - p) / std::max(1e-9, std::fabs(p));
+        if (r <= best_r) {
+          best_r = r;
+          best = l;
+        }
+      }
+      blabel.at(cx, cy) = best;
+      if (best < 0) q->at(cx, cy) = nan;
+    }
+  // 3. Labels of T: distances to each layer's border, copied normals and colour.
+  std::vector<cv::Mat> dist(K);
+  for (int l = 0; l < K; ++l) {
+    cv::Mat seeds(ch, cw, CV_8U, cv::Scalar(1));
+    for (int cy = 0; cy < ch; ++cy)
+      for (int cx = 0; cx < cw; ++cx)
+        if (blabel.at(cx, cy) == l) seeds.at<uint8_t>(cy, cx) = 0;
+    cv::distanceTransform(seeds, dist[l], cv::DIST_L2, cv::DIST_MASK_5);
+  }
+  // Colour model per layer (as in GrabCut): an 8x8x8 RGB histogram of the measured pixels of
+  // the crop whose value lies in the layer's cluster range (widened by half the gap); T's
+  // copied colour then gives P(layer | colour).
+  constexpr int kBins = 8 * 8 * 8;
+  std::vector<double> hist(static_cast<size_t>(K) * kBins, 1.0);  // Laplace prior
+  std::vector<double> hist_n(K, kBins);
+  auto bin = [&](int x, int y) {
+    return (color.at(x, y, 0) >> 5) * 64 + (color.at(x, y, 1) >> 5) * 8 + (color.at(x, y, 2) >> 5);
+  };
+  if (o.layer_color_weight > 0.0) {
+    const double widen = 0.5 * o.layer_gap_rel;
+    for (int cy = 0; cy < ch; ++cy)
+      for (int cx = 0; cx < cw; ++cx) {
+        if (region.at(cx, cy) || !measured[static_cast<size_t>(oy + cy) * w + ox + cx]) continue;
+        const float v = q->at(cx, cy);
+        if (!std::isfinite(v)) continue;
+        for (int l = 0; l < K; ++l) {
+          if (v < planes[l].vlo * (1.0 - widen) || v > planes[l].vhi * (1.0 + widen)) continue;
+          hist[static_cast<size_t>(l) * kBins + bin(ox + cx, oy + cy)] += 1.0;
+          hist_n[l] += 1.0;
+        }
+      }
+  }
+  std::vector<int> node(static_cast<size_t>(cw) * ch, -1);
+  int nn = 0;
+  for (int cy = 0; cy < ch; ++cy)
+    for (int cx = 0; cx < cw; ++cx)
+      if (region.at(cx, cy)) node[static_cast<size_t>(cy) * cw + cx] = nn++;
+  std::vector<float> unary(static_cast<size_t>(nn) * K, 0.f);
+  const double inv2s2 = 1.0 / (2.0 * o.layer_color_sigma * o.layer_color_sigma);
+  auto colour_w = [&](int x0, int y0, int x1, int y1) {
+    double d2 = 0;
+    for (int k = 0; k < 3; ++k) {
+      const double d = static_cast<double>(color.at(x0, y0, k)) - color.at(x1, y1, k);
+      d2 += d * d;
+    }
+    return std::exp(-d2 * inv2s2);
+  };
+  std::vector<PottsEdge> edges;
+  for (int cy = 0; cy < ch; ++cy)
+    for (int cx = 0; cx < cw; ++cx) {
+      const int p = node[static_cast<size_t>(cy) * cw + cx];
+      if (p < 0) continue;
+      const int x = ox + cx, y = oy + cy;
+      const size_t i = static_cast<size_t>(y) * w + x;
+      const Eigen::Vector3d n(t_normals[i * 3], t_normals[i * 3 + 1], t_normals[i * 3 + 2]);
+      const bool has_n = n.squaredNorm() > 0.25;
+      for (int l = 0; l < K; ++l) {
+        double u = 0.0;
+        if (has_n) u += o.layer_normal_weight * (1.0 - std::fabs(n.normalized().dot(plane_n[l])));
+        double dmin = std::numeric_limits<double>::infinity();
+        for (int m = 0; m < K; ++m)
+          if (m != l) dmin = std::min<double>(dmin, dist[m].at<float>(cy, cx));
+        const double dl = dist[l].at<float>(cy, cx);
+        u += o.layer_distance_weight * dl / std::max(1e-6, dl + dmin);
+        if (o.layer_color_weight > 0.0) {
+          const int b = bin(x, y);
+          double pl = 0, ps = 0;
+          for (int m = 0; m < K; ++m) {
+            const double pm = hist[static_cast<size_t>(m) * kBins + b] / hist_n[m];
+            ps += pm;
+            if (m == l) pl = pm;
+          }
+          u += o.layer_color_weight * (1.0 - pl / ps);
+        }
+        unary[static_cast<size_t>(p) * K + l] = static_cast<float>(u);
+      }
+      const int nx[4] = {cx - 1, cx + 1, cx, cx}, ny[4] = {cy, cy, cy - 1, cy + 1};
+      for (int k = 0; k < 4; ++k) {
+        if (nx[k] < 0 || ny[k] < 0 || nx[k] >= cw || ny[k] >= ch) continue;
+        // Pair weight; the pair's fused gradient weight marks copied jumps.
+        const bool fwd = k == 1 || k == 3;
+        const int pcx = fwd ? cx : nx[k], pcy = fwd ? cy : ny[k];
+        const float pw = (k < 2 ? wx : wy).at(pcx, pcy);
+        const double jf = std::isfinite(pw) && pw < 1.f ? o.layer_jump_factor : 1.0;
+        const double wgt = o.layer_smooth * jf * colour_w(x, y, ox + nx[k], oy + ny[k]);
+        const int qn = node[static_cast<size_t>(ny[k]) * cw + nx[k]];
+        if (qn >= 0) {
+          if (fwd) edges.push_back({p, qn, static_cast<float>(wgt)});
+        } else if (blabel.at(nx[k], ny[k]) >= 0) {
+          // A fixed-label border pixel: a T pixel of another layer pays the pair weight.
+          for (int l = 0; l < K; ++l)
+            if (l != blabel.at(nx[k], ny[k])) unary[static_cast<size_t>(p) * K + l] += static_cast<float>(wgt);
+        }
+      }
+    }
+  std::vector<int> labels(nn, 0);
+  PottsAlphaExpansion(nn, K, unary, edges, &labels, K == 2 ? 1 : 3);
+  ImageI32 tl(cw, ch, 1, -1);
+  layer_pixels->assign(K, 0);
+  for (int cy = 0; cy < ch; ++cy)
+    for (int cx = 0; cx < cw; ++cx) {
+      const int p = node[static_cast<size_t>(cy) * cw + cx];
+      if (p < 0) continue;
+      tl.at(cx, cy) = labels[p];
+      ++(*layer_pixels)[labels[p]];
+    }
+  // 4. Pairs: between layers, and from a T pixel to a border pixel of another layer, free.
+  for (int cy = 0; cy < ch; ++cy)
+    for (int cx = 0; cx < cw; ++cx)
+      for (int dir = 0; dir < 2; ++dir) {
+        const int qx = cx + (dir == 0), qy = cy + (dir == 1);
+        if (qx >= cw || qy >= ch) continue;
+        const bool tp = region.at(cx, cy), tq = region.at(qx, qy);
+        if (!tp && !tq) continue;
+        const int lp = tp ? tl.at(cx, cy) : blabel.at(cx, cy);
+        const int lq = tq ? tl.at(qx, qy) : blabel.at(qx, qy);
+        const bool other_known = (!tp && std::isfinite(q->at(cx, cy))) || (!tq && std::isfinite(q->at(qx, qy)));
+        if (tp && tq ? lp != lq : (other_known && lp != lq)) (dir == 0 ? *gx : *gy).at(cx, cy) = nan;
+      }
+  // 5. The surface prior per layer region, from that layer's border values only.
+  *prior = ImageF(cw, ch, 1, nan);
+  *prior_w = ImageF(cw, ch, 1, nan);
+  int count = 0;
+  for (int l = 0; l < K; ++l) {
+    ImageU8 rl(cw, ch, 1, 0);
+    ImageF ql(cw, ch, 1, nan);
+    for (int cy = 0; cy < ch; ++cy)
+      for (int cx = 0; cx < cw; ++cx) {
+        if (region.at(cx, cy)) rl.at(cx, cy) = tl.at(cx, cy) == l;
+        else if (blabel.at(cx, cy) == l) ql.at(cx, cy) = q->at(cx, cy);
+      }
+    ImageF pl, pw;
+    if (BuildSurfacePrior(rl, ql, ox, oy, w, h, o, &pl, &pw) > 0) {
+      for (int cy = 0; cy < ch; ++cy)
+        for (int cx = 0; cx < cw; ++cx)
+          if (rl.at(cx, cy) && std::isfinite(pw.at(cx, cy))) {
+            prior->at(cx, cy) = pl.at(cx, cy);
+            prior_w->at(cx, cy) = pw.at(cx, cy);
+            ++count;
+          }
+    } else if (o.neumann_prior_weight > 0.0) {
+      // Too few border samples of its own: the layer's plane anchors the region.
+      for (int cy = 0; cy < ch; ++cy)
+        for (int cx = 0; cx < cw; ++cx)
+          if (rl.at(cx, cy)) {
+            prior->at(cx, cy) = static_cast<float>(
+                std::clamp(planes[l].At(ox + cx, oy + cy), planes[l].vlo, planes[l].vhi));
+            prior_w->at(cx, cy) = static_cast<float>(o.neumann_prior_weight);
+            ++count;
+          }
+    }
+  }
+  if (count == 0) {
+    *prior = ImageF();
+    *prior_w = ImageF();
+  }
+  return K;
+}
+
+}  // namespace
+
 absl::Status InpaintOptions::Validate() const {
   if (!(w > 0.0 && w <= 1.0)) return absl::InvalidArgumentError("InpaintOptions.w must be in (0, 1]");
   if (!(kappa > 0.0 && kappa <= 1.0)) {
@@ -834,6 +1133,20 @@ absl::Status InpaintOptions::Validate() const {
   }
   if (joint_hole_px < 0) return absl::InvalidArgumentError("joint_hole_px must be >= 0");
   if (joint_iterations < 1) return absl::InvalidArgumentError("joint_iterations must be >= 1");
+  if (!(layer_gap_rel > 0.0)) return absl::InvalidArgumentError("layer_gap_rel must be > 0");
+  if (!(layer_min_share >= 0.0 && layer_min_share < 1.0)) {
+    return absl::InvalidArgumentError("layer_min_share must be in [0, 1)");
+  }
+  if (max_layers < 1 || max_layers > 3) return absl::InvalidArgumentError("max_layers in [1, 3]");
+  if (!(layer_agree_rel >= 0.0)) return absl::InvalidArgumentError("layer_agree_rel must be >= 0");
+  if (!(layer_normal_weight >= 0.0) || !(layer_distance_weight >= 0.0) || !(layer_smooth >= 0.0) ||
+      !(layer_color_weight >= 0.0)) {
+    return absl::InvalidArgumentError("layer weights must be >= 0");
+  }
+  if (!(layer_color_sigma > 0.0)) return absl::InvalidArgumentError("layer_color_sigma must be > 0");
+  if (!(layer_jump_factor >= 0.0 && layer_jump_factor <= 1.0)) {
+    return absl::InvalidArgumentError("layer_jump_factor must be in [0, 1]");
+  }
   return absl::OkStatus();
 }
 
@@ -1145,7 +1458,18 @@ absl::StatusOr<InpaintResult> InpaintKeyframe(const RgbdKeyframe& frame, const I
   // to the known pixels next to T, weighted per pixel by how weakly the Dirichlet border anchors
   // it (see SurfacePrior).
   ImageF prior, prior_w;
-  out.stats.prior_pixels = BuildSurfacePrior(region, q, ox, oy, w, h, options, &prior, &prior_w);
+  int layers = 1;
+  if (options.layered_depth && inv && options.max_layers > 1) {
+    layers = SetupLayers(region, measured, ox, oy, w, h, frame.camera, L0.normal, out.color, options,
+                         &q, &gx, &gy, wx, wy, &prior, &prior_w, &out.stats.layer_pixels);
+  }
+  out.stats.depth_layers = layers;
+  if (layers <= 1) {
+    out.stats.prior_pixels = BuildSurfacePrior(region, q, ox, oy, w, h, options, &prior, &prior_w);
+  } else {
+    for (int cy = 0; cy < ch; ++cy)
+      for (int cx = 0; cx < cw; ++cx) out.stats.prior_pixels += !prior.empty() && std::isfinite(prior_w.at(cx, cy));
+  }
   PoissonProblem prob;
   if (!prior.empty()) {
     prob.prior = &prior;

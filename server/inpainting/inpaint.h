@@ -21,6 +21,7 @@
 #pragma once
 
 #include <cstdint>
+#include <vector>
 
 #include "common/camera.h"
 #include "common/image.h"
@@ -91,6 +92,33 @@ struct InpaintOptions {
   // Dirichlet values.
   int joint_hole_px = 0;
   int joint_iterations = 4;
+  // Layered depth (session 5, inverse-depth domain only): T's border pixels with measured depth
+  // are clustered in inverse depth (sorted; split where neighbouring values differ by more than
+  // layer_gap_rel of their value; clusters below layer_min_share of the ring or 8 px ignored;
+  // at most max_layers, the largest kept). With one layer nothing changes. With 2-3 layers each
+  // gets a robust inverse-depth plane, every pixel of T a layer (Potts labelling by
+  // alpha-expansion / s-t min cut, graph_cut.h): data term layer_normal_weight * (1 - |n . N_l|)
+  // (n the normal copied through f, N_l the layer plane's) + layer_distance_weight * d_l /
+  // (d_l + d_other) (distances to the layers' border pixels) + layer_color_weight *
+  // (1 - P(l | colour)) (8x8x8 RGB histograms of the measured pixels of the solve's crop whose
+  // inverse depth lies in the layer's cluster range); pair weight layer_smooth *
+  // exp(-|c_p - c_q|^2 / 2 layer_color_sigma^2) on the copied colour, times layer_jump_factor
+  // where the fused copied gradient is a jump; border pixels are fixed labels. The depth solve
+  // then treats pairs between layers as natural (Neumann) boundaries, uses a border pixel as a
+  // Dirichlet value only for T pixels of its layer (measured ring: its cluster; others, e.g.
+  // push-pull-filled: the layer whose plane it matches within layer_agree_rel, else none), and
+  // builds the surface prior per layer region. Off by default (docs/inpainting.md, session 5).
+  bool layered_depth = false;
+  double layer_gap_rel = 0.15;
+  double layer_min_share = 0.05;
+  int max_layers = 3;
+  double layer_agree_rel = 0.05;
+  double layer_normal_weight = 1.0;
+  double layer_distance_weight = 0.5;
+  double layer_color_weight = 1.0;  // (1 - P(l | copied colour)), per-layer RGB histograms
+  double layer_smooth = 1.0;
+  double layer_color_sigma = 20.0;
+  double layer_jump_factor = 0.1;
   absl::Status Validate() const;
 };
 
@@ -114,6 +142,8 @@ struct InpaintStats {
   int clamped_depth_pixels = 0;  // T pixels clamped to [zmin/2, 2 zmax] of the input depths
   int prior_pixels = 0;          // T pixels with a surface-prior (screening) term
   int joint_pixels = 0;          // depth-hole pixels solved jointly with T (joint_hole_px)
+  int depth_layers = 1;          // layers of the depth solve (layered_depth; 1 = single surface)
+  std::vector<int> layer_pixels; // T pixels per layer (layered_depth, >= 2 layers only)
   double ms_prepare = 0, ms_search = 0, ms_copy = 0, ms_poisson = 0, ms_total = 0;  // wall
   // Process CPU time (CLOCK_PROCESS_CPUTIME_ID, all threads; includes any other thread of the
   // calling process running at the same time): steadier than wall time on a shared machine.
