@@ -972,11 +972,21 @@ int SetupLayers(const ImageU8& region, const std::vector<uint8_t>& measured, int
         }
       }
   }
-  std::vector<int> node(static_cast<size_t>(cw) * ch, -1);
+  // The labelling runs on blocks of layer_label_block^2 pixels (one label per block; the block
+  // energy is the exact sum of its pixels' terms, pairs inside a block drop out): the cut is a
+  // long smooth curve, and a 4x coarser graph makes the max-flow ~20x cheaper.
+  const int bs = o.layer_label_block;
+  const int nbw = (cw + bs - 1) / bs, nbh = (ch + bs - 1) / bs;
+  std::vector<int> bnode(static_cast<size_t>(nbw) * nbh, -1);
   int nn = 0;
   for (int cy = 0; cy < ch; ++cy)
-    for (int cx = 0; cx < cw; ++cx)
-      if (region.at(cx, cy)) node[static_cast<size_t>(cy) * cw + cx] = nn++;
+    for (int cx = 0; cx < cw; ++cx) {
+      int& b = bnode[static_cast<size_t>(cy / bs) * nbw + cx / bs];
+      if (region.at(cx, cy) && b < 0) b = nn++;
+    }
+  auto node_of = [&](int cx, int cy) {
+    return region.at(cx, cy) ? bnode[static_cast<size_t>(cy / bs) * nbw + cx / bs] : -1;
+  };
   std::vector<float> unary(static_cast<size_t>(nn) * K, 0.f);
   const double inv2s2 = 1.0 / (2.0 * o.layer_color_sigma * o.layer_color_sigma);
   auto colour_w = [&](int x0, int y0, int x1, int y1) {
@@ -987,15 +997,15 @@ int SetupLayers(const ImageU8& region, const std::vector<uint8_t>& measured, int
     }
     return std::exp(-d2 * inv2s2);
   };
-  std::vector<PottsEdge> edges;
+  std::vector<double> ew_r(bnode.size(), 0.0), ew_d(bnode.size(), 0.0);  // block pair weights
   for (int cy = 0; cy < ch; ++cy)
     for (int cx = 0; cx < cw; ++cx) {
-      const int p = node[static_cast<size_t>(cy) * cw + cx];
+      const int p = node_of(cx, cy);
       if (p < 0) continue;
       const int x = ox + cx, y = oy + cy;
       const size_t i = static_cast<size_t>(y) * w + x;
       const Eigen::Vector3d n(t_normals[i * 3], t_normals[i * 3 + 1], t_normals[i * 3 + 2]);
-      const bool has_n = n.squaredNorm() > 0.25;
+      const bool has_n = o.layer_normal_weight > 0.0 && n.squaredNorm() > 0.25;
       for (int l = 0; l < K; ++l) {
         double u = 0.0;
         if (has_n) u += o.layer_normal_weight * (1.0 - std::fabs(n.normalized().dot(plane_n[l])));
@@ -1014,7 +1024,7 @@ int SetupLayers(const ImageU8& region, const std::vector<uint8_t>& measured, int
           }
           u += o.layer_color_weight * (1.0 - pl / ps);
         }
-        unary[static_cast<size_t>(p) * K + l] = static_cast<float>(u);
+        unary[static_cast<size_t>(p) * K + l] += static_cast<float>(u);
       }
       const int nx[4] = {cx - 1, cx + 1, cx, cx}, ny[4] = {cy, cy, cy - 1, cy + 1};
       for (int k = 0; k < 4; ++k) {
@@ -1024,10 +1034,11 @@ int SetupLayers(const ImageU8& region, const std::vector<uint8_t>& measured, int
         const int pcx = fwd ? cx : nx[k], pcy = fwd ? cy : ny[k];
         const float pw = (k < 2 ? wx : wy).at(pcx, pcy);
         const double jf = std::isfinite(pw) && pw < 1.f ? o.layer_jump_factor : 1.0;
-        const double wgt = o.layer_smooth * jf * colour_w(x, y, ox + nx[k], oy + ny[k]);
-        const int qn = node[static_cast<size_t>(ny[k]) * cw + nx[k]];
+        const double cwgt = o.layer_color_sigma > 0.0 && o.layer_color_sigma < 1e6 ? colour_w(x, y, ox + nx[k], oy + ny[k]) : 1.0;
+        const double wgt = o.layer_smooth * jf * cwgt;
+        const int qn = node_of(nx[k], ny[k]);
         if (qn >= 0) {
-          if (fwd) edges.push_back({p, qn, static_cast<float>(wgt)});
+          if (fwd && qn != p) (k == 1 ? ew_r : ew_d)[static_cast<size_t>(cy / bs) * nbw + cx / bs] += wgt;
         } else if (blabel.at(nx[k], ny[k]) >= 0) {
           // A fixed-label border pixel: a T pixel of another layer pays the pair weight.
           for (int l = 0; l < K; ++l)
@@ -1035,13 +1046,20 @@ int SetupLayers(const ImageU8& region, const std::vector<uint8_t>& measured, int
         }
       }
     }
+  std::vector<PottsEdge> edges;
+  for (int by = 0; by < nbh; ++by)
+    for (int bx = 0; bx < nbw; ++bx) {
+      const size_t b = static_cast<size_t>(by) * nbw + bx;
+      if (ew_r[b] > 0.0) edges.push_back({bnode[b], bnode[b + 1], static_cast<float>(ew_r[b])});
+      if (ew_d[b] > 0.0) edges.push_back({bnode[b], bnode[b + nbw], static_cast<float>(ew_d[b])});
+    }
   std::vector<int> labels(nn, 0);
   PottsAlphaExpansion(nn, K, unary, edges, &labels, K == 2 ? 1 : 3);
   ImageI32 tl(cw, ch, 1, -1);
   layer_pixels->assign(K, 0);
   for (int cy = 0; cy < ch; ++cy)
     for (int cx = 0; cx < cw; ++cx) {
-      const int p = node[static_cast<size_t>(cy) * cw + cx];
+      const int p = node_of(cx, cy);
       if (p < 0) continue;
       tl.at(cx, cy) = labels[p];
       ++(*layer_pixels)[labels[p]];
@@ -1144,6 +1162,9 @@ absl::Status InpaintOptions::Validate() const {
     return absl::InvalidArgumentError("layer weights must be >= 0");
   }
   if (!(layer_color_sigma > 0.0)) return absl::InvalidArgumentError("layer_color_sigma must be > 0");
+  if (layer_label_block < 1 || layer_label_block > 32) {
+    return absl::InvalidArgumentError("layer_label_block must be in [1, 32]");
+  }
   if (!(layer_jump_factor >= 0.0 && layer_jump_factor <= 1.0)) {
     return absl::InvalidArgumentError("layer_jump_factor must be in [0, 1]");
   }

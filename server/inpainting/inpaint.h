@@ -119,6 +119,7 @@ struct InpaintOptions {
   double layer_smooth = 1.0;
   double layer_color_sigma = 20.0;
   double layer_jump_factor = 0.1;
+  int layer_label_block = 4;  // the labelling's graph has one node per block of this many px^2
   absl::Status Validate() const;
 };
 

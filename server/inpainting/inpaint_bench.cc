@@ -17,7 +17,7 @@
 //                 [--peel_all_normals] [--dump_depth DIR] [--joint_hole PX] [--joint_iters N]
 //                 [--layered] [--layer_gap R] [--layer_min_share S] [--max_layers K]
 //                 [--layer_agree R] [--layer_normal W] [--layer_dist W] [--layer_color W] [--layer_smooth W]
-//                 [--layer_sigma S] [--layer_jump F]   (session 5: layered depth solve)
+//                 [--layer_sigma S] [--layer_jump F] [--layer_block PX]   (session 5: layered depth solve)
 #include <algorithm>
 #include <array>
 #include <chrono>
@@ -563,6 +563,7 @@ int main(int argc, char** argv) {
     else if (a == "--layer_smooth") layer_opts.layer_smooth = std::stod(next());
     else if (a == "--layer_sigma") layer_opts.layer_color_sigma = std::stod(next());
     else if (a == "--layer_jump") layer_opts.layer_jump_factor = std::stod(next());
+    else if (a == "--layer_block") layer_opts.layer_label_block = std::stoi(next());
     else {
       std::fprintf(stderr, "unknown argument %s\n", a.c_str());
       return 2;
@@ -624,6 +625,7 @@ int main(int argc, char** argv) {
   base.layer_smooth = layer_opts.layer_smooth;
   base.layer_color_sigma = layer_opts.layer_color_sigma;
   base.layer_jump_factor = layer_opts.layer_jump_factor;
+  base.layer_label_block = layer_opts.layer_label_block;
   for (const MaskSpec& spec : specs) {
     const RealFrame gt = LoadFrame(data_dir, spec.frame);
     if (!gt.ok) {
