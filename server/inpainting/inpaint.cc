@@ -856,8 +856,9 @@ int SetupLayers(const ImageU8& region, const std::vector<uint8_t>& measured, int
                 int h, const PinholeCamera& cam, const std::vector<float>& t_normals,
                 const ImageU8& color, const InpaintOptions& o, ImageF* q, ImageF* gx, ImageF* gy,
                 const ImageF& wx, const ImageF& wy, ImageF* prior, ImageF* prior_w,
-                std::vector<int>* layer_pixels) {
+                std::vector<int>* layer_pixels, float* seed_dist_px, ImageU8* layer_map) {
   const int cw = region.width(), ch = region.height();
+  const ImageF q_in = *q;  // restored when the layered solve is not used
   const float nan = std::numeric_limits<float>::quiet_NaN();
   auto in_r = [&](int cx, int cy) {
     return cx >= 0 && cy >= 0 && cx < cw && cy < ch && region.at(cx, cy) != 0;
@@ -903,6 +904,9 @@ int SetupLayers(const ImageU8& region, const std::vector<uint8_t>& measured, int
     std::sort(kept.begin(), kept.end());
   }
   const int K = static_cast<int>(kept.size());
+  if (getenv("EXO_LAYER_DEBUG")) {  // TEMP
+    for (const auto& r : runs) fprintf(stderr, "run %d px v %.3f-%.3f\n", r.second - r.first, ring[order[r.first]].v, ring[order[r.second - 1]].v);
+  }
   // 2. A robust inverse-depth plane per layer; its camera-frame normal: 1/z = a u + b v + c
   // (u, v pixels) is the plane a fx X + b fy Y + (a cx + b cy + c) Z = 1.
   std::vector<LayerPlane> planes(K);
@@ -940,14 +944,97 @@ int SetupLayers(const ImageU8& region, const std::vector<uint8_t>& measured, int
       blabel.at(cx, cy) = best;
       if (best < 0) q->at(cx, cy) = nan;
     }
+  // Seeds of the labelling (distances, fixed-label border pairs): with layer_seed_measured_only
+  // only the measured ring, else every labelled border pixel.
+  ImageI32 slabel = blabel;
+  if (o.layer_seed_measured_only) {
+    for (int cy = 0; cy < ch; ++cy)
+      for (int cx = 0; cx < cw; ++cx)
+        if (!measured[static_cast<size_t>(oy + cy) * w + ox + cx]) slabel.at(cx, cy) = -1;
+  }
   // 3. Labels of T: distances to each layer's border, copied normals and colour.
   std::vector<cv::Mat> dist(K);
   for (int l = 0; l < K; ++l) {
     cv::Mat seeds(ch, cw, CV_8U, cv::Scalar(1));
     for (int cy = 0; cy < ch; ++cy)
       for (int cx = 0; cx < cw; ++cx)
-        if (blabel.at(cx, cy) == l) seeds.at<uint8_t>(cy, cx) = 0;
+        if (slabel.at(cx, cy) == l) seeds.at<uint8_t>(cy, cx) = 0;
     cv::distanceTransform(seeds, dist[l], cv::DIST_L2, cv::DIST_MASK_5);
+  }
+  // With layer_edge_seeds, T's free border pixels (on the frame's edge, or next to pixels that
+  // seed no layer: holes, push-pull-filled depth) continue the labels of the seeds along T's
+  // border: breadth-first over T's 8-connected border pixels from those next to a seed, so a
+  // free stretch between two seeds of one layer belongs to that layer (an occlusion edge that
+  // enters T must leave it again), and they become seeds themselves.
+  ImageI32 elabel(cw, ch, 1, -1);
+  if (o.layer_edge_seeds) {
+    bool any = false;
+    ImageI32 glabel(cw, ch, 1, -1);
+    std::vector<int> queue;
+    auto on_border = [&](int cx, int cy) {
+      const int x = ox + cx, y = oy + cy;
+      if (!region.at(cx, cy)) return false;
+      if (x == 0 || y == 0 || x == w - 1 || y == h - 1) return true;
+      return !in_r(cx - 1, cy) || !in_r(cx + 1, cy) || !in_r(cx, cy - 1) || !in_r(cx, cy + 1);
+    };
+    ImageU8 free_px(cw, ch, 1, 0);
+    for (int cy = 0; cy < ch; ++cy)
+      for (int cx = 0; cx < cw; ++cx) {
+        if (!on_border(cx, cy)) continue;
+        int seed = -1;
+        const int nx[4] = {cx - 1, cx + 1, cx, cx}, ny[4] = {cy, cy, cy - 1, cy + 1};
+        for (int k = 0; k < 4; ++k) {
+          if (nx[k] < 0 || ny[k] < 0 || nx[k] >= cw || ny[k] >= ch || region.at(nx[k], ny[k])) continue;
+          const int sl = slabel.at(nx[k], ny[k]);
+          if (sl >= 0 && (seed < 0 || sl < seed)) seed = sl;
+        }
+        if (seed >= 0) {
+          glabel.at(cx, cy) = seed;
+          queue.push_back(cy * cw + cx);
+        } else {
+          free_px.at(cx, cy) = 1;
+        }
+      }
+    for (size_t qi = 0; qi < queue.size(); ++qi) {
+      const int cx = queue[qi] % cw, cy = queue[qi] / cw;
+      for (int dy = -1; dy <= 1; ++dy)
+        for (int dx = -1; dx <= 1; ++dx) {
+          const int nx = cx + dx, ny = cy + dy;
+          if (nx < 0 || ny < 0 || nx >= cw || ny >= ch || !free_px.at(nx, ny) || glabel.at(nx, ny) >= 0) continue;
+          glabel.at(nx, ny) = glabel.at(cx, cy);
+          queue.push_back(ny * cw + nx);
+        }
+    }
+    for (int cy = 0; cy < ch; ++cy)
+      for (int cx = 0; cx < cw; ++cx)
+        if (free_px.at(cx, cy) && glabel.at(cx, cy) >= 0) {
+          elabel.at(cx, cy) = glabel.at(cx, cy);
+          any = true;
+        }
+    if (any) {
+      for (int l = 0; l < K; ++l) {
+        cv::Mat seeds(ch, cw, CV_8U, cv::Scalar(1));
+        for (int cy = 0; cy < ch; ++cy)
+          for (int cx = 0; cx < cw; ++cx)
+            if (slabel.at(cx, cy) == l || elabel.at(cx, cy) == l) seeds.at<uint8_t>(cy, cx) = 0;
+        cv::distanceTransform(seeds, dist[l], cv::DIST_L2, cv::DIST_MASK_5);
+      }
+    }
+  }
+  // How far the cut has to be extrapolated: the largest distance of a T pixel to the nearest
+  // seed of any layer. Beyond layer_max_seed_dist_px the single solve is kept.
+  float far_px = 0.f;
+  for (int cy = 0; cy < ch; ++cy)
+    for (int cx = 0; cx < cw; ++cx) {
+      if (!region.at(cx, cy)) continue;
+      float dm = std::numeric_limits<float>::infinity();
+      for (int l = 0; l < K; ++l) dm = std::min(dm, dist[l].at<float>(cy, cx));
+      far_px = std::max(far_px, dm);
+    }
+  *seed_dist_px = far_px;
+  if (o.layer_max_seed_dist_px > 0.0 && far_px > o.layer_max_seed_dist_px) {
+    *q = q_in;
+    return 1;
   }
   // Colour model per layer (as in GrabCut): an 8x8x8 RGB histogram of the measured pixels of
   // the crop whose value lies in the layer's cluster range (widened by half the gap); T's
@@ -1026,6 +1113,10 @@ int SetupLayers(const ImageU8& region, const std::vector<uint8_t>& measured, int
         }
         unary[static_cast<size_t>(p) * K + l] += static_cast<float>(u);
       }
+      if (elabel.at(cx, cy) >= 0) {
+        for (int l = 0; l < K; ++l)
+          if (l != elabel.at(cx, cy)) unary[static_cast<size_t>(p) * K + l] += static_cast<float>(o.layer_smooth);
+      }
       const int nx[4] = {cx - 1, cx + 1, cx, cx}, ny[4] = {cy, cy, cy - 1, cy + 1};
       for (int k = 0; k < 4; ++k) {
         if (nx[k] < 0 || ny[k] < 0 || nx[k] >= cw || ny[k] >= ch) continue;
@@ -1039,10 +1130,10 @@ int SetupLayers(const ImageU8& region, const std::vector<uint8_t>& measured, int
         const int qn = node_of(nx[k], ny[k]);
         if (qn >= 0) {
           if (fwd && qn != p) (k == 1 ? ew_r : ew_d)[static_cast<size_t>(cy / bs) * nbw + cx / bs] += wgt;
-        } else if (blabel.at(nx[k], ny[k]) >= 0) {
+        } else if (slabel.at(nx[k], ny[k]) >= 0) {
           // A fixed-label border pixel: a T pixel of another layer pays the pair weight.
           for (int l = 0; l < K; ++l)
-            if (l != blabel.at(nx[k], ny[k])) unary[static_cast<size_t>(p) * K + l] += static_cast<float>(wgt);
+            if (l != slabel.at(nx[k], ny[k])) unary[static_cast<size_t>(p) * K + l] += static_cast<float>(wgt);
         }
       }
     }
@@ -1057,12 +1148,18 @@ int SetupLayers(const ImageU8& region, const std::vector<uint8_t>& measured, int
   PottsAlphaExpansion(nn, K, unary, edges, &labels, K == 2 ? 1 : 3);
   ImageI32 tl(cw, ch, 1, -1);
   layer_pixels->assign(K, 0);
+  *layer_map = ImageU8(w, h, 1, 0);
+  for (int cy = 0; cy < ch; ++cy)  // outside T: the labelling's seeds
+    for (int cx = 0; cx < cw; ++cx)
+      if (!region.at(cx, cy) && slabel.at(cx, cy) >= 0)
+        layer_map->at(ox + cx, oy + cy) = static_cast<uint8_t>(1 + slabel.at(cx, cy));
   for (int cy = 0; cy < ch; ++cy)
     for (int cx = 0; cx < cw; ++cx) {
       const int p = node_of(cx, cy);
       if (p < 0) continue;
       tl.at(cx, cy) = labels[p];
       ++(*layer_pixels)[labels[p]];
+      layer_map->at(ox + cx, oy + cy) = static_cast<uint8_t>(1 + labels[p]);
     }
   // 4. Pairs: between layers, and from a T pixel to a border pixel of another layer, free.
   for (int cy = 0; cy < ch; ++cy)
@@ -1482,7 +1579,8 @@ absl::StatusOr<InpaintResult> InpaintKeyframe(const RgbdKeyframe& frame, const I
   int layers = 1;
   if (options.layered_depth && inv && options.max_layers > 1) {
     layers = SetupLayers(region, measured, ox, oy, w, h, frame.camera, L0.normal, out.color, options,
-                         &q, &gx, &gy, wx, wy, &prior, &prior_w, &out.stats.layer_pixels);
+                         &q, &gx, &gy, wx, wy, &prior, &prior_w, &out.stats.layer_pixels,
+                         &out.stats.layer_seed_dist_px, &out.layers);
   }
   out.stats.depth_layers = layers;
   if (layers <= 1) {

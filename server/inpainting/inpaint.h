@@ -119,7 +119,15 @@ struct InpaintOptions {
   double layer_smooth = 1.0;
   double layer_color_sigma = 20.0;
   double layer_jump_factor = 0.1;
-  int layer_label_block = 4;  // the labelling's graph has one node per block of this many px^2
+  int layer_label_block = 4;
+  // Only measured border pixels seed the labelling (push-pull-filled ones still anchor a layer
+  // they match as Dirichlet values).
+  bool layer_seed_measured_only = false;
+  // T's pixels on the frame's edge take the label of the nearest seed and become seeds.
+  bool layer_edge_seeds = false;
+  // Keep the single solve when some pixel of T lies farther than this from every layer's seeds
+  // (the cut would be extrapolated too far; 0 = no limit).
+  double layer_max_seed_dist_px = 0.0;  // the labelling's graph has one node per block of this many px^2
   absl::Status Validate() const;
 };
 
@@ -145,6 +153,7 @@ struct InpaintStats {
   int joint_pixels = 0;          // depth-hole pixels solved jointly with T (joint_hole_px)
   int depth_layers = 1;          // layers of the depth solve (layered_depth; 1 = single surface)
   std::vector<int> layer_pixels; // T pixels per layer (layered_depth, >= 2 layers only)
+  float layer_seed_dist_px = 0.f; // largest distance of a T pixel to a layer seed (>= 2 layers)
   double ms_prepare = 0, ms_search = 0, ms_copy = 0, ms_poisson = 0, ms_total = 0;  // wall
   // Process CPU time (CLOCK_PROCESS_CPUTIME_ID, all threads; includes any other thread of the
   // calling process running at the same time): steadier than wall time on a shared machine.
@@ -157,6 +166,7 @@ struct InpaintResult {
   ImageF normals;    // 3 ch camera-frame unit normals of depth_m
   ImageI32 source;   // 2 ch: f(u) = (x, y) source pixel for u in T; (-1, -1) elsewhere
   ImageU8 mask;      // T (1 ch, 255 inside)
+  ImageU8 layers;    // layered_depth with >= 2 layers: 1 + T pixel's layer (0 outside T); else empty
   PinholeCamera camera;
   Rigid3d world_from_cam;
   InpaintStats stats;

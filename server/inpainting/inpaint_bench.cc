@@ -17,7 +17,7 @@
 //                 [--peel_all_normals] [--dump_depth DIR] [--joint_hole PX] [--joint_iters N]
 //                 [--layered] [--layer_gap R] [--layer_min_share S] [--max_layers K]
 //                 [--layer_agree R] [--layer_normal W] [--layer_dist W] [--layer_color W] [--layer_smooth W]
-//                 [--layer_sigma S] [--layer_jump F] [--layer_block PX]   (session 5: layered depth solve)
+//                 [--layer_sigma S] [--layer_jump F] [--layer_block PX] [--layer_seed_measured] [--layer_edge_seeds] [--layer_max_dist PX]   (session 5: layered depth solve)
 #include <algorithm>
 #include <array>
 #include <chrono>
@@ -564,6 +564,9 @@ int main(int argc, char** argv) {
     else if (a == "--layer_sigma") layer_opts.layer_color_sigma = std::stod(next());
     else if (a == "--layer_jump") layer_opts.layer_jump_factor = std::stod(next());
     else if (a == "--layer_block") layer_opts.layer_label_block = std::stoi(next());
+    else if (a == "--layer_seed_measured") layer_opts.layer_seed_measured_only = true;
+    else if (a == "--layer_edge_seeds") layer_opts.layer_edge_seeds = true;
+    else if (a == "--layer_max_dist") layer_opts.layer_max_seed_dist_px = std::stod(next());
     else {
       std::fprintf(stderr, "unknown argument %s\n", a.c_str());
       return 2;
@@ -626,6 +629,9 @@ int main(int argc, char** argv) {
   base.layer_color_sigma = layer_opts.layer_color_sigma;
   base.layer_jump_factor = layer_opts.layer_jump_factor;
   base.layer_label_block = layer_opts.layer_label_block;
+  base.layer_seed_measured_only = layer_opts.layer_seed_measured_only;
+  base.layer_edge_seeds = layer_opts.layer_edge_seeds;
+  base.layer_max_seed_dist_px = layer_opts.layer_max_seed_dist_px;
   for (const MaskSpec& spec : specs) {
     const RealFrame gt = LoadFrame(data_dir, spec.frame);
     if (!gt.ok) {
@@ -661,9 +667,9 @@ int main(int argc, char** argv) {
       const double ms = Percentile(times, 0.5);
       char extra[256];
       std::snprintf(extra, sizeof(extra),
-                    ",\"cpu_ms\":%.1f,\"threads\":%d,\"levels\":%d,\"ms_prepare\":%.1f,\"ms_search\":%.1f,\"ms_poisson\":%.1f,\"poisson_iters\":%d,\"sweeps\":%d,\"joint_px\":%d,\"layers\":%d",
+                    ",\"cpu_ms\":%.1f,\"threads\":%d,\"levels\":%d,\"ms_prepare\":%.1f,\"ms_search\":%.1f,\"ms_poisson\":%.1f,\"poisson_iters\":%d,\"sweeps\":%d,\"joint_px\":%d,\"layers\":%d,\"layer_dist_px\":%.0f",
                     Percentile(cpu, 0.5), o.num_threads, r->stats.levels, r->stats.ms_prepare, r->stats.ms_search, r->stats.ms_poisson,
-                    r->stats.poisson_iterations, r->stats.sweeps, r->stats.joint_pixels, r->stats.depth_layers);
+                    r->stats.poisson_iterations, r->stats.sweeps, r->stats.joint_pixels, r->stats.depth_layers, r->stats.layer_seed_dist_px);
       PrintRow(name, spec, fraction, ms, m, extra);
       for (size_t k = 0; k < times.size(); ++k)
         rows[{name, spec.cls}].push_back({name, spec.cls, times[k], m, stages[k]});
@@ -680,6 +686,22 @@ int main(int argc, char** argv) {
         cv::findContours(mask.clone(), cs, cv::RETR_EXTERNAL, cv::CHAIN_APPROX_NONE);
         cv::drawContours(gc, cs, -1, cv::Scalar(255, 255, 255), 1);
         cv::drawContours(oc, cs, -1, cv::Scalar(255, 255, 255), 1);
+        if (!r->layers.empty()) {  // layered depth: the cut between layers in magenta
+          cv::Mat lab(480, 640, CV_8U, r->layers.data());
+          for (int y = 0; y + 1 < 480; ++y)
+            for (int x = 0; x + 1 < 640; ++x) {
+              const uint8_t a = lab.at<uint8_t>(y, x);
+              if (a && !mask.at<uint8_t>(y, x)) {  // a seed of the labelling: white / black / grey
+                cv::rectangle(oc, cv::Rect(x - 1, y - 1, 3, 3),
+                              a == 1 ? cv::Scalar(255, 255, 255) : a == 2 ? cv::Scalar(0, 0, 0) : cv::Scalar(128, 128, 128), cv::FILLED);
+                continue;
+              }
+              if (!mask.at<uint8_t>(y, x)) continue;
+              if (a && ((mask.at<uint8_t>(y, x + 1) && lab.at<uint8_t>(y, x + 1) != a) ||
+                        (mask.at<uint8_t>(y + 1, x) && lab.at<uint8_t>(y + 1, x) != a)))
+                oc.at<cv::Vec3b>(y, x) = cv::Vec3b(255, 0, 255);
+            }
+        }
         gc.copyTo(both(cv::Rect(0, 0, 640, 480)));
         oc.copyTo(both(cv::Rect(640, 0, 640, 480)));
         cv::imwrite(dump_depth_dir + "/" + spec.id + ".png", both);
