@@ -904,9 +904,6 @@ int SetupLayers(const ImageU8& region, const std::vector<uint8_t>& measured, int
     std::sort(kept.begin(), kept.end());
   }
   const int K = static_cast<int>(kept.size());
-  if (getenv("EXO_LAYER_DEBUG")) {  // TEMP
-    for (const auto& r : runs) fprintf(stderr, "run %d px v %.3f-%.3f\n", r.second - r.first, ring[order[r.first]].v, ring[order[r.second - 1]].v);
-  }
   // 2. A robust inverse-depth plane per layer; its camera-frame normal: 1/z = a u + b v + c
   // (u, v pixels) is the plane a fx X + b fy Y + (a cx + b cy + c) Z = 1.
   std::vector<LayerPlane> planes(K);

@@ -111,20 +111,20 @@ struct InpaintOptions {
   bool layered_depth = false;
   double layer_gap_rel = 0.15;
   double layer_min_share = 0.05;
-  int max_layers = 3;
+  int max_layers = 2;
   double layer_agree_rel = 0.05;
-  double layer_normal_weight = 1.0;
-  double layer_distance_weight = 0.5;
-  double layer_color_weight = 1.0;  // (1 - P(l | copied colour)), per-layer RGB histograms
+  double layer_normal_weight = 0.0;
+  double layer_distance_weight = 1.0;
+  double layer_color_weight = 0.0;  // (1 - P(l | copied colour)), per-layer RGB histograms
   double layer_smooth = 1.0;
   double layer_color_sigma = 20.0;
   double layer_jump_factor = 0.1;
   int layer_label_block = 4;
   // Only measured border pixels seed the labelling (push-pull-filled ones still anchor a layer
   // they match as Dirichlet values).
-  bool layer_seed_measured_only = false;
+  bool layer_seed_measured_only = true;
   // T's pixels on the frame's edge take the label of the nearest seed and become seeds.
-  bool layer_edge_seeds = false;
+  bool layer_edge_seeds = true;
   // Keep the single solve when some pixel of T lies farther than this from every layer's seeds
   // (the cut would be extrapolated too far; 0 = no limit).
   double layer_max_seed_dist_px = 0.0;  // the labelling's graph has one node per block of this many px^2

@@ -17,7 +17,7 @@
 //                 [--peel_all_normals] [--dump_depth DIR] [--joint_hole PX] [--joint_iters N]
 //                 [--layered] [--layer_gap R] [--layer_min_share S] [--max_layers K]
 //                 [--layer_agree R] [--layer_normal W] [--layer_dist W] [--layer_color W] [--layer_smooth W]
-//                 [--layer_sigma S] [--layer_jump F] [--layer_block PX] [--layer_seed_measured] [--layer_edge_seeds] [--layer_max_dist PX]   (session 5: layered depth solve)
+//                 [--layer_sigma S] [--layer_jump F] [--layer_block PX] [--layer_seed_measured 0|1] [--layer_edge_seeds 0|1] [--layer_max_dist PX]   (session 5: layered depth solve)
 #include <algorithm>
 #include <array>
 #include <chrono>
@@ -564,8 +564,8 @@ int main(int argc, char** argv) {
     else if (a == "--layer_sigma") layer_opts.layer_color_sigma = std::stod(next());
     else if (a == "--layer_jump") layer_opts.layer_jump_factor = std::stod(next());
     else if (a == "--layer_block") layer_opts.layer_label_block = std::stoi(next());
-    else if (a == "--layer_seed_measured") layer_opts.layer_seed_measured_only = true;
-    else if (a == "--layer_edge_seeds") layer_opts.layer_edge_seeds = true;
+    else if (a == "--layer_seed_measured") layer_opts.layer_seed_measured_only = next() != "0";
+    else if (a == "--layer_edge_seeds") layer_opts.layer_edge_seeds = next() != "0";
     else if (a == "--layer_max_dist") layer_opts.layer_max_seed_dist_px = std::stod(next());
     else {
       std::fprintf(stderr, "unknown argument %s\n", a.c_str());
