@@ -92,23 +92,32 @@ struct InpaintOptions {
   // Dirichlet values.
   int joint_hole_px = 0;
   int joint_iterations = 4;
-  // Layered depth (session 5, inverse-depth domain only): T's border pixels with measured depth
-  // are clustered in inverse depth (sorted; split where neighbouring values differ by more than
-  // layer_gap_rel of their value; clusters below layer_min_share of the ring or 8 px ignored;
-  // at most max_layers, the largest kept). With one layer nothing changes. With 2-3 layers each
-  // gets a robust inverse-depth plane, every pixel of T a layer (Potts labelling by
-  // alpha-expansion / s-t min cut, graph_cut.h): data term layer_normal_weight * (1 - |n . N_l|)
-  // (n the normal copied through f, N_l the layer plane's) + layer_distance_weight * d_l /
-  // (d_l + d_other) (distances to the layers' border pixels) + layer_color_weight *
-  // (1 - P(l | colour)) (8x8x8 RGB histograms of the measured pixels of the solve's crop whose
-  // inverse depth lies in the layer's cluster range); pair weight layer_smooth *
-  // exp(-|c_p - c_q|^2 / 2 layer_color_sigma^2) on the copied colour, times layer_jump_factor
-  // where the fused copied gradient is a jump; border pixels are fixed labels. The depth solve
-  // then treats pairs between layers as natural (Neumann) boundaries, uses a border pixel as a
-  // Dirichlet value only for T pixels of its layer (measured ring: its cluster; others, e.g.
-  // push-pull-filled: the layer whose plane it matches within layer_agree_rel, else none), and
-  // builds the surface prior per layer region. Off by default (docs/inpainting.md, session 5).
-  bool layered_depth = false;
+  // Layered depth (session 5, inverse-depth domain only; default since session 5, chosen on
+  // the two training mask sets, docs/inpainting.md): T may hide an occlusion edge (a table in
+  // front of a wall), which one Poisson surface cannot carry. T's border pixels with measured
+  // depth are clustered in inverse depth (sorted; split where neighbouring values differ by
+  // more than layer_gap_rel of their value; clusters below layer_min_share of the ring or 8 px
+  // ignored; at most max_layers, the largest kept). With one layer nothing changes (bit-
+  // identical). With 2-3 layers each gets a robust inverse-depth plane and every pixel of T a
+  // layer: Potts labelling by alpha-expansion (s-t min cuts, graph_cut.h) on blocks of
+  // layer_label_block^2 px. Seeds are the labelled border pixels (only measured ones with
+  // layer_seed_measured_only); with layer_edge_seeds T's free border pixels (frame edge, next
+  // to holes / push-pull fill) continue the seeds' labels along T's border. Data term:
+  // layer_distance_weight * d_l / (d_l + d_other) (distances to the layers' seeds) +
+  // layer_normal_weight * (1 - |n . N_l|) (n copied through f, N_l the layer plane's) +
+  // layer_color_weight * (1 - P(l | copied colour)) (8x8x8 RGB histograms of measured pixels in
+  // the layer's value range); the normal and colour terms are off (both lost on the training
+  // sets: copied normals and colours are not reliable about which surface is hidden). Pair
+  // weight layer_smooth * exp(-|c_p - c_q|^2 / 2 layer_color_sigma^2) on the copied colour,
+  // times layer_jump_factor where the fused copied gradient is a jump; seeds are fixed labels.
+  // The depth solve then treats pairs between layers as natural (Neumann) boundaries, uses a
+  // border pixel as a Dirichlet value only for T pixels of its layer (measured ring: its
+  // cluster; others, e.g. push-pull-filled: the layer whose plane it matches within
+  // layer_agree_rel, else none), and builds the surface prior per layer region
+  // (BuildSurfacePrior on that region and that layer's border values). With
+  // layer_max_seed_dist_px > 0 a T pixel farther than that from every seed keeps the single
+  // solve (off).
+  bool layered_depth = true;
   double layer_gap_rel = 0.15;
   double layer_min_share = 0.05;
   int max_layers = 2;

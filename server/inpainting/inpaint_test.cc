@@ -527,9 +527,12 @@ TEST(InpaintTest, LayeredDepthWithOneLayerIsTheSingleSolve) {
   layered.layered_depth = true;
   auto rl = InpaintKeyframe(truth, mask, layered);
   ASSERT_TRUE(rl.ok()) << rl.status();
-  auto rs = InpaintKeyframe(truth, mask, FastOptions());
+  InpaintOptions single = FastOptions();
+  single.layered_depth = false;
+  auto rs = InpaintKeyframe(truth, mask, single);
   ASSERT_TRUE(rs.ok()) << rs.status();
   EXPECT_EQ(rl->stats.depth_layers, 1);
+  EXPECT_TRUE(rl->layers.empty());
   for (size_t i = 0; i < rl->depth_m.size(); ++i) ASSERT_EQ(rl->depth_m.data()[i], rs->depth_m.data()[i]);
 }
 
