@@ -15,7 +15,7 @@
 //                 [--fusion mean|robust] [--jump_rel R] [--jump_weight W] [--converged F]
 //                 [--plane_prior W] [--neumann_prior W] [--prior_local SIGMA_PX] [--seed S]
 //                 [--peel_all_normals] [--dump_depth DIR] [--joint_hole PX] [--joint_iters N]
-//                 [--layered] [--layer_gap R] [--layer_min_share S] [--max_layers K]
+//                 [--layered | --no_layered] [--layer_gap R] [--layer_min_share S] [--max_layers K]
 //                 [--layer_agree R] [--layer_normal W] [--layer_dist W] [--layer_color W] [--layer_smooth W]
 //                 [--layer_sigma S] [--layer_jump F] [--layer_block PX] [--layer_seed_measured 0|1] [--layer_edge_seeds 0|1] [--layer_max_dist PX]   (session 5: layered depth solve)
 #include <algorithm>
