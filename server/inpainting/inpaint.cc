@@ -7,6 +7,7 @@
 #include <cmath>
 #include <ctime>
 #include <limits>
+#include <queue>
 #include <thread>
 #include <vector>
 
@@ -964,6 +965,11 @@ int SetupLayers(const ImageU8& region, const std::vector<uint8_t>& measured, int
   // free stretch between two seeds of one layer belongs to that layer (an occlusion edge that
   // enters T must leave it again), and they become seeds themselves.
   ImageI32 elabel(cw, ch, 1, -1);
+  // layer_far_cost: border-continuation steps of farther layers cost more (layer 0 is the
+  // farthest).
+  std::vector<double> layer_mult(K, 1.0);
+  if (o.layer_far_cost > 1.0 && K > 1)
+    for (int l = 0; l < K; ++l) layer_mult[l] = 1.0 + (o.layer_far_cost - 1.0) * (K - 1 - l) / (K - 1);
   if (o.layer_edge_seeds) {
     bool any = false;
     ImageI32 glabel(cw, ch, 1, -1);
@@ -992,15 +998,45 @@ int SetupLayers(const ImageU8& region, const std::vector<uint8_t>& measured, int
           free_px.at(cx, cy) = 1;
         }
       }
-    for (size_t qi = 0; qi < queue.size(); ++qi) {
-      const int cx = queue[qi] % cw, cy = queue[qi] / cw;
-      for (int dy = -1; dy <= 1; ++dy)
-        for (int dx = -1; dx <= 1; ++dx) {
-          const int nx = cx + dx, ny = cy + dy;
-          if (nx < 0 || ny < 0 || nx >= cw || ny >= ch || !free_px.at(nx, ny) || glabel.at(nx, ny) >= 0) continue;
-          glabel.at(nx, ny) = glabel.at(cx, cy);
-          queue.push_back(ny * cw + nx);
-        }
+    if (!(o.layer_far_cost > 1.0)) {
+      for (size_t qi = 0; qi < queue.size(); ++qi) {
+        const int cx = queue[qi] % cw, cy = queue[qi] / cw;
+        for (int dy = -1; dy <= 1; ++dy)
+          for (int dx = -1; dx <= 1; ++dx) {
+            const int nx = cx + dx, ny = cy + dy;
+            if (nx < 0 || ny < 0 || nx >= cw || ny >= ch || !free_px.at(nx, ny) || glabel.at(nx, ny) >= 0) continue;
+            glabel.at(nx, ny) = glabel.at(cx, cy);
+            queue.push_back(ny * cw + nx);
+          }
+      }
+    } else {
+      // layer_far_cost: a step of a farther layer costs more (Dijkstra along the border), so a
+      // free stretch is split closer to the far layer's seeds.
+      using Item = std::pair<double, int>;  // (cost, pixel); ties by pixel index
+      std::priority_queue<Item, std::vector<Item>, std::greater<Item>> pq;
+      std::vector<double> best(static_cast<size_t>(cw) * ch, std::numeric_limits<double>::infinity());
+      for (int i : queue) {
+        best[i] = 0.0;
+        pq.push({0.0, i});
+      }
+      while (!pq.empty()) {
+        const auto [c, i] = pq.top();
+        pq.pop();
+        if (c > best[i]) continue;
+        const int cx = i % cw, cy = i / cw;
+        const double step = layer_mult[glabel.at(cx, cy)];
+        for (int dy = -1; dy <= 1; ++dy)
+          for (int dx = -1; dx <= 1; ++dx) {
+            const int nx = cx + dx, ny = cy + dy;
+            if ((dx == 0 && dy == 0) || nx < 0 || ny < 0 || nx >= cw || ny >= ch || !free_px.at(nx, ny)) continue;
+            const int j = ny * cw + nx;
+            if (c + step < best[j]) {
+              best[j] = c + step;
+              glabel.at(nx, ny) = glabel.at(cx, cy);
+              pq.push({best[j], j});
+            }
+          }
+      }
     }
     for (int cy = 0; cy < ch; ++cy)
       for (int cx = 0; cx < cw; ++cx)

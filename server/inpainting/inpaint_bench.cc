@@ -17,7 +17,7 @@
 //                 [--peel_all_normals] [--dump_depth DIR] [--joint_hole PX] [--joint_iters N]
 //                 [--layered | --no_layered] [--layer_gap R] [--layer_min_share S] [--max_layers K]
 //                 [--layer_agree R] [--layer_normal W] [--layer_dist W] [--layer_color W] [--layer_smooth W]
-//                 [--layer_sigma S] [--layer_jump F] [--layer_block PX] [--layer_seed_measured 0|1] [--layer_edge_seeds 0|1] [--layer_max_dist PX]   (session 5: layered depth solve)
+//                 [--layer_sigma S] [--layer_jump F] [--layer_block PX] [--layer_seed_measured 0|1] [--layer_edge_seeds 0|1] [--layer_max_dist PX] [--layer_far_cost C]   (session 5: layered depth solve)
 #include <algorithm>
 #include <array>
 #include <chrono>
@@ -567,6 +567,7 @@ int main(int argc, char** argv) {
     else if (a == "--layer_seed_measured") layer_opts.layer_seed_measured_only = next() != "0";
     else if (a == "--layer_edge_seeds") layer_opts.layer_edge_seeds = next() != "0";
     else if (a == "--layer_max_dist") layer_opts.layer_max_seed_dist_px = std::stod(next());
+    else if (a == "--layer_far_cost") layer_opts.layer_far_cost = std::stod(next());
     else {
       std::fprintf(stderr, "unknown argument %s\n", a.c_str());
       return 2;
@@ -632,6 +633,7 @@ int main(int argc, char** argv) {
   base.layer_seed_measured_only = layer_opts.layer_seed_measured_only;
   base.layer_edge_seeds = layer_opts.layer_edge_seeds;
   base.layer_max_seed_dist_px = layer_opts.layer_max_seed_dist_px;
+  base.layer_far_cost = layer_opts.layer_far_cost;
   for (const MaskSpec& spec : specs) {
     const RealFrame gt = LoadFrame(data_dir, spec.frame);
     if (!gt.ok) {

@@ -517,6 +517,36 @@ TEST(InpaintTest, LayeredDepthPlacesAnOcclusionEdgeInsideTheMask) {
   for (size_t i = 0; i < rl->depth_m.size(); ++i) ASSERT_EQ(rl->depth_m.data()[i], r1->depth_m.data()[i]);
 }
 
+// layer_far_cost (session 5 option, off): T touches the left frame edge, and the occluder's
+// top edge (a box face 1.5 m away below row 45, a wall 3 m away above) crosses T's border at
+// row 45 on the right, at an unknown row on the free left edge. The border continuation splits
+// that free stretch half-way (row ~60) with equal costs; with far steps costing 1.5x it moves
+// towards the far layer's seeds, closer to the truth (guard: the Dijkstra continuation; with
+// the option ignored both results are equal and the EXPECT fails).
+TEST(InpaintTest, LayerFarCostMovesTheCrossingOfAFreeBorderStretch) {
+  const PinholeCamera cam = SmallCamera();
+  const double y_edge = (45 - cam.cy) / cam.fy * 1.5;
+  std::vector<WorldPlane> planes = {
+      {glm::dvec3(0, 0, 1), 1.5, [y_edge](const glm::dvec3& p) { return p.y > y_edge; }},
+      {glm::dvec3(0, 0, 1), 3.0, nullptr}};
+  const RgbdKeyframe truth = RenderPlanes(planes, cam, Rigid3d::Identity());
+  const ImageU8 mask = RectMask(cam.width, cam.height, 0, 30, 60, 90);
+  InpaintOptions even = FastOptions();
+  ASSERT_TRUE(even.layered_depth);
+  ASSERT_EQ(even.layer_far_cost, 1.0);
+  InpaintOptions far = even;
+  far.layer_far_cost = 1.5;
+  auto re = InpaintKeyframe(truth, mask, even);
+  auto rf = InpaintKeyframe(truth, mask, far);
+  ASSERT_TRUE(re.ok() && rf.ok());
+  EXPECT_EQ(re->stats.depth_layers, 2);
+  const double err_even = MeanAbsDepthErrorInMask(re->depth_m, truth.depth_m, mask);
+  const double err_far = MeanAbsDepthErrorInMask(rf->depth_m, truth.depth_m, mask);
+  RecordProperty("err_even_m", std::to_string(err_even));
+  RecordProperty("err_far_m", std::to_string(err_far));
+  EXPECT_LT(err_far, 0.8 * err_even) << "even " << err_even << " far " << err_far;
+}
+
 // One surface around T (a tilted wall): the ring forms one layer and the layered option leaves
 // the result bit-identical to the single-surface solve.
 TEST(InpaintTest, LayeredDepthWithOneLayerIsTheSingleSolve) {
