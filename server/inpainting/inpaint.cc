@@ -854,7 +854,7 @@ LayerPlane FitLayerPlane(const std::vector<Eigen::Vector3d>& pts) {  // (x, y, v
 }
 
 int SetupLayers(const ImageU8& region, const std::vector<uint8_t>& measured, int ox, int oy, int w,
-                int h, const PinholeCamera& cam, const std::vector<float>& t_normals,
+                int h,
                 const ImageU8& color, const InpaintOptions& o, ImageF* q, ImageF* gx, ImageF* gy,
                 const ImageF& wx, const ImageF& wy, ImageF* prior, ImageF* prior_w,
                 std::vector<int>* layer_pixels, float* seed_dist_px, ImageU8* layer_map) {
@@ -905,10 +905,8 @@ int SetupLayers(const ImageU8& region, const std::vector<uint8_t>& measured, int
     std::sort(kept.begin(), kept.end());
   }
   const int K = static_cast<int>(kept.size());
-  // 2. A robust inverse-depth plane per layer; its camera-frame normal: 1/z = a u + b v + c
-  // (u, v pixels) is the plane a fx X + b fy Y + (a cx + b cy + c) Z = 1.
+  // 2. A robust inverse-depth plane per layer (1/z is affine in pixel coordinates on a plane).
   std::vector<LayerPlane> planes(K);
-  std::vector<Eigen::Vector3d> plane_n(K);
   ImageI32 blabel(cw, ch, 1, -1);  // border pixel labels (-1: none)
   for (int l = 0; l < K; ++l) {
     std::vector<Eigen::Vector3d> pts;
@@ -918,9 +916,6 @@ int SetupLayers(const ImageU8& region, const std::vector<uint8_t>& measured, int
       blabel.at(r.cx, r.cy) = l;
     }
     planes[l] = FitLayerPlane(pts);
-    const double a = planes[l].c[0] / 640.0, b = planes[l].c[1] / 640.0, c = planes[l].c[2];
-    Eigen::Vector3d nn(a * cam.fx, b * cam.fy, a * cam.cx + b * cam.cy + c);
-    plane_n[l] = nn.norm() > 0 ? nn.normalized() : Eigen::Vector3d(0, 0, 1);
   }
   // Other border values (push-pull-filled, measured in no kept cluster): the layer whose plane
   // they match; none -> no boundary value at all.
@@ -1069,29 +1064,6 @@ int SetupLayers(const ImageU8& region, const std::vector<uint8_t>& measured, int
     *q = q_in;
     return 1;
   }
-  // Colour model per layer (as in GrabCut): an 8x8x8 RGB histogram of the measured pixels of
-  // the crop whose value lies in the layer's cluster range (widened by half the gap); T's
-  // copied colour then gives P(layer | colour).
-  constexpr int kBins = 8 * 8 * 8;
-  std::vector<double> hist(static_cast<size_t>(K) * kBins, 1.0);  // Laplace prior
-  std::vector<double> hist_n(K, kBins);
-  auto bin = [&](int x, int y) {
-    return (color.at(x, y, 0) >> 5) * 64 + (color.at(x, y, 1) >> 5) * 8 + (color.at(x, y, 2) >> 5);
-  };
-  if (o.layer_color_weight > 0.0) {
-    const double widen = 0.5 * o.layer_gap_rel;
-    for (int cy = 0; cy < ch; ++cy)
-      for (int cx = 0; cx < cw; ++cx) {
-        if (region.at(cx, cy) || !measured[static_cast<size_t>(oy + cy) * w + ox + cx]) continue;
-        const float v = q->at(cx, cy);
-        if (!std::isfinite(v)) continue;
-        for (int l = 0; l < K; ++l) {
-          if (v < planes[l].vlo * (1.0 - widen) || v > planes[l].vhi * (1.0 + widen)) continue;
-          hist[static_cast<size_t>(l) * kBins + bin(ox + cx, oy + cy)] += 1.0;
-          hist_n[l] += 1.0;
-        }
-      }
-  }
   // The labelling runs on blocks of layer_label_block^2 pixels (one label per block; the block
   // energy is the exact sum of its pixels' terms, pairs inside a block drop out): the cut is a
   // long smooth curve, and a 4x coarser graph makes the max-flow ~20x cheaper.
@@ -1123,27 +1095,13 @@ int SetupLayers(const ImageU8& region, const std::vector<uint8_t>& measured, int
       const int p = node_of(cx, cy);
       if (p < 0) continue;
       const int x = ox + cx, y = oy + cy;
-      const size_t i = static_cast<size_t>(y) * w + x;
-      const Eigen::Vector3d n(t_normals[i * 3], t_normals[i * 3 + 1], t_normals[i * 3 + 2]);
-      const bool has_n = o.layer_normal_weight > 0.0 && n.squaredNorm() > 0.25;
       for (int l = 0; l < K; ++l) {
         double u = 0.0;
-        if (has_n) u += o.layer_normal_weight * (1.0 - std::fabs(n.normalized().dot(plane_n[l])));
         double dmin = std::numeric_limits<double>::infinity();
         for (int m = 0; m < K; ++m)
           if (m != l) dmin = std::min<double>(dmin, dist[m].at<float>(cy, cx));
         const double dl = dist[l].at<float>(cy, cx);
         u += o.layer_distance_weight * dl / std::max(1e-6, dl + dmin);
-        if (o.layer_color_weight > 0.0) {
-          const int b = bin(x, y);
-          double pl = 0, ps = 0;
-          for (int m = 0; m < K; ++m) {
-            const double pm = hist[static_cast<size_t>(m) * kBins + b] / hist_n[m];
-            ps += pm;
-            if (m == l) pl = pm;
-          }
-          u += o.layer_color_weight * (1.0 - pl / ps);
-        }
         unary[static_cast<size_t>(p) * K + l] += static_cast<float>(u);
       }
       if (elabel.at(cx, cy) >= 0) {
@@ -1287,8 +1245,7 @@ absl::Status InpaintOptions::Validate() const {
   }
   if (max_layers < 1 || max_layers > 3) return absl::InvalidArgumentError("max_layers in [1, 3]");
   if (!(layer_agree_rel >= 0.0)) return absl::InvalidArgumentError("layer_agree_rel must be >= 0");
-  if (!(layer_normal_weight >= 0.0) || !(layer_distance_weight >= 0.0) || !(layer_smooth >= 0.0) ||
-      !(layer_color_weight >= 0.0)) {
+  if (!(layer_distance_weight >= 0.0) || !(layer_smooth >= 0.0)) {
     return absl::InvalidArgumentError("layer weights must be >= 0");
   }
   if (!(layer_color_sigma > 0.0)) return absl::InvalidArgumentError("layer_color_sigma must be > 0");
@@ -1611,7 +1568,7 @@ absl::StatusOr<InpaintResult> InpaintKeyframe(const RgbdKeyframe& frame, const I
   ImageF prior, prior_w;
   int layers = 1;
   if (options.layered_depth && inv && options.max_layers > 1) {
-    layers = SetupLayers(region, measured, ox, oy, w, h, frame.camera, L0.normal, out.color, options,
+    layers = SetupLayers(region, measured, ox, oy, w, h, out.color, options,
                          &q, &gx, &gy, wx, wy, &prior, &prior_w, &out.stats.layer_pixels,
                          &out.stats.layer_seed_dist_px, &out.layers);
   }

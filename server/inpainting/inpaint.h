@@ -103,11 +103,10 @@ struct InpaintOptions {
   // layer_label_block^2 px. Seeds are the labelled border pixels (only measured ones with
   // layer_seed_measured_only); with layer_edge_seeds T's free border pixels (frame edge, next
   // to holes / push-pull fill) continue the seeds' labels along T's border. Data term:
-  // layer_distance_weight * d_l / (d_l + d_other) (distances to the layers' seeds) +
-  // layer_normal_weight * (1 - |n . N_l|) (n copied through f, N_l the layer plane's) +
-  // layer_color_weight * (1 - P(l | copied colour)) (8x8x8 RGB histograms of measured pixels in
-  // the layer's value range); the normal and colour terms are off (both lost on the training
-  // sets: copied normals and colours are not reliable about which surface is hidden). Pair
+  // layer_distance_weight * d_l / (d_l + d_other) (distances to the layers' seeds). Data terms
+  // from the copied colour (per-layer colour histograms) and the copied normals (against the
+  // layer planes' normals) lost on the training sets and were removed: what PatchMatch copies
+  // into T does not tell reliably which surface is hidden (docs/inpainting.md). Pair
   // weight layer_smooth * exp(-|c_p - c_q|^2 / 2 layer_color_sigma^2) on the copied colour,
   // times layer_jump_factor where the fused copied gradient is a jump; seeds are fixed labels.
   // The depth solve then treats pairs between layers as natural (Neumann) boundaries, uses a
@@ -122,9 +121,7 @@ struct InpaintOptions {
   double layer_min_share = 0.05;
   int max_layers = 2;
   double layer_agree_rel = 0.05;
-  double layer_normal_weight = 0.0;
   double layer_distance_weight = 1.0;
-  double layer_color_weight = 0.0;  // (1 - P(l | copied colour)), per-layer RGB histograms
   double layer_smooth = 1.0;
   double layer_color_sigma = 20.0;
   double layer_jump_factor = 0.1;

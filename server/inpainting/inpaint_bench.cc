@@ -16,7 +16,7 @@
 //                 [--plane_prior W] [--neumann_prior W] [--prior_local SIGMA_PX] [--seed S]
 //                 [--peel_all_normals] [--dump_depth DIR] [--joint_hole PX] [--joint_iters N]
 //                 [--layered | --no_layered] [--layer_gap R] [--layer_min_share S] [--max_layers K]
-//                 [--layer_agree R] [--layer_normal W] [--layer_dist W] [--layer_color W] [--layer_smooth W]
+//                 [--layer_agree R] [--layer_dist W] [--layer_smooth W]
 //                 [--layer_sigma S] [--layer_jump F] [--layer_block PX] [--layer_seed_measured 0|1] [--layer_edge_seeds 0|1] [--layer_max_dist PX] [--layer_far_cost C]   (session 5: layered depth solve)
 #include <algorithm>
 #include <array>
@@ -557,9 +557,7 @@ int main(int argc, char** argv) {
     else if (a == "--layer_min_share") layer_opts.layer_min_share = std::stod(next());
     else if (a == "--max_layers") layer_opts.max_layers = std::stoi(next());
     else if (a == "--layer_agree") layer_opts.layer_agree_rel = std::stod(next());
-    else if (a == "--layer_normal") layer_opts.layer_normal_weight = std::stod(next());
     else if (a == "--layer_dist") layer_opts.layer_distance_weight = std::stod(next());
-    else if (a == "--layer_color") layer_opts.layer_color_weight = std::stod(next());
     else if (a == "--layer_smooth") layer_opts.layer_smooth = std::stod(next());
     else if (a == "--layer_sigma") layer_opts.layer_color_sigma = std::stod(next());
     else if (a == "--layer_jump") layer_opts.layer_jump_factor = std::stod(next());
@@ -623,9 +621,7 @@ int main(int argc, char** argv) {
   base.layer_min_share = layer_opts.layer_min_share;
   base.max_layers = layer_opts.max_layers;
   base.layer_agree_rel = layer_opts.layer_agree_rel;
-  base.layer_normal_weight = layer_opts.layer_normal_weight;
   base.layer_distance_weight = layer_opts.layer_distance_weight;
-  base.layer_color_weight = layer_opts.layer_color_weight;
   base.layer_smooth = layer_opts.layer_smooth;
   base.layer_color_sigma = layer_opts.layer_color_sigma;
   base.layer_jump_factor = layer_opts.layer_jump_factor;

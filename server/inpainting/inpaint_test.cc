@@ -509,6 +509,16 @@ TEST(InpaintTest, LayeredDepthPlacesAnOcclusionEdgeInsideTheMask) {
   EXPECT_EQ(rs->stats.depth_layers, 1);
   // Colour does not depend on the depth solve.
   for (size_t i = 0; i < rl->color.bytes(); ++i) ASSERT_EQ(rl->color.data()[i], rs->color.data()[i]);
+  // The seed-distance gate (layer_max_seed_dist_px, off by default): T's centre lies ~30 px
+  // from every seed, so a 10 px limit keeps the single solve, bit-identically.
+  InpaintOptions gated = layered;
+  gated.layer_max_seed_dist_px = 10.0;
+  auto rg = InpaintKeyframe(truth, mask, gated);
+  ASSERT_TRUE(rg.ok());
+  EXPECT_EQ(rg->stats.depth_layers, 1);
+  EXPECT_GT(rg->stats.layer_seed_dist_px, 10.f);
+  EXPECT_TRUE(rg->layers.empty());
+  for (size_t i = 0; i < rg->depth_m.size(); ++i) ASSERT_EQ(rg->depth_m.data()[i], rs->depth_m.data()[i]);
   // Same output with one and two threads.
   InpaintOptions one = layered;
   one.num_threads = 1;
