@@ -7,6 +7,7 @@
 #include <cmath>
 #include <ctime>
 #include <limits>
+#include <queue>
 #include <thread>
 #include <vector>
 
@@ -14,6 +15,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "server/inpainting/depth_maps.h"
+#include "server/inpainting/graph_cut.h"
 #include "server/inpainting/poisson.h"
 
 namespace exo::inpaint {
@@ -802,6 +804,409 @@ int BuildSurfacePrior(const ImageU8& region, const ImageF& values, int ox, int o
   return count;
 }
 
+namespace {
+
+// Layered depth setup (InpaintOptions::layered_depth) on the Poisson crop at (ox, oy): clusters
+// the measured border of T in inverse depth, labels T's pixels with layers (Potts, graph_cut.h),
+// and rewrites the problem so that each layer is solved on its own: pairs between layers and
+// pairs from a T pixel to a border pixel of another layer lose their constraint (NaN target =
+// natural boundary), border values that match no layer are dropped, and the surface prior is
+// built per layer region. Returns the number of layers (<= 1: nothing was changed).
+struct LayerPlane {
+  Eigen::Vector3d c = Eigen::Vector3d::Zero();  // v = c0 * x / 640 + c1 * y / 640 + c2
+  double vlo = 0, vhi = 0;                      // range of the cluster's values
+  double At(double x, double y) const { return c[0] * x / 640.0 + c[1] * y / 640.0 + c[2]; }
+};
+
+LayerPlane FitLayerPlane(const std::vector<Eigen::Vector3d>& pts) {  // (x, y, v), frame px
+  LayerPlane pl;
+  std::vector<double> vs;
+  for (const auto& p : pts) vs.push_back(p[2]);
+  std::nth_element(vs.begin(), vs.begin() + vs.size() / 2, vs.end());
+  const double med = vs[vs.size() / 2];
+  pl.vlo = *std::min_element(vs.begin(), vs.end());
+  pl.vhi = *std::max_element(vs.begin(), vs.end());
+  pl.c = Eigen::Vector3d(0, 0, med);  // fallback: fronto-parallel at the median
+  // Iteratively reweighted least squares, Huber weights on the relative residual (2 %).
+  std::vector<double> wt(pts.size(), 1.0);
+  for (int iter = 0; iter < 4; ++iter) {
+    Eigen::Matrix3d ata = Eigen::Matrix3d::Zero();
+    Eigen::Vector3d atb = Eigen::Vector3d::Zero();
+    double sw = 0;
+    for (size_t k = 0; k < pts.size(); ++k) {
+      const Eigen::Vector3d a(pts[k][0] / 640.0, pts[k][1] / 640.0, 1.0);
+      ata += wt[k] * a * a.transpose();
+      atb += wt[k] * a * pts[k][2];
+      sw += wt[k];
+    }
+    ata /= sw;
+    atb /= sw;
+    if (!(std::fabs(ata.determinant()) > 1e-12)) break;  // collinear border: keep the fallback
+    const Eigen::Vector3d c = ata.ldlt().solve(atb);
+    if (!c.allFinite()) break;
+    pl.c = c;
+    for (size_t k = 0; k < pts.size(); ++k) {
+      const double r = std::fabs(pl.At(pts[k][0], pts[k][1]) - pts[k][2]) / std::max(1e-9, std::fabs(pts[k][2]));
+      wt[k] = r <= 0.02 ? 1.0 : 0.02 / r;
+    }
+  }
+  return pl;
+}
+
+int SetupLayers(const ImageU8& region, const std::vector<uint8_t>& measured, int ox, int oy, int w,
+                int h,
+                const ImageU8& color, const InpaintOptions& o, ImageF* q, ImageF* gx, ImageF* gy,
+                const ImageF& wx, const ImageF& wy, ImageF* prior, ImageF* prior_w,
+                std::vector<int>* layer_pixels, float* seed_dist_px, ImageU8* layer_map) {
+  const int cw = region.width(), ch = region.height();
+  const ImageF q_in = *q;  // restored when the layered solve is not used
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  auto in_r = [&](int cx, int cy) {
+    return cx >= 0 && cy >= 0 && cx < cw && cy < ch && region.at(cx, cy) != 0;
+  };
+  auto next_to_r = [&](int cx, int cy) {
+    return in_r(cx - 1, cy) || in_r(cx + 1, cy) || in_r(cx, cy - 1) || in_r(cx, cy + 1);
+  };
+  // 1. The measured ring, clustered in inverse depth.
+  struct RingPx {
+    int cx, cy;
+    float v;
+  };
+  std::vector<RingPx> ring;
+  for (int cy = 0; cy < ch; ++cy)
+    for (int cx = 0; cx < cw; ++cx) {
+      if (region.at(cx, cy) || !std::isfinite(q->at(cx, cy)) || !(q->at(cx, cy) > 0.f)) continue;
+      if (!measured[static_cast<size_t>(oy + cy) * w + ox + cx] || !next_to_r(cx, cy)) continue;
+      ring.push_back({cx, cy, q->at(cx, cy)});
+    }
+  if (ring.size() < 16) return 1;
+  std::vector<int> order(ring.size());
+  for (size_t k = 0; k < order.size(); ++k) order[k] = static_cast<int>(k);
+  std::stable_sort(order.begin(), order.end(), [&](int a, int b) { return ring[a].v < ring[b].v; });
+  std::vector<std::pair<int, int>> runs;  // [begin, end) in `order`
+  int start = 0;
+  for (size_t k = 1; k <= order.size(); ++k) {
+    if (k == order.size() ||
+        ring[order[k]].v - ring[order[k - 1]].v > o.layer_gap_rel * ring[order[k]].v) {
+      runs.push_back({start, static_cast<int>(k)});
+      start = static_cast<int>(k);
+    }
+  }
+  const int min_size = std::max(8, static_cast<int>(std::ceil(o.layer_min_share * ring.size())));
+  std::vector<std::pair<int, int>> kept;
+  for (const auto& r : runs)
+    if (r.second - r.first >= min_size) kept.push_back(r);
+  if (kept.size() < 2) return 1;
+  if (static_cast<int>(kept.size()) > o.max_layers) {
+    std::stable_sort(kept.begin(), kept.end(), [](const auto& a, const auto& b) {
+      return a.second - a.first > b.second - b.first;
+    });
+    kept.resize(o.max_layers);
+    std::sort(kept.begin(), kept.end());
+  }
+  const int K = static_cast<int>(kept.size());
+  // 2. A robust inverse-depth plane per layer (1/z is affine in pixel coordinates on a plane).
+  std::vector<LayerPlane> planes(K);
+  ImageI32 blabel(cw, ch, 1, -1);  // border pixel labels (-1: none)
+  for (int l = 0; l < K; ++l) {
+    std::vector<Eigen::Vector3d> pts;
+    for (int k = kept[l].first; k < kept[l].second; ++k) {
+      const RingPx& r = ring[order[k]];
+      pts.emplace_back(ox + r.cx, oy + r.cy, r.v);
+      blabel.at(r.cx, r.cy) = l;
+    }
+    planes[l] = FitLayerPlane(pts);
+  }
+  // Other border values (push-pull-filled, measured in no kept cluster): the layer whose plane
+  // they match; none -> no boundary value at all.
+  for (int cy = 0; cy < ch; ++cy)
+    for (int cx = 0; cx < cw; ++cx) {
+      if (region.at(cx, cy) || !std::isfinite(q->at(cx, cy)) || !next_to_r(cx, cy)) continue;
+      if (blabel.at(cx, cy) >= 0) continue;
+      const double v = q->at(cx, cy);
+      int best = -1;
+      double best_r = o.layer_agree_rel;
+      for (int l = 0; l < K; ++l) {
+        const double p = std::clamp(planes[l].At(ox + cx, oy + cy), 0.5 * planes[l].vlo, 2.0 * planes[l].vhi);
+        const double r = std::fabs(v - p) / std::max(1e-9, std::fabs(p));
+        if (r <= best_r) {
+          best_r = r;
+          best = l;
+        }
+      }
+      blabel.at(cx, cy) = best;
+      if (best < 0) q->at(cx, cy) = nan;
+    }
+  // Seeds of the labelling (distances, fixed-label border pairs): with layer_seed_measured_only
+  // only the measured ring, else every labelled border pixel.
+  ImageI32 slabel = blabel;
+  if (o.layer_seed_measured_only) {
+    for (int cy = 0; cy < ch; ++cy)
+      for (int cx = 0; cx < cw; ++cx)
+        if (!measured[static_cast<size_t>(oy + cy) * w + ox + cx]) slabel.at(cx, cy) = -1;
+  }
+  // 3. Labels of T: distances to each layer's border, copied normals and colour.
+  std::vector<cv::Mat> dist(K);
+  for (int l = 0; l < K; ++l) {
+    cv::Mat seeds(ch, cw, CV_8U, cv::Scalar(1));
+    for (int cy = 0; cy < ch; ++cy)
+      for (int cx = 0; cx < cw; ++cx)
+        if (slabel.at(cx, cy) == l) seeds.at<uint8_t>(cy, cx) = 0;
+    cv::distanceTransform(seeds, dist[l], cv::DIST_L2, cv::DIST_MASK_5);
+  }
+  // With layer_edge_seeds, T's free border pixels (on the frame's edge, or next to pixels that
+  // seed no layer: holes, push-pull-filled depth) continue the labels of the seeds along T's
+  // border: breadth-first over T's 8-connected border pixels from those next to a seed, so a
+  // free stretch between two seeds of one layer belongs to that layer (an occlusion edge that
+  // enters T must leave it again), and they become seeds themselves.
+  ImageI32 elabel(cw, ch, 1, -1);
+  // layer_far_cost: border-continuation steps of farther layers cost more (layer 0 is the
+  // farthest).
+  std::vector<double> layer_mult(K, 1.0);
+  if (o.layer_far_cost > 1.0 && K > 1)
+    for (int l = 0; l < K; ++l) layer_mult[l] = 1.0 + (o.layer_far_cost - 1.0) * (K - 1 - l) / (K - 1);
+  if (o.layer_edge_seeds) {
+    bool any = false;
+    ImageI32 glabel(cw, ch, 1, -1);
+    std::vector<int> queue;
+    auto on_border = [&](int cx, int cy) {
+      const int x = ox + cx, y = oy + cy;
+      if (!region.at(cx, cy)) return false;
+      if (x == 0 || y == 0 || x == w - 1 || y == h - 1) return true;
+      return !in_r(cx - 1, cy) || !in_r(cx + 1, cy) || !in_r(cx, cy - 1) || !in_r(cx, cy + 1);
+    };
+    ImageU8 free_px(cw, ch, 1, 0);
+    for (int cy = 0; cy < ch; ++cy)
+      for (int cx = 0; cx < cw; ++cx) {
+        if (!on_border(cx, cy)) continue;
+        int seed = -1;
+        const int nx[4] = {cx - 1, cx + 1, cx, cx}, ny[4] = {cy, cy, cy - 1, cy + 1};
+        for (int k = 0; k < 4; ++k) {
+          if (nx[k] < 0 || ny[k] < 0 || nx[k] >= cw || ny[k] >= ch || region.at(nx[k], ny[k])) continue;
+          const int sl = slabel.at(nx[k], ny[k]);
+          if (sl >= 0 && (seed < 0 || sl < seed)) seed = sl;
+        }
+        if (seed >= 0) {
+          glabel.at(cx, cy) = seed;
+          queue.push_back(cy * cw + cx);
+        } else {
+          free_px.at(cx, cy) = 1;
+        }
+      }
+    if (!(o.layer_far_cost > 1.0)) {
+      for (size_t qi = 0; qi < queue.size(); ++qi) {
+        const int cx = queue[qi] % cw, cy = queue[qi] / cw;
+        for (int dy = -1; dy <= 1; ++dy)
+          for (int dx = -1; dx <= 1; ++dx) {
+            const int nx = cx + dx, ny = cy + dy;
+            if (nx < 0 || ny < 0 || nx >= cw || ny >= ch || !free_px.at(nx, ny) || glabel.at(nx, ny) >= 0) continue;
+            glabel.at(nx, ny) = glabel.at(cx, cy);
+            queue.push_back(ny * cw + nx);
+          }
+      }
+    } else {
+      // layer_far_cost: a step of a farther layer costs more (Dijkstra along the border), so a
+      // free stretch is split closer to the far layer's seeds.
+      using Item = std::pair<double, int>;  // (cost, pixel); ties by pixel index
+      std::priority_queue<Item, std::vector<Item>, std::greater<Item>> pq;
+      std::vector<double> best(static_cast<size_t>(cw) * ch, std::numeric_limits<double>::infinity());
+      for (int i : queue) {
+        best[i] = 0.0;
+        pq.push({0.0, i});
+      }
+      while (!pq.empty()) {
+        const auto [c, i] = pq.top();
+        pq.pop();
+        if (c > best[i]) continue;
+        const int cx = i % cw, cy = i / cw;
+        const double step = layer_mult[glabel.at(cx, cy)];
+        for (int dy = -1; dy <= 1; ++dy)
+          for (int dx = -1; dx <= 1; ++dx) {
+            const int nx = cx + dx, ny = cy + dy;
+            if ((dx == 0 && dy == 0) || nx < 0 || ny < 0 || nx >= cw || ny >= ch || !free_px.at(nx, ny)) continue;
+            const int j = ny * cw + nx;
+            if (c + step < best[j]) {
+              best[j] = c + step;
+              glabel.at(nx, ny) = glabel.at(cx, cy);
+              pq.push({best[j], j});
+            }
+          }
+      }
+    }
+    for (int cy = 0; cy < ch; ++cy)
+      for (int cx = 0; cx < cw; ++cx)
+        if (free_px.at(cx, cy) && glabel.at(cx, cy) >= 0) {
+          elabel.at(cx, cy) = glabel.at(cx, cy);
+          any = true;
+        }
+    if (any) {
+      for (int l = 0; l < K; ++l) {
+        cv::Mat seeds(ch, cw, CV_8U, cv::Scalar(1));
+        for (int cy = 0; cy < ch; ++cy)
+          for (int cx = 0; cx < cw; ++cx)
+            if (slabel.at(cx, cy) == l || elabel.at(cx, cy) == l) seeds.at<uint8_t>(cy, cx) = 0;
+        cv::distanceTransform(seeds, dist[l], cv::DIST_L2, cv::DIST_MASK_5);
+      }
+    }
+  }
+  // How far the cut has to be extrapolated: the largest distance of a T pixel to the nearest
+  // seed of any layer. Beyond layer_max_seed_dist_px the single solve is kept.
+  float far_px = 0.f;
+  for (int cy = 0; cy < ch; ++cy)
+    for (int cx = 0; cx < cw; ++cx) {
+      if (!region.at(cx, cy)) continue;
+      float dm = std::numeric_limits<float>::infinity();
+      for (int l = 0; l < K; ++l) dm = std::min(dm, dist[l].at<float>(cy, cx));
+      far_px = std::max(far_px, dm);
+    }
+  *seed_dist_px = far_px;
+  if (o.layer_max_seed_dist_px > 0.0 && far_px > o.layer_max_seed_dist_px) {
+    *q = q_in;
+    return 1;
+  }
+  // The labelling runs on blocks of layer_label_block^2 pixels (one label per block; the block
+  // energy is the exact sum of its pixels' terms, pairs inside a block drop out): the cut is a
+  // long smooth curve, and a 4x coarser graph makes the max-flow ~20x cheaper.
+  const int bs = o.layer_label_block;
+  const int nbw = (cw + bs - 1) / bs, nbh = (ch + bs - 1) / bs;
+  std::vector<int> bnode(static_cast<size_t>(nbw) * nbh, -1);
+  int nn = 0;
+  for (int cy = 0; cy < ch; ++cy)
+    for (int cx = 0; cx < cw; ++cx) {
+      int& b = bnode[static_cast<size_t>(cy / bs) * nbw + cx / bs];
+      if (region.at(cx, cy) && b < 0) b = nn++;
+    }
+  auto node_of = [&](int cx, int cy) {
+    return region.at(cx, cy) ? bnode[static_cast<size_t>(cy / bs) * nbw + cx / bs] : -1;
+  };
+  std::vector<float> unary(static_cast<size_t>(nn) * K, 0.f);
+  const double inv2s2 = 1.0 / (2.0 * o.layer_color_sigma * o.layer_color_sigma);
+  auto colour_w = [&](int x0, int y0, int x1, int y1) {
+    double d2 = 0;
+    for (int k = 0; k < 3; ++k) {
+      const double d = static_cast<double>(color.at(x0, y0, k)) - color.at(x1, y1, k);
+      d2 += d * d;
+    }
+    return std::exp(-d2 * inv2s2);
+  };
+  std::vector<double> ew_r(bnode.size(), 0.0), ew_d(bnode.size(), 0.0);  // block pair weights
+  for (int cy = 0; cy < ch; ++cy)
+    for (int cx = 0; cx < cw; ++cx) {
+      const int p = node_of(cx, cy);
+      if (p < 0) continue;
+      const int x = ox + cx, y = oy + cy;
+      for (int l = 0; l < K; ++l) {
+        double u = 0.0;
+        double dmin = std::numeric_limits<double>::infinity();
+        for (int m = 0; m < K; ++m)
+          if (m != l) dmin = std::min<double>(dmin, dist[m].at<float>(cy, cx));
+        const double dl = dist[l].at<float>(cy, cx);
+        u += o.layer_distance_weight * dl / std::max(1e-6, dl + dmin);
+        unary[static_cast<size_t>(p) * K + l] += static_cast<float>(u);
+      }
+      if (elabel.at(cx, cy) >= 0) {
+        for (int l = 0; l < K; ++l)
+          if (l != elabel.at(cx, cy)) unary[static_cast<size_t>(p) * K + l] += static_cast<float>(o.layer_smooth);
+      }
+      const int nx[4] = {cx - 1, cx + 1, cx, cx}, ny[4] = {cy, cy, cy - 1, cy + 1};
+      for (int k = 0; k < 4; ++k) {
+        if (nx[k] < 0 || ny[k] < 0 || nx[k] >= cw || ny[k] >= ch) continue;
+        // Pair weight; the pair's fused gradient weight marks copied jumps.
+        const bool fwd = k == 1 || k == 3;
+        const int pcx = fwd ? cx : nx[k], pcy = fwd ? cy : ny[k];
+        const float pw = (k < 2 ? wx : wy).at(pcx, pcy);
+        const double jf = std::isfinite(pw) && pw < 1.f ? o.layer_jump_factor : 1.0;
+        const double cwgt = o.layer_color_sigma > 0.0 && o.layer_color_sigma < 1e6 ? colour_w(x, y, ox + nx[k], oy + ny[k]) : 1.0;
+        const double wgt = o.layer_smooth * jf * cwgt;
+        const int qn = node_of(nx[k], ny[k]);
+        if (qn >= 0) {
+          if (fwd && qn != p) (k == 1 ? ew_r : ew_d)[static_cast<size_t>(cy / bs) * nbw + cx / bs] += wgt;
+        } else if (slabel.at(nx[k], ny[k]) >= 0) {
+          // A fixed-label border pixel: a T pixel of another layer pays the pair weight.
+          for (int l = 0; l < K; ++l)
+            if (l != slabel.at(nx[k], ny[k])) unary[static_cast<size_t>(p) * K + l] += static_cast<float>(wgt);
+        }
+      }
+    }
+  std::vector<PottsEdge> edges;
+  for (int by = 0; by < nbh; ++by)
+    for (int bx = 0; bx < nbw; ++bx) {
+      const size_t b = static_cast<size_t>(by) * nbw + bx;
+      if (ew_r[b] > 0.0) edges.push_back({bnode[b], bnode[b + 1], static_cast<float>(ew_r[b])});
+      if (ew_d[b] > 0.0) edges.push_back({bnode[b], bnode[b + nbw], static_cast<float>(ew_d[b])});
+    }
+  std::vector<int> labels(nn, 0);
+  PottsAlphaExpansion(nn, K, unary, edges, &labels, K == 2 ? 1 : 3);
+  ImageI32 tl(cw, ch, 1, -1);
+  layer_pixels->assign(K, 0);
+  *layer_map = ImageU8(w, h, 1, 0);
+  for (int cy = 0; cy < ch; ++cy)  // outside T: the labelling's seeds
+    for (int cx = 0; cx < cw; ++cx)
+      if (!region.at(cx, cy) && slabel.at(cx, cy) >= 0)
+        layer_map->at(ox + cx, oy + cy) = static_cast<uint8_t>(1 + slabel.at(cx, cy));
+  for (int cy = 0; cy < ch; ++cy)
+    for (int cx = 0; cx < cw; ++cx) {
+      const int p = node_of(cx, cy);
+      if (p < 0) continue;
+      tl.at(cx, cy) = labels[p];
+      ++(*layer_pixels)[labels[p]];
+      layer_map->at(ox + cx, oy + cy) = static_cast<uint8_t>(1 + labels[p]);
+    }
+  // 4. Pairs: between layers, and from a T pixel to a border pixel of another layer, free.
+  for (int cy = 0; cy < ch; ++cy)
+    for (int cx = 0; cx < cw; ++cx)
+      for (int dir = 0; dir < 2; ++dir) {
+        const int qx = cx + (dir == 0), qy = cy + (dir == 1);
+        if (qx >= cw || qy >= ch) continue;
+        const bool tp = region.at(cx, cy), tq = region.at(qx, qy);
+        if (!tp && !tq) continue;
+        const int lp = tp ? tl.at(cx, cy) : blabel.at(cx, cy);
+        const int lq = tq ? tl.at(qx, qy) : blabel.at(qx, qy);
+        const bool other_known = (!tp && std::isfinite(q->at(cx, cy))) || (!tq && std::isfinite(q->at(qx, qy)));
+        if (tp && tq ? lp != lq : (other_known && lp != lq)) (dir == 0 ? *gx : *gy).at(cx, cy) = nan;
+      }
+  // 5. The surface prior per layer region, from that layer's border values only.
+  *prior = ImageF(cw, ch, 1, nan);
+  *prior_w = ImageF(cw, ch, 1, nan);
+  int count = 0;
+  for (int l = 0; l < K; ++l) {
+    ImageU8 rl(cw, ch, 1, 0);
+    ImageF ql(cw, ch, 1, nan);
+    for (int cy = 0; cy < ch; ++cy)
+      for (int cx = 0; cx < cw; ++cx) {
+        if (region.at(cx, cy)) rl.at(cx, cy) = tl.at(cx, cy) == l;
+        else if (blabel.at(cx, cy) == l) ql.at(cx, cy) = q->at(cx, cy);
+      }
+    ImageF pl, pw;
+    if (BuildSurfacePrior(rl, ql, ox, oy, w, h, o, &pl, &pw) > 0) {
+      for (int cy = 0; cy < ch; ++cy)
+        for (int cx = 0; cx < cw; ++cx)
+          if (rl.at(cx, cy) && std::isfinite(pw.at(cx, cy))) {
+            prior->at(cx, cy) = pl.at(cx, cy);
+            prior_w->at(cx, cy) = pw.at(cx, cy);
+            ++count;
+          }
+    } else if (o.neumann_prior_weight > 0.0) {
+      // Too few border samples of its own: the layer's plane anchors the region.
+      for (int cy = 0; cy < ch; ++cy)
+        for (int cx = 0; cx < cw; ++cx)
+          if (rl.at(cx, cy)) {
+            prior->at(cx, cy) = static_cast<float>(
+                std::clamp(planes[l].At(ox + cx, oy + cy), planes[l].vlo, planes[l].vhi));
+            prior_w->at(cx, cy) = static_cast<float>(o.neumann_prior_weight);
+            ++count;
+          }
+    }
+  }
+  if (count == 0) {
+    *prior = ImageF();
+    *prior_w = ImageF();
+  }
+  return K;
+}
+
+}  // namespace
+
 absl::Status InpaintOptions::Validate() const {
   if (!(w > 0.0 && w <= 1.0)) return absl::InvalidArgumentError("InpaintOptions.w must be in (0, 1]");
   if (!(kappa > 0.0 && kappa <= 1.0)) {
@@ -834,6 +1239,22 @@ absl::Status InpaintOptions::Validate() const {
   }
   if (joint_hole_px < 0) return absl::InvalidArgumentError("joint_hole_px must be >= 0");
   if (joint_iterations < 1) return absl::InvalidArgumentError("joint_iterations must be >= 1");
+  if (!(layer_gap_rel > 0.0)) return absl::InvalidArgumentError("layer_gap_rel must be > 0");
+  if (!(layer_min_share >= 0.0 && layer_min_share < 1.0)) {
+    return absl::InvalidArgumentError("layer_min_share must be in [0, 1)");
+  }
+  if (max_layers < 1 || max_layers > 3) return absl::InvalidArgumentError("max_layers in [1, 3]");
+  if (!(layer_agree_rel >= 0.0)) return absl::InvalidArgumentError("layer_agree_rel must be >= 0");
+  if (!(layer_distance_weight >= 0.0) || !(layer_smooth >= 0.0)) {
+    return absl::InvalidArgumentError("layer weights must be >= 0");
+  }
+  if (!(layer_color_sigma > 0.0)) return absl::InvalidArgumentError("layer_color_sigma must be > 0");
+  if (layer_label_block < 1 || layer_label_block > 32) {
+    return absl::InvalidArgumentError("layer_label_block must be in [1, 32]");
+  }
+  if (!(layer_jump_factor >= 0.0 && layer_jump_factor <= 1.0)) {
+    return absl::InvalidArgumentError("layer_jump_factor must be in [0, 1]");
+  }
   return absl::OkStatus();
 }
 
@@ -1145,7 +1566,19 @@ absl::StatusOr<InpaintResult> InpaintKeyframe(const RgbdKeyframe& frame, const I
   // to the known pixels next to T, weighted per pixel by how weakly the Dirichlet border anchors
   // it (see SurfacePrior).
   ImageF prior, prior_w;
-  out.stats.prior_pixels = BuildSurfacePrior(region, q, ox, oy, w, h, options, &prior, &prior_w);
+  int layers = 1;
+  if (options.layered_depth && inv && options.max_layers > 1) {
+    layers = SetupLayers(region, measured, ox, oy, w, h, out.color, options,
+                         &q, &gx, &gy, wx, wy, &prior, &prior_w, &out.stats.layer_pixels,
+                         &out.stats.layer_seed_dist_px, &out.layers);
+  }
+  out.stats.depth_layers = layers;
+  if (layers <= 1) {
+    out.stats.prior_pixels = BuildSurfacePrior(region, q, ox, oy, w, h, options, &prior, &prior_w);
+  } else {
+    for (int cy = 0; cy < ch; ++cy)
+      for (int cx = 0; cx < cw; ++cx) out.stats.prior_pixels += !prior.empty() && std::isfinite(prior_w.at(cx, cy));
+  }
   PoissonProblem prob;
   if (!prior.empty()) {
     prob.prior = &prior;

@@ -21,6 +21,7 @@
 #pragma once
 
 #include <cstdint>
+#include <vector>
 
 #include "common/camera.h"
 #include "common/image.h"
@@ -91,6 +92,53 @@ struct InpaintOptions {
   // Dirichlet values.
   int joint_hole_px = 0;
   int joint_iterations = 4;
+  // Layered depth (session 5, inverse-depth domain only; default since session 5, chosen on
+  // the two training mask sets, docs/inpainting.md): T may hide an occlusion edge (a table in
+  // front of a wall), which one Poisson surface cannot carry. T's border pixels with measured
+  // depth are clustered in inverse depth (sorted; split where neighbouring values differ by
+  // more than layer_gap_rel of their value; clusters below layer_min_share of the ring or 8 px
+  // ignored; at most max_layers, the largest kept). With one layer nothing changes (bit-
+  // identical). With 2-3 layers each gets a robust inverse-depth plane and every pixel of T a
+  // layer: Potts labelling by alpha-expansion (s-t min cuts, graph_cut.h) on blocks of
+  // layer_label_block^2 px. Seeds are the labelled border pixels (only measured ones with
+  // layer_seed_measured_only); with layer_edge_seeds T's free border pixels (frame edge, next
+  // to holes / push-pull fill) continue the seeds' labels along T's border. Data term:
+  // layer_distance_weight * d_l / (d_l + d_other) (distances to the layers' seeds). Data terms
+  // from the copied colour (per-layer colour histograms) and the copied normals (against the
+  // layer planes' normals) lost on the training sets and were removed: what PatchMatch copies
+  // into T does not tell reliably which surface is hidden (docs/inpainting.md). Pair
+  // weight layer_smooth * exp(-|c_p - c_q|^2 / 2 layer_color_sigma^2) on the copied colour,
+  // times layer_jump_factor where the fused copied gradient is a jump; seeds are fixed labels.
+  // The depth solve then treats pairs between layers as natural (Neumann) boundaries, uses a
+  // border pixel as a Dirichlet value only for T pixels of its layer (measured ring: its
+  // cluster; others, e.g. push-pull-filled: the layer whose plane it matches within
+  // layer_agree_rel, else none), and builds the surface prior per layer region
+  // (BuildSurfacePrior on that region and that layer's border values). With
+  // layer_max_seed_dist_px > 0 a T pixel farther than that from every seed keeps the single
+  // solve (off).
+  bool layered_depth = true;
+  double layer_gap_rel = 0.15;
+  double layer_min_share = 0.05;
+  int max_layers = 2;
+  double layer_agree_rel = 0.05;
+  double layer_distance_weight = 1.0;
+  double layer_smooth = 1.0;
+  double layer_color_sigma = 20.0;
+  double layer_jump_factor = 0.1;
+  int layer_label_block = 4;
+  // Only measured border pixels seed the labelling (push-pull-filled ones still anchor a layer
+  // they match as Dirichlet values).
+  bool layer_seed_measured_only = true;
+  // T's pixels on the frame's edge take the label of the nearest seed and become seeds.
+  bool layer_edge_seeds = true;
+  // Keep the single solve when some pixel of T lies farther than this from every layer's seeds
+  // (the cut would be extrapolated too far; 0 = no limit).
+  double layer_max_seed_dist_px = 0.0;
+  // > 1: in the border continuation (layer_edge_seeds) a step of the farthest layer costs this
+  // much more (linear in between), so a free border stretch is split closer to the far
+  // layer's seeds. 1 = off (session 5: better or a tie in every class of both training sets,
+  // 10-20 % -9 mm on the first, a tie on the second; not switched on after the test run).
+  double layer_far_cost = 1.0;  // the labelling's graph has one node per block of this many px^2
   absl::Status Validate() const;
 };
 
@@ -114,6 +162,9 @@ struct InpaintStats {
   int clamped_depth_pixels = 0;  // T pixels clamped to [zmin/2, 2 zmax] of the input depths
   int prior_pixels = 0;          // T pixels with a surface-prior (screening) term
   int joint_pixels = 0;          // depth-hole pixels solved jointly with T (joint_hole_px)
+  int depth_layers = 1;          // layers of the depth solve (layered_depth; 1 = single surface)
+  std::vector<int> layer_pixels; // T pixels per layer (layered_depth, >= 2 layers only)
+  float layer_seed_dist_px = 0.f; // largest distance of a T pixel to a layer seed (>= 2 layers)
   double ms_prepare = 0, ms_search = 0, ms_copy = 0, ms_poisson = 0, ms_total = 0;  // wall
   // Process CPU time (CLOCK_PROCESS_CPUTIME_ID, all threads; includes any other thread of the
   // calling process running at the same time): steadier than wall time on a shared machine.
@@ -126,6 +177,7 @@ struct InpaintResult {
   ImageF normals;    // 3 ch camera-frame unit normals of depth_m
   ImageI32 source;   // 2 ch: f(u) = (x, y) source pixel for u in T; (-1, -1) elsewhere
   ImageU8 mask;      // T (1 ch, 255 inside)
+  ImageU8 layers;    // layered_depth with >= 2 layers: 1 + T pixel's layer (0 outside T); else empty
   PinholeCamera camera;
   Rigid3d world_from_cam;
   InpaintStats stats;

@@ -15,6 +15,9 @@
 //                 [--fusion mean|robust] [--jump_rel R] [--jump_weight W] [--converged F]
 //                 [--plane_prior W] [--neumann_prior W] [--prior_local SIGMA_PX] [--seed S]
 //                 [--peel_all_normals] [--dump_depth DIR] [--joint_hole PX] [--joint_iters N]
+//                 [--layered | --no_layered] [--layer_gap R] [--layer_min_share S] [--max_layers K]
+//                 [--layer_agree R] [--layer_dist W] [--layer_smooth W]
+//                 [--layer_sigma S] [--layer_jump F] [--layer_block PX] [--layer_seed_measured 0|1] [--layer_edge_seeds 0|1] [--layer_max_dist PX] [--layer_far_cost C]   (session 5: layered depth solve)
 #include <algorithm>
 #include <array>
 #include <chrono>
@@ -516,6 +519,7 @@ int main(int argc, char** argv) {
   bool fusion_mean = InpaintOptions{}.gradient_fusion == GradientFusion::kMean;
   double jump_rel = InpaintOptions{}.jump_rel, jump_weight = InpaintOptions{}.jump_weight;
   int joint_hole = InpaintOptions{}.joint_hole_px, joint_iters = InpaintOptions{}.joint_iterations;
+  InpaintOptions layer_opts;  // layered_depth and layer_* (session 5)
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     auto next = [&]() { return i + 1 < argc ? std::string(argv[++i]) : std::string(); };
@@ -547,6 +551,21 @@ int main(int argc, char** argv) {
     else if (a == "--example_frame") example_frame = std::stoi(next());
     else if (a == "--joint_hole") joint_hole = std::stoi(next());
     else if (a == "--joint_iters") joint_iters = std::stoi(next());
+    else if (a == "--layered") layer_opts.layered_depth = true;
+    else if (a == "--no_layered") layer_opts.layered_depth = false;
+    else if (a == "--layer_gap") layer_opts.layer_gap_rel = std::stod(next());
+    else if (a == "--layer_min_share") layer_opts.layer_min_share = std::stod(next());
+    else if (a == "--max_layers") layer_opts.max_layers = std::stoi(next());
+    else if (a == "--layer_agree") layer_opts.layer_agree_rel = std::stod(next());
+    else if (a == "--layer_dist") layer_opts.layer_distance_weight = std::stod(next());
+    else if (a == "--layer_smooth") layer_opts.layer_smooth = std::stod(next());
+    else if (a == "--layer_sigma") layer_opts.layer_color_sigma = std::stod(next());
+    else if (a == "--layer_jump") layer_opts.layer_jump_factor = std::stod(next());
+    else if (a == "--layer_block") layer_opts.layer_label_block = std::stoi(next());
+    else if (a == "--layer_seed_measured") layer_opts.layer_seed_measured_only = next() != "0";
+    else if (a == "--layer_edge_seeds") layer_opts.layer_edge_seeds = next() != "0";
+    else if (a == "--layer_max_dist") layer_opts.layer_max_seed_dist_px = std::stod(next());
+    else if (a == "--layer_far_cost") layer_opts.layer_far_cost = std::stod(next());
     else {
       std::fprintf(stderr, "unknown argument %s\n", a.c_str());
       return 2;
@@ -597,6 +616,20 @@ int main(int argc, char** argv) {
   base.fine_iterations = fine_iterations;
   base.joint_hole_px = joint_hole;
   base.joint_iterations = joint_iters;
+  base.layered_depth = layer_opts.layered_depth;
+  base.layer_gap_rel = layer_opts.layer_gap_rel;
+  base.layer_min_share = layer_opts.layer_min_share;
+  base.max_layers = layer_opts.max_layers;
+  base.layer_agree_rel = layer_opts.layer_agree_rel;
+  base.layer_distance_weight = layer_opts.layer_distance_weight;
+  base.layer_smooth = layer_opts.layer_smooth;
+  base.layer_color_sigma = layer_opts.layer_color_sigma;
+  base.layer_jump_factor = layer_opts.layer_jump_factor;
+  base.layer_label_block = layer_opts.layer_label_block;
+  base.layer_seed_measured_only = layer_opts.layer_seed_measured_only;
+  base.layer_edge_seeds = layer_opts.layer_edge_seeds;
+  base.layer_max_seed_dist_px = layer_opts.layer_max_seed_dist_px;
+  base.layer_far_cost = layer_opts.layer_far_cost;
   for (const MaskSpec& spec : specs) {
     const RealFrame gt = LoadFrame(data_dir, spec.frame);
     if (!gt.ok) {
@@ -632,9 +665,9 @@ int main(int argc, char** argv) {
       const double ms = Percentile(times, 0.5);
       char extra[256];
       std::snprintf(extra, sizeof(extra),
-                    ",\"cpu_ms\":%.1f,\"threads\":%d,\"levels\":%d,\"ms_prepare\":%.1f,\"ms_search\":%.1f,\"ms_poisson\":%.1f,\"poisson_iters\":%d,\"sweeps\":%d,\"joint_px\":%d",
+                    ",\"cpu_ms\":%.1f,\"threads\":%d,\"levels\":%d,\"ms_prepare\":%.1f,\"ms_search\":%.1f,\"ms_poisson\":%.1f,\"poisson_iters\":%d,\"sweeps\":%d,\"joint_px\":%d,\"layers\":%d,\"layer_dist_px\":%.0f",
                     Percentile(cpu, 0.5), o.num_threads, r->stats.levels, r->stats.ms_prepare, r->stats.ms_search, r->stats.ms_poisson,
-                    r->stats.poisson_iterations, r->stats.sweeps, r->stats.joint_pixels);
+                    r->stats.poisson_iterations, r->stats.sweeps, r->stats.joint_pixels, r->stats.depth_layers, r->stats.layer_seed_dist_px);
       PrintRow(name, spec, fraction, ms, m, extra);
       for (size_t k = 0; k < times.size(); ++k)
         rows[{name, spec.cls}].push_back({name, spec.cls, times[k], m, stages[k]});
@@ -651,6 +684,22 @@ int main(int argc, char** argv) {
         cv::findContours(mask.clone(), cs, cv::RETR_EXTERNAL, cv::CHAIN_APPROX_NONE);
         cv::drawContours(gc, cs, -1, cv::Scalar(255, 255, 255), 1);
         cv::drawContours(oc, cs, -1, cv::Scalar(255, 255, 255), 1);
+        if (!r->layers.empty()) {  // layered depth: the cut between layers in magenta
+          cv::Mat lab(480, 640, CV_8U, r->layers.data());
+          for (int y = 0; y + 1 < 480; ++y)
+            for (int x = 0; x + 1 < 640; ++x) {
+              const uint8_t a = lab.at<uint8_t>(y, x);
+              if (a && !mask.at<uint8_t>(y, x)) {  // a seed of the labelling: white / black / grey
+                cv::rectangle(oc, cv::Rect(x - 1, y - 1, 3, 3),
+                              a == 1 ? cv::Scalar(255, 255, 255) : a == 2 ? cv::Scalar(0, 0, 0) : cv::Scalar(128, 128, 128), cv::FILLED);
+                continue;
+              }
+              if (!mask.at<uint8_t>(y, x)) continue;
+              if (a && ((mask.at<uint8_t>(y, x + 1) && lab.at<uint8_t>(y, x + 1) != a) ||
+                        (mask.at<uint8_t>(y + 1, x) && lab.at<uint8_t>(y + 1, x) != a)))
+                oc.at<cv::Vec3b>(y, x) = cv::Vec3b(255, 0, 255);
+            }
+        }
         gc.copyTo(both(cv::Rect(0, 0, 640, 480)));
         oc.copyTo(both(cv::Rect(640, 0, 640, 480)));
         cv::imwrite(dump_depth_dir + "/" + spec.id + ".png", both);
@@ -721,10 +770,10 @@ int main(int argc, char** argv) {
           char extra[320];
           std::snprintf(extra, sizeof(extra),
                         ",\"propagated_frac\":%.3f,\"cpu_ms\":%.1f,\"levels\":%d,\"ms_prepare\":%.1f,"
-                        "\"ms_search\":%.1f,\"ms_poisson\":%.1f,\"poisson_iters\":%d",
+                        "\"ms_search\":%.1f,\"ms_poisson\":%.1f,\"poisson_iters\":%d,\"layers\":%d",
                         static_cast<double>(r->stats.propagated_pixels) / r->stats.target_pixels,
                         Percentile(cpu, 0.5), r->stats.levels, r->stats.ms_prepare, r->stats.ms_search,
-                        r->stats.ms_poisson, r->stats.poisson_iterations);
+                        r->stats.ms_poisson, r->stats.poisson_iterations, r->stats.depth_layers);
           PrintRow(name, s1, cv::countNonZero(mask1) / (640.0 * 480.0), Percentile(times, 0.5), m, extra);
           for (size_t k = 0; k < times.size(); ++k)
             rows[{name, "10-20%"}].push_back({name, "10-20%", times[k], m, stages[k]});
