@@ -125,7 +125,7 @@ struct InpaintOptions {
   double layer_smooth = 1.0;
   double layer_color_sigma = 20.0;
   double layer_jump_factor = 0.1;
-  int layer_label_block = 4;
+  int layer_label_block = 4;  // the labelling graph has one node per block of this many px^2
   // Only measured border pixels seed the labelling (push-pull-filled ones still anchor a layer
   // they match as Dirichlet values).
   bool layer_seed_measured_only = true;
@@ -138,7 +138,7 @@ struct InpaintOptions {
   // much more (linear in between), so a free border stretch is split closer to the far
   // layer's seeds. 1 = off (session 5: better or a tie in every class of both training sets,
   // 10-20 % -9 mm on the first, a tie on the second; not switched on after the test run).
-  double layer_far_cost = 1.0;  // the labelling's graph has one node per block of this many px^2
+  double layer_far_cost = 1.0;
   absl::Status Validate() const;
 };
 
