@@ -476,6 +476,15 @@ TEST(InpaintTest, JointSolveOfDepthHolesNextToTheMask) {
   EXPECT_LT(rj->stats.joint_pixels, gap * (cam.width + cam.height));
 }
 
+// The same keyframe inpainted with the layered depth solve on and off (FastOptions otherwise).
+std::pair<absl::StatusOr<InpaintResult>, absl::StatusOr<InpaintResult>> LayeredAndSingle(
+    const RgbdKeyframe& kf, const ImageU8& mask) {
+  InpaintOptions layered = FastOptions(), single = FastOptions();
+  layered.layered_depth = true;
+  single.layered_depth = false;
+  return {InpaintKeyframe(kf, mask, layered), InpaintKeyframe(kf, mask, single)};
+}
+
 // Session 5, layered depth: an occlusion edge inside T. A box face 1.5 m away covers the left
 // half of the view in front of a wall 3 m away; T straddles the edge, so its measured ring holds
 // both surfaces. One surface carried across T (the single solve) blends them; the layered solve
@@ -488,13 +497,8 @@ TEST(InpaintTest, LayeredDepthPlacesAnOcclusionEdgeInsideTheMask) {
       {glm::dvec3(0, 0, 1), 3.0, nullptr}};
   const RgbdKeyframe truth = RenderPlanes(planes, cam, Rigid3d::Identity());
   const ImageU8 mask = RectMask(cam.width, cam.height, 50, 30, 110, 90);
-  InpaintOptions layered = FastOptions();
-  layered.layered_depth = true;
-  auto rl = InpaintKeyframe(truth, mask, layered);
+  auto [rl, rs] = LayeredAndSingle(truth, mask);
   ASSERT_TRUE(rl.ok()) << rl.status();
-  InpaintOptions single = FastOptions();
-  single.layered_depth = false;
-  auto rs = InpaintKeyframe(truth, mask, single);
   ASSERT_TRUE(rs.ok()) << rs.status();
   const double err_layered = MeanAbsDepthErrorInMask(rl->depth_m, truth.depth_m, mask);
   const double err_single = MeanAbsDepthErrorInMask(rs->depth_m, truth.depth_m, mask);
@@ -511,6 +515,8 @@ TEST(InpaintTest, LayeredDepthPlacesAnOcclusionEdgeInsideTheMask) {
   for (size_t i = 0; i < rl->color.bytes(); ++i) ASSERT_EQ(rl->color.data()[i], rs->color.data()[i]);
   // The seed-distance gate (layer_max_seed_dist_px, off by default): T's centre lies ~30 px
   // from every seed, so a 10 px limit keeps the single solve, bit-identically.
+  InpaintOptions layered = FastOptions();
+  layered.layered_depth = true;
   InpaintOptions gated = layered;
   gated.layer_max_seed_dist_px = 10.0;
   auto rg = InpaintKeyframe(truth, mask, gated);
@@ -563,13 +569,8 @@ TEST(InpaintTest, LayeredDepthWithOneLayerIsTheSingleSolve) {
   const PinholeCamera cam = SmallCamera();
   const RgbdKeyframe truth = RenderPlanes(TiltedWall(), cam, Rigid3d::Identity());
   const ImageU8 mask = RectMask(cam.width, cam.height, 40, 30, 100, 80);
-  InpaintOptions layered = FastOptions();
-  layered.layered_depth = true;
-  auto rl = InpaintKeyframe(truth, mask, layered);
+  auto [rl, rs] = LayeredAndSingle(truth, mask);
   ASSERT_TRUE(rl.ok()) << rl.status();
-  InpaintOptions single = FastOptions();
-  single.layered_depth = false;
-  auto rs = InpaintKeyframe(truth, mask, single);
   ASSERT_TRUE(rs.ok()) << rs.status();
   EXPECT_EQ(rl->stats.depth_layers, 1);
   EXPECT_TRUE(rl->layers.empty());
