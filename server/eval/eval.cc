@@ -1054,7 +1054,9 @@ absl::StatusOr<std::vector<ConfigResult>> RunSynthetic(const SynthRunOptions& o)
   EXO_RETURN_IF_ERROR(o.Validate());
   EXO_ASSIGN_OR_RETURN(synth::SceneKind kind, synth::ParseSceneKind(o.scene));
   EXO_ASSIGN_OR_RETURN(synth::TrajectoryKind tkind, synth::ParseTrajectoryKind(o.traj));
-  EXO_ASSIGN_OR_RETURN(synth::SynthScene scene, synth::MakeScene(kind, {}));
+  synth::SceneOptions sco;
+  sco.seed = o.scene_seed;
+  EXO_ASSIGN_OR_RETURN(synth::SynthScene scene, synth::MakeScene(kind, sco));
   synth::TrajectoryOptions to;
   to.num_frames = o.frames;
   if (o.walk_look_around_deg >= 0) to.walk_look_around_deg = o.walk_look_around_deg;
@@ -1076,6 +1078,7 @@ absl::StatusOr<std::vector<ConfigResult>> RunSynthetic(const SynthRunOptions& o)
   src.default_lambda = tkind == synth::TrajectoryKind::kFlyover ? 0.5 : 0.4;
   src.metres_per_rad = std::max(0.5, 0.05 * scene.ExtentM());
   src.dataset = absl::StrCat(o.scene, "/", o.traj);
+  if (o.scene_seed != 1) absl::StrAppend(&src.dataset, "/seed", o.scene_seed);
   const synth::SynthScene* sp = &scene;
   std::vector<Rigid3d> poses_copy = src.poses;
   src.load_view = [sp, rop, poses_copy](int i) -> absl::StatusOr<StoredView> {

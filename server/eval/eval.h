@@ -122,6 +122,10 @@ struct SynthRunOptions {
   int frame_width = 640, frame_height = 480;
   int test_views = 200, test_width = 320, test_height = 240;
   uint64_t test_seed = 7;
+  // synth::SceneOptions::seed: furniture / house placement and textures (1 = the scene of every
+  // earlier run). Independent input replicates of the same protocol; a seed other than 1 is
+  // appended to the JSON dataset name ("apartment/walk/seed2").
+  uint64_t scene_seed = 1;
   TestPoseMode test_pose_mode = TestPoseMode::kSceneWide;
   // Several test pose sets evaluated on the same stream and stores (one JSON line per config and
   // set); empty = {test_pose_mode}.

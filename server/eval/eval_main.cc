@@ -29,6 +29,8 @@ constexpr char kUsage[] =
     "               depth registered to colour, docs/registration.md)]\n"
     "  --test_poses scene|near|scene,near   test pose set(s), all evaluated on the same stores\n"
     "  --look_around DEG     walk yaw-sweep amplitude (synth default 20)\n"
+    "  --scene_seed N        synthetic scene seed (layout, textures; default 1), for replicates\n"
+    "  --test_seed N         test-pose seed (default 7)\n"
     "  --per_view 1          per-test-view SSIM, nearest stored view, reference hit in the JSON\n"
     "  --lod F               cell-id buffers from a vertex-clustered proxy LOD, clusters F x cell size\n"
     "                        (0: full proxy mesh; default -1: planning::DefaultCellIdLodM)\n"
@@ -179,6 +181,8 @@ int RunOne(const Args& a) {
   o.proxy = a.Get("--proxy", "tsdf") == "gt" ? ProxyKind::kGroundTruth : ProxyKind::kTsdf;
   o.voxel_m = a.Num("--voxel", 0);
   o.test_views = int(a.Num("--test_views", 200));
+  o.scene_seed = uint64_t(a.Num("--scene_seed", 1));
+  o.test_seed = uint64_t(a.Num("--test_seed", 7));
   o.test_width = int(a.Num("--test_w", 320));
   o.test_height = int(a.Num("--test_h", 240));
   o.id_width = int(a.Num("--idw", 160));
