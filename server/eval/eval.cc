@@ -274,6 +274,7 @@ planning::PlannerOptions PlannerFor(const PolicyConfig& c, const Source& src, do
   if (c.delta_tau_sum >= 0) po.delta_tau_sum = c.delta_tau_sum;
   if (c.tau_max > 0) po.tau_max = c.tau_max;
   po.cell_size_m = cell_m;
+  po.victim_shortlist = static_cast<size_t>(std::max(0, c.victim_shortlist));
   po.d_max_m = src.scale.d_max_m;
   po.sigma_m = src.scale.sigma_m;
   if (src.scale_mode == ScaleMode::kViewDepth && src.view_depth_m > 0) {
@@ -396,7 +397,8 @@ std::string ConfigJson(const std::string& dataset, const std::string& test_poses
       "{\"bench\":\"eval\",\"dataset\":\"%s\",\"test_poses\":\"%s\",\"proxy\":\"%s\",\"tag\":\"%s\","
       "\"config\":{\"policy\":\"%s\",\"refs\":\"%s\",\"frames\":%d,\"store\":%d,\"r_max\":%d,\"lambda\":%.2f,"
       "\"cell_m\":%.3f,\"voxel_m\":%.4f,\"delta_tau_sum\":%.3f,\"idbuf\":\"%dx%d\",\"ids\":\"%s\","
-      "\"scale\":\"%s\",\"d_max_m\":%.2f,\"sigma_m\":%.2f,\"cellid_lod_m\":%.3f},"
+      "\"scale\":\"%s\",\"d_max_m\":%.2f,\"sigma_m\":%.2f,\"cellid_lod_m\":%.3f,"
+      "\"face_areas\":%d,\"victim_shortlist\":%d},"
       "\"quality\":{\"mssim\":%.4f,\"psnr\":%.2f,\"coverage\":%.4f,\"mssim_covered\":%.4f,"
       "\"surface\":%.4f,\"test_views\":%d},"
       "\"speed\":{\"integrate_ms_median\":%.2f,\"integrate_ms_p95\":%.2f,\"plan_ms_median\":%.2f,"
@@ -404,7 +406,7 @@ std::string ConfigJson(const std::string& dataset, const std::string& test_poses
       "\"memory\":{\"store_bytes\":%zu,\"geometry_bytes\":%zu,\"planner_bytes\":%zu},"
       "\"views\":%zu,\"accepted\":%zu,\"tau_sum\":%.2f,\"mean_refs\":%.2f,\"max_refs\":%zu",
       dataset, test_poses, proxy, c.tag, PolicyName(c.policy), refs, frames, c.store, c.r_max, lambda,
-      cell_m, voxel_m, dts, idw, idh, ids, scale, po.d_max_m, po.sigma_m, lod_m, r.quality.mssim, r.quality.psnr, r.quality.coverage,
+      cell_m, voxel_m, dts, idw, idh, ids, scale, po.d_max_m, po.sigma_m, lod_m, int(c.face_areas), c.victim_shortlist, r.quality.mssim, r.quality.psnr, r.quality.coverage,
       r.quality.mssim_covered, r.quality.surface, r.quality.views, r.integrate_ms_median, r.integrate_ms_p95,
       r.plan_ms_median, r.plan_ms_p95, r.consider_ms_median, r.render_ms_median, r.store_bytes,
       r.geometry_bytes, r.planner_bytes, r.store_views, r.accepted, r.tau_sum, r.mean_refs,
@@ -497,11 +499,12 @@ class Engine {
                                          PlannerFor(c, src_, cell, src_.frame_bytes)));
         st.planner = std::make_unique<planning::ViewPlanner>(std::move(p));
         groups_[g].online.push_back(i);
-        if (opt_.proxy == ProxyKind::kGroundTruth)
+        if (opt_.proxy == ProxyKind::kGroundTruth && !c.face_areas)
           for (const auto& [cell_id, a] : groups_[g].areas->areas())
             EXO_RETURN_IF_ERROR(st.planner->SetCellArea(cell_id, a));
       } else if (c.policy == Policy::kOfflineGreedy || c.policy == Policy::kEveryN ||
-                 c.policy == Policy::kMinDistance || c.policy == Policy::kAll) {
+                 c.policy == Policy::kMinDistance || c.policy == Policy::kAll ||
+                 c.policy == Policy::kOnlineFinalAreas) {
         groups_[g].needs_final = true;
       }
       if (c.policy == Policy::kMinDistance)
@@ -564,7 +567,8 @@ class Engine {
       const double c1 = ThreadCpuMs();
       const std::vector<CellId> changed = g.areas->TakeChangedCells();
       for (size_t ci : g.online)
-        for (CellId k : changed) EXO_RETURN_IF_ERROR(online_[ci].planner->SetCellArea(k, g.areas->Area(k)));
+        if (!configs_[ci].face_areas)
+          for (CellId k : changed) EXO_RETURN_IF_ERROR(online_[ci].planner->SetCellArea(k, g.areas->Area(k)));
       const auto t_r = Clock::now();
       PinholeCamera id_cam;
       size_t tris = 0;
@@ -698,7 +702,8 @@ class Engine {
           for (int i = 0; i < n; ++i) selected.push_back(i);
         } else if (c.policy == Policy::kOfflineGreedy) {
           EXO_ASSIGN_OR_RETURN(auto p, planning::ViewPlanner::Create(po));
-          for (const auto& [cell, a] : g.areas->areas()) EXO_RETURN_IF_ERROR(p.SetCellArea(cell, a));
+          if (!c.face_areas)
+            for (const auto& [cell, a] : g.areas->areas()) EXO_RETURN_IF_ERROR(p.SetCellArea(cell, a));
           using QE = std::pair<double, int>;
           std::priority_queue<QE> pq;
           for (int i = 0; i < n; ++i)
@@ -724,11 +729,35 @@ class Engine {
           refs = p.CellRefs();
           r.tau_sum = p.tau_sum();
           r.planner_bytes = p.BookkeepingBytes();
+        } else if (c.policy == Policy::kOnlineFinalAreas) {
+          // The online rules in stream order, every frame's cell ids as the online policy saw
+          // them, but the final proxy's areas from the start (diagnostic).
+          EXO_ASSIGN_OR_RETURN(auto p, planning::ViewPlanner::Create(po));
+          if (!c.face_areas)
+            for (const auto& [cell, a] : g.areas->areas()) EXO_RETURN_IF_ERROR(p.SetCellArea(cell, a));
+          size_t accepted = 0;
+          for (int i = 0; i < n; ++i) {
+            planning::Candidate cand;
+            cand.id = ViewId(i + 1);
+            cand.local_from_cam = src_.poses[i];
+            cand.id_camera = g.id_cam;
+            cand.cells = g.final_cells[i];
+            cand.bytes = src_.frame_bytes;
+            EXO_ASSIGN_OR_RETURN(const planning::Decision dec, p.Consider(cand));
+            if (dec.accepted) ++accepted;
+          }
+          for (ViewId v : p.ViewIds()) selected.push_back(int(v) - 1);
+          refs = p.CellRefs();
+          r.tau_sum = p.tau_sum();
+          r.planner_bytes = p.BookkeepingBytes();
+          r.accepted = accepted;
         }
         const double ms = MsSince(t0);
         r.plan_ms_median = r.plan_ms_p95 = ms / std::max(1, n);
-        r.accepted = selected.size();
-        if (c.policy != Policy::kOfflineGreedy && c.uncapped_refs) {
+        if (c.policy != Policy::kOnlineFinalAreas) r.accepted = selected.size();
+        if (c.policy == Policy::kOnlineFinalAreas) {
+          // R(b_k) is the replayed planner's own.
+        } else if (c.policy != Policy::kOfflineGreedy && c.uncapped_refs) {
           for (int i : selected)
             for (const auto& cc : g.final_cells[i])
               if (cc.pixels > 0) refs[cc.cell].push_back(ViewId(i + 1));
@@ -742,7 +771,8 @@ class Engine {
           pre.tau_max = 1e30;
           pre.delta_tau_sum = 0;
           EXO_ASSIGN_OR_RETURN(auto p, planning::ViewPlanner::Create(pre));
-          for (const auto& [cell, a] : g.areas->areas()) EXO_RETURN_IF_ERROR(p.SetCellArea(cell, a));
+          if (!c.face_areas)
+            for (const auto& [cell, a] : g.areas->areas()) EXO_RETURN_IF_ERROR(p.SetCellArea(cell, a));
           for (int i : selected) {
             planning::Candidate cand;
             cand.id = ViewId(i + 1);
@@ -1030,6 +1060,7 @@ const char* PolicyName(Policy p) {
     case Policy::kMinDistance: return "min_distance";
     case Policy::kAll: return "all_frames";
     case Policy::kVertexColor: return "vertex_color";
+    case Policy::kOnlineFinalAreas: return "online_final_areas";
   }
   return "?";
 }

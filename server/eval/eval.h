@@ -31,7 +31,12 @@
 
 namespace exo::eval {
 
-enum class Policy { kOnline, kOfflineGreedy, kEveryN, kMinDistance, kAll, kVertexColor };
+// kOnlineFinalAreas (diagnostic, not a product policy): the online rules run in stream order
+// after the stream, with every cell's area A(b_k) taken from the FINAL proxy from the first frame
+// on (the same per-frame cell ids as the online policy) - the online planner without the growing
+// proxy's areas.
+enum class Policy { kOnline, kOfflineGreedy, kEveryN, kMinDistance, kAll, kVertexColor,
+                    kOnlineFinalAreas };
 const char* PolicyName(Policy p);
 enum class ProxyKind { kTsdf, kGroundTruth };
 
@@ -51,6 +56,12 @@ struct PolicyConfig {
   //          stored views differs from the online policy;
   //   true  ("uncapped"): every selected view that sees the cell in the final proxy.
   bool uncapped_refs = false;
+  // Every planner of this config (online, offline greedy, the baselines' pre-selection) gets no
+  // proxy areas: A(b_k) = the face area A_cell for every cell (the planner's rule for an unknown
+  // area), instead of the TSDF proxy's CellAreas.
+  bool face_areas = false;
+  // planning::PlannerOptions::victim_shortlist (0: every stored view is a victim candidate).
+  int victim_shortlist = 0;
   std::string tag;              // free label copied into the JSON ("sweep":"store" ...)
 };
 

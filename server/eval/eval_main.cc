@@ -73,6 +73,7 @@ absl::StatusOr<Policy> ParsePolicy(const std::string& s) {
   if (s == "every_n") return Policy::kEveryN;
   if (s == "min_distance") return Policy::kMinDistance;
   if (s == "all" || s == "all_frames") return Policy::kAll;
+  if (s == "online_final_areas") return Policy::kOnlineFinalAreas;
   return absl::InvalidArgumentError("unknown policy " + s);
 }
 
@@ -86,6 +87,8 @@ absl::StatusOr<std::vector<PolicyConfig>> Configs(const Args& a) {
   base.cell_m = a.Num("--cell", 0);
   base.delta_tau_sum = a.Num("--dts", -1);
   base.tag = a.Get("--tag", "main");
+  base.face_areas = a.Num("--face_areas", 0) != 0;
+  base.victim_shortlist = int(a.Num("--victim_shortlist", 0));
   std::vector<PolicyConfig> out;
   for (absl::string_view p : absl::StrSplit(a.Get("--policies", "online"), ',', absl::SkipEmpty())) {
     PolicyConfig c = base;

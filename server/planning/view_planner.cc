@@ -189,6 +189,8 @@ void ViewPlanner::AddView(View view, std::vector<CellId>* changed) {
       }
     }
   }
+  view.coverage = 0.0;
+  for (const Entry& e : view.entries) view.coverage += e.phi;
   bytes_ += view.bytes;
   const ViewId id = view.id;
   views_.emplace(id, std::move(view));
@@ -331,11 +333,26 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
     for (const Entry& e : view.entries) touch(e.cell, e.phi);
     size_t count = views_.size() + 1;
     size_t bytes = bytes_ + cand.bytes;
+    // Victim candidates: the whole store, or its `victim_shortlist` lowest-coverage views.
+    std::vector<const View*> pool;
+    pool.reserve(views_.size());
+    for (const auto& [vid, v] : views_) pool.push_back(&v);
+    const size_t k_short = options_.victim_shortlist;
     while (count > options_.max_views || bytes > options_.max_bytes) {
+      if (k_short > 0 && k_short < pool.size()) {
+        // (Re-ranked per victim: several victims may be needed when bytes require.)
+        std::nth_element(pool.begin(), pool.begin() + static_cast<std::ptrdiff_t>(k_short), pool.end(),
+                         [](const View* a, const View* b) {
+                           return a->coverage < b->coverage ||
+                                  (a->coverage == b->coverage && a->id < b->id);
+                         });
+      }
+      const size_t n_pool = k_short > 0 ? std::min(k_short, pool.size()) : pool.size();
       const View* best = nullptr;
       double best_loss = -std::numeric_limits<double>::infinity();
-      for (const auto& [vid, v] : views_) {
-        if (std::find(victims.begin(), victims.end(), vid) != victims.end()) continue;
+      for (size_t pi = 0; pi < n_pool; ++pi) {
+        const View& v = *pool[pi];
+        const ViewId vid = v.id;
         double loss = 0.0;  // τ_sum change caused by removing v (<= 0)
         for (const Entry& e : v.entries) {
           const double t = cells_[e.cell].tau + scratch_[e.cell];
@@ -348,6 +365,7 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
       }
       if (best == nullptr) break;  // cannot happen: bytes <= max_bytes once the store is empty
       victims.push_back(best->id);
+      std::erase(pool, best);
       for (const Entry& e : best->entries) touch(e.cell, -static_cast<double>(e.phi));
       --count;
       bytes -= best->bytes;

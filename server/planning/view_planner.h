@@ -48,6 +48,10 @@ struct PlannerOptions {
   double delta_tau_sum = 0.05;       // Δτ_sum: minimum gain for a candidate
   double delta_tau = 0.0;            // Δτ: minimum per-cell gain to replace a reference when full
   double cell_size_m = 0.5;          // q
+  // Victim search when the store is full: 0 = every stored view is evaluated exactly; k > 0 =
+  // only the k stored views of lowest coverage Σ_k φ(F_i, b_k) (the thesis' "list sorted by
+  // coverage, only victims among the lowest-ranking views"), the best of those by τ_sum.
+  size_t victim_shortlist = 0;
 
   absl::Status Validate() const;
 
@@ -164,6 +168,7 @@ class ViewPlanner {
     glm::dvec3 centre;
     size_t bytes;
     double pixel_sr = 0;            // A_px of the candidate's cell-id buffer
+    double coverage = 0;            // Σ φ over entries (rank for victim_shortlist)
     std::vector<Entry> entries;
     std::vector<uint32_t> pixels;   // ψ_vis per entry (copied into the cell's Ref by AddView)
   };
