@@ -110,8 +110,33 @@ absl::StatusOr<ViewPlanner> ViewPlanner::Create(const PlannerOptions& options) {
 absl::Status ViewPlanner::SetCellArea(CellId cell, double area_m2) {
   if (!std::isfinite(area_m2) || area_m2 < 0.0)
     return absl::InvalidArgumentError(absl::StrCat("cell area must be finite and >= 0, got ", area_m2));
+  const double face = grid_.CellArea();
+  const double before = std::min(AreaOf(cell), face);
   areas_[cell] = area_m2;
+  // Only min(A, A_cell) enters φ (3.13): a cell at the cap keeps its references.
+  if (std::min(area_m2, face) != before) {
+    const auto it = cell_index_.find(cell);
+    if (it != cell_index_.end() && !cells_[it->second].observers.empty()) {
+      const int32_t k = it->second;
+      if (area_stale_mark_.size() < cells_.size()) area_stale_mark_.resize(cells_.size(), 0);
+      if (!area_stale_mark_[k]) {
+        area_stale_mark_[k] = 1;
+        area_stale_.push_back(k);
+      }
+    }
+  }
   return absl::OkStatus();
+}
+
+std::vector<CellId> ViewPlanner::ApplyAreaChanges() {
+  std::vector<CellId> changed;
+  for (int32_t k : area_stale_) {
+    area_stale_mark_[k] = 0;
+    if (RebuildRefs(k)) changed.push_back(cells_[k].id);
+  }
+  area_stale_.clear();
+  std::sort(changed.begin(), changed.end());
+  return changed;
 }
 
 int32_t ViewPlanner::CellIndex(CellId id) {
@@ -251,9 +276,9 @@ bool ViewPlanner::RebuildRefs(int32_t cell) {
 
 absl::StatusOr<std::vector<CellId>> ViewPlanner::Remove(ViewId id) {
   if (!views_.count(id)) return absl::NotFoundError(absl::StrCat("view ", id, " is not stored"));
+  std::vector<CellId> changed = ApplyAreaChanges();
   std::vector<int32_t> stale;
   RemoveView(id, &stale);
-  std::vector<CellId> changed;
   for (int32_t k : stale)
     if (RebuildRefs(k)) changed.push_back(cells_[k].id);
   std::sort(changed.begin(), changed.end());
@@ -270,6 +295,9 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
     return absl::InvalidArgumentError("candidate pose translation is NaN or Inf");
 
   Decision d;
+  // References whose cell's area changed are rebuilt first: the candidate's φ_d is judged against
+  // them and its pre-selection compares its φ (current area) with theirs.
+  d.changed_cells = ApplyAreaChanges();
   if (cand.bytes > options_.max_bytes) {
     d.reason = absl::StrCat("frame of ", cand.bytes, " bytes exceeds the store budget of ",
                             options_.max_bytes, " bytes");
