@@ -274,7 +274,6 @@ planning::PlannerOptions PlannerFor(const PolicyConfig& c, const Source& src, do
   if (c.delta_tau_sum >= 0) po.delta_tau_sum = c.delta_tau_sum;
   if (c.tau_max > 0) po.tau_max = c.tau_max;
   po.cell_size_m = cell_m;
-  po.victim_shortlist = static_cast<size_t>(std::max(0, c.victim_shortlist));
   po.d_max_m = src.scale.d_max_m;
   po.sigma_m = src.scale.sigma_m;
   if (src.scale_mode == ScaleMode::kViewDepth && src.view_depth_m > 0) {
@@ -398,7 +397,7 @@ std::string ConfigJson(const std::string& dataset, const std::string& test_poses
       "\"config\":{\"policy\":\"%s\",\"refs\":\"%s\",\"frames\":%d,\"store\":%d,\"r_max\":%d,\"lambda\":%.2f,"
       "\"cell_m\":%.3f,\"voxel_m\":%.4f,\"delta_tau_sum\":%.3f,\"idbuf\":\"%dx%d\",\"ids\":\"%s\","
       "\"scale\":\"%s\",\"d_max_m\":%.2f,\"sigma_m\":%.2f,\"cellid_lod_m\":%.3f,"
-      "\"face_areas\":%d,\"victim_shortlist\":%d},"
+      "\"face_areas\":%d},"
       "\"quality\":{\"mssim\":%.4f,\"psnr\":%.2f,\"coverage\":%.4f,\"mssim_covered\":%.4f,"
       "\"surface\":%.4f,\"test_views\":%d},"
       "\"speed\":{\"integrate_ms_median\":%.2f,\"integrate_ms_p95\":%.2f,\"plan_ms_median\":%.2f,"
@@ -406,7 +405,7 @@ std::string ConfigJson(const std::string& dataset, const std::string& test_poses
       "\"memory\":{\"store_bytes\":%zu,\"geometry_bytes\":%zu,\"planner_bytes\":%zu},"
       "\"views\":%zu,\"accepted\":%zu,\"tau_sum\":%.2f,\"mean_refs\":%.2f,\"max_refs\":%zu",
       dataset, test_poses, proxy, c.tag, PolicyName(c.policy), refs, frames, c.store, c.r_max, lambda,
-      cell_m, voxel_m, dts, idw, idh, ids, scale, po.d_max_m, po.sigma_m, lod_m, int(c.face_areas), c.victim_shortlist, r.quality.mssim, r.quality.psnr, r.quality.coverage,
+      cell_m, voxel_m, dts, idw, idh, ids, scale, po.d_max_m, po.sigma_m, lod_m, int(c.face_areas), r.quality.mssim, r.quality.psnr, r.quality.coverage,
       r.quality.mssim_covered, r.quality.surface, r.quality.views, r.integrate_ms_median, r.integrate_ms_p95,
       r.plan_ms_median, r.plan_ms_p95, r.consider_ms_median, r.render_ms_median, r.store_bytes,
       r.geometry_bytes, r.planner_bytes, r.store_views, r.accepted, r.tau_sum, r.mean_refs,

@@ -60,8 +60,6 @@ struct PolicyConfig {
   // proxy areas: A(b_k) = the face area A_cell for every cell (the planner's rule for an unknown
   // area), instead of the TSDF proxy's CellAreas.
   bool face_areas = false;
-  // planning::PlannerOptions::victim_shortlist (0: every stored view is a victim candidate).
-  int victim_shortlist = 0;
   std::string tag;              // free label copied into the JSON ("sweep":"store" ...)
 };
 

@@ -31,6 +31,9 @@ constexpr char kUsage[] =
     "  --look_around DEG     walk yaw-sweep amplitude (synth default 20)\n"
     "  --scene_seed N        synthetic scene seed (layout, textures; default 1), for replicates\n"
     "  --test_seed N         test-pose seed (default 7)\n"
+    "  --face_areas 1        planners use the cell face area A_cell for every cell, not the proxy's\n"
+    "                        CellAreas (A(b_k) of 3.13); policy online_final_areas (diagnostic):\n"
+    "                        the online rules replayed after the stream on the final proxy's areas\n"
     "  --per_view 1          per-test-view SSIM, nearest stored view, reference hit in the JSON\n"
     "  --lod F               cell-id buffers from a vertex-clustered proxy LOD, clusters F x cell size\n"
     "                        (0: full proxy mesh; default -1: planning::DefaultCellIdLodM)\n"
@@ -88,7 +91,6 @@ absl::StatusOr<std::vector<PolicyConfig>> Configs(const Args& a) {
   base.delta_tau_sum = a.Num("--dts", -1);
   base.tag = a.Get("--tag", "main");
   base.face_areas = a.Num("--face_areas", 0) != 0;
-  base.victim_shortlist = int(a.Num("--victim_shortlist", 0));
   std::vector<PolicyConfig> out;
   for (absl::string_view p : absl::StrSplit(a.Get("--policies", "online"), ',', absl::SkipEmpty())) {
     PolicyConfig c = base;

@@ -110,33 +110,8 @@ absl::StatusOr<ViewPlanner> ViewPlanner::Create(const PlannerOptions& options) {
 absl::Status ViewPlanner::SetCellArea(CellId cell, double area_m2) {
   if (!std::isfinite(area_m2) || area_m2 < 0.0)
     return absl::InvalidArgumentError(absl::StrCat("cell area must be finite and >= 0, got ", area_m2));
-  const double face = grid_.CellArea();
-  const double before = std::min(AreaOf(cell), face);
   areas_[cell] = area_m2;
-  // Only min(A, A_cell) enters φ (3.13): a cell at the cap keeps its references.
-  if (std::min(area_m2, face) != before) {
-    const auto it = cell_index_.find(cell);
-    if (it != cell_index_.end() && !cells_[it->second].observers.empty()) {
-      const int32_t k = it->second;
-      if (area_stale_mark_.size() < cells_.size()) area_stale_mark_.resize(cells_.size(), 0);
-      if (!area_stale_mark_[k]) {
-        area_stale_mark_[k] = 1;
-        area_stale_.push_back(k);
-      }
-    }
-  }
   return absl::OkStatus();
-}
-
-std::vector<CellId> ViewPlanner::ApplyAreaChanges() {
-  std::vector<CellId> changed;
-  for (int32_t k : area_stale_) {
-    area_stale_mark_[k] = 0;
-    if (RebuildRefs(k)) changed.push_back(cells_[k].id);
-  }
-  area_stale_.clear();
-  std::sort(changed.begin(), changed.end());
-  return changed;
 }
 
 int32_t ViewPlanner::CellIndex(CellId id) {
@@ -214,8 +189,6 @@ void ViewPlanner::AddView(View view, std::vector<CellId>* changed) {
       }
     }
   }
-  view.coverage = 0.0;
-  for (const Entry& e : view.entries) view.coverage += e.phi;
   bytes_ += view.bytes;
   const ViewId id = view.id;
   views_.emplace(id, std::move(view));
@@ -276,9 +249,9 @@ bool ViewPlanner::RebuildRefs(int32_t cell) {
 
 absl::StatusOr<std::vector<CellId>> ViewPlanner::Remove(ViewId id) {
   if (!views_.count(id)) return absl::NotFoundError(absl::StrCat("view ", id, " is not stored"));
-  std::vector<CellId> changed = ApplyAreaChanges();
   std::vector<int32_t> stale;
   RemoveView(id, &stale);
+  std::vector<CellId> changed;
   for (int32_t k : stale)
     if (RebuildRefs(k)) changed.push_back(cells_[k].id);
   std::sort(changed.begin(), changed.end());
@@ -295,9 +268,6 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
     return absl::InvalidArgumentError("candidate pose translation is NaN or Inf");
 
   Decision d;
-  // References whose cell's area changed are rebuilt first: the candidate's φ_d is judged against
-  // them and its pre-selection compares its φ (current area) with theirs.
-  d.changed_cells = ApplyAreaChanges();
   if (cand.bytes > options_.max_bytes) {
     d.reason = absl::StrCat("frame of ", cand.bytes, " bytes exceeds the store budget of ",
                             options_.max_bytes, " bytes");
@@ -361,26 +331,11 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
     for (const Entry& e : view.entries) touch(e.cell, e.phi);
     size_t count = views_.size() + 1;
     size_t bytes = bytes_ + cand.bytes;
-    // Victim candidates: the whole store, or its `victim_shortlist` lowest-coverage views.
-    std::vector<const View*> pool;
-    pool.reserve(views_.size());
-    for (const auto& [vid, v] : views_) pool.push_back(&v);
-    const size_t k_short = options_.victim_shortlist;
     while (count > options_.max_views || bytes > options_.max_bytes) {
-      if (k_short > 0 && k_short < pool.size()) {
-        // (Re-ranked per victim: several victims may be needed when bytes require.)
-        std::nth_element(pool.begin(), pool.begin() + static_cast<std::ptrdiff_t>(k_short), pool.end(),
-                         [](const View* a, const View* b) {
-                           return a->coverage < b->coverage ||
-                                  (a->coverage == b->coverage && a->id < b->id);
-                         });
-      }
-      const size_t n_pool = k_short > 0 ? std::min(k_short, pool.size()) : pool.size();
       const View* best = nullptr;
       double best_loss = -std::numeric_limits<double>::infinity();
-      for (size_t pi = 0; pi < n_pool; ++pi) {
-        const View& v = *pool[pi];
-        const ViewId vid = v.id;
+      for (const auto& [vid, v] : views_) {
+        if (std::find(victims.begin(), victims.end(), vid) != victims.end()) continue;
         double loss = 0.0;  // τ_sum change caused by removing v (<= 0)
         for (const Entry& e : v.entries) {
           const double t = cells_[e.cell].tau + scratch_[e.cell];
@@ -393,7 +348,6 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
       }
       if (best == nullptr) break;  // cannot happen: bytes <= max_bytes once the store is empty
       victims.push_back(best->id);
-      std::erase(pool, best);
       for (const Entry& e : best->entries) touch(e.cell, -static_cast<double>(e.phi));
       --count;
       bytes -= best->bytes;

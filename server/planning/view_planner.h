@@ -14,16 +14,11 @@
 // whole store); several victims are removed if the candidate needs more bytes than one frees.
 // Pre-selection (§3.1.4): I joins R(b_k) when R has room (Δτ = 0) or replaces the reference with
 // the smallest φ when φ_I - φ_v > Δτ. R(b_k) is always the pre-selection replayed over the views
-// STORED NOW, in acceptance order (each φ against the references chosen before it), with the
-// cell's CURRENT area A(b_k): when a view leaves the store, the R(b_k) of its cells are rebuilt
-// that way, so R does not depend on views that were evicted (patching the hole with the best
-// remaining observer, as sessions 1-4 did, kept references whose φ had been judged against views
-// long gone: apartment walk, 400 frames, store 200, near test poses 0.788 -> see
-// docs/evaluation.md); and since session 5, when SetCellArea changes the area the coverage
-// formula uses (min(A, A_cell) of 3.13), the cell's R(b_k) is rebuilt the same way before the
-// next Consider/Remove (a growing proxy had left references whose φ_p was judged against a small
-// early area, which later views of the same surface could not displace: apartment look-around
-// walk, near test poses, docs/evaluation.md "Session 5"). τ keeps φ frozen at acceptance.
+// STORED NOW, in acceptance order (each φ against the references chosen before it): when a view
+// leaves the store, the R(b_k) of its cells are rebuilt that way, so R does not depend on views
+// that were evicted (patching the hole with the best remaining observer, as sessions 1-4 did,
+// kept references whose φ had been judged against views long gone: apartment walk, 400 frames,
+// store 200, near test poses 0.788 -> see docs/evaluation.md).
 #pragma once
 
 #include <cstdint>
@@ -53,10 +48,6 @@ struct PlannerOptions {
   double delta_tau_sum = 0.05;       // Δτ_sum: minimum gain for a candidate
   double delta_tau = 0.0;            // Δτ: minimum per-cell gain to replace a reference when full
   double cell_size_m = 0.5;          // q
-  // Victim search when the store is full: 0 = every stored view is evaluated exactly; k > 0 =
-  // only the k stored views of lowest coverage Σ_k φ(F_i, b_k) (the thesis' "list sorted by
-  // coverage, only victims among the lowest-ranking views"), the best of those by τ_sum.
-  size_t victim_shortlist = 0;
 
   absl::Status Validate() const;
 
@@ -99,9 +90,7 @@ struct Decision {
   std::string reason;                 // why (for logs / acks)
   double gain = 0.0;                  // τ_sum(after) - τ_sum(before), as evaluated
   std::vector<ViewId> removed;        // victims evicted to make room
-  // Cells whose R(b_k) changed (publisher deltas), sorted; also on a rejection (references
-  // rebuilt after SetCellArea changed areas).
-  std::vector<CellId> changed_cells;
+  std::vector<CellId> changed_cells;  // cells whose R(b_k) changed (publisher deltas), sorted
   double tau_sum = 0.0;               // τ_sum of the store after the decision
 };
 
@@ -117,13 +106,7 @@ class ViewPlanner {
 
   // Per-cell surface area A(b_k) from the proxy (geometry's CellAreas). Cells without a known
   // area use the face area A_cell (the upper bound of 3.13). Negative/NaN areas are an error.
-  // A change of min(A, A_cell) of an observed cell marks its R(b_k) for a rebuild with
-  // the new area, done by the next Consider / Remove (their changed cells include it) or by
-  // ApplyAreaChanges.
   absl::Status SetCellArea(CellId cell, double area_m2);
-  // Rebuilds the R(b_k) marked by SetCellArea now; returns the cells whose R(b_k) changed
-  // (sorted). Consider and Remove call it first.
-  std::vector<CellId> ApplyAreaChanges();
 
   // Removes a stored view from outside the planner (e.g. refinement flagged it as a pose
   // outlier): its coverage leaves τ, references to it are refilled from the remaining observers.
@@ -181,7 +164,6 @@ class ViewPlanner {
     glm::dvec3 centre;
     size_t bytes;
     double pixel_sr = 0;            // A_px of the candidate's cell-id buffer
-    double coverage = 0;            // Σ φ over entries (rank for victim_shortlist)
     std::vector<Entry> entries;
     std::vector<uint32_t> pixels;   // ψ_vis per entry (copied into the cell's Ref by AddView)
   };
@@ -208,8 +190,6 @@ class ViewPlanner {
   std::vector<Cell> cells_;
   std::unordered_map<CellId, double> areas_;
   std::vector<double> scratch_;      // per-cell pending τ change during victim search
-  std::vector<int32_t> area_stale_;  // cells whose R(b_k) awaits a rebuild with a new area
-  std::vector<uint8_t> area_stale_mark_;
 };
 
 }  // namespace exo::planning

@@ -124,10 +124,7 @@ class PlanningStage final : public PipelineStage {
     id_buffer_ns_ += SteadyNowNs() - t_ids;
     ++candidates_;
     EXO_ASSIGN_OR_RETURN(planning::Decision d, planner_.Consider(cand));
-    if (!d.accepted) {
-      PublishCellRefsLocked(d.changed_cells);  // references rebuilt for new cell areas
-      return absl::OkStatus();
-    }
+    if (!d.accepted) return absl::OkStatus();
     ++accepted_;
     ++next_id_;
     for (ViewId victim : d.removed) {
