@@ -410,7 +410,8 @@ std::string ConfigJson(const std::string& dataset, const std::string& test_poses
       "{\"bench\":\"eval\",\"dataset\":\"%s\",\"test_poses\":\"%s\",\"proxy\":\"%s\",\"tag\":\"%s\","
       "\"config\":{\"policy\":\"%s\",\"refs\":\"%s\",\"frames\":%d,\"store\":%d,\"r_max\":%d,\"lambda\":%.2f,"
       "\"cell_m\":%.3f,\"voxel_m\":%.4f,\"delta_tau_sum\":%.3f,\"idbuf\":\"%dx%d\",\"ids\":\"%s\","
-      "\"scale\":\"%s\",\"d_max_m\":%.2f,\"sigma_m\":%.2f,\"cellid_lod_m\":%.3f},"
+      "\"scale\":\"%s\",\"d_max_m\":%.2f,\"sigma_m\":%.2f,\"cellid_lod_m\":%.3f,"
+      "\"face_areas\":%d},"
       "\"quality\":{\"mssim\":%.4f,\"psnr\":%.2f,\"coverage\":%.4f,\"mssim_covered\":%.4f,"
       "\"surface\":%.4f,\"mssim_unfilled\":%.4f,\"psnr_unfilled\":%.2f,\"test_views\":%d},"
       "\"speed\":{\"integrate_ms_median\":%.2f,\"integrate_ms_p95\":%.2f,\"plan_ms_median\":%.2f,"
@@ -418,7 +419,7 @@ std::string ConfigJson(const std::string& dataset, const std::string& test_poses
       "\"memory\":{\"store_bytes\":%zu,\"geometry_bytes\":%zu,\"planner_bytes\":%zu},"
       "\"views\":%zu,\"accepted\":%zu,\"tau_sum\":%.2f,\"mean_refs\":%.2f,\"max_refs\":%zu",
       dataset, test_poses, proxy, c.tag, PolicyName(c.policy), refs, frames, c.store, c.r_max, lambda,
-      cell_m, voxel_m, dts, idw, idh, ids, scale, po.d_max_m, po.sigma_m, lod_m, r.quality.mssim, r.quality.psnr, r.quality.coverage,
+      cell_m, voxel_m, dts, idw, idh, ids, scale, po.d_max_m, po.sigma_m, lod_m, int(c.face_areas), r.quality.mssim, r.quality.psnr, r.quality.coverage,
       r.quality.mssim_covered, r.quality.surface, r.quality.mssim_unfilled, r.quality.psnr_unfilled, r.quality.views, r.integrate_ms_median, r.integrate_ms_p95,
       r.plan_ms_median, r.plan_ms_p95, r.consider_ms_median, r.render_ms_median, r.store_bytes,
       r.geometry_bytes, r.planner_bytes, r.store_views, r.accepted, r.tau_sum, r.mean_refs,
@@ -511,11 +512,12 @@ class Engine {
                                          PlannerFor(c, src_, cell, src_.frame_bytes)));
         st.planner = std::make_unique<planning::ViewPlanner>(std::move(p));
         groups_[g].online.push_back(i);
-        if (opt_.proxy == ProxyKind::kGroundTruth)
+        if (opt_.proxy == ProxyKind::kGroundTruth && !c.face_areas)
           for (const auto& [cell_id, a] : groups_[g].areas->areas())
             EXO_RETURN_IF_ERROR(st.planner->SetCellArea(cell_id, a));
       } else if (c.policy == Policy::kOfflineGreedy || c.policy == Policy::kEveryN ||
-                 c.policy == Policy::kMinDistance || c.policy == Policy::kAll) {
+                 c.policy == Policy::kMinDistance || c.policy == Policy::kAll ||
+                 c.policy == Policy::kOnlineFinalAreas) {
         groups_[g].needs_final = true;
       }
       if (c.policy == Policy::kMinDistance)
@@ -578,7 +580,8 @@ class Engine {
       const double c1 = ThreadCpuMs();
       const std::vector<CellId> changed = g.areas->TakeChangedCells();
       for (size_t ci : g.online)
-        for (CellId k : changed) EXO_RETURN_IF_ERROR(online_[ci].planner->SetCellArea(k, g.areas->Area(k)));
+        if (!configs_[ci].face_areas)
+          for (CellId k : changed) EXO_RETURN_IF_ERROR(online_[ci].planner->SetCellArea(k, g.areas->Area(k)));
       const auto t_r = Clock::now();
       PinholeCamera id_cam;
       size_t tris = 0;
@@ -712,7 +715,8 @@ class Engine {
           for (int i = 0; i < n; ++i) selected.push_back(i);
         } else if (c.policy == Policy::kOfflineGreedy) {
           EXO_ASSIGN_OR_RETURN(auto p, planning::ViewPlanner::Create(po));
-          for (const auto& [cell, a] : g.areas->areas()) EXO_RETURN_IF_ERROR(p.SetCellArea(cell, a));
+          if (!c.face_areas)
+            for (const auto& [cell, a] : g.areas->areas()) EXO_RETURN_IF_ERROR(p.SetCellArea(cell, a));
           using QE = std::pair<double, int>;
           std::priority_queue<QE> pq;
           for (int i = 0; i < n; ++i)
@@ -738,11 +742,35 @@ class Engine {
           refs = p.CellRefs();
           r.tau_sum = p.tau_sum();
           r.planner_bytes = p.BookkeepingBytes();
+        } else if (c.policy == Policy::kOnlineFinalAreas) {
+          // The online rules in stream order, every frame's cell ids as the online policy saw
+          // them, but the final proxy's areas from the start (diagnostic).
+          EXO_ASSIGN_OR_RETURN(auto p, planning::ViewPlanner::Create(po));
+          if (!c.face_areas)
+            for (const auto& [cell, a] : g.areas->areas()) EXO_RETURN_IF_ERROR(p.SetCellArea(cell, a));
+          size_t accepted = 0;
+          for (int i = 0; i < n; ++i) {
+            planning::Candidate cand;
+            cand.id = ViewId(i + 1);
+            cand.local_from_cam = src_.poses[i];
+            cand.id_camera = g.id_cam;
+            cand.cells = g.final_cells[i];
+            cand.bytes = src_.frame_bytes;
+            EXO_ASSIGN_OR_RETURN(const planning::Decision dec, p.Consider(cand));
+            if (dec.accepted) ++accepted;
+          }
+          for (ViewId v : p.ViewIds()) selected.push_back(int(v) - 1);
+          refs = p.CellRefs();
+          r.tau_sum = p.tau_sum();
+          r.planner_bytes = p.BookkeepingBytes();
+          r.accepted = accepted;
         }
         const double ms = MsSince(t0);
         r.plan_ms_median = r.plan_ms_p95 = ms / std::max(1, n);
-        r.accepted = selected.size();
-        if (c.policy != Policy::kOfflineGreedy && c.uncapped_refs) {
+        if (c.policy != Policy::kOnlineFinalAreas) r.accepted = selected.size();
+        if (c.policy == Policy::kOnlineFinalAreas) {
+          // R(b_k) is the replayed planner's own.
+        } else if (c.policy != Policy::kOfflineGreedy && c.uncapped_refs) {
           for (int i : selected)
             for (const auto& cc : g.final_cells[i])
               if (cc.pixels > 0) refs[cc.cell].push_back(ViewId(i + 1));
@@ -756,7 +784,8 @@ class Engine {
           pre.tau_max = 1e30;
           pre.delta_tau_sum = 0;
           EXO_ASSIGN_OR_RETURN(auto p, planning::ViewPlanner::Create(pre));
-          for (const auto& [cell, a] : g.areas->areas()) EXO_RETURN_IF_ERROR(p.SetCellArea(cell, a));
+          if (!c.face_areas)
+            for (const auto& [cell, a] : g.areas->areas()) EXO_RETURN_IF_ERROR(p.SetCellArea(cell, a));
           for (int i : selected) {
             planning::Candidate cand;
             cand.id = ViewId(i + 1);
@@ -1049,6 +1078,7 @@ const char* PolicyName(Policy p) {
     case Policy::kMinDistance: return "min_distance";
     case Policy::kAll: return "all_frames";
     case Policy::kVertexColor: return "vertex_color";
+    case Policy::kOnlineFinalAreas: return "online_final_areas";
   }
   return "?";
 }
@@ -1073,7 +1103,9 @@ absl::StatusOr<std::vector<ConfigResult>> RunSynthetic(const SynthRunOptions& o)
   EXO_RETURN_IF_ERROR(o.Validate());
   EXO_ASSIGN_OR_RETURN(synth::SceneKind kind, synth::ParseSceneKind(o.scene));
   EXO_ASSIGN_OR_RETURN(synth::TrajectoryKind tkind, synth::ParseTrajectoryKind(o.traj));
-  EXO_ASSIGN_OR_RETURN(synth::SynthScene scene, synth::MakeScene(kind, {}));
+  synth::SceneOptions sco;
+  sco.seed = o.scene_seed;
+  EXO_ASSIGN_OR_RETURN(synth::SynthScene scene, synth::MakeScene(kind, sco));
   synth::TrajectoryOptions to;
   to.num_frames = o.frames;
   if (o.walk_look_around_deg >= 0) to.walk_look_around_deg = o.walk_look_around_deg;
@@ -1095,6 +1127,7 @@ absl::StatusOr<std::vector<ConfigResult>> RunSynthetic(const SynthRunOptions& o)
   src.default_lambda = tkind == synth::TrajectoryKind::kFlyover ? 0.5 : 0.4;
   src.metres_per_rad = std::max(0.5, 0.05 * scene.ExtentM());
   src.dataset = absl::StrCat(o.scene, "/", o.traj);
+  if (o.scene_seed != 1) absl::StrAppend(&src.dataset, "/seed", o.scene_seed);
   const synth::SynthScene* sp = &scene;
   std::vector<Rigid3d> poses_copy = src.poses;
   src.load_view = [sp, rop, poses_copy](int i) -> absl::StatusOr<StoredView> {

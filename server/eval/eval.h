@@ -31,7 +31,12 @@
 
 namespace exo::eval {
 
-enum class Policy { kOnline, kOfflineGreedy, kEveryN, kMinDistance, kAll, kVertexColor };
+// kOnlineFinalAreas (diagnostic, not a product policy): the online rules run in stream order
+// after the stream, with every cell's area A(b_k) taken from the FINAL proxy from the first frame
+// on (the same per-frame cell ids as the online policy) - the online planner without the growing
+// proxy's areas.
+enum class Policy { kOnline, kOfflineGreedy, kEveryN, kMinDistance, kAll, kVertexColor,
+                    kOnlineFinalAreas };
 const char* PolicyName(Policy p);
 enum class ProxyKind { kTsdf, kGroundTruth };
 
@@ -51,6 +56,10 @@ struct PolicyConfig {
   //          stored views differs from the online policy;
   //   true  ("uncapped"): every selected view that sees the cell in the final proxy.
   bool uncapped_refs = false;
+  // Every planner of this config (online, offline greedy, the baselines' pre-selection) gets no
+  // proxy areas: A(b_k) = the face area A_cell for every cell (the planner's rule for an unknown
+  // area), instead of the TSDF proxy's CellAreas.
+  bool face_areas = false;
   std::string tag;              // free label copied into the JSON ("sweep":"store" ...)
 };
 
@@ -125,6 +134,10 @@ struct SynthRunOptions {
   int frame_width = 640, frame_height = 480;
   int test_views = 200, test_width = 320, test_height = 240;
   uint64_t test_seed = 7;
+  // synth::SceneOptions::seed: furniture / house placement and textures (1 = the scene of every
+  // earlier run). Independent input replicates of the same protocol; a seed other than 1 is
+  // appended to the JSON dataset name ("apartment/walk/seed2").
+  uint64_t scene_seed = 1;
   TestPoseMode test_pose_mode = TestPoseMode::kSceneWide;
   // Several test pose sets evaluated on the same stream and stores (one JSON line per config and
   // set); empty = {test_pose_mode}.

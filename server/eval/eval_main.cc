@@ -29,6 +29,11 @@ constexpr char kUsage[] =
     "               depth registered to colour, docs/registration.md)]\n"
     "  --test_poses scene|near|scene,near   test pose set(s), all evaluated on the same stores\n"
     "  --look_around DEG     walk yaw-sweep amplitude (synth default 20)\n"
+    "  --scene_seed N        synthetic scene seed (layout, textures; default 1), for replicates\n"
+    "  --test_seed N         test-pose seed (default 7)\n"
+    "  --face_areas 1        planners use the cell face area A_cell for every cell, not the proxy's\n"
+    "                        CellAreas (A(b_k) of 3.13); policy online_final_areas (diagnostic):\n"
+    "                        the online rules replayed after the stream on the final proxy's areas\n"
     "  --per_view 1          per-test-view SSIM, nearest stored view, reference hit in the JSON\n"
     "  --lod F               cell-id buffers from a vertex-clustered proxy LOD, clusters F x cell size\n"
     "                        (0: full proxy mesh; default -1: planning::DefaultCellIdLodM)\n"
@@ -71,6 +76,7 @@ absl::StatusOr<Policy> ParsePolicy(const std::string& s) {
   if (s == "every_n") return Policy::kEveryN;
   if (s == "min_distance") return Policy::kMinDistance;
   if (s == "all" || s == "all_frames") return Policy::kAll;
+  if (s == "online_final_areas") return Policy::kOnlineFinalAreas;
   return absl::InvalidArgumentError("unknown policy " + s);
 }
 
@@ -84,6 +90,7 @@ absl::StatusOr<std::vector<PolicyConfig>> Configs(const Args& a) {
   base.cell_m = a.Num("--cell", 0);
   base.delta_tau_sum = a.Num("--dts", -1);
   base.tag = a.Get("--tag", "main");
+  base.face_areas = a.Num("--face_areas", 0) != 0;
   std::vector<PolicyConfig> out;
   for (absl::string_view p : absl::StrSplit(a.Get("--policies", "online"), ',', absl::SkipEmpty())) {
     PolicyConfig c = base;
@@ -179,6 +186,8 @@ int RunOne(const Args& a) {
   o.proxy = a.Get("--proxy", "tsdf") == "gt" ? ProxyKind::kGroundTruth : ProxyKind::kTsdf;
   o.voxel_m = a.Num("--voxel", 0);
   o.test_views = int(a.Num("--test_views", 200));
+  o.scene_seed = uint64_t(a.Num("--scene_seed", 1));
+  o.test_seed = uint64_t(a.Num("--test_seed", 7));
   o.test_width = int(a.Num("--test_w", 320));
   o.test_height = int(a.Num("--test_h", 240));
   o.id_width = int(a.Num("--idw", 160));
