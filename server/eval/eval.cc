@@ -704,6 +704,16 @@ class Engine {
         r.tau_sum = st.planner->tau_sum();
       } else {
         auto t0 = Clock::now();
+        // Frame i as a candidate with the cell ids it was planned with (offline passes).
+        auto final_candidate = [&](int i) {
+          planning::Candidate cand;
+          cand.id = ViewId(i + 1);
+          cand.local_from_cam = src_.poses[i];
+          cand.id_camera = g.id_cam;
+          cand.cells = g.final_cells[i];
+          cand.bytes = src_.frame_bytes;
+          return cand;
+        };
         if (c.policy == Policy::kEveryN) {
           // Evenly over the WHOLE stream: index floor(k n / store), k = 0..store-1 (an integer
           // step n / store would leave the tail unsampled when store does not divide n).
@@ -730,13 +740,7 @@ class Engine {
               continue;
             }
             if (!(gnew > 0)) break;
-            planning::Candidate cand;
-            cand.id = ViewId(i + 1);
-            cand.local_from_cam = src_.poses[i];
-            cand.id_camera = g.id_cam;
-            cand.cells = g.final_cells[i];
-            cand.bytes = src_.frame_bytes;
-            EXO_RETURN_IF_ERROR(p.Consider(cand).status());
+            EXO_RETURN_IF_ERROR(p.Consider(final_candidate(i)).status());
           }
           for (ViewId v : p.ViewIds()) selected.push_back(int(v) - 1);
           refs = p.CellRefs();
@@ -750,13 +754,7 @@ class Engine {
             for (const auto& [cell, a] : g.areas->areas()) EXO_RETURN_IF_ERROR(p.SetCellArea(cell, a));
           size_t accepted = 0;
           for (int i = 0; i < n; ++i) {
-            planning::Candidate cand;
-            cand.id = ViewId(i + 1);
-            cand.local_from_cam = src_.poses[i];
-            cand.id_camera = g.id_cam;
-            cand.cells = g.final_cells[i];
-            cand.bytes = src_.frame_bytes;
-            EXO_ASSIGN_OR_RETURN(const planning::Decision dec, p.Consider(cand));
+            EXO_ASSIGN_OR_RETURN(const planning::Decision dec, p.Consider(final_candidate(i)));
             if (dec.accepted) ++accepted;
           }
           for (ViewId v : p.ViewIds()) selected.push_back(int(v) - 1);
