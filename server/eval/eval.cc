@@ -714,6 +714,15 @@ class Engine {
           cand.bytes = src_.frame_bytes;
           return cand;
         };
+        // A planner for an offline pass: the final proxy's cell areas from the start (none with
+        // --face_areas 1).
+        auto offline_planner = [&](const planning::PlannerOptions& opts)
+            -> absl::StatusOr<planning::ViewPlanner> {
+          EXO_ASSIGN_OR_RETURN(auto p, planning::ViewPlanner::Create(opts));
+          if (!c.face_areas)
+            for (const auto& [cell, a] : g.areas->areas()) EXO_RETURN_IF_ERROR(p.SetCellArea(cell, a));
+          return p;
+        };
         if (c.policy == Policy::kEveryN) {
           // Evenly over the WHOLE stream: index floor(k n / store), k = 0..store-1 (an integer
           // step n / store would leave the tail unsampled when store does not divide n).
@@ -724,9 +733,7 @@ class Engine {
         } else if (c.policy == Policy::kAll) {
           for (int i = 0; i < n; ++i) selected.push_back(i);
         } else if (c.policy == Policy::kOfflineGreedy) {
-          EXO_ASSIGN_OR_RETURN(auto p, planning::ViewPlanner::Create(po));
-          if (!c.face_areas)
-            for (const auto& [cell, a] : g.areas->areas()) EXO_RETURN_IF_ERROR(p.SetCellArea(cell, a));
+          EXO_ASSIGN_OR_RETURN(auto p, offline_planner(po));
           using QE = std::pair<double, int>;
           std::priority_queue<QE> pq;
           for (int i = 0; i < n; ++i)
@@ -749,9 +756,7 @@ class Engine {
         } else if (c.policy == Policy::kOnlineFinalAreas) {
           // The online rules in stream order, every frame's cell ids as the online policy saw
           // them, but the final proxy's areas from the start (diagnostic).
-          EXO_ASSIGN_OR_RETURN(auto p, planning::ViewPlanner::Create(po));
-          if (!c.face_areas)
-            for (const auto& [cell, a] : g.areas->areas()) EXO_RETURN_IF_ERROR(p.SetCellArea(cell, a));
+          EXO_ASSIGN_OR_RETURN(auto p, offline_planner(po));
           size_t accepted = 0;
           for (int i = 0; i < n; ++i) {
             EXO_ASSIGN_OR_RETURN(const planning::Decision dec, p.Consider(final_candidate(i)));
@@ -781,18 +786,8 @@ class Engine {
           pre.max_bytes = std::max<size_t>(1, selected.size()) * src_.frame_bytes;
           pre.tau_max = 1e30;
           pre.delta_tau_sum = 0;
-          EXO_ASSIGN_OR_RETURN(auto p, planning::ViewPlanner::Create(pre));
-          if (!c.face_areas)
-            for (const auto& [cell, a] : g.areas->areas()) EXO_RETURN_IF_ERROR(p.SetCellArea(cell, a));
-          for (int i : selected) {
-            planning::Candidate cand;
-            cand.id = ViewId(i + 1);
-            cand.local_from_cam = src_.poses[i];
-            cand.id_camera = g.id_cam;
-            cand.cells = g.final_cells[i];
-            cand.bytes = src_.frame_bytes;
-            EXO_RETURN_IF_ERROR(p.Consider(cand).status());
-          }
+          EXO_ASSIGN_OR_RETURN(auto p, offline_planner(pre));
+          for (int i : selected) EXO_RETURN_IF_ERROR(p.Consider(final_candidate(i)).status());
           refs = p.CellRefs();
         }
       }
