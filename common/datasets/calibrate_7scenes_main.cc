@@ -12,6 +12,7 @@
 // x 120-520, y 40-340: left = identity registration (raw depth pixels taken as colour pixels),
 // right = the committed calibration.
 // It also times RegisterDepthToColor (CPU and wall ms per 640x480 frame) on the loaded frames.
+#include "exoview_source_dir.h"
 #include <sys/resource.h>
 
 #include <cstdio>

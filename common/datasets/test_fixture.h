@@ -1,6 +1,7 @@
 // Test helpers for common/datasets tests: temp directories and small synthetic frames.
 #pragma once
 
+#include "exoview_source_dir.h"
 #include <unistd.h>
 
 #include <cstdlib>

@@ -1,6 +1,7 @@
 // Codec benchmark: JPEG q90 encode/decode (ms, bytes, ratio, PSNR) and the lossless depth codec
 // candidates (ms, ratio, lossless check) on real 7-Scenes frames and synthetic images.
 // One JSON object per line. Usage: codec_bench [--shared DIR] [--reps N] [--frames N]
+#include "exoview_source_dir.h"
 #include <algorithm>
 #include <chrono>
 #include <cmath>

@@ -1,6 +1,7 @@
 // Test helpers for common/io tests (not part of the library).
 #pragma once
 
+#include "exoview_source_dir.h"
 #include <cmath>
 #include <cstdlib>
 #include <string>

@@ -14,6 +14,7 @@
 //   to the true surface (mean, p95).
 // Prints one JSON object per (dataset, voxel size): integrate ms/frame (median, p95), incremental
 // extraction ms/frame (median, p95), full extraction ms, triangles, blocks, bytes, error.
+#include "exoview_source_dir.h"
 #include <algorithm>
 #include <chrono>
 #include <cmath>

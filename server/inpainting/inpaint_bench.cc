@@ -18,6 +18,7 @@
 //                 [--layered | --no_layered] [--layer_gap R] [--layer_min_share S] [--max_layers K]
 //                 [--layer_agree R] [--layer_dist W] [--layer_smooth W]
 //                 [--layer_sigma S] [--layer_jump F] [--layer_block PX] [--layer_seed_measured 0|1] [--layer_edge_seeds 0|1] [--layer_max_dist PX] [--layer_far_cost C]   (session 5: layered depth solve)
+#include "exoview_source_dir.h"
 #include <algorithm>
 #include <array>
 #include <chrono>

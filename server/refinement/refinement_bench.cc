@@ -14,6 +14,7 @@
 //   refinement_bench --scene 7scenes [--register 0|1 (default 1: depth registered to colour)]
 // The first stored view is the gauge anchor (true pose, E = 1); views are refined in order, each
 // against the views stored (and refined) before it, as the planner does online.
+#include "exoview_source_dir.h"
 #include <algorithm>
 #include <chrono>
 #include <cmath>
