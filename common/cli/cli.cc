@@ -1,0 +1,33 @@
+#include "common/cli/cli.h"
+
+#include <iostream>
+
+#include "exoview_version.h"
+
+namespace exo::cli {
+
+std::string Version() { return std::string(EXOVIEW_VERSION) + " (git " + EXOVIEW_GIT + ")"; }
+
+void Setup(CLI::App& app) {
+  app.set_version_flag("--version", Version(), "print the version and exit");
+  app.allow_extras(false);
+  app.set_help_flag("-h,--help", "print this help and exit");
+}
+
+std::optional<int> Parse(CLI::App& app, int argc, const char* const* argv) {
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::CallForHelp& e) {
+    return app.exit(e, std::cout, std::cerr);
+  } catch (const CLI::CallForAllHelp& e) {
+    return app.exit(e, std::cout, std::cerr);
+  } catch (const CLI::CallForVersion& e) {
+    return app.exit(e, std::cout, std::cerr);
+  } catch (const CLI::ParseError& e) {
+    std::cerr << app.get_name() << ": " << e.what() << "\nRun with --help for the flags.\n";
+    return 2;
+  }
+  return std::nullopt;
+}
+
+}  // namespace exo::cli
