@@ -40,9 +40,17 @@ function(exoview_test name)
     ENVIRONMENT "${EXOVIEW_TEST_ENV}")
 endfunction()
 
-# exoview_bench(NAME SOURCES... LIBS ...): a benchmark binary (not run by ctest).
-function(exoview_bench name)
+# exoview_binary(NAME SOURCES... LIBS ...): a program a user runs (server, clients, tools,
+# benchmarks). Every one is recorded in the global property EXOVIEW_BINARIES, so the flags test
+# can check that each of them follows the common conventions (common/cli).
+function(exoview_binary name)
   cmake_parse_arguments(B "" "" "SOURCES;LIBS" ${ARGN})
   add_executable(${name} ${B_SOURCES})
   target_link_libraries(${name} PRIVATE ${B_LIBS})
+  set_property(GLOBAL APPEND PROPERTY EXOVIEW_BINARIES ${name})
+endfunction()
+
+# exoview_bench(NAME SOURCES... LIBS ...): a benchmark binary (not run by ctest).
+function(exoview_bench name)
+  exoview_binary(${name} ${ARGN})
 endfunction()
