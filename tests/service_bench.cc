@@ -9,6 +9,7 @@
 //   exoview_bench tests/service_bench [--distinct=N] [--long=M] [--max=K] [--width=W --height=H]
 //                 [--server_arg=--key=value ...]
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <algorithm>
@@ -21,11 +22,12 @@
 #include <vector>
 
 #include <grpcpp/grpcpp.h>
+#include <nlohmann/json.hpp>
 
-#include "absl/strings/numbers.h"
 #include "client/uploader/synth_source.h"
 #include "client/uploader/upload_client.h"
 #include "client/viewer/viewer_session.h"
+#include "common/cli/cli.h"
 #include "proto/exoview.grpc.pb.h"
 #include "tests/subprocess.h"
 
@@ -33,6 +35,19 @@ namespace exo {
 namespace {
 
 using Clock = std::chrono::steady_clock;
+using json = nlohmann::ordered_json;  // fields in the order written
+
+// Rounds to `digits` decimals for the JSON lines.
+double Round(double x, int digits) {
+  const double f = std::pow(10.0, digits);
+  return std::round(x * f) / f;
+}
+
+void PrintLine(const json& line) {
+  std::printf("%s\n", line.dump().c_str());
+  std::fflush(stdout);
+}
+
 int64_t NowNs() {
   return std::chrono::duration_cast<std::chrono::nanoseconds>(Clock::now().time_since_epoch()).count();
 }
@@ -64,23 +79,24 @@ int Main(int argc, char** argv) {
   int distinct = 300, long_frames = 1800, max_frames = 300, width = 640, height = 480;
   int rss_frames = 0;  // phase 5 (off by default): unpaced long upload, RSS per 1000 frames
   std::vector<std::string> server_args;
-  for (int i = 1; i < argc; ++i) {
-    std::string a = argv[i];
-    auto val = [&](const char* k, int* out) {
-      const std::string p = std::string("--") + k + "=";
-      if (a.rfind(p, 0) == 0) return absl::SimpleAtoi(a.substr(p.size()), out);
-      return false;
-    };
-    if (val("distinct", &distinct) || val("long", &long_frames) || val("max", &max_frames) ||
-        val("width", &width) || val("height", &height) || val("rss_frames", &rss_frames))
-      continue;
-    if (a.rfind("--server_arg=", 0) == 0) {
-      server_args.push_back(a.substr(13));
-      continue;
-    }
-    std::fprintf(stderr, "bad argument %s\n", a.c_str());
-    return 2;
-  }
+  CLI::App app{"The service on loopback with a real exoview_server process: ingest, initial sync, "
+               "steady state, max ingest; one JSON object per phase.",
+               "service_bench"};
+  exo::cli::Setup(app);
+  app.add_option("--distinct", distinct, "distinct frames (phase 1, 30 Hz)")
+      ->check(CLI::PositiveNumber);
+  app.add_option("--long", long_frames, "frames of the long 30 Hz upload (phase 3)")
+      ->check(CLI::NonNegativeNumber);
+  app.add_option("--max", max_frames, "frames uploaded as fast as acked (phase 4)")
+      ->check(CLI::NonNegativeNumber);
+  app.add_option("--width", width, "frame width")->check(CLI::PositiveNumber);
+  app.add_option("--height", height, "frame height")->check(CLI::PositiveNumber);
+  app.add_option("--rss_frames", rss_frames, "unpaced upload with RSS per 1000 frames (phase 5)")
+      ->check(CLI::NonNegativeNumber);
+  app.add_option("--server_arg", server_args,
+                 "a flag passed to exoview_server, repeatable: --server_arg=--key=value")
+      ->allow_extra_args(false);
+  if (auto rc = exo::cli::Parse(app, argc, argv)) return *rc;
   // ---- frames: rendered once, encoded once (the uploader's cost is not the server's) ----
   SynthSourceOptions so;
   so.scene = "apartment";
@@ -181,25 +197,32 @@ int Main(int argc, char** argv) {
     std::lock_guard lock(mu);
     for (auto& [t, ms] : latency_ms) lat.push_back(ms);
   }
-  std::printf(
-      "{\"phase\": \"ingest_paced\", \"width\": %d, \"height\": %d, \"frames\": %llu, "
-      "\"rate_hz\": 30, \"fps\": %.2f, \"accepted\": %llu, \"dropped\": %llu, \"rejected\": %llu, "
-      "\"mean_frame_bytes\": %zu, \"views\": %u, \"chunks\": %u, \"cells\": %u, "
-      "\"latency_frames_with_delta\": %zu, \"frame_to_delta_p50_ms\": %.2f, "
-      "\"frame_to_delta_p95_ms\": %.2f, \"ack_p50_ms\": %.2f, \"ack_p95_ms\": %.2f, "
-      "\"stages\": \"%s\"}\n",
-      width, height, (unsigned long long)up1->sent, up1->fps(), (unsigned long long)up1->accepted,
-      (unsigned long long)up1->dropped, (unsigned long long)up1->rejected, frame_bytes / frames.size(),
-      s1.num_views(), s1.num_chunks(), s1.num_cells(), lat.size(), Pct(lat, 0.5), Pct(lat, 0.95),
-      up1->ack_latency_p50_ms, up1->ack_latency_p95_ms,
-      [&] { std::string s; for (auto& n : s1.stages()) s += (s.empty() ? "" : "+") + n; return s; }().c_str());
-  std::fflush(stdout);
-  auto print_counters = [&](const char* phase, const v1::Stats& st) {
-    std::string c;
+  std::string stages;
+  for (const auto& n : s1.stages()) stages += (stages.empty() ? "" : "+") + n;
+  PrintLine({{"phase", "ingest_paced"},
+             {"width", width},
+             {"height", height},
+             {"frames", up1->sent},
+             {"rate_hz", 30},
+             {"fps", Round(up1->fps(), 2)},
+             {"accepted", up1->accepted},
+             {"dropped", up1->dropped},
+             {"rejected", up1->rejected},
+             {"mean_frame_bytes", frame_bytes / frames.size()},
+             {"views", s1.num_views()},
+             {"chunks", s1.num_chunks()},
+             {"cells", s1.num_cells()},
+             {"latency_frames_with_delta", lat.size()},
+             {"frame_to_delta_p50_ms", Round(Pct(lat, 0.5), 2)},
+             {"frame_to_delta_p95_ms", Round(Pct(lat, 0.95), 2)},
+             {"ack_p50_ms", Round(up1->ack_latency_p50_ms, 2)},
+             {"ack_p95_ms", Round(up1->ack_latency_p95_ms, 2)},
+             {"stages", stages}});
+  auto print_counters = [&](const std::string& phase, const v1::Stats& st) {
+    json line = {{"phase", phase + "_counters"}};
     for (const auto& [k, v] : std::map<std::string, double>(st.counters().begin(), st.counters().end()))
-      c += (c.empty() ? "" : ", ") + ("\"" + k + "\": " + std::to_string(v));
-    std::printf("{\"phase\": \"%s_counters\", %s}\n", phase, c.c_str());
-    std::fflush(stdout);
+      line[k] = v;
+    PrintLine(line);
   };
   print_counters("ingest_paced", s1);
 
@@ -212,17 +235,21 @@ int Main(int argc, char** argv) {
     (void)(*fresh)->Sync({});
     const double sec = std::chrono::duration<double>(Clock::now() - t0).count();
     const v1::Stats s = stats();
-    std::printf(
-        "{\"phase\": \"initial_sync\", \"views\": %u, \"chunks\": %u, \"bytes\": %llu, "
-        "\"mbytes\": %.3f, \"view_bytes\": %llu, \"mesh_bytes\": %llu, \"cell_ref_bytes\": %llu, "
-        "\"bytes_per_view\": %.0f, \"snapshot\": %s, \"seconds\": %.3f, \"digest_equal\": %s}\n",
-        s.num_views(), s.num_chunks(), (unsigned long long)(*fresh)->stats().bytes,
-        (*fresh)->stats().bytes / 1e6, (unsigned long long)by_kind["view_added"],
-        (unsigned long long)by_kind["mesh_chunk"], (unsigned long long)by_kind["cell_refs"],
-        s.num_views() ? by_kind["view_added"] / static_cast<double>(s.num_views()) : 0.0,
-        (*fresh)->stats().snapshots ? "true" : "false", sec,
-        (*fresh)->store().Digest() == s.model_digest() ? "true" : "false");
-    std::fflush(stdout);
+    PrintLine({{"phase", "initial_sync"},
+               {"views", s.num_views()},
+               {"chunks", s.num_chunks()},
+               {"bytes", (*fresh)->stats().bytes},
+               {"mbytes", Round((*fresh)->stats().bytes / 1e6, 3)},
+               {"view_bytes", by_kind["view_added"]},
+               {"mesh_bytes", by_kind["mesh_chunk"]},
+               {"cell_ref_bytes", by_kind["cell_refs"]},
+               {"bytes_per_view",
+                Round(s.num_views() ? by_kind["view_added"] / static_cast<double>(s.num_views())
+                                    : 0.0,
+                      0)},
+               {"snapshot", (*fresh)->stats().snapshots > 0},
+               {"seconds", Round(sec, 3)},
+               {"digest_equal", (*fresh)->store().Digest() == s.model_digest()}});
   }
 
   // Phase 3: long paced upload: steady-state bytes/s and server RSS.
@@ -251,19 +278,21 @@ int Main(int argc, char** argv) {
       std::lock_guard lock(mu);
       bytes1 = live_bytes;
     }
-    std::string samples;
-    for (long r : rss) samples += (samples.empty() ? "" : ", ") + std::to_string(r / 1024);
+    json samples = json::array();
+    for (long r : rss) samples.push_back(r / 1024);
     const size_t q = rss.size() / 4;
-    std::printf(
-        "{\"phase\": \"steady_state\", \"frames\": %d, \"seconds\": %.1f, \"accepted\": %llu, "
-        "\"dropped\": %llu, \"views\": %u, \"chunks\": %u, \"viewer_bytes\": %llu, "
-        "\"viewer_kbit_per_s\": %.1f, \"rss_mb_after_warmup\": %ld, \"rss_mb_end\": %ld, "
-        "\"rss_mb_samples\": [%s]}\n",
-        long_frames, sec, up.ok() ? (unsigned long long)up->accepted : 0ull,
-        up.ok() ? (unsigned long long)up->dropped : 0ull, s.num_views(), s.num_chunks(),
-        (unsigned long long)(bytes1 - bytes0), (bytes1 - bytes0) * 8 / 1000.0 / sec,
-        rss.empty() ? -1 : rss[q] / 1024, rss.empty() ? -1 : rss.back() / 1024, samples.c_str());
-    std::fflush(stdout);
+    PrintLine({{"phase", "steady_state"},
+               {"frames", long_frames},
+               {"seconds", Round(sec, 1)},
+               {"accepted", up.ok() ? up->accepted : 0},
+               {"dropped", up.ok() ? up->dropped : 0},
+               {"views", s.num_views()},
+               {"chunks", s.num_chunks()},
+               {"viewer_bytes", bytes1 - bytes0},
+               {"viewer_kbit_per_s", Round((bytes1 - bytes0) * 8 / 1000.0 / sec, 1)},
+               {"rss_mb_after_warmup", rss.empty() ? -1 : rss[q] / 1024},
+               {"rss_mb_end", rss.empty() ? -1 : rss.back() / 1024},
+               {"rss_mb_samples", samples}});
   }
 
   // Phase 4: as fast as the server acks.
@@ -278,14 +307,13 @@ int Main(int argc, char** argv) {
     const v1::Stats after = wait_drained();
     const double sec = std::chrono::duration<double>(Clock::now() - t0).count();
     const uint64_t processed = after.frames_processed() - before.frames_processed();
-    std::printf(
-        "{\"phase\": \"ingest_max\", \"frames\": %d, \"admitted_fps\": %.2f, "
-        "\"processed_fps\": %.2f, \"accepted\": %llu, \"dropped\": %llu, \"drop_fraction\": %.3f}\n",
-        max_frames, up.ok() ? up->sent / ack_sec : 0, processed / sec,
-        up.ok() ? (unsigned long long)up->accepted : 0ull,
-        up.ok() ? (unsigned long long)up->dropped : 0ull,
-        up.ok() ? up->dropped / static_cast<double>(up->sent) : 0);
-    std::fflush(stdout);
+    PrintLine({{"phase", "ingest_max"},
+               {"frames", max_frames},
+               {"admitted_fps", Round(up.ok() ? up->sent / ack_sec : 0, 2)},
+               {"processed_fps", Round(processed / sec, 2)},
+               {"accepted", up.ok() ? up->accepted : 0},
+               {"dropped", up.ok() ? up->dropped : 0},
+               {"drop_fraction", Round(up.ok() ? up->dropped / static_cast<double>(up->sent) : 0, 3)}});
   }
   // Phase 5: long unpaced upload (frames cycle through the trajectory): server RSS every 1000
   // frames sent, the pipeline drained before each sample.
@@ -293,7 +321,7 @@ int Main(int argc, char** argv) {
     UploadOptions fast;
     fast.rate_hz = 0;
     fast.max_in_flight = 8;
-    std::string samples;
+    json samples = json::array();
     uint64_t accepted = 0, dropped = 0;
     const auto t0 = Clock::now();
     for (int done = 0; done < rss_frames; done += 1000) {
@@ -303,17 +331,18 @@ int Main(int argc, char** argv) {
         dropped += up->dropped;
       }
       (void)wait_drained();
-      samples += (samples.empty() ? "" : ", ") + std::to_string(RssKb(server.pid()) / 1024);
+      samples.push_back(RssKb(server.pid()) / 1024);
     }
     const v1::Stats s = stats();
-    std::printf(
-        "{\"phase\": \"rss_long\", \"frames\": %d, \"seconds\": %.1f, \"accepted\": %llu, "
-        "\"dropped\": %llu, \"views\": %u, \"chunks\": %u, \"version\": %llu, "
-        "\"rss_mb_per_1000_frames\": [%s]}\n",
-        rss_frames, std::chrono::duration<double>(Clock::now() - t0).count(),
-        (unsigned long long)accepted, (unsigned long long)dropped, s.num_views(), s.num_chunks(),
-        (unsigned long long)s.model_version(), samples.c_str());
-    std::fflush(stdout);
+    PrintLine({{"phase", "rss_long"},
+               {"frames", rss_frames},
+               {"seconds", Round(std::chrono::duration<double>(Clock::now() - t0).count(), 1)},
+               {"accepted", accepted},
+               {"dropped", dropped},
+               {"views", s.num_views()},
+               {"chunks", s.num_chunks()},
+               {"version", s.model_version()},
+               {"rss_mb_per_1000_frames", samples}});
     print_counters("rss_long", s);
   }
   (*viewer)->Stop();

@@ -10,6 +10,7 @@
 // Env: EXO_VULKAN_BENCH_DUMP=<dir> writes every frame + ground truth as PNG.
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
@@ -18,7 +19,10 @@
 
 #include <sys/resource.h>
 
+#include <nlohmann/json.hpp>
+
 #include "client/vulkan/vulkan_renderer.h"
+#include "common/cli/cli.h"
 #include "common/io/image_file.h"
 #include "common/metrics/metrics.h"
 #include "common/raster/rasterizer.h"
@@ -30,16 +34,44 @@ using namespace exo;
 
 namespace {
 
-std::vector<int> ParseInts(const char* s, char sep) {
+using json = nlohmann::ordered_json;  // fields in the order written
+
+// Positive integers separated by ',' or `sep` ("8,16,32", "640x480,1280x720"). Empty on any
+// malformed or non-positive entry.
+std::vector<int> ParseInts(const std::string& text, char sep) {
   std::vector<int> out;
+  const char* s = text.c_str();
   while (*s) {
     char* end;
-    out.push_back(int(std::strtol(s, &end, 10)));
+    const long v = std::strtol(s, &end, 10);
+    if (end == s || v <= 0 || v > 1 << 20) return {};
+    out.push_back(int(v));
     s = end;
-    if (*s == sep || *s == ',') ++s;
-    else if (*s) break;
+    if (*s == sep || *s == ',') {
+      if (!*++s) return {};
+    } else if (*s) {
+      return {};
+    }
   }
   return out;
+}
+
+// A CLI11 check: `text` is a list of positive integers with `count` entries a multiple of
+// `multiple` (2 for WxH sizes), at most `max_count` when given.
+CLI::Validator IntList(char sep, size_t multiple, size_t max_count, const std::string& what) {
+  return CLI::Validator(
+      [=](std::string& text) -> std::string {
+        const std::vector<int> v = ParseInts(text, sep);
+        if (v.empty() || v.size() % multiple != 0 || (max_count && v.size() > max_count))
+          return "expected " + what + ", got '" + text + "'";
+        return "";
+      },
+      what);
+}
+
+double Round(double x, int digits) {
+  const double f = std::pow(10.0, digits);
+  return std::round(x * f) / f;
 }
 
 // CPU time of the whole process (all llvmpipe threads), ms: robust to other load on the machine.
@@ -61,29 +93,35 @@ int main(int argc, char** argv) {
   int fixed_pose = -1;  // --pose=k: every frame from novel pose k (profiling)
   int background_views = blend::BlendOptions{}.background_views;
   bool fill_holes = blend::BlendOptions{}.fill_holes;
-  std::vector<int> refs_list = {8, 16, 32, 60};
-  std::vector<int> sizes = {640, 480, 1280, 720, 1920, 1080};
-  std::vector<int> view_size = {320, 240};
-  synth::SceneKind kind = synth::SceneKind::kVillage;
   std::string scene_name = "village";
-  for (int i = 1; i < argc; ++i) {
-    const char* a = argv[i];
-    if (!std::strncmp(a, "--frames=", 9)) frames = std::atoi(a + 9);
-    else if (!std::strncmp(a, "--views=", 8)) max_views = std::atoi(a + 8);
-    else if (!std::strncmp(a, "--refs=", 7)) refs_list = ParseInts(a + 7, ',');
-    else if (!std::strncmp(a, "--sizes=", 8)) sizes = ParseInts(a + 8, 'x');
-    else if (!std::strncmp(a, "--view_size=", 12)) view_size = ParseInts(a + 12, 'x');
-    else if (!std::strncmp(a, "--pose=", 7)) fixed_pose = std::atoi(a + 7);
-    else if (!std::strncmp(a, "--background_views=", 19)) background_views = std::atoi(a + 19);
-    else if (!std::strncmp(a, "--fill_holes=", 13)) fill_holes = std::atoi(a + 13) != 0;
-    else if (!std::strcmp(a, "--scene=apartment")) { kind = synth::SceneKind::kApartment; scene_name = "apartment"; }
-    else if (!std::strcmp(a, "--scene=village")) {}
-    else { fprintf(stderr, "unknown argument %s (see the header of vulkan_bench.cc)\n", a); return 2; }
-  }
-  if (frames < 1 || max_views < 1 || sizes.size() % 2 || sizes.empty() || view_size.size() != 2) {
-    fprintf(stderr, "bad arguments\n");
-    return 2;
-  }
+  std::string refs_text = "8,16,32,60", sizes_text = "640x480,1280x720,1920x1080",
+              view_size_text = "320x240";
+  CLI::App app{"Vulkan lumigraph blend: ms per frame and SSIM against the synthetic ground truth "
+               "for each resolution and references per cell; one JSON object per configuration.",
+               "vulkan_bench"};
+  exo::cli::Setup(app);
+  app.add_option("--frames", frames, "timed frames per configuration")->check(CLI::PositiveNumber);
+  app.add_option("--views", max_views, "stored views rendered from the trajectory")
+      ->check(CLI::PositiveNumber);
+  app.add_option("--refs", refs_text, "references per cell to measure")
+      ->check(IntList(',', 1, 0, "N,N,..."));
+  app.add_option("--sizes", sizes_text, "output resolutions")
+      ->check(IntList('x', 2, 0, "WxH,WxH,..."));
+  app.add_option("--scene", scene_name, "synthetic scene")
+      ->check(CLI::IsMember({"village", "apartment"}));
+  app.add_option("--view_size", view_size_text, "stored views' resolution")
+      ->check(IntList('x', 2, 2, "WxH"));
+  app.add_option("--pose", fixed_pose, "every frame from novel pose k (-1: walk the poses)")
+      ->check(CLI::Range(-1, 1 << 20));
+  app.add_option("--background_views", background_views, "sky pass views (0 = off)")
+      ->check(CLI::NonNegativeNumber);
+  app.add_option("--fill_holes", fill_holes, "push-pull fill of uncovered pixels (0|1)");
+  if (auto rc = exo::cli::Parse(app, argc, argv)) return *rc;
+  const std::vector<int> refs_list = ParseInts(refs_text, ',');
+  const std::vector<int> sizes = ParseInts(sizes_text, 'x');
+  const std::vector<int> view_size = ParseInts(view_size_text, 'x');
+  const synth::SceneKind kind =
+      scene_name == "apartment" ? synth::SceneKind::kApartment : synth::SceneKind::kVillage;
   auto scene = synth::MakeScene(kind, {});
   if (!scene.ok()) { fprintf(stderr, "%s\n", scene.status().ToString().c_str()); return 1; }
   synth::RenderOptions vro;  // stored views (kept small by default: the bench measures the client)
@@ -176,19 +214,41 @@ int main(int argc, char** argv) {
       }
       auto med = [](std::vector<double> v) { std::sort(v.begin(), v.end()); return v[v.size() / 2]; };
       auto mn = [](const std::vector<double>& v) { return *std::min_element(v.begin(), v.end()); };
-      std::string frame_list;
-      for (double v : ms_v) frame_list += (frame_list.empty() ? "" : ",") + std::to_string(int(v + 0.5));
-      printf("{\"bench\":\"vulkan_blend\",\"scene\":\"%s\",\"device\":\"%s\",\"width\":%d,\"height\":%d,"
-             "\"refs_per_cell\":%d,\"mean_refs_per_cell\":%.1f,\"max_refs_per_cell\":%zu,\"views\":%zu,\"view_size\":\"%dx%d\","
-             "\"triangles\":%zu,\"create_ms\":%.1f,\"upload_ms\":%.1f,\"first_frame_ms\":%.1f,"
-             "\"median_ms\":%.2f,\"min_ms\":%.2f,\"median_cpu_ms\":%.1f,\"median_gpu_ms\":%.2f,\"median_readback_ms\":%.2f,\"median_rank_ms\":%.2f,"
-             "\"fill_holes\":%d,\"median_fill_ms\":%.2f,\"median_filled_px\":%.0f,"
-             "\"background_views\":%d,\"frames\":%d,\"ssim\":%.4f,\"ssim_frames\":%d,\"lp_num_threads\":\"%s\",\"load1\":%.2f,\"frame_ms\":[%s]}\n",
-             scene_name.c_str(), r->DeviceName().c_str(), sizes[si], sizes[si + 1], n_refs, mean_refs, max_refs,
-             model.views.size(), view_size[0], view_size[1], scene->mesh.num_triangles(), create_ms,
-             sync_ms, first_ms, med(ms_v), mn(ms_v), med(cpu_v), med(gpu_v), med(rb_v), med(rank_v), int(fill_holes), med(fill_v), med(filled_v), background_views, frames,
-             ssim_n ? ssim_sum / ssim_n : 0.0, ssim_n,
-             getenv("LP_NUM_THREADS") ? getenv("LP_NUM_THREADS") : "default", Load1(), frame_list.c_str());
+      json frame_ms = json::array();
+      for (double v : ms_v) frame_ms.push_back(int(v + 0.5));
+      const char* lp_threads = getenv("LP_NUM_THREADS");
+      const json line = {
+          {"bench", "vulkan_blend"},
+          {"scene", scene_name},
+          {"device", r->DeviceName()},
+          {"width", sizes[si]},
+          {"height", sizes[si + 1]},
+          {"refs_per_cell", n_refs},
+          {"mean_refs_per_cell", Round(mean_refs, 1)},
+          {"max_refs_per_cell", max_refs},
+          {"views", model.views.size()},
+          {"view_size", std::to_string(view_size[0]) + "x" + std::to_string(view_size[1])},
+          {"triangles", scene->mesh.num_triangles()},
+          {"create_ms", Round(create_ms, 1)},
+          {"upload_ms", Round(sync_ms, 1)},
+          {"first_frame_ms", Round(first_ms, 1)},
+          {"median_ms", Round(med(ms_v), 2)},
+          {"min_ms", Round(mn(ms_v), 2)},
+          {"median_cpu_ms", Round(med(cpu_v), 1)},
+          {"median_gpu_ms", Round(med(gpu_v), 2)},
+          {"median_readback_ms", Round(med(rb_v), 2)},
+          {"median_rank_ms", Round(med(rank_v), 2)},
+          {"fill_holes", int(fill_holes)},
+          {"median_fill_ms", Round(med(fill_v), 2)},
+          {"median_filled_px", Round(med(filled_v), 0)},
+          {"background_views", background_views},
+          {"frames", frames},
+          {"ssim", Round(ssim_n ? ssim_sum / ssim_n : 0.0, 4)},
+          {"ssim_frames", ssim_n},
+          {"lp_num_threads", lp_threads ? lp_threads : "default"},
+          {"load1", Round(Load1(), 2)},
+          {"frame_ms", frame_ms}};
+      printf("%s\n", line.dump().c_str());
       fflush(stdout);
     }
   }

@@ -12,6 +12,8 @@ void Setup(CLI::App& app) {
   app.set_version_flag("--version", Version(), "print the version and exit");
   app.allow_extras(false);
   app.set_help_flag("-h,--help", "print this help and exit");
+  // --help shows every option's default (the value it has before parsing).
+  app.option_defaults()->always_capture_default();
 }
 
 std::optional<int> Parse(CLI::App& app, int argc, const char* const* argv) {

@@ -19,7 +19,8 @@ namespace exo::cli {
 // The project's version string ("0.1.0 (git abc1234)").
 std::string Version();
 
-// Applies the conventions to an app: --version, no extras, options sorted as added.
+// Applies the conventions to an app: --version, no extras, options sorted as added, --help
+// shows each option's default (options added after Setup).
 void Setup(CLI::App& app);
 
 // Parses argv. Returns nothing when the program should go on; otherwise the exit code to return

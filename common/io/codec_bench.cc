@@ -1,7 +1,6 @@
 // Codec benchmark: JPEG q90 encode/decode (ms, bytes, ratio, PSNR) and the lossless depth codec
 // candidates (ms, ratio, lossless check) on real 7-Scenes frames and synthetic images.
 // One JSON object per line. Usage: codec_bench [--shared DIR] [--reps N] [--frames N]
-#include "exoview_source_dir.h"
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -13,17 +12,27 @@
 #include <string>
 #include <vector>
 
+#include <nlohmann/json.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "common/cli/cli.h"
 #include "common/io/cv_adapter.h"
 #include "common/io/depth_codec.h"
 #include "common/io/image_file.h"
 #include "common/io/jpeg.h"
+#include "exoview_source_dir.h"
 
 namespace exo {
 namespace {
 
 using Clock = std::chrono::steady_clock;
+using json = nlohmann::ordered_json;  // fields in the order written
+
+// Rounds to `digits` decimals for the JSON lines.
+double Round(double x, int digits) {
+  const double f = std::pow(10.0, digits);
+  return std::round(x * f) / f;
+}
 
 double Ms(Clock::time_point a, Clock::time_point b) {
   return std::chrono::duration<double, std::milli>(b - a).count();
@@ -89,11 +98,17 @@ void BenchJpeg(const std::string& source, const ImageU8& img, int reps) {
     enc.push_back(Ms(t0, t1));
     dec.push_back(Ms(t1, t2));
   }
-  std::printf(
-      "{\"bench\":\"jpeg\",\"source\":\"%s\",\"width\":%d,\"height\":%d,\"quality\":90,"
-      "\"encode_ms\":%.3f,\"decode_ms\":%.3f,\"bytes\":%zu,\"ratio\":%.2f,\"psnr_db\":%.2f}\n",
-      source.c_str(), img.width(), img.height(), Median(enc), Median(dec), bytes.size(),
-      double(img.bytes()) / bytes.size(), Psnr(img, back));
+  const json line = {{"bench", "jpeg"},
+                     {"source", source},
+                     {"width", img.width()},
+                     {"height", img.height()},
+                     {"quality", 90},
+                     {"encode_ms", Round(Median(enc), 3)},
+                     {"decode_ms", Round(Median(dec), 3)},
+                     {"bytes", bytes.size()},
+                     {"ratio", Round(double(img.bytes()) / bytes.size(), 2)},
+                     {"psnr_db", Round(Psnr(img, back), 2)}};
+  std::printf("%s\n", line.dump().c_str());
 }
 
 void BenchDepth(const std::string& source, const std::vector<ImageU16>& frames, int reps) {
@@ -129,13 +144,19 @@ void BenchDepth(const std::string& source, const std::vector<ImageU16>& frames, 
       raw += d.bytes();
       packed += bytes.size();
     }
-    std::printf(
-        "{\"bench\":\"depth\",\"source\":\"%s\",\"frames\":%zu,\"width\":%d,\"height\":%d,"
-        "\"codec\":\"%s\",\"level\":%d,\"encode_ms\":%.3f,\"decode_ms\":%.3f,"
-        "\"bytes_per_frame\":%zu,\"ratio\":%.3f,\"lossless\":%s}\n",
-        source.c_str(), frames.size(), frames[0].width(), frames[0].height(),
-        std::string(DepthCodecName(c.codec)).c_str(), c.level, Median(enc), Median(dec),
-        packed / frames.size(), double(raw) / packed, lossless ? "true" : "false");
+    const json line = {{"bench", "depth"},
+                       {"source", source},
+                       {"frames", frames.size()},
+                       {"width", frames[0].width()},
+                       {"height", frames[0].height()},
+                       {"codec", std::string(DepthCodecName(c.codec))},
+                       {"level", c.level},
+                       {"encode_ms", Round(Median(enc), 3)},
+                       {"decode_ms", Round(Median(dec), 3)},
+                       {"bytes_per_frame", packed / frames.size()},
+                       {"ratio", Round(double(raw) / packed, 3)},
+                       {"lossless", lossless}};
+    std::printf("%s\n", line.dump().c_str());
   }
 }
 
@@ -143,11 +164,16 @@ int Main(int argc, char** argv) {
   std::string shared = std::getenv("EXOVIEW_SHARED_DIR") ? std::getenv("EXOVIEW_SHARED_DIR")
                                                          : std::string(EXOVIEW_SOURCE_DIR) + "/../shared";
   int reps = 10, frames = 30;
-  for (int i = 1; i + 1 < argc; i += 2) {
-    if (!std::strcmp(argv[i], "--shared")) shared = argv[i + 1];
-    else if (!std::strcmp(argv[i], "--reps")) reps = std::max(1, std::atoi(argv[i + 1]));
-    else if (!std::strcmp(argv[i], "--frames")) frames = std::max(1, std::atoi(argv[i + 1]));
-  }
+  CLI::App app{"Codec benchmark: JPEG q90 and the lossless depth codecs on 7-Scenes and synthetic "
+               "images; one JSON object per line on stdout.",
+               "codec_bench"};
+  exo::cli::Setup(app);
+  app.add_option("--shared", shared, "the shared folder (data/7scenes-redkitchen inside)");
+  app.add_option("--reps", reps, "repetitions per image")
+      ->check(CLI::PositiveNumber);
+  app.add_option("--frames", frames, "7-Scenes depth frames for the depth codecs")
+      ->check(CLI::PositiveNumber);
+  if (auto rc = exo::cli::Parse(app, argc, argv)) return *rc;
   const std::string dir = shared + "/data/7scenes-redkitchen";
   const bool have_real = std::filesystem::exists(dir + "/frame-000000.color.jpg");
   if (have_real) {

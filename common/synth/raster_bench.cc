@@ -4,11 +4,15 @@
 //   raster_bench [--iters N] [--threads T]
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <string>
 #include <vector>
 
+#include <nlohmann/json.hpp>
+
+#include "common/cli/cli.h"
 #include "common/raster/rasterizer.h"
 #include "common/synth/render.h"
 #include "common/synth/scene.h"
@@ -18,6 +22,13 @@ namespace exo::synth {
 namespace {
 
 using Clock = std::chrono::steady_clock;
+using json = nlohmann::ordered_json;  // fields in the order written
+
+// Rounds to `digits` decimals for the JSON lines.
+double Round(double x, int digits) {
+  const double f = std::pow(10.0, digits);
+  return std::round(x * f) / f;
+}
 
 double Median(std::vector<double> v) {
   std::sort(v.begin(), v.end());
@@ -102,15 +113,23 @@ void Run(int iters, int threads) {
               if (z > 0) max_rel = std::max(max_rel, std::abs(zr - z) / z);
             }
           }
-        std::printf(
-            "{\"bench\": \"raster\", \"scene\": \"%s\", \"view\": \"%s\", \"width\": %d, "
-            "\"height\": %d, \"triangles\": %zu, \"triangles_setup\": %zu, \"outputs\": \"%s\", "
-            "\"threads\": %d, \"ms_median\": %.2f, \"ms_min\": %.2f, \"covered_fraction\": %.3f, "
-            "\"raycast_samples\": %d, \"hit_agreement\": %.4f, \"max_rel_depth_err\": %.2e}\n",
-            scene->name.c_str(), TrajectoryKindName(c.traj), w, h, scene->mesh.num_triangles(),
-            out.triangles_setup, all ? "z,range,position,normal,triangle,cell" : "z", threads,
-            Median(ms), *std::min_element(ms.begin(), ms.end()),
-            double(out.pixels_covered) / (w * h), samples, double(agree) / samples, max_rel);
+        const json line = {
+            {"bench", "raster"},
+            {"scene", scene->name},
+            {"view", TrajectoryKindName(c.traj)},
+            {"width", w},
+            {"height", h},
+            {"triangles", scene->mesh.num_triangles()},
+            {"triangles_setup", out.triangles_setup},
+            {"outputs", all ? "z,range,position,normal,triangle,cell" : "z"},
+            {"threads", threads},
+            {"ms_median", Round(Median(ms), 2)},
+            {"ms_min", Round(*std::min_element(ms.begin(), ms.end()), 2)},
+            {"covered_fraction", Round(double(out.pixels_covered) / (w * h), 3)},
+            {"raycast_samples", samples},
+            {"hit_agreement", Round(double(agree) / samples, 4)},
+            {"max_rel_depth_err", max_rel}};
+        std::printf("%s\n", line.dump().c_str());
         std::fflush(stdout);
       }
       // Full frame: raster + procedural shading + sRGB.
@@ -121,11 +140,15 @@ void Run(int iters, int threads) {
         ms.push_back(std::chrono::duration<double, std::milli>(Clock::now() - t0).count());
         if (!f.ok()) std::exit(1);
       }
-      std::printf(
-          "{\"bench\": \"render_frame\", \"scene\": \"%s\", \"view\": \"%s\", \"width\": %d, "
-          "\"height\": %d, \"triangles\": %zu, \"threads\": %d, \"ms_median\": %.2f}\n",
-          scene->name.c_str(), TrajectoryKindName(c.traj), w, h, scene->mesh.num_triangles(),
-          threads, Median(ms));
+      const json line = {{"bench", "render_frame"},
+                         {"scene", scene->name},
+                         {"view", TrajectoryKindName(c.traj)},
+                         {"width", w},
+                         {"height", h},
+                         {"triangles", scene->mesh.num_triangles()},
+                         {"threads", threads},
+                         {"ms_median", Round(Median(ms), 2)}};
+      std::printf("%s\n", line.dump().c_str());
       std::fflush(stdout);
     }
   }
@@ -136,15 +159,13 @@ void Run(int iters, int threads) {
 
 int main(int argc, char** argv) {
   int iters = 20, threads = 2;
-  for (int i = 1; i + 1 < argc; i += 2) {
-    const std::string k = argv[i];
-    if (k == "--iters") iters = std::max(1, std::atoi(argv[i + 1]));
-    else if (k == "--threads") threads = std::max(1, std::atoi(argv[i + 1]));
-    else {
-      std::fprintf(stderr, "usage: raster_bench [--iters N] [--threads T]\n");
-      return 2;
-    }
-  }
+  CLI::App app{"CPU reference rasterizer speed on the synthetic scenes, with the depth error vs ray "
+               "casting side by side; one JSON object per configuration on stdout.",
+               "raster_bench"};
+  exo::cli::Setup(app);
+  app.add_option("--iters", iters, "rasterizations per configuration")->check(CLI::PositiveNumber);
+  app.add_option("--threads", threads, "rasterizer threads")->check(CLI::PositiveNumber);
+  if (auto rc = exo::cli::Parse(app, argc, argv)) return *rc;
   exo::synth::Run(iters, threads);
   return 0;
 }

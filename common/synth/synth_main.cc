@@ -4,18 +4,22 @@
 //   exoview_synth --out DIR [--scene village|apartment|all] [--trajectory flyover|walk|all]
 //                 [--frames N] [--test-poses N] [--seed S] [--width W --height H]
 //                 [--exposure-jitter X] [--pose-noise-deg D] [--pose-noise-m M] [--specular]
-//                 [--threads T]
+//                 [--threads T] [--preview-at F]   (--key=value works too; --help lists them)
 #include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <optional>
 #include <random>
 #include <string>
 #include <vector>
 
+#include <nlohmann/json.hpp>
+
 #include "absl/strings/str_format.h"
+#include "common/cli/cli.h"
 #include "common/datasets/exo_layout.h"
 #include "common/io/image_file.h"
 #include "common/synth/render.h"
@@ -27,6 +31,13 @@ namespace {
 
 namespace fs = std::filesystem;
 using Clock = std::chrono::steady_clock;
+using json = nlohmann::ordered_json;  // fields in the order written
+
+// Rounds to `digits` decimals for report.json.
+double Round(double x, int digits) {
+  const double f = std::pow(10.0, digits);
+  return std::round(x * f) / f;
+}
 
 struct Args {
   std::string out;
@@ -43,80 +54,35 @@ struct Args {
   double preview_at = 0.33;  // fraction along each trajectory of the preview frame
 };
 
-void Usage() {
-  std::fprintf(stderr,
-               "usage: exoview_synth --out DIR [--scene village|apartment|all] "
-               "[--trajectory flyover|walk|all] [--frames N] [--test-poses N] [--seed S] "
-               "[--width W --height H] [--exposure-jitter X] [--pose-noise-deg D] "
-               "[--pose-noise-m M] [--specular] [--threads T] [--preview-at F]\n");
-}
-
-absl::StatusOr<Args> ParseArgs(int argc, char** argv) {
-  Args a;
-  for (int i = 1; i < argc; ++i) {
-    const std::string k = argv[i];
-    auto next = [&]() -> absl::StatusOr<std::string> {
-      if (i + 1 >= argc) return absl::InvalidArgumentError(absl::StrCat(k, " needs a value"));
-      return std::string(argv[++i]);
-    };
-    auto number = [&](double* v) -> absl::Status {
-      EXO_ASSIGN_OR_RETURN(std::string s, next());
-      char* end = nullptr;
-      *v = std::strtod(s.c_str(), &end);
-      if (end == s.c_str() || *end != '\0' || !std::isfinite(*v))
-        return absl::InvalidArgumentError(absl::StrCat(k, ": not a number: '", s, "'"));
-      return absl::OkStatus();
-    };
-    double v = 0;
-    if (k == "--out") {
-      EXO_ASSIGN_OR_RETURN(a.out, next());
-    } else if (k == "--scene") {
-      EXO_ASSIGN_OR_RETURN(a.scene, next());
-    } else if (k == "--trajectory") {
-      EXO_ASSIGN_OR_RETURN(a.trajectory, next());
-    } else if (k == "--frames") {
-      EXO_RETURN_IF_ERROR(number(&v));
-      a.frames = static_cast<int>(v);
-    } else if (k == "--test-poses") {
-      EXO_RETURN_IF_ERROR(number(&v));
-      a.test_poses = static_cast<int>(v);
-    } else if (k == "--seed") {
-      EXO_RETURN_IF_ERROR(number(&v));
-      a.seed = static_cast<uint64_t>(v);
-    } else if (k == "--width") {
-      EXO_RETURN_IF_ERROR(number(&v));
-      a.width = static_cast<int>(v);
-    } else if (k == "--height") {
-      EXO_RETURN_IF_ERROR(number(&v));
-      a.height = static_cast<int>(v);
-    } else if (k == "--exposure-jitter") {
-      EXO_RETURN_IF_ERROR(number(&a.exposure_jitter));
-    } else if (k == "--pose-noise-deg") {
-      EXO_RETURN_IF_ERROR(number(&a.pose_noise_deg));
-    } else if (k == "--pose-noise-m") {
-      EXO_RETURN_IF_ERROR(number(&a.pose_noise_m));
-    } else if (k == "--preview-at") {
-      EXO_RETURN_IF_ERROR(number(&a.preview_at));
-      if (!(a.preview_at >= 0 && a.preview_at <= 1))
-        return absl::InvalidArgumentError("--preview-at must be in [0, 1]");
-    } else if (k == "--specular") {
-      a.specular = true;
-    } else if (k == "--threads") {
-      EXO_RETURN_IF_ERROR(number(&v));
-      a.threads = static_cast<int>(v);
-    } else if (k == "--help" || k == "-h") {
-      Usage();
-      std::exit(0);
-    } else {
-      return absl::InvalidArgumentError(absl::StrCat("unknown option '", k, "'"));
-    }
-  }
-  if (a.out.empty()) return absl::InvalidArgumentError("--out DIR is required");
-  if (a.frames < 1) return absl::InvalidArgumentError("--frames must be >= 1");
-  if (a.test_poses < 0) return absl::InvalidArgumentError("--test-poses must be >= 0");
-  if (!(a.exposure_jitter >= 0 && a.exposure_jitter <= 4))
-    return absl::InvalidArgumentError("--exposure-jitter must be in [0, 4] stops");
-  return a;
+// Fills `a` from the flags; an exit code when the program should stop (--help, a bad flag).
+std::optional<int> ParseArgs(int argc, char** argv, Args* a) {
+  CLI::App app{"Generates the synthetic scenes: frames (Exoview layout), ground-truth test views, "
+               "PNG previews and report.json/report.md.",
+               "exoview_synth"};
+  exo::cli::Setup(app);
+  app.add_option("--out", a->out, "output folder")->required();
+  app.add_option("--scene", a->scene, "scene")
+      ->check(CLI::IsMember({"village", "apartment", "all"}));
+  app.add_option("--trajectory", a->trajectory, "trajectory")
+      ->check(CLI::IsMember({"flyover", "walk", "all"}));
+  app.add_option("--frames", a->frames, "frames per trajectory")->check(CLI::PositiveNumber);
+  app.add_option("--test-poses", a->test_poses, "ground-truth test views per scene")
+      ->check(CLI::NonNegativeNumber);
+  app.add_option("--seed", a->seed, "random seed");
+  app.add_option("--width", a->width, "image width")->check(CLI::PositiveNumber);
+  app.add_option("--height", a->height, "image height")->check(CLI::PositiveNumber);
+  app.add_option("--exposure-jitter", a->exposure_jitter,
+                 "per-frame exposure 2^U(-X, X), X in stops")
+      ->check(CLI::Range(0.0, 4.0));
+  app.add_option("--pose-noise-deg", a->pose_noise_deg, "rotation noise of the written poses, deg")
+      ->check(CLI::NonNegativeNumber);
+  app.add_option("--pose-noise-m", a->pose_noise_m, "translation noise of the written poses, m")
+      ->check(CLI::NonNegativeNumber);
+  app.add_flag("--specular", a->specular, "specular highlights");
+  app.add_option("--threads", a->threads, "render threads")->check(CLI::PositiveNumber);
+  app.add_option("--preview-at", a->preview_at, "fraction along each trajectory of the preview")
+      ->check(CLI::Range(0.0, 1.0));
+  return exo::cli::Parse(app, argc, argv);
 }
 
 std::string PoseLine(uint64_t seq, double t, const Rigid3d& p) {
@@ -190,13 +156,16 @@ absl::Status Run(const Args& args) {
   fs::create_directories(out / "previews", ec);
   if (ec) return absl::InternalError(absl::StrCat("cannot create ", out.string(), ": ", ec.message()));
 
-  std::string json = "{\n  \"tool\": \"exoview_synth\",\n";
-  absl::StrAppend(&json, "  \"seed\": ", args.seed, ", \"width\": ", args.width,
-                  ", \"height\": ", args.height, ", \"hfov_deg\": ", ro.hfov_deg,
-                  ", \"specular\": ", args.specular ? "true" : "false",
-                  ", \"exposure_jitter_stops\": ", args.exposure_jitter,
-                  ", \"pose_noise_deg\": ", args.pose_noise_deg,
-                  ", \"pose_noise_m\": ", args.pose_noise_m, ",\n  \"scenes\": [\n");
+  json report = {{"tool", "exoview_synth"},
+                 {"seed", args.seed},
+                 {"width", args.width},
+                 {"height", args.height},
+                 {"hfov_deg", ro.hfov_deg},
+                 {"specular", args.specular},
+                 {"exposure_jitter_stops", args.exposure_jitter},
+                 {"pose_noise_deg", args.pose_noise_deg},
+                 {"pose_noise_m", args.pose_noise_m},
+                 {"scenes", json::array()}};
   std::string md = "# exoview_synth report\n\n";
   absl::StrAppend(&md, "seed ", args.seed, ", ", args.width, "x", args.height, ", hfov ",
                   ro.hfov_deg, " deg, specular ", args.specular ? "on" : "off",
@@ -312,43 +281,43 @@ absl::Status Run(const Args& args) {
       seqs.push_back(rep);
     }
     // Scene JSON + markdown.
-    absl::StrAppend(&json, "    {\"name\": \"", scene.name, "\", \"triangles\": ",
-                    scene.mesh.num_triangles(), ", \"vertices\": ", scene.mesh.num_vertices(),
-                    ", \"extent_m\": ", absl::StrFormat("%.2f", scene.ExtentM()),
-                    ", \"bounds_min\": [", scene.bounds.min.x, ", ", scene.bounds.min.y, ", ",
-                    scene.bounds.min.z, "], \"bounds_max\": [", scene.bounds.max.x, ", ",
-                    scene.bounds.max.y, ", ", scene.bounds.max.z,
-                    "], \"build_ms\": ", absl::StrFormat("%.1f", build_ms),
-                    ", \"sequences\": [\n");
-    for (size_t i = 0; i < seqs.size(); ++i) {
-      const auto& r = seqs[i];
-      absl::StrAppend(&json, "      {\"name\": \"", r.trajectory, "\", \"dir\": \"", scene.name,
-                      "/", r.trajectory, "\", \"frames\": ", r.frames,
-                      ", \"path_length_m\": ", absl::StrFormat("%.2f", r.path_length_m),
-                      ", \"render_ms_per_frame\": ", absl::StrFormat("%.2f", r.render_ms_mean),
-                      ", \"write_ms_per_frame\": ", absl::StrFormat("%.2f", r.write_ms_mean),
-                      ", \"seconds\": ", absl::StrFormat("%.2f", r.seconds), "}",
-                      i + 1 < seqs.size() ? "," : "", "\n");
+    json sequences = json::array();
+    for (const SequenceReport& r : seqs) {
+      sequences.push_back({{"name", r.trajectory},
+                           {"dir", scene.name + "/" + r.trajectory},
+                           {"frames", r.frames},
+                           {"path_length_m", Round(r.path_length_m, 2)},
+                           {"render_ms_per_frame", Round(r.render_ms_mean, 2)},
+                           {"write_ms_per_frame", Round(r.write_ms_mean, 2)},
+                           {"seconds", Round(r.seconds, 2)}});
       absl::StrAppend(&md, "| ", scene.name, " | ", r.trajectory, " | ", r.frames, " | ",
                       absl::StrFormat("%.1f", r.path_length_m), " | ",
                       absl::StrFormat("%.1f", r.render_ms_mean), " | ",
                       absl::StrFormat("%.1f", r.write_ms_mean), " | ",
                       absl::StrFormat("%.1f", r.seconds), " |\n");
     }
-    absl::StrAppend(&json, "    ]}", si + 1 < scenes.size() ? "," : "", "\n");
+    report["scenes"].push_back(
+        {{"name", scene.name},
+         {"triangles", scene.mesh.num_triangles()},
+         {"vertices", scene.mesh.num_vertices()},
+         {"extent_m", Round(scene.ExtentM(), 2)},
+         {"bounds_min", {scene.bounds.min.x, scene.bounds.min.y, scene.bounds.min.z}},
+         {"bounds_max", {scene.bounds.max.x, scene.bounds.max.y, scene.bounds.max.z}},
+         {"build_ms", Round(build_ms, 1)},
+         {"sequences", sequences}});
     absl::StrAppend(&md_scenes, "- **", scene.name, "**: ", scene.mesh.num_triangles(),
                     " triangles, ", scene.mesh.num_vertices(), " vertices, extent ",
                     absl::StrFormat("%.1f", scene.ExtentM()), " m, built in ",
                     absl::StrFormat("%.0f", build_ms), " ms\n");
   }
   const double total_s = std::chrono::duration<double>(Clock::now() - t_start).count();
-  absl::StrAppend(&json, "  ],\n  \"total_seconds\": ", absl::StrFormat("%.2f", total_s), "\n}\n");
+  report["total_seconds"] = Round(total_s, 2);
   absl::StrAppend(&md, "\n", md_scenes, "\nTotal ", absl::StrFormat("%.1f", total_s),
                   " s. Layout per sequence: intrinsics.txt, poses.txt (the frames' poses, noisy "
                   "when --pose-noise-* is set), poses_true.txt (render poses), "
                   "frames/NNNNNN.color.{jpg,png} + .depth.png (z-depth, 16-bit, units in "
                   "intrinsics.txt). test/ holds the ground-truth views (lossless PNG).\n");
-  std::ofstream(out / "report.json") << json;
+  std::ofstream(out / "report.json") << report.dump(2) << "\n";
   std::ofstream(out / "report.md") << md;
   std::fprintf(stderr, "[synth] done in %.1f s -> %s\n", total_s, out.string().c_str());
   return absl::OkStatus();
@@ -358,13 +327,9 @@ absl::Status Run(const Args& args) {
 }  // namespace exo::synth
 
 int main(int argc, char** argv) {
-  auto args = exo::synth::ParseArgs(argc, argv);
-  if (!args.ok()) {
-    std::fprintf(stderr, "exoview_synth: %s\n", std::string(args.status().message()).c_str());
-    exo::synth::Usage();
-    return 2;
-  }
-  const absl::Status s = exo::synth::Run(*args);
+  exo::synth::Args args;
+  if (auto rc = exo::synth::ParseArgs(argc, argv, &args)) return *rc;
+  const absl::Status s = exo::synth::Run(args);
   if (!s.ok()) {
     std::fprintf(stderr, "exoview_synth: %s\n", s.ToString().c_str());
     return 1;

@@ -1,31 +1,35 @@
 // exoview_server: the modeling server. Usage:
-//   exoview_server [--config=FILE] [--port_file=FILE] [--key=value ...]
-// Every config key (docs/service.md) works in the file (`key = value`) and as a flag; flags win.
-// --listen=127.0.0.1:0 picks a free port; --port_file writes the port once listening.
+//   exoview_server [--config FILE] [--port_file FILE] [--log_level LEVEL] [--key=value ...]
+// Every config key (server_config.cc; docs/service.md) works in the file (`key = value`) and as a
+// flag (--key=value or --key value); flags win over the file. --help lists every key with its
+// default. --listen=127.0.0.1:0 picks a free port; --port_file writes the port once listening.
 // SIGINT/SIGTERM: graceful shutdown (admitted frames are processed, subscribers end, exit 0).
 #include <pthread.h>
 #include <signal.h>
 
 #include <cstdio>
-#include <cstring>
+#include <cstdlib>
 #include <fstream>
+#include <map>
 #include <string>
-#include <thread>
 
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_join.h"
+#include "common/cli/cli.h"
+#include "common/log/log.h"
 #include "server/service/server.h"
 
 namespace {
 
-void Usage() {
-  std::fprintf(stderr,
-               "usage: exoview_server [--config=FILE] [--port_file=FILE] [--key=value ...]\n"
-               "keys: listen max_frame_bytes transport_max_bytes admission_queue stage_queue\n"
-               "      cell_size_m max_log_deltas max_log_bytes max_subscriber_lag snapshot_when_cheaper\n"
-               "      publish_jpeg_quality publish_depth_downscale geometry voxel_size_m max_depth_m\n"
-               "      mesh_every_n_frames fuse_depth_downscale chunk_republish_change chunk_republish_interval_s planning max_views max_store_bytes r_max d_max_m\n"
-               "      sigma_m delta_tau_sum max_candidates_per_s_when_full id_buffer_stride udp_pose_port udp_pose_address\n"
-               "      udp_pose_tolerance_s refinement refine_queue refine_downscale refine_remove_outliers\n"
-               "      planning_cell_areas planning_id_from_proxy checkpoint_path checkpoint_interval_s checkpoint_max_log_bytes\n");
+constexpr char kConfigGroup[] = "Config keys (also `key = value` lines of the --config file)";
+
+// The keys whose value differs from the default, as "key=value" (the startup log line).
+std::string ChangedKeys(const exo::ServerConfig& config) {
+  const exo::ServerConfig defaults;
+  std::vector<std::string> changed;
+  for (const exo::ConfigKey& k : exo::ConfigKeys())
+    if (k.get(config) != k.get(defaults)) changed.push_back(k.name + "=" + k.get(config));
+  return changed.empty() ? "(all defaults)" : absl::StrJoin(changed, " ");
 }
 
 }  // namespace
@@ -38,50 +42,70 @@ int main(int argc, char** argv) {
   sigaddset(&signals, SIGTERM);
   pthread_sigmask(SIG_BLOCK, &signals, nullptr);
 
+  CLI::App app{"The Exoview modeling server: RGB-D frames in (gRPC Upload), the view store and "
+               "proxy out (Subscribe, GetStats).",
+               "exoview_server"};
+  exo::cli::Setup(app);
+  std::string config_file, port_file;
+  const char* env_level = std::getenv("EXOVIEW_LOG_LEVEL");
+  std::string log_level = env_level && *env_level ? env_level : "info";
+  app.add_option("--config", config_file, "config file of `key = value` lines (flags override it)")
+      ->check(CLI::ExistingFile);
+  app.add_option("--port_file", port_file, "write the port here once listening");
+  app.add_option("--log_level", log_level, "log level (default: EXOVIEW_LOG_LEVEL, else info)")
+      ->check(CLI::IsMember(exo::log::LevelNames()));
+  // One flag per config key; its value is checked at parse time (exit 2 naming the flag).
+  const exo::ServerConfig defaults;
+  std::map<std::string, std::string> flag_values;
+  std::vector<std::pair<const exo::ConfigKey*, CLI::Option*>> key_flags;
+  for (const exo::ConfigKey& k : exo::ConfigKeys()) {
+    CLI::Option* opt =
+        app.add_option("--" + k.name, flag_values[k.name], k.help)
+            ->default_str(k.get(defaults))
+            ->type_name("VALUE")
+            ->group(kConfigGroup)
+            ->check(CLI::Validator(
+                [&k](std::string& v) {
+                  exo::ServerConfig scratch;
+                  const absl::Status s = k.set(v, &scratch);
+                  return s.ok() ? std::string() : std::string(s.message());
+                },
+                ""));
+    key_flags.emplace_back(&k, opt);
+  }
+  if (auto rc = exo::cli::Parse(app, argc, argv)) return *rc;
+  exo::log::SetLevel(log_level);
+  auto log = exo::log::Get("server");
+
+  // The config file first, then the flags override it.
   exo::ServerConfig config;
-  std::string port_file;
-  // The config file first, then flags override it.
-  for (int i = 1; i < argc; ++i)
-    if (std::strncmp(argv[i], "--config=", 9) == 0)
-      if (auto s = exo::LoadConfigFile(argv[i] + 9, &config); !s.ok()) {
-        std::fprintf(stderr, "exoview_server: %s\n", std::string(s.message()).c_str());
-        return 2;
-      }
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    if (a == "--help" || a == "-h") {
-      Usage();
-      return 0;
-    }
-    if (a.rfind("--config=", 0) == 0) continue;
-    const auto eq = a.find('=');
-    if (a.rfind("--", 0) != 0 || eq == std::string::npos) {
-      std::fprintf(stderr, "exoview_server: bad argument '%s'\n", a.c_str());
-      Usage();
-      return 2;
-    }
-    const std::string key = a.substr(2, eq - 2), value = a.substr(eq + 1);
-    if (key == "port_file") {
-      port_file = value;
-      continue;
-    }
-    if (auto s = exo::ApplyConfigValue(key, value, &config); !s.ok()) {
+  if (!config_file.empty())
+    if (auto s = exo::LoadConfigFile(config_file, &config); !s.ok()) {
       std::fprintf(stderr, "exoview_server: %s\n", std::string(s.message()).c_str());
       return 2;
     }
+  for (const auto& [key, opt] : key_flags)
+    if (opt->count() > 0)
+      if (auto s = key->set(flag_values[key->name], &config); !s.ok()) {  // checked at parse
+        std::fprintf(stderr, "exoview_server: --%s: %s\n", key->name.c_str(),
+                     std::string(s.message()).c_str());
+        return 2;
+      }
+  if (auto s = config.Validate(); !s.ok()) {
+    std::fprintf(stderr, "exoview_server: bad config: %s\n", std::string(s.message()).c_str());
+    return 2;
   }
 
   exo::ExoviewServer server(config);
   if (auto s = server.Start(); !s.ok()) {
-    std::fprintf(stderr, "exoview_server: %s\n", std::string(s.message()).c_str());
+    log->critical("cannot start: {}", std::string(s.message()));
     return 1;
   }
-  std::string stages;
-  for (const auto& n : exo::AvailableStages()) stages += " " + n;
-  std::fprintf(stderr, "exoview_server: listening on port %d, stages built:%s\n", server.port(),
-               stages.empty() ? " (none)" : stages.c_str());
-  if (server.udp_pose_port() >= 0)
-    std::fprintf(stderr, "exoview_server: UDP poses on port %d\n", server.udp_pose_port());
+  const std::vector<std::string> stages = exo::AvailableStages();
+  log->info("exoview_server {} listening on port {}; stages: {}; UDP poses: {}; config{}: {}",
+            exo::cli::Version(), server.port(), stages.empty() ? "(none)" : absl::StrJoin(stages, " "),
+            server.udp_pose_port() >= 0 ? absl::StrCat("port ", server.udp_pose_port()) : "off",
+            config_file.empty() ? "" : " " + config_file, ChangedKeys(config));
   if (!port_file.empty()) {
     const std::string tmp = port_file + ".tmp";
     std::ofstream(tmp) << server.port() << "\n";
@@ -89,12 +113,11 @@ int main(int argc, char** argv) {
   }
   int sig = 0;
   sigwait(&signals, &sig);
-  std::fprintf(stderr, "exoview_server: %s, shutting down\n", sig == SIGINT ? "SIGINT" : "SIGTERM");
+  log->info("{}: shutting down", sig == SIGINT ? "SIGINT" : "SIGTERM");
   server.Shutdown();
   server.Wait();
   const auto summary = server.store().GetSummary();
-  std::fprintf(stderr, "exoview_server: stopped at model version %llu (%u views, %u chunks)\n",
-               static_cast<unsigned long long>(summary.version), summary.num_views,
-               summary.num_chunks);
+  log->info("stopped at model version {} ({} views, {} chunks)", summary.version,
+            summary.num_views, summary.num_chunks);
   return 0;
 }

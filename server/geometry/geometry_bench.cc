@@ -14,24 +14,25 @@
 //   to the true surface (mean, p95).
 // Prints one JSON object per (dataset, voxel size): integrate ms/frame (median, p95), incremental
 // extraction ms/frame (median, p95), full extraction ms, triangles, blocks, bytes, error.
-#include "exoview_source_dir.h"
 #include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <fstream>
-#include <sstream>
 #include <string>
 #include <vector>
 
+#include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "common/cli/cli.h"
 #include "common/datasets/seven_scenes.h"
 #include "server/geometry/test_scenes.h"
 #include "server/geometry/tsdf_volume.h"
+#include "exoview_source_dir.h"
 
 namespace exo {
 namespace {
@@ -55,15 +56,30 @@ struct Result {
   double err_a = 0, err_b = 0, coverage = 0;  // meaning per dataset (see header)
 };
 
+// Rounds to `digits` decimals for the JSON lines.
+double Round(double x, int digits) {
+  const double f = std::pow(10.0, digits);
+  return std::round(x * f) / f;
+}
+
 void Print(const Result& r, const char* err_a_name, const char* err_b_name) {
-  std::printf(
-      "{\"bench\":\"geometry\",\"dataset\":\"%s\",\"frames\":%d,\"voxel_m\":%.3f,"
-      "\"integrate_ms_median\":%.2f,\"integrate_ms_p95\":%.2f,\"extract_dirty_ms_median\":%.2f,"
-      "\"extract_dirty_ms_p95\":%.2f,\"extract_all_ms\":%.1f,\"triangles\":%zu,\"blocks\":%zu,"
-      "\"tsdf_bytes\":%zu,\"mesh_bytes\":%zu,\"%s\":%.2f,\"%s\":%.2f,\"coverage\":%.3f}\n",
-      r.dataset.c_str(), r.frames, r.voxel_m, r.integrate_med, r.integrate_p95, r.extract_med,
-      r.extract_p95, r.extract_all, r.triangles, r.blocks, r.bytes, r.mesh_bytes, err_a_name,
-      r.err_a, err_b_name, r.err_b, r.coverage);
+  const nlohmann::ordered_json line = {{"bench", "geometry"},
+                                       {"dataset", r.dataset},
+                                       {"frames", r.frames},
+                                       {"voxel_m", Round(r.voxel_m, 3)},
+                                       {"integrate_ms_median", Round(r.integrate_med, 2)},
+                                       {"integrate_ms_p95", Round(r.integrate_p95, 2)},
+                                       {"extract_dirty_ms_median", Round(r.extract_med, 2)},
+                                       {"extract_dirty_ms_p95", Round(r.extract_p95, 2)},
+                                       {"extract_all_ms", Round(r.extract_all, 1)},
+                                       {"triangles", r.triangles},
+                                       {"blocks", r.blocks},
+                                       {"tsdf_bytes", r.bytes},
+                                       {"mesh_bytes", r.mesh_bytes},
+                                       {err_a_name, Round(r.err_a, 2)},
+                                       {err_b_name, Round(r.err_b, 2)},
+                                       {"coverage", Round(r.coverage, 3)}};
+  std::printf("%s\n", line.dump().c_str());
   std::fflush(stdout);
 }
 
@@ -202,21 +218,20 @@ int main(int argc, char** argv) {
   int frames = 300, synth_frames = 120;
   std::vector<double> voxels = {0.01, 0.02, 0.04, 0.08};
   std::string chart;
-  for (int i = 1; i + 1 < argc; i += 2) {
-    const std::string k = argv[i], v = argv[i + 1];
-    if (k == "--data") data = v;
-    else if (k == "--frames") frames = std::stoi(v);
-    else if (k == "--synth_frames") synth_frames = std::stoi(v);
-    else if (k == "--chart") chart = v;
-    else if (k == "--voxels") {
-      voxels.clear();
-      std::stringstream ss(v);
-      for (std::string t; std::getline(ss, t, ',');) voxels.push_back(std::stod(t));
-    } else {
-      std::fprintf(stderr, "unknown flag %s\n", k.c_str());
-      return 2;
-    }
-  }
+  CLI::App app{"Speed vs error of the sparse TSDF proxy over voxel sizes (synthetic room and "
+               "7-Scenes redkitchen); one JSON object per dataset and voxel size.",
+               "geometry_bench"};
+  exo::cli::Setup(app);
+  app.add_option("--data", data, "7-Scenes redkitchen folder");
+  app.add_option("--frames", frames, "7-Scenes frames (0: skip 7-Scenes)")
+      ->check(CLI::NonNegativeNumber);
+  app.add_option("--synth_frames", synth_frames, "synthetic room frames (0: skip it)")
+      ->check(CLI::NonNegativeNumber);
+  app.add_option("--voxels", voxels, "voxel sizes in m, comma-separated")
+      ->delimiter(',')
+      ->check(CLI::PositiveNumber);
+  app.add_option("--chart", chart, "write a chart PNG here");
+  if (auto rc = exo::cli::Parse(app, argc, argv)) return *rc;
   std::vector<Result> results;
 
   // Synthetic room: render once, reuse for every voxel size.

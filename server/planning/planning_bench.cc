@@ -24,8 +24,10 @@
 #include <string>
 #include <vector>
 
+#include <nlohmann/json.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "common/cli/cli.h"
 #include "common/lumigraph/cpu_renderer.h"
 #include "common/raster/rasterizer.h"
 #include "common/synth/render.h"
@@ -61,6 +63,14 @@ uint64_t Fnv1a(uint64_t h, const Image<uint64_t>& img) {
   return h;
 }
 
+using json = nlohmann::ordered_json;  // fields in the order written
+
+// Rounds to `digits` decimals for the JSON lines.
+double Round(double x, int digits) {
+  const double f = std::pow(10.0, digits);
+  return std::round(x * f) / f;
+}
+
 double Pct(std::vector<double> v, double p) {
   if (v.empty()) return 0;
   std::sort(v.begin(), v.end());
@@ -79,35 +89,45 @@ struct Args {
   int checksum = 0;  // 1: FNV-1a 64 over every frame's cell-id buffer (identity checks)
 };
 
-Args Parse(int argc, char** argv) {
-  Args a;
-  for (int i = 1; i + 1 < argc; i += 2) {
-    const std::string k = argv[i], v = argv[i + 1];
-    if (k == "--scene") a.scene = v;
-    else if (k == "--traj") a.traj = v;
-    else if (k == "--frames") a.frames = std::stoi(v);
-    else if (k == "--r_max") a.r_max = std::stoi(v);
-    else if (k == "--store") a.store = std::stoi(v);
-    else if (k == "--idw") a.idw = std::stoi(v);
-    else if (k == "--idh") a.idh = std::stoi(v);
-    else if (k == "--lambda") a.lambda = std::stod(v);
-    else if (k == "--cell") a.cell = std::stod(v);
-    else if (k == "--quality") a.quality = std::stoi(v);
-    else if (k == "--test_views") a.test_views = std::stoi(v);
-    else if (k == "--test_w") a.test_w = std::stoi(v);
-    else if (k == "--test_h") a.test_h = std::stoi(v);
-    else if (k == "--proxy") a.proxy = v;
-    else if (k == "--path") a.path = v;
-    else if (k == "--voxel") a.voxel = std::stod(v);
-    else if (k == "--lod") a.lod = std::stod(v);
-    else if (k == "--lod_m") a.lod_m = std::stod(v);
-    else if (k == "--lod_keep") a.lod_keep = std::stod(v);
-    else if (k == "--threads") a.threads = std::stoi(v);
-    else if (k == "--rerender") a.rerender = std::stoi(v);
-    else if (k == "--checksum") a.checksum = std::stoi(v);
-    else std::fprintf(stderr, "unknown flag %s\n", k.c_str());
-  }
-  return a;
+// Fills `a` from the flags; an exit code when the program should stop (--help, a bad flag).
+std::optional<int> ParseFlags(int argc, char** argv, Args* a) {
+  CLI::App app{"View planning speed per frame (cell-id buffer render vs planning) on a synthetic "
+               "scene, optionally the lumigraph quality of the planned store; one JSON line per run.",
+               "planning_bench"};
+  exo::cli::Setup(app);
+  app.add_option("--scene", a->scene, "synthetic scene (village|apartment)");
+  app.add_option("--traj", a->traj, "trajectory (flyover|walk)");
+  app.add_option("--frames", a->frames, "frames of the trajectory")->check(CLI::PositiveNumber);
+  app.add_option("--r_max", a->r_max, "planner r_max (references per cell)")
+      ->check(CLI::PositiveNumber);
+  app.add_option("--store", a->store, "store capacity in views")->check(CLI::PositiveNumber);
+  app.add_option("--idw", a->idw, "cell-id buffer width")->check(CLI::PositiveNumber);
+  app.add_option("--idh", a->idh, "cell-id buffer height")->check(CLI::PositiveNumber);
+  app.add_option("--lambda", a->lambda, "planner lambda (-1: 0.5 on a fly-over, 0.4 on a walk)");
+  app.add_option("--cell", a->cell, "cell size in m (0: from the scene scale)")
+      ->check(CLI::NonNegativeNumber);
+  app.add_option("--quality", a->quality, "1: render the planned store at test poses (MSSIM/PSNR)")
+      ->check(CLI::Range(0, 1));
+  app.add_option("--test_views", a->test_views, "test poses for --quality")
+      ->check(CLI::PositiveNumber);
+  app.add_option("--test_w", a->test_w, "test view width")->check(CLI::PositiveNumber);
+  app.add_option("--test_h", a->test_h, "test view height")->check(CLI::PositiveNumber);
+  app.add_option("--proxy", a->proxy, "gt: the scene mesh; tsdf: fused synthetic depth")
+      ->check(CLI::IsMember({"gt", "tsdf"}));
+  app.add_option("--path", a->path, "renderer: planning::CellIdRenderer; concat: culled chunks")
+      ->check(CLI::IsMember({"renderer", "concat"}));
+  app.add_option("--voxel", a->voxel, "TSDF voxel in m for --proxy tsdf (0: from the scene)")
+      ->check(CLI::NonNegativeNumber);
+  app.add_option("--lod", a->lod, "LOD clusters of F x cell size (-1: the default LOD)");
+  app.add_option("--lod_m", a->lod_m, "LOD cluster size in m (0: off)")
+      ->check(CLI::NonNegativeNumber);
+  app.add_option("--lod_keep", a->lod_keep, "LOD keep fraction")->check(CLI::NonNegativeNumber);
+  app.add_option("--threads", a->threads, "rasterizer threads")->check(CLI::PositiveNumber);
+  app.add_option("--rerender", a->rerender, "render the final proxy from every pose N times")
+      ->check(CLI::NonNegativeNumber);
+  app.add_option("--checksum", a->checksum, "1: FNV-1a 64 over every cell-id buffer")
+      ->check(CLI::Range(0, 1));
+  return exo::cli::Parse(app, argc, argv);
 }
 
 cv::Mat Luma(const ImageU8& img) {
@@ -336,29 +356,52 @@ int Run(const Args& args) {
       stored[c.id] = std::move(sv);
     }
   }
-  std::printf(
-      "{\"bench\":\"planning\",\"scene\":\"%s\",\"traj\":\"%s\",\"frames\":%zu,\"r_max\":%d,"
-      "\"store\":%d,\"lambda\":%.2f,\"cell_m\":%.3f,\"d_max_m\":%.2f,\"sigma_m\":%.2f,"
-      "\"idbuf\":\"%dx%d\",\"proxy\":\"%s\",\"voxel_m\":%.3f,\"path\":\"%s\",\"lod_m\":%.3f,"
-      "\"lod_keep\":%.2f,\"threads\":%d,\"tris_median\":%.0f,\"lod_builds\":%zu,"
-      "\"dirty_chunks_median\":%.0f,\"update_cpu_median\":%.3f,"
-      "\"cellid_ms_median\":%.3f,\"cellid_ms_p95\":%.3f,\"cellid_cpu_median\":%.3f,"
-      "\"cellid_cpu_p95\":%.3f,\"plan_ms_median\":%.3f,\"plan_ms_p95\":%.3f,"
-      "\"plan_cpu_median\":%.3f,\"plan_cpu_p95\":%.3f,\"total_ms_median\":%.3f,"
-      "\"total_ms_p95\":%.3f,\"total_cpu_median\":%.3f,\"total_cpu_p95\":%.3f,"
-      "\"integrate_s\":%.1f,"
-      "\"accepted\":%d,\"evicted\":%d,\"views\":%zu,\"store_bytes\":%zu,\"cells\":%zu,"
-      "\"planner_bytes\":%zu,\"tau_sum\":%.6f,\"id_checksum\":\"%016llx\"}\n",
-      args.scene.c_str(), args.traj.c_str(), total_ms.size(), po.r_max, args.store, po.lambda,
-      po.cell_size_m, po.d_max_m, po.sigma_m, args.idw, args.idh, args.proxy.c_str(),
-      tsdf_proxy ? voxel_m : 0.0, args.path.c_str(), cro.lod_cluster_m, cro.lod_keep_fraction,
-      args.threads, Pct(tris, 0.5), cid.lod_builds(), Pct(dirty_chunks, 0.5),
-      Pct(update_cpu, 0.5), Pct(cellid_ms, 0.5), Pct(cellid_ms, 0.95),
-      Pct(cellid_cpu, 0.5), Pct(cellid_cpu, 0.95), Pct(plan_ms, 0.5), Pct(plan_ms, 0.95),
-      Pct(plan_cpu, 0.5), Pct(plan_cpu, 0.95), Pct(total_ms, 0.5), Pct(total_ms, 0.95),
-      Pct(total_cpu, 0.5), Pct(total_cpu, 0.95), integrate_ms / 1e3, accepted, evicted, planner.num_views(), planner.bytes(),
-      planner.num_cells(), planner.BookkeepingBytes(), planner.tau_sum(),
-      static_cast<unsigned long long>(args.checksum ? id_checksum : 0));
+  char checksum_hex[17];
+  std::snprintf(checksum_hex, sizeof(checksum_hex), "%016llx",
+                static_cast<unsigned long long>(args.checksum ? id_checksum : 0));
+  const json line = {{"bench", "planning"},
+                     {"scene", args.scene},
+                     {"traj", args.traj},
+                     {"frames", total_ms.size()},
+                     {"r_max", po.r_max},
+                     {"store", args.store},
+                     {"lambda", Round(po.lambda, 2)},
+                     {"cell_m", Round(po.cell_size_m, 3)},
+                     {"d_max_m", Round(po.d_max_m, 2)},
+                     {"sigma_m", Round(po.sigma_m, 2)},
+                     {"idbuf", std::to_string(args.idw) + "x" + std::to_string(args.idh)},
+                     {"proxy", args.proxy},
+                     {"voxel_m", Round(tsdf_proxy ? voxel_m : 0.0, 3)},
+                     {"path", args.path},
+                     {"lod_m", Round(cro.lod_cluster_m, 3)},
+                     {"lod_keep", Round(cro.lod_keep_fraction, 2)},
+                     {"threads", args.threads},
+                     {"tris_median", Round(Pct(tris, 0.5), 0)},
+                     {"lod_builds", cid.lod_builds()},
+                     {"dirty_chunks_median", Round(Pct(dirty_chunks, 0.5), 0)},
+                     {"update_cpu_median", Round(Pct(update_cpu, 0.5), 3)},
+                     {"cellid_ms_median", Round(Pct(cellid_ms, 0.5), 3)},
+                     {"cellid_ms_p95", Round(Pct(cellid_ms, 0.95), 3)},
+                     {"cellid_cpu_median", Round(Pct(cellid_cpu, 0.5), 3)},
+                     {"cellid_cpu_p95", Round(Pct(cellid_cpu, 0.95), 3)},
+                     {"plan_ms_median", Round(Pct(plan_ms, 0.5), 3)},
+                     {"plan_ms_p95", Round(Pct(plan_ms, 0.95), 3)},
+                     {"plan_cpu_median", Round(Pct(plan_cpu, 0.5), 3)},
+                     {"plan_cpu_p95", Round(Pct(plan_cpu, 0.95), 3)},
+                     {"total_ms_median", Round(Pct(total_ms, 0.5), 3)},
+                     {"total_ms_p95", Round(Pct(total_ms, 0.95), 3)},
+                     {"total_cpu_median", Round(Pct(total_cpu, 0.5), 3)},
+                     {"total_cpu_p95", Round(Pct(total_cpu, 0.95), 3)},
+                     {"integrate_s", Round(integrate_ms / 1e3, 1)},
+                     {"accepted", accepted},
+                     {"evicted", evicted},
+                     {"views", planner.num_views()},
+                     {"store_bytes", planner.bytes()},
+                     {"cells", planner.num_cells()},
+                     {"planner_bytes", planner.BookkeepingBytes()},
+                     {"tau_sum", Round(planner.tau_sum(), 6)},
+                     {"id_checksum", checksum_hex}};
+  std::printf("%s\n", line.dump().c_str());
   std::fflush(stdout);
   if (args.rerender > 0) {  // render-only timing of the final proxy (profiling aid)
     std::vector<double> rr;
@@ -369,8 +412,11 @@ int Run(const Args& args) {
         rr.push_back(CpuMs() - r0);
         if (!r.ok()) return 1;
       }
-    std::printf("{\"bench\":\"cellid_rerender\",\"renders\":%zu,\"tris\":%zu,\"cpu_ms_median\":%.3f}\n",
-                rr.size(), cid.render_triangles(), Pct(rr, 0.5));
+    const json rerender = {{"bench", "cellid_rerender"},
+                           {"renders", rr.size()},
+                           {"tris", cid.render_triangles()},
+                           {"cpu_ms_median", Round(Pct(rr, 0.5), 3)}};
+    std::printf("%s\n", rerender.dump().c_str());
   }
   if (!args.quality) return 0;
   (void)render_store_ms;
@@ -414,18 +460,30 @@ int Run(const Args& args) {
     for (double x : v) s += x;
     return v.empty() ? 0.0 : s / v.size();
   };
-  std::printf(
-      "{\"bench\":\"planning_quality\",\"scene\":\"%s\",\"traj\":\"%s\",\"frames\":%zu,"
-      "\"r_max\":%d,\"store\":%d,\"views\":%zu,\"test_views\":%zu,\"test_res\":\"%dx%d\","
-      "\"mssim\":%.4f,\"psnr\":%.2f,\"coverage\":%.4f,\"render_ms_median\":%.1f,"
-      "\"render_store_frame_ms_total\":%.0f}\n",
-      args.scene.c_str(), args.traj.c_str(), total_ms.size(), po.r_max, args.store,
-      model.views.size(), ssim.size(), test_cam.width, test_cam.height, mean(ssim), mean(psnr),
-      mean(cov), Pct(render_ms, 0.5), render_store_ms);
+  const json quality = {
+      {"bench", "planning_quality"},
+      {"scene", args.scene},
+      {"traj", args.traj},
+      {"frames", total_ms.size()},
+      {"r_max", po.r_max},
+      {"store", args.store},
+      {"views", model.views.size()},
+      {"test_views", ssim.size()},
+      {"test_res", std::to_string(test_cam.width) + "x" + std::to_string(test_cam.height)},
+      {"mssim", Round(mean(ssim), 4)},
+      {"psnr", Round(mean(psnr), 2)},
+      {"coverage", Round(mean(cov), 4)},
+      {"render_ms_median", Round(Pct(render_ms, 0.5), 1)},
+      {"render_store_frame_ms_total", Round(render_store_ms, 0)}};
+  std::printf("%s\n", quality.dump().c_str());
   return 0;
 }
 
 }  // namespace
 }  // namespace exo
 
-int main(int argc, char** argv) { return exo::Run(exo::Parse(argc, argv)); }
+int main(int argc, char** argv) {
+  exo::Args args;
+  if (auto rc = exo::ParseFlags(argc, argv, &args)) return *rc;
+  return exo::Run(args);
+}

@@ -4,6 +4,8 @@
 #include <cmath>
 #include <cstdio>
 
+#include "common/log/log.h"
+
 namespace exo {
 
 int64_t SteadyNowNs() {
@@ -68,9 +70,8 @@ void Pipeline::RunStage(size_t i) {
     const ScopedDeltaSource source(f->frame.timestamp_s);
     if (auto s = stages_[i]->Process(*f, ctx_); !s.ok()) {
       errors_.fetch_add(1);
-      std::fprintf(stderr, "[pipeline] stage %s, frame %llu: %s\n", stages_[i]->name().c_str(),
-                   static_cast<unsigned long long>(f->frame.sequence),
-                   std::string(s.message()).c_str());
+      log::Get("pipeline")->error("stage {}, frame {}: {}", stages_[i]->name(), f->frame.sequence,
+                                  std::string(s.message()));
     }
     if (i + 1 < stages_.size()) {
       queues_[i + 1]->Push(std::move(*item));

@@ -15,117 +15,13 @@
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_split.h"
 #include "absl/strings/strip.h"
+#include "common/log/log.h"
 #include "proto/exoview.grpc.pb.h"
 #include "server/service/stages.h"
 #include "server/service/udp_pose_input.h"
+#include "server/service/upload_log.h"
 
 namespace exo {
-namespace {
-
-template <typename T>
-absl::Status ParseNumber(const std::string& key, const std::string& v, T* out) {
-  if constexpr (std::is_same_v<T, double>) {
-    if (absl::SimpleAtod(v, out)) return absl::OkStatus();
-  } else if constexpr (std::is_same_v<T, bool>) {
-    if (absl::SimpleAtob(v, out)) return absl::OkStatus();
-  } else {
-    int64_t x;
-    if (absl::SimpleAtoi(v, &x) && x >= 0) {
-      *out = static_cast<T>(x);
-      return absl::OkStatus();
-    }
-  }
-  return absl::InvalidArgumentError(absl::StrCat("config ", key, ": cannot parse '", v, "'"));
-}
-
-}  // namespace
-
-absl::Status ServerConfig::Validate() const {
-  if (listen.empty()) return absl::InvalidArgumentError("listen address is empty");
-  EXO_RETURN_IF_ERROR(ingest.Validate());
-  if (transport_max_bytes < ingest.max_frame_bytes)
-    return absl::InvalidArgumentError("transport_max_bytes must be >= max_frame_bytes");
-  EXO_RETURN_IF_ERROR(pipeline.Validate());
-  EXO_RETURN_IF_ERROR(store.Validate());
-  EXO_RETURN_IF_ERROR(publish.Validate());
-  EXO_RETURN_IF_ERROR(geometry.Validate());
-  EXO_RETURN_IF_ERROR(planning.Validate());
-  if (!(checkpoint_interval_s >= 0.0))
-    return absl::InvalidArgumentError("checkpoint_interval_s must be >= 0 (0 = only at shutdown)");
-  return absl::OkStatus();
-}
-
-absl::Status ApplyConfigValue(const std::string& key, const std::string& value, ServerConfig* c) {
-  if (key == "listen") { c->listen = value; return absl::OkStatus(); }
-  if (key == "max_frame_bytes") return ParseNumber(key, value, &c->ingest.max_frame_bytes);
-  if (key == "transport_max_bytes") return ParseNumber(key, value, &c->transport_max_bytes);
-  if (key == "admission_queue") return ParseNumber(key, value, &c->pipeline.admission_queue);
-  if (key == "stage_queue") return ParseNumber(key, value, &c->pipeline.stage_queue);
-  if (key == "cell_size_m") return ParseNumber(key, value, &c->pipeline.cell_size_m);
-  if (key == "max_log_deltas") return ParseNumber(key, value, &c->store.max_log_deltas);
-  if (key == "max_log_bytes") return ParseNumber(key, value, &c->store.max_log_bytes);
-  if (key == "max_subscriber_lag") return ParseNumber(key, value, &c->store.max_subscriber_lag);
-  if (key == "snapshot_when_cheaper") return ParseNumber(key, value, &c->store.snapshot_when_cheaper);
-  if (key == "publish_jpeg_quality") return ParseNumber(key, value, &c->publish.jpeg_quality);
-  if (key == "publish_depth_downscale") return ParseNumber(key, value, &c->publish.depth_downscale);
-  if (key == "geometry") return ParseNumber(key, value, &c->enable_geometry);
-  if (key == "voxel_size_m") return ParseNumber(key, value, &c->geometry.voxel_size_m);
-  if (key == "max_depth_m") return ParseNumber(key, value, &c->geometry.max_depth_m);
-  if (key == "mesh_every_n_frames") return ParseNumber(key, value, &c->geometry.mesh_every_n_frames);
-  if (key == "fuse_depth_downscale") return ParseNumber(key, value, &c->geometry.fuse_depth_downscale);
-  if (key == "chunk_republish_change") return ParseNumber(key, value, &c->geometry.republish_change_fraction);
-  if (key == "chunk_republish_interval_s") return ParseNumber(key, value, &c->geometry.republish_interval_s);
-  if (key == "planning") return ParseNumber(key, value, &c->enable_planning);
-  if (key == "max_views") return ParseNumber(key, value, &c->planning.max_views);
-  if (key == "max_store_bytes") return ParseNumber(key, value, &c->planning.max_bytes);
-  if (key == "r_max") return ParseNumber(key, value, &c->planning.r_max);
-  if (key == "d_max_m") return ParseNumber(key, value, &c->planning.d_max_m);
-  if (key == "sigma_m") return ParseNumber(key, value, &c->planning.sigma_m);
-  if (key == "delta_tau_sum") return ParseNumber(key, value, &c->planning.delta_tau_sum);
-  if (key == "max_candidates_per_s_when_full")
-    return ParseNumber(key, value, &c->planning.max_candidates_per_s_when_full);
-  if (key == "refinement") return ParseNumber(key, value, &c->planning.refine);
-  if (key == "refine_queue") return ParseNumber(key, value, &c->planning.refine_queue);
-  if (key == "refine_downscale") return ParseNumber(key, value, &c->planning.refine_downscale);
-  if (key == "refine_remove_outliers") return ParseNumber(key, value, &c->planning.refine_remove_outliers);
-  if (key == "planning_id_from_proxy") return ParseNumber(key, value, &c->planning.id_from_proxy);
-  if (key == "planning_cell_areas") return ParseNumber(key, value, &c->planning_cell_areas);
-  if (key == "id_buffer_stride") return ParseNumber(key, value, &c->planning.id_buffer_stride);
-  if (key == "checkpoint_path") { c->checkpoint_path = value; return absl::OkStatus(); }
-  if (key == "checkpoint_interval_s") return ParseNumber(key, value, &c->checkpoint_interval_s);
-  if (key == "checkpoint_max_log_bytes") return ParseNumber(key, value, &c->checkpoint_max_log_bytes);
-  if (key == "udp_pose_address") { c->udp_pose_address = value; return absl::OkStatus(); }
-  if (key == "udp_pose_tolerance_s") return ParseNumber(key, value, &c->udp_pose_tolerance_s);
-  if (key == "udp_pose_port") {
-    int64_t p;
-    if (!absl::SimpleAtoi(value, &p) || p < -1 || p > 65535)
-      return absl::InvalidArgumentError("config udp_pose_port: -1 (off) or 0..65535");
-    c->udp_pose_port = static_cast<int>(p);
-    return absl::OkStatus();
-  }
-  return absl::InvalidArgumentError(absl::StrCat("unknown config key '", key, "'"));
-}
-
-absl::Status LoadConfigFile(const std::string& path, ServerConfig* c) {
-  std::ifstream in(path);
-  if (!in) return absl::NotFoundError(absl::StrCat("cannot open config file ", path));
-  std::string line;
-  int n = 0;
-  while (std::getline(in, line)) {
-    ++n;
-    if (auto hash = line.find('#'); hash != std::string::npos) line.resize(hash);
-    absl::string_view s = absl::StripAsciiWhitespace(line);
-    if (s.empty()) continue;
-    const auto eq = s.find('=');
-    if (eq == absl::string_view::npos)
-      return absl::InvalidArgumentError(absl::StrCat(path, ":", n, ": expected key = value"));
-    const std::string key(absl::StripAsciiWhitespace(s.substr(0, eq)));
-    const std::string value(absl::StripAsciiWhitespace(s.substr(eq + 1)));
-    if (auto st = ApplyConfigValue(key, value, c); !st.ok())
-      return absl::InvalidArgumentError(absl::StrCat(path, ":", n, ": ", st.message()));
-  }
-  return absl::OkStatus();
-}
 
 // ---------------------------------------------------------------------------------------------
 
@@ -141,6 +37,7 @@ class ExoviewServer::Service final : public v1::Exoview::Service {
     IngestOptions io = config_.ingest;
     io.decode.pose_required = udp_ == nullptr;
     IngestStream ingest(io);
+    UploadStreamLog stream_log(ctx->peer(), config_.log_rejections_per_s);
     v1::Frame msg;
     while (stream->Read(&msg)) {
       received_.fetch_add(1);
@@ -173,6 +70,7 @@ class ExoviewServer::Service final : public v1::Exoview::Service {
         }
       }
       ack.set_model_version(store_->version());
+      stream_log.Record(ack);
       if (!stream->Write(ack)) break;
     }
     return grpc::Status::OK;
@@ -181,13 +79,25 @@ class ExoviewServer::Service final : public v1::Exoview::Service {
   grpc::Status Subscribe(grpc::ServerContext* ctx, const v1::SubscribeRequest* req,
                          grpc::ServerWriter<v1::Delta>* writer) override {
     auto sub = store_->Subscribe(req->last_version(), req->last_model_epoch());
-    while (!ctx->IsCancelled() && !shutting_down_->load()) {
-      const std::vector<DeltaPtr> batch = sub->Next(100);
-      for (size_t i = 0; i < batch.size(); ++i) {
-        if (!writer->Write(*batch[i])) return grpc::Status::OK;
-        bytes_published_.fetch_add(batch[i]->ByteSizeLong());
+    log_->info("subscriber connected: peer={} last_version={}", ctx->peer(), req->last_version());
+    uint64_t deltas = 0, bytes = 0;
+    bool write_failed = false;
+    while (!write_failed && !ctx->IsCancelled() && !shutting_down_->load()) {
+      for (const DeltaPtr& d : sub->Next(100)) {
+        if (!writer->Write(*d)) {
+          write_failed = true;
+          break;
+        }
+        ++deltas;
+        bytes += d->ByteSizeLong();
+        bytes_published_.fetch_add(d->ByteSizeLong());
       }
     }
+    const char* end = write_failed              ? "client gone (write failed)"
+                      : shutting_down_->load() ? "server shutting down"
+                                               : "cancelled by the client";
+    log_->info("subscriber disconnected: peer={} deltas={} bytes={} ({})", ctx->peer(), deltas,
+               bytes, end);
     return grpc::Status::OK;
   }
 
@@ -230,6 +140,7 @@ class ExoviewServer::Service final : public v1::Exoview::Service {
   Pipeline* pipeline_;
   const std::atomic<bool>* shutting_down_;
   const UdpPoseInput* udp_;
+  std::shared_ptr<spdlog::logger> log_ = log::Get("server");
   std::atomic<uint64_t> received_{0}, accepted_{0}, rejected_{0}, dropped_{0}, bytes_published_{0};
 };
 
@@ -258,9 +169,8 @@ absl::Status ExoviewServer::Start() {
         pipeline_->RestoreOrigin(origin);
       }
     restored_version_ = checkpoint_version_ = c.version();
-    std::fprintf(stderr, "exoview_server: restored checkpoint %s at version %llu (%u views)\n",
-                 config_.checkpoint_path.c_str(), static_cast<unsigned long long>(c.version()),
-                 store_->GetSummary().num_views);
+    log::Get("server")->info("restored checkpoint {} at version {} ({} views)",
+                             config_.checkpoint_path, c.version(), store_->GetSummary().num_views);
   }
   if (!config_.checkpoint_path.empty() && config_.checkpoint_interval_s > 0) {
     checkpoint_thread_ = std::thread([this] {
@@ -270,7 +180,7 @@ absl::Status ExoviewServer::Start() {
                                       [this] { return shutting_down_.load(); })) {
         lock.unlock();
         if (auto s = WriteCheckpoint(); !s.ok())
-          std::fprintf(stderr, "exoview_server: checkpoint: %s\n", std::string(s.message()).c_str());
+          log::Get("server")->error("checkpoint: {}", std::string(s.message()));
         lock.lock();
       }
     });
@@ -307,7 +217,7 @@ void ExoviewServer::Shutdown() {
   if (checkpoint_thread_.joinable()) checkpoint_thread_.join();
   if (store_ && !config_.checkpoint_path.empty())
     if (auto s = WriteCheckpoint(); !s.ok())
-      std::fprintf(stderr, "exoview_server: checkpoint: %s\n", std::string(s.message()).c_str());
+      log::Get("server")->error("checkpoint: {}", std::string(s.message()));
 }
 
 absl::Status ExoviewServer::WriteCheckpoint() {

@@ -1,11 +1,12 @@
 // The Exoview modeling server: gRPC service exoview.v1.Exoview (Upload, Subscribe, GetStats) +
 // the standard health service, wired to ingest validation, the staged pipeline and the
 // versioned ModelStore/publisher. Config: `key = value` file lines and `--key=value` flags share
-// one set of keys (ApplyConfigValue); see docs/service.md for the list.
+// one set of keys (ConfigKeys, server_config.cc; `exoview_server --help` lists them).
 #pragma once
 
 #include <atomic>
 #include <condition_variable>
+#include <functional>
 #include <mutex>
 #include <thread>
 #include <memory>
@@ -50,9 +51,21 @@ struct ServerConfig {
   std::string checkpoint_path;
   double checkpoint_interval_s = 30.0;
   size_t checkpoint_max_log_bytes = size_t{16} << 20;  // delta log tail kept in the checkpoint
+  // Log: at most this many rejected-frame lines per second per upload stream (the rest are
+  // counted and reported with the next line and in the stream's summary).
+  int log_rejections_per_s = 5;
   absl::Status Validate() const;
 };
 
+// One config key: the same name in the file (`key = value`) and as a flag (--key=value).
+struct ConfigKey {
+  std::string name;
+  std::string help;
+  std::function<std::string(const ServerConfig&)> get;  // the value as text
+  std::function<absl::Status(const std::string&, ServerConfig*)> set;
+};
+// Every key, in the order --help lists them (server_config.cc).
+const std::vector<ConfigKey>& ConfigKeys();
 // Applies one key/value (from a config file line or a --key=value flag).
 absl::Status ApplyConfigValue(const std::string& key, const std::string& value, ServerConfig* c);
 // Reads `key = value` lines ('#' starts a comment).

@@ -1,0 +1,188 @@
+// ServerConfig: validation, the table of config keys (one entry per key: name, help, how to read
+// and write it), the `key = value` file reader. The flags of exoview_server are built from the
+// same table, so a key added here is a flag and a file key at once, with its default in --help.
+#include <fstream>
+#include <type_traits>
+
+#include "absl/strings/numbers.h"
+#include "absl/strings/str_cat.h"
+#include "absl/strings/strip.h"
+#include "server/service/server.h"
+
+namespace exo {
+namespace {
+
+template <typename T>
+absl::Status ParseValue(const std::string& key, const std::string& v, T* out) {
+  if constexpr (std::is_same_v<T, std::string>) {
+    *out = v;
+    return absl::OkStatus();
+  } else if constexpr (std::is_same_v<T, double>) {
+    if (absl::SimpleAtod(v, out)) return absl::OkStatus();
+  } else if constexpr (std::is_same_v<T, bool>) {
+    if (absl::SimpleAtob(v, out)) return absl::OkStatus();
+  } else {
+    int64_t x;
+    if (absl::SimpleAtoi(v, &x) && x >= 0) {
+      *out = static_cast<T>(x);
+      return absl::OkStatus();
+    }
+  }
+  return absl::InvalidArgumentError(absl::StrCat("config ", key, ": cannot parse '", v, "'"));
+}
+
+template <typename T>
+std::string ValueText(const T& v) {
+  if constexpr (std::is_same_v<T, bool>) {
+    return v ? "true" : "false";
+  } else {
+    return absl::StrCat(v);
+  }
+}
+
+// One key bound to a field of ServerConfig (`field` returns a reference to it).
+template <typename Field>
+ConfigKey Key(std::string name, std::string help, Field field) {
+  ConfigKey k;
+  k.name = name;
+  k.help = std::move(help);
+  k.get = [field](const ServerConfig& c) {
+    ServerConfig& m = const_cast<ServerConfig&>(c);  // `field` only reads here
+    return ValueText(field(m));
+  };
+  k.set = [field, name](const std::string& v, ServerConfig* c) {
+    return ParseValue(name, v, &field(*c));
+  };
+  return k;
+}
+
+#define EXO_FIELD(expr) [](ServerConfig& c) -> auto& { return c.expr; }
+
+std::vector<ConfigKey> MakeKeys() {
+  std::vector<ConfigKey> keys = {
+      Key("listen", "gRPC address host:port (port 0: a free port)", EXO_FIELD(listen)),
+      Key("max_frame_bytes", "per-frame limit; larger frames are REJECTED",
+          EXO_FIELD(ingest.max_frame_bytes)),
+      Key("transport_max_bytes", "gRPC message limit; larger messages end the stream",
+          EXO_FIELD(transport_max_bytes)),
+      Key("admission_queue", "frames admitted but not yet processed", EXO_FIELD(pipeline.admission_queue)),
+      Key("stage_queue", "queue between pipeline stages", EXO_FIELD(pipeline.stage_queue)),
+      Key("cell_size_m", "lumigraph cell size in m",
+          EXO_FIELD(pipeline.cell_size_m)),
+      Key("max_log_deltas", "delta log bound (entries)", EXO_FIELD(store.max_log_deltas)),
+      Key("max_log_bytes", "delta log bound (bytes)", EXO_FIELD(store.max_log_bytes)),
+      Key("max_subscriber_lag", "deltas a subscriber may lag before a snapshot resync",
+          EXO_FIELD(store.max_subscriber_lag)),
+      Key("snapshot_when_cheaper", "resume with a snapshot when it costs less than the deltas",
+          EXO_FIELD(store.snapshot_when_cheaper)),
+      Key("publish_jpeg_quality", "JPEG quality of published views", EXO_FIELD(publish.jpeg_quality)),
+      Key("publish_depth_downscale", "published depth at 1/k resolution",
+          EXO_FIELD(publish.depth_downscale)),
+      Key("geometry", "geometry stage (TSDF proxy)", EXO_FIELD(enable_geometry)),
+      Key("voxel_size_m", "TSDF voxel of the proxy in m", EXO_FIELD(geometry.voxel_size_m)),
+      Key("max_depth_m", "depth beyond this is not fused", EXO_FIELD(geometry.max_depth_m)),
+      Key("mesh_every_n_frames", "mesh extraction period in frames",
+          EXO_FIELD(geometry.mesh_every_n_frames)),
+      Key("fuse_depth_downscale", "depth fused at 1/k resolution", EXO_FIELD(geometry.fuse_depth_downscale)),
+      Key("chunk_republish_change", "fraction of a chunk that must change to republish it",
+          EXO_FIELD(geometry.republish_change_fraction)),
+      Key("chunk_republish_interval_s", "minimum seconds between republishing a chunk",
+          EXO_FIELD(geometry.republish_interval_s)),
+      Key("planning", "planning stage (view store)", EXO_FIELD(enable_planning)),
+      Key("max_views", "view store capacity (views)", EXO_FIELD(planning.max_views)),
+      Key("max_store_bytes", "view store capacity (bytes)", EXO_FIELD(planning.max_bytes)),
+      Key("r_max", "references per cell", EXO_FIELD(planning.r_max)),
+      Key("d_max_m", "ideal view distance in m", EXO_FIELD(planning.d_max_m)),
+      Key("sigma_m", "distance falloff in m", EXO_FIELD(planning.sigma_m)),
+      Key("delta_tau_sum", "minimum objective gain to accept a view", EXO_FIELD(planning.delta_tau_sum)),
+      Key("max_candidates_per_s_when_full", "planner candidates per s once the store is full (0: all)",
+          EXO_FIELD(planning.max_candidates_per_s_when_full)),
+      Key("refinement", "refine accepted views' depth", EXO_FIELD(planning.refine)),
+      Key("refine_queue", "views waiting for refinement", EXO_FIELD(planning.refine_queue)),
+      Key("refine_downscale", "refinement at 1/k resolution", EXO_FIELD(planning.refine_downscale)),
+      Key("refine_remove_outliers", "drop outlier depth in refinement",
+          EXO_FIELD(planning.refine_remove_outliers)),
+      Key("planning_id_from_proxy", "cell ids rendered from the proxy mesh instead of the depth",
+          EXO_FIELD(planning.id_from_proxy)),
+      Key("planning_cell_areas", "planner uses geometry's per-cell proxy areas",
+          EXO_FIELD(planning_cell_areas)),
+      Key("id_buffer_stride", "cell-id buffer = depth subsampled by this factor",
+          EXO_FIELD(planning.id_buffer_stride)),
+      Key("checkpoint_path", "checkpoint file (empty: off)", EXO_FIELD(checkpoint_path)),
+      Key("checkpoint_interval_s", "seconds between checkpoints (0: only at shutdown)",
+          EXO_FIELD(checkpoint_interval_s)),
+      Key("checkpoint_max_log_bytes", "delta log tail kept in the checkpoint (bytes)",
+          EXO_FIELD(checkpoint_max_log_bytes)),
+      Key("udp_pose_address", "address of the UDP pose input", EXO_FIELD(udp_pose_address)),
+      Key("udp_pose_tolerance_s", "a frame with no UDP pose this close is rejected",
+          EXO_FIELD(udp_pose_tolerance_s)),
+      Key("log_rejections_per_s", "rejected-frame log lines per second per stream (the rest counted)",
+          EXO_FIELD(log_rejections_per_s)),
+  };
+  ConfigKey udp = Key("udp_pose_port", "UDP pose input port (-1: off, 0: a free port)",
+                      EXO_FIELD(udp_pose_port));
+  udp.set = [](const std::string& value, ServerConfig* c) {
+    int64_t p;
+    if (!absl::SimpleAtoi(value, &p) || p < -1 || p > 65535)
+      return absl::InvalidArgumentError("config udp_pose_port: -1 (off) or 0..65535");
+    c->udp_pose_port = static_cast<int>(p);
+    return absl::OkStatus();
+  };
+  keys.push_back(std::move(udp));
+  return keys;
+}
+
+#undef EXO_FIELD
+
+}  // namespace
+
+const std::vector<ConfigKey>& ConfigKeys() {
+  static const std::vector<ConfigKey> keys = MakeKeys();
+  return keys;
+}
+
+absl::Status ServerConfig::Validate() const {
+  if (listen.empty()) return absl::InvalidArgumentError("listen address is empty");
+  EXO_RETURN_IF_ERROR(ingest.Validate());
+  if (transport_max_bytes < ingest.max_frame_bytes)
+    return absl::InvalidArgumentError("transport_max_bytes must be >= max_frame_bytes");
+  EXO_RETURN_IF_ERROR(pipeline.Validate());
+  EXO_RETURN_IF_ERROR(store.Validate());
+  EXO_RETURN_IF_ERROR(publish.Validate());
+  EXO_RETURN_IF_ERROR(geometry.Validate());
+  EXO_RETURN_IF_ERROR(planning.Validate());
+  if (!(checkpoint_interval_s >= 0.0))
+    return absl::InvalidArgumentError("checkpoint_interval_s must be >= 0 (0 = only at shutdown)");
+  if (log_rejections_per_s < 1)
+    return absl::InvalidArgumentError("log_rejections_per_s must be >= 1");
+  return absl::OkStatus();
+}
+
+absl::Status ApplyConfigValue(const std::string& key, const std::string& value, ServerConfig* c) {
+  for (const ConfigKey& k : ConfigKeys())
+    if (k.name == key) return k.set(value, c);
+  return absl::InvalidArgumentError(absl::StrCat("unknown config key '", key, "'"));
+}
+
+absl::Status LoadConfigFile(const std::string& path, ServerConfig* c) {
+  std::ifstream in(path);
+  if (!in) return absl::NotFoundError(absl::StrCat("cannot open config file ", path));
+  std::string line;
+  int n = 0;
+  while (std::getline(in, line)) {
+    ++n;
+    if (auto hash = line.find('#'); hash != std::string::npos) line.resize(hash);
+    absl::string_view s = absl::StripAsciiWhitespace(line);
+    if (s.empty()) continue;
+    const auto eq = s.find('=');
+    if (eq == absl::string_view::npos)
+      return absl::InvalidArgumentError(absl::StrCat(path, ":", n, ": expected key = value"));
+    const std::string key(absl::StripAsciiWhitespace(s.substr(0, eq)));
+    const std::string value(absl::StripAsciiWhitespace(s.substr(eq + 1)));
+    if (auto st = ApplyConfigValue(key, value, c); !st.ok())
+      return absl::InvalidArgumentError(absl::StrCat(path, ":", n, ": ", st.message()));
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace exo
