@@ -221,7 +221,7 @@ int Main(int argc, char** argv) {
   auto print_counters = [&](const std::string& phase, const v1::Stats& st) {
     json line = {{"phase", phase + "_counters"}};
     for (const auto& [k, v] : std::map<std::string, double>(st.counters().begin(), st.counters().end()))
-      line[k] = v;
+      line[k] = Round(v, 6);
     PrintLine(line);
   };
   print_counters("ingest_paced", s1);

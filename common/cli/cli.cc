@@ -1,6 +1,8 @@
 #include "common/cli/cli.h"
 
 #include <iostream>
+#include <string>
+#include <vector>
 
 #include "exoview_version.h"
 
@@ -26,6 +28,14 @@ std::optional<int> Parse(CLI::App& app, int argc, const char* const* argv) {
   } catch (const CLI::CallForVersion& e) {
     return app.exit(e, std::cout, std::cerr);
   } catch (const CLI::ParseError& e) {
+    // CLI11 checks required options before unknown ones: name the unknown flag first, since it
+    // is the likelier mistake ("--bogus 3" on a binary with a required --out).
+    const std::vector<std::string> unknown = app.remaining();
+    if (!unknown.empty() && dynamic_cast<const CLI::ExtrasError*>(&e) == nullptr) {
+      std::cerr << app.get_name() << ": " << CLI::ExtrasError(unknown).what()
+                << "\nRun with --help for the flags.\n";
+      return 2;
+    }
     std::cerr << app.get_name() << ": " << e.what() << "\nRun with --help for the flags.\n";
     return 2;
   }

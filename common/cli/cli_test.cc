@@ -19,7 +19,7 @@ struct Args {
 
 std::optional<int> ParseArgs(const std::vector<std::string>& argv, int* frames, std::string* out) {
   CLI::App app{"test app", "exo_test"};
-  Setup(app);
+  exo::cli::Setup(app);
   app.add_option("--frames", *frames, "frames")->check(CLI::PositiveNumber);
   app.add_option("--out", *out, "output");
   Args a(argv);
@@ -61,6 +61,22 @@ TEST(Cli, UnknownFlagAndBadValueExitTwoNamingIt) {
   testing::internal::CaptureStderr();
   EXPECT_EQ(ParseArgs({"exo_test", "--frames=abc"}, &frames, &out), 2);
   (void)testing::internal::GetCapturedStderr();
+}
+
+TEST(Cli, UnknownFlagNamedBeforeAMissingRequiredOne) {
+  std::string out;
+  CLI::App app{"test app", "exo_test"};
+  exo::cli::Setup(app);
+  app.add_option("--out", out, "output")->required();
+  Args a({"exo_test", "--bogus_flag", "3"});
+  testing::internal::CaptureStderr();
+  EXPECT_EQ(Parse(app, a.argc(), a.argv()), 2);
+  const std::string err = testing::internal::GetCapturedStderr();
+  EXPECT_NE(err.find("--bogus_flag"), std::string::npos) << err;
+  Args b({"exo_test"});
+  testing::internal::CaptureStderr();
+  EXPECT_EQ(Parse(app, b.argc(), b.argv()), 2);
+  EXPECT_NE(testing::internal::GetCapturedStderr().find("--out is required"), std::string::npos);
 }
 
 }  // namespace

@@ -301,8 +301,10 @@ absl::Status Run(const Args& args) {
          {"triangles", scene.mesh.num_triangles()},
          {"vertices", scene.mesh.num_vertices()},
          {"extent_m", Round(scene.ExtentM(), 2)},
-         {"bounds_min", {scene.bounds.min.x, scene.bounds.min.y, scene.bounds.min.z}},
-         {"bounds_max", {scene.bounds.max.x, scene.bounds.max.y, scene.bounds.max.z}},
+         {"bounds_min", {Round(scene.bounds.min.x, 4), Round(scene.bounds.min.y, 4),
+                         Round(scene.bounds.min.z, 4)}},
+         {"bounds_max", {Round(scene.bounds.max.x, 4), Round(scene.bounds.max.y, 4),
+                         Round(scene.bounds.max.z, 4)}},
          {"build_ms", Round(build_ms, 1)},
          {"sequences", sequences}});
     absl::StrAppend(&md_scenes, "- **", scene.name, "**: ", scene.mesh.num_triangles(),

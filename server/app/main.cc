@@ -59,9 +59,10 @@ int main(int argc, char** argv) {
   std::map<std::string, std::string> flag_values;
   std::vector<std::pair<const exo::ConfigKey*, CLI::Option*>> key_flags;
   for (const exo::ConfigKey& k : exo::ConfigKeys()) {
+    const std::string default_text = k.get(defaults);
     CLI::Option* opt =
         app.add_option("--" + k.name, flag_values[k.name], k.help)
-            ->default_str(k.get(defaults))
+            ->default_str(default_text.empty() ? "\"\"" : default_text)
             ->type_name("VALUE")
             ->group(kConfigGroup)
             ->check(CLI::Validator(
