@@ -65,7 +65,13 @@ TEST(ServiceLog, RejectionsRateLimitedAndStreamSummaryCounts) {
   {
     grpc::ClientContext ctx;
     auto reader = stub->Subscribe(&ctx, v1::SubscribeRequest{});
-    std::this_thread::sleep_for(std::chrono::milliseconds(200));
+    for (int i = 0; i < 500; ++i) {  // until the server has it (it logged the connect)
+      grpc::ClientContext stats_ctx;
+      v1::Stats stats;
+      ASSERT_TRUE(stub->GetStats(&stats_ctx, v1::StatsRequest{}, &stats).ok());
+      if (stats.subscribers() == 1) break;
+      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    }
     ctx.TryCancel();
     v1::Delta d;
     while (reader->Read(&d)) {
@@ -175,6 +181,7 @@ TEST(ServiceLog, RejectionsRateLimitedAndStreamSummaryCounts) {
   EXPECT_NE(joined.find("[server] subscriber disconnected: peer=ipv4:127.0.0.1:"),
             std::string::npos)
       << joined;
+  EXPECT_NE(joined.find("(cancelled by the client)"), std::string::npos) << joined;
   EXPECT_NE(joined.find("[server] SIGTERM: shutting down"), std::string::npos) << joined;
   EXPECT_NE(joined.find("[server] stopped at model version"), std::string::npos) << joined;
 }

@@ -103,9 +103,10 @@ int main(int argc, char** argv) {
     return 1;
   }
   const std::vector<std::string> stages = exo::AvailableStages();
-  log->info("exoview_server {} listening on port {}; stages: {}; UDP poses: {}; config{}: {}",
+  log->info("exoview_server {} listening on port {}; stages: {}; {}; config{}: {}",
             exo::cli::Version(), server.port(), stages.empty() ? "(none)" : absl::StrJoin(stages, " "),
-            server.udp_pose_port() >= 0 ? absl::StrCat("port ", server.udp_pose_port()) : "off",
+            server.udp_pose_port() >= 0 ? absl::StrCat("UDP poses on port ", server.udp_pose_port())
+                                        : "no UDP poses",
             config_file.empty() ? "" : " " + config_file, ChangedKeys(config));
   if (!port_file.empty()) {
     const std::string tmp = port_file + ".tmp";

@@ -79,7 +79,8 @@ class ExoviewServer::Service final : public v1::Exoview::Service {
   grpc::Status Subscribe(grpc::ServerContext* ctx, const v1::SubscribeRequest* req,
                          grpc::ServerWriter<v1::Delta>* writer) override {
     auto sub = store_->Subscribe(req->last_version(), req->last_model_epoch());
-    log_->info("subscriber connected: peer={} last_version={}", ctx->peer(), req->last_version());
+    const std::string peer = ctx->peer();  // "unknown" once the call is cancelled
+    log_->info("subscriber connected: peer={} last_version={}", peer, req->last_version());
     uint64_t deltas = 0, bytes = 0;
     bool write_failed = false;
     while (!write_failed && !ctx->IsCancelled() && !shutting_down_->load()) {
@@ -93,11 +94,11 @@ class ExoviewServer::Service final : public v1::Exoview::Service {
         bytes_published_.fetch_add(d->ByteSizeLong());
       }
     }
-    const char* end = write_failed              ? "client gone (write failed)"
-                      : shutting_down_->load() ? "server shutting down"
-                                               : "cancelled by the client";
-    log_->info("subscriber disconnected: peer={} deltas={} bytes={} ({})", ctx->peer(), deltas,
-               bytes, end);
+    const char* end = ctx->IsCancelled()      ? "cancelled by the client"
+                      : write_failed           ? "write failed"
+                                               : "server shutting down";
+    log_->info("subscriber disconnected: peer={} deltas={} bytes={} ({})", peer, deltas, bytes,
+               end);
     return grpc::Status::OK;
   }
 
