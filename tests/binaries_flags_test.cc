@@ -10,6 +10,7 @@
 // best of up to three runs (the machine is shared: one slow start under load is not a failure,
 // three are). A binary that runs anyway is killed after 10 s.
 #include <fcntl.h>
+#include <gtest/gtest.h>
 #include <signal.h>
 #include <sys/resource.h>
 #include <sys/wait.h>
@@ -25,8 +26,6 @@
 #include <string>
 #include <thread>
 #include <vector>
-
-#include <gtest/gtest.h>
 
 #include "exoview_version.h"
 
@@ -69,7 +68,7 @@ std::string Slurp(const fs::path& p) {
 // Runs `path args...` with `cwd` as working folder, TMPDIR and HOME; stdout/stderr go to files in
 // `capture` (outside `cwd`).
 Outcome Exec(const std::string& path, const std::vector<std::string>& args, const fs::path& cwd,
-         const fs::path& capture) {
+             const fs::path& capture) {
   const fs::path out_file = capture / "stdout", err_file = capture / "stderr";
   const auto t0 = std::chrono::steady_clock::now();
   const pid_t pid = fork();
@@ -147,8 +146,7 @@ TEST_P(BinaryFlags, HelpExitsZeroFastAndRunsNothing) {
     if (attempt == 0 || r.wall_s < best.wall_s) best = r;
     if (best.wall_s < 1.0) break;
   }
-  EXPECT_LT(best.wall_s, 1.0) << b.name << " --help took " << best.wall_s
-                              << " s (best of 3 runs)";
+  EXPECT_LT(best.wall_s, 1.0) << b.name << " --help took " << best.wall_s << " s (best of 3 runs)";
 }
 
 TEST_P(BinaryFlags, UnknownFlagExitsTwoNamingIt) {
@@ -156,7 +154,8 @@ TEST_P(BinaryFlags, UnknownFlagExitsTwoNamingIt) {
   const Outcome r = Exec(b.path, {"--bogus_flag", "3"}, cwd_, root_);
   ASSERT_FALSE(r.timed_out) << b.name << " --bogus_flag 3 still ran after 10 s";
   EXPECT_EQ(r.exit_code, 2) << b.name << " --bogus_flag 3\nstdout:\n"
-                            << r.out << "\nstderr:\n" << r.err;
+                            << r.out << "\nstderr:\n"
+                            << r.err;
   EXPECT_NE(r.err.find("--bogus_flag"), std::string::npos) << b.name << " stderr:\n" << r.err;
   EXPECT_TRUE(Leftovers().empty()) << b.name << " --bogus_flag wrote " << Leftovers().front();
 }

@@ -1,10 +1,10 @@
 // exoview_server's flags and config file (a real server process): --help lists every config key
 // with its default; a config file's bad line is an error naming file and line (exit 2); flags
 // override the file; both --key=value and --key value work; a bad value names the flag (exit 2).
+#include <gtest/gtest.h>
+
 #include <filesystem>
 #include <fstream>
-
-#include <gtest/gtest.h>
 
 #include "server/service/server.h"
 #include "tests/subprocess.h"
@@ -44,7 +44,8 @@ TEST_F(ServerFlags, HelpListsEveryConfigKeyWithItsDefault) {
   for (const ConfigKey& k : ConfigKeys()) {
     const std::string d = k.get(defaults);
     EXPECT_NE(out.find("--" + k.name + " VALUE=" + (d.empty() ? "\"\"" : d)), std::string::npos)
-        << k.name << "\n" << out;
+        << k.name << "\n"
+        << out;
   }
   EXPECT_NE(out.find("--max_views VALUE=200"), std::string::npos) << out;
   EXPECT_NE(out.find("--config"), std::string::npos);
@@ -76,10 +77,10 @@ TEST_F(ServerFlags, FlagsOverrideTheConfigFileInBothSyntaxes) {
   const std::string conf = dir_ + "/server.conf";
   std::ofstream(conf) << "max_views = 12   # file only... overridden below\nr_max = 8\n"
                          "listen = 127.0.0.1:0\n";
-  Subprocess server(EXOVIEW_SERVER_BIN,
-                    {"--config=" + conf, "--max_views", "9", "--port_file=" + dir_ + "/port",
-                     "--sigma_m=1.5"},
-                    dir_ + "/server.log");
+  Subprocess server(
+      EXOVIEW_SERVER_BIN,
+      {"--config=" + conf, "--max_views", "9", "--port_file=" + dir_ + "/port", "--sigma_m=1.5"},
+      dir_ + "/server.log");
   ASSERT_TRUE(WaitForFile(dir_ + "/port", 20)) << server.Log();
   EXPECT_GT(std::stoi(ReadAll(dir_ + "/port")), 0);
   server.Signal(SIGTERM);

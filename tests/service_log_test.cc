@@ -3,13 +3,13 @@
 // sequence, reason; the suppressed ones counted), and the stream's summary line carries the right
 // counts; subscriber connect/disconnect, startup and shutdown are logged; every line has the
 // ISO time, the level and the component.
+#include <grpcpp/grpcpp.h>
+#include <gtest/gtest.h>
+
 #include <cmath>
 #include <filesystem>
 #include <regex>
 #include <sstream>
-
-#include <grpcpp/grpcpp.h>
-#include <gtest/gtest.h>
 
 #include "client/uploader/upload_client.h"
 #include "proto/exoview.grpc.pb.h"
@@ -52,11 +52,11 @@ TEST(ServiceLog, RejectionsRateLimitedAndStreamSummaryCounts) {
   char tmpl[] = "/tmp/exoview_log_XXXXXX";
   ASSERT_NE(mkdtemp(tmpl), nullptr);
   const std::string dir = tmpl;
-  Subprocess server(EXOVIEW_SERVER_BIN,
-                    {"--listen=127.0.0.1:0", "--port_file", dir + "/port", "--log_level=info",
-                     "--log_rejections_per_s=" + std::to_string(kLinesPerSecond), "--max_views",
-                     "50"},
-                    dir + "/server.log");
+  Subprocess server(
+      EXOVIEW_SERVER_BIN,
+      {"--listen=127.0.0.1:0", "--port_file", dir + "/port", "--log_level=info",
+       "--log_rejections_per_s=" + std::to_string(kLinesPerSecond), "--max_views", "50"},
+      dir + "/server.log");
   ASSERT_TRUE(WaitForFile(dir + "/port", 20)) << server.Log();
   auto channel = MakeChannel("127.0.0.1:" + std::to_string(std::stoi(ReadAll(dir + "/port"))));
   auto stub = v1::Exoview::NewStub(channel);

@@ -1,10 +1,10 @@
 #include "common/log/log.h"
 
-#include <cstdlib>
-#include <mutex>
-
 #include <spdlog/sinks/dist_sink.h>
 #include <spdlog/sinks/stdout_sinks.h>
+
+#include <cstdlib>
+#include <mutex>
 
 namespace exo::log {
 namespace {

@@ -7,13 +7,13 @@
 // adding a sink (AddSink). RateLimit keeps a flood of similar events to a few lines per second.
 #pragma once
 
+#include <spdlog/spdlog.h>
+
 #include <cstdint>
 #include <memory>
 #include <string>
 #include <string_view>
 #include <vector>
-
-#include <spdlog/spdlog.h>
 
 namespace exo::log {
 

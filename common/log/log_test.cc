@@ -1,11 +1,10 @@
 #include "common/log/log.h"
 
 #include <gtest/gtest.h>
+#include <spdlog/sinks/ostream_sink.h>
 
 #include <regex>
 #include <sstream>
-
-#include <spdlog/sinks/ostream_sink.h>
 
 namespace exo::log {
 namespace {

@@ -42,9 +42,10 @@ int main(int argc, char** argv) {
   sigaddset(&signals, SIGTERM);
   pthread_sigmask(SIG_BLOCK, &signals, nullptr);
 
-  CLI::App app{"The Exoview modeling server: RGB-D frames in (gRPC Upload), the view store and "
-               "proxy out (Subscribe, GetStats).",
-               "exoview_server"};
+  CLI::App app{
+      "The Exoview modeling server: RGB-D frames in (gRPC Upload), the view store and "
+      "proxy out (Subscribe, GetStats).",
+      "exoview_server"};
   exo::cli::Setup(app);
   std::string config_file, port_file;
   const char* env_level = std::getenv("EXOVIEW_LOG_LEVEL");
@@ -60,18 +61,17 @@ int main(int argc, char** argv) {
   std::vector<std::pair<const exo::ConfigKey*, CLI::Option*>> key_flags;
   for (const exo::ConfigKey& k : exo::ConfigKeys()) {
     const std::string default_text = k.get(defaults);
-    CLI::Option* opt =
-        app.add_option("--" + k.name, flag_values[k.name], k.help)
-            ->default_str(default_text.empty() ? "\"\"" : default_text)
-            ->type_name("VALUE")
-            ->group(kConfigGroup)
-            ->check(CLI::Validator(
-                [&k](std::string& v) {
-                  exo::ServerConfig scratch;
-                  const absl::Status s = k.set(v, &scratch);
-                  return s.ok() ? std::string() : std::string(s.message());
-                },
-                ""));
+    CLI::Option* opt = app.add_option("--" + k.name, flag_values[k.name], k.help)
+                           ->default_str(default_text.empty() ? "\"\"" : default_text)
+                           ->type_name("VALUE")
+                           ->group(kConfigGroup)
+                           ->check(CLI::Validator(
+                               [&k](std::string& v) {
+                                 exo::ServerConfig scratch;
+                                 const absl::Status s = k.set(v, &scratch);
+                                 return s.ok() ? std::string() : std::string(s.message());
+                               },
+                               ""));
     key_flags.emplace_back(&k, opt);
   }
   if (auto rc = exo::cli::Parse(app, argc, argv)) return *rc;
@@ -104,7 +104,8 @@ int main(int argc, char** argv) {
   }
   const std::vector<std::string> stages = exo::AvailableStages();
   log->info("exoview_server {} listening on port {}; stages: {}; {}; config{}: {}",
-            exo::cli::Version(), server.port(), stages.empty() ? "(none)" : absl::StrJoin(stages, " "),
+            exo::cli::Version(), server.port(),
+            stages.empty() ? "(none)" : absl::StrJoin(stages, " "),
             server.udp_pose_port() >= 0 ? absl::StrCat("UDP poses on port ", server.udp_pose_port())
                                         : "no UDP poses",
             config_file.empty() ? "" : " " + config_file, ChangedKeys(config));
@@ -119,7 +120,7 @@ int main(int argc, char** argv) {
   server.Shutdown();
   server.Wait();
   const auto summary = server.store().GetSummary();
-  log->info("stopped at model version {} ({} views, {} chunks)", summary.version,
-            summary.num_views, summary.num_chunks);
+  log->info("stopped at model version {} ({} views, {} chunks)", summary.version, summary.num_views,
+            summary.num_chunks);
   return 0;
 }

@@ -56,7 +56,8 @@ ConfigKey Key(std::string name, std::string help, Field field) {
   return k;
 }
 
-#define EXO_FIELD(expr) [](ServerConfig& c) -> auto& { return c.expr; }
+#define EXO_FIELD(expr) \
+  [](ServerConfig & c) -> auto& { return c.expr; }
 
 std::vector<ConfigKey> MakeKeys() {
   std::vector<ConfigKey> keys = {
@@ -65,17 +66,18 @@ std::vector<ConfigKey> MakeKeys() {
           EXO_FIELD(ingest.max_frame_bytes)),
       Key("transport_max_bytes", "gRPC message limit; larger messages end the stream",
           EXO_FIELD(transport_max_bytes)),
-      Key("admission_queue", "frames admitted but not yet processed", EXO_FIELD(pipeline.admission_queue)),
+      Key("admission_queue", "frames admitted but not yet processed",
+          EXO_FIELD(pipeline.admission_queue)),
       Key("stage_queue", "queue between pipeline stages", EXO_FIELD(pipeline.stage_queue)),
-      Key("cell_size_m", "lumigraph cell size in m",
-          EXO_FIELD(pipeline.cell_size_m)),
+      Key("cell_size_m", "lumigraph cell size in m", EXO_FIELD(pipeline.cell_size_m)),
       Key("max_log_deltas", "delta log bound (entries)", EXO_FIELD(store.max_log_deltas)),
       Key("max_log_bytes", "delta log bound (bytes)", EXO_FIELD(store.max_log_bytes)),
       Key("max_subscriber_lag", "deltas a subscriber may lag before a snapshot resync",
           EXO_FIELD(store.max_subscriber_lag)),
       Key("snapshot_when_cheaper", "resume with a snapshot when it costs less than the deltas",
           EXO_FIELD(store.snapshot_when_cheaper)),
-      Key("publish_jpeg_quality", "JPEG quality of published views", EXO_FIELD(publish.jpeg_quality)),
+      Key("publish_jpeg_quality", "JPEG quality of published views",
+          EXO_FIELD(publish.jpeg_quality)),
       Key("publish_depth_downscale", "published depth at 1/k resolution",
           EXO_FIELD(publish.depth_downscale)),
       Key("geometry", "geometry stage (TSDF proxy)", EXO_FIELD(enable_geometry)),
@@ -83,7 +85,8 @@ std::vector<ConfigKey> MakeKeys() {
       Key("max_depth_m", "depth beyond this is not fused", EXO_FIELD(geometry.max_depth_m)),
       Key("mesh_every_n_frames", "mesh extraction period in frames",
           EXO_FIELD(geometry.mesh_every_n_frames)),
-      Key("fuse_depth_downscale", "depth fused at 1/k resolution", EXO_FIELD(geometry.fuse_depth_downscale)),
+      Key("fuse_depth_downscale", "depth fused at 1/k resolution",
+          EXO_FIELD(geometry.fuse_depth_downscale)),
       Key("chunk_republish_change", "fraction of a chunk that must change to republish it",
           EXO_FIELD(geometry.republish_change_fraction)),
       Key("chunk_republish_interval_s", "minimum seconds between republishing a chunk",
@@ -94,8 +97,10 @@ std::vector<ConfigKey> MakeKeys() {
       Key("r_max", "references per cell", EXO_FIELD(planning.r_max)),
       Key("d_max_m", "ideal view distance in m", EXO_FIELD(planning.d_max_m)),
       Key("sigma_m", "distance falloff in m", EXO_FIELD(planning.sigma_m)),
-      Key("delta_tau_sum", "minimum objective gain to accept a view", EXO_FIELD(planning.delta_tau_sum)),
-      Key("max_candidates_per_s_when_full", "planner candidates per s once the store is full (0: all)",
+      Key("delta_tau_sum", "minimum objective gain to accept a view",
+          EXO_FIELD(planning.delta_tau_sum)),
+      Key("max_candidates_per_s_when_full",
+          "planner candidates per s once the store is full (0: all)",
           EXO_FIELD(planning.max_candidates_per_s_when_full)),
       Key("refinement", "refine accepted views' depth", EXO_FIELD(planning.refine)),
       Key("refine_queue", "views waiting for refinement", EXO_FIELD(planning.refine_queue)),
@@ -116,7 +121,8 @@ std::vector<ConfigKey> MakeKeys() {
       Key("udp_pose_address", "address of the UDP pose input", EXO_FIELD(udp_pose_address)),
       Key("udp_pose_tolerance_s", "a frame with no UDP pose this close is rejected",
           EXO_FIELD(udp_pose_tolerance_s)),
-      Key("log_rejections_per_s", "rejected-frame log lines per second per stream (the rest counted)",
+      Key("log_rejections_per_s",
+          "rejected-frame log lines per second per stream (the rest counted)",
           EXO_FIELD(log_rejections_per_s)),
   };
   ConfigKey udp = Key("udp_pose_port", "UDP pose input port (-1: off, 0: a free port)",

@@ -44,7 +44,8 @@ std::string UploadStreamLog::ReasonKey(std::string_view reason) {
   while (end < reason.size() && reason[end] != ':' &&
          !std::isdigit(static_cast<unsigned char>(reason[end])))
     ++end;
-  std::string key(absl::StripAsciiWhitespace(absl::string_view(reason.data(), std::min<size_t>(end, 60))));
+  std::string key(
+      absl::StripAsciiWhitespace(absl::string_view(reason.data(), std::min<size_t>(end, 60))));
   return key.empty() ? "other" : key;
 }
 
