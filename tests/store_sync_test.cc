@@ -1,5 +1,6 @@
-// The client's local store reaches the server model's digest through deltas, through a
-// snapshot, and through a resume from its last version.
+// Integration of the client store with the server model store (in process, no gRPC): the
+// client's local store reaches the server model's digest through deltas, through a snapshot,
+// and through a resume from its last version.
 #include "client/store/local_store.h"
 
 #include <gtest/gtest.h>
