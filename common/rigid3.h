@@ -1,8 +1,9 @@
 // Rigid transforms in double precision. Names say the frame: `world_from_cam` maps a point in
 // camera coordinates to world coordinates. Rotations entering from outside (files, network) go
-// through ValidateRotation(), which rejects NaN/Inf and non-orthonormal matrices with a clear
-// error. Large world coordinates (1e5 m from the origin) are handled by keeping every pose in
-// double and by rendering in a scene-local frame (see LocalOrigin below).
+// through ValidateRotation() (strict) or ProjectToRotation() (near-rotations projected to SO(3)),
+// which reject NaN/Inf and non-orthonormal matrices with a clear error. Large world coordinates
+// (1e5 m from the origin) are handled by keeping every pose in double and by rendering in a
+// scene-local frame (see LocalOrigin below).
 #pragma once
 
 #include <array>

@@ -136,6 +136,28 @@ TEST(FrameProto, ExposureZeroMeansNotGivenNegativeIsRejected) {
   EXPECT_NE(r3.status().message().find("exposure must be finite and > 0"), std::string::npos);
 }
 
+// Ack.code carries the absl::StatusCode of a rejection, number for number (google.rpc.Code).
+TEST(FrameProto, AckCodesMirrorStatusCodes) {
+  EXPECT_EQ(AckCodeFromStatus(absl::StatusCode::kOk), v1::Ack::OK);
+  EXPECT_EQ(AckCodeFromStatus(absl::StatusCode::kInvalidArgument), v1::Ack::INVALID_ARGUMENT);
+  EXPECT_EQ(AckCodeFromStatus(absl::StatusCode::kResourceExhausted), v1::Ack::RESOURCE_EXHAUSTED);
+  EXPECT_EQ(AckCodeFromStatus(absl::StatusCode::kFailedPrecondition),
+            v1::Ack::FAILED_PRECONDITION);
+  EXPECT_EQ(AckCodeFromStatus(absl::StatusCode::kUnavailable), v1::Ack::UNAVAILABLE);
+  for (int c = 0; c <= 16; ++c) {
+    const auto code = static_cast<absl::StatusCode>(c);
+    EXPECT_EQ(StatusCodeFromAck(AckCodeFromStatus(code)), code) << c;
+    // Same names as absl's (absl: "INVALID_ARGUMENT", wire enum: INVALID_ARGUMENT).
+    EXPECT_EQ(v1::Ack::Code_Name(AckCodeFromStatus(code)), absl::StatusCodeToString(code)) << c;
+  }
+  EXPECT_EQ(AckCodeFromStatus(static_cast<absl::StatusCode>(99)), v1::Ack::UNKNOWN);
+  EXPECT_EQ(StatusCodeFromAck(static_cast<v1::Ack::Code>(99)), absl::StatusCode::kUnknown);
+  // What a rejection becomes on the wire: the validation's status code.
+  v1::Frame m = Wire(SmallFrame());
+  m.clear_color_intrinsics();
+  EXPECT_EQ(AckCodeFromStatus(FrameFromProto(m, {}).status().code()), v1::Ack::INVALID_ARGUMENT);
+}
+
 TEST(FrameProto, MissingIntrinsicsAreRejected) {
   v1::Frame m = Wire(SmallFrame());
   m.clear_color_intrinsics();
