@@ -1,0 +1,138 @@
+// The client's local store on its own (no server): deltas applied in version order, replays and
+// gaps refused, snapshots applied atomically at SnapshotEnd, and the digest computed from exactly
+// what was received. The test against the server's model store is tests/store_sync_test.cc.
+#include "client/store/local_store.h"
+
+#include <gtest/gtest.h>
+
+namespace exo {
+namespace {
+
+v1::Delta ViewDelta(uint64_t version, ViewId id) {
+  StoredView v;
+  v.id = id;
+  v.camera = PinholeCamera::FromFov(32, 24, 1.0);
+  v.local_from_cam.translation = {0.1 * id, 0.0, 0.0};
+  v.color = ImageU8(32, 24, 3, static_cast<uint8_t>(10 * id));
+  v.depth_m = ImageF(32, 24, 1, 1.0f + 0.1f * id);
+  auto m = ViewToProto(v, {});
+  EXO_CHECK(m.ok());
+  v1::Delta d;
+  d.set_version(version);
+  *d.mutable_view_added() = *m;
+  return d;
+}
+
+v1::Delta SceneDelta(uint64_t version, double origin_x) {
+  v1::Delta d;
+  d.set_version(version);
+  d.mutable_scene_params()->mutable_origin_in_world()->set_x(origin_x);
+  d.mutable_scene_params()->set_cell_size_m(0.5);
+  return d;
+}
+
+v1::Delta CellsDelta(uint64_t version, CellId cell, std::vector<ViewId> views) {
+  v1::Delta d;
+  d.set_version(version);
+  auto* c = d.mutable_cell_refs_changed()->add_cells();
+  c->set_cell_id(cell);
+  for (ViewId v : views) c->add_view_ids(v);
+  return d;
+}
+
+v1::Delta ChunkDelta(uint64_t version, uint64_t chunk, const TriangleMesh& mesh) {
+  v1::Delta d;
+  d.set_version(version);
+  MeshToProto(mesh, d.mutable_mesh_chunk_upserted());
+  d.mutable_mesh_chunk_upserted()->set_chunk_id(chunk);
+  d.mutable_mesh_chunk_upserted()->set_chunk_version(version);
+  return d;
+}
+
+TriangleMesh Triangle(float z) {
+  TriangleMesh m;
+  m.positions = {{0, 0, z}, {1, 0, z}, {0, 1, z}};
+  m.indices = {0, 1, 2};
+  return m;
+}
+
+TEST(LocalStore, AppliesDeltasInOrderAndDigestsWhatItReceived) {
+  LocalStore s;
+  const v1::Delta view = ViewDelta(2, 7);
+  const CellId cell = PackCell({3, 0, 0});
+  for (const v1::Delta& d : {SceneDelta(1, 10.0), view, CellsDelta(3, cell, {7}),
+                             ChunkDelta(4, 1, Triangle(2.0f))})
+    ASSERT_TRUE(s.Apply(d).ok()) << d.version();
+  EXPECT_EQ(s.version(), 4u);
+  EXPECT_EQ(s.deltas_applied(), 4u);
+  EXPECT_EQ(s.model().origin.origin_in_world.x, 10.0);
+  ASSERT_EQ(s.model().views.size(), 1u);
+  EXPECT_EQ(s.model().views.at(7).color.at(0, 0, 0), 70);  // decoded JPEG (flat colour)
+  EXPECT_EQ(s.model().views.at(7).depth_m.width(), 32);    // depth back at colour size
+  EXPECT_EQ(s.model().cell_refs.at(cell), std::vector<ViewId>{7});
+  ASSERT_EQ(s.model().chunks.size(), 1u);
+  // The digest is the wire library's ModelDigest of exactly the received records.
+  std::map<ViewId, ViewDigestRecord> views{{7, DigestRecordFromProto(view.view_added())}};
+  std::map<uint64_t, ChunkDigestRecord> chunks{{1, {4, MeshHash(Triangle(2.0f))}}};
+  EXPECT_EQ(s.Digest(), ModelDigest(views, s.model().cell_refs, chunks));
+  // Any change of content changes it.
+  const uint64_t before = s.Digest();
+  ASSERT_TRUE(s.Apply(ChunkDelta(5, 1, Triangle(2.5f))).ok());
+  EXPECT_NE(s.Digest(), before);
+}
+
+TEST(LocalStore, ReplayGapAndUnknownIdsAreErrors) {
+  LocalStore s;
+  ASSERT_TRUE(s.Apply(SceneDelta(1, 0.0)).ok());
+  ASSERT_TRUE(s.Apply(ViewDelta(2, 1)).ok());
+  const auto replay = s.Apply(ViewDelta(2, 1));
+  EXPECT_EQ(replay.code(), absl::StatusCode::kFailedPrecondition);
+  const auto gap = s.Apply(ViewDelta(4, 2));
+  EXPECT_EQ(gap.code(), absl::StatusCode::kFailedPrecondition);
+  EXPECT_NE(gap.message().find("delta version 4 does not follow the local version 2"),
+            std::string::npos)
+      << gap;
+  v1::Delta remove;
+  remove.set_version(3);
+  remove.mutable_view_removed()->set_view_id(99);
+  EXPECT_EQ(s.Apply(remove).code(), absl::StatusCode::kFailedPrecondition);
+  EXPECT_EQ(s.version(), 2u);  // nothing refused moved the version
+  EXPECT_EQ(s.model().views.size(), 1u);
+}
+
+TEST(LocalStore, SnapshotReplacesTheModelOnlyWhenComplete) {
+  LocalStore s;
+  ASSERT_TRUE(s.Apply(SceneDelta(1, 0.0)).ok());
+  ASSERT_TRUE(s.Apply(ViewDelta(2, 1)).ok());
+  const uint64_t digest_v2 = s.Digest();
+  v1::Delta begin, end;
+  begin.mutable_snapshot_begin();
+  end.set_version(40);
+  end.set_model_epoch(1234);
+  end.mutable_snapshot_end();
+  ASSERT_TRUE(s.Apply(begin).ok());
+  ASSERT_TRUE(s.Apply(SceneDelta(0, 5.0)).ok());
+  ASSERT_TRUE(s.Apply(ViewDelta(0, 3)).ok());
+  ASSERT_TRUE(s.Apply(ViewDelta(0, 4)).ok());
+  // Mid-snapshot: still the previous consistent model (a client cut here resumes from v2).
+  EXPECT_TRUE(s.in_snapshot());
+  EXPECT_EQ(s.version(), 2u);
+  EXPECT_EQ(s.Digest(), digest_v2);
+  ASSERT_TRUE(s.model().views.count(1));
+  ASSERT_TRUE(s.Apply(end).ok());
+  EXPECT_FALSE(s.in_snapshot());
+  EXPECT_EQ(s.version(), 40u);
+  EXPECT_EQ(s.epoch(), 1234u);
+  EXPECT_EQ(s.snapshots_applied(), 1u);
+  EXPECT_EQ(s.model().origin.origin_in_world.x, 5.0);
+  EXPECT_EQ(s.model().views.size(), 2u);
+  EXPECT_FALSE(s.model().views.count(1));  // replaced, not merged
+  EXPECT_NE(s.Digest(), digest_v2);
+  ASSERT_TRUE(s.Apply(CellsDelta(41, PackCell({0, 0, 0}), {3, 4})).ok());  // deltas go on
+  v1::Delta stray_end;
+  stray_end.mutable_snapshot_end();
+  EXPECT_EQ(s.Apply(stray_end).code(), absl::StatusCode::kFailedPrecondition);
+}
+
+}  // namespace
+}  // namespace exo
