@@ -2,9 +2,9 @@
 // frames round-trip.
 #include "proto/frame_proto.h"
 
-#include <cmath>
-
 #include <gtest/gtest.h>
+
+#include <cmath>
 
 #include "proto/test_frames.h"
 
@@ -141,8 +141,7 @@ TEST(FrameProto, AckCodesMirrorStatusCodes) {
   EXPECT_EQ(AckCodeFromStatus(absl::StatusCode::kOk), v1::Ack::OK);
   EXPECT_EQ(AckCodeFromStatus(absl::StatusCode::kInvalidArgument), v1::Ack::INVALID_ARGUMENT);
   EXPECT_EQ(AckCodeFromStatus(absl::StatusCode::kResourceExhausted), v1::Ack::RESOURCE_EXHAUSTED);
-  EXPECT_EQ(AckCodeFromStatus(absl::StatusCode::kFailedPrecondition),
-            v1::Ack::FAILED_PRECONDITION);
+  EXPECT_EQ(AckCodeFromStatus(absl::StatusCode::kFailedPrecondition), v1::Ack::FAILED_PRECONDITION);
   EXPECT_EQ(AckCodeFromStatus(absl::StatusCode::kUnavailable), v1::Ack::UNAVAILABLE);
   for (int c = 0; c <= 16; ++c) {
     const auto code = static_cast<absl::StatusCode>(c);

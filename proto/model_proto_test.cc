@@ -32,7 +32,8 @@ TEST(ModelProto, ViewRoundTripDownscalesDepthAndKeepsDigestInputs) {
   // Depth is a ramp in x: nearest sample of the 4-px block is within 4 px * 0.01 m.
   for (int x = 0; x < 64; ++x) EXPECT_NEAR(back->depth_m.at(x, 10), f.depth_m.at(x, 10), 0.041);
   EXPECT_EQ(DigestRecordFromProto(*msg).color_hash,
-            Fnv1a64({reinterpret_cast<const uint8_t*>(msg->color_jpeg().data()), msg->color_jpeg().size()}));
+            Fnv1a64({reinterpret_cast<const uint8_t*>(msg->color_jpeg().data()),
+                     msg->color_jpeg().size()}));
 }
 
 }  // namespace

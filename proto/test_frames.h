@@ -2,9 +2,9 @@
 // a depth ramp in x and a generic pose, and their exoview.v1 encoding.
 #pragma once
 
-#include <cstdint>
-
 #include <gtest/gtest.h>
+
+#include <cstdint>
 
 #include "common/frame.h"
 #include "proto/frame_proto.h"
@@ -21,7 +21,8 @@ inline Frame SmallFrame(int w = 32, int h = 24, uint64_t seq = 1) {
   f.depth_m = ImageF(w, h);
   for (int y = 0; y < h; ++y)
     for (int x = 0; x < w; ++x) {
-      for (int c = 0; c < 3; ++c) f.color.at(x, y, c) = static_cast<uint8_t>((x * 7 + y * 3 + c * 50) % 256);
+      for (int c = 0; c < 3; ++c)
+        f.color.at(x, y, c) = static_cast<uint8_t>((x * 7 + y * 3 + c * 50) % 256);
       f.depth_m.at(x, y) = 1.0f + 0.01f * x;
     }
   f.world_from_cam.translation = {1.0, 2.0, 3.0};

@@ -60,8 +60,8 @@ TEST(LocalStore, AppliesDeltasInOrderAndDigestsWhatItReceived) {
   LocalStore s;
   const v1::Delta view = ViewDelta(2, 7);
   const CellId cell = PackCell({3, 0, 0});
-  for (const v1::Delta& d : {SceneDelta(1, 10.0), view, CellsDelta(3, cell, {7}),
-                             ChunkDelta(4, 1, Triangle(2.0f))})
+  for (const v1::Delta& d :
+       {SceneDelta(1, 10.0), view, CellsDelta(3, cell, {7}), ChunkDelta(4, 1, Triangle(2.0f))})
     ASSERT_TRUE(s.Apply(d).ok()) << d.version();
   EXPECT_EQ(s.version(), 4u);
   EXPECT_EQ(s.deltas_applied(), 4u);
