@@ -1,8 +1,9 @@
 // Rigid transforms in double precision. Names say the frame: `world_from_cam` maps a point in
 // camera coordinates to world coordinates. Rotations entering from outside (files, network) go
-// through ValidateRotation(), which rejects NaN/Inf and non-orthonormal matrices with a clear
-// error. Large world coordinates (1e5 m from the origin) are handled by keeping every pose in
-// double and by rendering in a scene-local frame (see LocalOrigin below).
+// through ValidateRotation() (strict) or ProjectToRotation() (near-rotations projected to SO(3)),
+// which reject NaN/Inf and non-orthonormal matrices with a clear error. Large world coordinates
+// (1e5 m from the origin) are handled by keeping every pose in double and by rendering in a
+// scene-local frame (see LocalOrigin below).
 #pragma once
 
 #include <array>
@@ -37,6 +38,19 @@ struct Rigid3d {
 
 // Tolerance for ||R^T R - I||_max and |det R - 1| of an incoming rotation.
 inline constexpr double kRotationTolerance = 1e-4;
+
+// Incoming rotations (network, files) within this distance of orthonormal (max|R^T R - I|) are
+// projected to SO(3) and accepted; farther ones are rejected (SPEC §12). Real trackers print
+// rotations with 4 to 7 decimals (7-Scenes: max|R^T R - I| ~ 1.1e-4), above kRotationTolerance.
+inline constexpr double kRotationRepairTolerance = 1e-2;
+
+// max|R^T R - I| (entrywise), or +inf when an entry is not finite.
+double OrthonormalityError(const glm::dmat3& r);
+// The nearest rotation (Frobenius norm: the orthogonal polar factor, det +1) of a matrix within
+// kRotationRepairTolerance of orthonormal and with det > 0; otherwise InvalidArgument with the
+// measured error (non-finite entries, max|R^T R - I| above the limit, or a reflection).
+absl::StatusOr<glm::dmat3> ProjectToRotation(const glm::dmat3& r);
+absl::StatusOr<glm::dmat3> ProjectToRotation(const std::array<double, 9>& r_row_major);
 
 // Checks a row-major 3x3 rotation: finite, orthonormal within kRotationTolerance, det +1.
 absl::Status ValidateRotation(const std::array<double, 9>& r_row_major);

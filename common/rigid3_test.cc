@@ -69,6 +69,61 @@ TEST(ValidateRotation, RejectsNaNAndNonOrthonormal) {
   EXPECT_NE(s.message().find("orthonormal"), std::string::npos);
 }
 
+// The rotation of 7-Scenes redkitchen seq-01 frame-000000.pose.txt as printed (KinectFusion):
+// max|R^T R - I| = 1.12e-4, above kRotationTolerance, far below kRotationRepairTolerance.
+constexpr std::array<double, 9> kSevenScenesFrame0{
+    9.093128999999999795e-01,  2.726222899999999894e-01, -3.142243299999999961e-01,
+    -2.724861800000000223e-01, 9.610497999999999541e-01, 4.527962600000000337e-02,
+    3.143392500000000145e-01,  4.444964600000000238e-02, 9.482093499999999509e-01};
+
+glm::dmat3 FromRowMajor(const std::array<double, 9>& r) {
+  glm::dmat3 m;
+  for (int row = 0; row < 3; ++row)
+    for (int col = 0; col < 3; ++col) m[col][row] = r[row * 3 + col];
+  return m;
+}
+
+TEST(ProjectToRotation, NearRotationFromARealTrackerIsProjected) {
+  const glm::dmat3 r = FromRowMajor(kSevenScenesFrame0);
+  const double err = OrthonormalityError(r);
+  EXPECT_GT(err, kRotationTolerance);  // the old strict check rejected it
+  EXPECT_NEAR(err, 1.12e-4, 0.01e-4);
+  EXPECT_FALSE(ValidateRotation(kSevenScenesFrame0).ok());
+  auto q = ProjectToRotation(kSevenScenesFrame0);
+  ASSERT_TRUE(q.ok()) << q.status();
+  EXPECT_LT(OrthonormalityError(*q), 1e-14);
+  EXPECT_NEAR(glm::determinant(*q), 1.0, 1e-14);
+  EXPECT_TRUE(ValidateRotation(*q).ok());
+  // The nearest rotation moves each entry by about the error, not more.
+  for (int c = 0; c < 3; ++c)
+    for (int k = 0; k < 3; ++k) EXPECT_NEAR((*q)[c][k], r[c][k], 1e-4);
+  // An exact rotation is a fixed point.
+  const glm::dmat3 exact = glm::mat3_cast(glm::normalize(glm::dquat(0.9, 0.1, -0.2, 0.3)));
+  auto same = ProjectToRotation(exact);
+  ASSERT_TRUE(same.ok());
+  for (int c = 0; c < 3; ++c)
+    for (int k = 0; k < 3; ++k) EXPECT_NEAR((*same)[c][k], exact[c][k], 1e-15);
+}
+
+TEST(ProjectToRotation, FarFromOrthonormalOrReflectionIsRejectedWithTheError) {
+  auto off = kSevenScenesFrame0;
+  off[1] += 0.05;  // one entry off by 0.05: max|R^T R - I| ~ 0.05
+  const double err = OrthonormalityError(FromRowMajor(off));
+  EXPECT_GT(err, 0.04);
+  auto q = ProjectToRotation(off);
+  ASSERT_FALSE(q.ok());
+  EXPECT_EQ(q.status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_NE(q.status().message().find(absl::StrCat("max|R^T R - I| = ", err)), std::string::npos)
+      << q.status();
+  std::array<double, 9> reflection{1, 0, 0, 0, 1, 0, 0, 0, -1};
+  auto r = ProjectToRotation(reflection);
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.status().message().find("determinant"), std::string::npos) << r.status();
+  auto nan = kSevenScenesFrame0;
+  nan[3] = std::nan("");
+  EXPECT_FALSE(ProjectToRotation(nan).ok());
+}
+
 TEST(ValidateRotation, RowMajor4x4) {
   std::array<double, 16> m{0, -1, 0, 1, 1, 0, 0, 2, 0, 0, 1, 3, 0, 0, 0, 1};
   auto pose = RigidFromRowMajor4x4(m);

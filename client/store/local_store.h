@@ -1,7 +1,7 @@
 // The render client's local copy of the lumigraph model: applies the server's versioned deltas
 // (exoview.v1.Delta) to an exo::LumigraphModel with decoded views, tracks the last applied
 // version (what the client passes to Subscribe when it reconnects) and computes the same model
-// digest as the server (server/service/model_proto.h) so equality can be checked end to end.
+// digest as the server (proto/model_proto.h) so equality can be checked end to end.
 #pragma once
 
 #include <cstdint>
@@ -10,7 +10,7 @@
 #include "common/lumigraph/model.h"
 #include "common/status.h"
 #include "proto/exoview.pb.h"
-#include "server/service/model_proto.h"
+#include "proto/model_proto.h"
 
 namespace exo {
 

@@ -1,15 +1,14 @@
-// The client's local store reaches the server model's digest through deltas, through a
-// snapshot, and through a resume from its last version.
+// The client's local store on its own (no server): deltas applied in version order, replays and
+// gaps refused, snapshots applied atomically at SnapshotEnd, and the digest computed from exactly
+// what was received. The test against the server's model store is tests/store_sync_test.cc.
 #include "client/store/local_store.h"
 
 #include <gtest/gtest.h>
 
-#include "server/service/model_store.h"
-
 namespace exo {
 namespace {
 
-v1::ViewAdded MakeView(ViewId id) {
+v1::Delta ViewDelta(uint64_t version, ViewId id) {
   StoredView v;
   v.id = id;
   v.camera = PinholeCamera::FromFov(32, 24, 1.0);
@@ -18,83 +17,121 @@ v1::ViewAdded MakeView(ViewId id) {
   v.depth_m = ImageF(32, 24, 1, 1.0f + 0.1f * id);
   auto m = ViewToProto(v, {});
   EXO_CHECK(m.ok());
-  return *m;
+  v1::Delta d;
+  d.set_version(version);
+  *d.mutable_view_added() = *m;
+  return d;
 }
 
-void Mutate(ModelStore& s, ViewId first, ViewId last) {
-  for (ViewId i = first; i <= last; ++i) {
-    s.AddView(MakeView(i));
-    s.SetCellRefs({{PackCell({static_cast<int>(i), 0, 0}), {i}}});
-  }
+v1::Delta SceneDelta(uint64_t version, double origin_x) {
+  v1::Delta d;
+  d.set_version(version);
+  d.mutable_scene_params()->mutable_origin_in_world()->set_x(origin_x);
+  d.mutable_scene_params()->set_cell_size_m(0.5);
+  return d;
+}
+
+v1::Delta CellsDelta(uint64_t version, CellId cell, std::vector<ViewId> views) {
+  v1::Delta d;
+  d.set_version(version);
+  auto* c = d.mutable_cell_refs_changed()->add_cells();
+  c->set_cell_id(cell);
+  for (ViewId v : views) c->add_view_ids(v);
+  return d;
+}
+
+v1::Delta ChunkDelta(uint64_t version, uint64_t chunk, const TriangleMesh& mesh) {
+  v1::Delta d;
+  d.set_version(version);
+  MeshToProto(mesh, d.mutable_mesh_chunk_upserted());
+  d.mutable_mesh_chunk_upserted()->set_chunk_id(chunk);
+  d.mutable_mesh_chunk_upserted()->set_chunk_version(version);
+  return d;
+}
+
+TriangleMesh Triangle(float z) {
   TriangleMesh m;
-  m.positions = {{0, 0, 0}, {1, 0, 0}, {0, 1, static_cast<float>(last)}};
+  m.positions = {{0, 0, z}, {1, 0, z}, {0, 1, z}};
   m.indices = {0, 1, 2};
-  s.UpsertChunk(1, last, m);
+  return m;
 }
 
-absl::Status Pump(Subscription& sub, LocalStore& local) {
-  for (;;) {
-    auto batch = sub.Next(0);
-    if (batch.empty()) return absl::OkStatus();
-    for (const auto& d : batch) EXO_RETURN_IF_ERROR(local.Apply(*d));
-  }
+TEST(LocalStore, AppliesDeltasInOrderAndDigestsWhatItReceived) {
+  LocalStore s;
+  const v1::Delta view = ViewDelta(2, 7);
+  const CellId cell = PackCell({3, 0, 0});
+  for (const v1::Delta& d :
+       {SceneDelta(1, 10.0), view, CellsDelta(3, cell, {7}), ChunkDelta(4, 1, Triangle(2.0f))})
+    ASSERT_TRUE(s.Apply(d).ok()) << d.version();
+  EXPECT_EQ(s.version(), 4u);
+  EXPECT_EQ(s.deltas_applied(), 4u);
+  EXPECT_EQ(s.model().origin.origin_in_world.x, 10.0);
+  ASSERT_EQ(s.model().views.size(), 1u);
+  EXPECT_EQ(s.model().views.at(7).color.at(0, 0, 0), 70);  // decoded JPEG (flat colour)
+  EXPECT_EQ(s.model().views.at(7).depth_m.width(), 32);    // depth back at colour size
+  EXPECT_EQ(s.model().cell_refs.at(cell), std::vector<ViewId>{7});
+  ASSERT_EQ(s.model().chunks.size(), 1u);
+  // The digest is the wire library's ModelDigest of exactly the received records.
+  std::map<ViewId, ViewDigestRecord> views{{7, DigestRecordFromProto(view.view_added())}};
+  std::map<uint64_t, ChunkDigestRecord> chunks{{1, {4, MeshHash(Triangle(2.0f))}}};
+  EXPECT_EQ(s.Digest(), ModelDigest(views, s.model().cell_refs, chunks));
+  // Any change of content changes it.
+  const uint64_t before = s.Digest();
+  ASSERT_TRUE(s.Apply(ChunkDelta(5, 1, Triangle(2.5f))).ok());
+  EXPECT_NE(s.Digest(), before);
 }
 
-TEST(LocalStore, DeltasSnapshotAndResumeReachTheServerDigest) {
-  ModelStore server;
-  server.SetSceneParams(LocalOrigin{{10.0, 0.0, 0.0}}, 0.5);
-  Mutate(server, 1, 4);
-  LocalStore a;
-  auto sub = server.Subscribe(a.version(), a.epoch());
-  ASSERT_TRUE(Pump(*sub, a).ok());
-  EXPECT_EQ(a.version(), server.version());
-  EXPECT_EQ(a.Digest(), server.GetSummary().digest);
-  EXPECT_EQ(a.model().views.size(), 4u);
-  EXPECT_EQ(a.model().views.at(3).color.at(0, 0, 0), 30);  // decoded JPEG (flat colour)
-  EXPECT_EQ(a.model().origin.origin_in_world.x, 10.0);
-
-  // Disconnect, the server moves on (including a removal and a refinement update), resume.
-  sub.reset();
-  Mutate(server, 5, 6);
-  ASSERT_TRUE(server.RemoveView(2).ok());
-  ASSERT_TRUE(server.UpdateView(3, Rigid3d{{1, 0, 0, 0}, {5, 5, 5}}, 1.5f).ok());
-  const uint64_t before = a.version();
-  const uint64_t snapshots_before = a.snapshots_applied(), deltas_before = a.deltas_applied();
-  auto sub2 = server.Subscribe(a.version(), a.epoch());
-  ASSERT_TRUE(Pump(*sub2, a).ok());
-  EXPECT_EQ(a.snapshots_applied(), snapshots_before);  // resumed with deltas only
-  EXPECT_EQ(a.deltas_applied() - deltas_before, server.version() - before);
-  EXPECT_GT(a.version(), before);
-  EXPECT_EQ(a.Digest(), server.GetSummary().digest);
-  EXPECT_EQ(a.model().views.count(2), 0u);
-  EXPECT_EQ(a.model().views.at(3).exposure, 1.5f);
-  EXPECT_EQ(a.epoch(), server.epoch());  // what the client sends on its next Subscribe
-
-  // A fresh client from a compacted server gets a snapshot and the same digest.
-  ModelStoreOptions small;
-  small.max_log_deltas = 2;
-  ModelStore compact(small);
-  Mutate(compact, 1, 5);
-  LocalStore b;
-  auto sub3 = compact.Subscribe(0, 0);
-  ASSERT_TRUE(Pump(*sub3, b).ok());
-  EXPECT_EQ(b.snapshots_applied(), 1u);
-  EXPECT_EQ(b.Digest(), compact.GetSummary().digest);
-  EXPECT_EQ(b.version(), compact.version());
+TEST(LocalStore, ReplayGapAndUnknownIdsAreErrors) {
+  LocalStore s;
+  ASSERT_TRUE(s.Apply(SceneDelta(1, 0.0)).ok());
+  ASSERT_TRUE(s.Apply(ViewDelta(2, 1)).ok());
+  const auto replay = s.Apply(ViewDelta(2, 1));
+  EXPECT_EQ(replay.code(), absl::StatusCode::kFailedPrecondition);
+  const auto gap = s.Apply(ViewDelta(4, 2));
+  EXPECT_EQ(gap.code(), absl::StatusCode::kFailedPrecondition);
+  EXPECT_NE(gap.message().find("delta version 4 does not follow the local version 2"),
+            std::string::npos)
+      << gap;
+  v1::Delta remove;
+  remove.set_version(3);
+  remove.mutable_view_removed()->set_view_id(99);
+  EXPECT_EQ(s.Apply(remove).code(), absl::StatusCode::kFailedPrecondition);
+  EXPECT_EQ(s.version(), 2u);  // nothing refused moved the version
+  EXPECT_EQ(s.model().views.size(), 1u);
 }
 
-TEST(LocalStore, GapOrReplayedVersionIsAnError) {
-  ModelStore server;
-  Mutate(server, 1, 2);
-  LocalStore a;
-  auto sub = server.Subscribe(0, 0);
-  auto batch = sub->Next(0);
-  ASSERT_GE(batch.size(), 3u);
-  ASSERT_TRUE(a.Apply(*batch[0]).ok());
-  EXPECT_FALSE(a.Apply(*batch[0]).ok());  // replay of version 1
-  EXPECT_FALSE(a.Apply(*batch[2]).ok());  // gap: version 3 after 1
-  // Digest differs while the store is behind (the comparison can fail).
-  EXPECT_NE(a.Digest(), server.GetSummary().digest);
+TEST(LocalStore, SnapshotReplacesTheModelOnlyWhenComplete) {
+  LocalStore s;
+  ASSERT_TRUE(s.Apply(SceneDelta(1, 0.0)).ok());
+  ASSERT_TRUE(s.Apply(ViewDelta(2, 1)).ok());
+  const uint64_t digest_v2 = s.Digest();
+  v1::Delta begin, end;
+  begin.mutable_snapshot_begin();
+  end.set_version(40);
+  end.set_model_epoch(1234);
+  end.mutable_snapshot_end();
+  ASSERT_TRUE(s.Apply(begin).ok());
+  ASSERT_TRUE(s.Apply(SceneDelta(0, 5.0)).ok());
+  ASSERT_TRUE(s.Apply(ViewDelta(0, 3)).ok());
+  ASSERT_TRUE(s.Apply(ViewDelta(0, 4)).ok());
+  // Mid-snapshot: still the previous consistent model (a client cut here resumes from v2).
+  EXPECT_TRUE(s.in_snapshot());
+  EXPECT_EQ(s.version(), 2u);
+  EXPECT_EQ(s.Digest(), digest_v2);
+  ASSERT_TRUE(s.model().views.count(1));
+  ASSERT_TRUE(s.Apply(end).ok());
+  EXPECT_FALSE(s.in_snapshot());
+  EXPECT_EQ(s.version(), 40u);
+  EXPECT_EQ(s.epoch(), 1234u);
+  EXPECT_EQ(s.snapshots_applied(), 1u);
+  EXPECT_EQ(s.model().origin.origin_in_world.x, 5.0);
+  EXPECT_EQ(s.model().views.size(), 2u);
+  EXPECT_FALSE(s.model().views.count(1));  // replaced, not merged
+  EXPECT_NE(s.Digest(), digest_v2);
+  ASSERT_TRUE(s.Apply(CellsDelta(41, PackCell({0, 0, 0}), {3, 4})).ok());  // deltas go on
+  v1::Delta stray_end;
+  stray_end.mutable_snapshot_end();
+  EXPECT_EQ(s.Apply(stray_end).code(), absl::StatusCode::kFailedPrecondition);
 }
 
 }  // namespace

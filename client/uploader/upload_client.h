@@ -14,7 +14,7 @@
 #include "common/datasets/frame_source.h"
 #include "common/status.h"
 #include "proto/exoview.pb.h"
-#include "server/service/frame_proto.h"
+#include "proto/frame_proto.h"
 
 namespace grpc {
 class Channel;

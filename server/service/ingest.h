@@ -9,7 +9,7 @@
 #include "common/frame.h"
 #include "common/status.h"
 #include "proto/exoview.pb.h"
-#include "server/service/frame_proto.h"
+#include "proto/frame_proto.h"
 
 namespace exo {
 

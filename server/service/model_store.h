@@ -19,7 +19,7 @@
 #include "common/lumigraph/model.h"
 #include "common/status.h"
 #include "proto/exoview.pb.h"
-#include "server/service/model_proto.h"
+#include "proto/model_proto.h"
 
 namespace exo {
 

@@ -10,7 +10,7 @@
 #include <utility>
 #include <vector>
 
-#include "server/service/model_proto.h"
+#include "proto/model_proto.h"
 #include "server/service/pipeline.h"
 
 namespace exo {

@@ -9,6 +9,7 @@
 #include <fstream>
 #include <mutex>
 
+#include <grpcpp/ext/proto_server_reflection_plugin.h>
 #include <grpcpp/grpcpp.h>
 #include <grpcpp/health_check_service_interface.h>
 
@@ -45,26 +46,22 @@ class ExoviewServer::Service final : public v1::Exoview::Service {
       v1::Ack ack;
       ack.set_sequence(msg.sequence());
       if (shutting_down_->load()) {
-        ack.set_status(v1::Ack::REJECTED);
-        ack.set_reason("server is shutting down");
-        rejected_.fetch_add(1);
+        Reject(absl::UnavailableError("server is shutting down"), &ack);
       } else if (auto frame = ingest.Admit(msg, msg.ByteSizeLong()); !frame.ok()) {
-        ack.set_status(v1::Ack::REJECTED);
-        ack.set_reason(std::string(frame.status().message()));
-        rejected_.fetch_add(1);
+        Reject(frame.status(), &ack);
       } else if (absl::Status pose = FillPoseFromUdp(msg, &*frame); !pose.ok()) {
-        ack.set_status(v1::Ack::REJECTED);
-        ack.set_reason(std::string(pose.message()));
-        rejected_.fetch_add(1);
+        Reject(pose, &ack);
       } else {
         auto pf = std::make_shared<PipelineFrame>();
         pf->frame = *std::move(frame);
         pf->received_ns = t0;
         if (pipeline_->Submit(std::move(pf)) == Pipeline::Admission::kAccepted) {
           ack.set_status(v1::Ack::ACCEPTED);
+          ack.set_code(v1::Ack::OK);
           accepted_.fetch_add(1);
         } else {
           ack.set_status(v1::Ack::DROPPED);
+          ack.set_code(v1::Ack::RESOURCE_EXHAUSTED);
           ack.set_reason("overload: planning queue full, candidate dropped");
           dropped_.fetch_add(1);
         }
@@ -125,12 +122,20 @@ class ExoviewServer::Service final : public v1::Exoview::Service {
   }
 
  private:
+  // A REJECTED ack: the reason text and its machine-readable code (Ack.code = the status code).
+  void Reject(const absl::Status& status, v1::Ack* ack) {
+    ack->set_status(v1::Ack::REJECTED);
+    ack->set_code(AckCodeFromStatus(status.code()));
+    ack->set_reason(std::string(status.message()));
+    rejected_.fetch_add(1);
+  }
+
   // A frame without a pose takes it from the UDP pose stream at its timestamp (SPEC §2).
   absl::Status FillPoseFromUdp(const v1::Frame& msg, Frame* frame) const {
     if (msg.has_world_from_cam() || udp_ == nullptr) return absl::OkStatus();
     auto pose = udp_->PoseAt(frame->timestamp_s, config_.udp_pose_tolerance_s);
     if (!pose.ok())
-      return absl::InvalidArgumentError(
+      return absl::FailedPreconditionError(
           absl::StrCat("no pose for the frame from the UDP pose stream: ", pose.status().message()));
     frame->world_from_cam = *pose;
     return frame->Validate();
@@ -192,6 +197,8 @@ absl::Status ExoviewServer::Start() {
   service_ = std::make_unique<Service>(config_, store_.get(), pipeline_.get(), &shutting_down_,
                                        udp_.get());
   grpc::EnableDefaultHealthCheckService(true);
+  // Server reflection: grpcurl-style tools list exoview.v1.Exoview and fetch its descriptors.
+  grpc::reflection::InitProtoReflectionServerBuilderPlugin();
   grpc::ServerBuilder builder;
   builder.AddListeningPort(config_.listen, grpc::InsecureServerCredentials(), &port_);
   builder.SetMaxReceiveMessageSize(static_cast<int>(config_.transport_max_bytes));

@@ -15,7 +15,7 @@
 
 #include "common/status.h"
 #include "server/service/ingest.h"
-#include "server/service/model_proto.h"
+#include "proto/model_proto.h"
 #include "server/service/model_store.h"
 #include "server/service/geometry_stage.h"
 #include "server/service/pipeline.h"

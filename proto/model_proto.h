@@ -13,7 +13,7 @@
 #include "common/lumigraph/model.h"
 #include "common/status.h"
 #include "proto/exoview.pb.h"
-#include "server/service/frame_proto.h"
+#include "proto/frame_proto.h"
 
 namespace exo {
 

@@ -8,7 +8,7 @@
 // and prints, per variant, SSIM / PSNR of the blended novel views against ground truth, plus
 // the cost of the proxy-depth pass per view (what every proxy update would cost per affected
 // view). Usage: LP_NUM_THREADS=2 vulkan_depth_bench [--scene=apartment|village] [--views=40]
-//   [--frames=8] [--voxel=0.04]
+//   [--frames=8] [--voxel=0.04] (--help lists the flags).
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
@@ -19,6 +19,7 @@
 #include <vector>
 
 #include "client/vulkan/vulkan_renderer.h"
+#include "common/cli/cli.h"
 #include "common/metrics/metrics.h"
 #include "common/raster/rasterizer.h"
 #include "common/synth/render.h"
@@ -32,16 +33,24 @@ int main(int argc, char** argv) {
   std::string scene_name = "apartment";
   int max_views = 40, frames = 8;
   double voxel = 0.04;
-  for (int i = 1; i < argc; ++i) {
-    const char* a = argv[i];
-    if (!std::strncmp(a, "--scene=", 8)) scene_name = a + 8;
-    else if (!std::strncmp(a, "--views=", 8)) max_views = std::atoi(a + 8);
-    else if (!std::strncmp(a, "--frames=", 9)) frames = std::atoi(a + 9);
-    else if (!std::strncmp(a, "--voxel=", 8)) voxel = std::atof(a + 8);
-    else { std::fprintf(stderr, "unknown argument %s\n", a); return 2; }
-  }
+  CLI::App app{"Sensor depth vs proxy depth for the client's occlusion test: SSIM / PSNR of "
+               "blended novel views against ground truth, and the proxy-depth pass cost per view "
+               "(JSON on stdout).",
+               "vulkan_depth_bench"};
+  cli::Setup(app);
+  app.add_option("--scene", scene_name, "synthetic scene (apartment|village)")->capture_default_str();
+  app.add_option("--views", max_views, "stored views")->check(CLI::Range(2, 100000))
+      ->capture_default_str();
+  app.add_option("--frames", frames, "novel frames rendered")->check(CLI::PositiveNumber)
+      ->capture_default_str();
+  app.add_option("--voxel", voxel, "TSDF voxel size of the proxy (m)")
+      ->check(CLI::Range(0.005, 1.0))->capture_default_str();
+  if (auto rc = cli::Parse(app, argc, argv)) return *rc;
   auto kind = synth::ParseSceneKind(scene_name);
-  if (!kind.ok() || max_views < 2 || frames < 1 || !(voxel > 0.005)) { std::fprintf(stderr, "bad arguments\n"); return 2; }
+  if (!kind.ok()) {
+    std::fprintf(stderr, "vulkan_depth_bench: %s\n", kind.status().ToString().c_str());
+    return 2;
+  }
   auto scene = synth::MakeScene(*kind, {});
   if (!scene.ok()) { std::fprintf(stderr, "%s\n", scene.status().ToString().c_str()); return 1; }
   synth::RenderOptions vro;  // stored views 320x240

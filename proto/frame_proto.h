@@ -1,7 +1,8 @@
 // Conversion between the exoview.v1 wire messages and the domain types (exo::Frame, poses,
 // intrinsics, meshes), with the ingest validation of SPEC §12: every bad field becomes a clear
-// absl::Status (InvalidArgument) that the server puts on the frame's ack. No gRPC here, only the
-// generated protobuf messages; both the server and the clients link this (`exoview_wire`).
+// absl::Status (InvalidArgument) that the server puts on the frame's ack (reason and Ack.code).
+// No gRPC here, only the generated protobuf messages; both the server and the clients link this
+// (`exoview_wire`).
 #pragma once
 
 #include <cstdint>
@@ -18,7 +19,9 @@ namespace exo {
 
 namespace v1 = ::exoview::v1;
 
-// Pose: the quaternion or the 3x3 matrix is validated (finite, unit / orthonormal, det +1).
+// Pose: the quaternion or the 3x3 matrix is validated (finite, unit / orthonormal, det +1). Within
+// kRotationRepairTolerance (common/rigid3.h) a rotation is projected to SO(3) (nearest rotation,
+// normalised quaternion) and accepted; farther it is rejected with the measured error.
 void PoseToProto(const Rigid3d& pose, v1::Pose* out);
 absl::StatusOr<Rigid3d> PoseFromProto(const v1::Pose& pose);
 
@@ -45,6 +48,11 @@ struct FrameDecodeOptions {
   int64_t max_pixels = int64_t{1} << 24;  // 16 Mpix per image
 };
 absl::StatusOr<Frame> FrameFromProto(const v1::Frame& msg, const FrameDecodeOptions& options);
+
+// Ack.code <-> absl::StatusCode (same names and numbers as google.rpc.Code); a code outside the
+// enum becomes UNKNOWN.
+v1::Ack::Code AckCodeFromStatus(absl::StatusCode code);
+absl::StatusCode StatusCodeFromAck(v1::Ack::Code code);
 
 void MeshToProto(const TriangleMesh& mesh, v1::MeshChunkUpserted* out);
 absl::StatusOr<TriangleMesh> MeshFromProto(const v1::MeshChunkUpserted& msg);

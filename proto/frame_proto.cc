@@ -1,4 +1,4 @@
-#include "server/service/frame_proto.h"
+#include "proto/frame_proto.h"
 
 #include <cmath>
 #include <cstring>
@@ -20,15 +20,44 @@ void PoseToProto(const Rigid3d& pose, v1::Pose* out) {
   t->set_z(pose.translation.z);
 }
 
+// The wire enum mirrors google.rpc.Code, which absl::StatusCode follows number for number.
+static_assert(static_cast<int>(absl::StatusCode::kOk) == v1::Ack::OK);
+static_assert(static_cast<int>(absl::StatusCode::kInvalidArgument) == v1::Ack::INVALID_ARGUMENT);
+static_assert(static_cast<int>(absl::StatusCode::kResourceExhausted) ==
+              v1::Ack::RESOURCE_EXHAUSTED);
+static_assert(static_cast<int>(absl::StatusCode::kFailedPrecondition) ==
+              v1::Ack::FAILED_PRECONDITION);
+static_assert(static_cast<int>(absl::StatusCode::kUnavailable) == v1::Ack::UNAVAILABLE);
+static_assert(static_cast<int>(absl::StatusCode::kUnauthenticated) == v1::Ack::UNAUTHENTICATED);
+static_assert(v1::Ack::Code_MAX == v1::Ack::UNAUTHENTICATED);
+
+v1::Ack::Code AckCodeFromStatus(absl::StatusCode code) {
+  const int c = static_cast<int>(code);
+  return v1::Ack::Code_IsValid(c) ? static_cast<v1::Ack::Code>(c) : v1::Ack::UNKNOWN;
+}
+
+absl::StatusCode StatusCodeFromAck(v1::Ack::Code code) {
+  return v1::Ack::Code_IsValid(code) ? static_cast<absl::StatusCode>(code)
+                                     : absl::StatusCode::kUnknown;
+}
+
 absl::StatusOr<Rigid3d> PoseFromProto(const v1::Pose& pose) {
   Rigid3d out;
   switch (pose.rotation_case()) {
     case v1::Pose::kQuaternion: {
       const auto& q = pose.quaternion();
       const glm::dquat quat(q.w(), q.x(), q.y(), q.z());
-      EXO_RETURN_IF_ERROR(ValidateQuaternion(quat));
-      // Exactly as sent (already unit within tolerance): keeps client/server bit-identical.
-      out.rotation = quat;
+      if (!std::isfinite(q.w()) || !std::isfinite(q.x()) || !std::isfinite(q.y()) ||
+          !std::isfinite(q.z()))
+        return absl::InvalidArgumentError("quaternion has a non-finite component (NaN or Inf)");
+      const double norm = glm::length(quat);
+      if (std::abs(norm - 1.0) > kRotationRepairTolerance)
+        return absl::InvalidArgumentError(
+            absl::StrCat("quaternion is not unit: |q| = ", norm, ", ||q| - 1| > ",
+                         kRotationRepairTolerance, " (closer ones are normalised)"));
+      // Unit within the strict tolerance: exactly as sent (keeps client/server bit-identical);
+      // otherwise projected to a unit quaternion.
+      out.rotation = std::abs(norm - 1.0) <= kRotationTolerance ? quat : quat / norm;
       break;
     }
     case v1::Pose::kMatrix: {
@@ -38,10 +67,8 @@ absl::StatusOr<Rigid3d> PoseFromProto(const v1::Pose& pose) {
             absl::StrCat("rotation matrix has ", m.row_major_size(), " values, expected 9"));
       std::array<double, 9> r;
       for (int i = 0; i < 9; ++i) r[i] = m.row_major(i);
-      EXO_RETURN_IF_ERROR(ValidateRotation(r));
-      glm::dmat3 rm;
-      for (int row = 0; row < 3; ++row)
-        for (int col = 0; col < 3; ++col) rm[col][row] = r[row * 3 + col];
+      // Within kRotationRepairTolerance of orthonormal: the nearest rotation (SPEC §12).
+      EXO_ASSIGN_OR_RETURN(const glm::dmat3 rm, ProjectToRotation(r));
       out.rotation = glm::normalize(glm::quat_cast(rm));
       break;
     }
@@ -197,7 +224,7 @@ absl::StatusOr<Frame> FrameFromProto(const v1::Frame& msg, const FrameDecodeOpti
   } else if (options.pose_required) {
     return absl::InvalidArgumentError("missing pose: the frame has no world_from_cam");
   }
-  if (msg.has_exposure()) {
+  if (msg.exposure() != 0.0) {  // 0 = not given
     if (!std::isfinite(msg.exposure()) || msg.exposure() <= 0.0)
       return absl::InvalidArgumentError(
           absl::StrCat("exposure must be finite and > 0, got ", msg.exposure()));

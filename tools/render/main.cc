@@ -35,6 +35,7 @@
 #include <unistd.h>
 
 #include "client/vulkan/vulkan_renderer.h"
+#include "common/cli/cli.h"
 #include "common/io/image_file.h"
 #include "common/io/jpeg.h"
 #include "common/lumigraph/model_io.h"
@@ -61,41 +62,8 @@ struct Args {
   double hfov_deg = 65.0;
 };
 
-bool Flag(const char* a, const char* name, std::string* out) {
-  const size_t n = std::strlen(name);
-  if (std::strncmp(a, name, n) != 0 || a[n] != '=') return false;
-  *out = a + n + 1;
-  return true;
-}
-bool Flag(const char* a, const char* name, int* out) {
-  std::string s;
-  if (!Flag(a, name, &s)) return false;
-  *out = std::atoi(s.c_str());
-  return true;
-}
-bool Flag(const char* a, const char* name, double* out) {
-  std::string s;
-  if (!Flag(a, name, &s)) return false;
-  *out = std::atof(s.c_str());
-  return true;
-}
-
-absl::StatusOr<Args> ParseArgs(int argc, char** argv) {
-  Args a;
-  for (int i = 1; i < argc; ++i) {
-    const char* s = argv[i];
-    if (Flag(s, "--model", &a.model) || Flag(s, "--synthetic", &a.synthetic) ||
-        Flag(s, "--save_model", &a.save_model) || Flag(s, "--path", &a.path) ||
-        Flag(s, "--write_path", &a.write_path) || Flag(s, "--out_dir", &a.out_dir) ||
-        Flag(s, "--mjpeg", &a.mjpeg) || Flag(s, "--synth_frames", &a.synth_frames) ||
-        Flag(s, "--store", &a.store) || Flag(s, "--r_max", &a.r_max) ||
-        Flag(s, "--orbit", &a.orbit) || Flag(s, "--width", &a.width) ||
-        Flag(s, "--height", &a.height) || Flag(s, "--jpeg_quality", &a.jpeg_quality) ||
-        Flag(s, "--n_best", &a.n_best) || Flag(s, "--hfov_deg", &a.hfov_deg))
-      continue;
-    return absl::InvalidArgumentError(absl::StrCat("unknown argument '", s,
-                                                   "' (see the header of exoview_render.cc)"));
-  }
+// Flags (common/cli): --key=value or --key value; --help lists them with their defaults.
+absl::StatusOr<Args> ValidateArgs(Args a) {
   if (a.model.empty() == a.synthetic.empty())
     return absl::InvalidArgumentError("give exactly one of --model=FILE or --synthetic=SCENE");
   if (a.width < 16 || a.height < 16 || a.width > 8192 || a.height > 8192)
@@ -292,7 +260,38 @@ void Progress(int done, int total, double elapsed_ms) {
 }
 
 int Main(int argc, char** argv) {
-  auto args_or = ParseArgs(argc, argv);
+  Args parsed;
+  CLI::App app{"Renders a stored lumigraph model (or a synthetic one) along a camera path with the "
+               "Vulkan client engine; writes PNG frames or an MJPEG stream and one JSON summary "
+               "line on stdout.",
+               "exoview_render"};
+  cli::Setup(app);
+  app.add_option("--model", parsed.model, "a model file (common/lumigraph/model_io.h)");
+  app.add_option("--synthetic", parsed.synthetic,
+                 "build a model from common/synth (village|apartment): the scene trajectory as "
+                 "RGB-D frames, the online view planner choosing views and cell references");
+  app.add_option("--synth_frames", parsed.synth_frames, "trajectory frames offered to the planner")
+      ->capture_default_str();
+  app.add_option("--store", parsed.store, "planner store capacity (views)")->capture_default_str();
+  app.add_option("--r_max", parsed.r_max, "planner references per cell")->capture_default_str();
+  app.add_option("--save_model", parsed.save_model, "write the model that is rendered");
+  app.add_option("--path", parsed.path,
+                 "camera path: one pose per line 'tx ty tz qw qx qy qz' (local_from_cam), # comments");
+  app.add_option("--orbit", parsed.orbit,
+                 "N poses on a circle around the proxy's bounding box (default without a path: 60; "
+                 "synthetic models default to the scene trajectory between the stored frames)");
+  app.add_option("--write_path", parsed.write_path, "write the path used, in the --path format");
+  app.add_option("--out_dir", parsed.out_dir, "write frame_00000.png ... here");
+  app.add_option("--mjpeg", parsed.mjpeg, "write concatenated JPEG frames to this file");
+  app.add_option("--width", parsed.width, "image width (px)")->capture_default_str();
+  app.add_option("--height", parsed.height, "image height (px)")->capture_default_str();
+  app.add_option("--hfov_deg", parsed.hfov_deg, "horizontal field of view (degrees)")
+      ->capture_default_str();
+  app.add_option("--jpeg_quality", parsed.jpeg_quality, "MJPEG quality [1, 100]")
+      ->capture_default_str();
+  app.add_option("--n_best", parsed.n_best, "views blended per pixel")->capture_default_str();
+  if (auto rc = cli::Parse(app, argc, argv)) return *rc;
+  auto args_or = ValidateArgs(parsed);
   if (!args_or.ok()) {
     std::fprintf(stderr, "exoview_render: %s\n", std::string(args_or.status().message()).c_str());
     return 2;

@@ -1,4 +1,4 @@
-#include "server/service/model_proto.h"
+#include "proto/model_proto.h"
 
 #include <algorithm>
 #include <cstring>
