@@ -61,7 +61,8 @@ absl::Status ApplyConfigValue(const std::string& key, const std::string& value, 
   if (key == "transport_max_bytes") return ParseNumber(key, value, &c->transport_max_bytes);
   if (key == "admission_queue") return ParseNumber(key, value, &c->pipeline.admission_queue);
   if (key == "stage_queue") return ParseNumber(key, value, &c->pipeline.stage_queue);
-  if (key == "cell_size_m") return ParseNumber(key, value, &c->pipeline.cell_size_m);
+  if (key == "admission_block") return ParseNumber(key, value, &c->pipeline.admission_block);
+  if (key == "cell_size_m") return ParseNumber(key, value, &c->pipeline.model.cell_m);
   if (key == "max_log_deltas") return ParseNumber(key, value, &c->store.max_log_deltas);
   if (key == "max_log_bytes") return ParseNumber(key, value, &c->store.max_log_bytes);
   if (key == "max_subscriber_lag") return ParseNumber(key, value, &c->store.max_subscriber_lag);
@@ -69,28 +70,30 @@ absl::Status ApplyConfigValue(const std::string& key, const std::string& value, 
   if (key == "publish_jpeg_quality") return ParseNumber(key, value, &c->publish.jpeg_quality);
   if (key == "publish_depth_downscale") return ParseNumber(key, value, &c->publish.depth_downscale);
   if (key == "geometry") return ParseNumber(key, value, &c->enable_geometry);
-  if (key == "voxel_size_m") return ParseNumber(key, value, &c->geometry.voxel_size_m);
-  if (key == "max_depth_m") return ParseNumber(key, value, &c->geometry.max_depth_m);
-  if (key == "mesh_every_n_frames") return ParseNumber(key, value, &c->geometry.mesh_every_n_frames);
-  if (key == "fuse_depth_downscale") return ParseNumber(key, value, &c->geometry.fuse_depth_downscale);
+  if (key == "voxel_size_m") return ParseNumber(key, value, &c->pipeline.model.voxel_m);
+  if (key == "max_depth_m") return ParseNumber(key, value, &c->pipeline.model.max_depth_m);
+  if (key == "mesh_every_n_frames") return ParseNumber(key, value, &c->pipeline.model.mesh_every_n_frames);
+  if (key == "fuse_depth_downscale") return ParseNumber(key, value, &c->pipeline.model.fuse_depth_downscale);
+  if (key == "tsdf_threads") return ParseNumber(key, value, &c->pipeline.model.tsdf_threads);
   if (key == "chunk_republish_change") return ParseNumber(key, value, &c->geometry.republish_change_fraction);
   if (key == "chunk_republish_interval_s") return ParseNumber(key, value, &c->geometry.republish_interval_s);
   if (key == "planning") return ParseNumber(key, value, &c->enable_planning);
-  if (key == "max_views") return ParseNumber(key, value, &c->planning.max_views);
-  if (key == "max_store_bytes") return ParseNumber(key, value, &c->planning.max_bytes);
-  if (key == "r_max") return ParseNumber(key, value, &c->planning.r_max);
-  if (key == "d_max_m") return ParseNumber(key, value, &c->planning.d_max_m);
-  if (key == "sigma_m") return ParseNumber(key, value, &c->planning.sigma_m);
-  if (key == "delta_tau_sum") return ParseNumber(key, value, &c->planning.delta_tau_sum);
+  if (key == "max_views") return ParseNumber(key, value, &c->pipeline.model.max_views);
+  if (key == "max_store_bytes") return ParseNumber(key, value, &c->pipeline.model.max_bytes);
+  if (key == "r_max") return ParseNumber(key, value, &c->pipeline.model.r_max);
+  if (key == "d_max_m") return ParseNumber(key, value, &c->pipeline.model.d_max_m);
+  if (key == "sigma_m") return ParseNumber(key, value, &c->pipeline.model.sigma_m);
+  if (key == "lambda") return ParseNumber(key, value, &c->pipeline.model.lambda);
+  if (key == "delta_tau_sum") return ParseNumber(key, value, &c->pipeline.model.delta_tau_sum);
   if (key == "max_candidates_per_s_when_full")
-    return ParseNumber(key, value, &c->planning.max_candidates_per_s_when_full);
+    return ParseNumber(key, value, &c->pipeline.model.max_candidates_per_s_when_full);
   if (key == "refinement") return ParseNumber(key, value, &c->planning.refine);
   if (key == "refine_queue") return ParseNumber(key, value, &c->planning.refine_queue);
   if (key == "refine_downscale") return ParseNumber(key, value, &c->planning.refine_downscale);
   if (key == "refine_remove_outliers") return ParseNumber(key, value, &c->planning.refine_remove_outliers);
-  if (key == "planning_id_from_proxy") return ParseNumber(key, value, &c->planning.id_from_proxy);
+  if (key == "planning_id_from_proxy") return ParseNumber(key, value, &c->pipeline.model.id_from_proxy);
   if (key == "planning_cell_areas") return ParseNumber(key, value, &c->planning_cell_areas);
-  if (key == "id_buffer_stride") return ParseNumber(key, value, &c->planning.id_buffer_stride);
+  if (key == "id_buffer_stride") return ParseNumber(key, value, &c->pipeline.model.id_buffer_stride);
   if (key == "checkpoint_path") { c->checkpoint_path = value; return absl::OkStatus(); }
   if (key == "checkpoint_interval_s") return ParseNumber(key, value, &c->checkpoint_interval_s);
   if (key == "checkpoint_max_log_bytes") return ParseNumber(key, value, &c->checkpoint_max_log_bytes);
@@ -253,9 +256,10 @@ absl::Status ExoviewServer::Start() {
         const auto& o = d.scene_params().origin_in_world();
         LocalOrigin origin;
         origin.origin_in_world = {o.x(), o.y(), o.z()};
-        if (d.scene_params().cell_size_m() != config_.pipeline.cell_size_m)
+        if (config_.pipeline.model.cell_m > 0 &&
+            d.scene_params().cell_size_m() != config_.pipeline.model.cell_m)
           return absl::FailedPreconditionError("checkpoint: cell_size_m differs from the config");
-        pipeline_->RestoreOrigin(origin);
+        pipeline_->RestoreOrigin(origin, d.scene_params().cell_size_m());
       }
     restored_version_ = checkpoint_version_ = c.version();
     std::fprintf(stderr, "exoview_server: restored checkpoint %s at version %llu (%u views)\n",
