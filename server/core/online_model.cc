@@ -93,6 +93,7 @@ absl::StatusOr<SceneSetup> ChooseSceneSetup(const Frame& first, const OnlineMode
     s.view_depth_m = MedianDepth(first.depth_m);
   }
   const SceneScale scale = DeriveSceneScale(lo, hi);
+  s.scale = scale;
   s.diameter_m = scale.diameter_m;
   s.voxel_m = o.voxel_m > 0 ? o.voxel_m : std::clamp(scale.diameter_m / 600.0, 0.02, 0.15);
   s.cell_m = restored_cell_m ? *restored_cell_m : o.cell_m > 0 ? o.cell_m : scale.cell_size_m;
@@ -163,6 +164,42 @@ uint64_t OnlineGeometry::Digest() const {
     h.Add(version);
   }
   return h.Get48();
+}
+
+void ProxyMesh::Apply(const GeometryUpdate& u) {
+  for (const MeshChunk& c : u.chunks) chunks_[c.id] = c;
+  for (uint64_t id : u.removed) chunks_.erase(id);
+}
+void ProxyMesh::Set(MeshChunk c) { chunks_[c.id] = std::move(c); }
+TriangleMesh ProxyMesh::All() const {
+  TriangleMesh m;
+  for (const auto& [id, chunk] : chunks_) {
+    const TriangleMesh& c = chunk.mesh;
+    if (m.empty() && m.positions.empty()) {
+      m = c;
+      m.normals.clear();
+      m.material.clear();
+      continue;
+    }
+    const uint32_t base = static_cast<uint32_t>(m.positions.size());
+    m.positions.insert(m.positions.end(), c.positions.begin(), c.positions.end());
+    if (!m.colors.empty() && c.colors.size() == c.positions.size())
+      m.colors.insert(m.colors.end(), c.colors.begin(), c.colors.end());
+    else
+      m.colors.clear();
+    for (uint32_t i : c.indices) m.indices.push_back(base + i);
+  }
+  return m;
+}
+size_t ProxyMesh::bytes() const {
+  size_t b = 0;
+  for (const auto& [id, c] : chunks_) b += c.mesh.bytes();
+  return b;
+}
+size_t ProxyMesh::triangles() const {
+  size_t t = 0;
+  for (const auto& [id, c] : chunks_) t += c.mesh.num_triangles();
+  return t;
 }
 
 // ---- planning ----

@@ -29,6 +29,7 @@
 #include "common/rigid3.h"
 #include "common/status.h"
 #include "server/geometry/cell_areas.h"
+#include "server/geometry/scene_scale.h"
 #include "server/geometry/tsdf_volume.h"
 #include "server/planning/cell_id_proxy.h"
 #include "server/planning/view_planner.h"
@@ -78,6 +79,7 @@ struct SceneSetup {
   double diameter_m = 0.0;   // of the first frame's observed surface
   double view_depth_m = 0.0; // median valid depth of the first frame
   double voxel_m = 0.02, cell_m = 0.5, d_max_m = 2.0, sigma_m = 2.0;
+  SceneScale scale;          // scene_scale.h's values for diameter_m (before ForScene / overrides)
 };
 
 // The rule for a scene seen for the first time: origin = the first frame's camera centre; D from
@@ -114,6 +116,21 @@ class OnlineGeometry {
   SceneSetup setup_;
   uint64_t fused_ = 0;
   std::map<uint64_t, uint64_t> live_;  // chunk id -> version
+};
+
+// The proxy as the lumigraph renders it: the live mesh chunks of every GeometryUpdate so far.
+class ProxyMesh {
+ public:
+  void Apply(const GeometryUpdate& update);
+  void Set(MeshChunk chunk);
+  // Every chunk concatenated (positions, indices; colours when every chunk has them).
+  TriangleMesh All() const;
+  const std::map<uint64_t, MeshChunk>& chunks() const { return chunks_; }
+  size_t bytes() const;
+  size_t triangles() const;
+
+ private:
+  std::map<uint64_t, MeshChunk> chunks_;
 };
 
 // One frame as the planner sees it (scene-local poses).
