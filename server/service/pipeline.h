@@ -64,7 +64,13 @@ struct PipelineOptions {
   // client) instead of dropping the frame; every frame is then processed, in order (what a
   // deterministic run, e.g. the eval-equivalence test, needs).
   bool admission_block = false;
-  core::OnlineModelOptions model;  // the online model the stages run (server/core)
+  // The online model the stages run (server/core): the evaluation's defaults, plus the server's
+  // bandwidth governor (2 candidates/s once the store is full; docs/service.md).
+  core::OnlineModelOptions model = [] {
+    core::OnlineModelOptions m;
+    m.max_candidates_per_s_when_full = 2.0;
+    return m;
+  }();
   absl::Status Validate() const;
 };
 
