@@ -1,0 +1,101 @@
+// Issue 14, "one product path": exoview_eval's online policy and the server fed by
+// exoview_uploader run the same code (server/core) on the same frames, so they must end with the
+// same stored view ids and the same model digest. Real processes on loopback: exoview_eval on the
+// first 60 frames of 7-Scenes redkitchen (every 10th held out, depth registered to colour), and
+// exoview_server + exoview_uploader --format=7scenes --hold_out_every=10 on the same 54 input
+// frames. The server runs with lossless admission (the stream blocks instead of dropping a
+// frame), no bandwidth governor and no refinement (both are server-only features the evaluation
+// does not model); everything else is the server's default.
+#include <cstdlib>
+#include <filesystem>
+#include <sstream>
+#include <thread>
+
+#include <grpcpp/grpcpp.h>
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include "client/uploader/upload_client.h"
+#include "client/viewer/viewer_session.h"
+#include "server/core/online_model.h"
+#include "tests/server_fixture.h"
+#include "tests/subprocess.h"
+
+namespace exo {
+namespace {
+
+using testing::ReadAll;
+using testing::Subprocess;
+
+class EvalEquivalence : public testing::ServerProcessTest {};
+
+TEST_F(EvalEquivalence, EvalAndUploadedServerStoreTheSameViewsWithTheSameDigest) {
+  const char* shared = std::getenv("EXOVIEW_SHARED_DIR");
+  const std::string data =
+      std::string(shared != nullptr ? shared : "../shared") + "/data/7scenes-redkitchen";
+  if (!std::filesystem::exists(data + "/camera-intrinsics.txt"))
+    GTEST_SKIP() << "7-Scenes redkitchen not found at " << data
+                 << " (../shared/data): the eval/server equivalence needs the real frames";
+  constexpr int kFrames = 60, kInput = 54, kStore = 12;
+
+  Subprocess eval(EXOVIEW_EVAL_BIN,
+                  {"--sevenscenes", data, "--frames", std::to_string(kFrames), "--store",
+                   std::to_string(kStore), "--policies", "online", "--test_w", "160", "--test_h",
+                   "120", "--out", dir_ + "/eval.jsonl"},
+                  dir_ + "/eval.log");
+  ASSERT_EQ(eval.Wait(400), 0) << ReadAll(dir_ + "/eval.log");
+  nlohmann::json online;
+  std::istringstream lines(ReadAll(dir_ + "/eval.jsonl"));
+  for (std::string line; std::getline(lines, line);) {
+    const nlohmann::json j = nlohmann::json::parse(line);
+    if (j.value("bench", "") == "eval" && j["config"]["policy"] == "online") online = j;
+  }
+  ASSERT_TRUE(online.is_object()) << ReadAll(dir_ + "/eval.jsonl");
+  ASSERT_EQ(online["config"]["frames"].get<int>(), kInput);
+  const std::vector<uint64_t> eval_ids = online["view_ids"].get<std::vector<uint64_t>>();
+  ASSERT_EQ(eval_ids.size(), size_t{kStore});  // the store filled up: the planner chose
+
+  StartServer({"--admission_block=1", "--max_candidates_per_s_when_full=0", "--refinement=0",
+               "--max_views=" + std::to_string(kStore)});
+  Subprocess up(EXOVIEW_UPLOADER_BIN,
+                {"--server=" + target_, "--dataset=" + data, "--format=7scenes",
+                 "--hold_out_every=10", "--frames=" + std::to_string(kInput), "--rate_hz=0",
+                 "--stats_json=" + dir_ + "/up.json"},
+                dir_ + "/up.log");
+  ASSERT_EQ(up.Wait(300), 0) << ReadAll(dir_ + "/up.log");
+  const nlohmann::json acks = nlohmann::json::parse(ReadAll(dir_ + "/up.json"));
+  ASSERT_EQ(acks["accepted"].get<int>(), kInput) << acks.dump();
+
+  // Every frame through both stages.
+  v1::Stats s;
+  for (int i = 0; i < 600; ++i) {
+    s = Stats();
+    if (s.frames_processed() >= uint64_t{kInput}) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  }
+  ASSERT_EQ(s.frames_processed(), uint64_t{kInput}) << server_->Log();
+  auto counter = [&](const std::string& k) {
+    auto it = s.counters().find(k);
+    EXPECT_NE(it, s.counters().end()) << k;
+    return it == s.counters().end() ? uint64_t{0} : static_cast<uint64_t>(it->second);
+  };
+  EXPECT_EQ(counter("planning.governed"), 0u);
+  EXPECT_EQ(core::DigestHex(counter("geometry.digest")), online["geometry_digest"].get<std::string>());
+  EXPECT_EQ(core::DigestHex(counter("planning.digest")), online["planner_digest"].get<std::string>());
+  EXPECT_EQ(core::DigestHex(core::ModelDigest(counter("geometry.digest"), counter("planning.digest"))),
+            online["model_digest"].get<std::string>());
+
+  // The views a client receives: the same ids.
+  auto session = ViewerSession::Open(MakeChannel(target_), "");
+  ASSERT_TRUE(session.ok());
+  SyncOptions so;
+  so.min_server_frames = kInput;
+  ASSERT_TRUE((*session)->Sync(so).ok());
+  std::vector<uint64_t> server_ids;
+  for (const auto& [id, v] : (*session)->store().model().views) server_ids.push_back(id);
+  std::sort(server_ids.begin(), server_ids.end());
+  EXPECT_EQ(server_ids, eval_ids);
+}
+
+}  // namespace
+}  // namespace exo
