@@ -28,16 +28,6 @@ struct Fnv {
   uint64_t Get48() const { return (h ^ (h >> 48)) & ((uint64_t{1} << 48) - 1); }
 };
 
-double MedianDepth(const ImageF& depth) {
-  std::vector<float> v;
-  v.reserve(depth.size());
-  for (float z : depth.span())
-    if (z > 0 && std::isfinite(z)) v.push_back(z);
-  if (v.empty()) return 0;
-  std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
-  return v[v.size() / 2];
-}
-
 TsdfOptions TsdfFor(const OnlineModelOptions& o, double voxel_m) {
   TsdfOptions t;
   t.voxel_size_m = static_cast<float>(voxel_m);
@@ -48,6 +38,16 @@ TsdfOptions TsdfFor(const OnlineModelOptions& o, double voxel_m) {
 }
 
 }  // namespace
+
+double MedianDepth(const ImageF& depth) {
+  std::vector<float> v;
+  v.reserve(depth.size());
+  for (float z : depth.span())
+    if (z > 0 && std::isfinite(z)) v.push_back(z);
+  if (v.empty()) return 0;
+  std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
+  return v[v.size() / 2];
+}
 
 absl::Status OnlineModelOptions::Validate() const {
   auto nonneg = [](double v) { return std::isfinite(v) && v >= 0.0; };

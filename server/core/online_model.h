@@ -217,6 +217,9 @@ ImageF RegisterDepthToColor(const Frame& frame);
 // An accepted frame as the view the store keeps (colour, registered depth, exposure).
 StoredView StoredViewOf(const Frame& frame, ViewId id, const LocalOrigin& origin);
 
+// Median of the valid (> 0, finite) depths (0 when none): the first frame's view distance.
+double MedianDepth(const ImageF& depth);
+
 // Both halves on one thread, in order (what exoview_eval's online policy runs).
 class OnlineModel {
  public:

@@ -243,17 +243,6 @@ planning::PlannerOptions PlannerFor(const PolicyConfig& c, const Source& src, do
   return po;
 }
 
-// Median of the valid (> 0, finite) depths of an image (0 when none).
-double MedianDepth(const ImageF& depth) {
-  std::vector<float> v;
-  v.reserve(depth.size());
-  for (float z : depth.span())
-    if (z > 0 && std::isfinite(z)) v.push_back(z);
-  if (v.empty()) return 0;
-  std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
-  return v[v.size() / 2];
-}
-
 ImageU8 Hstack(const std::vector<const ImageU8*>& imgs) {
   int w = 0, h = 0;
   for (auto* i : imgs) {
@@ -1098,7 +1087,7 @@ absl::StatusOr<std::vector<ConfigResult>> RunSynthetic(const SynthRunOptions& o)
   src.scale_mode = o.scale_mode;
   if (o.scale_mode == ScaleMode::kViewDepth) {
     EXO_ASSIGN_OR_RETURN(synth::RenderedFrame f0, synth::RenderFrame(scene, src.poses[0], rop));
-    src.view_depth_m = MedianDepth(f0.frame.depth_m);
+    src.view_depth_m = core::MedianDepth(f0.frame.depth_m);
   }
   src.default_lambda = tkind == synth::TrajectoryKind::kFlyover ? 0.5 : 0.4;
   src.metres_per_rad = std::max(0.5, 0.05 * scene.ExtentM());
