@@ -33,8 +33,8 @@ int main(int argc, char** argv) {
   app.add_option("--height", synth.height, "synthetic frame height")->check(CLI::PositiveNumber);
   app.add_option("--seed", synth.seed, "synthetic scene seed");
   app.add_option("--dataset", dataset, "dataset folder to stream");
-  app.add_option("--format", data.format, "dataset format: 7scenes | tum | exo")
-      ->check(CLI::IsMember({"7scenes", "tum", "exo"}));
+  app.add_option("--format", data.format, "dataset format: 7scenes | tum | redwood | scannet | exo")
+      ->check(CLI::IsMember({"7scenes", "tum", "redwood", "scannet", "exo"}));
   app.add_option("--register_depth", data.register_depth,
                  "7-Scenes: register depth to the colour camera (default true; "
                  "docs/registration.md)");

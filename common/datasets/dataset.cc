@@ -2,6 +2,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "common/datasets/exo_layout.h"
+#include "common/datasets/redwood.h"
 #include "common/datasets/seven_scenes.h"
 #include "common/datasets/text_util.h"
 #include "common/datasets/tum.h"
@@ -33,9 +34,10 @@ class HeldOutFilter final : public FrameSource {
 }  // namespace
 
 absl::Status DatasetOptions::Validate() const {
-  if (format != "7scenes" && format != "tum" && format != "exo")
+  if (format != "7scenes" && format != "tum" && format != "exo" && format != "redwood" &&
+      format != "scannet")
     return absl::InvalidArgumentError(absl::StrCat("unknown dataset format '", format,
-                                                   "' (7scenes, tum, exo)"));
+                                                   "' (7scenes, tum, redwood, scannet, exo)"));
   if (!intrinsics.empty() && intrinsics.size() != 4)
     return absl::InvalidArgumentError("intrinsics: give fx,fy,cx,cy (4 numbers)");
   if (!intrinsics.empty() && !camera_file.empty())
@@ -87,6 +89,18 @@ absl::StatusOr<std::unique_ptr<FrameSource>> OpenDataset(const std::string& dir,
           "585 320 240)");
     }
     EXO_ASSIGN_OR_RETURN(source, TumReader::Open(dir, to));
+  } else if (o.format == "redwood") {
+    EXO_ASSIGN_OR_RETURN(auto r, RedwoodReader::Open(dir));
+    if (r->default_intrinsics() && warnings != nullptr)
+      warnings->push_back("Redwood: no intrinsic.json in the folder: using PrimeSense defaults "
+                          "fx = fy = 525, cx = 319.5, cy = 239.5");
+    source = std::move(r);
+  } else if (o.format == "scannet") {
+    EXO_ASSIGN_OR_RETURN(auto r, ScanNetReader::Open(dir));
+    if (r->skipped_invalid_pose() > 0 && warnings != nullptr)
+      warnings->push_back(absl::StrCat("ScanNet: ", r->skipped_invalid_pose(),
+                                       " frames without a valid pose (-inf) left out"));
+    source = std::move(r);
   } else {
     EXO_ASSIGN_OR_RETURN(source, ExoLayoutReader::Open(dir));
   }

@@ -15,7 +15,7 @@
 namespace exo {
 
 struct DatasetOptions {
-  std::string format = "7scenes";   // 7scenes | tum | exo
+  std::string format = "7scenes";   // 7scenes | tum | redwood | scannet | exo (redwood.h)
   bool register_depth = true;       // 7-Scenes: depth registered to colour (docs/registration.md)
   // TUM: fx, fy, cx, cy (image size from the data's 640x480) or a camera file ("fx fy cx cy
   // [width height]", '#' comments); neither: TUM's defaults, with a warning.
