@@ -17,7 +17,7 @@
 #include <absl/strings/str_format.h>
 #include <nlohmann/json.hpp>
 
-#include "common/datasets/seven_scenes.h"
+#include "common/datasets/dataset.h"
 #include "common/io/image_file.h"
 #include "common/lumigraph/cpu_renderer.h"
 #include "common/lumigraph/model.h"
@@ -1175,17 +1175,18 @@ absl::StatusOr<std::vector<ConfigResult>> RunSynthetic(const SynthRunOptions& o)
 
 absl::StatusOr<SevenScenesReport> RunSevenScenes(const SevenScenesRunOptions& o) {
   if (o.hold_out_every < 2) return absl::InvalidArgumentError("hold_out_every must be >= 2");
-  SevenScenesOptions reader_options;
+  // The reader exoview_uploader --format=7scenes uses (common/datasets OpenDataset).
+  DatasetOptions reader_options;
+  reader_options.format = "7scenes";
   reader_options.register_depth = o.register_depth;
-  EXO_ASSIGN_OR_RETURN(auto reader, SevenScenesReader::Open(o.dir, reader_options));
+  EXO_ASSIGN_OR_RETURN(auto reader, OpenDataset(o.dir, reader_options));
   const size_t total = o.max_frames > 0 ? std::min<size_t>(o.max_frames, reader->size())
                                         : reader->size();
   SevenScenesReport rep;
   // Split: every hold_out_every-th frame (0-based i % k == k - 1: frames 9, 19, ...) is never
-  // ingested.
+  // ingested (IsHeldOut; exoview_uploader --hold_out_every sends exactly the others).
   std::vector<size_t> input, held;
-  for (size_t i = 0; i < total; ++i)
-    (i % o.hold_out_every == size_t(o.hold_out_every - 1) ? held : input).push_back(i);
+  for (size_t i = 0; i < total; ++i) (IsHeldOut(i, o.hold_out_every) ? held : input).push_back(i);
   rep.held_out = int(held.size());
   // Load the input frames (kept: the stored views of every policy come from them).
   std::vector<Frame> frames;
