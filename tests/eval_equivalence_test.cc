@@ -6,14 +6,14 @@
 // frames. The server runs with lossless admission (the stream blocks instead of dropping a
 // frame), no bandwidth governor and no refinement (both are server-only features the evaluation
 // does not model); everything else is the server's default.
-#include <cstdlib>
-#include <filesystem>
-#include <sstream>
-#include <thread>
-
 #include <grpcpp/grpcpp.h>
 #include <gtest/gtest.h>
+
+#include <cstdlib>
+#include <filesystem>
 #include <nlohmann/json.hpp>
+#include <sstream>
+#include <thread>
 
 #include "client/uploader/upload_client.h"
 #include "client/viewer/viewer_session.h"
@@ -57,11 +57,11 @@ TEST_F(EvalEquivalence, EvalAndUploadedServerStoreTheSameViewsWithTheSameDigest)
 
   StartServer({"--admission_block=1", "--max_candidates_per_s_when_full=0", "--refinement=0",
                "--max_views=" + std::to_string(kStore)});
-  Subprocess up(EXOVIEW_UPLOADER_BIN,
-                {"--server=" + target_, "--dataset=" + data, "--format=7scenes",
-                 "--hold_out_every=10", "--frames=" + std::to_string(kInput), "--rate_hz=0",
-                 "--stats_json=" + dir_ + "/up.json"},
-                dir_ + "/up.log");
+  Subprocess up(
+      EXOVIEW_UPLOADER_BIN,
+      {"--server=" + target_, "--dataset=" + data, "--format=7scenes", "--hold_out_every=10",
+       "--frames=" + std::to_string(kInput), "--rate_hz=0", "--stats_json=" + dir_ + "/up.json"},
+      dir_ + "/up.log");
   ASSERT_EQ(up.Wait(300), 0) << ReadAll(dir_ + "/up.log");
   const nlohmann::json acks = nlohmann::json::parse(ReadAll(dir_ + "/up.json"));
   ASSERT_EQ(acks["accepted"].get<int>(), kInput) << acks.dump();
@@ -80,10 +80,13 @@ TEST_F(EvalEquivalence, EvalAndUploadedServerStoreTheSameViewsWithTheSameDigest)
     return it == s.counters().end() ? uint64_t{0} : static_cast<uint64_t>(it->second);
   };
   EXPECT_EQ(counter("planning.governed"), 0u);
-  EXPECT_EQ(core::DigestHex(counter("geometry.digest")), online["geometry_digest"].get<std::string>());
-  EXPECT_EQ(core::DigestHex(counter("planning.digest")), online["planner_digest"].get<std::string>());
-  EXPECT_EQ(core::DigestHex(core::ModelDigest(counter("geometry.digest"), counter("planning.digest"))),
-            online["model_digest"].get<std::string>());
+  EXPECT_EQ(core::DigestHex(counter("geometry.digest")),
+            online["geometry_digest"].get<std::string>());
+  EXPECT_EQ(core::DigestHex(counter("planning.digest")),
+            online["planner_digest"].get<std::string>());
+  EXPECT_EQ(
+      core::DigestHex(core::ModelDigest(counter("geometry.digest"), counter("planning.digest"))),
+      online["model_digest"].get<std::string>());
 
   // The views a client receives: the same ids.
   auto session = ViewerSession::Open(MakeChannel(target_), "");

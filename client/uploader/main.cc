@@ -14,9 +14,10 @@
 #include "common/datasets/dataset.h"
 
 int main(int argc, char** argv) {
-  CLI::App app{"Streams RGB-D frames (synthetic scene or a dataset folder) to an Exoview server "
-               "and prints the ack statistics as JSON.",
-               "exoview_uploader"};
+  CLI::App app{
+      "Streams RGB-D frames (synthetic scene or a dataset folder) to an Exoview server "
+      "and prints the ack statistics as JSON.",
+      "exoview_uploader"};
   exo::cli::Setup(app);
   std::string server, synthetic, dataset, stats_json, send_log;
   exo::SynthSourceOptions synth;
@@ -25,7 +26,8 @@ int main(int argc, char** argv) {
   opt.encode.jpeg_quality = 90;
   int frames = -1, first = 0;
   app.add_option("--server", server, "HOST:PORT of the server")->required();
-  app.add_option("--synthetic", synthetic, "stream the built-in synthetic scene: village | apartment")
+  app.add_option("--synthetic", synthetic,
+                 "stream the built-in synthetic scene: village | apartment")
       ->expected(0, 1)
       ->default_str("village");
   app.add_option("--trajectory", synth.trajectory, "synthetic: flyover | walk");
@@ -69,12 +71,19 @@ int main(int argc, char** argv) {
     synth.scene = synthetic.empty() ? "village" : synthetic;
     synth.num_frames = frames > 0 ? frames : 120;
     auto s = exo::SynthFrameSource::Create(synth);
-    if (s.ok()) source = *std::move(s); else st = s.status();
+    if (s.ok())
+      source = *std::move(s);
+    else
+      st = s.status();
   } else {
     std::vector<std::string> warnings;
     auto s = exo::OpenDataset(dataset, data, &warnings);
-    for (const std::string& w : warnings) std::fprintf(stderr, "exoview_uploader: warning: %s\n", w.c_str());
-    if (s.ok()) source = *std::move(s); else st = s.status();
+    for (const std::string& w : warnings)
+      std::fprintf(stderr, "exoview_uploader: warning: %s\n", w.c_str());
+    if (s.ok())
+      source = *std::move(s);
+    else
+      st = s.status();
   }
   if (!st.ok()) {
     std::fprintf(stderr, "exoview_uploader: %s\n", std::string(st.message()).c_str());
@@ -84,8 +93,8 @@ int main(int argc, char** argv) {
   std::fprintf(stderr, "exoview_uploader: %s, %zu frames from %d at %.1f Hz -> %s\n",
                source->name().c_str(), std::min(count, source->size()), first, opt.rate_hz,
                server.c_str());
-  auto stats = exo::UploadFrames(exo::MakeChannel(server), *source, static_cast<size_t>(first),
-                                 count, opt);
+  auto stats =
+      exo::UploadFrames(exo::MakeChannel(server), *source, static_cast<size_t>(first), count, opt);
   if (!stats.ok()) {
     std::fprintf(stderr, "exoview_uploader: %s\n", std::string(stats.status().message()).c_str());
     return 1;

@@ -20,7 +20,8 @@ class HeldOutFilter final : public FrameSource {
   }
   size_t size() const override { return kept_.size(); }
   absl::StatusOr<Frame> Load(size_t i) const override {
-    if (i >= kept_.size()) return absl::OutOfRangeError(absl::StrCat("frame ", i, " of ", kept_.size()));
+    if (i >= kept_.size())
+      return absl::OutOfRangeError(absl::StrCat("frame ", i, " of ", kept_.size()));
     return inner_->Load(kept_[i]);
   }
   std::string name() const override { return name_; }
@@ -59,7 +60,8 @@ absl::StatusOr<PinholeCamera> ReadCameraFile(const std::string& path) {
   EXO_RETURN_IF_ERROR(
       datasets_internal::ParseDoubles(lines[0], 0, lines[0].tokens.size(), v, path));
   PinholeCamera c{v[0], v[1], v[2], v[3], static_cast<int>(v[4]), static_cast<int>(v[5])};
-  if (auto s = c.Validate(); !s.ok()) return absl::InvalidArgumentError(absl::StrCat(path, ": ", s.message()));
+  if (auto s = c.Validate(); !s.ok())
+    return absl::InvalidArgumentError(absl::StrCat(path, ": ", s.message()));
   return c;
 }
 
@@ -92,8 +94,9 @@ absl::StatusOr<std::unique_ptr<FrameSource>> OpenDataset(const std::string& dir,
   } else if (o.format == "redwood") {
     EXO_ASSIGN_OR_RETURN(auto r, RedwoodReader::Open(dir));
     if (r->default_intrinsics() && warnings != nullptr)
-      warnings->push_back("Redwood: no intrinsic.json in the folder: using PrimeSense defaults "
-                          "fx = fy = 525, cx = 319.5, cy = 239.5");
+      warnings->push_back(
+          "Redwood: no intrinsic.json in the folder: using PrimeSense defaults "
+          "fx = fy = 525, cx = 319.5, cy = 239.5");
     source = std::move(r);
   } else if (o.format == "scannet") {
     EXO_ASSIGN_OR_RETURN(auto r, ScanNetReader::Open(dir));
@@ -104,7 +107,8 @@ absl::StatusOr<std::unique_ptr<FrameSource>> OpenDataset(const std::string& dir,
   } else {
     EXO_ASSIGN_OR_RETURN(source, ExoLayoutReader::Open(dir));
   }
-  if (o.hold_out_every >= 2) source = std::make_unique<HeldOutFilter>(std::move(source), o.hold_out_every);
+  if (o.hold_out_every >= 2)
+    source = std::make_unique<HeldOutFilter>(std::move(source), o.hold_out_every);
   return source;
 }
 

@@ -15,8 +15,8 @@
 namespace exo {
 
 struct DatasetOptions {
-  std::string format = "7scenes";   // 7scenes | tum | redwood | scannet | exo (redwood.h)
-  bool register_depth = true;       // 7-Scenes: depth registered to colour (docs/registration.md)
+  std::string format = "7scenes";  // 7scenes | tum | redwood | scannet | exo (redwood.h)
+  bool register_depth = true;      // 7-Scenes: depth registered to colour (docs/registration.md)
   // TUM: fx, fy, cx, cy (image size from the data's 640x480) or a camera file ("fx fy cx cy
   // [width height]", '#' comments); neither: TUM's defaults, with a warning.
   std::vector<double> intrinsics;
@@ -37,8 +37,8 @@ absl::StatusOr<PinholeCamera> ReadCameraFile(const std::string& path);
 
 // Opens `dir` in the given format. Warnings (e.g. default intrinsics) are appended to
 // `warnings` when given.
-absl::StatusOr<std::unique_ptr<FrameSource>> OpenDataset(const std::string& dir,
-                                                         const DatasetOptions& options,
-                                                         std::vector<std::string>* warnings = nullptr);
+absl::StatusOr<std::unique_ptr<FrameSource>> OpenDataset(
+    const std::string& dir, const DatasetOptions& options,
+    std::vector<std::string>* warnings = nullptr);
 
 }  // namespace exo

@@ -1,9 +1,9 @@
 #include "common/datasets/redwood.h"
 
+#include <gtest/gtest.h>
+
 #include <cmath>
 #include <fstream>
-
-#include <gtest/gtest.h>
 
 #include "common/datasets/test_fixture.h"
 #include "common/io/image_file.h"
@@ -15,7 +15,8 @@ ImageU8 Colour(int w, int h, int seed) {
   ImageU8 c(w, h, 3);
   for (int y = 0; y < h; ++y)
     for (int x = 0; x < w; ++x)
-      for (int k = 0; k < 3; ++k) c.at(x, y, k) = static_cast<uint8_t>(40 + (x * 3 + y * 2 + k * 30 + seed * 20) % 150);
+      for (int k = 0; k < 3; ++k)
+        c.at(x, y, k) = static_cast<uint8_t>(40 + (x * 3 + y * 2 + k * 30 + seed * 20) % 150);
   return c;
 }
 ImageU16 DepthMm(int w, int h, int seed) {
@@ -29,8 +30,8 @@ ImageU16 DepthMm(int w, int h, int seed) {
 std::string Matrix(double deg, double tx, double ty, double tz) {
   const double a = deg * M_PI / 180, c = std::cos(a), s = std::sin(a);
   char buf[256];
-  std::snprintf(buf, sizeof(buf), "%.6f %.6f 0 %.4f\n%.6f %.6f 0 %.4f\n0 0 1 %.4f\n0 0 0 1\n", c, -s, tx,
-                s, c, ty, tz);
+  std::snprintf(buf, sizeof(buf), "%.6f %.6f 0 %.4f\n%.6f %.6f 0 %.4f\n0 0 1 %.4f\n0 0 0 1\n", c,
+                -s, tx, s, c, ty, tz);
   return buf;
 }
 
@@ -82,11 +83,13 @@ TEST(RedwoodReader, DefaultIntrinsicsAndBadLayouts) {
   std::filesystem::remove(dir + "/depth/000002.png");
   auto bad = RedwoodReader::Open(dir);
   ASSERT_FALSE(bad.ok());
-  EXPECT_NE(bad.status().message().find("3 colour images but 2 depth"), std::string::npos) << bad.status();
+  EXPECT_NE(bad.status().message().find("3 colour images but 2 depth"), std::string::npos)
+      << bad.status();
   const std::string no_log = WriteRedwood("redwood_nolog", false);
   std::filesystem::remove(no_log + "/trajectory.log");
   EXPECT_NE(RedwoodReader::Open(no_log).status().message().find("*.log"), std::string::npos);
-  EXPECT_EQ(RedwoodReader::Open("/nonexistent/redwood").status().code(), absl::StatusCode::kNotFound);
+  EXPECT_EQ(RedwoodReader::Open("/nonexistent/redwood").status().code(),
+            absl::StatusCode::kNotFound);
 }
 
 std::string WriteScanNet(const std::string& name) {
@@ -99,11 +102,14 @@ std::string WriteScanNet(const std::string& name) {
     EXPECT_TRUE(WriteColorImage(dir + "/color/" + n + ".jpg", Colour(80, 60, i), 95).ok());
     EXPECT_TRUE(WritePng16(dir + "/depth/" + n + ".png", DepthMm(40, 30, i)).ok());
     std::ofstream(dir + "/pose/" + n + ".txt")
-        << (i == 2 ? std::string("-inf -inf -inf -inf\n-inf -inf -inf -inf\n-inf -inf -inf -inf\n-inf -inf -inf -inf\n")
+        << (i == 2 ? std::string("-inf -inf -inf -inf\n-inf -inf -inf -inf\n-inf -inf -inf "
+                                 "-inf\n-inf -inf -inf -inf\n")
                    : Matrix(5.0 * i, i, 0, 1));
   }
-  std::ofstream(dir + "/intrinsic/intrinsic_color.txt") << "70 0 39.5 0\n0 71 29.5 0\n0 0 1 0\n0 0 0 1\n";
-  std::ofstream(dir + "/intrinsic/intrinsic_depth.txt") << "35 0 19.5 0\n0 35.5 14.5 0\n0 0 1 0\n0 0 0 1\n";
+  std::ofstream(dir + "/intrinsic/intrinsic_color.txt")
+      << "70 0 39.5 0\n0 71 29.5 0\n0 0 1 0\n0 0 0 1\n";
+  std::ofstream(dir + "/intrinsic/intrinsic_depth.txt")
+      << "35 0 19.5 0\n0 35.5 14.5 0\n0 0 1 0\n0 0 0 1\n";
   std::ofstream(dir + "/intrinsic/extrinsic_color.txt") << Matrix(0, 0, 0, 0);
   std::ofstream(dir + "/intrinsic/extrinsic_depth.txt") << Matrix(0, 0.025, 0, 0);
   return dir;

@@ -52,24 +52,29 @@ double MedianDepth(const ImageF& depth) {
 absl::Status OnlineModelOptions::Validate() const {
   auto nonneg = [](double v) { return std::isfinite(v) && v >= 0.0; };
   if (!nonneg(voxel_m) || !nonneg(cell_m) || !nonneg(d_max_m) || !nonneg(sigma_m))
-    return absl::InvalidArgumentError("voxel_m, cell_m, d_max_m, sigma_m must be finite and >= 0 (0 = automatic)");
+    return absl::InvalidArgumentError(
+        "voxel_m, cell_m, d_max_m, sigma_m must be finite and >= 0 (0 = automatic)");
   if (!(max_depth_m > min_depth_m) || !(min_depth_m >= 0.0) || !std::isfinite(max_depth_m))
     return absl::InvalidArgumentError("need 0 <= min_depth_m < max_depth_m");
   if (fuse_depth_downscale < 1 || fuse_depth_downscale > 8)
     return absl::InvalidArgumentError("fuse_depth_downscale must be in [1, 8]");
-  if (mesh_every_n_frames < 1) return absl::InvalidArgumentError("mesh_every_n_frames must be >= 1");
+  if (mesh_every_n_frames < 1)
+    return absl::InvalidArgumentError("mesh_every_n_frames must be >= 1");
   if (tsdf_threads < 1) return absl::InvalidArgumentError("tsdf_threads must be >= 1");
   if (id_buffer_stride < 1 || id_buffer_stride > 32)
     return absl::InvalidArgumentError("id_buffer_stride must be in [1, 32]");
-  if (max_views < 1 || max_bytes < 1) return absl::InvalidArgumentError("max_views and max_bytes must be >= 1");
+  if (max_views < 1 || max_bytes < 1)
+    return absl::InvalidArgumentError("max_views and max_bytes must be >= 1");
   if (r_max < 2) return absl::InvalidArgumentError("r_max must be >= 2");
-  if (!(lambda >= 0.0 && lambda <= 1.0)) return absl::InvalidArgumentError("lambda must be in [0, 1]");
+  if (!(lambda >= 0.0 && lambda <= 1.0))
+    return absl::InvalidArgumentError("lambda must be in [0, 1]");
   if (!(tau_max > 0.0) || !nonneg(delta_tau_sum))
     return absl::InvalidArgumentError("tau_max must be > 0 and delta_tau_sum >= 0");
   if (!nonneg(max_candidates_per_s_when_full))
     return absl::InvalidArgumentError("max_candidates_per_s_when_full must be >= 0");
   if (!std::isfinite(cellid_lod_m) || !nonneg(cellid_lod_keep) || !nonneg(cellid_max_range_m))
-    return absl::InvalidArgumentError("cellid_lod_m must be finite, cellid_lod_keep and cellid_max_range_m >= 0");
+    return absl::InvalidArgumentError(
+        "cellid_lod_m must be finite, cellid_lod_keep and cellid_max_range_m >= 0");
   return absl::OkStatus();
 }
 
@@ -100,7 +105,8 @@ absl::StatusOr<SceneSetup> ChooseSceneSetup(const Frame& first, const OnlineMode
   s.d_max_m = scale.d_max_m;
   s.sigma_m = scale.sigma_m;
   if (s.view_depth_m > 0) {
-    const planning::PlannerOptions f = planning::PlannerOptions::ForScene(scale.diameter_m, s.view_depth_m);
+    const planning::PlannerOptions f =
+        planning::PlannerOptions::ForScene(scale.diameter_m, s.view_depth_m);
     s.d_max_m = f.d_max_m;
     s.sigma_m = f.sigma_m;
   }
@@ -145,8 +151,8 @@ absl::StatusOr<GeometryUpdate> OnlineGeometry::Integrate(const Frame& f) {
     cam.height = h;
     const Rigid3d local_from_depth = setup_.origin.ToLocal(f.world_from_cam) * f.color_from_depth;
     EXO_RETURN_IF_ERROR(volume_
-                            .IntegrateDepth(small, cam, local_from_depth, &f.color,
-                                            &f.color_camera, &f.color_from_depth)
+                            .IntegrateDepth(small, cam, local_from_depth, &f.color, &f.color_camera,
+                                            &f.color_from_depth)
                             .status());
   }
   if (++fused_ % options_.mesh_every_n_frames != 0) return u;
@@ -212,7 +218,8 @@ PlanFrame PlanFrame::Of(const Frame& f, const LocalOrigin& origin) {
   p.depth_camera = f.depth_camera;
   p.local_from_depth = p.local_from_cam * f.color_from_depth;
   p.timestamp_s = f.timestamp_s;
-  p.bytes = f.color.bytes() + static_cast<size_t>(f.color.width()) * f.color.height() * sizeof(float) +
+  p.bytes = f.color.bytes() +
+            static_cast<size_t>(f.color.width()) * f.color.height() * sizeof(float) +
             sizeof(StoredView);
   return p;
 }
@@ -224,9 +231,9 @@ absl::StatusOr<planning::Candidate> CandidateFromDepth(ViewId id, const ImageF& 
                                                        const CellGrid& grid, int stride,
                                                        size_t bytes) {
   planning::Candidate cand;
-  EXO_ASSIGN_OR_RETURN(cand.cells, planning::CountDepthCellPixels(depth, depth_camera,
-                                                                  local_from_depth, grid, stride,
-                                                                  &cand.id_camera));
+  EXO_ASSIGN_OR_RETURN(cand.cells,
+                       planning::CountDepthCellPixels(depth, depth_camera, local_from_depth, grid,
+                                                      stride, &cand.id_camera));
   cand.id = id;
   cand.local_from_cam = local_from_cam;
   cand.bytes = bytes;
@@ -264,8 +271,8 @@ absl::StatusOr<std::unique_ptr<OnlinePlanner>> OnlinePlanner::Create(
                            ? options.cellid_lod_m
                            : planning::DefaultCellIdLodM(setup.cell_m, setup.voxel_m);
     co.lod_keep_fraction = options.cellid_lod_keep;
-    co.max_range_m = options.cellid_max_range_m > 0 ? options.cellid_max_range_m
-                                                    : 2.0 * options.max_depth_m;
+    co.max_range_m =
+        options.cellid_max_range_m > 0 ? options.cellid_max_range_m : 2.0 * options.max_depth_m;
     EXO_ASSIGN_OR_RETURN(auto r, planning::CellIdRenderer::Create(co));
     cell_ids = std::make_unique<planning::CellIdRenderer>(std::move(r));
   }
@@ -356,14 +363,15 @@ absl::StatusOr<HandOff> OnlinePlanner::Readmit(const StoredView& v) {
   const size_t bytes = v.color.bytes() +
                        static_cast<size_t>(v.color.width()) * v.color.height() * sizeof(float) +
                        sizeof(StoredView);
-  EXO_ASSIGN_OR_RETURN(planning::Candidate cand,
-                       CandidateFromDepth(v.id, v.depth_m, v.camera, v.local_from_cam,
-                                          v.local_from_cam, planner_.grid(),
-                                          options_.id_buffer_stride, bytes));
+  EXO_ASSIGN_OR_RETURN(
+      planning::Candidate cand,
+      CandidateFromDepth(v.id, v.depth_m, v.camera, v.local_from_cam, v.local_from_cam,
+                         planner_.grid(), options_.id_buffer_stride, bytes));
   return Decide(std::move(cand));
 }
 
-absl::StatusOr<std::vector<std::pair<CellId, std::vector<ViewId>>>> OnlinePlanner::Remove(ViewId id) {
+absl::StatusOr<std::vector<std::pair<CellId, std::vector<ViewId>>>> OnlinePlanner::Remove(
+    ViewId id) {
   EXO_ASSIGN_OR_RETURN(std::vector<CellId> changed, planner_.Remove(id));
   poses_.erase(id);
   return RefsOf(changed);
@@ -445,7 +453,9 @@ absl::StatusOr<HandOff> OnlineModel::Step(const Frame& frame) {
   return planner_->Plan(PlanFrame::Of(frame, planner_->setup().origin));
 }
 
-uint64_t OnlineModel::Digest() const { return ModelDigest(geometry_->Digest(), planner_->Digest()); }
+uint64_t OnlineModel::Digest() const {
+  return ModelDigest(geometry_->Digest(), planner_->Digest());
+}
 
 uint64_t ModelDigest(uint64_t geometry_digest, uint64_t planner_digest) {
   Fnv h;

@@ -40,10 +40,11 @@ namespace exo::core {
 // (ChooseSceneSetup).
 struct OnlineModelOptions {
   // ---- scene set-up ----
-  double voxel_m = 0.0;   // TSDF voxel; 0: clamp(D / 600, 0.02, 0.15), D = diameter of frame 0's surface
-  double cell_m = 0.0;    // planner cell; 0: server/geometry/scene_scale.h rule (D / 16 in [0.3, 1])
-  double d_max_m = 0.0;   // ideal view distance (3.11); 0: PlannerOptions::ForScene(D, median depth)
-  double sigma_m = 0.0;   // σ of (3.11); 0: as d_max_m
+  double voxel_m =
+      0.0;  // TSDF voxel; 0: clamp(D / 600, 0.02, 0.15), D = diameter of frame 0's surface
+  double cell_m = 0.0;   // planner cell; 0: server/geometry/scene_scale.h rule (D / 16 in [0.3, 1])
+  double d_max_m = 0.0;  // ideal view distance (3.11); 0: PlannerOptions::ForScene(D, median depth)
+  double sigma_m = 0.0;  // σ of (3.11); 0: as d_max_m
   // ---- geometry ----
   double max_depth_m = 4.0;
   double min_depth_m = 0.1;
@@ -51,14 +52,14 @@ struct OnlineModelOptions {
   int mesh_every_n_frames = 1;   // dirty chunks re-meshed every n-th fused frame
   int tsdf_threads = 2;
   // ---- planning ----
-  int id_buffer_stride = 4;      // cell-id buffer = 1/stride of the frame (160x120 for 640x480)
+  int id_buffer_stride = 4;  // cell-id buffer = 1/stride of the frame (160x120 for 640x480)
   size_t max_views = 200;
   size_t max_bytes = size_t{1} << 30;
   int r_max = 16;
-  double lambda = 0.4;           // (3.6) directional vs positional
+  double lambda = 0.4;  // (3.6) directional vs positional
   double tau_max = 4.0;
   double delta_tau_sum = 0.05;
-  bool cell_areas = true;        // A(b_k) from the proxy; false: every cell the face area A_cell
+  bool cell_areas = true;  // A(b_k) from the proxy; false: every cell the face area A_cell
   // Bandwidth governor: once the store is full at most this many candidates per second (frame
   // timestamps) reach the planner; 0 = off.
   double max_candidates_per_s_when_full = 0.0;
@@ -76,10 +77,10 @@ struct OnlineModelOptions {
 // The scene parameters fixed once per scene.
 struct SceneSetup {
   LocalOrigin origin;
-  double diameter_m = 0.0;   // of the first frame's observed surface
-  double view_depth_m = 0.0; // median valid depth of the first frame
+  double diameter_m = 0.0;    // of the first frame's observed surface
+  double view_depth_m = 0.0;  // median valid depth of the first frame
   double voxel_m = 0.02, cell_m = 0.5, d_max_m = 2.0, sigma_m = 2.0;
-  SceneScale scale;          // scene_scale.h's values for diameter_m (before ForScene / overrides)
+  SceneScale scale;  // scene_scale.h's values for diameter_m (before ForScene / overrides)
 };
 
 // The rule for a scene seen for the first time: origin = the first frame's camera centre; D from
@@ -92,8 +93,8 @@ absl::StatusOr<SceneSetup> ChooseSceneSetup(const Frame& first, const OnlineMode
 
 // What one integrated frame changed in the proxy.
 struct GeometryUpdate {
-  std::vector<MeshChunk> chunks;   // re-meshed chunks, newest version
-  std::vector<uint64_t> removed;   // chunk ids that disappeared
+  std::vector<MeshChunk> chunks;  // re-meshed chunks, newest version
+  std::vector<uint64_t> removed;  // chunk ids that disappeared
   bool empty() const { return chunks.empty() && removed.empty(); }
 };
 
@@ -110,7 +111,8 @@ class OnlineGeometry {
   uint64_t Digest() const;
 
  private:
-  OnlineGeometry(const TsdfOptions& tsdf, const OnlineModelOptions& options, const SceneSetup& setup);
+  OnlineGeometry(const TsdfOptions& tsdf, const OnlineModelOptions& options,
+                 const SceneSetup& setup);
   TsdfVolume volume_;
   OnlineModelOptions options_;
   SceneSetup setup_;
@@ -136,22 +138,22 @@ class ProxyMesh {
 // One frame as the planner sees it (scene-local poses).
 struct PlanFrame {
   Rigid3d local_from_cam;
-  PinholeCamera camera;                 // the colour camera (what a stored view shows)
-  const ImageF* depth = nullptr;        // null: cell ids only from the proxy
+  PinholeCamera camera;           // the colour camera (what a stored view shows)
+  const ImageF* depth = nullptr;  // null: cell ids only from the proxy
   PinholeCamera depth_camera;
   Rigid3d local_from_depth;
   double timestamp_s = 0.0;
-  size_t bytes = 0;                     // stored size (colour + float depth + header)
+  size_t bytes = 0;  // stored size (colour + float depth + header)
   static PlanFrame Of(const Frame& frame, const LocalOrigin& origin);
 };
 
 // The planner's decision on one frame: what the view store must do.
 struct HandOff {
-  bool candidate = false;    // false: no depth and no proxy, or governed
+  bool candidate = false;  // false: no depth and no proxy, or governed
   bool governed = false;
   bool accepted = false;
-  ViewId id = 0;             // the frame's view id (kept when accepted)
-  std::vector<ViewId> removed;                                    // views that leave the store
+  ViewId id = 0;                // the frame's view id (kept when accepted)
+  std::vector<ViewId> removed;  // views that leave the store
   std::vector<std::pair<CellId, std::vector<ViewId>>> cell_refs;  // new R(b_k) of changed cells
   double tau_sum = 0.0;
 };
@@ -189,7 +191,8 @@ class OnlinePlanner {
   OnlinePlanner(planning::ViewPlanner planner, const OnlineModelOptions& options,
                 const SceneSetup& setup, std::unique_ptr<planning::CellIdRenderer> cell_ids);
   absl::StatusOr<HandOff> Decide(planning::Candidate cand);
-  std::vector<std::pair<CellId, std::vector<ViewId>>> RefsOf(const std::vector<CellId>& cells) const;
+  std::vector<std::pair<CellId, std::vector<ViewId>>> RefsOf(
+      const std::vector<CellId>& cells) const;
 
   planning::ViewPlanner planner_;
   OnlineModelOptions options_;

@@ -22,7 +22,8 @@ std::vector<Frame> ApartmentFrames(int n = 24) {
   ro.height = 120;
   std::vector<Frame> frames;
   for (int i = 0; i < n; ++i) {
-    auto f = synth::RenderFrame(*scene, (*traj)[i].local_from_cam, ro, {}, i, (*traj)[i].timestamp_s);
+    auto f =
+        synth::RenderFrame(*scene, (*traj)[i].local_from_cam, ro, {}, i, (*traj)[i].timestamp_s);
     EXPECT_TRUE(f.ok());
     frames.push_back(std::move(f->frame));
   }
@@ -93,8 +94,8 @@ TEST(OnlineModel, SplitHalvesEqualStepAndRunsRepeatExactly) {
     removed += h->removed.size();
     ASSERT_TRUE((*b)->Step(f).ok());
   }
-  EXPECT_GT(accepted.size(), 6u);    // more accepted than the store holds:
-  EXPECT_GT(removed, 0u);            // victims left the store
+  EXPECT_GT(accepted.size(), 6u);  // more accepted than the store holds:
+  EXPECT_GT(removed, 0u);          // victims left the store
   EXPECT_EQ((*a)->planner().planner().num_views(), 6u);
   EXPECT_EQ((*a)->Digest(), (*b)->Digest());
 

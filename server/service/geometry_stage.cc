@@ -59,8 +59,8 @@ class GeometryStage final : public PipelineStage {
       auto it = published_.find(c.id);
       if (it != published_.end()) {
         const double old_n = static_cast<double>(it->second.triangles);
-        const double change = std::abs(static_cast<double>(c.mesh.num_triangles()) - old_n) /
-                              std::max(1.0, old_n);
+        const double change =
+            std::abs(static_cast<double>(c.mesh.num_triangles()) - old_n) / std::max(1.0, old_n);
         const double age_s = (now - it->second.time_ns) * 1e-9;
         if (change <= options_.republish_change_fraction && age_s < options_.republish_interval_s) {
           pending_[c.id] = std::move(c);  // newest mesh, published when due

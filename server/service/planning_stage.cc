@@ -62,7 +62,8 @@ class PlanningStage final : public PipelineStage {
     if (worker_) {
       // The first view fixes the exposure gauge (E = 1); later ones are refined against the
       // stored views (as cached at 1/k resolution) off this thread.
-      auto small = std::make_shared<const StoredView>(DownscaleView(view, options_.refine_downscale));
+      auto small =
+          std::make_shared<const StoredView>(DownscaleView(view, options_.refine_downscale));
       if (!ref_cache_.empty()) {
         RefinementJob job;
         job.id = view.id;
@@ -140,7 +141,8 @@ class PlanningStage final : public PipelineStage {
         ++rebuild_removed_;
       }
       if (worker_)
-        ref_cache_[v.id] = std::make_shared<const StoredView>(DownscaleView(v, options_.refine_downscale));
+        ref_cache_[v.id] =
+            std::make_shared<const StoredView>(DownscaleView(v, options_.refine_downscale));
       ++rebuilt_views_;
     }
     std::map<CellId, std::vector<ViewId>> refs;
@@ -160,8 +162,8 @@ class PlanningStage final : public PipelineStage {
       return;
     }
     if (r->rejected_outlier && options_.refine_remove_outliers) {
-      // Consistently out of planner (its coverage leaves τ, references refilled), store (ViewRemoved)
-      // and clients (CellRefsChanged for the refilled cells).
+      // Consistently out of planner (its coverage leaves τ, references refilled), store
+      // (ViewRemoved) and clients (CellRefsChanged for the refilled cells).
       auto changed = planner_->Remove(job.id);
       if (!changed.ok()) return;
       (void)store_->RemoveView(job.id);
@@ -174,7 +176,8 @@ class PlanningStage final : public PipelineStage {
       ++outliers_kept_;
       return;
     }
-    if (!store_->UpdateView(job.id, r->local_from_cam, static_cast<float>(r->exposure)).ok()) return;
+    if (!store_->UpdateView(job.id, r->local_from_cam, static_cast<float>(r->exposure)).ok())
+      return;
     ++updated_;
     auto it = ref_cache_.find(job.id);
     if (it != ref_cache_.end()) {
@@ -188,7 +191,8 @@ class PlanningStage final : public PipelineStage {
   const core::OnlineModelOptions model_;
   std::shared_ptr<GeometryHandoff> handoff_;
   std::unique_ptr<RefinementWorker> worker_;
-  mutable std::mutex mu_;  // planner, store writes of views/cell refs, caches (ingest vs refinement)
+  mutable std::mutex
+      mu_;  // planner, store writes of views/cell refs, caches (ingest vs refinement)
   std::unique_ptr<core::OnlinePlanner> planner_;  // created on the first frame (scene set-up)
   ModelStore* store_ = nullptr;
   std::map<ViewId, std::shared_ptr<const StoredView>> ref_cache_;

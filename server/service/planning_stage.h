@@ -21,7 +21,7 @@ struct PlanningStageOptions {
   // (exposure, pose) follows; under load views stay unrefined (skipped).
   bool refine = true;
   size_t refine_queue = 2;
-  int refine_downscale = 2;     // refined at 1/k resolution; the reference cache is kept at 1/k
+  int refine_downscale = 2;  // refined at 1/k resolution; the reference cache is kept at 1/k
   // A view refinement flags as a pose outlier is removed (true) or kept as published, at its
   // input pose and exposure, unrefined (false, default): on real RGB-D (registered 7-Scenes)
   // removing the flagged views lowered held-out SSIM 0.678 -> 0.562 (docs/refinement.md).
