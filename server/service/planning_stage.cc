@@ -39,13 +39,17 @@ class PlanningStage final : public PipelineStage {
   absl::Status Process(const PipelineFrame& pf, const SceneContext& ctx) override {
     std::lock_guard lock(mu_);
     store_ = ctx.store;
+    // Exactly one geometry update per frame is taken, first, whatever fails below (the planner
+    // stays aligned with the geometry stage's frames); it waits while there is no planner yet.
+    if (handoff_) {
+      if (auto u = handoff_->Pop()) unapplied_.push_back(*std::move(u));
+    }
     if (!planner_) {  // the first frame: the scene set-up is known now
       EXO_ASSIGN_OR_RETURN(planner_, core::OnlinePlanner::Create(model_, ctx.setup));
       EXO_RETURN_IF_ERROR(RebuildFromStoreLocked());
     }
-    if (handoff_) {
-      if (auto u = handoff_->Pop()) EXO_RETURN_IF_ERROR(planner_->Apply(*u));
-    }
+    for (const core::GeometryUpdate& u : unapplied_) EXO_RETURN_IF_ERROR(planner_->Apply(u));
+    unapplied_.clear();
     const Frame& f = pf.frame;
     const int64_t t_plan = SteadyNowNs();
     EXO_ASSIGN_OR_RETURN(core::HandOff h, planner_->Plan(core::PlanFrame::Of(f, ctx.origin)));
@@ -194,6 +198,7 @@ class PlanningStage final : public PipelineStage {
   mutable std::mutex
       mu_;  // planner, store writes of views/cell refs, caches (ingest vs refinement)
   std::unique_ptr<core::OnlinePlanner> planner_;  // created on the first frame (scene set-up)
+  std::vector<core::GeometryUpdate> unapplied_;   // taken from the hand-off, not yet applied
   ModelStore* store_ = nullptr;
   std::map<ViewId, std::shared_ptr<const StoredView>> ref_cache_;
   uint64_t outliers_removed_ = 0, outliers_kept_ = 0, updated_ = 0, stale_ = 0;
