@@ -9,6 +9,7 @@
 #include <grpcpp/grpcpp.h>
 #include <gtest/gtest.h>
 
+#include <csignal>
 #include <cstdlib>
 #include <filesystem>
 #include <nlohmann/json.hpp>
@@ -108,6 +109,30 @@ TEST_F(EvalEquivalence, EvalAndUploadedServerStoreTheSameViewsWithTheSameDigest)
   for (const auto& [id, v] : (*session)->store().model().views) server_ids.push_back(id);
   std::sort(server_ids.begin(), server_ids.end());
   EXPECT_EQ(server_ids, eval_ids);
+
+  // Control: the same frames uploaded raw (--register_depth=false, what the uploader sent before
+  // issue 14) give another proxy and another digest, so the equalities above are not vacuous.
+  server_->Signal(SIGTERM);
+  ASSERT_EQ(server_->Wait(30), 0);
+  StartServer({"--admission_block=1", "--max_candidates_per_s_when_full=0", "--refinement=0",
+               "--max_views=" + std::to_string(kStore)},
+              "server_raw.log");
+  Subprocess raw(
+      EXOVIEW_UPLOADER_BIN,
+      {"--server=" + target_, "--dataset=" + data, "--format=7scenes", "--register_depth=false",
+       "--hold_out_every=10", "--frames=" + std::to_string(kInput), "--rate_hz=0"},
+      dir_ + "/up_raw.log");
+  ASSERT_EQ(raw.Wait(300), 0) << ReadAll(dir_ + "/up_raw.log");
+  for (int i = 0; i < 6000; ++i) {
+    s = Stats();
+    if (s.frames_processed() >= static_cast<uint64_t>(kInput)) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  }
+  ASSERT_EQ(s.frames_processed(), static_cast<uint64_t>(kInput));
+  EXPECT_NE(core::DigestHex(counter("geometry.digest")),
+            online["geometry_digest"].get<std::string>());
+  EXPECT_NE(core::DigestHex(counter("planning.digest")),
+            online["planner_digest"].get<std::string>());
 }
 
 }  // namespace
