@@ -25,7 +25,7 @@ int main(int argc, char** argv) {
   exo::UploadOptions opt;
   opt.encode.jpeg_quality = 90;
   int frames = -1, first = 0;
-  app.add_option("--server", server, "HOST:PORT of the server")->required();
+  app.add_option("--server", server, "HOST:PORT of the server (required)");
   app.add_option("--synthetic", synthetic,
                  "stream the built-in synthetic scene: village | apartment")
       ->expected(0, 1)
@@ -60,6 +60,10 @@ int main(int argc, char** argv) {
   app.add_option("--send_log", send_log, "write \"timestamp_s steady_ns\" per sent frame");
   if (auto rc = exo::cli::Parse(app, argc, argv)) return *rc;
 
+  if (server.empty()) {
+    std::fprintf(stderr, "exoview_uploader: --server=HOST:PORT is required\n");
+    return 2;
+  }
   const bool use_synth = app.count("--synthetic") > 0;
   if (use_synth == !dataset.empty()) {
     std::fprintf(stderr, "exoview_uploader: give exactly one of --synthetic or --dataset=DIR\n");
