@@ -27,8 +27,11 @@ using testing::WaitForFile;
 class ServiceCheckpoint : public testing::ServerProcessTest {
  protected:
   void StartCheckpointedServer(const std::string& log) {
+    // A coarse proxy re-meshed every 5th frame (the server's defaults are the evaluation's 2 cm
+    // voxels, meshed every frame): these tests check versions, deltas and resumption.
     StartServer({"--checkpoint_path=" + dir_ + "/model.ckpt", "--checkpoint_interval_s=0.2",
-                 "--snapshot_when_cheaper=false"},
+                 "--snapshot_when_cheaper=false", "--voxel_size_m=0.08",
+                 "--mesh_every_n_frames=5", "--fuse_depth_downscale=2"},
                 log);
   }
   int Upload(int first, int frames, const std::string& name) {

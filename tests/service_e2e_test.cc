@@ -38,7 +38,8 @@ TEST_F(ServiceE2E, ViewersEqualServerModelAndRestartedViewerCatchesUpExactly) {
   // A log that holds the whole run and no snapshot shortcut, so the restarted viewer must resume
   // with exactly the deltas it missed (the snapshot paths are covered in model_store_test).
   StartServer({"--max_log_deltas=1000000", "--max_log_bytes=1000000000",
-               "--max_subscriber_lag=1000000", "--snapshot_when_cheaper=false"});
+               "--max_subscriber_lag=1000000", "--snapshot_when_cheaper=false",
+               "--voxel_size_m=0.08", "--mesh_every_n_frames=5", "--fuse_depth_downscale=2"});
   const std::string until = "--until_frames=" + std::to_string(kFrames);
   Subprocess a(EXOVIEW_VIEWER_BIN, {"--server=" + target_, until, "--state_json=" + dir_ + "/a.json"},
                dir_ + "/a.log");
@@ -145,7 +146,7 @@ TEST_F(ServiceE2E, ViewersEqualServerModelAndRestartedViewerCatchesUpExactly) {
 
 // SPEC §4 on the server: with planning_id_from_proxy=1 the planning stage renders its cell-id
 // buffers from the geometry stage's re-meshed chunks (planning::CellIdRenderer fed through
-// SharedCellAreas::TakeChunkChanges) instead of back-projecting the frame's depth. Every candidate
+// the geometry stage's per-frame GeometryHandoff) instead of back-projecting the frame's depth. Every candidate
 // after the first meshed chunks takes that path, no chunk update fails, and views are planned.
 TEST_F(ServiceE2E, PlanningRendersCellIdsFromTheProxyChunks) {
   StartServer({"--planning_id_from_proxy=1", "--refinement=0"});

@@ -1,102 +1,113 @@
 // exoview_uploader: streams frames to an Exoview server, at a chosen rate, with progress and
-// ack statistics.
-//   exoview_uploader --server=HOST:PORT (--synthetic[=village|apartment] | --dataset=DIR
-//                    --format=7scenes|tum|exo) [--trajectory=flyover|walk] [--frames=N]
-//                    [--first=I] [--width=W --height=H] [--rate_hz=R] [--jpeg_quality=Q]
-//                    [--max_in_flight=N] [--stats_json=FILE] [--send_log=FILE] [--progress]
-// Exit status: 0 when the stream completed (rejections are reported, not fatal), 1 on error.
+// ack statistics. Frames come from the built-in synthetic scene or a dataset folder (the readers
+// of common/datasets, the same code exoview_eval reads with). Prints the ack statistics as JSON.
+// Exit status: 0 when the stream completed (rejections are reported, not fatal), 1 on error,
+// 2 on a bad flag.
 #include <cstdio>
-#include <cstring>
 #include <fstream>
-#include <map>
 #include <string>
+#include <vector>
 
-#include "absl/strings/numbers.h"
 #include "client/uploader/synth_source.h"
 #include "client/uploader/upload_client.h"
-#include "common/datasets/exo_layout.h"
-#include "common/datasets/seven_scenes.h"
-#include "common/datasets/tum.h"
+#include "common/cli/cli.h"
+#include "common/datasets/dataset.h"
 
 int main(int argc, char** argv) {
-  std::map<std::string, std::string> a;
-  for (int i = 1; i < argc; ++i) {
-    std::string s = argv[i];
-    if (s.rfind("--", 0) != 0) {
-      std::fprintf(stderr, "exoview_uploader: bad argument '%s'\n", s.c_str());
-      return 2;
-    }
-    const auto eq = s.find('=');
-    if (eq == std::string::npos)
-      a[s.substr(2)] = "";
-    else
-      a[s.substr(2, eq - 2)] = s.substr(eq + 1);
-  }
-  auto num = [&](const char* k, double def) {
-    double v = def;
-    if (a.count(k) && !absl::SimpleAtod(a[k], &v)) {
-      std::fprintf(stderr, "exoview_uploader: --%s needs a number\n", k);
-      std::exit(2);
-    }
-    return v;
-  };
-  if (!a.count("server")) {
+  CLI::App app{
+      "Streams RGB-D frames (synthetic scene or a dataset folder) to an Exoview server "
+      "and prints the ack statistics as JSON.",
+      "exoview_uploader"};
+  exo::cli::Setup(app);
+  std::string server, synthetic, dataset, stats_json, send_log;
+  exo::SynthSourceOptions synth;
+  exo::DatasetOptions data;
+  exo::UploadOptions opt;
+  opt.encode.jpeg_quality = 90;
+  int frames = -1, first = 0;
+  app.add_option("--server", server, "HOST:PORT of the server (required)");
+  app.add_option("--synthetic", synthetic,
+                 "stream the built-in synthetic scene: village | apartment")
+      ->expected(0, 1)
+      ->default_str("village");
+  app.add_option("--trajectory", synth.trajectory, "synthetic: flyover | walk");
+  app.add_option("--width", synth.width, "synthetic frame width")->check(CLI::PositiveNumber);
+  app.add_option("--height", synth.height, "synthetic frame height")->check(CLI::PositiveNumber);
+  app.add_option("--seed", synth.seed, "synthetic scene seed");
+  app.add_option("--dataset", dataset, "dataset folder to stream");
+  app.add_option("--format", data.format, "dataset format: 7scenes | tum | redwood | scannet | exo")
+      ->check(CLI::IsMember({"7scenes", "tum", "redwood", "scannet", "exo"}));
+  app.add_option("--register_depth", data.register_depth,
+                 "7-Scenes: register depth to the colour camera (default true; "
+                 "docs/registration.md)");
+  app.add_option("--intrinsics", data.intrinsics, "TUM: fx,fy,cx,cy of the sensor")
+      ->delimiter(',')
+      ->expected(4);
+  app.add_option("--camera_file", data.camera_file,
+                 "TUM: file with one line \"fx fy cx cy [width height]\"");
+  app.add_option("--hold_out_every", data.hold_out_every,
+                 "leave out frames i % N == N-1 (exoview_eval's held-out test frames); 0 = none");
+  app.add_option("--first", first, "first frame to send")->check(CLI::NonNegativeNumber);
+  app.add_option("--frames", frames, "frames to send (default: all; synthetic: 120)");
+  app.add_option("--rate_hz", opt.rate_hz, "send rate; 0 = as fast as the server acks")
+      ->check(CLI::NonNegativeNumber);
+  app.add_option("--max_in_flight", opt.max_in_flight, "frames sent but not yet acked")
+      ->check(CLI::PositiveNumber);
+  app.add_option("--jpeg_quality", opt.encode.jpeg_quality, "colour JPEG quality")
+      ->check(CLI::Range(1, 100));
+  app.add_flag("--progress", opt.progress, "one line per second on stderr");
+  app.add_option("--stats_json", stats_json, "also write the statistics JSON to this file");
+  app.add_option("--send_log", send_log, "write \"timestamp_s steady_ns\" per sent frame");
+  if (auto rc = exo::cli::Parse(app, argc, argv)) return *rc;
+
+  if (server.empty()) {
     std::fprintf(stderr, "exoview_uploader: --server=HOST:PORT is required\n");
+    return 2;
+  }
+  const bool use_synth = app.count("--synthetic") > 0;
+  if (use_synth == !dataset.empty()) {
+    std::fprintf(stderr, "exoview_uploader: give exactly one of --synthetic or --dataset=DIR\n");
     return 2;
   }
   std::unique_ptr<exo::FrameSource> source;
   absl::Status st;
-  if (a.count("synthetic")) {
-    exo::SynthSourceOptions o;
-    if (!a["synthetic"].empty()) o.scene = a["synthetic"];
-    if (a.count("trajectory")) o.trajectory = a["trajectory"];
-    o.num_frames = static_cast<int>(num("frames", 120));
-    o.width = static_cast<int>(num("width", 640));
-    o.height = static_cast<int>(num("height", 480));
-    o.seed = static_cast<uint64_t>(num("seed", 1));
-    auto s = exo::SynthFrameSource::Create(o);
-    if (s.ok()) source = *std::move(s); else st = s.status();
-  } else if (a.count("dataset")) {
-    const std::string fmt = a.count("format") ? a["format"] : "7scenes";
-    if (fmt == "7scenes") {
-      auto s = exo::SevenScenesReader::Open(a["dataset"]);
-      if (s.ok()) source = *std::move(s); else st = s.status();
-    } else if (fmt == "tum") {
-      auto s = exo::TumReader::Open(a["dataset"]);
-      if (s.ok()) source = *std::move(s); else st = s.status();
-    } else if (fmt == "exo") {
-      auto s = exo::ExoLayoutReader::Open(a["dataset"]);
-      if (s.ok()) source = *std::move(s); else st = s.status();
-    } else {
-      st = absl::InvalidArgumentError("--format must be 7scenes, tum or exo");
-    }
+  if (use_synth) {
+    synth.scene = synthetic.empty() ? "village" : synthetic;
+    synth.num_frames = frames > 0 ? frames : 120;
+    auto s = exo::SynthFrameSource::Create(synth);
+    if (s.ok())
+      source = *std::move(s);
+    else
+      st = s.status();
   } else {
-    st = absl::InvalidArgumentError("give --synthetic or --dataset=DIR");
+    std::vector<std::string> warnings;
+    auto s = exo::OpenDataset(dataset, data, &warnings);
+    for (const std::string& w : warnings)
+      std::fprintf(stderr, "exoview_uploader: warning: %s\n", w.c_str());
+    if (s.ok())
+      source = *std::move(s);
+    else
+      st = s.status();
   }
   if (!st.ok()) {
     std::fprintf(stderr, "exoview_uploader: %s\n", std::string(st.message()).c_str());
     return 1;
   }
-  exo::UploadOptions opt;
-  opt.rate_hz = num("rate_hz", 30);
-  opt.max_in_flight = static_cast<int>(num("max_in_flight", 16));
-  opt.encode.jpeg_quality = static_cast<int>(num("jpeg_quality", 90));
-  opt.progress = a.count("progress") > 0;
-  const size_t first = static_cast<size_t>(num("first", 0));
-  const size_t count = static_cast<size_t>(num("frames", static_cast<double>(source->size())));
-  std::fprintf(stderr, "exoview_uploader: %s, %zu frames from %zu at %.1f Hz -> %s\n",
+  const size_t count = frames >= 0 ? static_cast<size_t>(frames) : source->size();
+  std::fprintf(stderr, "exoview_uploader: %s, %zu frames from %d at %.1f Hz -> %s\n",
                source->name().c_str(), std::min(count, source->size()), first, opt.rate_hz,
-               a["server"].c_str());
-  auto stats = exo::UploadFrames(exo::MakeChannel(a["server"]), *source, first, count, opt);
+               server.c_str());
+  auto stats =
+      exo::UploadFrames(exo::MakeChannel(server), *source, static_cast<size_t>(first), count, opt);
   if (!stats.ok()) {
     std::fprintf(stderr, "exoview_uploader: %s\n", std::string(stats.status().message()).c_str());
     return 1;
   }
   const std::string json = stats->ToJson();
   std::printf("%s\n", json.c_str());
-  if (a.count("stats_json")) std::ofstream(a["stats_json"]) << json << "\n";
-  if (a.count("send_log")) {  // "timestamp_s steady_ns" per frame (CLOCK_MONOTONIC)
-    std::ofstream log(a["send_log"]);
+  if (!stats_json.empty()) std::ofstream(stats_json) << json << "\n";
+  if (!send_log.empty()) {  // "timestamp_s steady_ns" per frame (CLOCK_MONOTONIC)
+    std::ofstream log(send_log);
     log.precision(17);
     for (const auto& [t, ns] : stats->send_times) log << t << " " << ns << "\n";
   }

@@ -24,6 +24,7 @@
 #include <vector>
 
 #include "absl/strings/str_format.h"
+#include "common/cli/cli.h"
 #include "common/datasets/rgbd_registration.h"
 #include "common/datasets/seven_scenes.h"
 #include "common/io/image_file.h"
@@ -69,33 +70,27 @@ int main(int argc, char** argv) {
   int step = 10, first = 0, count = 30, png_frame = 150;
   std::string png;
   exo::CalibrationOptions o;
-  for (int a = 1; a < argc; ++a) {
-    auto next = [&](const char* name) -> const char* {
-      if (a + 1 >= argc) {
-        std::fprintf(stderr, "%s needs a value\n", name);
-        std::exit(2);
-      }
-      return argv[++a];
-    };
-    if (!std::strcmp(argv[a], "--dir")) dir = next("--dir");
-    else if (!std::strcmp(argv[a], "--step")) step = std::atoi(next("--step"));
-    else if (!std::strcmp(argv[a], "--first")) first = std::atoi(next("--first"));
-    else if (!std::strcmp(argv[a], "--count")) count = std::atoi(next("--count"));
-    else if (!std::strcmp(argv[a], "--levels")) o.pyramid_levels = std::atoi(next("--levels"));
-    else if (!std::strcmp(argv[a], "--iterations")) o.max_iterations_per_level = std::atoi(next("--iterations"));
-    else if (!std::strcmp(argv[a], "--threads")) o.num_threads = std::atoi(next("--threads"));
-    else if (!std::strcmp(argv[a], "--photo_weight")) o.photometric_weight = std::atof(next("--photo_weight"));
-    else if (!std::strcmp(argv[a], "--edge_weight")) o.edge_weight = std::atof(next("--edge_weight"));
-    else if (!std::strcmp(argv[a], "--same_focal")) o.same_focal = true;
-    else if (!std::strcmp(argv[a], "--png")) png = next("--png");
-    else if (!std::strcmp(argv[a], "--png_frame")) png_frame = std::atoi(next("--png_frame"));
-    else if (!std::strcmp(argv[a], "--fixed_rotation")) o.estimate_rotation = false;
-    else if (!std::strcmp(argv[a], "--rotation_sigma_deg")) o.rotation_prior_sigma_deg = std::atof(next("--rotation_sigma_deg"));
-    else {
-      std::fprintf(stderr, "unknown argument %s (see the header comment)\n", argv[a]);
-      return 2;
-    }
-  }
+  CLI::App app{"Estimates the 7-Scenes (Kinect v1) depth -> colour calibration from the data "
+               "(Ceres); prints JSON.",
+               "exoview_calibrate_7scenes"};
+  exo::cli::Setup(app);
+  app.add_option("--dir", dir, "7-Scenes sequence directory");
+  app.add_option("--step", step, "use every step-th frame");
+  app.add_option("--first", first, "first frame");
+  app.add_option("--count", count, "frames used");
+  app.add_option("--levels", o.pyramid_levels, "pyramid levels");
+  app.add_option("--iterations", o.max_iterations_per_level, "iterations per level");
+  app.add_option("--threads", o.num_threads, "Ceres threads");
+  app.add_option("--photo_weight", o.photometric_weight, "photometric term weight");
+  app.add_option("--edge_weight", o.edge_weight, "edge term weight");
+  app.add_flag("--same_focal", o.same_focal, "one focal length for x and y");
+  bool fixed_rotation = false;
+  app.add_flag("--fixed_rotation", fixed_rotation, "do not estimate the rotation");
+  app.add_option("--rotation_sigma_deg", o.rotation_prior_sigma_deg, "rotation prior sigma (deg)");
+  app.add_option("--png", png, "write depth edges over colour of one frame to this PNG");
+  app.add_option("--png_frame", png_frame, "frame of --png");
+  if (auto rc = exo::cli::Parse(app, argc, argv)) return *rc;
+  if (fixed_rotation) o.estimate_rotation = false;
   if (step < 1 || count < 1 || first < 0) {
     std::fprintf(stderr, "--step and --count must be >= 1, --first >= 0\n");
     return 2;

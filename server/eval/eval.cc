@@ -15,8 +15,9 @@
 
 #include <absl/strings/str_cat.h>
 #include <absl/strings/str_format.h>
+#include <nlohmann/json.hpp>
 
-#include "common/datasets/seven_scenes.h"
+#include "common/datasets/dataset.h"
 #include "common/io/image_file.h"
 #include "common/lumigraph/cpu_renderer.h"
 #include "common/lumigraph/model.h"
@@ -25,9 +26,9 @@
 #include "common/synth/render.h"
 #include "common/synth/scene.h"
 #include "common/synth/trajectory.h"
+#include "server/core/online_model.h"
 #include "server/geometry/cell_areas.h"
 #include "server/geometry/scene_scale.h"
-#include "server/geometry/tsdf_volume.h"
 #include "server/planning/cell_id_proxy.h"
 #include "server/planning/view_planner.h"
 
@@ -62,52 +63,6 @@ double Mean(const std::vector<double>& v) {
   for (double x : v) s += x;
   return v.empty() ? 0.0 : s / v.size();
 }
-
-// ---- proxy: TSDF chunks or one ground-truth chunk ----
-
-// The full proxy (what the lumigraph renders and the vertex-colour baseline shows). The planner's
-// cell-id buffers come from planning::CellIdRenderer (per-chunk LOD cache, frustum culling), one
-// per cell grid, fed with the same chunks.
-class Proxy {
- public:
-  void Set(uint64_t id, MeshChunk c) { chunks_[id] = std::move(c); }
-  void Remove(uint64_t id) { chunks_.erase(id); }
-  TriangleMesh All() const {
-    TriangleMesh m;
-    for (const auto& [id, c] : chunks_) Append(m, c.mesh);
-    return m;
-  }
-  const std::map<uint64_t, MeshChunk>& Chunks() const { return chunks_; }
-  size_t bytes() const {
-    size_t b = 0;
-    for (const auto& [id, c] : chunks_) b += c.mesh.bytes();
-    return b;
-  }
-  size_t triangles() const {
-    size_t t = 0;
-    for (const auto& [id, c] : chunks_) t += c.mesh.num_triangles();
-    return t;
-  }
-
- private:
-  static void Append(TriangleMesh& m, const TriangleMesh& c) {
-    // Cell-id / position rendering needs positions + indices only (colour kept when all have it).
-    if (m.empty() && m.positions.empty()) {
-      m = c;
-      m.normals.clear();
-      m.material.clear();
-      return;
-    }
-    const uint32_t base = static_cast<uint32_t>(m.positions.size());
-    m.positions.insert(m.positions.end(), c.positions.begin(), c.positions.end());
-    if (!m.colors.empty() && c.colors.size() == c.positions.size())
-      m.colors.insert(m.colors.end(), c.colors.begin(), c.colors.end());
-    else
-      m.colors.clear();
-    for (uint32_t i : c.indices) m.indices.push_back(base + i);
-  }
-  std::map<uint64_t, MeshChunk> chunks_;
-};
 
 std::vector<planning::CellPixelCount> CellCounts(const TriangleMesh& mesh, const CellGrid& grid,
                                                  const PinholeCamera& cam, const Rigid3d& pose,
@@ -248,18 +203,21 @@ struct Source {
 struct Group {  // configurations sharing one cell size
   CellGrid grid;
   std::unique_ptr<CellAreas> areas;
-  std::unique_ptr<planning::CellIdRenderer> cid;  // cell-id buffers of this grid
-  std::vector<size_t> online;                  // config indices
-  std::vector<double> cellid_ms, cellid_cpu_ms;  // per frame (wall, thread CPU)
+  // Offline / baseline policies only (the online ones use the core's): final areas and, with
+  // --ids proxy, the cell-id renderer of the final proxy.
+  std::unique_ptr<planning::CellIdRenderer> cid;
   bool needs_final = false;
   std::vector<std::vector<planning::CellPixelCount>> final_cells;  // per frame, final proxy
                                                                    // (or the frame's depth)
   PinholeCamera id_cam;
 };
 
+// An online configuration: the core's planner (server/core, what the server runs), fed the same
+// geometry updates as every other online configuration.
 struct OnlineState {
-  std::unique_ptr<planning::ViewPlanner> planner;
-  std::vector<double> consider_ms, consider_cpu_ms;
+  std::unique_ptr<core::OnlinePlanner> planner;
+  std::vector<double> consider_ms, consider_cpu_ms;  // core Plan() (cell ids + Consider)
+  std::vector<double> plan_ms, plan_cpu_ms;          // + applying the geometry update (+ LOD)
   size_t accepted = 0;
   size_t group = 0;
 };
@@ -283,17 +241,6 @@ planning::PlannerOptions PlannerFor(const PolicyConfig& c, const Source& src, do
     po.sigma_m = f.sigma_m;
   }
   return po;
-}
-
-// Median of the valid (> 0, finite) depths of an image (0 when none).
-double MedianDepth(const ImageF& depth) {
-  std::vector<float> v;
-  v.reserve(depth.size());
-  for (float z : depth.span())
-    if (z > 0 && std::isfinite(z)) v.push_back(z);
-  if (v.empty()) return 0;
-  std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
-  return v[v.size() / 2];
 }
 
 ImageU8 Hstack(const std::vector<const ImageU8*>& imgs) {
@@ -355,46 +302,19 @@ struct EvalSink {
   }
 };
 
-// ",\"key\":[v0,v1,...]" with the given precision.
-std::string JsonArray(const char* key, const std::vector<double>& v, int prec) {
-  std::string out = absl::StrCat(",\"", key, "\":[");
-  for (size_t i = 0; i < v.size(); ++i)
-    absl::StrAppend(&out, i ? "," : "", absl::StrFormat("%.*f", prec, v[i]));
-  return out + "]";
+// A value rounded to `digits` decimals (JSON numbers stay short: 0.7081, not 0.70812345...).
+double Round(double v, int digits) {
+  const double k = std::pow(10.0, digits);
+  return std::isfinite(v) ? std::round(v * k) / k : 0.0;
+}
+nlohmann::json RoundedArray(const std::vector<double>& v, int digits) {
+  nlohmann::json a = nlohmann::json::array();
+  for (double x : v) a.push_back(Round(x, digits));
+  return a;
 }
 
-std::string PlanCpuJson(const ConfigResult& r) {
-  if (!(r.plan_cpu_ms_median > 0)) return "";
-  return absl::StrFormat(",\"plan_cpu_ms\":{\"median\":%.2f,\"p95\":%.2f}", r.plan_cpu_ms_median,
-                         r.plan_cpu_ms_p95);
-}
-
-// Integration CPU (process CPU ms per input frame) and the final proxy's size (session 4: the
-// voxel-size sweep). Keys are unique per line (eval_charts reads flat keys).
-std::string ProxyCostJson(const ConfigResult& r) {
-  return absl::StrFormat(
-      ",\"integrate_cpu\":{\"integrate_cpu_ms_median\":%.2f,\"integrate_cpu_ms_p95\":%.2f},"
-      "\"proxy_triangles\":%zu",
-      r.integrate_cpu_ms_median, r.integrate_cpu_ms_p95, r.proxy_triangles);
-}
-
-// Per-test-view diagnostics (only when requested): SSIM, distance / angle to the nearest stored
-// view, the pixel fraction whose cell references that view, the stored frame indices.
-std::string PerViewJson(const ConfigResult& r) {
-  if (r.per_view_ssim.empty()) return "";
-  std::string out = ",\"per_view\":{\"x\":0";
-  out += JsonArray("ssim", r.per_view_ssim, 4);
-  if (!r.per_view_near_m.empty()) {
-    out += JsonArray("near_m", r.per_view_near_m, 3);
-    out += JsonArray("near_deg", r.per_view_near_deg, 1);
-    out += JsonArray("near_frame", r.per_view_near_frame, 0);
-    out += JsonArray("ref_hit", r.per_view_ref_hit, 3);
-  }
-  std::vector<double> sel(r.selected.begin(), r.selected.end());
-  if (!sel.empty()) out += JsonArray("selected", sel, 0);
-  return out + "}";
-}
-
+// One JSON line per configuration and test set (field names read by eval_charts, eval_tables.py
+// and docs/evaluation.md; keep them).
 std::string ConfigJson(const std::string& dataset, const std::string& test_poses,
                        const std::string& proxy, double voxel_m,
                        int frames, const PolicyConfig& c, double lambda, double cell_m,
@@ -406,29 +326,88 @@ std::string ConfigJson(const std::string& dataset, const std::string& test_poses
   const char* refs = c.policy == Policy::kVertexColor ? "none"
                      : baseline && c.uncapped_refs    ? "uncapped"
                                                       : "preselect";
-  return absl::StrFormat(
-      "{\"bench\":\"eval\",\"dataset\":\"%s\",\"test_poses\":\"%s\",\"proxy\":\"%s\",\"tag\":\"%s\","
-      "\"config\":{\"policy\":\"%s\",\"refs\":\"%s\",\"frames\":%d,\"store\":%d,\"r_max\":%d,\"lambda\":%.2f,"
-      "\"cell_m\":%.3f,\"voxel_m\":%.4f,\"delta_tau_sum\":%.3f,\"idbuf\":\"%dx%d\",\"ids\":\"%s\","
-      "\"scale\":\"%s\",\"d_max_m\":%.2f,\"sigma_m\":%.2f,\"cellid_lod_m\":%.3f,"
-      "\"face_areas\":%d},"
-      "\"quality\":{\"mssim\":%.4f,\"psnr\":%.2f,\"coverage\":%.4f,\"mssim_covered\":%.4f,"
-      "\"surface\":%.4f,\"mssim_unfilled\":%.4f,\"psnr_unfilled\":%.2f,\"test_views\":%d},"
-      "\"speed\":{\"integrate_ms_median\":%.2f,\"integrate_ms_p95\":%.2f,\"plan_ms_median\":%.2f,"
-      "\"plan_ms_p95\":%.2f,\"consider_ms_median\":%.3f,\"render_ms_median\":%.1f},"
-      "\"memory\":{\"store_bytes\":%zu,\"geometry_bytes\":%zu,\"planner_bytes\":%zu},"
-      "\"views\":%zu,\"accepted\":%zu,\"tau_sum\":%.2f,\"mean_refs\":%.2f,\"max_refs\":%zu",
-      dataset, test_poses, proxy, c.tag, PolicyName(c.policy), refs, frames, c.store, c.r_max, lambda,
-      cell_m, voxel_m, dts, idw, idh, ids, scale, po.d_max_m, po.sigma_m, lod_m, int(c.face_areas), r.quality.mssim, r.quality.psnr, r.quality.coverage,
-      r.quality.mssim_covered, r.quality.surface, r.quality.mssim_unfilled, r.quality.psnr_unfilled, r.quality.views, r.integrate_ms_median, r.integrate_ms_p95,
-      r.plan_ms_median, r.plan_ms_p95, r.consider_ms_median, r.render_ms_median, r.store_bytes,
-      r.geometry_bytes, r.planner_bytes, r.store_views, r.accepted, r.tau_sum, r.mean_refs,
-      r.max_refs) + PlanCpuJson(r) + ProxyCostJson(r) + PerViewJson(r) + "}";
+  nlohmann::ordered_json j;
+  j["bench"] = "eval";
+  j["dataset"] = dataset;
+  j["test_poses"] = test_poses;
+  j["proxy"] = proxy;
+  j["tag"] = c.tag;
+  j["config"] = {{"policy", PolicyName(c.policy)},
+                 {"refs", refs},
+                 {"frames", frames},
+                 {"store", c.store},
+                 {"r_max", c.r_max},
+                 {"lambda", Round(lambda, 2)},
+                 {"cell_m", Round(cell_m, 3)},
+                 {"voxel_m", Round(voxel_m, 4)},
+                 {"delta_tau_sum", Round(dts, 3)},
+                 {"idbuf", absl::StrCat(idw, "x", idh)},
+                 {"ids", ids},
+                 {"scale", scale},
+                 {"d_max_m", Round(po.d_max_m, 2)},
+                 {"sigma_m", Round(po.sigma_m, 2)},
+                 {"cellid_lod_m", Round(lod_m, 3)},
+                 {"face_areas", int(c.face_areas)}};
+  j["quality"] = {{"mssim", Round(r.quality.mssim, 4)},
+                  {"psnr", Round(r.quality.psnr, 2)},
+                  {"coverage", Round(r.quality.coverage, 4)},
+                  {"mssim_covered", Round(r.quality.mssim_covered, 4)},
+                  {"surface", Round(r.quality.surface, 4)},
+                  {"mssim_unfilled", Round(r.quality.mssim_unfilled, 4)},
+                  {"psnr_unfilled", Round(r.quality.psnr_unfilled, 2)},
+                  {"test_views", r.quality.views}};
+  j["speed"] = {{"integrate_ms_median", Round(r.integrate_ms_median, 2)},
+                {"integrate_ms_p95", Round(r.integrate_ms_p95, 2)},
+                {"plan_ms_median", Round(r.plan_ms_median, 2)},
+                {"plan_ms_p95", Round(r.plan_ms_p95, 2)},
+                {"consider_ms_median", Round(r.consider_ms_median, 3)},
+                {"render_ms_median", Round(r.render_ms_median, 1)}};
+  j["memory"] = {{"store_bytes", r.store_bytes},
+                 {"geometry_bytes", r.geometry_bytes},
+                 {"planner_bytes", r.planner_bytes}};
+  j["views"] = r.store_views;
+  j["accepted"] = r.accepted;
+  j["tau_sum"] = Round(r.tau_sum, 2);
+  j["mean_refs"] = Round(r.mean_refs, 2);
+  j["max_refs"] = r.max_refs;
+  if (r.plan_cpu_ms_median > 0)
+    j["plan_cpu_ms"] = {{"median", Round(r.plan_cpu_ms_median, 2)},
+                        {"p95", Round(r.plan_cpu_ms_p95, 2)}};
+  // Integration CPU (process CPU ms per input frame) and the final proxy's size.
+  j["integrate_cpu"] = {{"integrate_cpu_ms_median", Round(r.integrate_cpu_ms_median, 2)},
+                        {"integrate_cpu_ms_p95", Round(r.integrate_cpu_ms_p95, 2)}};
+  j["proxy_triangles"] = r.proxy_triangles;
+  if (c.policy == Policy::kOnline) {
+    // The online model's state, comparable with the server's (stats counters *.digest).
+    j["model_digest"] = core::DigestHex(r.model_digest);
+    j["geometry_digest"] = core::DigestHex(r.geometry_digest);
+    j["planner_digest"] = core::DigestHex(r.planner_digest);
+    nlohmann::ordered_json ids = nlohmann::ordered_json::array();
+    for (int i : r.selected) ids.push_back(i + 1);
+    j["view_ids"] = ids;
+  }
+  // Per-test-view diagnostics (only when requested).
+  if (!r.per_view_ssim.empty()) {
+    nlohmann::ordered_json pv;
+    pv["ssim"] = RoundedArray(r.per_view_ssim, 4);
+    if (!r.per_view_near_m.empty()) {
+      pv["near_m"] = RoundedArray(r.per_view_near_m, 3);
+      pv["near_deg"] = RoundedArray(r.per_view_near_deg, 1);
+      pv["near_frame"] = RoundedArray(r.per_view_near_frame, 0);
+      pv["ref_hit"] = RoundedArray(r.per_view_ref_hit, 3);
+    }
+    if (!r.selected.empty()) pv["selected"] = r.selected;
+    j["per_view"] = std::move(pv);
+  }
+  return j.dump();
 }
 
 struct EngineOptions {
   ProxyKind proxy = ProxyKind::kTsdf;
-  TsdfOptions tsdf;
+  // The online model's geometry options (max/min depth, threads); its voxel and origin below.
+  core::OnlineModelOptions model;
+  double voxel_m = 0.02;
+  LocalOrigin origin;
   int id_w = 160, id_h = 120;
   double max_range_m = 100;
   blend::BlendOptions blend;
@@ -465,17 +444,19 @@ class Engine {
       for (const PolicyConfig& c : configs_)
         min_cell = std::min(min_cell, c.cell_m > 0 ? c.cell_m : src_.scale.cell_size_m);
       lod_cluster_m_ = planning::DefaultCellIdLodM(
-          min_cell, opt_.proxy == ProxyKind::kTsdf ? opt_.tsdf.voxel_size_m : 0.0);
+          min_cell, opt_.proxy == ProxyKind::kTsdf ? opt_.voxel_m : 0.0);
     }
+    MeshChunk gt;  // the ground-truth proxy as one chunk
+    gt.id = 0;
+    gt.version = 1;
+    gt.mesh = opt_.gt_mesh;
+    core::SceneSetup setup;
+    setup.origin = opt_.origin;
+    setup.voxel_m = opt_.voxel_m;
     if (opt_.proxy == ProxyKind::kTsdf) {
-      EXO_RETURN_IF_ERROR(opt_.tsdf.Validate());
-      tsdf_ = std::make_unique<TsdfVolume>(opt_.tsdf);
+      EXO_ASSIGN_OR_RETURN(geometry_, core::OnlineGeometry::Create(opt_.model, setup));
     } else {
-      MeshChunk c;
-      c.id = 0;
-      c.version = 1;
-      c.mesh = opt_.gt_mesh;
-      proxy_.Set(0, c);
+      proxy_.Set(gt);
     }
     for (size_t i = 0; i < configs_.size(); ++i) {
       const PolicyConfig& c = configs_[i];
@@ -496,25 +477,40 @@ class Engine {
         gr.cid = std::make_unique<planning::CellIdRenderer>(std::move(cid));
         groups_.push_back(std::move(gr));
         if (opt_.proxy == ProxyKind::kGroundTruth) {
-          MeshChunk c0;
-          c0.id = 0;
-          c0.version = 1;
-          c0.mesh = opt_.gt_mesh;
-          groups_[g].areas->UpdateChunk(c0);
-          EXO_RETURN_IF_ERROR(groups_[g].cid->Update({c0}));
+          groups_[g].areas->UpdateChunk(gt);
+          EXO_RETURN_IF_ERROR(groups_[g].cid->Update({gt}));
+          (void)groups_[g].areas->TakeChangedCells();
         }
       }
       cfg_group_.push_back(g);
       OnlineState st;
       st.group = g;
       if (c.policy == Policy::kOnline) {
-        EXO_ASSIGN_OR_RETURN(auto p, planning::ViewPlanner::Create(
-                                         PlannerFor(c, src_, cell, src_.frame_bytes)));
-        st.planner = std::make_unique<planning::ViewPlanner>(std::move(p));
-        groups_[g].online.push_back(i);
-        if (opt_.proxy == ProxyKind::kGroundTruth && !c.face_areas)
-          for (const auto& [cell_id, a] : groups_[g].areas->areas())
-            EXO_RETURN_IF_ERROR(st.planner->SetCellArea(cell_id, a));
+        // The server's online model with this config's planner options.
+        const planning::PlannerOptions po = PlannerFor(c, src_, cell, src_.frame_bytes);
+        core::OnlineModelOptions mo = opt_.model;
+        mo.r_max = po.r_max;
+        mo.max_views = po.max_views;
+        mo.max_bytes = po.max_bytes;
+        mo.lambda = po.lambda;
+        mo.tau_max = po.tau_max;
+        mo.delta_tau_sum = po.delta_tau_sum;
+        mo.cell_areas = !c.face_areas;
+        mo.id_buffer_stride = IdStride();
+        mo.id_from_proxy = opt_.cell_ids == CellIdSource::kProxy;
+        mo.cellid_lod_m = lod_cluster_m_;
+        mo.cellid_lod_keep = opt_.cellid_lod_keep;
+        mo.cellid_max_range_m = opt_.max_range_m;
+        core::SceneSetup ps = setup;
+        ps.cell_m = cell;
+        ps.d_max_m = po.d_max_m;
+        ps.sigma_m = po.sigma_m;
+        EXO_ASSIGN_OR_RETURN(st.planner, core::OnlinePlanner::Create(mo, ps));
+        if (opt_.proxy == ProxyKind::kGroundTruth) {
+          core::GeometryUpdate u;
+          u.chunks.push_back(gt);
+          EXO_RETURN_IF_ERROR(st.planner->Apply(u));
+        }
       } else if (c.policy == Policy::kOfflineGreedy || c.policy == Policy::kEveryN ||
                  c.policy == Policy::kMinDistance || c.policy == Policy::kAll ||
                  c.policy == Policy::kOnlineFinalAreas) {
@@ -524,49 +520,44 @@ class Engine {
         mindist_.emplace(i, MinDistanceSelector(size_t(std::max(1, c.store)), src_.metres_per_rad));
       online_.push_back(std::move(st));
     }
-    if (opt_.proxy == ProxyKind::kGroundTruth)
-      for (auto& g : groups_) (void)g.areas->TakeChangedCells();
     return absl::OkStatus();
   }
+
+  // Cell-id buffer = 1/stride of the input frames (160x120 of 640x480).
+  int IdStride() const { return std::max(1, src_.camera.width / opt_.id_w); }
 
   // The cell-id LOD in the JSON: 0 when the ids come from frame depth (no cell-id meshes).
   double ReportedLodM() const {
     return opt_.cell_ids == CellIdSource::kProxy ? lod_cluster_m_ : 0.0;
   }
 
-  // One input frame (frame may be null for the ground-truth proxy).
+  // One input frame (frame may be null for the ground-truth proxy): the core's geometry, then
+  // every online configuration's core planner; the offline policies' final areas / cell ids.
   absl::Status Step(int idx, const Frame* frame) {
     const Rigid3d& pose = src_.poses[idx];
-    double lod_ms = 0, lod_cpu_ms = 0, lod_proc_cpu_ms = 0;
+    double lod_ms = 0, lod_cpu_ms = 0;
     auto t0 = Clock::now();
     const double p0 = ProcessCpuMs();
-    if (tsdf_ != nullptr) {
+    core::GeometryUpdate update;
+    if (geometry_ != nullptr) {
       if (frame == nullptr) return absl::InternalError("TSDF proxy needs frames");
-      EXO_RETURN_IF_ERROR(tsdf_->Integrate(*frame, origin_).status());
-      std::vector<MeshChunk> dirty = tsdf_->ExtractDirtyChunks();
-      for (const MeshChunk& c : dirty)
-        for (auto& g : groups_) g.areas->UpdateChunk(c);
-      // The cell-id renderers' LOD cache update is planning time, not integration.
-      const auto t_lod = Clock::now();
-      const double c_lod = ThreadCpuMs();
-      const double p_lod = ProcessCpuMs();
-      // (Cell ids from frame depth need no cell-id meshes.)
-      if (opt_.cell_ids == CellIdSource::kProxy)
-        for (auto& g : groups_) EXO_RETURN_IF_ERROR(g.cid->Update(dirty));
-      lod_ms += MsSince(t_lod);
-      lod_cpu_ms += ThreadCpuMs() - c_lod;
-      lod_proc_cpu_ms += ProcessCpuMs() - p_lod;
-      for (MeshChunk& c : dirty) {
-        const uint64_t id = c.id;
-        proxy_.Set(id, std::move(c));
+      EXO_ASSIGN_OR_RETURN(update, geometry_->Integrate(*frame));
+      double lod_proc_cpu_ms = 0;
+      for (auto& g : groups_) {
+        if (!g.needs_final) continue;
+        for (const MeshChunk& c : update.chunks) g.areas->UpdateChunk(c);
+        for (uint64_t id : update.removed) g.areas->RemoveChunk(id);
+        if (opt_.cell_ids != CellIdSource::kProxy) continue;
+        // The offline cell-id renderers' LOD cache update is planning time, not integration.
+        const auto t_lod = Clock::now();
+        const double c_lod = ThreadCpuMs(), p_lod = ProcessCpuMs();
+        EXO_RETURN_IF_ERROR(g.cid->Update(update.chunks));
+        for (uint64_t id : update.removed) g.cid->Remove(id);
+        lod_ms += MsSince(t_lod);
+        lod_cpu_ms += ThreadCpuMs() - c_lod;
+        lod_proc_cpu_ms += ProcessCpuMs() - p_lod;
       }
-      for (uint64_t id : tsdf_->TakeRemovedChunkIds()) {
-        for (auto& g : groups_) {
-          g.areas->RemoveChunk(id);
-          g.cid->Remove(id);
-        }
-        proxy_.Remove(id);
-      }
+      proxy_.Apply(update);
       integrate_ms_.push_back(MsSince(t0) - lod_ms);
       integrate_cpu_ms_.push_back(ProcessCpuMs() - p0 - lod_proc_cpu_ms);
     } else {
@@ -574,55 +565,37 @@ class Engine {
       integrate_cpu_ms_.push_back(0.0);
     }
     for (auto& g : groups_) {
-      if (g.online.empty() && !(g.needs_final && opt_.cell_ids == CellIdSource::kFrameDepth))
-        continue;
+      if (!g.needs_final || opt_.cell_ids != CellIdSource::kFrameDepth) continue;
+      // ψ_vis from the frame's own depth, kept for the offline / baseline policies.
+      if (frame == nullptr) return absl::InvalidArgumentError("cell ids from depth need frames");
+      EXO_ASSIGN_OR_RETURN(planning::Candidate cand,
+                           core::CandidateFromDepth(ViewId(idx + 1), frame->depth_m,
+                                                    frame->depth_camera,
+                                                    pose * frame->color_from_depth, pose, g.grid,
+                                                    IdStride(), src_.frame_bytes));
+      g.final_cells.resize(src_.poses.size());
+      g.final_cells[idx] = std::move(cand.cells);
+      g.id_cam = cand.id_camera;
+    }
+    core::PlanFrame pf;
+    if (frame != nullptr) pf = core::PlanFrame::Of(*frame, opt_.origin);
+    pf.local_from_cam = pose;
+    if (frame != nullptr) pf.local_from_depth = pose * frame->color_from_depth;
+    else pf.camera = src_.camera;
+    pf.bytes = src_.frame_bytes;
+    for (OnlineState& st : online_) {
+      if (!st.planner) continue;
       auto t1 = Clock::now();
       const double c1 = ThreadCpuMs();
-      const std::vector<CellId> changed = g.areas->TakeChangedCells();
-      for (size_t ci : g.online)
-        if (!configs_[ci].face_areas)
-          for (CellId k : changed) EXO_RETURN_IF_ERROR(online_[ci].planner->SetCellArea(k, g.areas->Area(k)));
-      const auto t_r = Clock::now();
-      PinholeCamera id_cam;
-      size_t tris = 0;
-      std::vector<planning::CellPixelCount> cells;
-      if (opt_.cell_ids == CellIdSource::kFrameDepth) {
-        // ψ_vis from the frame's own depth (the server's default, planning_stage.cc); the same
-        // lists serve the offline / baseline policies (no final-proxy re-render).
-        if (frame == nullptr) return absl::InvalidArgumentError("cell ids from depth need frames");
-        EXO_ASSIGN_OR_RETURN(cells, planning::CountDepthCellPixels(
-                                        frame->depth_m, frame->depth_camera,
-                                        pose * frame->color_from_depth, g.grid,
-                                        std::max(1, frame->depth_m.width() / opt_.id_w), &id_cam));
-        if (g.needs_final) {
-          g.final_cells.resize(src_.poses.size());
-          g.final_cells[idx] = cells;
-          g.id_cam = id_cam;
-        }
-      } else {
-        EXO_ASSIGN_OR_RETURN(cells, CellCounts(*g.cid, src_.camera, pose, opt_.id_w, opt_.id_h,
-                                               &id_cam, &tris));
-      }
-      raster_ms_.push_back(MsSince(t_r));
-      lod_ms_.push_back(lod_ms);
-      idbuf_tris_.push_back(double(tris));
-      g.cellid_ms.push_back(MsSince(t1) + lod_ms);
-      g.cellid_cpu_ms.push_back(ThreadCpuMs() - c1 + lod_cpu_ms);
-      for (size_t ci : g.online) {
-        planning::Candidate c;
-        c.id = ViewId(idx + 1);
-        c.local_from_cam = pose;
-        c.id_camera = id_cam;
-        c.cells = cells;
-        c.bytes = src_.frame_bytes;
-        auto t2 = Clock::now();
-        const double c2 = ThreadCpuMs();
-        auto d = online_[ci].planner->Consider(c);
-        online_[ci].consider_ms.push_back(MsSince(t2));
-        online_[ci].consider_cpu_ms.push_back(ThreadCpuMs() - c2);
-        if (!d.ok()) return d.status();
-        if (d->accepted) ++online_[ci].accepted;
-      }
+      EXO_RETURN_IF_ERROR(st.planner->Apply(update));
+      auto t2 = Clock::now();
+      const double c2 = ThreadCpuMs();
+      EXO_ASSIGN_OR_RETURN(const core::HandOff h, st.planner->Plan(pf));
+      st.consider_ms.push_back(MsSince(t2));
+      st.consider_cpu_ms.push_back(ThreadCpuMs() - c2);
+      st.plan_ms.push_back(MsSince(t1) + lod_ms);
+      st.plan_cpu_ms.push_back(ThreadCpuMs() - c1 + lod_cpu_ms);
+      if (h.accepted) ++st.accepted;
     }
     for (auto& [ci, sel] : mindist_) sel.Offer(idx, pose);
     return absl::OkStatus();
@@ -639,15 +612,16 @@ class Engine {
                                                           opt_.id_w, opt_.id_h, &g.id_cam));
       }
     }
-    std::fprintf(stderr,
-                 "cell-id buffer per frame (median ms): lod cache %.2f, render+count %.2f; "
-                 "triangles rendered median %.0f (full proxy %zu, cell-id meshes %zu)\n",
-                 Pct(lod_ms_, 0.5), Pct(raster_ms_, 0.5), Pct(idbuf_tris_, 0.5),
-                 proxy_.triangles(), groups_.empty() ? size_t(0) : groups_[0].cid->render_triangles());
+    const core::OnlinePlanner* first_online = nullptr;
+    for (const OnlineState& st : online_)
+      if (st.planner && first_online == nullptr) first_online = st.planner.get();
+    if (first_online != nullptr && first_online->cell_id_renderer() != nullptr)
+      std::fprintf(stderr, "cell-id meshes: %zu triangles (full proxy %zu)\n",
+                   first_online->cell_id_renderer()->render_triangles(), proxy_.triangles());
     const TriangleMesh proxy_mesh = proxy_.All();
-    const size_t geometry_bytes = (tsdf_ ? tsdf_->bytes() : 0) + proxy_.bytes();
+    const size_t geometry_bytes = (geometry_ ? geometry_->volume().bytes() : 0) + proxy_.bytes();
     std::vector<ConfigResult> results;
-    if (opt_.vertex_color && tsdf_ != nullptr) {
+    if (opt_.vertex_color && geometry_ != nullptr) {
       for (const Source::TestSet& ts : src_.test_sets) {
         ConfigResult r;
         r.config.policy = Policy::kVertexColor;
@@ -687,21 +661,22 @@ class Engine {
       std::unordered_map<CellId, std::vector<ViewId>> refs;
       if (c.policy == Policy::kOnline) {
         OnlineState& st = online_[ci];
-        std::vector<double> plan(st.consider_ms.size());
-        for (size_t i = 0; i < plan.size(); ++i) plan[i] = st.consider_ms[i] + g.cellid_ms[i];
+        const std::vector<double>& plan = st.plan_ms;
         r.plan_ms_median = Pct(plan, 0.5);
         r.plan_ms_p95 = Pct(plan, 0.95);
-        std::vector<double> plan_cpu(st.consider_cpu_ms.size());
-        for (size_t i = 0; i < plan_cpu.size(); ++i)
-          plan_cpu[i] = st.consider_cpu_ms[i] + g.cellid_cpu_ms[i];
+        const std::vector<double>& plan_cpu = st.plan_cpu_ms;
         r.plan_cpu_ms_median = Pct(plan_cpu, 0.5);
         r.plan_cpu_ms_p95 = Pct(plan_cpu, 0.95);
         r.consider_ms_median = Pct(st.consider_ms, 0.5);
-        for (ViewId v : st.planner->ViewIds()) selected.push_back(int(v) - 1);
-        refs = st.planner->CellRefs();
-        r.planner_bytes = st.planner->BookkeepingBytes();
+        const planning::ViewPlanner& p = st.planner->planner();
+        for (ViewId v : p.ViewIds()) selected.push_back(int(v) - 1);
+        refs = p.CellRefs();
+        r.planner_bytes = p.BookkeepingBytes();
+        r.geometry_digest = geometry_ ? geometry_->Digest() : 0;
+        r.planner_digest = st.planner->Digest();
+        r.model_digest = core::ModelDigest(r.geometry_digest, r.planner_digest);
         r.accepted = st.accepted;
-        r.tau_sum = st.planner->tau_sum();
+        r.tau_sum = p.tau_sum();
       } else {
         auto t0 = Clock::now();
         // Frame i as a candidate with the cell ids it was planned with (offline passes).
@@ -826,7 +801,6 @@ class Engine {
   }
 
   size_t proxy_triangles() const { return proxy_.triangles(); }
-  void set_origin(const LocalOrigin& o) { origin_ = o; }
 
  private:
   absl::StatusOr<Quality> EvalStore(const std::vector<int>& selected,
@@ -996,9 +970,8 @@ class Engine {
   Source src_;
   std::vector<PolicyConfig> configs_;
   EngineOptions opt_;
-  LocalOrigin origin_;
-  std::unique_ptr<TsdfVolume> tsdf_;
-  Proxy proxy_;
+  std::unique_ptr<core::OnlineGeometry> geometry_;  // null with the ground-truth proxy
+  core::ProxyMesh proxy_;
   std::vector<Group> groups_;
   std::vector<size_t> cfg_group_;
   std::vector<OnlineState> online_;
@@ -1006,7 +979,6 @@ class Engine {
   std::vector<double> integrate_ms_;
   std::vector<double> integrate_cpu_ms_;  // process CPU ms (TSDF worker threads included)
   double lod_cluster_m_ = 0;  // cell-id LOD cluster size (0: full chunk meshes)
-  std::vector<double> lod_ms_, raster_ms_, idbuf_tris_;  // cell-id buffer breakdown
   std::unordered_map<int, StoredView> cache_;
 };
 
@@ -1115,7 +1087,7 @@ absl::StatusOr<std::vector<ConfigResult>> RunSynthetic(const SynthRunOptions& o)
   src.scale_mode = o.scale_mode;
   if (o.scale_mode == ScaleMode::kViewDepth) {
     EXO_ASSIGN_OR_RETURN(synth::RenderedFrame f0, synth::RenderFrame(scene, src.poses[0], rop));
-    src.view_depth_m = MedianDepth(f0.frame.depth_m);
+    src.view_depth_m = core::MedianDepth(f0.frame.depth_m);
   }
   src.default_lambda = tkind == synth::TrajectoryKind::kFlyover ? 0.5 : 0.4;
   src.metres_per_rad = std::max(0.5, 0.05 * scene.ExtentM());
@@ -1165,9 +1137,10 @@ absl::StatusOr<std::vector<ConfigResult>> RunSynthetic(const SynthRunOptions& o)
   eo.proxy = o.proxy;
   const double diameter = scene.ExtentM();
   const double voxel = o.voxel_m > 0 ? o.voxel_m : std::clamp(diameter / 600.0, 0.02, 0.15);
-  eo.tsdf.voxel_size_m = float(voxel);
-  eo.tsdf.max_depth_m = float(std::max(6.0, diameter));
-  eo.tsdf.min_depth_m = 0.1f;
+  eo.voxel_m = voxel;
+  eo.origin = scene.origin;
+  eo.model.max_depth_m = std::max(6.0, diameter);
+  eo.model.min_depth_m = 0.1;
   eo.max_range_m = std::max(6.0, diameter) * 1.5;
   eo.id_w = o.id_width;
   eo.id_h = o.id_height;
@@ -1183,7 +1156,6 @@ absl::StatusOr<std::vector<ConfigResult>> RunSynthetic(const SynthRunOptions& o)
   eo.per_view = o.per_view;
   if (o.proxy == ProxyKind::kGroundTruth) eo.gt_mesh = scene.mesh;
   Engine engine(std::move(src), o.configs, std::move(eo));
-  engine.set_origin(scene.origin);
   EXO_RETURN_IF_ERROR(engine.Init());
   for (int i = 0; i < int(traj.size()); ++i) {
     // Frames are rendered for the TSDF and for cell ids from depth (the ground-truth proxy with
@@ -1203,17 +1175,18 @@ absl::StatusOr<std::vector<ConfigResult>> RunSynthetic(const SynthRunOptions& o)
 
 absl::StatusOr<SevenScenesReport> RunSevenScenes(const SevenScenesRunOptions& o) {
   if (o.hold_out_every < 2) return absl::InvalidArgumentError("hold_out_every must be >= 2");
-  SevenScenesOptions reader_options;
+  // The reader exoview_uploader --format=7scenes uses (common/datasets OpenDataset).
+  DatasetOptions reader_options;
+  reader_options.format = "7scenes";
   reader_options.register_depth = o.register_depth;
-  EXO_ASSIGN_OR_RETURN(auto reader, SevenScenesReader::Open(o.dir, reader_options));
+  EXO_ASSIGN_OR_RETURN(auto reader, OpenDataset(o.dir, reader_options));
   const size_t total = o.max_frames > 0 ? std::min<size_t>(o.max_frames, reader->size())
                                         : reader->size();
   SevenScenesReport rep;
   // Split: every hold_out_every-th frame (0-based i % k == k - 1: frames 9, 19, ...) is never
-  // ingested.
+  // ingested (IsHeldOut; exoview_uploader --hold_out_every sends exactly the others).
   std::vector<size_t> input, held;
-  for (size_t i = 0; i < total; ++i)
-    (i % o.hold_out_every == size_t(o.hold_out_every - 1) ? held : input).push_back(i);
+  for (size_t i = 0; i < total; ++i) (IsHeldOut(i, o.hold_out_every) ? held : input).push_back(i);
   rep.held_out = int(held.size());
   // Load the input frames (kept: the stored views of every policy come from them).
   std::vector<Frame> frames;
@@ -1237,28 +1210,21 @@ absl::StatusOr<SevenScenesReport> RunSevenScenes(const SevenScenesRunOptions& o)
   colour_hash.clear();
   rep.ingested = int(frames.size());
   if (frames.empty() || test.empty()) return absl::FailedPreconditionError("7-Scenes: no frames");
-  LocalOrigin origin;
-  origin.origin_in_world = frames[0].world_from_cam.translation;
-
-  // Scene scale from what the first frame observes (online: nothing later is known yet).
-  TsdfOptions to;
-  to.voxel_size_m = float(o.voxel_m);
-  to.max_depth_m = float(o.max_depth_m);
-  SceneScale scale;
-  {
-    TsdfVolume probe(to);
-    EXO_RETURN_IF_ERROR(probe.Integrate(frames[0], origin).status());
-    glm::dvec3 lo, hi;
-    if (!probe.Bounds(&lo, &hi)) return absl::FailedPreconditionError("7-Scenes: empty frame 0");
-    scale = DeriveSceneScale(lo, hi);
-  }
+  // Origin, voxel, cell size and view distance from the first frame: the online model's rule
+  // (server/core ChooseSceneSetup), the same the server applies to its first frame.
+  core::OnlineModelOptions mo;
+  mo.voxel_m = o.voxel_m;
+  mo.max_depth_m = o.max_depth_m;
+  EXO_ASSIGN_OR_RETURN(const core::SceneSetup setup, core::ChooseSceneSetup(frames[0], mo));
+  const LocalOrigin origin = setup.origin;
+  SceneScale scale = setup.scale;
   Source src;
   src.camera = frames[0].depth_camera;
   src.frame_bytes = size_t(src.camera.width) * src.camera.height * (3 + 4) + sizeof(StoredView);
   for (const Frame& f : frames) src.poses.push_back(origin.ToLocal(f.world_from_cam));
   src.scale = scale;
   src.scale_mode = o.scale_mode;
-  src.view_depth_m = MedianDepth(frames[0].depth_m);
+  src.view_depth_m = setup.view_depth_m;
   src.default_lambda = 0.4;
   src.metres_per_rad = 1.0;
   src.dataset = "7scenes/redkitchen";
@@ -1296,7 +1262,9 @@ absl::StatusOr<SevenScenesReport> RunSevenScenes(const SevenScenesRunOptions& o)
   }
   EngineOptions eo;
   eo.proxy = ProxyKind::kTsdf;
-  eo.tsdf = to;
+  eo.model = mo;
+  eo.voxel_m = setup.voxel_m;
+  eo.origin = origin;
   eo.max_range_m = o.max_depth_m * 2;
   eo.id_w = o.id_width;
   eo.id_h = o.id_height;
@@ -1311,10 +1279,9 @@ absl::StatusOr<SevenScenesReport> RunSevenScenes(const SevenScenesRunOptions& o)
   eo.cell_ids = o.cell_ids;
   eo.per_view = o.per_view;
   Engine engine(std::move(src), o.configs, std::move(eo));
-  engine.set_origin(origin);
   EXO_RETURN_IF_ERROR(engine.Init());
   for (int i = 0; i < int(frames.size()); ++i) EXO_RETURN_IF_ERROR(engine.Step(i, &frames[i]));
-  EXO_ASSIGN_OR_RETURN(rep.results, engine.Finish("tsdf", o.voxel_m));
+  EXO_ASSIGN_OR_RETURN(rep.results, engine.Finish("tsdf", setup.voxel_m));
   return rep;
 }
 

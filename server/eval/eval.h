@@ -92,6 +92,9 @@ struct ConfigResult {
   size_t proxy_triangles = 0;                    // triangles of the final proxy mesh
   std::string test_poses;                        // label of the test pose set ("scene", ...)
   std::vector<int> selected;                     // stored input frame indices (stream order)
+  // Online policy: digests of the core's model (server/core ModelDigest), the same values the
+  // server publishes as stats counters "geometry.digest" / "planning.digest" for the same frames.
+  uint64_t model_digest = 0, geometry_digest = 0, planner_digest = 0;
   // Per test view (only with per_view diagnostics on): SSIM; distance (m), angle between the
   // optical axes (deg) and stream index of the nearest stored view; the fraction of the view's
   // cell-id pixels whose R(b_k) contains that nearest view.
@@ -179,7 +182,7 @@ struct SevenScenesRunOptions {
   int hold_out_every = 10;
   // Depth registered to colour (common/datasets rgbd_registration; colour camera K and pose).
   bool register_depth = true;
-  double voxel_m = 0.02;
+  double voxel_m = 0;              // 0: the online model's rule (server/core ChooseSceneSetup)
   double max_depth_m = 4.0;
   int id_width = 160, id_height = 120;
   int test_width = 640, test_height = 480;

@@ -8,8 +8,12 @@
 #include <vector>
 
 #include <absl/strings/str_format.h>
+#include <absl/strings/numbers.h>
 #include <absl/strings/str_split.h>
 
+#include <nlohmann/json.hpp>
+
+#include "common/cli/cli.h"
 #include "server/eval/eval.h"
 
 namespace exo::eval {
@@ -56,7 +60,13 @@ struct Args {
   }
   double Num(const std::string& k, double d) const {
     auto it = kv.find(k);
-    return it == kv.end() ? d : std::stod(it->second);
+    if (it == kv.end()) return d;
+    double v = 0;
+    if (!absl::SimpleAtod(it->second, &v)) {
+      std::fprintf(stderr, "exoview_eval: %s needs a number, got '%s'\n", k.c_str(), it->second.c_str());
+      std::exit(2);
+    }
+    return v;
   }
 };
 
@@ -153,7 +163,7 @@ int RunOne(const Args& a) {
     o.dir = a.Get("--sevenscenes", "");
     o.max_frames = int(a.Num("--frames", 0));
     o.register_depth = a.Num("--register", 1) != 0;
-    o.voxel_m = a.Num("--voxel", 0.02);
+    o.voxel_m = a.Num("--voxel", 0);
     o.test_width = int(a.Num("--test_w", 640));
     o.test_height = int(a.Num("--test_h", 480));
     o.cellid_lod_frac = a.Num("--lod", o.cellid_lod_frac);
@@ -172,11 +182,15 @@ int RunOne(const Args& a) {
       std::fprintf(stderr, "%s\n", std::string(rep.status().message()).c_str());
       return 1;
     }
-    Emit(absl::StrFormat(
-        "{\"bench\":\"eval_split\",\"dataset\":\"7scenes/redkitchen\",\"registered\":%d,\"ingested\":%d,"
-        "\"held_out\":%d,\"dropped_duplicate_colour\":%d,\"test_views\":%d}",
-        o.register_depth ? 1 : 0, rep->ingested, rep->held_out, rep->dropped_duplicates,
-        rep->held_out - rep->dropped_duplicates));
+    nlohmann::ordered_json split;
+    split["bench"] = "eval_split";
+    split["dataset"] = "7scenes/redkitchen";
+    split["registered"] = o.register_depth ? 1 : 0;
+    split["ingested"] = rep->ingested;
+    split["held_out"] = rep->held_out;
+    split["dropped_duplicate_colour"] = rep->dropped_duplicates;
+    split["test_views"] = rep->held_out - rep->dropped_duplicates;
+    Emit(split.dump());
     return 0;
   }
   SynthRunOptions o;
@@ -255,24 +269,70 @@ std::vector<std::vector<std::string>> Suite(const std::string& name, const std::
   return s;
 }
 
+// Every flag of RunOne / the suites with its help text (values are kept as text in Args; the
+// suites build Args the same way).
+constexpr std::pair<const char*, const char*> kFlags[] = {
+    {"--suite", "quick | full: predefined runs (docs/evaluation.md)"},
+    {"--out", "also write the JSON lines to this file"},
+    {"--data", "data directory of the full suite (default $EXOVIEW_SHARED_DIR/data)"},
+    {"--sevenscenes", "7-Scenes sequence directory (every 10th frame held out)"},
+    {"--register", "7-Scenes: 1 (default) depth registered to colour, 0 raw"},
+    {"--scene", "village | apartment"},
+    {"--traj", "flyover | walk"},
+    {"--frames", "input frames (7-Scenes: 0 = all)"},
+    {"--proxy", "tsdf | gt"},
+    {"--voxel", "TSDF voxel (m); 0 = the online model's rule (server/core)"},
+    {"--test_views", "synthetic test poses"},
+    {"--test_w", "test image width"},
+    {"--test_h", "test image height"},
+    {"--test_poses", "scene | near | scene,near"},
+    {"--test_seed", "test-pose seed (default 7)"},
+    {"--scene_seed", "synthetic scene seed (default 1)"},
+    {"--look_around", "walk yaw-sweep amplitude (deg)"},
+    {"--idw", "cell-id buffer width"},
+    {"--idh", "cell-id buffer height"},
+    {"--policies", "online,offline_greedy,every_n,min_distance,all[,*_uncapped,online_final_areas]"},
+    {"--store", "store size (views)"},
+    {"--r_max", "R_max"},
+    {"--lambda", "planner lambda (< 0: 0.5 fly-over, 0.4 walk / real)"},
+    {"--cell", "cell size (m); 0 = scene-scale rule"},
+    {"--dts", "delta tau_sum"},
+    {"--tag", "label of the policy configs in the JSON (default main)"},
+    {"--face_areas", "1: planners use the face area A_cell for every cell"},
+    {"--sweep", "store,r_max,lambda,cell,dts"},
+    {"--sweep_test_views", "test views of sweep configs"},
+    {"--baseline_test_views", "test views of baseline configs"},
+    {"--per_view", "1: per-test-view diagnostics in the JSON"},
+    {"--lod", "cell-id LOD cluster size as a fraction of the cell (-1 default, 0 full mesh)"},
+    {"--lod_m", "cell-id LOD cluster size in metres (wins over --lod)"},
+    {"--lod_keep", "keep a chunk's LOD within this triangle-count change (default 0.1)"},
+    {"--ids", "depth | proxy: where psi_vis comes from"},
+    {"--scale", "bounds | depth: d_max / sigma rule"},
+    {"--vertex_color", "0: no vertex-colour baseline"},
+    {"--dump", "directory for render/GT/coverage PNGs"},
+    {"--dump_views", "how many views to dump"},
+    {"--positional", "ulr | printed"},
+    {"--disc_r", "blend: discontinuity radius (px)"},
+    {"--disc_m", "blend: discontinuity delta z (m)"},
+    {"--disc_rel", "blend: relative discontinuity delta z"},
+    {"--occ_m", "blend: occlusion epsilon (m)"},
+    {"--occ_rel", "blend: relative occlusion epsilon"},
+    {"--n_best", "blend: n best views"},
+};
+
 }  // namespace
 }  // namespace exo::eval
 
 int main(int argc, char** argv) {
   using namespace exo::eval;
+  CLI::App app{std::string(kUsage), "exoview_eval"};
+  exo::cli::Setup(app);
+  std::map<std::string, std::string> values;
+  for (const auto& [name, help] : kFlags) app.add_option(name, values[name], help);
+  if (auto rc = exo::cli::Parse(app, argc, argv)) return *rc;
   Args a;
-  for (int i = 1; i < argc; ++i) {
-    const std::string arg = argv[i];
-    if (arg == "--help" || arg == "-h") {  // (an unknown flag alone would start a default run)
-      std::printf("%s", kUsage);
-      return 0;
-    }
-  }
-  for (int i = 1; i < argc; ++i) {
-    std::string k = argv[i];
-    std::string v = (i + 1 < argc && std::string(argv[i + 1]).rfind("--", 0) != 0) ? argv[++i] : "";
-    a.kv[k] = v;
-  }
+  for (const auto& [name, help] : kFlags)
+    if (app.count(name) > 0) a.kv[name] = values[name];
   if (a.kv.count("--out")) g_out = std::fopen(a.Get("--out", "").c_str(), "w");
   const std::string suite = a.Get("--suite", "");
   if (suite.empty()) return RunOne(a);

@@ -9,6 +9,9 @@
 #include <string>
 
 #include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include "server/core/online_model.h"
 
 namespace exo::eval {
 namespace {
@@ -119,7 +122,11 @@ TEST(EvalSmokeTest, VoxelSizeScalesProxyAndLodStaysFixed) {
   EXPECT_GT(c.integrate_cpu_ms_median, 0.0);
   EXPECT_GE(c.integrate_cpu_ms_p95, c.integrate_cpu_ms_median);
   for (const ConfigResult* r : {&c, &f}) {
-    EXPECT_NE(r->json.find("\"cellid_lod_m\":0.400"), std::string::npos) << r->json;
+    const nlohmann::json j = nlohmann::json::parse(r->json);
+    EXPECT_DOUBLE_EQ(j["config"]["cellid_lod_m"].get<double>(), 0.4) << r->json;
+    // The online policy reports the core's model digest and the stored view ids.
+    EXPECT_EQ(j["model_digest"].get<std::string>(), core::DigestHex(r->model_digest));
+    EXPECT_EQ(j["view_ids"].size(), r->store_views);
     EXPECT_NE(r->json.find("\"tag\":\"voxel_fixedlod\""), std::string::npos);
     EXPECT_NE(r->json.find("\"proxy_triangles\":" + std::to_string(r->proxy_triangles)),
               std::string::npos);

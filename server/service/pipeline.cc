@@ -17,9 +17,7 @@ int64_t SteadyNowNs() {
 absl::Status PipelineOptions::Validate() const {
   if (admission_queue < 1) return absl::InvalidArgumentError("admission_queue must be >= 1");
   if (stage_queue < 1) return absl::InvalidArgumentError("stage_queue must be >= 1");
-  if (!(cell_size_m > 0.0) || !std::isfinite(cell_size_m))
-    return absl::InvalidArgumentError("cell_size_m must be > 0");
-  return absl::OkStatus();
+  return model.Validate();
 }
 
 Pipeline::Pipeline(const PipelineOptions& options, ModelStore* store,
@@ -27,7 +25,6 @@ Pipeline::Pipeline(const PipelineOptions& options, ModelStore* store,
     : options_(options), stages_(std::move(stages)) {
   EXO_CHECK(options_.Validate().ok());
   ctx_.store = store;
-  ctx_.cell_size_m = options_.cell_size_m;
   for (size_t i = 0; i < stages_.size(); ++i)
     queues_.push_back(std::make_unique<BoundedQueue<PipelineFramePtr>>(
         i == 0 ? options_.admission_queue : options_.stage_queue));
@@ -37,21 +34,24 @@ Pipeline::~Pipeline() { Stop(); }
 
 Pipeline::Admission Pipeline::Submit(PipelineFramePtr frame) {
   if (!origin_set_.load(std::memory_order_acquire)) {
-    // The first admitted frame fixes the scene-local origin (its camera centre rounded to whole
-    // cells, so cell boundaries do not depend on sub-cell noise). Only the ingest thread(s)
-    // submit and stages start reading ctx_ after their first Pop, which happens-after this.
+    // The first admitted frame fixes the scene set-up (server/core ChooseSceneSetup: origin =
+    // its camera centre, voxel / cell / d_max from what it observes; a restored checkpoint keeps
+    // its origin and cell size). Only the ingest thread(s) submit and stages start reading ctx_
+    // after their first Pop, which happens-after this.
     static std::mutex origin_mu;
     std::lock_guard lock(origin_mu);
     if (!origin_set_.load()) {
-      if (restored_origin_) {
-        ctx_.origin = *restored_origin_;
-      } else {
-        const glm::dvec3 p = frame->frame.world_from_cam.translation;
-        const double q = options_.cell_size_m;
-        ctx_.origin.origin_in_world = {std::round(p.x / q) * q, std::round(p.y / q) * q,
-                                       std::round(p.z / q) * q};
-        ctx_.store->SetSceneParams(ctx_.origin, options_.cell_size_m);
-      }
+      auto setup = core::ChooseSceneSetup(frame->frame, options_.model, restored_origin_,
+                                          restored_cell_m_);
+      EXO_CHECK(setup.ok());  // options validated with the config
+      ctx_.setup = *setup;
+      ctx_.origin = setup->origin;
+      ctx_.cell_size_m = setup->cell_m;
+      if (!restored_origin_) ctx_.store->SetSceneParams(ctx_.origin, ctx_.cell_size_m);
+      log::Get("pipeline")->info(
+          "scene set-up from the first frame: diameter {:.2f} m, voxel {:.3f} m, cell {:.2f} m, "
+          "d_max {:.2f} m, sigma {:.2f} m",
+          setup->diameter_m, setup->voxel_m, setup->cell_m, setup->d_max_m, setup->sigma_m);
       for (size_t i = 0; i < stages_.size(); ++i) threads_.emplace_back([this, i] { RunStage(i); });
       origin_set_.store(true, std::memory_order_release);
     }
@@ -61,6 +61,7 @@ Pipeline::Admission Pipeline::Submit(PipelineFramePtr frame) {
     last_latency_ns_.store(SteadyNowNs() - frame->received_ns);
     return Admission::kAccepted;
   }
+  if (options_.admission_block) return queues_[0]->Push(std::move(frame)) ? Admission::kAccepted : Admission::kDropped;
   return queues_[0]->TryPush(std::move(frame)) ? Admission::kAccepted : Admission::kDropped;
 }
 

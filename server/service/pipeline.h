@@ -19,6 +19,7 @@
 #include "common/frame.h"
 #include "common/rigid3.h"
 #include "common/status.h"
+#include "server/core/online_model.h"
 #include "server/service/bounded_queue.h"
 #include "server/service/model_store.h"
 
@@ -31,11 +32,13 @@ struct PipelineFrame {
 };
 using PipelineFramePtr = std::shared_ptr<const PipelineFrame>;
 
-// Shared scene context every stage sees: the local origin (fixed by the first accepted frame)
-// and the published model.
+// Shared scene context every stage sees: the scene set-up of the online model (origin, voxel,
+// cell size, view distance; fixed by the first accepted frame, server/core ChooseSceneSetup) and
+// the published model.
 struct SceneContext {
   LocalOrigin origin;
   double cell_size_m = 0.5;
+  core::SceneSetup setup;
   ModelStore* store = nullptr;
 };
 
@@ -57,7 +60,17 @@ class PipelineStage {
 struct PipelineOptions {
   size_t admission_queue = 8;  // frames waiting for the first stage (beyond: DROPPED)
   size_t stage_queue = 4;      // between later stages (blocking)
-  double cell_size_m = 0.5;
+  // Lossless ingest: a full admission queue blocks the upload stream (back-pressure on the
+  // client) instead of dropping the frame; every frame is then processed, in order (what a
+  // deterministic run, e.g. the eval-equivalence test, needs).
+  bool admission_block = false;
+  // The online model the stages run (server/core): the evaluation's defaults, plus the server's
+  // bandwidth governor (2 candidates/s once the store is full; docs/service.md).
+  core::OnlineModelOptions model = [] {
+    core::OnlineModelOptions m;
+    m.max_candidates_per_s_when_full = 2.0;
+    return m;
+  }();
   absl::Status Validate() const;
 };
 
@@ -68,7 +81,7 @@ class Pipeline {
   ~Pipeline();  // Stop()
 
   enum class Admission { kAccepted, kDropped };
-  // Called by ingest with a validated frame. Never blocks.
+  // Called by ingest with a validated frame. Never blocks (unless admission_block).
   Admission Submit(PipelineFramePtr frame);
   // Drains the queues (every admitted frame is processed) and joins the threads.
   void Stop();
@@ -78,7 +91,10 @@ class Pipeline {
   std::map<std::string, double> counters() const;
   // A restarted server keeps the origin of its checkpoint (call before the first Submit; the
   // store already holds the scene parameters).
-  void RestoreOrigin(const LocalOrigin& origin) { restored_origin_ = origin; }
+  void RestoreOrigin(const LocalOrigin& origin, double cell_size_m) {
+    restored_origin_ = origin;
+    restored_cell_m_ = cell_size_m;
+  }
   const SceneContext& context() const { return ctx_; }
   uint64_t frames_processed() const { return processed_.load(); }
   uint64_t stage_errors() const { return errors_.load(); }
@@ -98,6 +114,7 @@ class Pipeline {
   std::atomic<int64_t> last_latency_ns_{0};
   bool stopped_ = false;
   std::optional<LocalOrigin> restored_origin_;
+  std::optional<double> restored_cell_m_;
 };
 
 int64_t SteadyNowNs();

@@ -170,9 +170,10 @@ absl::Status ExoviewServer::Start() {
         const auto& o = d.scene_params().origin_in_world();
         LocalOrigin origin;
         origin.origin_in_world = {o.x(), o.y(), o.z()};
-        if (d.scene_params().cell_size_m() != config_.pipeline.cell_size_m)
+        if (config_.pipeline.model.cell_m > 0 &&
+            d.scene_params().cell_size_m() != config_.pipeline.model.cell_m)
           return absl::FailedPreconditionError("checkpoint: cell_size_m differs from the config");
-        pipeline_->RestoreOrigin(origin);
+        pipeline_->RestoreOrigin(origin, d.scene_params().cell_size_m());
       }
     restored_version_ = checkpoint_version_ = c.version();
     log::Get("server")->info("restored checkpoint {} at version {} ({} views)",

@@ -1,5 +1,5 @@
-// Construction of the pipeline stages this server was built with (geometry, planning,
-// refinement, each only when its library exists in the build and the config enables it).
+// Construction of the pipeline stages (geometry, planning with refinement), each enabled by the
+// config, all driving one online model (server/core).
 #pragma once
 
 #include <memory>
