@@ -7,7 +7,6 @@
 #include <cmath>
 #include <ctime>
 #include <limits>
-#include <queue>
 #include <thread>
 #include <vector>
 
@@ -679,7 +678,7 @@ void GrowFromMapped(Level& L, uint64_t seed) {
 
 int BuildSurfacePrior(const ImageU8& region, const ImageF& values, int ox, int oy, int frame_w,
                       int frame_h, const InpaintOptions& o, ImageF* prior, ImageF* prior_weight) {
-  if (!(o.plane_prior_weight > 0.0) && !(o.neumann_prior_weight > 0.0)) return 0;
+  if (!(o.neumann_prior_weight > 0.0)) return 0;
   const int cw = region.width(), ch = region.height();
   if (cw == 0 || ch == 0 || values.width() != cw || values.height() != ch) return 0;
   const float nan = std::numeric_limits<float>::quiet_NaN();
@@ -779,7 +778,7 @@ int BuildSurfacePrior(const ImageU8& region, const ImageF& values, int ox, int o
   for (int cy = 0; cy < ch; ++cy) {
     for (int cx = 0; cx < cw; ++cx) {
       if (!region.at(cx, cy)) continue;
-      double wgt = o.plane_prior_weight;
+      double wgt = 0.0;
       if (!d_neu.empty()) {
         const double dd = d_dir.at<float>(cy, cx), dn = d_neu.at<float>(cy, cx);
         const double share = dd / std::max(1e-6, dd + dn);  // 0 at the known border, 1 at the free one
@@ -859,7 +858,6 @@ int SetupLayers(const ImageU8& region, const std::vector<uint8_t>& measured, int
                 const ImageF& wx, const ImageF& wy, ImageF* prior, ImageF* prior_w,
                 std::vector<int>* layer_pixels, float* seed_dist_px, ImageU8* layer_map) {
   const int cw = region.width(), ch = region.height();
-  const ImageF q_in = *q;  // restored when the layered solve is not used
   const float nan = std::numeric_limits<float>::quiet_NaN();
   auto in_r = [&](int cx, int cy) {
     return cx >= 0 && cy >= 0 && cx < cw && cy < ch && region.at(cx, cy) != 0;
@@ -960,11 +958,6 @@ int SetupLayers(const ImageU8& region, const std::vector<uint8_t>& measured, int
   // free stretch between two seeds of one layer belongs to that layer (an occlusion edge that
   // enters T must leave it again), and they become seeds themselves.
   ImageI32 elabel(cw, ch, 1, -1);
-  // layer_far_cost: border-continuation steps of farther layers cost more (layer 0 is the
-  // farthest).
-  std::vector<double> layer_mult(K, 1.0);
-  if (o.layer_far_cost > 1.0 && K > 1)
-    for (int l = 0; l < K; ++l) layer_mult[l] = 1.0 + (o.layer_far_cost - 1.0) * (K - 1 - l) / (K - 1);
   if (o.layer_edge_seeds) {
     bool any = false;
     ImageI32 glabel(cw, ch, 1, -1);
@@ -993,45 +986,15 @@ int SetupLayers(const ImageU8& region, const std::vector<uint8_t>& measured, int
           free_px.at(cx, cy) = 1;
         }
       }
-    if (!(o.layer_far_cost > 1.0)) {
-      for (size_t qi = 0; qi < queue.size(); ++qi) {
-        const int cx = queue[qi] % cw, cy = queue[qi] / cw;
-        for (int dy = -1; dy <= 1; ++dy)
-          for (int dx = -1; dx <= 1; ++dx) {
-            const int nx = cx + dx, ny = cy + dy;
-            if (nx < 0 || ny < 0 || nx >= cw || ny >= ch || !free_px.at(nx, ny) || glabel.at(nx, ny) >= 0) continue;
-            glabel.at(nx, ny) = glabel.at(cx, cy);
-            queue.push_back(ny * cw + nx);
-          }
-      }
-    } else {
-      // layer_far_cost: a step of a farther layer costs more (Dijkstra along the border), so a
-      // free stretch is split closer to the far layer's seeds.
-      using Item = std::pair<double, int>;  // (cost, pixel); ties by pixel index
-      std::priority_queue<Item, std::vector<Item>, std::greater<Item>> pq;
-      std::vector<double> best(static_cast<size_t>(cw) * ch, std::numeric_limits<double>::infinity());
-      for (int i : queue) {
-        best[i] = 0.0;
-        pq.push({0.0, i});
-      }
-      while (!pq.empty()) {
-        const auto [c, i] = pq.top();
-        pq.pop();
-        if (c > best[i]) continue;
-        const int cx = i % cw, cy = i / cw;
-        const double step = layer_mult[glabel.at(cx, cy)];
-        for (int dy = -1; dy <= 1; ++dy)
-          for (int dx = -1; dx <= 1; ++dx) {
-            const int nx = cx + dx, ny = cy + dy;
-            if ((dx == 0 && dy == 0) || nx < 0 || ny < 0 || nx >= cw || ny >= ch || !free_px.at(nx, ny)) continue;
-            const int j = ny * cw + nx;
-            if (c + step < best[j]) {
-              best[j] = c + step;
-              glabel.at(nx, ny) = glabel.at(cx, cy);
-              pq.push({best[j], j});
-            }
-          }
-      }
+    for (size_t qi = 0; qi < queue.size(); ++qi) {
+      const int cx = queue[qi] % cw, cy = queue[qi] / cw;
+      for (int dy = -1; dy <= 1; ++dy)
+        for (int dx = -1; dx <= 1; ++dx) {
+          const int nx = cx + dx, ny = cy + dy;
+          if (nx < 0 || ny < 0 || nx >= cw || ny >= ch || !free_px.at(nx, ny) || glabel.at(nx, ny) >= 0) continue;
+          glabel.at(nx, ny) = glabel.at(cx, cy);
+          queue.push_back(ny * cw + nx);
+        }
     }
     for (int cy = 0; cy < ch; ++cy)
       for (int cx = 0; cx < cw; ++cx)
@@ -1050,7 +1013,7 @@ int SetupLayers(const ImageU8& region, const std::vector<uint8_t>& measured, int
     }
   }
   // How far the cut has to be extrapolated: the largest distance of a T pixel to the nearest
-  // seed of any layer. Beyond layer_max_seed_dist_px the single solve is kept.
+  // seed of any layer (InpaintStats::layer_seed_dist_px, a diagnostic).
   float far_px = 0.f;
   for (int cy = 0; cy < ch; ++cy)
     for (int cx = 0; cx < cw; ++cx) {
@@ -1060,10 +1023,6 @@ int SetupLayers(const ImageU8& region, const std::vector<uint8_t>& measured, int
       far_px = std::max(far_px, dm);
     }
   *seed_dist_px = far_px;
-  if (o.layer_max_seed_dist_px > 0.0 && far_px > o.layer_max_seed_dist_px) {
-    *q = q_in;
-    return 1;
-  }
   // The labelling runs on blocks of layer_label_block^2 pixels (one label per block; the block
   // energy is the exact sum of its pixels' terms, pairs inside a block drop out): the cut is a
   // long smooth curve, and a 4x coarser graph makes the max-flow ~20x cheaper.
@@ -1231,14 +1190,11 @@ absl::Status InpaintOptions::Validate() const {
     return absl::InvalidArgumentError("poisson_tolerance in (0, 1)");
   }
   if (!(jump_rel > 0.0)) return absl::InvalidArgumentError("jump_rel must be > 0");
-  if (!(plane_prior_weight >= 0.0)) return absl::InvalidArgumentError("plane_prior_weight >= 0");
   if (!(neumann_prior_weight >= 0.0)) return absl::InvalidArgumentError("neumann_prior_weight >= 0");
   if (!(prior_local_px >= 0.0)) return absl::InvalidArgumentError("prior_local_px must be >= 0");
   if (!(jump_weight > 0.0 && jump_weight <= 1.0)) {
     return absl::InvalidArgumentError("jump_weight must be in (0, 1]");
   }
-  if (joint_hole_px < 0) return absl::InvalidArgumentError("joint_hole_px must be >= 0");
-  if (joint_iterations < 1) return absl::InvalidArgumentError("joint_iterations must be >= 1");
   if (!(layer_gap_rel > 0.0)) return absl::InvalidArgumentError("layer_gap_rel must be > 0");
   if (!(layer_min_share >= 0.0 && layer_min_share < 1.0)) {
     return absl::InvalidArgumentError("layer_min_share must be in [0, 1)");
@@ -1308,35 +1264,11 @@ absl::StatusOr<InpaintResult> InpaintKeyframe(const RgbdKeyframe& frame, const I
     outside[i] = !target[i];
     out.mask.data()[i] = target[i] ? 255 : 0;
   }
-  // Depth holes solved jointly with T (joint_hole_px): outside T, no measured depth, reached
-  // from T through such pixels within joint_hole_px 4-neighbour steps (breadth-first).
-  std::vector<uint8_t> measured(n), joint(n, 0);
+  std::vector<uint8_t> measured(n);  // outside T with sensor depth
   for (size_t i = 0; i < n; ++i) {
     const float z = frame.depth_m.data()[i];
     measured[i] = !target[i] && std::isfinite(z) && z > 0.f;
   }
-  std::vector<int> joint_list;
-  if (options.joint_hole_px > 0) {
-    std::vector<int> frontier, next;
-    for (size_t i = 0; i < n; ++i)
-      if (target[i]) frontier.push_back(static_cast<int>(i));
-    for (int d = 1; d <= options.joint_hole_px && !frontier.empty(); ++d) {
-      next.clear();
-      for (int i : frontier) {
-        const int x = i % w, y = i / w;
-        const int nb[4] = {x > 0 ? i - 1 : -1, x + 1 < w ? i + 1 : -1, y > 0 ? i - w : -1,
-                           y + 1 < h ? i + w : -1};
-        for (int j : nb) {
-          if (j < 0 || target[j] || measured[j] || joint[j]) continue;
-          joint[j] = 1;
-          next.push_back(j);
-          joint_list.push_back(j);
-        }
-      }
-      std::swap(frontier, next);
-    }
-  }
-  out.stats.joint_pixels = static_cast<int>(joint_list.size());
   // Pre-processing: fill sensor holes outside T, normals from the densified depth.
   out.depth_m = frame.depth_m;
   for (size_t i = 0; i < n; ++i) {
@@ -1437,47 +1369,6 @@ absl::StatusOr<InpaintResult> InpaintKeyframe(const RgbdKeyframe& frame, const I
       if (li > 0) levels[li].color.shrink_to_fit();
     }
   }
-  if (!joint_list.empty()) {
-    // Sources for the joined holes S: the same cost at full resolution on S's known colour
-    // (never overwritten), with T's sources fixed; S starts from its T neighbours' sources
-    // shifted (breadth-first), its normals follow its sources like T's. T's own search is
-    // unchanged (S's pre-filled pixels stay usable there), so T's colour is too.
-    Level& L = levels[0];
-    Level J;
-    J.w = w;
-    J.h = h;
-    J.color = L.color;
-    J.normal = L.normal;
-    J.data_ok = L.data_ok;
-    for (int i : joint_list) J.data_ok[i] = 0;  // S never copies from S (it would copy itself)
-    J.target.assign(n, 0);
-    J.fixed.assign(n, 0);
-    for (size_t i = 0; i < n; ++i) {
-      J.target[i] = target[i] || joint[i];
-      J.fixed[i] = target[i];
-    }
-    J.src = L.src;
-    FinishLevel(J);
-    GrowFromMapped(J, options.seed);
-    auto copy_normals = [&]() {
-      for (int i : joint_list) {
-        const size_t s = J.Idx(J.src[i * 2], J.src[i * 2 + 1]);
-        for (int k = 0; k < 3; ++k) J.normal[i * 3 + k] = J.normal[s * 3 + k];
-      }
-    };
-    copy_normals();
-    const int radius0 = std::max(w, h) / 4;
-    constexpr int kJointLevel = 16;  // random streams distinct from the pyramid's
-    for (int it = 0; it < options.joint_iterations; ++it) {
-      Sweep(J, kJointLevel, it, radius0, true, params, options);
-      copy_normals();
-      ++out.stats.sweeps;
-    }
-    for (int i : joint_list) {
-      L.src[i * 2] = J.src[i * 2];
-      L.src[i * 2 + 1] = J.src[i * 2 + 1];
-    }
-  }
   out.stats.ms_search = MsSince(t_search);
   out.stats.cpu_ms_search = CpuMs() - c_search;
 
@@ -1500,9 +1391,7 @@ absl::StatusOr<InpaintResult> InpaintKeyframe(const RgbdKeyframe& frame, const I
   const double c_poisson = CpuMs();
   const bool inv = options.depth_domain == DepthDomain::kInverseDepth;
   const float nan = std::numeric_limits<float>::quiet_NaN();
-  // The solve's region: T and the joined holes S (both have sources in L0.src).
-  std::vector<uint8_t> in_region(n);
-  for (size_t i = 0; i < n; ++i) in_region[i] = target[i] || joint[i];
+  const std::vector<uint8_t>& in_region = target;  // the solve's region: T
   int bx0 = w, by0 = h, bx1 = -1, by1 = -1;
   for (int y = 0; y < h; ++y) {
     for (int x = 0; x < w; ++x) {
@@ -1520,12 +1409,6 @@ absl::StatusOr<InpaintResult> InpaintKeyframe(const RgbdKeyframe& frame, const I
     const float z = out.depth_m.at(x, y);
     return z > 0.f ? (inv ? 1.f / z : z) : nan;
   };
-  // Boundary (Dirichlet) value of a pixel outside the region: with the joint solve only
-  // measured depth, otherwise also the push-pull pre-fill.
-  const bool joint_on = options.joint_hole_px > 0;
-  auto qb = [&](int x, int y) {
-    return joint_on && !measured[static_cast<size_t>(y) * w + x] ? nan : qv(x, y);
-  };
   ImageF q(cw, ch, 1, nan), gx(cw, ch, 1, nan), gy(cw, ch, 1, nan), gauge(cw, ch, 1, nan);
   ImageF wx(cw, ch, 1, nan), wy(cw, ch, 1, nan);  // pair weights (NaN = 1)
   ImageU8 region(cw, ch, 1, 0);
@@ -1535,7 +1418,7 @@ absl::StatusOr<InpaintResult> InpaintKeyframe(const RgbdKeyframe& frame, const I
       const size_t i = static_cast<size_t>(y) * w + x;
       const bool tp = in_region[i];
       region.at(cx, cy) = tp;
-      if (!tp) q.at(cx, cy) = qb(x, y);
+      if (!tp) q.at(cx, cy) = qv(x, y);  // Dirichlet value: measured or push-pull pre-fill
       if (tp) gauge.at(cx, cy) = qv(L0.src[i * 2], L0.src[i * 2 + 1]);
       for (int dir = 0; dir < 2; ++dir) {
         const int dx = dir == 0 ? 1 : 0, dy = dir == 0 ? 0 : 1;

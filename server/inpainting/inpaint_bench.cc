@@ -13,11 +13,11 @@
 //   inpaint_bench [--data DIR] [--masks FILE] [--generate_masks [--mask_seed S --mask_frame0 F]]
 //                 [--img_dir DIR] [--threads N] [--repeats N] [--max_masks N] [--raw]
 //                 [--fusion mean|robust] [--jump_rel R] [--jump_weight W] [--converged F]
-//                 [--plane_prior W] [--neumann_prior W] [--prior_local SIGMA_PX] [--seed S]
-//                 [--peel_all_normals] [--dump_depth DIR] [--joint_hole PX] [--joint_iters N]
+//                 [--neumann_prior W] [--prior_local SIGMA_PX] [--seed S]
+//                 [--peel_all_normals] [--dump_depth DIR]
 //                 [--layered | --no_layered] [--layer_gap R] [--layer_min_share S] [--max_layers K]
 //                 [--layer_agree R] [--layer_dist W] [--layer_smooth W]
-//                 [--layer_sigma S] [--layer_jump F] [--layer_block PX] [--layer_seed_measured 0|1] [--layer_edge_seeds 0|1] [--layer_max_dist PX] [--layer_far_cost C]   (session 5: layered depth solve)
+//                 [--layer_sigma S] [--layer_jump F] [--layer_block PX] [--layer_seed_measured 0|1] [--layer_edge_seeds 0|1]
 #include "exoview_source_dir.h"
 #include <algorithm>
 #include <array>
@@ -438,6 +438,19 @@ cv::Mat ReprojectMask(const cv::Mat& mask, const RealFrame& from, const RealFram
 }
 
 // ---------------------------------------------------------------- output
+// FNV-1a 64 over the result's colour and depth bytes: equal digests = bit-identical outputs
+// (compares a change that must not alter results, e.g. a refactoring, run against run).
+uint64_t OutputDigest(const InpaintResult& r) {
+  uint64_t h = 1469598103934665603ULL;
+  auto add = [&h](const void* p, size_t n) {
+    const auto* b = static_cast<const uint8_t*>(p);
+    for (size_t i = 0; i < n; ++i) h = (h ^ b[i]) * 1099511628211ULL;
+  };
+  add(r.color.data(), r.color.bytes());
+  add(r.depth_m.data(), r.depth_m.bytes());
+  return h;
+}
+
 // Per-stage times of one run: wall prepare, search, Poisson, total, then the same in process
 // CPU time (NaN for the baselines).
 using Stages = std::array<double, 8>;
@@ -510,7 +523,6 @@ int main(int argc, char** argv) {
   double poisson_tol = InpaintOptions{}.poisson_tolerance;
   double w_opt = InpaintOptions{}.w, kappa_opt = InpaintOptions{}.kappa;
   bool ours_only = false;
-  double plane_prior = InpaintOptions{}.plane_prior_weight;
   double neumann_prior = InpaintOptions{}.neumann_prior_weight;
   double prior_local = InpaintOptions{}.prior_local_px;
   uint64_t seed = InpaintOptions{}.seed;
@@ -519,8 +531,7 @@ int main(int argc, char** argv) {
   int fine_iterations = InpaintOptions{}.fine_iterations;
   bool fusion_mean = InpaintOptions{}.gradient_fusion == GradientFusion::kMean;
   double jump_rel = InpaintOptions{}.jump_rel, jump_weight = InpaintOptions{}.jump_weight;
-  int joint_hole = InpaintOptions{}.joint_hole_px, joint_iters = InpaintOptions{}.joint_iterations;
-  InpaintOptions layer_opts;  // layered_depth and layer_* (session 5)
+  InpaintOptions layer_opts;  // layered_depth and layer_*
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     auto next = [&]() { return i + 1 < argc ? std::string(argv[++i]) : std::string(); };
@@ -539,7 +550,6 @@ int main(int argc, char** argv) {
     else if (a == "--kappa") kappa_opt = std::stod(next());
     else if (a == "--ours_only") ours_only = true;
     else if (a == "--raw") g_register = false;
-    else if (a == "--plane_prior") plane_prior = std::stod(next());
     else if (a == "--neumann_prior") neumann_prior = std::stod(next());
     else if (a == "--prior_local") prior_local = std::stod(next());
     else if (a == "--seed") seed = std::stoull(next());
@@ -550,8 +560,6 @@ int main(int argc, char** argv) {
     else if (a == "--converged") converged = std::stod(next());
     else if (a == "--fine_iterations") fine_iterations = std::stoi(next());
     else if (a == "--example_frame") example_frame = std::stoi(next());
-    else if (a == "--joint_hole") joint_hole = std::stoi(next());
-    else if (a == "--joint_iters") joint_iters = std::stoi(next());
     else if (a == "--layered") layer_opts.layered_depth = true;
     else if (a == "--no_layered") layer_opts.layered_depth = false;
     else if (a == "--layer_gap") layer_opts.layer_gap_rel = std::stod(next());
@@ -565,8 +573,6 @@ int main(int argc, char** argv) {
     else if (a == "--layer_block") layer_opts.layer_label_block = std::stoi(next());
     else if (a == "--layer_seed_measured") layer_opts.layer_seed_measured_only = next() != "0";
     else if (a == "--layer_edge_seeds") layer_opts.layer_edge_seeds = next() != "0";
-    else if (a == "--layer_max_dist") layer_opts.layer_max_seed_dist_px = std::stod(next());
-    else if (a == "--layer_far_cost") layer_opts.layer_far_cost = std::stod(next());
     else {
       std::fprintf(stderr, "unknown argument %s\n", a.c_str());
       return 2;
@@ -609,14 +615,11 @@ int main(int argc, char** argv) {
   base.jump_rel = jump_rel;
   base.jump_weight = jump_weight;
   base.converged_fraction = converged;
-  base.plane_prior_weight = plane_prior;
   base.neumann_prior_weight = neumann_prior;
   base.prior_local_px = prior_local;
   base.seed = seed;
   base.peel_measured_normals_only = peel_measured;
   base.fine_iterations = fine_iterations;
-  base.joint_hole_px = joint_hole;
-  base.joint_iterations = joint_iters;
   base.layered_depth = layer_opts.layered_depth;
   base.layer_gap_rel = layer_opts.layer_gap_rel;
   base.layer_min_share = layer_opts.layer_min_share;
@@ -629,8 +632,6 @@ int main(int argc, char** argv) {
   base.layer_label_block = layer_opts.layer_label_block;
   base.layer_seed_measured_only = layer_opts.layer_seed_measured_only;
   base.layer_edge_seeds = layer_opts.layer_edge_seeds;
-  base.layer_max_seed_dist_px = layer_opts.layer_max_seed_dist_px;
-  base.layer_far_cost = layer_opts.layer_far_cost;
   for (const MaskSpec& spec : specs) {
     const RealFrame gt = LoadFrame(data_dir, spec.frame);
     if (!gt.ok) {
@@ -664,11 +665,12 @@ int main(int argc, char** argv) {
       cv::Mat c(480, 640, CV_8UC3, r->color.data()), d(480, 640, CV_32F, r->depth_m.data());
       const Metrics m = Evaluate(mask, &c, &d, gt);
       const double ms = Percentile(times, 0.5);
-      char extra[256];
+      char extra[320];
       std::snprintf(extra, sizeof(extra),
-                    ",\"cpu_ms\":%.1f,\"threads\":%d,\"levels\":%d,\"ms_prepare\":%.1f,\"ms_search\":%.1f,\"ms_poisson\":%.1f,\"poisson_iters\":%d,\"sweeps\":%d,\"joint_px\":%d,\"layers\":%d,\"layer_dist_px\":%.0f",
+                    ",\"cpu_ms\":%.1f,\"threads\":%d,\"levels\":%d,\"ms_prepare\":%.1f,\"ms_search\":%.1f,\"ms_poisson\":%.1f,\"poisson_iters\":%d,\"sweeps\":%d,\"layers\":%d,\"layer_dist_px\":%.0f,\"output_digest\":\"%016llx\"",
                     Percentile(cpu, 0.5), o.num_threads, r->stats.levels, r->stats.ms_prepare, r->stats.ms_search, r->stats.ms_poisson,
-                    r->stats.poisson_iterations, r->stats.sweeps, r->stats.joint_pixels, r->stats.depth_layers, r->stats.layer_seed_dist_px);
+                    r->stats.poisson_iterations, r->stats.sweeps, r->stats.depth_layers, r->stats.layer_seed_dist_px,
+                    static_cast<unsigned long long>(OutputDigest(*r)));
       PrintRow(name, spec, fraction, ms, m, extra);
       for (size_t k = 0; k < times.size(); ++k)
         rows[{name, spec.cls}].push_back({name, spec.cls, times[k], m, stages[k]});
@@ -768,13 +770,14 @@ int main(int argc, char** argv) {
           cv::Mat c(480, 640, CV_8UC3, r->color.data()), d(480, 640, CV_32F, r->depth_m.data());
           const Metrics m = Evaluate(mask1, &c, &d, gt1);
           const std::string name = propagate ? "inpaintfusion_propagated" : "inpaintfusion_scratch_next";
-          char extra[320];
+          char extra[384];
           std::snprintf(extra, sizeof(extra),
                         ",\"propagated_frac\":%.3f,\"cpu_ms\":%.1f,\"levels\":%d,\"ms_prepare\":%.1f,"
-                        "\"ms_search\":%.1f,\"ms_poisson\":%.1f,\"poisson_iters\":%d,\"layers\":%d",
+                        "\"ms_search\":%.1f,\"ms_poisson\":%.1f,\"poisson_iters\":%d,\"layers\":%d,\"output_digest\":\"%016llx\"",
                         static_cast<double>(r->stats.propagated_pixels) / r->stats.target_pixels,
                         Percentile(cpu, 0.5), r->stats.levels, r->stats.ms_prepare, r->stats.ms_search,
-                        r->stats.ms_poisson, r->stats.poisson_iterations, r->stats.depth_layers);
+                        r->stats.ms_poisson, r->stats.poisson_iterations, r->stats.depth_layers,
+                        static_cast<unsigned long long>(OutputDigest(*r)));
           PrintRow(name, s1, cv::countNonZero(mask1) / (640.0 * 480.0), Percentile(times, 0.5), m, extra);
           for (size_t k = 0; k < times.size(); ++k)
             rows[{name, "10-20%"}].push_back({name, "10-20%", times[k], m, stages[k]});

@@ -10,7 +10,7 @@
 //   refinement_bench [--scene apartment|village|all] [--frames N] [--stride S]
 //                    [--rot-deg D] [--trans-m M] [--exposure-jitter X] [--width W --height H]
 //                    [--seed S] [--heldout N] [--levels L] [--samples N] [--oracle-refs 1]
-//                    [--outlier-rel X] [--retry 0|1] [--depth-weight W]
+//                    [--outlier-rel X] [--depth-weight W]
 //   refinement_bench --scene 7scenes [--register 0|1 (default 1: depth registered to colour)]
 // The first stored view is the gauge anchor (true pose, E = 1); views are refined in order, each
 // against the views stored (and refined) before it, as the planner does online.
@@ -51,7 +51,6 @@ struct Args {
   int iters = 0, outer = 0;
   double depth_weight = -1, min_tinfo = -1;
   bool refine_pose = true;
-  int retry = -1;  // -1: default
   int reg = 1;     // 7scenes: register depth to colour (common/datasets rgbd_registration)
   bool keep_rejected = false;  // 7scenes: keep outlier views at their input pose
   double multistart_step = -1;  // RefinementOptions::multistart_step_m (0: off; <0: default)
@@ -60,7 +59,6 @@ struct Args {
   double gate = -1;             // RefinementOptions::min_pose_gain_over_disagreement (<0: default)
   double conv_px = -1;          // RefinementOptions::convergence_px (<0: default)
   double ftol = -1;             // RefinementOptions::function_tolerance (<0: default)
-  int batched = -1;  // --batched 1: Ceres, one block (default); 0: one block per residual
   bool cache = true;            // RefinementCache for the references' pyramids (--cache 0: off)
   bool render = true;           // held-out MSSIM/PSNR (slow); --render 0 for pose diagnostics
 };
@@ -285,16 +283,12 @@ absl::Status RunScene(synth::SceneKind kind, const Args& a) {
   if (a.freeze >= 0) opt.freeze_weak_directions = a.freeze != 0;
   if (a.rot_only_level >= 0) opt.rotation_only_from_level = a.rot_only_level;
   if (a.min_info >= 0) opt.min_pose_information = a.min_info;
-  if (a.retry >= 0) opt.retry_on_outlier = a.retry != 0;
   if (a.multistart_step >= 0) opt.multistart_step_m = a.multistart_step;
   if (a.multistart_level >= 0) opt.multistart_from_level = a.multistart_level;
   if (a.egate >= 0) opt.min_exposure_gain_over_disagreement = a.egate;
   if (a.ftol > 0) opt.function_tolerance = a.ftol;
   if (a.conv_px > 0) opt.convergence_px = a.conv_px;
   if (a.gate >= 0) opt.min_pose_gain_over_disagreement = a.gate;
-  if (a.batched >= 0)
-    opt.pose_solver = a.batched == 0 ? RefinementOptions::PoseSolver::kCeresPerResidual
-                                     : RefinementOptions::PoseSolver::kCeresBatched;
   RefinementStats stats;
   RefinementCache cache(64);  // stored views' pyramids, kept between calls (--cache 0: off)
   std::vector<StoredView> refined;
@@ -410,9 +404,7 @@ absl::Status RunScene(synth::SceneKind kind, const Args& a) {
       Percentile(cpu_pyr, 0.5), Percentile(cpu_samples, 0.5), Percentile(cpu_solve, 0.5), std::accumulate(cpu_ms.begin(), cpu_ms.end(), 0.0),
       Percentile(solver_iters, 0.5),
       Percentile(solver_iters, 0.95), std::accumulate(solver_iters.begin(), solver_iters.end(), 0.0),
-      a.cache ? 1 : 0,
-      opt.pose_solver == RefinementOptions::PoseSolver::kCeresBatched ? "ceres_batched"
-                                                                      : "ceres_per_residual");
+      a.cache ? 1 : 0, "ceres_batched");
   std::fflush(stdout);
   return absl::OkStatus();
 }
@@ -438,9 +430,7 @@ int Main(int argc, char** argv) {
     else if (key == "--iters") a.iters = std::atoi(v);
     else if (key == "--depth-weight") a.depth_weight = std::atof(v);
     else if (key == "--pose") a.refine_pose = std::atoi(v) != 0;
-    else if (key == "--retry") a.retry = std::atoi(v);
     else if (key == "--cache") a.cache = std::atoi(v) != 0;
-    else if (key == "--batched") a.batched = std::atoi(v);
     else if (key == "--multistart-step") a.multistart_step = std::atof(v);
     else if (key == "--multistart-level") a.multistart_level = std::atoi(v);
     else if (key == "--egate") a.egate = std::atof(v);

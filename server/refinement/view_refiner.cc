@@ -394,20 +394,18 @@ class Refiner {
   void AddDepthEnergy(const std::vector<int>& idx, const Pose& p0, const Pose& p1, double w,
                       double scale, double* before, double* after) const;
   Eigen::Matrix<double, 6, 6> Information(int level, const Pose& pose, double e) const;
-  // Pose/exposure alternation over the pyramid from the coarsest level; attempt 0 is the
-  // default schedule, attempt 1 the retry (6-DoF at every level, 3x the LM iterations).
-  void CoarseToFine(int attempt, Pose* pose, double* e, int start_level = -1);
+  // Pose/exposure alternation over the pyramid from `start_level` (-1: the coarsest). The first
+  // pass refines rotation only on the coarse levels; a multi-start pass is 6-DoF everywhere.
+  void CoarseToFine(bool multistart, Pose* pose, double* e, int start_level = -1);
   // Relative residual at `pose` and the outlier threshold for it (references' disagreement).
   void OutlierTest(const Pose& pose, double e, double* relative, double* threshold,
                    double* disagreement = nullptr, int* num_valid = nullptr) const;
-  // median |E c_j - m_j| / median(m_j) over the samples valid at `pose`, level 0.
-  double RelativeResidual(const Pose& pose, double e) const;
   struct ResidualSummary {
     double relative = 1.0;  // median |E c_j - m_j| / median(m_j)
     double median_m = 0.0;  // median(m_j)
   };
   ResidualSummary SummarizeResiduals(const Active& a, double e) const;
-  int attempt_ = 0;
+  bool multistart_pass_ = false;  // set by CoarseToFine
 
   const StoredView& cand_;
   std::vector<const StoredView*> refs_;
@@ -725,7 +723,7 @@ Pose Refiner::SolvePose(int level, double e, const Pose& pose) {
   // Coarse levels cannot separate a small camera translation from a rotation (1-2 cm at metres
   // is sub-pixel there): rotation only (about the camera centre), the translation waits for the
   // fine levels. Weak directions (eigen-analysis of the level-0 information) stay frozen.
-  const bool rot_only = attempt_ == 0 && level >= o_.rotation_only_from_level;
+  const bool rot_only = !multistart_pass_ && level >= o_.rotation_only_from_level;
   const Eigen::Matrix<double, 6, Eigen::Dynamic>& basis = rot_only ? rot_basis_ : free_basis_;
   if (basis.cols() == 0) return pose;
   const Active a = ActiveSet(level, pose, Kind::kTextured);
@@ -737,68 +735,34 @@ Pose Refiner::SolvePose(int level, double e, const Pose& pose) {
   double xi[6] = {0, 0, 0, 0, 0, 0};
   ceres::Solver::Options so = SolverOptions(o_);
   if (level > 0) so.max_num_iterations = std::max(3, o_.max_solver_iterations / 2);
-  if (attempt_ == 1) so.max_num_iterations = 3 * o_.max_solver_iterations;
-  ceres::Problem::Options po;
-  po.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
-  po.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
-  refinement::SubspaceManifold manifold(basis);
+  const double dw = depth_interp_ ? DepthWeight(a.idx, pose, scale) : 0.0;
+  // ceres::Solve on ONE residual block holding all residuals (pose_batch.h), the robust loss
+  // folded into the residuals per residual: the same residuals and robust energy as a
+  // ceres::Problem with one block per residual, without its per-block overhead.
+  refinement::PoseBatchCost batch(&L.fast, L.k, e, &depth_fast_, cand_pyr_[0].k, dw,
+                                  median_depth_m_);
+  for (size_t k = 0; k < a.idx.size(); ++k) {
+    const Sample& s = samples_[a.idx[k]];
+    batch.AddPhotometric(pose.Apply(s.p_in_local), s.m[level]);
+  }
+  if (dw > 0)
+    for (size_t k = 0; k < a.idx.size(); ++k) {
+      const Sample& s = samples_[a.idx[k]];
+      double rd;
+      if (DepthResidual(s, pose, &rd)) batch.AddDepth(pose.Apply(s.p_in_local));
+    }
   // Tukey at the finest level; Cauchy (same influence scale) on the coarse levels, whose job is
   // to bring the pose into the basin: Tukey gives misaligned samples zero weight, which there
   // are the very samples that carry the alignment signal.
-  std::unique_ptr<ceres::LossFunction> lossp;
-  if (level == 0)
-    lossp = std::make_unique<ceres::TukeyLoss>(scale);
-  else
-    lossp = std::make_unique<ceres::CauchyLoss>(scale / o_.tukey_k);
-  ceres::LossFunction& loss = *lossp;
-  const double dw = depth_interp_ ? DepthWeight(a.idx, pose, scale) : 0.0;
-  if (o_.pose_solver == RefinementOptions::PoseSolver::kCeresBatched) {
-    // ceres::Solve on ONE residual block holding all residuals (pose_batch.h), the loss folded
-    // into the residuals per residual: same residuals and robust energy as the per-residual
-    // problem below without its per-residual-block overhead.
-    refinement::PoseBatchCost batch(&L.fast, L.k, e, &depth_fast_, cand_pyr_[0].k, dw,
-                                    median_depth_m_);
-    for (size_t k = 0; k < a.idx.size(); ++k) {
-      const Sample& s = samples_[a.idx[k]];
-      batch.AddPhotometric(pose.Apply(s.p_in_local), s.m[level]);
-    }
-    if (dw > 0)
-      for (size_t k = 0; k < a.idx.size(); ++k) {
-        const Sample& s = samples_[a.idx[k]];
-        double rd;
-        if (DepthResidual(s, pose, &rd)) batch.AddDepth(pose.Apply(s.p_in_local));
-      }
-    refinement::RobustLoss rl;
-    rl.kind = level == 0 ? refinement::RobustLoss::Kind::kTukey : refinement::RobustLoss::Kind::kCauchy;
-    rl.scale = level == 0 ? scale : scale / o_.tukey_k;  // as lossp above
-    refinement::PoseSolveOptions lo;
-    lo.max_iterations = so.max_num_iterations;
-    lo.function_tolerance = so.function_tolerance;
-    lo.parameter_tolerance = so.parameter_tolerance;
-    lo.gradient_tolerance = so.gradient_tolerance;
-    res_.iterations += refinement::SolvePoseCeres(batch, rl, basis, lo, xi).iterations;
-  } else {
-    ceres::Problem problem(po);
-    for (size_t k = 0; k < a.idx.size(); ++k) {
-      const Sample& s = samples_[a.idx[k]];
-      problem.AddResidualBlock(new PoseDeltaAnalytic(L.interp.get(), L.k, pose.Apply(s.p_in_local),
-                                                     median_depth_m_, e, s.m[level]),
-                               &loss, xi);
-    }
-    if (dw > 0)
-      for (size_t k = 0; k < a.idx.size(); ++k) {
-        const Sample& s = samples_[a.idx[k]];
-        double rd;
-        if (!DepthResidual(s, pose, &rd)) continue;
-        problem.AddResidualBlock(new DepthDeltaAnalytic(depth_interp_.get(), cand_pyr_[0].k,
-                                                        pose.Apply(s.p_in_local), median_depth_m_, dw),
-                                 &loss, xi);
-      }
-    if (basis.cols() < 6) problem.SetManifold(xi, &manifold);
-    ceres::Solver::Summary sum;
-    ceres::Solve(so, &problem, &sum);
-    res_.iterations += static_cast<int>(sum.iterations.size());
-  }
+  refinement::RobustLoss rl;
+  rl.kind = level == 0 ? refinement::RobustLoss::Kind::kTukey : refinement::RobustLoss::Kind::kCauchy;
+  rl.scale = level == 0 ? scale : scale / o_.tukey_k;
+  refinement::PoseSolveOptions lo;
+  lo.max_iterations = so.max_num_iterations;
+  lo.function_tolerance = so.function_tolerance;
+  lo.parameter_tolerance = so.parameter_tolerance;
+  lo.gradient_tolerance = so.gradient_tolerance;
+  res_.iterations += refinement::SolvePoseCeres(batch, rl, basis, lo, xi).iterations;
   const Eigen::Vector3d w(xi[0], xi[1], xi[2]);
   const Eigen::Vector3d dt = median_depth_m_ * Eigen::Vector3d(xi[3], xi[4], xi[5]);
   const double angle = w.norm();
@@ -972,10 +936,10 @@ void Refiner::RankCheck(const Pose& pose, double e) {
   for (size_t i = 0; i < keep_r.size(); ++i) rot_basis_.block<3, 1>(0, i) = er.eigenvectors().col(keep_r[i]);
 }
 
-void Refiner::CoarseToFine(int attempt, Pose* pose_io, double* e_io, int start_level) {
+void Refiner::CoarseToFine(bool multistart, Pose* pose_io, double* e_io, int start_level) {
   Pose pose = *pose_io;
   double e = *e_io;
-  attempt_ = attempt;
+  multistart_pass_ = multistart;
   const int first = start_level < 0 ? levels_ - 1 : std::min(start_level, levels_ - 1);
   for (int l = first; l >= 0; --l) {
     for (int it = 0; it < o_.max_outer_iterations; ++it) {
@@ -1007,10 +971,6 @@ Refiner::ResidualSummary Refiner::SummarizeResiduals(const Active& a, double e) 
   out.median_m = Median(ms);
   out.relative = out.median_m > 0 ? Median(absr) / out.median_m : 1.0;
   return out;
-}
-
-double Refiner::RelativeResidual(const Pose& pose, double e) const {
-  return SummarizeResiduals(ActiveSet(0, pose), e).relative;
 }
 
 void Refiner::OutlierTest(const Pose& pose, double e, double* relative, double* threshold,
@@ -1117,7 +1077,7 @@ absl::StatusOr<RefinementResult> Refiner::Run() {
   if (o_.refine_pose) {
     if (o_.check_rank) RankCheck(pose0, e);
     if (!res_.pose_refused_rank_deficient) {
-      CoarseToFine(/*attempt=*/0, &pose, &e);
+      CoarseToFine(/*multistart=*/false, &pose, &e);
       // Multi-start (close-range views): the first pass can end with the rotation right and
       // the camera centre in a side basin 2-3 cm away (sideways motion along a wall changes
       // neither its depth nor, with repetitive texture, the photometric energy much), where the
@@ -1142,7 +1102,7 @@ absl::StatusOr<RefinementResult> Refiner::Run() {
           }
         for (Pose start : starts) {
           double e_s = e;
-          CoarseToFine(/*attempt=*/2, &start, &e_s, o_.multistart_from_level);
+          CoarseToFine(/*multistart=*/true, &start, &e_s, o_.multistart_from_level);
           ++res_.attempts;
           double rel_s = 0, thr_s = 0;
           OutlierTest(start, e_s, &rel_s, &thr_s);
@@ -1156,19 +1116,6 @@ absl::StatusOr<RefinementResult> Refiner::Run() {
         }
         pose = best;
         e = best_e;
-      }
-      // Second start when the first one ends far from agreement (close-range views, where a
-      // 2 cm error is tens of pixels and the coarse levels land in a side basin): all levels
-      // 6-DoF with three times the iterations; the attempt with the lower final residual wins.
-      if (o_.retry_on_outlier && RelativeResidual(pose, e) > o_.outlier_max_relative_residual / 4) {
-        Pose pose_b = pose0;
-        double e_b = e_exposure_only;
-        CoarseToFine(/*attempt=*/1, &pose_b, &e_b);
-        ++res_.attempts;
-        if (RelativeResidual(pose_b, e_b) < RelativeResidual(pose, e)) {
-          pose = pose_b;
-          e = e_b;
-        }
       }
     }
   }

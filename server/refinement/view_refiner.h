@@ -53,12 +53,6 @@ struct RefinementOptions {
   // measured on the apartment oracle run: 1e-5 gives the same pose errors at 15 % less CPU).
   double function_tolerance = 1e-5;
   bool refine_pose = true;
-  // How a pose stage is solved (pose_batch.h). kCeresBatched: ceres::Solve (LM) on ONE residual
-  // block holding all residuals of the stage, the robust loss applied per residual inside it
-  // (RobustBatchCost). kCeresPerResidual: a ceres::Problem with one block per residual and the
-  // loss per block (the session-2 reference; same energy, ~2.5x the CPU per solve).
-  enum class PoseSolver { kCeresBatched, kCeresPerResidual };
-  PoseSolver pose_solver = PoseSolver::kCeresBatched;
   bool init_exposure_from_ratio = true;  // E0 = median(m_j / c_j); else initial_exposure
   double initial_exposure = 1.0;
   bool warm_start = true;           // Cauchy before Tukey (Tukey is flat for large residuals)
@@ -105,13 +99,6 @@ struct RefinementOptions {
   double outlier_min_relative_residual = 0.02;
   double outlier_disagreement_factor = 4.0;
   double outlier_min_valid_fraction = 0.3;
-  // When the first coarse-to-fine pass ends with a relative residual above a quarter of
-  // outlier_max_relative_residual, run a second pass from the input pose (6-DoF at every level,
-  // 3x the LM iterations) and keep the pass with the lower residual. Off by default: measured
-  // (refinement_bench, apartment, depth_weight 2) it converts one more view with oracle
-  // references (36 -> 37 of 39) but in the online chain (1.5 deg / 15 mm) the lower-residual
-  // pass is often the wrong one: converged 36 -> 11, held-out MSSIM 0.910 -> 0.873.
-  bool retry_on_outlier = false;
   // Multi-start when the first pass ends as a pose outlier: restart from levels <=
   // multistart_from_level at the result shifted by +-1, +-2 x multistart_step_m along the
   // camera x and y axes (8 starts at most; the first that passes the outlier test, else the
@@ -163,7 +150,7 @@ struct RefinementResult {
   int num_samples = 0;         // surface samples with a median
   int num_valid_final = 0;     // of those, valid in the candidate at the final pose
   int iterations = 0;          // Ceres iterations, all stages
-  int attempts = 1;            // coarse-to-fine passes (2: the retry ran)
+  int attempts = 1;            // coarse-to-fine passes (> 1: the multi-start ran)
   // J (3.17) over the textured samples (Tukey, one fixed scale, samples valid at both poses):
   // at the input pose with the exposure-only estimate, and at the result. The pose guard keeps
   // cost_after <= cost_before. (The exposure itself is fitted in log intensity on flat samples,
