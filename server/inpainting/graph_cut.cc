@@ -4,18 +4,79 @@
 #include <cmath>
 #include <limits>
 
+#include <boost/graph/adjacency_list.hpp>
+#include <boost/graph/boykov_kolmogorov_max_flow.hpp>
+
 namespace exo::inpaint {
 
 MaxFlow::MaxFlow(int num_nodes)
-    : n_(num_nodes), ts_(num_nodes, 0.0), tt_(num_nodes, 0.0), head_(num_nodes + 2, -1),
-      source_side_(num_nodes, 0) {}
+    : n_(num_nodes), ts_(num_nodes, 0.0), tt_(num_nodes, 0.0), source_side_(num_nodes, 0) {}
+
+MaxFlow::~MaxFlow() = default;
 
 void MaxFlow::AddTerminalWeights(int node, double cap_source, double cap_sink) {
   ts_[node] += std::max(0.0, cap_source);
   tt_[node] += std::max(0.0, cap_sink);
 }
 
-void MaxFlow::AddArc(int a, int b, double cap_ab, double cap_ba) {
+void MaxFlow::AddEdge(int a, int b, double cap_ab, double cap_ba) {
+  if (a == b) return;
+  edges_.push_back({a, b, std::max(0.0, cap_ab), std::max(0.0, cap_ba)});
+}
+
+double MaxFlow::Solve() {
+  using Traits = boost::adjacency_list_traits<boost::vecS, boost::vecS, boost::directedS>;
+  struct EdgeProps {
+    double capacity = 0.0, residual = 0.0;
+    Traits::edge_descriptor reverse;
+  };
+  using Graph =
+      boost::adjacency_list<boost::vecS, boost::vecS, boost::directedS, boost::no_property, EdgeProps>;
+  const int s = n_, t = n_ + 1;
+  Graph g(n_ + 2);
+  auto add = [&g](int a, int b, double cap_ab, double cap_ba) {
+    const auto ab = boost::add_edge(a, b, g).first;
+    const auto ba = boost::add_edge(b, a, g).first;
+    g[ab].capacity = cap_ab;
+    g[ab].reverse = ba;
+    g[ba].capacity = cap_ba;
+    g[ba].reverse = ab;
+  };
+  // Flow straight through source -> node -> sink needs no search.
+  double through = 0.0;
+  for (int i = 0; i < n_; ++i) {
+    const double m = std::min(ts_[i], tt_[i]);
+    through += m;
+    if (ts_[i] - m > 0.0) add(s, i, ts_[i] - m, 0.0);
+    if (tt_[i] - m > 0.0) add(i, t, tt_[i] - m, 0.0);
+  }
+  for (const Edge& e : edges_) add(e.a, e.b, e.cap_ab, e.cap_ba);
+  const size_t nv = boost::num_vertices(g);
+  std::vector<boost::default_color_type> color(nv);
+  std::vector<Traits::edge_descriptor> pred(nv);
+  std::vector<long> dist(nv);
+  const auto index = boost::get(boost::vertex_index, g);
+  const double flow = boost::boykov_kolmogorov_max_flow(
+      g, boost::get(&EdgeProps::capacity, g), boost::get(&EdgeProps::residual, g),
+      boost::get(&EdgeProps::reverse, g), boost::make_iterator_property_map(pred.begin(), index),
+      boost::make_iterator_property_map(color.begin(), index),
+      boost::make_iterator_property_map(dist.begin(), index), index, s, t);
+  // Source side: the source tree (black), i.e. the nodes reachable from s in the residual graph.
+  for (int i = 0; i < n_; ++i)
+    source_side_[i] = color[i] == boost::color_traits<boost::default_color_type>::black();
+  return through + flow;
+}
+
+DinicMaxFlow::DinicMaxFlow(int num_nodes)
+    : n_(num_nodes), ts_(num_nodes, 0.0), tt_(num_nodes, 0.0), head_(num_nodes + 2, -1),
+      source_side_(num_nodes, 0) {}
+
+void DinicMaxFlow::AddTerminalWeights(int node, double cap_source, double cap_sink) {
+  ts_[node] += std::max(0.0, cap_source);
+  tt_[node] += std::max(0.0, cap_sink);
+}
+
+void DinicMaxFlow::AddArc(int a, int b, double cap_ab, double cap_ba) {
   to_.push_back(b);
   cap_.push_back(cap_ab);
   next_.push_back(head_[a]);
@@ -26,12 +87,12 @@ void MaxFlow::AddArc(int a, int b, double cap_ab, double cap_ba) {
   head_[b] = static_cast<int>(to_.size()) - 1;
 }
 
-void MaxFlow::AddEdge(int a, int b, double cap_ab, double cap_ba) {
+void DinicMaxFlow::AddEdge(int a, int b, double cap_ab, double cap_ba) {
   if (a == b) return;
   AddArc(a, b, std::max(0.0, cap_ab), std::max(0.0, cap_ba));
 }
 
-double MaxFlow::Solve() {
+double DinicMaxFlow::Solve() {
   const int s = n_, t = n_ + 1, nn = n_ + 2;
   double flow = 0.0;
   // Flow straight through source -> node -> sink needs no search.
@@ -120,9 +181,12 @@ double PottsEnergy(int num_labels, const std::vector<float>& unary,
   return e;
 }
 
-double PottsAlphaExpansion(int num_nodes, int num_labels, const std::vector<float>& unary,
-                           const std::vector<PottsEdge>& edges, std::vector<int>* labels,
-                           int max_cycles) {
+namespace {
+
+template <typename Flow>
+double AlphaExpansion(int num_nodes, int num_labels, const std::vector<float>& unary,
+                      const std::vector<PottsEdge>& edges, std::vector<int>* labels,
+                      int max_cycles) {
   std::vector<int>& lab = *labels;
   double energy = PottsEnergy(num_labels, unary, edges, lab);
   if (num_labels < 2 || num_nodes == 0) return energy;
@@ -131,7 +195,7 @@ double PottsAlphaExpansion(int num_nodes, int num_labels, const std::vector<floa
     bool improved = false;
     for (int alpha = 0; alpha < num_labels; ++alpha) {
       // Binary move: x_p = 1 takes alpha (sink side), x_p = 0 keeps l_p (source side).
-      MaxFlow g(num_nodes);
+      Flow g(num_nodes);
       for (int p = 0; p < num_nodes; ++p) {
         c0[p] = unary[static_cast<size_t>(p) * num_labels + lab[p]];
         c1[p] = unary[static_cast<size_t>(p) * num_labels + alpha];
@@ -170,6 +234,16 @@ double PottsAlphaExpansion(int num_nodes, int num_labels, const std::vector<floa
     if (!improved) break;
   }
   return energy;
+}
+
+}  // namespace
+
+double PottsAlphaExpansion(int num_nodes, int num_labels, const std::vector<float>& unary,
+                           const std::vector<PottsEdge>& edges, std::vector<int>* labels,
+                           int max_cycles, MaxFlowSolver solver) {
+  return solver == MaxFlowSolver::kDinic
+             ? AlphaExpansion<DinicMaxFlow>(num_nodes, num_labels, unary, edges, labels, max_cycles)
+             : AlphaExpansion<MaxFlow>(num_nodes, num_labels, unary, edges, labels, max_cycles);
 }
 
 }  // namespace exo::inpaint

@@ -856,7 +856,8 @@ int SetupLayers(const ImageU8& region, const std::vector<uint8_t>& measured, int
                 int h,
                 const ImageU8& color, const InpaintOptions& o, ImageF* q, ImageF* gx, ImageF* gy,
                 const ImageF& wx, const ImageF& wy, ImageF* prior, ImageF* prior_w,
-                std::vector<int>* layer_pixels, float* seed_dist_px, ImageU8* layer_map) {
+                std::vector<int>* layer_pixels, float* seed_dist_px, ImageU8* layer_map,
+                InpaintTrace* trace) {
   const int cw = region.width(), ch = region.height();
   const float nan = std::numeric_limits<float>::quiet_NaN();
   auto in_r = [&](int cx, int cy) {
@@ -1095,6 +1096,7 @@ int SetupLayers(const ImageU8& region, const std::vector<uint8_t>& measured, int
       if (ew_d[b] > 0.0) edges.push_back({bnode[b], bnode[b + nbw], static_cast<float>(ew_d[b])});
     }
   std::vector<int> labels(nn, 0);
+  if (trace != nullptr) trace->labellings.push_back({nn, K, K == 2 ? 1 : 3, unary, edges, labels});
   PottsAlphaExpansion(nn, K, unary, edges, &labels, K == 2 ? 1 : 3);
   ImageI32 tl(cw, ch, 1, -1);
   layer_pixels->assign(K, 0);
@@ -1216,7 +1218,7 @@ absl::Status InpaintOptions::Validate() const {
 
 absl::StatusOr<InpaintResult> InpaintKeyframe(const RgbdKeyframe& frame, const ImageU8& mask,
                                               const InpaintOptions& options,
-                                              const InpaintResult* previous) {
+                                              const InpaintResult* previous, InpaintTrace* trace) {
   const auto t_start = Clock::now();
   const double c_start = CpuMs();
   EXO_RETURN_IF_ERROR(options.Validate());
@@ -1453,7 +1455,7 @@ absl::StatusOr<InpaintResult> InpaintKeyframe(const RgbdKeyframe& frame, const I
   if (options.layered_depth && inv && options.max_layers > 1) {
     layers = SetupLayers(region, measured, ox, oy, w, h, out.color, options,
                          &q, &gx, &gy, wx, wy, &prior, &prior_w, &out.stats.layer_pixels,
-                         &out.stats.layer_seed_dist_px, &out.layers);
+                         &out.stats.layer_seed_dist_px, &out.layers, trace);
   }
   out.stats.depth_layers = layers;
   if (layers <= 1) {
