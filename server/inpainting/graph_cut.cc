@@ -67,112 +67,6 @@ double MaxFlow::Solve() {
   return through + flow;
 }
 
-DinicMaxFlow::DinicMaxFlow(int num_nodes)
-    : n_(num_nodes), ts_(num_nodes, 0.0), tt_(num_nodes, 0.0), head_(num_nodes + 2, -1),
-      source_side_(num_nodes, 0) {}
-
-void DinicMaxFlow::AddTerminalWeights(int node, double cap_source, double cap_sink) {
-  ts_[node] += std::max(0.0, cap_source);
-  tt_[node] += std::max(0.0, cap_sink);
-}
-
-void DinicMaxFlow::AddArc(int a, int b, double cap_ab, double cap_ba) {
-  to_.push_back(b);
-  cap_.push_back(cap_ab);
-  next_.push_back(head_[a]);
-  head_[a] = static_cast<int>(to_.size()) - 1;
-  to_.push_back(a);
-  cap_.push_back(cap_ba);
-  next_.push_back(head_[b]);
-  head_[b] = static_cast<int>(to_.size()) - 1;
-}
-
-void DinicMaxFlow::AddEdge(int a, int b, double cap_ab, double cap_ba) {
-  if (a == b) return;
-  AddArc(a, b, std::max(0.0, cap_ab), std::max(0.0, cap_ba));
-}
-
-double DinicMaxFlow::Solve() {
-  const int s = n_, t = n_ + 1, nn = n_ + 2;
-  double flow = 0.0;
-  // Flow straight through source -> node -> sink needs no search.
-  for (int i = 0; i < n_; ++i) {
-    const double m = std::min(ts_[i], tt_[i]);
-    flow += m;
-    if (ts_[i] - m > 0.0) AddArc(s, i, ts_[i] - m, 0.0);
-    if (tt_[i] - m > 0.0) AddArc(i, t, tt_[i] - m, 0.0);
-  }
-  std::vector<int> level(nn), queue(nn), it(nn), path;
-  constexpr double kEps = 1e-12;
-  for (;;) {
-    // Level graph by breadth-first search over arcs with residual capacity.
-    std::fill(level.begin(), level.end(), -1);
-    int qh = 0, qt = 0;
-    level[s] = 0;
-    queue[qt++] = s;
-    while (qh < qt) {
-      const int u = queue[qh++];
-      for (int e = head_[u]; e >= 0; e = next_[e]) {
-        if (cap_[e] > kEps && level[to_[e]] < 0) {
-          level[to_[e]] = level[u] + 1;
-          queue[qt++] = to_[e];
-        }
-      }
-    }
-    if (level[t] < 0) break;
-    for (int i = 0; i < nn; ++i) it[i] = head_[i];
-    // Blocking flow: iterative depth-first search along the level graph.
-    path.clear();
-    int u = s;
-    for (;;) {
-      if (u == t) {
-        double b = std::numeric_limits<double>::infinity();
-        for (int e : path) b = std::min(b, cap_[e]);
-        size_t first_sat = path.size();
-        for (size_t k = 0; k < path.size(); ++k) {
-          cap_[path[k]] -= b;
-          cap_[path[k] ^ 1] += b;
-          if (first_sat == path.size() && cap_[path[k]] <= kEps) first_sat = k;
-        }
-        flow += b;
-        path.resize(first_sat);  // retreat to the tail of the first saturated arc
-        u = path.empty() ? s : to_[path.back()];
-        continue;
-      }
-      int& e = it[u];
-      while (e >= 0 && !(cap_[e] > kEps && level[to_[e]] == level[u] + 1)) e = next_[e];
-      if (e >= 0) {
-        path.push_back(e);
-        u = to_[e];
-        continue;
-      }
-      // Dead end: remove u from the level graph and retreat.
-      level[u] = -1;
-      if (path.empty()) break;  // u == s: blocking flow found
-      const int back = path.back();
-      path.pop_back();
-      u = to_[back ^ 1];
-      it[u] = next_[it[u]];
-    }
-  }
-  // Source side: reachable from s in the residual graph.
-  std::vector<char> seen(nn, 0);
-  int qh = 0, qt = 0;
-  seen[s] = 1;
-  queue[qt++] = s;
-  while (qh < qt) {
-    const int u = queue[qh++];
-    for (int e = head_[u]; e >= 0; e = next_[e]) {
-      if (cap_[e] > kEps && !seen[to_[e]]) {
-        seen[to_[e]] = 1;
-        queue[qt++] = to_[e];
-      }
-    }
-  }
-  for (int i = 0; i < n_; ++i) source_side_[i] = seen[i];
-  return flow;
-}
-
 double PottsEnergy(int num_labels, const std::vector<float>& unary,
                    const std::vector<PottsEdge>& edges, const std::vector<int>& labels) {
   double e = 0.0;
@@ -181,12 +75,9 @@ double PottsEnergy(int num_labels, const std::vector<float>& unary,
   return e;
 }
 
-namespace {
-
-template <typename Flow>
-double AlphaExpansion(int num_nodes, int num_labels, const std::vector<float>& unary,
-                      const std::vector<PottsEdge>& edges, std::vector<int>* labels,
-                      int max_cycles) {
+double PottsAlphaExpansion(int num_nodes, int num_labels, const std::vector<float>& unary,
+                           const std::vector<PottsEdge>& edges, std::vector<int>* labels,
+                           int max_cycles) {
   std::vector<int>& lab = *labels;
   double energy = PottsEnergy(num_labels, unary, edges, lab);
   if (num_labels < 2 || num_nodes == 0) return energy;
@@ -195,7 +86,7 @@ double AlphaExpansion(int num_nodes, int num_labels, const std::vector<float>& u
     bool improved = false;
     for (int alpha = 0; alpha < num_labels; ++alpha) {
       // Binary move: x_p = 1 takes alpha (sink side), x_p = 0 keeps l_p (source side).
-      Flow g(num_nodes);
+      MaxFlow g(num_nodes);
       for (int p = 0; p < num_nodes; ++p) {
         c0[p] = unary[static_cast<size_t>(p) * num_labels + lab[p]];
         c1[p] = unary[static_cast<size_t>(p) * num_labels + alpha];
@@ -234,16 +125,6 @@ double AlphaExpansion(int num_nodes, int num_labels, const std::vector<float>& u
     if (!improved) break;
   }
   return energy;
-}
-
-}  // namespace
-
-double PottsAlphaExpansion(int num_nodes, int num_labels, const std::vector<float>& unary,
-                           const std::vector<PottsEdge>& edges, std::vector<int>* labels,
-                           int max_cycles, MaxFlowSolver solver) {
-  return solver == MaxFlowSolver::kDinic
-             ? AlphaExpansion<DinicMaxFlow>(num_nodes, num_labels, unary, edges, labels, max_cycles)
-             : AlphaExpansion<MaxFlow>(num_nodes, num_labels, unary, edges, labels, max_cycles);
 }
 
 }  // namespace exo::inpaint

@@ -27,7 +27,6 @@
 #include "common/image.h"
 #include "common/rigid3.h"
 #include "common/status.h"
-#include "server/inpainting/graph_cut.h"
 
 namespace exo::inpaint {
 
@@ -161,21 +160,14 @@ struct InpaintResult {
   InpaintStats stats;
 };
 
-// Optional record of intermediate problems of one call, for benchmarks.
-struct InpaintTrace {
-  std::vector<PottsProblem> labellings;  // the layer labellings solved (layered_depth)
-};
-
 // Inpaints T (`mask` != 0, 1 channel, size of the frame) of `frame`. With `previous` (an earlier
 // keyframe's result of the same scene, its pose and camera), the source map is initialised by
 // keyframe propagation (4.3-4.6) and only the unmapped pixels are searched.
 // Errors: invalid options or frame, mask of the wrong size, an empty mask, a mask covering the
-// whole frame, no valid source patch, depth that looks like millimetres. `trace` (optional)
-// receives the intermediate problems.
+// whole frame, no valid source patch, depth that looks like millimetres.
 absl::StatusOr<InpaintResult> InpaintKeyframe(const RgbdKeyframe& frame, const ImageU8& mask,
                                               const InpaintOptions& options,
-                                              const InpaintResult* previous = nullptr,
-                                              InpaintTrace* trace = nullptr);
+                                              const InpaintResult* previous = nullptr);
 
 // The screening prior of the depth solve (see InpaintOptions::neumann_prior_weight) on a crop
 // of the frame at (ox, oy): `region` (!= 0 = T) and `values` (known domain values, NaN =

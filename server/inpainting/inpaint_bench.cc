@@ -505,84 +505,6 @@ cv::Mat DepthVis(const cv::Mat& d) {
   return c;  // BGR
 }
 
-// --maxflow_compare: the layer labellings of our method on every mask (recorded through
-// InpaintTrace), each solved by alpha-expansion with Boost's Boykov-Kolmogorov max-flow and
-// with the former Dinic solver, interleaved (BK, Dinic, BK, ...), `repeats` times each. One JSON
-// line per mask (p50 wall and process-CPU ms of each, same labels or not) and a summary.
-int RunMaxFlowCompare(const std::vector<MaskSpec>& specs, const std::string& data_dir,
-                      const InpaintOptions& options, int repeats) {
-  struct Timing {
-    std::vector<double> wall, cpu;
-  };
-  Timing all_bk, all_dinic;
-  int problems = 0, differing = 0;
-  for (const MaskSpec& spec : specs) {
-    const RealFrame gt = LoadFrame(data_dir, spec.frame);
-    if (!gt.ok) return 1;
-    const cv::Mat mask = DrawMask(spec, 640, 480);
-    ImageU8 mask_img(640, 480, 1);
-    std::memcpy(mask_img.data(), mask.data, mask_img.bytes());
-    InpaintTrace trace;
-    auto r = InpaintKeyframe(ToKeyframe(gt, mask), mask_img, options, nullptr, &trace);
-    if (!r.ok()) {
-      std::fprintf(stderr, "%s: %s\n", spec.id.c_str(), r.status().ToString().c_str());
-      continue;
-    }
-    for (const PottsProblem& p : trace.labellings) {
-      Timing bk, dinic;
-      bool same = true;
-      for (int rep = 0; rep < repeats; ++rep) {
-        std::vector<int> labels_bk, labels_dinic;
-        for (const MaxFlowSolver solver : {MaxFlowSolver::kBoykovKolmogorov, MaxFlowSolver::kDinic}) {
-          std::vector<int> labels = p.initial_labels;
-          const auto t0 = Clock::now();
-          const double c0 = CpuMs();
-          PottsAlphaExpansion(p.num_nodes, p.num_labels, p.unary, p.edges, &labels, p.max_cycles, solver);
-          const double cpu = CpuMs() - c0;
-          const double wall = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
-          Timing& t = solver == MaxFlowSolver::kDinic ? dinic : bk;
-          t.wall.push_back(wall);
-          t.cpu.push_back(cpu);
-          (solver == MaxFlowSolver::kDinic ? labels_dinic : labels_bk) = std::move(labels);
-        }
-        same = same && labels_bk == labels_dinic;
-      }
-      ++problems;
-      differing += !same;
-      for (int k = 0; k < repeats; ++k) {
-        all_bk.wall.push_back(bk.wall[k]);
-        all_bk.cpu.push_back(bk.cpu[k]);
-        all_dinic.wall.push_back(dinic.wall[k]);
-        all_dinic.cpu.push_back(dinic.cpu[k]);
-      }
-      const nlohmann::json row = {
-          {"bench", "inpaint_maxflow"}, {"mask", spec.id}, {"class", spec.cls},
-          {"nodes", p.num_nodes}, {"edges", p.edges.size()}, {"labels", p.num_labels},
-          {"repeats", repeats}, {"bk_ms_p50", Percentile(bk.wall, 0.5)},
-          {"bk_cpu_ms_p50", Percentile(bk.cpu, 0.5)}, {"dinic_ms_p50", Percentile(dinic.wall, 0.5)},
-          {"dinic_cpu_ms_p50", Percentile(dinic.cpu, 0.5)}, {"same_labels", same}};
-      std::printf("%s\n", row.dump().c_str());
-      std::fflush(stdout);
-    }
-  }
-  auto sum = [](const std::vector<double>& v) {
-    double a = 0;
-    for (double x : v) a += x;
-    return a;
-  };
-  const nlohmann::json summary = {
-      {"bench", "inpaint_maxflow_summary"}, {"problems", problems}, {"repeats", repeats},
-      {"differing_labels", differing},
-      {"bk_ms_total", sum(all_bk.wall) / repeats}, {"bk_cpu_ms_total", sum(all_bk.cpu) / repeats},
-      {"dinic_ms_total", sum(all_dinic.wall) / repeats},
-      {"dinic_cpu_ms_total", sum(all_dinic.cpu) / repeats},
-      {"bk_ms_p50", Percentile(all_bk.wall, 0.5)}, {"bk_cpu_ms_p50", Percentile(all_bk.cpu, 0.5)},
-      {"dinic_ms_p50", Percentile(all_dinic.wall, 0.5)},
-      {"dinic_cpu_ms_p50", Percentile(all_dinic.cpu, 0.5)}};
-  std::printf("%s\n", summary.dump().c_str());
-  return differing == 0 ? 0 : 1;
-}
-
 }  // namespace
 }  // namespace exo::inpaint
 
@@ -611,8 +533,6 @@ int main(int argc, char** argv) {
   bool fusion_mean = InpaintOptions{}.gradient_fusion == GradientFusion::kMean;
   double jump_rel = InpaintOptions{}.jump_rel, jump_weight = InpaintOptions{}.jump_weight;
   InpaintOptions layer_opts;  // layered_depth and layer_*
-  bool maxflow_compare = false;
-  int maxflow_repeats = 5;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     auto next = [&]() { return i + 1 < argc ? std::string(argv[++i]) : std::string(); };
@@ -630,8 +550,6 @@ int main(int argc, char** argv) {
     else if (a == "--w") w_opt = std::stod(next());
     else if (a == "--kappa") kappa_opt = std::stod(next());
     else if (a == "--ours_only") ours_only = true;
-    else if (a == "--maxflow_compare") maxflow_compare = true;
-    else if (a == "--maxflow_repeats") maxflow_repeats = std::stoi(next());
     else if (a == "--raw") g_register = false;
     else if (a == "--neumann_prior") neumann_prior = std::stod(next());
     else if (a == "--prior_local") prior_local = std::stod(next());
@@ -715,7 +633,6 @@ int main(int argc, char** argv) {
   base.layer_label_block = layer_opts.layer_label_block;
   base.layer_seed_measured_only = layer_opts.layer_seed_measured_only;
   base.layer_edge_seeds = layer_opts.layer_edge_seeds;
-  if (maxflow_compare) return RunMaxFlowCompare(specs, data_dir, base, std::max(1, maxflow_repeats));
   for (const MaskSpec& spec : specs) {
     const RealFrame gt = LoadFrame(data_dir, spec.frame);
     if (!gt.ok) {
