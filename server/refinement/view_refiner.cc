@@ -362,6 +362,9 @@ class Refiner {
   absl::StatusOr<RefinementResult> Run();
 
  private:
+  // The steps of Run, in order.
+  void BuildPyramids();          // candidate and reference pyramids (the latter from cache_)
+  void PrepareCandidateDepth();  // depth-term grid and its invalid (hole / edge) mask
   struct Active {
     std::vector<int> idx;
     std::vector<double> c;  // candidate value at the current pose
@@ -405,6 +408,18 @@ class Refiner {
     double median_m = 0.0;  // median(m_j)
   };
   ResidualSummary SummarizeResiduals(const Active& a, double e) const;
+  // Surface samples valid at the input pose (densified for saturated/black candidates); an
+  // error when fewer than 3 are valid.
+  absl::StatusOr<Active> SampleSurface(const Pose& pose0);
+  double InitialExposure(const Pose& pose0, const Active& a0) const;
+  // Restarts around a first pass that would be rejected as an outlier (multistart_step_m).
+  void MultiStart(Pose* pose, double* e);
+  // Undo pose / exposure changes that raised the energy of the whole call.
+  void GuardEnergy(const Pose& pose0, double e0, double e_exposure_only, const Active& a0,
+                   double report_scale, Pose* pose, double* e);
+  // Significance gates: keep the input pose / prior exposure when an update explains less than
+  // the references' own disagreement.
+  void GateInsignificantUpdates(const Pose& pose0, double e_exposure_only, Pose* pose, double* e);
   bool multistart_pass_ = false;  // set by CoarseToFine
 
   const StoredView& cand_;
@@ -998,9 +1013,7 @@ double ThreadCpuMs() {
   return t.tv_sec * 1e3 + t.tv_nsec * 1e-6;
 }
 
-absl::StatusOr<RefinementResult> Refiner::Run() {
-  const auto t0 = std::chrono::steady_clock::now();
-  const double cpu0 = ThreadCpuMs();
+void Refiner::BuildPyramids() {
   levels_ = 1;
   while (levels_ < std::min(o_.pyramid_levels, kMaxLevels) &&
          (cand_.color.width() >> levels_) >= 40 && (cand_.color.height() >> levels_) >= 30)
@@ -1008,36 +1021,38 @@ absl::StatusOr<RefinementResult> Refiner::Run() {
   cand_pyr_ = BuildPyramid(cand_.color, cand_.camera, levels_, o_, o_.border_px, true);
   ref_pyr_.reserve(refs_.size());
   for (const StoredView* r : refs_) ref_pyr_.push_back(RefinementCacheAccess::Pyramid(cache_, *r, levels_, o_));
-  if (o_.depth_weight > 0 && !cand_.depth_m.empty()) {
-    const int w = cand_pyr_[0].w, h = cand_pyr_[0].h;
-    cand_depth_.assign(static_cast<size_t>(w) * h, 0.f);
-    cand_depth_bad_.assign(cand_depth_.size(), 0);
-    // Bad: a hole or a step > depth_discontinuity_m to a 4-neighbour, dilated by 2 px (the
-    // bicubic support plus the SPEC §6 edge margin). O(pixels), no per-pixel 8-probe test.
-    for (int y = 0; y < h; ++y)
-      for (int x = 0; x < w; ++x) {
-        const float z = cand_.depth_m.at(x, y);
-        const bool ok = z > 0.f && std::isfinite(z);
-        cand_depth_[static_cast<size_t>(y) * w + x] = ok ? z : 0.f;
-      }
-    const float dz = static_cast<float>(o_.depth_discontinuity_m);
-    for (int y = 0; y < h; ++y)
-      for (int x = 0; x < w; ++x) {
-        const size_t i = static_cast<size_t>(y) * w + x;
-        const float z = cand_depth_[i];
-        bool bad = !(z > 0.f);
-        if (!bad && x + 1 < w) bad = !(std::abs(cand_depth_[i + 1] - z) <= dz);
-        if (!bad && y + 1 < h) bad = !(std::abs(cand_depth_[i + w] - z) <= dz);
-        if (bad) cand_depth_bad_[i] = 1;
-      }
-    Dilate(cand_depth_bad_, w, h, 2);
-    depth_grid_ = std::make_unique<refinement::DepthGrid>(cand_depth_.data(), 0, h, 0, w);
-    depth_interp_ = std::make_unique<refinement::DepthInterpolator>(*depth_grid_);
-    depth_fast_ = refinement::FastBicubic(cand_depth_.data(), h, w);
-  }
-  const double cpu_pyr = ThreadCpuMs();
-  res_.cpu_ms_pyramids = cpu_pyr - cpu0;
-  const Pose pose0 = CamFromLocal(cand_.local_from_cam);
+}
+
+void Refiner::PrepareCandidateDepth() {
+  if (!(o_.depth_weight > 0) || cand_.depth_m.empty()) return;
+  const int w = cand_pyr_[0].w, h = cand_pyr_[0].h;
+  cand_depth_.assign(static_cast<size_t>(w) * h, 0.f);
+  cand_depth_bad_.assign(cand_depth_.size(), 0);
+  // Bad: a hole or a step > depth_discontinuity_m to a 4-neighbour, dilated by 2 px (the
+  // bicubic support plus the SPEC §6 edge margin). O(pixels), no per-pixel 8-probe test.
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      const float z = cand_.depth_m.at(x, y);
+      const bool ok = z > 0.f && std::isfinite(z);
+      cand_depth_[static_cast<size_t>(y) * w + x] = ok ? z : 0.f;
+    }
+  const float dz = static_cast<float>(o_.depth_discontinuity_m);
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      const size_t i = static_cast<size_t>(y) * w + x;
+      const float z = cand_depth_[i];
+      bool bad = !(z > 0.f);
+      if (!bad && x + 1 < w) bad = !(std::abs(cand_depth_[i + 1] - z) <= dz);
+      if (!bad && y + 1 < h) bad = !(std::abs(cand_depth_[i + w] - z) <= dz);
+      if (bad) cand_depth_bad_[i] = 1;
+    }
+  Dilate(cand_depth_bad_, w, h, 2);
+  depth_grid_ = std::make_unique<refinement::DepthGrid>(cand_depth_.data(), 0, h, 0, w);
+  depth_interp_ = std::make_unique<refinement::DepthInterpolator>(*depth_grid_);
+  depth_fast_ = refinement::FastBicubic(cand_depth_.data(), h, w);
+}
+
+absl::StatusOr<Refiner::Active> Refiner::SampleSurface(const Pose& pose0) {
   // Saturated or black candidates leave few usable samples: densify the sampling (up to 16x).
   Active a0;
   for (int budget = o_.max_samples;; budget *= 4) {
@@ -1049,15 +1064,16 @@ absl::StatusOr<RefinementResult> Refiner::Run() {
       break;
   }
   res_.num_samples = static_cast<int>(samples_.size());
-  const double cpu_samples = ThreadCpuMs();
-  res_.cpu_ms_samples = cpu_samples - cpu_pyr;
   if (a0.idx.size() < 3)
     return absl::FailedPreconditionError(absl::StrCat(
         "refinement: only ", a0.idx.size(),
         " surface samples are valid in the candidate and the reference views (no overlap, or "
         "all saturated/black)"));
+  return a0;
+}
 
-  // Initial exposure: robust ratio of medians to candidate values, or the given value.
+double Refiner::InitialExposure(const Pose& pose0, const Active& a0) const {
+  // Robust ratio of medians to candidate values, or the given value.
   double e0 = o_.initial_exposure;
   if (o_.init_exposure_from_ratio) {
     std::vector<double> lc, lm;
@@ -1066,6 +1082,119 @@ absl::StatusOr<RefinementResult> Refiner::Run() {
     for (size_t k = 0; k < lc.size(); ++k) lm[k] -= lc[k];
     if (!lm.empty()) e0 = std::exp(Median(lm));
   }
+  return e0;
+}
+
+void Refiner::MultiStart(Pose* pose_io, double* e_io) {
+  // Close-range views: the first pass can end with the rotation right and the camera centre in
+  // a side basin 2-3 cm away (sideways motion along a wall changes neither its depth nor, with
+  // repetitive texture, the photometric energy much), where the view would be rejected as an
+  // outlier. Restart the fine levels from that pose shifted by +-1 and +-2 x multistart_step_m
+  // along the camera's x and y axes; the first start that passes the outlier test (or else the
+  // lowest relative residual) wins. Only runs when the view would otherwise be rejected, so it
+  // cannot change a kept view; the cost guard still compares the winner with the input pose.
+  const Pose pose = *pose_io;
+  const double e = *e_io;
+  double rel1 = 0, thr1 = 0;
+  OutlierTest(pose, e, &rel1, &thr1);
+  if (!(rel1 > thr1)) return;
+  Pose best = pose;
+  double best_e = e, best_rel = rel1;
+  bool passed = false;
+  std::vector<Pose> starts;
+  const Eigen::Vector3d axes[2] = {Eigen::Vector3d::UnitX(), Eigen::Vector3d::UnitY()};
+  for (int mult : {1, -1, 2, -2})
+    for (const Eigen::Vector3d& axis : axes) {
+      Pose start = pose;
+      start.t += mult * o_.multistart_step_m * axis;  // camera-frame shift of the centre
+      starts.push_back(start);
+    }
+  for (Pose start : starts) {
+    double e_s = e;
+    CoarseToFine(/*multistart=*/true, &start, &e_s, o_.multistart_from_level);
+    ++res_.attempts;
+    double rel_s = 0, thr_s = 0;
+    OutlierTest(start, e_s, &rel_s, &thr_s);
+    if (rel_s < best_rel) {
+      best = start;
+      best_e = e_s;
+      best_rel = rel_s;
+      passed = rel_s <= thr_s;
+    }
+    if (passed) break;
+  }
+  *pose_io = best;
+  *e_io = best_e;
+}
+
+void Refiner::GuardEnergy(const Pose& pose0, double e0, double e_exposure_only, const Active& a0,
+                          double report_scale, Pose* pose, double* e) {
+  // The pose stages must lower J relative to the exposure-only result at the input pose, and
+  // that must not be worse than the initial exposure.
+  if (!(pose->q.coeffs() == pose0.q.coeffs() && pose->t == pose0.t) &&
+      CompareEnergy(0, e_exposure_only, pose0, *e, *pose, report_scale).Raised()) {
+    res_.step_reverted = true;
+    *pose = pose0;
+    *e = e_exposure_only;
+  }
+  if (pose->t == pose0.t && pose->q.coeffs() == pose0.q.coeffs()) {
+    std::vector<double> lc, lm;
+    const Active a0f = ActiveSet(0, pose0, Kind::kFlat);
+    LogValues(0, a0f.idx.size() >= 30 ? a0f : a0, &lc, &lm);
+    std::vector<double> r(lc.size());
+    for (size_t k = 0; k < lc.size(); ++k) r[k] = std::log(e0) + lc[k] - lm[k];
+    const double s = ScaleFromResiduals(r, o_.fixed_scale);
+    if (LogExposureEnergy(lc, lm, *e, s) > LogExposureEnergy(lc, lm, e0, s)) {
+      res_.step_reverted = true;
+      *e = e0;
+    }
+  }
+}
+
+void Refiner::GateInsignificantUpdates(const Pose& pose0, double e_exposure_only, Pose* pose,
+                                       double* e) {
+  // A pose update that explains less than the references' own disagreement is not evidence
+  // against the input pose.
+  if (o_.min_pose_gain_over_disagreement > 0 &&
+      !(pose->t == pose0.t && pose->q.coeffs() == pose0.q.coeffs())) {
+    double rel0 = 0, thr0 = 0, rel1 = 0, thr1 = 0, dis1 = -1;
+    OutlierTest(pose0, e_exposure_only, &rel0, &thr0);
+    OutlierTest(*pose, *e, &rel1, &thr1, &dis1);
+    if (dis1 >= 0 && rel0 - rel1 < o_.min_pose_gain_over_disagreement * dis1) {
+      res_.pose_update_insignificant = true;
+      *pose = pose0;
+      *e = e_exposure_only;
+    }
+  }
+  // An exposure that explains less than the references' own disagreement (relative to the
+  // prior) is not evidence of an exposure change (real cameras with stable exposure: otherwise
+  // small misfits accumulate along the chain of references).
+  if (o_.min_exposure_gain_over_disagreement > 0 && *e != o_.prior_exposure) {
+    double rel_e = 0, thr_e = 0, dis_e = -1, rel_p = 0, thr_p = 0;
+    OutlierTest(*pose, *e, &rel_e, &thr_e, &dis_e);
+    OutlierTest(*pose, o_.prior_exposure, &rel_p, &thr_p);
+    if (dis_e >= 0 && rel_p - rel_e < o_.min_exposure_gain_over_disagreement * dis_e) {
+      res_.exposure_update_insignificant = true;
+      *e = o_.prior_exposure;
+    }
+  }
+}
+
+absl::StatusOr<RefinementResult> Refiner::Run() {
+  const auto t0 = std::chrono::steady_clock::now();
+  const double cpu0 = ThreadCpuMs();
+  BuildPyramids();
+  PrepareCandidateDepth();
+  const double cpu_pyr = ThreadCpuMs();
+  res_.cpu_ms_pyramids = cpu_pyr - cpu0;
+  const Pose pose0 = CamFromLocal(cand_.local_from_cam);
+  absl::StatusOr<Active> sampled = SampleSurface(pose0);
+  const double cpu_samples = ThreadCpuMs();
+  res_.cpu_ms_samples = cpu_samples - cpu_pyr;
+  if (!sampled.ok()) return sampled.status();
+  const Active& a0 = *sampled;
+
+  const double e0 = InitialExposure(pose0, a0);
   // Reporting/guard scale, fixed for the whole call.
   std::vector<double> r0(a0.idx.size());
   for (size_t k = 0; k < a0.idx.size(); ++k) r0[k] = e0 * a0.c[k] - samples_[a0.idx[k]].m[0];
@@ -1078,92 +1207,11 @@ absl::StatusOr<RefinementResult> Refiner::Run() {
     if (o_.check_rank) RankCheck(pose0, e);
     if (!res_.pose_refused_rank_deficient) {
       CoarseToFine(/*multistart=*/false, &pose, &e);
-      // Multi-start (close-range views): the first pass can end with the rotation right and
-      // the camera centre in a side basin 2-3 cm away (sideways motion along a wall changes
-      // neither its depth nor, with repetitive texture, the photometric energy much), where the
-      // view would be rejected as an outlier. Restart the fine levels from that pose shifted
-      // by +-1 and +-2 x multistart_step_m along the camera's x and y axes; the first start
-      // that passes the outlier test (or else the lowest relative residual) wins. Only runs
-      // when the view would otherwise be rejected, so it cannot change a kept view; the cost
-      // guard below still compares the winner with the input pose.
-      double rel1 = 0, thr1 = 0;
-      if (o_.multistart_step_m > 0) OutlierTest(pose, e, &rel1, &thr1);
-      if (o_.multistart_step_m > 0 && rel1 > thr1) {
-        Pose best = pose;
-        double best_e = e, best_rel = rel1;
-        bool passed = false;
-        std::vector<Pose> starts;
-        const Eigen::Vector3d axes[2] = {Eigen::Vector3d::UnitX(), Eigen::Vector3d::UnitY()};
-        for (int mult : {1, -1, 2, -2})
-          for (const Eigen::Vector3d& axis : axes) {
-            Pose start = pose;
-            start.t += mult * o_.multistart_step_m * axis;  // camera-frame shift of the centre
-            starts.push_back(start);
-          }
-        for (Pose start : starts) {
-          double e_s = e;
-          CoarseToFine(/*multistart=*/true, &start, &e_s, o_.multistart_from_level);
-          ++res_.attempts;
-          double rel_s = 0, thr_s = 0;
-          OutlierTest(start, e_s, &rel_s, &thr_s);
-          if (rel_s < best_rel) {
-            best = start;
-            best_e = e_s;
-            best_rel = rel_s;
-            passed = rel_s <= thr_s;
-          }
-          if (passed) break;
-        }
-        pose = best;
-        e = best_e;
-      }
+      if (o_.multistart_step_m > 0) MultiStart(&pose, &e);
     }
   }
-  // Guards on the whole call: the pose stages must lower J relative to the exposure-only
-  // result at the input pose, and that must not be worse than the initial exposure.
-  if (!(pose.q.coeffs() == pose0.q.coeffs() && pose.t == pose0.t) &&
-      CompareEnergy(0, e_exposure_only, pose0, e, pose, report_scale).Raised()) {
-    res_.step_reverted = true;
-    pose = pose0;
-    e = e_exposure_only;
-  }
-  if (pose.t == pose0.t && pose.q.coeffs() == pose0.q.coeffs()) {
-    std::vector<double> lc, lm;
-    const Active a0f = ActiveSet(0, pose0, Kind::kFlat);
-    LogValues(0, a0f.idx.size() >= 30 ? a0f : a0, &lc, &lm);
-    std::vector<double> r(lc.size());
-    for (size_t k = 0; k < lc.size(); ++k) r[k] = std::log(e0) + lc[k] - lm[k];
-    const double s = ScaleFromResiduals(r, o_.fixed_scale);
-    if (LogExposureEnergy(lc, lm, e, s) > LogExposureEnergy(lc, lm, e0, s)) {
-      res_.step_reverted = true;
-      e = e0;
-    }
-  }
-  // Significance gate: a pose update that explains less than the references' own
-  // disagreement is not evidence against the input pose.
-  if (o_.min_pose_gain_over_disagreement > 0 &&
-      !(pose.t == pose0.t && pose.q.coeffs() == pose0.q.coeffs())) {
-    double rel0 = 0, thr0 = 0, rel1 = 0, thr1 = 0, dis1 = -1;
-    OutlierTest(pose0, e_exposure_only, &rel0, &thr0);
-    OutlierTest(pose, e, &rel1, &thr1, &dis1);
-    if (dis1 >= 0 && rel0 - rel1 < o_.min_pose_gain_over_disagreement * dis1) {
-      res_.pose_update_insignificant = true;
-      pose = pose0;
-      e = e_exposure_only;
-    }
-  }
-  // Exposure gate: an exposure that explains less than the references' own disagreement
-  // (relative to the prior) is not evidence of an exposure change (real cameras with stable
-  // exposure: otherwise small misfits accumulate along the chain of references).
-  if (o_.min_exposure_gain_over_disagreement > 0 && e != o_.prior_exposure) {
-    double rel_e = 0, thr_e = 0, dis_e = -1, rel_p = 0, thr_p = 0;
-    OutlierTest(pose, e, &rel_e, &thr_e, &dis_e);
-    OutlierTest(pose, o_.prior_exposure, &rel_p, &thr_p);
-    if (dis_e >= 0 && rel_p - rel_e < o_.min_exposure_gain_over_disagreement * dis_e) {
-      res_.exposure_update_insignificant = true;
-      e = o_.prior_exposure;
-    }
-  }
+  GuardEnergy(pose0, e0, e_exposure_only, a0, report_scale, &pose, &e);
+  GateInsignificantUpdates(pose0, e_exposure_only, &pose, &e);
   const EnergyPair final_pair = CompareEnergy(0, e_exposure_only, pose0, e, pose, report_scale);
   res_.cost_before = final_pair.before;
   res_.cost_after = final_pair.after;
