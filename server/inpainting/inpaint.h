@@ -47,8 +47,8 @@ struct InpaintOptions {
   double kappa = 0.6;        // lower bound of n . n' in rho_g (4.10), in (0, 1]; see docs
   bool use_geometry = true;  // false: colour-only PatchMatch (rho_g == 1), the baseline
   // Onion-peel initialisation (coarsest level): rho_g compares only against the window's
-  // measured normals (outside T), not against normals the peel itself copied into T earlier.
-  // Measured on the training masks: +0.1-0.4 dB at 10-40 % (docs/inpainting.md).
+  // measured normals (outside T), not against normals the peel itself copied into T earlier
+  // (which would reinforce its own earlier choices; measurement in docs/inpainting.md).
   bool peel_measured_normals_only = true;
   double spatial_cap_px2 = 16.0;  // cap of one neighbour's squared offset incoherence (4.9)
   int pyramid_levels = 0;         // 0 = automatic (coarsest side >= min_coarse_side)
