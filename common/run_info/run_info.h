@@ -4,9 +4,8 @@
 // and its load (/proc/loadavg) at the time of the call.
 #pragma once
 
-#include <string>
-
 #include <nlohmann/json.hpp>
+#include <string>
 
 namespace exo {
 

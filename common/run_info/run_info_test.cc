@@ -8,9 +8,10 @@ namespace exo {
 namespace {
 
 TEST(RunInfoTest, CpuModelIsTheFirstModelName) {
-  EXPECT_EQ(CpuModelFromCpuinfo("processor\t: 0\nvendor_id\t: X\nmodel name\t: Example CPU @ 2.0GHz\n"
-                                "processor\t: 1\nmodel name\t: Other\n"),
-            "Example CPU @ 2.0GHz");
+  EXPECT_EQ(
+      CpuModelFromCpuinfo("processor\t: 0\nvendor_id\t: X\nmodel name\t: Example CPU @ 2.0GHz\n"
+                          "processor\t: 1\nmodel name\t: Other\n"),
+      "Example CPU @ 2.0GHz");
   EXPECT_EQ(CpuModelFromCpuinfo("processor\t: 0\n"), "");
 }
 

@@ -1,12 +1,11 @@
 #include "server/inpainting/layers.h"
 
+#include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
 #include <limits>
-#include <utility>
-
-#include <Eigen/Dense>
 #include <opencv2/imgproc.hpp>
+#include <utility>
 
 #include "server/inpainting/graph_cut.h"
 
@@ -50,8 +49,8 @@ LayerPlane FitLayerPlane(const std::vector<Eigen::Vector3d>& pts) {  // (x, y, v
     if (!c.allFinite()) break;
     pl.c = c;
     for (size_t k = 0; k < pts.size(); ++k) {
-      const double r = std::fabs(pl.At(pts[k][0], pts[k][1]) - pts[k][2]) /
-                       std::max(1e-9, std::fabs(pts[k][2]));
+      const double r =
+          std::fabs(pl.At(pts[k][0], pts[k][1]) - pts[k][2]) / std::max(1e-9, std::fabs(pts[k][2]));
       wt[k] = r <= 0.02 ? 1.0 : 0.02 / r;
     }
   }
@@ -61,9 +60,13 @@ LayerPlane FitLayerPlane(const std::vector<Eigen::Vector3d>& pts) {  // (x, y, v
 // One SetupLayers call; each step below is one member function, run in order by Run().
 class LayerBuilder {
  public:
-  LayerBuilder(const std::vector<uint8_t>& measured, const ImageU8& color,
-               const InpaintOptions& o, DepthCrop* crop)
-      : measured_(measured), color_(color), o_(o), c_(*crop), cw_(crop->width()),
+  LayerBuilder(const std::vector<uint8_t>& measured, const ImageU8& color, const InpaintOptions& o,
+               DepthCrop* crop)
+      : measured_(measured),
+        color_(color),
+        o_(o),
+        c_(*crop),
+        cw_(crop->width()),
         ch_(crop->height()) {}
 
   LayerResult Run();
@@ -118,16 +121,17 @@ class LayerBuilder {
     float v;
   };
   std::vector<RingPx> ring_;
-  std::vector<int> order_;                  // ring_ sorted by value
-  std::vector<std::pair<int, int>> kept_;   // clusters, [begin, end) in order_
-  int k_ = 0;                               // number of layers
+  std::vector<int> order_;                 // ring_ sorted by value
+  std::vector<std::pair<int, int>> kept_;  // clusters, [begin, end) in order_
+  int k_ = 0;                              // number of layers
   std::vector<LayerPlane> planes_;
   ImageI32 blabel_, slabel_, elabel_, tlabel_;  // border, seed, continued-seed, T labels (-1)
-  std::vector<cv::Mat> dist_;               // per layer: distance to its seeds (px)
-  int block_ = 1, nbw_ = 0, nbh_ = 0;       // labelling blocks
-  std::vector<int> bnode_;                  // block -> node (-1: no T pixel)
+  std::vector<cv::Mat> dist_;                   // per layer: distance to its seeds (px)
+  int block_ = 1, nbw_ = 0, nbh_ = 0;           // labelling blocks
+  std::vector<int> bnode_;                      // block -> node (-1: no T pixel)
   int NodeOf(int cx, int cy) const {
-    return c_.region.at(cx, cy) ? bnode_[static_cast<size_t>(cy / block_) * nbw_ + cx / block_] : -1;
+    return c_.region.at(cx, cy) ? bnode_[static_cast<size_t>(cy / block_) * nbw_ + cx / block_]
+                                : -1;
   }
 };
 
@@ -410,7 +414,8 @@ void LayerBuilder::FreePairsBetweenLayers() {
         const int lq = tq ? tlabel_.at(qx, qy) : blabel_.at(qx, qy);
         const bool other_known =
             (!tp && std::isfinite(c_.q.at(cx, cy))) || (!tq && std::isfinite(c_.q.at(qx, qy)));
-        if (tp && tq ? lp != lq : (other_known && lp != lq)) (dir == 0 ? c_.gx : c_.gy).at(cx, cy) = kNan;
+        if (tp && tq ? lp != lq : (other_known && lp != lq))
+          (dir == 0 ? c_.gx : c_.gy).at(cx, cy) = kNan;
       }
 }
 
@@ -425,8 +430,10 @@ void LayerBuilder::BuildLayerPriors(LayerResult* out) const {
     ImageF ql(cw_, ch_, 1, kNan);
     for (int cy = 0; cy < ch_; ++cy)
       for (int cx = 0; cx < cw_; ++cx) {
-        if (c_.region.at(cx, cy)) rl.at(cx, cy) = tlabel_.at(cx, cy) == l;
-        else if (blabel_.at(cx, cy) == l) ql.at(cx, cy) = c_.q.at(cx, cy);
+        if (c_.region.at(cx, cy))
+          rl.at(cx, cy) = tlabel_.at(cx, cy) == l;
+        else if (blabel_.at(cx, cy) == l)
+          ql.at(cx, cy) = c_.q.at(cx, cy);
       }
     ImageF pl, pw;
     if (BuildSurfacePrior(rl, ql, c_.ox, c_.oy, c_.frame_w, c_.frame_h, o_, &pl, &pw) > 0) {
@@ -442,8 +449,8 @@ void LayerBuilder::BuildLayerPriors(LayerResult* out) const {
       for (int cy = 0; cy < ch_; ++cy)
         for (int cx = 0; cx < cw_; ++cx)
           if (rl.at(cx, cy)) {
-            prior.at(cx, cy) = static_cast<float>(std::clamp(
-                planes_[l].At(c_.ox + cx, c_.oy + cy), planes_[l].vlo, planes_[l].vhi));
+            prior.at(cx, cy) = static_cast<float>(
+                std::clamp(planes_[l].At(c_.ox + cx, c_.oy + cy), planes_[l].vlo, planes_[l].vhi));
             prior_w.at(cx, cy) = static_cast<float>(o_.neumann_prior_weight);
             ++count;
           }

@@ -24,16 +24,14 @@ struct Rng {
   uint64_t s;
   Rng(uint64_t seed, int level, int iter, int pixel)
       : s(Mix(seed ^ Mix((static_cast<uint64_t>(level + 1) << 48) ^
-                         (static_cast<uint64_t>(iter + 7) << 32) ^
-                         static_cast<uint32_t>(pixel)))) {}
+                         (static_cast<uint64_t>(iter + 7) << 32) ^ static_cast<uint32_t>(pixel)))) {
+  }
   uint32_t Next() {
     s = Mix(s);
     return static_cast<uint32_t>(s >> 32);
   }
   int Uniform(int n) { return static_cast<int>((static_cast<uint64_t>(Next()) * n) >> 32); }
 };
-
-
 
 // Coarser level: T is any-of-2x2 (so 1-px slivers survive), colour and normals averaged over
 // the pixels outside T.
@@ -69,7 +67,8 @@ Level Downsample(const Level& f) {
       }
       const size_t ci = c.Idx(x, y);
       c.target[ci] = tgt;
-      for (int k = 0; k < 3; ++k) c.color[ci * 3 + k] = static_cast<uint8_t>((col[k] + cnt / 2) / cnt);
+      for (int k = 0; k < 3; ++k)
+        c.color[ci * 3 + k] = static_cast<uint8_t>((col[k] + cnt / 2) / cnt);
       const float len = std::sqrt(nrm[0] * nrm[0] + nrm[1] * nrm[1] + nrm[2] * nrm[2]);
       if (nok > 0 && len > 1e-6f) {
         for (int k = 0; k < 3; ++k) c.normal[ci * 3 + k] = nrm[k] / len;
@@ -99,7 +98,8 @@ inline float Cost(const Level& L, int x, int y, int sx, int sy, float best, cons
       fy = L.src[ni * 2 + 1];
       if (fx < 0) continue;
     }
-    const float ex = static_cast<float>(sx + kDx[k] - fx), ey = static_cast<float>(sy + kDy[k] - fy);
+    const float ex = static_cast<float>(sx + kDx[k] - fx),
+                ey = static_cast<float>(sy + kDy[k] - fy);
     rs += std::min(p.cap, ex * ex + ey * ey);
     ++ns;
   }
@@ -214,12 +214,14 @@ int Sweep(Level& L, int level, int iter, int radius0, bool global_candidate, con
             const int nx = x - d;
             if (nx >= 0 && nx < L.w) {
               const size_t ni = L.Idx(nx, y);
-              if (L.target[ni] && L.src[ni * 2] >= 0) consider(L.src[ni * 2] + d, L.src[ni * 2 + 1]);
+              if (L.target[ni] && L.src[ni * 2] >= 0)
+                consider(L.src[ni * 2] + d, L.src[ni * 2 + 1]);
             }
             const int ny = y - d;
             if (ny >= 0 && ny < L.h) {
               const size_t ni = L.Idx(x, ny);
-              if (L.target[ni] && L.src[ni * 2] >= 0) consider(L.src[ni * 2], L.src[ni * 2 + 1] + d);
+              if (L.target[ni] && L.src[ni * 2] >= 0)
+                consider(L.src[ni * 2], L.src[ni * 2 + 1] + d);
             }
           }
           // Random search around the current best, radius halving.
@@ -259,7 +261,8 @@ float CostKnown(const Level& L, const std::vector<uint8_t>& known, int x, int y,
     const size_t ni = L.Idx(nx, ny);
     if (!known[ni]) continue;
     const int fx = L.target[ni] ? L.src[ni * 2] : nx, fy = L.target[ni] ? L.src[ni * 2 + 1] : ny;
-    const float ex = static_cast<float>(sx + kDx[k] - fx), ey = static_cast<float>(sy + kDy[k] - fy);
+    const float ex = static_cast<float>(sx + kDx[k] - fx),
+                ey = static_cast<float>(sy + kDy[k] - fy);
     rs += std::min(p.cap, ex * ex + ey * ey);
     ++ns;
   }
@@ -416,8 +419,8 @@ void Upsample(const Level& c, Level& f, int level, uint64_t seed) {
       bool done = false;
       if (c.target[ci] && c.src[ci * 2] >= 0) {
         const int bx = 2 * c.src[ci * 2], by = 2 * c.src[ci * 2 + 1];
-        const int order[4][2] = {{x & 1, y & 1}, {1 - (x & 1), y & 1}, {x & 1, 1 - (y & 1)},
-                                 {1 - (x & 1), 1 - (y & 1)}};
+        const int order[4][2] = {
+            {x & 1, y & 1}, {1 - (x & 1), y & 1}, {x & 1, 1 - (y & 1)}, {1 - (x & 1), 1 - (y & 1)}};
         for (const auto& o : order) {
           const int sx = bx + o[0], sy = by + o[1];
           if (sx < f.w && sy < f.h && f.source_ok[f.Idx(sx, sy)]) {
@@ -437,7 +440,6 @@ void Upsample(const Level& c, Level& f, int level, uint64_t seed) {
     }
   }
 }
-
 
 // Unmapped pixels next to mapped ones take the neighbour's source shifted by one pixel
 // (breadth-first), the rest a random source.
@@ -528,7 +530,8 @@ void FinishLevel(Level& L) {
       }
     }
   }
-  if (L.src.size() != static_cast<size_t>(w) * h * 2) L.src.assign(static_cast<size_t>(w) * h * 2, -1);
+  if (L.src.size() != static_cast<size_t>(w) * h * 2)
+    L.src.assign(static_cast<size_t>(w) * h * 2, -1);
   if (L.fixed.size() != static_cast<size_t>(w) * h) L.fixed.assign(static_cast<size_t>(w) * h, 0);
 }
 
@@ -567,11 +570,12 @@ int Propagate(const InpaintResult& prev, const RgbdKeyframe& frame, Level& L) {
       if (!L.target[i]) continue;
       const float zk = zbuf[i];
       if (!std::isfinite(zk)) continue;
-      const glm::dvec3 p = cam_k.Unproject({x, y}, zk);                         // 4.3
+      const glm::dvec3 p = cam_k.Unproject({x, y}, zk);  // 4.3
       glm::dvec2 uvp;
       if (!cam_p.Project(p_from_k * p, &uvp) || !cam_p.InImage(uvp)) continue;  // 4.4
-      const int px = static_cast<int>(std::lround(uvp.x)), py = static_cast<int>(std::lround(uvp.y));
-      int sx = px, sy = py;                                                       // 4.5
+      const int px = static_cast<int>(std::lround(uvp.x)),
+                py = static_cast<int>(std::lround(uvp.y));
+      int sx = px, sy = py;  // 4.5
       if (prev.mask.at(px, py)) {
         sx = prev.source.at(px, py, 0);
         sy = prev.source.at(px, py, 1);
@@ -579,10 +583,11 @@ int Propagate(const InpaintResult& prev, const RgbdKeyframe& frame, Level& L) {
       }
       const float zs = prev.depth_m.at(sx, sy);
       if (!(zs > 0.f)) continue;
-      const glm::dvec3 ps = k_from_p * cam_p.Unproject({sx, sy}, zs);            // 4.3
+      const glm::dvec3 ps = k_from_p * cam_p.Unproject({sx, sy}, zs);  // 4.3
       glm::dvec2 uvs;
-      if (!cam_k.Project(ps, &uvs)) continue;                                     // 4.4
-      const int qx = static_cast<int>(std::lround(uvs.x)), qy = static_cast<int>(std::lround(uvs.y));
+      if (!cam_k.Project(ps, &uvs)) continue;  // 4.4
+      const int qx = static_cast<int>(std::lround(uvs.x)),
+                qy = static_cast<int>(std::lround(uvs.y));
       if (qx < 0 || qy < 0 || qx >= w || qy >= h || !L.source_ok[L.Idx(qx, qy)]) continue;
       L.src[i * 2] = qx;
       L.src[i * 2 + 1] = qy;
@@ -632,9 +637,9 @@ int SearchPyramid(std::vector<Level>* levels_io, const SearchParams& p, const In
       Upsample(levels[li + 1], L, li, o.seed);
       CopyFromSources(L, o.num_threads);
     }
-    const int iters = nl == 1 ? o.fine_iterations
-                              : o.fine_iterations +
-                                    (o.coarse_iterations - o.fine_iterations) * li / (nl - 1);
+    const int iters =
+        nl == 1 ? o.fine_iterations
+                : o.fine_iterations + (o.coarse_iterations - o.fine_iterations) * li / (nl - 1);
     const int radius0 = li == nl - 1 ? std::max(L.w, L.h) : std::max(4, std::max(L.w, L.h) / 8);
     int level_target = 0;
     for (uint8_t t : L.target) level_target += t != 0;

@@ -16,15 +16,15 @@ namespace exo::inpaint {
 // One pyramid level of the search.
 struct Level {
   int w = 0, h = 0;
-  std::vector<uint8_t> color;   // RGB, T holds the current estimate
-  std::vector<float> normal;    // xyz, T holds the current estimate
-  std::vector<uint8_t> target;  // T
-  std::vector<uint8_t> data_ok; // outside T with a valid normal (and depth at level 0)
-  std::vector<uint8_t> source_ok;  // valid 5x5 patch centre
-  std::vector<uint8_t> fixed;      // source kept (propagated from the previous keyframe)
-  std::vector<int32_t> src;        // 2 per pixel, for T
-  std::vector<int32_t> src_list;   // all source_ok pixel indices
-  std::vector<int> row_x0, row_x1; // per row: first/last target column (x0 > x1: none)
+  std::vector<uint8_t> color;       // RGB, T holds the current estimate
+  std::vector<float> normal;        // xyz, T holds the current estimate
+  std::vector<uint8_t> target;      // T
+  std::vector<uint8_t> data_ok;     // outside T with a valid normal (and depth at level 0)
+  std::vector<uint8_t> source_ok;   // valid 5x5 patch centre
+  std::vector<uint8_t> fixed;       // source kept (propagated from the previous keyframe)
+  std::vector<int32_t> src;         // 2 per pixel, for T
+  std::vector<int32_t> src_list;    // all source_ok pixel indices
+  std::vector<int> row_x0, row_x1;  // per row: first/last target column (x0 > x1: none)
   size_t Idx(int x, int y) const { return static_cast<size_t>(y) * w + x; }
 };
 
