@@ -72,21 +72,26 @@ float GeometryCost(const float* a, const float* b, int count, float kappa) {
   return s / count;
 }
 
-int BuildSurfacePrior(const ImageU8& region, const ImageF& values, int ox, int oy, int frame_w,
-                      int frame_h, const InpaintOptions& o, ImageF* prior, ImageF* prior_weight) {
-  if (!(o.neumann_prior_weight > 0.0)) return 0;
-  const int cw = region.width(), ch = region.height();
-  if (cw == 0 || ch == 0 || values.width() != cw || values.height() != ch) return 0;
-  const float nan = std::numeric_limits<float>::quiet_NaN();
-  // Seeds of the two borders (0 = seed, for the distance transforms): Dirichlet = known pixel
-  // 4-adjacent to T (also the samples of the fit), Neumann = T pixel on the frame's edge or
-  // next to a pixel that is neither in T nor known.
-  cv::Mat not_dir(ch, cw, CV_8U, cv::Scalar(1)), not_neu(ch, cw, CV_8U, cv::Scalar(1));
+namespace {
+
+// The two borders of the prior's region: Dirichlet = known pixel 4-adjacent to T (also the
+// samples of the plane fit), Neumann = T pixel on the frame's edge or next to a pixel that is
+// neither in T nor known. Masks are 0 at the border pixels (seeds of the distance transforms).
+struct PriorBorders {
   struct Sample {
     double x, y, v;  // x, y in units of 640 px (conditioning), v = known value
   };
+  cv::Mat not_dir, not_neu;
   std::vector<Sample> ring;
   bool any_neumann = false;
+};
+
+PriorBorders FindPriorBorders(const ImageU8& region, const ImageF& values, int ox, int oy,
+                              int frame_w, int frame_h) {
+  const int cw = region.width(), ch = region.height();
+  PriorBorders b;
+  b.not_dir = cv::Mat(ch, cw, CV_8U, cv::Scalar(1));
+  b.not_neu = cv::Mat(ch, cw, CV_8U, cv::Scalar(1));
   for (int cy = 0; cy < ch; ++cy) {
     for (int cx = 0; cx < cw; ++cx) {
       const int nx[4] = {cx - 1, cx + 1, cx, cx}, ny[4] = {cy, cy, cy - 1, cy + 1};
@@ -98,8 +103,8 @@ int BuildSurfacePrior(const ImageU8& region, const ImageF& values, int ox, int o
           neu = !region.at(nx[k], ny[k]) && !std::isfinite(values.at(nx[k], ny[k]));
         }
         if (neu) {
-          not_neu.at<uint8_t>(cy, cx) = 0;
-          any_neumann = true;
+          b.not_neu.at<uint8_t>(cy, cx) = 0;
+          b.any_neumann = true;
         }
         continue;
       }
@@ -108,65 +113,100 @@ int BuildSurfacePrior(const ImageU8& region, const ImageF& values, int ox, int o
       for (int k = 0; k < 4; ++k)
         border |= nx[k] >= 0 && ny[k] >= 0 && nx[k] < cw && ny[k] < ch && region.at(nx[k], ny[k]);
       if (!border) continue;
-      not_dir.at<uint8_t>(cy, cx) = 0;
-      ring.push_back({(ox + cx) / 640.0, (oy + cy) / 640.0, values.at(cx, cy)});
+      b.not_dir.at<uint8_t>(cy, cx) = 0;
+      b.ring.push_back({(ox + cx) / 640.0, (oy + cy) / 640.0, values.at(cx, cy)});
     }
   }
-  if (ring.size() < 3) return 0;
-  // Global least-squares plane (normal equations averaged per sample).
-  Eigen::Matrix3d ata_g = Eigen::Matrix3d::Zero();
-  Eigen::Vector3d atb_g = Eigen::Vector3d::Zero();
+  return b;
+}
+
+// Global least-squares plane through the border samples (normal equations averaged per sample)
+// and the range of their values; ok = false for a collinear border.
+struct GlobalPlane {
+  Eigen::Matrix3d ata = Eigen::Matrix3d::Zero();
+  Eigen::Vector3d atb = Eigen::Vector3d::Zero();
+  Eigen::Vector3d c = Eigen::Vector3d::Zero();
   double vlo = std::numeric_limits<double>::infinity(), vhi = -vlo;
-  for (const Sample& p : ring) {
+  bool ok = false;
+};
+
+GlobalPlane FitGlobalPlane(const std::vector<PriorBorders::Sample>& ring) {
+  GlobalPlane g;
+  for (const PriorBorders::Sample& p : ring) {
     const Eigen::Vector3d a(p.x, p.y, 1.0);
-    ata_g += a * a.transpose();
-    atb_g += a * p.v;
-    vlo = std::min(vlo, p.v);
-    vhi = std::max(vhi, p.v);
+    g.ata += a * a.transpose();
+    g.atb += a * p.v;
+    g.vlo = std::min(g.vlo, p.v);
+    g.vhi = std::max(g.vhi, p.v);
   }
-  ata_g /= static_cast<double>(ring.size());
-  atb_g /= static_cast<double>(ring.size());
-  if (!(std::fabs(ata_g.determinant()) > 1e-14)) return 0;  // collinear border: no plane
-  const Eigen::Vector3d global = ata_g.ldlt().solve(atb_g);
-  if (!global.allFinite()) return 0;
-  // Locally weighted planes (prior_local_px > 0): per 8x8 block of the crop, least squares over
-  // the border pixels with Gaussian weights of their distance to the block centre (cut at 3
-  // sigma), plus the global fit's normal equations with the weight of one border pixel (keeps
-  // a collinear local border well-posed).
-  constexpr int kBlock = 8;
-  const int bw = (cw + kBlock - 1) / kBlock, bh = (ch + kBlock - 1) / kBlock;
-  std::vector<Eigen::Vector3d> block_plane;
-  if (o.prior_local_px > 0.0) {
-    block_plane.assign(static_cast<size_t>(bw) * bh, global);
-    const double inv2s2 = 1.0 / (2.0 * o.prior_local_px * o.prior_local_px);
-    const double cut2 = 9.0 * o.prior_local_px * o.prior_local_px;
-    for (int by = 0; by < bh; ++by) {
-      for (int bx = 0; bx < bw; ++bx) {
-        bool any = false;
-        for (int cy = by * kBlock; cy < std::min(ch, (by + 1) * kBlock) && !any; ++cy)
-          for (int cx = bx * kBlock; cx < std::min(cw, (bx + 1) * kBlock) && !any; ++cx)
-            any = region.at(cx, cy) != 0;
-        if (!any) continue;
-        const double px = ox + bx * kBlock + 0.5 * kBlock, py = oy + by * kBlock + 0.5 * kBlock;
-        Eigen::Matrix3d ata = ata_g;
-        Eigen::Vector3d atb = atb_g;
-        for (const Sample& p : ring) {
-          const double dx = p.x * 640.0 - px, dy = p.y * 640.0 - py, d2 = dx * dx + dy * dy;
-          if (d2 > cut2) continue;
-          const double wr = std::exp(-d2 * inv2s2);
-          const Eigen::Vector3d a(p.x, p.y, 1.0);
-          ata += wr * a * a.transpose();
-          atb += wr * a * p.v;
-        }
-        const Eigen::Vector3d cl = ata.ldlt().solve(atb);
-        if (cl.allFinite()) block_plane[static_cast<size_t>(by) * bw + bx] = cl;
+  g.ata /= static_cast<double>(ring.size());
+  g.atb /= static_cast<double>(ring.size());
+  if (!(std::fabs(g.ata.determinant()) > 1e-14)) return g;  // collinear border: no plane
+  g.c = g.ata.ldlt().solve(g.atb);
+  g.ok = g.c.allFinite();
+  return g;
+}
+
+constexpr int kPriorBlock = 8;
+
+// Locally weighted planes: per 8x8 block of the crop holding T pixels, least squares over the
+// border samples with Gaussian weights (sigma_px) of their distance to the block centre (cut
+// at 3 sigma), plus the global fit's normal equations with the weight of one border sample
+// (keeps a collinear local border well-posed). Blocks without T keep the global plane.
+std::vector<Eigen::Vector3d> FitBlockPlanes(const ImageU8& region, const PriorBorders& b,
+                                            const GlobalPlane& g, int ox, int oy,
+                                            double sigma_px) {
+  const int cw = region.width(), ch = region.height();
+  const int bw = (cw + kPriorBlock - 1) / kPriorBlock, bh = (ch + kPriorBlock - 1) / kPriorBlock;
+  std::vector<Eigen::Vector3d> block_plane(static_cast<size_t>(bw) * bh, g.c);
+  const double inv2s2 = 1.0 / (2.0 * sigma_px * sigma_px);
+  const double cut2 = 9.0 * sigma_px * sigma_px;
+  for (int by = 0; by < bh; ++by) {
+    for (int bx = 0; bx < bw; ++bx) {
+      bool any = false;
+      for (int cy = by * kPriorBlock; cy < std::min(ch, (by + 1) * kPriorBlock) && !any; ++cy)
+        for (int cx = bx * kPriorBlock; cx < std::min(cw, (bx + 1) * kPriorBlock) && !any; ++cx)
+          any = region.at(cx, cy) != 0;
+      if (!any) continue;
+      const double px = ox + bx * kPriorBlock + 0.5 * kPriorBlock;
+      const double py = oy + by * kPriorBlock + 0.5 * kPriorBlock;
+      Eigen::Matrix3d ata = g.ata;
+      Eigen::Vector3d atb = g.atb;
+      for (const PriorBorders::Sample& p : b.ring) {
+        const double dx = p.x * 640.0 - px, dy = p.y * 640.0 - py, d2 = dx * dx + dy * dy;
+        if (d2 > cut2) continue;
+        const double wr = std::exp(-d2 * inv2s2);
+        const Eigen::Vector3d a(p.x, p.y, 1.0);
+        ata += wr * a * a.transpose();
+        atb += wr * a * p.v;
       }
+      const Eigen::Vector3d cl = ata.ldlt().solve(atb);
+      if (cl.allFinite()) block_plane[static_cast<size_t>(by) * bw + bx] = cl;
     }
   }
+  return block_plane;
+}
+
+}  // namespace
+
+int BuildSurfacePrior(const ImageU8& region, const ImageF& values, int ox, int oy, int frame_w,
+                      int frame_h, const InpaintOptions& o, ImageF* prior, ImageF* prior_weight) {
+  if (!(o.neumann_prior_weight > 0.0)) return 0;
+  const int cw = region.width(), ch = region.height();
+  if (cw == 0 || ch == 0 || values.width() != cw || values.height() != ch) return 0;
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  const PriorBorders borders = FindPriorBorders(region, values, ox, oy, frame_w, frame_h);
+  if (borders.ring.size() < 3) return 0;
+  const GlobalPlane global = FitGlobalPlane(borders.ring);
+  if (!global.ok) return 0;
+  std::vector<Eigen::Vector3d> block_plane;
+  if (o.prior_local_px > 0.0)
+    block_plane = FitBlockPlanes(region, borders, global, ox, oy, o.prior_local_px);
+  const int bw = (cw + kPriorBlock - 1) / kPriorBlock;
   cv::Mat d_dir, d_neu;
-  if (o.neumann_prior_weight > 0.0 && any_neumann) {
-    cv::distanceTransform(not_dir, d_dir, cv::DIST_L2, cv::DIST_MASK_5);
-    cv::distanceTransform(not_neu, d_neu, cv::DIST_L2, cv::DIST_MASK_5);
+  if (borders.any_neumann) {
+    cv::distanceTransform(borders.not_dir, d_dir, cv::DIST_L2, cv::DIST_MASK_5);
+    cv::distanceTransform(borders.not_neu, d_neu, cv::DIST_L2, cv::DIST_MASK_5);
   }
   *prior = ImageF(cw, ch, 1, nan);
   *prior_weight = ImageF(cw, ch, 1, nan);
@@ -182,12 +222,14 @@ int BuildSurfacePrior(const ImageU8& region, const ImageF& values, int ox, int o
       }
       if (!(wgt > 0.0)) continue;
       const Eigen::Vector3d& c =
-          block_plane.empty() ? global : block_plane[static_cast<size_t>(cy / kBlock) * bw + cx / kBlock];
+          block_plane.empty()
+              ? global.c
+              : block_plane[static_cast<size_t>(cy / kPriorBlock) * bw + cx / kPriorBlock];
       // Extrapolated beyond the border (regions on the image edge), a plane is clamped to the
       // range of the border values it was fitted to: a tilt never runs off to a surface nearer
       // or farther than anything around T (in inverse depth: never through 0).
       const double v = c[0] * (ox + cx) / 640.0 + c[1] * (oy + cy) / 640.0 + c[2];
-      prior->at(cx, cy) = static_cast<float>(std::clamp(v, vlo, vhi));
+      prior->at(cx, cy) = static_cast<float>(std::clamp(v, global.vlo, global.vhi));
       prior_weight->at(cx, cy) = static_cast<float>(wgt);
       ++count;
     }
