@@ -370,6 +370,18 @@ class Refiner {
     std::vector<double> c;  // candidate value at the current pose
   };
   void BuildSamples(int budget);
+  // BuildSamples' steps: block culling, the textured and flat picks of a block, and one sample
+  // (valid in the candidate at its input pose, medians over the references per level).
+  bool BlockReachesCandidate(const StoredView& ref, const Level& rl, const Rigid3d& cand_from_ref,
+                             int bx, int by, int block, double margin_px) const;
+  struct BlockPicks {
+    int best_x = -1, best_y = -1, flat_x = -1, flat_y = -1;
+  };
+  BlockPicks PickInBlock(const StoredView& ref, const Level& rl, int bx, int by, int block,
+                         bool use_picks) const;
+  bool MakeSample(const glm::dvec3& p_in_local, bool flat, const Pose& cand0,
+                  const std::vector<Rigid3d>& ref_from_local, Sample* s,
+                  double* depth_in_cand) const;
   enum class Kind { kAll, kTextured, kFlat };
   Active ActiveSet(int level, const Pose& pose, Kind kind = Kind::kAll) const;
   bool ValidInCandidate(int level, const Pose& pose, const Sample& s, double* u,
@@ -444,15 +456,142 @@ class Refiner {
   RefinementResult res_;
 };
 
+bool Refiner::BlockReachesCandidate(const StoredView& ref, const Level& rl,
+                                    const Rigid3d& cand_from_ref, int bx, int by, int block,
+                                    double margin_px) const {
+  // The block centre (with its depth) must not project farther than `margin_px` outside the
+  // candidate image (scanning every pixel of every reference was ~15 ms of a 640x480 call with 8
+  // references). A centre without depth or behind the candidate keeps the block.
+  const Level& c0 = cand_pyr_[0];
+  const int w = rl.w, h = rl.h;
+  const int cx = std::min(bx + block / 2, w - 1 - o_.border_px);
+  const int cy = std::min(by + block / 2, h - 1 - o_.border_px);
+  const float zc = ref.depth_m.at(cx, cy);
+  if (!(zc > 0.f && std::isfinite(zc))) return true;
+  const glm::dvec3 q = cand_from_ref * ref.camera.Unproject({double(cx), double(cy)}, zc);
+  if (!(q.z > 0.05 * zc)) return true;
+  const double u = c0.k.fx * q.x / q.z + c0.k.cx, v = c0.k.fy * q.y / q.z + c0.k.cy;
+  return !(u < -margin_px || v < -margin_px || u > c0.w - 1 + margin_px ||
+           v > c0.h - 1 + margin_px);
+}
+
+Refiner::BlockPicks Refiner::PickInBlock(const StoredView& ref, const Level& rl, int bx, int by,
+                                         int block, bool use_picks) const {
+  // The most textured pixel of the block with valid depth (DSO-style candidates) and the
+  // flattest one (relative gradient): from the cached per-cell picks, or by a scan.
+  const int w = rl.w, h = rl.h;
+  BlockPicks out;
+  if (use_picks) {
+    const int c0x = (bx - o_.border_px) / kPickCell, c0y = (by - o_.border_px) / kPickCell;
+    const int nc = block / kPickCell;
+    int best = -1, flat = -1;
+    float bg = -1.f, fg = 1e30f;
+    for (int cy = c0y; cy < std::min(c0y + nc, rl.picks_h); ++cy)
+      for (int cx = c0x; cx < std::min(c0x + nc, rl.picks_w); ++cx) {
+        const Level::Pick& pk = rl.picks[static_cast<size_t>(cy) * rl.picks_w + cx];
+        if (pk.best < 0) continue;
+        if (pk.best_g > bg) {
+          bg = pk.best_g;
+          best = pk.best;
+        }
+        if (pk.flat_g < fg) {
+          fg = pk.flat_g;
+          flat = pk.flat;
+        }
+      }
+    if (best >= 0) {
+      out.best_x = best % w;
+      out.best_y = best / w;
+      out.flat_x = flat % w;
+      out.flat_y = flat / w;
+    }
+    return out;
+  }
+  double best_g = -1.0, flat_g = 1e30;
+  for (int y = by; y < std::min(by + block, h - o_.border_px); ++y)
+    for (int x = bx; x < std::min(bx + block, w - o_.border_px); ++x) {
+      const size_t i = static_cast<size_t>(y) * w + x;
+      const float z = ref.depth_m.at(x, y);
+      if (!(z > 0.f) || !std::isfinite(z) || rl.bad[i]) continue;
+      const double g =
+          std::abs(rl.luma[i + 1] - rl.luma[i - 1]) + std::abs(rl.luma[i + w] - rl.luma[i - w]);
+      if (g > best_g) {
+        best_g = g;
+        out.best_x = x;
+        out.best_y = y;
+      }
+      const double gr = g / (rl.luma[i] + 0.01);
+      if (gr < flat_g) {
+        flat_g = gr;
+        out.flat_x = x;
+        out.flat_y = y;
+      }
+    }
+  return out;
+}
+
+bool Refiner::MakeSample(const glm::dvec3& pl, bool flat, const Pose& cand0,
+                         const std::vector<Rigid3d>& ref_from_local, Sample* s,
+                         double* depth_in_cand) const {
+  const Level& c0 = cand_pyr_[0];
+  s->flat = flat;
+  s->p_in_local = {pl.x, pl.y, pl.z};
+  // Valid in the candidate at its initial pose (SPEC §6, looser occlusion tolerance).
+  const Eigen::Vector3d q = cand0.Apply(s->p_in_local);
+  if (!(q.z() > 1e-6)) return false;
+  const double u = c0.k.fx * q.x() / q.z() + c0.k.cx, v = c0.k.fy * q.y() / q.z() + c0.k.cy;
+  if (!c0.Inside(u, v, o_.border_px)) return false;
+  const bool cand_depth = !cand_.depth_m.empty() && cand_.depth_m.width() == c0.w &&
+                          cand_.depth_m.height() == c0.h;
+  if (cand_depth) {
+    const float dc =
+        cand_.depth_m.at(static_cast<int>(std::lround(u)), static_cast<int>(std::lround(v)));
+    if (dc > 0.f && std::isfinite(dc) &&
+        std::abs(q.z() - dc) > o_.cand_occlusion_abs_m + o_.cand_occlusion_rel * dc)
+      return false;
+  }
+  // Median over the references in which the point is valid, per level.
+  std::vector<double> vals[kMaxLevels];
+  for (size_t i = 0; i < refs_.size(); ++i) {
+    const StoredView& ri = *refs_[i];
+    const glm::dvec3 pi = ref_from_local[i] * pl;
+    glm::dvec2 uv;
+    if (!ri.camera.Project(pi, &uv)) continue;
+    const Level& L0 = (*ref_pyr_[i])[0];
+    if (!L0.Inside(uv.x, uv.y, 1.0)) continue;
+    const int xi = static_cast<int>(std::lround(uv.x)), yi = static_cast<int>(std::lround(uv.y));
+    const float di = ri.depth_m.at(xi, yi);
+    if (!(di > 0.f) || !std::isfinite(di)) continue;
+    if (std::abs(pi.z - di) > o_.ref_occlusion_abs_m + o_.ref_occlusion_rel * di) continue;
+    if (NearDepthEdge(ri.depth_m, xi, yi, di, o_.depth_discontinuity_m)) continue;
+    for (int l = 0; l < levels_; ++l) {
+      const Level& L = (*ref_pyr_[i])[l];
+      const double s_l = 1.0 / (1 << l);
+      const double ul = (uv.x + 0.5) * s_l - 0.5, vl = (uv.y + 0.5) * s_l - 0.5;
+      if (!L.Inside(ul, vl, 0.0) || L.BadBilinear(ul, vl)) continue;
+      vals[l].push_back(ri.exposure * L.Bilinear(ul, vl));
+    }
+  }
+  for (int l = 0; l < levels_; ++l) {
+    s->has[l] = !vals[l].empty();
+    if (s->has[l]) s->m[l] = static_cast<float>(Median(vals[l]));
+  }
+  s->num_refs = static_cast<int>(vals[0].size());
+  if (s->num_refs >= 2) {
+    for (double& x : vals[0]) x = std::abs(x - s->m[0]);
+    s->spread = static_cast<float>(Median(vals[0]));
+  }
+  if (!s->has[0]) return false;
+  *depth_in_cand = q.z();
+  return true;
+}
+
 void Refiner::BuildSamples(int budget) {
   const Pose cand0 = CamFromLocal(cand_.local_from_cam);
   const Level& c0 = cand_pyr_[0];
-  const bool cand_depth = !cand_.depth_m.empty() && cand_.depth_m.width() == c0.w &&
-                          cand_.depth_m.height() == c0.h;
   // One block size for all references: each contributes in proportion to its overlap.
   double overlap_sum = 0;
   for (double f : overlap_) overlap_sum += f;
-  std::vector<double> vals[kMaxLevels];
   std::vector<double> depths;
   std::vector<Rigid3d> ref_from_local;
   for (const StoredView* r : refs_) ref_from_local.push_back(r->local_from_cam.Inverse());
@@ -470,127 +609,20 @@ void Refiner::BuildSamples(int budget) {
     const double margin_px = 3.0 * block * c0.k.fx / ref.camera.fx + o_.border_px;
     for (int by = o_.border_px; by < h - o_.border_px; by += block)
       for (int bx = o_.border_px; bx < w - o_.border_px; bx += block) {
-        // Cull blocks that cannot reach the candidate: the block centre (with its depth)
-        // projects farther than 3 blocks outside the candidate image (scanning every pixel of
-        // every reference was ~15 ms of a 640x480 call with 8 references).
-        {
-          const int cx = std::min(bx + block / 2, w - 1 - o_.border_px);
-          const int cy = std::min(by + block / 2, h - 1 - o_.border_px);
-          const float zc = ref.depth_m.at(cx, cy);
-          if (zc > 0.f && std::isfinite(zc)) {
-            const glm::dvec3 q = cand_from_ref * ref.camera.Unproject({double(cx), double(cy)}, zc);
-            if (q.z > 0.05 * zc) {
-              const double u = c0.k.fx * q.x / q.z + c0.k.cx, v = c0.k.fy * q.y / q.z + c0.k.cy;
-              if (u < -margin_px || v < -margin_px || u > c0.w - 1 + margin_px ||
-                  v > c0.h - 1 + margin_px)
-                continue;
-            }
-          }
-        }
-        // The most textured pixel of the block with valid depth (DSO-style candidates) and the
-        // flattest one (relative gradient).
-        int best_x = -1, best_y = -1, flat_x = -1, flat_y = -1;
-        double best_g = -1.0, flat_g = 1e30;
-        if (use_picks) {
-          const int c0x = (bx - o_.border_px) / kPickCell, c0y = (by - o_.border_px) / kPickCell;
-          const int nc = block / kPickCell;
-          int best = -1, flat = -1;
-          float bg = -1.f, fg = 1e30f;
-          for (int cy = c0y; cy < std::min(c0y + nc, rl.picks_h); ++cy)
-            for (int cx = c0x; cx < std::min(c0x + nc, rl.picks_w); ++cx) {
-              const Level::Pick& pk = rl.picks[static_cast<size_t>(cy) * rl.picks_w + cx];
-              if (pk.best < 0) continue;
-              if (pk.best_g > bg) {
-                bg = pk.best_g;
-                best = pk.best;
-              }
-              if (pk.flat_g < fg) {
-                fg = pk.flat_g;
-                flat = pk.flat;
-              }
-            }
-          if (best >= 0) {
-            best_x = best % w;
-            best_y = best / w;
-            flat_x = flat % w;
-            flat_y = flat / w;
-          }
-        }
-        for (int y = by; !use_picks && y < std::min(by + block, h - o_.border_px); ++y)
-          for (int x = bx; x < std::min(bx + block, w - o_.border_px); ++x) {
-            const size_t i = static_cast<size_t>(y) * w + x;
-            const float z = ref.depth_m.at(x, y);
-            if (!(z > 0.f) || !std::isfinite(z) || rl.bad[i]) continue;
-            const double g = std::abs(rl.luma[i + 1] - rl.luma[i - 1]) +
-                             std::abs(rl.luma[i + w] - rl.luma[i - w]);
-            if (g > best_g) {
-              best_g = g;
-              best_x = x;
-              best_y = y;
-            }
-            const double gr = g / (rl.luma[i] + 0.01);
-            if (gr < flat_g) {
-              flat_g = gr;
-              flat_x = x;
-              flat_y = y;
-            }
-          }
-        if (best_x < 0) continue;
+        if (!BlockReachesCandidate(ref, rl, cand_from_ref, bx, by, block, margin_px)) continue;
+        const BlockPicks picks = PickInBlock(ref, rl, bx, by, block, use_picks);
+        if (picks.best_x < 0) continue;
         for (int pass = 0; pass < 2; ++pass) {
-        const int sx = pass == 0 ? best_x : flat_x, sy = pass == 0 ? best_y : flat_y;
-        const float z = ref.depth_m.at(sx, sy);
-        if (NearDepthEdge(ref.depth_m, sx, sy, z, o_.depth_discontinuity_m)) continue;
-        const glm::dvec3 pc = ref.camera.Unproject({double(sx), double(sy)}, z);
-        const glm::dvec3 pl = ref.local_from_cam * pc;
-        Sample s;
-        s.flat = pass == 1;
-        s.p_in_local = {pl.x, pl.y, pl.z};
-        // Valid in the candidate at its initial pose (SPEC §6, looser occlusion tolerance).
-        const Eigen::Vector3d q = cand0.Apply(s.p_in_local);
-        if (!(q.z() > 1e-6)) continue;
-        const double u = c0.k.fx * q.x() / q.z() + c0.k.cx, v = c0.k.fy * q.y() / q.z() + c0.k.cy;
-        if (!c0.Inside(u, v, o_.border_px)) continue;
-        if (cand_depth) {
-          const float dc = cand_.depth_m.at(static_cast<int>(std::lround(u)),
-                                            static_cast<int>(std::lround(v)));
-          if (dc > 0.f && std::isfinite(dc) &&
-              std::abs(q.z() - dc) > o_.cand_occlusion_abs_m + o_.cand_occlusion_rel * dc)
-            continue;
-        }
-        // Median over the references in which the point is valid.
-        for (auto& vv : vals) vv.clear();
-        for (size_t i = 0; i < refs_.size(); ++i) {
-          const StoredView& ri = *refs_[i];
-          const glm::dvec3 pi = ref_from_local[i] * pl;
-          glm::dvec2 uv;
-          if (!ri.camera.Project(pi, &uv)) continue;
-          const Level& L0 = (*ref_pyr_[i])[0];
-          if (!L0.Inside(uv.x, uv.y, 1.0)) continue;
-          const int xi = static_cast<int>(std::lround(uv.x)), yi = static_cast<int>(std::lround(uv.y));
-          const float di = ri.depth_m.at(xi, yi);
-          if (!(di > 0.f) || !std::isfinite(di)) continue;
-          if (std::abs(pi.z - di) > o_.ref_occlusion_abs_m + o_.ref_occlusion_rel * di) continue;
-          if (NearDepthEdge(ri.depth_m, xi, yi, di, o_.depth_discontinuity_m)) continue;
-          for (int l = 0; l < levels_; ++l) {
-            const Level& L = (*ref_pyr_[i])[l];
-            const double s_l = 1.0 / (1 << l);
-            const double ul = (uv.x + 0.5) * s_l - 0.5, vl = (uv.y + 0.5) * s_l - 0.5;
-            if (!L.Inside(ul, vl, 0.0) || L.BadBilinear(ul, vl)) continue;
-            vals[l].push_back(ri.exposure * L.Bilinear(ul, vl));
-          }
-        }
-        for (int l = 0; l < levels_; ++l) {
-          s.has[l] = !vals[l].empty();
-          if (s.has[l]) s.m[l] = static_cast<float>(Median(vals[l]));
-        }
-        s.num_refs = static_cast<int>(vals[0].size());
-        if (s.num_refs >= 2) {
-          for (double& x : vals[0]) x = std::abs(x - s.m[0]);
-          s.spread = static_cast<float>(Median(vals[0]));
-        }
-        if (!s.has[0]) continue;
-        samples_.push_back(s);
-        depths.push_back(q.z());
+          const int sx = pass == 0 ? picks.best_x : picks.flat_x;
+          const int sy = pass == 0 ? picks.best_y : picks.flat_y;
+          const float z = ref.depth_m.at(sx, sy);
+          if (NearDepthEdge(ref.depth_m, sx, sy, z, o_.depth_discontinuity_m)) continue;
+          const glm::dvec3 pl = ref.local_from_cam * ref.camera.Unproject({double(sx), double(sy)}, z);
+          Sample s;
+          double depth = 0;
+          if (!MakeSample(pl, pass == 1, cand0, ref_from_local, &s, &depth)) continue;
+          samples_.push_back(s);
+          depths.push_back(depth);
         }
       }
   }
