@@ -7,7 +7,7 @@
 #include <boost/graph/adjacency_list.hpp>
 #include <boost/graph/boykov_kolmogorov_max_flow.hpp>
 
-namespace exo::inpaint {
+namespace exo::inpainting {
 
 MaxFlow::MaxFlow(int num_nodes)
     : n_(num_nodes), ts_(num_nodes, 0.0), tt_(num_nodes, 0.0), source_side_(num_nodes, 0) {}
@@ -127,4 +127,4 @@ double PottsAlphaExpansion(int num_nodes, int num_labels, const std::vector<floa
   return energy;
 }
 
-}  // namespace exo::inpaint
+}  // namespace exo::inpainting

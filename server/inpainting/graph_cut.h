@@ -7,7 +7,7 @@
 
 #include <vector>
 
-namespace exo::inpaint {
+namespace exo::inpainting {
 
 class MaxFlow {
  public:
@@ -56,4 +56,4 @@ double PottsAlphaExpansion(int num_nodes, int num_labels, const std::vector<floa
 double PottsEnergy(int num_labels, const std::vector<float>& unary,
                    const std::vector<PottsEdge>& edges, const std::vector<int>& labels);
 
-}  // namespace exo::inpaint
+}  // namespace exo::inpainting

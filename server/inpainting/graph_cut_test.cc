@@ -6,7 +6,7 @@
 
 #include <gtest/gtest.h>
 
-namespace exo::inpaint {
+namespace exo::inpainting {
 namespace {
 
 // Minimum cut of a small graph by enumerating every source/sink split.
@@ -120,4 +120,4 @@ TEST(GraphCutTest, AlphaExpansionIsExactForTwoLabelsAndWithinBoundForThree) {
 }
 
 }  // namespace
-}  // namespace exo::inpaint
+}  // namespace exo::inpainting

@@ -15,7 +15,7 @@
 #include "server/inpainting/patch_match.h"
 #include "server/inpainting/poisson.h"
 
-namespace exo::inpaint {
+namespace exo::inpainting {
 namespace {
 
 using Clock = std::chrono::steady_clock;
@@ -656,4 +656,4 @@ absl::StatusOr<InpaintResult> InpaintKeyframe(const RgbdKeyframe& frame, const I
   return out;
 }
 
-}  // namespace exo::inpaint
+}  // namespace exo::inpainting

@@ -28,7 +28,7 @@
 #include "common/rigid3.h"
 #include "common/status.h"
 
-namespace exo::inpaint {
+namespace exo::inpainting {
 
 using ImageI32 = Image<int32_t>;
 
@@ -193,4 +193,4 @@ FusedGradient FuseGradientSamples(bool has1, float g1, float ref1, bool has2, fl
 // for tests; opposite or zero normals cost 1/kappa instead of dividing by <= 0.
 float GeometryCost(const float* normals_a, const float* normals_b, int count, float kappa);
 
-}  // namespace exo::inpaint
+}  // namespace exo::inpainting

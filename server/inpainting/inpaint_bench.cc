@@ -47,7 +47,7 @@
 #include "server/inpainting/depth_maps.h"
 #include "server/inpainting/inpaint.h"
 
-namespace exo::inpaint {
+namespace exo::inpainting {
 namespace {
 
 using Clock = std::chrono::steady_clock;
@@ -515,10 +515,10 @@ cv::Mat DepthVis(const cv::Mat& d) {
 }
 
 }  // namespace
-}  // namespace exo::inpaint
+}  // namespace exo::inpainting
 
 int main(int argc, char** argv) {
-  using namespace exo::inpaint;
+  using namespace exo::inpainting;
   using exo::ImageU8;
   using exo::Rigid3d;
   std::string data_dir = std::string(EXOVIEW_SOURCE_DIR) + "/../shared/data/7scenes-redkitchen";

@@ -8,7 +8,7 @@
 #include "server/inpainting/poisson.h"
 #include "server/inpainting/test_scenes.h"
 
-namespace exo::inpaint {
+namespace exo::inpainting {
 namespace {
 
 using testing::RectMask;
@@ -539,4 +539,4 @@ TEST(DepthMapsTest, PushPullFillsHolesAndNormalsFacePlane) {
 }
 
 }  // namespace
-}  // namespace exo::inpaint
+}  // namespace exo::inpainting

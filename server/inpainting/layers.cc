@@ -9,7 +9,7 @@
 
 #include "server/inpainting/graph_cut.h"
 
-namespace exo::inpaint {
+namespace exo::inpainting {
 namespace {
 
 using ImageI32 = Image<int32_t>;
@@ -489,4 +489,4 @@ LayerResult SetupLayers(const std::vector<uint8_t>& measured, const ImageU8& col
   return LayerBuilder(measured, color, options, crop).Run();
 }
 
-}  // namespace exo::inpaint
+}  // namespace exo::inpainting

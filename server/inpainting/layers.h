@@ -10,7 +10,7 @@
 #include "common/image.h"
 #include "server/inpainting/inpaint.h"
 
-namespace exo::inpaint {
+namespace exo::inpainting {
 
 // The depth solve's problem (poisson.h terms) on T's bounding box plus one pixel, a crop at
 // (ox, oy) of a frame_w x frame_h frame, in the depth domain (inverse depth by default).
@@ -41,4 +41,4 @@ struct LayerResult {
 LayerResult SetupLayers(const std::vector<uint8_t>& measured, const ImageU8& color,
                         const InpaintOptions& options, DepthCrop* crop);
 
-}  // namespace exo::inpaint
+}  // namespace exo::inpainting

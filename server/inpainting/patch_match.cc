@@ -10,7 +10,7 @@
 #include "server/inpainting/depth_maps.h"
 #include "server/inpainting/parallel_rows.h"
 
-namespace exo::inpaint {
+namespace exo::inpainting {
 namespace {
 
 // splitmix64: the per-(seed, level, iteration, pixel) random stream.
@@ -655,4 +655,4 @@ int SearchPyramid(std::vector<Level>* levels_io, const SearchParams& p, const In
   return nl;
 }
 
-}  // namespace exo::inpaint
+}  // namespace exo::inpainting

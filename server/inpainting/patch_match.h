@@ -11,7 +11,7 @@
 
 #include "server/inpainting/inpaint.h"
 
-namespace exo::inpaint {
+namespace exo::inpainting {
 
 // One pyramid level of the search.
 struct Level {
@@ -52,4 +52,4 @@ void SearchFromPropagated(Level& L, const SearchParams& p, const InpaintOptions&
 int SearchPyramid(std::vector<Level>* levels, const SearchParams& p, const InpaintOptions& o,
                   int* sweeps);
 
-}  // namespace exo::inpaint
+}  // namespace exo::inpainting
