@@ -29,9 +29,7 @@
 #include "common/synth/render.h"
 #include "common/synth/scene.h"
 #include "common/synth/trajectory.h"
-#ifdef EXOVIEW_HAVE_VULKAN
 #include "client/vulkan/vulkan_renderer.h"
-#endif
 
 namespace {
 
@@ -151,7 +149,6 @@ int main(int argc, char** argv) {
   const exo::LumigraphModel& model = store.model();
   std::string renderer_name = "cpu";
   std::unique_ptr<exo::CpuLumigraphRenderer> cpu;
-#ifdef EXOVIEW_HAVE_VULKAN
   std::unique_ptr<exo::VulkanRenderer> vk;
   if (which != "cpu") {
     auto r = exo::VulkanRenderer::Create({});
@@ -164,13 +161,7 @@ int main(int argc, char** argv) {
       return 1;
     }
   }
-  if (!vk)
-#endif
-  {
-    if (which == "vulkan") {
-      std::fprintf(stderr, "exoview_viewer: built without the Vulkan engine\n");
-      return 1;
-    }
+  if (!vk) {
     auto r = exo::CpuLumigraphRenderer::Create(model, {});
     if (!r.ok()) {
       std::fprintf(stderr, "exoview_viewer: %s\n", std::string(r.status().message()).c_str());
@@ -189,13 +180,11 @@ int main(int argc, char** argv) {
     const exo::Rigid3d local_from_cam = model.origin.ToLocal(world_from_cam);
     const auto t0 = std::chrono::steady_clock::now();
     exo::ImageU8 img;
-#ifdef EXOVIEW_HAVE_VULKAN
     if (vk) {
       auto r = vk->Render(camera, local_from_cam, exo::blend::BlendOptions{});
       if (!r.ok()) { std::fprintf(stderr, "exoview_viewer: %s\n", std::string(r.status().message()).c_str()); return 1; }
       img = std::move(r->color);
     }
-#endif
     if (cpu) {
       auto r = cpu->Render(camera, local_from_cam);
       if (!r.ok()) { std::fprintf(stderr, "exoview_viewer: %s\n", std::string(r.status().message()).c_str()); return 1; }

@@ -260,10 +260,7 @@ class VulkanRenderer::Impl {
   // the n-th-best pick are then compile-time; measured ~6 % of the frame), created on first use.
   vk::UniquePipeline blend_pipes[blend::kMaxBlendViews + 1];
   vk::UniquePipeline blend_comp_pipes[blend::kMaxBlendViews + 1];
-  // VulkanRendererOptions::blend_in_compute; EXO_VK_BLEND_PATH=fragment|compute overrides it
-  // (profiling).
-  bool blend_compute = false;
-  std::vector<uint32_t> override_spv;
+  bool blend_compute = false;  // VulkanRendererOptions::blend_in_compute
   Buffer frame_ubo;
 
   // ---- render targets (per size) ----
@@ -295,26 +292,7 @@ class VulkanRenderer::Impl {
                          CreateRenderPass(VK_FORMAT_R32G32B32A32_SFLOAT, /*sampled_output=*/true));
     EXO_ASSIGN_OR_RETURN(cellid_pass, CreateRenderPass(VK_FORMAT_R32G32_UINT));
     EXO_ASSIGN_OR_RETURN(zdepth_pass, CreateRenderPass(VK_FORMAT_R32_SFLOAT));
-    {
-      // Profiling hook: EXO_VK_BLEND_FRAG_SPV=<file.spv> replaces the embedded blend fragment
-      // shader (used to bisect the cost of the blend pass; never set in tests).
-      if (const char* path = std::getenv("EXO_VK_BLEND_FRAG_SPV"); path && *path) {
-        FILE* f = std::fopen(path, "rb");
-        if (!f) return absl::NotFoundError(absl::StrCat("EXO_VK_BLEND_FRAG_SPV: cannot open ", path));
-        std::fseek(f, 0, SEEK_END);
-        const long n = std::ftell(f);
-        std::fseek(f, 0, SEEK_SET);
-        override_spv.resize(size_t(std::max(0L, n)) / 4);
-        const size_t got = std::fread(override_spv.data(), 4, override_spv.size(), f);
-        std::fclose(f);
-        if (got != override_spv.size() || override_spv.empty())
-          return absl::DataLossError(absl::StrCat("EXO_VK_BLEND_FRAG_SPV: short read of ", path));
-      }
-    }
     blend_compute = opt.blend_in_compute;
-    if (const char* path = std::getenv("EXO_VK_BLEND_PATH"); path && *path)
-      blend_compute = std::string(path) == "compute";
-    if (!override_spv.empty()) blend_compute = false;  // the hook replaces the fragment shader
     EXO_ASSIGN_OR_RETURN(placeholder_out, Buffer::Create(*ctx, 4, VK_BUFFER_USAGE_STORAGE_BUFFER_BIT));
     EXO_RETURN_IF_ERROR(EnsureBlendPipe(blend::BlendOptions{}.n_best));
     EXO_ASSIGN_OR_RETURN(gbuffer_pipe, CreatePipeline(gbuffer_pass.get(), kSpvGbufferFrag,
@@ -348,8 +326,8 @@ class VulkanRenderer::Impl {
     const int32_t value = n_best;
     VkSpecializationMapEntry entry{0, 0, sizeof(int32_t)};
     VkSpecializationInfo spec{1, &entry, sizeof(int32_t), &value};
-    const uint32_t* code = override_spv.empty() ? kSpvBlendFrag : override_spv.data();
-    const size_t bytes = override_spv.empty() ? sizeof(kSpvBlendFrag) : override_spv.size() * 4;
+    const uint32_t* code = kSpvBlendFrag;
+    const size_t bytes = sizeof(kSpvBlendFrag);
     if (!blend_compute) {
       EXO_ASSIGN_OR_RETURN(blend_pipes[n_best],
                            CreatePipeline(color_pass.get(), code, bytes, true, &spec));

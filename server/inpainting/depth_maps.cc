@@ -6,7 +6,7 @@
 #include <cmath>
 #include <thread>
 
-namespace exo::inpaint {
+namespace exo::inpainting {
 
 int PrefillDepth(ImageF& depth_m, const std::vector<uint8_t>& fill_here,
                  const std::vector<uint8_t>& use_as_data) {
@@ -132,4 +132,4 @@ absl::Status CheckDepthUnits(const ImageF& depth_m, double max_median_depth_m) {
   return absl::OkStatus();
 }
 
-}  // namespace exo::inpaint
+}  // namespace exo::inpainting

@@ -12,7 +12,7 @@
 #include "common/image_fill.h"  // PushPullFill (nearest pull: what the tables were measured with)
 #include "common/status.h"
 
-namespace exo::inpaint {
+namespace exo::inpainting {
 
 // Fills invalid depth (0 / non-finite) of pixels where `fill_here` != 0 from the valid depth of
 // pixels where `use_as_data` != 0 (push-pull). Pixels outside `fill_here` keep their value.
@@ -33,4 +33,4 @@ ImageF NormalsFromDepth(const ImageF& depth_m, const PinholeCamera& camera, int 
 // (millimetre depth passed as metres is the usual cause). Negative depth is rejected too.
 absl::Status CheckDepthUnits(const ImageF& depth_m, double max_median_depth_m);
 
-}  // namespace exo::inpaint
+}  // namespace exo::inpainting

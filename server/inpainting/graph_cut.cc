@@ -4,112 +4,67 @@
 #include <cmath>
 #include <limits>
 
-namespace exo::inpaint {
+#include <boost/graph/adjacency_list.hpp>
+#include <boost/graph/boykov_kolmogorov_max_flow.hpp>
+
+namespace exo::inpainting {
 
 MaxFlow::MaxFlow(int num_nodes)
-    : n_(num_nodes), ts_(num_nodes, 0.0), tt_(num_nodes, 0.0), head_(num_nodes + 2, -1),
-      source_side_(num_nodes, 0) {}
+    : n_(num_nodes), ts_(num_nodes, 0.0), tt_(num_nodes, 0.0), source_side_(num_nodes, 0) {}
+
+MaxFlow::~MaxFlow() = default;
 
 void MaxFlow::AddTerminalWeights(int node, double cap_source, double cap_sink) {
   ts_[node] += std::max(0.0, cap_source);
   tt_[node] += std::max(0.0, cap_sink);
 }
 
-void MaxFlow::AddArc(int a, int b, double cap_ab, double cap_ba) {
-  to_.push_back(b);
-  cap_.push_back(cap_ab);
-  next_.push_back(head_[a]);
-  head_[a] = static_cast<int>(to_.size()) - 1;
-  to_.push_back(a);
-  cap_.push_back(cap_ba);
-  next_.push_back(head_[b]);
-  head_[b] = static_cast<int>(to_.size()) - 1;
-}
-
 void MaxFlow::AddEdge(int a, int b, double cap_ab, double cap_ba) {
   if (a == b) return;
-  AddArc(a, b, std::max(0.0, cap_ab), std::max(0.0, cap_ba));
+  edges_.push_back({a, b, std::max(0.0, cap_ab), std::max(0.0, cap_ba)});
 }
 
 double MaxFlow::Solve() {
-  const int s = n_, t = n_ + 1, nn = n_ + 2;
-  double flow = 0.0;
+  using Traits = boost::adjacency_list_traits<boost::vecS, boost::vecS, boost::directedS>;
+  struct EdgeProps {
+    double capacity = 0.0, residual = 0.0;
+    Traits::edge_descriptor reverse;
+  };
+  using Graph =
+      boost::adjacency_list<boost::vecS, boost::vecS, boost::directedS, boost::no_property, EdgeProps>;
+  const int s = n_, t = n_ + 1;
+  Graph g(n_ + 2);
+  auto add = [&g](int a, int b, double cap_ab, double cap_ba) {
+    const auto ab = boost::add_edge(a, b, g).first;
+    const auto ba = boost::add_edge(b, a, g).first;
+    g[ab].capacity = cap_ab;
+    g[ab].reverse = ba;
+    g[ba].capacity = cap_ba;
+    g[ba].reverse = ab;
+  };
   // Flow straight through source -> node -> sink needs no search.
+  double through = 0.0;
   for (int i = 0; i < n_; ++i) {
     const double m = std::min(ts_[i], tt_[i]);
-    flow += m;
-    if (ts_[i] - m > 0.0) AddArc(s, i, ts_[i] - m, 0.0);
-    if (tt_[i] - m > 0.0) AddArc(i, t, tt_[i] - m, 0.0);
+    through += m;
+    if (ts_[i] - m > 0.0) add(s, i, ts_[i] - m, 0.0);
+    if (tt_[i] - m > 0.0) add(i, t, tt_[i] - m, 0.0);
   }
-  std::vector<int> level(nn), queue(nn), it(nn), path;
-  constexpr double kEps = 1e-12;
-  for (;;) {
-    // Level graph by breadth-first search over arcs with residual capacity.
-    std::fill(level.begin(), level.end(), -1);
-    int qh = 0, qt = 0;
-    level[s] = 0;
-    queue[qt++] = s;
-    while (qh < qt) {
-      const int u = queue[qh++];
-      for (int e = head_[u]; e >= 0; e = next_[e]) {
-        if (cap_[e] > kEps && level[to_[e]] < 0) {
-          level[to_[e]] = level[u] + 1;
-          queue[qt++] = to_[e];
-        }
-      }
-    }
-    if (level[t] < 0) break;
-    for (int i = 0; i < nn; ++i) it[i] = head_[i];
-    // Blocking flow: iterative depth-first search along the level graph.
-    path.clear();
-    int u = s;
-    for (;;) {
-      if (u == t) {
-        double b = std::numeric_limits<double>::infinity();
-        for (int e : path) b = std::min(b, cap_[e]);
-        size_t first_sat = path.size();
-        for (size_t k = 0; k < path.size(); ++k) {
-          cap_[path[k]] -= b;
-          cap_[path[k] ^ 1] += b;
-          if (first_sat == path.size() && cap_[path[k]] <= kEps) first_sat = k;
-        }
-        flow += b;
-        path.resize(first_sat);  // retreat to the tail of the first saturated arc
-        u = path.empty() ? s : to_[path.back()];
-        continue;
-      }
-      int& e = it[u];
-      while (e >= 0 && !(cap_[e] > kEps && level[to_[e]] == level[u] + 1)) e = next_[e];
-      if (e >= 0) {
-        path.push_back(e);
-        u = to_[e];
-        continue;
-      }
-      // Dead end: remove u from the level graph and retreat.
-      level[u] = -1;
-      if (path.empty()) break;  // u == s: blocking flow found
-      const int back = path.back();
-      path.pop_back();
-      u = to_[back ^ 1];
-      it[u] = next_[it[u]];
-    }
-  }
-  // Source side: reachable from s in the residual graph.
-  std::vector<char> seen(nn, 0);
-  int qh = 0, qt = 0;
-  seen[s] = 1;
-  queue[qt++] = s;
-  while (qh < qt) {
-    const int u = queue[qh++];
-    for (int e = head_[u]; e >= 0; e = next_[e]) {
-      if (cap_[e] > kEps && !seen[to_[e]]) {
-        seen[to_[e]] = 1;
-        queue[qt++] = to_[e];
-      }
-    }
-  }
-  for (int i = 0; i < n_; ++i) source_side_[i] = seen[i];
-  return flow;
+  for (const Edge& e : edges_) add(e.a, e.b, e.cap_ab, e.cap_ba);
+  const size_t nv = boost::num_vertices(g);
+  std::vector<boost::default_color_type> color(nv);
+  std::vector<Traits::edge_descriptor> pred(nv);
+  std::vector<long> dist(nv);
+  const auto index = boost::get(boost::vertex_index, g);
+  const double flow = boost::boykov_kolmogorov_max_flow(
+      g, boost::get(&EdgeProps::capacity, g), boost::get(&EdgeProps::residual, g),
+      boost::get(&EdgeProps::reverse, g), boost::make_iterator_property_map(pred.begin(), index),
+      boost::make_iterator_property_map(color.begin(), index),
+      boost::make_iterator_property_map(dist.begin(), index), index, s, t);
+  // Source side: the source tree (black), i.e. the nodes reachable from s in the residual graph.
+  for (int i = 0; i < n_; ++i)
+    source_side_[i] = color[i] == boost::color_traits<boost::default_color_type>::black();
+  return through + flow;
 }
 
 double PottsEnergy(int num_labels, const std::vector<float>& unary,
@@ -172,4 +127,4 @@ double PottsAlphaExpansion(int num_nodes, int num_labels, const std::vector<floa
   return energy;
 }
 
-}  // namespace exo::inpaint
+}  // namespace exo::inpainting

@@ -1,19 +1,20 @@
 // Minimum s-t cut / maximum flow and Potts labelling by alpha-expansion, for the layered depth
 // solve (InpaintOptions::layered_depth): which pixels of T belong to which depth layer.
 //
-// OpenCV has no public graph cut: its GCGraph lives in imgproc's private headers (GrabCut's
-// implementation) and is not installed, so this library carries its own small max-flow
-// (Dinic: breadth-first level graph, blocking flow by an iterative depth-first search with
-// current-arc pointers). Deterministic: the result depends only on the insertion order.
+// MaxFlow wraps Boost.Graph's boykov_kolmogorov_max_flow (header-only; the standard max-flow for
+// vision grid graphs); see docs/inpainting.md for its measurement against the former Dinic.
 #pragma once
 
 #include <vector>
 
-namespace exo::inpaint {
+namespace exo::inpainting {
 
 class MaxFlow {
  public:
   explicit MaxFlow(int num_nodes);
+  ~MaxFlow();
+  MaxFlow(const MaxFlow&) = delete;
+  MaxFlow& operator=(const MaxFlow&) = delete;
   // Accumulates capacities of source -> node and node -> sink (both >= 0). A node on the sink
   // side after the cut pays cap_source, one on the source side pays cap_sink.
   void AddTerminalWeights(int node, double cap_source, double cap_sink);
@@ -22,17 +23,19 @@ class MaxFlow {
   void AddEdge(int a, int b, double cap_ab, double cap_ba);
   // Returns the maximum flow = the minimum cut's capacity. Call once.
   double Solve();
-  // After Solve: true if the node is on the source side of a minimum cut (reachable from the
+  // After Solve: true if the node is on the source side of the minimum cut (reachable from the
   // source in the residual graph).
   bool OnSourceSide(int node) const { return source_side_[node] != 0; }
   int num_nodes() const { return n_; }
 
  private:
-  void AddArc(int a, int b, double cap_ab, double cap_ba);
+  struct Edge {
+    int a, b;
+    double cap_ab, cap_ba;
+  };
   int n_;
   std::vector<double> ts_, tt_;  // terminal capacities per node
-  std::vector<int> head_, next_, to_;
-  std::vector<double> cap_;  // residual capacity per arc (arc ^ 1 = reverse arc)
+  std::vector<Edge> edges_;
   std::vector<char> source_side_;
 };
 
@@ -53,4 +56,4 @@ double PottsAlphaExpansion(int num_nodes, int num_labels, const std::vector<floa
 double PottsEnergy(int num_labels, const std::vector<float>& unary,
                    const std::vector<PottsEdge>& edges, const std::vector<int>& labels);
 
-}  // namespace exo::inpaint
+}  // namespace exo::inpainting

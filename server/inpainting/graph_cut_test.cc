@@ -6,7 +6,7 @@
 
 #include <gtest/gtest.h>
 
-namespace exo::inpaint {
+namespace exo::inpainting {
 namespace {
 
 // Minimum cut of a small graph by enumerating every source/sink split.
@@ -65,7 +65,7 @@ TEST(GraphCutTest, MaxFlowEqualsBruteForceMinCut) {
 }
 
 TEST(GraphCutTest, LongChainNeedsNoRecursion) {
-  // A 200k-node path: the blocking-flow search is iterative (a recursive one would need a
+  // A 200k-node path: the search trees grow iteratively (a recursive search would need a
   // 200k-deep stack).
   const int n = 200000;
   MaxFlow mf(n);
@@ -120,4 +120,4 @@ TEST(GraphCutTest, AlphaExpansionIsExactForTwoLabelsAndWithinBoundForThree) {
 }
 
 }  // namespace
-}  // namespace exo::inpaint
+}  // namespace exo::inpainting

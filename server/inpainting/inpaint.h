@@ -28,7 +28,7 @@
 #include "common/rigid3.h"
 #include "common/status.h"
 
-namespace exo::inpaint {
+namespace exo::inpainting {
 
 using ImageI32 = Image<int32_t>;
 
@@ -47,8 +47,8 @@ struct InpaintOptions {
   double kappa = 0.6;        // lower bound of n . n' in rho_g (4.10), in (0, 1]; see docs
   bool use_geometry = true;  // false: colour-only PatchMatch (rho_g == 1), the baseline
   // Onion-peel initialisation (coarsest level): rho_g compares only against the window's
-  // measured normals (outside T), not against normals the peel itself copied into T earlier.
-  // Measured on the training masks: +0.1-0.4 dB at 10-40 % (docs/inpainting.md).
+  // measured normals (outside T), not against normals the peel itself copied into T earlier
+  // (which would reinforce its own earlier choices; measurement in docs/inpainting.md).
   bool peel_measured_normals_only = true;
   double spatial_cap_px2 = 16.0;  // cap of one neighbour's squared offset incoherence (4.9)
   int pyramid_levels = 0;         // 0 = automatic (coarsest side >= min_coarse_side)
@@ -73,27 +73,15 @@ struct InpaintOptions {
   // (affine in the depth domain) through the known pixels 4-adjacent to T, or with
   // prior_local_px > 0 a plane per 8x8 block fitted with Gaussian weights (sigma prior_local_px)
   // of the border pixels' distance, clamped to the range of the border values. Weight at u:
-  //   plane_prior_weight + neumann_prior_weight * (dD(u) / (dD(u) + dN(u)))^2,
+  //   neumann_prior_weight * (dD(u) / (dD(u) + dN(u)))^2,
   // dD / dN the distances to the nearest Dirichlet (known depth) / Neumann (image edge or a
   // pixel without depth) border pixel: ~0 near known depth, ~1 where only the free border is
   // near, so it anchors the parts of T that the copied gradients alone would let drift (regions
   // touching the image border). Chosen on the training masks (docs/inpainting.md).
-  double plane_prior_weight = 0.0;
   double neumann_prior_weight = 0.01;
   double prior_local_px = 50.0;
-  // Joint solve of depth holes next to T (session 4): pixels outside T without measured depth
-  // that are connected to T through such pixels within this geodesic (4-neighbour) distance
-  // form the set S. S keeps its colour but gets sources from the same PatchMatch cost (T's
-  // sources fixed, `joint_iterations` full-resolution sweeps), its depth gradients are copied
-  // through f like T's, and one Poisson solve runs over T u S with Dirichlet values only at
-  // measured depth (S's push-pull pre-fill is then no boundary value). S's search never picks
-  // S pixels as sources; T's search is unchanged, so T's colour is the same as with 0.
-  // 0 = off (default; docs/inpainting.md): holes keep the push-pull fill and border T as
-  // Dirichlet values.
-  int joint_hole_px = 0;
-  int joint_iterations = 4;
-  // Layered depth (session 5, inverse-depth domain only; default since session 5, chosen on
-  // the two training mask sets, docs/inpainting.md): T may hide an occlusion edge (a table in
+  // Layered depth (inverse-depth domain only; chosen on the two training mask sets,
+  // docs/inpainting.md): T may hide an occlusion edge (a table in
   // front of a wall), which one Poisson surface cannot carry. T's border pixels with measured
   // depth are clustered in inverse depth (sorted; split where neighbouring values differ by
   // more than layer_gap_rel of their value; clusters below layer_min_share of the ring or 8 px
@@ -113,9 +101,7 @@ struct InpaintOptions {
   // border pixel as a Dirichlet value only for T pixels of its layer (measured ring: its
   // cluster; others, e.g. push-pull-filled: the layer whose plane it matches within
   // layer_agree_rel, else none), and builds the surface prior per layer region
-  // (BuildSurfacePrior on that region and that layer's border values). With
-  // layer_max_seed_dist_px > 0 a T pixel farther than that from every seed keeps the single
-  // solve (off).
+  // (BuildSurfacePrior on that region and that layer's border values).
   bool layered_depth = true;
   double layer_gap_rel = 0.15;
   double layer_min_share = 0.05;
@@ -131,14 +117,6 @@ struct InpaintOptions {
   bool layer_seed_measured_only = true;
   // T's pixels on the frame's edge take the label of the nearest seed and become seeds.
   bool layer_edge_seeds = true;
-  // Keep the single solve when some pixel of T lies farther than this from every layer's seeds
-  // (the cut would be extrapolated too far; 0 = no limit).
-  double layer_max_seed_dist_px = 0.0;
-  // > 1: in the border continuation (layer_edge_seeds) a step of the farthest layer costs this
-  // much more (linear in between), so a free border stretch is split closer to the far
-  // layer's seeds. 1 = off (session 5: better or a tie in every class of both training sets,
-  // 10-20 % -9 mm on the first, a tie on the second; not switched on after the test run).
-  double layer_far_cost = 1.0;
   absl::Status Validate() const;
 };
 
@@ -161,7 +139,6 @@ struct InpaintStats {
   int invalid_depth_pixels = 0;  // T pixels whose solved depth came out non-finite
   int clamped_depth_pixels = 0;  // T pixels clamped to [zmin/2, 2 zmax] of the input depths
   int prior_pixels = 0;          // T pixels with a surface-prior (screening) term
-  int joint_pixels = 0;          // depth-hole pixels solved jointly with T (joint_hole_px)
   int depth_layers = 1;          // layers of the depth solve (layered_depth; 1 = single surface)
   std::vector<int> layer_pixels; // T pixels per layer (layered_depth, >= 2 layers only)
   float layer_seed_dist_px = 0.f; // largest distance of a T pixel to a layer seed (>= 2 layers)
@@ -216,4 +193,4 @@ FusedGradient FuseGradientSamples(bool has1, float g1, float ref1, bool has2, fl
 // for tests; opposite or zero normals cost 1/kappa instead of dividing by <= 0.
 float GeometryCost(const float* normals_a, const float* normals_b, int count, float kappa);
 
-}  // namespace exo::inpaint
+}  // namespace exo::inpainting

@@ -5,19 +5,20 @@
 // with the thesis' literal depth domain, colour-only PatchMatch (no rho_g), OpenCV Telea (colour
 // and depth), a plane fitted to the ring around the mask (depth). Propagated keyframes: the mask
 // region re-projected into frame +5 and inpainted from the previous keyframe's map.
-// Prints one JSON object per (method, mask) and per-(method, class) summaries; writes a chart of
-// time against depth error and a contact sheet (PNG).
+// Prints a run_info line (commit, build, machine, load: common/run_info), one JSON object per
+// (method, mask) with an output digest for ours, and per-(method, class) summaries; writes a
+// chart of time against depth error and a contact sheet (PNG).
 //
 // Depth is registered to colour (the committed 7-Scenes calibration) unless --raw.
 //
 //   inpaint_bench [--data DIR] [--masks FILE] [--generate_masks [--mask_seed S --mask_frame0 F]]
 //                 [--img_dir DIR] [--threads N] [--repeats N] [--max_masks N] [--raw]
 //                 [--fusion mean|robust] [--jump_rel R] [--jump_weight W] [--converged F]
-//                 [--plane_prior W] [--neumann_prior W] [--prior_local SIGMA_PX] [--seed S]
-//                 [--peel_all_normals] [--dump_depth DIR] [--joint_hole PX] [--joint_iters N]
+//                 [--neumann_prior W] [--prior_local SIGMA_PX] [--seed S]
+//                 [--peel_all_normals] [--dump_depth DIR]
 //                 [--layered | --no_layered] [--layer_gap R] [--layer_min_share S] [--max_layers K]
 //                 [--layer_agree R] [--layer_dist W] [--layer_smooth W]
-//                 [--layer_sigma S] [--layer_jump F] [--layer_block PX] [--layer_seed_measured 0|1] [--layer_edge_seeds 0|1] [--layer_max_dist PX] [--layer_far_cost C]   (session 5: layered depth solve)
+//                 [--layer_sigma S] [--layer_jump F] [--layer_block PX] [--layer_seed_measured 0|1] [--layer_edge_seeds 0|1]
 #include "exoview_source_dir.h"
 #include <algorithm>
 #include <array>
@@ -33,17 +34,20 @@
 #include <vector>
 
 #include <Eigen/Dense>
+#include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 #include <opencv2/photo.hpp>
 
+#include "common/cli/cli.h"
 #include "common/datasets/rgbd_registration.h"
 #include "common/metrics/metrics.h"
+#include "common/run_info/run_info.h"
 #include "server/inpainting/depth_maps.h"
 #include "server/inpainting/inpaint.h"
 
-namespace exo::inpaint {
+namespace exo::inpainting {
 namespace {
 
 using Clock = std::chrono::steady_clock;
@@ -177,46 +181,43 @@ RgbdKeyframe ToKeyframe(const RealFrame& f, const cv::Mat& mask) {
 }
 
 // ---------------------------------------------------------------- masks (generation + IO)
-std::string ToJson(const MaskSpec& m) {
-  std::ostringstream os;
-  os.precision(6);
-  os << "{\"id\":\"" << m.id << "\",\"frame\":" << m.frame << ",\"class\":\"" << m.cls
-     << "\",\"fraction\":" << m.fraction << ",\"ellipses\":[";
-  for (size_t i = 0; i < m.ellipses.size(); ++i) {
-    const Ellipse& e = m.ellipses[i];
-    os << (i ? "," : "") << "[" << e.cx << "," << e.cy << "," << e.rx << "," << e.ry << ","
-       << e.angle_deg << "]";
-  }
-  os << "]}";
-  return os.str();
+// Key order, 6 significant digits and whole numbers without ".0", as the committed masks files
+// were written (--generate_masks reproduces them byte for byte).
+nlohmann::ordered_json ToJson(const MaskSpec& m) {
+  auto g6 = [](double v) {
+    char b[32];
+    std::snprintf(b, sizeof(b), "%.6g", v);
+    const double r = std::strtod(b, nullptr);
+    return r == std::round(r) && std::fabs(r) < 1e15 ? nlohmann::ordered_json(static_cast<int64_t>(r))
+                                                      : nlohmann::ordered_json(r);
+  };
+  nlohmann::ordered_json ellipses = nlohmann::ordered_json::array();
+  for (const Ellipse& e : m.ellipses)
+    ellipses.push_back({g6(e.cx), g6(e.cy), g6(e.rx), g6(e.ry), g6(e.angle_deg)});
+  return {{"id", m.id}, {"frame", m.frame}, {"class", m.cls}, {"fraction", g6(m.fraction)},
+          {"ellipses", ellipses}};
 }
 
-bool ParseMask(const std::string& line, MaskSpec* m) {
-  auto str = [&](const std::string& key) {
-    const size_t p = line.find("\"" + key + "\":\"");
-    if (p == std::string::npos) return std::string();
-    const size_t s = p + key.size() + 4;
-    return line.substr(s, line.find('"', s) - s);
-  };
-  auto num = [&](const std::string& key) {
-    const size_t p = line.find("\"" + key + "\":");
-    return p == std::string::npos ? NAN : std::atof(line.c_str() + p + key.size() + 3);
-  };
-  m->id = str("id");
-  m->cls = str("class");
-  m->frame = static_cast<int>(num("frame"));
-  m->fraction = num("fraction");
-  m->ellipses.clear();
-  size_t p = line.find("\"ellipses\":[");
-  if (p == std::string::npos || m->id.empty()) return false;
-  p += 12;
-  while ((p = line.find('[', p)) != std::string::npos) {
-    Ellipse e;
-    if (std::sscanf(line.c_str() + p, "[%lf,%lf,%lf,%lf,%lf]", &e.cx, &e.cy, &e.rx, &e.ry, &e.angle_deg) != 5) break;
-    m->ellipses.push_back(e);
-    ++p;
+// One line of a masks file; an error names what is missing.
+absl::StatusOr<MaskSpec> ParseMask(const std::string& line) {
+  const nlohmann::json j = nlohmann::json::parse(line, nullptr, /*allow_exceptions=*/false);
+  if (j.is_discarded() || !j.is_object()) return absl::InvalidArgumentError("not a JSON object");
+  MaskSpec m;
+  try {
+    m.id = j.at("id").get<std::string>();
+    m.cls = j.at("class").get<std::string>();
+    m.frame = j.at("frame").get<int>();
+    m.fraction = j.value("fraction", 0.0);
+    for (const auto& e : j.at("ellipses")) {
+      if (!e.is_array() || e.size() != 5) return absl::InvalidArgumentError("an ellipse needs 5 numbers");
+      m.ellipses.push_back({e[0].get<double>(), e[1].get<double>(), e[2].get<double>(),
+                            e[3].get<double>(), e[4].get<double>()});
+    }
+  } catch (const nlohmann::json::exception& e) {
+    return absl::InvalidArgumentError(e.what());
   }
-  return !m->ellipses.empty();
+  if (m.id.empty() || m.ellipses.empty()) return absl::InvalidArgumentError("empty id or no ellipse");
+  return m;
 }
 
 // Blob of 3 ellipses with a random layout, scaled to the target fraction; placed where the
@@ -438,6 +439,19 @@ cv::Mat ReprojectMask(const cv::Mat& mask, const RealFrame& from, const RealFram
 }
 
 // ---------------------------------------------------------------- output
+// FNV-1a 64 over the result's colour and depth bytes: equal digests = bit-identical outputs
+// (compares a change that must not alter results, e.g. a refactoring, run against run).
+uint64_t OutputDigest(const InpaintResult& r) {
+  uint64_t h = 1469598103934665603ULL;
+  auto add = [&h](const void* p, size_t n) {
+    const auto* b = static_cast<const uint8_t*>(p);
+    for (size_t i = 0; i < n; ++i) h = (h ^ b[i]) * 1099511628211ULL;
+  };
+  add(r.color.data(), r.color.bytes());
+  add(r.depth_m.data(), r.depth_m.bytes());
+  return h;
+}
+
 // Per-stage times of one run: wall prepare, search, Poisson, total, then the same in process
 // CPU time (NaN for the baselines).
 using Stages = std::array<double, 8>;
@@ -454,24 +468,33 @@ struct Row {
 };
 
 void PrintRow(const std::string& method, const MaskSpec& spec, double fraction, double ms,
-              const Metrics& m, const std::string& extra = "") {
-  auto f = [](double v) {
-    if (!std::isfinite(v)) return std::string("null");
-    char b[32];
-    std::snprintf(b, sizeof(b), "%.4g", v);
-    return std::string(b);
-  };
-  std::printf(
-      "{\"bench\":\"inpaint\",\"method\":\"%s\",\"mask\":\"%s\",\"class\":\"%s\",\"frame\":%d,"
-      "\"mask_fraction\":%s,\"ms\":%s,\"psnr\":%s,\"ssim\":%s,\"depth_mae_mm\":%s,"
-      "\"depth_rmse_mm\":%s,\"normal_err_deg\":%s,\"seam_color\":%s,\"seam_color_gt\":%s,"
-      "\"seam_depth_mm\":%s,\"seam_depth_gt_mm\":%s,\"depth_valid_frac\":%s%s}\n",
-      method.c_str(), spec.id.c_str(), spec.cls.c_str(), spec.frame, f(fraction).c_str(),
-      f(ms).c_str(), f(m.psnr).c_str(), f(m.ssim).c_str(), f(m.depth_mae_mm).c_str(),
-      f(m.depth_rmse_mm).c_str(), f(m.normal_deg).c_str(), f(m.seam_color).c_str(),
-      f(m.seam_color_gt).c_str(), f(m.seam_depth_mm).c_str(), f(m.seam_depth_gt_mm).c_str(),
-      f(m.depth_valid_frac).c_str(), extra.c_str());
+              const Metrics& m, const nlohmann::json& extra = nlohmann::json::object()) {
+  nlohmann::json row = {{"bench", "inpaint"},
+                        {"method", method},
+                        {"mask", spec.id},
+                        {"class", spec.cls},
+                        {"frame", spec.frame},
+                        {"mask_fraction", fraction},
+                        {"ms", ms},
+                        {"psnr", m.psnr},
+                        {"ssim", m.ssim},
+                        {"depth_mae_mm", m.depth_mae_mm},
+                        {"depth_rmse_mm", m.depth_rmse_mm},
+                        {"normal_err_deg", m.normal_deg},
+                        {"seam_color", m.seam_color},
+                        {"seam_color_gt", m.seam_color_gt},
+                        {"seam_depth_mm", m.seam_depth_mm},
+                        {"seam_depth_gt_mm", m.seam_depth_gt_mm},
+                        {"depth_valid_frac", m.depth_valid_frac}};
+  row.update(extra);  // NaN / inf are written as null
+  std::printf("%s\n", row.dump().c_str());
   std::fflush(stdout);
+}
+
+std::string DigestHex(uint64_t digest) {
+  char b[17];
+  std::snprintf(b, sizeof(b), "%016llx", static_cast<unsigned long long>(digest));
+  return b;
 }
 
 double Percentile(std::vector<double> v, double p) {
@@ -492,10 +515,10 @@ cv::Mat DepthVis(const cv::Mat& d) {
 }
 
 }  // namespace
-}  // namespace exo::inpaint
+}  // namespace exo::inpainting
 
 int main(int argc, char** argv) {
-  using namespace exo::inpaint;
+  using namespace exo::inpainting;
   using exo::ImageU8;
   using exo::Rigid3d;
   std::string data_dir = std::string(EXOVIEW_SOURCE_DIR) + "/../shared/data/7scenes-redkitchen";
@@ -510,7 +533,6 @@ int main(int argc, char** argv) {
   double poisson_tol = InpaintOptions{}.poisson_tolerance;
   double w_opt = InpaintOptions{}.w, kappa_opt = InpaintOptions{}.kappa;
   bool ours_only = false;
-  double plane_prior = InpaintOptions{}.plane_prior_weight;
   double neumann_prior = InpaintOptions{}.neumann_prior_weight;
   double prior_local = InpaintOptions{}.prior_local_px;
   uint64_t seed = InpaintOptions{}.seed;
@@ -519,63 +541,67 @@ int main(int argc, char** argv) {
   int fine_iterations = InpaintOptions{}.fine_iterations;
   bool fusion_mean = InpaintOptions{}.gradient_fusion == GradientFusion::kMean;
   double jump_rel = InpaintOptions{}.jump_rel, jump_weight = InpaintOptions{}.jump_weight;
-  int joint_hole = InpaintOptions{}.joint_hole_px, joint_iters = InpaintOptions{}.joint_iterations;
-  InpaintOptions layer_opts;  // layered_depth and layer_* (session 5)
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    auto next = [&]() { return i + 1 < argc ? std::string(argv[++i]) : std::string(); };
-    if (a == "--data") data_dir = next();
-    else if (a == "--masks") masks_path = next();
-    else if (a == "--generate_masks") generate = true;
-    else if (a == "--mask_seed") mask_seed = std::stoull(next());
-    else if (a == "--mask_frame0") mask_frame0 = std::stoi(next());
-    else if (a == "--img_dir") img_dir = next();
-    else if (a == "--dump_depth") dump_depth_dir = next();
-    else if (a == "--threads") threads = std::stoi(next());
-    else if (a == "--repeats") repeats = std::stoi(next());
-    else if (a == "--max_masks") max_masks = std::stoi(next());
-    else if (a == "--poisson_tol") poisson_tol = std::stod(next());
-    else if (a == "--w") w_opt = std::stod(next());
-    else if (a == "--kappa") kappa_opt = std::stod(next());
-    else if (a == "--ours_only") ours_only = true;
-    else if (a == "--raw") g_register = false;
-    else if (a == "--plane_prior") plane_prior = std::stod(next());
-    else if (a == "--neumann_prior") neumann_prior = std::stod(next());
-    else if (a == "--prior_local") prior_local = std::stod(next());
-    else if (a == "--seed") seed = std::stoull(next());
-    else if (a == "--peel_all_normals") peel_measured = false;
-    else if (a == "--fusion") fusion_mean = next() == "mean";
-    else if (a == "--jump_rel") jump_rel = std::stod(next());
-    else if (a == "--jump_weight") jump_weight = std::stod(next());
-    else if (a == "--converged") converged = std::stod(next());
-    else if (a == "--fine_iterations") fine_iterations = std::stoi(next());
-    else if (a == "--example_frame") example_frame = std::stoi(next());
-    else if (a == "--joint_hole") joint_hole = std::stoi(next());
-    else if (a == "--joint_iters") joint_iters = std::stoi(next());
-    else if (a == "--layered") layer_opts.layered_depth = true;
-    else if (a == "--no_layered") layer_opts.layered_depth = false;
-    else if (a == "--layer_gap") layer_opts.layer_gap_rel = std::stod(next());
-    else if (a == "--layer_min_share") layer_opts.layer_min_share = std::stod(next());
-    else if (a == "--max_layers") layer_opts.max_layers = std::stoi(next());
-    else if (a == "--layer_agree") layer_opts.layer_agree_rel = std::stod(next());
-    else if (a == "--layer_dist") layer_opts.layer_distance_weight = std::stod(next());
-    else if (a == "--layer_smooth") layer_opts.layer_smooth = std::stod(next());
-    else if (a == "--layer_sigma") layer_opts.layer_color_sigma = std::stod(next());
-    else if (a == "--layer_jump") layer_opts.layer_jump_factor = std::stod(next());
-    else if (a == "--layer_block") layer_opts.layer_label_block = std::stoi(next());
-    else if (a == "--layer_seed_measured") layer_opts.layer_seed_measured_only = next() != "0";
-    else if (a == "--layer_edge_seeds") layer_opts.layer_edge_seeds = next() != "0";
-    else if (a == "--layer_max_dist") layer_opts.layer_max_seed_dist_px = std::stod(next());
-    else if (a == "--layer_far_cost") layer_opts.layer_far_cost = std::stod(next());
-    else {
-      std::fprintf(stderr, "unknown argument %s\n", a.c_str());
-      return 2;
-    }
-  }
+  InpaintOptions layer_opts;  // layered_depth and layer_*
+  std::string fusion = fusion_mean ? "mean" : "robust";
+  bool raw = false, layered = layer_opts.layered_depth, no_layered = false;
+  int seed_measured = layer_opts.layer_seed_measured_only ? 1 : 0;
+  int edge_seeds = layer_opts.layer_edge_seeds ? 1 : 0;
+  bool peel_all_normals = !peel_measured;
+  CLI::App app{"InpaintFusion keyframe inpainting on real 7-Scenes frames with ground truth, "
+               "against colour-only PatchMatch, Telea and a ring plane: one JSON line per "
+               "(method, mask) and per (method, class), after a run_info line.",
+               "inpaint_bench"};
+  exo::cli::Setup(app);
+  app.add_option("--data", data_dir, "7-Scenes redkitchen folder");
+  app.add_option("--masks", masks_path, "masks file (JSON lines)");
+  app.add_flag("--generate_masks", generate, "write a new masks file to --masks and exit");
+  app.add_option("--mask_seed", mask_seed, "--generate_masks: seed (test set 20260707, training 777)");
+  app.add_option("--mask_frame0", mask_frame0, "--generate_masks: first frame (test 0, training 15)");
+  app.add_option("--img_dir", img_dir, "write the chart and the contact sheet (PNG) here");
+  app.add_option("--dump_depth", dump_depth_dir, "write per-mask depth views (truth | ours) here");
+  app.add_option("--threads", threads, "InpaintOptions::num_threads")->check(CLI::Range(1, 64));
+  app.add_option("--repeats", repeats, "runs per (method, mask)")->check(CLI::PositiveNumber);
+  app.add_option("--max_masks", max_masks, "use at most this many masks")->check(CLI::PositiveNumber);
+  app.add_option("--example_frame", example_frame, "frame of the contact sheet's examples");
+  app.add_flag("--raw", raw, "depth not registered to colour");
+  app.add_flag("--ours_only", ours_only, "only InpaintFusion (and its propagated runs)");
+  app.add_option("--poisson_tol", poisson_tol, "InpaintOptions::poisson_tolerance");
+  app.add_option("--w", w_opt, "InpaintOptions::w");
+  app.add_option("--kappa", kappa_opt, "InpaintOptions::kappa");
+  app.add_option("--neumann_prior", neumann_prior, "InpaintOptions::neumann_prior_weight");
+  app.add_option("--prior_local", prior_local, "InpaintOptions::prior_local_px");
+  app.add_option("--seed", seed, "InpaintOptions::seed");
+  app.add_flag("--peel_all_normals", peel_all_normals, "peel_measured_normals_only = false");
+  app.add_option("--fusion", fusion, "gradient fusion")->check(CLI::IsMember({"mean", "robust"}));
+  app.add_option("--jump_rel", jump_rel, "InpaintOptions::jump_rel");
+  app.add_option("--jump_weight", jump_weight, "InpaintOptions::jump_weight");
+  app.add_option("--converged", converged, "InpaintOptions::converged_fraction");
+  app.add_option("--fine_iterations", fine_iterations, "InpaintOptions::fine_iterations");
+  app.add_flag("--layered", layered, "layered depth solve (default)");
+  app.add_flag("--no_layered", no_layered, "single-surface depth solve");
+  app.add_option("--layer_gap", layer_opts.layer_gap_rel, "InpaintOptions::layer_gap_rel");
+  app.add_option("--layer_min_share", layer_opts.layer_min_share, "InpaintOptions::layer_min_share");
+  app.add_option("--max_layers", layer_opts.max_layers, "InpaintOptions::max_layers");
+  app.add_option("--layer_agree", layer_opts.layer_agree_rel, "InpaintOptions::layer_agree_rel");
+  app.add_option("--layer_dist", layer_opts.layer_distance_weight, "InpaintOptions::layer_distance_weight");
+  app.add_option("--layer_smooth", layer_opts.layer_smooth, "InpaintOptions::layer_smooth");
+  app.add_option("--layer_sigma", layer_opts.layer_color_sigma, "InpaintOptions::layer_color_sigma");
+  app.add_option("--layer_jump", layer_opts.layer_jump_factor, "InpaintOptions::layer_jump_factor");
+  app.add_option("--layer_block", layer_opts.layer_label_block, "InpaintOptions::layer_label_block");
+  app.add_option("--layer_seed_measured", seed_measured, "layer_seed_measured_only 0|1")
+      ->check(CLI::Range(0, 1));
+  app.add_option("--layer_edge_seeds", edge_seeds, "layer_edge_seeds 0|1")->check(CLI::Range(0, 1));
+  if (auto rc = exo::cli::Parse(app, argc, argv)) return *rc;
+  if (raw) g_register = false;
+  peel_measured = !peel_all_normals;
+  fusion_mean = fusion == "mean";
+  layer_opts.layered_depth = no_layered ? false : layered;
+  layer_opts.layer_seed_measured_only = seed_measured != 0;
+  layer_opts.layer_edge_seeds = edge_seeds != 0;
   if (generate) {
     g_register = false;  // masks are placed on the raw depth (reproduces the committed sets)
     std::ofstream out(masks_path);
-    for (const MaskSpec& m : GenerateMasks(data_dir, mask_seed, mask_frame0)) out << ToJson(m) << "\n";
+    for (const MaskSpec& m : GenerateMasks(data_dir, mask_seed, mask_frame0)) out << ToJson(m).dump() << "\n";
     std::fprintf(stderr, "wrote %s\n", masks_path.c_str());
     return 0;
   }
@@ -583,9 +609,14 @@ int main(int argc, char** argv) {
   {
     std::ifstream in(masks_path);
     std::string line;
-    while (std::getline(in, line)) {
-      MaskSpec m;
-      if (ParseMask(line, &m)) specs.push_back(m);
+    for (int line_no = 1; std::getline(in, line); ++line_no) {
+      if (line.find_first_not_of(" \t\r") == std::string::npos) continue;
+      auto m = ParseMask(line);
+      if (!m.ok()) {
+        std::fprintf(stderr, "%s:%d: %s\n", masks_path.c_str(), line_no, std::string(m.status().message()).c_str());
+        return 1;
+      }
+      specs.push_back(*std::move(m));
     }
   }
   if (specs.empty()) {
@@ -593,6 +624,7 @@ int main(int argc, char** argv) {
     return 1;
   }
   if (static_cast<int>(specs.size()) > max_masks) specs.resize(max_masks);
+  std::printf("%s\n", nlohmann::json{{"bench", "inpaint"}, {"run_info", exo::RunInfo()}}.dump().c_str());
 
   std::map<std::pair<std::string, std::string>, std::vector<Row>> rows;  // (method, class)
   struct Example {
@@ -609,14 +641,11 @@ int main(int argc, char** argv) {
   base.jump_rel = jump_rel;
   base.jump_weight = jump_weight;
   base.converged_fraction = converged;
-  base.plane_prior_weight = plane_prior;
   base.neumann_prior_weight = neumann_prior;
   base.prior_local_px = prior_local;
   base.seed = seed;
   base.peel_measured_normals_only = peel_measured;
   base.fine_iterations = fine_iterations;
-  base.joint_hole_px = joint_hole;
-  base.joint_iterations = joint_iters;
   base.layered_depth = layer_opts.layered_depth;
   base.layer_gap_rel = layer_opts.layer_gap_rel;
   base.layer_min_share = layer_opts.layer_min_share;
@@ -629,8 +658,6 @@ int main(int argc, char** argv) {
   base.layer_label_block = layer_opts.layer_label_block;
   base.layer_seed_measured_only = layer_opts.layer_seed_measured_only;
   base.layer_edge_seeds = layer_opts.layer_edge_seeds;
-  base.layer_max_seed_dist_px = layer_opts.layer_max_seed_dist_px;
-  base.layer_far_cost = layer_opts.layer_far_cost;
   for (const MaskSpec& spec : specs) {
     const RealFrame gt = LoadFrame(data_dir, spec.frame);
     if (!gt.ok) {
@@ -664,11 +691,17 @@ int main(int argc, char** argv) {
       cv::Mat c(480, 640, CV_8UC3, r->color.data()), d(480, 640, CV_32F, r->depth_m.data());
       const Metrics m = Evaluate(mask, &c, &d, gt);
       const double ms = Percentile(times, 0.5);
-      char extra[256];
-      std::snprintf(extra, sizeof(extra),
-                    ",\"cpu_ms\":%.1f,\"threads\":%d,\"levels\":%d,\"ms_prepare\":%.1f,\"ms_search\":%.1f,\"ms_poisson\":%.1f,\"poisson_iters\":%d,\"sweeps\":%d,\"joint_px\":%d,\"layers\":%d,\"layer_dist_px\":%.0f",
-                    Percentile(cpu, 0.5), o.num_threads, r->stats.levels, r->stats.ms_prepare, r->stats.ms_search, r->stats.ms_poisson,
-                    r->stats.poisson_iterations, r->stats.sweeps, r->stats.joint_pixels, r->stats.depth_layers, r->stats.layer_seed_dist_px);
+      const nlohmann::json extra = {{"cpu_ms", Percentile(cpu, 0.5)},
+                                    {"threads", o.num_threads},
+                                    {"levels", r->stats.levels},
+                                    {"ms_prepare", r->stats.ms_prepare},
+                                    {"ms_search", r->stats.ms_search},
+                                    {"ms_poisson", r->stats.ms_poisson},
+                                    {"poisson_iters", r->stats.poisson_iterations},
+                                    {"sweeps", r->stats.sweeps},
+                                    {"layers", r->stats.depth_layers},
+                                    {"layer_dist_px", std::round(r->stats.layer_seed_dist_px)},
+                                    {"output_digest", DigestHex(OutputDigest(*r))}};
       PrintRow(name, spec, fraction, ms, m, extra);
       for (size_t k = 0; k < times.size(); ++k)
         rows[{name, spec.cls}].push_back({name, spec.cls, times[k], m, stages[k]});
@@ -768,13 +801,16 @@ int main(int argc, char** argv) {
           cv::Mat c(480, 640, CV_8UC3, r->color.data()), d(480, 640, CV_32F, r->depth_m.data());
           const Metrics m = Evaluate(mask1, &c, &d, gt1);
           const std::string name = propagate ? "inpaintfusion_propagated" : "inpaintfusion_scratch_next";
-          char extra[320];
-          std::snprintf(extra, sizeof(extra),
-                        ",\"propagated_frac\":%.3f,\"cpu_ms\":%.1f,\"levels\":%d,\"ms_prepare\":%.1f,"
-                        "\"ms_search\":%.1f,\"ms_poisson\":%.1f,\"poisson_iters\":%d,\"layers\":%d",
-                        static_cast<double>(r->stats.propagated_pixels) / r->stats.target_pixels,
-                        Percentile(cpu, 0.5), r->stats.levels, r->stats.ms_prepare, r->stats.ms_search,
-                        r->stats.ms_poisson, r->stats.poisson_iterations, r->stats.depth_layers);
+          const nlohmann::json extra = {
+              {"propagated_frac", static_cast<double>(r->stats.propagated_pixels) / r->stats.target_pixels},
+              {"cpu_ms", Percentile(cpu, 0.5)},
+              {"levels", r->stats.levels},
+              {"ms_prepare", r->stats.ms_prepare},
+              {"ms_search", r->stats.ms_search},
+              {"ms_poisson", r->stats.ms_poisson},
+              {"poisson_iters", r->stats.poisson_iterations},
+              {"layers", r->stats.depth_layers},
+              {"output_digest", DigestHex(OutputDigest(*r))}};
           PrintRow(name, s1, cv::countNonZero(mask1) / (640.0 * 480.0), Percentile(times, 0.5), m, extra);
           for (size_t k = 0; k < times.size(); ++k)
             rows[{name, "10-20%"}].push_back({name, "10-20%", times[k], m, stages[k]});
@@ -824,29 +860,30 @@ int main(int argc, char** argv) {
     s.seam_c = mean([](const Metrics& m) { return m.seam_color - m.seam_color_gt; });
     s.seam_d = mean([](const Metrics& m) { return m.seam_depth_mm - m.seam_depth_gt_mm; });
     sums.push_back(s);
-    auto f = [](double x) {
-      if (!std::isfinite(x)) return std::string("null");
-      char b[32];
-      std::snprintf(b, sizeof(b), "%.4g", x);
-      return std::string(b);
-    };
+    nlohmann::json row = {{"bench", "inpaint_summary"},
+                          {"method", s.method},
+                          {"class", s.cls},
+                          {"runs", s.n},
+                          {"threads", threads},
+                          {"ms_p50", s.p50},
+                          {"ms_p95", s.p95},
+                          {"psnr", s.psnr},
+                          {"ssim", s.ssim},
+                          {"depth_mae_mm", s.mae},
+                          {"depth_rmse_mm", s.rmse},
+                          {"normal_err_deg", s.nerr},
+                          {"seam_color_excess", s.seam_c},
+                          {"seam_depth_excess_mm", s.seam_d}};
     // Per-stage p50/p95, wall and process CPU (ours only; the baselines have no stages).
-    std::string stage_json;
     for (int k = 0; k < 8; ++k) {
       std::vector<double> vals;
       for (const Row& r : v)
         if (std::isfinite(r.st[k])) vals.push_back(r.st[k]);
       if (vals.empty()) continue;
-      stage_json += std::string(",\"") + (k < 4 ? "ms_" : "cpu_ms_") + kStageNames[k % 4] + "\":[" +
-                    f(Percentile(vals, 0.5)) + "," + f(Percentile(vals, 0.95)) + "]";
+      row[std::string(k < 4 ? "ms_" : "cpu_ms_") + kStageNames[k % 4]] = {Percentile(vals, 0.5),
+                                                                          Percentile(vals, 0.95)};
     }
-    std::printf(
-        "{\"bench\":\"inpaint_summary\",\"method\":\"%s\",\"class\":\"%s\",\"runs\":%d,\"threads\":%d,"
-        "\"ms_p50\":%s,\"ms_p95\":%s,\"psnr\":%s,\"ssim\":%s,\"depth_mae_mm\":%s,\"depth_rmse_mm\":%s,"
-        "\"normal_err_deg\":%s,\"seam_color_excess\":%s,\"seam_depth_excess_mm\":%s%s}\n",
-        s.method.c_str(), s.cls.c_str(), s.n, threads, f(s.p50).c_str(), f(s.p95).c_str(),
-        f(s.psnr).c_str(), f(s.ssim).c_str(), f(s.mae).c_str(), f(s.rmse).c_str(), f(s.nerr).c_str(),
-        f(s.seam_c).c_str(), f(s.seam_d).c_str(), stage_json.c_str());
+    std::printf("%s\n", row.dump().c_str());
   }
 
   if (!img_dir.empty()) {

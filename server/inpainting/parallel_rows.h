@@ -6,7 +6,7 @@
 #include <thread>
 #include <vector>
 
-namespace exo::inpaint {
+namespace exo::inpainting {
 
 // Runs fn(y) for every y in [0, h), rows split into contiguous blocks over `threads` threads.
 template <typename Fn>
@@ -21,4 +21,4 @@ void ParallelRows(int h, int threads, const Fn& fn) {
   for (auto& th : pool) th.join();
 }
 
-}  // namespace exo::inpaint
+}  // namespace exo::inpainting

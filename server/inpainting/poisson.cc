@@ -9,7 +9,7 @@
 #include <Eigen/SparseCholesky>
 #include <Eigen/SparseCore>
 
-namespace exo::inpaint {
+namespace exo::inpainting {
 
 absl::Status PoissonOptions::Validate() const {
   if (!(tolerance > 0.0 && tolerance < 1.0)) {
@@ -419,4 +419,4 @@ absl::StatusOr<ImageF> SolvePoisson(const PoissonProblem& p, const PoissonOption
   return out;
 }
 
-}  // namespace exo::inpaint
+}  // namespace exo::inpainting

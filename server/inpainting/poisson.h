@@ -17,7 +17,7 @@
 #include "common/image.h"
 #include "common/status.h"
 
-namespace exo::inpaint {
+namespace exo::inpainting {
 
 struct PoissonOptions {
   double tolerance = 1e-10;  // relative residual of the conjugate gradient
@@ -65,4 +65,4 @@ struct PoissonProblem {
 absl::StatusOr<ImageF> SolvePoisson(const PoissonProblem& problem, const PoissonOptions& options,
                                     PoissonStats* stats = nullptr);
 
-}  // namespace exo::inpaint
+}  // namespace exo::inpainting

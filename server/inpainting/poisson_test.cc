@@ -8,7 +8,7 @@
 
 #include <gtest/gtest.h>
 
-namespace exo::inpaint {
+namespace exo::inpainting {
 namespace {
 
 const float kNan = std::numeric_limits<float>::quiet_NaN();
@@ -251,4 +251,4 @@ TEST(PoissonTest, RejectsMismatchedSizes) {
 }
 
 }  // namespace
-}  // namespace exo::inpaint
+}  // namespace exo::inpainting

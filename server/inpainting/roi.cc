@@ -6,7 +6,7 @@
 
 #include "server/inpainting/depth_maps.h"
 
-namespace exo::inpaint {
+namespace exo::inpainting {
 
 absl::Status RoiOptions::Validate() const {
   if (!(radius_px > 0.0) || !std::isfinite(radius_px)) {
@@ -89,4 +89,4 @@ absl::StatusOr<ImageU8> RoiFromStroke(std::span<const glm::dvec2> stroke_px, con
   return roi;
 }
 
-}  // namespace exo::inpaint
+}  // namespace exo::inpainting

@@ -13,7 +13,7 @@
 #include "common/image.h"
 #include "common/status.h"
 
-namespace exo::inpaint {
+namespace exo::inpainting {
 
 struct RoiOptions {
   double radius_px = 30.0;   // r_ROI
@@ -29,4 +29,4 @@ struct RoiOptions {
 absl::StatusOr<ImageU8> RoiFromStroke(std::span<const glm::dvec2> stroke_px, const ImageF& depth_m,
                                       const PinholeCamera& camera, const RoiOptions& options);
 
-}  // namespace exo::inpaint
+}  // namespace exo::inpainting

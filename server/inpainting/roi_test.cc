@@ -4,7 +4,7 @@
 
 #include "server/inpainting/test_scenes.h"
 
-namespace exo::inpaint {
+namespace exo::inpainting {
 namespace {
 
 using testing::RenderPlanes;
@@ -56,4 +56,4 @@ TEST(RoiTest, Errors) {
 }
 
 }  // namespace
-}  // namespace exo::inpaint
+}  // namespace exo::inpainting

@@ -8,7 +8,7 @@
 
 #include "server/inpainting/inpaint.h"
 
-namespace exo::inpaint::testing {
+namespace exo::inpainting::testing {
 
 struct WorldPlane {
   glm::dvec3 n;  // unit normal (world)
@@ -79,4 +79,4 @@ inline ImageU8 RectMask(int w, int h, int x0, int y0, int x1, int y1) {
   return m;
 }
 
-}  // namespace exo::inpaint::testing
+}  // namespace exo::inpainting::testing

@@ -59,8 +59,7 @@ struct CellIdRendererOptions {
 };
 
 // Default cluster size: 0.5 x the cell size, at most 4 x the TSDF voxel (voxel_m <= 0: no
-// voxel bound). Measured (planning_bench, 300 frames, 50 test views; docs/planning.md): village
-// 0.5 m clusters -0.0005 MSSIM at 9.3 ms per frame; apartment 0.104 m -0.006 at 4.8 ms.
+// voxel bound); its quality and speed are measured in docs/planning.md (planning_bench).
 double DefaultCellIdLodM(double cell_size_m, double voxel_m);
 
 struct CellIdBuffer {

@@ -16,9 +16,8 @@
 // the smallest φ when φ_I - φ_v > Δτ. R(b_k) is always the pre-selection replayed over the views
 // STORED NOW, in acceptance order (each φ against the references chosen before it): when a view
 // leaves the store, the R(b_k) of its cells are rebuilt that way, so R does not depend on views
-// that were evicted (patching the hole with the best remaining observer, as sessions 1-4 did,
-// kept references whose φ had been judged against views long gone: apartment walk, 400 frames,
-// store 200, near test poses 0.788 -> see docs/evaluation.md).
+// that were evicted (patching the hole with the best remaining observer instead keeps
+// references whose φ was judged against views long gone; measured in docs/evaluation.md).
 #pragma once
 
 #include <cstdint>

@@ -3,18 +3,21 @@
 // SolvePoseCeres (ceres::Solve on ONE residual block, robust loss per residual inside it, the
 // product's solver) and by a ceres::Problem with one block per residual (the session-2
 // reference). Prints one JSON object per configuration: CPU us per solve, iterations,
-// final cost and pose error. Usage: pose_solver_bench [--n 1500] [--reps 200]
+// final cost and pose error, after a first line with the run's commit, build and machine
+// (common/run_info). Usage: pose_solver_bench [--n 1500] [--reps 200]
 #include <time.h>
 
 #include <cmath>
 #include <cstdio>
-#include <cstdlib>
-#include <cstring>
 #include <memory>
 #include <random>
 #include <string>
 #include <vector>
 
+#include <nlohmann/json.hpp>
+
+#include "common/cli/cli.h"
+#include "common/run_info/run_info.h"
 #include "server/refinement/pose_batch.h"
 
 namespace exo::refinement {
@@ -28,15 +31,14 @@ double CpuUs() {
 
 int Main(int argc, char** argv) {
   int n = 1500, reps = 200;
-  for (int i = 1; i + 1 < argc; i += 2) {
-    if (!std::strcmp(argv[i], "--n")) n = std::atoi(argv[i + 1]);
-    else if (!std::strcmp(argv[i], "--reps")) reps = std::atoi(argv[i + 1]);
-    else {
-      std::fprintf(stderr, "unknown flag %s\n", argv[i]);
-      return 2;
-    }
-  }
-  if (n < 10 || reps < 1) return 2;
+  CLI::App app{"One pose-stage solve, the product's single-block Ceres solve against a "
+               "per-residual Ceres problem: CPU us per solve, iterations, cost, error (JSON lines).",
+               "pose_solver_bench"};
+  cli::Setup(app);
+  app.add_option("--n", n, "residuals per problem")->check(CLI::Range(10, 1000000));
+  app.add_option("--reps", reps, "solves per configuration")->check(CLI::PositiveNumber);
+  if (auto rc = cli::Parse(app, argc, argv)) return *rc;
+  std::printf("%s\n", nlohmann::json{{"bench", "pose_solver"}, {"run_info", RunInfo()}}.dump().c_str());
   constexpr int kW = 320, kH = 240;
   std::vector<float> img(kW * kH);
   for (int y = 0; y < kH; ++y)
@@ -112,12 +114,17 @@ int Main(int argc, char** argv) {
       for (int c = 0; c < 6; ++c)
         if (variant == 0 || c < 3) err = std::max(err, std::abs(xi[c] - xi_true[c]));
       static const char* kNames[2] = {"ceres_single_block", "ceres_per_residual"};
-      std::printf(
-          "{\"bench\":\"pose_solver\",\"loss\":\"%s\",\"free_directions\":%d,\"residuals\":%d,"
-          "\"solver\":\"%s\",\"reps\":%d,\"cpu_us_per_solve\":%.1f,\"iterations\":%d,"
-          "\"final_cost\":%.6g,\"max_abs_xi_error\":%.2g}\n",
-          variant == 0 ? "tukey" : "cauchy", static_cast<int>(basis.cols()), n, kNames[solver],
-          nrep, us, iterations, final_cost, err);
+      const nlohmann::json row = {{"bench", "pose_solver"},
+                                  {"loss", variant == 0 ? "tukey" : "cauchy"},
+                                  {"free_directions", static_cast<int>(basis.cols())},
+                                  {"residuals", n},
+                                  {"solver", kNames[solver]},
+                                  {"reps", nrep},
+                                  {"cpu_us_per_solve", us},
+                                  {"iterations", iterations},
+                                  {"final_cost", final_cost},
+                                  {"max_abs_xi_error", err}};
+      std::printf("%s\n", row.dump().c_str());
       std::fflush(stdout);
     }
   }

@@ -362,11 +362,26 @@ class Refiner {
   absl::StatusOr<RefinementResult> Run();
 
  private:
+  // The steps of Run, in order.
+  void BuildPyramids();          // candidate and reference pyramids (the latter from cache_)
+  void PrepareCandidateDepth();  // depth-term grid and its invalid (hole / edge) mask
   struct Active {
     std::vector<int> idx;
     std::vector<double> c;  // candidate value at the current pose
   };
   void BuildSamples(int budget);
+  // BuildSamples' steps: block culling, the textured and flat picks of a block, and one sample
+  // (valid in the candidate at its input pose, medians over the references per level).
+  bool BlockReachesCandidate(const StoredView& ref, const Level& rl, const Rigid3d& cand_from_ref,
+                             int bx, int by, int block, double margin_px) const;
+  struct BlockPicks {
+    int best_x = -1, best_y = -1, flat_x = -1, flat_y = -1;
+  };
+  BlockPicks PickInBlock(const StoredView& ref, const Level& rl, int bx, int by, int block,
+                         bool use_picks) const;
+  bool MakeSample(const glm::dvec3& p_in_local, bool flat, const Pose& cand0,
+                  const std::vector<Rigid3d>& ref_from_local, Sample* s,
+                  double* depth_in_cand) const;
   enum class Kind { kAll, kTextured, kFlat };
   Active ActiveSet(int level, const Pose& pose, Kind kind = Kind::kAll) const;
   bool ValidInCandidate(int level, const Pose& pose, const Sample& s, double* u,
@@ -394,20 +409,30 @@ class Refiner {
   void AddDepthEnergy(const std::vector<int>& idx, const Pose& p0, const Pose& p1, double w,
                       double scale, double* before, double* after) const;
   Eigen::Matrix<double, 6, 6> Information(int level, const Pose& pose, double e) const;
-  // Pose/exposure alternation over the pyramid from the coarsest level; attempt 0 is the
-  // default schedule, attempt 1 the retry (6-DoF at every level, 3x the LM iterations).
-  void CoarseToFine(int attempt, Pose* pose, double* e, int start_level = -1);
+  // Pose/exposure alternation over the pyramid from `start_level` (-1: the coarsest). The first
+  // pass refines rotation only on the coarse levels; a multi-start pass is 6-DoF everywhere.
+  void CoarseToFine(bool multistart, Pose* pose, double* e, int start_level = -1);
   // Relative residual at `pose` and the outlier threshold for it (references' disagreement).
   void OutlierTest(const Pose& pose, double e, double* relative, double* threshold,
                    double* disagreement = nullptr, int* num_valid = nullptr) const;
-  // median |E c_j - m_j| / median(m_j) over the samples valid at `pose`, level 0.
-  double RelativeResidual(const Pose& pose, double e) const;
   struct ResidualSummary {
     double relative = 1.0;  // median |E c_j - m_j| / median(m_j)
     double median_m = 0.0;  // median(m_j)
   };
   ResidualSummary SummarizeResiduals(const Active& a, double e) const;
-  int attempt_ = 0;
+  // Surface samples valid at the input pose (densified for saturated/black candidates); an
+  // error when fewer than 3 are valid.
+  absl::StatusOr<Active> SampleSurface(const Pose& pose0);
+  double InitialExposure(const Pose& pose0, const Active& a0) const;
+  // Restarts around a first pass that would be rejected as an outlier (multistart_step_m).
+  void MultiStart(Pose* pose, double* e);
+  // Undo pose / exposure changes that raised the energy of the whole call.
+  void GuardEnergy(const Pose& pose0, double e0, double e_exposure_only, const Active& a0,
+                   double report_scale, Pose* pose, double* e);
+  // Significance gates: keep the input pose / prior exposure when an update explains less than
+  // the references' own disagreement.
+  void GateInsignificantUpdates(const Pose& pose0, double e_exposure_only, Pose* pose, double* e);
+  bool multistart_pass_ = false;  // set by CoarseToFine
 
   const StoredView& cand_;
   std::vector<const StoredView*> refs_;
@@ -431,15 +456,142 @@ class Refiner {
   RefinementResult res_;
 };
 
+bool Refiner::BlockReachesCandidate(const StoredView& ref, const Level& rl,
+                                    const Rigid3d& cand_from_ref, int bx, int by, int block,
+                                    double margin_px) const {
+  // The block centre (with its depth) must not project farther than `margin_px` outside the
+  // candidate image (scanning every pixel of every reference was ~15 ms of a 640x480 call with 8
+  // references). A centre without depth or behind the candidate keeps the block.
+  const Level& c0 = cand_pyr_[0];
+  const int w = rl.w, h = rl.h;
+  const int cx = std::min(bx + block / 2, w - 1 - o_.border_px);
+  const int cy = std::min(by + block / 2, h - 1 - o_.border_px);
+  const float zc = ref.depth_m.at(cx, cy);
+  if (!(zc > 0.f && std::isfinite(zc))) return true;
+  const glm::dvec3 q = cand_from_ref * ref.camera.Unproject({double(cx), double(cy)}, zc);
+  if (!(q.z > 0.05 * zc)) return true;
+  const double u = c0.k.fx * q.x / q.z + c0.k.cx, v = c0.k.fy * q.y / q.z + c0.k.cy;
+  return !(u < -margin_px || v < -margin_px || u > c0.w - 1 + margin_px ||
+           v > c0.h - 1 + margin_px);
+}
+
+Refiner::BlockPicks Refiner::PickInBlock(const StoredView& ref, const Level& rl, int bx, int by,
+                                         int block, bool use_picks) const {
+  // The most textured pixel of the block with valid depth (DSO-style candidates) and the
+  // flattest one (relative gradient): from the cached per-cell picks, or by a scan.
+  const int w = rl.w, h = rl.h;
+  BlockPicks out;
+  if (use_picks) {
+    const int c0x = (bx - o_.border_px) / kPickCell, c0y = (by - o_.border_px) / kPickCell;
+    const int nc = block / kPickCell;
+    int best = -1, flat = -1;
+    float bg = -1.f, fg = 1e30f;
+    for (int cy = c0y; cy < std::min(c0y + nc, rl.picks_h); ++cy)
+      for (int cx = c0x; cx < std::min(c0x + nc, rl.picks_w); ++cx) {
+        const Level::Pick& pk = rl.picks[static_cast<size_t>(cy) * rl.picks_w + cx];
+        if (pk.best < 0) continue;
+        if (pk.best_g > bg) {
+          bg = pk.best_g;
+          best = pk.best;
+        }
+        if (pk.flat_g < fg) {
+          fg = pk.flat_g;
+          flat = pk.flat;
+        }
+      }
+    if (best >= 0) {
+      out.best_x = best % w;
+      out.best_y = best / w;
+      out.flat_x = flat % w;
+      out.flat_y = flat / w;
+    }
+    return out;
+  }
+  double best_g = -1.0, flat_g = 1e30;
+  for (int y = by; y < std::min(by + block, h - o_.border_px); ++y)
+    for (int x = bx; x < std::min(bx + block, w - o_.border_px); ++x) {
+      const size_t i = static_cast<size_t>(y) * w + x;
+      const float z = ref.depth_m.at(x, y);
+      if (!(z > 0.f) || !std::isfinite(z) || rl.bad[i]) continue;
+      const double g =
+          std::abs(rl.luma[i + 1] - rl.luma[i - 1]) + std::abs(rl.luma[i + w] - rl.luma[i - w]);
+      if (g > best_g) {
+        best_g = g;
+        out.best_x = x;
+        out.best_y = y;
+      }
+      const double gr = g / (rl.luma[i] + 0.01);
+      if (gr < flat_g) {
+        flat_g = gr;
+        out.flat_x = x;
+        out.flat_y = y;
+      }
+    }
+  return out;
+}
+
+bool Refiner::MakeSample(const glm::dvec3& pl, bool flat, const Pose& cand0,
+                         const std::vector<Rigid3d>& ref_from_local, Sample* s,
+                         double* depth_in_cand) const {
+  const Level& c0 = cand_pyr_[0];
+  s->flat = flat;
+  s->p_in_local = {pl.x, pl.y, pl.z};
+  // Valid in the candidate at its initial pose (SPEC §6, looser occlusion tolerance).
+  const Eigen::Vector3d q = cand0.Apply(s->p_in_local);
+  if (!(q.z() > 1e-6)) return false;
+  const double u = c0.k.fx * q.x() / q.z() + c0.k.cx, v = c0.k.fy * q.y() / q.z() + c0.k.cy;
+  if (!c0.Inside(u, v, o_.border_px)) return false;
+  const bool cand_depth = !cand_.depth_m.empty() && cand_.depth_m.width() == c0.w &&
+                          cand_.depth_m.height() == c0.h;
+  if (cand_depth) {
+    const float dc =
+        cand_.depth_m.at(static_cast<int>(std::lround(u)), static_cast<int>(std::lround(v)));
+    if (dc > 0.f && std::isfinite(dc) &&
+        std::abs(q.z() - dc) > o_.cand_occlusion_abs_m + o_.cand_occlusion_rel * dc)
+      return false;
+  }
+  // Median over the references in which the point is valid, per level.
+  std::vector<double> vals[kMaxLevels];
+  for (size_t i = 0; i < refs_.size(); ++i) {
+    const StoredView& ri = *refs_[i];
+    const glm::dvec3 pi = ref_from_local[i] * pl;
+    glm::dvec2 uv;
+    if (!ri.camera.Project(pi, &uv)) continue;
+    const Level& L0 = (*ref_pyr_[i])[0];
+    if (!L0.Inside(uv.x, uv.y, 1.0)) continue;
+    const int xi = static_cast<int>(std::lround(uv.x)), yi = static_cast<int>(std::lround(uv.y));
+    const float di = ri.depth_m.at(xi, yi);
+    if (!(di > 0.f) || !std::isfinite(di)) continue;
+    if (std::abs(pi.z - di) > o_.ref_occlusion_abs_m + o_.ref_occlusion_rel * di) continue;
+    if (NearDepthEdge(ri.depth_m, xi, yi, di, o_.depth_discontinuity_m)) continue;
+    for (int l = 0; l < levels_; ++l) {
+      const Level& L = (*ref_pyr_[i])[l];
+      const double s_l = 1.0 / (1 << l);
+      const double ul = (uv.x + 0.5) * s_l - 0.5, vl = (uv.y + 0.5) * s_l - 0.5;
+      if (!L.Inside(ul, vl, 0.0) || L.BadBilinear(ul, vl)) continue;
+      vals[l].push_back(ri.exposure * L.Bilinear(ul, vl));
+    }
+  }
+  for (int l = 0; l < levels_; ++l) {
+    s->has[l] = !vals[l].empty();
+    if (s->has[l]) s->m[l] = static_cast<float>(Median(vals[l]));
+  }
+  s->num_refs = static_cast<int>(vals[0].size());
+  if (s->num_refs >= 2) {
+    for (double& x : vals[0]) x = std::abs(x - s->m[0]);
+    s->spread = static_cast<float>(Median(vals[0]));
+  }
+  if (!s->has[0]) return false;
+  *depth_in_cand = q.z();
+  return true;
+}
+
 void Refiner::BuildSamples(int budget) {
   const Pose cand0 = CamFromLocal(cand_.local_from_cam);
   const Level& c0 = cand_pyr_[0];
-  const bool cand_depth = !cand_.depth_m.empty() && cand_.depth_m.width() == c0.w &&
-                          cand_.depth_m.height() == c0.h;
   // One block size for all references: each contributes in proportion to its overlap.
   double overlap_sum = 0;
   for (double f : overlap_) overlap_sum += f;
-  std::vector<double> vals[kMaxLevels];
   std::vector<double> depths;
   std::vector<Rigid3d> ref_from_local;
   for (const StoredView* r : refs_) ref_from_local.push_back(r->local_from_cam.Inverse());
@@ -457,127 +609,20 @@ void Refiner::BuildSamples(int budget) {
     const double margin_px = 3.0 * block * c0.k.fx / ref.camera.fx + o_.border_px;
     for (int by = o_.border_px; by < h - o_.border_px; by += block)
       for (int bx = o_.border_px; bx < w - o_.border_px; bx += block) {
-        // Cull blocks that cannot reach the candidate: the block centre (with its depth)
-        // projects farther than 3 blocks outside the candidate image (scanning every pixel of
-        // every reference was ~15 ms of a 640x480 call with 8 references).
-        {
-          const int cx = std::min(bx + block / 2, w - 1 - o_.border_px);
-          const int cy = std::min(by + block / 2, h - 1 - o_.border_px);
-          const float zc = ref.depth_m.at(cx, cy);
-          if (zc > 0.f && std::isfinite(zc)) {
-            const glm::dvec3 q = cand_from_ref * ref.camera.Unproject({double(cx), double(cy)}, zc);
-            if (q.z > 0.05 * zc) {
-              const double u = c0.k.fx * q.x / q.z + c0.k.cx, v = c0.k.fy * q.y / q.z + c0.k.cy;
-              if (u < -margin_px || v < -margin_px || u > c0.w - 1 + margin_px ||
-                  v > c0.h - 1 + margin_px)
-                continue;
-            }
-          }
-        }
-        // The most textured pixel of the block with valid depth (DSO-style candidates) and the
-        // flattest one (relative gradient).
-        int best_x = -1, best_y = -1, flat_x = -1, flat_y = -1;
-        double best_g = -1.0, flat_g = 1e30;
-        if (use_picks) {
-          const int c0x = (bx - o_.border_px) / kPickCell, c0y = (by - o_.border_px) / kPickCell;
-          const int nc = block / kPickCell;
-          int best = -1, flat = -1;
-          float bg = -1.f, fg = 1e30f;
-          for (int cy = c0y; cy < std::min(c0y + nc, rl.picks_h); ++cy)
-            for (int cx = c0x; cx < std::min(c0x + nc, rl.picks_w); ++cx) {
-              const Level::Pick& pk = rl.picks[static_cast<size_t>(cy) * rl.picks_w + cx];
-              if (pk.best < 0) continue;
-              if (pk.best_g > bg) {
-                bg = pk.best_g;
-                best = pk.best;
-              }
-              if (pk.flat_g < fg) {
-                fg = pk.flat_g;
-                flat = pk.flat;
-              }
-            }
-          if (best >= 0) {
-            best_x = best % w;
-            best_y = best / w;
-            flat_x = flat % w;
-            flat_y = flat / w;
-          }
-        }
-        for (int y = by; !use_picks && y < std::min(by + block, h - o_.border_px); ++y)
-          for (int x = bx; x < std::min(bx + block, w - o_.border_px); ++x) {
-            const size_t i = static_cast<size_t>(y) * w + x;
-            const float z = ref.depth_m.at(x, y);
-            if (!(z > 0.f) || !std::isfinite(z) || rl.bad[i]) continue;
-            const double g = std::abs(rl.luma[i + 1] - rl.luma[i - 1]) +
-                             std::abs(rl.luma[i + w] - rl.luma[i - w]);
-            if (g > best_g) {
-              best_g = g;
-              best_x = x;
-              best_y = y;
-            }
-            const double gr = g / (rl.luma[i] + 0.01);
-            if (gr < flat_g) {
-              flat_g = gr;
-              flat_x = x;
-              flat_y = y;
-            }
-          }
-        if (best_x < 0) continue;
+        if (!BlockReachesCandidate(ref, rl, cand_from_ref, bx, by, block, margin_px)) continue;
+        const BlockPicks picks = PickInBlock(ref, rl, bx, by, block, use_picks);
+        if (picks.best_x < 0) continue;
         for (int pass = 0; pass < 2; ++pass) {
-        const int sx = pass == 0 ? best_x : flat_x, sy = pass == 0 ? best_y : flat_y;
-        const float z = ref.depth_m.at(sx, sy);
-        if (NearDepthEdge(ref.depth_m, sx, sy, z, o_.depth_discontinuity_m)) continue;
-        const glm::dvec3 pc = ref.camera.Unproject({double(sx), double(sy)}, z);
-        const glm::dvec3 pl = ref.local_from_cam * pc;
-        Sample s;
-        s.flat = pass == 1;
-        s.p_in_local = {pl.x, pl.y, pl.z};
-        // Valid in the candidate at its initial pose (SPEC §6, looser occlusion tolerance).
-        const Eigen::Vector3d q = cand0.Apply(s.p_in_local);
-        if (!(q.z() > 1e-6)) continue;
-        const double u = c0.k.fx * q.x() / q.z() + c0.k.cx, v = c0.k.fy * q.y() / q.z() + c0.k.cy;
-        if (!c0.Inside(u, v, o_.border_px)) continue;
-        if (cand_depth) {
-          const float dc = cand_.depth_m.at(static_cast<int>(std::lround(u)),
-                                            static_cast<int>(std::lround(v)));
-          if (dc > 0.f && std::isfinite(dc) &&
-              std::abs(q.z() - dc) > o_.cand_occlusion_abs_m + o_.cand_occlusion_rel * dc)
-            continue;
-        }
-        // Median over the references in which the point is valid.
-        for (auto& vv : vals) vv.clear();
-        for (size_t i = 0; i < refs_.size(); ++i) {
-          const StoredView& ri = *refs_[i];
-          const glm::dvec3 pi = ref_from_local[i] * pl;
-          glm::dvec2 uv;
-          if (!ri.camera.Project(pi, &uv)) continue;
-          const Level& L0 = (*ref_pyr_[i])[0];
-          if (!L0.Inside(uv.x, uv.y, 1.0)) continue;
-          const int xi = static_cast<int>(std::lround(uv.x)), yi = static_cast<int>(std::lround(uv.y));
-          const float di = ri.depth_m.at(xi, yi);
-          if (!(di > 0.f) || !std::isfinite(di)) continue;
-          if (std::abs(pi.z - di) > o_.ref_occlusion_abs_m + o_.ref_occlusion_rel * di) continue;
-          if (NearDepthEdge(ri.depth_m, xi, yi, di, o_.depth_discontinuity_m)) continue;
-          for (int l = 0; l < levels_; ++l) {
-            const Level& L = (*ref_pyr_[i])[l];
-            const double s_l = 1.0 / (1 << l);
-            const double ul = (uv.x + 0.5) * s_l - 0.5, vl = (uv.y + 0.5) * s_l - 0.5;
-            if (!L.Inside(ul, vl, 0.0) || L.BadBilinear(ul, vl)) continue;
-            vals[l].push_back(ri.exposure * L.Bilinear(ul, vl));
-          }
-        }
-        for (int l = 0; l < levels_; ++l) {
-          s.has[l] = !vals[l].empty();
-          if (s.has[l]) s.m[l] = static_cast<float>(Median(vals[l]));
-        }
-        s.num_refs = static_cast<int>(vals[0].size());
-        if (s.num_refs >= 2) {
-          for (double& x : vals[0]) x = std::abs(x - s.m[0]);
-          s.spread = static_cast<float>(Median(vals[0]));
-        }
-        if (!s.has[0]) continue;
-        samples_.push_back(s);
-        depths.push_back(q.z());
+          const int sx = pass == 0 ? picks.best_x : picks.flat_x;
+          const int sy = pass == 0 ? picks.best_y : picks.flat_y;
+          const float z = ref.depth_m.at(sx, sy);
+          if (NearDepthEdge(ref.depth_m, sx, sy, z, o_.depth_discontinuity_m)) continue;
+          const glm::dvec3 pl = ref.local_from_cam * ref.camera.Unproject({double(sx), double(sy)}, z);
+          Sample s;
+          double depth = 0;
+          if (!MakeSample(pl, pass == 1, cand0, ref_from_local, &s, &depth)) continue;
+          samples_.push_back(s);
+          depths.push_back(depth);
         }
       }
   }
@@ -725,7 +770,7 @@ Pose Refiner::SolvePose(int level, double e, const Pose& pose) {
   // Coarse levels cannot separate a small camera translation from a rotation (1-2 cm at metres
   // is sub-pixel there): rotation only (about the camera centre), the translation waits for the
   // fine levels. Weak directions (eigen-analysis of the level-0 information) stay frozen.
-  const bool rot_only = attempt_ == 0 && level >= o_.rotation_only_from_level;
+  const bool rot_only = !multistart_pass_ && level >= o_.rotation_only_from_level;
   const Eigen::Matrix<double, 6, Eigen::Dynamic>& basis = rot_only ? rot_basis_ : free_basis_;
   if (basis.cols() == 0) return pose;
   const Active a = ActiveSet(level, pose, Kind::kTextured);
@@ -737,68 +782,34 @@ Pose Refiner::SolvePose(int level, double e, const Pose& pose) {
   double xi[6] = {0, 0, 0, 0, 0, 0};
   ceres::Solver::Options so = SolverOptions(o_);
   if (level > 0) so.max_num_iterations = std::max(3, o_.max_solver_iterations / 2);
-  if (attempt_ == 1) so.max_num_iterations = 3 * o_.max_solver_iterations;
-  ceres::Problem::Options po;
-  po.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
-  po.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
-  refinement::SubspaceManifold manifold(basis);
+  const double dw = depth_interp_ ? DepthWeight(a.idx, pose, scale) : 0.0;
+  // ceres::Solve on ONE residual block holding all residuals (pose_batch.h), the robust loss
+  // folded into the residuals per residual: the same residuals and robust energy as a
+  // ceres::Problem with one block per residual, without its per-block overhead.
+  refinement::PoseBatchCost batch(&L.fast, L.k, e, &depth_fast_, cand_pyr_[0].k, dw,
+                                  median_depth_m_);
+  for (size_t k = 0; k < a.idx.size(); ++k) {
+    const Sample& s = samples_[a.idx[k]];
+    batch.AddPhotometric(pose.Apply(s.p_in_local), s.m[level]);
+  }
+  if (dw > 0)
+    for (size_t k = 0; k < a.idx.size(); ++k) {
+      const Sample& s = samples_[a.idx[k]];
+      double rd;
+      if (DepthResidual(s, pose, &rd)) batch.AddDepth(pose.Apply(s.p_in_local));
+    }
   // Tukey at the finest level; Cauchy (same influence scale) on the coarse levels, whose job is
   // to bring the pose into the basin: Tukey gives misaligned samples zero weight, which there
   // are the very samples that carry the alignment signal.
-  std::unique_ptr<ceres::LossFunction> lossp;
-  if (level == 0)
-    lossp = std::make_unique<ceres::TukeyLoss>(scale);
-  else
-    lossp = std::make_unique<ceres::CauchyLoss>(scale / o_.tukey_k);
-  ceres::LossFunction& loss = *lossp;
-  const double dw = depth_interp_ ? DepthWeight(a.idx, pose, scale) : 0.0;
-  if (o_.pose_solver == RefinementOptions::PoseSolver::kCeresBatched) {
-    // ceres::Solve on ONE residual block holding all residuals (pose_batch.h), the loss folded
-    // into the residuals per residual: same residuals and robust energy as the per-residual
-    // problem below without its per-residual-block overhead.
-    refinement::PoseBatchCost batch(&L.fast, L.k, e, &depth_fast_, cand_pyr_[0].k, dw,
-                                    median_depth_m_);
-    for (size_t k = 0; k < a.idx.size(); ++k) {
-      const Sample& s = samples_[a.idx[k]];
-      batch.AddPhotometric(pose.Apply(s.p_in_local), s.m[level]);
-    }
-    if (dw > 0)
-      for (size_t k = 0; k < a.idx.size(); ++k) {
-        const Sample& s = samples_[a.idx[k]];
-        double rd;
-        if (DepthResidual(s, pose, &rd)) batch.AddDepth(pose.Apply(s.p_in_local));
-      }
-    refinement::RobustLoss rl;
-    rl.kind = level == 0 ? refinement::RobustLoss::Kind::kTukey : refinement::RobustLoss::Kind::kCauchy;
-    rl.scale = level == 0 ? scale : scale / o_.tukey_k;  // as lossp above
-    refinement::PoseSolveOptions lo;
-    lo.max_iterations = so.max_num_iterations;
-    lo.function_tolerance = so.function_tolerance;
-    lo.parameter_tolerance = so.parameter_tolerance;
-    lo.gradient_tolerance = so.gradient_tolerance;
-    res_.iterations += refinement::SolvePoseCeres(batch, rl, basis, lo, xi).iterations;
-  } else {
-    ceres::Problem problem(po);
-    for (size_t k = 0; k < a.idx.size(); ++k) {
-      const Sample& s = samples_[a.idx[k]];
-      problem.AddResidualBlock(new PoseDeltaAnalytic(L.interp.get(), L.k, pose.Apply(s.p_in_local),
-                                                     median_depth_m_, e, s.m[level]),
-                               &loss, xi);
-    }
-    if (dw > 0)
-      for (size_t k = 0; k < a.idx.size(); ++k) {
-        const Sample& s = samples_[a.idx[k]];
-        double rd;
-        if (!DepthResidual(s, pose, &rd)) continue;
-        problem.AddResidualBlock(new DepthDeltaAnalytic(depth_interp_.get(), cand_pyr_[0].k,
-                                                        pose.Apply(s.p_in_local), median_depth_m_, dw),
-                                 &loss, xi);
-      }
-    if (basis.cols() < 6) problem.SetManifold(xi, &manifold);
-    ceres::Solver::Summary sum;
-    ceres::Solve(so, &problem, &sum);
-    res_.iterations += static_cast<int>(sum.iterations.size());
-  }
+  refinement::RobustLoss rl;
+  rl.kind = level == 0 ? refinement::RobustLoss::Kind::kTukey : refinement::RobustLoss::Kind::kCauchy;
+  rl.scale = level == 0 ? scale : scale / o_.tukey_k;
+  refinement::PoseSolveOptions lo;
+  lo.max_iterations = so.max_num_iterations;
+  lo.function_tolerance = so.function_tolerance;
+  lo.parameter_tolerance = so.parameter_tolerance;
+  lo.gradient_tolerance = so.gradient_tolerance;
+  res_.iterations += refinement::SolvePoseCeres(batch, rl, basis, lo, xi).iterations;
   const Eigen::Vector3d w(xi[0], xi[1], xi[2]);
   const Eigen::Vector3d dt = median_depth_m_ * Eigen::Vector3d(xi[3], xi[4], xi[5]);
   const double angle = w.norm();
@@ -972,10 +983,10 @@ void Refiner::RankCheck(const Pose& pose, double e) {
   for (size_t i = 0; i < keep_r.size(); ++i) rot_basis_.block<3, 1>(0, i) = er.eigenvectors().col(keep_r[i]);
 }
 
-void Refiner::CoarseToFine(int attempt, Pose* pose_io, double* e_io, int start_level) {
+void Refiner::CoarseToFine(bool multistart, Pose* pose_io, double* e_io, int start_level) {
   Pose pose = *pose_io;
   double e = *e_io;
-  attempt_ = attempt;
+  multistart_pass_ = multistart;
   const int first = start_level < 0 ? levels_ - 1 : std::min(start_level, levels_ - 1);
   for (int l = first; l >= 0; --l) {
     for (int it = 0; it < o_.max_outer_iterations; ++it) {
@@ -1009,10 +1020,6 @@ Refiner::ResidualSummary Refiner::SummarizeResiduals(const Active& a, double e) 
   return out;
 }
 
-double Refiner::RelativeResidual(const Pose& pose, double e) const {
-  return SummarizeResiduals(ActiveSet(0, pose), e).relative;
-}
-
 void Refiner::OutlierTest(const Pose& pose, double e, double* relative, double* threshold,
                           double* disagreement, int* num_valid) const {
   const Active af = ActiveSet(0, pose);
@@ -1038,9 +1045,7 @@ double ThreadCpuMs() {
   return t.tv_sec * 1e3 + t.tv_nsec * 1e-6;
 }
 
-absl::StatusOr<RefinementResult> Refiner::Run() {
-  const auto t0 = std::chrono::steady_clock::now();
-  const double cpu0 = ThreadCpuMs();
+void Refiner::BuildPyramids() {
   levels_ = 1;
   while (levels_ < std::min(o_.pyramid_levels, kMaxLevels) &&
          (cand_.color.width() >> levels_) >= 40 && (cand_.color.height() >> levels_) >= 30)
@@ -1048,36 +1053,38 @@ absl::StatusOr<RefinementResult> Refiner::Run() {
   cand_pyr_ = BuildPyramid(cand_.color, cand_.camera, levels_, o_, o_.border_px, true);
   ref_pyr_.reserve(refs_.size());
   for (const StoredView* r : refs_) ref_pyr_.push_back(RefinementCacheAccess::Pyramid(cache_, *r, levels_, o_));
-  if (o_.depth_weight > 0 && !cand_.depth_m.empty()) {
-    const int w = cand_pyr_[0].w, h = cand_pyr_[0].h;
-    cand_depth_.assign(static_cast<size_t>(w) * h, 0.f);
-    cand_depth_bad_.assign(cand_depth_.size(), 0);
-    // Bad: a hole or a step > depth_discontinuity_m to a 4-neighbour, dilated by 2 px (the
-    // bicubic support plus the SPEC §6 edge margin). O(pixels), no per-pixel 8-probe test.
-    for (int y = 0; y < h; ++y)
-      for (int x = 0; x < w; ++x) {
-        const float z = cand_.depth_m.at(x, y);
-        const bool ok = z > 0.f && std::isfinite(z);
-        cand_depth_[static_cast<size_t>(y) * w + x] = ok ? z : 0.f;
-      }
-    const float dz = static_cast<float>(o_.depth_discontinuity_m);
-    for (int y = 0; y < h; ++y)
-      for (int x = 0; x < w; ++x) {
-        const size_t i = static_cast<size_t>(y) * w + x;
-        const float z = cand_depth_[i];
-        bool bad = !(z > 0.f);
-        if (!bad && x + 1 < w) bad = !(std::abs(cand_depth_[i + 1] - z) <= dz);
-        if (!bad && y + 1 < h) bad = !(std::abs(cand_depth_[i + w] - z) <= dz);
-        if (bad) cand_depth_bad_[i] = 1;
-      }
-    Dilate(cand_depth_bad_, w, h, 2);
-    depth_grid_ = std::make_unique<refinement::DepthGrid>(cand_depth_.data(), 0, h, 0, w);
-    depth_interp_ = std::make_unique<refinement::DepthInterpolator>(*depth_grid_);
-    depth_fast_ = refinement::FastBicubic(cand_depth_.data(), h, w);
-  }
-  const double cpu_pyr = ThreadCpuMs();
-  res_.cpu_ms_pyramids = cpu_pyr - cpu0;
-  const Pose pose0 = CamFromLocal(cand_.local_from_cam);
+}
+
+void Refiner::PrepareCandidateDepth() {
+  if (!(o_.depth_weight > 0) || cand_.depth_m.empty()) return;
+  const int w = cand_pyr_[0].w, h = cand_pyr_[0].h;
+  cand_depth_.assign(static_cast<size_t>(w) * h, 0.f);
+  cand_depth_bad_.assign(cand_depth_.size(), 0);
+  // Bad: a hole or a step > depth_discontinuity_m to a 4-neighbour, dilated by 2 px (the
+  // bicubic support plus the SPEC §6 edge margin). O(pixels), no per-pixel 8-probe test.
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      const float z = cand_.depth_m.at(x, y);
+      const bool ok = z > 0.f && std::isfinite(z);
+      cand_depth_[static_cast<size_t>(y) * w + x] = ok ? z : 0.f;
+    }
+  const float dz = static_cast<float>(o_.depth_discontinuity_m);
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      const size_t i = static_cast<size_t>(y) * w + x;
+      const float z = cand_depth_[i];
+      bool bad = !(z > 0.f);
+      if (!bad && x + 1 < w) bad = !(std::abs(cand_depth_[i + 1] - z) <= dz);
+      if (!bad && y + 1 < h) bad = !(std::abs(cand_depth_[i + w] - z) <= dz);
+      if (bad) cand_depth_bad_[i] = 1;
+    }
+  Dilate(cand_depth_bad_, w, h, 2);
+  depth_grid_ = std::make_unique<refinement::DepthGrid>(cand_depth_.data(), 0, h, 0, w);
+  depth_interp_ = std::make_unique<refinement::DepthInterpolator>(*depth_grid_);
+  depth_fast_ = refinement::FastBicubic(cand_depth_.data(), h, w);
+}
+
+absl::StatusOr<Refiner::Active> Refiner::SampleSurface(const Pose& pose0) {
   // Saturated or black candidates leave few usable samples: densify the sampling (up to 16x).
   Active a0;
   for (int budget = o_.max_samples;; budget *= 4) {
@@ -1089,15 +1096,16 @@ absl::StatusOr<RefinementResult> Refiner::Run() {
       break;
   }
   res_.num_samples = static_cast<int>(samples_.size());
-  const double cpu_samples = ThreadCpuMs();
-  res_.cpu_ms_samples = cpu_samples - cpu_pyr;
   if (a0.idx.size() < 3)
     return absl::FailedPreconditionError(absl::StrCat(
         "refinement: only ", a0.idx.size(),
         " surface samples are valid in the candidate and the reference views (no overlap, or "
         "all saturated/black)"));
+  return a0;
+}
 
-  // Initial exposure: robust ratio of medians to candidate values, or the given value.
+double Refiner::InitialExposure(const Pose& pose0, const Active& a0) const {
+  // Robust ratio of medians to candidate values, or the given value.
   double e0 = o_.initial_exposure;
   if (o_.init_exposure_from_ratio) {
     std::vector<double> lc, lm;
@@ -1106,6 +1114,119 @@ absl::StatusOr<RefinementResult> Refiner::Run() {
     for (size_t k = 0; k < lc.size(); ++k) lm[k] -= lc[k];
     if (!lm.empty()) e0 = std::exp(Median(lm));
   }
+  return e0;
+}
+
+void Refiner::MultiStart(Pose* pose_io, double* e_io) {
+  // Close-range views: the first pass can end with the rotation right and the camera centre in
+  // a side basin 2-3 cm away (sideways motion along a wall changes neither its depth nor, with
+  // repetitive texture, the photometric energy much), where the view would be rejected as an
+  // outlier. Restart the fine levels from that pose shifted by +-1 and +-2 x multistart_step_m
+  // along the camera's x and y axes; the first start that passes the outlier test (or else the
+  // lowest relative residual) wins. Only runs when the view would otherwise be rejected, so it
+  // cannot change a kept view; the cost guard still compares the winner with the input pose.
+  const Pose pose = *pose_io;
+  const double e = *e_io;
+  double rel1 = 0, thr1 = 0;
+  OutlierTest(pose, e, &rel1, &thr1);
+  if (!(rel1 > thr1)) return;
+  Pose best = pose;
+  double best_e = e, best_rel = rel1;
+  bool passed = false;
+  std::vector<Pose> starts;
+  const Eigen::Vector3d axes[2] = {Eigen::Vector3d::UnitX(), Eigen::Vector3d::UnitY()};
+  for (int mult : {1, -1, 2, -2})
+    for (const Eigen::Vector3d& axis : axes) {
+      Pose start = pose;
+      start.t += mult * o_.multistart_step_m * axis;  // camera-frame shift of the centre
+      starts.push_back(start);
+    }
+  for (Pose start : starts) {
+    double e_s = e;
+    CoarseToFine(/*multistart=*/true, &start, &e_s, o_.multistart_from_level);
+    ++res_.attempts;
+    double rel_s = 0, thr_s = 0;
+    OutlierTest(start, e_s, &rel_s, &thr_s);
+    if (rel_s < best_rel) {
+      best = start;
+      best_e = e_s;
+      best_rel = rel_s;
+      passed = rel_s <= thr_s;
+    }
+    if (passed) break;
+  }
+  *pose_io = best;
+  *e_io = best_e;
+}
+
+void Refiner::GuardEnergy(const Pose& pose0, double e0, double e_exposure_only, const Active& a0,
+                          double report_scale, Pose* pose, double* e) {
+  // The pose stages must lower J relative to the exposure-only result at the input pose, and
+  // that must not be worse than the initial exposure.
+  if (!(pose->q.coeffs() == pose0.q.coeffs() && pose->t == pose0.t) &&
+      CompareEnergy(0, e_exposure_only, pose0, *e, *pose, report_scale).Raised()) {
+    res_.step_reverted = true;
+    *pose = pose0;
+    *e = e_exposure_only;
+  }
+  if (pose->t == pose0.t && pose->q.coeffs() == pose0.q.coeffs()) {
+    std::vector<double> lc, lm;
+    const Active a0f = ActiveSet(0, pose0, Kind::kFlat);
+    LogValues(0, a0f.idx.size() >= 30 ? a0f : a0, &lc, &lm);
+    std::vector<double> r(lc.size());
+    for (size_t k = 0; k < lc.size(); ++k) r[k] = std::log(e0) + lc[k] - lm[k];
+    const double s = ScaleFromResiduals(r, o_.fixed_scale);
+    if (LogExposureEnergy(lc, lm, *e, s) > LogExposureEnergy(lc, lm, e0, s)) {
+      res_.step_reverted = true;
+      *e = e0;
+    }
+  }
+}
+
+void Refiner::GateInsignificantUpdates(const Pose& pose0, double e_exposure_only, Pose* pose,
+                                       double* e) {
+  // A pose update that explains less than the references' own disagreement is not evidence
+  // against the input pose.
+  if (o_.min_pose_gain_over_disagreement > 0 &&
+      !(pose->t == pose0.t && pose->q.coeffs() == pose0.q.coeffs())) {
+    double rel0 = 0, thr0 = 0, rel1 = 0, thr1 = 0, dis1 = -1;
+    OutlierTest(pose0, e_exposure_only, &rel0, &thr0);
+    OutlierTest(*pose, *e, &rel1, &thr1, &dis1);
+    if (dis1 >= 0 && rel0 - rel1 < o_.min_pose_gain_over_disagreement * dis1) {
+      res_.pose_update_insignificant = true;
+      *pose = pose0;
+      *e = e_exposure_only;
+    }
+  }
+  // An exposure that explains less than the references' own disagreement (relative to the
+  // prior) is not evidence of an exposure change (real cameras with stable exposure: otherwise
+  // small misfits accumulate along the chain of references).
+  if (o_.min_exposure_gain_over_disagreement > 0 && *e != o_.prior_exposure) {
+    double rel_e = 0, thr_e = 0, dis_e = -1, rel_p = 0, thr_p = 0;
+    OutlierTest(*pose, *e, &rel_e, &thr_e, &dis_e);
+    OutlierTest(*pose, o_.prior_exposure, &rel_p, &thr_p);
+    if (dis_e >= 0 && rel_p - rel_e < o_.min_exposure_gain_over_disagreement * dis_e) {
+      res_.exposure_update_insignificant = true;
+      *e = o_.prior_exposure;
+    }
+  }
+}
+
+absl::StatusOr<RefinementResult> Refiner::Run() {
+  const auto t0 = std::chrono::steady_clock::now();
+  const double cpu0 = ThreadCpuMs();
+  BuildPyramids();
+  PrepareCandidateDepth();
+  const double cpu_pyr = ThreadCpuMs();
+  res_.cpu_ms_pyramids = cpu_pyr - cpu0;
+  const Pose pose0 = CamFromLocal(cand_.local_from_cam);
+  absl::StatusOr<Active> sampled = SampleSurface(pose0);
+  const double cpu_samples = ThreadCpuMs();
+  res_.cpu_ms_samples = cpu_samples - cpu_pyr;
+  if (!sampled.ok()) return sampled.status();
+  const Active& a0 = *sampled;
+
+  const double e0 = InitialExposure(pose0, a0);
   // Reporting/guard scale, fixed for the whole call.
   std::vector<double> r0(a0.idx.size());
   for (size_t k = 0; k < a0.idx.size(); ++k) r0[k] = e0 * a0.c[k] - samples_[a0.idx[k]].m[0];
@@ -1117,106 +1238,12 @@ absl::StatusOr<RefinementResult> Refiner::Run() {
   if (o_.refine_pose) {
     if (o_.check_rank) RankCheck(pose0, e);
     if (!res_.pose_refused_rank_deficient) {
-      CoarseToFine(/*attempt=*/0, &pose, &e);
-      // Multi-start (close-range views): the first pass can end with the rotation right and
-      // the camera centre in a side basin 2-3 cm away (sideways motion along a wall changes
-      // neither its depth nor, with repetitive texture, the photometric energy much), where the
-      // view would be rejected as an outlier. Restart the fine levels from that pose shifted
-      // by +-1 and +-2 x multistart_step_m along the camera's x and y axes; the first start
-      // that passes the outlier test (or else the lowest relative residual) wins. Only runs
-      // when the view would otherwise be rejected, so it cannot change a kept view; the cost
-      // guard below still compares the winner with the input pose.
-      double rel1 = 0, thr1 = 0;
-      if (o_.multistart_step_m > 0) OutlierTest(pose, e, &rel1, &thr1);
-      if (o_.multistart_step_m > 0 && rel1 > thr1) {
-        Pose best = pose;
-        double best_e = e, best_rel = rel1;
-        bool passed = false;
-        std::vector<Pose> starts;
-        const Eigen::Vector3d axes[2] = {Eigen::Vector3d::UnitX(), Eigen::Vector3d::UnitY()};
-        for (int mult : {1, -1, 2, -2})
-          for (const Eigen::Vector3d& axis : axes) {
-            Pose start = pose;
-            start.t += mult * o_.multistart_step_m * axis;  // camera-frame shift of the centre
-            starts.push_back(start);
-          }
-        for (Pose start : starts) {
-          double e_s = e;
-          CoarseToFine(/*attempt=*/2, &start, &e_s, o_.multistart_from_level);
-          ++res_.attempts;
-          double rel_s = 0, thr_s = 0;
-          OutlierTest(start, e_s, &rel_s, &thr_s);
-          if (rel_s < best_rel) {
-            best = start;
-            best_e = e_s;
-            best_rel = rel_s;
-            passed = rel_s <= thr_s;
-          }
-          if (passed) break;
-        }
-        pose = best;
-        e = best_e;
-      }
-      // Second start when the first one ends far from agreement (close-range views, where a
-      // 2 cm error is tens of pixels and the coarse levels land in a side basin): all levels
-      // 6-DoF with three times the iterations; the attempt with the lower final residual wins.
-      if (o_.retry_on_outlier && RelativeResidual(pose, e) > o_.outlier_max_relative_residual / 4) {
-        Pose pose_b = pose0;
-        double e_b = e_exposure_only;
-        CoarseToFine(/*attempt=*/1, &pose_b, &e_b);
-        ++res_.attempts;
-        if (RelativeResidual(pose_b, e_b) < RelativeResidual(pose, e)) {
-          pose = pose_b;
-          e = e_b;
-        }
-      }
+      CoarseToFine(/*multistart=*/false, &pose, &e);
+      if (o_.multistart_step_m > 0) MultiStart(&pose, &e);
     }
   }
-  // Guards on the whole call: the pose stages must lower J relative to the exposure-only
-  // result at the input pose, and that must not be worse than the initial exposure.
-  if (!(pose.q.coeffs() == pose0.q.coeffs() && pose.t == pose0.t) &&
-      CompareEnergy(0, e_exposure_only, pose0, e, pose, report_scale).Raised()) {
-    res_.step_reverted = true;
-    pose = pose0;
-    e = e_exposure_only;
-  }
-  if (pose.t == pose0.t && pose.q.coeffs() == pose0.q.coeffs()) {
-    std::vector<double> lc, lm;
-    const Active a0f = ActiveSet(0, pose0, Kind::kFlat);
-    LogValues(0, a0f.idx.size() >= 30 ? a0f : a0, &lc, &lm);
-    std::vector<double> r(lc.size());
-    for (size_t k = 0; k < lc.size(); ++k) r[k] = std::log(e0) + lc[k] - lm[k];
-    const double s = ScaleFromResiduals(r, o_.fixed_scale);
-    if (LogExposureEnergy(lc, lm, e, s) > LogExposureEnergy(lc, lm, e0, s)) {
-      res_.step_reverted = true;
-      e = e0;
-    }
-  }
-  // Significance gate: a pose update that explains less than the references' own
-  // disagreement is not evidence against the input pose.
-  if (o_.min_pose_gain_over_disagreement > 0 &&
-      !(pose.t == pose0.t && pose.q.coeffs() == pose0.q.coeffs())) {
-    double rel0 = 0, thr0 = 0, rel1 = 0, thr1 = 0, dis1 = -1;
-    OutlierTest(pose0, e_exposure_only, &rel0, &thr0);
-    OutlierTest(pose, e, &rel1, &thr1, &dis1);
-    if (dis1 >= 0 && rel0 - rel1 < o_.min_pose_gain_over_disagreement * dis1) {
-      res_.pose_update_insignificant = true;
-      pose = pose0;
-      e = e_exposure_only;
-    }
-  }
-  // Exposure gate: an exposure that explains less than the references' own disagreement
-  // (relative to the prior) is not evidence of an exposure change (real cameras with stable
-  // exposure: otherwise small misfits accumulate along the chain of references).
-  if (o_.min_exposure_gain_over_disagreement > 0 && e != o_.prior_exposure) {
-    double rel_e = 0, thr_e = 0, dis_e = -1, rel_p = 0, thr_p = 0;
-    OutlierTest(pose, e, &rel_e, &thr_e, &dis_e);
-    OutlierTest(pose, o_.prior_exposure, &rel_p, &thr_p);
-    if (dis_e >= 0 && rel_p - rel_e < o_.min_exposure_gain_over_disagreement * dis_e) {
-      res_.exposure_update_insignificant = true;
-      e = o_.prior_exposure;
-    }
-  }
+  GuardEnergy(pose0, e0, e_exposure_only, a0, report_scale, &pose, &e);
+  GateInsignificantUpdates(pose0, e_exposure_only, &pose, &e);
   const EnergyPair final_pair = CompareEnergy(0, e_exposure_only, pose0, e, pose, report_scale);
   res_.cost_before = final_pair.before;
   res_.cost_after = final_pair.after;

@@ -44,21 +44,14 @@ struct RefinementOptions {
   // --- optimisation ---
   int pyramid_levels = 5;           // clipped so that the coarsest level is >= 40 px wide
   int max_outer_iterations = 3;     // exposure <-> pose alternations per level
-  // Pyramid levels >= this refine rotation only (about the camera centre); measured on the
-  // apartment (oracle, 2 deg / 2 cm): 2 -> 31, 3 -> 34, 4 -> 34 of 39 converged, 4 has the
-  // lowest translation p95 (4.5 mm), never -> 32.
+  // Pyramid levels >= this refine rotation only (about the camera centre): a small camera
+  // translation is sub-pixel there and indistinguishable from a rotation (measurements:
+  // docs/refinement.md, "Option values and their measurements").
   int rotation_only_from_level = 4;
   int max_solver_iterations = 15;   // Levenberg-Marquardt iterations per stage
-  // LM stops when the relative cost decrease of a step is below this (session 2: 1e-7;
-  // measured on the apartment oracle run: 1e-5 gives the same pose errors at 15 % less CPU).
+  // LM stops when the relative cost decrease of a step is below this.
   double function_tolerance = 1e-5;
   bool refine_pose = true;
-  // How a pose stage is solved (pose_batch.h). kCeresBatched: ceres::Solve (LM) on ONE residual
-  // block holding all residuals of the stage, the robust loss applied per residual inside it
-  // (RobustBatchCost). kCeresPerResidual: a ceres::Problem with one block per residual and the
-  // loss per block (the session-2 reference; same energy, ~2.5x the CPU per solve).
-  enum class PoseSolver { kCeresBatched, kCeresPerResidual };
-  PoseSolver pose_solver = PoseSolver::kCeresBatched;
   bool init_exposure_from_ratio = true;  // E0 = median(m_j / c_j); else initial_exposure
   double initial_exposure = 1.0;
   bool warm_start = true;           // Cauchy before Tukey (Tukey is flat for large residuals)
@@ -68,9 +61,8 @@ struct RefinementOptions {
   double min_scale = 0.01;          // floor of the MAD scale (linear intensity)
   // A level's pose <-> exposure alternation stops when the last pose update moves the image by
   // less than convergence_px pixels OF THAT LEVEL (f_l * (rotation + translation / median
-  // depth)) and the exposure by less than convergence_exposure_rel. (Session 2 used fixed 1e-4
-  // rad / 0.1 mm / 1e-4 at every level, which the coarse levels almost never met: 3 alternations
-  // everywhere; measured: 17 % less CPU, same convergence count.)
+  // depth)) and the exposure by less than convergence_exposure_rel: a threshold in pixels of
+  // the level is met on coarse levels too, where fixed angles and distances never are.
   double convergence_px = 0.05;
   double convergence_exposure_rel = 1e-3;
 
@@ -86,14 +78,13 @@ struct RefinementOptions {
   double max_pose_condition = 1e4;
   bool freeze_weak_directions = true;
   // Translation directions whose information given the rotation (Schur complement, same
-  // normalisation, per m^2) is below this are frozen. Measured (level 1, oracle references):
-  // apartment (1-4 m) 0.5-50, village fly-over (20-60 m) 1e-4-1e-2.
+  // normalisation, per m^2) is below this are frozen (distant scenes determine translation
+  // weakly; typical values in docs/refinement.md).
   double min_translation_information = 0.05;
   // Depth term of the pose stage (candidate z-depth vs the samples' z, relative), weighted so
   // that its robust scale equals the photometric one times this factor; 0: photometric only
-  // (e.g. colour and depth not registered). Needs a candidate depth map.
-  // Measured (apartment, oracle references, 2 deg / 2 cm): 1 -> 34, 2 -> 36, 3 -> 34, 5 -> 33
-  // of 39 converged (higher weights reject more close-range views as outliers).
+  // (e.g. colour and depth not registered). Needs a candidate depth map. Higher weights
+  // reject more close-range views as outliers (docs/refinement.md).
   double depth_weight = 2.0;
   double min_depth_scale_rel = 0.003;  // false: refuse the whole pose if any direction is weak
   // Pose outlier: median |r_j| / median(m_j) above this at the end, or too few samples valid.
@@ -105,13 +96,6 @@ struct RefinementOptions {
   double outlier_min_relative_residual = 0.02;
   double outlier_disagreement_factor = 4.0;
   double outlier_min_valid_fraction = 0.3;
-  // When the first coarse-to-fine pass ends with a relative residual above a quarter of
-  // outlier_max_relative_residual, run a second pass from the input pose (6-DoF at every level,
-  // 3x the LM iterations) and keep the pass with the lower residual. Off by default: measured
-  // (refinement_bench, apartment, depth_weight 2) it converts one more view with oracle
-  // references (36 -> 37 of 39) but in the online chain (1.5 deg / 15 mm) the lower-residual
-  // pass is often the wrong one: converged 36 -> 11, held-out MSSIM 0.910 -> 0.873.
-  bool retry_on_outlier = false;
   // Multi-start when the first pass ends as a pose outlier: restart from levels <=
   // multistart_from_level at the result shifted by +-1, +-2 x multistart_step_m along the
   // camera x and y axes (8 starts at most; the first that passes the outlier test, else the
@@ -128,11 +112,9 @@ struct RefinementOptions {
   // the estimate is kept only when it lowers the relative residual at the final pose by at
   // least this factor times the references' disagreement compared with `prior_exposure`;
   // otherwise prior_exposure is returned (`exposure_update_insignificant`). 0 disables it.
-  // Measured (refinement_bench): 7-Scenes redkitchen chain (stable camera exposure) held-out
-  // SSIM 0.6785 -> 0.6804 (1) -> 0.6810 (2; unrefined 0.6811), exposure range 0.83-1.42 ->
-  // 0.83-1.00; synthetic apartment/village chains with 2^U(-0.7, 0.7) exposure jitter:
-  // unchanged. Cost: an exposure change smaller than ~2x the references' relative disagreement
-  // (indoors ~0.2-1 %) is not corrected.
+  // Without it small misfits accumulate along a chain of references on a camera with stable
+  // exposure; the cost is that an exposure change smaller than ~2x the references' relative
+  // disagreement is not corrected (docs/refinement.md).
   double min_exposure_gain_over_disagreement = 2.0;
   double prior_exposure = 1.0;  // relative to the gauge (the stored views' E_i scale)
   int multistart_from_level = 2;
@@ -163,7 +145,7 @@ struct RefinementResult {
   int num_samples = 0;         // surface samples with a median
   int num_valid_final = 0;     // of those, valid in the candidate at the final pose
   int iterations = 0;          // Ceres iterations, all stages
-  int attempts = 1;            // coarse-to-fine passes (2: the retry ran)
+  int attempts = 1;            // coarse-to-fine passes (> 1: the multi-start ran)
   // J (3.17) over the textured samples (Tukey, one fixed scale, samples valid at both poses):
   // at the input pose with the exposure-only estimate, and at the result. The pose guard keeps
   // cost_after <= cost_before. (The exposure itself is fitted in log intensity on flat samples,
@@ -204,8 +186,8 @@ struct RefinementStats {
 // Caller-owned cache of the reference views' linear-luma pyramids and sample picks (per 4x4
 // cell the most textured and the flattest pixel with valid depth), so that they are built once
 // instead of once per candidate the view is a reference for (online, every stored view serves
-// as a reference for many candidates; measured at 640x480 with 8 references: ~17 ms CPU of
-// each call). Keyed by StoredView::id, the image size, the pyramid options, border_px and a
+// as a reference for many candidates, and building them is a large share of a call: see
+// docs/refinement.md). Keyed by StoredView::id, the image size, the pyramid options, border_px and a
 // fingerprint of 256 colour and depth pixels (a view whose colour or depth changes under the
 // same id is rebuilt). Least-recently-used eviction beyond `max_views`. Thread-safe (one mutex; the
 // pyramids are immutable and shared).

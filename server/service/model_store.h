@@ -59,16 +59,6 @@ class Subscription {
 
  private:
   friend class ModelStore;
-
-// Tags every delta committed by this thread while alive with the source frame's timestamp.
-class ScopedDeltaSource {
- public:
-  explicit ScopedDeltaSource(double timestamp_s);
-  ~ScopedDeltaSource();
-
- private:
-  double previous_;
-};
   Subscription(ModelStore* store, uint64_t from_version, bool force_snapshot)
       : store_(store), sent_version_(from_version), force_snapshot_(force_snapshot) {}
   ModelStore* store_;
