@@ -120,7 +120,7 @@ int main(int argc, char** argv) {
   app.add_option("--server", f.server, "server address HOST:PORT (required)");
   app.add_option("--journal", f.journal, "delta journal file (resume after a restart)");
   app.add_option("--state_json", f.state_json, "write the store's state (version, digest, counts) here");
-  app.add_option("--delta_log", f.delta_log, "log 'source_timestamp_s steady_ns bytes' per delta");
+  app.add_option("--delta_log", f.delta_log, "log 'source_timestamp_s steady_ns bytes views' per delta");
   app.add_option("--save_model", f.save_model, "save the synced store as a model file (model_io.h)");
   app.add_option("--save_model_jpeg_quality", f.save_model_jpeg_quality,
                  "colour of the saved model: 0 = lossless, 1..100 = JPEG quality")
@@ -159,11 +159,15 @@ int main(int argc, char** argv) {
   signal(SIGTERM, OnSignal);
   signal(SIGINT, OnSignal);
   std::ofstream delta_log;
-  if (!f.delta_log.empty()) {  // "source_timestamp_s steady_ns bytes" per delta (CLOCK_MONOTONIC)
+  if (!f.delta_log.empty()) {
+    // "source_timestamp_s steady_ns bytes views" per delta (steady = CLOCK_MONOTONIC; views in
+    // the local store after the delta). Called under the session lock: the store is stable.
     delta_log.open(f.delta_log);
     delta_log.precision(17);
-    (*session)->SetOnDelta([&](const exo::v1::Delta& d, int64_t recv_ns) {
-      delta_log << d.source_timestamp_s() << " " << recv_ns << " " << d.ByteSizeLong() << "\n";
+    const exo::ViewerSession* vs = session->get();
+    (*session)->SetOnDelta([&delta_log, vs](const exo::v1::Delta& d, int64_t recv_ns) {
+      delta_log << d.source_timestamp_s() << " " << recv_ns << " " << d.ByteSizeLong() << " "
+                << vs->store().model().views.size() << "\n";
     });
   }
   exo::SyncOptions so;
