@@ -9,7 +9,7 @@
 #      (--views) and OFF it (--test-views per set: near the path, anywhere in the scene) with
 #      Vulkan/lavapipe (else the CPU reference), each with its ground truth and SSIM;
 #   4. exoview_export writes the viewer's store as PLY + TUM + COLMAP (OUT/export);
-#   5. deploy/demo_report.py writes OUT/report.json, report.md and report.html with charts and a
+#   5. tools/charts/demo_report.py writes OUT/report.json, report.md and report.html with charts and a
 #      contact sheet (rendered | ground truth | error); everything stops cleanly (SIGTERM ->
 #      graceful server shutdown; the script fails if any step fails).
 # Options: --out DIR, --frames N (uploaded), --store N (views the server keeps), --views N
@@ -97,7 +97,7 @@ rm -rf "$OUT/export"
 
 # 5. The report (JSON read with a parser; charts and contact sheet with matplotlib).
 step "exported"
-/usr/bin/python3 "$ROOT/deploy/demo_report.py" --out "$OUT" --frames "$FRAMES" --store "$STORE" \
+/usr/bin/python3 "$ROOT/tools/charts/demo_report.py" --out "$OUT" --frames "$FRAMES" --store "$STORE" \
   --wall_s "$(( $(date +%s) - START_S ))"
 step "report written"
 cat "$OUT/report.md"

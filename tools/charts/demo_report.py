@@ -4,7 +4,7 @@ send/delta logs as whitespace-separated numbers) and writes report.json, report.
 report.html beside them, with charts and a contact sheet (rendered | ground truth | error) as PNG
 images they link.
 
-    deploy/demo_report.py --out out/demo --frames 180 --store 50 [--wall_s 75]
+    tools/charts/demo_report.py --out out/demo --frames 180 --store 50 [--wall_s 75]
 
 Inputs under --out: upload.json (exoview_uploader --stats_json), upload_sends.txt
 (--send_log: "timestamp_s steady_ns"), viewer_deltas.txt (exoview_viewer --delta_log:
