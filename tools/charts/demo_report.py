@@ -110,8 +110,7 @@ def chart_render_ms(per_frame, renderer, size, path):
     ax.set_xlabel("view index within its set (sets rendered in the legend's order)")
     ax.set_ylabel("render time (ms)")
     ax.set_ylim(bottom=0)
-    ax.set_title(f"Render time per {size[0]}x{size[1]} view, {renderer.split(' (')[0]}"
-                 " (first view: + shader compile)")
+    ax.set_title(f"Render time per {size[0]}x{size[1]} view, {renderer.split(' (')[0]}")
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
     fig.tight_layout()
@@ -173,9 +172,9 @@ def pick_contact_views(per_frame):
     return picks
 
 
-def contact_sheet(frames_dir, picks, path):
+def contact_sheet(frames_dir, picks, path, dpi=100):
     rows = len(picks)
-    fig, axes = plt.subplots(rows, 3, figsize=(9.6, 2.55 * rows), dpi=100, squeeze=False)
+    fig, axes = plt.subplots(rows, 3, figsize=(9.6, 2.55 * rows), dpi=dpi, squeeze=False)
     for i, r in enumerate(picks):
         img = mpimg.imread(os.path.join(frames_dir, r["png"]))[..., :3]
         gt = mpimg.imread(os.path.join(frames_dir, r["gt_png"]))[..., :3]
@@ -208,6 +207,9 @@ def main():
     ap.add_argument("--frames", type=int, required=True, help="frames the uploader streamed")
     ap.add_argument("--store", type=int, required=True, help="the server's view store size")
     ap.add_argument("--wall_s", type=float, default=None, help="the demo's run time (s)")
+    ap.add_argument("--docs_img", default=None,
+                    help="also write screenshot-size copies for the docs here: "
+                         "demo_contact_sheet.png (the median view of each set), demo_stream.png")
     a = ap.parse_args()
     out = a.out
     frames_dir = os.path.join(out, "frames")
@@ -229,6 +231,13 @@ def main():
     chart_stream(lat, delta_rows, sends, upload, a.store, os.path.join(out, charts["stream"]))
     picks = pick_contact_views(per_frame)
     contact_sheet(frames_dir, picks, os.path.join(out, charts["contact_sheet"]))
+    if a.docs_img:
+        os.makedirs(a.docs_img, exist_ok=True)
+        medians = [p for i, p in enumerate(picks)
+                   if i == 0 or p["set"] != picks[i - 1]["set"]]  # first pick per set = median
+        contact_sheet(frames_dir, medians, os.path.join(a.docs_img, "demo_contact_sheet.png"), dpi=80)
+        chart_stream(lat, delta_rows, sends, upload, a.store,
+                     os.path.join(a.docs_img, "demo_stream.png"))
 
     report = {
         "scene": "apartment/walk",
