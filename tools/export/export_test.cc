@@ -3,7 +3,7 @@
 // its store; exoview_export writes both the viewer's model file and the server's checkpoint.
 // The exports are read back by a minimal binary-PLY/TUM/COLMAP parser written from the format
 // specifications (readback_for_tests.h) and compared with the model itself and with each other,
-// and by an independent Python reader (read_exports.py: numpy + struct).
+// and by independent Python readers (read_exports.py: numpy + struct, and Open3D).
 #include <csignal>
 #include <filesystem>
 #include <set>
@@ -150,7 +150,7 @@ TEST_F(ExportTest, ViewerStoreAndCheckpointExportAndReadBack) {
   for (const char* d : {"/exp_model", "/exp_ckpt"}) {
     Subprocess py("/usr/bin/python3",
                   {std::string(EXOVIEW_SOURCE_DIR) + "/tools/export/read_exports.py", dir_ + d,
-                   "--views", std::to_string(kStore)},
+                   "--views", std::to_string(kStore), "--require_open3d"},
                   dir_ + d + "_py.log");
     EXPECT_EQ(py.Wait(60), 0) << py.Log();
   }

@@ -3,10 +3,11 @@
 binary PLY from its header, the TUM trajectory and the COLMAP text model, and checks them against
 each other and against export.json. Prints a JSON summary; exits 1 naming the first failed check.
 
-    tools/export/read_exports.py EXPORT_DIR [--views N]
+    tools/export/read_exports.py EXPORT_DIR [--views N] [--require_open3d]
 
 Checks: PLY vertex/face counts match the header and export.json, every face is a triangle with
-indices in range, normals are unit length; TUM has one line per stored view with unit
+indices in range, normals are unit length; Open3D (Debian python3-open3d), when it imports,
+reads the same PLY with the same counts, positions and normals; TUM has one line per stored view with unit
 quaternions; COLMAP images.txt has the same views, each the inverse of its TUM pose
 (R_cw = R_wc^T, t_cw = -R_wc^T t_wc), a 2D-points line each, PINHOLE cameras with 4 parameters,
 and points3D.txt holds no points.
@@ -82,6 +83,23 @@ def quat_to_matrix(w, x, y, z):
         [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
 
 
+def read_with_open3d(path, positions, normals, faces):
+    """The same PLY through Open3D, when installed: returns its version, or None."""
+    try:
+        import open3d as o3d
+    except ImportError:
+        return None
+    m = o3d.io.read_triangle_mesh(path)
+    pv, tv = np.asarray(m.vertices), np.asarray(m.triangles)
+    check(len(pv) == len(positions), f"Open3D reads {len(pv)} vertices, ours {len(positions)}")
+    check(len(tv) == len(faces), f"Open3D reads {len(tv)} triangles, ours {len(faces)}")
+    check(m.has_vertex_normals(), "Open3D finds no vertex normals")
+    check(np.abs(pv - positions).max() < 1e-9, "Open3D positions differ")
+    check(np.abs(np.asarray(m.vertex_normals) - normals).max() < 1e-6, "Open3D normals differ")
+    check((tv == faces).all(), "Open3D triangles differ")
+    return o3d.__version__
+
+
 def data_lines(path, keep_empty=False):
     with open(path, encoding="ascii") as f:
         return [ln.rstrip("\n") for ln in f
@@ -92,6 +110,8 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("dir")
     ap.add_argument("--views", type=int, default=None, help="expected number of stored views")
+    ap.add_argument("--require_open3d", action="store_true",
+                    help="fail when Open3D cannot be imported (deploy/bootstrap.sh installs it)")
     a = ap.parse_args()
     d = a.dir
     summary = json.load(open(os.path.join(d, "export.json"), encoding="utf-8"))
@@ -111,6 +131,8 @@ def main():
     check(norm_err < 1e-5, f"normals not unit length (max error {norm_err})")
     p = np.stack([v["x"], v["y"], v["z"]], axis=1).astype(np.float64)
     check(np.isfinite(p).all(), "non-finite vertex")
+    open3d = read_with_open3d(os.path.join(d, "mesh.ply"), p, n, faces)
+    check(open3d or not a.require_open3d, "Open3D is not installed (apt-get install python3-open3d)")
 
     tum = [ln.split() for ln in data_lines(os.path.join(d, "trajectory.tum"))]
     check(all(len(t) == 8 for t in tum), "TUM line without 8 columns")
@@ -148,7 +170,7 @@ def main():
     check(not data_lines(os.path.join(d, "colmap", "points3D.txt")), "points3D.txt is not empty")
 
     print(json.dumps({"vertices": nv, "faces": nf, "normal_max_error": norm_err,
-                      "views": len(tum), "colmap_cameras": len(cams),
+                      "open3d": open3d, "views": len(tum), "colmap_cameras": len(cams),
                       "colmap_inverse_max_rot_error": max_r, "colmap_inverse_max_t_error": max_t,
                       "bbox_min": p.min(axis=0).round(3).tolist(),
                       "bbox_max": p.max(axis=0).round(3).tolist()}))
