@@ -1,6 +1,7 @@
 // exoview_export on models produced the real way: a server (store of 6 views, checkpoint at
 // shutdown) takes 24 synthetic frames from exoview_uploader while exoview_viewer syncs and saves
-// its store; exoview_export writes both the viewer's model file and the server's checkpoint.
+// its store (and renders a few views on and off the path); exoview_export writes both the
+// viewer's model file and the server's checkpoint.
 // The exports are read back by a minimal binary-PLY/TUM/COLMAP parser written from the format
 // specifications (readback_for_tests.h) and compared with the model itself and with each other,
 // and by independent Python readers (read_exports.py: numpy + struct, and Open3D).
@@ -9,6 +10,7 @@
 #include <set>
 
 #include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
 
 #include "common/interop/readback_for_tests.h"
 #include "common/lumigraph/model_io.h"
@@ -36,7 +38,10 @@ TEST_F(ExportTest, ViewerStoreAndCheckpointExportAndReadBack) {
                "--max_views=" + std::to_string(kStore)});
   Subprocess viewer(EXOVIEW_VIEWER_BIN,
                     {"--server=" + target_, "--until_frames=" + std::to_string(kFrames),
-                     "--save_model=" + dir_ + "/viewer.model", "--state_json=" + dir_ + "/v.json"},
+                     "--save_model=" + dir_ + "/viewer.model", "--state_json=" + dir_ + "/v.json",
+                     // and the novel views of the demo, small: on the path and off it
+                     "--render_frames=2", "--test_views=2", "--test_sets=near,scene", "--gt_png",
+                     "--width=64", "--height=48", "--renderer=cpu", "--out=" + dir_ + "/views"},
                     dir_ + "/viewer.log");
   Subprocess up(EXOVIEW_UPLOADER_BIN,
                 {"--server=" + target_, "--synthetic=apartment", "--trajectory=walk",
@@ -48,6 +53,22 @@ TEST_F(ExportTest, ViewerStoreAndCheckpointExportAndReadBack) {
   server_->Signal(SIGTERM);  // graceful: writes the checkpoint
   ASSERT_EQ(server_->Wait(30), 0) << server_->Log();
   server_.reset();
+
+  // The viewer's report: MSSIM per set, one record per view with its PNGs.
+  const auto report = nlohmann::json::parse(ReadAll(dir_ + "/views/viewer_report.json"));
+  for (const char* set : {"path", "near", "scene"}) {
+    ASSERT_TRUE(report["sets"].contains(set)) << report.dump();
+    EXPECT_EQ(report["sets"][set]["views"], 2);
+    const double mssim = report["sets"][set]["mssim"];
+    EXPECT_GT(mssim, 0.0);
+    EXPECT_LE(mssim, 1.0);
+  }
+  ASSERT_EQ(report["per_frame"].size(), 6u);
+  for (const auto& r : report["per_frame"]) {
+    EXPECT_TRUE(std::filesystem::exists(dir_ + "/views/" + r["png"].get<std::string>())) << r;
+    EXPECT_TRUE(std::filesystem::exists(dir_ + "/views/" + r["gt_png"].get<std::string>())) << r;
+  }
+  EXPECT_EQ(report["store"]["views"], kStore);
 
   auto model = LoadModel(dir_ + "/viewer.model");
   ASSERT_TRUE(model.ok()) << model.status();
