@@ -14,10 +14,9 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
-
-#include <nlohmann/json.hpp>
 
 #include "absl/strings/str_split.h"
 #include "client/uploader/upload_client.h"
@@ -73,7 +72,8 @@ struct PoseSet {
 // The renderer the viewer uses: Vulkan when available (or asked), else the CPU reference.
 class Renderer {
  public:
-  static absl::StatusOr<Renderer> Create(const std::string& which, const exo::LumigraphModel& model) {
+  static absl::StatusOr<Renderer> Create(const std::string& which,
+                                         const exo::LumigraphModel& model) {
     Renderer r;
     if (which != "cpu") {
       auto vk = exo::VulkanRenderer::Create({});
@@ -83,13 +83,15 @@ class Renderer {
         r.vk_ = *std::move(vk);
         return r;
       }
-      if (which == "vulkan") return absl::UnavailableError("Vulkan unavailable: " + std::string(st.message()));
+      if (which == "vulkan")
+        return absl::UnavailableError("Vulkan unavailable: " + std::string(st.message()));
     }
     EXO_ASSIGN_OR_RETURN(r.cpu_, exo::CpuLumigraphRenderer::Create(model, {}));
     r.name_ = "cpu";
     return r;
   }
-  absl::StatusOr<exo::ImageU8> Render(const exo::PinholeCamera& camera, const exo::Rigid3d& local_from_cam) {
+  absl::StatusOr<exo::ImageU8> Render(const exo::PinholeCamera& camera,
+                                      const exo::Rigid3d& local_from_cam) {
     if (vk_) {
       EXO_ASSIGN_OR_RETURN(auto r, vk_->Render(camera, local_from_cam, exo::blend::BlendOptions{}));
       return std::move(r.color);
@@ -114,19 +116,25 @@ int Fail(const absl::Status& s) {
 
 int main(int argc, char** argv) {
   Flags f;
-  CLI::App app{"Render client: follows a server's model, renders novel views, compares them with ground truth.",
-               "exoview_viewer"};
+  CLI::App app{
+      "Render client: follows a server's model, renders novel views, compares them with ground "
+      "truth.",
+      "exoview_viewer"};
   exo::cli::Setup(app);
   app.add_option("--server", f.server, "server address HOST:PORT (required)");
   app.add_option("--journal", f.journal, "delta journal file (resume after a restart)");
-  app.add_option("--state_json", f.state_json, "write the store's state (version, digest, counts) here");
-  app.add_option("--delta_log", f.delta_log, "log 'source_timestamp_s steady_ns bytes views' per delta");
-  app.add_option("--save_model", f.save_model, "save the synced store as a model file (model_io.h)");
+  app.add_option("--state_json", f.state_json,
+                 "write the store's state (version, digest, counts) here");
+  app.add_option("--delta_log", f.delta_log,
+                 "log 'source_timestamp_s steady_ns bytes views' per delta");
+  app.add_option("--save_model", f.save_model,
+                 "save the synced store as a model file (model_io.h)");
   app.add_option("--save_model_jpeg_quality", f.save_model_jpeg_quality,
                  "colour of the saved model: 0 = lossless, 1..100 = JPEG quality")
       ->check(CLI::Range(0, 100));
   app.add_flag("--follow", f.follow, "follow the stream until SIGTERM or --max_seconds");
-  app.add_option("--until_frames", f.until_frames, "sync until the server received this many frames");
+  app.add_option("--until_frames", f.until_frames,
+                 "sync until the server received this many frames");
   app.add_option("--max_seconds", f.max_seconds, "give up syncing after this many seconds")
       ->check(CLI::PositiveNumber);
   app.add_option("--settle_ms", f.settle_ms, "synced = nothing changed for this long")
@@ -136,7 +144,8 @@ int main(int argc, char** argv) {
       ->check(CLI::NonNegativeNumber);
   app.add_option("--test_views", f.test_views, "views to render per off-path test set (0 = none)")
       ->check(CLI::NonNegativeNumber);
-  app.add_option("--test_sets", f.test_sets, "off-path test sets: near (near the path), scene (anywhere)")
+  app.add_option("--test_sets", f.test_sets,
+                 "off-path test sets: near (near the path), scene (anywhere)")
       ->delimiter(',')
       ->check(CLI::IsMember({"near", "scene"}));
   app.add_option("--test_seed", f.test_seed, "seed of the test poses");
@@ -181,13 +190,17 @@ int main(int argc, char** argv) {
   const exo::LocalStore& store = (*session)->store();
   const exo::SessionStats& ss = (*session)->stats();
   auto server = (*session)->ServerStats();
-  nlohmann::json state = {
-      {"version", store.version()},        {"digest", store.Digest()},
-      {"views", store.model().views.size()}, {"cells", store.model().cell_refs.size()},
-      {"chunks", store.model().chunks.size()}, {"deltas", ss.deltas},
-      {"bytes", ss.bytes},                 {"snapshots", ss.snapshots},
-      {"resumed_from", ss.resumed_from},   {"replayed", ss.replayed},
-      {"sync_s", sync_s}};
+  nlohmann::json state = {{"version", store.version()},
+                          {"digest", store.Digest()},
+                          {"views", store.model().views.size()},
+                          {"cells", store.model().cell_refs.size()},
+                          {"chunks", store.model().chunks.size()},
+                          {"deltas", ss.deltas},
+                          {"bytes", ss.bytes},
+                          {"snapshots", ss.snapshots},
+                          {"resumed_from", ss.resumed_from},
+                          {"replayed", ss.replayed},
+                          {"sync_s", sync_s}};
   if (server.ok()) {
     state["server_version"] = server->model_version();
     state["server_digest"] = server->model_digest();
@@ -289,7 +302,8 @@ int main(int argc, char** argv) {
       std::snprintf(name, sizeof(name), "%s_%04zu", set.prefix.c_str(), i);
       nlohmann::json rec = {{"set", set.name}, {"index", i}, {"render_ms", ms}, {"ssim", *ssim}};
       if (!f.no_png) {
-        if (auto s = exo::WriteColorImage(f.out + "/" + name + ".png", *img); !s.ok()) return Fail(s);
+        if (auto s = exo::WriteColorImage(f.out + "/" + name + ".png", *img); !s.ok())
+          return Fail(s);
         rec["png"] = std::string(name) + ".png";
       }
       if (f.gt_png) {
@@ -299,7 +313,8 @@ int main(int argc, char** argv) {
       }
       if (set.name == "path")
         if (auto j = exo::EncodeJpeg(*img, 85); j.ok())
-          mjpeg.write(reinterpret_cast<const char*>(j->data()), static_cast<std::streamsize>(j->size()));
+          mjpeg.write(reinterpret_cast<const char*>(j->data()),
+                      static_cast<std::streamsize>(j->size()));
       per_frame.push_back(std::move(rec));
       truth.push_back(std::move(gt->frame.color));
       rendered.push_back(*std::move(img));
@@ -307,7 +322,8 @@ int main(int argc, char** argv) {
     auto mssim = exo::MeanSsim(rendered, truth);
     if (!mssim.ok()) return Fail(mssim.status());
     const double mean_ms = total_ms / static_cast<double>(set.poses.size());
-    set_summary[set.name] = {{"views", set.poses.size()}, {"mssim", *mssim}, {"mean_render_ms", mean_ms}};
+    set_summary[set.name] = {
+        {"views", set.poses.size()}, {"mssim", *mssim}, {"mean_render_ms", mean_ms}};
     if (set.name == "path") {
       path_ms = mean_ms;
       path_mssim = *mssim;

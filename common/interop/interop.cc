@@ -120,8 +120,8 @@ absl::Status WritePly(const std::string& path, const NormalMesh& mesh,
   }
   absl::StrAppend(&s, "element vertex ", mesh.positions.size(), "\n",
                   "property float x\nproperty float y\nproperty float z\n",
-                  "property float nx\nproperty float ny\nproperty float nz\n",
-                  "element face ", mesh.indices.size() / 3, "\n",
+                  "property float nx\nproperty float ny\nproperty float nz\n", "element face ",
+                  mesh.indices.size() / 3, "\n",
                   "property list uchar int vertex_indices\nend_header\n");
   s.reserve(s.size() + mesh.positions.size() * 24 + mesh.indices.size() / 3 * 13);
   for (size_t i = 0; i < mesh.positions.size(); ++i) {
@@ -142,7 +142,8 @@ glm::dquat CanonicalQuaternion(const glm::dquat& q) {
 }
 
 absl::Status WriteTumTrajectory(const std::string& path, const std::vector<PosedView>& views) {
-  std::string s = "# exoview stored views: timestamp(view id) tx ty tz qx qy qz qw, camera-to-world\n";
+  std::string s =
+      "# exoview stored views: timestamp(view id) tx ty tz qx qy qz qw, camera-to-world\n";
   for (const PosedView& v : views) {
     const glm::dquat q = CanonicalQuaternion(v.world_from_cam.rotation);
     const glm::dvec3& t = v.world_from_cam.translation;
@@ -171,9 +172,9 @@ absl::Status WriteColmapText(const std::string& dir, const std::vector<PosedView
     const Key k{c.width, c.height, c.fx, c.fy, c.cx, c.cy};
     auto [it, added] = ids.emplace(k, static_cast<int>(ids.size()) + 1);
     if (added)
-      absl::StrAppend(&cam_lines, absl::StrFormat("%d PINHOLE %d %d %.17g %.17g %.17g %.17g\n",
-                                                  it->second, c.width, c.height, c.fx, c.fy,
-                                                  c.cx + 0.5, c.cy + 0.5));
+      absl::StrAppend(&cam_lines,
+                      absl::StrFormat("%d PINHOLE %d %d %.17g %.17g %.17g %.17g\n", it->second,
+                                      c.width, c.height, c.fx, c.fy, c.cx + 0.5, c.cy + 0.5));
     camera_of[i] = it->second;
   }
   absl::StrAppend(&cams, "# Number of cameras: ", ids.size(), "\n", cam_lines);
@@ -182,7 +183,8 @@ absl::Status WriteColmapText(const std::string& dir, const std::vector<PosedView
       "# Image list with two lines of data per image:\n"
       "#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME\n"
       "#   POINTS2D[] as (X, Y, POINT3D_ID)\n";
-  absl::StrAppend(&imgs, "# Number of images: ", views.size(), ", mean observations per image: 0\n");
+  absl::StrAppend(&imgs, "# Number of images: ", views.size(),
+                  ", mean observations per image: 0\n");
   for (size_t i = 0; i < views.size(); ++i) {
     if (image_names[i].empty() || image_names[i].find_first_of(" \n") != std::string::npos)
       return absl::InvalidArgumentError(
@@ -230,11 +232,11 @@ absl::StatusOr<ExportSummary> ExportModel(const LumigraphModel& model, const std
   sum.mesh_triangles = nm.indices.size() / 3;
   sum.dropped_triangles = nm.dropped_triangles;
   sum.dropped_vertices = nm.dropped_vertices;
-  EXO_RETURN_IF_ERROR(WritePly(
-      dir + "/mesh.ply", nm,
-      {"exoview proxy mesh", absl::StrFormat("frame %s", sum.frame),
-       absl::StrFormat("origin_in_world %.17g %.17g %.17g", offset.x, offset.y, offset.z),
-       absl::StrCat("model_version ", model.version)}));
+  EXO_RETURN_IF_ERROR(
+      WritePly(dir + "/mesh.ply", nm,
+               {"exoview proxy mesh", absl::StrFormat("frame %s", sum.frame),
+                absl::StrFormat("origin_in_world %.17g %.17g %.17g", offset.x, offset.y, offset.z),
+                absl::StrCat("model_version ", model.version)}));
   sum.files.push_back("mesh.ply");
 
   std::vector<PosedView> views;

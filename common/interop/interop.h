@@ -18,10 +18,9 @@
 #pragma once
 
 #include <cstdint>
+#include <glm/glm.hpp>
 #include <string>
 #include <vector>
-
-#include <glm/glm.hpp>
 
 #include "common/lumigraph/model.h"
 #include "common/mesh.h"
@@ -34,7 +33,7 @@ enum class ExportFrame { kWorld, kLocal };
 
 struct ExportOptions {
   ExportFrame frame = ExportFrame::kWorld;
-  bool write_images = true;       // images/view_<id>.jpg beside the COLMAP model
+  bool write_images = true;  // images/view_<id>.jpg beside the COLMAP model
   int image_jpeg_quality = 95;
   absl::Status Validate() const;
 };
@@ -73,7 +72,7 @@ absl::Status WriteColmapText(const std::string& dir, const std::vector<PosedView
                              const std::vector<std::string>& image_names);
 
 struct ExportSummary {
-  std::string frame;             // "world" | "local"
+  std::string frame;  // "world" | "local"
   glm::dvec3 origin_in_world{0.0};
   size_t views = 0;
   size_t colmap_cameras = 0;

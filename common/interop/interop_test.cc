@@ -1,9 +1,9 @@
 #include "common/interop/interop.h"
 
+#include <gtest/gtest.h>
+
 #include <filesystem>
 #include <random>
-
-#include <gtest/gtest.h>
 
 #include "common/interop/readback_for_tests.h"
 
@@ -31,8 +31,8 @@ TriangleMesh CubeWithJunk() {
   const uint32_t f[] = {0, 2, 1, 1, 2, 3, 4, 5, 6, 5, 7, 6, 0, 1, 4, 1, 5, 4,
                         2, 6, 3, 3, 6, 7, 0, 4, 2, 2, 4, 6, 1, 3, 5, 3, 7, 5};
   m.indices.assign(std::begin(f), std::end(f));
-  m.positions.push_back(glm::vec3(5, 5, 5));  // 8: unused
-  m.positions.push_back(glm::vec3(0, 0, 0));  // 9: duplicate of 0
+  m.positions.push_back(glm::vec3(5, 5, 5));     // 8: unused
+  m.positions.push_back(glm::vec3(0, 0, 0));     // 9: duplicate of 0
   m.indices.insert(m.indices.end(), {0, 9, 1});  // zero area
   return m;
 }

@@ -5,12 +5,12 @@
 // The exports are read back by a minimal binary-PLY/TUM/COLMAP parser written from the format
 // specifications (readback_for_tests.h) and compared with the model itself and with each other,
 // and by independent Python readers (read_exports.py: numpy + struct, and Open3D).
+#include <gtest/gtest.h>
+
 #include <csignal>
 #include <filesystem>
-#include <set>
-
-#include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
+#include <set>
 
 #include "common/interop/readback_for_tests.h"
 #include "common/lumigraph/model_io.h"
@@ -43,11 +43,11 @@ TEST_F(ExportTest, ViewerStoreAndCheckpointExportAndReadBack) {
                      "--render_frames=2", "--test_views=2", "--test_sets=near,scene", "--gt_png",
                      "--width=64", "--height=48", "--renderer=cpu", "--out=" + dir_ + "/views"},
                     dir_ + "/viewer.log");
-  Subprocess up(EXOVIEW_UPLOADER_BIN,
-                {"--server=" + target_, "--synthetic=apartment", "--trajectory=walk",
-                 "--frames=" + std::to_string(kFrames), "--width=160", "--height=120",
-                 "--rate_hz=30"},
-                dir_ + "/up.log");
+  Subprocess up(
+      EXOVIEW_UPLOADER_BIN,
+      {"--server=" + target_, "--synthetic=apartment", "--trajectory=walk",
+       "--frames=" + std::to_string(kFrames), "--width=160", "--height=120", "--rate_hz=30"},
+      dir_ + "/up.log");
   ASSERT_EQ(up.Wait(90), 0) << up.Log();
   ASSERT_EQ(viewer.Wait(90), 0) << viewer.Log();
   server_->Signal(SIGTERM);  // graceful: writes the checkpoint
@@ -95,8 +95,8 @@ TEST_F(ExportTest, ViewerStoreAndCheckpointExportAndReadBack) {
       ++triangles;
       for (int k = 0; k < 3; ++k) {
         used.insert({id, c.mesh.indices[t + k]});
-        const glm::dvec3 p = glm::dvec3(c.mesh.positions[c.mesh.indices[t + k]]) +
-                             model->origin.origin_in_world;
+        const glm::dvec3 p =
+            glm::dvec3(c.mesh.positions[c.mesh.indices[t + k]]) + model->origin.origin_in_world;
         lo = glm::min(lo, p);
         hi = glm::max(hi, p);
       }
@@ -124,8 +124,9 @@ TEST_F(ExportTest, ViewerStoreAndCheckpointExportAndReadBack) {
     ASSERT_TRUE(model->views.count(line.id)) << line.id;
     const StoredView& v = model->views.at(line.id);
     ExpectMatNear(rb::QuatToMatrix(line.q), v.local_from_cam.RotationMatrix(), 1e-12);
-    EXPECT_NEAR(glm::length(line.t - (v.local_from_cam.translation + model->origin.origin_in_world)),
-                0.0, 1e-9);
+    EXPECT_NEAR(
+        glm::length(line.t - (v.local_from_cam.translation + model->origin.origin_in_world)), 0.0,
+        1e-9);
   }
   // COLMAP: world-to-camera, the stored view's centre maps to the camera origin.
   std::vector<std::string> points;
@@ -148,7 +149,8 @@ TEST_F(ExportTest, ViewerStoreAndCheckpointExportAndReadBack) {
   for (const auto& p : points) EXPECT_EQ(p, "");
 
   // The checkpoint holds the same model as the synced viewer: the same exports.
-  EXPECT_EQ(ReadAll(dir_ + "/exp_ckpt/trajectory.tum"), ReadAll(dir_ + "/exp_model/trajectory.tum"));
+  EXPECT_EQ(ReadAll(dir_ + "/exp_ckpt/trajectory.tum"),
+            ReadAll(dir_ + "/exp_model/trajectory.tum"));
   EXPECT_EQ(ReadAll(dir_ + "/exp_ckpt/colmap/images.txt"),
             ReadAll(dir_ + "/exp_model/colmap/images.txt"));
   // Same vertices and triangles; the normals differ in origin: the checkpoint's chunks carry the
@@ -188,9 +190,10 @@ TEST_F(ExportTest, BadInputIsAClearError) {
   EXPECT_NE(b.Log().find("checkpoint"), std::string::npos) << b.Log();
   Subprocess c(EXOVIEW_EXPORT_BIN, {"--out", dir_ + "/o"}, dir_ + "/c.log");
   EXPECT_EQ(c.Wait(30), 2);
-  Subprocess d(EXOVIEW_EXPORT_BIN,
-               {"--model", dir_ + "/junk.model", "--checkpoint", dir_ + "/junk.model", "--out", "o"},
-               dir_ + "/d.log");
+  Subprocess d(
+      EXOVIEW_EXPORT_BIN,
+      {"--model", dir_ + "/junk.model", "--checkpoint", dir_ + "/junk.model", "--out", "o"},
+      dir_ + "/d.log");
   EXPECT_EQ(d.Wait(30), 2);
 }
 

@@ -6,9 +6,8 @@
 //   exoview_export (--checkpoint FILE | --model FILE) --out DIR [--frame world|local] [--no_images]
 #include <cstdio>
 #include <fstream>
-#include <string>
-
 #include <nlohmann/json.hpp>
+#include <string>
 
 #include "client/store/local_store.h"
 #include "common/cli/cli.h"
@@ -75,7 +74,8 @@ int main(int argc, char** argv) {
     return 1;
   }
   exo::interop::ExportOptions eo;
-  eo.frame = frame == "local" ? exo::interop::ExportFrame::kLocal : exo::interop::ExportFrame::kWorld;
+  eo.frame =
+      frame == "local" ? exo::interop::ExportFrame::kLocal : exo::interop::ExportFrame::kWorld;
   eo.write_images = !no_images;
   eo.image_jpeg_quality = jpeg_quality;
   auto sum = exo::interop::ExportModel(*model, out, eo);
@@ -97,8 +97,9 @@ int main(int argc, char** argv) {
       {"dropped_unused_vertices", sum->dropped_vertices},
       {"files", sum->files}};
   std::ofstream(out + "/export.json") << j.dump(2) << "\n";
-  std::printf("exoview_export: %zu views, mesh %zu vertices / %zu triangles -> %s "
-              "(mesh.ply, trajectory.tum, colmap/, export.json)\n",
-              sum->views, sum->mesh_vertices, sum->mesh_triangles, out.c_str());
+  std::printf(
+      "exoview_export: %zu views, mesh %zu vertices / %zu triangles -> %s "
+      "(mesh.ply, trajectory.tum, colmap/, export.json)\n",
+      sum->views, sum->mesh_vertices, sum->mesh_triangles, out.c_str());
   return 0;
 }
