@@ -75,24 +75,22 @@ def stream_stats(out):
 
 
 def chart_ssim(per_frame, sets, path):
-    fig, ax = plt.subplots(figsize=(8, 3.6), dpi=100)
+    fig, ax = plt.subplots(figsize=(8, 3.8), dpi=100)
     x = 0
     ticks, labels = [], []
     for name in [s for s in ("path", "near", "scene") if s in sets]:
         vals = [r["ssim"] for r in per_frame if r["set"] == name]
         xs = np.arange(x, x + len(vals))
-        ax.bar(xs, vals, color=SET_COLOR[name], width=0.8,
-               label=f"{SET_LABEL[name]} (MSSIM {sets[name]['mssim']:.3f})")
+        ax.bar(xs, vals, color=SET_COLOR[name], width=0.8)
         ax.hlines(sets[name]["mssim"], xs[0] - 0.4, xs[-1] + 0.4, colors="black", linewidth=1)
         ticks.append(xs.mean())
-        labels.append(f"{name} ({len(vals)} views)")
+        labels.append(f"{SET_LABEL[name]}\n{len(vals)} views, MSSIM {sets[name]['mssim']:.3f}")
         x += len(vals) + 2
-    ax.set_xticks(ticks, labels)
+    ax.set_xticks(ticks, labels, fontsize=8)
     ax.set_ylim(0, 1)
     ax.set_yticks(np.arange(0, 1.01, 0.2))
     ax.set_ylabel("SSIM vs ground truth")
     ax.set_title("Novel views: SSIM per test view (black line: set mean)")
-    ax.legend(loc="lower right", fontsize=8)
     ax.grid(axis="y", alpha=0.3)
     fig.tight_layout()
     fig.savefig(path)
