@@ -8,7 +8,8 @@
 #   3. the viewer saves its store (OUT/viewer.model), then renders novel views ON the walk path
 #      (--views) and OFF it (--test-views per set: near the path, anywhere in the scene) with
 #      Vulkan/lavapipe (else the CPU reference), each with its ground truth and SSIM;
-#   4. exoview_export writes the viewer's store as PLY + TUM + COLMAP (OUT/export);
+#   4. exoview_export writes the viewer's store as PLY + TUM + COLMAP (OUT/export), read back by
+#      tools/export/read_exports.py (numpy, Open3D);
 #   5. tools/charts/demo_report.py writes OUT/report.json, report.md and report.html with charts and a
 #      contact sheet (rendered | ground truth | error); everything stops cleanly (SIGTERM ->
 #      graceful server shutdown; the script fails if any step fails).
@@ -94,6 +95,9 @@ SERVER_PID=""
 # 4. Exports of the viewer's store: mesh.ply, trajectory.tum, colmap/.
 rm -rf "$OUT/export"
 "$BUILD/tools/export/exoview_export" --model "$OUT/viewer.model" --out "$OUT/export"
+# ... read back by independent readers (numpy; Open3D when installed): counts, unit normals,
+# COLMAP = inverse of TUM. Fails the demo when a check fails.
+/usr/bin/python3 "$ROOT/tools/export/read_exports.py" "$OUT/export" > "$OUT/export/readback.json"
 
 # 5. The report (JSON read with a parser; charts and contact sheet with matplotlib).
 step "exported"

@@ -215,6 +215,8 @@ def main():
     viewer = load_json(os.path.join(frames_dir, "viewer_report.json"))
     state = load_json(os.path.join(out, "viewer_state.json"))
     export = load_json(os.path.join(out, "export", "export.json"))
+    rb_path = os.path.join(out, "export", "readback.json")
+    readback = load_json(rb_path) if os.path.exists(rb_path) else None
     stream, lat, delta_rows, sends = stream_stats(out)
     sets = viewer.get("sets", {})
     per_frame = viewer.get("per_frame", [])
@@ -251,6 +253,7 @@ def main():
         "stream": {k: (r3(v) if isinstance(v, float) else v) for k, v in stream.items()},
         "viewer_store": state,
         "export": export,
+        "export_readback": readback,
         "images": charts,
         "contact_sheet_views": [{"set": r["set"], "index": r["index"], "ssim": r3(r["ssim"])}
                                 for r in picks],
@@ -287,6 +290,12 @@ def main():
          f"{export['mesh_vertices']} vertices / {export['mesh_triangles']} triangles, "
          f"{export['views']} poses"),
     ]
+    if readback:
+        rows.append(("export read back (tools/export/read_exports.py)",
+                     f"{readback['vertices']} vertices / {readback['faces']} faces, normals unit to "
+                     f"{readback['normal_max_error']:.0e}, {readback['views']} TUM = COLMAP poses; "
+                     + (f"Open3D {readback['open3d']} agrees" if readback.get("open3d")
+                        else "Open3D not installed")))
     if a.wall_s is not None:
         rows.append(("demo run time", f"{a.wall_s:.0f} s"))
     exported = [f for f in export["files"] if not f.startswith("colmap/images/")]

@@ -64,6 +64,9 @@ def write_inputs(d):
     with open(os.path.join(d, "export", "export.json"), "w") as f:
         json.dump({"mesh_vertices": 5, "mesh_triangles": 3, "views": 4,
                    "files": ["mesh.ply", "trajectory.tum", "colmap/images/view_000001.jpg"]}, f)
+    with open(os.path.join(d, "export", "readback.json"), "w") as f:
+        json.dump({"vertices": 5, "faces": 3, "normal_max_error": 2e-8, "views": 4,
+                   "open3d": "0.16.1"}, f)
 
 
 class DemoReportTest(unittest.TestCase):
@@ -96,6 +99,8 @@ class DemoReportTest(unittest.TestCase):
                 self.assertGreater(img.std(), 0.01)
             self.assertIn("| views stored (store capacity) | 4 (4) |", md)
             self.assertIn("`export/mesh.ply`", md)
+            self.assertIn("5 vertices / 3 faces, normals unit to 2e-08, 4 TUM = COLMAP poses; "
+                          "Open3D 0.16.1 agrees", md)
 
     def test_missing_path_set_is_an_error(self):
         with tempfile.TemporaryDirectory() as d:
