@@ -1,25 +1,36 @@
 #!/usr/bin/env bash
 # The main job on the embedded default, end to end over gRPC on loopback:
 #   1. exoview_synth writes the built-in synthetic scenes (frames, ground truth, report) to OUT/synth;
-#   2. exoview_server starts (free port), exoview_uploader streams the synthetic apartment walk
-#      (640x480 RGB-D at 30 Hz) while exoview_viewer follows the delta stream;
-#   3. the viewer renders novel views along the walk path (Vulkan/lavapipe, else CPU reference),
-#      writes PNG frames + MJPEG + per-frame timings, and MSSIM against ground truth;
-#   4. OUT/report.json + OUT/report.md: MSSIM, bandwidth, latency; then everything stops cleanly
-#      (SIGTERM -> graceful server shutdown; the script fails if any step fails).
-# Options: --out DIR, --frames N (uploaded), --views N (rendered), --skip-synth.
+#   2. exoview_server starts (free port) with a view store smaller than the stream (--store views),
+#      exoview_uploader streams the synthetic apartment walk (640x480 RGB-D at 30 Hz, --frames
+#      frames) while exoview_viewer follows the delta stream: the planner has to choose which
+#      frames to keep;
+#   3. the viewer saves its store (OUT/viewer.model), then renders novel views ON the walk path
+#      (--views) and OFF it (--test-views per set: near the path, anywhere in the scene) with
+#      Vulkan/lavapipe (else the CPU reference), each with its ground truth and SSIM;
+#   4. exoview_export writes the viewer's store as PLY + TUM + COLMAP (OUT/export), read back by
+#      tools/export/read_exports.py (numpy, Open3D);
+#   5. tools/charts/demo_report.py writes OUT/report.json, report.md and report.html with charts and a
+#      contact sheet (rendered | ground truth | error); everything stops cleanly (SIGTERM ->
+#      graceful server shutdown; the script fails if any step fails).
+# Options: --out DIR, --frames N (uploaded), --store N (views the server keeps), --views N
+# (rendered on the path), --test-views N (per off-path set), --skip-synth.
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 BUILD="${EXOVIEW_BUILD_DIR:-$ROOT/build}"
 OUT="$ROOT/out/demo"
-FRAMES=150
-VIEWS=20
+FRAMES=160
+STORE=50
+VIEWS=16
+TEST_VIEWS=10
 SKIP_SYNTH=0
 while [ $# -gt 0 ]; do
   case "$1" in
     --out) OUT="$2"; shift 2;;
     --frames) FRAMES="$2"; shift 2;;
+    --store) STORE="$2"; shift 2;;
     --views) VIEWS="$2"; shift 2;;
+    --test-views) TEST_VIEWS="$2"; shift 2;;
     --skip-synth) SKIP_SYNTH=1; shift;;
     *) echo "unknown option $1" >&2; exit 2;;
   esac
@@ -27,12 +38,16 @@ done
 mkdir -p "$OUT"
 export VK_DRIVER_FILES="${VK_DRIVER_FILES:-/usr/share/vulkan/icd.d/lvp_icd.x86_64.json}"
 export VK_ICD_FILENAMES="${VK_ICD_FILENAMES:-$VK_DRIVER_FILES}"
+START_S=$(date +%s)
+step() { echo "demo: $1 ($(( $(date +%s) - START_S )) s since the start)"; }
 
-# 1. Synthetic scenes (60 frames per trajectory + 200 ground-truth test views per scene; pass more
+# 1. Synthetic scenes (30 frames per trajectory + 20 ground-truth test views per scene; pass more
 #    with exoview_synth --frames N directly, thesis: 5000).
 if [ "$SKIP_SYNTH" = 0 ]; then
-  "$BUILD/common/synth/exoview_synth" --out "$OUT/synth" --frames 60 --test-poses 200
+  "$BUILD/common/synth/exoview_synth" --out "$OUT/synth" --frames 30 --test-poses 20
 fi
+
+step "synthetic scenes written"
 
 # 2. Server on a free port; stopped on any exit.
 SERVER_PID=""
@@ -48,18 +63,21 @@ trap cleanup EXIT
 rm -f "$OUT/port"
 # EXOVIEW_SERVER_ARGS: extra server flags (e.g. "--refinement=0" for an A/B run).
 # shellcheck disable=SC2086
-"$BUILD/server/app/exoview_server" --listen=127.0.0.1:0 --port_file="$OUT/port" ${EXOVIEW_SERVER_ARGS:-} \
-  > "$OUT/server.log" 2>&1 &
+"$BUILD/server/app/exoview_server" --listen=127.0.0.1:0 --port_file="$OUT/port" \
+  --max_views="$STORE" ${EXOVIEW_SERVER_ARGS:-} > "$OUT/server.log" 2>&1 &
 SERVER_PID=$!
 for _ in $(seq 200); do [ -s "$OUT/port" ] && break; sleep 0.05; done
 [ -s "$OUT/port" ] || { echo "server did not start:" >&2; cat "$OUT/server.log" >&2; exit 1; }
 SERVER="127.0.0.1:$(cat "$OUT/port")"
-echo "demo: server on $SERVER"
+echo "demo: server on $SERVER (store $STORE views), streaming $FRAMES frames"
 
-# 3. Viewer follows the stream during the upload, then renders along the walk path.
+# 3. Viewer follows the stream during the upload, saves its store, then renders on and off the path.
+rm -rf "$OUT/frames"
 "$BUILD/client/viewer/exoview_viewer" --server="$SERVER" --until_frames="$FRAMES" \
   --delta_log="$OUT/viewer_deltas.txt" --state_json="$OUT/viewer_state.json" \
-  --render_frames="$VIEWS" --width=640 --height=480 --out="$OUT/frames" \
+  --save_model="$OUT/viewer.model" \
+  --render_frames="$VIEWS" --test_views="$TEST_VIEWS" --test_sets=near,scene --gt_png \
+  --width=640 --height=480 --out="$OUT/frames" \
   --path=synthetic:apartment:walk --max_seconds=600 > "$OUT/viewer.log" 2>&1 &
 VIEWER_PID=$!
 "$BUILD/client/uploader/exoview_uploader" --server="$SERVER" --synthetic=apartment \
@@ -67,50 +85,23 @@ VIEWER_PID=$!
   --stats_json="$OUT/upload.json" --send_log="$OUT/upload_sends.txt"
 wait "$VIEWER_PID" || { echo "viewer failed:" >&2; cat "$OUT/viewer.log" >&2; exit 1; }
 VIEWER_PID=""
+step "stream and novel views done"
 
-# 4. Stop the server (graceful), then the report.
+# Stop the server (graceful).
 kill -TERM "$SERVER_PID"
 wait "$SERVER_PID"
 SERVER_PID=""
 
-# Frame-to-delta latency: first delta per source frame (viewer) minus the frame's send time
-# (uploader); both are CLOCK_MONOTONIC on this host.
-LAT=$(awk 'NR==FNR { sent[$1] = $2; next }
-           $1 != 0 && ($1 in sent) && !($1 in seen) { seen[$1] = 1; print ($2 - sent[$1]) / 1e6 }' \
-        "$OUT/upload_sends.txt" "$OUT/viewer_deltas.txt" | sort -n)
-N=$(printf '%s\n' "$LAT" | grep -c . || true)
-pct() { [ "$N" -gt 0 ] && printf '%s\n' "$LAT" | awk -v n="$N" -v q="$1" 'NR == int(q * (n - 1) + 1.5) { print; exit }' || echo -1; }
-P50=$(pct 0.5); P95=$(pct 0.95)
-BYTES=$(awk '{ s += $3 } END { print s + 0 }' "$OUT/viewer_deltas.txt")
-T0=$(head -n1 "$OUT/upload_sends.txt" | awk '{ print $2 }')
-T1=$(tail -n1 "$OUT/viewer_deltas.txt" | awk '{ print $2 }')
-SECS=$(awk -v a="$T0" -v b="$T1" 'BEGIN { print (b - a) / 1e9 }')
-KBPS=$(awk -v b="$BYTES" -v s="$SECS" 'BEGIN { if (s > 0) print b * 8 / 1000 / s; else print 0 }')
-VIEWER_REPORT=$(cat "$OUT/frames/viewer_report.json")
-MSSIM=$(printf '%s' "$VIEWER_REPORT" | sed -n 's/.*"mssim": \([-0-9.e]*\).*/\1/p')
-RENDER_MS=$(printf '%s' "$VIEWER_REPORT" | sed -n 's/.*"mean_render_ms": \([-0-9.e]*\).*/\1/p')
-UP_FPS=$(sed -n 's/.*"fps": \([-0-9.e]*\).*/\1/p' "$OUT/upload.json")
-RENDERER=$(printf '%s' "$VIEWER_REPORT" | sed -n 's/.*"renderer": "\([^"]*\)".*/\1/p')
-cat > "$OUT/report.json" <<JSON
-{"scene": "apartment", "uploaded_frames": $FRAMES, "rendered_views": $VIEWS,
- "mssim": $MSSIM, "renderer": "$RENDERER", "mean_render_ms": $RENDER_MS,
- "viewer_bytes": $BYTES, "viewer_kbit_per_s": $KBPS, "stream_seconds": $SECS,
- "frame_to_delta_p50_ms": $P50, "frame_to_delta_p95_ms": $P95, "frames_with_delta": $N,
- "upload": $(cat "$OUT/upload.json"),
- "viewer_store": $(cat "$OUT/viewer_state.json")}
-JSON
-cat > "$OUT/report.md" <<MD
-# Exoview demo (synthetic apartment, server + uploader + viewer over gRPC on loopback)
+# 4. Exports of the viewer's store: mesh.ply, trajectory.tum, colmap/.
+rm -rf "$OUT/export"
+"$BUILD/tools/export/exoview_export" --model "$OUT/viewer.model" --out "$OUT/export"
+# ... read back by independent readers (numpy; Open3D when installed): counts, unit normals,
+# COLMAP = inverse of TUM. Fails the demo when a check fails.
+/usr/bin/python3 "$ROOT/tools/export/read_exports.py" "$OUT/export" > "$OUT/export/readback.json"
 
-| what | value |
-|---|---|
-| uploaded frames (640x480 RGB-D, rendered on the fly, asked 30 Hz) | $FRAMES at $UP_FPS fps |
-| MSSIM of $VIEWS rendered views vs ground truth | $MSSIM |
-| renderer, mean ms per 640x480 view | $RENDERER, $RENDER_MS |
-| bytes received by the viewer | $BYTES ($KBPS kbit/s over $SECS s) |
-| frame-to-delta latency p50 / p95 (ms) | $P50 / $P95 ($N frames produced deltas) |
-
-Frames: \`frames/frame_*.png\`, \`frames/frames.mjpeg\`; per-frame timings and SSIM:
-\`frames/viewer_report.json\`; upload ack statistics: \`upload.json\`; synthetic scenes: \`synth/\`.
-MD
+# 5. The report (JSON read with a parser; charts and contact sheet with matplotlib).
+step "exported"
+/usr/bin/python3 "$ROOT/tools/charts/demo_report.py" --out "$OUT" --frames "$FRAMES" --store "$STORE" \
+  --wall_s "$(( $(date +%s) - START_S ))"
+step "report written"
 cat "$OUT/report.md"

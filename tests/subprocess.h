@@ -15,6 +15,8 @@
 #include <thread>
 #include <vector>
 
+#include <nlohmann/json.hpp>
+
 namespace exo::testing {
 
 class Subprocess {
@@ -96,16 +98,17 @@ inline bool WaitForFile(const std::string& path, double timeout_s) {
   return true;
 }
 
-// "key": number from a flat JSON object written by our binaries (-1 if absent).
+// A top-level number of a JSON object written by our binaries, parsed with nlohmann::json
+// (-1 / 0 when the text is not JSON, the key is absent or not a number).
 inline double JsonNumber(const std::string& json, const std::string& key) {
-  const auto p = json.find("\"" + key + "\": ");
-  if (p == std::string::npos) return -1;
-  return std::stod(json.substr(p + key.size() + 4));
+  const auto j = nlohmann::json::parse(json, nullptr, /*allow_exceptions=*/false);
+  if (!j.is_object() || !j.contains(key) || !j[key].is_number()) return -1;
+  return j[key].get<double>();
 }
 inline uint64_t JsonU64(const std::string& json, const std::string& key) {
-  const auto p = json.find("\"" + key + "\": ");
-  if (p == std::string::npos) return 0;
-  return std::stoull(json.substr(p + key.size() + 4));
+  const auto j = nlohmann::json::parse(json, nullptr, /*allow_exceptions=*/false);
+  if (!j.is_object() || !j.contains(key) || !j[key].is_number_unsigned()) return 0;
+  return j[key].get<uint64_t>();
 }
 
 }  // namespace exo::testing

@@ -153,6 +153,39 @@ TEST(SynthTrajectoryTest, TestPosesAreFreeSeededAndLookAtContent) {
   }
 }
 
+// Near test poses are off the input path (none equals an input pose) but within the stated
+// radius of one, free, deterministic for a seed, and look at content.
+TEST(SynthTrajectoryTest, NearTestPosesStayNearThePathButOffIt) {
+  auto scene = MakeScene(SceneKind::kApartment, {});
+  ASSERT_TRUE(scene.ok());
+  TrajectoryOptions to;
+  to.num_frames = 40;
+  auto traj = MakeTrajectory(*scene, TrajectoryKind::kWalk, to);
+  ASSERT_TRUE(traj.ok());
+  std::vector<Rigid3d> input;
+  for (const auto& p : *traj) input.push_back(p.local_from_cam);
+  const PinholeCamera cam = Small().Camera();
+  auto a = MakeNearTestPoses(*scene, input, cam, 12, 7, false);
+  auto b = MakeNearTestPoses(*scene, input, cam, 12, 7, false);
+  ASSERT_TRUE(a.ok()) << a.status();
+  ASSERT_EQ(a->size(), 12u);
+  const double r_h = 0.1 * scene->ExtentM();
+  for (size_t i = 0; i < a->size(); ++i) {
+    const glm::dvec3 e = (*a)[i].translation;
+    EXPECT_EQ(e, (*b)[i].translation);
+    EXPECT_TRUE(scene->IsFree(e, 0.5));
+    double nearest = 1e30;
+    for (const Rigid3d& p : input) {
+      const glm::dvec3 d = e - p.translation;
+      if (std::abs(d.x) <= r_h && std::abs(d.y) <= r_h && std::abs(d.z) <= 0.3)
+        nearest = std::min(nearest, glm::length(d));
+    }
+    EXPECT_LT(nearest, 1e29) << "pose " << i << " is not near any input pose";
+    EXPECT_GT(nearest, 1e-6) << "pose " << i << " is an input pose";
+  }
+  EXPECT_FALSE(MakeNearTestPoses(*scene, {}, cam, 3, 7, false).ok());
+}
+
 // Depth is the z-depth of the geometry: a camera 1.6 m above the apartment floor looking
 // straight down sees the floor at 1.6 m in the centre.
 TEST(SynthRenderTest, DepthIsGeometryZDepth) {

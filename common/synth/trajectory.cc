@@ -235,4 +235,49 @@ absl::StatusOr<std::vector<Rigid3d>> MakeTestPoses(const SynthScene& scene,
   return poses;
 }
 
+absl::StatusOr<std::vector<Rigid3d>> MakeNearTestPoses(const SynthScene& scene,
+                                                       const std::vector<Rigid3d>& input,
+                                                       const PinholeCamera& camera, int count,
+                                                       uint64_t seed, bool flyover) {
+  EXO_RETURN_IF_ERROR(camera.Validate());
+  if (input.empty()) return absl::InvalidArgumentError("near test poses need input poses");
+  if (count < 0) return absl::InvalidArgumentError("near test poses: count < 0");
+  std::mt19937_64 rng(seed * 0x9E3779B97F4A7C15ull + 3);
+  auto uni = [&](double a, double b) { return std::uniform_real_distribution<double>(a, b)(rng); };
+  RasterOptions ro;
+  ro.z_depth = true;
+  ro.width = 64;
+  ro.height = std::max(8, static_cast<int>(std::lround(64.0 * camera.height / camera.width)));
+  ro.num_threads = 1;
+  ro.near_m = 0.05;
+  const double r_h = 0.1 * scene.ExtentM(), r_v = flyover ? 2.0 : 0.3;
+  std::vector<Rigid3d> out;
+  for (int attempt = 0; attempt < 400 * count && static_cast<int>(out.size()) < count; ++attempt) {
+    const Rigid3d& base = input[rng() % input.size()];
+    const glm::dvec3 eye =
+        base.translation + glm::dvec3(uni(-r_h, r_h), uni(-r_h, r_h), uni(-r_v, r_v));
+    if (!scene.IsFree(eye, 0.5)) continue;
+    const glm::dvec3 fwd = base.RotationMatrix() * glm::dvec3(0, 0, 1);
+    const double yaw = std::atan2(fwd.y, fwd.x) + glm::radians(uni(-45, 45));
+    const double pitch = std::asin(std::clamp(fwd.z, -1.0, 1.0)) + glm::radians(uni(-10, 10));
+    const glm::dvec3 dir(std::cos(pitch) * std::cos(yaw), std::cos(pitch) * std::sin(yaw),
+                         std::sin(pitch));
+    const Rigid3d pose = LookAt(eye, eye + dir);
+    EXO_ASSIGN_OR_RETURN(RasterOutput r, Rasterize(scene.mesh, camera, pose, ro));
+    int hits = 0;
+    float min_z = 1e30f;
+    for (float z : r.z_depth_m.span())
+      if (z > 0) {
+        ++hits;
+        min_z = std::min(min_z, z);
+      }
+    if (static_cast<double>(hits) / r.z_depth_m.size() < 0.9 || min_z < 0.4) continue;
+    out.push_back(pose);
+  }
+  if (static_cast<int>(out.size()) < count)
+    return absl::FailedPreconditionError(absl::StrCat("found only ", out.size(), " of ", count,
+                                                      " near-trajectory test poses"));
+  return out;
+}
+
 }  // namespace exo::synth

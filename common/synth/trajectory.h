@@ -54,4 +54,14 @@ absl::StatusOr<std::vector<Rigid3d>> MakeTestPoses(const SynthScene& scene,
                                                    const PinholeCamera& camera,
                                                    const TestPoseOptions& options);
 
+// Test poses off the input path but near it (the evaluation's "near" set): the eye within
+// ±10 % of the scene extent horizontally (±0.3 m vertically on a walk, ±2 m on a fly-over) of a
+// random input pose, the view direction within ±45° yaw and ±10° pitch of that pose's, accepted
+// by the rule of MakeTestPoses (>= 90 % geometry hits, nothing closer than 0.4 m, eye 0.5 m from
+// solids). Deterministic for a seed.
+absl::StatusOr<std::vector<Rigid3d>> MakeNearTestPoses(const SynthScene& scene,
+                                                       const std::vector<Rigid3d>& input,
+                                                       const PinholeCamera& camera, int count,
+                                                       uint64_t seed, bool flyover);
+
 }  // namespace exo::synth
