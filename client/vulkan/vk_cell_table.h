@@ -1,0 +1,89 @@
+// PRIVATE to client/vulkan: the GPU cell reference table R(b_k). An open-addressing hash table
+// (linear probing, tombstones; same hash as shaders/lumigraph_common.glsl) maps a CellId to its
+// slab of max_refs_per_cell view slots; a host mirror keeps uploads to the changed entries. Per
+// frame, RankRefs writes every visible cell's references sorted by an upper bound of their
+// blend weight (the ranked buffer blend.frag walks).
+#pragma once
+
+#include <cstdint>
+#include <span>
+#include <unordered_map>
+#include <unordered_set>
+#include <utility>
+#include <vector>
+
+#include <glm/glm.hpp>
+
+#include "client/vulkan/vk_core_internal.h"
+#include "client/vulkan/vk_view_store.h"
+#include "client/vulkan/vulkan_renderer.h"
+
+namespace exo::vk {
+
+class CellTable {
+ public:
+  struct Entry {
+    uint32_t table_index = 0;
+    uint32_t slab = 0;
+    std::vector<ViewId> refs;
+  };
+
+  // `views` resolves references to slots; all arguments must outlive the table.
+  CellTable(const Context& ctx, const VulkanRendererOptions& opt, UploadStats& stats,
+            const ViewStore& views)
+      : ctx_(ctx), opt_(opt), stats_(stats), views_(views) {}
+
+  // The empty table: 64 entries and one slab, so every descriptor is valid.
+  absl::Status Init();
+  // Sets R(id) (replaces); an empty list removes the cell.
+  absl::Status SetRefs(CellId id, std::span<const ViewId> refs);
+  // Rewrites the slabs of the cells that reference `view` (after it arrived or left).
+  void RefreshCellsOf(ViewId view);
+  // Per-frame reference ranking into the ranked buffer (see the .cc for the bound).
+  void RankRefs(const glm::vec3& c_o, const PinholeCamera& cam, const Rigid3d& local_from_cam,
+                double cell_size_m, const blend::BlendOptions& bo);
+
+  const std::unordered_map<CellId, Entry>& entries() const { return cells_; }
+  uint32_t table_mask() const { return uint32_t(table_.size() - 1); }
+  uint32_t max_probe() const { return max_probe_; }
+  const Buffer& table_buffer() const { return table_buf_; }
+  const Buffer& refs_buffer() const { return refs_buf_; }
+  const Buffer& ranked_buffer() const { return ranked_buf_; }
+  // True once after a buffer was replaced (descriptors must follow).
+  bool TakeStorageChanged() { return std::exchange(storage_changed_, false); }
+  uint64_t ResidentBytes() const { return table_buf_.size + refs_buf_.size + ranked_buf_.size; }
+
+ private:
+  absl::Status GrowSlabs(uint32_t slabs);
+  // Re-hashes every cell into a table of `capacity` entries and uploads it whole.
+  absl::Status RebuildTable(uint32_t capacity);
+  uint32_t Probe(CellId id, bool for_insert) const;
+  uint32_t Displacement(CellId id, uint32_t i) const;
+  glm::uvec4 EntryOf(CellId id, const Entry& c) const;
+  void UploadTableEntry(uint32_t i);
+  void WriteSlab(const Entry& c);
+  void Unlink(CellId id, const Entry& c);  // drops `id` from the reverse index
+  void Erase(std::unordered_map<CellId, Entry>::iterator it);
+  absl::StatusOr<std::unordered_map<CellId, Entry>::iterator> Insert(CellId id);
+
+  const Context& ctx_;
+  const VulkanRendererOptions& opt_;
+  UploadStats& stats_;
+  const ViewStore& views_;
+  std::unordered_map<CellId, Entry> cells_;
+  std::unordered_map<ViewId, std::unordered_set<CellId>> cells_of_view_;  // reverse index
+  std::vector<glm::uvec4> table_;  // host mirror of the GPU hash table
+  uint32_t max_probe_ = 0;         // largest displacement of a resident key (lookup bound)
+  uint32_t tombstones_ = 0;
+  Buffer table_buf_;
+  std::vector<uint32_t> free_slabs_;
+  uint32_t slab_capacity_ = 0;
+  Buffer refs_buf_;
+  // Per-frame ranked copy of every slab (RankRefs): 2 RGBA32UI texels per reference slot, same
+  // slot index as refs_buf_, sorted per cell by an upper bound of the blend weight this frame.
+  Buffer ranked_buf_;
+  std::vector<std::pair<float, uint32_t>> rank_scratch_;
+  bool storage_changed_ = false;
+};
+
+}  // namespace exo::vk

@@ -1,0 +1,353 @@
+#include "client/vulkan/vk_pipelines.h"
+
+#include "shaders/blend.comp.h"
+#include "shaders/blend.frag.h"
+#include "shaders/blend.vert.h"
+#include "shaders/cellid.frag.h"
+#include "shaders/fullscreen.vert.h"
+#include "shaders/gbuffer.frag.h"
+#include "shaders/viewdepth.frag.h"
+
+#include <glm/glm.hpp>
+
+namespace exo::vk {
+
+absl::StatusOr<std::unique_ptr<Pipelines>> Pipelines::Create(const Context& ctx,
+                                                             bool blend_compute) {
+  std::unique_ptr<Pipelines> p(new Pipelines(ctx, blend_compute));
+  EXO_RETURN_IF_ERROR(p->CreateSamplers());
+  EXO_RETURN_IF_ERROR(p->CreateSetLayout());
+  EXO_RETURN_IF_ERROR(p->CreateDescriptorSet());
+  EXO_ASSIGN_OR_RETURN(p->color_pass_, p->CreateRenderPass(VK_FORMAT_R8G8B8A8_UNORM));
+  EXO_ASSIGN_OR_RETURN(p->gbuffer_pass_, p->CreateRenderPass(VK_FORMAT_R32G32B32A32_SFLOAT,
+                                                             /*sampled_output=*/true));
+  EXO_ASSIGN_OR_RETURN(p->cellid_pass_, p->CreateRenderPass(VK_FORMAT_R32G32_UINT));
+  EXO_ASSIGN_OR_RETURN(p->zdepth_pass_, p->CreateRenderPass(VK_FORMAT_R32_SFLOAT));
+  EXO_RETURN_IF_ERROR(p->EnsureBlendPipe(blend::BlendOptions{}.n_best));
+  EXO_ASSIGN_OR_RETURN(p->gbuffer_pipe_, p->CreatePipeline(p->gbuffer_pass_.get(), kSpvGbufferFrag,
+                                                           sizeof(kSpvGbufferFrag)));
+  EXO_ASSIGN_OR_RETURN(p->cellid_pipe_, p->CreatePipeline(p->cellid_pass_.get(), kSpvCellidFrag,
+                                                          sizeof(kSpvCellidFrag)));
+  EXO_ASSIGN_OR_RETURN(p->zdepth_pipe_, p->CreatePipeline(p->zdepth_pass_.get(),
+                                                          kSpvViewdepthFrag,
+                                                          sizeof(kSpvViewdepthFrag)));
+  return p;
+}
+
+absl::Status Pipelines::EnsureBlendPipe(int n_best) {
+  if (n_best < 1 || n_best > blend::kMaxBlendViews)
+    return absl::InvalidArgumentError("n_best out of range");
+  if (blend_compute_ ? bool(blend_comp_pipes_[n_best]) : bool(blend_pipes_[n_best]))
+    return absl::OkStatus();
+  const int32_t value = n_best;
+  VkSpecializationMapEntry entry{0, 0, sizeof(int32_t)};
+  VkSpecializationInfo spec{1, &entry, sizeof(int32_t), &value};
+  if (blend_compute_) return CreateComputeBlendPipe(n_best, spec);
+  EXO_ASSIGN_OR_RETURN(blend_pipes_[n_best],
+                       CreatePipeline(color_pass_.get(), kSpvBlendFrag, sizeof(kSpvBlendFrag),
+                                      /*fullscreen=*/true, &spec));
+  return absl::OkStatus();
+}
+
+absl::Status Pipelines::CreateComputeBlendPipe(int n_best, const VkSpecializationInfo& spec) {
+  EXO_ASSIGN_OR_RETURN(auto cs, CreateModule(kSpvBlendComp, sizeof(kSpvBlendComp)));
+  VkComputePipelineCreateInfo ci{VK_STRUCTURE_TYPE_COMPUTE_PIPELINE_CREATE_INFO};
+  ci.stage.sType = VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO;
+  ci.stage.stage = VK_SHADER_STAGE_COMPUTE_BIT;
+  ci.stage.module = cs.get();
+  ci.stage.pName = "main";
+  ci.stage.pSpecializationInfo = &spec;
+  ci.layout = pipe_layout_.get();
+  VkPipeline raw;
+  EXO_VK_RETURN(vkCreateComputePipelines(ctx_.device(), VK_NULL_HANDLE, 1, &ci, nullptr, &raw));
+  blend_comp_pipes_[n_best] = UniquePipeline(ctx_.device(), raw);
+  return absl::OkStatus();
+}
+
+absl::Status Pipelines::CreateSamplers() {
+  // Nearest sampler for the depth array (texelFetch only) and a bilinear, clamp-to-edge one for
+  // the colour array: one filtered texture() per blended view instead of four texelFetch + float
+  // lerp (the texel decode to linear happens before filtering, as blend_math.h specifies;
+  // measured 3-4x cheaper on llvmpipe, docs/vulkan.md).
+  for (int k = 0; k < 2; ++k) {
+    VkSamplerCreateInfo s{VK_STRUCTURE_TYPE_SAMPLER_CREATE_INFO};
+    s.magFilter = s.minFilter = k == 0 ? VK_FILTER_NEAREST : VK_FILTER_LINEAR;
+    s.mipmapMode = VK_SAMPLER_MIPMAP_MODE_NEAREST;
+    s.addressModeU = s.addressModeV = s.addressModeW = VK_SAMPLER_ADDRESS_MODE_CLAMP_TO_EDGE;
+    s.maxLod = 0.0f;
+    VkSampler raw;
+    EXO_VK_RETURN(vkCreateSampler(ctx_.device(), &s, nullptr, &raw));
+    (k == 0 ? sampler_ : linear_sampler_) = UniqueSampler(ctx_.device(), raw);
+  }
+  return absl::OkStatus();
+}
+
+absl::Status Pipelines::CreateSetLayout() {
+  VkDescriptorSetLayoutBinding b[9]{};
+  for (uint32_t i = 0; i < 9; ++i) {
+    b[i].binding = i;
+    b[i].descriptorCount = 1;
+    b[i].stageFlags = VK_SHADER_STAGE_FRAGMENT_BIT | VK_SHADER_STAGE_COMPUTE_BIT;
+  }
+  b[0].descriptorType = VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER;
+  b[0].stageFlags |= VK_SHADER_STAGE_VERTEX_BIT;
+  // Views, cell table and reference slots are uniform TEXEL buffers, not SSBOs: llvmpipe
+  // lowers a divergent SSBO load to a per-lane scalar loop per component, a texel-buffer fetch
+  // to a vector gather (measured: docs/vulkan.md).
+  b[1].descriptorType = b[2].descriptorType = b[3].descriptorType =
+      VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER;
+  b[4].descriptorType = b[5].descriptorType = b[6].descriptorType =
+      VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER;
+  b[7].descriptorType = VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER;  // ranked refs (per frame)
+  b[8].descriptorType = VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;        // blend.comp output (RGBA8)
+  VkDescriptorSetLayoutCreateInfo li{VK_STRUCTURE_TYPE_DESCRIPTOR_SET_LAYOUT_CREATE_INFO};
+  li.bindingCount = 9;
+  li.pBindings = b;
+  VkDescriptorSetLayout raw_layout;
+  EXO_VK_RETURN(vkCreateDescriptorSetLayout(ctx_.device(), &li, nullptr, &raw_layout));
+  set_layout_ = UniqueDescriptorSetLayout(ctx_.device(), raw_layout);
+  VkPipelineLayoutCreateInfo pli{VK_STRUCTURE_TYPE_PIPELINE_LAYOUT_CREATE_INFO};
+  pli.setLayoutCount = 1;
+  pli.pSetLayouts = &raw_layout;
+  VkPipelineLayout raw_pl;
+  EXO_VK_RETURN(vkCreatePipelineLayout(ctx_.device(), &pli, nullptr, &raw_pl));
+  pipe_layout_ = UniquePipelineLayout(ctx_.device(), raw_pl);
+  return absl::OkStatus();
+}
+
+absl::Status Pipelines::CreateDescriptorSet() {
+  VkDescriptorPoolSize sizes[4] = {{VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER, 1},
+                                   {VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER, 4},
+                                   {VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER, 3},
+                                   {VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, 1}};
+  VkDescriptorPoolCreateInfo pi{VK_STRUCTURE_TYPE_DESCRIPTOR_POOL_CREATE_INFO};
+  pi.maxSets = 1;
+  pi.poolSizeCount = 4;
+  pi.pPoolSizes = sizes;
+  VkDescriptorPool raw_pool;
+  EXO_VK_RETURN(vkCreateDescriptorPool(ctx_.device(), &pi, nullptr, &raw_pool));
+  desc_pool_ = UniqueDescriptorPool(ctx_.device(), raw_pool);
+  const VkDescriptorSetLayout raw_layout = set_layout_.get();
+  VkDescriptorSetAllocateInfo ai{VK_STRUCTURE_TYPE_DESCRIPTOR_SET_ALLOCATE_INFO};
+  ai.descriptorPool = raw_pool;
+  ai.descriptorSetCount = 1;
+  ai.pSetLayouts = &raw_layout;
+  EXO_VK_RETURN(vkAllocateDescriptorSets(ctx_.device(), &ai, &desc_set_));
+  return absl::OkStatus();
+}
+
+absl::StatusOr<UniqueBufferView> Pipelines::MakeBufferView(const Buffer& b,
+                                                           VkFormat format) const {
+  VkBufferViewCreateInfo ci{VK_STRUCTURE_TYPE_BUFFER_VIEW_CREATE_INFO};
+  ci.buffer = b.buffer.get();
+  ci.format = format;
+  ci.offset = 0;
+  ci.range = VK_WHOLE_SIZE;
+  VkBufferView raw;
+  EXO_VK_RETURN(vkCreateBufferView(ctx_.device(), &ci, nullptr, &raw));
+  return UniqueBufferView(ctx_.device(), raw);
+}
+
+absl::Status Pipelines::WriteDescriptors(const DescriptorInputs& in) {
+  // The set may still be in use by nothing: every Submit waits for its fence.
+  EXO_ASSIGN_OR_RETURN(buffer_views_[0],
+                       MakeBufferView(*in.view_records, VK_FORMAT_R32G32B32A32_SFLOAT));
+  EXO_ASSIGN_OR_RETURN(buffer_views_[1],
+                       MakeBufferView(*in.cell_table, VK_FORMAT_R32G32B32A32_UINT));
+  EXO_ASSIGN_OR_RETURN(buffer_views_[2], MakeBufferView(*in.refs, VK_FORMAT_R32_UINT));
+  EXO_ASSIGN_OR_RETURN(buffer_views_[3],
+                       MakeBufferView(*in.ranked_refs, VK_FORMAT_R32G32B32A32_UINT));
+  VkDescriptorBufferInfo ubo{in.frame_ubo->buffer.get(), 0, VK_WHOLE_SIZE};
+  VkBufferView tb[3] = {buffer_views_[0].get(), buffer_views_[1].get(), buffer_views_[2].get()};
+  VkBufferView ranked_view = buffer_views_[3].get();
+  VkDescriptorImageInfo ii[3] = {
+      {linear_sampler_.get(), in.colors->view.get(), VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL},
+      {sampler_.get(), in.depths->view.get(), VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL},
+      {sampler_.get(), in.gbuffer->view.get(), VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL}};
+  VkDescriptorBufferInfo out_info{in.blend_out->buffer.get(), 0, VK_WHOLE_SIZE};
+  const uint32_t writes = 9;
+  VkWriteDescriptorSet w[9]{};
+  for (uint32_t i = 0; i < writes; ++i) {
+    w[i].sType = VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET;
+    w[i].dstSet = desc_set_;
+    w[i].dstBinding = i;
+    w[i].descriptorCount = 1;
+    if (i == 0) {
+      w[i].descriptorType = VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER;
+      w[i].pBufferInfo = &ubo;
+    } else if (i < 4) {
+      w[i].descriptorType = VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER;
+      w[i].pTexelBufferView = &tb[i - 1];
+    } else if (i == 7) {
+      w[i].descriptorType = VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER;
+      w[i].pTexelBufferView = &ranked_view;
+    } else if (i == 8) {
+      w[i].descriptorType = VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;
+      w[i].pBufferInfo = &out_info;
+    } else {
+      w[i].descriptorType = VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER;
+      w[i].pImageInfo = &ii[i - 4];
+    }
+  }
+  vkUpdateDescriptorSets(ctx_.device(), writes, w, 0, nullptr);
+  return absl::OkStatus();
+}
+
+absl::StatusOr<UniqueRenderPass> Pipelines::CreateRenderPass(VkFormat color_format,
+                                                             bool sampled_output) const {
+  VkAttachmentDescription att[2]{};
+  att[0].format = color_format;
+  att[0].samples = VK_SAMPLE_COUNT_1_BIT;
+  att[0].loadOp = VK_ATTACHMENT_LOAD_OP_CLEAR;
+  att[0].storeOp = VK_ATTACHMENT_STORE_OP_STORE;
+  att[0].stencilLoadOp = VK_ATTACHMENT_LOAD_OP_DONT_CARE;
+  att[0].stencilStoreOp = VK_ATTACHMENT_STORE_OP_DONT_CARE;
+  att[0].initialLayout = VK_IMAGE_LAYOUT_UNDEFINED;
+  att[0].finalLayout = sampled_output ? VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL
+                                      : VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL;
+  att[1] = att[0];
+  att[1].format = VK_FORMAT_D32_SFLOAT;
+  att[1].storeOp = VK_ATTACHMENT_STORE_OP_DONT_CARE;
+  att[1].finalLayout = VK_IMAGE_LAYOUT_DEPTH_STENCIL_ATTACHMENT_OPTIMAL;
+  VkAttachmentReference cref{0, VK_IMAGE_LAYOUT_COLOR_ATTACHMENT_OPTIMAL};
+  VkAttachmentReference dref{1, VK_IMAGE_LAYOUT_DEPTH_STENCIL_ATTACHMENT_OPTIMAL};
+  VkSubpassDescription sub{};
+  sub.pipelineBindPoint = VK_PIPELINE_BIND_POINT_GRAPHICS;
+  sub.colorAttachmentCount = 1;
+  sub.pColorAttachments = &cref;
+  sub.pDepthStencilAttachment = &dref;
+  VkSubpassDependency dep[2]{};
+  dep[0].srcSubpass = VK_SUBPASS_EXTERNAL;
+  dep[0].dstSubpass = 0;
+  dep[0].srcStageMask = VK_PIPELINE_STAGE_TRANSFER_BIT |
+                        VK_PIPELINE_STAGE_COLOR_ATTACHMENT_OUTPUT_BIT |
+                        VK_PIPELINE_STAGE_LATE_FRAGMENT_TESTS_BIT |
+                        VK_PIPELINE_STAGE_FRAGMENT_SHADER_BIT;
+  dep[0].dstStageMask = VK_PIPELINE_STAGE_COLOR_ATTACHMENT_OUTPUT_BIT |
+                        VK_PIPELINE_STAGE_EARLY_FRAGMENT_TESTS_BIT;
+  dep[0].srcAccessMask = VK_ACCESS_TRANSFER_READ_BIT |
+                         VK_ACCESS_DEPTH_STENCIL_ATTACHMENT_WRITE_BIT;
+  dep[0].dstAccessMask = VK_ACCESS_COLOR_ATTACHMENT_WRITE_BIT |
+                         VK_ACCESS_DEPTH_STENCIL_ATTACHMENT_READ_BIT |
+                         VK_ACCESS_DEPTH_STENCIL_ATTACHMENT_WRITE_BIT;
+  dep[1].srcSubpass = 0;
+  dep[1].dstSubpass = VK_SUBPASS_EXTERNAL;
+  dep[1].srcStageMask = VK_PIPELINE_STAGE_COLOR_ATTACHMENT_OUTPUT_BIT;
+  dep[1].dstStageMask = sampled_output ? (VK_PIPELINE_STAGE_FRAGMENT_SHADER_BIT |
+                                          VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT)
+                                       : VK_PIPELINE_STAGE_TRANSFER_BIT;
+  dep[1].srcAccessMask = VK_ACCESS_COLOR_ATTACHMENT_WRITE_BIT;
+  dep[1].dstAccessMask = sampled_output ? VK_ACCESS_SHADER_READ_BIT : VK_ACCESS_TRANSFER_READ_BIT;
+  VkRenderPassCreateInfo ri{VK_STRUCTURE_TYPE_RENDER_PASS_CREATE_INFO};
+  ri.attachmentCount = 2;
+  ri.pAttachments = att;
+  ri.subpassCount = 1;
+  ri.pSubpasses = &sub;
+  ri.dependencyCount = 2;
+  ri.pDependencies = dep;
+  VkRenderPass raw;
+  EXO_VK_RETURN(vkCreateRenderPass(ctx_.device(), &ri, nullptr, &raw));
+  return UniqueRenderPass(ctx_.device(), raw);
+}
+
+absl::StatusOr<UniqueShaderModule> Pipelines::CreateModule(const uint32_t* code,
+                                                           size_t bytes) const {
+  VkShaderModuleCreateInfo si{VK_STRUCTURE_TYPE_SHADER_MODULE_CREATE_INFO};
+  si.codeSize = bytes;
+  si.pCode = code;
+  VkShaderModule raw;
+  EXO_VK_RETURN(vkCreateShaderModule(ctx_.device(), &si, nullptr, &raw));
+  return UniqueShaderModule(ctx_.device(), raw);
+}
+
+namespace {
+
+// The fixed-function state of every graphics pipeline (viewport and scissor are dynamic).
+struct FixedFunctionState {
+  VkVertexInputBindingDescription vb{0, sizeof(glm::vec3), VK_VERTEX_INPUT_RATE_VERTEX};
+  VkVertexInputAttributeDescription va{0, 0, VK_FORMAT_R32G32B32_SFLOAT, 0};
+  VkPipelineVertexInputStateCreateInfo vi{
+      VK_STRUCTURE_TYPE_PIPELINE_VERTEX_INPUT_STATE_CREATE_INFO};
+  VkPipelineInputAssemblyStateCreateInfo ia{
+      VK_STRUCTURE_TYPE_PIPELINE_INPUT_ASSEMBLY_STATE_CREATE_INFO};
+  VkPipelineViewportStateCreateInfo vp{VK_STRUCTURE_TYPE_PIPELINE_VIEWPORT_STATE_CREATE_INFO};
+  VkPipelineRasterizationStateCreateInfo rs{
+      VK_STRUCTURE_TYPE_PIPELINE_RASTERIZATION_STATE_CREATE_INFO};
+  VkPipelineMultisampleStateCreateInfo ms{
+      VK_STRUCTURE_TYPE_PIPELINE_MULTISAMPLE_STATE_CREATE_INFO};
+  VkPipelineDepthStencilStateCreateInfo ds{
+      VK_STRUCTURE_TYPE_PIPELINE_DEPTH_STENCIL_STATE_CREATE_INFO};
+  VkPipelineColorBlendAttachmentState cba{};
+  VkPipelineColorBlendStateCreateInfo cb{VK_STRUCTURE_TYPE_PIPELINE_COLOR_BLEND_STATE_CREATE_INFO};
+  VkDynamicState dyn[2] = {VK_DYNAMIC_STATE_VIEWPORT, VK_DYNAMIC_STATE_SCISSOR};
+  VkPipelineDynamicStateCreateInfo dy{VK_STRUCTURE_TYPE_PIPELINE_DYNAMIC_STATE_CREATE_INFO};
+
+  // Not copyable: the create infos point into this object.
+  explicit FixedFunctionState(bool fullscreen) {
+    vi.vertexBindingDescriptionCount = fullscreen ? 0 : 1;
+    vi.pVertexBindingDescriptions = &vb;
+    vi.vertexAttributeDescriptionCount = fullscreen ? 0 : 1;
+    vi.pVertexAttributeDescriptions = &va;
+    ia.topology = VK_PRIMITIVE_TOPOLOGY_TRIANGLE_LIST;
+    vp.viewportCount = 1;
+    vp.scissorCount = 1;
+    rs.polygonMode = VK_POLYGON_MODE_FILL;
+    rs.cullMode = VK_CULL_MODE_NONE;  // the CPU rasterizer does not cull by default either
+    rs.frontFace = VK_FRONT_FACE_COUNTER_CLOCKWISE;
+    rs.lineWidth = 1.0f;
+    ms.rasterizationSamples = VK_SAMPLE_COUNT_1_BIT;
+    ds.depthTestEnable = fullscreen ? VK_FALSE : VK_TRUE;
+    ds.depthWriteEnable = fullscreen ? VK_FALSE : VK_TRUE;
+    ds.depthCompareOp = VK_COMPARE_OP_LESS;
+    cba.colorWriteMask = VK_COLOR_COMPONENT_R_BIT | VK_COLOR_COMPONENT_G_BIT |
+                         VK_COLOR_COMPONENT_B_BIT | VK_COLOR_COMPONENT_A_BIT;
+    cb.attachmentCount = 1;
+    cb.pAttachments = &cba;
+    dy.dynamicStateCount = 2;
+    dy.pDynamicStates = dyn;
+  }
+  FixedFunctionState(const FixedFunctionState&) = delete;
+  FixedFunctionState& operator=(const FixedFunctionState&) = delete;
+};
+
+}  // namespace
+
+absl::StatusOr<UniquePipeline> Pipelines::CreatePipeline(VkRenderPass pass, const uint32_t* frag,
+                                                         size_t frag_bytes, bool fullscreen,
+                                                         const VkSpecializationInfo* spec) const {
+  UniqueShaderModule vs;
+  if (fullscreen) {
+    EXO_ASSIGN_OR_RETURN(vs, CreateModule(kSpvFullscreenVert, sizeof(kSpvFullscreenVert)));
+  } else {
+    EXO_ASSIGN_OR_RETURN(vs, CreateModule(kSpvBlendVert, sizeof(kSpvBlendVert)));
+  }
+  EXO_ASSIGN_OR_RETURN(auto fs, CreateModule(frag, frag_bytes));
+  VkPipelineShaderStageCreateInfo stages[2]{};
+  stages[0].sType = stages[1].sType = VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO;
+  stages[0].stage = VK_SHADER_STAGE_VERTEX_BIT;
+  stages[0].module = vs.get();
+  stages[0].pName = "main";
+  stages[1].stage = VK_SHADER_STAGE_FRAGMENT_BIT;
+  stages[1].module = fs.get();
+  stages[1].pName = "main";
+  stages[1].pSpecializationInfo = spec;
+  const FixedFunctionState st(fullscreen);
+  VkGraphicsPipelineCreateInfo gi{VK_STRUCTURE_TYPE_GRAPHICS_PIPELINE_CREATE_INFO};
+  gi.stageCount = 2;
+  gi.pStages = stages;
+  gi.pVertexInputState = &st.vi;
+  gi.pInputAssemblyState = &st.ia;
+  gi.pViewportState = &st.vp;
+  gi.pRasterizationState = &st.rs;
+  gi.pMultisampleState = &st.ms;
+  gi.pDepthStencilState = &st.ds;
+  gi.pColorBlendState = &st.cb;
+  gi.pDynamicState = &st.dy;
+  gi.layout = pipe_layout_.get();
+  gi.renderPass = pass;
+  VkPipeline raw;
+  EXO_VK_RETURN(vkCreateGraphicsPipelines(ctx_.device(), VK_NULL_HANDLE, 1, &gi, nullptr, &raw));
+  return UniquePipeline(ctx_.device(), raw);
+}
+
+}  // namespace exo::vk

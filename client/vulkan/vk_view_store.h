@@ -1,0 +1,88 @@
+// PRIVATE to client/vulkan: the GPU residency of the stored views. Each view owns one layer of
+// two texture arrays (colour decoded to linear UNORM16, baked depth R32F) and one GpuView record
+// of a texel buffer; slots are reused after removal and the arrays grow by doubling (GPU-side
+// copy of the resident layers).
+#pragma once
+
+#include <cstdint>
+#include <unordered_map>
+#include <vector>
+
+#include <glm/glm.hpp>
+
+#include "client/vulkan/vk_core_internal.h"
+#include "client/vulkan/vulkan_renderer.h"
+#include "common/lumigraph/model.h"
+
+namespace exo::vk {
+
+// No view slot: a reference to a view that is not resident.
+inline constexpr uint32_t kNoSlot = 0xFFFFFFFFu;
+
+// A view record: 5 RGBA32F texels of the Views texel buffer (shaders/blend.frag): rows of
+// P = K [R^T | -R^T c] (local point -> (z u, z v, z)), centre + exposure, and width, height,
+// layer, valid as floats (exact below 2^24).
+struct GpuView {
+  glm::vec4 p0, p1, p2;
+  glm::vec4 centre_exposure;
+  glm::vec4 size_layer;
+};
+static_assert(sizeof(GpuView) == 80);
+
+class ViewStore {
+ public:
+  struct Entry {
+    uint32_t slot = 0;
+    uint64_t fingerprint = 0;
+    blend::BlendView params;      // as the CPU reference builds it (MakeBlendView)
+    bool has_background = false;  // some pixel of the baked background mask is set
+  };
+
+  // `ctx`, `opt` and `stats` must outlive the store.
+  ViewStore(const Context& ctx, const VulkanRendererOptions& opt, UploadStats& stats)
+      : ctx_(ctx), opt_(opt), stats_(stats) {}
+
+  // Grows the texture arrays to >= (w, h, slots); existing layers are copied GPU-side.
+  absl::Status Grow(uint32_t w, uint32_t h, uint32_t slots);
+  // Validates and uploads `v` (colour, baked depth, record). Returns whether the id is new.
+  absl::StatusOr<bool> Upsert(const StoredView& v, uint64_t fingerprint);
+  // Marks the record invalid and frees the slot.
+  absl::Status Remove(ViewId id);
+
+  const std::unordered_map<ViewId, Entry>& entries() const { return views_; }
+  // The slot of a resident view, kNoSlot otherwise.
+  uint32_t SlotOf(ViewId id) const {
+    auto it = views_.find(id);
+    return it == views_.end() ? kNoSlot : it->second.slot;
+  }
+  const GpuView* records() const { return static_cast<const GpuView*>(records_.mapped); }
+  const Buffer& records_buffer() const { return records_; }
+  const Image& colors() const { return colors_; }
+  const Image& depths() const { return depths_; }
+  // True once after the arrays or the record buffer were replaced (descriptors must follow).
+  bool TakeStorageChanged() { return std::exchange(storage_changed_, false); }
+  uint64_t ResidentBytes() const;
+
+ private:
+  absl::Status Validate(const StoredView& v) const;
+  // The slot of `id` (a free one when new), after growing the arrays to hold it.
+  absl::StatusOr<uint32_t> AcquireSlot(ViewId id, int w, int h, bool is_new);
+  // Writes linear UNORM16 colour then baked depth into staging_; returns has_background.
+  absl::StatusOr<bool> Stage(const StoredView& v);
+  absl::Status CopyStagingToLayer(uint32_t slot, uint32_t w, uint32_t h);
+  void WriteRecord(const StoredView& v, uint32_t slot);
+
+  const Context& ctx_;
+  const VulkanRendererOptions& opt_;
+  UploadStats& stats_;
+  std::unordered_map<ViewId, Entry> views_;
+  std::vector<uint32_t> free_slots_;
+  uint32_t slot_capacity_ = 0;
+  uint32_t layer_w_ = 1, layer_h_ = 1;
+  Image colors_, depths_;
+  Buffer records_;
+  Buffer staging_;
+  bool storage_changed_ = false;
+};
+
+}  // namespace exo::vk
