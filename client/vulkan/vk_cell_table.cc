@@ -1,6 +1,7 @@
 #include "client/vulkan/vk_cell_table.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstring>
 
@@ -203,22 +204,86 @@ absl::Status CellTable::SetRefs(CellId id, std::span<const ViewId> refs) {
 // Cells whose ball lies entirely outside the novel camera's frustum (side planes through the
 // centre, z >= 0) are skipped: no pixel's surface point can fall in them this frame, so their
 // stale records are never read (exact).
+namespace {
+
+// The novel camera's frustum as inward unit normals in camera coordinates: the four side planes
+// through the centre (pixel-edge rays) and z >= 0.
+std::array<glm::dvec3, 5> FrustumPlanes(const PinholeCamera& cam) {
+  return {glm::normalize(glm::dvec3(cam.fx, 0.0, cam.cx + 0.5)),
+          glm::normalize(glm::dvec3(-cam.fx, 0.0, cam.width - 0.5 - cam.cx)),
+          glm::normalize(glm::dvec3(0.0, cam.fy, cam.cy + 0.5)),
+          glm::normalize(glm::dvec3(0.0, -cam.fy, cam.height - 0.5 - cam.cy)),
+          glm::dvec3(0.0, 0.0, 1.0)};
+}
+
+// The two ranked texels of one reference: (c_i.xyz, bound) and (layer, position,
+// width | height << 16, exposure); bound -1 and zeros for a non-resident one.
+void WriteRankedSlot(const GpuView* v, float bound, uint32_t position, glm::uvec4* dst) {
+  if (bound < 0.0f) {
+    dst[0] = glm::uvec4(0u, 0u, 0u, FloatBits(-1.0f));
+    dst[1] = glm::uvec4(0u);
+    return;
+  }
+  dst[0] = glm::uvec4(FloatBits(v->centre_exposure.x), FloatBits(v->centre_exposure.y),
+                      FloatBits(v->centre_exposure.z), FloatBits(bound));
+  dst[1] = glm::uvec4(uint32_t(v->size_layer.z), position,
+                      uint32_t(v->size_layer.x) | (uint32_t(v->size_layer.y) << 16),
+                      FloatBits(v->centre_exposure.w));
+}
+
+}  // namespace
+
+void CellTable::RankCell(const Entry& c, const glm::dvec3& m, double r, const glm::dvec3& c_o,
+                         const blend::BlendOptions& bo) {
+  const size_t per_slab = size_t(opt_.max_refs_per_cell);
+  const uint32_t* slots = static_cast<const uint32_t*>(refs_buf_.mapped) + c.slab * per_slab;
+  const GpuView* recs = views_.records();
+  const size_t n = c.refs.size();
+  rank_scratch_.clear();
+  for (size_t i = 0; i < n; ++i) {
+    const uint32_t slot = slots[i];
+    if (slot == kNoSlot || recs[slot].size_layer.w == 0.0f) {
+      rank_scratch_.emplace_back(-1.0f, uint32_t(i));
+      continue;
+    }
+    const glm::dvec3 c_i(glm::vec3(recs[slot].centre_exposure));
+    rank_scratch_.emplace_back(BlendWeightUpperBound(m, r, c_o, c_i, bo), uint32_t(i));
+  }
+  std::stable_sort(rank_scratch_.begin(), rank_scratch_.end(),
+                   [](const auto& x, const auto& y) { return x.first > y.first; });
+  glm::uvec4* dst = static_cast<glm::uvec4*>(ranked_buf_.mapped) + 2 * size_t(c.slab) * per_slab;
+  for (size_t k = 0; k < n; ++k) {
+    const auto [bound, i] = rank_scratch_[k];
+    WriteRankedSlot(bound < 0.0f ? nullptr : &recs[slots[i]], bound, i, dst + 2 * k);
+  }
+}
+
+// Per-frame reference ranking (exact). For every resident cell and every reference, an UPPER
+// BOUND of the blend weight (3.5) the fragment shader can compute for any surface point x of
+// the cell this frame (validity = 1):
+//   x lies in the ball B(m, r) around the cell centre (r = half diagonal, inflated for the
+//   float cell assignment); with D_o = |c_o - m|, D_i = |c_i - m|:
+//   w_d = cos(angle(c_o - x, c_i - x)) <= cos(max(0, angle(c_o - m, c_i - m) - asin(r / D_o)
+//         - asin(r / D_i)))  (each ray turns by at most asin(r / D) as x moves in the ball;
+//         1 when a camera is inside the ball),
+//   w_p is decreasing in |c_i - x| >= D_i - r and increasing in |c_o - x| <= D_o + r,
+//   bound = max(lambda W_d + (1 - lambda) W_p, min_weight), plus a slack for float rounding.
+// The cell's references are written to ranked_buf_ sorted by (bound desc, position in the
+// cell's list asc): per slot (c_i.xyz, bound) and (layer, position, width | height << 16,
+// exposure). blend.frag stops at the first reference whose bound is below the n-th best
+// weight found so far (no later one can enter the best n) and breaks weight ties by the
+// position in the cell's list, so the selection equals blend_math.h's in-order InsertBest.
+// Non-resident references get bound -1 (sorted last, never evaluated).
+// Cells whose ball lies entirely outside the novel camera's frustum (side planes through the
+// centre, z >= 0) are skipped: no pixel's surface point can fall in them this frame, so their
+// stale records are never read (exact).
 void CellTable::RankRefs(const glm::vec3& c_o_f, const PinholeCamera& cam,
                          const Rigid3d& local_from_cam, double cell_size_m,
                          const blend::BlendOptions& bo) {
   const double q = cell_size_m;
   const glm::dvec3 c_o(c_o_f);
   const glm::dmat3 cam_from_local = glm::transpose(local_from_cam.RotationMatrix());
-  const glm::dvec3 planes[5] = {
-      glm::normalize(glm::dvec3(cam.fx, 0.0, cam.cx + 0.5)),
-      glm::normalize(glm::dvec3(-cam.fx, 0.0, cam.width - 0.5 - cam.cx)),
-      glm::normalize(glm::dvec3(0.0, cam.fy, cam.cy + 0.5)),
-      glm::normalize(glm::dvec3(0.0, -cam.fy, cam.height - 0.5 - cam.cy)),
-      glm::dvec3(0.0, 0.0, 1.0)};
-  const size_t per_slab = size_t(opt_.max_refs_per_cell);
-  const uint32_t* slabs = static_cast<const uint32_t*>(refs_buf_.mapped);
-  const GpuView* recs = views_.records();
-  glm::uvec4* out = static_cast<glm::uvec4*>(ranked_buf_.mapped);
+  const std::array<glm::dvec3, 5> planes = FrustumPlanes(cam);
   for (const auto& [id, c] : cells_) {
     const glm::dvec3 m = (glm::dvec3(UnpackCell(id)) + 0.5) * q;
     // Half diagonal, + 0.1 % of q and 1e-5 relative to |m| for floor(x / q) in float.
@@ -226,36 +291,7 @@ void CellTable::RankRefs(const glm::vec3& c_o_f, const PinholeCamera& cam,
     const glm::dvec3 m_cam = cam_from_local * (m - c_o);
     bool outside = false;
     for (const glm::dvec3& n : planes) outside = outside || glm::dot(n, m_cam) < -1.01 * r;
-    if (outside) continue;
-    const uint32_t* slots = slabs + size_t(c.slab) * per_slab;
-    const size_t n = c.refs.size();
-    rank_scratch_.clear();
-    for (size_t i = 0; i < n; ++i) {
-      const uint32_t slot = slots[i];
-      if (slot == kNoSlot || recs[slot].size_layer.w == 0.0f) {
-        rank_scratch_.emplace_back(-1.0f, uint32_t(i));
-        continue;
-      }
-      const glm::dvec3 c_i(glm::vec3(recs[slot].centre_exposure));
-      rank_scratch_.emplace_back(BlendWeightUpperBound(m, r, c_o, c_i, bo), uint32_t(i));
-    }
-    std::stable_sort(rank_scratch_.begin(), rank_scratch_.end(),
-                     [](const auto& x, const auto& y) { return x.first > y.first; });
-    glm::uvec4* dst = out + 2 * size_t(c.slab) * per_slab;
-    for (size_t k = 0; k < n; ++k) {
-      const auto [bound, i] = rank_scratch_[k];
-      if (bound < 0.0f) {
-        dst[2 * k] = glm::uvec4(0u, 0u, 0u, FloatBits(-1.0f));
-        dst[2 * k + 1] = glm::uvec4(0u);
-        continue;
-      }
-      const GpuView& v = recs[slots[i]];
-      dst[2 * k] = glm::uvec4(FloatBits(v.centre_exposure.x), FloatBits(v.centre_exposure.y),
-                              FloatBits(v.centre_exposure.z), FloatBits(bound));
-      dst[2 * k + 1] = glm::uvec4(uint32_t(v.size_layer.z), i,
-                                  uint32_t(v.size_layer.x) | (uint32_t(v.size_layer.y) << 16),
-                                  FloatBits(v.centre_exposure.w));
-    }
+    if (!outside) RankCell(c, m, r, c_o, bo);
   }
 }
 

@@ -65,6 +65,9 @@ class CellTable {
   void Unlink(CellId id, const Entry& c);  // drops `id` from the reverse index
   void Erase(std::unordered_map<CellId, Entry>::iterator it);
   absl::StatusOr<std::unordered_map<CellId, Entry>::iterator> Insert(CellId id);
+  // Ranks one cell's references (ball B(m, r)) for the camera at c_o into ranked_buf_.
+  void RankCell(const Entry& c, const glm::dvec3& m, double r, const glm::dvec3& c_o,
+                const blend::BlendOptions& bo);
 
   const Context& ctx_;
   const VulkanRendererOptions& opt_;

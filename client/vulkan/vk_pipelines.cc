@@ -193,6 +193,37 @@ absl::Status Pipelines::WriteDescriptors(const DescriptorInputs& in) {
   return absl::OkStatus();
 }
 
+namespace {
+
+// The render pass's external dependencies: earlier transfer / attachment / shader use before the
+// pass, and after it the read-back copy or (sampled_output) a later pass's shader read.
+void SubpassDependencies(bool sampled_output, VkSubpassDependency dep[2]) {
+  dep[0] = dep[1] = VkSubpassDependency{};
+  dep[0].srcSubpass = VK_SUBPASS_EXTERNAL;
+  dep[0].dstSubpass = 0;
+  dep[0].srcStageMask = VK_PIPELINE_STAGE_TRANSFER_BIT |
+                        VK_PIPELINE_STAGE_COLOR_ATTACHMENT_OUTPUT_BIT |
+                        VK_PIPELINE_STAGE_LATE_FRAGMENT_TESTS_BIT |
+                        VK_PIPELINE_STAGE_FRAGMENT_SHADER_BIT;
+  dep[0].dstStageMask = VK_PIPELINE_STAGE_COLOR_ATTACHMENT_OUTPUT_BIT |
+                        VK_PIPELINE_STAGE_EARLY_FRAGMENT_TESTS_BIT;
+  dep[0].srcAccessMask = VK_ACCESS_TRANSFER_READ_BIT |
+                         VK_ACCESS_DEPTH_STENCIL_ATTACHMENT_WRITE_BIT;
+  dep[0].dstAccessMask = VK_ACCESS_COLOR_ATTACHMENT_WRITE_BIT |
+                         VK_ACCESS_DEPTH_STENCIL_ATTACHMENT_READ_BIT |
+                         VK_ACCESS_DEPTH_STENCIL_ATTACHMENT_WRITE_BIT;
+  dep[1].srcSubpass = 0;
+  dep[1].dstSubpass = VK_SUBPASS_EXTERNAL;
+  dep[1].srcStageMask = VK_PIPELINE_STAGE_COLOR_ATTACHMENT_OUTPUT_BIT;
+  dep[1].dstStageMask = sampled_output ? (VK_PIPELINE_STAGE_FRAGMENT_SHADER_BIT |
+                                          VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT)
+                                       : VK_PIPELINE_STAGE_TRANSFER_BIT;
+  dep[1].srcAccessMask = VK_ACCESS_COLOR_ATTACHMENT_WRITE_BIT;
+  dep[1].dstAccessMask = sampled_output ? VK_ACCESS_SHADER_READ_BIT : VK_ACCESS_TRANSFER_READ_BIT;
+}
+
+}  // namespace
+
 absl::StatusOr<UniqueRenderPass> Pipelines::CreateRenderPass(VkFormat color_format,
                                                              bool sampled_output) const {
   VkAttachmentDescription att[2]{};
@@ -216,28 +247,8 @@ absl::StatusOr<UniqueRenderPass> Pipelines::CreateRenderPass(VkFormat color_form
   sub.colorAttachmentCount = 1;
   sub.pColorAttachments = &cref;
   sub.pDepthStencilAttachment = &dref;
-  VkSubpassDependency dep[2]{};
-  dep[0].srcSubpass = VK_SUBPASS_EXTERNAL;
-  dep[0].dstSubpass = 0;
-  dep[0].srcStageMask = VK_PIPELINE_STAGE_TRANSFER_BIT |
-                        VK_PIPELINE_STAGE_COLOR_ATTACHMENT_OUTPUT_BIT |
-                        VK_PIPELINE_STAGE_LATE_FRAGMENT_TESTS_BIT |
-                        VK_PIPELINE_STAGE_FRAGMENT_SHADER_BIT;
-  dep[0].dstStageMask = VK_PIPELINE_STAGE_COLOR_ATTACHMENT_OUTPUT_BIT |
-                        VK_PIPELINE_STAGE_EARLY_FRAGMENT_TESTS_BIT;
-  dep[0].srcAccessMask = VK_ACCESS_TRANSFER_READ_BIT |
-                         VK_ACCESS_DEPTH_STENCIL_ATTACHMENT_WRITE_BIT;
-  dep[0].dstAccessMask = VK_ACCESS_COLOR_ATTACHMENT_WRITE_BIT |
-                         VK_ACCESS_DEPTH_STENCIL_ATTACHMENT_READ_BIT |
-                         VK_ACCESS_DEPTH_STENCIL_ATTACHMENT_WRITE_BIT;
-  dep[1].srcSubpass = 0;
-  dep[1].dstSubpass = VK_SUBPASS_EXTERNAL;
-  dep[1].srcStageMask = VK_PIPELINE_STAGE_COLOR_ATTACHMENT_OUTPUT_BIT;
-  dep[1].dstStageMask = sampled_output ? (VK_PIPELINE_STAGE_FRAGMENT_SHADER_BIT |
-                                          VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT)
-                                       : VK_PIPELINE_STAGE_TRANSFER_BIT;
-  dep[1].srcAccessMask = VK_ACCESS_COLOR_ATTACHMENT_WRITE_BIT;
-  dep[1].dstAccessMask = sampled_output ? VK_ACCESS_SHADER_READ_BIT : VK_ACCESS_TRANSFER_READ_BIT;
+  VkSubpassDependency dep[2];
+  SubpassDependencies(sampled_output, dep);
   VkRenderPassCreateInfo ri{VK_STRUCTURE_TYPE_RENDER_PASS_CREATE_INFO};
   ri.attachmentCount = 2;
   ri.pAttachments = att;

@@ -31,6 +31,34 @@ const std::array<uint16_t, 256>& Linear16Lut() {
 
 }  // namespace
 
+void ViewStore::RecordRegrowth(VkCommandBuffer cmd, Image* nc, Image* nd, bool had) const {
+  const VkImageAspectFlags a = VK_IMAGE_ASPECT_COLOR_BIT;
+  for (Image* img : {nc, nd}) {
+    TransitionImage(cmd, img->image.get(), a, VK_IMAGE_LAYOUT_UNDEFINED,
+                    VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL);
+    // Clear so unused texels are defined (depth 0 = invalid).
+    VkClearColorValue zero{};
+    VkImageSubresourceRange range{a, 0, 1, 0, VK_REMAINING_ARRAY_LAYERS};
+    vkCmdClearColorImage(cmd, img->image.get(), VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, &zero, 1,
+                         &range);
+  }
+  if (had) {
+    for (auto [src, dst] : {std::pair{&colors_, nc}, std::pair{&depths_, nd}}) {
+      TransitionImage(cmd, src->image.get(), a, VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL,
+                      VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL);
+      VkImageCopy region{};
+      region.srcSubresource = {a, 0, 0, slot_capacity_};
+      region.dstSubresource = {a, 0, 0, slot_capacity_};
+      region.extent = {layer_w_, layer_h_, 1};
+      vkCmdCopyImage(cmd, src->image.get(), VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL,
+                     dst->image.get(), VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, 1, &region);
+    }
+  }
+  for (Image* img : {nc, nd})
+    TransitionImage(cmd, img->image.get(), a, VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL,
+                    VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL);
+}
+
 absl::Status ViewStore::Grow(uint32_t w, uint32_t h, uint32_t slots) {
   const uint32_t nw = std::max(w, layer_w_), nh = std::max(h, layer_h_);
   uint32_t ns = std::max<uint32_t>(slot_capacity_, 1);
@@ -48,33 +76,8 @@ absl::Status ViewStore::Grow(uint32_t w, uint32_t h, uint32_t slots) {
   std::memset(nrec.mapped, 0, ns * sizeof(GpuView));
   const bool had = static_cast<bool>(colors_.image);
   if (had) std::memcpy(nrec.mapped, records_.mapped, slot_capacity_ * sizeof(GpuView));
-  EXO_RETURN_IF_ERROR(ctx_.Submit([&](VkCommandBuffer cmd) {
-    const VkImageAspectFlags a = VK_IMAGE_ASPECT_COLOR_BIT;
-    for (Image* img : {&nc, &nd}) {
-      TransitionImage(cmd, img->image.get(), a, VK_IMAGE_LAYOUT_UNDEFINED,
-                      VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL);
-      // Clear so unused texels are defined (depth 0 = invalid).
-      VkClearColorValue zero{};
-      VkImageSubresourceRange range{a, 0, 1, 0, VK_REMAINING_ARRAY_LAYERS};
-      vkCmdClearColorImage(cmd, img->image.get(), VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, &zero, 1,
-                           &range);
-    }
-    if (had) {
-      for (auto [src, dst] : {std::pair{&colors_, &nc}, std::pair{&depths_, &nd}}) {
-        TransitionImage(cmd, src->image.get(), a, VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL,
-                        VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL);
-        VkImageCopy region{};
-        region.srcSubresource = {a, 0, 0, slot_capacity_};
-        region.dstSubresource = {a, 0, 0, slot_capacity_};
-        region.extent = {layer_w_, layer_h_, 1};
-        vkCmdCopyImage(cmd, src->image.get(), VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL,
-                       dst->image.get(), VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, 1, &region);
-      }
-    }
-    for (Image* img : {&nc, &nd})
-      TransitionImage(cmd, img->image.get(), a, VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL,
-                      VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL);
-  }));
+  EXO_RETURN_IF_ERROR(
+      ctx_.Submit([&](VkCommandBuffer cmd) { RecordRegrowth(cmd, &nc, &nd, had); }));
   for (uint32_t s = slot_capacity_; s < ns; ++s) free_slots_.push_back(s);
   std::sort(free_slots_.begin(), free_slots_.end(), std::greater<>());  // pop lowest first
   if (had) ++stats_.array_regrowths;

@@ -64,6 +64,9 @@ class ViewStore {
   uint64_t ResidentBytes() const;
 
  private:
+  // Clears the new arrays nc, nd and, when `had`, copies the resident layers into them; both
+  // end in SHADER_READ_ONLY_OPTIMAL.
+  void RecordRegrowth(VkCommandBuffer cmd, Image* nc, Image* nd, bool had) const;
   absl::Status Validate(const StoredView& v) const;
   // The slot of `id` (a free one when new), after growing the arrays to hold it.
   absl::StatusOr<uint32_t> AcquireSlot(ViewId id, int w, int h, bool is_new);
