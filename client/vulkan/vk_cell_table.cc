@@ -38,8 +38,8 @@ absl::Status CellTable::GrowSlabs(uint32_t slabs) {
   while (ns < slabs) ns *= 2;
   if (refs_buf_.buffer && ns == slab_capacity_) return absl::OkStatus();
   const size_t slab_bytes = size_t(opt_.max_refs_per_cell) * sizeof(uint32_t);
-  EXO_ASSIGN_OR_RETURN(Buffer nb, Buffer::Create(ctx_, ns * slab_bytes,
-                                                 VK_BUFFER_USAGE_UNIFORM_TEXEL_BUFFER_BIT));
+  EXO_ASSIGN_OR_RETURN(
+      Buffer nb, Buffer::Create(ctx_, ns * slab_bytes, VK_BUFFER_USAGE_UNIFORM_TEXEL_BUFFER_BIT));
   std::memset(nb.mapped, 0xFF, ns * slab_bytes);
   // Device-to-device copy of the old slabs (on lavapipe both are host memory).
   if (refs_buf_.buffer) std::memcpy(nb.mapped, refs_buf_.mapped, slab_capacity_ * slab_bytes);
@@ -164,9 +164,8 @@ absl::Status CellTable::SetRefs(CellId id, std::span<const ViewId> refs) {
   if (id == kNoCell || (id >> 63) != 0)
     return absl::InvalidArgumentError(absl::StrCat("invalid cell id ", id));
   if (refs.size() > size_t(opt_.max_refs_per_cell))
-    return absl::InvalidArgumentError(absl::StrCat("cell has ", refs.size(),
-                                                   " references, max_refs_per_cell is ",
-                                                   opt_.max_refs_per_cell));
+    return absl::InvalidArgumentError(absl::StrCat(
+        "cell has ", refs.size(), " references, max_refs_per_cell is ", opt_.max_refs_per_cell));
   auto it = cells_.find(id);
   if (it != cells_.end()) Unlink(id, it->second);
   if (refs.empty()) {

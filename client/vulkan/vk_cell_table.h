@@ -6,13 +6,12 @@
 #pragma once
 
 #include <cstdint>
+#include <glm/glm.hpp>
 #include <span>
 #include <unordered_map>
 #include <unordered_set>
 #include <utility>
 #include <vector>
-
-#include <glm/glm.hpp>
 
 #include "client/vulkan/vk_core_internal.h"
 #include "client/vulkan/vk_view_store.h"

@@ -1,5 +1,7 @@
 #include "client/vulkan/vk_pipelines.h"
 
+#include <glm/glm.hpp>
+
 #include "shaders/blend.comp.h"
 #include "shaders/blend.frag.h"
 #include "shaders/blend.vert.h"
@@ -7,8 +9,6 @@
 #include "shaders/fullscreen.vert.h"
 #include "shaders/gbuffer.frag.h"
 #include "shaders/viewdepth.frag.h"
-
-#include <glm/glm.hpp>
 
 namespace exo::vk {
 
@@ -28,8 +28,7 @@ absl::StatusOr<std::unique_ptr<Pipelines>> Pipelines::Create(const Context& ctx,
                                                            sizeof(kSpvGbufferFrag)));
   EXO_ASSIGN_OR_RETURN(p->cellid_pipe_, p->CreatePipeline(p->cellid_pass_.get(), kSpvCellidFrag,
                                                           sizeof(kSpvCellidFrag)));
-  EXO_ASSIGN_OR_RETURN(p->zdepth_pipe_, p->CreatePipeline(p->zdepth_pass_.get(),
-                                                          kSpvViewdepthFrag,
+  EXO_ASSIGN_OR_RETURN(p->zdepth_pipe_, p->CreatePipeline(p->zdepth_pass_.get(), kSpvViewdepthFrag,
                                                           sizeof(kSpvViewdepthFrag)));
   return p;
 }
@@ -136,8 +135,7 @@ absl::Status Pipelines::CreateDescriptorSet() {
   return absl::OkStatus();
 }
 
-absl::StatusOr<UniqueBufferView> Pipelines::MakeBufferView(const Buffer& b,
-                                                           VkFormat format) const {
+absl::StatusOr<UniqueBufferView> Pipelines::MakeBufferView(const Buffer& b, VkFormat format) const {
   VkBufferViewCreateInfo ci{VK_STRUCTURE_TYPE_BUFFER_VIEW_CREATE_INFO};
   ci.buffer = b.buffer.get();
   ci.format = format;
@@ -201,23 +199,22 @@ void SubpassDependencies(bool sampled_output, VkSubpassDependency dep[2]) {
   dep[0] = dep[1] = VkSubpassDependency{};
   dep[0].srcSubpass = VK_SUBPASS_EXTERNAL;
   dep[0].dstSubpass = 0;
-  dep[0].srcStageMask = VK_PIPELINE_STAGE_TRANSFER_BIT |
-                        VK_PIPELINE_STAGE_COLOR_ATTACHMENT_OUTPUT_BIT |
-                        VK_PIPELINE_STAGE_LATE_FRAGMENT_TESTS_BIT |
-                        VK_PIPELINE_STAGE_FRAGMENT_SHADER_BIT;
-  dep[0].dstStageMask = VK_PIPELINE_STAGE_COLOR_ATTACHMENT_OUTPUT_BIT |
-                        VK_PIPELINE_STAGE_EARLY_FRAGMENT_TESTS_BIT;
-  dep[0].srcAccessMask = VK_ACCESS_TRANSFER_READ_BIT |
-                         VK_ACCESS_DEPTH_STENCIL_ATTACHMENT_WRITE_BIT;
+  dep[0].srcStageMask =
+      VK_PIPELINE_STAGE_TRANSFER_BIT | VK_PIPELINE_STAGE_COLOR_ATTACHMENT_OUTPUT_BIT |
+      VK_PIPELINE_STAGE_LATE_FRAGMENT_TESTS_BIT | VK_PIPELINE_STAGE_FRAGMENT_SHADER_BIT;
+  dep[0].dstStageMask =
+      VK_PIPELINE_STAGE_COLOR_ATTACHMENT_OUTPUT_BIT | VK_PIPELINE_STAGE_EARLY_FRAGMENT_TESTS_BIT;
+  dep[0].srcAccessMask = VK_ACCESS_TRANSFER_READ_BIT | VK_ACCESS_DEPTH_STENCIL_ATTACHMENT_WRITE_BIT;
   dep[0].dstAccessMask = VK_ACCESS_COLOR_ATTACHMENT_WRITE_BIT |
                          VK_ACCESS_DEPTH_STENCIL_ATTACHMENT_READ_BIT |
                          VK_ACCESS_DEPTH_STENCIL_ATTACHMENT_WRITE_BIT;
   dep[1].srcSubpass = 0;
   dep[1].dstSubpass = VK_SUBPASS_EXTERNAL;
   dep[1].srcStageMask = VK_PIPELINE_STAGE_COLOR_ATTACHMENT_OUTPUT_BIT;
-  dep[1].dstStageMask = sampled_output ? (VK_PIPELINE_STAGE_FRAGMENT_SHADER_BIT |
-                                          VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT)
-                                       : VK_PIPELINE_STAGE_TRANSFER_BIT;
+  dep[1].dstStageMask =
+      sampled_output
+          ? (VK_PIPELINE_STAGE_FRAGMENT_SHADER_BIT | VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT)
+          : VK_PIPELINE_STAGE_TRANSFER_BIT;
   dep[1].srcAccessMask = VK_ACCESS_COLOR_ATTACHMENT_WRITE_BIT;
   dep[1].dstAccessMask = sampled_output ? VK_ACCESS_SHADER_READ_BIT : VK_ACCESS_TRANSFER_READ_BIT;
 }
@@ -284,8 +281,7 @@ struct FixedFunctionState {
   VkPipelineViewportStateCreateInfo vp{VK_STRUCTURE_TYPE_PIPELINE_VIEWPORT_STATE_CREATE_INFO};
   VkPipelineRasterizationStateCreateInfo rs{
       VK_STRUCTURE_TYPE_PIPELINE_RASTERIZATION_STATE_CREATE_INFO};
-  VkPipelineMultisampleStateCreateInfo ms{
-      VK_STRUCTURE_TYPE_PIPELINE_MULTISAMPLE_STATE_CREATE_INFO};
+  VkPipelineMultisampleStateCreateInfo ms{VK_STRUCTURE_TYPE_PIPELINE_MULTISAMPLE_STATE_CREATE_INFO};
   VkPipelineDepthStencilStateCreateInfo ds{
       VK_STRUCTURE_TYPE_PIPELINE_DEPTH_STENCIL_STATE_CREATE_INFO};
   VkPipelineColorBlendAttachmentState cba{};

@@ -29,8 +29,7 @@ struct DescriptorInputs {
 class Pipelines {
  public:
   // blend_compute: the blend runs as blend.comp over the G-buffer instead of blend.frag.
-  static absl::StatusOr<std::unique_ptr<Pipelines>> Create(const Context& ctx,
-                                                           bool blend_compute);
+  static absl::StatusOr<std::unique_ptr<Pipelines>> Create(const Context& ctx, bool blend_compute);
 
   // Creates the blend pipeline for `n_best` (1..kMaxBlendViews) unless it exists.
   absl::Status EnsureBlendPipe(int n_best);

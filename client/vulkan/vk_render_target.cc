@@ -8,10 +8,10 @@ absl::StatusOr<bool> RenderTarget::Ensure(const Context& ctx, VkRenderPass pass,
   if (w == width && h == height && fb) return false;
   RenderTarget& t = *this;
   t = RenderTarget{};
-  EXO_ASSIGN_OR_RETURN(t.color, Image::Create(ctx, width, height, 1, format,
-                                              VK_IMAGE_USAGE_COLOR_ATTACHMENT_BIT |
-                                                  VK_IMAGE_USAGE_TRANSFER_SRC_BIT,
-                                              VK_IMAGE_ASPECT_COLOR_BIT, false));
+  EXO_ASSIGN_OR_RETURN(
+      t.color, Image::Create(ctx, width, height, 1, format,
+                             VK_IMAGE_USAGE_COLOR_ATTACHMENT_BIT | VK_IMAGE_USAGE_TRANSFER_SRC_BIT,
+                             VK_IMAGE_ASPECT_COLOR_BIT, false));
   EXO_ASSIGN_OR_RETURN(t.depth, Image::Create(ctx, width, height, 1, VK_FORMAT_D32_SFLOAT,
                                               VK_IMAGE_USAGE_DEPTH_STENCIL_ATTACHMENT_BIT,
                                               VK_IMAGE_ASPECT_DEPTH_BIT, false));
@@ -27,11 +27,10 @@ absl::StatusOr<bool> RenderTarget::Ensure(const Context& ctx, VkRenderPass pass,
   EXO_VK_RETURN(vkCreateFramebuffer(ctx.device(), &fi, nullptr, &raw));
   t.fb = UniqueFramebuffer(ctx.device(), raw);
   if (gbuffer_pass != VK_NULL_HANDLE) {
-    EXO_ASSIGN_OR_RETURN(t.gbuffer,
-                         Image::Create(ctx, width, height, 1, VK_FORMAT_R32G32B32A32_SFLOAT,
-                                       VK_IMAGE_USAGE_COLOR_ATTACHMENT_BIT |
-                                           VK_IMAGE_USAGE_SAMPLED_BIT,
-                                       VK_IMAGE_ASPECT_COLOR_BIT, false));
+    EXO_ASSIGN_OR_RETURN(
+        t.gbuffer, Image::Create(ctx, width, height, 1, VK_FORMAT_R32G32B32A32_SFLOAT,
+                                 VK_IMAGE_USAGE_COLOR_ATTACHMENT_BIT | VK_IMAGE_USAGE_SAMPLED_BIT,
+                                 VK_IMAGE_ASPECT_COLOR_BIT, false));
     VkImageView gatts[2] = {t.gbuffer.view.get(), t.depth.view.get()};
     fi.renderPass = gbuffer_pass;
     fi.pAttachments = gatts;

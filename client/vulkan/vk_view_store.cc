@@ -50,8 +50,8 @@ void ViewStore::RecordRegrowth(VkCommandBuffer cmd, Image* nc, Image* nd, bool h
       region.srcSubresource = {a, 0, 0, slot_capacity_};
       region.dstSubresource = {a, 0, 0, slot_capacity_};
       region.extent = {layer_w_, layer_h_, 1};
-      vkCmdCopyImage(cmd, src->image.get(), VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL,
-                     dst->image.get(), VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, 1, &region);
+      vkCmdCopyImage(cmd, src->image.get(), VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL, dst->image.get(),
+                     VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, 1, &region);
     }
   }
   for (Image* img : {nc, nd})
@@ -98,9 +98,9 @@ absl::Status ViewStore::Validate(const StoredView& v) const {
     return absl::InvalidArgumentError(
         absl::StrCat("view ", v.id, ": size ", w, "x", h, " above 16384"));
   if (v.color.width() != w || v.color.height() != h || v.color.channels() != 3)
-    return absl::InvalidArgumentError(absl::StrCat(
-        "view ", v.id, ": colour must be RGB8 ", w, "x", h, ", got ", v.color.width(), "x",
-        v.color.height(), "x", v.color.channels()));
+    return absl::InvalidArgumentError(absl::StrCat("view ", v.id, ": colour must be RGB8 ", w, "x",
+                                                   h, ", got ", v.color.width(), "x",
+                                                   v.color.height(), "x", v.color.channels()));
   if (v.depth_m.width() != w || v.depth_m.height() != h || v.depth_m.channels() != 1)
     return absl::InvalidArgumentError(
         absl::StrCat("view ", v.id, ": depth must be 1 channel ", w, "x", h));

@@ -5,10 +5,9 @@
 #pragma once
 
 #include <cstdint>
+#include <glm/glm.hpp>
 #include <unordered_map>
 #include <vector>
-
-#include <glm/glm.hpp>
 
 #include "client/vulkan/vk_core_internal.h"
 #include "client/vulkan/vulkan_renderer.h"

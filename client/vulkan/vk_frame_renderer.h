@@ -1,0 +1,80 @@
+// PRIVATE to client/vulkan: the render passes over the resident stores. Owns the pipelines,
+// the Frame uniform block and one render target per pass: the deferred blend (G-buffer pass,
+// then blend.frag or blend.comp, read-back, optional host hole fill), the cell-id pass and the
+// proxy-depth pass. Reads the view store, cell table and mesh chunks; ranks the cell table's
+// references once per blended frame.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <vector>
+
+#include "client/vulkan/vk_cell_table.h"
+#include "client/vulkan/vk_core_internal.h"
+#include "client/vulkan/vk_mesh_chunks.h"
+#include "client/vulkan/vk_pipelines.h"
+#include "client/vulkan/vk_render_target.h"
+#include "client/vulkan/vk_view_store.h"
+#include "client/vulkan/vulkan_renderer.h"
+
+namespace exo::vk {
+
+struct GpuFrame;
+
+class FrameRenderer {
+ public:
+  // Every argument must outlive the renderer; `grid` is read at each frame.
+  static absl::StatusOr<std::unique_ptr<FrameRenderer>> Create(const Context& ctx,
+                                                               const VulkanRendererOptions& opt,
+                                                               const CellGrid& grid,
+                                                               ViewStore& views, CellTable& cells,
+                                                               const MeshChunks& chunks);
+
+  absl::StatusOr<RenderResult> Render(const PinholeCamera& camera, const Rigid3d& local_from_cam,
+                                      const blend::BlendOptions& bo);
+  absl::StatusOr<exo::Image<uint64_t>> RenderCellIds(const PinholeCamera& camera,
+                                                     const Rigid3d& local_from_cam);
+  absl::StatusOr<ImageF> RenderProxyDepth(const PinholeCamera& camera,
+                                          const Rigid3d& local_from_cam);
+
+ private:
+  FrameRenderer(const Context& ctx, const VulkanRendererOptions& opt, const CellGrid& grid,
+                ViewStore& views, CellTable& cells, const MeshChunks& chunks)
+      : ctx_(ctx), opt_(opt), grid_(grid), views_(views), cells_(cells), chunks_(chunks) {}
+  // A 4-byte blend output and a 1x1 G-buffer in SHADER_READ_ONLY_OPTIMAL for bindings 8 and 6
+  // before any blend target exists (lavapipe reads every binding of a bound set).
+  absl::Status CreatePlaceholders();
+  // Rewrites the descriptor set when a store replaced a buffer or the blend target changed.
+  absl::Status UpdateDescriptors();
+  absl::Status EnsureBlendTarget(uint32_t w, uint32_t h);
+  absl::Status CheckCamera(const PinholeCamera& camera, const Rigid3d& local_from_cam) const;
+  // The render-time options must match what was baked into the resident depth layers.
+  absl::Status CheckBakedOptions(const blend::BlendOptions& bo) const;
+  void FillFrame(const PinholeCamera& camera, const Rigid3d& local_from_cam, GpuFrame* f) const;
+  void FillBackground(const PinholeCamera& camera, const Rigid3d& local_from_cam, int max_views,
+                      GpuFrame* f, std::vector<ViewId>* chosen_ids) const;
+  // The blend pass's Frame block (camera, weights, background list) into frame_ubo_.
+  void UploadBlendFrame(const PinholeCamera& camera, const Rigid3d& local_from_cam,
+                        const blend::BlendOptions& bo, GpuFrame* f,
+                        std::vector<ViewId>* bg_ids) const;
+  // The deferred blend of one frame into color_target_ (graphics or compute).
+  absl::Status DrawBlend(const blend::BlendOptions& bo);
+  absl::Status Draw(RenderTarget& t, VkRenderPass pass, VkPipeline pipe, const VkClearValue& clear,
+                    uint32_t texel_bytes, bool deferred = false,
+                    VkPipeline compute_pipe = VK_NULL_HANDLE);
+
+  const Context& ctx_;
+  const VulkanRendererOptions& opt_;
+  const CellGrid& grid_;
+  ViewStore& views_;
+  CellTable& cells_;
+  const MeshChunks& chunks_;
+  std::unique_ptr<Pipelines> pipes_;
+  Buffer frame_ubo_;
+  RenderTarget color_target_, cellid_target_, zdepth_target_;
+  Image placeholder_gbuffer_;
+  Buffer placeholder_out_;
+  bool descriptors_dirty_ = true;
+};
+
+}  // namespace exo::vk
