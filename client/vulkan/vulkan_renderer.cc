@@ -150,6 +150,51 @@ class VulkanRenderer::Impl {
     return absl::OkStatus();
   }
 
+  // SyncModel's steps: chunks by id + version, views by content fingerprint, cells by
+  // reference list; what the model lacks is removed first.
+  absl::Status SyncChunks(const LumigraphModel& model) {
+    std::vector<uint64_t> gone;
+    for (const auto& [id, c] : chunks->entries())
+      if (!model.chunks.count(id)) gone.push_back(id);
+    for (uint64_t id : gone) EXO_RETURN_IF_ERROR(chunks->Remove(id));
+    for (const auto& [id, c] : model.chunks) {
+      auto it = chunks->entries().find(id);
+      if (it == chunks->entries().end() || it->second.version != c.version)
+        EXO_RETURN_IF_ERROR(chunks->Upsert(c));
+    }
+    return absl::OkStatus();
+  }
+
+  absl::Status SyncViews(const LumigraphModel& model) {
+    std::vector<ViewId> gone;
+    for (const auto& [id, v] : views->entries())
+      if (!model.views.count(id)) gone.push_back(id);
+    for (ViewId id : gone) EXO_RETURN_IF_ERROR(RemoveView(id));
+    for (const auto& [id, v] : model.views) {
+      if (v.id != id)
+        return absl::InvalidArgumentError(
+            absl::StrCat("view map key ", id, " differs from StoredView::id ", v.id));
+      const uint64_t fp = ViewFingerprint(v);
+      auto it = views->entries().find(id);
+      if (it == views->entries().end() || it->second.fingerprint != fp)
+        EXO_RETURN_IF_ERROR(UpsertView(v, fp));
+    }
+    return absl::OkStatus();
+  }
+
+  absl::Status SyncCells(const LumigraphModel& model) {
+    std::vector<CellId> gone;
+    for (const auto& [id, c] : cells->entries())
+      if (!model.cell_refs.count(id)) gone.push_back(id);
+    for (CellId id : gone) EXO_RETURN_IF_ERROR(cells->SetRefs(id, {}));
+    for (const auto& [id, refs] : model.cell_refs) {
+      auto it = cells->entries().find(id);
+      if (it == cells->entries().end() || it->second.refs != refs)
+        EXO_RETURN_IF_ERROR(cells->SetRefs(id, refs));
+    }
+    return absl::OkStatus();
+  }
+
   uint64_t ResidentBytes() const {
     return views->ResidentBytes() + cells->ResidentBytes() + chunks->ResidentBytes();
   }
@@ -193,45 +238,12 @@ absl::Status VulkanRenderer::RemoveChunk(uint64_t chunk_id) {
 }
 
 absl::Status VulkanRenderer::SyncModel(const LumigraphModel& model) {
-  Impl& m = *impl_;
-  if (model.grid.cell_size_m != m.grid.cell_size_m) {
+  if (model.grid.cell_size_m != impl_->grid.cell_size_m) {
     EXO_RETURN_IF_ERROR(SetGrid(model.grid));
   }
-  // Chunks: by id + version.
-  std::vector<uint64_t> gone;
-  for (const auto& [id, c] : m.chunks->entries())
-    if (!model.chunks.count(id)) gone.push_back(id);
-  for (uint64_t id : gone) EXO_RETURN_IF_ERROR(m.chunks->Remove(id));
-  for (const auto& [id, c] : model.chunks) {
-    auto it = m.chunks->entries().find(id);
-    if (it == m.chunks->entries().end() || it->second.version != c.version)
-      EXO_RETURN_IF_ERROR(m.chunks->Upsert(c));
-  }
-  // Views: by content fingerprint.
-  std::vector<ViewId> gone_views;
-  for (const auto& [id, v] : m.views->entries())
-    if (!model.views.count(id)) gone_views.push_back(id);
-  for (ViewId id : gone_views) EXO_RETURN_IF_ERROR(m.RemoveView(id));
-  for (const auto& [id, v] : model.views) {
-    if (v.id != id)
-      return absl::InvalidArgumentError(
-          absl::StrCat("view map key ", id, " differs from StoredView::id ", v.id));
-    const uint64_t fp = ViewFingerprint(v);
-    auto it = m.views->entries().find(id);
-    if (it == m.views->entries().end() || it->second.fingerprint != fp)
-      EXO_RETURN_IF_ERROR(m.UpsertView(v, fp));
-  }
-  // Cells: by reference list.
-  std::vector<CellId> gone_cells;
-  for (const auto& [id, c] : m.cells->entries())
-    if (!model.cell_refs.count(id)) gone_cells.push_back(id);
-  for (CellId id : gone_cells) EXO_RETURN_IF_ERROR(m.cells->SetRefs(id, {}));
-  for (const auto& [id, refs] : model.cell_refs) {
-    auto it = m.cells->entries().find(id);
-    if (it == m.cells->entries().end() || it->second.refs != refs)
-      EXO_RETURN_IF_ERROR(m.cells->SetRefs(id, refs));
-  }
-  return absl::OkStatus();
+  EXO_RETURN_IF_ERROR(impl_->SyncChunks(model));
+  EXO_RETURN_IF_ERROR(impl_->SyncViews(model));
+  return impl_->SyncCells(model);
 }
 
 absl::StatusOr<RenderResult> VulkanRenderer::Render(const PinholeCamera& camera,
