@@ -7,6 +7,7 @@
 #include <cstdint>
 #include <glm/glm.hpp>
 #include <unordered_map>
+#include <utility>
 #include <vector>
 
 #include "client/vulkan/vk_core_internal.h"
