@@ -7,7 +7,7 @@
 
 // Store tables as uniform texel buffers (a fetch is a vector gather on llvmpipe; a divergent SSBO
 // load is a per-lane scalar loop per component, measured much slower, docs/vulkan.md):
-// Views: 5 RGBA32F texels per view record (GpuView in vulkan_renderer.cc):
+// Views: 5 RGBA32F texels per view record (GpuView in client/vulkan/vk_view_store.h):
 //   0..2 rows of P = K [R^T | -R^T c] (local -> homogeneous pixel; row 2 gives the camera z),
 //   3    centre c (local) and exposure E, 4 width, height, layer, valid (floats, exact < 2^24).
 layout(set = 0, binding = 1) uniform samplerBuffer view_texels;
@@ -20,7 +20,8 @@ layout(set = 0, binding = 5) uniform sampler2DArray depths;  // R32F baked z-dep
 
 // Deferred: the surface point per pixel from gbuffer.frag (w = 0: no proxy surface).
 layout(set = 0, binding = 6) uniform sampler2D gbuffer;
-// Per-frame ranked references (vulkan_renderer.cc RankRefs), 2 texels per reference slot, same
+// Per-frame ranked references (CellTable::RankRefs, client/vulkan/vk_cell_table.cc), 2 texels per
+// reference slot, same
 // slot index as ref_slots, sorted per cell by an upper bound of the weight this frame:
 //   (c_i.xyz, bound) as float bits; (layer, position in the cell's list, width | height << 16,
 //   exposure bits). bound = -1: reference not resident.

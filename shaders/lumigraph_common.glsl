@@ -1,6 +1,7 @@
 // GLSL mirror of common/lumigraph/blend_math.h, LINE BY LINE (same names, same order, same
 // guards). Any change there must be made here too; the golden tests (client/vulkan) compare the
-// two paths pixel by pixel. Also: the resident-store layout shared with vulkan_renderer.cc.
+// two paths pixel by pixel. Also: the resident-store layout shared with client/vulkan
+// (vk_view_store, vk_cell_table).
 
 const float kMinDistance = 1e-6;
 const int kMaxBlendViews = 4;
@@ -180,7 +181,7 @@ uvec2 PackCell(ivec3 c) {
   return uvec2(u.x | (u.y << 21), (u.y >> 11) | (u.z << 10));
 }
 
-// Open-addressing hash of a packed CellId (same function as CellHash32 in vulkan_renderer.cc).
+// Open-addressing hash of a packed CellId (same function as CellHash32 in client/vulkan/vk_cell_table).
 uint CellHash32(uvec2 key) {
   uint h = key.x * 0x9E3779B1u ^ (key.y * 0x85EBCA77u + 0x165667B1u);
   h ^= h >> 15;
@@ -196,7 +197,8 @@ layout(std140, set = 0, binding = 0) uniform Frame {
   vec4 weights;          // lambda, min_weight, occlusion_epsilon_m, occlusion_epsilon_rel
   vec4 background;       // rgb = background sRGB
   ivec4 iparams;         // positional mode, n_best, hash mask (capacity-1), max probe displacement
-  // Background at infinity (vulkan_renderer.cc FillBackground): ray direction of pixel (x, y) is
+  // Background at infinity (client/vulkan/vk_frame_renderer.cc FillBackground): ray direction of
+  // pixel (x, y) is
   // mat3(local_from_pixel) * (x, y, 1); bg_params.x background views, each kBgViewTexels vec4:
   // cam_from_local columns 0..2, intrinsics (fx, fy, cx, cy), (width, height, layer, exposure).
   vec4 local_from_pixel[3];
