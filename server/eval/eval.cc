@@ -21,6 +21,7 @@
 #include "common/lumigraph/cpu_renderer.h"
 #include "common/lumigraph/model.h"
 #include "common/metrics/metrics.h"
+#include "common/metrics/perceptual.h"
 #include "common/raster/rasterizer.h"
 #include "common/synth/render.h"
 #include "common/synth/scene.h"
@@ -316,6 +317,7 @@ ImageU8 Hstack(const std::vector<const ImageU8*>& imgs) {
 struct EvalSink {
   std::vector<double> ssim, psnr, cov, ssim_cov, render_ms, surface;
   std::vector<double> ssim_unfilled, psnr_unfilled;
+  std::vector<double> ms_ssim, gmsd;  // issue 15 (filled frame)
   Quality Finish() const {
     Quality q;
     q.mssim = Mean(ssim);
@@ -325,6 +327,8 @@ struct EvalSink {
     q.surface = Mean(surface);
     q.mssim_unfilled = Mean(ssim_unfilled);
     q.psnr_unfilled = Mean(psnr_unfilled);
+    q.ms_ssim = ms_ssim.empty() ? std::nan("") : Mean(ms_ssim);
+    q.gmsd = Mean(gmsd);
     q.views = int(ssim.size());
     return q;
   }
@@ -346,6 +350,13 @@ struct EvalSink {
     ssim_unfilled.push_back(s_raw);
     psnr_unfilled.push_back(std::min(99.0, PsnrFromMse(mse_raw)));
     cov.push_back(c);
+    // issue 15: MS-SSIM and GMSD of the filled frame
+    if (MsSsimFits(gt.width(), gt.height())) {
+      EXO_ASSIGN_OR_RETURN(double m, MsSsim(filled, gt));
+      ms_ssim.push_back(m);
+    }
+    EXO_ASSIGN_OR_RETURN(double g, Gmsd(gt, filled));
+    gmsd.push_back(g);
     if (c > 0) {
       auto ms_or = MaskedSsim(img, gt, mask);
       if (ms_or.ok()) ssim_cov.push_back(*ms_or);
@@ -361,6 +372,13 @@ std::string JsonArray(const char* key, const std::vector<double>& v, int prec) {
   for (size_t i = 0; i < v.size(); ++i)
     absl::StrAppend(&out, i ? "," : "", absl::StrFormat("%.*f", prec, v[i]));
   return out + "]";
+}
+
+// issue 15: ",\"perceptual\":{\"ms_ssim\":..,\"gmsd\":..}" (ms_ssim null when not computed).
+std::string PerceptualJson(const ConfigResult& r) {
+  const std::string ms = std::isfinite(r.quality.ms_ssim)
+                             ? absl::StrFormat("%.4f", r.quality.ms_ssim) : std::string("null");
+  return absl::StrFormat(",\"perceptual\":{\"ms_ssim\":%s,\"gmsd\":%.4f}", ms, r.quality.gmsd);
 }
 
 std::string PlanCpuJson(const ConfigResult& r) {
@@ -423,7 +441,7 @@ std::string ConfigJson(const std::string& dataset, const std::string& test_poses
       r.quality.mssim_covered, r.quality.surface, r.quality.mssim_unfilled, r.quality.psnr_unfilled, r.quality.views, r.integrate_ms_median, r.integrate_ms_p95,
       r.plan_ms_median, r.plan_ms_p95, r.consider_ms_median, r.render_ms_median, r.store_bytes,
       r.geometry_bytes, r.planner_bytes, r.store_views, r.accepted, r.tau_sum, r.mean_refs,
-      r.max_refs) + PlanCpuJson(r) + ProxyCostJson(r) + PerViewJson(r) + "}";
+      r.max_refs) + PerceptualJson(r) + PlanCpuJson(r) + ProxyCostJson(r) + PerViewJson(r) + "}";
 }
 
 struct EngineOptions {
@@ -1209,11 +1227,15 @@ absl::StatusOr<SevenScenesReport> RunSevenScenes(const SevenScenesRunOptions& o)
   const size_t total = o.max_frames > 0 ? std::min<size_t>(o.max_frames, reader->size())
                                         : reader->size();
   SevenScenesReport rep;
-  // Split: every hold_out_every-th frame (0-based i % k == k - 1: frames 9, 19, ...) is never
-  // ingested.
+  // Split: every hold_out_every-th frame (0-based i % k == offset; default k - 1: frames 9, 19,
+  // ...) is never ingested.
+  const int offset = o.holdout_offset < 0 ? o.hold_out_every - 1 : o.holdout_offset;
+  if (offset >= o.hold_out_every)
+    return absl::InvalidArgumentError(absl::StrCat("holdout_offset ", offset, " must be < ",
+                                                   o.hold_out_every));
   std::vector<size_t> input, held;
   for (size_t i = 0; i < total; ++i)
-    (i % o.hold_out_every == size_t(o.hold_out_every - 1) ? held : input).push_back(i);
+    (i % o.hold_out_every == size_t(offset) ? held : input).push_back(i);
   rep.held_out = int(held.size());
   // Load the input frames (kept: the stored views of every policy come from them).
   std::vector<Frame> frames;

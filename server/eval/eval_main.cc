@@ -27,6 +27,8 @@ constexpr char kUsage[] =
     "               [--dump DIR --dump_views 4]\n"
     "  exoview_eval --sevenscenes DIR [--store 50] [--policies ...] [--register 0|1 (default 1:\n"
     "               depth registered to colour, docs/registration.md)]\n"
+    "               [--holdout_offset J: hold out frame k when k mod 10 == J (default 9)]\n"
+    "  --store N[,N...]      store size(s); the policies run at each (\"all\" once)\n"
     "  --test_poses scene|near|scene,near   test pose set(s), all evaluated on the same stores\n"
     "  --look_around DEG     walk yaw-sweep amplitude (synth default 20)\n"
     "  --scene_seed N        synthetic scene seed (layout, textures; default 1), for replicates\n"
@@ -92,8 +94,15 @@ absl::StatusOr<std::vector<PolicyConfig>> Configs(const Args& a) {
   base.tag = a.Get("--tag", "main");
   base.face_areas = a.Num("--face_areas", 0) != 0;
   std::vector<PolicyConfig> out;
+  // --store 50,100,200: the policies at each store size ("all" once: it has no store bound).
+  std::vector<int> stores;
+  for (absl::string_view st : absl::StrSplit(a.Get("--store", "200"), ',', absl::SkipEmpty()))
+    stores.push_back(std::stoi(std::string(st)));
+  if (stores.empty()) return absl::InvalidArgumentError("--store: no value");
+  for (int store : stores)
   for (absl::string_view p : absl::StrSplit(a.Get("--policies", "online"), ',', absl::SkipEmpty())) {
     PolicyConfig c = base;
+    c.store = store;
     std::string name(p);
     // "<baseline>_uncapped": R(b_k) = every selected observer instead of the fair pre-selection.
     if (name.size() > 9 && name.substr(name.size() - 9) == "_uncapped") {
@@ -101,6 +110,7 @@ absl::StatusOr<std::vector<PolicyConfig>> Configs(const Args& a) {
       name.resize(name.size() - 9);
     }
     EXO_ASSIGN_OR_RETURN(c.policy, ParsePolicy(name));
+    if (c.policy == Policy::kAll && store != stores.front()) continue;
     out.push_back(c);
   }
   const int btv = int(a.Num("--baseline_test_views", -1));
@@ -153,6 +163,7 @@ int RunOne(const Args& a) {
     o.dir = a.Get("--sevenscenes", "");
     o.max_frames = int(a.Num("--frames", 0));
     o.register_depth = a.Num("--register", 1) != 0;
+    o.holdout_offset = int(a.Num("--holdout_offset", -1));  // issue 15 folds
     o.voxel_m = a.Num("--voxel", 0.02);
     o.test_width = int(a.Num("--test_w", 640));
     o.test_height = int(a.Num("--test_h", 480));
@@ -174,9 +185,10 @@ int RunOne(const Args& a) {
     }
     Emit(absl::StrFormat(
         "{\"bench\":\"eval_split\",\"dataset\":\"7scenes/redkitchen\",\"registered\":%d,\"ingested\":%d,"
-        "\"held_out\":%d,\"dropped_duplicate_colour\":%d,\"test_views\":%d}",
+        "\"held_out\":%d,\"dropped_duplicate_colour\":%d,\"test_views\":%d,\"holdout_offset\":%d}",
         o.register_depth ? 1 : 0, rep->ingested, rep->held_out, rep->dropped_duplicates,
-        rep->held_out - rep->dropped_duplicates));
+        rep->held_out - rep->dropped_duplicates,
+        o.holdout_offset < 0 ? o.hold_out_every - 1 : o.holdout_offset));
     return 0;
   }
   SynthRunOptions o;
