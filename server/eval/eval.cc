@@ -826,7 +826,7 @@ class Engine {
         EXO_ASSIGN_OR_RETURN(rt.quality, EvalStore(selected, refs, g.grid, proxy_mesh, ts,
                                                    c.test_views, ci == 0, &render_ms,
                                                    c.lambda >= 0 ? c.lambda : src_.default_lambda,
-                                                   &sink));
+                                                   &sink, c.blend ? *c.blend : opt_.blend));
         rt.render_ms_median = render_ms;
         if (opt_.per_view) {
           rt.per_view_ssim = sink.ssim;
@@ -851,7 +851,8 @@ class Engine {
                                     const std::unordered_map<CellId, std::vector<ViewId>>& refs,
                                     const CellGrid& grid, const TriangleMesh& proxy_mesh,
                                     const Source::TestSet& ts, int test_views, bool dump,
-                                    double* render_ms_median, double lambda, EvalSink* sink_out) {
+                                    double* render_ms_median, double lambda, EvalSink* sink_out,
+                                    const blend::BlendOptions& blend_options) {
     // Bring the selected views into the cache (evict others when it grows large).
     std::unordered_set<int> need(selected.begin(), selected.end());
     if (cache_.size() + selected.size() > kMaxCache)
@@ -876,7 +877,7 @@ class Engine {
     }
     model.cell_refs = refs;
     CpuRenderOptions ro;
-    ro.blend = opt_.blend;
+    ro.blend = blend_options;  // the config's (issue 15 blend variants) or the run's
     ro.blend.lambda = float(lambda);
     ro.blend.fill_holes = false;  // EvalSink::Add fills (FillHoles) so both versions are measured
     auto restore = [&] {

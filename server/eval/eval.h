@@ -23,6 +23,7 @@
 #pragma once
 
 #include <functional>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -61,6 +62,9 @@ struct PolicyConfig {
   // area), instead of the TSDF proxy's CellAreas.
   bool face_areas = false;
   std::string tag;              // free label copied into the JSON ("sweep":"store" ...)
+  // Issue 15: blend options of this config's renders (lambda still from `lambda`); unset = the
+  // run's. Lets one stream compare blend variants on the same stores.
+  std::optional<blend::BlendOptions> blend;
 };
 
 struct Quality {

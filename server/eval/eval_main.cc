@@ -155,8 +155,41 @@ blend::BlendOptions Blend(const Args& a) {
   return b;
 }
 
+// Issue 15: --blend_variants "soft_vis=0.05;photo=0.1,n_best=4" adds, per variant, a copy of
+// the --variant_policies configs (default online) at --variant_store (default: first --store)
+// rendered with the run's blend options changed by the variant's key=value pairs (keys are the
+// blend flags without "--"), tagged with the variant text.
+absl::Status AddBlendVariants(const Args& a, std::vector<PolicyConfig>* configs) {
+  const std::string spec = a.Get("--blend_variants", "");
+  if (spec.empty()) return absl::OkStatus();
+  Args va = a;
+  va.kv["--policies"] = a.Get("--variant_policies", "online");
+  va.kv["--store"] = a.Get("--variant_store", std::string(*absl::StrSplit(a.Get("--store", "200"), ',').begin()));
+  va.kv.erase("--blend_variants");
+  for (absl::string_view v : absl::StrSplit(spec, ';', absl::SkipEmpty())) {
+    Args b = a;
+    for (absl::string_view kv : absl::StrSplit(v, ',', absl::SkipEmpty())) {
+      std::vector<std::string> p = absl::StrSplit(kv, '=');
+      if (p.size() != 2) return absl::InvalidArgumentError("--blend_variants: bad pair " + std::string(kv));
+      b.kv["--" + p[0]] = p[1];
+    }
+    auto base = Configs(va);
+    if (!base.ok()) return base.status();
+    for (PolicyConfig c : *base) {
+      c.blend = Blend(b);
+      EXO_RETURN_IF_ERROR(c.blend->Validate());
+      c.tag = std::string(v);
+      configs->push_back(c);
+    }
+  }
+  return absl::OkStatus();
+}
+
 int RunOne(const Args& a) {
   auto configs = Configs(a);
+  if (configs.ok()) {
+    if (absl::Status st = AddBlendVariants(a, &*configs); !st.ok()) configs = st;
+  }
   if (!configs.ok()) {
     std::fprintf(stderr, "%s\n", std::string(configs.status().message()).c_str());
     return 2;
