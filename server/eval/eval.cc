@@ -22,6 +22,7 @@
 #include "common/lumigraph/model.h"
 #include "common/metrics/metrics.h"
 #include "common/metrics/perceptual.h"
+#include "server/eval/attribution.h"
 #include "common/raster/rasterizer.h"
 #include "common/synth/render.h"
 #include "common/synth/scene.h"
@@ -242,6 +243,8 @@ struct Source {
     std::string label;
     std::vector<Rigid3d> poses;
     std::vector<ImageU8> gt;
+    std::vector<ImageF> depth;   // issue 15 own-depth proxy: the test frames' depth (or empty)
+    PinholeCamera depth_camera;  // of `depth`
   };
   std::vector<TestSet> test_sets;
 };
@@ -318,6 +321,7 @@ struct EvalSink {
   std::vector<double> ssim, psnr, cov, ssim_cov, render_ms, surface;
   std::vector<double> ssim_unfilled, psnr_unfilled;
   std::vector<double> ms_ssim, gmsd;  // issue 15 (filled frame)
+  std::vector<double> ssim_gain_fit, psnr_gain_fit;  // issue 15 attribution
   Quality Finish() const {
     Quality q;
     q.mssim = Mean(ssim);
@@ -329,6 +333,8 @@ struct EvalSink {
     q.psnr_unfilled = Mean(psnr_unfilled);
     q.ms_ssim = ms_ssim.empty() ? std::nan("") : Mean(ms_ssim);
     q.gmsd = Mean(gmsd);
+    q.mssim_gain_fit = Mean(ssim_gain_fit);
+    q.psnr_gain_fit = Mean(psnr_gain_fit);
     q.views = int(ssim.size());
     return q;
   }
@@ -357,6 +363,14 @@ struct EvalSink {
     }
     EXO_ASSIGN_OR_RETURN(double g, Gmsd(gt, filled));
     gmsd.push_back(g);
+    {
+      ImageU8 fitted = filled;
+      FitGainToReference(fitted, gt, mask);
+      EXO_ASSIGN_OR_RETURN(double sf, Ssim(fitted, gt));
+      EXO_ASSIGN_OR_RETURN(double mf, Mse(fitted, gt));
+      ssim_gain_fit.push_back(sf);
+      psnr_gain_fit.push_back(std::min(99.0, PsnrFromMse(mf)));
+    }
     if (c > 0) {
       auto ms_or = MaskedSsim(img, gt, mask);
       if (ms_or.ok()) ssim_cov.push_back(*ms_or);
@@ -378,7 +392,11 @@ std::string JsonArray(const char* key, const std::vector<double>& v, int prec) {
 std::string PerceptualJson(const ConfigResult& r) {
   const std::string ms = std::isfinite(r.quality.ms_ssim)
                              ? absl::StrFormat("%.4f", r.quality.ms_ssim) : std::string("null");
-  return absl::StrFormat(",\"perceptual\":{\"ms_ssim\":%s,\"gmsd\":%.4f}", ms, r.quality.gmsd);
+  return absl::StrFormat(
+      ",\"perceptual\":{\"ms_ssim\":%s,\"gmsd\":%.4f},"
+      "\"attribution\":{\"own_depth_proxy\":%d,\"mssim_gain_fit\":%.4f,\"psnr_gain_fit\":%.2f}",
+      ms, r.quality.gmsd, int(r.config.own_depth_proxy), r.quality.mssim_gain_fit,
+      r.quality.psnr_gain_fit);
 }
 
 std::string PlanCpuJson(const ConfigResult& r) {
@@ -826,7 +844,8 @@ class Engine {
         EXO_ASSIGN_OR_RETURN(rt.quality, EvalStore(selected, refs, g.grid, proxy_mesh, ts,
                                                    c.test_views, ci == 0, &render_ms,
                                                    c.lambda >= 0 ? c.lambda : src_.default_lambda,
-                                                   &sink, c.blend ? *c.blend : opt_.blend));
+                                                   &sink, c.blend ? *c.blend : opt_.blend,
+                                                   c.own_depth_proxy));
         rt.render_ms_median = render_ms;
         if (opt_.per_view) {
           rt.per_view_ssim = sink.ssim;
@@ -852,7 +871,10 @@ class Engine {
                                     const CellGrid& grid, const TriangleMesh& proxy_mesh,
                                     const Source::TestSet& ts, int test_views, bool dump,
                                     double* render_ms_median, double lambda, EvalSink* sink_out,
-                                    const blend::BlendOptions& blend_options) {
+                                    const blend::BlendOptions& blend_options,
+                                    bool own_depth_proxy = false) {
+    if (own_depth_proxy && ts.depth.size() != ts.poses.size())
+      return absl::InvalidArgumentError("own_depth_proxy needs the test frames' depth (7-Scenes)");
     // Bring the selected views into the cache (evict others when it grows large).
     std::unordered_set<int> need(selected.begin(), selected.end());
     if (cache_.size() + selected.size() > kMaxCache)
@@ -893,6 +915,16 @@ class Engine {
                                   : std::min<int>(test_views, ts.poses.size());
     absl::Status st;
     for (int t = 0; t < nt && st.ok(); ++t) {
+      if (own_depth_proxy) {  // issue 15 attribution: this view's depth is the proxy
+        model.chunks[0].mesh = MeshFromDepth(ts.depth[t], ts.depth_camera, ts.poses[t]);
+        renderer->reset();
+        auto r = CpuLumigraphRenderer::Create(model, ro);
+        if (!r.ok()) {
+          st = r.status();
+          break;
+        }
+        *renderer = std::move(*r);
+      }
       auto t0 = Clock::now();
       auto out = (*renderer)->Render(src_.test_camera, ts.poses[t]);
       const double ms = MsSince(t0);
@@ -1302,8 +1334,10 @@ absl::StatusOr<SevenScenesReport> RunSevenScenes(const SevenScenesRunOptions& o)
   src.test_sets.emplace_back();
   Source::TestSet& ts = src.test_sets.back();
   ts.label = "held_out";
+  ts.depth_camera = frames[0].color_camera;
   for (const Frame& f : test) {
     ts.poses.push_back(origin.ToLocal(f.world_from_cam));
+    ts.depth.push_back(f.depth_m);  // issue 15 own-depth proxy (attribution)
     if (o.test_width != f.color.width()) {
       ImageU8 small(o.test_width, o.test_height, 3);
       // Box-free nearest resample is enough for a smoke run; full runs use 640x480.

@@ -65,6 +65,9 @@ struct PolicyConfig {
   // Issue 15: blend options of this config's renders (lambda still from `lambda`); unset = the
   // run's. Lets one stream compare blend variants on the same stores.
   std::optional<blend::BlendOptions> blend;
+  // Issue 15 attribution (7-Scenes only): each test view rendered with its own depth map as
+  // the proxy (attribution.h MeshFromDepth) instead of the TSDF mesh: isolates proxy error.
+  bool own_depth_proxy = false;
 };
 
 struct Quality {
@@ -77,6 +80,9 @@ struct Quality {
   // Issue 15: MS-SSIM (Wang 2003) and GMSD (Xue 2014) of the filled frame (common/metrics/
   // perceptual.h), mean over views; NaN when the test image is too small for 5-scale MS-SSIM.
   double ms_ssim = 0, gmsd = 0;
+  // Issue 15 attribution: SSIM / PSNR after per-channel gains fitted to the ground truth over
+  // the covered pixels (attribution.h FitGainToReference): the global exposure/WB share.
+  double mssim_gain_fit = 0, psnr_gain_fit = 0;
   int views = 0;
 };
 

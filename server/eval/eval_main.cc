@@ -177,6 +177,7 @@ absl::Status AddBlendVariants(const Args& a, std::vector<PolicyConfig>* configs)
     if (!base.ok()) return base.status();
     for (PolicyConfig c : *base) {
       c.blend = Blend(b);
+      c.own_depth_proxy = b.Num("--own_depth", 0) != 0;
       EXO_RETURN_IF_ERROR(c.blend->Validate());
       c.tag = std::string(v);
       configs->push_back(c);
