@@ -70,21 +70,6 @@ struct BlendOptions {
   // renderers. Coverage stays 0 there: it still measures what the lumigraph blended. Off: such
   // pixels keep background_srgb (the output before session 5).
   bool fill_holes = true;
-  // Robust blending (issue 15). Each is a factor in (0, 1] on a valid view's weight, so a
-  // pixel seen by a valid view stays covered and the Vulkan client's weight bound stays a bound.
-  //  soft_visibility_m > 0: the weight falls off with the disagreement d = |range of x - stored
-  //    range at pi(x)| as 1 / (1 + (d / soft_visibility_m)^2) (a view whose depth says the
-  //    surface is elsewhere - misregistration, proxy error, thin objects - counts less), instead
-  //    of only the binary occlusion test; 0 = off.
-  //  border_feather_px > 0: the weight falls linearly to kMinSoftFactor within this many pixels
-  //    of the stored image's border (BorderDistancePx): no seam where a view's frame ends; 0 = off.
-  //  photo_consistency > 0: after the best n are chosen, each sample's weight is multiplied by
-  //    exp(-|c_i - m|^2 / photo_consistency^2), c_i its exposure-corrected linear colour and m the
-  //    per-channel median of the n samples (n >= 3): a view that disagrees with the others
-  //    (ghost, occluder, specular highlight) loses weight; 0 = off.
-  float soft_visibility_m = 0.0f;
-  float border_feather_px = 0.0f;
-  float photo_consistency = 0.0f;
 
   absl::Status Validate() const {
     auto finite = [](float v) { return std::isfinite(v); };
@@ -114,10 +99,6 @@ struct BlendOptions {
     if (background_guard_radius_px < 1 || background_guard_radius_px > 16)
       return absl::InvalidArgumentError(absl::StrCat(
           "background_guard_radius_px must be in [1,16], got ", background_guard_radius_px));
-    if (!finite(soft_visibility_m) || soft_visibility_m < 0.0f || !finite(border_feather_px) ||
-        border_feather_px < 0.0f || !finite(photo_consistency) || photo_consistency < 0.0f)
-      return absl::InvalidArgumentError(
-          "soft_visibility_m, border_feather_px and photo_consistency must be finite and >= 0");
     for (int c = 0; c < 3; ++c)
       if (!finite(background_srgb[c]) || background_srgb[c] < 0.0f || background_srgb[c] > 1.0f)
         return absl::InvalidArgumentError("background colour must be in [0,1]");
@@ -193,32 +174,6 @@ inline float CombinedWeight(float validity, float w_d, float w_p, float lambda, 
   return validity * glm::max(w, min_weight);
 }
 
-// ---- robust blending factors (BlendOptions::soft_visibility_m, border_feather_px) ----
-
-// Smallest factor a robust-blending term gives a valid view (never 0: no new holes).
-inline constexpr float kMinSoftFactor = 1e-3f;
-
-// Distance (px) of uv from the nearest border of the image area [-0.5, W-0.5) x [-0.5, H-0.5).
-inline float BorderDistancePx(const glm::vec2& uv, const glm::ivec2& size) {
-  const float dx = glm::min(uv.x + 0.5f, float(size.x) - 0.5f - uv.x);
-  const float dy = glm::min(uv.y + 0.5f, float(size.y) - 0.5f - uv.y);
-  return glm::max(0.0f, glm::min(dx, dy));
-}
-
-// Product of the soft-visibility and border-feathering factors of a valid view, in
-// [kMinSoftFactor, 1]; exactly 1 with both options off. range_m: |x - c_i|, range_d: the stored
-// range at pi(x), border_px: BorderDistancePx of pi(x).
-inline float SoftFactor(float range_m, float range_d, float border_px, float soft_visibility_m,
-                        float border_feather_px) {
-  float f = 1.0f;
-  if (soft_visibility_m > 0.0f) {
-    const float d = glm::abs(range_m - range_d) / soft_visibility_m;
-    f *= 1.0f / (1.0f + d * d);
-  }
-  if (border_feather_px > 0.0f) f *= glm::min(1.0f, border_px / border_feather_px);
-  return glm::max(f, kMinSoftFactor);
-}
-
 // ---- validity (3.4) ----
 
 inline bool ValidDepth(float z) { return std::isfinite(z) && z > 0.0f; }
@@ -255,7 +210,6 @@ inline bool InsideImage(const glm::vec2& uv, const glm::ivec2& size) {
 //  - within discontinuity_radius_px of a depth jump larger than Δ_z (= delta_z_m + delta_z_rel *
 //    centre depth): the 8 neighbours at offsets {-r,0,r}^2 \ {0} that lie in the image are
 //    compared; a neighbour with invalid depth counts as a jump (depth holes at edges).
-// A valid view returns SoftFactor (1 with soft_visibility_m and border_feather_px off).
 template <typename FetchDepth>
 inline float Validity(const glm::vec3& x, const BlendView& view, const BlendOptions& opt,
                       FetchDepth&& fetch_depth) {
@@ -282,8 +236,7 @@ inline float Validity(const glm::vec3& x, const BlendView& view, const BlendOpti
       }
     }
   }
-  return SoftFactor(proj.range_m, range_d, BorderDistancePx(proj.uv, view.size),
-                    opt.soft_visibility_m, opt.border_feather_px);
+  return 1.0f;
 }
 
 // ---- best-n selection (§3.1.4) ----
@@ -332,33 +285,6 @@ inline void Accumulate(BlendAccumulator& acc, const glm::vec3& linear_sample, fl
                        float weight) {
   acc.sum_linear += weight * exposure * linear_sample;
   acc.sum_weight += weight;
-}
-
-// BlendOptions::photo_consistency: multiplies weight[i] (i < n, samples exposure-corrected linear
-// colours) by exp(-|colour_i - m|^2 / sigma^2), m the per-channel median of the n samples
-// (n = 4: mean of the middle two). Fewer than 3 samples or sigma <= 0: unchanged. The factor is
-// floored at kMinSoftFactor.
-inline float Median3(float a, float b, float c) {
-  return glm::max(glm::min(a, b), glm::min(glm::max(a, b), c));
-}
-inline void PhotoConsistencyReweight(const glm::vec3* colour, float* weight, int n, float sigma) {
-  if (n < 3 || !(sigma > 0.0f)) return;
-  glm::vec3 m;
-  for (int c = 0; c < 3; ++c) {
-    if (n == 3) {
-      m[c] = Median3(colour[0][c], colour[1][c], colour[2][c]);
-    } else {
-      const float a = colour[0][c], b = colour[1][c], d = colour[2][c], e = colour[3][c];
-      const float lo = glm::min(glm::min(a, b), glm::min(d, e));
-      const float hi = glm::max(glm::max(a, b), glm::max(d, e));
-      m[c] = 0.5f * ((a + b + d + e) - lo - hi);
-    }
-  }
-  const float inv = 1.0f / (sigma * sigma);
-  for (int i = 0; i < n; ++i) {
-    const glm::vec3 e = colour[i] - m;
-    weight[i] *= glm::max(std::exp(-glm::dot(e, e) * inv), kMinSoftFactor);
-  }
 }
 
 // Normalised blend (3.1), encoded to sRGB. Returns false (and the background) when no view

@@ -174,47 +174,5 @@ TEST(BlendMath, OptionsValidate) {
   EXPECT_FALSE(o.Validate().ok());
 }
 
-TEST(BlendMath, SoftFactor) {
-  // Both off: exactly 1 (the binary validity of (3.4)).
-  EXPECT_EQ(SoftFactor(2.0f, 2.3f, 0.0f, 0.0f, 0.0f), 1.0f);
-  // Soft visibility: 1 / (1 + (d / s)^2), d = |2.0 - 2.1| = 0.1, s = 0.05 -> 1 / 5.
-  EXPECT_NEAR(SoftFactor(2.0f, 2.1f, 100.0f, 0.05f, 0.0f), 0.2f, 1e-5f);
-  EXPECT_NEAR(SoftFactor(2.1f, 2.0f, 100.0f, 0.05f, 0.0f), 0.2f, 1e-5f);  // symmetric
-  // Feathering: linear in the border distance, 1 beyond the feather width.
-  EXPECT_NEAR(SoftFactor(2.0f, 2.0f, 5.0f, 0.0f, 20.0f), 0.25f, 1e-6f);
-  EXPECT_EQ(SoftFactor(2.0f, 2.0f, 30.0f, 0.0f, 20.0f), 1.0f);
-  // Never 0: a valid view keeps the pixel covered.
-  EXPECT_EQ(SoftFactor(2.0f, 2.0f, 0.0f, 0.0f, 20.0f), kMinSoftFactor);
-  EXPECT_NEAR(BorderDistancePx(glm::vec2(3.0f, 100.0f), glm::ivec2(640, 480)), 3.5f, 1e-6f);
-  EXPECT_NEAR(BorderDistancePx(glm::vec2(300.0f, 478.0f), glm::ivec2(640, 480)), 1.5f, 1e-6f);
-}
-
-TEST(BlendMath, PhotoConsistencyReweight) {
-  // Two agreeing samples and one outlier: the median is the agreeing colour, the outlier loses.
-  glm::vec3 c[3] = {glm::vec3(0.2f), glm::vec3(0.22f), glm::vec3(0.8f)};
-  float w[3] = {1.0f, 0.5f, 0.9f};
-  PhotoConsistencyReweight(c, w, 3, 0.1f);
-  EXPECT_FLOAT_EQ(w[0], 1.0f * std::exp(-3 * 0.02f * 0.02f / 0.01f));
-  EXPECT_FLOAT_EQ(w[1], 0.5f);  // it is the median
-  EXPECT_FLOAT_EQ(w[2], 0.9f * std::max(std::exp(-3 * 0.58f * 0.58f / 0.01f), kMinSoftFactor));
-  EXPECT_LT(w[2], w[1]);
-  // Four samples: median = mean of the middle two per channel.
-  glm::vec3 d[4] = {glm::vec3(0.1f), glm::vec3(0.3f), glm::vec3(0.5f), glm::vec3(0.9f)};
-  float v[4] = {1, 1, 1, 1};
-  PhotoConsistencyReweight(d, v, 4, 1.0f);
-  EXPECT_FLOAT_EQ(v[1], std::exp(-3 * 0.1f * 0.1f));
-  EXPECT_FLOAT_EQ(v[2], v[1]);
-  EXPECT_LT(v[3], v[0]);
-  // Off, or fewer than three samples: unchanged.
-  float u[3] = {1, 2, 3};
-  PhotoConsistencyReweight(c, u, 3, 0.0f);
-  PhotoConsistencyReweight(c, u, 2, 0.1f);
-  EXPECT_EQ(u[0], 1.0f);
-  EXPECT_EQ(u[1], 2.0f);
-  BlendOptions o;
-  o.photo_consistency = -1.0f;
-  EXPECT_FALSE(o.Validate().ok());
-}
-
 }  // namespace
 }  // namespace exo::blend

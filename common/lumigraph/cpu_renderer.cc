@@ -315,18 +315,14 @@ absl::StatusOr<CpuRenderOutput> CpuLumigraphRenderer::Render(const PinholeCamera
         }
         blend::BlendAccumulator acc;
         int used = 0;
-        glm::vec3 sample[blend::kMaxBlendViews], exposed[blend::kMaxBlendViews];
         for (int s = 0; s < n; ++s) {
           if (best.index[s] < 0) break;
           const ViewData& vd = views_[best.index[s]];
           const blend::Projection proj = blend::ProjectToView(p, vd.params);
-          sample[s] = SampleLinear(*vd.color, proj.uv);
-          exposed[s] = vd.params.exposure * sample[s];
+          blend::Accumulate(acc, SampleLinear(*vd.color, proj.uv), vd.params.exposure,
+                            best.weight[s]);
           ++used;
         }
-        blend::PhotoConsistencyReweight(exposed, best.weight, used, bo.photo_consistency);
-        for (int s = 0; s < used; ++s)
-          blend::Accumulate(acc, sample[s], views_[best.index[s]].params.exposure, best.weight[s]);
         glm::vec3 srgb;
         if (blend::Resolve(acc, bo.background_srgb, &srgb)) {
           for (int c = 0; c < 3; ++c) out.color.at(x, y, c) = blend::UnitToU8(srgb[c]);

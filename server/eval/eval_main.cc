@@ -149,9 +149,6 @@ blend::BlendOptions Blend(const Args& a) {
   b.occlusion_epsilon_m = float(a.Num("--occ_m", b.occlusion_epsilon_m));
   b.occlusion_epsilon_rel = float(a.Num("--occ_rel", b.occlusion_epsilon_rel));
   b.n_best = int(a.Num("--n_best", b.n_best));
-  b.soft_visibility_m = float(a.Num("--soft_vis", b.soft_visibility_m));      // issue 15
-  b.border_feather_px = float(a.Num("--feather_px", b.border_feather_px));    // issue 15
-  b.photo_consistency = float(a.Num("--photo", b.photo_consistency));         // issue 15
   return b;
 }
 
