@@ -78,6 +78,7 @@ def stats(values):
 
 def summarize(paths):
     groups = {}
+    per_fold = {}  # (policy, store, tag) -> {fold: {metric: value}} for paired deltas
     splits = []
     for fold, path in paths:
         rows, split = load(path)
@@ -89,17 +90,30 @@ def summarize(paths):
             g = groups.setdefault(key, {m: [] for m, _ in METRICS})
             for m, (a, b) in METRICS:
                 g[m].append(d.get(a, {}).get(b))
+            per_fold.setdefault((c["policy"], store, d.get("tag", "")), {})[fold] = {
+                m: d.get(a, {}).get(b) for m, (a, b) in METRICS}
     out = []
-    for (policy, store, refs, tag), g in sorted(groups.items(), key=lambda kv: (str(kv[0][1]), kv[0][0])):
-        out.append({"policy": policy, "store": store, "refs": refs, "tag": tag,
-                    **{m: stats(g[m]) for m, _ in METRICS}})
+    for (policy, store, refs, tag), g in sorted(groups.items(),
+                                               key=lambda kv: (str(kv[0][1]), kv[0][3] != "main", kv[0][3], kv[0][0])):
+        row = {"policy": policy, "store": store, "refs": refs, "tag": tag,
+               **{m: stats(g[m]) for m, _ in METRICS}}
+        # A variant (tag other than main/baseline): paired per-fold difference to the main row of
+        # the same policy and store.
+        base = per_fold.get((policy, store, "main"))
+        mine = per_fold.get((policy, store, tag))
+        if tag not in ("main", "baseline") and base and mine:
+            row["delta_vs_main"] = {
+                m: stats([mine[f][m] - base[f][m] for f in mine
+                          if f in base and mine[f][m] is not None and base[f][m] is not None])
+                for m, _ in METRICS}
+        out.append(row)
     return out, splits
 
 
 def print_table(summary):
     cols = [m for m, _ in METRICS]
-    print("| policy | store | folds | " + " | ".join(cols) + " |")
-    print("|---|---|---|" + "---|" * len(cols))
+    print("| policy | store | variant | folds | " + " | ".join(cols) + " |")
+    print("|---|---|---|---|" + "---|" * len(cols))
     for r in summary:
         cells = []
         for m in cols:
@@ -113,7 +127,27 @@ def print_table(summary):
             else:
                 cells.append(f"{s['mean']:.4f} ± {s['sd']:.4f}")
         n = r["mssim"]["n"] if r["mssim"] else 0
-        print(f"| {r['policy']} | {r['store']} | {n} | " + " | ".join(cells) + " |")
+        tag = "" if r["tag"] in ("main", "baseline") else r["tag"]
+        print(f"| {r['policy']} | {r['store']} | {tag} | {n} | " + " | ".join(cells) + " |")
+    deltas = [r for r in summary if "delta_vs_main" in r]
+    if deltas:
+        print("\nPaired difference to the default blend (same policy, store and fold), mean ± sd over folds:")
+        print("| policy | store | variant | folds | " + " | ".join(cols) + " |")
+        print("|---|---|---|---|" + "---|" * len(cols))
+        for r in deltas:
+            cells = []
+            for m in cols:
+                s = r["delta_vs_main"][m]
+                if s is None:
+                    cells.append("-")
+                elif m == "psnr":
+                    cells.append(f"{s['mean']:+.2f} ± {s['sd']:.2f}")
+                elif m == "render_ms":
+                    cells.append(f"{s['mean']:+.0f}")
+                else:
+                    cells.append(f"{s['mean']:+.4f} ± {s['sd']:.4f}")
+            n = r["delta_vs_main"]["mssim"]["n"] if r["delta_vs_main"]["mssim"] else 0
+            print(f"| {r['policy']} | {r['store']} | {r['tag']} | {n} | " + " | ".join(cells) + " |")
 
 
 def main():
