@@ -30,6 +30,9 @@ METRICS = [
     ("mssim_unfilled", ("quality", "mssim_unfilled")),
     ("coverage", ("quality", "coverage")),
     ("render_ms", ("speed", "render_ms_median")),
+    # oracle per-channel gain fitted to the ground truth (exposure / white-balance share)
+    ("mssim_gain_fit", ("attribution", "mssim_gain_fit")),
+    ("psnr_gain_fit", ("attribution", "psnr_gain_fit")),
 ]
 
 
@@ -94,7 +97,7 @@ def summarize(paths):
                 m: d.get(a, {}).get(b) for m, (a, b) in METRICS}
     out = []
     for (policy, store, refs, tag), g in sorted(groups.items(),
-                                               key=lambda kv: (str(kv[0][1]), kv[0][3] != "main", kv[0][3], kv[0][0])):
+                                               key=lambda kv: (1e9 if kv[0][1] == "all" else kv[0][1], kv[0][3] != "main", kv[0][3], kv[0][0])):
         row = {"policy": policy, "store": store, "refs": refs, "tag": tag,
                **{m: stats(g[m]) for m, _ in METRICS}}
         # A variant (tag other than main/baseline): paired per-fold difference to the main row of
@@ -120,7 +123,7 @@ def print_table(summary):
             s = r[m]
             if s is None:
                 cells.append("-")
-            elif m in ("psnr",):
+            elif m in ("psnr", "psnr_gain_fit"):
                 cells.append(f"{s['mean']:.2f} ± {s['sd']:.2f}")
             elif m == "render_ms":
                 cells.append(f"{s['mean']:.0f}")
@@ -140,7 +143,7 @@ def print_table(summary):
                 s = r["delta_vs_main"][m]
                 if s is None:
                     cells.append("-")
-                elif m == "psnr":
+                elif m in ("psnr", "psnr_gain_fit"):
                     cells.append(f"{s['mean']:+.2f} ± {s['sd']:.2f}")
                 elif m == "render_ms":
                     cells.append(f"{s['mean']:+.0f}")
