@@ -88,7 +88,7 @@ def summarize(paths):
         splits.append({"fold": fold, **(split or {})})
         for d in rows:
             c = d["config"]
-            store = "all" if c["policy"] in ("all", "vertex_color") else c["store"]
+            store = "all" if c["policy"] in ("all", "all_frames", "vertex_color") else c["store"]
             key = (c["policy"], store, c.get("refs", ""), d.get("tag", ""))
             g = groups.setdefault(key, {m: [] for m, _ in METRICS})
             for m, (a, b) in METRICS:
