@@ -47,6 +47,9 @@ int main(int argc, char** argv) {
                  "TUM: file with one line \"fx fy cx cy [width height]\"");
   app.add_option("--hold_out_every", data.hold_out_every,
                  "leave out frames i % N == N-1 (exoview_eval's held-out test frames); 0 = none");
+  app.add_option("--hold_out_offset", data.hold_out_offset,
+                 "with --hold_out_every N: leave out frames i % N == this instead (the fold, "
+                 "exoview_eval --holdout_offset); -1 = N-1");
   app.add_option("--first", first, "first frame to send")->check(CLI::NonNegativeNumber);
   app.add_option("--frames", frames, "frames to send (default: all; synthetic: 120)");
   app.add_option("--rate_hz", opt.rate_hz, "send rate; 0 = as fast as the server acks")

@@ -13,9 +13,10 @@ namespace {
 // The frames of `inner` that are not held out, in order.
 class HeldOutFilter final : public FrameSource {
  public:
-  HeldOutFilter(std::unique_ptr<FrameSource> inner, int every) : inner_(std::move(inner)) {
+  HeldOutFilter(std::unique_ptr<FrameSource> inner, int every, int offset)
+      : inner_(std::move(inner)) {
     for (size_t i = 0; i < inner_->size(); ++i)
-      if (!IsHeldOut(i, every)) kept_.push_back(i);
+      if (!IsHeldOut(i, every, offset)) kept_.push_back(i);
     name_ = absl::StrCat(inner_->name(), " (every ", every, "th frame held out)");
   }
   size_t size() const override { return kept_.size(); }
@@ -47,6 +48,9 @@ absl::Status DatasetOptions::Validate() const {
     return absl::InvalidArgumentError("intrinsics / camera file only apply to --format=tum");
   if (hold_out_every == 1 || hold_out_every < 0)
     return absl::InvalidArgumentError("hold_out_every must be 0 (off) or >= 2");
+  if (hold_out_offset < -1 || (hold_out_every >= 2 && hold_out_offset >= hold_out_every))
+    return absl::InvalidArgumentError(absl::StrCat("hold_out_offset ", hold_out_offset,
+                                                   " must be -1 (last) or 0..hold_out_every-1"));
   return absl::OkStatus();
 }
 
@@ -108,7 +112,8 @@ absl::StatusOr<std::unique_ptr<FrameSource>> OpenDataset(const std::string& dir,
     EXO_ASSIGN_OR_RETURN(source, ExoLayoutReader::Open(dir));
   }
   if (o.hold_out_every >= 2)
-    source = std::make_unique<HeldOutFilter>(std::move(source), o.hold_out_every);
+    source = std::make_unique<HeldOutFilter>(std::move(source), o.hold_out_every,
+                                             o.hold_out_offset);
   return source;
 }
 

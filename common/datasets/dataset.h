@@ -24,12 +24,17 @@ struct DatasetOptions {
   // 0: every frame; k >= 2: frames with i % k == k - 1 are left out (exoview_eval's held-out
   // test frames, IsHeldOut).
   int hold_out_every = 0;
+  // Which residue is held out (the fold): i % k == hold_out_offset; -1 = k - 1 (frames 9, 19, ...).
+  int hold_out_offset = -1;
   absl::Status Validate() const;
 };
 
-// exoview_eval's split: frame i is a test frame (never ingested).
-inline bool IsHeldOut(size_t i, int every) {
-  return every >= 2 && i % static_cast<size_t>(every) == static_cast<size_t>(every - 1);
+// exoview_eval's split: frame i is a test frame (never ingested) when i % every == offset
+// (offset -1: every - 1). The ten folds of 7-Scenes are offsets 0..9 with every = 10.
+inline bool IsHeldOut(size_t i, int every, int offset = -1) {
+  if (every < 2) return false;
+  const int r = offset < 0 ? every - 1 : offset;
+  return i % static_cast<size_t>(every) == static_cast<size_t>(r);
 }
 
 // Reads "fx fy cx cy [width height]" (width/height default 640x480).

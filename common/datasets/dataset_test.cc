@@ -15,6 +15,9 @@ TEST(Dataset, HeldOutSplitIsTheEvals) {
   EXPECT_TRUE(IsHeldOut(9, 10));
   EXPECT_TRUE(IsHeldOut(19, 10));
   EXPECT_FALSE(IsHeldOut(9, 0));
+  EXPECT_TRUE(IsHeldOut(0, 10, 0));
+  EXPECT_TRUE(IsHeldOut(13, 10, 3));
+  EXPECT_FALSE(IsHeldOut(9, 10, 3));
 }
 
 TEST(Dataset, OpensOurLayoutWithHoldOut) {

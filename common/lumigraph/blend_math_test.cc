@@ -70,7 +70,13 @@ struct WallView {
     view.size = {32, 24};
     depth.assign(32 * 24, 2.0f);
   }
-  float Valid(const glm::vec3& x, const BlendOptions& opt = {}) const {
+  // The discontinuity test of (3.4) with the thesis' radius (the default is off since issue 15).
+  static BlendOptions Thesis() {
+    BlendOptions o;
+    o.discontinuity_radius_px = 2;
+    return o;
+  }
+  float Valid(const glm::vec3& x, const BlendOptions& opt = Thesis()) const {
     return Validity(x, view, opt, [&](glm::ivec2 p) { return depth[p.y * 32 + p.x]; });
   }
 };

@@ -22,11 +22,13 @@
 #include "common/lumigraph/cpu_renderer.h"
 #include "common/lumigraph/model.h"
 #include "common/metrics/metrics.h"
+#include "common/metrics/perceptual.h"
 #include "common/raster/rasterizer.h"
 #include "common/synth/render.h"
 #include "common/synth/scene.h"
 #include "common/synth/trajectory.h"
 #include "server/core/online_model.h"
+#include "server/eval/attribution.h"
 #include "server/geometry/cell_areas.h"
 #include "server/geometry/scene_scale.h"
 #include "server/planning/cell_id_proxy.h"
@@ -196,6 +198,8 @@ struct Source {
     std::string label;
     std::vector<Rigid3d> poses;
     std::vector<ImageU8> gt;
+    std::vector<ImageF> depth;   // issue 15 own-depth proxy: the test frames' depth (or empty)
+    PinholeCamera depth_camera;  // of `depth`
   };
   std::vector<TestSet> test_sets;
 };
@@ -263,6 +267,8 @@ ImageU8 Hstack(const std::vector<const ImageU8*>& imgs) {
 struct EvalSink {
   std::vector<double> ssim, psnr, cov, ssim_cov, render_ms, surface;
   std::vector<double> ssim_unfilled, psnr_unfilled;
+  std::vector<double> ms_ssim, gmsd;  // issue 15 (filled frame)
+  std::vector<double> ssim_gain_fit, psnr_gain_fit;  // issue 15 attribution
   Quality Finish() const {
     Quality q;
     q.mssim = Mean(ssim);
@@ -272,6 +278,10 @@ struct EvalSink {
     q.surface = Mean(surface);
     q.mssim_unfilled = Mean(ssim_unfilled);
     q.psnr_unfilled = Mean(psnr_unfilled);
+    q.ms_ssim = ms_ssim.empty() ? std::nan("") : Mean(ms_ssim);
+    q.gmsd = Mean(gmsd);
+    q.mssim_gain_fit = Mean(ssim_gain_fit);
+    q.psnr_gain_fit = Mean(psnr_gain_fit);
     q.views = int(ssim.size());
     return q;
   }
@@ -293,6 +303,21 @@ struct EvalSink {
     ssim_unfilled.push_back(s_raw);
     psnr_unfilled.push_back(std::min(99.0, PsnrFromMse(mse_raw)));
     cov.push_back(c);
+    // issue 15: MS-SSIM and GMSD of the filled frame
+    if (MsSsimFits(gt.width(), gt.height())) {
+      EXO_ASSIGN_OR_RETURN(double m, MsSsim(filled, gt));
+      ms_ssim.push_back(m);
+    }
+    EXO_ASSIGN_OR_RETURN(double g, Gmsd(gt, filled));
+    gmsd.push_back(g);
+    {
+      ImageU8 fitted = filled;
+      FitGainToReference(fitted, gt, mask);
+      EXO_ASSIGN_OR_RETURN(double sf, Ssim(fitted, gt));
+      EXO_ASSIGN_OR_RETURN(double mf, Mse(fitted, gt));
+      ssim_gain_fit.push_back(sf);
+      psnr_gain_fit.push_back(std::min(99.0, PsnrFromMse(mf)));
+    }
     if (c > 0) {
       auto ms_or = MaskedSsim(img, gt, mask);
       if (ms_or.ok()) ssim_cov.push_back(*ms_or);
@@ -377,6 +402,14 @@ std::string ConfigJson(const std::string& dataset, const std::string& test_poses
   j["integrate_cpu"] = {{"integrate_cpu_ms_median", Round(r.integrate_cpu_ms_median, 2)},
                         {"integrate_cpu_ms_p95", Round(r.integrate_cpu_ms_p95, 2)}};
   j["proxy_triangles"] = r.proxy_triangles;
+  // Issue 15: MS-SSIM and GMSD of the filled frame; the attribution oracles of the config.
+  j["perceptual"] = {{"ms_ssim", std::isfinite(r.quality.ms_ssim)
+                                     ? nlohmann::ordered_json(Round(r.quality.ms_ssim, 4))
+                                     : nlohmann::ordered_json(nullptr)},
+                     {"gmsd", Round(r.quality.gmsd, 4)}};
+  j["attribution"] = {{"own_depth_proxy", int(c.own_depth_proxy)},
+                      {"mssim_gain_fit", Round(r.quality.mssim_gain_fit, 4)},
+                      {"psnr_gain_fit", Round(r.quality.psnr_gain_fit, 2)}};
   if (c.policy == Policy::kOnline) {
     // The online model's state, comparable with the server's (stats counters *.digest).
     j["model_digest"] = core::DigestHex(r.model_digest);
@@ -783,7 +816,8 @@ class Engine {
         EXO_ASSIGN_OR_RETURN(rt.quality, EvalStore(selected, refs, g.grid, proxy_mesh, ts,
                                                    c.test_views, ci == 0, &render_ms,
                                                    c.lambda >= 0 ? c.lambda : src_.default_lambda,
-                                                   &sink));
+                                                   &sink, c.blend ? *c.blend : opt_.blend,
+                                                   c.own_depth_proxy));
         rt.render_ms_median = render_ms;
         if (opt_.per_view) {
           rt.per_view_ssim = sink.ssim;
@@ -807,7 +841,11 @@ class Engine {
                                     const std::unordered_map<CellId, std::vector<ViewId>>& refs,
                                     const CellGrid& grid, const TriangleMesh& proxy_mesh,
                                     const Source::TestSet& ts, int test_views, bool dump,
-                                    double* render_ms_median, double lambda, EvalSink* sink_out) {
+                                    double* render_ms_median, double lambda, EvalSink* sink_out,
+                                    const blend::BlendOptions& blend_options,
+                                    bool own_depth_proxy = false) {
+    if (own_depth_proxy && ts.depth.size() != ts.poses.size())
+      return absl::InvalidArgumentError("own_depth_proxy needs the test frames' depth (7-Scenes)");
     // Bring the selected views into the cache (evict others when it grows large).
     std::unordered_set<int> need(selected.begin(), selected.end());
     if (cache_.size() + selected.size() > kMaxCache)
@@ -832,7 +870,7 @@ class Engine {
     }
     model.cell_refs = refs;
     CpuRenderOptions ro;
-    ro.blend = opt_.blend;
+    ro.blend = blend_options;  // the config's (issue 15 blend variants) or the run's
     ro.blend.lambda = float(lambda);
     ro.blend.fill_holes = false;  // EvalSink::Add fills (FillHoles) so both versions are measured
     auto restore = [&] {
@@ -848,6 +886,16 @@ class Engine {
                                   : std::min<int>(test_views, ts.poses.size());
     absl::Status st;
     for (int t = 0; t < nt && st.ok(); ++t) {
+      if (own_depth_proxy) {  // issue 15 attribution: this view's depth is the proxy
+        model.chunks[0].mesh = MeshFromDepth(ts.depth[t], ts.depth_camera, ts.poses[t]);
+        renderer->reset();
+        auto r = CpuLumigraphRenderer::Create(model, ro);
+        if (!r.ok()) {
+          st = r.status();
+          break;
+        }
+        *renderer = std::move(*r);
+      }
       auto t0 = Clock::now();
       auto out = (*renderer)->Render(src_.test_camera, ts.poses[t]);
       const double ms = MsSince(t0);
@@ -1183,10 +1231,16 @@ absl::StatusOr<SevenScenesReport> RunSevenScenes(const SevenScenesRunOptions& o)
   const size_t total = o.max_frames > 0 ? std::min<size_t>(o.max_frames, reader->size())
                                         : reader->size();
   SevenScenesReport rep;
-  // Split: every hold_out_every-th frame (0-based i % k == k - 1: frames 9, 19, ...) is never
-  // ingested (IsHeldOut; exoview_uploader --hold_out_every sends exactly the others).
+  // Split: frame i is never ingested when i % hold_out_every == offset (default k - 1: frames 9,
+  // 19, ...; IsHeldOut; exoview_uploader --hold_out_every/--hold_out_offset sends exactly the
+  // others).
+  const int offset = o.holdout_offset < 0 ? o.hold_out_every - 1 : o.holdout_offset;
+  if (offset >= o.hold_out_every)
+    return absl::InvalidArgumentError(absl::StrCat("holdout_offset ", offset, " must be < ",
+                                                   o.hold_out_every));
   std::vector<size_t> input, held;
-  for (size_t i = 0; i < total; ++i) (IsHeldOut(i, o.hold_out_every) ? held : input).push_back(i);
+  for (size_t i = 0; i < total; ++i)
+    (IsHeldOut(i, o.hold_out_every, offset) ? held : input).push_back(i);
   rep.held_out = int(held.size());
   // Load the input frames (kept: the stored views of every policy come from them).
   std::vector<Frame> frames;
@@ -1245,8 +1299,10 @@ absl::StatusOr<SevenScenesReport> RunSevenScenes(const SevenScenesRunOptions& o)
   src.test_sets.emplace_back();
   Source::TestSet& ts = src.test_sets.back();
   ts.label = "held_out";
+  ts.depth_camera = frames[0].color_camera;
   for (const Frame& f : test) {
     ts.poses.push_back(origin.ToLocal(f.world_from_cam));
+    ts.depth.push_back(f.depth_m);  // issue 15 own-depth proxy (attribution)
     if (o.test_width != f.color.width()) {
       ImageU8 small(o.test_width, o.test_height, 3);
       // Box-free nearest resample is enough for a smoke run; full runs use 640x480.

@@ -23,6 +23,7 @@
 #pragma once
 
 #include <functional>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -61,6 +62,12 @@ struct PolicyConfig {
   // area), instead of the TSDF proxy's CellAreas.
   bool face_areas = false;
   std::string tag;              // free label copied into the JSON ("sweep":"store" ...)
+  // Issue 15: blend options of this config's renders (lambda still from `lambda`); unset = the
+  // run's. Lets one stream compare blend variants on the same stores.
+  std::optional<blend::BlendOptions> blend;
+  // Issue 15 attribution (7-Scenes only): each test view rendered with its own depth map as
+  // the proxy (attribution.h MeshFromDepth) instead of the TSDF mesh: isolates proxy error.
+  bool own_depth_proxy = false;
 };
 
 struct Quality {
@@ -70,6 +77,12 @@ struct Quality {
   // mssim / psnr are of the frame the product shows (uncovered pixels filled by FillHoles, the
   // renderers' default since session 5); *_unfilled of the frame without the fill (sessions 1-4).
   double mssim_unfilled = 0, psnr_unfilled = 0;
+  // Issue 15: MS-SSIM (Wang 2003) and GMSD (Xue 2014) of the filled frame (common/metrics/
+  // perceptual.h), mean over views; NaN when the test image is too small for 5-scale MS-SSIM.
+  double ms_ssim = 0, gmsd = 0;
+  // Issue 15 attribution: SSIM / PSNR after per-channel gains fitted to the ground truth over
+  // the covered pixels (attribution.h FitGainToReference): the global exposure/WB share.
+  double mssim_gain_fit = 0, psnr_gain_fit = 0;
   int views = 0;
 };
 
@@ -180,6 +193,9 @@ struct SevenScenesRunOptions {
   std::string dir;                 // .../7scenes-redkitchen
   int max_frames = 0;              // 0 = all
   int hold_out_every = 10;
+  // Frame i is held out when i % hold_out_every == holdout_offset (issue 15: the ten folds
+  // j = 0..9); < 0: hold_out_every - 1 (frames 9, 19, ..., the split of every earlier run).
+  int holdout_offset = -1;
   // Depth registered to colour (common/datasets rgbd_registration; colour camera K and pose).
   bool register_depth = true;
   double voxel_m = 0;              // 0: the online model's rule (server/core ChooseSceneSetup)

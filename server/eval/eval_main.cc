@@ -31,6 +31,13 @@ constexpr char kUsage[] =
     "               [--dump DIR --dump_views 4]\n"
     "  exoview_eval --sevenscenes DIR [--store 50] [--policies ...] [--register 0|1 (default 1:\n"
     "               depth registered to colour, docs/registration.md)]\n"
+    "               [--holdout_offset J: hold out frame k when k mod 10 == J (default 9)]\n"
+    "  --store N[,N...]      store size(s); the policies run at each (\"all\" once)\n"
+    "  --blend_variants \"k=v,k=v;k=v\"  issue 15: per variant, the --variant_policies configs\n"
+    "                        (default online) at --variant_store (default: first --store) rendered\n"
+    "                        with the blend flags changed (keys: disc_r disc_m disc_rel occ_m occ_rel\n"
+    "                        n_best positional; own_depth=1: each 7-Scenes test view's own depth is\n"
+    "                        the proxy), tagged with the variant text; one ingest for all\n"
     "  --test_poses scene|near|scene,near   test pose set(s), all evaluated on the same stores\n"
     "  --look_around DEG     walk yaw-sweep amplitude (synth default 20)\n"
     "  --scene_seed N        synthetic scene seed (layout, textures; default 1), for replicates\n"
@@ -102,8 +109,15 @@ absl::StatusOr<std::vector<PolicyConfig>> Configs(const Args& a) {
   base.tag = a.Get("--tag", "main");
   base.face_areas = a.Num("--face_areas", 0) != 0;
   std::vector<PolicyConfig> out;
+  // --store 50,100,200: the policies at each store size ("all" once: it has no store bound).
+  std::vector<int> stores;
+  for (absl::string_view st : absl::StrSplit(a.Get("--store", "200"), ',', absl::SkipEmpty()))
+    stores.push_back(std::stoi(std::string(st)));
+  if (stores.empty()) return absl::InvalidArgumentError("--store: no value");
+  for (int store : stores)
   for (absl::string_view p : absl::StrSplit(a.Get("--policies", "online"), ',', absl::SkipEmpty())) {
     PolicyConfig c = base;
+    c.store = store;
     std::string name(p);
     // "<baseline>_uncapped": R(b_k) = every selected observer instead of the fair pre-selection.
     if (name.size() > 9 && name.substr(name.size() - 9) == "_uncapped") {
@@ -111,6 +125,7 @@ absl::StatusOr<std::vector<PolicyConfig>> Configs(const Args& a) {
       name.resize(name.size() - 9);
     }
     EXO_ASSIGN_OR_RETURN(c.policy, ParsePolicy(name));
+    if (c.policy == Policy::kAll && store != stores.front()) continue;
     out.push_back(c);
   }
   const int btv = int(a.Num("--baseline_test_views", -1));
@@ -152,8 +167,42 @@ blend::BlendOptions Blend(const Args& a) {
   return b;
 }
 
+// Issue 15: --blend_variants "soft_vis=0.05;photo=0.1,n_best=4" adds, per variant, a copy of
+// the --variant_policies configs (default online) at --variant_store (default: first --store)
+// rendered with the run's blend options changed by the variant's key=value pairs (keys are the
+// blend flags without "--"), tagged with the variant text.
+absl::Status AddBlendVariants(const Args& a, std::vector<PolicyConfig>* configs) {
+  const std::string spec = a.Get("--blend_variants", "");
+  if (spec.empty()) return absl::OkStatus();
+  Args va = a;
+  va.kv["--policies"] = a.Get("--variant_policies", "online");
+  va.kv["--store"] = a.Get("--variant_store", std::string(*absl::StrSplit(a.Get("--store", "200"), ',').begin()));
+  va.kv.erase("--blend_variants");
+  for (absl::string_view v : absl::StrSplit(spec, ';', absl::SkipEmpty())) {
+    Args b = a;
+    for (absl::string_view kv : absl::StrSplit(v, ',', absl::SkipEmpty())) {
+      std::vector<std::string> p = absl::StrSplit(kv, '=');
+      if (p.size() != 2) return absl::InvalidArgumentError("--blend_variants: bad pair " + std::string(kv));
+      b.kv["--" + p[0]] = p[1];
+    }
+    auto base = Configs(va);
+    if (!base.ok()) return base.status();
+    for (PolicyConfig c : *base) {
+      c.blend = Blend(b);
+      c.own_depth_proxy = b.Num("--own_depth", 0) != 0;
+      EXO_RETURN_IF_ERROR(c.blend->Validate());
+      c.tag = std::string(v);
+      configs->push_back(c);
+    }
+  }
+  return absl::OkStatus();
+}
+
 int RunOne(const Args& a) {
   auto configs = Configs(a);
+  if (configs.ok()) {
+    if (absl::Status st = AddBlendVariants(a, &*configs); !st.ok()) configs = st;
+  }
   if (!configs.ok()) {
     std::fprintf(stderr, "%s\n", std::string(configs.status().message()).c_str());
     return 2;
@@ -163,6 +212,7 @@ int RunOne(const Args& a) {
     o.dir = a.Get("--sevenscenes", "");
     o.max_frames = int(a.Num("--frames", 0));
     o.register_depth = a.Num("--register", 1) != 0;
+    o.holdout_offset = int(a.Num("--holdout_offset", -1));  // issue 15 folds
     o.voxel_m = a.Num("--voxel", 0);
     o.test_width = int(a.Num("--test_w", 640));
     o.test_height = int(a.Num("--test_h", 480));
@@ -190,6 +240,7 @@ int RunOne(const Args& a) {
     split["held_out"] = rep->held_out;
     split["dropped_duplicate_colour"] = rep->dropped_duplicates;
     split["test_views"] = rep->held_out - rep->dropped_duplicates;
+    split["holdout_offset"] = o.holdout_offset < 0 ? o.hold_out_every - 1 : o.holdout_offset;
     Emit(split.dump());
     return 0;
   }
@@ -318,6 +369,12 @@ constexpr std::pair<const char*, const char*> kFlags[] = {
     {"--occ_m", "blend: occlusion epsilon (m)"},
     {"--occ_rel", "blend: relative occlusion epsilon"},
     {"--n_best", "blend: n best views"},
+    {"--holdout_offset", "7-Scenes fold J: frames i % 10 == J held out (default 9)"},
+    {"--blend_variants",
+     "extra configs with changed blend options on the same stream and stores: \"k=v,k=v;...\" "
+     "(keys disc_r disc_m disc_rel occ_m occ_rel n_best positional own_depth)"},
+    {"--variant_policies", "policies the blend variants are rendered for (default online)"},
+    {"--variant_store", "store size the blend variants are rendered at"},
 };
 
 }  // namespace
