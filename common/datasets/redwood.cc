@@ -16,6 +16,7 @@ namespace exo {
 namespace {
 
 using datasets_internal::ParseDoubles;
+using datasets_internal::ReadMatrix4x4;
 using datasets_internal::ReadTextFile;
 using datasets_internal::TokenizeLines;
 namespace fs = std::filesystem;
@@ -44,22 +45,6 @@ absl::StatusOr<Rigid3d> PoseFromRows(std::array<double, 16> m, const std::string
   return pose;
 }
 
-// A 4x4 text matrix file (row-major) as numbers.
-absl::StatusOr<std::array<double, 16>> ReadMatrix4x4(const std::string& path) {
-  EXO_ASSIGN_OR_RETURN(std::string text, ReadTextFile(path));
-  std::array<double, 16> m{};
-  size_t k = 0;
-  for (const auto& line : TokenizeLines(text)) {
-    if (k + line.tokens.size() > 16)
-      return absl::InvalidArgumentError(absl::StrCat(path, ": more than 16 numbers"));
-    EXO_RETURN_IF_ERROR(ParseDoubles(line, 0, line.tokens.size(), m.data() + k, path));
-    k += line.tokens.size();
-  }
-  if (k != 16)
-    return absl::InvalidArgumentError(
-        absl::StrCat(path, ": expected a 4x4 matrix, got ", k, " numbers"));
-  return m;
-}
 
 absl::StatusOr<PinholeCamera> CameraFromMatrix(const std::array<double, 16>& m, int w, int h,
                                                const std::string& what) {

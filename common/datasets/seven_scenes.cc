@@ -14,6 +14,7 @@
 namespace exo {
 
 using datasets_internal::ParseDoubles;
+using datasets_internal::ReadMatrix4x4;
 using datasets_internal::ReadTextFile;
 using datasets_internal::TokenizeLines;
 
@@ -36,18 +37,7 @@ absl::Status OrthonormalizeNearRotation(std::array<double, 16>* m, const std::st
 }
 
 absl::StatusOr<Rigid3d> ReadPoseFile4x4(const std::string& path) {
-  EXO_ASSIGN_OR_RETURN(std::string text, ReadTextFile(path));
-  std::array<double, 16> m{};
-  size_t k = 0;
-  for (const auto& line : TokenizeLines(text)) {
-    if (k + line.tokens.size() > 16)
-      return absl::InvalidArgumentError(absl::StrCat(path, ": more than 16 numbers"));
-    EXO_RETURN_IF_ERROR(ParseDoubles(line, 0, line.tokens.size(), m.data() + k, path));
-    k += line.tokens.size();
-  }
-  if (k != 16)
-    return absl::InvalidArgumentError(absl::StrCat(path, ": expected a 4x4 matrix, got ", k,
-                                                   " numbers"));
+  EXO_ASSIGN_OR_RETURN(auto m, ReadMatrix4x4(path));
   EXO_RETURN_IF_ERROR(OrthonormalizeNearRotation(&m, path));
   auto pose = RigidFromRowMajor4x4(m);
   if (!pose.ok())

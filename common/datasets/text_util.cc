@@ -51,4 +51,20 @@ bool FileExists(const std::string& path) {
   return std::filesystem::is_regular_file(path, ec);
 }
 
+absl::StatusOr<std::array<double, 16>> ReadMatrix4x4(const std::string& path) {
+  EXO_ASSIGN_OR_RETURN(std::string text, ReadTextFile(path));
+  std::array<double, 16> m{};
+  size_t k = 0;
+  for (const auto& line : TokenizeLines(text)) {
+    if (k + line.tokens.size() > 16)
+      return absl::InvalidArgumentError(absl::StrCat(path, ": more than 16 numbers"));
+    EXO_RETURN_IF_ERROR(ParseDoubles(line, 0, line.tokens.size(), m.data() + k, path));
+    k += line.tokens.size();
+  }
+  if (k != 16)
+    return absl::InvalidArgumentError(
+        absl::StrCat(path, ": expected a 4x4 matrix, got ", k, " numbers"));
+  return m;
+}
+
 }  // namespace exo::datasets_internal

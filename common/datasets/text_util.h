@@ -2,6 +2,7 @@
 // error messages that name the file and line.
 #pragma once
 
+#include <array>
 #include <string>
 #include "absl/strings/string_view.h"
 #include <vector>
@@ -25,5 +26,9 @@ absl::Status ParseDoubles(const TextLine& line, size_t first, size_t count, doub
                           const std::string& path);
 
 bool FileExists(const std::string& path);
+
+// A 4x4 matrix file (16 numbers, row-major, any line breaks): 7-Scenes poses, ScanNet
+// intrinsics/poses. Errors name the file.
+absl::StatusOr<std::array<double, 16>> ReadMatrix4x4(const std::string& path);
 
 }  // namespace exo::datasets_internal

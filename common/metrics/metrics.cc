@@ -9,18 +9,6 @@
 namespace exo {
 namespace {
 
-absl::Status CheckPair(const ImageU8& a, const ImageU8& b) {
-  if (a.empty() || b.empty()) return absl::InvalidArgumentError("metric on an empty image");
-  if (!a.SameShape(b))
-    return absl::InvalidArgumentError(absl::StrCat("metric on images of different shape: ",
-                                                   a.width(), "x", a.height(), "x", a.channels(),
-                                                   " vs ", b.width(), "x", b.height(), "x",
-                                                   b.channels()));
-  if (a.channels() != 1 && a.channels() != 3)
-    return absl::InvalidArgumentError(
-        absl::StrCat("metric needs 1- or 3-channel images, got ", a.channels()));
-  return absl::OkStatus();
-}
 
 absl::Status CheckMask(const ImageU8& a, const ImageU8& mask) {
   if (mask.channels() != 1 || mask.width() != a.width() || mask.height() != a.height())
@@ -48,6 +36,19 @@ absl::StatusOr<double> MeanOfMap(const Image<double>& map, const ImageU8* mask,
 
 }  // namespace
 
+absl::Status CheckMetricPair(const ImageU8& a, const ImageU8& b) {
+  if (a.empty() || b.empty()) return absl::InvalidArgumentError("metric on an empty image");
+  if (!a.SameShape(b))
+    return absl::InvalidArgumentError(absl::StrCat("metric on images of different shape: ",
+                                                   a.width(), "x", a.height(), "x", a.channels(),
+                                                   " vs ", b.width(), "x", b.height(), "x",
+                                                   b.channels()));
+  if (a.channels() != 1 && a.channels() != 3)
+    return absl::InvalidArgumentError(
+        absl::StrCat("metric needs 1- or 3-channel images, got ", a.channels()));
+  return absl::OkStatus();
+}
+
 absl::Status SsimOptions::Validate() const {
   if (window < 3 || window % 2 == 0)
     return absl::InvalidArgumentError(absl::StrCat("SSIM window ", window, " must be odd and >= 3"));
@@ -73,7 +74,7 @@ Image<double> LumaFromRgb(const ImageU8& rgb) {
 absl::StatusOr<Image<double>> SsimMap(const ImageU8& a, const ImageU8& b,
                                       const SsimOptions& o) {
   EXO_RETURN_IF_ERROR(o.Validate());
-  EXO_RETURN_IF_ERROR(CheckPair(a, b));
+  EXO_RETURN_IF_ERROR(CheckMetricPair(a, b));
   if (a.width() < o.window || a.height() < o.window)
     return absl::InvalidArgumentError(absl::StrCat("SSIM needs images of at least ", o.window,
                                                    "x", o.window, ", got ", a.width(), "x",
@@ -141,7 +142,7 @@ absl::StatusOr<double> MeanSsim(std::span<const ImageU8> a, std::span<const Imag
 }
 
 absl::StatusOr<double> MaskedMse(const ImageU8& a, const ImageU8& b, const ImageU8& mask) {
-  EXO_RETURN_IF_ERROR(CheckPair(a, b));
+  EXO_RETURN_IF_ERROR(CheckMetricPair(a, b));
   const bool use_mask = !mask.empty();
   if (use_mask) EXO_RETURN_IF_ERROR(CheckMask(a, mask));
   const int c = a.channels();

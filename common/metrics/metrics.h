@@ -53,6 +53,10 @@ absl::StatusOr<double> MeanSsim(std::span<const ImageU8> a, std::span<const Imag
                                 const SsimOptions& options = {});
 
 // Mean squared error over all channels (of the mask pixels). Error if no pixel counts.
+// OK when a and b are non-empty 1- or 3-channel images of the same shape (every metric's input
+// check); otherwise InvalidArgument naming both shapes.
+absl::Status CheckMetricPair(const ImageU8& a, const ImageU8& b);
+
 absl::StatusOr<double> Mse(const ImageU8& a, const ImageU8& b);
 absl::StatusOr<double> MaskedMse(const ImageU8& a, const ImageU8& b, const ImageU8& mask);
 double PsnrFromMse(double mse, double peak = 255.0);  // +inf for mse == 0

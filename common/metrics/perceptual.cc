@@ -12,18 +12,6 @@ namespace {
 
 constexpr std::array<double, 5> kMsSsimWeights = {0.0448, 0.2856, 0.3001, 0.2363, 0.1333};
 
-absl::Status CheckPair(const ImageU8& a, const ImageU8& b) {
-  if (a.empty() || b.empty()) return absl::InvalidArgumentError("metric on an empty image");
-  if (!a.SameShape(b))
-    return absl::InvalidArgumentError(absl::StrCat("metric on images of different shape: ",
-                                                   a.width(), "x", a.height(), "x", a.channels(),
-                                                   " vs ", b.width(), "x", b.height(), "x",
-                                                   b.channels()));
-  if (a.channels() != 1 && a.channels() != 3)
-    return absl::InvalidArgumentError(
-        absl::StrCat("metric needs 1- or 3-channel images, got ", a.channels()));
-  return absl::OkStatus();
-}
 
 // 2x2 mean, every second sample; pixels beyond the last row/column are `pad(edge)` (msssim.m:
 // 'symmetric' = the edge pixel again; GMSD's conv2 'same': zero).
@@ -122,7 +110,7 @@ bool MsSsimFits(int width, int height, const MsSsimOptions& o) {
 
 absl::StatusOr<double> MsSsim(const ImageU8& a, const ImageU8& b, const MsSsimOptions& o) {
   EXO_RETURN_IF_ERROR(o.Validate());
-  EXO_RETURN_IF_ERROR(CheckPair(a, b));
+  EXO_RETURN_IF_ERROR(CheckMetricPair(a, b));
   if (!MsSsimFits(a.width(), a.height(), o))
     return absl::InvalidArgumentError(absl::StrCat("MS-SSIM with ", o.scales, " scales needs a ",
                                                    o.ssim.window, " px window at the coarsest scale; ",
@@ -155,7 +143,7 @@ absl::Status GmsdOptions::Validate() const {
 absl::StatusOr<Image<double>> GmsMap(const ImageU8& reference, const ImageU8& distorted,
                                      const GmsdOptions& o) {
   EXO_RETURN_IF_ERROR(o.Validate());
-  EXO_RETURN_IF_ERROR(CheckPair(reference, distorted));
+  EXO_RETURN_IF_ERROR(CheckMetricPair(reference, distorted));
   if (reference.width() < 2 || reference.height() < 2)
     return absl::InvalidArgumentError("GMSD needs at least 2x2 pixels");
   Image<double> yr = LumaFromRgb(reference), yd = LumaFromRgb(distorted);
