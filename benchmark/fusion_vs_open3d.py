@@ -31,6 +31,8 @@ def main():
     ap.add_argument("--voxels", default="0.01,0.02,0.04")
     ap.add_argument("--strides", default="1,4", help="our alloc_stride values")
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--python", default="/usr/bin/python3",
+                    help="interpreter with open3d (Debian python3-open3d)")
     args = ap.parse_args()
     if not os.path.exists(os.path.join(args.data, "camera-intrinsics.txt")):
         sys.exit(f"no 7-Scenes data at {args.data}")
@@ -43,7 +45,7 @@ def main():
                             args.strides, "--threads", "1", "--extract_every_frame", "false"]):
             ours.setdefault((r["voxel_m"], r["alloc_stride"]), []).append(
                 (r["integrate_cpu_ms_median"], r["integrate_ms_median"], r["triangles"]))
-        for r in run_lines([sys.executable, os.path.join(HERE, "open3d_integrate.py"), "--data",
+        for r in run_lines([args.python, os.path.join(HERE, "open3d_integrate.py"), "--data",
                             args.data, "--frames", str(args.frames), "--voxels", args.voxels],
                            env=env1):
             o3d.setdefault(r["voxel_m"], []).append(

@@ -161,6 +161,8 @@ struct TsdfVolume::Block {
 struct TsdfVolume::Context {
   const ImageF* depth = nullptr;
   float* cos_incidence = nullptr;  // per depth pixel: CosIncidence, or -1 until computed
+  const float* x_of_u = nullptr;   // (u - cx) / fx per column
+  const float* y_of_v = nullptr;   // (v - cy) / fy per row
   float fx, fy, cx, cy;
   int width, height;
   glm::mat3 cam_from_local_r;
@@ -189,7 +191,7 @@ float TsdfVolume::CosIncidence(const Context& c, int u, int v) {
   const float edge_rel = 0.05f;
   const float d = valid(u, v);
   auto point = [&](int uu, int vv, float dd) {
-    return glm::vec3((uu - c.cx) / c.fx * dd, (vv - c.cy) / c.fy * dd, dd);
+    return glm::vec3(c.x_of_u[uu] * dd, c.y_of_v[vv] * dd, dd);
   };
   auto near = [&](float dn) { return dn > 0 && std::abs(dn - d) < edge_rel * d; };
   const float dl = valid(u - 1, v), dr = valid(u + 1, v), du = valid(u, v - 1),
@@ -236,7 +238,8 @@ size_t TsdfVolume::bytes() const {
                                                options_.block_size * options_.block_size;
   return blocks_.size() * per_block +
          blocks_.capacity() * (sizeof(std::pair<uint64_t, std::unique_ptr<Block>>) + 1) +
-         dirty_.capacity() * (sizeof(uint64_t) + 1) + removed_.capacity() * sizeof(uint64_t);
+         dirty_.capacity() * (sizeof(uint64_t) + 1) + removed_.capacity() * sizeof(uint64_t) +
+         cos_scratch_.capacity() * sizeof(float);
 }
 
 bool TsdfVolume::Bounds(glm::dvec3* min_local, glm::dvec3* max_local) const {
@@ -325,8 +328,13 @@ absl::StatusOr<TsdfIntegrateStats> TsdfVolume::IntegrateDepth(
 
   // 1b. Incidence angle per pixel, computed lazily by IntegrateBlock for the pixels voxels
   //     project to (-1 = not yet computed; at 2-4 cm voxels most pixels are never sampled).
-  std::vector<float> cos_incidence(size_t(cam.width) * cam.height, -1.0f);
-  ctx.cos_incidence = cos_incidence.data();
+  cos_scratch_.assign(size_t(cam.width) * cam.height, -1.0f);  // keeps its pages across frames
+  ctx.cos_incidence = cos_scratch_.data();
+  std::vector<float> x_of_u(cam.width), y_of_v(cam.height);
+  for (int u = 0; u < cam.width; ++u) x_of_u[u] = (u - ctx.cx) / ctx.fx;
+  for (int v = 0; v < cam.height; ++v) y_of_v[v] = (v - ctx.cy) / ctx.fy;
+  ctx.x_of_u = x_of_u.data();
+  ctx.y_of_v = y_of_v.data();
 
   // 2. Allocate missing blocks; list each touched block once.
   TsdfIntegrateStats stats;

@@ -57,7 +57,7 @@ struct TsdfOptions {
   // "thick" ray walk per cell covers every block the cell's per-pixel truncation bands cross
   // (the cell's depth spread plus its lateral footprint), so the allocated set is a superset of
   // per-pixel allocation (stride 1, the exact reference). The per-voxel update is the same.
-  int alloc_stride = 4;
+  int alloc_stride = 8;
 
   absl::Status Validate() const;
   float EffectiveTruncation() const { return truncation_m > 0 ? truncation_m : 4 * voxel_size_m; }
@@ -114,7 +114,7 @@ class TsdfVolume {
 
   size_t num_blocks() const { return blocks_.size(); }
   size_t num_dirty_blocks() const { return dirty_.size(); }
-  // Memory held by blocks and the hash table (bytes).
+  // Memory held by blocks, the hash table and the per-pixel scratch (bytes).
   size_t bytes() const;
   // Axis-aligned bounds of all allocated blocks in the local frame (empty volume: false).
   bool Bounds(glm::dvec3* min_local, glm::dvec3* max_local) const;
@@ -148,6 +148,7 @@ class TsdfVolume {
   std::vector<uint64_t> removed_;
   glm::ivec3 bmin_{0}, bmax_{-1};
   uint64_t stamp_ = 0;  // integration counter
+  std::vector<float> cos_scratch_;  // per-pixel incidence cosines of the current frame (reused)
 };
 
 }  // namespace exo
