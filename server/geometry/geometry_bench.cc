@@ -12,13 +12,16 @@
 // - synthetic room (analytic): a 6 x 5 x 3 m box with spheres, depth rendered by exact ray
 //   intersection at 640x480 along a circling trajectory; error = distance of every mesh vertex
 //   to the true surface (mean, p95).
-// Prints one JSON object per (dataset, voxel size): integrate ms/frame (median, p95), incremental
-// extraction ms/frame (median, p95), full extraction ms, triangles, blocks, bytes, error.
+// Prints one JSON object per (dataset, voxel size, alloc stride, repeat): integrate ms/frame
+// (wall median, p95; process CPU median), incremental extraction ms/frame (median, p95), full
+// extraction ms, triangles, blocks, bytes, error. --alloc_strides 1,4 --repeats 3 interleaves the
+// per-pixel reference and the subsampled allocation in one run (same frames, same process).
 #include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <ctime>
 #include <fstream>
 #include <string>
 #include <vector>
@@ -47,11 +50,19 @@ double Percentile(std::vector<double> v, double q) {
   return v[std::min(v.size() - 1, size_t(q * (v.size() - 1) + 0.5))];
 }
 
+// CPU time of the whole process (all threads), ms.
+double CpuMs() {
+  timespec ts;
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+  return ts.tv_sec * 1e3 + ts.tv_nsec * 1e-6;
+}
+
 struct Result {
   std::string dataset;
   double voxel_m = 0;
-  int frames = 0;
-  double integrate_med = 0, integrate_p95 = 0, extract_med = 0, extract_p95 = 0, extract_all = 0;
+  int frames = 0, alloc_stride = 1, threads = 1, repeat = 0;
+  double integrate_med = 0, integrate_p95 = 0, integrate_cpu_med = 0;
+  double extract_med = 0, extract_p95 = 0, extract_all = 0;
   size_t triangles = 0, blocks = 0, bytes = 0, mesh_bytes = 0;
   double err_a = 0, err_b = 0, coverage = 0;  // meaning per dataset (see header)
 };
@@ -67,7 +78,11 @@ void Print(const Result& r, const char* err_a_name, const char* err_b_name) {
                                        {"dataset", r.dataset},
                                        {"frames", r.frames},
                                        {"voxel_m", Round(r.voxel_m, 3)},
+                                       {"alloc_stride", r.alloc_stride},
+                                       {"threads", r.threads},
+                                       {"repeat", r.repeat},
                                        {"integrate_ms_median", Round(r.integrate_med, 2)},
+                                       {"integrate_cpu_ms_median", Round(r.integrate_cpu_med, 2)},
                                        {"integrate_ms_p95", Round(r.integrate_p95, 2)},
                                        {"extract_dirty_ms_median", Round(r.extract_med, 2)},
                                        {"extract_dirty_ms_p95", Round(r.extract_p95, 2)},
@@ -84,29 +99,37 @@ void Print(const Result& r, const char* err_a_name, const char* err_b_name) {
 }
 
 // Integrates `frames` (a function giving frame i) and times each step.
+// Without extract_every_frame only integration runs per frame (the final full extraction still
+// runs).
 template <typename GetFrame>
 Result Run(const std::string& name, double voxel, int n, GetFrame get, std::vector<bool> skip,
-           TsdfVolume* vol) {
+           bool extract_every_frame, TsdfVolume* vol) {
   Result r;
   r.dataset = name;
   r.voxel_m = voxel;
-  std::vector<double> integ, extr;
+  r.alloc_stride = vol->options().alloc_stride;
+  r.threads = vol->options().num_threads;
+  std::vector<double> integ, integ_cpu, extr;
   for (int i = 0; i < n; ++i) {
     if (!skip.empty() && skip[i]) continue;
     const Frame f = get(i);
+    const double c0 = CpuMs();
     auto t0 = Clock::now();
     auto s = vol->Integrate(f, LocalOrigin{});
     integ.push_back(MsSince(t0));
+    integ_cpu.push_back(CpuMs() - c0);
     if (!s.ok()) {
       std::fprintf(stderr, "frame %d: %s\n", i, std::string(s.status().message()).c_str());
       std::exit(1);
     }
+    if (!extract_every_frame) continue;
     t0 = Clock::now();
     auto chunks = vol->ExtractDirtyChunks();
     extr.push_back(MsSince(t0));
   }
   r.frames = int(integ.size());
   r.integrate_med = Percentile(integ, 0.5);
+  r.integrate_cpu_med = Percentile(integ_cpu, 0.5);
   r.integrate_p95 = Percentile(integ, 0.95);
   r.extract_med = Percentile(extr, 0.5);
   r.extract_p95 = Percentile(extr, 0.95);
@@ -218,6 +241,9 @@ int main(int argc, char** argv) {
   int frames = 300, synth_frames = 120;
   std::vector<double> voxels = {0.01, 0.02, 0.04, 0.08};
   std::string chart;
+  std::vector<int> strides = {TsdfOptions().alloc_stride};
+  int threads = TsdfOptions().num_threads, repeats = 1;
+  bool extract_every_frame = true;
   CLI::App app{"Speed vs error of the sparse TSDF proxy over voxel sizes (synthetic room and "
                "7-Scenes redkitchen); one JSON object per dataset and voxel size.",
                "geometry_bench"};
@@ -231,6 +257,16 @@ int main(int argc, char** argv) {
       ->delimiter(',')
       ->check(CLI::PositiveNumber);
   app.add_option("--chart", chart, "write a chart PNG here");
+  app.add_option("--alloc_strides", strides,
+                 "TsdfOptions.alloc_stride values to run (1 = per-pixel allocation), "
+                 "comma-separated; interleaved per repeat")
+      ->delimiter(',')
+      ->check(CLI::Range(1, 64));
+  app.add_option("--threads", threads, "TsdfOptions.num_threads")->check(CLI::Range(1, 64));
+  app.add_option("--repeats", repeats, "runs per voxel size and stride (interleaved)")
+      ->check(CLI::PositiveNumber);
+  app.add_option("--extract_every_frame", extract_every_frame,
+                 "incremental extraction after every frame (false: integration only)");
   if (auto rc = exo::cli::Parse(app, argc, argv)) return *rc;
   std::vector<Result> results;
 
@@ -254,12 +290,16 @@ int main(int argc, char** argv) {
                                               return c ? glm::u8vec3(220, 200, 160) : glm::u8vec3(60, 90, 140);
                                             }));
     }
-    for (double vs : voxels) {
+    for (double vs : voxels) for (int rep = 0; rep < repeats; ++rep) for (int stride : strides) {
       TsdfOptions o;
       o.voxel_size_m = float(vs);
       o.max_depth_m = 8.0f;
+      o.alloc_stride = stride;
+      o.num_threads = threads;
       TsdfVolume vol(o);
-      Result r = Run("synthetic-room", vs, synth_frames, [&](int i) { return fr[i]; }, {}, &vol);
+      Result r = Run("synthetic-room", vs, synth_frames, [&](int i) { return fr[i]; }, {},
+                     extract_every_frame, &vol);
+      r.repeat = rep;
       const TriangleMesh m = vol.ExtractAll();
       std::vector<double> err;
       err.reserve(m.positions.size());
@@ -298,12 +338,15 @@ int main(int argc, char** argv) {
       const PinholeCamera& kcam = reader.camera();
       std::vector<bool> held_out(frames);
       for (int i = 0; i < frames; ++i) held_out[i] = i % 10 == 0;
-      for (double vs : voxels) {
+      for (double vs : voxels) for (int rep = 0; rep < repeats; ++rep) for (int stride : strides) {
         TsdfOptions o;
         o.voxel_size_m = float(vs);
         o.max_depth_m = 4.0f;
+        o.alloc_stride = stride;
+        o.num_threads = threads;
         TsdfVolume vol(o);
-        Result r = Run("7scenes-redkitchen", vs, frames, load, held_out, &vol);
+        Result r = Run("7scenes-redkitchen", vs, frames, load, held_out, extract_every_frame, &vol);
+        r.repeat = rep;
         std::vector<double> err;
         size_t total = 0;
         for (int i = 0; i < frames; i += 10) {

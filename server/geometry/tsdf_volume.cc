@@ -54,6 +54,76 @@ bool PoseFinite(const Rigid3d& p) {
          ValidateQuaternion(p.rotation).ok();
 }
 
+
+// De-duplicates block keys through a small direct-mapped cache before appending them.
+class KeySink {
+ public:
+  explicit KeySink(std::vector<uint64_t>* out) : cache_(kCache, ~uint64_t{0}), out_(out) {}
+  void Add(const glm::ivec3& c) {
+    const uint64_t key = PackCell(c);
+    const size_t h = (key * 0x9E3779B97F4A7C15ull) >> (64 - 12);
+    if (cache_[h] != key) {
+      cache_[h] = key;
+      out_->push_back(key);
+    }
+  }
+
+ private:
+  static constexpr size_t kCache = 4096;
+  std::vector<uint64_t> cache_;
+  std::vector<uint64_t>* out_;
+};
+
+// Walks the segment a -> b (block units) through the block grid (3D DDA, Amanatides & Woo) and
+// calls visit(cell, t_enter, t_exit) for every block it crosses (t along the segment, [0, 1]).
+template <typename Visit>
+void WalkSegment(const glm::dvec3& a, const glm::dvec3& b, Visit&& visit) {
+  glm::ivec3 cur(std::floor(a.x), std::floor(a.y), std::floor(a.z));
+  const glm::ivec3 end(std::floor(b.x), std::floor(b.y), std::floor(b.z));
+  const glm::dvec3 delta = b - a;
+  glm::ivec3 step;
+  glm::dvec3 t_max, t_delta;
+  for (int i = 0; i < 3; ++i) {
+    step[i] = delta[i] > 0 ? 1 : (delta[i] < 0 ? -1 : 0);
+    if (step[i] == 0) {
+      t_max[i] = t_delta[i] = std::numeric_limits<double>::infinity();
+    } else {
+      const double inv = 1.0 / std::abs(delta[i]);
+      t_delta[i] = inv;
+      t_max[i] = (step[i] > 0 ? (cur[i] + 1 - a[i]) : (a[i] - cur[i])) * inv;
+    }
+  }
+  double t_enter = 0.0;
+  for (int guard = 0; guard < 4096; ++guard) {
+    const int axis = t_max.x < t_max.y ? (t_max.x < t_max.z ? 0 : 2) : (t_max.y < t_max.z ? 1 : 2);
+    const double t_exit = cur == end ? 1.0 : std::min(1.0, t_max[axis]);
+    visit(cur, t_enter, t_exit);
+    if (cur == end || t_max[axis] > 1.0) break;
+    cur[axis] += step[axis];
+    t_enter = t_max[axis];
+    t_max[axis] += t_delta[axis];
+  }
+}
+
+// Whether the segment p0 -> p1 meets the box [lo, hi] (slab test).
+bool SegmentHitsBox(const glm::dvec3& p0, const glm::dvec3& p1, const glm::dvec3& lo,
+                    const glm::dvec3& hi) {
+  double t0 = 0.0, t1 = 1.0;
+  const glm::dvec3 d = p1 - p0;
+  for (int i = 0; i < 3; ++i) {
+    if (d[i] == 0.0) {
+      if (p0[i] < lo[i] || p0[i] > hi[i]) return false;
+      continue;
+    }
+    double ta = (lo[i] - p0[i]) / d[i], tb = (hi[i] - p0[i]) / d[i];
+    if (ta > tb) std::swap(ta, tb);
+    t0 = std::max(t0, ta);
+    t1 = std::min(t1, tb);
+    if (t0 > t1) return false;
+  }
+  return true;
+}
+
 }  // namespace
 
 absl::Status TsdfOptions::Validate() const {
@@ -75,6 +145,8 @@ absl::Status TsdfOptions::Validate() const {
     return absl::InvalidArgumentError("TsdfOptions.min_extract_weight must be > 0");
   if (num_threads < 1 || num_threads > 64)
     return absl::InvalidArgumentError("TsdfOptions.num_threads must be in [1, 64]");
+  if (alloc_stride < 1 || alloc_stride > 64)
+    return absl::InvalidArgumentError("TsdfOptions.alloc_stride must be in [1, 64]");
   return absl::OkStatus();
 }
 
@@ -88,7 +160,9 @@ struct TsdfVolume::Block {
 
 struct TsdfVolume::Context {
   const ImageF* depth = nullptr;
-  const float* cos_incidence = nullptr;  // per depth pixel, |cos| between ray and surface normal
+  float* cos_incidence = nullptr;  // per depth pixel: CosIncidence, or -1 until computed
+  const float* x_of_u = nullptr;   // (u - cx) / fx per column
+  const float* y_of_v = nullptr;   // (v - cy) / fy per row
   float fx, fy, cx, cy;
   int width, height;
   glm::mat3 cam_from_local_r;
@@ -102,6 +176,38 @@ struct TsdfVolume::Context {
   glm::mat3 color_from_depth_r;
   glm::vec3 color_from_depth_t;
 };
+
+// Incidence angle at depth pixel (u, v) (valid depth) from the depth map's own normals (central
+// differences, one-sided at depth edges). The projective (along-ray) distance overestimates the
+// Euclidean distance by 1/cos at oblique incidence; scaling by cos makes the fused field closer
+// to a true SDF and the weight cos down-weights grazing observations (silhouettes, depth edges).
+// Returns 0 without neighbours on one axis (isolated pixel or depth edge: treated as grazing).
+float TsdfVolume::CosIncidence(const Context& c, int u, int v) {
+  auto valid = [&](int uu, int vv) {
+    if (uu < 0 || vv < 0 || uu >= c.width || vv >= c.height) return 0.0f;
+    const float d = c.depth->row(vv)[uu];
+    return (d >= c.min_depth && d <= c.max_depth) ? d : 0.0f;
+  };
+  const float edge_rel = 0.05f;
+  const float d = valid(u, v);
+  auto point = [&](int uu, int vv, float dd) {
+    return glm::vec3(c.x_of_u[uu] * dd, c.y_of_v[vv] * dd, dd);
+  };
+  auto near = [&](float dn) { return dn > 0 && std::abs(dn - d) < edge_rel * d; };
+  const float dl = valid(u - 1, v), dr = valid(u + 1, v), du = valid(u, v - 1),
+              dd = valid(u, v + 1);
+  const glm::vec3 p = point(u, v, d);
+  glm::vec3 tx(0.0f), ty(0.0f);
+  if (near(dl) && near(dr)) tx = point(u + 1, v, dr) - point(u - 1, v, dl);
+  else if (near(dr)) tx = point(u + 1, v, dr) - p;
+  else if (near(dl)) tx = p - point(u - 1, v, dl);
+  if (near(du) && near(dd)) ty = point(u, v + 1, dd) - point(u, v - 1, du);
+  else if (near(dd)) ty = point(u, v + 1, dd) - p;
+  else if (near(du)) ty = p - point(u, v - 1, du);
+  const glm::vec3 n = glm::cross(tx, ty);
+  const float nl = glm::length(n);
+  return nl > 0 ? std::abs(glm::dot(n, p)) / (nl * glm::length(p)) : 0.0f;
+}
 
 TsdfVolume::TsdfVolume(const TsdfOptions& options) : options_(options) {
   EXO_CHECK(options_.Validate().ok());
@@ -132,7 +238,8 @@ size_t TsdfVolume::bytes() const {
                                                options_.block_size * options_.block_size;
   return blocks_.size() * per_block +
          blocks_.capacity() * (sizeof(std::pair<uint64_t, std::unique_ptr<Block>>) + 1) +
-         dirty_.capacity() * (sizeof(uint64_t) + 1) + removed_.capacity() * sizeof(uint64_t);
+         dirty_.capacity() * (sizeof(uint64_t) + 1) + removed_.capacity() * sizeof(uint64_t) +
+         cos_scratch_.capacity() * sizeof(float);
 }
 
 bool TsdfVolume::Bounds(glm::dvec3* min_local, glm::dvec3* max_local) const {
@@ -213,114 +320,28 @@ absl::StatusOr<TsdfIntegrateStats> TsdfVolume::IntegrateDepth(
     ctx.color_from_depth_t = glm::vec3(cfd.translation);
   }
 
-  // 1. Visible-block selection: walk each valid depth ray's truncation band through the block
-  //    grid (3D DDA, Amanatides & Woo) and collect the block keys it crosses.
+  // 1. Visible-block selection (blocks the truncation bands cross).
   const int nt = options_.num_threads;
-  const glm::dmat3 local_from_cam_r = local_from_cam.RotationMatrix();
-  const int rows_per_task = 16;
-  const size_t num_tasks = (cam.height + rows_per_task - 1) / rows_per_task;
-  std::vector<std::vector<uint64_t>> keys_per_task(num_tasks);
-  std::vector<size_t> valid_per_task(num_tasks, 0);
-  const double trunc = truncation_m_;
-  const double min_d = options_.min_depth_m, max_d = options_.max_depth_m;
-  ParallelFor(num_tasks, nt, [&](size_t task) {
-    constexpr size_t kCache = 4096;  // direct-mapped de-duplication cache
-    std::vector<uint64_t> cache(kCache, ~uint64_t{0});
-    std::vector<uint64_t>& out = keys_per_task[task];
-    size_t valid = 0;
-    const int y0 = int(task) * rows_per_task, y1 = std::min(cam.height, y0 + rows_per_task);
-    for (int v = y0; v < y1; ++v) {
-      const float* row = depth_m.row(v);
-      for (int u = 0; u < cam.width; ++u) {
-        const double d = row[u];
-        if (!(d >= min_d && d <= max_d)) continue;  // 0, negative, NaN, Inf all fail here
-        ++valid;
-        const glm::dvec3 ray_cam = cam.RayZ1({double(u), double(v)});
-        const double ray_len = glm::length(ray_cam);
-        const glm::dvec3 dir = local_from_cam_r * (ray_cam / ray_len);
-        const double range = d * ray_len;
-        const glm::dvec3 a = (cam_pos + dir * std::max(0.0, range - trunc)) / bsm;
-        const glm::dvec3 b = (cam_pos + dir * (range + trunc)) / bsm;
-        glm::ivec3 cur(std::floor(a.x), std::floor(a.y), std::floor(a.z));
-        const glm::ivec3 end(std::floor(b.x), std::floor(b.y), std::floor(b.z));
-        const glm::dvec3 delta = b - a;
-        glm::ivec3 step;
-        glm::dvec3 t_max, t_delta;
-        for (int i = 0; i < 3; ++i) {
-          step[i] = delta[i] > 0 ? 1 : (delta[i] < 0 ? -1 : 0);
-          if (step[i] == 0) {
-            t_max[i] = t_delta[i] = std::numeric_limits<double>::infinity();
-          } else {
-            const double inv = 1.0 / std::abs(delta[i]);
-            t_delta[i] = inv;
-            t_max[i] = (step[i] > 0 ? (cur[i] + 1 - a[i]) : (a[i] - cur[i])) * inv;
-          }
-        }
-        for (int guard = 0; guard < 4096; ++guard) {
-          const uint64_t key = PackCell(cur);
-          const size_t h = (key * 0x9E3779B97F4A7C15ull) >> (64 - 12);
-          if (cache[h] != key) {
-            cache[h] = key;
-            out.push_back(key);
-          }
-          if (cur == end) break;
-          const int axis = t_max.x < t_max.y ? (t_max.x < t_max.z ? 0 : 2)
-                                             : (t_max.y < t_max.z ? 1 : 2);
-          if (t_max[axis] > 1.0) break;
-          cur[axis] += step[axis];
-          t_max[axis] += t_delta[axis];
-        }
-      }
-    }
-    valid_per_task[task] = valid;
-  });
+  std::vector<std::vector<uint64_t>> keys_per_task;
+  std::vector<size_t> valid_per_task;
+  CollectBandBlocks(depth_m, cam, local_from_cam, &keys_per_task, &valid_per_task);
 
-  // 1b. Incidence angle per pixel from the depth map's own normals (central differences).
-  //     The projective (along-ray) distance overestimates the Euclidean distance by 1/cos at
-  //     oblique incidence; scaling by cos makes the fused field closer to a true SDF and the
-  //     weight cos down-weights grazing observations (silhouettes, depth edges).
-  std::vector<float> cos_incidence(size_t(cam.width) * cam.height, 1.0f);
-  ParallelFor(num_tasks, nt, [&](size_t task) {
-    const int y0 = int(task) * rows_per_task, y1 = std::min(cam.height, y0 + rows_per_task);
-    auto valid = [&](int u, int v) {
-      if (u < 0 || v < 0 || u >= cam.width || v >= cam.height) return 0.0f;
-      const float d = depth_m.row(v)[u];
-      return (d >= min_d && d <= max_d) ? d : 0.0f;
-    };
-    const float edge_rel = 0.05f;
-    for (int v = y0; v < y1; ++v)
-      for (int u = 0; u < cam.width; ++u) {
-        const float d = valid(u, v);
-        if (d == 0.0f) continue;
-        auto point = [&](int uu, int vv, float dd) {
-          return glm::vec3((uu - ctx.cx) / ctx.fx * dd, (vv - ctx.cy) / ctx.fy * dd, dd);
-        };
-        auto near = [&](float dn) { return dn > 0 && std::abs(dn - d) < edge_rel * d; };
-        const float dl = valid(u - 1, v), dr = valid(u + 1, v), du = valid(u, v - 1),
-                    dd = valid(u, v + 1);
-        const glm::vec3 p = point(u, v, d);
-        glm::vec3 tx(0.0f), ty(0.0f);
-        if (near(dl) && near(dr)) tx = point(u + 1, v, dr) - point(u - 1, v, dl);
-        else if (near(dr)) tx = point(u + 1, v, dr) - p;
-        else if (near(dl)) tx = p - point(u - 1, v, dl);
-        if (near(du) && near(dd)) ty = point(u, v + 1, dd) - point(u, v - 1, du);
-        else if (near(dd)) ty = point(u, v + 1, dd) - p;
-        else if (near(du)) ty = p - point(u, v - 1, du);
-        const glm::vec3 n = glm::cross(tx, ty);
-        const float nl = glm::length(n);
-        // No neighbours on one axis (isolated pixel or depth edge): treat as grazing.
-        cos_incidence[size_t(v) * cam.width + u] =
-            nl > 0 ? std::abs(glm::dot(n, p)) / (nl * glm::length(p)) : 0.0f;
-      }
-  });
-  ctx.cos_incidence = cos_incidence.data();
+  // 1b. Incidence angle per pixel, computed lazily by IntegrateBlock for the pixels voxels
+  //     project to (-1 = not yet computed; at 2-4 cm voxels most pixels are never sampled).
+  cos_scratch_.assign(size_t(cam.width) * cam.height, -1.0f);  // keeps its pages across frames
+  ctx.cos_incidence = cos_scratch_.data();
+  std::vector<float> x_of_u(cam.width), y_of_v(cam.height);
+  for (int u = 0; u < cam.width; ++u) x_of_u[u] = (u - ctx.cx) / ctx.fx;
+  for (int v = 0; v < cam.height; ++v) y_of_v[v] = (v - ctx.cy) / ctx.fy;
+  ctx.x_of_u = x_of_u.data();
+  ctx.y_of_v = y_of_v.data();
 
   // 2. Allocate missing blocks; list each touched block once.
   TsdfIntegrateStats stats;
   ++stamp_;
   std::vector<Block*> touched;
   const int bs = options_.block_size;
-  for (size_t t = 0; t < num_tasks; ++t) {
+  for (size_t t = 0; t < keys_per_task.size(); ++t) {
     stats.valid_pixels += valid_per_task[t];
     for (uint64_t key : keys_per_task[t]) {
       auto [it, inserted] = blocks_.try_emplace(key);
@@ -352,6 +373,107 @@ absl::StatusOr<TsdfIntegrateStats> TsdfVolume::IntegrateDepth(
   return stats;
 }
 
+void TsdfVolume::CollectBandBlocks(const ImageF& depth_m, const PinholeCamera& cam,
+                                   const Rigid3d& local_from_cam,
+                                   std::vector<std::vector<uint64_t>>* keys,
+                                   std::vector<size_t>* valid) const {
+  const int s = options_.alloc_stride;
+  const double bsm = block_size_m();
+  const glm::dvec3 cam_pos = local_from_cam.translation;
+  const glm::dmat3 rot = local_from_cam.RotationMatrix();
+  const double trunc = truncation_m_;
+  const double min_d = options_.min_depth_m, max_d = options_.max_depth_m;
+  const int cell_rows = (cam.height + s - 1) / s;
+  const int cell_rows_per_task = std::max(1, 16 / s);
+  const size_t num_tasks = (cell_rows + cell_rows_per_task - 1) / cell_rows_per_task;
+  keys->assign(num_tasks, {});
+  valid->assign(num_tasks, 0);
+  ParallelFor(num_tasks, options_.num_threads, [&](size_t task) {
+    KeySink sink(&(*keys)[task]);
+    size_t n_valid = 0;
+    const int cy0 = int(task) * cell_rows_per_task, cy1 = std::min(cell_rows, cy0 + cell_rows_per_task);
+    std::vector<double> depths;
+    depths.reserve(size_t(s) * s);
+    for (int cy = cy0; cy < cy1; ++cy) {
+      const int v0 = cy * s, v1 = std::min(cam.height, v0 + s) - 1;
+      for (int u0 = 0; u0 < cam.width; u0 += s) {
+        const int u1 = std::min(cam.width, u0 + s) - 1;
+        depths.clear();
+        for (int v = v0; v <= v1; ++v) {
+          const float* row = depth_m.row(v);
+          for (int u = u0; u <= u1; ++u) {
+            const double d = row[u];
+            if (d >= min_d && d <= max_d) depths.push_back(d);  // 0, <0, NaN, Inf all fail
+          }
+        }
+        if (depths.empty()) continue;
+        n_valid += depths.size();
+        if (s == 1) {
+          // Exact per-pixel band: range +- trunc along the pixel's ray.
+          const glm::dvec3 ray_cam = cam.RayZ1({double(u0), double(v0)});
+          const double ray_len = glm::length(ray_cam);
+          const glm::dvec3 dir = rot * (ray_cam / ray_len);
+          const double range = depths[0] * ray_len;
+          WalkSegment((cam_pos + dir * std::max(0.0, range - trunc)) / bsm,
+                      (cam_pos + dir * (range + trunc)) / bsm,
+                      [&](const glm::ivec3& c, double, double) { sink.Add(c); });
+          continue;
+        }
+        // The cell's bands, parameterised by z-depth: pixel (u, v)'s band is range +- trunc
+        // along its ray, i.e. z in [d - trunc / L, d + trunc / L] with L = |RayZ1(u, v)| >=
+        // L_min (the cell's smallest), and its point at depth z is the central ray's point at z
+        // plus the lateral offset R * ((x_u - x_c) z, (y_v - y_c) z, 0), whose bounding box is
+        // z * e with e = |R col 0| * hu / fx + |R col 1| * hv / fy (hu, hv: the cell's half size
+        // in pixels). So every block a pixel's band crosses meets the central segment over the
+        // cell's z-interval swept by the box z * e: the walk below keeps, for each block the
+        // central segment crosses, the blocks within that box of the piece inside it.
+        const double uc = 0.5 * (u0 + u1), vc = 0.5 * (v0 + v1);
+        const double hu = 0.5 * (u1 - u0), hv = 0.5 * (v1 - v0);
+        const glm::dvec3 e = (glm::abs(rot[0]) * (hu / cam.fx) + glm::abs(rot[1]) * (hv / cam.fy)) / bsm;
+        const glm::dvec3 dir_z = rot * cam.RayZ1({uc, vc});  // local step per metre of z
+        const double nu = std::max({0.0, (u0 - cam.cx) / cam.fx, (cam.cx - u1) / cam.fx});
+        const double nv = std::max({0.0, (v0 - cam.cy) / cam.fy, (cam.cy - v1) / cam.fy});
+        const double t_z = trunc / std::sqrt(1.0 + nu * nu + nv * nv);  // trunc / L_min
+        auto sweep = [&](double z0, double z1) {
+          z0 = std::max(0.0, z0);
+          const glm::dvec3 a = (cam_pos + dir_z * z0) / bsm, b = (cam_pos + dir_z * z1) / bsm;
+          WalkSegment(a, b, [&](const glm::ivec3&, double t0, double t1) {
+            const glm::dvec3 p0 = a + (b - a) * t0, p1 = a + (b - a) * t1;
+            // z grows along the segment; 1e-9 blocks absorbs rounding against stride 1.
+            const glm::dvec3 r = e * (z0 + (z1 - z0) * t1) + 1e-9;
+            const glm::dvec3 lo = glm::min(p0, p1) - r, hi = glm::max(p0, p1) + r;
+            const glm::ivec3 l(std::floor(lo.x), std::floor(lo.y), std::floor(lo.z));
+            const glm::ivec3 h(std::floor(hi.x), std::floor(hi.y), std::floor(hi.z));
+            for (int z = l.z; z <= h.z; ++z)
+              for (int y = l.y; y <= h.y; ++y)
+                for (int x = l.x; x <= h.x; ++x)
+                  if (SegmentHitsBox(p0, p1, glm::dvec3(x, y, z) - r, glm::dvec3(x, y, z) + 1.0 + r))
+                    sink.Add({x, y, z});
+          });
+        };
+        // Depth intervals: one when the spread is within 2 * t_z (the bands overlap), else the
+        // union of the per-pixel intervals (a depth edge inside the cell: no free-space blocks).
+        auto [mn, mx] = std::minmax_element(depths.begin(), depths.end());
+        if (*mx - *mn <= 2 * t_z) {
+          sweep(*mn - t_z, *mx + t_z);
+          continue;
+        }
+        std::sort(depths.begin(), depths.end());
+        double lo = depths[0], hi = depths[0];
+        for (size_t i = 1; i < depths.size(); ++i) {
+          if (depths[i] - hi > 2 * t_z) {
+            sweep(lo - t_z, hi + t_z);
+            lo = depths[i];
+          }
+          hi = depths[i];
+        }
+        sweep(lo - t_z, hi + t_z);
+      }
+    }
+    (*valid)[task] = n_valid;
+  });
+}
+
 void TsdfVolume::IntegrateBlock(Block* block, const Context& c) const {
   const int bs = options_.block_size;
   const float vs = options_.voxel_size_m;
@@ -380,7 +502,14 @@ void TsdfVolume::IntegrateBlock(Block* block, const Context& c) const {
         // Signed distance along the ray (range difference), positive in front of the surface.
         const float sdf = (d - pc.z) * std::sqrt(1.0f + xz * xz + yz * yz);
         if (sdf < -c.trunc) continue;  // occluded: beyond the band behind the surface
-        const float cos_i = std::max(c.cos_incidence[pix], kMinIncidenceCos);
+        // Lazily computed, shared by the threads: a pixel computed twice gets the same value.
+        std::atomic_ref<float> cos_slot(c.cos_incidence[pix]);
+        float cos_raw = cos_slot.load(std::memory_order_relaxed);
+        if (cos_raw < 0.0f) {
+          cos_raw = CosIncidence(c, ui, vi);
+          cos_slot.store(cos_raw, std::memory_order_relaxed);
+        }
+        const float cos_i = std::max(cos_raw, kMinIncidenceCos);
         const float tsdf = std::clamp(sdf * cos_i, -c.trunc, c.trunc);
         TsdfVoxel& v = vox[x];
         const float nw = v.weight + cos_i;

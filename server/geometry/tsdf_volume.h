@@ -53,6 +53,11 @@ struct TsdfOptions {
   // adds its incidence cosine (from the depth map's normals, floored at 0.1) to the weight.
   float min_extract_weight = 0.25f;
   int num_threads = 2;
+  // Block allocation samples one s x s cell of depth pixels at a time (s = alloc_stride): one
+  // "thick" ray walk per cell covers every block the cell's per-pixel truncation bands cross
+  // (the cell's depth spread plus its lateral footprint), so the allocated set is a superset of
+  // per-pixel allocation (stride 1, the exact reference). The per-voxel update is the same.
+  int alloc_stride = 8;
 
   absl::Status Validate() const;
   float EffectiveTruncation() const { return truncation_m > 0 ? truncation_m : 4 * voxel_size_m; }
@@ -109,7 +114,7 @@ class TsdfVolume {
 
   size_t num_blocks() const { return blocks_.size(); }
   size_t num_dirty_blocks() const { return dirty_.size(); }
-  // Memory held by blocks and the hash table (bytes).
+  // Memory held by blocks, the hash table and the per-pixel scratch (bytes).
   size_t bytes() const;
   // Axis-aligned bounds of all allocated blocks in the local frame (empty volume: false).
   bool Bounds(glm::dvec3* min_local, glm::dvec3* max_local) const;
@@ -127,6 +132,12 @@ class TsdfVolume {
   Block* FindBlock(const glm::ivec3& b) const;
   TriangleMesh MeshBlock(const glm::ivec3& b) const;
   void IntegrateBlock(Block* block, const Context& ctx) const;
+  static float CosIncidence(const Context& c, int u, int v);
+  // Keys of the blocks the frame's truncation bands cross, per task of image rows (duplicates
+  // possible); counts valid pixels per task.
+  void CollectBandBlocks(const ImageF& depth_m, const PinholeCamera& cam,
+                         const Rigid3d& local_from_cam, std::vector<std::vector<uint64_t>>* keys,
+                         std::vector<size_t>* valid) const;
 
   TsdfOptions options_;
   float truncation_m_;
@@ -137,6 +148,7 @@ class TsdfVolume {
   std::vector<uint64_t> removed_;
   glm::ivec3 bmin_{0}, bmax_{-1};
   uint64_t stamp_ = 0;  // integration counter
+  std::vector<float> cos_scratch_;  // per-pixel incidence cosines of the current frame (reused)
 };
 
 }  // namespace exo

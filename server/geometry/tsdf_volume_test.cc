@@ -8,6 +8,8 @@
 
 #include <gtest/gtest.h>
 
+#include "common/datasets/seven_scenes.h"
+#include "common/datasets/test_fixture.h"
 #include "server/geometry/test_scenes.h"
 
 namespace exo {
@@ -82,6 +84,9 @@ TEST(TsdfOptions, ValidateRejectsBadValues) {
   EXPECT_FALSE(o.Validate().ok());
   o = {};
   o.num_threads = 0;
+  EXPECT_FALSE(o.Validate().ok());
+  o = {};
+  o.alloc_stride = 0;
   EXPECT_FALSE(o.Validate().ok());
 }
 
@@ -371,6 +376,153 @@ TEST(TsdfVolume, SdfAtMatchesSignedDistance) {
   ASSERT_TRUE(vol.SdfAt({0.0f, -0.3f + 0.02f, 0.001f}, &s));
   EXPECT_NEAR(s, -0.02f, 0.006f);
   EXPECT_FALSE(vol.SdfAt({2.0f, 2.0f, 2.0f}, &s));  // never observed
+}
+
+}  // namespace
+}  // namespace exo
+
+namespace exo {
+namespace {
+
+// Subsampled block allocation (alloc_stride) against per-pixel allocation (stride 1).
+struct AllocComparison {
+  size_t blocks_full = 0, blocks_sub = 0;
+  size_t missing = 0;  // blocks stride 1 allocated that the subsample did not (summed per frame)
+  TriangleMesh full, sub;
+};
+
+AllocComparison CompareAllocation(const std::vector<Frame>& frames, TsdfOptions o, int stride) {
+  AllocComparison r;
+  o.alloc_stride = 1;
+  TsdfVolume full(o);
+  o.alloc_stride = stride;
+  TsdfVolume sub(o);
+  for (const Frame& f : frames) {
+    EXPECT_TRUE(full.Integrate(f, {}).ok());
+    EXPECT_TRUE(sub.Integrate(f, {}).ok());
+    const auto keys = sub.BlockKeys();
+    const absl::flat_hash_set<uint64_t> have(keys.begin(), keys.end());
+    for (uint64_t k : full.BlockKeys()) r.missing += !have.contains(k);
+  }
+  r.blocks_full = full.num_blocks();
+  r.blocks_sub = sub.num_blocks();
+  r.full = full.ExtractAll();
+  r.sub = sub.ExtractAll();
+  return r;
+}
+
+// Distances from each vertex of `a` to the nearest vertex of `b`, capped at `cap` (vertices
+// with no neighbour within `cap` count as `cap`).
+std::vector<double> VertexDistances(const TriangleMesh& a, const TriangleMesh& b, double cap) {
+  std::vector<double> out;
+  absl::flat_hash_map<uint64_t, std::vector<glm::vec3>> grid;
+  auto cell = [cap](const glm::vec3& p) {
+    return glm::ivec3(std::floor(p.x / cap), std::floor(p.y / cap), std::floor(p.z / cap));
+  };
+  for (const auto& p : b.positions) grid[PackCell(cell(p))].push_back(p);
+  for (const auto& p : a.positions) {
+    double best = cap;
+    const glm::ivec3 c = cell(p);
+    for (int dz = -1; dz <= 1; ++dz)
+      for (int dy = -1; dy <= 1; ++dy)
+        for (int dx = -1; dx <= 1; ++dx) {
+          auto it = grid.find(PackCell(c + glm::ivec3(dx, dy, dz)));
+          if (it == grid.end()) continue;
+          for (const auto& q : it->second) best = std::min(best, double(glm::length(p - q)));
+        }
+    out.push_back(best);
+  }
+  std::sort(out.begin(), out.end());
+  return out;
+}
+
+// The surface of subsampled allocation equals per-pixel allocation's:
+// - allocation is a superset after every frame (no block per-pixel allocation has is missing);
+// - triangle counts within 0.5 % and at most 0.5 % of the vertices (either way) farther than
+//   0.1 voxel from the other mesh's nearest vertex. Measured (2026-11-25): <= 0.12 % triangles,
+//   <= 0.2 % vertices (7-Scenes 1 cm), 0.05 % at 2 cm, 0.03 % synthetic. The rest are bitwise
+//   equal. Why not all: the superset blocks receive observations that per-pixel allocation
+//   drops (a voxel is observed through a pixel whose own ray band misses the voxel's block),
+//   so later frames average slightly different histories there, and fringe cubes that read a
+//   superset block get triangles. A single frame therefore gives exact containment (checked in
+//   ExpectSingleFrameContained).
+void ExpectSameSurface(const AllocComparison& r, double voxel, const char* what) {
+  SCOPED_TRACE(what);
+  EXPECT_EQ(r.missing, 0u) << "subsampled allocation missed blocks of per-pixel allocation";
+  EXPECT_GE(r.blocks_sub, r.blocks_full);
+  ASSERT_GT(r.full.num_triangles(), 100u);
+  const double tri_full = double(r.full.num_triangles()), tri_sub = double(r.sub.num_triangles());
+  EXPECT_LE(std::abs(tri_sub - tri_full) / tri_full, 0.005)
+      << "triangles " << tri_full << " (stride 1) vs " << tri_sub;
+  const auto ab = VertexDistances(r.full, r.sub, voxel), ba = VertexDistances(r.sub, r.full, voxel);
+  auto frac_above = [](const std::vector<double>& d, double x) {
+    return double(d.end() - std::upper_bound(d.begin(), d.end(), x)) / d.size();
+  };
+  EXPECT_LE(frac_above(ab, 0.1 * voxel), 0.005);
+  EXPECT_LE(frac_above(ba, 0.1 * voxel), 0.005);
+  EXPECT_GE(1.0 - frac_above(ab, 0.0), 0.99) << "per-pixel vertices bitwise present";
+  std::printf("%s: blocks %zu (stride 1) vs %zu, triangles %zu vs %zu, vertices not bitwise "
+              "equal %.5f / %.5f, >0.1 voxel %.5f / %.5f\n",
+              what, r.blocks_full, r.blocks_sub, r.full.num_triangles(), r.sub.num_triangles(),
+              frac_above(ab, 0.0), frac_above(ba, 0.0), frac_above(ab, 0.1 * voxel),
+              frac_above(ba, 0.1 * voxel));
+}
+
+// One frame: every block per-pixel allocation touches exists with the same voxels, so every
+// vertex of its mesh is present bitwise in the subsampled mesh (which may add fringe triangles).
+void ExpectSingleFrameContained(const Frame& frame, TsdfOptions o, int stride, const char* what) {
+  SCOPED_TRACE(what);
+  const AllocComparison r = CompareAllocation({frame}, o, stride);
+  EXPECT_EQ(r.missing, 0u);
+  ASSERT_GT(r.full.num_triangles(), 100u);
+  const auto ab = VertexDistances(r.full, r.sub, o.voxel_size_m);
+  EXPECT_EQ(ab.back(), 0.0) << "a per-pixel vertex moved or vanished";
+  EXPECT_LE(double(r.sub.num_triangles()) / r.full.num_triangles(), 1.005);
+}
+
+// A 640x480 room corner with spheres, 4 views: subsampled allocation gives the same surface.
+TEST(TsdfAllocation, SubsampledMatchesPerPixelOnSyntheticFrames) {
+  const PinholeCamera cam = PinholeCamera::FromFov(640, 480, 1.1);
+  const auto hit = geometry_test::Union({Plane({0, 0, 1}, 0.0), Plane({1, 0, 0}, -2.0),
+                                         Plane({0, 1, 0}, 2.5), Sphere({0.3, 0.4, 0.5}, 0.5),
+                                         Sphere({-1.0, 1.2, 0.3}, 0.3)});
+  std::vector<Frame> frames;
+  for (int i = 0; i < 4; ++i) {
+    const double t = 0.5 * i;
+    const Rigid3d pose = LookAt({1.8 * std::cos(t), -1.5 + 0.8 * std::sin(t), 1.6},
+                                {-0.5, 0.8, 0.3}, {0, 0, 1});
+    frames.push_back(MakeFrame(cam, pose, RenderDepth(cam, pose, hit)));
+  }
+  for (float voxel : {0.01f, 0.02f, 0.04f})
+    for (int stride : {4, 8}) {
+      const std::string what = "synthetic voxel " + std::to_string(voxel) + " stride " +
+                               std::to_string(stride);
+      ExpectSameSurface(CompareAllocation(frames, Opts(voxel), stride), voxel, what.c_str());
+      ExpectSingleFrameContained(frames[1], Opts(voxel), stride, what.c_str());
+    }
+}
+
+// Real Kinect v1 frames (7-Scenes redkitchen, depth edges, holes, noise): same surface.
+TEST(TsdfAllocation, SubsampledMatchesPerPixelOnSevenScenes) {
+  const std::string dir = testing::SharedDir() + "/data/7scenes-redkitchen";
+  auto reader = SevenScenesReader::Open(dir);
+  if (!reader.ok()) GTEST_SKIP() << "7-Scenes data not found at " << dir << " (set EXOVIEW_SHARED_DIR)";
+  std::vector<Frame> frames;
+  for (size_t i = 0; i < std::min<size_t>(40, (*reader)->size()); i += 4) {
+    auto f = (*reader)->Load(i);
+    ASSERT_TRUE(f.ok()) << f.status();
+    frames.push_back(*std::move(f));
+  }
+  for (float voxel : {0.01f, 0.02f, 0.04f}) {
+    TsdfOptions o = Opts(voxel);
+    o.max_depth_m = 4.0f;
+    for (int stride : {4, 8}) {
+      const std::string what =
+          "7-Scenes voxel " + std::to_string(voxel) + " stride " + std::to_string(stride);
+      ExpectSameSurface(CompareAllocation(frames, o, stride), voxel, what.c_str());
+      ExpectSingleFrameContained(frames[5], o, stride, what.c_str());
+    }
+  }
 }
 
 }  // namespace
