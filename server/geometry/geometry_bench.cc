@@ -1,7 +1,6 @@
 // geometry_bench: speed vs error of the sparse TSDF proxy over voxel sizes.
 //
 //   geometry_bench [--data DIR] [--frames N] [--synth_frames N] [--voxels 0.01,0.02,0.04,0.08]
-//                  [--chart docs/img/geometry_voxel_size.png]
 //
 // Datasets:
 // - 7-Scenes redkitchen (real Kinect v1): frames 0..N-1 via common/datasets' SevenScenesReader
@@ -16,6 +15,7 @@
 // (wall median, p95; process CPU median), incremental extraction ms/frame (median, p95), full
 // extraction ms, triangles, blocks, bytes, error. --alloc_strides 1,4 --repeats 3 interleaves the
 // per-pixel reference and the subsampled allocation in one run (same frames, same process).
+// Chart of these lines: tools/charts/geometry_chart.py (matplotlib).
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -27,9 +27,6 @@
 #include <vector>
 
 #include <nlohmann/json.hpp>
-#include <opencv2/core.hpp>
-#include <opencv2/imgcodecs.hpp>
-#include <opencv2/imgproc.hpp>
 
 #include "common/cli/cli.h"
 #include "common/datasets/seven_scenes.h"
@@ -161,77 +158,6 @@ std::vector<Primitive> RoomPrimitives() {
 
 }  // namespace
 
-// Line chart drawn with OpenCV (matplotlib is not available here).
-void DrawChart(const std::vector<Result>& results, const std::string& path) {
-  const int pw = 330, ph = 260, W = 3 * pw, H = ph + 30;
-  cv::Mat img(H, W, CV_8UC3, cv::Scalar(255, 255, 255));
-  std::vector<std::string> datasets;
-  for (const auto& r : results)
-    if (std::find(datasets.begin(), datasets.end(), r.dataset) == datasets.end())
-      datasets.push_back(r.dataset);
-  const cv::Scalar colors[] = {cv::Scalar(200, 80, 20), cv::Scalar(30, 30, 200), cv::Scalar(30, 150, 30)};
-  struct Panel {
-    const char* title;
-    bool log_y;
-    double (*get)(const Result&);
-  };
-  const Panel panels[] = {
-      {"integrate ms/frame (median)", false, [](const Result& r) { return r.integrate_med; }},
-      {"triangles (log10)", true, [](const Result& r) { return double(r.triangles); }},
-      {"geometric error (mm)", false, [](const Result& r) { return r.err_a; }},
-  };
-  for (int p = 0; p < 3; ++p) {
-    const int x0 = p * pw + 50, x1 = (p + 1) * pw - 15, y0 = 30, y1 = ph - 35;
-    cv::rectangle(img, {x0, y0}, {x1, y1}, cv::Scalar(0, 0, 0));
-    cv::putText(img, panels[p].title, {p * pw + 40, 20}, cv::FONT_HERSHEY_SIMPLEX, 0.45,
-                cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
-    double lo = 1e300, hi = -1e300, vlo = 1e300, vhi = -1e300;
-    for (const auto& r : results) {
-      double v = panels[p].get(r);
-      if (panels[p].log_y) v = std::log10(std::max(1.0, v));
-      lo = std::min(lo, v), hi = std::max(hi, v);
-      vlo = std::min(vlo, std::log2(r.voxel_m * 100)), vhi = std::max(vhi, std::log2(r.voxel_m * 100));
-    }
-    if (!panels[p].log_y) lo = 0;
-    if (hi <= lo) hi = lo + 1;
-    hi += 0.08 * (hi - lo);
-    if (vhi <= vlo) vhi = vlo + 1;
-    auto X = [&](double voxel) { return int(x0 + (std::log2(voxel * 100) - vlo) / (vhi - vlo) * (x1 - x0)); };
-    auto Y = [&](double v) { return int(y1 - (v - lo) / (hi - lo) * (y1 - y0)); };
-    for (int k = 0; k <= 4; ++k) {
-      const double v = lo + (hi - lo) * k / 4;
-      char buf[32];
-      std::snprintf(buf, sizeof(buf), panels[p].log_y ? "%.1f" : (hi > 20 ? "%.0f" : "%.1f"), v);
-      cv::putText(img, buf, {p * pw + 5, Y(v) + 4}, cv::FONT_HERSHEY_SIMPLEX, 0.35, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
-      cv::line(img, {x0, Y(v)}, {x1, Y(v)}, cv::Scalar(225, 225, 225));
-    }
-    for (const auto& r : results) {
-      char buf[16];
-      std::snprintf(buf, sizeof(buf), "%gcm", r.voxel_m * 100);
-      cv::putText(img, buf, {X(r.voxel_m) - 12, y1 + 15}, cv::FONT_HERSHEY_SIMPLEX, 0.35, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
-    }
-    cv::putText(img, "voxel size", {(x0 + x1) / 2 - 30, y1 + 30}, cv::FONT_HERSHEY_SIMPLEX, 0.4, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
-    for (size_t d = 0; d < datasets.size(); ++d) {
-      cv::Point prev(-1, -1);
-      for (const auto& r : results) {
-        if (r.dataset != datasets[d]) continue;
-        double v = panels[p].get(r);
-        if (panels[p].log_y) v = std::log10(std::max(1.0, v));
-        const cv::Point pt(X(r.voxel_m), Y(v));
-        if (prev.x >= 0) cv::line(img, prev, pt, colors[d % 3], 2, cv::LINE_AA);
-        cv::circle(img, pt, 4, colors[d % 3], cv::FILLED, cv::LINE_AA);
-        prev = pt;
-      }
-    }
-  }
-  for (size_t d = 0; d < datasets.size(); ++d) {
-    cv::line(img, {60 + int(d) * 300, H - 10}, {85 + int(d) * 300, H - 10}, colors[d % 3], 2);
-    cv::putText(img, datasets[d], {90 + int(d) * 300, H - 6}, cv::FONT_HERSHEY_SIMPLEX, 0.4,
-                cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
-  }
-  cv::imwrite(path, img);
-}
-
 }  // namespace exo
 
 int main(int argc, char** argv) {
@@ -240,7 +166,6 @@ int main(int argc, char** argv) {
   if (const char* e = std::getenv("EXOVIEW_SHARED_DIR")) data = std::string(e) + "/data/7scenes-redkitchen";
   int frames = 300, synth_frames = 120;
   std::vector<double> voxels = {0.01, 0.02, 0.04, 0.08};
-  std::string chart;
   std::vector<int> strides = {TsdfOptions().alloc_stride};
   int threads = TsdfOptions().num_threads, repeats = 1;
   bool extract_every_frame = true;
@@ -256,7 +181,6 @@ int main(int argc, char** argv) {
   app.add_option("--voxels", voxels, "voxel sizes in m, comma-separated")
       ->delimiter(',')
       ->check(CLI::PositiveNumber);
-  app.add_option("--chart", chart, "write a chart PNG here");
   app.add_option("--alloc_strides", strides,
                  "TsdfOptions.alloc_stride values to run (1 = per-pixel allocation), "
                  "comma-separated; interleaved per repeat")
@@ -372,6 +296,5 @@ int main(int argc, char** argv) {
       }
     }
   }
-  if (!chart.empty() && !results.empty()) DrawChart(results, chart);
   return 0;
 }

@@ -7,7 +7,8 @@
 // region re-projected into frame +5 and inpainted from the previous keyframe's map.
 // Prints a run_info line (commit, build, machine, load: common/run_info), one JSON object per
 // (method, mask) with an output digest for ours, and per-(method, class) summaries; writes a
-// chart of time against depth error and a contact sheet (PNG).
+// contact sheet (PNG). The time-vs-error chart is drawn from the summary lines by
+// tools/charts/inpaint_chart.py (matplotlib).
 //
 // Depth is registered to colour (the committed 7-Scenes calibration) unless --raw.
 //
@@ -557,7 +558,7 @@ int main(int argc, char** argv) {
   app.add_flag("--generate_masks", generate, "write a new masks file to --masks and exit");
   app.add_option("--mask_seed", mask_seed, "--generate_masks: seed (test set 20260707, training 777)");
   app.add_option("--mask_frame0", mask_frame0, "--generate_masks: first frame (test 0, training 15)");
-  app.add_option("--img_dir", img_dir, "write the chart and the contact sheet (PNG) here");
+  app.add_option("--img_dir", img_dir, "write the contact sheet (PNG) here");
   app.add_option("--dump_depth", dump_depth_dir, "write per-mask depth views (truth | ours) here");
   app.add_option("--threads", threads, "InpaintOptions::num_threads")->check(CLI::Range(1, 64));
   app.add_option("--repeats", repeats, "runs per (method, mask)")->check(CLI::PositiveNumber);
@@ -833,7 +834,6 @@ int main(int argc, char** argv) {
     double p50, p95, psnr, ssim, mae, rmse, nerr, seam_c, seam_d;
     int n;
   };
-  std::vector<Summary> sums;
   for (const auto& [key, v] : rows) {
     std::vector<double> t;
     Summary s{key.first, key.second, 0, 0, 0, 0, 0, 0, 0, 0, 0, static_cast<int>(v.size())};
@@ -859,7 +859,6 @@ int main(int argc, char** argv) {
     s.nerr = mean([](const Metrics& m) { return m.normal_deg; });
     s.seam_c = mean([](const Metrics& m) { return m.seam_color - m.seam_color_gt; });
     s.seam_d = mean([](const Metrics& m) { return m.seam_depth_mm - m.seam_depth_gt_mm; });
-    sums.push_back(s);
     nlohmann::json row = {{"bench", "inpaint_summary"},
                           {"method", s.method},
                           {"class", s.cls},
@@ -887,54 +886,6 @@ int main(int argc, char** argv) {
   }
 
   if (!img_dir.empty()) {
-    // Chart: time (log x) against depth MAE, one marker per (method, class).
-    const int W = 760, H = 460, L = 70, R = 230, T = 30, B = 50;
-    cv::Mat chart(H, W, CV_8UC3, cv::Scalar(255, 255, 255));
-    double ymax = 0;
-    for (const Summary& s : sums) if (std::isfinite(s.mae)) ymax = std::max(ymax, s.mae);
-    ymax = std::ceil(ymax / 20.0) * 20.0;
-    const double xmin = std::log10(0.5), xmax = std::log10(5000.0);
-    auto px = [&](double ms, double mae) {
-      const double lx = (std::log10(std::max(ms, 0.5)) - xmin) / (xmax - xmin);
-      return cv::Point(L + static_cast<int>(lx * (W - L - R)), H - B - static_cast<int>(mae / ymax * (H - T - B)));
-    };
-    cv::rectangle(chart, cv::Point(L, T), cv::Point(W - R, H - B), cv::Scalar(0, 0, 0));
-    for (double ms : {1.0, 10.0, 100.0, 1000.0}) {
-      const cv::Point p = px(ms, 0);
-      cv::line(chart, cv::Point(p.x, T), cv::Point(p.x, H - B), cv::Scalar(220, 220, 220));
-      cv::putText(chart, std::to_string(static_cast<int>(ms)), cv::Point(p.x - 10, H - B + 18), cv::FONT_HERSHEY_SIMPLEX, 0.45, cv::Scalar(0, 0, 0));
-    }
-    for (int k = 0; k <= 4; ++k) {
-      const double v = ymax * k / 4;
-      const cv::Point p = px(1000, v);
-      cv::line(chart, cv::Point(L, p.y), cv::Point(W - R, p.y), cv::Scalar(230, 230, 230));
-      cv::putText(chart, std::to_string(static_cast<int>(v)), cv::Point(L - 40, p.y + 5), cv::FONT_HERSHEY_SIMPLEX, 0.45, cv::Scalar(0, 0, 0));
-    }
-    cv::putText(chart, "ms per keyframe (p50, log), 640x480, 2 threads", cv::Point(L + 60, H - 12), cv::FONT_HERSHEY_SIMPLEX, 0.5, cv::Scalar(0, 0, 0));
-    cv::putText(chart, "depth MAE in mask [mm]", cv::Point(10, T - 10), cv::FONT_HERSHEY_SIMPLEX, 0.5, cv::Scalar(0, 0, 0));
-    const std::map<std::string, cv::Scalar> colors = {
-        {"inpaintfusion", {40, 40, 220}}, {"inpaintfusion_depth_domain", {0, 140, 255}},
-        {"patchmatch_colour_only", {200, 120, 0}}, {"telea", {0, 160, 0}}, {"plane_ring", {160, 0, 160}},
-        {"inpaintfusion_propagated", {0, 0, 120}}, {"inpaintfusion_scratch_next", {120, 120, 120}}};
-    const std::map<std::string, int> sizes = {{"2-5%", 4}, {"10-20%", 7}, {"30-40%", 10}};
-    int ly = T + 10;
-    for (const auto& [name, col] : colors) {
-      cv::circle(chart, cv::Point(W - R + 15, ly), 5, col, cv::FILLED);
-      cv::putText(chart, name, cv::Point(W - R + 25, ly + 5), cv::FONT_HERSHEY_SIMPLEX, 0.4, cv::Scalar(0, 0, 0));
-      ly += 20;
-    }
-    ly += 10;
-    for (const auto& [cls, r] : sizes) {
-      cv::circle(chart, cv::Point(W - R + 15, ly), r, cv::Scalar(0, 0, 0), 1);
-      cv::putText(chart, "mask " + cls, cv::Point(W - R + 30, ly + 5), cv::FONT_HERSHEY_SIMPLEX, 0.4, cv::Scalar(0, 0, 0));
-      ly += 26;
-    }
-    for (const Summary& s : sums) {
-      if (!std::isfinite(s.mae) || !colors.count(s.method)) continue;
-      cv::circle(chart, px(s.p50, s.mae), sizes.count(s.cls) ? sizes.at(s.cls) : 5, colors.at(s.method), 2, cv::LINE_AA);
-    }
-    cv::imwrite(img_dir + "/inpaint_time_vs_error.png", chart);
-
     // Contact sheet: per example two rows (colour: input | ours | colour-only PM | Telea | truth;
     // depth: ours | plane | Telea | truth | -), tiles 128x96.
     const int tw = 160, th = 120;
