@@ -85,6 +85,8 @@ def draw(rows, info, path):
         plt.close(fig)
         return False
     ax.set_xscale("log")
+    ms_min = min(r["ms_p50"] for r in rows if finite(r["ms_p50"]) and r["ms_p50"] > 0)
+    ax.set_xlim(left=10 ** math.floor(math.log10(0.8 * ms_min)))  # start at a labelled decade
     ax.xaxis.set_major_formatter(FuncFormatter(lambda x, _: f"{x:g}"))
     ax.xaxis.set_minor_formatter(FuncFormatter(
         lambda x, _: f"{x:g}" if f"{x:.1e}"[0] in "25" else ""))
