@@ -14,10 +14,12 @@ them:
 A chart without data is not written (and says so).
 """
 import argparse
-import json
 import math
 import os
 import sys
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from jsonl import read_jsonl  # noqa: E402
 
 import matplotlib
 
@@ -45,20 +47,8 @@ def flatten(obj, out=None):
 
 
 def load(paths):
-    rows = []
-    for p in paths:
-        with open(p, encoding="utf-8") as f:
-            for n, line in enumerate(f, 1):
-                line = line.strip()
-                if not line:
-                    continue
-                try:
-                    d = json.loads(line)
-                except json.JSONDecodeError as e:
-                    sys.exit(f"exoview_charts: {p}:{n}: not JSON: {e}")
-                if d.get("bench") == "eval":
-                    rows.append(flatten(d))
-    return rows
+    return [flatten(d) for _, _, d in read_jsonl(paths, "exoview_charts")
+            if d.get("bench") == "eval"]
 
 
 def num(r, k):

@@ -13,8 +13,11 @@ line per dataset (and per alloc_stride when the lines hold more than one):
 Repeats of one (dataset, voxel, stride) are averaged. Exits 1 without data.
 """
 import argparse
-import json
+import os
 import sys
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from jsonl import read_jsonl  # noqa: E402
 
 import matplotlib
 
@@ -30,22 +33,13 @@ ERR_KEYS = [("vertex_err_mm_mean", "vertex to true surface"),
 
 def load(paths):
     rows = []
-    for p in paths:
-        with open(p, encoding="utf-8") as f:
-            for n, line in enumerate(f, 1):
-                line = line.strip()
-                if not line:
-                    continue
-                try:
-                    d = json.loads(line)
-                except json.JSONDecodeError as e:
-                    sys.exit(f"geometry_chart: {p}:{n}: not JSON: {e}")
-                if d.get("bench") != "geometry":
-                    continue
-                for k in ("dataset", "voxel_m", "integrate_ms_median", "triangles"):
-                    if k not in d:
-                        sys.exit(f"geometry_chart: {p}:{n}: geometry line without \"{k}\"")
-                rows.append(d)
+    for p, n, d in read_jsonl(paths, "geometry_chart"):
+        if d.get("bench") != "geometry":
+            continue
+        for k in ("dataset", "voxel_m", "integrate_ms_median", "triangles"):
+            if k not in d:
+                sys.exit(f"geometry_chart: {p}:{n}: geometry line without \"{k}\"")
+        rows.append(d)
     return rows
 
 

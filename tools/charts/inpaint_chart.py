@@ -11,9 +11,12 @@ joined by a thin line. Lines from several files are drawn together (the last lin
 (method, class) wins). Exits 1 without data.
 """
 import argparse
-import json
+import os
 import math
 import sys
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from jsonl import read_jsonl  # noqa: E402
 
 import matplotlib
 
@@ -37,24 +40,15 @@ CLASSES = {"2-5%": 30, "10-20%": 80, "30-40%": 160}  # marker area (points^2)
 
 def load(paths):
     rows, info = {}, None
-    for p in paths:
-        with open(p, encoding="utf-8") as f:
-            for n, line in enumerate(f, 1):
-                line = line.strip()
-                if not line:
-                    continue
-                try:
-                    d = json.loads(line)
-                except json.JSONDecodeError as e:
-                    sys.exit(f"inpaint_chart: {p}:{n}: not JSON: {e}")
-                if "run_info" in d and info is None:
-                    info = d["run_info"]
-                if d.get("bench") != "inpaint_summary":
-                    continue
-                for k in ("method", "class", "ms_p50", "depth_mae_mm"):
-                    if k not in d:
-                        sys.exit(f"inpaint_chart: {p}:{n}: summary line without \"{k}\"")
-                rows[(d["method"], d["class"])] = d
+    for p, n, d in read_jsonl(paths, "inpaint_chart"):
+        if "run_info" in d and info is None:
+            info = d["run_info"]
+        if d.get("bench") != "inpaint_summary":
+            continue
+        for k in ("method", "class", "ms_p50", "depth_mae_mm"):
+            if k not in d:
+                sys.exit(f"inpaint_chart: {p}:{n}: summary line without \"{k}\"")
+        rows[(d["method"], d["class"])] = d
     return list(rows.values()), info
 
 
