@@ -101,7 +101,7 @@ absl::StatusOr<Policy> ParsePolicy(const std::string& s) {
 // online configs over one parameter.
 absl::StatusOr<std::vector<PolicyConfig>> Configs(const Args& a) {
   PolicyConfig base;
-  base.store = int(a.Num("--store", 200));
+  // base.store is set per entry of the --store list below.
   base.r_max = int(a.Num("--r_max", 16));
   base.lambda = a.Num("--lambda", -1);
   base.cell_m = a.Num("--cell", 0);
