@@ -166,7 +166,11 @@ TEST_F(ServiceE2E, PlanningRendersCellIdsFromTheProxyChunks) {
   }
   const auto& c = s.counters();
   ASSERT_TRUE(c.contains("planning.ids_from_proxy")) << server_->Log();
-  EXPECT_GT(c.at("planning.ids_from_proxy"), kProxyFrames / 2);
+  // Of the candidates that reached the planner (a loaded machine may drop some with "overload"),
+  // most used the proxy: only the first frames, before any chunk is meshed, use their depth.
+  ASSERT_TRUE(c.contains("planning.candidates")) << server_->Log();
+  EXPECT_GT(c.at("planning.candidates"), 0.0);
+  EXPECT_GT(c.at("planning.ids_from_proxy"), c.at("planning.candidates") / 2) << server_->Log();
   EXPECT_EQ(c.at("planning.cellid_update_errors"), 0.0);
   EXPECT_GT(s.num_chunks(), 0u);
   EXPECT_GT(s.num_views(), 0u);

@@ -27,7 +27,7 @@ struct VulkanRendererOptions {
   // Enables VK_LAYER_KHRONOS_validation and records its errors/warnings (ValidationErrors()).
   bool enable_validation = false;
   // Reference slots reserved per cell on the GPU (a cell's refs beyond this are an error).
-  int max_refs_per_cell = 16;
+  int max_refs_per_cell = 64;  // >= the server's render_refs_max (64 by default)
   // Clip planes of the novel camera (metres along the optical axis).
   float near_m = 0.01f;
   float far_m = 10000.0f;

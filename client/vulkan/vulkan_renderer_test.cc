@@ -410,7 +410,7 @@ TEST(VulkanRendererTest, RejectsBadInput) {
   MeshChunk c = Plane(3);
   c.mesh.indices[0] = 99;
   EXPECT_EQ(r->UpsertChunk(c).code(), absl::StatusCode::kInvalidArgument);
-  std::vector<ViewId> too_many(17, 1);
+  std::vector<ViewId> too_many(65, 1);  // max_refs_per_cell 64
   EXPECT_EQ(r->SetCellRefs(PackCell({0, 0, 0}), too_many).code(),
             absl::StatusCode::kInvalidArgument);
   Rigid3d nan_pose;

@@ -66,6 +66,10 @@ absl::Status OnlineModelOptions::Validate() const {
   if (max_views < 1 || max_bytes < 1)
     return absl::InvalidArgumentError("max_views and max_bytes must be >= 1");
   if (r_max < 2) return absl::InvalidArgumentError("r_max must be >= 2");
+  // Clients hold up to 64 references per cell (VulkanRendererOptions::max_refs_per_cell).
+  if (render_refs_max < 0 || render_refs_max > 64)
+    return absl::InvalidArgumentError(
+        "render_refs_max must be in [0, 64] (clients hold at most 64 references per cell)");
   if (!(lambda >= 0.0 && lambda <= 1.0))
     return absl::InvalidArgumentError("lambda must be in [0, 1]");
   if (!(tau_max > 0.0) || !nonneg(delta_tau_sum))
@@ -254,6 +258,7 @@ absl::StatusOr<std::unique_ptr<OnlinePlanner>> OnlinePlanner::Create(
   EXO_RETURN_IF_ERROR(options.Validate());
   planning::PlannerOptions po;
   po.r_max = options.r_max;
+  po.render_refs_max = options.render_refs_max;
   po.max_views = options.max_views;
   po.max_bytes = options.max_bytes;
   po.lambda = options.lambda;
@@ -302,7 +307,7 @@ std::vector<std::pair<CellId, std::vector<ViewId>>> OnlinePlanner::RefsOf(
     const std::vector<CellId>& cells) const {
   std::vector<std::pair<CellId, std::vector<ViewId>>> out;
   out.reserve(cells.size());
-  for (CellId c : cells) out.emplace_back(c, planner_.Refs(c));
+  for (CellId c : cells) out.emplace_back(c, planner_.PublishedRefs(c));
   return out;
 }
 
@@ -389,7 +394,7 @@ uint64_t OnlinePlanner::Digest() const {
     h.Add(p.rotation.y);
     h.Add(p.rotation.z);
   }
-  const auto refs = planner_.CellRefs();
+  const auto refs = planner_.CellPublishedRefs();
   std::map<CellId, const std::vector<ViewId>*> sorted;
   for (const auto& [c, r] : refs) sorted[c] = &r;
   for (const auto& [c, r] : sorted) {

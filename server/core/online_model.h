@@ -56,6 +56,9 @@ struct OnlineModelOptions {
   size_t max_views = 200;
   size_t max_bytes = size_t{1} << 30;
   int r_max = 16;
+  // References per cell the clients render with (planning::PlannerOptions::render_refs_max):
+  // 0 = R(b_k); N = every stored observer, at most max(N, r_max).
+  int render_refs_max = 64;
   double lambda = 0.4;  // (3.6) directional vs positional
   double tau_max = 4.0;
   double delta_tau_sum = 0.05;

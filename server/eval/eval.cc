@@ -230,6 +230,7 @@ planning::PlannerOptions PlannerFor(const PolicyConfig& c, const Source& src, do
                                     size_t frame_bytes) {
   planning::PlannerOptions po;
   po.r_max = c.r_max;
+  po.render_refs_max = c.render_refs_max;
   po.max_views = static_cast<size_t>(std::max(1, c.store));
   po.max_bytes = po.max_views * frame_bytes;
   po.lambda = c.lambda >= 0 ? c.lambda : src.default_lambda;
@@ -523,6 +524,7 @@ class Engine {
         const planning::PlannerOptions po = PlannerFor(c, src_, cell, src_.frame_bytes);
         core::OnlineModelOptions mo = opt_.model;
         mo.r_max = po.r_max;
+        mo.render_refs_max = po.render_refs_max;
         mo.max_views = po.max_views;
         mo.max_bytes = po.max_bytes;
         mo.lambda = po.lambda;
@@ -703,7 +705,7 @@ class Engine {
         r.consider_ms_median = Pct(st.consider_ms, 0.5);
         const planning::ViewPlanner& p = st.planner->planner();
         for (ViewId v : p.ViewIds()) selected.push_back(int(v) - 1);
-        refs = p.CellRefs();
+        refs = p.CellPublishedRefs();
         r.planner_bytes = p.BookkeepingBytes();
         r.geometry_digest = geometry_ ? geometry_->Digest() : 0;
         r.planner_digest = st.planner->Digest();
@@ -758,7 +760,7 @@ class Engine {
             EXO_RETURN_IF_ERROR(p.Consider(final_candidate(i)).status());
           }
           for (ViewId v : p.ViewIds()) selected.push_back(int(v) - 1);
-          refs = p.CellRefs();
+          refs = p.CellPublishedRefs();
           r.tau_sum = p.tau_sum();
           r.planner_bytes = p.BookkeepingBytes();
         } else if (c.policy == Policy::kOnlineFinalAreas) {
@@ -771,7 +773,7 @@ class Engine {
             if (dec.accepted) ++accepted;
           }
           for (ViewId v : p.ViewIds()) selected.push_back(int(v) - 1);
-          refs = p.CellRefs();
+          refs = p.CellPublishedRefs();
           r.tau_sum = p.tau_sum();
           r.planner_bytes = p.BookkeepingBytes();
           r.accepted = accepted;
@@ -796,7 +798,7 @@ class Engine {
           pre.delta_tau_sum = 0;
           EXO_ASSIGN_OR_RETURN(auto p, offline_planner(pre));
           for (int i : selected) EXO_RETURN_IF_ERROR(p.Consider(final_candidate(i)).status());
-          refs = p.CellRefs();
+          refs = p.CellPublishedRefs();
         }
       }
       double ref_sum = 0;

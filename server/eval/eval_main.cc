@@ -101,8 +101,10 @@ absl::StatusOr<Policy> ParsePolicy(const std::string& s) {
 // online configs over one parameter.
 absl::StatusOr<std::vector<PolicyConfig>> Configs(const Args& a) {
   PolicyConfig base;
-  // base.store is set per entry of the --store list below.
+  // Sweeps use the first entry of the --store list; the policies every entry (below).
+  base.store = std::atoi(std::string(*absl::StrSplit(a.Get("--store", "200"), ',').begin()).c_str());
   base.r_max = int(a.Num("--r_max", 16));
+  base.render_refs_max = int(a.Num("--render_refs", 64));
   base.lambda = a.Num("--lambda", -1);
   base.cell_m = a.Num("--cell", 0);
   base.delta_tau_sum = a.Num("--dts", -1);
@@ -119,6 +121,21 @@ absl::StatusOr<std::vector<PolicyConfig>> Configs(const Args& a) {
     PolicyConfig c = base;
     c.store = store;
     std::string name(p);
+    // "<policy>:lambda=V" / ":tau_max=V": that policy with one planner option changed, tagged
+    // "lambda=V" (e.g. --policies online,online:lambda=1 compares two lambdas on one ingest).
+    if (const size_t colon = name.find(':'); colon != std::string::npos) {
+      const std::string kv = name.substr(colon + 1);
+      name.resize(colon);
+      const size_t eq = kv.find('=');
+      double v = 0;
+      if (eq == std::string::npos || !absl::SimpleAtod(kv.substr(eq + 1), &v))
+        return absl::InvalidArgumentError("policy option must be key=value, got " + kv);
+      const std::string key = kv.substr(0, eq);
+      if (key == "lambda") c.lambda = v;
+      else if (key == "tau_max") c.tau_max = v;
+      else return absl::InvalidArgumentError("unknown policy option " + key + " (lambda, tau_max)");
+      c.tag = kv;
+    }
     // "<baseline>_uncapped": R(b_k) = every selected observer instead of the fair pre-selection.
     if (name.size() > 9 && name.substr(name.size() - 9) == "_uncapped") {
       c.uncapped_refs = true;
@@ -148,6 +165,8 @@ absl::StatusOr<std::vector<PolicyConfig>> Configs(const Args& a) {
     else if (sweep == "r_max") add([](PolicyConfig& c, double v) { c.r_max = int(v); }, {4, 8, 16, 32});
     else if (sweep == "lambda") add([](PolicyConfig& c, double v) { c.lambda = v; }, {0.0, 0.2, 0.4, 0.6, 0.8, 1.0});
     else if (sweep == "cell") add([](PolicyConfig& c, double v) { c.cell_m = v; }, {0.3, 0.5, 1.0, 2.0});
+    else if (sweep == "tau_max") add([](PolicyConfig& c, double v) { c.tau_max = v; }, {2, 4, 8, 16, 64});
+    else if (sweep == "render_refs") add([](PolicyConfig& c, double v) { c.render_refs_max = int(v); }, {0, 16, 32, 64});
     else if (sweep == "dts") add([](PolicyConfig& c, double v) { c.delta_tau_sum = v; }, {0.0, 0.5, 2.0, 8.0});
     else return absl::InvalidArgumentError("unknown sweep " + sweep);
   }
@@ -345,12 +364,13 @@ constexpr std::pair<const char*, const char*> kFlags[] = {
     {"--policies", "online,offline_greedy,every_n,min_distance,all[,*_uncapped,online_final_areas]"},
     {"--store", "store size (views)"},
     {"--r_max", "R_max"},
+    {"--render_refs", "references per cell rendered (0 = R(b_k); N = every stored observer, at most N; default 64)"},
     {"--lambda", "planner lambda (< 0: 0.5 fly-over, 0.4 walk / real)"},
     {"--cell", "cell size (m); 0 = scene-scale rule"},
     {"--dts", "delta tau_sum"},
     {"--tag", "label of the policy configs in the JSON (default main)"},
     {"--face_areas", "1: planners use the face area A_cell for every cell"},
-    {"--sweep", "store,r_max,lambda,cell,dts"},
+    {"--sweep", "store,r_max,lambda,cell,dts,tau_max,render_refs"},
     {"--sweep_test_views", "test views of sweep configs"},
     {"--baseline_test_views", "test views of baseline configs"},
     {"--per_view", "1: per-test-view diagnostics in the JSON"},

@@ -425,7 +425,7 @@ int Run(const Args& args) {
   model.grid = planner.grid();
   model.chunks[0] = chunk;
   model.views = std::move(stored);
-  model.cell_refs = planner.CellRefs();
+  model.cell_refs = planner.CellPublishedRefs();
   auto renderer = CpuLumigraphRenderer::Create(model, {});
   if (!renderer.ok()) {
     std::fprintf(stderr, "%s\n", std::string(renderer.status().message()).c_str());

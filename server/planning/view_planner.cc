@@ -11,6 +11,7 @@ namespace exo::planning {
 namespace {
 
 constexpr int kMaxRMax = 64;
+constexpr int kMaxRenderRefs = 1024;
 
 bool Finite(const glm::dvec3& v) {
   return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z);
@@ -26,6 +27,9 @@ absl::Status PlannerOptions::Validate() const {
         r_max));
   if (r_max > kMaxRMax)
     return absl::InvalidArgumentError(absl::StrCat("planner r_max must be <= ", kMaxRMax));
+  if (render_refs_max < 0 || render_refs_max > kMaxRenderRefs)
+    return absl::InvalidArgumentError(absl::StrCat(
+        "planner render_refs_max must be in [0, ", kMaxRenderRefs, "], got ", render_refs_max));
   if (max_views < 1) return absl::InvalidArgumentError("planner max_views must be >= 1");
   if (max_bytes < 1) return absl::InvalidArgumentError("planner max_bytes must be >= 1");
   if (!std::isfinite(lambda) || lambda < 0.0 || lambda > 1.0)
@@ -175,6 +179,7 @@ void ViewPlanner::AddView(View view, std::vector<CellId>* changed) {
                   DistanceQuality(d, options_.d_max_m, options_.sigma_m), view.pixel_sr};
     c.observers.push_back(ref);
     AddToCellTau(e.cell, e.phi);
+    if (options_.render_refs_max > 0) changed->push_back(c.id);  // its observers changed
     // Pre-selection (§3.1.4). τ(R ∪ I) - τ(R) = φ_I > 0 = Δτ while R has room.
     if (static_cast<int>(c.refs.size()) < options_.r_max) {
       c.refs.push_back(ref);
@@ -194,13 +199,15 @@ void ViewPlanner::AddView(View view, std::vector<CellId>* changed) {
   views_.emplace(id, std::move(view));
 }
 
-void ViewPlanner::RemoveView(ViewId id, std::vector<int32_t>* stale) {
+void ViewPlanner::RemoveView(ViewId id, std::vector<int32_t>* stale,
+                             std::vector<CellId>* observed) {
   auto it = views_.find(id);
   if (it == views_.end()) return;
   const View& view = it->second;
   for (const Entry& e : view.entries) {
     Cell& c = cells_[e.cell];
     std::erase_if(c.observers, [id](const Ref& r) { return r.view == id; });
+    if (options_.render_refs_max > 0) observed->push_back(c.id);
     AddToCellTau(e.cell, -static_cast<double>(e.phi));
     if (std::any_of(c.refs.begin(), c.refs.end(), [id](const Ref& r) { return r.view == id; }))
       stale->push_back(e.cell);
@@ -250,8 +257,8 @@ bool ViewPlanner::RebuildRefs(int32_t cell) {
 absl::StatusOr<std::vector<CellId>> ViewPlanner::Remove(ViewId id) {
   if (!views_.count(id)) return absl::NotFoundError(absl::StrCat("view ", id, " is not stored"));
   std::vector<int32_t> stale;
-  RemoveView(id, &stale);
   std::vector<CellId> changed;
+  RemoveView(id, &stale, &changed);
   for (int32_t k : stale)
     if (RebuildRefs(k)) changed.push_back(cells_[k].id);
   std::sort(changed.begin(), changed.end());
@@ -374,7 +381,7 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
   // Victims leave first; the cells whose R(b_k) lost a victim are rebuilt from the final store
   // (the candidate included), the others get the candidate by the incremental rule.
   std::vector<int32_t> stale;
-  for (ViewId v : victims) RemoveView(v, &stale);
+  for (ViewId v : victims) RemoveView(v, &stale, &d.changed_cells);
   std::sort(stale.begin(), stale.end());
   stale.erase(std::unique(stale.begin(), stale.end()), stale.end());
   AddView(std::move(view), &d.changed_cells);
@@ -424,6 +431,65 @@ std::unordered_map<CellId, std::vector<ViewId>> ViewPlanner::CellRefs() const {
     if (c.refs.empty()) continue;
     auto& v = out[c.id];
     for (const Ref& r : c.refs) v.push_back(r.view);
+  }
+  return out;
+}
+
+std::vector<ViewId> ViewPlanner::PublishedRefsOf(const Cell& c) const {
+  std::vector<ViewId> out;
+  if (options_.render_refs_max == 0) {
+    for (const Ref& r : c.refs) out.push_back(r.view);
+    return out;
+  }
+  const size_t cap = size_t(std::max(options_.render_refs_max, options_.r_max));
+  if (c.observers.size() <= cap) {
+    // Every observer (R(b_k) is a subset), in acceptance order.
+    for (const Ref& r : c.observers) out.push_back(r.view);
+    return out;
+  }
+  // R(b_k) first, then farthest-point sampling of the remaining observers' camera centres
+  // (cell centre + d·dir): each pick maximises its distance to the nearest picked camera, so
+  // the list keeps a camera near every part of the path that saw the cell. Ties: earlier
+  // observer (deterministic).
+  const glm::dvec3 centre = grid_.Centre(c.id);
+  std::vector<glm::dvec3> pos(c.observers.size());
+  std::vector<double> nearest(c.observers.size(), std::numeric_limits<double>::infinity());
+  std::vector<char> taken(c.observers.size(), 0);
+  for (size_t i = 0; i < c.observers.size(); ++i)
+    pos[i] = centre + c.observers[i].d * c.observers[i].dir;
+  auto take = [&](size_t i) {
+    taken[i] = 1;
+    out.push_back(c.observers[i].view);
+    for (size_t j = 0; j < pos.size(); ++j) {
+      const glm::dvec3 v = pos[j] - pos[i];
+      nearest[j] = std::min(nearest[j], glm::dot(v, v));
+    }
+  };
+  for (const Ref& r : c.refs)
+    for (size_t i = 0; i < c.observers.size(); ++i)
+      if (!taken[i] && c.observers[i].view == r.view) take(i);
+  if (out.empty()) take(0);
+  while (out.size() < cap) {
+    size_t best = pos.size();
+    for (size_t j = 0; j < pos.size(); ++j)
+      if (!taken[j] && (best == pos.size() || nearest[j] > nearest[best])) best = j;
+    if (best == pos.size()) break;
+    take(best);
+  }
+  return out;
+}
+
+std::vector<ViewId> ViewPlanner::PublishedRefs(CellId cell) const {
+  auto it = cell_index_.find(cell);
+  if (it == cell_index_.end()) return {};
+  return PublishedRefsOf(cells_[it->second]);
+}
+
+std::unordered_map<CellId, std::vector<ViewId>> ViewPlanner::CellPublishedRefs() const {
+  std::unordered_map<CellId, std::vector<ViewId>> out;
+  for (const Cell& c : cells_) {
+    std::vector<ViewId> v = PublishedRefsOf(c);
+    if (!v.empty()) out[c.id] = std::move(v);
   }
   return out;
 }

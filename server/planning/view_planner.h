@@ -47,6 +47,15 @@ struct PlannerOptions {
   double delta_tau_sum = 0.05;       // Δτ_sum: minimum gain for a candidate
   double delta_tau = 0.0;            // Δτ: minimum per-cell gain to replace a reference when full
   double cell_size_m = 0.5;          // q
+  // The per-cell view references the clients render with ("published references"). 0: R(b_k)
+  // itself (|R| <= r_max, the thesis' pre-selection). N > 0: every stored observer of the cell
+  // (every stored view with φ > 0 there), at most max(N, r_max): R(b_k) first, then the other
+  // observers by farthest-point sampling of their camera centres (spread over where the
+  // cameras were). Issue 15: on real 7-Scenes data the R_max = 16 cap was the cause of "more
+  // views hurt" (the stored frame next to a novel pose was often not among a cell's 16);
+  // rendering every observer gains +0.04..+0.13 SSIM and makes quality grow with the store
+  // (docs/evaluation.md). The planner's own objective τ still uses R(b_k) only.
+  int render_refs_max = 64;
 
   absl::Status Validate() const;
 
@@ -89,7 +98,9 @@ struct Decision {
   std::string reason;                 // why (for logs / acks)
   double gain = 0.0;                  // τ_sum(after) - τ_sum(before), as evaluated
   std::vector<ViewId> removed;        // victims evicted to make room
-  std::vector<CellId> changed_cells;  // cells whose R(b_k) changed (publisher deltas), sorted
+  std::vector<CellId> changed_cells;  // cells whose published references changed (publisher
+                                      // deltas: R(b_k), or the observers when
+                                      // render_refs_max > 0), sorted
   double tau_sum = 0.0;               // τ_sum of the store after the decision
 };
 
@@ -131,8 +142,13 @@ class ViewPlanner {
   std::vector<ViewId> Refs(CellId cell) const;
   // τ_sum recomputed from scratch from the stored per-view φ (for tests / drift checks).
   double RecomputeTauSum() const;
-  // Every non-empty R(b_k), e.g. to fill LumigraphModel::cell_refs.
+  // Every non-empty R(b_k).
   std::unordered_map<CellId, std::vector<ViewId>> CellRefs() const;
+  // The references clients render with (options().render_refs_max): R(b_k) first, then other
+  // observers; empty if the cell is unknown. Deterministic.
+  std::vector<ViewId> PublishedRefs(CellId cell) const;
+  // Every non-empty published list, e.g. to fill LumigraphModel::cell_refs.
+  std::unordered_map<CellId, std::vector<ViewId>> CellPublishedRefs() const;
   // Approximate memory of the planner's own bookkeeping (bytes).
   size_t BookkeepingBytes() const;
 
@@ -176,8 +192,10 @@ class ViewPlanner {
   int32_t CellIndex(CellId id);  // creates the cell on first use
   void AddToCellTau(int32_t cell, double dphi);
   // Removes the view's coverage and observer entries; the cells whose R(b_k) lost it are appended
-  // to `stale` (rebuild them with RebuildRefs once the store is final).
-  void RemoveView(ViewId id, std::vector<int32_t>* stale);
+  // to `stale` (rebuild them with RebuildRefs once the store is final), every cell it observed to
+  // `observed` when the published references are the observers.
+  void RemoveView(ViewId id, std::vector<int32_t>* stale, std::vector<CellId>* observed);
+  std::vector<ViewId> PublishedRefsOf(const Cell& c) const;
   void AddView(View view, std::vector<CellId>* changed);
 
   PlannerOptions options_;

@@ -396,6 +396,75 @@ TEST(ViewPlanner, PreSelectionKeepsAtMostRMaxReferences) {
   EXPECT_EQ(p.Refs(cell).size(), 2u);
 }
 
+// Published references (what clients render with): R(b_k) when render_refs_max = 0; every
+// stored observer when there are at most max(render_refs_max, r_max); otherwise R(b_k) plus a
+// farthest-point spread of the other observers' camera centres. Observers that leave are gone.
+TEST(ViewPlanner, PublishedRefsAreTheObserversUpToTheCap) {
+  const CellId cell = PackCell({0, 0, 0});
+  const PinholeCamera cam = PinholeCamera::FromFov(40, 30, 1.0);
+  auto run = [&](int render_refs_max, int views) {
+    PlannerOptions o;
+    o.r_max = 2;
+    o.render_refs_max = render_refs_max;
+    o.max_views = 100;
+    o.delta_tau_sum = 0.0;  // accept every view with a positive gain (each covers the cell)
+    o.tau_max = 1000;
+    o.cell_size_m = 1.0;
+    auto p = ViewPlanner::Create(o).value();
+    // Cameras along a line x = 0..views-1 at 3 m height, all seeing the one cell.
+    for (ViewId id = 1; id <= ViewId(views); ++id) {
+      Candidate c;
+      c.id = id;
+      c.local_from_cam.translation = glm::dvec3(double(id - 1), 0.5, 3.0);
+      c.id_camera = cam;
+      c.cells = {{cell, 50u}};
+      c.bytes = 1;
+      auto d = p.Consider(c);
+      EXPECT_TRUE(d.ok() && d->accepted);
+      // Every accepted view changes the cell's published list once it is the observers.
+      if (render_refs_max > 0) {
+        EXPECT_TRUE(std::binary_search(d->changed_cells.begin(), d->changed_cells.end(), cell));
+      }
+    }
+    return p;
+  };
+  {
+    auto p = run(0, 6);
+    EXPECT_EQ(p.PublishedRefs(cell), p.Refs(cell));
+    EXPECT_EQ(p.PublishedRefs(cell).size(), 2u);
+  }
+  {
+    auto p = run(8, 6);  // 6 observers <= 8: all of them, R(b_k) among them
+    const auto pub = p.PublishedRefs(cell);
+    EXPECT_EQ(pub, (std::vector<ViewId>{1, 2, 3, 4, 5, 6}));
+    for (ViewId r : p.Refs(cell)) EXPECT_NE(std::find(pub.begin(), pub.end(), r), pub.end());
+    EXPECT_EQ(p.CellPublishedRefs().at(cell), pub);
+    // A removed view leaves the list and the cell is reported changed.
+    auto changed = p.Remove(3).value();
+    EXPECT_TRUE(std::binary_search(changed.begin(), changed.end(), cell));
+    EXPECT_EQ(p.PublishedRefs(cell), (std::vector<ViewId>{1, 2, 4, 5, 6}));
+  }
+  {
+    auto p = run(4, 21);  // 21 observers on a 20 m line, cap 4
+    const auto pub = p.PublishedRefs(cell);
+    ASSERT_EQ(pub.size(), 4u);
+    const auto refs = p.Refs(cell);
+    for (size_t i = 0; i < refs.size(); ++i) EXPECT_EQ(pub[i], refs[i]);  // R(b_k) first
+    // The rest spread over the line: every camera of the path is within 7 m of a published one
+    // (the first four would leave 17 m uncovered; farthest-point sampling is within 2x the best
+    // cover of about 3 m).
+    for (int x = 0; x <= 20; ++x) {
+      double best = 1e9;
+      for (ViewId v : pub) best = std::min(best, std::abs(double(v - 1) - x));
+      EXPECT_LE(best, 7.0) << "camera at x = " << x;
+    }
+    EXPECT_EQ(p.PublishedRefs(cell), pub);  // deterministic
+  }
+  PlannerOptions bad;
+  bad.render_refs_max = -1;
+  EXPECT_FALSE(bad.Validate().ok());
+}
+
 // Scene 1e5 m from the origin: expressed in a local frame (LocalOrigin) the planner makes the
 // same decisions as for the scene at the origin.
 TEST(ViewPlanner, SceneFarFromOriginInLocalFrame) {

@@ -151,7 +151,7 @@ class PlanningStage final : public PipelineStage {
     }
     std::map<CellId, std::vector<ViewId>> refs;
     for (CellId c : store_->CellIds()) refs[c];  // cells the planner no longer references: cleared
-    for (auto& [c, r] : planner_->planner().CellRefs()) refs[c] = std::move(r);
+    for (auto& [c, r] : planner_->planner().CellPublishedRefs()) refs[c] = std::move(r);
     std::vector<std::pair<CellId, std::vector<ViewId>>> cells(refs.begin(), refs.end());
     if (!cells.empty()) store_->SetCellRefs(cells);
     return absl::OkStatus();

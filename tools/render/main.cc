@@ -220,7 +220,7 @@ absl::StatusOr<SyntheticModel> BuildSynthetic(const Args& args) {
   out.model.origin = scene.origin;
   out.model.grid = planner.grid();
   out.model.views = std::move(stored);
-  out.model.cell_refs = planner.CellRefs();
+  out.model.cell_refs = planner.CellPublishedRefs();
   // Proxy in chunks of <= 4096 triangles (one draw each).
   const TriangleMesh& mesh = scene.mesh;
   const size_t per = 4096;
