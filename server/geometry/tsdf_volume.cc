@@ -547,7 +547,34 @@ TriangleMesh TsdfVolume::MeshBlock(const glm::ivec3& bc) const {
   for (int dz = -1; dz <= 1; ++dz)
     for (int dy = -1; dy <= 1; ++dy)
       for (int dx = -1; dx <= 1; ++dx) nb[dz + 1][dy + 1][dx + 1] = FindBlock(bc + glm::ivec3(dx, dy, dz));
-  std::vector<const TsdfVoxel*> grid(size_t(n) * n * n, nullptr);  // nullptr = unobserved
+  // Early out (the usual case for blocks in the band in front of or behind the surface): a
+  // surface needs observed voxels of both signs among the cube corners, i.e. voxels 0..bs of this
+  // block's frame (this block and the first layer of the 7 blocks above it). Same test as the
+  // any_neg / any_pos scan below, without building the neighbourhood grid.
+  {
+    bool neg = false, pos = false;
+    for (int oz = 0; oz <= 1 && !(neg && pos); ++oz)
+      for (int oy = 0; oy <= 1 && !(neg && pos); ++oy)
+        for (int ox = 0; ox <= 1 && !(neg && pos); ++ox) {
+          const Block* b = nb[oz + 1][oy + 1][ox + 1];
+          if (!b) continue;
+          // Own block: all bs voxels per axis; an upper neighbour: only its layer 0.
+          const int ez = oz ? 1 : bs, ey = oy ? 1 : bs, ex = ox ? 1 : bs;
+          for (int z = 0; z < ez; ++z)
+            for (int y = 0; y < ey; ++y) {
+              const TsdfVoxel* row = &b->voxels[(size_t(z) * bs + y) * bs];
+              for (int x = 0; x < ex; ++x) {
+                const TsdfVoxel& v = row[x];
+                if (v.weight < options_.min_extract_weight) continue;
+                (v.sdf_m < 0 ? neg : pos) = true;
+              }
+            }
+        }
+    if (!neg || !pos) return mesh;
+  }
+  // Scratch buffers reused per thread (MeshBlock runs for every re-meshed chunk of every frame).
+  thread_local std::vector<const TsdfVoxel*> grid;
+  grid.assign(size_t(n) * n * n, nullptr);  // nullptr = unobserved
   auto gi = [n](int x, int y, int z) { return (size_t(z) * n + y) * n + x; };
   bool any_neg = false, any_pos = false;
   for (int lz = 0; lz < n; ++lz) {
@@ -575,7 +602,8 @@ TriangleMesh TsdfVolume::MeshBlock(const glm::ivec3& bc) const {
   const bool with_color = options_.integrate_color;
   // Vertex of the edge starting at cube-space corner (x,y,z) in 0..bs along `axis`.
   const int m = bs + 1;
-  std::vector<int32_t> edge_vertex(size_t(m) * m * m * 3, -1);
+  thread_local std::vector<int32_t> edge_vertex;
+  edge_vertex.assign(size_t(m) * m * m * 3, -1);
   auto gradient = [&](int x, int y, int z) {
     glm::vec3 g(0.0f);
     const float s = grid[gi(x, y, z)]->sdf_m;
