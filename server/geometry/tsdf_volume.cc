@@ -563,10 +563,13 @@ TriangleMesh TsdfVolume::MeshBlock(const glm::ivec3& bc) const {
           for (int z = 0; z < ez; ++z)
             for (int y = 0; y < ey; ++y) {
               const TsdfVoxel* row = &b->voxels[(size_t(z) * bs + y) * bs];
+              // Branch-free (observed = !(weight < min), as below; sign as below).
               for (int x = 0; x < ex; ++x) {
                 const TsdfVoxel& v = row[x];
-                if (v.weight < options_.min_extract_weight) continue;
-                (v.sdf_m < 0 ? neg : pos) = true;
+                const bool obs = !(v.weight < options_.min_extract_weight);
+                const bool below = v.sdf_m < 0;
+                neg |= obs & below;
+                pos |= obs & !below;
               }
             }
         }
@@ -575,8 +578,15 @@ TriangleMesh TsdfVolume::MeshBlock(const glm::ivec3& bc) const {
   // Scratch buffers reused per thread (MeshBlock runs for every re-meshed chunk of every frame).
   thread_local std::vector<const TsdfVoxel*> grid;
   grid.assign(size_t(n) * n * n, nullptr);  // nullptr = unobserved
+  // The same neighbourhood as flat arrays for the cube classification below: corner observed
+  // (1/0) and below the surface (sdf < 0), so the 512 cubes are classified without branches or
+  // pointer chasing.
+  thread_local std::vector<uint8_t> observed, below;
+  observed.assign(size_t(n) * n * n, 0);
+  below.assign(size_t(n) * n * n, 0);
   auto gi = [n](int x, int y, int z) { return (size_t(z) * n + y) * n + x; };
-  bool any_neg = false, any_pos = false;
+  // (Both signs among observed corners were established by the early out above, over the same
+  // region and with the same tests.)
   for (int lz = 0; lz < n; ++lz) {
     const int gz = lz - 1, oz = gz < 0 ? -1 : (gz >= bs ? 1 : 0), iz = gz - oz * bs;
     for (int ly = 0; ly < n; ++ly) {
@@ -586,14 +596,14 @@ TriangleMesh TsdfVolume::MeshBlock(const glm::ivec3& bc) const {
         const Block* b = nb[oz + 1][oy + 1][ox + 1];
         if (!b) continue;
         const TsdfVoxel* v = &b->voxels[(size_t(iz) * bs + iy) * bs + ix];
-        if (v->weight < options_.min_extract_weight) continue;
-        grid[gi(lx, ly, lz)] = v;
-        if (lx >= 1 && ly >= 1 && lz >= 1 && lx <= bs + 1 && ly <= bs + 1 && lz <= bs + 1)
-          (v->sdf_m < 0 ? any_neg : any_pos) = true;
+        const bool obs = !(v->weight < options_.min_extract_weight);
+        const size_t i = gi(lx, ly, lz);
+        grid[i] = obs ? v : nullptr;
+        observed[i] = obs;
+        below[i] = v->sdf_m < 0;
       }
     }
   }
-  if (!any_neg || !any_pos) return mesh;
 
   const auto& cases = mc::Cases();
   const auto& lut = SrgbToLinearLut();
@@ -647,17 +657,22 @@ TriangleMesh TsdfVolume::MeshBlock(const glm::ivec3& bc) const {
     return uint32_t(slot);
   };
 
+  size_t corner_offset[8];
+  for (int k = 0; k < 8; ++k) {
+    const auto& o = mc::kCornerOffset[k];
+    corner_offset[k] = gi(o[0], o[1], o[2]);
+  }
   bool degenerate_normals = false;
   for (int z = 0; z < bs; ++z)
     for (int y = 0; y < bs; ++y)
       for (int x = 0; x < bs; ++x) {
         int ci = 0;
-        bool ok = true;
-        for (int k = 0; k < 8 && ok; ++k) {
-          const auto& o = mc::kCornerOffset[k];
-          const TsdfVoxel* v = grid[gi(x + o[0] + 1, y + o[1] + 1, z + o[2] + 1)];
-          if (!v) ok = false;
-          else if (v->sdf_m < 0) ci |= 1 << k;
+        int ok = 1;
+        const size_t c0 = gi(x + 1, y + 1, z + 1);
+        for (int k = 0; k < 8; ++k) {
+          const size_t i = c0 + corner_offset[k];
+          ok &= observed[i];
+          ci |= int(below[i] & observed[i]) << k;
         }
         if (!ok || ci == 0 || ci == 255) continue;
         const auto& tri = cases.tris[ci];
