@@ -1,10 +1,10 @@
 #include "server/service/pipeline.h"
 
+#include <pthread.h>
+
 #include <chrono>
 #include <cmath>
 #include <cstdio>
-
-#include <pthread.h>
 
 #include "common/log/log.h"
 

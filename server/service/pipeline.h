@@ -134,7 +134,7 @@ class Pipeline {
   SceneContext ctx_;
   std::atomic<bool> origin_set_{false};
   std::vector<std::unique_ptr<PipelineStage>> stages_;
-  std::vector<StageTimer> timers_;  // per stage
+  std::vector<StageTimer> timers_;                                       // per stage
   std::vector<std::unique_ptr<BoundedQueue<PipelineFramePtr>>> queues_;  // queues_[i] feeds stage i
   std::vector<std::thread> threads_;
   std::atomic<uint64_t> processed_{0}, errors_{0};

@@ -1,12 +1,12 @@
 #include "server/service/refinement_worker.h"
 
-#include <algorithm>
-#include <cmath>
-
 #include <pthread.h>
 #include <sys/resource.h>
 #include <sys/syscall.h>
 #include <unistd.h>
+
+#include <algorithm>
+#include <cmath>
 
 #include "server/service/model_store.h"
 

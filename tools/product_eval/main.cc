@@ -66,8 +66,8 @@ double Round(double v, int digits) {
 struct Sink {
   std::vector<double> ssim, psnr, ssim_unfilled, psnr_unfilled, coverage, ssim_covered, ms_ssim,
       gmsd, render_ms;
-  absl::Status Add(const ImageU8& img, const ImageU8& gt, const ImageU8& mask,
-                   const ImageU8& known, double ms) {
+  absl::Status Add(const ImageU8& img, const ImageU8& gt, const ImageU8& mask, const ImageU8& known,
+                   double ms) {
     ImageU8 filled = img;
     FillHoles(filled, known);
     EXO_ASSIGN_OR_RETURN(double s, Ssim(filled, gt));
@@ -101,7 +101,8 @@ struct Sink {
     q["psnr_unfilled"] = Round(Mean(psnr_unfilled), 2);
     q["coverage"] = Round(Mean(coverage), 4);
     q["ssim_covered"] = Round(Mean(ssim_covered), 4);
-    q["ms_ssim"] = ms_ssim.empty() ? nlohmann::json(nullptr) : nlohmann::json(Round(Mean(ms_ssim), 4));
+    q["ms_ssim"] =
+        ms_ssim.empty() ? nlohmann::json(nullptr) : nlohmann::json(Round(Mean(ms_ssim), 4));
     q["gmsd"] = Round(Mean(gmsd), 4);
     q["views"] = ssim.size();
     q["render_ms_median"] = Round(Median(render_ms), 1);
@@ -155,11 +156,13 @@ absl::Status RenderVertexColor(const TriangleMesh& mesh, const PinholeCamera& ca
       if (nn > 0) {
         const float wa = glm::dot(glm::cross(c - b, p - b), nrm) / nn;
         const float wb = glm::dot(glm::cross(a - c, p - c), nrm) / nn;
-        col = wa * mesh.colors[ix[0]] + wb * mesh.colors[ix[1]] + (1.0f - wa - wb) * mesh.colors[ix[2]];
+        col = wa * mesh.colors[ix[0]] + wb * mesh.colors[ix[1]] +
+              (1.0f - wa - wb) * mesh.colors[ix[2]];
       } else {
         col = mesh.colors[ix[0]];
       }
-      for (int ch = 0; ch < 3; ++ch) img->at(x, y, ch) = blend::UnitToU8(blend::LinearToSrgb(col[ch]));
+      for (int ch = 0; ch < 3; ++ch)
+        img->at(x, y, ch) = blend::UnitToU8(blend::LinearToSrgb(col[ch]));
       mask->at(x, y) = 255;
     }
   return absl::OkStatus();
@@ -254,7 +257,8 @@ absl::Status WriteRegistered(const Args& a) {
     for (int y = 0; y < depth.height(); ++y)
       for (int x = 0; x < depth.width(); ++x) {
         const float z = depth.at(x, y);
-        mm.at(x, y) = (z > 0 && std::isfinite(z)) ? uint16_t(std::min(65535.0f, std::round(z * 1000.0f))) : 0;
+        mm.at(x, y) =
+            (z > 0 && std::isfinite(z)) ? uint16_t(std::min(65535.0f, std::round(z * 1000.0f))) : 0;
       }
     char name[64];
     std::snprintf(name, sizeof(name), "depth-%06zu.png", i);
@@ -266,12 +270,13 @@ absl::Status WriteRegistered(const Args& a) {
     for (int row = 0; row < 3; ++row)
       pose.push_back({r[0][row], r[1][row], r[2][row], f.world_from_cam.translation[row]});
     pose.push_back({0.0, 0.0, 0.0, 1.0});
-    frames.push_back({{"index", i}, {"color", std::string(name)},
+    frames.push_back({{"index", i},
+                      {"color", std::string(name)},
                       {"depth", std::string("depth-") + std::string(name).substr(6)},
                       {"world_from_cam", pose}});
     const PinholeCamera& c = f.color_camera;
-    intr = {{"width", c.width}, {"height", c.height}, {"fx", c.fx}, {"fy", c.fy}, {"cx", c.cx},
-            {"cy", c.cy}};
+    intr = {{"width", c.width}, {"height", c.height}, {"fx", c.fx},
+            {"fy", c.fy},       {"cx", c.cx},         {"cy", c.cy}};
   }
   std::ofstream(a.write_registered + "/frames.json")
       << nlohmann::json{{"intrinsics", intr}, {"depth_scale", 1000.0}, {"frames", frames}}.dump()
@@ -300,9 +305,11 @@ ImageU8 Hstack(const std::vector<const ImageU8*>& imgs) {
 
 absl::Status Run(const Args& a) {
   if (!a.write_registered.empty()) return WriteRegistered(a);
-  if (a.model.empty()) return absl::InvalidArgumentError("give --model=FILE (or --write_registered)");
+  if (a.model.empty())
+    return absl::InvalidArgumentError("give --model=FILE (or --write_registered)");
   EXO_ASSIGN_OR_RETURN(LumigraphModel model, LoadModel(a.model));
-  if (model.views.empty()) return absl::FailedPreconditionError(a.model + ": the model has no views");
+  if (model.views.empty())
+    return absl::FailedPreconditionError(a.model + ": the model has no views");
   EXO_ASSIGN_OR_RETURN(Split split, LoadSplit(a, a.ours));
   if (split.test.empty()) return absl::FailedPreconditionError("no held-out test frames");
   const PinholeCamera cam = split.test[0].color_camera.Scaled(a.width, a.height);
@@ -342,7 +349,7 @@ absl::Status Run(const Args& a) {
       ImageU8 mask(cam.width, cam.height, 1, 0), known(cam.width, cam.height, 1, 0);
       for (size_t i = 0; i < mask.size(); ++i) {
         const uint8_t c = out.coverage.data()[i];
-        mask.data()[i] = c == 2 ? 255 : 0;              // blended
+        mask.data()[i] = c == 2 ? 255 : 0;               // blended
         known.data()[i] = (c == 2 || c == 3) ? 255 : 0;  // blended or filled at infinity
       }
       EXO_RETURN_IF_ERROR(sink.Add(out.color, gt[t], mask, known, ms));
@@ -433,10 +440,11 @@ absl::Status Run(const Args& a) {
 
 int Main(int argc, char** argv) {
   Args a;
-  CLI::App app{"Product-path quality on real held-out 7-Scenes frames: a saved viewer model "
-               "rendered with the Vulkan renderer at the held-out poses, beside fused "
-               "per-vertex-colour meshes; one JSON line per method.",
-               "exoview_product_eval"};
+  CLI::App app{
+      "Product-path quality on real held-out 7-Scenes frames: a saved viewer model "
+      "rendered with the Vulkan renderer at the held-out poses, beside fused "
+      "per-vertex-colour meshes; one JSON line per method.",
+      "exoview_product_eval"};
   cli::Setup(app);
   app.add_option("--data", a.data, "7-Scenes folder (required)");
   app.add_option("--model", a.model, "model saved by exoview_viewer --save_model");
@@ -469,7 +477,8 @@ int Main(int argc, char** argv) {
     return 2;
   }
   if (a.width < 16 || a.height < 16 || a.width > 640 || a.height > 480) {
-    std::fprintf(stderr, "exoview_product_eval: --width/--height must be in [16, 640] x [16, 480]\n");
+    std::fprintf(stderr,
+                 "exoview_product_eval: --width/--height must be in [16, 640] x [16, 480]\n");
     return 2;
   }
   if (a.hold_out_offset >= a.hold_out_every) {

@@ -122,7 +122,8 @@ absl::StatusOr<std::vector<Rigid3d>> ReadPath(const std::string& file, const std
       p.rotation = glm::dquat(v[3], v[4], v[5], v[6]);
     }
     for (int i = 0; i < want; ++i)
-      if (!std::isfinite(v[i])) return absl::InvalidArgumentError(absl::StrCat(file, ":", n, ": not finite"));
+      if (!std::isfinite(v[i]))
+        return absl::InvalidArgumentError(absl::StrCat(file, ":", n, ": not finite"));
     const double qn = glm::length(p.rotation);
     if (std::abs(qn - 1.0) > 1e-3)
       return absl::InvalidArgumentError(absl::StrCat(file, ":", n, ": quaternion norm ", qn, " is not 1"));
