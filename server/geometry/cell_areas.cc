@@ -1,6 +1,7 @@
 #include "server/geometry/cell_areas.h"
 
 #include <cmath>
+#include <limits>
 
 #include "common/status.h"
 
@@ -70,17 +71,56 @@ CellAreas::CellAreas(const CellGrid& grid) : grid_(grid) { EXO_CHECK(grid.cell_s
 absl::flat_hash_map<CellId, double> CellAreas::AreaPerCell(const TriangleMesh& mesh,
                                                            const CellGrid& grid) {
   absl::flat_hash_map<CellId, double> out;
+  if (mesh.indices.size() < 3) return out;
+  // Fast path for a whole mesh in one cell (a TSDF chunk is 8 voxels wide, cells are >= 0.3 m):
+  // the per-triangle fast path below would add every area to that cell in this order, so one
+  // running sum gives the same bits.
+  {
+    glm::dvec3 lo(std::numeric_limits<double>::max()), hi(-std::numeric_limits<double>::max());
+    for (const glm::vec3& p : mesh.positions) {
+      const glm::dvec3 d(p);
+      lo = glm::min(lo, d);
+      hi = glm::max(hi, d);
+    }
+    const CellId c0 = grid.IdOf(lo);
+    if (grid.IdOf(hi) == c0) {  // floor(p / q) is monotonic per axis: every vertex is in c0
+      double sum = 0.0;
+      bool any = false;
+      for (size_t t = 0; t + 2 < mesh.indices.size(); t += 3) {
+        const glm::dvec3 a(mesh.positions[mesh.indices[t]]), b(mesh.positions[mesh.indices[t + 1]]),
+            c(mesh.positions[mesh.indices[t + 2]]);
+        const double area = 0.5 * glm::length(glm::cross(b - a, c - a));
+        if (area > 0) {
+          sum += area;
+          any = true;
+        }
+      }
+      if (any) out[c0] = sum;
+      return out;
+    }
+  }
   Polygon tri(3);
+  CellId last_cell = 0;
+  double* last_slot = nullptr;
   for (size_t t = 0; t + 2 < mesh.indices.size(); t += 3) {
     for (int j = 0; j < 3; ++j) tri[j] = glm::dvec3(mesh.positions[mesh.indices[t + j]]);
     // Fast path: the whole triangle in one cell (the usual case when cells >> voxels).
     const CellId c0 = grid.IdOf(tri[0]);
     if (grid.IdOf(tri[1]) == c0 && grid.IdOf(tri[2]) == c0) {
       const double a = 0.5 * glm::length(glm::cross(tri[1] - tri[0], tri[2] - tri[0]));
-      if (a > 0) out[c0] += a;
+      if (a > 0) {
+        // Consecutive triangles are mostly in the same cell: its accumulator is kept (the same
+        // additions in the same order as a lookup per triangle).
+        if (last_slot == nullptr || last_cell != c0) {
+          last_slot = &out[c0];
+          last_cell = c0;
+        }
+        *last_slot += a;
+      }
       continue;
     }
     ClipInto(tri, 0, grid, &out);
+    last_slot = nullptr;  // inserts may have rehashed the map
   }
   return out;
 }

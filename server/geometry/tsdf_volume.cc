@@ -547,9 +547,46 @@ TriangleMesh TsdfVolume::MeshBlock(const glm::ivec3& bc) const {
   for (int dz = -1; dz <= 1; ++dz)
     for (int dy = -1; dy <= 1; ++dy)
       for (int dx = -1; dx <= 1; ++dx) nb[dz + 1][dy + 1][dx + 1] = FindBlock(bc + glm::ivec3(dx, dy, dz));
-  std::vector<const TsdfVoxel*> grid(size_t(n) * n * n, nullptr);  // nullptr = unobserved
+  // Early out (the usual case for blocks in the band in front of or behind the surface): a
+  // surface needs observed voxels of both signs among the cube corners, i.e. voxels 0..bs of this
+  // block's frame (this block and the first layer of the 7 blocks above it). Same test as the
+  // any_neg / any_pos scan below, without building the neighbourhood grid.
+  {
+    bool neg = false, pos = false;
+    for (int oz = 0; oz <= 1 && !(neg && pos); ++oz)
+      for (int oy = 0; oy <= 1 && !(neg && pos); ++oy)
+        for (int ox = 0; ox <= 1 && !(neg && pos); ++ox) {
+          const Block* b = nb[oz + 1][oy + 1][ox + 1];
+          if (!b) continue;
+          // Own block: all bs voxels per axis; an upper neighbour: only its layer 0.
+          const int ez = oz ? 1 : bs, ey = oy ? 1 : bs, ex = ox ? 1 : bs;
+          for (int z = 0; z < ez; ++z)
+            for (int y = 0; y < ey; ++y) {
+              const TsdfVoxel* row = &b->voxels[(size_t(z) * bs + y) * bs];
+              // Branch-free (observed = !(weight < min), as below; sign as below).
+              for (int x = 0; x < ex; ++x) {
+                const TsdfVoxel& v = row[x];
+                const bool obs = !(v.weight < options_.min_extract_weight);
+                const bool below = v.sdf_m < 0;
+                neg |= obs & below;
+                pos |= obs & !below;
+              }
+            }
+        }
+    if (!neg || !pos) return mesh;
+  }
+  // Scratch buffers reused per thread (MeshBlock runs for every re-meshed chunk of every frame).
+  thread_local std::vector<const TsdfVoxel*> grid;
+  grid.assign(size_t(n) * n * n, nullptr);  // nullptr = unobserved
+  // The same neighbourhood as flat arrays for the cube classification below: corner observed
+  // (1/0) and below the surface (sdf < 0), so the 512 cubes are classified without branches or
+  // pointer chasing.
+  thread_local std::vector<uint8_t> observed, below;
+  observed.assign(size_t(n) * n * n, 0);
+  below.assign(size_t(n) * n * n, 0);
   auto gi = [n](int x, int y, int z) { return (size_t(z) * n + y) * n + x; };
-  bool any_neg = false, any_pos = false;
+  // (Both signs among observed corners were established by the early out above, over the same
+  // region and with the same tests.)
   for (int lz = 0; lz < n; ++lz) {
     const int gz = lz - 1, oz = gz < 0 ? -1 : (gz >= bs ? 1 : 0), iz = gz - oz * bs;
     for (int ly = 0; ly < n; ++ly) {
@@ -559,14 +596,14 @@ TriangleMesh TsdfVolume::MeshBlock(const glm::ivec3& bc) const {
         const Block* b = nb[oz + 1][oy + 1][ox + 1];
         if (!b) continue;
         const TsdfVoxel* v = &b->voxels[(size_t(iz) * bs + iy) * bs + ix];
-        if (v->weight < options_.min_extract_weight) continue;
-        grid[gi(lx, ly, lz)] = v;
-        if (lx >= 1 && ly >= 1 && lz >= 1 && lx <= bs + 1 && ly <= bs + 1 && lz <= bs + 1)
-          (v->sdf_m < 0 ? any_neg : any_pos) = true;
+        const bool obs = !(v->weight < options_.min_extract_weight);
+        const size_t i = gi(lx, ly, lz);
+        grid[i] = obs ? v : nullptr;
+        observed[i] = obs;
+        below[i] = v->sdf_m < 0;
       }
     }
   }
-  if (!any_neg || !any_pos) return mesh;
 
   const auto& cases = mc::Cases();
   const auto& lut = SrgbToLinearLut();
@@ -575,7 +612,8 @@ TriangleMesh TsdfVolume::MeshBlock(const glm::ivec3& bc) const {
   const bool with_color = options_.integrate_color;
   // Vertex of the edge starting at cube-space corner (x,y,z) in 0..bs along `axis`.
   const int m = bs + 1;
-  std::vector<int32_t> edge_vertex(size_t(m) * m * m * 3, -1);
+  thread_local std::vector<int32_t> edge_vertex;
+  edge_vertex.assign(size_t(m) * m * m * 3, -1);
   auto gradient = [&](int x, int y, int z) {
     glm::vec3 g(0.0f);
     const float s = grid[gi(x, y, z)]->sdf_m;
@@ -619,17 +657,22 @@ TriangleMesh TsdfVolume::MeshBlock(const glm::ivec3& bc) const {
     return uint32_t(slot);
   };
 
+  size_t corner_offset[8];
+  for (int k = 0; k < 8; ++k) {
+    const auto& o = mc::kCornerOffset[k];
+    corner_offset[k] = gi(o[0], o[1], o[2]);
+  }
   bool degenerate_normals = false;
   for (int z = 0; z < bs; ++z)
     for (int y = 0; y < bs; ++y)
       for (int x = 0; x < bs; ++x) {
         int ci = 0;
-        bool ok = true;
-        for (int k = 0; k < 8 && ok; ++k) {
-          const auto& o = mc::kCornerOffset[k];
-          const TsdfVoxel* v = grid[gi(x + o[0] + 1, y + o[1] + 1, z + o[2] + 1)];
-          if (!v) ok = false;
-          else if (v->sdf_m < 0) ci |= 1 << k;
+        int ok = 1;
+        const size_t c0 = gi(x + 1, y + 1, z + 1);
+        for (int k = 0; k < 8; ++k) {
+          const size_t i = c0 + corner_offset[k];
+          ok &= observed[i];
+          ci |= int(below[i] & observed[i]) << k;
         }
         if (!ok || ci == 0 || ci == 255) continue;
         const auto& tri = cases.tris[ci];

@@ -1,5 +1,7 @@
 #include "server/service/pipeline.h"
 
+#include <pthread.h>
+
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -22,7 +24,7 @@ absl::Status PipelineOptions::Validate() const {
 
 Pipeline::Pipeline(const PipelineOptions& options, ModelStore* store,
                    std::vector<std::unique_ptr<PipelineStage>> stages)
-    : options_(options), stages_(std::move(stages)) {
+    : options_(options), stages_(std::move(stages)), timers_(stages_.size()) {
   EXO_CHECK(options_.Validate().ok());
   ctx_.store = store;
   for (size_t i = 0; i < stages_.size(); ++i)
@@ -66,10 +68,14 @@ Pipeline::Admission Pipeline::Submit(PipelineFramePtr frame) {
 }
 
 void Pipeline::RunStage(size_t i) {
+  pthread_setname_np(pthread_self(), ("exo-" + stages_[i]->name()).substr(0, 15).c_str());
   while (auto item = queues_[i]->Pop()) {
     const PipelineFramePtr& f = *item;
     const ScopedDeltaSource source(f->frame.timestamp_s);
-    if (auto s = stages_[i]->Process(*f, ctx_); !s.ok()) {
+    const int64_t t0 = SteadyNowNs();
+    const absl::Status s = stages_[i]->Process(*f, ctx_);
+    timers_[i].Add(SteadyNowNs() - t0);
+    if (!s.ok()) {
       errors_.fetch_add(1);
       log::Get("pipeline")->error("stage {}, frame {}: {}", stages_[i]->name(), f->frame.sequence,
                                   std::string(s.message()));
@@ -103,6 +109,13 @@ uint64_t Pipeline::async_pending() const {
 std::map<std::string, double> Pipeline::counters() const {
   std::map<std::string, double> out;
   for (const auto& s : stages_) s->AddCounters(&out);
+  for (size_t i = 0; i < stages_.size(); ++i) {
+    const StageTimer::Snapshot t = timers_[i].Get();
+    const std::string n = stages_[i]->name();
+    out[n + ".process_ms_mean"] = t.count ? t.total_ns * 1e-6 / static_cast<double>(t.count) : 0.0;
+    out[n + ".process_ms_max"] = t.max_ns * 1e-6;
+    out[n + ".process_ms_total"] = t.total_ns * 1e-6;
+  }
   return out;
 }
 

@@ -48,13 +48,21 @@ class PlanningStage final : public PipelineStage {
       EXO_ASSIGN_OR_RETURN(planner_, core::OnlinePlanner::Create(model_, ctx.setup));
       EXO_RETURN_IF_ERROR(RebuildFromStoreLocked());
     }
+    const int64_t t_apply = SteadyNowNs();
     for (const core::GeometryUpdate& u : unapplied_) EXO_RETURN_IF_ERROR(planner_->Apply(u));
     unapplied_.clear();
+    apply_ns_ += SteadyNowNs() - t_apply;
     const Frame& f = pf.frame;
     const int64_t t_plan = SteadyNowNs();
     EXO_ASSIGN_OR_RETURN(core::HandOff h, planner_->Plan(core::PlanFrame::Of(f, ctx.origin)));
     plan_ns_ += SteadyNowNs() - t_plan;
     if (!h.accepted) return absl::OkStatus();
+    const int64_t t_publish = SteadyNowNs();
+    struct AddNs {  // publication (encode + store) and refinement hand-off time, on every return
+      int64_t* acc;
+      int64_t t0;
+      ~AddNs() { *acc += SteadyNowNs() - t0; }
+    } publish_timer{&publish_ns_, t_publish};
     for (ViewId victim : h.removed) {
       (void)ctx.store->RemoveView(victim);
       ref_cache_.erase(victim);
@@ -101,6 +109,10 @@ class PlanningStage final : public PipelineStage {
       (*out)["planning.cellid_update_errors"] = static_cast<double>(c.cellid_update_errors);
       (*out)["planning.id_buffer_ms_mean"] =  // cell ids + Consider per planned frame
           c.frames ? plan_ns_ * 1e-6 / static_cast<double>(c.frames) : 0.0;
+      (*out)["planning.apply_ms_mean"] =  // proxy update: cell areas (+ cell-id meshes)
+          c.frames ? apply_ns_ * 1e-6 / static_cast<double>(c.frames) : 0.0;
+      (*out)["planning.publish_ms_mean_per_accepted"] =
+          c.accepted ? publish_ns_ * 1e-6 / static_cast<double>(c.accepted) : 0.0;
       (*out)["planning.digest"] = static_cast<double>(planner_->Digest());
       (*out)["planning.cell_m"] = planner_->setup().cell_m;
     }
@@ -202,7 +214,7 @@ class PlanningStage final : public PipelineStage {
   ModelStore* store_ = nullptr;
   std::map<ViewId, std::shared_ptr<const StoredView>> ref_cache_;
   uint64_t outliers_removed_ = 0, outliers_kept_ = 0, updated_ = 0, stale_ = 0;
-  int64_t plan_ns_ = 0;
+  int64_t plan_ns_ = 0, apply_ns_ = 0, publish_ns_ = 0;
   uint64_t rebuilt_views_ = 0, rebuild_removed_ = 0;
 };
 

@@ -1,5 +1,10 @@
 #include "server/service/refinement_worker.h"
 
+#include <pthread.h>
+#include <sys/resource.h>
+#include <sys/syscall.h>
+#include <unistd.h>
+
 #include <algorithm>
 #include <cmath>
 
@@ -9,6 +14,7 @@ namespace exo {
 
 absl::Status RefinementWorkerOptions::Validate() const {
   if (queue < 1) return absl::InvalidArgumentError("refine_queue must be >= 1");
+  if (nice < -20 || nice > 19) return absl::InvalidArgumentError("nice must be in [-20, 19]");
   if (downscale < 1 || downscale > 8)
     return absl::InvalidArgumentError("refine_downscale must be in [1, 8]");
   return refine.Validate();
@@ -73,6 +79,12 @@ bool RefinementWorker::TrySubmit(RefinementJob job) {
 }
 
 void RefinementWorker::Run() {
+  pthread_setname_np(pthread_self(), "exo-refine");
+  if (options_.nice != 0) {
+    // Per-thread nice (Linux threads are scheduled as tasks); a failure only loses the priority.
+    const auto tid = static_cast<id_t>(syscall(SYS_gettid));
+    (void)setpriority(PRIO_PROCESS, tid, options_.nice);
+  }
   while (auto job = queue_.Pop()) {
     std::vector<const StoredView*> refs;
     refs.reserve(job->refs.size());

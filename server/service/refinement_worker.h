@@ -25,6 +25,10 @@ struct RefinementWorkerOptions {
   // Reference pyramids kept between jobs (RefinementCache, LRU); 0 = no cache. A stored view is
   // a reference for many candidates; at 1/2 resolution each pyramid is ~0.4 MB.
   size_t cache_views = 64;
+  // Nice value of the worker thread (Linux; 0 = the process's): refinement is asynchronous and
+  // optional, so on a busy CPU it yields to the ingest path (decode, geometry, planning) instead
+  // of slowing it down until admission drops frames (issue 15: 30 Hz on real frames).
+  int nice = 10;
   RefinementOptions refine;
   absl::Status Validate() const;
 };

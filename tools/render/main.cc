@@ -13,6 +13,8 @@
 //   --save_model=FILE      write the model that is rendered (e.g. the synthetic one)
 // Camera path (scene-local frame, camera looks along +z, image y down):
 //   --path=FILE            one pose per line "tx ty tz qw qx qy qz" (local_from_cam), # comments
+//   --path_format=tum      the path is a TUM trajectory "t tx ty tz qx qy qz qw" (world_from_cam)
+//   --intrinsics=fx,fy,cx,cy  the rendered camera (e.g. 7-Scenes 585,585,320,240 at 640x480)
 //   --orbit=N              N poses on a circle around the proxy's bounding box, looking at its
 //                          centre (default when no path is given: 60 poses)
 //   --synthetic paths default to the scene trajectory between the stored frames (novel views)
@@ -57,6 +59,8 @@ double MsSince(Clock::time_point t) {
 
 struct Args {
   std::string model, synthetic, save_model, path, write_path, out_dir, mjpeg;
+  std::string path_format = "local";  // local | tum
+  std::vector<double> intrinsics;     // fx, fy, cx, cy at --width x --height (empty: --hfov_deg)
   int synth_frames = 120, store = 60, r_max = 16, orbit = 0;
   int width = 640, height = 480, jpeg_quality = 90, n_best = 3;
   double hfov_deg = 65.0;
@@ -74,11 +78,21 @@ absl::StatusOr<Args> ValidateArgs(Args a) {
   if (a.jpeg_quality < 1 || a.jpeg_quality > 100)
     return absl::InvalidArgumentError("--jpeg_quality must be in [1, 100]");
   if (a.orbit < 0 || a.orbit > 100000) return absl::InvalidArgumentError("bad --orbit");
+  if (!a.intrinsics.empty()) {
+    if (a.intrinsics.size() != 4 || !(a.intrinsics[0] > 0) || !(a.intrinsics[1] > 0))
+      return absl::InvalidArgumentError("--intrinsics needs fx,fy,cx,cy with fx, fy > 0");
+    for (double v : a.intrinsics)
+      if (!std::isfinite(v)) return absl::InvalidArgumentError("--intrinsics: not finite");
+  }
   return a;
 }
 
 // ---- camera path file: "tx ty tz qw qx qy qz" per line ----
-absl::StatusOr<std::vector<Rigid3d>> ReadPath(const std::string& file) {
+// format "local": "tx ty tz qw qx qy qz" (local_from_cam). format "tum": the TUM RGB-D trajectory
+// format "timestamp tx ty tz qx qy qz qw" (world_from_cam, e.g. exoview_export's trajectory or a
+// dataset's ground truth), made scene-local with the model's origin.
+absl::StatusOr<std::vector<Rigid3d>> ReadPath(const std::string& file, const std::string& format,
+                                              const LocalOrigin& origin) {
   std::ifstream f(file);
   if (!f) return absl::NotFoundError(absl::StrCat("cannot open camera path ", file));
   std::vector<Rigid3d> out;
@@ -87,24 +101,34 @@ absl::StatusOr<std::vector<Rigid3d>> ReadPath(const std::string& file) {
     const size_t hash = line.find('#');
     if (hash != std::string::npos) line.resize(hash);
     std::istringstream in(line);
-    double v[7];
+    const bool tum = format == "tum";
+    const int want = tum ? 8 : 7;
+    double v[8];
     int k = 0;
-    while (k < 7 && (in >> v[k])) ++k;
+    while (k < want && (in >> v[k])) ++k;
     if (k == 0 && in.eof()) continue;  // blank / comment
     std::string rest;
-    if (k != 7 || (in >> rest))
-      return absl::InvalidArgumentError(absl::StrCat(file, ":", n,
-                                                     ": expected 7 numbers tx ty tz qw qx qy qz"));
+    if (k != want || (in >> rest))
+      return absl::InvalidArgumentError(
+          absl::StrCat(file, ":", n,
+                       tum ? ": expected 8 numbers timestamp tx ty tz qx qy qz qw (TUM)"
+                           : ": expected 7 numbers tx ty tz qw qx qy qz"));
     Rigid3d p;
-    p.translation = {v[0], v[1], v[2]};
-    p.rotation = glm::dquat(v[3], v[4], v[5], v[6]);
-    for (double x : v)
-      if (!std::isfinite(x)) return absl::InvalidArgumentError(absl::StrCat(file, ":", n, ": not finite"));
+    if (tum) {
+      p.translation = {v[1], v[2], v[3]};
+      p.rotation = glm::dquat(v[7], v[4], v[5], v[6]);
+    } else {
+      p.translation = {v[0], v[1], v[2]};
+      p.rotation = glm::dquat(v[3], v[4], v[5], v[6]);
+    }
+    for (int i = 0; i < want; ++i)
+      if (!std::isfinite(v[i]))
+        return absl::InvalidArgumentError(absl::StrCat(file, ":", n, ": not finite"));
     const double qn = glm::length(p.rotation);
     if (std::abs(qn - 1.0) > 1e-3)
       return absl::InvalidArgumentError(absl::StrCat(file, ":", n, ": quaternion norm ", qn, " is not 1"));
     p.rotation = glm::normalize(p.rotation);
-    out.push_back(p);
+    out.push_back(tum ? origin.ToLocal(p) : p);
   }
   if (out.empty()) return absl::InvalidArgumentError(absl::StrCat(file, ": no poses"));
   return out;
@@ -277,6 +301,14 @@ int Main(int argc, char** argv) {
   app.add_option("--save_model", parsed.save_model, "write the model that is rendered");
   app.add_option("--path", parsed.path,
                  "camera path: one pose per line 'tx ty tz qw qx qy qz' (local_from_cam), # comments");
+  app.add_option("--path_format", parsed.path_format,
+                 "local: 'tx ty tz qw qx qy qz' local_from_cam; tum: 'timestamp tx ty tz qx qy qz "
+                 "qw' world_from_cam (made local with the model's origin)")
+      ->check(CLI::IsMember({"local", "tum"}))
+      ->capture_default_str();
+  app.add_option("--intrinsics", parsed.intrinsics,
+                 "fx,fy,cx,cy of the rendered camera at --width x --height (default: --hfov_deg)")
+      ->delimiter(',');
   app.add_option("--orbit", parsed.orbit,
                  "N poses on a circle around the proxy's bounding box (default without a path: 60; "
                  "synthetic models default to the scene trajectory between the stored frames)");
@@ -322,7 +354,7 @@ int Main(int argc, char** argv) {
     }
   }
   if (!args.path.empty()) {
-    auto p = ReadPath(args.path);
+    auto p = ReadPath(args.path, args.path_format, model.origin);
     if (!p.ok()) {
       std::fprintf(stderr, "exoview_render: %s\n", p.status().ToString().c_str());
       return 1;
@@ -374,8 +406,13 @@ int Main(int argc, char** argv) {
       return 1;
     }
   }
-  const PinholeCamera cam = PinholeCamera::FromFov(args.width, args.height,
-                                                   args.hfov_deg * M_PI / 180.0);
+  PinholeCamera cam = PinholeCamera::FromFov(args.width, args.height, args.hfov_deg * M_PI / 180.0);
+  if (!args.intrinsics.empty()) {
+    cam.fx = args.intrinsics[0];
+    cam.fy = args.intrinsics[1];
+    cam.cx = args.intrinsics[2];
+    cam.cy = args.intrinsics[3];
+  }
   blend::BlendOptions bo;
   bo.n_best = args.n_best;
   std::vector<double> render_ms;
