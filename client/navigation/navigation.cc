@@ -93,9 +93,22 @@ std::optional<ViewId> NearestView(const LumigraphModel& model, const glm::dvec3&
 }
 
 absl::Status AdaptiveOptions::Validate() const {
-  if (moving_divisor != 1 && moving_divisor != 2 && moving_divisor != 4 && moving_divisor != 8)
-    return absl::InvalidArgumentError("moving_divisor must be 1, 2, 4 or 8");
+  auto pow2 = [](int d) { return d == 1 || d == 2 || d == 4 || d == 8; };
+  if (!pow2(moving_divisor) || !pow2(min_divisor) || !pow2(max_divisor))
+    return absl::InvalidArgumentError("divisors must be 1, 2, 4 or 8");
+  if (min_divisor > max_divisor || moving_divisor < min_divisor || moving_divisor > max_divisor)
+    return absl::InvalidArgumentError("need min_divisor <= moving_divisor <= max_divisor");
+  if (!(target_ms >= 0)) return absl::InvalidArgumentError("target_ms must be >= 0");
   return absl::OkStatus();
+}
+
+void AdaptiveResolution::ReportMovingFrame(double frame_ms) {
+  if (!options_.enabled || options_.target_ms <= 0 || last_ != moving_) return;
+  if (frame_ms > options_.target_ms && moving_ < options_.max_divisor) {
+    moving_ *= 2;
+  } else if (frame_ms * 4 < 0.8 * options_.target_ms && moving_ > options_.min_divisor) {
+    moving_ /= 2;
+  }
 }
 
 int AdaptiveResolution::Next(bool changed) {
@@ -103,7 +116,7 @@ int AdaptiveResolution::Next(bool changed) {
     if (changed || last_ == 0) return last_ = 1;
     return 0;
   }
-  if (changed || last_ == 0) return last_ = options_.moving_divisor;
+  if (changed || last_ == 0) return last_ = moving_;
   if (last_ > 1) return last_ = last_ / 2;
   return 0;
 }

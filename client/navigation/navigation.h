@@ -67,21 +67,31 @@ std::optional<ViewId> NearestView(const LumigraphModel& model, const glm::dvec3&
 struct AdaptiveOptions {
   bool enabled = true;
   int moving_divisor = 4;  // render at 1/d of the window per side while the camera moves
+  // Frame-time budget while moving (0 = fixed moving_divisor): a moving frame over budget
+  // doubles the divisor (up to max_divisor); one that would fit 4x the pixels halves it (down
+  // to min_divisor).
+  double target_ms = 33.3;
+  int min_divisor = 2, max_divisor = 8;
   absl::Status Validate() const;
 };
 
 // What to render next: a divisor of the window size (1 = full resolution) or 0 = nothing (the
-// last presented frame is still exact). Moving: moving_divisor every frame. Stopped: the
-// divisor halves frame by frame (¼ -> ½ -> full), then 0 until something changes. Off: full
-// resolution whenever something changed, else 0.
+// last presented frame is still exact). Moving: the moving divisor every frame (adapted to the
+// budget by ReportMovingFrame). Stopped: the divisor halves frame by frame (e.g. ¼ -> ½ ->
+// full), then 0 until something changes. Off: full resolution whenever something changed, else 0.
 class AdaptiveResolution {
  public:
-  explicit AdaptiveResolution(const AdaptiveOptions& options) : options_(options) {}
+  explicit AdaptiveResolution(const AdaptiveOptions& options)
+      : options_(options), moving_(options.moving_divisor) {}
   int Next(bool changed);
+  // Wall time of the last frame rendered while moving (render + present), for the budget.
+  void ReportMovingFrame(double frame_ms);
   int last() const { return last_; }
+  int moving_divisor() const { return moving_; }
 
  private:
   AdaptiveOptions options_;
+  int moving_;
   int last_ = 0;  // divisor of the last rendered frame (0 = none yet)
 };
 

@@ -77,6 +77,37 @@ TEST(AdaptiveResolution, QuarterWhileMovingThenHalfThenFullThenReuse) {
   AdaptiveOptions bad;
   bad.moving_divisor = 3;
   EXPECT_FALSE(bad.Validate().ok());
+  bad.moving_divisor = 1;  // below min_divisor 2
+  EXPECT_FALSE(bad.Validate().ok());
+  EXPECT_TRUE(AdaptiveOptions{}.Validate().ok());
+}
+
+TEST(AdaptiveResolution, MovingDivisorFollowsTheFrameBudget) {
+  AdaptiveOptions o;  // 33.3 ms, divisors 2..8, start 4
+  AdaptiveResolution a(o);
+  EXPECT_EQ(a.Next(true), 4);
+  a.ReportMovingFrame(60);  // over budget: coarser
+  EXPECT_EQ(a.Next(true), 8);
+  a.ReportMovingFrame(60);  // already the coarsest
+  EXPECT_EQ(a.Next(true), 8);
+  a.ReportMovingFrame(20);  // fits, but 4x the pixels would not: stay
+  EXPECT_EQ(a.Next(true), 8);
+  a.ReportMovingFrame(5);  // 4x the pixels fits: finer
+  EXPECT_EQ(a.Next(true), 4);
+  a.ReportMovingFrame(5);
+  EXPECT_EQ(a.Next(true), 2);
+  a.ReportMovingFrame(1);  // min_divisor 2
+  EXPECT_EQ(a.Next(true), 2);
+  // A report for a refinement frame (not the moving divisor) changes nothing.
+  EXPECT_EQ(a.Next(false), 1);
+  a.ReportMovingFrame(1000);
+  EXPECT_EQ(a.Next(true), 2);
+  // Budget 0: fixed divisor.
+  o.target_ms = 0;
+  AdaptiveResolution f(o);
+  EXPECT_EQ(f.Next(true), 4);
+  f.ReportMovingFrame(1000);
+  EXPECT_EQ(f.Next(true), 4);
 }
 
 // Picking: the ray through a pixel of a synthetic frame hits the scene at the ground-truth depth

@@ -22,6 +22,9 @@ int main(int argc, char** argv) {
   app.add_option("--moving_divisor", o.moving_divisor,
                  "resolution divisor per side while moving (1, 2, 4, 8)")
       ->check(CLI::IsMember({1, 2, 4, 8}));
+  app.add_option("--target_ms", o.target_ms,
+                 "frame budget while moving: the divisor adapts (0 = fixed --moving_divisor)")
+      ->check(CLI::NonNegativeNumber);
   app.add_option("--start_view", o.start_view, "start at this stored view id");
   app.add_flag("!--no_overlays", o.overlays, "start with the HUD and overlays hidden (Tab)");
   app.add_option("--record", o.record, "write the session's camera path (TUM) here at exit");

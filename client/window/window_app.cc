@@ -9,6 +9,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <mutex>
 #include <nlohmann/json.hpp>
 #include <thread>
@@ -60,7 +61,10 @@ class ModelSource {
         const double now_s = std::chrono::duration<double>(
                                  std::chrono::system_clock::now().time_since_epoch())
                                  .count();
-        self->latency_ms_.store((now_s - d.source_timestamp_s()) * 1e3);
+        // Meaningful only when the uploader stamps frames with wall-clock time (a live camera);
+        // dataset timestamps (e.g. 7-Scenes' frame times) are not, and are not shown.
+        const double ms = (now_s - d.source_timestamp_s()) * 1e3;
+        if (ms >= 0 && ms < 3600e3) self->latency_ms_.store(ms);
       }
     });
     src->thread_ = std::thread([self] { self->Run(); });
@@ -289,6 +293,23 @@ class App {
     ImDrawList* dl = ImGui::GetBackgroundDrawList();
     const PinholeCamera cam = Camera(W, H);
     const Rigid3d cam_from_local = pose.Inverse();
+    // Occlusion: the proxy's z-depth at 1/8 of the window (RenderProxyDepth), refreshed when the
+    // pose or the model changed; a point farther than the surface (+3 %) is hidden.
+    const int dw = std::max(1, W / 8), dh = std::max(1, H / 8);
+    if (occ_pose_.translation != pose.translation || occ_pose_.rotation != pose.rotation ||
+        occ_version_ != info_.version || occ_depth_.width() != dw || occ_depth_.height() != dh) {
+      auto depth = renderer_->RenderProxyDepth(Camera(dw, dh), pose);
+      occ_depth_ = depth.ok() ? *std::move(depth) : ImageF();
+      occ_pose_ = pose;
+      occ_version_ = info_.version;
+    }
+    auto visible = [&](const glm::dvec3& pc, const glm::dvec2& uv) {
+      if (occ_depth_.empty()) return true;
+      const int x = int(std::floor((uv.x + 0.5) * dw / W)), y = int(std::floor((uv.y + 0.5) * dh / H));
+      if (x < 0 || y < 0 || x >= dw || y >= dh) return true;
+      const float z = occ_depth_.at(x, y);
+      return !(z > 0) || pc.z <= z * 1.03 + 0.01;
+    };
     auto project = [&](const glm::dvec3& p_local, ImVec2* out) {
       const glm::dvec3 pc = cam_from_local * p_local;
       if (pc.z < 0.05) return false;
@@ -297,9 +318,14 @@ class App {
       *out = ImVec2(float(uv.x + 0.5), float(uv.y + 0.5));
       return std::abs(uv.x) < 4 * W && std::abs(uv.y) < 4 * H;
     };
+    auto seen = [&](const glm::dvec3& p_local) {
+      const glm::dvec3 pc = cam_from_local * p_local;
+      glm::dvec2 uv;
+      return pc.z > 0.05 && cam.Project(pc, &uv) && visible(pc, uv);
+    };
     auto line = [&](const glm::dvec3& a, const glm::dvec3& b, ImU32 col, float th) {
       ImVec2 pa, pb;
-      if (project(a, &pa) && project(b, &pb)) dl->AddLine(pa, pb, col, th);
+      if (project(a, &pa) && project(b, &pb) && seen(0.5 * (a + b))) dl->AddLine(pa, pb, col, th);
     };
     const double scale = std::max(0.05, nav::ModelBounds(info_.geom).Diagonal() * 0.02);
     if (show_wire_) {
@@ -327,7 +353,8 @@ class App {
       for (const auto& [cell, refs] : info_.geom.cell_refs) {
         if (k++ % stride) continue;
         ImVec2 p;
-        if (!project(info_.geom.grid.Centre(cell), &p)) continue;
+        const glm::dvec3 centre = info_.geom.grid.Centre(cell);
+        if (!project(centre, &p) || !seen(centre)) continue;
         // Reference count relative to the fullest cell: red (1 ref) -> green (full).
         const float f = std::clamp(float(refs.size()) / float(info_.max_refs), 0.f, 1.f);
         dl->AddCircleFilled(p, 2.5f, IM_COL32(int(255 * (1 - f)), int(255 * f), 40, 200));
@@ -351,6 +378,8 @@ class App {
                                        {-0.5, vc.height - 0.5}};
         for (int i = 0; i < 4; ++i) c[i] = v.local_from_cam * vc.Unproject(corners[i], z);
         const glm::dvec3 o = v.local_from_cam.translation;
+        // A frustum at (or around) the eye would cover the screen: skip those within 3 sizes.
+        if (glm::length(o - pose.translation) < 3 * z) continue;
         const float th = live ? 2.5f : 1.2f;
         for (int i = 0; i < 4; ++i) {
           line(o, c[i], col, th);
@@ -379,9 +408,11 @@ class App {
     ImGui::Text("%s", source_->state().c_str());
     if (source_->live()) {
       const double ago = source_->seconds_since_delta();
-      ImGui::Text("deltas %llu (%.1f MB)  last %.1f s ago  latency %.0f ms",
-                  (unsigned long long)source_->deltas(), source_->bytes() / 1e6, ago,
-                  source_->latency_ms());
+      const double lat = source_->latency_ms();
+      char lat_text[32] = "n/a";
+      if (lat >= 0) std::snprintf(lat_text, sizeof(lat_text), "%.0f ms", lat);
+      ImGui::Text("deltas %llu (%.1f MB)  last %.1f s ago  capture->view latency %s",
+                  (unsigned long long)source_->deltas(), source_->bytes() / 1e6, ago, lat_text);
     }
     ImGui::Text("speed %.2f m/s%s%s", cam.speed_mps(), follow_ ? "  FOLLOW" : "",
                 replaying_ ? "  REPLAY" : "");
@@ -466,6 +497,10 @@ class App {
     nav::AdaptiveOptions ao;
     ao.enabled = o_.adaptive;
     ao.moving_divisor = o_.moving_divisor;
+    ao.target_ms = o_.target_ms;
+    ao.min_divisor = std::min(ao.min_divisor, o_.moving_divisor);
+    ao.max_divisor = std::max(ao.max_divisor, o_.moving_divisor);
+    if (auto s = ao.Validate(); !s.ok()) return Fail(s);
     nav::AdaptiveResolution adaptive(ao);
     overlays_ = o_.overlays;
     std::vector<nav::PathPose> recorded;
@@ -576,6 +611,7 @@ class App {
       }
       if (d > 0) {
         frame_ms_ = MsSince(t_frame);
+        if (changed) adaptive.ReportMovingFrame(frame_ms_);
         ++frame;
         if (!o_.record.empty())
           recorded.push_back({MsSince(t_start) * 1e-3,
@@ -628,13 +664,24 @@ class App {
     };
     nlohmann::json modes = nlohmann::json::object();
     Rigid3d still_pose;
-    for (bool adaptive_on : {true, false}) {
+    struct Mode {
+      const char* name;
+      bool enabled;
+      double target_ms;
+    };
+    for (const Mode& mode : {Mode{"adaptive_budget", true, o_.target_ms > 0 ? o_.target_ms : 33.3},
+                             Mode{"adaptive_fixed", true, 0.0}, Mode{"full_always", false, 0.0}}) {
       nav::AdaptiveOptions ao;
-      ao.enabled = adaptive_on;
+      ao.enabled = mode.enabled;
       ao.moving_divisor = o_.moving_divisor;
+      ao.target_ms = mode.target_ms;
+      ao.min_divisor = std::min(ao.min_divisor, o_.moving_divisor);
+      ao.max_divisor = std::max(ao.max_divisor, o_.moving_divisor);
+      if (auto s = ao.Validate(); !s.ok()) return Fail(s);
       nav::AdaptiveResolution adaptive(ao);
       nav::FlyCamera cam(StartPose(), up, fo);
-      std::vector<double> moving, still_stages, reuse;
+      std::vector<double> moving, moving_render, moving_present, still_stages, reuse;
+      std::map<int, int> divisors;
       // Moving: a forward walk with a slow turn, 1/30 s of motion per frame.
       for (int i = 0; i < o_.bench_frames; ++i) {
         nav::FlyInput in;
@@ -647,11 +694,18 @@ class App {
         DrawOverlays(cam.pose(), W, H);
         auto r = Render(cam.pose(), W / d, H / d);
         if (!r.ok()) return Fail(r.status());
-        if (auto s = presenter_->Present(&*r); !s.ok()) return Fail(s);
+        const double render_ms = MsSince(t0);
+        PresentTimings pt;
+        if (auto s = presenter_->Present(&*r, &pt); !s.ok()) return Fail(s);
         moving.push_back(MsSince(t0));
+        moving_render.push_back(render_ms);
+        moving_present.push_back(pt.upload_ms + pt.submit_ms);
+        adaptive.ReportMovingFrame(moving.back());
+        ++divisors[d];
       }
       still_pose = cam.pose();
       // Still: the progressive stages, then frames that reuse the last image.
+      std::vector<int> stage_divisors;
       for (int i = 0; i < 10; ++i) {
         const auto t0 = Clock::now();
         const int d = adaptive.Next(false);
@@ -662,6 +716,7 @@ class App {
           if (!r.ok()) return Fail(r.status());
           if (auto s = presenter_->Present(&*r); !s.ok()) return Fail(s);
           still_stages.push_back(MsSince(t0));
+          stage_divisors.push_back(d);
         } else {
           if (auto s = presenter_->Present(nullptr); !s.ok()) return Fail(s);
           reuse.push_back(MsSince(t0));
@@ -669,14 +724,19 @@ class App {
       }
       double to_full = 0;
       for (double v : still_stages) to_full += v;
-      modes[adaptive_on ? "adaptive" : "full_always"] = {
-          {"moving_divisor", adaptive_on ? o_.moving_divisor : 1},
-          {"moving_median_ms", median(moving)},
-          {"moving_p90_ms", p90(moving)},
-          {"moving_fps", 1000.0 / std::max(1e-9, median(moving))},
-          {"still_stage_ms", still_stages},
-          {"still_to_full_ms", to_full},
-          {"still_reuse_median_ms", median(reuse)}};
+      nlohmann::json hist = nlohmann::json::object();
+      for (auto [d, n] : divisors) hist[std::to_string(d)] = n;
+      modes[mode.name] = {{"target_ms", mode.target_ms},
+                          {"moving_divisor_frames", hist},
+                          {"moving_median_ms", median(moving)},
+                          {"moving_p90_ms", p90(moving)},
+                          {"moving_fps", 1000.0 / std::max(1e-9, median(moving))},
+                          {"moving_render_median_ms", median(moving_render)},
+                          {"moving_present_median_ms", median(moving_present)},
+                          {"still_stage_divisors", stage_divisors},
+                          {"still_stage_ms", still_stages},
+                          {"still_to_full_ms", to_full},
+                          {"still_reuse_median_ms", median(reuse)}};
     }
     // What the person sees at each stage, against the full-quality frame at the still pose.
     auto full = Render(still_pose, W, H);
@@ -689,7 +749,11 @@ class App {
       if (!s.ok()) return Fail(s.status());
       ssim[d == 1 ? "full" : d == 2 ? "half" : d == 4 ? "quarter" : "eighth"] = *s;
     }
+    double load1 = -1;
+    if (std::ifstream la("/proc/loadavg"); la) la >> load1;
     const nlohmann::json out = {{"bench", "exoview_window"},
+                                {"loadavg_1min", load1},
+                                {"nproc", std::thread::hardware_concurrency()},
                                 {"label", o_.bench_label},
                                 {"model", o_.model_file},
                                 {"views", info_.geom.views.size()},
@@ -721,6 +785,9 @@ class App {
   int stage_ = 1;
   double frame_ms_ = 0, render_ms_ = 0, present_ms_ = 0;
   std::optional<nav::PickResult> centre_pick_;
+  ImageF occ_depth_;
+  Rigid3d occ_pose_;
+  uint64_t occ_version_ = ~0ull;
 };
 
 }  // namespace

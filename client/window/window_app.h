@@ -21,7 +21,8 @@ struct WindowAppOptions {
   double hfov_deg = 65.0;
   int n_best = 3;
   bool adaptive = true;
-  int moving_divisor = 4;
+  int moving_divisor = 4;      // start divisor while moving
+  double target_ms = 33.3;     // moving frame budget (0 = keep moving_divisor)
   int start_view = -1;        // initial pose: this stored view (default: the smallest id)
   bool overlays = true;       // HUD + scene overlays at start (Tab toggles)
   std::string record;         // TUM path of the session, written at exit
