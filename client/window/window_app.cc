@@ -617,7 +617,11 @@ class App {
           recorded.push_back({MsSince(t_start) * 1e-3,
                               {cam.pose().rotation, cam.pose().translation + info_.geom.origin.origin_in_world}});
       }
-      if (d == 1) WriteStatus(cam, frame);
+      // Status after each full-resolution frame, and when the sync state changes (e.g. the
+      // server went away: the last model stays on screen, the HUD says "reconnecting").
+      const std::string sync_state = source_->state();
+      if (d == 1 || sync_state != last_sync_state_) WriteStatus(cam, frame);
+      last_sync_state_ = sync_state;
       if (o_.max_seconds > 0 && MsSince(t_start) > o_.max_seconds * 1e3) quit = true;
       // Converged and nothing happening: wait for input instead of spinning (HUD refresh 4 Hz).
       if (d == 0 && !follow_ && !replaying_) SDL_WaitEventTimeout(nullptr, overlays_ ? 250 : 1000);
@@ -785,6 +789,7 @@ class App {
   int stage_ = 1;
   double frame_ms_ = 0, render_ms_ = 0, present_ms_ = 0;
   std::optional<nav::PickResult> centre_pick_;
+  std::string last_sync_state_;
   ImageF occ_depth_;
   Rigid3d occ_pose_;
   uint64_t occ_version_ = ~0ull;

@@ -74,6 +74,8 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--window_bin", required=True)
     ap.add_argument("--render_bin", required=True)
+    ap.add_argument("--server_bin", default="")
+    ap.add_argument("--uploader_bin", default="")
     ap.add_argument("--work_dir", default="")
     ap.add_argument("--docs_dir", default="")
     ap.add_argument("--timeout_s", type=float, default=90)
@@ -207,12 +209,85 @@ def main():
         log(f"recorded path: {n} poses, last vs the R screenshot {psnr(last, img3):.1f} dB")
         if n < 4 or psnr(last, img3) < 40:
             fail("the recorded path does not end at the reset view")
+        if args.server_bin and args.uploader_bin:
+            live_part(args, env, work, shot)
         log("PASS")
         return 0
     finally:
         if win.poll() is None:
             win.kill()
         disp.close()
+
+
+def live_part(args, env, work, shot):
+    """Live subscription: the window follows a real server on loopback; when the server goes
+    away mid-session the window keeps the last model on screen and says it is reconnecting."""
+    port_file = os.path.join(work, "server.port")
+    if os.path.exists(port_file):
+        os.remove(port_file)
+    server = subprocess.Popen([args.server_bin, "--listen=127.0.0.1:0", f"--port_file={port_file}",
+                               "--log_level=warning"], env=env)
+    win = None
+    try:
+        t0 = time.time()
+        while not os.path.exists(port_file) or not open(port_file).read().strip():
+            if time.time() - t0 > 30:
+                fail("the server did not start")
+            time.sleep(0.1)
+        addr = "127.0.0.1:" + open(port_file).read().strip()
+        subprocess.run([args.uploader_bin, f"--server={addr}", "--synthetic=apartment",
+                        "--trajectory=walk", "--frames=20", f"--width={W}", f"--height={H}",
+                        "--rate_hz=0"], check=True, env=env, stdout=subprocess.DEVNULL)
+        status = os.path.join(work, "live_status.json")
+        if os.path.exists(status):
+            os.remove(status)
+        saved = os.path.join(work, "live_saved.exomodel")
+        win = subprocess.Popen([args.window_bin, f"--server={addr}", f"--width={W}", f"--height={H}",
+                                "--no_overlays", f"--status_file={status}",
+                                f"--save_model={saved}", "--max_seconds=120"], env=env)
+
+        def read_status(pred, what):
+            t1 = time.time()
+            while time.time() - t1 < args.timeout_s:
+                if win.poll() is not None:
+                    fail(f"the live window exited ({win.returncode}) waiting for {what}")
+                try:
+                    with open(status) as f:
+                        st = json.load(f)
+                    if pred(st):
+                        return st
+                except (OSError, ValueError, KeyError):
+                    pass
+                time.sleep(0.1)
+            fail(f"live: no status for {what} within {args.timeout_s} s")
+
+        st = read_status(lambda s: s["views"] > 0 and s["sync"].startswith("live: subscribed")
+                         and s["stage"] == 1, "the first live frame")
+        log(f"live: {st['views']} views, model v{st['model_version']}, '{st['sync']}'")
+        time.sleep(0.5)
+        _, before = shot("live")
+        server.kill()
+        server.wait(timeout=10)
+        st2 = read_status(lambda s: "reconnecting" in s["sync"], "reconnecting")
+        time.sleep(1.0)
+        _, after = shot("live_server_gone")
+        log(f"live, server gone: '{st2['sync']}', {st2['views']} views kept, "
+            f"screen vs before {psnr(before, after):.1f} dB")
+        if st2["views"] != st["views"] or st2["model_version"] != st["model_version"]:
+            fail("the window lost its model when the server went away")
+        if after.std() < 5 or psnr(before, after) < 40:
+            fail("the window stopped showing the last model when the server went away")
+        subprocess.run(["xdotool", "key", "Escape"], check=True, env=env)
+        if win.wait(timeout=30) != 0:
+            fail("the live window did not exit cleanly after Esc")
+        if not os.path.exists(saved) or os.path.getsize(saved) < 1000:
+            fail("the live window did not save its model on exit (--save_model)")
+        log(f"live: saved the model on exit ({os.path.getsize(saved)} bytes)")
+    finally:
+        if win is not None and win.poll() is None:
+            win.kill()
+        if server.poll() is None:
+            server.kill()
 
 
 if __name__ == "__main__":
