@@ -35,6 +35,11 @@ int main(int argc, char** argv) {
       ->check(CLI::NonNegativeNumber);
   app.add_option("--path", o.path, "render every pose of this TUM path to --out_dir (no window)");
   app.add_option("--out_dir", o.out_dir, "folder of the --path frames");
+  app.add_option("--http", o.http,
+                 "serve the view to browsers on HOST:PORT instead of a window (port 0 = free)");
+  app.add_option("--port_file", o.port_file, "with --http: write the port here");
+  app.add_option("--jpeg_quality", o.jpeg_quality, "with --http: JPEG quality of the frames")
+      ->check(CLI::Range(1, 100));
   app.add_flag("--bench", o.bench, "frame-time benchmark (moving/still, adaptive on/off) -> JSON");
   app.add_option("--bench_frames", o.bench_frames, "moving frames per benchmark mode")
       ->check(CLI::Range(2, 10000));

@@ -1,6 +1,7 @@
 #include "client/window/window_app.h"
 
 #include <SDL2/SDL.h>
+#include <signal.h>
 
 #include <algorithm>
 #include <atomic>
@@ -19,14 +20,19 @@
 #include "client/uploader/upload_client.h"
 #include "client/viewer/viewer_session.h"
 #include "client/vulkan/vulkan_renderer.h"
+#include "client/window/http_view.h"
 #include "client/window/presenter.h"
 #include "common/io/image_file.h"
+#include "common/io/jpeg.h"
 #include "common/lumigraph/model_io.h"
 #include "common/metrics/metrics.h"
 #include "imgui.h"
 
 namespace exo {
 namespace {
+
+std::atomic<bool> g_stop{false};
+void OnSignal(int) { g_stop.store(true); }
 
 using Clock = std::chrono::steady_clock;
 double MsSince(Clock::time_point t) {
@@ -634,6 +640,146 @@ class App {
     return 0;
   }
 
+  // ---- browser view (no window) ----
+  int RunHttp() {
+    if (auto s = InitModelAndRenderer(true); !s.ok()) return Fail(s);
+    std::mutex status_mu;
+    std::string status_text = "{}";
+    double frame_ms = 0;
+    uint64_t frames = 0;
+    HttpView* view_ptr = nullptr;
+    auto http = HttpView::Start(
+        o_.http,
+        [&] {
+          std::lock_guard lock(status_mu);
+          return status_text;
+        },
+        [&] {
+          std::lock_guard lock(status_mu);
+          char buf[1024];
+          std::snprintf(buf, sizeof(buf),
+                        "# HELP exoview_viewer_frame_ms Wall time of the last rendered frame.\n"
+                        "# TYPE exoview_viewer_frame_ms gauge\nexoview_viewer_frame_ms %.3f\n"
+                        "# HELP exoview_viewer_frames_rendered_total Frames rendered.\n"
+                        "# TYPE exoview_viewer_frames_rendered_total counter\n"
+                        "exoview_viewer_frames_rendered_total %llu\n"
+                        "# HELP exoview_viewer_frames_sent_total JPEG frames sent to browsers.\n"
+                        "# TYPE exoview_viewer_frames_sent_total counter\n"
+                        "exoview_viewer_frames_sent_total %llu\n"
+                        "# HELP exoview_viewer_bytes_received_total Delta bytes received.\n"
+                        "# TYPE exoview_viewer_bytes_received_total counter\n"
+                        "exoview_viewer_bytes_received_total %llu\n"
+                        "# HELP exoview_viewer_model_version Version of the local model.\n"
+                        "# TYPE exoview_viewer_model_version gauge\nexoview_viewer_model_version %llu\n"
+                        "# HELP exoview_viewer_browsers Connected browser connections.\n"
+                        "# TYPE exoview_viewer_browsers gauge\nexoview_viewer_browsers %d\n",
+                        frame_ms, (unsigned long long)frames,
+                        (unsigned long long)(view_ptr ? view_ptr->frames_sent() : 0),
+                        (unsigned long long)source_->bytes(), (unsigned long long)info_.version,
+                        view_ptr ? view_ptr->clients() : 0);
+          return std::string(buf);
+        });
+    if (!http.ok()) return Fail(http.status());
+    view_ptr = http->get();
+    const int port = (*http)->port();
+    if (!o_.port_file.empty()) std::ofstream(o_.port_file) << port << "\n";
+    std::printf("%s\n", nlohmann::json({{"http", "http://127.0.0.1:" + std::to_string(port) + "/"}}).dump().c_str());
+    std::fflush(stdout);
+    signal(SIGTERM, OnSignal);
+    signal(SIGINT, OnSignal);
+    nav::FlyOptions fo;
+    fo.speed_mps = std::max(0.1, nav::ModelBounds(info_.geom).Diagonal() * 0.1);
+    nav::FlyCamera cam(StartPose(), nav::SceneUp(info_.geom), fo);
+    nav::AdaptiveOptions ao;
+    ao.enabled = o_.adaptive;
+    ao.moving_divisor = o_.moving_divisor;
+    ao.target_ms = o_.target_ms;
+    ao.min_divisor = std::min(ao.min_divisor, o_.moving_divisor);
+    ao.max_divisor = std::max(ao.max_divisor, o_.moving_divisor);
+    if (auto s = ao.Validate(); !s.ok()) return Fail(s);
+    nav::AdaptiveResolution adaptive(ao);
+    const int W = o_.width, H = o_.height;
+    const auto t_start = Clock::now();
+    auto t_last = Clock::now();
+    bool force = true;
+    while (!g_stop.load()) {
+      if (o_.max_seconds > 0 && MsSince(t_start) > o_.max_seconds * 1e3) break;
+      const HttpInput hi = (*http)->TakeInput();
+      const double dt = std::min(0.25, MsSince(t_last) * 1e-3);
+      t_last = Clock::now();
+      nav::FlyInput in;
+      in.forward = hi.forward;
+      in.back = hi.back;
+      in.left = hi.left;
+      in.right = hi.right;
+      in.up = hi.up;
+      in.down = hi.down;
+      in.look_dx_px = hi.look_dx_px + 400.0 * dt * (hi.turn_right - hi.turn_left);
+      in.look_dy_px = hi.look_dy_px + 400.0 * dt * (hi.turn_down - hi.turn_up);
+      in.wheel = hi.wheel;
+      for (const std::string& k : hi.presses) {
+        if (k == "r") {
+          if (auto n = nav::NearestView(info_.geom, cam.pose().translation))
+            cam.Reset(info_.geom.views.at(*n).local_from_cam);
+          follow_ = false;
+          force = true;
+        } else if (k == "f") {
+          follow_ = !follow_;
+          force = true;
+        }
+      }
+      bool changed = cam.Step(in, dt) || force;
+      force = false;
+      auto synced = MaybeSync();
+      if (!synced.ok()) return Fail(synced.status());
+      changed |= *synced;
+      if (follow_ && info_.newest) {
+        const Rigid3d& live = info_.geom.views.at(*info_.newest).local_from_cam;
+        if (glm::length(live.translation - cam.pose().translation) > 1e-9) {
+          cam.Reset(live);
+          changed = true;
+        }
+      }
+      const int d = adaptive.Next(changed);
+      if (d == 0) {
+        std::this_thread::sleep_for(std::chrono::milliseconds(15));
+        continue;
+      }
+      const auto t0 = Clock::now();
+      auto img = Render(cam.pose(), std::max(1, W / d), std::max(1, H / d));
+      if (!img.ok()) return Fail(img.status());
+      auto jpeg = EncodeJpeg(*img, o_.jpeg_quality);
+      if (!jpeg.ok()) return Fail(jpeg.status());
+      (*http)->PublishFrame(*std::move(jpeg));
+      const double ms = MsSince(t0);
+      if (changed) adaptive.ReportMovingFrame(ms);
+      stage_ = d;
+      const Rigid3d& p = cam.pose();
+      nlohmann::json j = {{"frame_ms", ms},
+                          {"stage", d},
+                          {"frames", frames + 1},
+                          {"width", img->width()},
+                          {"height", img->height()},
+                          {"model_version", info_.version},
+                          {"views", info_.geom.views.size()},
+                          {"cells", info_.cells},
+                          {"sync", source_->state()},
+                          {"bytes_received", source_->bytes()},
+                          {"clients", (*http)->clients()},
+                          {"follow", follow_},
+                          {"speed_mps", cam.speed_mps()},
+                          {"pose_local", PoseJson(p)}};
+      std::lock_guard lock(status_mu);
+      frame_ms = ms;
+      ++frames;
+      status_text = j.dump();
+    }
+    http->reset();
+    if (source_->live())
+      if (auto s = SaveModel(); !s.ok()) return Fail(s);
+    return 0;
+  }
+
   // ---- benchmark: scripted motion through the real window loop ----
   int RunBench() {
     if (auto s = InitModelAndRenderer(true); !s.ok()) return Fail(s);
@@ -809,6 +955,7 @@ int RunWindowApp(const WindowAppOptions& o) {
   App app(o);
   if (!o.path.empty()) return app.RunPath();
   if (o.bench) return app.RunBench();
+  if (!o.http.empty()) return app.RunHttp();
   return app.RunWindow();
 }
 

@@ -31,6 +31,9 @@ struct WindowAppOptions {
   double max_seconds = 0;     // close after this long (0 = when the window is closed)
   // Scripted render (no window): every pose of `path` (TUM) to out_dir/frame_NNNNN.png.
   std::string path, out_dir;
+  // Browser view (no window): serve the view on HOST:PORT (http_view.h); port_file gets the port.
+  std::string http, port_file;
+  int jpeg_quality = 80;
   // Benchmark (window): moving vs still frame times, adaptive on and off, stage SSIM -> JSON.
   bool bench = false;
   int bench_frames = 40;
