@@ -34,6 +34,9 @@ body{margin:0;background:#111;color:#ddd;font:13px monospace}
 <script>
 "use strict";
 let seq = 0;
+// ?frames=N: stop after N frames (a still snapshot, e.g. for a headless browser's screenshot).
+const maxFrames = Number(new URLSearchParams(location.search).get("frames") || 0);
+let shown = 0;
 const img = document.getElementById("v");
 const sleep = ms => new Promise(r => setTimeout(r, ms));
 async function frames() {
@@ -45,6 +48,7 @@ async function frames() {
         const u = URL.createObjectURL(await r.blob());
         img.onload = () => URL.revokeObjectURL(u);
         img.src = u;
+        if (maxFrames > 0 && ++shown >= maxFrames) return;
       }
     } catch (e) { await sleep(500); }
   }
@@ -57,6 +61,7 @@ async function stats() {
         `frame ${j.frame_ms.toFixed(1)} ms  resolution 1/${j.stage}  model v${j.model_version}  ` +
         `views ${j.views}  cells ${j.cells}  ${j.sync}  frames ${j.frames}  browsers ${j.clients}  ` +
         `| WASD QE move, drag/arrows look, wheel speed, R reset, F follow`;
+      if (maxFrames > 0 && shown >= maxFrames) return;
     } catch (e) {}
     await sleep(500);
   }

@@ -1,6 +1,7 @@
 // The browser view of the viewer (issue 17): a small HTTP server (Boost.Beast, one thread per
 // connection, at most `max_clients`) that serves
 //   GET /             the page (no external assets): the live view, keyboard/mouse navigation, stats
+//                     (/?frames=N stops after N frames: a still snapshot)
 //   GET /frame.jpg?after=N   the newest JPEG frame, waiting (up to 2 s) for one newer than N;
 //                            its sequence number in the X-Frame-Seq header
 //   GET /stream       the same frames as MJPEG (multipart/x-mixed-replace), for <img> or players

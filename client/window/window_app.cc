@@ -393,6 +393,15 @@ class App {
         }
       }
     }
+    if (cursor_pick_) {
+      ImVec2 p;
+      if (project(cursor_pick_->point_local, &p)) {
+        dl->AddCircle(p, 6.f, IM_COL32(255, 60, 255, 255), 16, 2.f);
+        ImVec2 q;
+        if (project(cursor_pick_->point_local + cursor_pick_->normal_local * scale, &q))
+          dl->AddLine(p, q, IM_COL32(255, 60, 255, 255), 2.f);
+      }
+    }
     // Crosshair (the picked point below it is in the HUD).
     dl->AddLine(ImVec2(W / 2.f - 8, H / 2.f), ImVec2(W / 2.f + 8, H / 2.f), IM_COL32(255, 255, 255, 160));
     dl->AddLine(ImVec2(W / 2.f, H / 2.f - 8), ImVec2(W / 2.f, H / 2.f + 8), IM_COL32(255, 255, 255, 160));
@@ -428,12 +437,16 @@ class App {
                   centre_pick_->normal_local.y, centre_pick_->normal_local.z);
     else
       ImGui::Text("centre: no proxy surface");
+    if (cursor_pick_)
+      ImGui::Text("picked: (%.2f %.2f %.2f)  cell %llx", cursor_pick_->point_local.x,
+                  cursor_pick_->point_local.y, cursor_pick_->point_local.z,
+                  (unsigned long long)cursor_pick_->cell);
     ImGui::Checkbox("frusta", &show_frusta_);
     ImGui::SameLine();
     ImGui::Checkbox("wireframe", &show_wire_);
     ImGui::SameLine();
     ImGui::Checkbox("cells", &show_cells_);
-    ImGui::TextDisabled("WASD/QE move, drag/arrows look, wheel speed, R F Tab P Esc");
+    ImGui::TextDisabled("WASD/QE move, drag/arrows look, wheel speed, right-click pick, R F Tab P Esc");
     ImGui::End();
   }
 
@@ -551,6 +564,26 @@ class App {
           in.look_dy_px += e.motion.yrel;
         }
         if (e.type == SDL_MOUSEWHEEL && !imgui) in.wheel += e.wheel.y;
+        // Right click: pick the proxy under the cursor (point, normal, cell), the hook for the
+        // operator actions (marking a region, steering the drone).
+        if (e.type == SDL_MOUSEBUTTONDOWN && e.button.button == SDL_BUTTON_RIGHT && !imgui) {
+          const int W = presenter_->width(), H = presenter_->height();
+          cursor_pick_ = nav::Pick(info_.geom, Camera(W, H), cam.pose(),
+                                   {double(e.button.x), double(e.button.y)});
+          if (cursor_pick_) {
+            const glm::dvec3 pw = info_.geom.origin.origin_in_world + cursor_pick_->point_local;
+            std::printf("%s\n", nlohmann::json({{"pick", {pw.x, pw.y, pw.z}},
+                                                {"normal", {cursor_pick_->normal_local.x,
+                                                            cursor_pick_->normal_local.y,
+                                                            cursor_pick_->normal_local.z}},
+                                                {"cell", cursor_pick_->cell},
+                                                {"pixel", {e.button.x, e.button.y}}})
+                                    .dump()
+                                    .c_str());
+            std::fflush(stdout);
+          }
+          overlay_changed = true;
+        }
       }
       const double dt = std::min(0.25, MsSince(t_last) * 1e-3);
       t_last = Clock::now();
@@ -934,7 +967,7 @@ class App {
   bool follow_ = false, replaying_ = false;
   int stage_ = 1;
   double frame_ms_ = 0, render_ms_ = 0, present_ms_ = 0;
-  std::optional<nav::PickResult> centre_pick_;
+  std::optional<nav::PickResult> centre_pick_, cursor_pick_;
   std::string last_sync_state_;
   ImageF occ_depth_;
   Rigid3d occ_pose_;

@@ -97,7 +97,8 @@ def main():
     record = os.path.join(work, "session.tum")
     win = subprocess.Popen([args.window_bin, f"--model={model}", f"--width={W}", f"--height={H}",
                             "--no_overlays", f"--status_file={status}", f"--record={record}",
-                            "--max_seconds=120"], env=env)
+                            "--max_seconds=120"], env=env,
+                           stdout=open(os.path.join(work, "window_stdout.txt"), "w"))
     shot_n = [0]
 
     def xdo(*a):
@@ -186,6 +187,22 @@ def main():
         log(f"R: view {s3.get('nearest_view')}, screenshot vs offline render {p_ref:.1f} dB")
         if p_ref < 40:
             fail(f"after R the screenshot differs from the render of that view ({p_ref:.1f} dB)")
+        # ---- right click: picking at the centre pixel = the status's centre point ----
+        xdo("mousemove", str(W // 2), str(H // 2))
+        xdo("click", "3")
+        time.sleep(1.0)
+        picks = [json.loads(l) for l in open(os.path.join(work, "window_stdout.txt"))
+                 if l.startswith('{"')]
+        picks = [p for p in picks if "pick" in p]
+        if not picks:
+            fail("right click printed no pick")
+        origin = np.array(s3["pose_world"]["t"]) - np.array(s3["pose_local"]["t"])
+        centre_world = np.array(s3["centre_point_local"]) + origin
+        err = float(np.linalg.norm(np.array(picks[-1]["pick"]) - centre_world))
+        log(f"pick at pixel {picks[-1]['pixel']}: {err * 1000:.1f} mm from the centre point, "
+            f"cell {picks[-1]['cell']}")
+        if err > 0.05:
+            fail("the picked point is not the point under the cursor")
         # ---- overlays for the docs, then Esc ----
         if args.docs_dir:
             os.makedirs(args.docs_dir, exist_ok=True)
