@@ -26,6 +26,7 @@
 #include "common/io/jpeg.h"
 #include "common/lumigraph/model_io.h"
 #include "common/metrics/metrics.h"
+#include "common/run_info/run_info.h"
 #include "imgui.h"
 
 namespace exo {
@@ -932,11 +933,8 @@ class App {
       if (!s.ok()) return Fail(s.status());
       ssim[d == 1 ? "full" : d == 2 ? "half" : d == 4 ? "quarter" : "eighth"] = *s;
     }
-    double load1 = -1;
-    if (std::ifstream la("/proc/loadavg"); la) la >> load1;
     const nlohmann::json out = {{"bench", "exoview_window"},
-                                {"loadavg_1min", load1},
-                                {"nproc", std::thread::hardware_concurrency()},
+                                {"run_info", RunInfo()},
                                 {"label", o_.bench_label},
                                 {"model", o_.model_file},
                                 {"views", info_.geom.views.size()},
