@@ -10,6 +10,7 @@ int main(int argc, char** argv) {
                "exoview_window"};
   exo::cli::Setup(app);
   app.add_option("--model", o.model_file, "model file to show (exoview_viewer --save_model)");
+  app.add_option("--checkpoint", o.checkpoint, "or: a server checkpoint file (--checkpoint_path)");
   app.add_option("--server", o.server, "or: subscribe to this server HOST:PORT (live)");
   app.add_option("--journal", o.journal, "delta journal of the live subscription (resume)");
   app.add_option("--save_model", o.save_model, "write the model here on P and on exit (live)");

@@ -17,6 +17,7 @@
 #include <vector>
 
 #include "client/navigation/navigation.h"
+#include "client/store/local_store.h"
 #include "client/uploader/upload_client.h"
 #include "client/viewer/viewer_session.h"
 #include "client/vulkan/vulkan_renderer.h"
@@ -45,6 +46,28 @@ int Fail(const absl::Status& s) {
   return absl::IsInvalidArgument(s) || absl::IsNotFound(s) || absl::IsDataLoss(s) ? 2 : 1;
 }
 
+// A server checkpoint (exoview_server --checkpoint_path) as a model: its snapshot deltas applied
+// to a LocalStore (the same steps as tools/export's loader).
+absl::StatusOr<LumigraphModel> LoadCheckpointModel(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return absl::NotFoundError("cannot open checkpoint " + path);
+  v1::Checkpoint c;
+  if (!c.ParseFromIstream(&in))
+    return absl::DataLossError("not a checkpoint (protobuf parse failed): " + path);
+  if (c.format() != 1)
+    return absl::InvalidArgumentError("checkpoint format " + std::to_string(c.format()) +
+                                      " is not 1: " + path);
+  LocalStore store;
+  v1::Delta begin, end;
+  begin.mutable_snapshot_begin();
+  end.mutable_snapshot_end();
+  end.set_version(c.version());
+  EXO_RETURN_IF_ERROR(store.Apply(begin));
+  for (const v1::Delta& d : c.model()) EXO_RETURN_IF_ERROR(store.Apply(d));
+  EXO_RETURN_IF_ERROR(store.Apply(end));
+  return store.model();
+}
+
 // The model the window shows: a file (fixed) or a live subscription (a background thread keeps
 // the ViewerSession's store up to date and reconnects when the server goes away).
 class ModelSource {
@@ -54,6 +77,11 @@ class ModelSource {
     if (!o.model_file.empty()) {
       EXO_ASSIGN_OR_RETURN(src->file_model_, LoadModel(o.model_file));
       src->state_ = "saved model " + std::filesystem::path(o.model_file).filename().string();
+      return src;
+    }
+    if (!o.checkpoint.empty()) {
+      EXO_ASSIGN_OR_RETURN(src->file_model_, LoadCheckpointModel(o.checkpoint));
+      src->state_ = "checkpoint " + std::filesystem::path(o.checkpoint).filename().string();
       return src;
     }
     src->live_ = true;
@@ -975,8 +1003,10 @@ class App {
 }  // namespace
 
 int RunWindowApp(const WindowAppOptions& o) {
-  if (o.model_file.empty() == o.server.empty()) {
-    std::fprintf(stderr, "exoview_window: give exactly one of --model FILE or --server HOST:PORT\n");
+  if (int(!o.model_file.empty()) + int(!o.server.empty()) + int(!o.checkpoint.empty()) != 1) {
+    std::fprintf(stderr,
+                 "exoview_window: give exactly one of --model FILE, --checkpoint FILE or --server "
+                 "HOST:PORT\n");
     return 2;
   }
   if (!o.path.empty() && o.out_dir.empty()) {

@@ -16,6 +16,7 @@ namespace exo {
 struct WindowAppOptions {
   // Model: a file (model_io.h) or a server subscription.
   std::string model_file, server, journal;
+  std::string checkpoint;  // or a server checkpoint (exoview_server --checkpoint_path)
   std::string save_model;  // written on P and on exit (live sessions)
   int width = 1280, height = 720;
   double hfov_deg = 65.0;

@@ -242,8 +242,12 @@ def live_part(args, env, work, shot):
     port_file = os.path.join(work, "server.port")
     if os.path.exists(port_file):
         os.remove(port_file)
+    checkpoint = os.path.join(work, "server.checkpoint")
+    if os.path.exists(checkpoint):
+        os.remove(checkpoint)
     server = subprocess.Popen([args.server_bin, "--listen=127.0.0.1:0", f"--port_file={port_file}",
-                               "--log_level=warning"], env=env)
+                               "--log_level=warning", f"--checkpoint_path={checkpoint}",
+                               "--checkpoint_interval_s=1"], env=env)
     win = None
     try:
         t0 = time.time()
@@ -281,7 +285,7 @@ def live_part(args, env, work, shot):
         st = read_status(lambda s: s["views"] > 0 and s["sync"].startswith("live: subscribed")
                          and s["stage"] == 1, "the first live frame")
         log(f"live: {st['views']} views, model v{st['model_version']}, '{st['sync']}'")
-        time.sleep(0.5)
+        time.sleep(2.0)  # >= one checkpoint interval after the upload ended
         _, before = shot("live")
         server.kill()
         server.wait(timeout=10)
@@ -300,6 +304,20 @@ def live_part(args, env, work, shot):
         if not os.path.exists(saved) or os.path.getsize(saved) < 1000:
             fail("the live window did not save its model on exit (--save_model)")
         log(f"live: saved the model on exit ({os.path.getsize(saved)} bytes)")
+        # The server's checkpoint is readable too: rendered at the live view's pose, it shows
+        # what the live window showed.
+        tum = os.path.join(work, "live.tum")
+        t, q = st["pose_world"]["t"], st["pose_world"]["q_wxyz"]
+        with open(tum, "w") as f:
+            f.write(f"0 {t[0]!r} {t[1]!r} {t[2]!r} {q[1]!r} {q[2]!r} {q[3]!r} {q[0]!r}\n")
+        ck_dir = os.path.join(work, "checkpoint_render")
+        subprocess.run([args.window_bin, f"--checkpoint={checkpoint}", f"--path={tum}",
+                        f"--out_dir={ck_dir}", f"--width={W}", f"--height={H}"], check=True,
+                       env=env, stdout=subprocess.DEVNULL)
+        ck = np.asarray(Image.open(os.path.join(ck_dir, "frame_00000.png")).convert("RGB"))
+        log(f"checkpoint rendered at the live pose vs the live screenshot: {psnr(ck, before):.1f} dB")
+        if psnr(ck, before) < 35:
+            fail("the server checkpoint does not show what the live window showed")
     finally:
         if win is not None and win.poll() is None:
             win.kill()
