@@ -106,6 +106,19 @@ def main():
             fail("the page is not the viewer's page")
         if b"http://" in page or b"https://" in page:
             fail("the page refers to external assets")
+        def settled(what):
+            """Waits until the view is at full resolution and no new frame came for 0.6 s."""
+            t1 = time.time()
+            last = None
+            while time.time() - t1 < 120:
+                s = json.loads(get(base + "/status")[2])
+                if s.get("stage") == 1 and last is not None and s["frames"] == last["frames"]:
+                    return s
+                last = s if s.get("stage") == 1 else None
+                time.sleep(0.6)
+            fail(f"the view did not settle at full resolution ({what})")
+
+        settled("first frame")
         st, hdr, body = get(base + "/frame.jpg?after=0", timeout=30)
         seq0 = int(hdr["X-Frame-Seq"])
         img0 = np.asarray(Image.open(io.BytesIO(body)).convert("RGB"))
@@ -133,7 +146,7 @@ def main():
         get(base + "/input?key=w&down=1", method="POST")
         time.sleep(0.5)
         get(base + "/input?key=w&down=0", method="POST")
-        time.sleep(2.5)  # the camera stops; the frame refines to full resolution
+        settled("after W")  # the camera stopped; the frame refined to full resolution
         st, hdr, body = get(base + f"/frame.jpg?after=0", timeout=30)
         img1 = np.asarray(Image.open(io.BytesIO(body)).convert("RGB"))
         status1 = json.loads(get(base + "/status")[2])

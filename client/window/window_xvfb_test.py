@@ -95,6 +95,9 @@ def main():
     env["DISPLAY"] = disp.name
     status = os.path.join(work, "status.json")
     record = os.path.join(work, "session.tum")
+    for stale in (status, record):  # a reused work dir must not answer for this run
+        if os.path.exists(stale):
+            os.remove(stale)
     win = subprocess.Popen([args.window_bin, f"--model={model}", f"--width={W}", f"--height={H}",
                             "--no_overlays", f"--status_file={status}", f"--record={record}",
                             "--max_seconds=120"], env=env,
