@@ -4,10 +4,9 @@
 #include <cmath>
 #include <cstdio>
 #include <fstream>
+#include <glm/gtc/quaternion.hpp>
 #include <limits>
 #include <sstream>
-
-#include <glm/gtc/quaternion.hpp>
 
 namespace exo::nav {
 
@@ -207,8 +206,8 @@ absl::Status WriteTumPath(const std::string& path, const std::vector<PathPose>& 
   for (const PathPose& p : poses) {
     const glm::dquat& q = p.world_from_cam.rotation;
     const glm::dvec3& t = p.world_from_cam.translation;
-    std::snprintf(buf, sizeof(buf), "%.6f %.9g %.9g %.9g %.9g %.9g %.9g %.9g\n", p.timestamp_s,
-                  t.x, t.y, t.z, q.x, q.y, q.z, q.w);
+    std::snprintf(buf, sizeof(buf), "%.6f %.9g %.9g %.9g %.9g %.9g %.9g %.9g\n", p.timestamp_s, t.x,
+                  t.y, t.z, q.x, q.y, q.z, q.w);
     f << buf;
   }
   f.close();

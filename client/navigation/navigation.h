@@ -103,7 +103,7 @@ struct PickResult {
   double z_depth_m = 0;          // along the optical axis
   CellId cell = 0;
   uint64_t chunk_id = 0;
-  uint32_t triangle = 0;         // index within the chunk
+  uint32_t triangle = 0;  // index within the chunk
 };
 // Casts the ray through pixel `uv` (pixel centres at integers) of `camera` at `local_from_cam`
 // into the proxy mesh (every chunk); the nearest hit, nullopt when the ray hits nothing.

@@ -207,8 +207,9 @@ TEST(TumPath, RoundTripsAndNamesTheBadLine) {
   ASSERT_EQ(back->size(), 2u);
   EXPECT_NEAR((*back)[0].world_from_cam.translation.z, 3.0, 1e-9);
   EXPECT_NEAR((*back)[1].timestamp_s, 2.0, 1e-9);
-  EXPECT_NEAR(std::abs(glm::dot((*back)[1].world_from_cam.rotation, poses[1].world_from_cam.rotation)),
-              1.0, 1e-8);
+  EXPECT_NEAR(
+      std::abs(glm::dot((*back)[1].world_from_cam.rotation, poses[1].world_from_cam.rotation)), 1.0,
+      1e-8);
   std::ofstream(file) << "# comment\n1 0 0 0 0 0 0 1\n2 0 0 0 0 0 1\n";
   auto bad = ReadTumPath(file);
   ASSERT_FALSE(bad.ok());

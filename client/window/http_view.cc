@@ -4,10 +4,10 @@
 
 #include <algorithm>
 #include <atomic>
-#include <cmath>
 #include <boost/asio.hpp>
 #include <boost/beast/core.hpp>
 #include <boost/beast/http.hpp>
+#include <cmath>
 #include <condition_variable>
 #include <map>
 #include <mutex>
@@ -94,7 +94,8 @@ std::map<std::string, std::string> Query(std::string_view target) {
     const size_t amp = rest.find('&');
     std::string_view kv = rest.substr(0, amp);
     const size_t eq = kv.find('=');
-    if (eq != std::string_view::npos) q[std::string(kv.substr(0, eq))] = std::string(kv.substr(eq + 1));
+    if (eq != std::string_view::npos)
+      q[std::string(kv.substr(0, eq))] = std::string(kv.substr(eq + 1));
     if (amp == std::string_view::npos) break;
     rest = rest.substr(amp + 1);
   }
@@ -200,7 +201,8 @@ class HttpView::Impl {
   }
 
   template <typename Body>
-  bool Send(tcp::socket& socket, http::response<Body>& res, const http::request<http::string_body>& req) {
+  bool Send(tcp::socket& socket, http::response<Body>& res,
+            const http::request<http::string_body>& req) {
     res.set(http::field::cache_control, "no-store");
     res.keep_alive(req.keep_alive());
     res.prepare_payload();
@@ -229,7 +231,8 @@ class HttpView::Impl {
     if (req.method() == http::verb::get && path == "/frame.jpg") {
       const auto q = Query(target);
       uint64_t after = 0;
-      if (auto it = q.find("after"); it != q.end()) after = uint64_t(std::max(0.0, ToDouble(it->second)));
+      if (auto it = q.find("after"); it != q.end())
+        after = uint64_t(std::max(0.0, ToDouble(it->second)));
       std::shared_ptr<const std::vector<uint8_t>> jpeg;
       uint64_t seq = 0;
       {
@@ -239,7 +242,8 @@ class HttpView::Impl {
         jpeg = latest_;
         seq = seq_;
       }
-      if (!jpeg) return Text(socket, req, http::status::service_unavailable, "text/plain", "no frame yet\n");
+      if (!jpeg)
+        return Text(socket, req, http::status::service_unavailable, "text/plain", "no frame yet\n");
       http::response<http::vector_body<uint8_t>> res{http::status::ok, req.version()};
       res.set(http::field::content_type, "image/jpeg");
       res.set("X-Frame-Seq", std::to_string(seq));
@@ -290,8 +294,8 @@ class HttpView::Impl {
     std::lock_guard lock(input_mu_);
     if (auto k = q.find("key"); k != q.end()) {
       const bool down = q.count("down") && q.at("down") == "1";
-      static const std::set<std::string> kHeld = {"w", "a", "s", "d", "q", "e",
-                                                  "left", "right", "up", "down"};
+      static const std::set<std::string> kHeld = {"w", "a",    "s",     "d",  "q",
+                                                  "e", "left", "right", "up", "down"};
       static const std::set<std::string> kOnce = {"r", "f", "tab", "1", "2", "3"};
       if (kHeld.count(k->second)) {
         if (down)
@@ -368,9 +372,10 @@ class HttpView::Impl {
   double dx_ = 0, dy_ = 0, wheel_ = 0;
 };
 
-absl::StatusOr<std::unique_ptr<HttpView>> HttpView::Start(
-    const std::string& host_port, std::function<std::string()> status_json,
-    std::function<std::string()> metrics_text, int max_clients) {
+absl::StatusOr<std::unique_ptr<HttpView>> HttpView::Start(const std::string& host_port,
+                                                          std::function<std::string()> status_json,
+                                                          std::function<std::string()> metrics_text,
+                                                          int max_clients) {
   auto impl = std::make_unique<Impl>();
   impl->status_ = std::move(status_json);
   impl->metrics_ = std::move(metrics_text);

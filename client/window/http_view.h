@@ -1,6 +1,7 @@
 // The browser view of the viewer (issue 17): a small HTTP server (Boost.Beast, one thread per
 // connection, at most `max_clients`) that serves
-//   GET /             the page (no external assets): the live view, keyboard/mouse navigation, stats
+//   GET /             the page (no external assets): the live view, keyboard/mouse navigation,
+//   stats
 //                     (/?frames=N stops after N frames: a still snapshot)
 //   GET /frame.jpg?after=N   the newest JPEG frame, waiting (up to 2 s) for one newer than N;
 //                            its sequence number in the X-Frame-Seq header
@@ -36,9 +37,10 @@ class HttpView {
  public:
   // host_port "127.0.0.1:8080" (port 0 = a free one). `status_json` / `metrics_text` are called
   // from connection threads.
-  static absl::StatusOr<std::unique_ptr<HttpView>> Start(
-      const std::string& host_port, std::function<std::string()> status_json,
-      std::function<std::string()> metrics_text, int max_clients = 64);
+  static absl::StatusOr<std::unique_ptr<HttpView>> Start(const std::string& host_port,
+                                                         std::function<std::string()> status_json,
+                                                         std::function<std::string()> metrics_text,
+                                                         int max_clients = 64);
   ~HttpView();
   int port() const;
   void PublishFrame(std::vector<uint8_t> jpeg);

@@ -9,9 +9,9 @@
 #include <cstring>
 #include <vector>
 
-#include "imgui.h"
 #include "backends/imgui_impl_sdl.h"
 #include "backends/imgui_impl_vulkan.h"
+#include "imgui.h"
 
 namespace exo {
 namespace {
@@ -27,7 +27,8 @@ absl::Status VkCheck(VkResult r, const char* what) {
 #define EXO_PVK(expr) EXO_RETURN_IF_ERROR(VkCheck((expr), #expr))
 
 void ImGuiVkCheck(VkResult r) {
-  if (r != VK_SUCCESS) std::fprintf(stderr, "exoview_window: ImGui Vulkan backend: VkResult %d\n", int(r));
+  if (r != VK_SUCCESS)
+    std::fprintf(stderr, "exoview_window: ImGui Vulkan backend: VkResult %d\n", int(r));
 }
 
 void Barrier(VkCommandBuffer cmd, VkImage image, VkImageLayout from, VkImageLayout to,
@@ -60,14 +61,14 @@ class Presenter::Impl {
     options_ = o;
     if (SDL_Init(SDL_INIT_VIDEO) != 0)
       return absl::UnavailableError(std::string("no display for the window (SDL_Init: ") +
-                                    SDL_GetError() + "); set DISPLAY or WAYLAND_DISPLAY, or run "
+                                    SDL_GetError() +
+                                    "); set DISPLAY or WAYLAND_DISPLAY, or run "
                                     "under xvfb-run");
     sdl_ = true;
     window_ = SDL_CreateWindow(o.title.c_str(), SDL_WINDOWPOS_UNDEFINED, SDL_WINDOWPOS_UNDEFINED,
                                o.width, o.height,
                                SDL_WINDOW_VULKAN | SDL_WINDOW_RESIZABLE | SDL_WINDOW_ALLOW_HIGHDPI);
-    if (!window_)
-      return absl::UnavailableError(std::string("SDL_CreateWindow: ") + SDL_GetError());
+    if (!window_) return absl::UnavailableError(std::string("SDL_CreateWindow: ") + SDL_GetError());
     unsigned n_ext = 0;
     if (!SDL_Vulkan_GetInstanceExtensions(window_, &n_ext, nullptr))
       return absl::UnavailableError(std::string("SDL_Vulkan_GetInstanceExtensions: ") +
@@ -106,8 +107,7 @@ class Presenter::Impl {
       }
       if (physical_) break;
     }
-    if (!physical_)
-      return absl::UnavailableError("no Vulkan device can present to this window");
+    if (!physical_) return absl::UnavailableError("no Vulkan device can present to this window");
     VkPhysicalDeviceProperties props;
     vkGetPhysicalDeviceProperties(physical_, &props);
     device_name_ = props.deviceName;
@@ -404,8 +404,8 @@ class Presenter::Impl {
     }
     if (!swapchain_ || extent_.width == 0) return absl::OkStatus();  // minimised
     uint32_t index = 0;
-    VkResult r = vkAcquireNextImageKHR(device_, swapchain_, UINT64_MAX, acquired_, VK_NULL_HANDLE,
-                                       &index);
+    VkResult r =
+        vkAcquireNextImageKHR(device_, swapchain_, UINT64_MAX, acquired_, VK_NULL_HANDLE, &index);
     if (r == VK_ERROR_OUT_OF_DATE_KHR) {
       need_recreate_ = true;
       return absl::OkStatus();
@@ -426,7 +426,8 @@ class Presenter::Impl {
               VK_PIPELINE_STAGE_HOST_BIT, VK_PIPELINE_STAGE_TRANSFER_BIT);
       staging_initialised_ = true;
       // Letterbox: keep the frame's aspect ratio inside the window.
-      const double sx = double(extent_.width) / staging_w_, sy = double(extent_.height) / staging_h_;
+      const double sx = double(extent_.width) / staging_w_,
+                   sy = double(extent_.height) / staging_h_;
       const double s = std::min(sx, sy);
       const int32_t w = int32_t(staging_w_ * s + 0.5), h = int32_t(staging_h_ * s + 0.5);
       const int32_t x0 = (int32_t(extent_.width) - w) / 2, y0 = (int32_t(extent_.height) - h) / 2;

@@ -26,8 +26,8 @@ struct PresenterOptions {
 };
 
 struct PresentTimings {
-  double upload_ms = 0;   // RGB8 -> mapped staging buffer (host copy)
-  double submit_ms = 0;   // acquire + record + submit + wait (blit + overlay draw) + present
+  double upload_ms = 0;  // RGB8 -> mapped staging buffer (host copy)
+  double submit_ms = 0;  // acquire + record + submit + wait (blit + overlay draw) + present
 };
 
 class Presenter {

@@ -93,9 +93,9 @@ class ModelSource {
       self->deltas_.fetch_add(1);
       self->bytes_.fetch_add(d.ByteSizeLong());
       if (d.source_timestamp_s() > 0) {
-        const double now_s = std::chrono::duration<double>(
-                                 std::chrono::system_clock::now().time_since_epoch())
-                                 .count();
+        const double now_s =
+            std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch())
+                .count();
         // Meaningful only when the uploader stamps frames with wall-clock time (a live camera);
         // dataset timestamps (e.g. 7-Scenes' frame times) are not, and are not shown.
         const double ms = (now_s - d.source_timestamp_s()) * 1e3;
@@ -133,9 +133,7 @@ class ModelSource {
   uint64_t deltas() const { return deltas_.load(); }
   uint64_t bytes() const { return bytes_.load(); }
   double latency_ms() const { return latency_ms_.load(); }
-  double seconds_since_delta() const {
-    return deltas_.load() ? MsSince(last_delta_) * 1e-3 : -1;
-  }
+  double seconds_since_delta() const { return deltas_.load() ? MsSince(last_delta_) * 1e-3 : -1; }
 
  private:
   ModelSource() = default;
@@ -340,7 +338,8 @@ class App {
     }
     auto visible = [&](const glm::dvec3& pc, const glm::dvec2& uv) {
       if (occ_depth_.empty()) return true;
-      const int x = int(std::floor((uv.x + 0.5) * dw / W)), y = int(std::floor((uv.y + 0.5) * dh / H));
+      const int x = int(std::floor((uv.x + 0.5) * dw / W)),
+                y = int(std::floor((uv.y + 0.5) * dh / H));
       if (x < 0 || y < 0 || x >= dw || y >= dh) return true;
       const float z = occ_depth_.at(x, y);
       return !(z > 0) || pc.z <= z * 1.03 + 0.01;
@@ -403,7 +402,8 @@ class App {
         // Age: oldest blue -> newest yellow; the live (newest) camera green and thicker.
         const float a = last > first ? float(id - first) / float(last - first) : 1.f;
         const ImU32 col =
-            live ? IM_COL32(40, 255, 40, 255) : IM_COL32(int(60 + 195 * a), int(80 + 175 * a), int(255 * (1 - a)), 200);
+            live ? IM_COL32(40, 255, 40, 255)
+                 : IM_COL32(int(60 + 195 * a), int(80 + 175 * a), int(255 * (1 - a)), 200);
         const PinholeCamera& vc = v.camera;
         const double z = live ? 2 * scale : scale;
         glm::dvec3 c[4];
@@ -432,8 +432,10 @@ class App {
       }
     }
     // Crosshair (the picked point below it is in the HUD).
-    dl->AddLine(ImVec2(W / 2.f - 8, H / 2.f), ImVec2(W / 2.f + 8, H / 2.f), IM_COL32(255, 255, 255, 160));
-    dl->AddLine(ImVec2(W / 2.f, H / 2.f - 8), ImVec2(W / 2.f, H / 2.f + 8), IM_COL32(255, 255, 255, 160));
+    dl->AddLine(ImVec2(W / 2.f - 8, H / 2.f), ImVec2(W / 2.f + 8, H / 2.f),
+                IM_COL32(255, 255, 255, 160));
+    dl->AddLine(ImVec2(W / 2.f, H / 2.f - 8), ImVec2(W / 2.f, H / 2.f + 8),
+                IM_COL32(255, 255, 255, 160));
   }
 
   void DrawHud(const nav::FlyCamera& cam, int W, int H) {
@@ -445,7 +447,11 @@ class App {
                      ImGuiWindowFlags_NoFocusOnAppearing | ImGuiWindowFlags_NoNav);
     ImGui::Text("frame %.1f ms (%.0f fps)  render %.1f ms  present %.1f ms", frame_ms_,
                 frame_ms_ > 0 ? 1000.0 / frame_ms_ : 0.0, render_ms_, present_ms_);
-    ImGui::Text("resolution %s %dx%d", stage_ == 1 ? "full" : stage_ == 2 ? "1/2" : stage_ == 4 ? "1/4" : "1/8",
+    ImGui::Text("resolution %s %dx%d",
+                stage_ == 1   ? "full"
+                : stage_ == 2 ? "1/2"
+                : stage_ == 4 ? "1/4"
+                              : "1/8",
                 W / std::max(1, stage_), H / std::max(1, stage_));
     ImGui::Text("model v%llu  views %zu  cells %zu  chunks %zu", (unsigned long long)info_.version,
                 info_.geom.views.size(), info_.cells, info_.geom.chunks.size());
@@ -475,7 +481,8 @@ class App {
     ImGui::Checkbox("wireframe", &show_wire_);
     ImGui::SameLine();
     ImGui::Checkbox("cells", &show_cells_);
-    ImGui::TextDisabled("WASD/QE move, drag/arrows look, wheel speed, right-click pick, R F Tab P Esc");
+    ImGui::TextDisabled(
+        "WASD/QE move, drag/arrows look, wheel speed, right-click pick, R F Tab P Esc");
     ImGui::End();
   }
 
@@ -495,7 +502,8 @@ class App {
                         {"render_ms", render_ms_},
                         {"overlays", overlays_},
                         {"follow", follow_}};
-    const Rigid3d world = {cam.pose().rotation, cam.pose().translation + info_.geom.origin.origin_in_world};
+    const Rigid3d world = {cam.pose().rotation,
+                           cam.pose().translation + info_.geom.origin.origin_in_world};
     j["pose_world"] = PoseJson(world);
     if (auto n = nav::NearestView(info_.geom, cam.pose().translation)) {
       j["nearest_view"] = *n;
@@ -518,8 +526,10 @@ class App {
   absl::Status SaveModel() {
     if (o_.save_model.empty()) return absl::OkStatus();
     absl::Status st;
-    source_->With([&](const LumigraphModel& m, uint64_t) { st = exo::SaveModel(o_.save_model, m); });
-    if (st.ok()) std::fprintf(stderr, "exoview_window: saved the model to %s\n", o_.save_model.c_str());
+    source_->With(
+        [&](const LumigraphModel& m, uint64_t) { st = exo::SaveModel(o_.save_model, m); });
+    if (st.ok())
+      std::fprintf(stderr, "exoview_window: saved the model to %s\n", o_.save_model.c_str());
     return st;
   }
 
@@ -569,8 +579,13 @@ class App {
         if (e.type == SDL_QUIT) quit = true;
         if (e.type == SDL_KEYDOWN && !e.key.repeat && !imgui) {
           switch (e.key.keysym.sym) {
-            case SDLK_ESCAPE: quit = true; break;
-            case SDLK_TAB: overlays_ = !overlays_; overlay_changed = true; break;
+            case SDLK_ESCAPE:
+              quit = true;
+              break;
+            case SDLK_TAB:
+              overlays_ = !overlays_;
+              overlay_changed = true;
+              break;
             case SDLK_r:
               if (auto n = nav::NearestView(info_.geom, cam.pose().translation)) {
                 cam.Reset(info_.geom.views.at(*n).local_from_cam);
@@ -578,14 +593,28 @@ class App {
               }
               follow_ = false;
               break;
-            case SDLK_f: follow_ = !follow_; force = true; break;
-            case SDLK_p:
-              if (auto s = SaveModel(); !s.ok()) std::fprintf(stderr, "exoview_window: %s\n", s.ToString().c_str());
+            case SDLK_f:
+              follow_ = !follow_;
+              force = true;
               break;
-            case SDLK_1: show_frusta_ = !show_frusta_; overlay_changed = true; break;
-            case SDLK_2: show_wire_ = !show_wire_; overlay_changed = true; break;
-            case SDLK_3: show_cells_ = !show_cells_; overlay_changed = true; break;
-            default: break;
+            case SDLK_p:
+              if (auto s = SaveModel(); !s.ok())
+                std::fprintf(stderr, "exoview_window: %s\n", s.ToString().c_str());
+              break;
+            case SDLK_1:
+              show_frusta_ = !show_frusta_;
+              overlay_changed = true;
+              break;
+            case SDLK_2:
+              show_wire_ = !show_wire_;
+              overlay_changed = true;
+              break;
+            case SDLK_3:
+              show_cells_ = !show_cells_;
+              overlay_changed = true;
+              break;
+            default:
+              break;
           }
         }
         if (e.type == SDL_MOUSEMOTION && !imgui && (e.motion.state & SDL_BUTTON_LMASK)) {
@@ -601,12 +630,13 @@ class App {
                                    {double(e.button.x), double(e.button.y)});
           if (cursor_pick_) {
             const glm::dvec3 pw = info_.geom.origin.origin_in_world + cursor_pick_->point_local;
-            std::printf("%s\n", nlohmann::json({{"pick", {pw.x, pw.y, pw.z}},
-                                                {"normal", {cursor_pick_->normal_local.x,
-                                                            cursor_pick_->normal_local.y,
-                                                            cursor_pick_->normal_local.z}},
-                                                {"cell", cursor_pick_->cell},
-                                                {"pixel", {e.button.x, e.button.y}}})
+            std::printf("%s\n", nlohmann::json(
+                                    {{"pick", {pw.x, pw.y, pw.z}},
+                                     {"normal",
+                                      {cursor_pick_->normal_local.x, cursor_pick_->normal_local.y,
+                                       cursor_pick_->normal_local.z}},
+                                     {"cell", cursor_pick_->cell},
+                                     {"pixel", {e.button.x, e.button.y}}})
                                     .dump()
                                     .c_str());
             std::fflush(stdout);
@@ -665,7 +695,9 @@ class App {
         if (!r.ok()) return Fail(r.status());
         img = *std::move(r);
         render_ms_ = MsSince(t0);
-        if (d == 1 || changed) centre_pick_ = nav::Pick(info_.geom, Camera(W, H), cam.pose(), {W / 2.0 - 0.5, H / 2.0 - 0.5});
+        if (d == 1 || changed)
+          centre_pick_ =
+              nav::Pick(info_.geom, Camera(W, H), cam.pose(), {W / 2.0 - 0.5, H / 2.0 - 0.5});
       }
       DrawOverlays(cam.pose(), W, H);
       DrawHud(cam, W, H);
@@ -682,8 +714,9 @@ class App {
         if (changed) adaptive.ReportMovingFrame(frame_ms_);
         ++frame;
         if (!o_.record.empty())
-          recorded.push_back({MsSince(t_start) * 1e-3,
-                              {cam.pose().rotation, cam.pose().translation + info_.geom.origin.origin_in_world}});
+          recorded.push_back(
+              {MsSince(t_start) * 1e-3,
+               {cam.pose().rotation, cam.pose().translation + info_.geom.origin.origin_in_world}});
       }
       // Status after each full-resolution frame, and when the sync state changes (e.g. the
       // server went away: the last model stays on screen, the HUD says "reconnecting").
@@ -719,33 +752,36 @@ class App {
         [&] {
           std::lock_guard lock(status_mu);
           char buf[1024];
-          std::snprintf(buf, sizeof(buf),
-                        "# HELP exoview_viewer_frame_ms Wall time of the last rendered frame.\n"
-                        "# TYPE exoview_viewer_frame_ms gauge\nexoview_viewer_frame_ms %.3f\n"
-                        "# HELP exoview_viewer_frames_rendered_total Frames rendered.\n"
-                        "# TYPE exoview_viewer_frames_rendered_total counter\n"
-                        "exoview_viewer_frames_rendered_total %llu\n"
-                        "# HELP exoview_viewer_frames_sent_total JPEG frames sent to browsers.\n"
-                        "# TYPE exoview_viewer_frames_sent_total counter\n"
-                        "exoview_viewer_frames_sent_total %llu\n"
-                        "# HELP exoview_viewer_bytes_received_total Delta bytes received.\n"
-                        "# TYPE exoview_viewer_bytes_received_total counter\n"
-                        "exoview_viewer_bytes_received_total %llu\n"
-                        "# HELP exoview_viewer_model_version Version of the local model.\n"
-                        "# TYPE exoview_viewer_model_version gauge\nexoview_viewer_model_version %llu\n"
-                        "# HELP exoview_viewer_browsers Connected browser connections.\n"
-                        "# TYPE exoview_viewer_browsers gauge\nexoview_viewer_browsers %d\n",
-                        frame_ms, (unsigned long long)frames,
-                        (unsigned long long)(view_ptr ? view_ptr->frames_sent() : 0),
-                        (unsigned long long)source_->bytes(), (unsigned long long)info_.version,
-                        view_ptr ? view_ptr->clients() : 0);
+          std::snprintf(
+              buf, sizeof(buf),
+              "# HELP exoview_viewer_frame_ms Wall time of the last rendered frame.\n"
+              "# TYPE exoview_viewer_frame_ms gauge\nexoview_viewer_frame_ms %.3f\n"
+              "# HELP exoview_viewer_frames_rendered_total Frames rendered.\n"
+              "# TYPE exoview_viewer_frames_rendered_total counter\n"
+              "exoview_viewer_frames_rendered_total %llu\n"
+              "# HELP exoview_viewer_frames_sent_total JPEG frames sent to browsers.\n"
+              "# TYPE exoview_viewer_frames_sent_total counter\n"
+              "exoview_viewer_frames_sent_total %llu\n"
+              "# HELP exoview_viewer_bytes_received_total Delta bytes received.\n"
+              "# TYPE exoview_viewer_bytes_received_total counter\n"
+              "exoview_viewer_bytes_received_total %llu\n"
+              "# HELP exoview_viewer_model_version Version of the local model.\n"
+              "# TYPE exoview_viewer_model_version gauge\nexoview_viewer_model_version %llu\n"
+              "# HELP exoview_viewer_browsers Connected browser connections.\n"
+              "# TYPE exoview_viewer_browsers gauge\nexoview_viewer_browsers %d\n",
+              frame_ms, (unsigned long long)frames,
+              (unsigned long long)(view_ptr ? view_ptr->frames_sent() : 0),
+              (unsigned long long)source_->bytes(), (unsigned long long)info_.version,
+              view_ptr ? view_ptr->clients() : 0);
           return std::string(buf);
         });
     if (!http.ok()) return Fail(http.status());
     view_ptr = http->get();
     const int port = (*http)->port();
     if (!o_.port_file.empty()) std::ofstream(o_.port_file) << port << "\n";
-    std::printf("%s\n", nlohmann::json({{"http", "http://127.0.0.1:" + std::to_string(port) + "/"}}).dump().c_str());
+    std::printf("%s\n", nlohmann::json({{"http", "http://127.0.0.1:" + std::to_string(port) + "/"}})
+                            .dump()
+                            .c_str());
     std::fflush(stdout);
     signal(SIGTERM, OnSignal);
     signal(SIGINT, OnSignal);

@@ -22,14 +22,14 @@ struct WindowAppOptions {
   double hfov_deg = 65.0;
   int n_best = 3;
   bool adaptive = true;
-  int moving_divisor = 4;      // start divisor while moving
-  double target_ms = 33.3;     // moving frame budget (0 = keep moving_divisor)
-  int start_view = -1;        // initial pose: this stored view (default: the smallest id)
-  bool overlays = true;       // HUD + scene overlays at start (Tab toggles)
-  std::string record;         // TUM path of the session, written at exit
-  std::string replay;         // TUM path played back in the window (at its timestamps)
-  std::string status_file;    // JSON of the viewer's state after each full-resolution frame
-  double max_seconds = 0;     // close after this long (0 = when the window is closed)
+  int moving_divisor = 4;   // start divisor while moving
+  double target_ms = 33.3;  // moving frame budget (0 = keep moving_divisor)
+  int start_view = -1;      // initial pose: this stored view (default: the smallest id)
+  bool overlays = true;     // HUD + scene overlays at start (Tab toggles)
+  std::string record;       // TUM path of the session, written at exit
+  std::string replay;       // TUM path played back in the window (at its timestamps)
+  std::string status_file;  // JSON of the viewer's state after each full-resolution frame
+  double max_seconds = 0;   // close after this long (0 = when the window is closed)
   // Scripted render (no window): every pose of `path` (TUM) to out_dir/frame_NNNNN.png.
   std::string path, out_dir;
   // Browser view (no window): serve the view on HOST:PORT (http_view.h); port_file gets the port.
