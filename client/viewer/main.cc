@@ -22,6 +22,9 @@
 #include "client/uploader/upload_client.h"
 #include "client/viewer/viewer_session.h"
 #include "client/vulkan/vulkan_renderer.h"
+#ifdef EXOVIEW_HAS_WINDOW
+#include "client/window/window_app.h"
+#endif
 #include "common/cli/cli.h"
 #include "common/io/image_file.h"
 #include "common/io/jpeg.h"
@@ -156,7 +159,27 @@ int main(int argc, char** argv) {
       ->check(CLI::IsMember({"auto", "vulkan", "cpu"}));
   app.add_flag("--no_png", f.no_png, "do not write rendered PNGs");
   app.add_flag("--gt_png", f.gt_png, "also write each view's ground truth as PNG");
+  // --window: the interactive window (client/window, also the binary exoview_window).
+  bool window = false;
+  std::string window_model;
+  app.add_flag("--window", window, "open the interactive window (exoview_window) instead");
+  app.add_option("--model", window_model, "with --window: show this model file, no server");
   if (auto rc = exo::cli::Parse(app, argc, argv)) return *rc;
+  if (window) {
+#ifdef EXOVIEW_HAS_WINDOW
+    exo::WindowAppOptions wo;
+    wo.model_file = window_model;
+    wo.server = window_model.empty() ? f.server : "";
+    wo.journal = f.journal;
+    wo.save_model = f.save_model;
+    if (app.count("--width")) wo.width = f.width;
+    if (app.count("--height")) wo.height = f.height;
+    return exo::RunWindowApp(wo);
+#else
+    std::fprintf(stderr, "exoview_viewer: built without the window (libsdl2-dev libimgui-dev)\n");
+    return 2;
+#endif
+  }
   if (f.server.empty()) {  // checked here so that an unknown flag is the error named first
     std::fprintf(stderr, "exoview_viewer: --server HOST:PORT is required\n");
     return 2;

@@ -1,0 +1,224 @@
+#include "client/navigation/navigation.h"
+
+#include <gtest/gtest.h>
+
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+
+#include "common/synth/render.h"
+#include "common/synth/scene.h"
+#include "common/synth/trajectory.h"
+
+namespace exo::nav {
+namespace {
+
+// A camera at the origin looking along +z with image-up = -y: the scene's up is -y.
+TEST(FlyCamera, MovesAlongViewAndUpAndTurnsTheExpectedWay) {
+  FlyOptions o;
+  o.speed_mps = 2.0;
+  FlyCamera cam(Rigid3d{}, {0, -1, 0}, o);
+  FlyInput in;
+  in.forward = true;
+  EXPECT_TRUE(cam.Step(in, 0.5));
+  EXPECT_NEAR(cam.pose().translation.z, 1.0, 1e-12);
+  EXPECT_NEAR(glm::length(cam.pose().translation), 1.0, 1e-12);
+  in = {};
+  in.up = true;  // E: along the scene's up (-y here)
+  cam.Step(in, 0.25);
+  EXPECT_NEAR(cam.pose().translation.y, -0.5, 1e-12);
+  in = {};
+  in.right = true;  // D: along the image's +x
+  cam.Step(in, 0.5);
+  EXPECT_NEAR(cam.pose().translation.x, 1.0, 1e-12);
+  EXPECT_FALSE(cam.Step(FlyInput{}, 1.0));  // no input: no change
+
+  // Mouse right: forward turns towards the former right (+x); mouse down: looks down (+y).
+  FlyCamera look(Rigid3d{}, {0, -1, 0}, o);
+  in = {};
+  in.look_dx_px = 100;
+  look.Step(in, 0.01);
+  const glm::dvec3 f1 = look.pose().rotation * glm::dvec3(0, 0, 1);
+  EXPECT_GT(f1.x, 0.2);
+  EXPECT_NEAR(f1.y, 0.0, 1e-12);  // yaw keeps the horizon
+  in = {};
+  in.look_dy_px = 100;
+  look.Step(in, 0.01);
+  const glm::dvec3 f2 = look.pose().rotation * glm::dvec3(0, 0, 1);
+  EXPECT_GT(f2.y, 0.2);  // looking down = towards -up = +y
+  // Pitch is clamped short of straight down; the camera's x stays horizontal (no roll).
+  in.look_dy_px = 10000;
+  look.Step(in, 0.01);
+  const glm::dvec3 f3 = look.pose().rotation * glm::dvec3(0, 0, 1);
+  EXPECT_NEAR(std::asin(f3.y), o.max_pitch_rad, 1e-9);
+  EXPECT_NEAR((look.pose().rotation * glm::dvec3(1, 0, 0)).y, 0.0, 1e-9);
+  // Scroll: 1.25x per click.
+  in = {};
+  in.wheel = 2;
+  look.Step(in, 0.0);
+  EXPECT_NEAR(look.speed_mps(), 2.0 * 1.25 * 1.25, 1e-12);
+}
+
+TEST(AdaptiveResolution, QuarterWhileMovingThenHalfThenFullThenReuse) {
+  AdaptiveResolution a({});
+  EXPECT_EQ(a.Next(true), 4);
+  EXPECT_EQ(a.Next(true), 4);
+  EXPECT_EQ(a.Next(false), 2);
+  EXPECT_EQ(a.Next(false), 1);
+  EXPECT_EQ(a.Next(false), 0);
+  EXPECT_EQ(a.Next(false), 0);
+  EXPECT_EQ(a.Next(true), 4);
+  AdaptiveOptions off;
+  off.enabled = false;
+  AdaptiveResolution b(off);
+  EXPECT_EQ(b.Next(false), 1);  // the first frame is always rendered
+  EXPECT_EQ(b.Next(false), 0);
+  EXPECT_EQ(b.Next(true), 1);
+  AdaptiveOptions bad;
+  bad.moving_divisor = 3;
+  EXPECT_FALSE(bad.Validate().ok());
+  bad.moving_divisor = 1;  // below min_divisor 2
+  EXPECT_FALSE(bad.Validate().ok());
+  EXPECT_TRUE(AdaptiveOptions{}.Validate().ok());
+}
+
+TEST(AdaptiveResolution, MovingDivisorFollowsTheFrameBudget) {
+  AdaptiveOptions o;  // 33.3 ms, divisors 2..8, start 4
+  AdaptiveResolution a(o);
+  EXPECT_EQ(a.Next(true), 4);
+  a.ReportMovingFrame(60);  // over budget: coarser
+  EXPECT_EQ(a.Next(true), 8);
+  a.ReportMovingFrame(60);  // already the coarsest
+  EXPECT_EQ(a.Next(true), 8);
+  a.ReportMovingFrame(20);  // fits, but 4x the pixels would not: stay
+  EXPECT_EQ(a.Next(true), 8);
+  a.ReportMovingFrame(5);  // 4x the pixels fits: finer
+  EXPECT_EQ(a.Next(true), 4);
+  a.ReportMovingFrame(5);
+  EXPECT_EQ(a.Next(true), 2);
+  a.ReportMovingFrame(1);  // min_divisor 2
+  EXPECT_EQ(a.Next(true), 2);
+  // A report for a refinement frame (not the moving divisor) changes nothing.
+  EXPECT_EQ(a.Next(false), 1);
+  a.ReportMovingFrame(1000);
+  EXPECT_EQ(a.Next(true), 2);
+  // Budget 0: fixed divisor.
+  o.target_ms = 0;
+  AdaptiveResolution f(o);
+  EXPECT_EQ(f.Next(true), 4);
+  f.ReportMovingFrame(1000);
+  EXPECT_EQ(f.Next(true), 4);
+}
+
+// Picking: the ray through a pixel of a synthetic frame hits the scene at the ground-truth depth
+// of that pixel (the rasterised z-depth), within one voxel (the model grid's cell size is larger).
+TEST(Pick, ReturnsTheGroundTruthPointOfSyntheticPixels) {
+  auto scene = synth::MakeScene(synth::SceneKind::kApartment, {});
+  ASSERT_TRUE(scene.ok()) << scene.status();
+  synth::TrajectoryOptions to;
+  to.num_frames = 12;
+  auto traj = synth::MakeTrajectory(*scene, synth::TrajectoryKind::kWalk, to);
+  ASSERT_TRUE(traj.ok()) << traj.status();
+  LumigraphModel model;
+  model.grid.cell_size_m = 0.25;
+  MeshChunk chunk;
+  chunk.id = 7;
+  chunk.mesh = scene->mesh;
+  model.chunks[7] = chunk;
+  synth::RenderOptions ro;
+  ro.width = 160;
+  ro.height = 120;
+  const PinholeCamera cam = ro.Camera();
+  const double voxel_m = 0.02;  // the server's default TSDF voxel
+  int checked = 0, misses = 0;
+  for (size_t f = 0; f < traj->size(); f += 3) {
+    const Rigid3d& pose = (*traj)[f].local_from_cam;
+    ImageF depth;
+    auto lin = synth::RenderLinear(*scene, pose, ro, &depth);
+    ASSERT_TRUE(lin.ok()) << lin.status();
+    for (int y = 5; y < ro.height; y += 23)
+      for (int x = 7; x < ro.width; x += 29) {
+        const float z = depth.at(x, y);
+        auto hit = Pick(model, cam, pose, {double(x), double(y)});
+        if (!(z > 0)) {
+          misses += hit.has_value();
+          continue;
+        }
+        ASSERT_TRUE(hit.has_value()) << "pixel " << x << "," << y;
+        EXPECT_NEAR(hit->z_depth_m, z, voxel_m) << "pixel " << x << "," << y;
+        const glm::dvec3 gt = pose * cam.Unproject({double(x), double(y)}, z);
+        EXPECT_LT(glm::length(hit->point_local - gt), voxel_m);
+        EXPECT_EQ(hit->cell, model.grid.IdOf(hit->point_local));
+        EXPECT_EQ(hit->chunk_id, 7u);
+        EXPECT_NEAR(glm::length(hit->normal_local), 1.0, 1e-9);
+        const glm::dvec3 to_cam = pose.translation - hit->point_local;
+        EXPECT_GT(glm::dot(hit->normal_local, to_cam), 0.0);  // faces the camera
+        ++checked;
+      }
+  }
+  EXPECT_GT(checked, 50);
+  EXPECT_EQ(misses, 0);
+  // A ray away from everything: no hit.
+  LumigraphModel tri;
+  MeshChunk c;
+  c.mesh.positions = {{-1, -1, 5}, {1, -1, 5}, {0, 1, 5}};
+  c.mesh.indices = {0, 1, 2};
+  tri.chunks[0] = c;
+  const PinholeCamera pc = PinholeCamera::FromFov(100, 100, 1.0);
+  EXPECT_FALSE(Pick(tri, pc, Rigid3d{}, {0, 0}).has_value());
+  auto centre = Pick(tri, pc, Rigid3d{}, {49.5, 49.5});
+  ASSERT_TRUE(centre.has_value());
+  EXPECT_NEAR(centre->z_depth_m, 5.0, 1e-12);
+}
+
+TEST(SceneHelpers, UpBoundsAndNearestView) {
+  LumigraphModel m;
+  EXPECT_EQ(SceneUp(m), glm::dvec3(0, -1, 0));
+  EXPECT_FALSE(NearestView(m, {0, 0, 0}).has_value());
+  StoredView a, b;
+  a.id = 3;
+  a.local_from_cam.translation = {0, 0, 0};
+  b.id = 5;
+  b.local_from_cam.translation = {4, 0, 0};
+  // b looks along +z with image-up = +z? Rotate b by 90 deg about x: its -y axis becomes -z.
+  b.local_from_cam.rotation = glm::angleAxis(M_PI / 2, glm::dvec3(1, 0, 0));
+  m.views[3] = a;
+  m.views[5] = b;
+  EXPECT_EQ(*NearestView(m, {3, 0, 0}), 5u);
+  EXPECT_EQ(*NearestView(m, {1, 0, 0}), 3u);
+  const glm::dvec3 up = SceneUp(m);
+  EXPECT_NEAR(glm::length(up), 1.0, 1e-12);
+  EXPECT_NEAR(up.y, -std::sqrt(0.5), 1e-9);
+  const Bounds bb = ModelBounds(m);  // no mesh: the view centres
+  EXPECT_NEAR(bb.Diagonal(), 4.0, 1e-12);
+}
+
+TEST(TumPath, RoundTripsAndNamesTheBadLine) {
+  const std::string dir = testing::TempDir();
+  const std::string file = dir + "/nav_path.txt";
+  std::vector<PathPose> poses(2);
+  poses[0].timestamp_s = 1.5;
+  poses[0].world_from_cam.translation = {1, 2, 3};
+  poses[1].timestamp_s = 2.0;
+  poses[1].world_from_cam.rotation = glm::normalize(glm::dquat(0.9, 0.1, -0.3, 0.2));
+  ASSERT_TRUE(WriteTumPath(file, poses).ok());
+  auto back = ReadTumPath(file);
+  ASSERT_TRUE(back.ok()) << back.status();
+  ASSERT_EQ(back->size(), 2u);
+  EXPECT_NEAR((*back)[0].world_from_cam.translation.z, 3.0, 1e-9);
+  EXPECT_NEAR((*back)[1].timestamp_s, 2.0, 1e-9);
+  EXPECT_NEAR(
+      std::abs(glm::dot((*back)[1].world_from_cam.rotation, poses[1].world_from_cam.rotation)), 1.0,
+      1e-8);
+  std::ofstream(file) << "# comment\n1 0 0 0 0 0 0 1\n2 0 0 0 0 0 1\n";
+  auto bad = ReadTumPath(file);
+  ASSERT_FALSE(bad.ok());
+  EXPECT_NE(bad.status().message().find(":3: expected 8 numbers"), std::string::npos)
+      << bad.status();
+  std::ofstream(file) << "1 0 0 0 0 0 0 2\n";
+  EXPECT_NE(ReadTumPath(file).status().message().find("not unit"), std::string::npos);
+  EXPECT_TRUE(absl::IsNotFound(ReadTumPath(dir + "/missing.txt").status()));
+}
+
+}  // namespace
+}  // namespace exo::nav

@@ -1,0 +1,59 @@
+// The browser view of the viewer (issue 17): a small HTTP server (Boost.Beast, one thread per
+// connection, at most `max_clients`) that serves
+//   GET /             the page (no external assets): the live view, keyboard/mouse navigation,
+//   stats
+//                     (/?frames=N stops after N frames: a still snapshot)
+//   GET /frame.jpg?after=N   the newest JPEG frame, waiting (up to 2 s) for one newer than N;
+//                            its sequence number in the X-Frame-Seq header
+//   GET /stream       the same frames as MJPEG (multipart/x-mixed-replace), for <img> or players
+//   GET /status       read-only JSON of the viewer's state
+//   GET /metrics      Prometheus text (frame time, bytes received, model version, clients)
+//   POST /input?key=K&down=0|1   held keys (w a s d q e, arrows; expire 0.6 s after the last
+//                     refresh, so a browser that goes away never leaves a key held), one-shot
+//                     keys (r f tab 1 2 3), POST /input?dx=..&dy=.. mouse look, &wheel=..
+// Frames are shared: the renderer publishes one JPEG and every client takes the newest (a slow
+// client skips frames, nothing queues up per client).
+#pragma once
+
+#include <chrono>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "common/status.h"
+
+namespace exo {
+
+struct HttpInput {
+  bool forward = false, back = false, left = false, right = false, up = false, down = false;
+  bool turn_left = false, turn_right = false, turn_up = false, turn_down = false;
+  double look_dx_px = 0, look_dy_px = 0, wheel = 0;
+  std::vector<std::string> presses;  // one-shot keys since the last TakeInput
+};
+
+class HttpView {
+ public:
+  // host_port "127.0.0.1:8080" (port 0 = a free one). `status_json` / `metrics_text` are called
+  // from connection threads.
+  static absl::StatusOr<std::unique_ptr<HttpView>> Start(const std::string& host_port,
+                                                         std::function<std::string()> status_json,
+                                                         std::function<std::string()> metrics_text,
+                                                         int max_clients = 64);
+  ~HttpView();
+  int port() const;
+  void PublishFrame(std::vector<uint8_t> jpeg);
+  HttpInput TakeInput();
+  // Counters for the metrics.
+  uint64_t frames_sent() const;
+  int clients() const;
+
+  class Impl;
+
+ private:
+  explicit HttpView(std::unique_ptr<Impl> impl);
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace exo

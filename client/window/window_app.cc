@@ -1,0 +1,1059 @@
+#include "client/window/window_app.h"
+
+#include <SDL2/SDL.h>
+#include <signal.h>
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <mutex>
+#include <nlohmann/json.hpp>
+#include <thread>
+#include <vector>
+
+#include "client/navigation/navigation.h"
+#include "client/store/local_store.h"
+#include "client/uploader/upload_client.h"
+#include "client/viewer/viewer_session.h"
+#include "client/vulkan/vulkan_renderer.h"
+#include "client/window/http_view.h"
+#include "client/window/presenter.h"
+#include "common/io/image_file.h"
+#include "common/io/jpeg.h"
+#include "common/lumigraph/model_io.h"
+#include "common/metrics/metrics.h"
+#include "common/run_info/run_info.h"
+#include "imgui.h"
+
+namespace exo {
+namespace {
+
+std::atomic<bool> g_stop{false};
+void OnSignal(int) { g_stop.store(true); }
+
+using Clock = std::chrono::steady_clock;
+double MsSince(Clock::time_point t) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - t).count();
+}
+
+int Fail(const absl::Status& s) {
+  std::fprintf(stderr, "exoview_window: %s\n", s.ToString().c_str());
+  return absl::IsInvalidArgument(s) || absl::IsNotFound(s) || absl::IsDataLoss(s) ? 2 : 1;
+}
+
+// A server checkpoint (exoview_server --checkpoint_path) as a model: its snapshot deltas applied
+// to a LocalStore (the same steps as tools/export's loader).
+absl::StatusOr<LumigraphModel> LoadCheckpointModel(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return absl::NotFoundError("cannot open checkpoint " + path);
+  v1::Checkpoint c;
+  if (!c.ParseFromIstream(&in))
+    return absl::DataLossError("not a checkpoint (protobuf parse failed): " + path);
+  if (c.format() != 1)
+    return absl::InvalidArgumentError("checkpoint format " + std::to_string(c.format()) +
+                                      " is not 1: " + path);
+  LocalStore store;
+  v1::Delta begin, end;
+  begin.mutable_snapshot_begin();
+  end.mutable_snapshot_end();
+  end.set_version(c.version());
+  EXO_RETURN_IF_ERROR(store.Apply(begin));
+  for (const v1::Delta& d : c.model()) EXO_RETURN_IF_ERROR(store.Apply(d));
+  EXO_RETURN_IF_ERROR(store.Apply(end));
+  return store.model();
+}
+
+// The model the window shows: a file (fixed) or a live subscription (a background thread keeps
+// the ViewerSession's store up to date and reconnects when the server goes away).
+class ModelSource {
+ public:
+  static absl::StatusOr<std::unique_ptr<ModelSource>> Open(const WindowAppOptions& o) {
+    auto src = std::unique_ptr<ModelSource>(new ModelSource());
+    if (!o.model_file.empty()) {
+      EXO_ASSIGN_OR_RETURN(src->file_model_, LoadModel(o.model_file));
+      src->state_ = "saved model " + std::filesystem::path(o.model_file).filename().string();
+      return src;
+    }
+    if (!o.checkpoint.empty()) {
+      EXO_ASSIGN_OR_RETURN(src->file_model_, LoadCheckpointModel(o.checkpoint));
+      src->state_ = "checkpoint " + std::filesystem::path(o.checkpoint).filename().string();
+      return src;
+    }
+    src->live_ = true;
+    EXO_ASSIGN_OR_RETURN(src->session_, ViewerSession::Open(MakeChannel(o.server), o.journal));
+    ViewerSession* vs = src->session_.get();
+    ModelSource* self = src.get();
+    vs->SetOnDelta([self](const v1::Delta& d, int64_t) {
+      self->last_delta_ = Clock::now();
+      self->deltas_.fetch_add(1);
+      self->bytes_.fetch_add(d.ByteSizeLong());
+      if (d.source_timestamp_s() > 0) {
+        const double now_s =
+            std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch())
+                .count();
+        // Meaningful only when the uploader stamps frames with wall-clock time (a live camera);
+        // dataset timestamps (e.g. 7-Scenes' frame times) are not, and are not shown.
+        const double ms = (now_s - d.source_timestamp_s()) * 1e3;
+        if (ms >= 0 && ms < 3600e3) self->latency_ms_.store(ms);
+      }
+    });
+    src->thread_ = std::thread([self] { self->Run(); });
+    return src;
+  }
+  ~ModelSource() {
+    stop_.store(true);
+    if (session_) session_->Stop();
+    if (thread_.joinable()) thread_.join();
+  }
+  bool live() const { return live_; }
+  // Calls f(model, version) with the model stable.
+  template <typename F>
+  void With(F&& f) {
+    if (!live_) {
+      f(file_model_, file_model_.version);
+      return;
+    }
+    std::lock_guard lock(session_->lock());
+    f(session_->store().model(), session_->store().version());
+  }
+  uint64_t version() {
+    if (!live_) return file_model_.version;
+    std::lock_guard lock(session_->lock());
+    return session_->store().version();
+  }
+  std::string state() {
+    std::lock_guard lock(mu_);
+    return state_;
+  }
+  uint64_t deltas() const { return deltas_.load(); }
+  uint64_t bytes() const { return bytes_.load(); }
+  double latency_ms() const { return latency_ms_.load(); }
+  double seconds_since_delta() const { return deltas_.load() ? MsSince(last_delta_) * 1e-3 : -1; }
+
+ private:
+  ModelSource() = default;
+  void Run() {
+    while (!stop_.load()) {
+      {
+        std::lock_guard lock(mu_);
+        state_ = "live: subscribed";
+      }
+      SyncOptions so;
+      so.until_synced = false;
+      so.max_seconds = 1e9;
+      so.client_name = "window";
+      absl::Status s = session_->Sync(so);
+      if (stop_.load()) break;
+      {
+        std::lock_guard lock(mu_);
+        state_ = "live: reconnecting (" + std::string(s.ok() ? "stream ended" : s.message()) + ")";
+      }
+      for (int i = 0; i < 10 && !stop_.load(); ++i)
+        std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    }
+  }
+
+  bool live_ = false;
+  LumigraphModel file_model_;
+  std::unique_ptr<ViewerSession> session_;
+  std::thread thread_;
+  std::atomic<bool> stop_{false};
+  std::mutex mu_;
+  std::string state_;
+  std::atomic<uint64_t> deltas_{0}, bytes_{0};
+  std::atomic<double> latency_ms_{-1};
+  Clock::time_point last_delta_ = Clock::now();
+};
+
+// What the overlays and picking need from the model, without the pixels (copied on change).
+struct SceneInfo {
+  LumigraphModel geom;  // origin, grid, chunks, views (poses + cameras only), cell refs
+  uint64_t version = 0;
+  size_t cells = 0;
+  int max_refs = 1;
+  std::optional<ViewId> newest;
+};
+
+SceneInfo CopySceneInfo(const LumigraphModel& m, uint64_t version) {
+  SceneInfo s;
+  s.version = version;
+  s.geom.origin = m.origin;
+  s.geom.grid = m.grid;
+  s.geom.chunks = m.chunks;
+  s.geom.cell_refs = m.cell_refs;
+  for (const auto& [id, v] : m.views) {
+    StoredView sv;
+    sv.id = id;
+    sv.camera = v.camera;
+    sv.local_from_cam = v.local_from_cam;
+    s.geom.views.emplace(id, std::move(sv));
+    s.newest = id;
+  }
+  s.cells = m.cell_refs.size();
+  for (const auto& [c, r] : m.cell_refs) s.max_refs = std::max<int>(s.max_refs, int(r.size()));
+  return s;
+}
+
+// Bilinear resize (the presenter's blit is bilinear too): for the stage SSIMs of the benchmark.
+ImageU8 ResizeBilinear(const ImageU8& src, int w, int h) {
+  ImageU8 out(w, h, src.channels());
+  const int c = src.channels();
+  for (int y = 0; y < h; ++y) {
+    const double sy = std::clamp((y + 0.5) * src.height() / h - 0.5, 0.0, src.height() - 1.0);
+    const int y0 = int(sy), y1 = std::min(y0 + 1, src.height() - 1);
+    const double fy = sy - y0;
+    for (int x = 0; x < w; ++x) {
+      const double sx = std::clamp((x + 0.5) * src.width() / w - 0.5, 0.0, src.width() - 1.0);
+      const int x0 = int(sx), x1 = std::min(x0 + 1, src.width() - 1);
+      const double fx = sx - x0;
+      for (int k = 0; k < c; ++k) {
+        const double v = (1 - fy) * ((1 - fx) * src.at(x0, y0, k) + fx * src.at(x1, y0, k)) +
+                         fy * ((1 - fx) * src.at(x0, y1, k) + fx * src.at(x1, y1, k));
+        out.at(x, y, k) = uint8_t(std::lround(std::clamp(v, 0.0, 255.0)));
+      }
+    }
+  }
+  return out;
+}
+
+nlohmann::json PoseJson(const Rigid3d& p) {
+  return {{"t", {p.translation.x, p.translation.y, p.translation.z}},
+          {"q_wxyz", {p.rotation.w, p.rotation.x, p.rotation.y, p.rotation.z}}};
+}
+
+class App {
+ public:
+  explicit App(const WindowAppOptions& o) : o_(o) {}
+
+  absl::Status InitModelAndRenderer(bool need_views) {
+    EXO_ASSIGN_OR_RETURN(source_, ModelSource::Open(o_));
+    if (source_->live()) {
+      // Wait (bounded) for the first views so there is something to look at.
+      const auto t0 = Clock::now();
+      while (MsSince(t0) < 30000) {
+        size_t n = 0;
+        source_->With([&](const LumigraphModel& m, uint64_t) { n = m.views.size(); });
+        if (n > 0 || !need_views) break;
+        std::this_thread::sleep_for(std::chrono::milliseconds(100));
+      }
+    }
+    EXO_ASSIGN_OR_RETURN(renderer_, VulkanRenderer::Create({}));
+    EXO_RETURN_IF_ERROR(SyncRenderer());
+    if (need_views && info_.geom.views.empty())
+      return absl::FailedPreconditionError("the model has no stored views (nothing to show)");
+    return absl::OkStatus();
+  }
+
+  // Uploads what changed in the model; true when something did.
+  absl::StatusOr<bool> MaybeSync() {
+    if (source_->version() == info_.version && synced_once_) return false;
+    EXO_RETURN_IF_ERROR(SyncRenderer());
+    return true;
+  }
+
+  absl::Status SyncRenderer() {
+    absl::Status st;
+    source_->With([&](const LumigraphModel& m, uint64_t version) {
+      st = renderer_->SyncModel(m);
+      if (st.ok()) info_ = CopySceneInfo(m, version);
+    });
+    synced_once_ = true;
+    return st;
+  }
+
+  Rigid3d StartPose() const {
+    const auto& views = info_.geom.views;
+    if (o_.start_view >= 0) {
+      auto it = views.find(ViewId(o_.start_view));
+      if (it != views.end()) return it->second.local_from_cam;
+    }
+    return views.empty() ? Rigid3d{} : views.begin()->second.local_from_cam;
+  }
+
+  PinholeCamera Camera(int w, int h) const {
+    return PinholeCamera::FromFov(w, h, o_.hfov_deg * M_PI / 180.0);
+  }
+
+  absl::StatusOr<ImageU8> Render(const Rigid3d& pose, int w, int h) {
+    blend::BlendOptions bo;
+    bo.n_best = o_.n_best;
+    EXO_ASSIGN_OR_RETURN(auto r, renderer_->Render(Camera(w, h), pose, bo));
+    return std::move(r.color);
+  }
+
+  // ---- scripted render along a TUM path (no window) ----
+  int RunPath() {
+    auto poses = nav::ReadTumPath(o_.path);
+    if (!poses.ok()) return Fail(poses.status());
+    if (auto s = InitModelAndRenderer(false); !s.ok()) return Fail(s);
+    std::error_code ec;
+    std::filesystem::create_directories(o_.out_dir, ec);
+    if (ec) return Fail(absl::PermissionDeniedError("cannot create " + o_.out_dir));
+    std::vector<double> ms;
+    nlohmann::json frames = nlohmann::json::array();
+    for (size_t i = 0; i < poses->size(); ++i) {
+      const Rigid3d pose = info_.geom.origin.ToLocal((*poses)[i].world_from_cam);
+      const auto t0 = Clock::now();
+      auto img = Render(pose, o_.width, o_.height);
+      if (!img.ok()) return Fail(img.status());
+      ms.push_back(MsSince(t0));
+      char name[64];
+      std::snprintf(name, sizeof(name), "frame_%05zu.png", i);
+      if (auto s = WriteColorImage(o_.out_dir + "/" + name, *img); !s.ok()) return Fail(s);
+      frames.push_back({{"png", name}, {"render_ms", ms.back()}});
+    }
+    std::vector<double> sorted = ms;
+    std::sort(sorted.begin(), sorted.end());
+    const nlohmann::json out = {{"path", o_.path},
+                                {"frames", poses->size()},
+                                {"width", o_.width},
+                                {"height", o_.height},
+                                {"median_render_ms", sorted[sorted.size() / 2]},
+                                {"out_dir", o_.out_dir},
+                                {"per_frame", frames}};
+    std::printf("%s\n", out.dump().c_str());
+    return 0;
+  }
+
+  // ---- overlays (ImGui background draw list: projected lines/points over the frame) ----
+  void DrawOverlays(const Rigid3d& pose, int W, int H) {
+    if (!overlays_) return;
+    ImDrawList* dl = ImGui::GetBackgroundDrawList();
+    const PinholeCamera cam = Camera(W, H);
+    const Rigid3d cam_from_local = pose.Inverse();
+    // Occlusion: the proxy's z-depth at 1/8 of the window (RenderProxyDepth), refreshed when the
+    // pose or the model changed; a point farther than the surface (+3 %) is hidden.
+    const int dw = std::max(1, W / 8), dh = std::max(1, H / 8);
+    if (occ_pose_.translation != pose.translation || occ_pose_.rotation != pose.rotation ||
+        occ_version_ != info_.version || occ_depth_.width() != dw || occ_depth_.height() != dh) {
+      auto depth = renderer_->RenderProxyDepth(Camera(dw, dh), pose);
+      occ_depth_ = depth.ok() ? *std::move(depth) : ImageF();
+      occ_pose_ = pose;
+      occ_version_ = info_.version;
+    }
+    auto visible = [&](const glm::dvec3& pc, const glm::dvec2& uv) {
+      if (occ_depth_.empty()) return true;
+      const int x = int(std::floor((uv.x + 0.5) * dw / W)),
+                y = int(std::floor((uv.y + 0.5) * dh / H));
+      if (x < 0 || y < 0 || x >= dw || y >= dh) return true;
+      const float z = occ_depth_.at(x, y);
+      return !(z > 0) || pc.z <= z * 1.03 + 0.01;
+    };
+    auto project = [&](const glm::dvec3& p_local, ImVec2* out) {
+      const glm::dvec3 pc = cam_from_local * p_local;
+      if (pc.z < 0.05) return false;
+      glm::dvec2 uv;
+      if (!cam.Project(pc, &uv)) return false;
+      *out = ImVec2(float(uv.x + 0.5), float(uv.y + 0.5));
+      return std::abs(uv.x) < 4 * W && std::abs(uv.y) < 4 * H;
+    };
+    auto seen = [&](const glm::dvec3& p_local) {
+      const glm::dvec3 pc = cam_from_local * p_local;
+      glm::dvec2 uv;
+      return pc.z > 0.05 && cam.Project(pc, &uv) && visible(pc, uv);
+    };
+    auto line = [&](const glm::dvec3& a, const glm::dvec3& b, ImU32 col, float th) {
+      ImVec2 pa, pb;
+      if (project(a, &pa) && project(b, &pb) && seen(0.5 * (a + b))) dl->AddLine(pa, pb, col, th);
+    };
+    const double scale = std::max(0.05, nav::ModelBounds(info_.geom).Diagonal() * 0.02);
+    if (show_wire_) {
+      int budget = 30000;  // edges drawn at most (sampled evenly)
+      size_t tris = 0;
+      for (const auto& [id, c] : info_.geom.chunks) tris += c.mesh.num_triangles();
+      const size_t stride = std::max<size_t>(1, tris / size_t(budget));
+      size_t k = 0;
+      for (const auto& [id, c] : info_.geom.chunks) {
+        const auto& m = c.mesh;
+        for (size_t t = 0; t < m.num_triangles(); ++t, ++k) {
+          if (k % stride) continue;
+          const glm::dvec3 a(m.positions[m.indices[3 * t]]), b(m.positions[m.indices[3 * t + 1]]),
+              d(m.positions[m.indices[3 * t + 2]]);
+          const ImU32 col = IM_COL32(0, 255, 255, 70);
+          line(a, b, col, 1);
+          line(b, d, col, 1);
+          line(d, a, col, 1);
+        }
+      }
+    }
+    if (show_cells_ && info_.geom.grid.cell_size_m > 0) {
+      size_t stride = std::max<size_t>(1, info_.cells / 8000);
+      size_t k = 0;
+      for (const auto& [cell, refs] : info_.geom.cell_refs) {
+        if (k++ % stride) continue;
+        ImVec2 p;
+        const glm::dvec3 centre = info_.geom.grid.Centre(cell);
+        if (!project(centre, &p) || !seen(centre)) continue;
+        // Reference count relative to the fullest cell: red (1 ref) -> green (full).
+        const float f = std::clamp(float(refs.size()) / float(info_.max_refs), 0.f, 1.f);
+        dl->AddCircleFilled(p, 2.5f, IM_COL32(int(255 * (1 - f)), int(255 * f), 40, 200));
+      }
+    }
+    if (show_frusta_ && !info_.geom.views.empty()) {
+      const ViewId first = info_.geom.views.begin()->first;
+      const ViewId last = info_.geom.views.rbegin()->first;
+      for (const auto& [id, v] : info_.geom.views) {
+        const bool live = info_.newest && id == *info_.newest;
+        // Age: oldest blue -> newest yellow; the live (newest) camera green and thicker.
+        const float a = last > first ? float(id - first) / float(last - first) : 1.f;
+        const ImU32 col =
+            live ? IM_COL32(40, 255, 40, 255)
+                 : IM_COL32(int(60 + 195 * a), int(80 + 175 * a), int(255 * (1 - a)), 200);
+        const PinholeCamera& vc = v.camera;
+        const double z = live ? 2 * scale : scale;
+        glm::dvec3 c[4];
+        const glm::dvec2 corners[4] = {{-0.5, -0.5},
+                                       {vc.width - 0.5, -0.5},
+                                       {vc.width - 0.5, vc.height - 0.5},
+                                       {-0.5, vc.height - 0.5}};
+        for (int i = 0; i < 4; ++i) c[i] = v.local_from_cam * vc.Unproject(corners[i], z);
+        const glm::dvec3 o = v.local_from_cam.translation;
+        // A frustum at (or around) the eye would cover the screen: skip those within 3 sizes.
+        if (glm::length(o - pose.translation) < 3 * z) continue;
+        const float th = live ? 2.5f : 1.2f;
+        for (int i = 0; i < 4; ++i) {
+          line(o, c[i], col, th);
+          line(c[i], c[(i + 1) % 4], col, th);
+        }
+      }
+    }
+    if (cursor_pick_) {
+      ImVec2 p;
+      if (project(cursor_pick_->point_local, &p)) {
+        dl->AddCircle(p, 6.f, IM_COL32(255, 60, 255, 255), 16, 2.f);
+        ImVec2 q;
+        if (project(cursor_pick_->point_local + cursor_pick_->normal_local * scale, &q))
+          dl->AddLine(p, q, IM_COL32(255, 60, 255, 255), 2.f);
+      }
+    }
+    // Crosshair (the picked point below it is in the HUD).
+    dl->AddLine(ImVec2(W / 2.f - 8, H / 2.f), ImVec2(W / 2.f + 8, H / 2.f),
+                IM_COL32(255, 255, 255, 160));
+    dl->AddLine(ImVec2(W / 2.f, H / 2.f - 8), ImVec2(W / 2.f, H / 2.f + 8),
+                IM_COL32(255, 255, 255, 160));
+  }
+
+  void DrawHud(const nav::FlyCamera& cam, int W, int H) {
+    if (!overlays_) return;
+    ImGui::SetNextWindowPos(ImVec2(8, 8), ImGuiCond_Always);
+    ImGui::SetNextWindowBgAlpha(0.6f);
+    ImGui::Begin("Exoview", nullptr,
+                 ImGuiWindowFlags_NoDecoration | ImGuiWindowFlags_AlwaysAutoResize |
+                     ImGuiWindowFlags_NoFocusOnAppearing | ImGuiWindowFlags_NoNav);
+    ImGui::Text("frame %.1f ms (%.0f fps)  render %.1f ms  present %.1f ms", frame_ms_,
+                frame_ms_ > 0 ? 1000.0 / frame_ms_ : 0.0, render_ms_, present_ms_);
+    ImGui::Text("resolution %s %dx%d",
+                stage_ == 1   ? "full"
+                : stage_ == 2 ? "1/2"
+                : stage_ == 4 ? "1/4"
+                              : "1/8",
+                W / std::max(1, stage_), H / std::max(1, stage_));
+    ImGui::Text("model v%llu  views %zu  cells %zu  chunks %zu", (unsigned long long)info_.version,
+                info_.geom.views.size(), info_.cells, info_.geom.chunks.size());
+    ImGui::Text("%s", source_->state().c_str());
+    if (source_->live()) {
+      const double ago = source_->seconds_since_delta();
+      const double lat = source_->latency_ms();
+      char lat_text[32] = "n/a";
+      if (lat >= 0) std::snprintf(lat_text, sizeof(lat_text), "%.0f ms", lat);
+      ImGui::Text("deltas %llu (%.1f MB)  last %.1f s ago  capture->view latency %s",
+                  (unsigned long long)source_->deltas(), source_->bytes() / 1e6, ago, lat_text);
+    }
+    ImGui::Text("speed %.2f m/s%s%s", cam.speed_mps(), follow_ ? "  FOLLOW" : "",
+                replaying_ ? "  REPLAY" : "");
+    if (centre_pick_)
+      ImGui::Text("centre: %.2f m  cell %llx  n (%.2f %.2f %.2f)", centre_pick_->z_depth_m,
+                  (unsigned long long)centre_pick_->cell, centre_pick_->normal_local.x,
+                  centre_pick_->normal_local.y, centre_pick_->normal_local.z);
+    else
+      ImGui::Text("centre: no proxy surface");
+    if (cursor_pick_)
+      ImGui::Text("picked: (%.2f %.2f %.2f)  cell %llx", cursor_pick_->point_local.x,
+                  cursor_pick_->point_local.y, cursor_pick_->point_local.z,
+                  (unsigned long long)cursor_pick_->cell);
+    ImGui::Checkbox("frusta", &show_frusta_);
+    ImGui::SameLine();
+    ImGui::Checkbox("wireframe", &show_wire_);
+    ImGui::SameLine();
+    ImGui::Checkbox("cells", &show_cells_);
+    ImGui::TextDisabled(
+        "WASD/QE move, drag/arrows look, wheel speed, right-click pick, R F Tab P Esc");
+    ImGui::End();
+  }
+
+  void WriteStatus(const nav::FlyCamera& cam, uint64_t frame) {
+    if (o_.status_file.empty()) return;
+    nlohmann::json j = {{"frame", frame},
+                        {"stage", stage_},
+                        {"width", presenter_->width()},
+                        {"height", presenter_->height()},
+                        {"hfov_deg", o_.hfov_deg},
+                        {"pose_local", PoseJson(cam.pose())},
+                        {"model_version", info_.version},
+                        {"views", info_.geom.views.size()},
+                        {"cells", info_.cells},
+                        {"sync", source_->state()},
+                        {"frame_ms", frame_ms_},
+                        {"render_ms", render_ms_},
+                        {"overlays", overlays_},
+                        {"follow", follow_}};
+    const Rigid3d world = {cam.pose().rotation,
+                           cam.pose().translation + info_.geom.origin.origin_in_world};
+    j["pose_world"] = PoseJson(world);
+    if (auto n = nav::NearestView(info_.geom, cam.pose().translation)) {
+      j["nearest_view"] = *n;
+      j["nearest_view_distance_m"] =
+          glm::length(info_.geom.views.at(*n).local_from_cam.translation - cam.pose().translation);
+    }
+    if (centre_pick_) {
+      j["centre_depth_m"] = centre_pick_->z_depth_m;
+      j["centre_cell"] = centre_pick_->cell;
+      j["centre_point_local"] = {centre_pick_->point_local.x, centre_pick_->point_local.y,
+                                 centre_pick_->point_local.z};
+    } else {
+      j["centre_depth_m"] = nullptr;
+    }
+    const std::string tmp = o_.status_file + ".tmp";
+    std::ofstream(tmp) << j.dump(1) << "\n";
+    std::filesystem::rename(tmp, o_.status_file);
+  }
+
+  absl::Status SaveModel() {
+    if (o_.save_model.empty()) return absl::OkStatus();
+    absl::Status st;
+    source_->With(
+        [&](const LumigraphModel& m, uint64_t) { st = exo::SaveModel(o_.save_model, m); });
+    if (st.ok())
+      std::fprintf(stderr, "exoview_window: saved the model to %s\n", o_.save_model.c_str());
+    return st;
+  }
+
+  // ---- interactive window ----
+  int RunWindow() {
+    if (auto s = InitModelAndRenderer(true); !s.ok()) return Fail(s);
+    std::vector<nav::PathPose> replay;
+    if (!o_.replay.empty()) {
+      auto r = nav::ReadTumPath(o_.replay);
+      if (!r.ok()) return Fail(r.status());
+      replay = *std::move(r);
+    }
+    PresenterOptions po;
+    po.width = o_.width;
+    po.height = o_.height;
+    po.title = "Exoview — " + (o_.model_file.empty() ? o_.server : o_.model_file);
+    auto presenter = Presenter::Create(po);
+    if (!presenter.ok()) return Fail(presenter.status());
+    presenter_ = std::move(*presenter);
+    nav::FlyOptions fo;
+    fo.speed_mps = std::max(0.1, nav::ModelBounds(info_.geom).Diagonal() * 0.1);
+    nav::FlyCamera cam(StartPose(), nav::SceneUp(info_.geom), fo);
+    nav::AdaptiveOptions ao;
+    ao.enabled = o_.adaptive;
+    ao.moving_divisor = o_.moving_divisor;
+    ao.target_ms = o_.target_ms;
+    ao.min_divisor = std::min(ao.min_divisor, o_.moving_divisor);
+    ao.max_divisor = std::max(ao.max_divisor, o_.moving_divisor);
+    if (auto s = ao.Validate(); !s.ok()) return Fail(s);
+    nav::AdaptiveResolution adaptive(ao);
+    overlays_ = o_.overlays;
+    std::vector<nav::PathPose> recorded;
+    const auto t_start = Clock::now();
+    auto t_last = Clock::now();
+    bool quit = false, force = true;
+    uint64_t frame = 0;
+    size_t replay_i = 0;
+    replaying_ = !replay.empty();
+    int last_w = 0, last_h = 0;
+    while (!quit) {
+      nav::FlyInput in;
+      bool events = false, overlay_changed = false;
+      SDL_Event e;
+      while (SDL_PollEvent(&e)) {
+        events = true;
+        const bool imgui = presenter_->ProcessEvent(e);
+        if (e.type == SDL_QUIT) quit = true;
+        if (e.type == SDL_KEYDOWN && !e.key.repeat && !imgui) {
+          switch (e.key.keysym.sym) {
+            case SDLK_ESCAPE:
+              quit = true;
+              break;
+            case SDLK_TAB:
+              overlays_ = !overlays_;
+              overlay_changed = true;
+              break;
+            case SDLK_r:
+              if (auto n = nav::NearestView(info_.geom, cam.pose().translation)) {
+                cam.Reset(info_.geom.views.at(*n).local_from_cam);
+                force = true;
+              }
+              follow_ = false;
+              break;
+            case SDLK_f:
+              follow_ = !follow_;
+              force = true;
+              break;
+            case SDLK_p:
+              if (auto s = SaveModel(); !s.ok())
+                std::fprintf(stderr, "exoview_window: %s\n", s.ToString().c_str());
+              break;
+            case SDLK_1:
+              show_frusta_ = !show_frusta_;
+              overlay_changed = true;
+              break;
+            case SDLK_2:
+              show_wire_ = !show_wire_;
+              overlay_changed = true;
+              break;
+            case SDLK_3:
+              show_cells_ = !show_cells_;
+              overlay_changed = true;
+              break;
+            default:
+              break;
+          }
+        }
+        if (e.type == SDL_MOUSEMOTION && !imgui && (e.motion.state & SDL_BUTTON_LMASK)) {
+          in.look_dx_px += e.motion.xrel;
+          in.look_dy_px += e.motion.yrel;
+        }
+        if (e.type == SDL_MOUSEWHEEL && !imgui) in.wheel += e.wheel.y;
+        // Right click: pick the proxy under the cursor (point, normal, cell), the hook for the
+        // operator actions (marking a region, steering the drone).
+        if (e.type == SDL_MOUSEBUTTONDOWN && e.button.button == SDL_BUTTON_RIGHT && !imgui) {
+          const int W = presenter_->width(), H = presenter_->height();
+          cursor_pick_ = nav::Pick(info_.geom, Camera(W, H), cam.pose(),
+                                   {double(e.button.x), double(e.button.y)});
+          if (cursor_pick_) {
+            const glm::dvec3 pw = info_.geom.origin.origin_in_world + cursor_pick_->point_local;
+            std::printf("%s\n", nlohmann::json(
+                                    {{"pick", {pw.x, pw.y, pw.z}},
+                                     {"normal",
+                                      {cursor_pick_->normal_local.x, cursor_pick_->normal_local.y,
+                                       cursor_pick_->normal_local.z}},
+                                     {"cell", cursor_pick_->cell},
+                                     {"pixel", {e.button.x, e.button.y}}})
+                                    .dump()
+                                    .c_str());
+            std::fflush(stdout);
+          }
+          overlay_changed = true;
+        }
+      }
+      const double dt = std::min(0.25, MsSince(t_last) * 1e-3);
+      t_last = Clock::now();
+      const Uint8* ks = SDL_GetKeyboardState(nullptr);
+      if (!ImGui::GetIO().WantCaptureKeyboard) {
+        in.forward = ks[SDL_SCANCODE_W];
+        in.back = ks[SDL_SCANCODE_S];
+        in.left = ks[SDL_SCANCODE_A];
+        in.right = ks[SDL_SCANCODE_D];
+        in.up = ks[SDL_SCANCODE_E];
+        in.down = ks[SDL_SCANCODE_Q];
+        const double turn_px = 400.0 * dt;  // arrow keys: ~70 deg/s at the default sensitivity
+        if (ks[SDL_SCANCODE_LEFT]) in.look_dx_px -= turn_px;
+        if (ks[SDL_SCANCODE_RIGHT]) in.look_dx_px += turn_px;
+        if (ks[SDL_SCANCODE_UP]) in.look_dy_px -= turn_px;
+        if (ks[SDL_SCANCODE_DOWN]) in.look_dy_px += turn_px;
+      }
+      bool changed = cam.Step(in, dt) || force;
+      force = false;
+      auto synced = MaybeSync();
+      if (!synced.ok()) return Fail(synced.status());
+      changed |= *synced;
+      if (follow_ && info_.newest) {
+        const Rigid3d& live = info_.geom.views.at(*info_.newest).local_from_cam;
+        if (glm::length(live.translation - cam.pose().translation) > 1e-9 ||
+            std::abs(glm::dot(live.rotation, cam.pose().rotation)) < 1 - 1e-12) {
+          cam.Reset(live);
+          changed = true;
+        }
+      }
+      if (replaying_) {
+        const double t = MsSince(t_start) * 1e-3 + replay.front().timestamp_s;
+        while (replay_i + 1 < replay.size() && replay[replay_i + 1].timestamp_s <= t) ++replay_i;
+        cam.Reset(info_.geom.origin.ToLocal(replay[replay_i].world_from_cam));
+        changed = true;
+        if (replay_i + 1 == replay.size()) replaying_ = false;
+      }
+      const int W = presenter_->width(), H = presenter_->height();
+      if (W != last_w || H != last_h) changed = true;
+      last_w = W;
+      last_h = H;
+      const auto t_frame = Clock::now();
+      const int d = W > 0 && H > 0 ? adaptive.Next(changed) : 0;
+      presenter_->NewFrame();
+      ImageU8 img;
+      if (d > 0) {
+        stage_ = d;
+        const auto t0 = Clock::now();
+        auto r = Render(cam.pose(), std::max(1, W / d), std::max(1, H / d));
+        if (!r.ok()) return Fail(r.status());
+        img = *std::move(r);
+        render_ms_ = MsSince(t0);
+        if (d == 1 || changed)
+          centre_pick_ =
+              nav::Pick(info_.geom, Camera(W, H), cam.pose(), {W / 2.0 - 0.5, H / 2.0 - 0.5});
+      }
+      DrawOverlays(cam.pose(), W, H);
+      DrawHud(cam, W, H);
+      PresentTimings pt;
+      const bool present = d > 0 || overlays_ || overlay_changed || events;
+      if (present) {
+        if (auto s = presenter_->Present(d > 0 ? &img : nullptr, &pt); !s.ok()) return Fail(s);
+        present_ms_ = pt.upload_ms + pt.submit_ms;
+      } else {
+        ImGui::EndFrame();
+      }
+      if (d > 0) {
+        frame_ms_ = MsSince(t_frame);
+        if (changed) adaptive.ReportMovingFrame(frame_ms_);
+        ++frame;
+        if (!o_.record.empty())
+          recorded.push_back(
+              {MsSince(t_start) * 1e-3,
+               {cam.pose().rotation, cam.pose().translation + info_.geom.origin.origin_in_world}});
+      }
+      // Status after each full-resolution frame, and when the sync state changes (e.g. the
+      // server went away: the last model stays on screen, the HUD says "reconnecting").
+      const std::string sync_state = source_->state();
+      if (d == 1 || sync_state != last_sync_state_) WriteStatus(cam, frame);
+      last_sync_state_ = sync_state;
+      if (o_.max_seconds > 0 && MsSince(t_start) > o_.max_seconds * 1e3) quit = true;
+      // Converged and nothing happening: wait for input instead of spinning (HUD refresh 4 Hz).
+      if (d == 0 && !follow_ && !replaying_) SDL_WaitEventTimeout(nullptr, overlays_ ? 250 : 1000);
+    }
+    if (!o_.record.empty())
+      if (auto s = nav::WriteTumPath(o_.record, recorded); !s.ok()) return Fail(s);
+    if (source_->live())
+      if (auto s = SaveModel(); !s.ok()) return Fail(s);
+    presenter_.reset();
+    return 0;
+  }
+
+  // ---- browser view (no window) ----
+  int RunHttp() {
+    if (auto s = InitModelAndRenderer(true); !s.ok()) return Fail(s);
+    std::mutex status_mu;
+    std::string status_text = "{}";
+    double frame_ms = 0;
+    uint64_t frames = 0;
+    HttpView* view_ptr = nullptr;
+    auto http = HttpView::Start(
+        o_.http,
+        [&] {
+          std::lock_guard lock(status_mu);
+          return status_text;
+        },
+        [&] {
+          std::lock_guard lock(status_mu);
+          char buf[1024];
+          std::snprintf(
+              buf, sizeof(buf),
+              "# HELP exoview_viewer_frame_ms Wall time of the last rendered frame.\n"
+              "# TYPE exoview_viewer_frame_ms gauge\nexoview_viewer_frame_ms %.3f\n"
+              "# HELP exoview_viewer_frames_rendered_total Frames rendered.\n"
+              "# TYPE exoview_viewer_frames_rendered_total counter\n"
+              "exoview_viewer_frames_rendered_total %llu\n"
+              "# HELP exoview_viewer_frames_sent_total JPEG frames sent to browsers.\n"
+              "# TYPE exoview_viewer_frames_sent_total counter\n"
+              "exoview_viewer_frames_sent_total %llu\n"
+              "# HELP exoview_viewer_bytes_received_total Delta bytes received.\n"
+              "# TYPE exoview_viewer_bytes_received_total counter\n"
+              "exoview_viewer_bytes_received_total %llu\n"
+              "# HELP exoview_viewer_model_version Version of the local model.\n"
+              "# TYPE exoview_viewer_model_version gauge\nexoview_viewer_model_version %llu\n"
+              "# HELP exoview_viewer_browsers Connected browser connections.\n"
+              "# TYPE exoview_viewer_browsers gauge\nexoview_viewer_browsers %d\n",
+              frame_ms, (unsigned long long)frames,
+              (unsigned long long)(view_ptr ? view_ptr->frames_sent() : 0),
+              (unsigned long long)source_->bytes(), (unsigned long long)info_.version,
+              view_ptr ? view_ptr->clients() : 0);
+          return std::string(buf);
+        });
+    if (!http.ok()) return Fail(http.status());
+    view_ptr = http->get();
+    const int port = (*http)->port();
+    if (!o_.port_file.empty()) std::ofstream(o_.port_file) << port << "\n";
+    std::printf("%s\n", nlohmann::json({{"http", "http://127.0.0.1:" + std::to_string(port) + "/"}})
+                            .dump()
+                            .c_str());
+    std::fflush(stdout);
+    signal(SIGTERM, OnSignal);
+    signal(SIGINT, OnSignal);
+    nav::FlyOptions fo;
+    fo.speed_mps = std::max(0.1, nav::ModelBounds(info_.geom).Diagonal() * 0.1);
+    nav::FlyCamera cam(StartPose(), nav::SceneUp(info_.geom), fo);
+    nav::AdaptiveOptions ao;
+    ao.enabled = o_.adaptive;
+    ao.moving_divisor = o_.moving_divisor;
+    ao.target_ms = o_.target_ms;
+    ao.min_divisor = std::min(ao.min_divisor, o_.moving_divisor);
+    ao.max_divisor = std::max(ao.max_divisor, o_.moving_divisor);
+    if (auto s = ao.Validate(); !s.ok()) return Fail(s);
+    nav::AdaptiveResolution adaptive(ao);
+    const int W = o_.width, H = o_.height;
+    const auto t_start = Clock::now();
+    auto t_last = Clock::now();
+    bool force = true;
+    while (!g_stop.load()) {
+      if (o_.max_seconds > 0 && MsSince(t_start) > o_.max_seconds * 1e3) break;
+      const HttpInput hi = (*http)->TakeInput();
+      const double dt = std::min(0.25, MsSince(t_last) * 1e-3);
+      t_last = Clock::now();
+      nav::FlyInput in;
+      in.forward = hi.forward;
+      in.back = hi.back;
+      in.left = hi.left;
+      in.right = hi.right;
+      in.up = hi.up;
+      in.down = hi.down;
+      in.look_dx_px = hi.look_dx_px + 400.0 * dt * (hi.turn_right - hi.turn_left);
+      in.look_dy_px = hi.look_dy_px + 400.0 * dt * (hi.turn_down - hi.turn_up);
+      in.wheel = hi.wheel;
+      for (const std::string& k : hi.presses) {
+        if (k == "r") {
+          if (auto n = nav::NearestView(info_.geom, cam.pose().translation))
+            cam.Reset(info_.geom.views.at(*n).local_from_cam);
+          follow_ = false;
+          force = true;
+        } else if (k == "f") {
+          follow_ = !follow_;
+          force = true;
+        }
+      }
+      bool changed = cam.Step(in, dt) || force;
+      force = false;
+      auto synced = MaybeSync();
+      if (!synced.ok()) return Fail(synced.status());
+      changed |= *synced;
+      if (follow_ && info_.newest) {
+        const Rigid3d& live = info_.geom.views.at(*info_.newest).local_from_cam;
+        if (glm::length(live.translation - cam.pose().translation) > 1e-9) {
+          cam.Reset(live);
+          changed = true;
+        }
+      }
+      const int d = adaptive.Next(changed);
+      if (d == 0) {
+        std::this_thread::sleep_for(std::chrono::milliseconds(15));
+        continue;
+      }
+      const auto t0 = Clock::now();
+      auto img = Render(cam.pose(), std::max(1, W / d), std::max(1, H / d));
+      if (!img.ok()) return Fail(img.status());
+      auto jpeg = EncodeJpeg(*img, o_.jpeg_quality);
+      if (!jpeg.ok()) return Fail(jpeg.status());
+      (*http)->PublishFrame(*std::move(jpeg));
+      const double ms = MsSince(t0);
+      if (changed) adaptive.ReportMovingFrame(ms);
+      stage_ = d;
+      const Rigid3d& p = cam.pose();
+      nlohmann::json j = {{"frame_ms", ms},
+                          {"stage", d},
+                          {"frames", frames + 1},
+                          {"width", img->width()},
+                          {"height", img->height()},
+                          {"model_version", info_.version},
+                          {"views", info_.geom.views.size()},
+                          {"cells", info_.cells},
+                          {"sync", source_->state()},
+                          {"bytes_received", source_->bytes()},
+                          {"clients", (*http)->clients()},
+                          {"follow", follow_},
+                          {"speed_mps", cam.speed_mps()},
+                          {"pose_local", PoseJson(p)}};
+      std::lock_guard lock(status_mu);
+      frame_ms = ms;
+      ++frames;
+      status_text = j.dump();
+    }
+    http->reset();
+    if (source_->live())
+      if (auto s = SaveModel(); !s.ok()) return Fail(s);
+    return 0;
+  }
+
+  // ---- benchmark: scripted motion through the real window loop ----
+  int RunBench() {
+    if (auto s = InitModelAndRenderer(true); !s.ok()) return Fail(s);
+    PresenterOptions po;
+    po.width = o_.width;
+    po.height = o_.height;
+    po.title = "Exoview benchmark";
+    auto presenter = Presenter::Create(po);
+    if (!presenter.ok()) return Fail(presenter.status());
+    presenter_ = std::move(*presenter);
+    overlays_ = o_.overlays;
+    const int W = presenter_->width(), H = presenter_->height();
+    nav::FlyOptions fo;
+    fo.speed_mps = std::max(0.1, nav::ModelBounds(info_.geom).Diagonal() * 0.05);
+    const glm::dvec3 up = nav::SceneUp(info_.geom);
+    // Warm-up (shader JIT, first upload) at every size.
+    for (int d : {1, 2, 4, 8}) {
+      presenter_->NewFrame();
+      auto r = Render(StartPose(), W / d, H / d);
+      if (!r.ok()) return Fail(r.status());
+      if (auto s = presenter_->Present(&*r); !s.ok()) return Fail(s);
+    }
+    auto median = [](std::vector<double> v) {
+      if (v.empty()) return 0.0;
+      std::sort(v.begin(), v.end());
+      return v[v.size() / 2];
+    };
+    auto p90 = [](std::vector<double> v) {
+      if (v.empty()) return 0.0;
+      std::sort(v.begin(), v.end());
+      return v[std::min(v.size() - 1, size_t(v.size() * 0.9))];
+    };
+    nlohmann::json modes = nlohmann::json::object();
+    Rigid3d still_pose;
+    struct Mode {
+      const char* name;
+      bool enabled;
+      double target_ms;
+    };
+    for (const Mode& mode : {Mode{"adaptive_budget", true, o_.target_ms > 0 ? o_.target_ms : 33.3},
+                             Mode{"adaptive_fixed", true, 0.0}, Mode{"full_always", false, 0.0}}) {
+      nav::AdaptiveOptions ao;
+      ao.enabled = mode.enabled;
+      ao.moving_divisor = o_.moving_divisor;
+      ao.target_ms = mode.target_ms;
+      ao.min_divisor = std::min(ao.min_divisor, o_.moving_divisor);
+      ao.max_divisor = std::max(ao.max_divisor, o_.moving_divisor);
+      if (auto s = ao.Validate(); !s.ok()) return Fail(s);
+      nav::AdaptiveResolution adaptive(ao);
+      nav::FlyCamera cam(StartPose(), up, fo);
+      std::vector<double> moving, moving_render, moving_present, still_stages, reuse;
+      std::map<int, int> divisors;
+      // Moving: a forward walk with a slow turn, 1/30 s of motion per frame.
+      for (int i = 0; i < o_.bench_frames; ++i) {
+        nav::FlyInput in;
+        in.forward = true;
+        in.look_dx_px = 3;
+        cam.Step(in, 1.0 / 30);
+        const auto t0 = Clock::now();
+        const int d = adaptive.Next(true);
+        presenter_->NewFrame();
+        DrawOverlays(cam.pose(), W, H);
+        auto r = Render(cam.pose(), W / d, H / d);
+        if (!r.ok()) return Fail(r.status());
+        const double render_ms = MsSince(t0);
+        PresentTimings pt;
+        if (auto s = presenter_->Present(&*r, &pt); !s.ok()) return Fail(s);
+        moving.push_back(MsSince(t0));
+        moving_render.push_back(render_ms);
+        moving_present.push_back(pt.upload_ms + pt.submit_ms);
+        adaptive.ReportMovingFrame(moving.back());
+        ++divisors[d];
+      }
+      still_pose = cam.pose();
+      // Still: the progressive stages, then frames that reuse the last image.
+      std::vector<int> stage_divisors;
+      for (int i = 0; i < 10; ++i) {
+        const auto t0 = Clock::now();
+        const int d = adaptive.Next(false);
+        presenter_->NewFrame();
+        DrawOverlays(cam.pose(), W, H);
+        if (d > 0) {
+          auto r = Render(cam.pose(), W / d, H / d);
+          if (!r.ok()) return Fail(r.status());
+          if (auto s = presenter_->Present(&*r); !s.ok()) return Fail(s);
+          still_stages.push_back(MsSince(t0));
+          stage_divisors.push_back(d);
+        } else {
+          if (auto s = presenter_->Present(nullptr); !s.ok()) return Fail(s);
+          reuse.push_back(MsSince(t0));
+        }
+      }
+      double to_full = 0;
+      for (double v : still_stages) to_full += v;
+      nlohmann::json hist = nlohmann::json::object();
+      for (auto [d, n] : divisors) hist[std::to_string(d)] = n;
+      modes[mode.name] = {{"target_ms", mode.target_ms},
+                          {"moving_divisor_frames", hist},
+                          {"moving_median_ms", median(moving)},
+                          {"moving_p90_ms", p90(moving)},
+                          {"moving_fps", 1000.0 / std::max(1e-9, median(moving))},
+                          {"moving_render_median_ms", median(moving_render)},
+                          {"moving_present_median_ms", median(moving_present)},
+                          {"still_stage_divisors", stage_divisors},
+                          {"still_stage_ms", still_stages},
+                          {"still_to_full_ms", to_full},
+                          {"still_reuse_median_ms", median(reuse)}};
+    }
+    // What the person sees at each stage, against the full-quality frame at the still pose.
+    auto full = Render(still_pose, W, H);
+    if (!full.ok()) return Fail(full.status());
+    nlohmann::json ssim = nlohmann::json::object();
+    for (int d : {8, 4, 2, 1}) {
+      auto r = Render(still_pose, W / d, H / d);
+      if (!r.ok()) return Fail(r.status());
+      auto s = Ssim(d == 1 ? *r : ResizeBilinear(*r, W, H), *full);
+      if (!s.ok()) return Fail(s.status());
+      ssim[d == 1 ? "full" : d == 2 ? "half" : d == 4 ? "quarter" : "eighth"] = *s;
+    }
+    const nlohmann::json out = {{"bench", "exoview_window"},
+                                {"run_info", RunInfo()},
+                                {"label", o_.bench_label},
+                                {"model", o_.model_file},
+                                {"views", info_.geom.views.size()},
+                                {"cells", info_.cells},
+                                {"width", W},
+                                {"height", H},
+                                {"overlays", overlays_},
+                                {"render_device", renderer_->DeviceName()},
+                                {"present_device", presenter_->DeviceName()},
+                                {"n_best", o_.n_best},
+                                {"frames_moving", o_.bench_frames},
+                                {"modes", modes},
+                                {"ssim_to_full", ssim}};
+    std::printf("%s\n", out.dump().c_str());
+    if (!o_.bench_json.empty()) std::ofstream(o_.bench_json) << out.dump(1) << "\n";
+    presenter_.reset();
+    return 0;
+  }
+
+ private:
+  WindowAppOptions o_;
+  std::unique_ptr<ModelSource> source_;
+  std::unique_ptr<VulkanRenderer> renderer_;
+  std::unique_ptr<Presenter> presenter_;
+  SceneInfo info_;
+  bool synced_once_ = false;
+  bool overlays_ = true, show_frusta_ = true, show_wire_ = false, show_cells_ = false;
+  bool follow_ = false, replaying_ = false;
+  int stage_ = 1;
+  double frame_ms_ = 0, render_ms_ = 0, present_ms_ = 0;
+  std::optional<nav::PickResult> centre_pick_, cursor_pick_;
+  std::string last_sync_state_;
+  ImageF occ_depth_;
+  Rigid3d occ_pose_;
+  uint64_t occ_version_ = ~0ull;
+};
+
+}  // namespace
+
+int RunWindowApp(const WindowAppOptions& o) {
+  if (int(!o.model_file.empty()) + int(!o.server.empty()) + int(!o.checkpoint.empty()) != 1) {
+    std::fprintf(stderr,
+                 "exoview_window: give exactly one of --model FILE, --checkpoint FILE or --server "
+                 "HOST:PORT\n");
+    return 2;
+  }
+  if (!o.path.empty() && o.out_dir.empty()) {
+    std::fprintf(stderr, "exoview_window: --path needs --out_dir\n");
+    return 2;
+  }
+  App app(o);
+  if (!o.path.empty()) return app.RunPath();
+  if (o.bench) return app.RunBench();
+  if (!o.http.empty()) return app.RunHttp();
+  return app.RunWindow();
+}
+
+}  // namespace exo

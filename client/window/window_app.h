@@ -1,0 +1,47 @@
+// The interactive viewer (issue 17): a window on a saved model file or a live subscription,
+// fly navigation (WASD + mouse look with the left button held, arrow keys turn, Q/E down/up,
+// scroll = speed, R = reset to the nearest stored view, F = follow the live camera (the newest
+// stored view), Tab = overlays, P = save the model, Esc = quit), adaptive resolution (¼ of the
+// window per side while moving, ½ then full once the camera stops, the last frame reused while
+// nothing changes), a HUD and scene overlays (stored-view frusta coloured by age, the live
+// camera, the proxy wireframe, cells coloured by their reference count). Also the scripted
+// modes that need no window: renders along a TUM path, and the frame-time benchmark (which
+// does need a window: it measures what the person sees, presentation included).
+#pragma once
+
+#include <string>
+
+namespace exo {
+
+struct WindowAppOptions {
+  // Model: a file (model_io.h) or a server subscription.
+  std::string model_file, server, journal;
+  std::string checkpoint;  // or a server checkpoint (exoview_server --checkpoint_path)
+  std::string save_model;  // written on P and on exit (live sessions)
+  int width = 1280, height = 720;
+  double hfov_deg = 65.0;
+  int n_best = 3;
+  bool adaptive = true;
+  int moving_divisor = 4;   // start divisor while moving
+  double target_ms = 33.3;  // moving frame budget (0 = keep moving_divisor)
+  int start_view = -1;      // initial pose: this stored view (default: the smallest id)
+  bool overlays = true;     // HUD + scene overlays at start (Tab toggles)
+  std::string record;       // TUM path of the session, written at exit
+  std::string replay;       // TUM path played back in the window (at its timestamps)
+  std::string status_file;  // JSON of the viewer's state after each full-resolution frame
+  double max_seconds = 0;   // close after this long (0 = when the window is closed)
+  // Scripted render (no window): every pose of `path` (TUM) to out_dir/frame_NNNNN.png.
+  std::string path, out_dir;
+  // Browser view (no window): serve the view on HOST:PORT (http_view.h); port_file gets the port.
+  std::string http, port_file;
+  int jpeg_quality = 80;
+  // Benchmark (window): moving vs still frame times, adaptive on and off, stage SSIM -> JSON.
+  bool bench = false;
+  int bench_frames = 40;
+  std::string bench_json, bench_label;
+};
+
+// Runs the app; returns the process exit code (0 ok, 1 runtime error, 2 bad input).
+int RunWindowApp(const WindowAppOptions& options);
+
+}  // namespace exo
