@@ -152,11 +152,11 @@ RunResult Run(const synth::SynthScene& scene, const std::string& policy, uint64_
         // The drone's own volume is free; the frame carves the rest.
         OccupancyGrid& g = safe.grid();
         const glm::ivec3 c = g.CellOf(s.position);
-        const int r = static_cast<int>(std::ceil(0.3 / cell_m));
+        const int r = static_cast<int>(std::ceil(dopt.radius_m / cell_m));
         for (int dz = -r; dz <= r; ++dz)
           for (int dy = -r; dy <= r; ++dy)
             for (int dx = -r; dx <= r; ++dx)
-              if (glm::length(glm::dvec3(dx, dy, dz)) * cell_m <= 0.3)
+              if (glm::length(glm::dvec3(dx, dy, dz)) * cell_m <= dopt.radius_m)
                 g.Set(c + glm::ivec3(dx, dy, dz), Occupancy::kFree);
         g.CarveDepth(z, cam, pose, 2, 5.0);
         planner.Observe(g, z, cam, pose, 2);

@@ -7,9 +7,10 @@
 //     up to the hit is free, the hit is occupied (space carving; what the TSDF does not keep),
 //   - triangle meshes (the proxy as clients receive it): cells the triangles cross are occupied.
 // Occupied is sticky: later free evidence never clears it (a conservative map for flying).
-// Cells farther than nothing but `radius` from every occupied (and, by default, unknown) cell
-// are "clear": the drone's sphere of that radius around a clear cell centre touches only known
-// free space. Coordinates are one frame chosen by the caller (the control frame).
+// Known free cells whose centre is farther than radius + one cell from every occupied (and, by
+// default, unknown) cell centre are "clear": the drone's sphere of that radius around a clear
+// cell centre touches only known free space, even when a surface hides in a neighbouring cell
+// that grazing rays marked free. Coordinates are one frame chosen by the caller (the control frame).
 #pragma once
 
 #include <cstdint>
