@@ -75,12 +75,20 @@ std::vector<float> ExplorationPlanner::Distances(const SafeFlight& safe,
   const OccupancyGrid& g = safe.grid();
   constexpr float kInf = std::numeric_limits<float>::infinity();
   std::vector<float> dist(g.num_cells(), kInf);
-  const glm::ivec3 s = g.CellOf(from);
+  // A drone whose own cell is not clear (unknown just above or below it: a level camera never
+  // sees there) starts from its nearest permitted point, as SafeFlight::Plan does.
+  glm::dvec3 start = from;
+  if (!safe.Permitted(from)) {
+    auto c = safe.Clamp(from);
+    if (!c.ok()) return dist;
+    start = *c;
+  }
+  const glm::ivec3 s = g.CellOf(start);
   if (!g.InGrid(s)) return dist;
   using Item = std::pair<float, size_t>;
   std::priority_queue<Item, std::vector<Item>, std::greater<Item>> open;
-  dist[g.Index(s)] = 0;
-  open.push({0.f, g.Index(s)});
+  dist[g.Index(s)] = static_cast<float>(glm::length(start - from));
+  open.push({dist[g.Index(s)], g.Index(s)});
   const double cell = g.options().cell_m;
   while (!open.empty()) {
     const auto [d, i] = open.top();
