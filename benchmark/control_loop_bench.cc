@@ -5,15 +5,15 @@
 //   - the simulated drone behind a lossy link (no network): a 4 m flight with 10 % setpoint
 //     loss, and with a 1 s stall mid-flight: arrival error, hold events, drift while holding,
 //     flight time against the loss-free link; the drone's step response (overshoot).
+#include <grpcpp/grpcpp.h>
+
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <map>
 #include <mutex>
-#include <thread>
-
-#include <grpcpp/grpcpp.h>
 #include <nlohmann/json.hpp>
+#include <thread>
 
 #include "common/cli/cli.h"
 #include "common/drone/sim_drone.h"
@@ -80,16 +80,21 @@ nlohmann::json StepResponse(double step_m) {
     if (std::abs(s.position.x - step_m) > 0.02) settle = s.timestamp_s;
     peak_speed = std::max(peak_speed, glm::length(s.velocity));
   }
-  return {{"step_m", step_m}, {"overshoot_pct", 100 * overshoot}, {"settle_2cm_s", settle},
+  return {{"step_m", step_m},
+          {"overshoot_pct", 100 * overshoot},
+          {"settle_2cm_s", settle},
           {"peak_speed_mps", peak_speed}};
 }
 
 nlohmann::json ToJson(const LinkResult& r) {
-  return {{"arrival_error_m", r.arrival_error_m}, {"time_to_target_s", r.time_to_target_s},
-          {"drift_while_holding_m", r.drift_while_holding_m < 0 ? nlohmann::json(nullptr)
-                                                                : nlohmann::json(r.drift_while_holding_m)},
+  return {{"arrival_error_m", r.arrival_error_m},
+          {"time_to_target_s", r.time_to_target_s},
+          {"drift_while_holding_m", r.drift_while_holding_m < 0
+                                        ? nlohmann::json(nullptr)
+                                        : nlohmann::json(r.drift_while_holding_m)},
           {"hold_events", r.hold_events},
-          {"setpoints_sent", r.sent}, {"setpoints_lost", r.lost}};
+          {"setpoints_sent", r.sent},
+          {"setpoints_lost", r.lost}};
 }
 
 }  // namespace
@@ -195,7 +200,8 @@ int main(int argc, char** argv) {
       sent.emplace_back(reply.command_sequence(), t0);
     else
       ++failed;
-    next += std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(1 / command_hz));
+    next +=
+        std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(1 / command_hz));
     std::this_thread::sleep_until(next);
   }
   std::this_thread::sleep_for(std::chrono::milliseconds(200));

@@ -2,11 +2,11 @@
 // loopback, the uploader's simulated drone (--drone=sim: DroneLink at 120 Hz + camera frames of
 // the synthetic apartment uploaded from where it is) and an operator turning it with the joypad.
 // What the drone sees becomes the model, and the model becomes the control service's world.
-#include <chrono>
-#include <thread>
-
 #include <grpcpp/grpcpp.h>
 #include <gtest/gtest.h>
+
+#include <chrono>
+#include <thread>
 
 #include "client/uploader/sim_flight.h"
 #include "common/synth/scene.h"

@@ -1,12 +1,12 @@
 #include "client/uploader/sim_flight.h"
 
+#include <grpcpp/grpcpp.h>
+
 #include <atomic>
 #include <chrono>
 #include <mutex>
-#include <thread>
-
-#include <grpcpp/grpcpp.h>
 #include <nlohmann/json.hpp>
+#include <thread>
 
 #include "absl/strings/str_cat.h"
 #include "common/synth/trajectory.h"
@@ -69,7 +69,8 @@ absl::StatusOr<SimFlightStats> FlySimDrone(const std::shared_ptr<grpc::Channel>&
   glm::dvec3 start = options.start_local;
   if (!options.start_given) {
     if (scene.walk_waypoints.empty())
-      return absl::FailedPreconditionError("sim flight: the scene has no walk waypoint to start at");
+      return absl::FailedPreconditionError(
+          "sim flight: the scene has no walk waypoint to start at");
     start = scene.walk_waypoints.front();
   }
   control::SimDrone drone(options.drone);
@@ -90,9 +91,9 @@ absl::StatusOr<SimFlightStats> FlySimDrone(const std::shared_ptr<grpc::Channel>&
       std::lock_guard lock(mu);
       ++stats.setpoints_received;
       stats.last_command_sequence = sp.command_sequence();
-      link.Send({glm::dvec3(sp.position().x(), sp.position().y(), sp.position().z()) - origin,
-                 sp.yaw()},
-                drone.state().timestamp_s);
+      link.Send(
+          {glm::dvec3(sp.position().x(), sp.position().y(), sp.position().z()) - origin, sp.yaw()},
+          drone.state().timestamp_s);
     }
   });
   absl::Status drone_error;
@@ -146,9 +147,9 @@ absl::StatusOr<SimFlightStats> FlySimDrone(const std::shared_ptr<grpc::Channel>&
         }
         const control::SceneFrame z_up = control::SceneFrame::ZUp();
         const Rigid3d local_from_cam = synth::LookAt(s.position, s.position + z_up.Heading(s.yaw));
-        EXO_ASSIGN_OR_RETURN(synth::RenderedFrame r,
-                             synth::RenderFrame(scene, local_from_cam, render, {}, i + 1,
-                                                s.timestamp_s));
+        EXO_ASSIGN_OR_RETURN(
+            synth::RenderedFrame r,
+            synth::RenderFrame(scene, local_from_cam, render, {}, i + 1, s.timestamp_s));
         return FrameToProto(r.frame, up.encode);
       },
       up);
@@ -160,7 +161,8 @@ absl::StatusOr<SimFlightStats> FlySimDrone(const std::shared_ptr<grpc::Channel>&
   if (!uploaded.ok()) return uploaded.status();
   if (!drone_error.ok()) return drone_error;
   if (!fin.ok())
-    return absl::UnavailableError(absl::StrCat("sim flight: control stream: ", fin.error_message()));
+    return absl::UnavailableError(
+        absl::StrCat("sim flight: control stream: ", fin.error_message()));
   stats.upload = *std::move(uploaded);
   stats.collisions = collisions.collisions();
   stats.min_clearance_m = collisions.min_clearance_m();

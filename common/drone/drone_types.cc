@@ -11,13 +11,20 @@ bool Finite(const glm::dvec3& v) {
 
 const char* InteractionName(InteractionKind k) {
   switch (k) {
-    case InteractionKind::kNone: return "none";
-    case InteractionKind::kPickAndPlace: return "pick_and_place";
-    case InteractionKind::kGazeToSee: return "gaze_to_see";
-    case InteractionKind::kJoypad: return "joypad";
-    case InteractionKind::kGoToView: return "go_to_view";
-    case InteractionKind::kHold: return "hold";
-    case InteractionKind::kExplore: return "explore";
+    case InteractionKind::kNone:
+      return "none";
+    case InteractionKind::kPickAndPlace:
+      return "pick_and_place";
+    case InteractionKind::kGazeToSee:
+      return "gaze_to_see";
+    case InteractionKind::kJoypad:
+      return "joypad";
+    case InteractionKind::kGoToView:
+      return "go_to_view";
+    case InteractionKind::kHold:
+      return "hold";
+    case InteractionKind::kExplore:
+      return "explore";
   }
   return "unknown";
 }

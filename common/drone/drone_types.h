@@ -1,5 +1,5 @@
-// Shared vocabulary of drone control (client and server) (SPEC §8, thesis ch. 5): the scene's up axis and yaw
-// convention, setpoints and drone states. Pure data + small math, no I/O.
+// Shared vocabulary of drone control (client and server) (SPEC §8, thesis ch. 5): the scene's up
+// axis and yaw convention, setpoints and drone states. Pure data + small math, no I/O.
 //
 // Yaw is the heading about the scene's up axis: yaw 0 faces `e1` (the scene x axis made
 // horizontal; the y axis when x is the up axis), yaw +90° faces e2 = up × e1. With z up that is
@@ -8,9 +8,8 @@
 
 #include <cmath>
 #include <cstdint>
-#include <string>
-
 #include <glm/glm.hpp>
+#include <string>
 
 #include "common/status.h"
 
@@ -25,9 +24,9 @@ inline double WrapAngle(double a) {
 }
 
 struct SceneFrame {
-  glm::dvec3 up{0, 0, 1};   // unit
-  glm::dvec3 e1{1, 0, 0};   // horizontal, yaw 0
-  glm::dvec3 e2{0, 1, 0};   // horizontal, yaw +90°
+  glm::dvec3 up{0, 0, 1};  // unit
+  glm::dvec3 e1{1, 0, 0};  // horizontal, yaw 0
+  glm::dvec3 e2{0, 1, 0};  // horizontal, yaw +90°
 
   // Errors: a zero or non-finite up vector.
   static absl::StatusOr<SceneFrame> FromUp(const glm::dvec3& up);

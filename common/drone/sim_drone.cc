@@ -106,7 +106,8 @@ const DroneState& SimDrone::Step() {
     const glm::dvec3 a_cmd =
         ClampLength(options_.velocity_gain * (v_sp - state_.velocity), options_.max_accel_mps2);
     // Attitude/thrust loop: the acceleration follows the command with a first-order lag.
-    const double k = options_.attitude_tau_s > 0 ? std::min(1.0, dt / options_.attitude_tau_s) : 1.0;
+    const double k =
+        options_.attitude_tau_s > 0 ? std::min(1.0, dt / options_.attitude_tau_s) : 1.0;
     accel_ += k * (a_cmd - accel_);
     state_.velocity += accel_ * dt;
     state_.position += state_.velocity * dt;
@@ -135,10 +136,12 @@ MeshDistance::MeshDistance(const TriangleMesh& mesh, double bucket_m) : bucket_m
   buckets_.resize(static_cast<size_t>(dims_.x) * dims_.y * dims_.z);
   for (size_t t = 0; t < nt; ++t) {
     const glm::dvec3 a = tri_[3 * t], b = tri_[3 * t + 1], c = tri_[3 * t + 2];
-    const glm::ivec3 c0 = glm::clamp(glm::ivec3(glm::floor((glm::min(a, glm::min(b, c)) - min_) / bucket_m_)),
-                                     glm::ivec3(0), dims_ - 1);
-    const glm::ivec3 c1 = glm::clamp(glm::ivec3(glm::floor((glm::max(a, glm::max(b, c)) - min_) / bucket_m_)),
-                                     glm::ivec3(0), dims_ - 1);
+    const glm::ivec3 c0 =
+        glm::clamp(glm::ivec3(glm::floor((glm::min(a, glm::min(b, c)) - min_) / bucket_m_)),
+                   glm::ivec3(0), dims_ - 1);
+    const glm::ivec3 c1 =
+        glm::clamp(glm::ivec3(glm::floor((glm::max(a, glm::max(b, c)) - min_) / bucket_m_)),
+                   glm::ivec3(0), dims_ - 1);
     for (int z = c0.z; z <= c1.z; ++z)
       for (int y = c0.y; y <= c1.y; ++y)
         for (int x = c0.x; x <= c1.x; ++x)
@@ -149,10 +152,10 @@ MeshDistance::MeshDistance(const TriangleMesh& mesh, double bucket_m) : bucket_m
 
 double MeshDistance::Distance(const glm::dvec3& p, double max_m) const {
   if (buckets_.empty()) return max_m;
-  const glm::ivec3 c0 = glm::clamp(glm::ivec3(glm::floor((p - max_m - min_) / bucket_m_)),
-                                   glm::ivec3(0), dims_ - 1);
-  const glm::ivec3 c1 = glm::clamp(glm::ivec3(glm::floor((p + max_m - min_) / bucket_m_)),
-                                   glm::ivec3(0), dims_ - 1);
+  const glm::ivec3 c0 =
+      glm::clamp(glm::ivec3(glm::floor((p - max_m - min_) / bucket_m_)), glm::ivec3(0), dims_ - 1);
+  const glm::ivec3 c1 =
+      glm::clamp(glm::ivec3(glm::floor((p + max_m - min_) / bucket_m_)), glm::ivec3(0), dims_ - 1);
   double best = max_m;
   for (int z = c0.z; z <= c1.z; ++z)
     for (int y = c0.y; y <= c1.y; ++y)

@@ -10,32 +10,31 @@
 
 #include <cstdint>
 #include <deque>
+#include <glm/glm.hpp>
 #include <random>
 #include <utility>
 #include <vector>
 
-#include <glm/glm.hpp>
-
+#include "common/drone/drone_types.h"
 #include "common/mesh.h"
 #include "common/status.h"
-#include "common/drone/drone_types.h"
 
 namespace exo::control {
 
 struct SimDroneOptions {
-  double rate_hz = 120.0;          // state rate; each step is integrated in `substeps`
+  double rate_hz = 120.0;  // state rate; each step is integrated in `substeps`
   int substeps = 4;
   // Cascade gains. With the 0.04 s attitude lag, 1.8 / 3.6 gives ~5 % overshoot on a 1 m step
   // (sim_drone_test measures it).
-  double position_gain = 1.8;      // 1/s: velocity setpoint per metre of error
-  double velocity_gain = 3.6;      // 1/s: acceleration per m/s of velocity error
-  double attitude_tau_s = 0.04;    // first-order lag of the attitude/thrust loop
+  double position_gain = 1.8;    // 1/s: velocity setpoint per metre of error
+  double velocity_gain = 3.6;    // 1/s: acceleration per m/s of velocity error
+  double attitude_tau_s = 0.04;  // first-order lag of the attitude/thrust loop
   double max_speed_mps = 1.5;
   double max_accel_mps2 = 3.0;
-  double yaw_gain = 3.0;           // 1/s
+  double yaw_gain = 3.0;  // 1/s
   double max_yaw_rate_rad_s = 1.5;
-  double hold_timeout_s = 0.5;     // no setpoint for this long: HOLD
-  double radius_m = 0.15;          // 25 cm frame + margin
+  double hold_timeout_s = 0.5;  // no setpoint for this long: HOLD
+  double radius_m = 0.15;       // 25 cm frame + margin
   absl::Status Validate() const;
 };
 

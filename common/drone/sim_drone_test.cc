@@ -8,8 +8,8 @@ namespace exo::control {
 namespace {
 
 struct StepResponse {
-  double overshoot = 0;      // fraction of the step
-  double settle_s = 0;       // last time |error| > 2 cm
+  double overshoot = 0;  // fraction of the step
+  double settle_s = 0;   // last time |error| > 2 cm
   double max_speed = 0;
   double max_accel = 0;
 };

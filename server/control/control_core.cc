@@ -77,8 +77,7 @@ const MeshRaycaster& ControlCore::Raycaster() {
   return *raycaster_;
 }
 
-void ControlCore::OnDroneState(const std::string& drone_id, const DroneState& state,
-                               double now_s) {
+void ControlCore::OnDroneState(const std::string& drone_id, const DroneState& state, double now_s) {
   std::lock_guard lock(mu_);
   Drone& d = drones_[drone_id];
   d.view.known = true;
@@ -124,9 +123,8 @@ absl::StatusOr<ControlCore::Drone*> ControlCore::Admit(const Command& c) {
     return absl::InvalidArgumentError("control: the command has no operator id");
   uint64_t& last = operator_sequences_[c.operator_id];
   if (c.operator_sequence <= last)
-    return absl::AbortedError(absl::StrCat("control: stale command from operator '",
-                                           c.operator_id, "': sequence ", c.operator_sequence,
-                                           " <= last ", last));
+    return absl::AbortedError(absl::StrCat("control: stale command from operator '", c.operator_id,
+                                           "': sequence ", c.operator_sequence, " <= last ", last));
   last = c.operator_sequence;
   auto it = drones_.find(c.drone_id);
   if (it == drones_.end() || !it->second.view.known)
@@ -137,9 +135,8 @@ absl::StatusOr<ControlCore::Drone*> ControlCore::Admit(const Command& c) {
 
 glm::dvec3 ControlCore::DronePosition(const Drone& d) const { return d.view.state.position; }
 
-absl::StatusOr<CommandResult> ControlCore::Commit(const Command& c, Drone* d,
-                                                  InteractionKind kind, const Setpoint& target,
-                                                  double now_s) {
+absl::StatusOr<CommandResult> ControlCore::Commit(const Command& c, Drone* d, InteractionKind kind,
+                                                  const Setpoint& target, double now_s) {
   CommandResult r;
   r.kind = kind;
   EXO_ASSIGN_OR_RETURN(r.route, safe_.Plan(DronePosition(*d), target.position));
@@ -166,11 +163,10 @@ absl::StatusOr<CommandResult> ControlCore::PickAndPlace(const Command& c, const 
                                                         const glm::dvec3& disp, double now_s) {
   std::lock_guard lock(mu_);
   EXO_ASSIGN_OR_RETURN(Drone * d, Admit(c));
-  EXO_ASSIGN_OR_RETURN(auto p, control::PickAndPlace(DronePosition(*d), eye, hand, disp,
-                                                     options_.pick));
-  EXO_ASSIGN_OR_RETURN(CommandResult r,
-                       Commit(c, d, InteractionKind::kPickAndPlace,
-                              Setpoint{p.target, d->view.state.yaw}, now_s));
+  EXO_ASSIGN_OR_RETURN(auto p,
+                       control::PickAndPlace(DronePosition(*d), eye, hand, disp, options_.pick));
+  EXO_ASSIGN_OR_RETURN(CommandResult r, Commit(c, d, InteractionKind::kPickAndPlace,
+                                               Setpoint{p.target, d->view.state.yaw}, now_s));
   if (p.guarded) r.note += (r.note.empty() ? "" : "; ") + std::string("hand-eye distance guarded");
   return r;
 }
@@ -185,7 +181,8 @@ absl::StatusOr<CommandResult> ControlCore::GazeToSee(const Command& c, const glm
   // Facing P_gaze from where the drone ends up (after clamping).
   r.target.yaw = d->view.target.yaw = frame_.YawOf(g.hit.point - r.target.position);
   if (g.horizontal_surface)
-    r.note += (r.note.empty() ? "" : "; ") + std::string("horizontal surface: between user and point");
+    r.note +=
+        (r.note.empty() ? "" : "; ") + std::string("horizontal surface: between user and point");
   r.gaze = g;
   return r;
 }
@@ -199,7 +196,8 @@ absl::StatusOr<CommandResult> ControlCore::Joypad(const Command& c, const Joypad
                                ? Setpoint{v.waypoints.back(), v.target.yaw}
                                : Setpoint{v.state.position, v.state.yaw};
   const glm::dvec3 drone = v.state.position;
-  const JoypadResult j = IntegrateJoypad(current, in, dt_s, frame_, options_.joypad, &safe_, &drone);
+  const JoypadResult j =
+      IntegrateJoypad(current, in, dt_s, frame_, options_.joypad, &safe_, &drone);
   CommandResult r;
   r.kind = InteractionKind::kJoypad;
   r.target = j.setpoint;

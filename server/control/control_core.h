@@ -24,11 +24,11 @@
 #include <vector>
 
 #include "common/camera.h"
+#include "common/drone/drone_types.h"
 #include "common/image.h"
 #include "common/mesh.h"
 #include "common/rigid3.h"
 #include "common/status.h"
-#include "common/drone/drone_types.h"
 #include "server/control/interactions.h"
 #include "server/control/safe_flight.h"
 
@@ -42,7 +42,7 @@ struct ControlCoreOptions {
   JoypadOptions joypad;
   double waypoint_tolerance_m = 0.15;
   double setpoint_rate_hz = 30.0;
-  int carve_stride = 4;           // depth pixels carved per view: every k-th in both directions
+  int carve_stride = 4;  // depth pixels carved per view: every k-th in both directions
   double carve_max_range_m = 5.0;
   absl::Status Validate() const;
 };

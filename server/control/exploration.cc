@@ -101,7 +101,8 @@ std::vector<float> ExplorationPlanner::Distances(const SafeFlight& safe,
           if (!dx && !dy && !dz) continue;
           const glm::ivec3 q = c + glm::ivec3(dx, dy, dz);
           if (!g.InGrid(q) || !g.IsClear(q) || !safe.InZones(g.CentreOf(q))) continue;
-          const float nd = d + static_cast<float>(std::sqrt(double(dx * dx + dy * dy + dz * dz)) * cell);
+          const float nd =
+              d + static_cast<float>(std::sqrt(double(dx * dx + dy * dy + dz * dz)) * cell);
           const size_t qi = g.Index(q);
           if (nd < dist[qi]) {
             dist[qi] = nd;
@@ -132,8 +133,7 @@ double ExplorationPlanner::Gain(const OccupancyGrid& grid, const Setpoint& pose,
         } else {
           auto it = cells_.find(grid.Index(c));
           const double tau = it == cells_.end() ? 0.0 : it->second.tau;
-          const double novelty =
-              it == cells_.end() ? 1.0 : DirectionalNovelty(it->second, -dir);
+          const double novelty = it == cells_.end() ? 1.0 : DirectionalNovelty(it->second, -dir);
           gain += (options_.tau_max - tau) / options_.tau_max *
                   (options_.lambda * novelty +
                    (1 - options_.lambda) * DistanceQuality(t, options_.d_max_m, options_.sigma_m));
@@ -155,7 +155,8 @@ std::optional<NextView> ExplorationPlanner::Autonomous(const SafeFlight& safe,
   if (reachable.empty()) return std::nullopt;
   std::optional<NextView> best;
   for (int k = 0; k < options_.candidates; ++k) {
-    const size_t i = reachable[std::uniform_int_distribution<size_t>(0, reachable.size() - 1)(rng_)];
+    const size_t i =
+        reachable[std::uniform_int_distribution<size_t>(0, reachable.size() - 1)(rng_)];
     for (int y = 0; y < options_.yaws; ++y) {
       NextView v;
       v.pose = Setpoint{g.CentreOf(g.CellOfIndex(i)), WrapAngle(2 * kPi * y / options_.yaws)};
@@ -191,8 +192,9 @@ std::optional<NextView> ExplorationPlanner::NearestFrontier(const SafeFlight& sa
           if (!safe.InZones(g.CentreOf(q))) continue;
           // A frontier cell: unknown next to known free space (not unknown behind a wall).
           bool next_to_free = false;
-          for (const glm::ivec3& n : {glm::ivec3(1, 0, 0), glm::ivec3(-1, 0, 0), glm::ivec3(0, 1, 0),
-                                      glm::ivec3(0, -1, 0), glm::ivec3(0, 0, 1), glm::ivec3(0, 0, -1)})
+          for (const glm::ivec3& n :
+               {glm::ivec3(1, 0, 0), glm::ivec3(-1, 0, 0), glm::ivec3(0, 1, 0),
+                glm::ivec3(0, -1, 0), glm::ivec3(0, 0, 1), glm::ivec3(0, 0, -1)})
             if (g.At(q + n) == Occupancy::kFree) next_to_free = true;
           if (!next_to_free) continue;
           // Only unknown space the (level) camera can look at from here counts.

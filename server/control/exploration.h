@@ -56,7 +56,8 @@ struct NextView {
 
 class ExplorationPlanner {
  public:
-  explicit ExplorationPlanner(const ExploreOptions& options) : options_(options), rng_(options.seed) {}
+  explicit ExplorationPlanner(const ExploreOptions& options)
+      : options_(options), rng_(options.seed) {}
   // The frame's depth (every `stride`-th pixel) raises τ of the occupied cells it hits.
   void Observe(const OccupancyGrid& grid, const ImageF& depth_m, const PinholeCamera& camera,
                const Rigid3d& frame_from_cam, int stride = 4);

@@ -18,8 +18,10 @@ SafeFlight MakeWorld(bool wall) {
   for (size_t i = 0; i < g.num_cells(); ++i) {
     const glm::ivec3 c = g.CellOfIndex(i);
     const glm::dvec3 p = g.CentreOf(c);
-    if (p.x < 3) g.Set(c, Occupancy::kFree);
-    else if (wall && p.x < 3.2) g.Set(c, Occupancy::kOccupied);
+    if (p.x < 3)
+      g.Set(c, Occupancy::kFree);
+    else if (wall && p.x < 3.2)
+      g.Set(c, Occupancy::kOccupied);
   }
   return *std::move(s);
 }
@@ -63,8 +65,8 @@ TEST(Exploration, ObservingASurfaceRaisesTauAndLowersTheGain) {
   PinholeCamera cam{80, 80, 39.5, 29.5, 80, 60};
   ImageF depth(80, 60, 1, 1.85f);
   Rigid3d pose;
-  pose.rotation = glm::quat_cast(glm::dmat3(glm::dvec3(0, -1, 0), glm::dvec3(0, 0, -1),
-                                            glm::dvec3(1, 0, 0)));
+  pose.rotation =
+      glm::quat_cast(glm::dmat3(glm::dvec3(0, -1, 0), glm::dvec3(0, 0, -1), glm::dvec3(1, 0, 0)));
   pose.translation = {1.2, 2, 1.5};
   for (int k = 0; k < 3; ++k) p.Observe(safe.grid(), depth, cam, pose, 2);
   const size_t wall_cell = safe.grid().Index(safe.grid().CellOf({3.05, 2, 1.5}));

@@ -14,11 +14,10 @@
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
-#include <random>
 #include <map>
-#include <unordered_map>
-
 #include <nlohmann/json.hpp>
+#include <random>
+#include <unordered_map>
 
 #include "common/cells.h"
 #include "common/cli/cli.h"
@@ -79,7 +78,8 @@ class GroundTruthCoverage {
       const double phi_d = planning::DirectionalCoverage(dir, c.refs, 16);
       const double g = planning::DistanceQuality(d, 2.0, 2.0);
       const double psi_total = planning::PsiTotal(c.area, q_ * q_, d, sample_sr, 0.1);
-      const double phi = planning::Coverage(0.4, phi_d, planning::PositionalCoverage(g, n, psi_total));
+      const double phi =
+          planning::Coverage(0.4, phi_d, planning::PositionalCoverage(g, n, psi_total));
       c.tau = std::min(4.0, c.tau + phi);
       if (c.refs.size() < 16) c.refs.push_back(dir);
     }
@@ -122,8 +122,8 @@ RunResult Run(const synth::SynthScene& scene, const std::string& policy, uint64_
   ExplorationPlanner planner(eo);
   SimDroneOptions dopt;
   SimDrone drone(dopt);
-  const glm::dvec3 start =
-      scene.walk_waypoints[std::uniform_int_distribution<size_t>(0, scene.walk_waypoints.size() - 1)(rng)];
+  const glm::dvec3 start = scene.walk_waypoints[std::uniform_int_distribution<size_t>(
+      0, scene.walk_waypoints.size() - 1)(rng)];
   const double yaw0 = std::uniform_real_distribution<double>(-kPi, kPi)(rng);
   drone.Reset(start, yaw0);
   CollisionMonitor collisions(scene.mesh, dopt.radius_m);
@@ -205,7 +205,8 @@ RunResult Run(const synth::SynthScene& scene, const std::string& policy, uint64_
           if (plan.ok()) r = *plan;
         }
         out.decision_ms +=
-            std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+            std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0)
+                .count();
         ++out.decisions;
         if (!v) {
           finished = true;  // nothing left to explore
@@ -252,8 +253,10 @@ int main(int argc, char** argv) {
       ->check(CLI::PositiveNumber);
   app.add_option("--cell_m", cell_m, "occupancy cell")->check(CLI::PositiveNumber);
   ExploreOptions eo;
-  app.add_option("--unknown_gain", eo.unknown_gain, "autonomous: gain of a ray ending in unknown space");
-  app.add_option("--travel_offset_m", eo.travel_offset_m, "autonomous: score = gain / (path + this)");
+  app.add_option("--unknown_gain", eo.unknown_gain,
+                 "autonomous: gain of a ray ending in unknown space");
+  app.add_option("--travel_offset_m", eo.travel_offset_m,
+                 "autonomous: score = gain / (path + this)");
   app.add_option("--candidates", eo.candidates, "autonomous: candidate positions per decision");
   if (auto rc = exo::cli::Parse(app, argc, argv)) return *rc;
   for (const auto& p : policies)
@@ -263,7 +266,8 @@ int main(int argc, char** argv) {
     }
   auto kind = synth::ParseSceneKind(scene_name);
   if (!kind.ok()) {
-    std::fprintf(stderr, "exoview_explore_bench: %s\n", std::string(kind.status().message()).c_str());
+    std::fprintf(stderr, "exoview_explore_bench: %s\n",
+                 std::string(kind.status().message()).c_str());
     return 2;
   }
   auto scene = synth::MakeScene(*kind, synth::SceneOptions{});

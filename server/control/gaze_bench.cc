@@ -10,9 +10,8 @@
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
-#include <random>
-
 #include <nlohmann/json.hpp>
+#include <random>
 
 #include "common/cli/cli.h"
 #include "common/drone/sim_drone.h"
@@ -45,7 +44,8 @@ int main(int argc, char** argv) {
   double cell_m = 0.1, voxel_m = 0.05, max_flight_s = 40;
   app.add_option("--scene", scene_name, "apartment | village");
   app.add_option("--rays", rays, "gaze rays")->check(CLI::PositiveNumber);
-  app.add_option("--frames", frames, "walk frames fused into the model")->check(CLI::PositiveNumber);
+  app.add_option("--frames", frames, "walk frames fused into the model")
+      ->check(CLI::PositiveNumber);
   app.add_option("--width", width, "frame width")->check(CLI::PositiveNumber);
   app.add_option("--height", height, "frame height")->check(CLI::PositiveNumber);
   app.add_option("--seed", seed, "ray seed");
@@ -169,8 +169,8 @@ int main(int argc, char** argv) {
     const bool in_third = uv.x >= cam.width / 3.0 && uv.x < 2 * cam.width / 3.0 &&
                           uv.y >= cam.height / 3.0 && uv.y < 2 * cam.height / 3.0;
     const int px = static_cast<int>(std::lround(uv.x)), py = static_cast<int>(std::lround(uv.y));
-    const bool visible = z.Contains(px, py) &&
-                         std::abs(z.at(px, py) - pc.z) < std::max(0.05, 0.03 * pc.z);
+    const bool visible =
+        z.Contains(px, py) && std::abs(z.at(px, py) - pc.z) < std::max(0.05, 0.03 * pc.z);
     if (in_third && visible) {
       ++central;
       ++central_of_arrived;

@@ -12,22 +12,21 @@
 // Pure functions plus a brute-force mesh ray caster (Möller–Trumbore over every triangle).
 #pragma once
 
+#include <glm/glm.hpp>
 #include <optional>
 
-#include <glm/glm.hpp>
-
+#include "common/drone/drone_types.h"
 #include "common/mesh.h"
 #include "common/status.h"
-#include "common/drone/drone_types.h"
 
 namespace exo::control {
 
 class SafeFlight;
 
 struct RayHit {
-  double t = 0.0;            // distance along the unit ray
+  double t = 0.0;  // distance along the unit ray
   glm::dvec3 point{0.0};
-  glm::dvec3 normal{0.0};    // unit, facing the ray's origin
+  glm::dvec3 normal{0.0};  // unit, facing the ray's origin
   size_t triangle = 0;
 };
 
@@ -63,12 +62,12 @@ absl::StatusOr<PickAndPlaceResult> PickAndPlace(const glm::dvec3& drone, const g
                                                 const PickAndPlaceOptions& options = {});
 
 struct GazeOptions {
-  double offset_m = 0.5;             // x of (5.2)
-  double horizontal_cos = 0.9;       // |N·up| >= this·|N|: a horizontal surface
+  double offset_m = 0.5;        // x of (5.2)
+  double horizontal_cos = 0.9;  // |N·up| >= this·|N|: a horizontal surface
   double max_range_m = 100.0;
 };
 struct GazeResult {
-  RayHit hit;                        // P_gaze, N_g
+  RayHit hit;  // P_gaze, N_g
   Setpoint target;
   bool horizontal_surface = false;
 };
@@ -83,11 +82,11 @@ struct JoypadInput {
   double right_x = 0, right_y = 0;  // lateral (+ = right), forward
 };
 struct JoypadOptions {
-  double max_speed_mps = 1.0;       // horizontal
+  double max_speed_mps = 1.0;  // horizontal
   double max_climb_mps = 0.5;
   double max_yaw_rate_rad_s = 1.0;
   double deadzone = 0.05;
-  double max_lead_m = 1.0;          // the setpoint stays this close to the drone
+  double max_lead_m = 1.0;  // the setpoint stays this close to the drone
 };
 struct JoypadResult {
   Setpoint setpoint;

@@ -2,8 +2,8 @@
 
 #include <gtest/gtest.h>
 
-#include "server/control/safe_flight.h"
 #include "common/drone/test_util.h"
+#include "server/control/safe_flight.h"
 
 namespace exo::control {
 namespace {
@@ -153,8 +153,8 @@ TEST(Joypad, SlidesAlongTheZoneBoundary) {
   so.zones = {{"room", {0, 0, 0}, {4, 4, 3}}};
   auto safe = SafeFlight::Create(so);
   ASSERT_TRUE(safe.ok());
-  ASSERT_TRUE(safe->UsingRegions());  // nothing modelled: zones only
-  Setpoint sp{{3.95, 2, 1}, kPi / 4};   // near the x = 4 face, heading diagonally into it
+  ASSERT_TRUE(safe->UsingRegions());   // nothing modelled: zones only
+  Setpoint sp{{3.95, 2, 1}, kPi / 4};  // near the x = 4 face, heading diagonally into it
   JoypadInput in;
   in.right_y = 1.0;
   JoypadOptions o;
@@ -162,7 +162,7 @@ TEST(Joypad, SlidesAlongTheZoneBoundary) {
   auto r = IntegrateJoypad(sp, in, 0.2, SceneFrame::ZUp(), o, &*safe);
   EXPECT_TRUE(r.slid);
   EXPECT_FALSE(r.blocked);
-  EXPECT_NEAR(r.setpoint.position.x, 3.95, 1e-9);                 // the blocked part removed
+  EXPECT_NEAR(r.setpoint.position.x, 3.95, 1e-9);                      // the blocked part removed
   EXPECT_NEAR(r.setpoint.position.y, 2 + 0.2 * std::sqrt(0.5), 1e-9);  // the rest kept
   // Straight into a corner: blocked, the setpoint stays.
   Setpoint corner{{3.99, 3.99, 1}, kPi / 4};

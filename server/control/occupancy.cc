@@ -14,15 +14,14 @@ absl::Status OccupancyOptions::Validate() const {
   if (!(cell_m > 0) || !std::isfinite(cell_m))
     return absl::InvalidArgumentError("occupancy: cell_m must be > 0");
   if (!(size.x > 0 && size.y > 0 && size.z > 0) || !std::isfinite(size.x + size.y + size.z))
-    return absl::InvalidArgumentError(
-        absl::StrCat("occupancy: empty or non-finite bounds (size ", size.x, " x ", size.y, " x ",
-                     size.z, ")"));
+    return absl::InvalidArgumentError(absl::StrCat("occupancy: empty or non-finite bounds (size ",
+                                                   size.x, " x ", size.y, " x ", size.z, ")"));
   if (!(drone_radius_m >= 0)) return absl::InvalidArgumentError("occupancy: drone_radius_m < 0");
-  const double n = std::ceil(size.x / cell_m) * std::ceil(size.y / cell_m) *
-                   std::ceil(size.z / cell_m);
+  const double n =
+      std::ceil(size.x / cell_m) * std::ceil(size.y / cell_m) * std::ceil(size.z / cell_m);
   if (n > static_cast<double>(max_cells))
-    return absl::InvalidArgumentError(absl::StrCat("occupancy: ", n, " cells exceed max_cells ",
-                                                   max_cells, " (raise cell_m)"));
+    return absl::InvalidArgumentError(
+        absl::StrCat("occupancy: ", n, " cells exceed max_cells ", max_cells, " (raise cell_m)"));
   return absl::OkStatus();
 }
 
@@ -166,8 +165,8 @@ void OccupancyGrid::Recompute() const {
     return v == static_cast<uint8_t>(Occupancy::kOccupied) ||
            (options_.inflate_unknown && v == static_cast<uint8_t>(Occupancy::kUnknown));
   };
-  static const glm::ivec3 kSix[6] = {{1, 0, 0}, {-1, 0, 0}, {0, 1, 0},
-                                     {0, -1, 0}, {0, 0, 1}, {0, 0, -1}};
+  static const glm::ivec3 kSix[6] = {{1, 0, 0},  {-1, 0, 0}, {0, 1, 0},
+                                     {0, -1, 0}, {0, 0, 1},  {0, 0, -1}};
   for (size_t i = 0; i < n; ++i) {
     if (!bad(cells_[i])) continue;
     blocked[i] = 1;

@@ -10,13 +10,13 @@
 // Known free cells whose centre is farther than radius + one cell from every occupied (and, by
 // default, unknown) cell centre are "clear": the drone's sphere of that radius around a clear
 // cell centre touches only known free space, even when a surface hides in a neighbouring cell
-// that grazing rays marked free. Coordinates are one frame chosen by the caller (the control frame).
+// that grazing rays marked free. Coordinates are one frame chosen by the caller (the control
+// frame).
 #pragma once
 
 #include <cstdint>
-#include <vector>
-
 #include <glm/glm.hpp>
+#include <vector>
 
 #include "common/camera.h"
 #include "common/image.h"
@@ -35,8 +35,8 @@ enum class Occupancy : uint8_t { kUnknown = 0, kFree = 1, kOccupied = 2 };
 struct OccupancyOptions {
   glm::dvec3 min{0.0}, max{0.0};  // grid bounds (the union of the flight zones)
   double cell_m = 0.1;
-  double drone_radius_m = 0.2;    // inflation radius
-  bool inflate_unknown = true;    // the drone's sphere keeps out of unknown space too
+  double drone_radius_m = 0.2;  // inflation radius
+  bool inflate_unknown = true;  // the drone's sphere keeps out of unknown space too
   size_t max_cells = size_t{64} << 20;
   absl::Status Validate() const;
 };
@@ -61,15 +61,17 @@ class OccupancyGrid {
     return (static_cast<size_t>(c.z) * dims_.y + c.y) * dims_.x + c.x;
   }
   glm::ivec3 CellOfIndex(size_t i) const;
-  Occupancy At(const glm::ivec3& c) const { return InGrid(c) ? Occupancy(cells_[Index(c)]) : Occupancy::kUnknown; }
+  Occupancy At(const glm::ivec3& c) const {
+    return InGrid(c) ? Occupancy(cells_[Index(c)]) : Occupancy::kUnknown;
+  }
   Occupancy At(const glm::dvec3& p) const { return At(CellOf(p)); }
   void Set(const glm::ivec3& c, Occupancy s);  // occupied stays occupied
 
   // Space carving from one depth image (z-depth metres, 0/NaN = no measurement) seen from
   // `frame_from_cam`. Every `stride`-th pixel in both directions; measurements beyond
   // `max_range_m` carve free space up to max_range_m and mark nothing occupied.
-  void CarveDepth(const ImageF& depth_m, const PinholeCamera& camera,
-                  const Rigid3d& frame_from_cam, int stride = 4, double max_range_m = 5.0);
+  void CarveDepth(const ImageF& depth_m, const PinholeCamera& camera, const Rigid3d& frame_from_cam,
+                  int stride = 4, double max_range_m = 5.0);
   // The TSDF's evidence; `frame_from_local` maps the TSDF's local frame to the grid's frame.
   void MarkFromTsdf(const TsdfVolume& volume, const glm::dvec3& frame_from_local_offset);
   // Cells crossed by the triangles are occupied.

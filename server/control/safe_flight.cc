@@ -14,7 +14,9 @@
 namespace exo::control {
 namespace {
 
-std::string Fmt(const glm::dvec3& p) { return absl::StrFormat("(%.2f, %.2f, %.2f)", p.x, p.y, p.z); }
+std::string Fmt(const glm::dvec3& p) {
+  return absl::StrFormat("(%.2f, %.2f, %.2f)", p.x, p.y, p.z);
+}
 
 }  // namespace
 

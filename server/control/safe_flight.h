@@ -13,11 +13,10 @@
 //     them, and a route changes region only through a portal.
 #pragma once
 
+#include <glm/glm.hpp>
 #include <optional>
 #include <string>
 #include <vector>
-
-#include <glm/glm.hpp>
 
 #include "common/status.h"
 #include "server/control/occupancy.h"
@@ -28,8 +27,8 @@ struct Zone {
   std::string name;
   glm::dvec3 min{0.0}, max{0.0};
   bool Contains(const glm::dvec3& p, double eps = 1e-9) const {
-    return p.x >= min.x - eps && p.y >= min.y - eps && p.z >= min.z - eps &&
-           p.x <= max.x + eps && p.y <= max.y + eps && p.z <= max.z + eps;
+    return p.x >= min.x - eps && p.y >= min.y - eps && p.z >= min.z - eps && p.x <= max.x + eps &&
+           p.y <= max.y + eps && p.z <= max.z + eps;
   }
   glm::dvec3 Nearest(const glm::dvec3& p) const { return glm::clamp(p, min, max); }
 };
@@ -42,7 +41,7 @@ struct SafeFlightOptions {
   double cell_m = 0.1;
   double drone_radius_m = 0.2;
   bool inflate_unknown = true;
-  bool region_fallback = true;      // use the region scheme while nothing is modelled
+  bool region_fallback = true;  // use the region scheme while nothing is modelled
   absl::Status Validate() const;
 };
 
@@ -54,7 +53,7 @@ struct Route {
   bool start_snapped = false;         // the start was not permitted: the first waypoint leaves it
   bool regions = false;               // planned by the region-waypoint fallback
   double length_m = 0.0;
-  size_t expanded = 0;                // A* nodes expanded
+  size_t expanded = 0;  // A* nodes expanded
 };
 
 class SafeFlight {

@@ -83,7 +83,7 @@ TEST(SafeFlight, AStarGoesThroughTheDoor) {
   auto r = safe.Plan(from, to);
   ASSERT_TRUE(r.ok()) << r.status();
   EXPECT_FALSE(r->clamped);
-  EXPECT_GE(r->waypoints.size(), 2u);  // a corner at the door, then the target
+  EXPECT_GE(r->waypoints.size(), 2u);                     // a corner at the door, then the target
   EXPECT_GT(r->length_m, glm::length(to - from) + 0.25);  // the detour through the door
   ExpectRouteSafe(safe, from, *r);
   bool through_door = false;
@@ -162,7 +162,8 @@ TEST(SafeFlight, NothingPermittedYetIsAClearStatus) {
 
 TEST(SafeFlight, RegionWaypointsBeforeAnythingIsModelled) {
   SafeFlightOptions o;
-  o.zones = {{"a", {0, 0, 0}, {4, 4, 3}}, {"corridor", {4, 1.5, 0}, {6, 2.5, 3}},
+  o.zones = {{"a", {0, 0, 0}, {4, 4, 3}},
+             {"corridor", {4, 1.5, 0}, {6, 2.5, 3}},
              {"b", {6, 0, 0}, {10, 4, 3}}};
   o.portals = {{4, 2, 1.2}, {6, 2, 1.2}};
   auto safe = SafeFlight::Create(o);

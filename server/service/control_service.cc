@@ -1,8 +1,8 @@
 #include "server/service/control_service.h"
 
-#include <chrono>
-
 #include <grpcpp/grpcpp.h>
+
+#include <chrono>
 
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
@@ -63,8 +63,7 @@ absl::StatusOr<glm::dvec3> ParseVec3(const std::string& key, absl::string_view t
   if (p.size() != 3 || !absl::SimpleAtod(absl::StripAsciiWhitespace(p[0]), &v.x) ||
       !absl::SimpleAtod(absl::StripAsciiWhitespace(p[1]), &v.y) ||
       !absl::SimpleAtod(absl::StripAsciiWhitespace(p[2]), &v.z))
-    return absl::InvalidArgumentError(
-        absl::StrCat("config ", key, ": '", text, "' is not x,y,z"));
+    return absl::InvalidArgumentError(absl::StrCat("config ", key, ": '", text, "' is not x,y,z"));
   return v;
 }
 
@@ -80,8 +79,8 @@ ConfigKey DoubleKey(std::string name, std::string help, double* (*field)(ServerC
   k.set = [field, name](const std::string& v, ServerConfig* c) {
     double x;
     if (!absl::SimpleAtod(v, &x) || !(x > 0))
-      return absl::InvalidArgumentError(absl::StrCat("config ", name, ": '", v,
-                                                      "' is not a positive number"));
+      return absl::InvalidArgumentError(
+          absl::StrCat("config ", name, ": '", v, "' is not a positive number"));
     *field(*c) = x;
     return absl::OkStatus();
   };
@@ -99,16 +98,16 @@ void AppendControlConfigKeys(std::vector<ConfigKey>* keys) {
   zones.get = [](const ServerConfig& c) {
     std::string s;
     for (const auto& z : c.control.core.safe.zones)
-      absl::StrAppend(&s, s.empty() ? "" : ";", z.name, ":", Vec3Text(z.min), ",",
-                      Vec3Text(z.max));
+      absl::StrAppend(&s, s.empty() ? "" : ";", z.name, ":", Vec3Text(z.min), ",", Vec3Text(z.max));
     return s;
   };
   zones.set = [](const std::string& v, ServerConfig* c) -> absl::Status {
     std::vector<control::Zone> out;
     for (absl::string_view part : absl::StrSplit(v, ';', absl::SkipWhitespace())) {
       auto z = control::ParseZone(std::string(part));
-      if (!z.ok()) return absl::InvalidArgumentError(absl::StrCat("config control_zones: ",
-                                                                  z.status().message()));
+      if (!z.ok())
+        return absl::InvalidArgumentError(
+            absl::StrCat("config control_zones: ", z.status().message()));
       out.push_back(*z);
     }
     c->control.core.safe.zones = std::move(out);
@@ -168,8 +167,9 @@ class ControlServiceHost::Impl final : public cv1::Control::Service {
  public:
   explicit Impl(control::ControlCore* core) : core_(core) {}
 
-  grpc::Status DroneLink(grpc::ServerContext* ctx,
-                         grpc::ServerReaderWriter<cv1::Setpoint, cv1::DroneState>* stream) override {
+  grpc::Status DroneLink(
+      grpc::ServerContext* ctx,
+      grpc::ServerReaderWriter<cv1::Setpoint, cv1::DroneState>* stream) override {
     links_.fetch_add(1);
     std::string id;
     cv1::DroneState msg;
@@ -205,9 +205,9 @@ class ControlServiceHost::Impl final : public cv1::Control::Service {
 
   grpc::Status PickAndPlace(grpc::ServerContext*, const cv1::PickAndPlaceRequest* req,
                             cv1::InteractionReply* out) override {
-    auto r = core_->PickAndPlace(CommandOf(req->header()), FromProto(req->eye()),
-                                 FromProto(req->hand()), FromProto(req->hand_displacement()),
-                                 NowS());
+    auto r =
+        core_->PickAndPlace(CommandOf(req->header()), FromProto(req->eye()), FromProto(req->hand()),
+                            FromProto(req->hand_displacement()), NowS());
     return Reply(r, out);
   }
 
@@ -322,8 +322,8 @@ void ControlServiceHost::Feed() {
           auto pose = PoseFromProto(v.local_from_cam());
           auto cam = IntrinsicsFromProto(v.intrinsics());
           if (!pose.ok() || !cam.ok()) break;
-          absl::StatusOr<ImageF> depth = v.has_depth() ? DepthFromProto(v.depth())
-                                                       : absl::StatusOr<ImageF>(ImageF());
+          absl::StatusOr<ImageF> depth =
+              v.has_depth() ? DepthFromProto(v.depth()) : absl::StatusOr<ImageF>(ImageF());
           core_->AddView(v.view_id(), *pose, *cam, depth.ok() ? &*depth : nullptr);
           break;
         }

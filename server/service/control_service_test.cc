@@ -1,12 +1,12 @@
 // The control service on a real loopback server: operators call the interaction RPCs, the
 // drone side is the simulated drone (common/drone) streaming its state at 120 Hz and flying the
 // setpoints it receives.
+#include <grpcpp/grpcpp.h>
+#include <gtest/gtest.h>
+
 #include <chrono>
 #include <mutex>
 #include <thread>
-
-#include <grpcpp/grpcpp.h>
-#include <gtest/gtest.h>
 
 #include "common/drone/sim_drone.h"
 #include "common/drone/test_util.h"
@@ -21,11 +21,11 @@ using control::testing::AddQuad;
 
 TriangleMesh House() {
   TriangleMesh m;
-  AddQuad(&m, {4, 0, 0}, {4, 1.5, 0}, {4, 1.5, 3}, {4, 0, 3});      // wall, door at y 1.5..2.5
+  AddQuad(&m, {4, 0, 0}, {4, 1.5, 0}, {4, 1.5, 3}, {4, 0, 3});  // wall, door at y 1.5..2.5
   AddQuad(&m, {4, 2.5, 0}, {4, 4, 0}, {4, 4, 3}, {4, 2.5, 3});
   AddQuad(&m, {4, 1.5, 2.2}, {4, 2.5, 2.2}, {4, 2.5, 3}, {4, 1.5, 3});
-  AddQuad(&m, {8, 0, 0}, {8, 4, 0}, {8, 4, 3}, {8, 0, 3});          // far wall
-  AddQuad(&m, {0, 0, 0}, {8, 0, 0}, {8, 4, 0}, {0, 4, 0});          // floor
+  AddQuad(&m, {8, 0, 0}, {8, 4, 0}, {8, 4, 3}, {8, 0, 3});  // far wall
+  AddQuad(&m, {0, 0, 0}, {8, 0, 0}, {8, 4, 0}, {0, 4, 0});  // floor
   return m;
 }
 
