@@ -8,6 +8,7 @@
 #include <string>
 #include <vector>
 
+#include "client/uploader/sim_flight.h"
 #include "client/uploader/synth_source.h"
 #include "client/uploader/upload_client.h"
 #include "common/cli/cli.h"
@@ -25,6 +26,8 @@ int main(int argc, char** argv) {
   exo::UploadOptions opt;
   opt.encode.jpeg_quality = 90;
   int frames = -1, first = 0;
+  std::string drone = "none";
+  exo::SimFlightOptions flight;
   app.add_option("--server", server, "HOST:PORT of the server (required)");
   app.add_option("--synthetic", synthetic,
                  "stream the built-in synthetic scene: village | apartment")
@@ -60,6 +63,19 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(1, 100));
   app.add_flag("--progress", opt.progress, "one line per second on stderr");
   app.add_option("--stats_json", stats_json, "also write the statistics JSON to this file");
+  app.add_option("--drone", drone,
+                 "sim: a simulated drone flies the synthetic scene under the server's control "
+                 "service (DroneLink) and uploads what its camera sees")
+      ->check(CLI::IsMember({"none", "sim"}));
+  app.add_option("--drone_id", flight.drone_id, "drone id on the control stream");
+  app.add_option("--flight_s", flight.flight_s, "sim drone: seconds of flight")
+      ->check(CLI::PositiveNumber);
+  app.add_option("--camera_hz", flight.frame_rate_hz, "sim drone: camera frames per second")
+      ->check(CLI::PositiveNumber);
+  app.add_option("--link_delay_s", flight.link.delay_s, "sim drone: setpoint link delay")
+      ->check(CLI::NonNegativeNumber);
+  app.add_option("--link_loss", flight.link.loss, "sim drone: setpoint loss probability")
+      ->check(CLI::Range(0.0, 1.0));
   app.add_option("--send_log", send_log, "write \"timestamp_s steady_ns\" per sent frame");
   if (auto rc = exo::cli::Parse(app, argc, argv)) return *rc;
 
@@ -71,6 +87,33 @@ int main(int argc, char** argv) {
   if (use_synth == !dataset.empty()) {
     std::fprintf(stderr, "exoview_uploader: give exactly one of --synthetic or --dataset=DIR\n");
     return 2;
+  }
+  if (drone == "sim") {
+    if (!use_synth) {
+      std::fprintf(stderr, "exoview_uploader: --drone=sim flies the synthetic scene: add --synthetic\n");
+      return 2;
+    }
+    synth.scene = synthetic.empty() ? "village" : synthetic;
+    synth.num_frames = 2;
+    synth.trajectory = "walk";  // only the scene is used; a walk exists in every scene
+    auto s = exo::SynthFrameSource::Create(synth);
+    if (!s.ok()) {
+      std::fprintf(stderr, "exoview_uploader: %s\n", std::string(s.status().message()).c_str());
+      return 1;
+    }
+    std::fprintf(stderr, "exoview_uploader: sim drone '%s' in %s for %.0f s (server needs "
+                 "control_zones=%s)\n", flight.drone_id.c_str(), synth.scene.c_str(),
+                 flight.flight_s, exo::SceneZoneText((*s)->scene()).c_str());
+    auto stats = exo::FlySimDrone(exo::MakeChannel(server), (*s)->scene(), (*s)->render_options(),
+                                  flight, opt);
+    if (!stats.ok()) {
+      std::fprintf(stderr, "exoview_uploader: %s\n", std::string(stats.status().message()).c_str());
+      return 1;
+    }
+    const std::string json = stats->ToJson();
+    std::printf("%s\n", json.c_str());
+    if (!stats_json.empty()) std::ofstream(stats_json) << json << "\n";
+    return 0;
   }
   std::unique_ptr<exo::FrameSource> source;
   absl::Status st;

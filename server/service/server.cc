@@ -197,6 +197,9 @@ absl::Status ExoviewServer::Start() {
   }
   service_ = std::make_unique<Service>(config_, store_.get(), pipeline_.get(), &shutting_down_,
                                        udp_.get());
+  if (config_.control.enabled()) {
+    EXO_ASSIGN_OR_RETURN(control_, ControlServiceHost::Start(config_.control, store_.get()));
+  }
   grpc::EnableDefaultHealthCheckService(true);
   // Server reflection: grpcurl-style tools list exoview.v1.Exoview and fetch its descriptors.
   grpc::reflection::InitProtoReflectionServerBuilderPlugin();
@@ -205,6 +208,7 @@ absl::Status ExoviewServer::Start() {
   builder.SetMaxReceiveMessageSize(static_cast<int>(config_.transport_max_bytes));
   builder.SetMaxSendMessageSize(static_cast<int>(config_.transport_max_bytes));
   builder.RegisterService(service_.get());
+  if (control_) builder.RegisterService(control_->service());
   server_ = builder.BuildAndStart();
   if (!server_ || port_ == 0)
     return absl::UnavailableError(absl::StrCat("cannot listen on ", config_.listen));
@@ -215,6 +219,7 @@ absl::Status ExoviewServer::Start() {
 void ExoviewServer::Shutdown() {
   if (shutting_down_.exchange(true)) return;
   if (server_) server_->GetHealthCheckService()->SetServingStatus(false);
+  if (control_) control_->Stop();
   if (store_) store_->CloseAll();  // wakes subscription loops
   if (server_) server_->Shutdown(std::chrono::system_clock::now() + std::chrono::seconds(2));
   if (pipeline_) pipeline_->Stop();  // every admitted frame is processed before we return

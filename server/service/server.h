@@ -20,6 +20,7 @@
 #include "server/service/geometry_stage.h"
 #include "server/service/pipeline.h"
 #include "server/service/planning_stage.h"
+#include "server/service/control_service.h"
 
 namespace grpc {
 class Server;
@@ -54,6 +55,8 @@ struct ServerConfig {
   // Log: at most this many rejected-frame lines per second per upload stream (the rest are
   // counted and reported with the next line and in the stream's summary).
   int log_rejections_per_s = 5;
+  // Drone control service (control_* keys); served when a flight zone is configured.
+  ControlServiceOptions control;
   absl::Status Validate() const;
 };
 
@@ -87,6 +90,8 @@ class ExoviewServer {
   // Writes the checkpoint now (atomic). No-op without checkpoint_path.
   absl::Status WriteCheckpoint();
   uint64_t restored_version() const { return restored_version_; }
+  // The drone control core (null when no flight zone is configured).
+  control::ControlCore* control_core() { return control_ ? &control_->core() : nullptr; }
 
  private:
   class Service;
@@ -95,6 +100,7 @@ class ExoviewServer {
   std::unique_ptr<ModelStore> store_;
   std::unique_ptr<Pipeline> pipeline_;
   std::unique_ptr<Service> service_;
+  std::unique_ptr<ControlServiceHost> control_;
   std::unique_ptr<grpc::Server> server_;
   int port_ = 0;
   std::atomic<bool> shutting_down_{false};

@@ -141,6 +141,7 @@ std::vector<ConfigKey> MakeKeys() {
     return absl::OkStatus();
   };
   keys.push_back(std::move(udp));
+  AppendControlConfigKeys(&keys);
   return keys;
 }
 

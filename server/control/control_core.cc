@@ -1,0 +1,250 @@
+#include "server/control/control_core.h"
+
+#include <cmath>
+
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+
+namespace exo::control {
+
+absl::Status ControlCoreOptions::Validate() const {
+  EXO_RETURN_IF_ERROR(safe.Validate());
+  EXO_RETURN_IF_ERROR(SceneFrame::FromUp(up).status());
+  if (!(waypoint_tolerance_m > 0) || !(setpoint_rate_hz > 0))
+    return absl::InvalidArgumentError("control: waypoint_tolerance_m and setpoint_rate_hz > 0");
+  if (!(gaze.offset_m > 0)) return absl::InvalidArgumentError("control: gaze offset must be > 0");
+  return absl::OkStatus();
+}
+
+absl::StatusOr<std::unique_ptr<ControlCore>> ControlCore::Create(
+    const ControlCoreOptions& options) {
+  EXO_RETURN_IF_ERROR(options.Validate());
+  EXO_ASSIGN_OR_RETURN(SceneFrame frame, SceneFrame::FromUp(options.up));
+  EXO_ASSIGN_OR_RETURN(SafeFlight safe, SafeFlight::Create(options.safe));
+  return std::unique_ptr<ControlCore>(new ControlCore(options, frame, std::move(safe)));
+}
+
+void ControlCore::SetOrigin(const glm::dvec3& origin_in_world) {
+  std::lock_guard lock(mu_);
+  origin_ = origin_in_world;
+  raycaster_.reset();
+}
+
+void ControlCore::UpsertChunk(uint64_t id, TriangleMesh mesh_local) {
+  std::lock_guard lock(mu_);
+  safe_.grid().MarkMeshOccupied(mesh_local, origin_);
+  chunks_[id] = std::move(mesh_local);
+  raycaster_.reset();
+}
+
+void ControlCore::RemoveChunk(uint64_t id) {
+  std::lock_guard lock(mu_);
+  if (chunks_.erase(id)) raycaster_.reset();
+}
+
+void ControlCore::AddView(uint32_t id, const Rigid3d& local_from_cam, const PinholeCamera& camera,
+                          const ImageF* depth_m) {
+  std::lock_guard lock(mu_);
+  view_poses_[id] = local_from_cam;
+  if (depth_m && !depth_m->empty()) {
+    Rigid3d world_from_cam = local_from_cam;
+    world_from_cam.translation += origin_;
+    safe_.grid().CarveDepth(*depth_m, camera, world_from_cam, options_.carve_stride,
+                            options_.carve_max_range_m);
+  }
+}
+
+void ControlCore::UpdateViewPose(uint32_t id, const Rigid3d& local_from_cam) {
+  std::lock_guard lock(mu_);
+  if (auto it = view_poses_.find(id); it != view_poses_.end()) it->second = local_from_cam;
+}
+
+void ControlCore::RemoveView(uint32_t id) {
+  std::lock_guard lock(mu_);
+  view_poses_.erase(id);
+}
+
+const MeshRaycaster& ControlCore::Raycaster() {
+  if (!raycaster_) {
+    TriangleMesh all;
+    for (const auto& [id, m] : chunks_) {
+      const uint32_t base = static_cast<uint32_t>(all.positions.size());
+      all.positions.insert(all.positions.end(), m.positions.begin(), m.positions.end());
+      for (uint32_t i : m.indices) all.indices.push_back(base + i);
+    }
+    raycaster_.emplace(std::move(all), origin_);
+  }
+  return *raycaster_;
+}
+
+void ControlCore::OnDroneState(const std::string& drone_id, const DroneState& state, double now_s) {
+  std::lock_guard lock(mu_);
+  Drone& d = drones_[drone_id];
+  d.view.known = true;
+  d.view.state = state;
+  ++d.view.states;
+  // Route progress: the next waypoint once the drone is close to the current one.
+  DroneView& v = d.view;
+  while (!v.waypoints.empty() && v.waypoint_index + 1 < v.waypoints.size() &&
+         glm::length(state.position - v.waypoints[v.waypoint_index]) <
+             options_.waypoint_tolerance_m) {
+    ++v.waypoint_index;
+    ++v.setpoint_sequence;
+  }
+}
+
+std::optional<OutgoingSetpoint> ControlCore::NextSetpoint(const std::string& drone_id,
+                                                          double now_s) {
+  std::lock_guard lock(mu_);
+  auto it = drones_.find(drone_id);
+  if (it == drones_.end()) return std::nullopt;
+  Drone& d = it->second;
+  const DroneView& v = d.view;
+  if (v.waypoints.empty()) return std::nullopt;
+  const bool changed = d.sent_sequence != v.setpoint_sequence;
+  if (!changed && now_s - d.last_sent_s < 1.0 / options_.setpoint_rate_hz) return std::nullopt;
+  OutgoingSetpoint out;
+  out.sequence = v.setpoint_sequence;
+  out.setpoint = Setpoint{v.waypoints[v.waypoint_index], v.target.yaw};
+  out.kind = v.kind;
+  out.command_sequence = v.command_sequence;
+  out.operator_id = v.operator_id;
+  out.waypoint_index = v.waypoint_index;
+  out.waypoint_count = static_cast<uint32_t>(v.waypoints.size());
+  out.issued_s = d.issued_s;
+  d.sent_sequence = v.setpoint_sequence;
+  d.last_sent_s = now_s;
+  ++d.view.setpoints;
+  return out;
+}
+
+absl::StatusOr<ControlCore::Drone*> ControlCore::Admit(const Command& c) {
+  if (c.operator_id.empty())
+    return absl::InvalidArgumentError("control: the command has no operator id");
+  uint64_t& last = operator_sequences_[c.operator_id];
+  if (c.operator_sequence <= last)
+    return absl::AbortedError(absl::StrCat("control: stale command from operator '", c.operator_id,
+                                           "': sequence ", c.operator_sequence, " <= last ", last));
+  last = c.operator_sequence;
+  auto it = drones_.find(c.drone_id);
+  if (it == drones_.end() || !it->second.view.known)
+    return absl::FailedPreconditionError(
+        absl::StrCat("control: drone '", c.drone_id, "' has not reported its state yet"));
+  return &it->second;
+}
+
+glm::dvec3 ControlCore::DronePosition(const Drone& d) const { return d.view.state.position; }
+
+absl::StatusOr<CommandResult> ControlCore::Commit(const Command& c, Drone* d, InteractionKind kind,
+                                                  const Setpoint& target, double now_s) {
+  CommandResult r;
+  r.kind = kind;
+  EXO_ASSIGN_OR_RETURN(r.route, safe_.Plan(DronePosition(*d), target.position));
+  r.target = Setpoint{r.route.target, target.yaw};
+  r.command_sequence = ++command_sequence_;
+  DroneView& v = d->view;
+  v.command_sequence = r.command_sequence;
+  v.kind = kind;
+  v.operator_id = c.operator_id;
+  v.target = r.target;
+  v.waypoints = r.route.waypoints;
+  v.waypoint_index = 0;
+  ++v.setpoint_sequence;
+  d->issued_s = now_s;
+  if (r.route.clamped)
+    r.note = absl::StrFormat("target clamped by %.2f m to the nearest permitted point",
+                             glm::length(r.route.target - r.route.requested));
+  if (r.route.regions) r.note += (r.note.empty() ? "" : "; ") + std::string("region waypoints");
+  return r;
+}
+
+absl::StatusOr<CommandResult> ControlCore::PickAndPlace(const Command& c, const glm::dvec3& eye,
+                                                        const glm::dvec3& hand,
+                                                        const glm::dvec3& disp, double now_s) {
+  std::lock_guard lock(mu_);
+  EXO_ASSIGN_OR_RETURN(Drone * d, Admit(c));
+  EXO_ASSIGN_OR_RETURN(auto p,
+                       control::PickAndPlace(DronePosition(*d), eye, hand, disp, options_.pick));
+  EXO_ASSIGN_OR_RETURN(CommandResult r, Commit(c, d, InteractionKind::kPickAndPlace,
+                                               Setpoint{p.target, d->view.state.yaw}, now_s));
+  if (p.guarded) r.note += (r.note.empty() ? "" : "; ") + std::string("hand-eye distance guarded");
+  return r;
+}
+
+absl::StatusOr<CommandResult> ControlCore::GazeToSee(const Command& c, const glm::dvec3& eye,
+                                                     const glm::dvec3& dir, double now_s) {
+  std::lock_guard lock(mu_);
+  EXO_ASSIGN_OR_RETURN(Drone * d, Admit(c));
+  EXO_ASSIGN_OR_RETURN(GazeResult g,
+                       control::GazeToSee(Raycaster(), eye, dir, frame_, options_.gaze));
+  EXO_ASSIGN_OR_RETURN(CommandResult r, Commit(c, d, InteractionKind::kGazeToSee, g.target, now_s));
+  // Facing P_gaze from where the drone ends up (after clamping).
+  r.target.yaw = d->view.target.yaw = frame_.YawOf(g.hit.point - r.target.position);
+  if (g.horizontal_surface)
+    r.note +=
+        (r.note.empty() ? "" : "; ") + std::string("horizontal surface: between user and point");
+  r.gaze = g;
+  return r;
+}
+
+absl::StatusOr<CommandResult> ControlCore::Joypad(const Command& c, const JoypadInput& in,
+                                                  double dt_s, double now_s) {
+  std::lock_guard lock(mu_);
+  EXO_ASSIGN_OR_RETURN(Drone * d, Admit(c));
+  const DroneView& v = d->view;
+  const Setpoint current = v.kind == InteractionKind::kJoypad && !v.waypoints.empty()
+                               ? Setpoint{v.waypoints.back(), v.target.yaw}
+                               : Setpoint{v.state.position, v.state.yaw};
+  const glm::dvec3 drone = v.state.position;
+  const JoypadResult j =
+      IntegrateJoypad(current, in, dt_s, frame_, options_.joypad, &safe_, &drone);
+  CommandResult r;
+  r.kind = InteractionKind::kJoypad;
+  r.target = j.setpoint;
+  r.route.requested = r.route.target = j.setpoint.position;
+  r.route.waypoints = {j.setpoint.position};
+  r.command_sequence = ++command_sequence_;
+  DroneView& w = d->view;
+  w.command_sequence = r.command_sequence;
+  w.kind = InteractionKind::kJoypad;
+  w.operator_id = c.operator_id;
+  w.target = r.target;
+  w.waypoints = r.route.waypoints;
+  w.waypoint_index = 0;
+  ++w.setpoint_sequence;
+  d->issued_s = now_s;
+  r.note = j.blocked ? "blocked at the boundary" : j.slid ? "slid along the boundary" : "";
+  return r;
+}
+
+absl::StatusOr<CommandResult> ControlCore::GoToView(const Command& c, uint32_t view_id,
+                                                    double now_s) {
+  std::lock_guard lock(mu_);
+  auto it = view_poses_.find(view_id);
+  if (it == view_poses_.end())
+    return absl::NotFoundError(absl::StrCat("control: no stored view ", view_id));
+  const Rigid3d pose = it->second;
+  EXO_ASSIGN_OR_RETURN(Drone * d, Admit(c));
+  Setpoint target;
+  target.position = pose.translation + origin_;
+  target.yaw = frame_.YawOf(pose.rotation * glm::dvec3(0, 0, 1));
+  return Commit(c, d, InteractionKind::kGoToView, target, now_s);
+}
+
+DroneView ControlCore::View(const std::string& drone_id) const {
+  std::lock_guard lock(mu_);
+  auto it = drones_.find(drone_id);
+  return it == drones_.end() ? DroneView{} : it->second.view;
+}
+
+size_t ControlCore::CountCells(Occupancy s) const {
+  std::lock_guard lock(mu_);
+  return safe_.grid().CountState(s);
+}
+
+bool ControlCore::UsingRegions() const {
+  std::lock_guard lock(mu_);
+  return safe_.UsingRegions();
+}
+
+}  // namespace exo::control

@@ -1,0 +1,166 @@
+#include "server/control/control_core.h"
+
+#include <gtest/gtest.h>
+
+#include "common/drone/sim_drone.h"
+#include "common/drone/test_util.h"
+
+namespace exo::control {
+namespace {
+
+using testing::AddQuad;
+
+// Two rooms split by a wall at x = 4 with a door (y in [1.5, 2.5], z < 2.2); the wall is a mesh
+// (what the proxy gives) and the free space is carved from "views" looking around each room.
+TriangleMesh WallWithDoor() {
+  TriangleMesh m;
+  AddQuad(&m, {4, 0, 0}, {4, 1.5, 0}, {4, 1.5, 3}, {4, 0, 3});
+  AddQuad(&m, {4, 2.5, 0}, {4, 4, 0}, {4, 4, 3}, {4, 2.5, 3});
+  AddQuad(&m, {4, 1.5, 2.2}, {4, 2.5, 2.2}, {4, 2.5, 3}, {4, 1.5, 3});
+  AddQuad(&m, {0, 0, 0}, {8, 0, 0}, {8, 4, 0}, {0, 4, 0});  // floor
+  return m;
+}
+
+std::unique_ptr<ControlCore> MakeCore() {
+  ControlCoreOptions o;
+  o.safe.zones = {{"house", {0, 0, 0}, {8, 4, 2.6}}};
+  o.safe.cell_m = 0.1;
+  o.safe.drone_radius_m = 0.2;
+  auto core = ControlCore::Create(o);
+  EXO_CHECK(core.ok());
+  (*core)->UpsertChunk(1, WallWithDoor());
+  // Known free space: everything in the zones that is not within the wall/floor (as carving
+  // many views would give).
+  (*core)->WithSafeFlight([](SafeFlight& s) {
+    OccupancyGrid& g = s.grid();
+    for (size_t i = 0; i < g.num_cells(); ++i) g.Set(g.CellOfIndex(i), Occupancy::kFree);
+  });
+  return *std::move(core);
+}
+
+DroneState At(const glm::dvec3& p) {
+  DroneState s;
+  s.position = p;
+  return s;
+}
+
+TEST(ControlCore, CommandsNeedADroneAndIncreasingOperatorSequences) {
+  auto core = MakeCore();
+  Command c{"alice", 1, "drone"};
+  EXPECT_EQ(core->PickAndPlace(c, {0, 0, 1.6}, {0.3, 0, 1.4}, {0, 0.1, 0}, 0).status().code(),
+            absl::StatusCode::kFailedPrecondition);
+  core->OnDroneState("drone", At({1, 1, 1}), 0);
+  c.operator_sequence = 2;
+  auto ok = core->PickAndPlace(c, {0, 1, 1.6}, {0.3, 1, 1.4}, {0, 0.1, 0}, 0);
+  ASSERT_TRUE(ok.ok()) << ok.status();
+  EXPECT_EQ(ok->command_sequence, 1u);
+  auto stale = core->PickAndPlace(c, {0, 1, 1.6}, {0.3, 1, 1.4}, {0, 0.1, 0}, 0);
+  EXPECT_EQ(stale.status().code(), absl::StatusCode::kAborted);
+  EXPECT_NE(stale.status().message().find("stale"), std::string::npos);
+  EXPECT_EQ(core->PickAndPlace({"", 1, "drone"}, {}, {1, 0, 0}, {}, 0).status().code(),
+            absl::StatusCode::kInvalidArgument);
+}
+
+TEST(ControlCore, TwoOperatorsLastWriterWinsAndBothSeeTheOutcome) {
+  auto core = MakeCore();
+  core->OnDroneState("drone", At({1, 1, 1}), 0);
+  auto a = core->GazeToSee({"alice", 7, "drone"}, {0.5, 1, 1.5}, {1, 0, 0}, 0.0);
+  auto b = core->PickAndPlace({"bob", 1, "drone"}, {0.5, 1, 1.6}, {0.8, 1, 1.4}, {0, 0.1, 0}, 0.0);
+  ASSERT_TRUE(a.ok()) << a.status();
+  ASSERT_TRUE(b.ok()) << b.status();
+  EXPECT_LT(a->command_sequence, b->command_sequence);
+  const DroneView v = core->View("drone");
+  EXPECT_EQ(v.command_sequence, b->command_sequence);
+  EXPECT_EQ(v.operator_id, "bob");
+  EXPECT_EQ(v.kind, InteractionKind::kPickAndPlace);
+  auto sp = core->NextSetpoint("drone", 0.0);
+  ASSERT_TRUE(sp.has_value());
+  EXPECT_EQ(sp->command_sequence, b->command_sequence);
+  EXPECT_EQ(sp->operator_id, "bob");
+}
+
+TEST(ControlCore, GazeThroughTheDoorStreamsWaypointsInOrder) {
+  auto core = MakeCore();
+  core->OnDroneState("drone", At({1, 0.8, 1.0}), 0);
+  // Look through the door at the far room's wall (x = 8 has no mesh: add one).
+  TriangleMesh far;
+  AddQuad(&far, {8, 0, 0}, {8, 4, 0}, {8, 4, 3}, {8, 0, 3});
+  core->UpsertChunk(2, far);
+  auto r = core->GazeToSee({"alice", 1, "drone"}, {1, 2, 1.5}, {1, 0.05, 0}, 0.0);
+  ASSERT_TRUE(r.ok()) << r.status();
+  ASSERT_TRUE(r->gaze.has_value());
+  EXPECT_NEAR(r->gaze->hit.point.x, 8.0, 1e-6);
+  EXPECT_NEAR(r->target.position.x, 7.5, 0.11);
+  EXPECT_NEAR(r->target.yaw, 0.0, 0.2);
+  ASSERT_GE(r->route.waypoints.size(), 2u);
+  auto first = core->NextSetpoint("drone", 0.0);
+  ASSERT_TRUE(first.has_value());
+  EXPECT_EQ(first->waypoint_index, 0u);
+  EXPECT_EQ(first->kind, InteractionKind::kGazeToSee);
+  // Not due again before 1/30 s, due after.
+  EXPECT_FALSE(core->NextSetpoint("drone", 0.01).has_value());
+  auto repeat = core->NextSetpoint("drone", 0.04);
+  ASSERT_TRUE(repeat.has_value());
+  EXPECT_EQ(repeat->sequence, first->sequence);
+  // At the first waypoint: the next one, immediately, with a new sequence.
+  core->OnDroneState("drone", At(first->setpoint.position), 0.05);
+  auto second = core->NextSetpoint("drone", 0.05);
+  ASSERT_TRUE(second.has_value());
+  EXPECT_EQ(second->waypoint_index, 1u);
+  EXPECT_GT(second->sequence, first->sequence);
+}
+
+TEST(ControlCore, GazeAtTheSkyAndAtAWallInsideTheZoneEdge) {
+  auto core = MakeCore();
+  core->OnDroneState("drone", At({1, 1, 1}), 0);
+  auto sky = core->GazeToSee({"alice", 1, "drone"}, {1, 1, 1.5}, {-1, 0, 1}, 0);
+  EXPECT_EQ(sky.status().code(), absl::StatusCode::kNotFound);
+  EXPECT_EQ(core->View("drone").command_sequence, 0u);  // nothing changed
+}
+
+TEST(ControlCore, GoToAStoredView) {
+  auto core = MakeCore();
+  core->SetOrigin({0, 0, 0});
+  Rigid3d pose;
+  // Camera looking along +y (cam z -> world +y).
+  const glm::dmat3 r(glm::dvec3(1, 0, 0), glm::dvec3(0, 0, -1), glm::dvec3(0, 1, 0));
+  pose.rotation = glm::quat_cast(r);
+  pose.translation = {2, 1, 1.2};
+  core->AddView(5, pose, PinholeCamera{100, 100, 50, 50, 100, 100}, nullptr);
+  core->OnDroneState("drone", At({1, 1, 1}), 0);
+  auto res = core->GoToView({"op", 1, "drone"}, 5, 0);
+  ASSERT_TRUE(res.ok()) << res.status();
+  EXPECT_NEAR(res->target.position.x, 2, 1e-9);
+  EXPECT_NEAR(res->target.yaw, kPi / 2, 1e-9);
+  EXPECT_EQ(core->GoToView({"op", 2, "drone"}, 99, 0).status().code(), absl::StatusCode::kNotFound);
+}
+
+// Closed loop in one process: the core streams a gaze route through the door to the simulated
+// drone at 120 Hz; the drone must arrive with no collision against the wall mesh.
+TEST(ControlCore, ClosedLoopWithTheSimulatedDroneHasNoCollision) {
+  auto core = MakeCore();
+  TriangleMesh far;
+  AddQuad(&far, {8, 0, 0}, {8, 4, 0}, {8, 4, 3}, {8, 0, 3});
+  core->UpsertChunk(2, far);
+  SimDrone drone{SimDroneOptions{}};
+  drone.Reset({1, 0.8, 1.0}, 0);
+  TriangleMesh truth = WallWithDoor();
+  truth.Append(far);
+  CollisionMonitor collisions(truth, drone.options().radius_m);
+  core->OnDroneState("drone", drone.state(), 0);
+  auto r = core->GazeToSee({"alice", 1, "drone"}, {1, 2, 1.5}, {1, 0.05, 0}, 0.0);
+  ASSERT_TRUE(r.ok()) << r.status();
+  for (int i = 0; i < 120 * 30; ++i) {
+    const double now = drone.state().timestamp_s;
+    core->OnDroneState("drone", drone.state(), now);
+    if (auto sp = core->NextSetpoint("drone", now)) drone.Receive(sp->setpoint, now);
+    collisions.Update(drone.Step().position);
+  }
+  EXPECT_LT(glm::length(drone.state().position - r->target.position), 0.05);
+  EXPECT_EQ(collisions.collisions(), 0u);
+  EXPECT_GT(collisions.min_clearance_m(), 0.0);
+  EXPECT_EQ(core->View("drone").waypoint_index + 1, r->route.waypoints.size());
+}
+
+}  // namespace
+}  // namespace exo::control

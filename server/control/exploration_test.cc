@@ -1,0 +1,92 @@
+#include "server/control/exploration.h"
+
+#include <gtest/gtest.h>
+
+namespace exo::control {
+namespace {
+
+// A 6 x 4 x 3 m zone: x < 3 known free, x >= 3 unknown; optionally a wall (occupied) at
+// x in [3, 3.2) instead of unknown there.
+SafeFlight MakeWorld(bool wall) {
+  SafeFlightOptions o;
+  o.zones = {{"room", {0, 0, 0}, {6, 4, 3}}};
+  o.cell_m = 0.1;
+  o.region_fallback = false;
+  auto s = SafeFlight::Create(o);
+  EXO_CHECK(s.ok());
+  OccupancyGrid& g = s->grid();
+  for (size_t i = 0; i < g.num_cells(); ++i) {
+    const glm::ivec3 c = g.CellOfIndex(i);
+    const glm::dvec3 p = g.CentreOf(c);
+    if (p.x < 3)
+      g.Set(c, Occupancy::kFree);
+    else if (wall && p.x < 3.2)
+      g.Set(c, Occupancy::kOccupied);
+  }
+  return *std::move(s);
+}
+
+TEST(Exploration, NearestFrontierFacesTheUnknown) {
+  SafeFlight safe = MakeWorld(false);
+  ExplorationPlanner p{ExploreOptions{}};
+  auto v = p.NearestFrontier(safe, {1, 2, 1.5}, SceneFrame::ZUp());
+  ASSERT_TRUE(v.has_value());
+  EXPECT_GT(v->pose.position.x, 2.0);  // near the boundary at x = 3
+  EXPECT_LT(v->pose.position.x, 3.0);
+  EXPECT_LT(std::abs(v->pose.yaw), 0.3);  // facing +x
+  EXPECT_TRUE(safe.Permitted(v->pose.position));
+  // The same goal is not proposed twice.
+  auto w = p.NearestFrontier(safe, {1, 2, 1.5}, SceneFrame::ZUp());
+  ASSERT_TRUE(w.has_value());
+  EXPECT_NE(w->pose.position, v->pose.position);
+}
+
+TEST(Exploration, AutonomousPrefersUnseenSpaceAndIsReachable) {
+  SafeFlight safe = MakeWorld(false);
+  ExploreOptions o;
+  o.seed = 3;
+  ExplorationPlanner p(o);
+  auto v = p.Autonomous(safe, {1, 2, 1.5}, SceneFrame::ZUp());
+  ASSERT_TRUE(v.has_value());
+  EXPECT_GT(v->gain, 0);
+  EXPECT_LT(std::abs(v->pose.yaw), kPi / 2);  // looks towards the unknown half
+  EXPECT_TRUE(std::isfinite(v->path_m));
+  EXPECT_TRUE(safe.Plan({1, 2, 1.5}, v->pose.position).ok());
+}
+
+TEST(Exploration, ObservingASurfaceRaisesTauAndLowersTheGain) {
+  SafeFlight safe = MakeWorld(true);
+  ExploreOptions o;
+  ExplorationPlanner p(o);
+  const Setpoint facing{{1.2, 2, 1.5}, 0.0};
+  const double before = p.Gain(safe.grid(), facing, SceneFrame::ZUp());
+  EXPECT_GT(before, 0);
+  // A camera at (1.2, 2, 1.5) looking along +x at the wall (x = 3.05).
+  PinholeCamera cam{80, 80, 39.5, 29.5, 80, 60};
+  ImageF depth(80, 60, 1, 1.85f);
+  Rigid3d pose;
+  pose.rotation =
+      glm::quat_cast(glm::dmat3(glm::dvec3(0, -1, 0), glm::dvec3(0, 0, -1), glm::dvec3(1, 0, 0)));
+  pose.translation = {1.2, 2, 1.5};
+  for (int k = 0; k < 3; ++k) p.Observe(safe.grid(), depth, cam, pose, 2);
+  const size_t wall_cell = safe.grid().Index(safe.grid().CellOf({3.05, 2, 1.5}));
+  EXPECT_GT(p.Tau(wall_cell), 0.5);
+  EXPECT_LE(p.Tau(wall_cell), o.tau_max);
+  EXPECT_GT(p.cells_seen(), 10u);
+  const double after = p.Gain(safe.grid(), facing, SceneFrame::ZUp());
+  EXPECT_LT(after, 0.7 * before);
+}
+
+TEST(Exploration, NothingReachableGivesNoView) {
+  SafeFlightOptions o;
+  o.zones = {{"room", {0, 0, 0}, {4, 4, 3}}};
+  o.region_fallback = false;
+  auto s = SafeFlight::Create(o);
+  ASSERT_TRUE(s.ok());
+  ExplorationPlanner p{ExploreOptions{}};
+  EXPECT_FALSE(p.Autonomous(*s, {1, 1, 1}, SceneFrame::ZUp()).has_value());
+  EXPECT_FALSE(p.NearestFrontier(*s, {1, 1, 1}, SceneFrame::ZUp()).has_value());
+}
+
+}  // namespace
+}  // namespace exo::control

@@ -1,0 +1,327 @@
+// Exploration benchmark (issue 19 metrics): the simulated drone explores a synthetic scene from
+// a start pose under one of three policies, its camera frames (every 0.5 s of flight) building
+// the occupancy view it plans in:
+//   autonomous  coverage-driven next view (ExplorationPlanner::Autonomous: expected τ gain per
+//               metre of flight over reachable safe poses),
+//   frontier    nearest frontier (the classic baseline),
+//   scripted    the scene's scripted eye-height walk, waypoint after waypoint.
+// Coverage is measured on the ground truth: the scene's surface cells (q = --coverage_cell_m,
+// area-weighted) whose τ = Σ φ over the frames (SPEC §4: φ = λφ_d + (1−λ)φ_p, the first R_max
+// views of a cell as its references) reaches τ_max/2. Prints one JSON line per policy: flight
+// time and path length to 50 / 80 / 95 % coverage (null: not reached within --max_flight_s),
+// final coverage, collisions with the ground-truth mesh, per-decision cost; over --runs seeded
+// start poses.
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <map>
+#include <nlohmann/json.hpp>
+#include <random>
+#include <unordered_map>
+
+#include "common/cells.h"
+#include "common/cli/cli.h"
+#include "common/drone/sim_drone.h"
+#include "common/synth/render.h"
+#include "common/synth/scene.h"
+#include "common/synth/trajectory.h"
+#include "server/control/exploration.h"
+#include "server/planning/coverage.h"
+
+namespace {
+
+using namespace exo;
+using namespace exo::control;
+
+struct CoverageCell {
+  double area = 0, tau = 0;
+  std::vector<glm::dvec3> refs;
+};
+
+class GroundTruthCoverage {
+ public:
+  GroundTruthCoverage(const TriangleMesh& mesh, double q) : q_(q) {
+    for (size_t t = 0; t + 2 < mesh.indices.size(); t += 3) {
+      const glm::dvec3 a(mesh.positions[mesh.indices[t]]), b(mesh.positions[mesh.indices[t + 1]]),
+          c(mesh.positions[mesh.indices[t + 2]]);
+      const double area = 0.5 * glm::length(glm::cross(b - a, c - a));
+      if (!(area > 0)) continue;
+      const double len = std::max({glm::length(b - a), glm::length(c - a), glm::length(c - b)});
+      const int n = std::max(1, static_cast<int>(std::ceil(len / (0.25 * q))));
+      const double w = area / ((n + 1) * (n + 2) / 2.0);
+      for (int i = 0; i <= n; ++i)
+        for (int j = 0; i + j <= n; ++j)
+          cells_[Key(a + (b - a) * (double(i) / n) + (c - a) * (double(j) / n))].area += w;
+      total_ += area;
+    }
+  }
+  CellId Key(const glm::dvec3& p) const { return PackCell(glm::ivec3(glm::floor(p / q_))); }
+  void AddFrame(const ImageF& z, const PinholeCamera& cam, const Rigid3d& local_from_cam,
+                int stride) {
+    std::unordered_map<CellId, double> pixels;
+    for (int y = stride / 2; y < z.height(); y += stride)
+      for (int x = stride / 2; x < z.width(); x += stride) {
+        const float d = z.at(x, y);
+        if (!(d > 0) || !std::isfinite(d)) continue;
+        pixels[Key(local_from_cam * cam.Unproject({x, y}, d))] += 1;
+      }
+    const double sample_sr = cam.PixelSolidAngle() * stride * stride;
+    const glm::dvec3 eye = local_from_cam.translation;
+    for (const auto& [k, n] : pixels) {
+      auto it = cells_.find(k);
+      if (it == cells_.end()) continue;
+      CoverageCell& c = it->second;
+      const glm::dvec3 centre = (glm::dvec3(UnpackCell(k)) + 0.5) * q_;
+      const double d = glm::length(eye - centre);
+      if (d < 1e-6) continue;
+      const glm::dvec3 dir = (eye - centre) / d;
+      const double phi_d = planning::DirectionalCoverage(dir, c.refs, 16);
+      const double g = planning::DistanceQuality(d, 2.0, 2.0);
+      const double psi_total = planning::PsiTotal(c.area, q_ * q_, d, sample_sr, 0.1);
+      const double phi =
+          planning::Coverage(0.4, phi_d, planning::PositionalCoverage(g, n, psi_total));
+      c.tau = std::min(4.0, c.tau + phi);
+      if (c.refs.size() < 16) c.refs.push_back(dir);
+    }
+  }
+  double Fraction(double tau) const {
+    double a = 0;
+    for (const auto& [k, c] : cells_)
+      if (c.tau >= tau) a += c.area;
+    return total_ > 0 ? a / total_ : 0;
+  }
+
+ private:
+  double q_;
+  double total_ = 0;
+  std::unordered_map<CellId, CoverageCell> cells_;
+};
+
+struct RunResult {
+  std::vector<std::pair<double, double>> curve;  // (flight s, coverage)
+  double final_seen = 0;                         // area fraction with τ > 0
+  std::vector<double> path_at;                   // path length at each curve sample
+  uint64_t collisions = 0, decisions = 0, replans = 0;
+  double decision_ms = 0, final_coverage = 0, path_m = 0;
+};
+
+RunResult Run(const synth::SynthScene& scene, const std::string& policy, uint64_t seed,
+              double max_flight_s, double coverage_cell_m, double cell_m, ExploreOptions eo) {
+  RunResult out;
+  std::mt19937_64 rng(seed);
+  const SceneFrame frame = SceneFrame::ZUp();
+  SafeFlightOptions so;
+  so.zones = {{"navigable", scene.navigable.min, scene.navigable.max}};
+  so.cell_m = cell_m;
+  so.drone_radius_m = 0.2;
+  so.region_fallback = false;
+  auto safe_or = SafeFlight::Create(so);
+  EXO_CHECK(safe_or.ok());
+  SafeFlight& safe = *safe_or;
+  eo.seed = seed;
+  ExplorationPlanner planner(eo);
+  SimDroneOptions dopt;
+  SimDrone drone(dopt);
+  const glm::dvec3 start = scene.walk_waypoints[std::uniform_int_distribution<size_t>(
+      0, scene.walk_waypoints.size() - 1)(rng)];
+  const double yaw0 = std::uniform_real_distribution<double>(-kPi, kPi)(rng);
+  drone.Reset(start, yaw0);
+  CollisionMonitor collisions(scene.mesh, dopt.radius_m);
+  GroundTruthCoverage cov(scene.mesh, coverage_cell_m);
+  synth::RenderOptions ro;
+  ro.width = 160;
+  ro.height = 120;
+  const PinholeCamera cam = ro.Camera();
+
+  std::vector<glm::dvec3> route;
+  size_t wp = 0;
+  double goal_yaw = yaw0, route_start = 0;
+  size_t script_index = 0;
+  glm::dvec3 prev = start;
+  double next_frame = 0;
+  bool finished = false;
+  const int steps = static_cast<int>(max_flight_s * dopt.rate_hz);
+  for (int i = 0; i < steps && !finished; ++i) {
+    const double t = drone.state().timestamp_s;
+    const DroneState s = drone.state();
+    if (t >= next_frame) {
+      next_frame += 0.5;
+      const Rigid3d pose = synth::LookAt(s.position, s.position + frame.Heading(s.yaw));
+      ImageF z;
+      if (synth::RenderLinear(scene, pose, ro, &z).ok()) {
+        // The drone's own volume is free; the frame carves the rest.
+        OccupancyGrid& g = safe.grid();
+        const glm::ivec3 c = g.CellOf(s.position);
+        const int r = static_cast<int>(std::ceil(dopt.radius_m / cell_m));
+        for (int dz = -r; dz <= r; ++dz)
+          for (int dy = -r; dy <= r; ++dy)
+            for (int dx = -r; dx <= r; ++dx)
+              if (glm::length(glm::dvec3(dx, dy, dz)) * cell_m <= dopt.radius_m)
+                g.Set(c + glm::ivec3(dx, dy, dz), Occupancy::kFree);
+        g.CarveDepth(z, cam, pose, 2, 5.0);
+        planner.Observe(g, z, cam, pose, 2);
+        cov.AddFrame(z, cam, pose, 2);
+      }
+      out.curve.emplace_back(t, cov.Fraction(2.0));
+      out.path_at.push_back(out.path_m);
+      if (out.curve.back().second >= 0.95) break;
+      // A route that crosses newly found obstacles is dropped.
+      if (!route.empty()) {
+        glm::dvec3 a = s.position;
+        for (size_t k = wp; k < route.size(); ++k) {
+          if (!safe.SegmentPermitted(a, route[k]) && policy != "scripted") {
+            route.clear();
+            ++out.replans;
+            break;
+          }
+          a = route[k];
+        }
+      }
+    }
+    // Decide when idle: spin first, then the policy.
+    const bool at_goal = !route.empty() && wp + 1 == route.size() &&
+                         glm::length(s.position - route.back()) < 0.15 &&
+                         std::abs(WrapAngle(s.yaw - goal_yaw)) < 0.1;
+    if (route.empty() || at_goal || t - route_start > 30) {
+      route_start = t;
+      if (t < 4.0) {  // initial look-around: four quarter turns in place
+        route = {start};
+        wp = 0;
+        goal_yaw = WrapAngle(yaw0 + kPi / 2 * (1 + std::floor(t)));
+      } else if (policy == "scripted") {
+        const glm::dvec3 target = scene.walk_waypoints[script_index % scene.walk_waypoints.size()];
+        ++script_index;
+        route = {target};
+        wp = 0;
+        goal_yaw = frame.YawOf(target - s.position);
+      } else {
+        const auto t0 = std::chrono::steady_clock::now();
+        std::optional<NextView> v = policy == "autonomous"
+                                        ? planner.Autonomous(safe, s.position, frame)
+                                        : planner.NearestFrontier(safe, s.position, frame);
+        std::optional<Route> r;
+        if (v) {
+          auto plan = safe.Plan(s.position, v->pose.position);
+          if (plan.ok()) r = *plan;
+        }
+        out.decision_ms +=
+            std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0)
+                .count();
+        ++out.decisions;
+        if (!v) {
+          finished = true;  // nothing left to explore
+        } else if (r) {
+          route = r->waypoints;
+          wp = 0;
+          goal_yaw = v->pose.yaw;
+        } else {
+          route = {s.position};  // unreachable this time: turn and look again
+          wp = 0;
+          goal_yaw = WrapAngle(s.yaw + kPi / 2);
+        }
+      }
+    }
+    while (wp + 1 < route.size() && glm::length(s.position - route[wp]) < 0.15) ++wp;
+    const bool last = wp + 1 == route.size();
+    drone.Receive({route[wp], last ? goal_yaw : frame.YawOf(route[wp] - s.position)}, t);
+    const DroneState& n = drone.Step();
+    collisions.Update(n.position);
+    out.path_m += glm::length(n.position - prev);
+    prev = n.position;
+  }
+  out.collisions = collisions.collisions();
+  out.final_coverage = out.curve.empty() ? 0 : out.curve.back().second;
+  out.final_seen = cov.Fraction(1e-9);
+  return out;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"Exploration benchmark: coverage-driven next view vs nearest frontier vs scripted.",
+               "exoview_explore_bench"};
+  exo::cli::Setup(app);
+  std::string scene_name = "apartment";
+  std::vector<std::string> policies = {"autonomous", "frontier", "scripted"};
+  int runs = 3;
+  double max_flight_s = 180, coverage_cell_m = 0.5, cell_m = 0.15;
+  app.add_option("--scene", scene_name, "apartment | village");
+  app.add_option("--policies", policies, "autonomous, frontier, scripted")->delimiter(',');
+  app.add_option("--runs", runs, "seeded start poses per policy")->check(CLI::PositiveNumber);
+  app.add_option("--max_flight_s", max_flight_s, "flight time per run")->check(CLI::PositiveNumber);
+  app.add_option("--coverage_cell_m", coverage_cell_m, "ground-truth surface cell")
+      ->check(CLI::PositiveNumber);
+  app.add_option("--cell_m", cell_m, "occupancy cell")->check(CLI::PositiveNumber);
+  ExploreOptions eo;
+  app.add_option("--unknown_gain", eo.unknown_gain,
+                 "autonomous: gain of a ray ending in unknown space");
+  app.add_option("--travel_offset_m", eo.travel_offset_m,
+                 "autonomous: score = gain / (path + this)");
+  app.add_option("--candidates", eo.candidates, "autonomous: candidate positions per decision");
+  if (auto rc = exo::cli::Parse(app, argc, argv)) return *rc;
+  for (const auto& p : policies)
+    if (p != "autonomous" && p != "frontier" && p != "scripted") {
+      std::fprintf(stderr, "exoview_explore_bench: unknown policy '%s'\n", p.c_str());
+      return 2;
+    }
+  auto kind = synth::ParseSceneKind(scene_name);
+  if (!kind.ok()) {
+    std::fprintf(stderr, "exoview_explore_bench: %s\n",
+                 std::string(kind.status().message()).c_str());
+    return 2;
+  }
+  auto scene = synth::MakeScene(*kind, synth::SceneOptions{});
+  if (!scene.ok()) return 1;
+  for (const std::string& policy : policies) {
+    nlohmann::json j;
+    j["bench"] = "explore";
+    j["scene"] = scene_name;
+    j["policy"] = policy;
+    j["runs"] = runs;
+    j["max_flight_s"] = max_flight_s;
+    std::map<int, std::vector<double>> time_to, path_to;
+    std::vector<double> final_cov, final_seen, dec_ms;
+    uint64_t collisions = 0, replans = 0;
+    int reached[3] = {0, 0, 0};
+    const double levels[3] = {0.5, 0.8, 0.95};
+    for (int r = 0; r < runs; ++r) {
+      const RunResult res =
+          Run(*scene, policy, 1000 + r, max_flight_s, coverage_cell_m, cell_m, eo);
+      final_seen.push_back(res.final_seen);
+      collisions += res.collisions;
+      replans += res.replans;
+      final_cov.push_back(res.final_coverage);
+      if (res.decisions) dec_ms.push_back(res.decision_ms / res.decisions);
+      for (int l = 0; l < 3; ++l)
+        for (size_t k = 0; k < res.curve.size(); ++k)
+          if (res.curve[k].second >= levels[l]) {
+            time_to[l].push_back(res.curve[k].first);
+            path_to[l].push_back(res.path_at[k]);
+            ++reached[l];
+            break;
+          }
+    }
+    auto mean = [](const std::vector<double>& v) -> nlohmann::json {
+      if (v.empty()) return nullptr;
+      double s = 0;
+      for (double x : v) s += x;
+      return s / v.size();
+    };
+    for (int l = 0; l < 3; ++l) {
+      const std::string k = std::to_string(static_cast<int>(levels[l] * 100));
+      j["runs_reaching_" + k] = reached[l];
+      j["mean_flight_s_to_" + k] = mean(time_to[l]);
+      j["mean_path_m_to_" + k] = mean(path_to[l]);
+    }
+    j["mean_final_coverage"] = mean(final_cov);
+    j["mean_final_seen"] = mean(final_seen);
+    j["unknown_gain"] = eo.unknown_gain;
+    j["travel_offset_m"] = eo.travel_offset_m;
+    j["collisions"] = collisions;
+    j["replans"] = replans;
+    j["mean_decision_ms"] = mean(dec_ms);
+    std::printf("%s\n", j.dump().c_str());
+    std::fflush(stdout);
+  }
+  return 0;
+}

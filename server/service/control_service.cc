@@ -1,0 +1,346 @@
+#include "server/service/control_service.h"
+
+#include <grpcpp/grpcpp.h>
+
+#include <chrono>
+
+#include "absl/strings/numbers.h"
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_split.h"
+#include "absl/strings/strip.h"
+#include "common/log/log.h"
+#include "proto/control.grpc.pb.h"
+#include "proto/frame_proto.h"
+#include "server/service/model_store.h"
+#include "server/service/server.h"
+
+namespace exo {
+namespace {
+
+namespace cv1 = exoview::control::v1;
+using control::InteractionKind;
+
+double NowS() {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
+}
+
+glm::dvec3 FromProto(const cv1::Vec3& v) { return {v.x(), v.y(), v.z()}; }
+void ToProto(const glm::dvec3& v, cv1::Vec3* out) {
+  out->set_x(v.x);
+  out->set_y(v.y);
+  out->set_z(v.z);
+}
+
+grpc::Status ToGrpc(const absl::Status& s) {
+  return grpc::Status(static_cast<grpc::StatusCode>(s.code()), std::string(s.message()));
+}
+
+control::Command CommandOf(const cv1::OperatorHeader& h) {
+  return {h.operator_id(), h.operator_sequence(), h.drone_id().empty() ? "drone" : h.drone_id()};
+}
+
+void FillReply(const control::CommandResult& r, cv1::InteractionReply* out) {
+  out->set_command_sequence(r.command_sequence);
+  out->set_interaction(static_cast<cv1::Interaction>(r.kind));
+  ToProto(r.target.position, out->mutable_target());
+  out->set_target_yaw(r.target.yaw);
+  out->set_clamped(r.route.clamped);
+  for (const auto& w : r.route.waypoints) ToProto(w, out->add_waypoints());
+  out->set_note(r.note);
+  out->set_route_length_m(r.route.length_m);
+  if (r.gaze) {
+    out->set_has_gaze(true);
+    ToProto(r.gaze->hit.point, out->mutable_gaze_point());
+    ToProto(r.gaze->hit.normal, out->mutable_gaze_normal());
+    out->set_horizontal_surface(r.gaze->horizontal_surface);
+  }
+}
+
+// "x,y,z" -> vector.
+absl::StatusOr<glm::dvec3> ParseVec3(const std::string& key, absl::string_view text) {
+  const std::vector<std::string> p = absl::StrSplit(text, ',');
+  glm::dvec3 v;
+  if (p.size() != 3 || !absl::SimpleAtod(absl::StripAsciiWhitespace(p[0]), &v.x) ||
+      !absl::SimpleAtod(absl::StripAsciiWhitespace(p[1]), &v.y) ||
+      !absl::SimpleAtod(absl::StripAsciiWhitespace(p[2]), &v.z))
+    return absl::InvalidArgumentError(absl::StrCat("config ", key, ": '", text, "' is not x,y,z"));
+  return v;
+}
+
+std::string Vec3Text(const glm::dvec3& v) { return absl::StrCat(v.x, ",", v.y, ",", v.z); }
+
+ConfigKey DoubleKey(std::string name, std::string help, double* (*field)(ServerConfig&)) {
+  ConfigKey k;
+  k.name = name;
+  k.help = std::move(help);
+  k.get = [field](const ServerConfig& c) {
+    return absl::StrCat(*field(const_cast<ServerConfig&>(c)));
+  };
+  k.set = [field, name](const std::string& v, ServerConfig* c) {
+    double x;
+    if (!absl::SimpleAtod(v, &x) || !(x > 0))
+      return absl::InvalidArgumentError(
+          absl::StrCat("config ", name, ": '", v, "' is not a positive number"));
+    *field(*c) = x;
+    return absl::OkStatus();
+  };
+  return k;
+}
+
+}  // namespace
+
+void AppendControlConfigKeys(std::vector<ConfigKey>* keys) {
+  ConfigKey zones;
+  zones.name = "control_zones";
+  zones.help =
+      "drone flight zones, 'name:minx,miny,minz,maxx,maxy,maxz' separated by ';' (world frame; "
+      "empty: no control service)";
+  zones.get = [](const ServerConfig& c) {
+    std::string s;
+    for (const auto& z : c.control.core.safe.zones)
+      absl::StrAppend(&s, s.empty() ? "" : ";", z.name, ":", Vec3Text(z.min), ",", Vec3Text(z.max));
+    return s;
+  };
+  zones.set = [](const std::string& v, ServerConfig* c) -> absl::Status {
+    std::vector<control::Zone> out;
+    for (absl::string_view part : absl::StrSplit(v, ';', absl::SkipWhitespace())) {
+      auto z = control::ParseZone(std::string(part));
+      if (!z.ok())
+        return absl::InvalidArgumentError(
+            absl::StrCat("config control_zones: ", z.status().message()));
+      out.push_back(*z);
+    }
+    c->control.core.safe.zones = std::move(out);
+    return absl::OkStatus();
+  };
+  keys->push_back(std::move(zones));
+
+  ConfigKey portals;
+  portals.name = "control_portals";
+  portals.help = "region waypoints joining zones before anything is modelled, 'x,y,z;x,y,z'";
+  portals.get = [](const ServerConfig& c) {
+    std::string s;
+    for (const auto& p : c.control.core.safe.portals)
+      absl::StrAppend(&s, s.empty() ? "" : ";", Vec3Text(p));
+    return s;
+  };
+  portals.set = [](const std::string& v, ServerConfig* c) -> absl::Status {
+    std::vector<glm::dvec3> out;
+    for (absl::string_view part : absl::StrSplit(v, ';', absl::SkipWhitespace())) {
+      EXO_ASSIGN_OR_RETURN(glm::dvec3 p, ParseVec3("control_portals", part));
+      out.push_back(p);
+    }
+    c->control.core.safe.portals = std::move(out);
+    return absl::OkStatus();
+  };
+  keys->push_back(std::move(portals));
+
+  ConfigKey up;
+  up.name = "control_up";
+  up.help = "the scene's up axis x,y,z (7-Scenes: 0,-1,0)";
+  up.get = [](const ServerConfig& c) { return Vec3Text(c.control.core.up); };
+  up.set = [](const std::string& v, ServerConfig* c) -> absl::Status {
+    EXO_ASSIGN_OR_RETURN(glm::dvec3 u, ParseVec3("control_up", v));
+    if (!control::SceneFrame::FromUp(u).ok())
+      return absl::InvalidArgumentError("config control_up: must be a non-zero vector");
+    c->control.core.up = u;
+    return absl::OkStatus();
+  };
+  keys->push_back(std::move(up));
+
+  keys->push_back(DoubleKey("control_cell_m", "occupancy cell of safe flight in m",
+                            [](ServerConfig& c) { return &c.control.core.safe.cell_m; }));
+  keys->push_back(DoubleKey("control_drone_radius_m", "drone radius kept from obstacles in m",
+                            [](ServerConfig& c) { return &c.control.core.safe.drone_radius_m; }));
+  keys->push_back(DoubleKey("control_gaze_offset_m", "gaze-to-see distance x from the surface",
+                            [](ServerConfig& c) { return &c.control.core.gaze.offset_m; }));
+  keys->push_back(DoubleKey("control_setpoint_rate_hz", "setpoint repetition rate per drone",
+                            [](ServerConfig& c) { return &c.control.core.setpoint_rate_hz; }));
+  keys->push_back(DoubleKey("control_waypoint_tolerance_m",
+                            "distance at which the next waypoint is streamed",
+                            [](ServerConfig& c) { return &c.control.core.waypoint_tolerance_m; }));
+}
+
+// ---------------------------------------------------------------------------------------------
+
+class ControlServiceHost::Impl final : public cv1::Control::Service {
+ public:
+  explicit Impl(control::ControlCore* core) : core_(core) {}
+
+  grpc::Status DroneLink(
+      grpc::ServerContext* ctx,
+      grpc::ServerReaderWriter<cv1::Setpoint, cv1::DroneState>* stream) override {
+    links_.fetch_add(1);
+    std::string id;
+    cv1::DroneState msg;
+    while (stream->Read(&msg)) {
+      if (id.empty()) {
+        id = msg.drone_id().empty() ? "drone" : msg.drone_id();
+        log_->info("drone link opened: drone={} peer={}", id, ctx->peer());
+      }
+      control::DroneState s;
+      s.timestamp_s = msg.timestamp_s();
+      s.position = FromProto(msg.position());
+      s.velocity = FromProto(msg.velocity());
+      s.yaw = msg.yaw();
+      const double now = NowS();
+      core_->OnDroneState(id, s, now);
+      if (auto sp = core_->NextSetpoint(id, now)) {
+        cv1::Setpoint out;
+        out.set_sequence(sp->sequence);
+        ToProto(sp->setpoint.position, out.mutable_position());
+        out.set_yaw(sp->setpoint.yaw);
+        out.set_interaction(static_cast<cv1::Interaction>(sp->kind));
+        out.set_command_sequence(sp->command_sequence);
+        out.set_operator_id(sp->operator_id);
+        out.set_waypoint_index(sp->waypoint_index);
+        out.set_waypoint_count(sp->waypoint_count);
+        if (!stream->Write(out)) break;
+      }
+    }
+    links_.fetch_sub(1);
+    log_->info("drone link closed: drone={}", id);
+    return grpc::Status::OK;
+  }
+
+  grpc::Status PickAndPlace(grpc::ServerContext*, const cv1::PickAndPlaceRequest* req,
+                            cv1::InteractionReply* out) override {
+    auto r =
+        core_->PickAndPlace(CommandOf(req->header()), FromProto(req->eye()), FromProto(req->hand()),
+                            FromProto(req->hand_displacement()), NowS());
+    return Reply(r, out);
+  }
+
+  grpc::Status GazeToSee(grpc::ServerContext*, const cv1::GazeToSeeRequest* req,
+                         cv1::InteractionReply* out) override {
+    auto r = core_->GazeToSee(CommandOf(req->header()), FromProto(req->eye()),
+                              FromProto(req->direction()), NowS());
+    return Reply(r, out);
+  }
+
+  grpc::Status Joypad(grpc::ServerContext*, const cv1::JoypadRequest* req,
+                      cv1::InteractionReply* out) override {
+    control::JoypadInput in{req->left_x(), req->left_y(), req->right_x(), req->right_y()};
+    auto r = core_->Joypad(CommandOf(req->header()), in, req->dt_s(), NowS());
+    return Reply(r, out);
+  }
+
+  grpc::Status GoToView(grpc::ServerContext*, const cv1::GoToViewRequest* req,
+                        cv1::InteractionReply* out) override {
+    auto r = core_->GoToView(CommandOf(req->header()), req->view_id(), NowS());
+    return Reply(r, out);
+  }
+
+  grpc::Status GetControlState(grpc::ServerContext*, const cv1::ControlStateRequest* req,
+                               cv1::ControlState* out) override {
+    const control::DroneView v = core_->View(req->drone_id().empty() ? "drone" : req->drone_id());
+    out->set_drone_known(v.known);
+    auto* d = out->mutable_drone();
+    d->set_drone_id(req->drone_id().empty() ? "drone" : req->drone_id());
+    d->set_timestamp_s(v.state.timestamp_s);
+    ToProto(v.state.position, d->mutable_position());
+    ToProto(v.state.velocity, d->mutable_velocity());
+    d->set_yaw(v.state.yaw);
+    out->set_command_sequence(v.command_sequence);
+    out->set_interaction(static_cast<cv1::Interaction>(v.kind));
+    out->set_operator_id(v.operator_id);
+    ToProto(v.target.position, out->mutable_target());
+    out->set_target_yaw(v.target.yaw);
+    for (const auto& w : v.waypoints) ToProto(w, out->add_waypoints());
+    out->set_waypoint_index(v.waypoint_index);
+    out->set_setpoint_sequence(v.setpoint_sequence);
+    out->set_states_received(v.states);
+    out->set_setpoints_sent(v.setpoints);
+    out->set_free_cells(core_->CountCells(control::Occupancy::kFree));
+    out->set_occupied_cells(core_->CountCells(control::Occupancy::kOccupied));
+    out->set_using_regions(core_->UsingRegions());
+    for (const auto& z : core_->options().safe.zones) {
+      auto* oz = out->add_zones();
+      oz->set_name(z.name);
+      ToProto(z.min, oz->mutable_min());
+      ToProto(z.max, oz->mutable_max());
+    }
+    ToProto(core_->frame().up, out->mutable_up());
+    out->set_drone_links(static_cast<uint32_t>(links_.load()));
+    return grpc::Status::OK;
+  }
+
+ private:
+  grpc::Status Reply(const absl::StatusOr<control::CommandResult>& r, cv1::InteractionReply* out) {
+    if (!r.ok()) return ToGrpc(r.status());
+    FillReply(*r, out);
+    return grpc::Status::OK;
+  }
+
+  control::ControlCore* core_;
+  std::atomic<int> links_{0};
+  std::shared_ptr<spdlog::logger> log_ = log::Get("control");
+};
+
+// ---------------------------------------------------------------------------------------------
+
+absl::StatusOr<std::unique_ptr<ControlServiceHost>> ControlServiceHost::Start(
+    const ControlServiceOptions& options, ModelStore* store) {
+  std::unique_ptr<ControlServiceHost> h(new ControlServiceHost());
+  EXO_ASSIGN_OR_RETURN(h->core_, control::ControlCore::Create(options.core));
+  h->impl_ = std::make_unique<Impl>(h->core_.get());
+  h->store_ = store;
+  h->feeder_ = std::thread([p = h.get()] { p->Feed(); });
+  return h;
+}
+
+ControlServiceHost::~ControlServiceHost() { Stop(); }
+
+grpc::Service* ControlServiceHost::service() { return impl_.get(); }
+
+void ControlServiceHost::Stop() {
+  stop_.store(true);
+  if (feeder_.joinable()) feeder_.join();
+}
+
+void ControlServiceHost::Feed() {
+  auto log = log::Get("control");
+  auto sub = store_->Subscribe(0, 0);
+  while (!stop_.load()) {
+    for (const DeltaPtr& d : sub->Next(100)) {
+      switch (d->kind_case()) {
+        case v1::Delta::kSceneParams: {
+          const auto& o = d->scene_params().origin_in_world();
+          core_->SetOrigin({o.x(), o.y(), o.z()});
+          break;
+        }
+        case v1::Delta::kMeshChunkUpserted: {
+          auto mesh = MeshFromProto(d->mesh_chunk_upserted());
+          if (mesh.ok()) core_->UpsertChunk(d->mesh_chunk_upserted().chunk_id(), *std::move(mesh));
+          break;
+        }
+        case v1::Delta::kMeshChunkRemoved:
+          core_->RemoveChunk(d->mesh_chunk_removed().chunk_id());
+          break;
+        case v1::Delta::kViewAdded: {
+          const auto& v = d->view_added();
+          auto pose = PoseFromProto(v.local_from_cam());
+          auto cam = IntrinsicsFromProto(v.intrinsics());
+          if (!pose.ok() || !cam.ok()) break;
+          absl::StatusOr<ImageF> depth =
+              v.has_depth() ? DepthFromProto(v.depth()) : absl::StatusOr<ImageF>(ImageF());
+          core_->AddView(v.view_id(), *pose, *cam, depth.ok() ? &*depth : nullptr);
+          break;
+        }
+        case v1::Delta::kViewUpdated: {
+          auto pose = PoseFromProto(d->view_updated().local_from_cam());
+          if (pose.ok()) core_->UpdateViewPose(d->view_updated().view_id(), *pose);
+          break;
+        }
+        case v1::Delta::kViewRemoved:
+          core_->RemoveView(d->view_removed().view_id());
+          break;
+        default:
+          break;
+      }
+    }
+  }
+  sub->Close();
+}
+
+}  // namespace exo

@@ -1,0 +1,58 @@
+// The drone control service exoview.control.v1.Control (proto/control.proto, SPEC §8) in the
+// modeling server's process: the drone side's bidirectional stream (state in, setpoints out)
+// and the operators' interaction RPCs, over server/control's ControlCore. The core's world
+// follows the published model: a thread subscribes to the ModelStore like a client and feeds it
+// the scene origin, the proxy mesh chunks (ray casting, occupied cells) and the stored views
+// (poses for go-to-view, depth carved into known free space).
+// Served when at least one flight zone is configured (control_zones).
+#pragma once
+
+#include <atomic>
+#include <memory>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "common/status.h"
+#include "server/control/control_core.h"
+
+namespace grpc {
+class Service;
+}
+
+namespace exo {
+
+class ModelStore;
+struct ConfigKey;
+
+struct ControlServiceOptions {
+  control::ControlCoreOptions core;
+  bool enabled() const { return !core.safe.zones.empty(); }
+};
+
+// The config keys of the control service (control_*), appended to the server's ConfigKeys().
+void AppendControlConfigKeys(std::vector<ConfigKey>* keys);
+
+class ControlServiceHost {
+ public:
+  // Errors: invalid options (zones, up axis, ...).
+  static absl::StatusOr<std::unique_ptr<ControlServiceHost>> Start(
+      const ControlServiceOptions& options, ModelStore* store);
+  ~ControlServiceHost();
+  grpc::Service* service();
+  control::ControlCore& core() { return *core_; }
+  // Stops the model feeder (the store must still exist).
+  void Stop();
+
+ private:
+  class Impl;
+  ControlServiceHost() = default;
+  void Feed();
+  std::unique_ptr<control::ControlCore> core_;
+  std::unique_ptr<Impl> impl_;
+  ModelStore* store_ = nullptr;
+  std::atomic<bool> stop_{false};
+  std::thread feeder_;
+};
+
+}  // namespace exo

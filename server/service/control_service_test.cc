@@ -1,0 +1,284 @@
+// The control service on a real loopback server: operators call the interaction RPCs, the
+// drone side is the simulated drone (common/drone) streaming its state at 120 Hz and flying the
+// setpoints it receives.
+#include <grpcpp/grpcpp.h>
+#include <gtest/gtest.h>
+
+#include <chrono>
+#include <mutex>
+#include <thread>
+
+#include "common/drone/sim_drone.h"
+#include "common/drone/test_util.h"
+#include "proto/control.grpc.pb.h"
+#include "server/service/server.h"
+
+namespace exo {
+namespace {
+
+namespace cv1 = exoview::control::v1;
+using control::testing::AddQuad;
+
+TriangleMesh House() {
+  TriangleMesh m;
+  AddQuad(&m, {4, 0, 0}, {4, 1.5, 0}, {4, 1.5, 3}, {4, 0, 3});  // wall, door at y 1.5..2.5
+  AddQuad(&m, {4, 2.5, 0}, {4, 4, 0}, {4, 4, 3}, {4, 2.5, 3});
+  AddQuad(&m, {4, 1.5, 2.2}, {4, 2.5, 2.2}, {4, 2.5, 3}, {4, 1.5, 3});
+  AddQuad(&m, {8, 0, 0}, {8, 4, 0}, {8, 4, 3}, {8, 0, 3});  // far wall
+  AddQuad(&m, {0, 0, 0}, {8, 0, 0}, {8, 4, 0}, {0, 4, 0});  // floor
+  return m;
+}
+
+class ControlServiceTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    ServerConfig c;
+    c.listen = "127.0.0.1:0";
+    c.enable_geometry = false;
+    c.enable_planning = false;
+    ASSERT_TRUE(ApplyConfigValue("control_zones", "house:0,0,0,8,4,2.6", &c).ok());
+    server_ = std::make_unique<ExoviewServer>(c);
+    ASSERT_TRUE(server_->Start().ok());
+    control::ControlCore* core = server_->control_core();
+    ASSERT_NE(core, nullptr);
+    // The modelled world: the house's proxy mesh and its known free space.
+    core->UpsertChunk(1, House());
+    core->WithSafeFlight([](control::SafeFlight& s) {
+      control::OccupancyGrid& g = s.grid();
+      for (size_t i = 0; i < g.num_cells(); ++i) g.Set(g.CellOfIndex(i), control::Occupancy::kFree);
+    });
+    channel_ = grpc::CreateChannel("127.0.0.1:" + std::to_string(server_->port()),
+                                   grpc::InsecureChannelCredentials());
+    stub_ = cv1::Control::NewStub(channel_);
+  }
+  void TearDown() override {
+    if (server_) server_->Shutdown();
+  }
+
+  static cv1::Vec3 V(double x, double y, double z) {
+    cv1::Vec3 v;
+    v.set_x(x);
+    v.set_y(y);
+    v.set_z(z);
+    return v;
+  }
+  grpc::Status Gaze(const std::string& op, uint64_t seq, glm::dvec3 eye, glm::dvec3 dir,
+                    cv1::InteractionReply* out) {
+    cv1::GazeToSeeRequest r;
+    r.mutable_header()->set_operator_id(op);
+    r.mutable_header()->set_operator_sequence(seq);
+    *r.mutable_eye() = V(eye.x, eye.y, eye.z);
+    *r.mutable_direction() = V(dir.x, dir.y, dir.z);
+    grpc::ClientContext ctx;
+    return stub_->GazeToSee(&ctx, r, out);
+  }
+  grpc::Status Pick(const std::string& op, uint64_t seq, cv1::InteractionReply* out) {
+    cv1::PickAndPlaceRequest r;
+    r.mutable_header()->set_operator_id(op);
+    r.mutable_header()->set_operator_sequence(seq);
+    *r.mutable_eye() = V(0.5, 1, 1.6);
+    *r.mutable_hand() = V(0.5, 1, 1.6);  // hand at the eye: guarded
+    *r.mutable_hand_displacement() = V(0, 0.02, 0);
+    grpc::ClientContext ctx;
+    return stub_->PickAndPlace(&ctx, r, out);
+  }
+  cv1::ControlState State() {
+    grpc::ClientContext ctx;
+    cv1::ControlState s;
+    EXPECT_TRUE(stub_->GetControlState(&ctx, cv1::ControlStateRequest(), &s).ok());
+    return s;
+  }
+
+  std::unique_ptr<ExoviewServer> server_;
+  std::shared_ptr<grpc::Channel> channel_;
+  std::unique_ptr<cv1::Control::Stub> stub_;
+};
+
+// The drone side: one DroneLink stream, setpoints read on their own thread.
+class DroneSide {
+ public:
+  DroneSide(cv1::Control::Stub* stub, control::SimDrone* drone) : drone_(drone) {
+    stream_ = stub->DroneLink(&ctx_);
+    reader_ = std::thread([this] {
+      cv1::Setpoint sp;
+      while (stream_->Read(&sp)) {
+        std::lock_guard lock(mu_);
+        pending_.push_back(sp);
+        all_.push_back(sp);
+      }
+    });
+  }
+  ~DroneSide() { Close(); }
+  // Applies the setpoints received so far, steps the drone and sends its state.
+  bool Step() {
+    std::vector<cv1::Setpoint> got;
+    {
+      std::lock_guard lock(mu_);
+      got.swap(pending_);
+    }
+    const double now = drone_->state().timestamp_s;
+    for (const auto& sp : got)
+      drone_->Receive({{sp.position().x(), sp.position().y(), sp.position().z()}, sp.yaw()}, now);
+    const control::DroneState& s = drone_->Step();
+    cv1::DroneState msg;
+    msg.set_drone_id("drone");
+    msg.set_sequence(++sequence_);
+    msg.set_timestamp_s(s.timestamp_s);
+    msg.mutable_position()->set_x(s.position.x);
+    msg.mutable_position()->set_y(s.position.y);
+    msg.mutable_position()->set_z(s.position.z);
+    msg.set_yaw(s.yaw);
+    msg.set_mode(drone_->mode() == control::FlightMode::kHold ? cv1::HOLD_POSITION : cv1::OFFBOARD);
+    return stream_->Write(msg);
+  }
+  void Close() {
+    if (closed_) return;
+    closed_ = true;
+    stream_->WritesDone();
+    reader_.join();
+    EXPECT_TRUE(stream_->Finish().ok());
+  }
+  std::vector<cv1::Setpoint> received() {
+    std::lock_guard lock(mu_);
+    return all_;
+  }
+
+ private:
+  control::SimDrone* drone_;
+  grpc::ClientContext ctx_;
+  std::unique_ptr<grpc::ClientReaderWriter<cv1::DroneState, cv1::Setpoint>> stream_;
+  std::thread reader_;
+  std::mutex mu_;
+  std::vector<cv1::Setpoint> pending_, all_;
+  uint64_t sequence_ = 0;
+  bool closed_ = false;
+};
+
+// Runs the drone in real time (120 Hz) for `seconds`.
+void Fly(DroneSide* side, double seconds, control::CollisionMonitor* collisions,
+         const control::SimDrone& drone) {
+  auto next = std::chrono::steady_clock::now();
+  for (int i = 0; i < static_cast<int>(seconds * 120); ++i) {
+    ASSERT_TRUE(side->Step());
+    if (collisions) collisions->Update(drone.state().position);
+    next += std::chrono::microseconds(8333);
+    std::this_thread::sleep_until(next);
+  }
+}
+
+TEST_F(ControlServiceTest, OperatorsNeedAConnectedDroneAndGetClearStatuses) {
+  cv1::InteractionReply reply;
+  EXPECT_FALSE(State().drone_known());
+  grpc::Status s = Pick("alice", 1, &reply);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::FAILED_PRECONDITION);
+  EXPECT_NE(s.error_message().find("has not reported its state"), std::string::npos);
+
+  control::SimDrone drone{control::SimDroneOptions{}};
+  drone.Reset({1, 1, 1}, 0);
+  DroneSide side(stub_.get(), &drone);
+  ASSERT_TRUE(side.Step());
+  for (int i = 0; i < 200 && !State().drone_known(); ++i)
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  ASSERT_TRUE(State().drone_known());
+
+  // Gaze at the sky: NOT_FOUND, nothing commanded.
+  s = Gaze("alice", 2, {1, 1, 1.5}, {-1, 0, 1}, &reply);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::NOT_FOUND);
+  EXPECT_NE(s.error_message().find("hits no modelled surface"), std::string::npos);
+  // A stale operator sequence: ABORTED.
+  s = Gaze("alice", 2, {1, 1, 1.5}, {1, 0, 0}, &reply);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::ABORTED);
+  EXPECT_EQ(State().command_sequence(), 0u);
+
+  // Two operators at once: both accepted, the later command wins, both see it.
+  cv1::InteractionReply ra, rb;
+  grpc::Status sa, sb;
+  std::thread ta([&] { sa = Gaze("alice", 3, {0.5, 1, 1.5}, {1, 0, 0}, &ra); });
+  std::thread tb([&] { sb = Pick("bob", 1, &rb); });
+  ta.join();
+  tb.join();
+  ASSERT_TRUE(sa.ok()) << sa.error_message();
+  ASSERT_TRUE(sb.ok()) << sb.error_message();
+  EXPECT_NE(ra.command_sequence(), rb.command_sequence());
+  EXPECT_NE(rb.note().find("hand-eye distance guarded"), std::string::npos);
+  const bool bob_won = rb.command_sequence() > ra.command_sequence();
+  const uint64_t winner = std::max(ra.command_sequence(), rb.command_sequence());
+  const cv1::ControlState seen_by_alice = State(), seen_by_bob = State();
+  for (const auto& st : {seen_by_alice, seen_by_bob}) {
+    EXPECT_EQ(st.command_sequence(), winner);
+    EXPECT_EQ(st.operator_id(), bob_won ? "bob" : "alice");
+    EXPECT_EQ(st.interaction(), bob_won ? cv1::PICK_AND_PLACE : cv1::GAZE_TO_SEE);
+  }
+  // The drone side receives the winner's setpoint.
+  Fly(&side, 0.2, nullptr, drone);
+  const auto got = side.received();
+  ASSERT_FALSE(got.empty());
+  EXPECT_EQ(got.back().command_sequence(), winner);
+  EXPECT_EQ(got.back().operator_id(), bob_won ? "bob" : "alice");
+  side.Close();
+}
+
+TEST_F(ControlServiceTest, GazeRouteThroughTheDoorSurvivesADroneReconnect) {
+  control::SimDrone drone{control::SimDroneOptions{}};
+  drone.Reset({1, 0.8, 1.0}, 0);
+  control::CollisionMonitor collisions(House(), drone.options().radius_m);
+  auto first = std::make_unique<DroneSide>(stub_.get(), &drone);
+  ASSERT_TRUE(first->Step());
+  for (int i = 0; i < 200 && !State().drone_known(); ++i)
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  cv1::InteractionReply reply;
+  const grpc::Status s = Gaze("alice", 1, {1, 2, 1.5}, {1, 0.05, 0}, &reply);
+  ASSERT_TRUE(s.ok()) << s.error_message();
+  ASSERT_TRUE(reply.has_gaze());
+  EXPECT_NEAR(reply.gaze_point().x(), 8.0, 1e-6);
+  ASSERT_GE(reply.waypoints_size(), 2);
+  const glm::dvec3 target(reply.target().x(), reply.target().y(), reply.target().z());
+
+  // Mid-route the drone side drops the link and reconnects.
+  Fly(first.get(), 2.0, &collisions, drone);
+  const auto before = first->received();
+  first->Close();
+  ASSERT_FALSE(before.empty());
+  for (int i = 0; i < 24; ++i) collisions.Update(drone.Step().position);  // 0.2 s unlinked
+  DroneSide second(stub_.get(), &drone);
+  Fly(&second, 8.0, &collisions, drone);
+  const auto after = second.received();
+  ASSERT_FALSE(after.empty());
+  // Same command, the route continues (waypoint index and sequence never go back).
+  EXPECT_EQ(after.front().command_sequence(), reply.command_sequence());
+  EXPECT_GE(after.front().waypoint_index(), before.back().waypoint_index());
+  EXPECT_GE(after.front().sequence(), before.back().sequence());
+  uint64_t prev_seq = 0;
+  for (const auto& sp : after) {
+    EXPECT_GE(sp.sequence(), prev_seq);
+    prev_seq = sp.sequence();
+  }
+  EXPECT_EQ(after.back().waypoint_index() + 1, after.back().waypoint_count());
+  EXPECT_LT(glm::length(drone.state().position - target), 0.05);
+  EXPECT_EQ(collisions.collisions(), 0u);
+  const cv1::ControlState st = State();
+  EXPECT_EQ(st.waypoint_index() + 1u, static_cast<uint32_t>(st.waypoints_size()));
+  EXPECT_GT(st.states_received(), 1000u);
+  second.Close();
+}
+
+TEST(ControlServiceConfig, KeysParseAndRejectWithClearErrors) {
+  ServerConfig c;
+  EXPECT_FALSE(c.control.enabled());
+  ASSERT_TRUE(ApplyConfigValue("control_zones", "a:0,0,0,4,4,3; b:4,1,0,6,2,3", &c).ok());
+  EXPECT_EQ(c.control.core.safe.zones.size(), 2u);
+  EXPECT_TRUE(c.control.enabled());
+  ASSERT_TRUE(ApplyConfigValue("control_up", "0,-1,0", &c).ok());
+  EXPECT_EQ(c.control.core.up, glm::dvec3(0, -1, 0));
+  ASSERT_TRUE(ApplyConfigValue("control_portals", "4,1.5,1; 6,1.5,1", &c).ok());
+  EXPECT_EQ(c.control.core.safe.portals.size(), 2u);
+  auto bad = ApplyConfigValue("control_zones", "a:0,0,0,4,4", &c);
+  EXPECT_NE(bad.message().find("control_zones"), std::string::npos);
+  EXPECT_FALSE(ApplyConfigValue("control_up", "0,0,0", &c).ok());
+  EXPECT_FALSE(ApplyConfigValue("control_cell_m", "-1", &c).ok());
+  ASSERT_TRUE(ApplyConfigValue("control_cell_m", "0.2", &c).ok());
+  EXPECT_EQ(c.control.core.safe.cell_m, 0.2);
+}
+
+}  // namespace
+}  // namespace exo
