@@ -395,25 +395,46 @@ absl::Status ExoviewServer::Start() {
   store_ = std::make_unique<ModelStore>(config_.store);
   EXO_ASSIGN_OR_RETURN(auto stages, MakeStages(config_));
   pipeline_ = std::make_unique<Pipeline>(config_.pipeline, store_.get(), std::move(stages));
-  if (!config_.checkpoint_path.empty() && std::filesystem::exists(config_.checkpoint_path)) {
-    std::ifstream in(config_.checkpoint_path, std::ios::binary);
+  if (!config_.checkpoint_path.empty()) {
+    // The newest generation, or the previous one (path.prev) when the newest is missing or does
+    // not parse (a truncated file must not stop the server from starting).
+    const std::string prev = config_.checkpoint_path + ".prev";
     v1::Checkpoint c;
-    if (!in || !c.ParseFromIstream(&in))
-      return absl::DataLossError(absl::StrCat("cannot parse checkpoint ", config_.checkpoint_path));
-    EXO_RETURN_IF_ERROR(store_->RestoreCheckpoint(c));
-    for (const auto& d : c.model())
-      if (d.has_scene_params()) {
-        const auto& o = d.scene_params().origin_in_world();
-        LocalOrigin origin;
-        origin.origin_in_world = {o.x(), o.y(), o.z()};
-        if (config_.pipeline.model.cell_m > 0 &&
-            d.scene_params().cell_size_m() != config_.pipeline.model.cell_m)
-          return absl::FailedPreconditionError("checkpoint: cell_size_m differs from the config");
-        pipeline_->RestoreOrigin(origin, d.scene_params().cell_size_m());
+    std::string loaded;
+    for (const std::string& path : {config_.checkpoint_path, prev}) {
+      if (!std::filesystem::exists(path)) continue;
+      std::ifstream in(path, std::ios::binary);
+      v1::Checkpoint candidate;
+      if (in && candidate.ParseFromIstream(&in) && candidate.format() == 1) {
+        c = std::move(candidate);
+        loaded = path;
+        break;
       }
-    restored_version_ = checkpoint_version_ = c.version();
-    log::Get("server")->info("restored checkpoint {} at version {} ({} views)",
-                             config_.checkpoint_path, c.version(), store_->GetSummary().num_views);
+      log::Get("server")->error(
+          "checkpoint {} is corrupt or truncated (does not parse); trying the previous "
+          "generation {}",
+          path, prev);
+    }
+    if (loaded.empty() && (std::filesystem::exists(config_.checkpoint_path) ||
+                           std::filesystem::exists(prev)))
+      return absl::DataLossError(absl::StrCat("cannot parse checkpoint ", config_.checkpoint_path,
+                                              " nor its previous generation ", prev));
+    if (!loaded.empty()) {
+      EXO_RETURN_IF_ERROR(store_->RestoreCheckpoint(c));
+      for (const auto& d : c.model())
+        if (d.has_scene_params()) {
+          const auto& o = d.scene_params().origin_in_world();
+          LocalOrigin origin;
+          origin.origin_in_world = {o.x(), o.y(), o.z()};
+          if (config_.pipeline.model.cell_m > 0 &&
+              d.scene_params().cell_size_m() != config_.pipeline.model.cell_m)
+            return absl::FailedPreconditionError("checkpoint: cell_size_m differs from the config");
+          pipeline_->RestoreOrigin(origin, d.scene_params().cell_size_m());
+        }
+      restored_version_ = checkpoint_version_ = c.version();
+      log::Get("server")->info("restored checkpoint {} at version {} ({} views)", loaded,
+                               c.version(), store_->GetSummary().num_views);
+    }
   }
   if (!config_.checkpoint_path.empty() && config_.checkpoint_interval_s > 0) {
     checkpoint_thread_ = std::thread([this] {
@@ -499,7 +520,14 @@ absl::Status ExoviewServer::WriteCheckpoint() {
     std::fclose(f);
     if (!ok) return absl::UnavailableError(absl::StrCat("short write to ", tmp));
   }
-  // Atomic: a reader (a restarted server) sees the old or the new file, never a partial one.
+  // Atomic: a reader (a restarted server) sees the old or the new file, never a partial one. The
+  // previous generation is kept as path.prev (the fallback when the newest does not parse).
+  // (A crash between the two renames leaves only path.prev, which the start also reads.)
+  if (std::filesystem::exists(config_.checkpoint_path) &&
+      std::rename(config_.checkpoint_path.c_str(), (config_.checkpoint_path + ".prev").c_str()) !=
+          0)
+    return absl::UnavailableError(absl::StrCat("cannot keep the previous checkpoint generation of ",
+                                               config_.checkpoint_path));
   if (std::rename(tmp.c_str(), config_.checkpoint_path.c_str()) != 0)
     return absl::UnavailableError(absl::StrCat("cannot rename ", tmp));
   checkpoint_version_ = c.version();
