@@ -113,14 +113,9 @@ void DepthToProto(const ImageF& depth_m, double metres_per_unit, v1::DepthImage*
   out->set_depth_scale_m(metres_per_unit);
 }
 
-absl::StatusOr<ImageF> DepthFromProto(const v1::DepthImage& d) {
-  if (!(d.depth_scale_m() > 0.0) || !std::isfinite(d.depth_scale_m()))
-    return absl::InvalidArgumentError(
-        absl::StrCat("depth scale must be a positive number of metres per unit, got ",
-                     d.depth_scale_m()));
-  if (d.width() <= 0 || d.height() <= 0)
-    return absl::InvalidArgumentError(
-        absl::StrCat("depth image size ", d.width(), "x", d.height(), " is empty"));
+absl::StatusOr<ImageF> DepthFromProto(const v1::DepthImage& d, const FrameLimits& limits) {
+  EXO_RETURN_IF_ERROR(CheckDepthScale(d.depth_scale_m(), limits));
+  EXO_RETURN_IF_ERROR(CheckImageSize(d.width(), d.height(), limits, "depth image"));
   ImageU16 raw;
   switch (d.codec()) {
     case v1::DEPTH_CODEC_RAW_U16: {
@@ -134,16 +129,22 @@ absl::StatusOr<ImageF> DepthFromProto(const v1::DepthImage& d) {
       break;
     }
     case v1::DEPTH_CODEC_EXO_U16: {
-      auto decoded = DecodeDepth(std::span<const uint8_t>(
-          reinterpret_cast<const uint8_t*>(d.data().data()), d.data().size()));
+      const std::span<const uint8_t> bytes(reinterpret_cast<const uint8_t*>(d.data().data()),
+                                           d.data().size());
+      // The codec header first: its size must be the message's before anything is decoded.
+      auto info = ReadDepthInfo(bytes);
+      if (!info.ok())
+        return absl::InvalidArgumentError(
+            absl::StrCat("depth does not decode: ", info.status().message()));
+      if (info->width != d.width() || info->height != d.height())
+        return absl::InvalidArgumentError(
+            absl::StrCat("depth decodes to ", info->width, "x", info->height,
+                         " but the message says ", d.width(), "x", d.height()));
+      auto decoded = DecodeDepth(bytes, limits.max_pixels);
       if (!decoded.ok())
         return absl::InvalidArgumentError(
             absl::StrCat("depth does not decode: ", decoded.status().message()));
       raw = *std::move(decoded);
-      if (raw.width() != d.width() || raw.height() != d.height())
-        return absl::InvalidArgumentError(
-            absl::StrCat("depth decodes to ", raw.width(), "x", raw.height(),
-                         " but the message says ", d.width(), "x", d.height()));
       break;
     }
     default:
@@ -186,11 +187,11 @@ absl::StatusOr<v1::Frame> FrameToProto(const Frame& f, const FrameEncodeOptions&
 }
 
 absl::StatusOr<Frame> FrameFromProto(const v1::Frame& msg, const FrameDecodeOptions& options) {
+  const FrameLimits& limits = options.limits;
   Frame f;
   f.sequence = msg.sequence();
   f.timestamp_s = msg.timestamp_s();
-  if (!std::isfinite(msg.timestamp_s()))
-    return absl::InvalidArgumentError("timestamp is NaN or Inf");
+  EXO_RETURN_IF_ERROR(CheckTimestamp(msg.timestamp_s(), limits));
   if (!msg.has_color_intrinsics())
     return absl::InvalidArgumentError("missing intrinsics: the frame has no color_intrinsics");
   {
@@ -199,16 +200,14 @@ absl::StatusOr<Frame> FrameFromProto(const v1::Frame& msg, const FrameDecodeOpti
       return absl::InvalidArgumentError(absl::StrCat("colour intrinsics: ", cam.status().message()));
     f.color_camera = *cam;
   }
-  if (static_cast<int64_t>(f.color_camera.width) * f.color_camera.height > options.max_pixels)
-    return absl::InvalidArgumentError(absl::StrCat("colour image ", f.color_camera.width, "x",
-                                                   f.color_camera.height, " exceeds ",
-                                                   options.max_pixels, " pixels"));
+  EXO_RETURN_IF_ERROR(CheckIntrinsics(f.color_camera, limits, "colour intrinsics"));
   f.depth_camera = f.color_camera;
   if (msg.has_depth_intrinsics()) {
     auto cam = IntrinsicsFromProto(msg.depth_intrinsics());
     if (!cam.ok())
       return absl::InvalidArgumentError(absl::StrCat("depth intrinsics: ", cam.status().message()));
     f.depth_camera = *cam;
+    EXO_RETURN_IF_ERROR(CheckIntrinsics(f.depth_camera, limits, "depth intrinsics"));
   }
   if (msg.has_color_from_depth()) {
     auto p = PoseFromProto(msg.color_from_depth());
@@ -216,26 +215,37 @@ absl::StatusOr<Frame> FrameFromProto(const v1::Frame& msg, const FrameDecodeOpti
       return absl::InvalidArgumentError(
           absl::StrCat("depth-to-colour extrinsic: ", p.status().message()));
     f.color_from_depth = *p;
+    EXO_RETURN_IF_ERROR(CheckColorFromDepth(f.color_from_depth, limits));
   }
   if (msg.has_world_from_cam()) {
     auto p = PoseFromProto(msg.world_from_cam());
     if (!p.ok()) return absl::InvalidArgumentError(absl::StrCat("pose: ", p.status().message()));
     f.world_from_cam = *p;
+    EXO_RETURN_IF_ERROR(CheckCameraPosition(f.world_from_cam.translation, limits));
   } else if (options.pose_required) {
     return absl::InvalidArgumentError("missing pose: the frame has no world_from_cam");
   }
   if (msg.exposure() != 0.0) {  // 0 = not given
-    if (!std::isfinite(msg.exposure()) || msg.exposure() <= 0.0)
-      return absl::InvalidArgumentError(
-          absl::StrCat("exposure must be finite and > 0, got ", msg.exposure()));
+    EXO_RETURN_IF_ERROR(CheckExposure(msg.exposure(), limits));
     f.exposure = msg.exposure();
   }
-  // Colour: header first (cheap size check), then the full decode.
+  // Depth sizes before any decode allocates (colour or depth).
+  if (msg.has_depth()) {
+    const auto& d = msg.depth();
+    if (d.width() != f.depth_camera.width || d.height() != f.depth_camera.height)
+      return absl::InvalidArgumentError(absl::StrCat(
+          "depth image is ", d.width(), "x", d.height(), " but depth intrinsics say ",
+          f.depth_camera.width, "x", f.depth_camera.height));
+  }
+  // Colour: header first (cheap size and frame-type check), then the full decode.
   const std::span<const uint8_t> jpeg(reinterpret_cast<const uint8_t*>(msg.color_jpeg().data()),
                                       msg.color_jpeg().size());
   if (jpeg.empty()) return absl::InvalidArgumentError("colour JPEG is empty");
+  JpegLimits jpeg_limits;
+  jpeg_limits.max_pixels = limits.max_pixels;
+  jpeg_limits.sequential_only = true;  // one MJPEG frame (proto: baseline JPEG)
   {
-    auto info = ReadJpegInfo(jpeg);
+    auto info = ReadJpegInfo(jpeg, jpeg_limits);
     if (!info.ok())
       return absl::InvalidArgumentError(
           absl::StrCat("corrupt colour JPEG: ", info.status().message()));
@@ -244,24 +254,32 @@ absl::StatusOr<Frame> FrameFromProto(const v1::Frame& msg, const FrameDecodeOpti
           "colour JPEG is ", info->width, "x", info->height, " but intrinsics say ",
           f.color_camera.width, "x", f.color_camera.height));
   }
+  if (msg.has_depth()) {
+    // The depth header too, before the colour decode allocates.
+    const auto& d = msg.depth();
+    EXO_RETURN_IF_ERROR(CheckDepthScale(d.depth_scale_m(), limits));
+    if (d.codec() == v1::DEPTH_CODEC_EXO_U16) {
+      auto info = ReadDepthInfo(std::span<const uint8_t>(
+          reinterpret_cast<const uint8_t*>(d.data().data()), d.data().size()));
+      if (!info.ok())
+        return absl::InvalidArgumentError(
+            absl::StrCat("depth does not decode: ", info.status().message()));
+    }
+  }
   {
-    auto rgb = DecodeJpeg(jpeg);
+    auto rgb = DecodeJpeg(jpeg, jpeg_limits);
     if (!rgb.ok())
       return absl::InvalidArgumentError(
           absl::StrCat("corrupt colour JPEG: ", rgb.status().message()));
     f.color = *std::move(rgb);
   }
   if (msg.has_depth()) {
-    const auto& d = msg.depth();
-    if (d.width() != f.depth_camera.width || d.height() != f.depth_camera.height)
-      return absl::InvalidArgumentError(absl::StrCat(
-          "depth image is ", d.width(), "x", d.height(), " but depth intrinsics say ",
-          f.depth_camera.width, "x", f.depth_camera.height));
-    auto depth = DepthFromProto(d);
+    auto depth = DepthFromProto(msg.depth(), limits);
     if (!depth.ok()) return depth.status();
     f.depth_m = *std::move(depth);
   }
-  EXO_RETURN_IF_ERROR(f.Validate());
+  if (msg.has_world_from_cam() || options.pose_required) EXO_RETURN_IF_ERROR(CheckFrame(f, limits));
+  else EXO_RETURN_IF_ERROR(f.Validate());
   return f;
 }
 

@@ -14,6 +14,7 @@
 #include "common/rigid3.h"
 #include "common/status.h"
 #include "proto/exoview.pb.h"
+#include "proto/frame_limits.h"
 
 namespace exo {
 
@@ -31,7 +32,9 @@ absl::StatusOr<PinholeCamera> IntrinsicsFromProto(const v1::Intrinsics& intrinsi
 
 // Depth: encodes metres as u16 with `metres_per_unit` using the lossless common/io codec.
 void DepthToProto(const ImageF& depth_m, double metres_per_unit, v1::DepthImage* out);
-absl::StatusOr<ImageF> DepthFromProto(const v1::DepthImage& depth);
+// The size (against `limits`) and the codec header are checked before anything is allocated; the
+// depth scale must lie within the limits.
+absl::StatusOr<ImageF> DepthFromProto(const v1::DepthImage& depth, const FrameLimits& limits = {});
 
 // Frame for upload: colour re-encoded as JPEG of `jpeg_quality`, depth losslessly as u16.
 struct FrameEncodeOptions {
@@ -41,11 +44,13 @@ struct FrameEncodeOptions {
 };
 absl::StatusOr<v1::Frame> FrameToProto(const Frame& frame, const FrameEncodeOptions& options);
 
-// Full ingest decode + validation of one uploaded frame. `pose_required` = false when the
-// server has a UDP pose stream (the pose may then be absent and is filled in by the caller).
+// Full ingest decode + validation of one uploaded frame: every plausibility limit of
+// frame_limits.h, sizes checked before any decode allocates. `pose_required` = false when the
+// server has a UDP pose stream (the pose may then be absent and is filled in by the caller, who
+// then runs CheckFrame).
 struct FrameDecodeOptions {
   bool pose_required = true;
-  int64_t max_pixels = int64_t{1} << 24;  // 16 Mpix per image
+  FrameLimits limits;
 };
 absl::StatusOr<Frame> FrameFromProto(const v1::Frame& msg, const FrameDecodeOptions& options);
 

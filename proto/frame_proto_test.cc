@@ -116,7 +116,8 @@ TEST(FrameProto, NearOrthonormalRotationIsProjectedFarOneRejectedWithTheError) {
       << r4.status();
 }
 
-// Exposure is a plain double (no proto3 `optional`): 0 = not given, a given one must be > 0.
+// Exposure is a plain double (no proto3 `optional`): 0 = not given, a given one must lie within
+// the exposure limits (frame_limits.h).
 TEST(FrameProto, ExposureZeroMeansNotGivenNegativeIsRejected) {
   Frame f = SmallFrame();
   f.exposure = 1.5;
@@ -133,7 +134,9 @@ TEST(FrameProto, ExposureZeroMeansNotGivenNegativeIsRejected) {
   m.set_exposure(-2.0);
   auto r3 = FrameFromProto(m, {});
   ASSERT_FALSE(r3.ok());
-  EXPECT_NE(r3.status().message().find("exposure must be finite and > 0"), std::string::npos);
+  EXPECT_NE(r3.status().message().find("exposure -2 (-2 as stored float) is outside [0.001, 1000]"),
+            std::string::npos)
+      << r3.status();
 }
 
 // Ack.code carries the absl::StatusCode of a rejection, number for number (google.rpc.Code).

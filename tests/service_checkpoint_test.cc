@@ -167,5 +167,41 @@ TEST_F(ServiceCheckpoint, ViewerAheadOfTheCheckpointIsResyncedBySnapshot) {
   server_.reset();
 }
 
+// Issue 20: a truncated checkpoint made the server refuse to start. The previous generation is
+// kept as model.ckpt.prev; a newest file that does not parse falls back to it with a log line.
+TEST_F(ServiceCheckpoint, TruncatedNewestCheckpointFallsBackToThePreviousGeneration) {
+  StartCheckpointedServer("server1.log");
+  ASSERT_EQ(Upload(0, 10, "up1"), 0);
+  const v1::Stats first = WaitForSettledCheckpoint();
+  ASSERT_EQ(Upload(10, 10, "up2"), 0);
+  const v1::Stats second = WaitForSettledCheckpoint();
+  ASSERT_GT(second.model_version(), first.model_version());
+  server_->Signal(SIGKILL);
+  server_->Wait(10);
+  const std::string ckpt = dir_ + "/model.ckpt";
+  ASSERT_TRUE(std::filesystem::exists(ckpt + ".prev"));
+  v1::Checkpoint prev;
+  {
+    std::ifstream in(ckpt + ".prev", std::ios::binary);
+    ASSERT_TRUE(prev.ParseFromIstream(&in));
+  }
+  ASSERT_GE(prev.version(), first.model_version());
+  ASSERT_LT(prev.version(), second.model_version());
+  // Truncated mid-message (a cut that happens to fall between two fields would still parse).
+  for (uintmax_t cut = std::filesystem::file_size(ckpt) / 2;; --cut) {
+    std::filesystem::resize_file(ckpt, cut);
+    v1::Checkpoint c;
+    std::ifstream in(ckpt, std::ios::binary);
+    if (!c.ParseFromIstream(&in)) break;
+  }
+  StartCheckpointedServer("server2.log");
+  const v1::Stats restored = Stats();
+  EXPECT_EQ(restored.model_version(), prev.version());
+  EXPECT_NE(server_->Log().find("is corrupt or truncated (does not parse); trying the previous "
+                                "generation"),
+            std::string::npos)
+      << server_->Log();
+}
+
 }  // namespace
 }  // namespace exo

@@ -1,5 +1,7 @@
 #include "client/store/local_store.h"
 
+#include <algorithm>
+#include <cmath>
 #include <utility>
 
 namespace exo {
@@ -101,6 +103,44 @@ absl::Status LocalStore::Apply(const v1::Delta& d) {
 
 uint64_t LocalStore::Digest() const {
   return ModelDigest(view_records_, model_.cell_refs, chunk_records_);
+}
+
+absl::Status CheckRenderableView(const StoredView& v) {
+  EXO_RETURN_IF_ERROR(v.camera.Validate());
+  const int w = v.camera.width, h = v.camera.height;
+  if (w > 16384 || h > 16384)
+    return absl::InvalidArgumentError(absl::StrCat("size ", w, "x", h, " above 16384"));
+  if (v.color.width() != w || v.color.height() != h || v.color.channels() != 3)
+    return absl::InvalidArgumentError(absl::StrCat("colour is not RGB8 ", w, "x", h));
+  if (v.depth_m.width() != w || v.depth_m.height() != h || v.depth_m.channels() != 1)
+    return absl::InvalidArgumentError(absl::StrCat("depth is not 1 channel ", w, "x", h));
+  if (!std::isfinite(v.exposure) || !(v.exposure > 0.0f))
+    return absl::InvalidArgumentError(
+        absl::StrCat("exposure must be finite and > 0, got ", v.exposure));
+  EXO_RETURN_IF_ERROR(ValidateQuaternion(v.local_from_cam.rotation));
+  const glm::dvec3& t = v.local_from_cam.translation;
+  if (!std::isfinite(t.x) || !std::isfinite(t.y) || !std::isfinite(t.z))
+    return absl::InvalidArgumentError("non-finite position");
+  return absl::OkStatus();
+}
+
+std::optional<LumigraphModel> WithoutUnusableViews(const LumigraphModel& model,
+                                                   std::vector<std::string>* skipped) {
+  if (std::all_of(model.views.begin(), model.views.end(),
+                  [](const auto& kv) { return CheckRenderableView(kv.second).ok(); }))
+    return std::nullopt;
+  LumigraphModel out = model;
+  for (auto it = out.views.begin(); it != out.views.end();) {
+    if (absl::Status s = CheckRenderableView(it->second); !s.ok()) {
+      skipped->push_back(absl::StrCat("view ", it->first, ": ", s.message()));
+      const ViewId id = it->first;
+      it = out.views.erase(it);
+      for (auto& [cell, refs] : out.cell_refs) refs.erase(std::remove(refs.begin(), refs.end(), id), refs.end());
+    } else {
+      ++it;
+    }
+  }
+  return out;
 }
 
 }  // namespace exo

@@ -6,6 +6,9 @@
 
 #include <cstdint>
 #include <map>
+#include <optional>
+#include <string>
+#include <vector>
 
 #include "common/lumigraph/model.h"
 #include "common/status.h"
@@ -48,5 +51,15 @@ class LocalStore {
   uint64_t deltas_applied_ = 0, snapshots_applied_ = 0;
   uint64_t epoch_ = 0;
 };
+
+// Defensive client (issue 20): why a received view cannot be rendered (non-finite or
+// non-positive exposure, invalid intrinsics, images that do not match them, a side above 16384,
+// a rotation that is not a unit quaternion, a non-finite position); OK when it can.
+absl::Status CheckRenderableView(const StoredView& view);
+// A copy of `model` without the views a renderer cannot use (nullopt, no copy, when every view is
+// usable); each skipped view is described in `skipped` ("view 16: exposure ..."). Cell
+// references to a skipped view are dropped too.
+std::optional<LumigraphModel> WithoutUnusableViews(const LumigraphModel& model,
+                                                   std::vector<std::string>* skipped);
 
 }  // namespace exo

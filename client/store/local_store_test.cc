@@ -134,5 +134,30 @@ TEST(LocalStore, SnapshotReplacesTheModelOnlyWhenComplete) {
   EXPECT_EQ(s.Apply(stray_end).code(), absl::StatusCode::kFailedPrecondition);
 }
 
+// Issue 20: one view with an exposure that is inf as a float made exoview_viewer exit 1. The
+// viewer now renders from WithoutUnusableViews: the view is skipped and reported.
+TEST(LocalStore, UnusableViewsAreSkippedAndReported) {
+  LocalStore s;
+  ASSERT_TRUE(s.Apply(SceneDelta(1, 0.0)).ok());
+  ASSERT_TRUE(s.Apply(ViewDelta(2, 7)).ok());
+  v1::Delta bad = ViewDelta(3, 16);
+  bad.mutable_view_added()->set_exposure(std::numeric_limits<float>::infinity());
+  ASSERT_TRUE(s.Apply(bad).ok());
+  ASSERT_TRUE(s.Apply(CellsDelta(4, 42, {7, 16})).ok());
+  std::vector<std::string> skipped;
+  std::vector<std::string> none;
+  EXPECT_FALSE(WithoutUnusableViews(LumigraphModel{}, &none).has_value());
+  EXPECT_TRUE(none.empty());
+  const std::optional<LumigraphModel> filtered = WithoutUnusableViews(s.model(), &skipped);
+  ASSERT_TRUE(filtered.has_value());
+  const LumigraphModel& usable = *filtered;
+  ASSERT_EQ(skipped.size(), 1u);
+  EXPECT_EQ(skipped[0], "view 16: exposure must be finite and > 0, got inf");
+  EXPECT_EQ(usable.views.size(), 1u);
+  EXPECT_EQ(usable.views.count(7), 1u);
+  EXPECT_EQ(usable.cell_refs.at(42), std::vector<ViewId>{7});
+  EXPECT_EQ(s.model().views.size(), 2u);  // the store itself keeps what the server sent
+}
+
 }  // namespace
 }  // namespace exo

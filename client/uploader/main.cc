@@ -29,6 +29,12 @@ int main(int argc, char** argv) {
   std::string drone = "none";
   exo::SimFlightOptions flight;
   app.add_option("--server", server, "HOST:PORT of the server (required)");
+  exo::ChannelSecurity security;
+  app.add_option("--tls_ca", security.tls_ca, "CA certificate (PEM) of the server's certificate: TLS");
+  app.add_option("--tls_cert", security.tls_cert, "client certificate (PEM), for mutual TLS");
+  app.add_option("--tls_key", security.tls_key, "client private key (PEM)");
+  app.add_option("--tls_server_name", security.server_name, "name to verify in the server certificate");
+  app.add_option("--token_file", security.token_file, "file holding this client's bearer token");
   app.add_option("--synthetic", synthetic,
                  "stream the built-in synthetic scene: village | apartment")
       ->expected(0, 1)
@@ -143,8 +149,12 @@ int main(int argc, char** argv) {
   std::fprintf(stderr, "exoview_uploader: %s, %zu frames from %d at %.1f Hz -> %s\n",
                source->name().c_str(), std::min(count, source->size()), first, opt.rate_hz,
                server.c_str());
-  auto stats =
-      exo::UploadFrames(exo::MakeChannel(server), *source, static_cast<size_t>(first), count, opt);
+  auto channel = exo::MakeChannel(server, security);
+  if (!channel.ok()) {
+    std::fprintf(stderr, "exoview_uploader: %s\n", std::string(channel.status().message()).c_str());
+    return 2;
+  }
+  auto stats = exo::UploadFrames(*channel, *source, static_cast<size_t>(first), count, opt);
   if (!stats.ok()) {
     std::fprintf(stderr, "exoview_uploader: %s\n", std::string(stats.status().message()).c_str());
     return 1;

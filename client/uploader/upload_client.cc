@@ -4,7 +4,9 @@
 #include <chrono>
 #include <condition_variable>
 #include <cstdio>
+#include <fstream>
 #include <mutex>
+#include <sstream>
 #include <thread>
 #include <unordered_map>
 
@@ -55,6 +57,63 @@ std::shared_ptr<grpc::Channel> MakeChannel(const std::string& target, size_t max
   args.SetMaxReceiveMessageSize(static_cast<int>(max_message_bytes));
   args.SetMaxSendMessageSize(static_cast<int>(max_message_bytes));
   return grpc::CreateCustomChannel(target, grpc::InsecureChannelCredentials(), args);
+}
+
+namespace {
+absl::StatusOr<std::string> ReadFileText(const std::string& path, const char* what) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return absl::NotFoundError(absl::StrCat("cannot read ", what, " ", path));
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+// Adds "authorization: Bearer TOKEN" to every call of the channel.
+class BearerToken final : public grpc::MetadataCredentialsPlugin {
+ public:
+  explicit BearerToken(std::string token) : header_("Bearer " + std::move(token)) {}
+  bool IsBlocking() const override { return false; }
+  grpc::Status GetMetadata(grpc::string_ref, grpc::string_ref, const grpc::AuthContext&,
+                           std::multimap<grpc::string, grpc::string>* metadata) override {
+    metadata->insert({"authorization", header_});
+    return grpc::Status::OK;
+  }
+
+ private:
+  std::string header_;
+};
+}  // namespace
+
+absl::StatusOr<std::shared_ptr<grpc::Channel>> MakeChannel(const std::string& target,
+                                                           const ChannelSecurity& sec,
+                                                           size_t max_message_bytes) {
+  if (sec.empty()) return MakeChannel(target, max_message_bytes);
+  if (sec.tls_ca.empty())
+    return absl::InvalidArgumentError(
+        "--tls_cert/--tls_key/--token_file need TLS: give --tls_ca (the CA of the server's "
+        "certificate)");
+  if (sec.tls_cert.empty() != sec.tls_key.empty())
+    return absl::InvalidArgumentError("--tls_cert and --tls_key go together");
+  grpc::SslCredentialsOptions o;
+  EXO_ASSIGN_OR_RETURN(o.pem_root_certs, ReadFileText(sec.tls_ca, "--tls_ca"));
+  if (!sec.tls_cert.empty()) {
+    EXO_ASSIGN_OR_RETURN(o.pem_cert_chain, ReadFileText(sec.tls_cert, "--tls_cert"));
+    EXO_ASSIGN_OR_RETURN(o.pem_private_key, ReadFileText(sec.tls_key, "--tls_key"));
+  }
+  std::shared_ptr<grpc::ChannelCredentials> creds = grpc::SslCredentials(o);
+  if (!sec.token_file.empty()) {
+    EXO_ASSIGN_OR_RETURN(std::string text, ReadFileText(sec.token_file, "--token_file"));
+    std::string token = text.substr(0, text.find('\n'));
+    while (!token.empty() && (token.back() == '\r' || token.back() == ' ')) token.pop_back();
+    if (token.empty()) return absl::InvalidArgumentError("--token_file holds no token");
+    creds = grpc::CompositeChannelCredentials(
+        creds, grpc::MetadataCredentialsFromPlugin(std::make_unique<BearerToken>(token)));
+  }
+  grpc::ChannelArguments args;
+  args.SetMaxReceiveMessageSize(static_cast<int>(max_message_bytes));
+  args.SetMaxSendMessageSize(static_cast<int>(max_message_bytes));
+  if (!sec.server_name.empty()) args.SetSslTargetNameOverride(sec.server_name);
+  return grpc::CreateCustomChannel(target, creds, args);
 }
 
 absl::StatusOr<UploadAckStats> UploadStream(

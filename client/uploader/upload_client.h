@@ -45,6 +45,20 @@ struct UploadAckStats {
 
 std::shared_ptr<grpc::Channel> MakeChannel(const std::string& target, size_t max_message_bytes = 64 << 20);
 
+// How a client reaches a server with TLS and a role (docs/security.md). Empty = plain text.
+struct ChannelSecurity {
+  std::string tls_ca;           // CA that signed the server's certificate (PEM): turns TLS on
+  std::string tls_cert, tls_key;  // client certificate and key (PEM), for mutual TLS
+  std::string server_name;      // name to verify in the server certificate (default: the host)
+  std::string token_file;       // bearer token (first line of the file), sent on every call
+  bool empty() const { return tls_ca.empty() && tls_cert.empty() && token_file.empty(); }
+};
+// A channel with TLS (and a client certificate, and a per-call bearer token) when `security`
+// says so; plain text otherwise. A token needs TLS.
+absl::StatusOr<std::shared_ptr<grpc::Channel>> MakeChannel(const std::string& target,
+                                                           const ChannelSecurity& security,
+                                                           size_t max_message_bytes = 64 << 20);
+
 // Sends `count` messages produced by `next(i)` (which may fail: the error ends the upload).
 absl::StatusOr<UploadAckStats> UploadStream(
     const std::shared_ptr<grpc::Channel>& channel, size_t count,

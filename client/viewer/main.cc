@@ -48,6 +48,7 @@ double Ms(std::chrono::steady_clock::duration d) {
 
 struct Flags {
   std::string server, journal, state_json, delta_log, save_model;
+  exo::ChannelSecurity security;
   int save_model_jpeg_quality = 90;
   bool follow = false;
   uint64_t until_frames = 0;
@@ -125,6 +126,11 @@ int main(int argc, char** argv) {
       "exoview_viewer"};
   exo::cli::Setup(app);
   app.add_option("--server", f.server, "server address HOST:PORT (required)");
+  app.add_option("--tls_ca", f.security.tls_ca, "CA certificate (PEM) of the server's certificate: TLS");
+  app.add_option("--tls_cert", f.security.tls_cert, "client certificate (PEM), for mutual TLS");
+  app.add_option("--tls_key", f.security.tls_key, "client private key (PEM)");
+  app.add_option("--tls_server_name", f.security.server_name, "name to verify in the server certificate");
+  app.add_option("--token_file", f.security.token_file, "file holding this client's bearer token");
   app.add_option("--journal", f.journal, "delta journal file (resume after a restart)");
   app.add_option("--state_json", f.state_json,
                  "write the store's state (version, digest, counts) here");
@@ -185,7 +191,12 @@ int main(int argc, char** argv) {
     return 2;
   }
 
-  auto session = exo::ViewerSession::Open(exo::MakeChannel(f.server), f.journal);
+  auto channel = exo::MakeChannel(f.server, f.security);
+  if (!channel.ok()) {
+    std::fprintf(stderr, "exoview_viewer: %s\n", std::string(channel.status().message()).c_str());
+    return 2;
+  }
+  auto session = exo::ViewerSession::Open(*channel, f.journal);
   if (!session.ok()) return Fail(session.status());
   g_session = session->get();
   signal(SIGTERM, OnSignal);
@@ -213,6 +224,13 @@ int main(int argc, char** argv) {
   const exo::LocalStore& store = (*session)->store();
   const exo::SessionStats& ss = (*session)->stats();
   auto server = (*session)->ServerStats();
+  // Defensive: a view the renderer cannot use is skipped and reported, never fatal (issue 20).
+  std::vector<std::string> skipped;
+  const std::optional<exo::LumigraphModel> usable =
+      exo::WithoutUnusableViews(store.model(), &skipped);
+  const exo::LumigraphModel& model = usable ? *usable : store.model();
+  for (const std::string& s : skipped)
+    std::fprintf(stderr, "exoview_viewer: skipped an unusable view: %s\n", s.c_str());
   nlohmann::json state = {{"version", store.version()},
                           {"digest", store.Digest()},
                           {"views", store.model().views.size()},
@@ -224,6 +242,7 @@ int main(int argc, char** argv) {
                           {"resumed_from", ss.resumed_from},
                           {"replayed", ss.replayed},
                           {"sync_s", sync_s}};
+  state["skipped_views"] = skipped;
   if (server.ok()) {
     state["server_version"] = server->model_version();
     state["server_digest"] = server->model_digest();
@@ -236,7 +255,6 @@ int main(int argc, char** argv) {
     std::ofstream(tmp) << state.dump(2) << "\n";
     std::filesystem::rename(tmp, f.state_json);
   }
-  const exo::LumigraphModel& model = store.model();
   if (!f.save_model.empty()) {
     exo::ModelIoOptions mo;
     mo.color_jpeg_quality = f.save_model_jpeg_quality;

@@ -1,8 +1,12 @@
 #include "common/io/depth_codec.h"
 
+#include <png.h>
 #include <zstd.h>
 
+#include <bit>
 #include <cmath>
+#include <csetjmp>
+#include <cstdio>
 #include <cstring>
 #include <memory>
 #include <opencv2/imgcodecs.hpp>
@@ -98,6 +102,87 @@ absl::Status ZstdDecompress(std::span<const uint8_t> src, uint8_t* dst, size_t e
     return absl::InvalidArgumentError(
         absl::StrCat("depth payload decoded to ", r, " bytes, expected ", expected));
   return absl::OkStatus();
+}
+
+
+// ---- 16-bit greyscale PNG through libpng (never a general image decoder) ----
+constexpr uint8_t kPngSignature[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1A, '\n'};
+uint32_t GetU32Be(const uint8_t* p) {
+  return uint32_t{p[0]} << 24 | uint32_t{p[1]} << 16 | uint32_t{p[2]} << 8 | uint32_t{p[3]};
+}
+
+// The IHDR chunk, which the PNG format requires right after the signature: read and checked
+// before anything is allocated.
+absl::Status CheckPngHeader(std::span<const uint8_t> png, uint32_t w, uint32_t h) {
+  if (png.size() < 33 || std::memcmp(png.data(), kPngSignature, 8) != 0)
+    return absl::InvalidArgumentError("PNG depth payload has no PNG signature");
+  if (GetU32Be(png.data() + 8) != 13 || std::memcmp(png.data() + 12, "IHDR", 4) != 0)
+    return absl::InvalidArgumentError("PNG depth payload does not start with an IHDR chunk");
+  const uint32_t pw = GetU32Be(png.data() + 16), ph = GetU32Be(png.data() + 20);
+  const int bit_depth = png[24], colour_type = png[25], interlace = png[28];
+  if (pw != w || ph != h)
+    return absl::InvalidArgumentError(absl::StrCat("PNG depth payload is ", pw, "x", ph,
+                                                   ", the depth header says ", w, "x", h));
+  if (bit_depth != 16 || colour_type != 0 || interlace != 0)
+    return absl::InvalidArgumentError(absl::StrCat(
+        "PNG depth payload must be 16-bit greyscale, not interlaced; got bit depth ", bit_depth,
+        ", colour type ", colour_type, ", interlace ", interlace));
+  return absl::OkStatus();
+}
+
+struct PngSource {
+  const uint8_t* data;
+  size_t size;
+  size_t pos;
+  char error[200];
+};
+
+void PngReadFn(png_structp png, png_bytep out, png_size_t n) {
+  auto* src = static_cast<PngSource*>(png_get_io_ptr(png));
+  if (n > src->size - src->pos) png_error(png, "truncated PNG data");
+  std::memcpy(out, src->data + src->pos, n);
+  src->pos += n;
+}
+void PngErrorFn(png_structp png, png_const_charp msg) {
+  auto* src = static_cast<PngSource*>(png_get_error_ptr(png));
+  std::snprintf(src->error, sizeof(src->error), "%s", msg);
+  png_longjmp(png, 1);
+}
+void PngWarningFn(png_structp, png_const_charp) {}
+
+// libpng reports errors by longjmp: only trivially destructible locals live in this function.
+// `out` is w*h u16 (little-endian host), already allocated by the caller.
+bool DecodePng16(PngSource* src, uint32_t w, uint32_t h, uint16_t* out) {
+  png_structp png = png_create_read_struct(PNG_LIBPNG_VER_STRING, src, PngErrorFn, PngWarningFn);
+  if (png == nullptr) {
+    std::snprintf(src->error, sizeof(src->error), "libpng: cannot create a reader");
+    return false;
+  }
+  png_infop info = png_create_info_struct(png);
+  if (info == nullptr) {
+    png_destroy_read_struct(&png, nullptr, nullptr);
+    std::snprintf(src->error, sizeof(src->error), "libpng: cannot create an info struct");
+    return false;
+  }
+  if (setjmp(png_jmpbuf(png))) {
+    png_destroy_read_struct(&png, &info, nullptr);
+    return false;
+  }
+  png_set_user_limits(png, w, h);
+  png_set_chunk_malloc_max(png, 1 << 20);  // ancillary chunks (text, ICC) at most 1 MB
+  png_set_read_fn(png, src, PngReadFn);
+  png_read_info(png, info);
+  png_uint_32 pw = 0, ph = 0;
+  int bit_depth = 0, colour_type = 0, interlace = 0;
+  png_get_IHDR(png, info, &pw, &ph, &bit_depth, &colour_type, &interlace, nullptr, nullptr);
+  if (pw != w || ph != h || bit_depth != 16 || colour_type != PNG_COLOR_TYPE_GRAY ||
+      interlace != PNG_INTERLACE_NONE)
+    png_error(png, "PNG header changed between the checks");
+  png_set_swap(png);  // PNG samples are big-endian
+  for (uint32_t y = 0; y < h; ++y) png_read_row(png, reinterpret_cast<png_bytep>(out + size_t{y} * w), nullptr);
+  png_read_end(png, nullptr);
+  png_destroy_read_struct(&png, &info, nullptr);
+  return true;
 }
 
 }  // namespace
@@ -202,7 +287,7 @@ std::vector<uint8_t> EncodeDepth(const ImageU16& depth) {
   return *std::move(r);
 }
 
-absl::StatusOr<ImageU16> DecodeDepth(std::span<const uint8_t> bytes) {
+absl::StatusOr<DepthInfo> ReadDepthInfo(std::span<const uint8_t> bytes) {
   if (bytes.size() < kDepthHeaderBytes)
     return absl::InvalidArgumentError(absl::StrCat("depth data truncated: ", bytes.size(),
                                                    " bytes, the header alone is ",
@@ -214,19 +299,36 @@ absl::StatusOr<ImageU16> DecodeDepth(std::span<const uint8_t> bytes) {
         absl::StrCat("unsupported depth stream version ", int{bytes[4]}, " (this build reads ",
                      int{kVersion}, ")"));
   const uint8_t codec_byte = bytes[5];
+  if (codec_byte < static_cast<uint8_t>(DepthCodec::kRawZstd) ||
+      codec_byte > static_cast<uint8_t>(DepthCodec::kPng))
+    return absl::InvalidArgumentError(absl::StrCat("unknown depth codec id ", int{codec_byte}));
   const uint32_t w = GetU32(bytes.data() + 8);
   const uint32_t h = GetU32(bytes.data() + 12);
   const uint32_t payload = GetU32(bytes.data() + 16);
-  if (w == 0 || h == 0 || int64_t{w} * h > kMaxDepthPixels || w > (1u << 20) || h > (1u << 20))
-    return absl::InvalidArgumentError(absl::StrCat("depth header has invalid size ", w, "x", h));
+  // Sides first: their product is then at most 2^40 (no overflow).
+  if (w == 0 || h == 0 || w > (1u << 20) || h > (1u << 20) ||
+      uint64_t{w} * uint64_t{h} > static_cast<uint64_t>(kMaxDepthPixels))
+    return absl::InvalidArgumentError(absl::StrCat("depth header has invalid size ", w, "x", h,
+                                                   " (limit ", kMaxDepthPixels, " pixels)"));
   if (payload != bytes.size() - kDepthHeaderBytes)
     return absl::InvalidArgumentError(
         absl::StrCat("depth data truncated or padded: header says ", payload,
                      " payload bytes, got ", bytes.size() - kDepthHeaderBytes));
+  return DepthInfo{static_cast<DepthCodec>(codec_byte), static_cast<int>(w), static_cast<int>(h)};
+}
+
+absl::StatusOr<ImageU16> DecodeDepth(std::span<const uint8_t> bytes, int64_t max_pixels) {
+  EXO_ASSIGN_OR_RETURN(const DepthInfo info, ReadDepthInfo(bytes));
+  const uint32_t w = static_cast<uint32_t>(info.width), h = static_cast<uint32_t>(info.height);
+  if (int64_t{info.width} * info.height > max_pixels)
+    return absl::InvalidArgumentError(absl::StrCat("depth header claims ", w, "x", h,
+                                                   ", above the limit of ", max_pixels,
+                                                   " pixels"));
   const auto body = bytes.subspan(kDepthHeaderBytes);
+  if (info.codec == DepthCodec::kPng) EXO_RETURN_IF_ERROR(CheckPngHeader(body, w, h));
   ImageU16 depth(static_cast<int>(w), static_cast<int>(h), 1);
   const size_t n = depth.size();
-  switch (static_cast<DepthCodec>(codec_byte)) {
+  switch (info.codec) {
     case DepthCodec::kRawZstd: {
       std::vector<uint8_t> raw(2 * n);
       EXO_RETURN_IF_ERROR(ZstdDecompress(body, raw.data(), raw.size()));
@@ -251,24 +353,16 @@ absl::StatusOr<ImageU16> DecodeDepth(std::span<const uint8_t> bytes) {
       return depth;
     }
     case DepthCodec::kPng: {
-      cv::Mat m;
-      try {
-        m = cv::imdecode(cv::Mat(1, static_cast<int>(body.size()), CV_8UC1,
-                                 const_cast<uint8_t*>(body.data())),
-                         cv::IMREAD_UNCHANGED);
-      } catch (const cv::Exception& e) {
-        return absl::InvalidArgumentError(absl::StrCat("corrupt PNG depth payload: ", e.what()));
-      }
-      if (m.empty()) return absl::InvalidArgumentError("corrupt or truncated PNG depth payload");
-      if (m.type() != CV_16UC1 || m.cols != static_cast<int>(w) || m.rows != static_cast<int>(h))
-        return absl::InvalidArgumentError(absl::StrCat(
-            "PNG depth payload is ", m.cols, "x", m.rows, " type ", m.type(), ", header says ", w,
-            "x", h, " 16-bit"));
-      m.copyTo(CvView(depth));
+      static_assert(std::endian::native == std::endian::little);
+      PngSource src{body.data(), body.size(), 0, {}};
+      if (!DecodePng16(&src, w, h, depth.data()))
+        return absl::InvalidArgumentError(
+            absl::StrCat("corrupt or truncated PNG depth payload: ", src.error));
       return depth;
     }
   }
-  return absl::InvalidArgumentError(absl::StrCat("unknown depth codec id ", int{codec_byte}));
+  return absl::InvalidArgumentError(
+      absl::StrCat("unknown depth codec id ", static_cast<int>(info.codec)));
 }
 
 ImageF DepthMetersFromU16(const ImageU16& depth_raw, double metres_per_unit) {

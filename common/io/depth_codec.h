@@ -24,7 +24,7 @@ enum class DepthCodec : uint8_t {
   kRawZstd = 1,          // zstd on the raw little-endian u16 samples
   kDeltaZstd = 2,        // left/up predictor + zig-zag, interleaved bytes, zstd
   kDeltaPlanesZstd = 3,  // left/up predictor + zig-zag, high/low byte planes, zstd (default)
-  kPng = 4,              // 16-bit greyscale PNG via OpenCV (compression level in options)
+  kPng = 4,              // 16-bit greyscale PNG (encoded by OpenCV, decoded by libpng only)
 };
 std::string_view DepthCodecName(DepthCodec codec);
 
@@ -42,8 +42,22 @@ inline constexpr int64_t kMaxDepthPixels = int64_t{1} << 26;  // 67 Mpix
 std::vector<uint8_t> EncodeDepth(const ImageU16& depth);
 absl::StatusOr<std::vector<uint8_t>> EncodeDepth(const ImageU16& depth,
                                                  const DepthCodecOptions& options);
-// Decodes any codec above. Truncated, garbage, bit-flipped or inconsistent data -> error.
-absl::StatusOr<ImageU16> DecodeDepth(std::span<const uint8_t> bytes);
+// The 24-byte header alone (no allocation): codec, size. Checked: magic, version, a size within
+// kMaxDepthPixels, the payload length. A caller with tighter limits checks the size before
+// DecodeDepth allocates anything.
+struct DepthInfo {
+  DepthCodec codec = DepthCodec::kDeltaPlanesZstd;
+  int width = 0;
+  int height = 0;
+};
+absl::StatusOr<DepthInfo> ReadDepthInfo(std::span<const uint8_t> bytes);
+
+// Decodes any codec above. Truncated, garbage, bit-flipped or inconsistent data -> error. The
+// header is read and checked (size <= max_pixels) before any allocation. A PNG payload is read
+// by libpng only (its IHDR must be 16-bit greyscale, not interlaced, of the header's size); no
+// other image format is ever decoded here.
+absl::StatusOr<ImageU16> DecodeDepth(std::span<const uint8_t> bytes,
+                                     int64_t max_pixels = kMaxDepthPixels);
 
 // Raw sensor units -> metres (0 stays 0 = invalid). 7-Scenes: 0.001 (mm); TUM: 1/5000.
 ImageF DepthMetersFromU16(const ImageU16& depth_raw, double metres_per_unit);

@@ -2,6 +2,7 @@
 
 #include <turbojpeg.h>
 
+#include <algorithm>
 #include <memory>
 #include <string>
 
@@ -18,6 +19,24 @@ using TjHandle = std::unique_ptr<void, TjDeleter>;
 std::string TjError(tjhandle h) {
   const char* msg = tjGetErrorStr2(h);
   return msg != nullptr ? std::string(msg) : std::string("unknown TurboJPEG error");
+}
+
+// The first start-of-frame marker (SOFn) found by walking the marker segments; 0 if none.
+int FindSofMarker(std::span<const uint8_t> b) {
+  size_t i = 2;  // after SOI
+  while (i + 1 < b.size()) {
+    if (b[i] != 0xFF) return 0;  // not at a marker: corrupt (the decoder says more)
+    while (i + 1 < b.size() && b[i + 1] == 0xFF) ++i;  // fill bytes
+    if (i + 1 >= b.size()) return 0;
+    const int m = b[i + 1];
+    i += 2;
+    if (m >= 0xC0 && m <= 0xCF && m != 0xC4 && m != 0xC8 && m != 0xCC) return m;
+    if (m == 0x01 || (m >= 0xD0 && m <= 0xD7)) continue;  // standalone markers
+    if (m == 0xD9 || m == 0xDA) return 0;                  // EOI / SOS before any SOF
+    if (i + 1 >= b.size()) return 0;
+    i += (size_t{b[i]} << 8) | b[i + 1];  // segment length includes its own two bytes
+  }
+  return 0;
 }
 
 }  // namespace
@@ -45,7 +64,7 @@ absl::StatusOr<std::vector<uint8_t>> EncodeJpeg(const ImageU8& rgb, int quality)
   return bytes;
 }
 
-absl::StatusOr<JpegInfo> ReadJpegInfo(std::span<const uint8_t> bytes) {
+absl::StatusOr<JpegInfo> ReadJpegInfo(std::span<const uint8_t> bytes, const JpegLimits& limits) {
   if (bytes.size() < 4) return absl::InvalidArgumentError(
       absl::StrCat("JPEG data too short (", bytes.size(), " bytes)"));
   if (bytes[0] != 0xFF || bytes[1] != 0xD8)
@@ -56,24 +75,32 @@ absl::StatusOr<JpegInfo> ReadJpegInfo(std::span<const uint8_t> bytes) {
   if (tjDecompressHeader3(h.get(), bytes.data(), bytes.size(), &w, &hgt, &subsamp, &colorspace) !=
       0)
     return absl::InvalidArgumentError(absl::StrCat("corrupt JPEG header: ", TjError(h.get())));
-  if (w <= 0 || hgt <= 0 || int64_t{w} * hgt > kMaxJpegPixels)
+  const int64_t max_pixels = std::min(limits.max_pixels, kMaxJpegPixels);
+  if (w <= 0 || hgt <= 0 || int64_t{w} * hgt > max_pixels)
     return absl::InvalidArgumentError(
-        absl::StrCat("JPEG header claims ", w, "x", hgt, " pixels (limit ", kMaxJpegPixels, ")"));
-  return JpegInfo{w, hgt};
+        absl::StrCat("JPEG header claims ", w, "x", hgt, " pixels (limit ", max_pixels, ")"));
+  const int sof = FindSofMarker(bytes);
+  if (limits.sequential_only && sof != 0xC0 && sof != 0xC1)
+    return absl::InvalidArgumentError(absl::StrCat(
+        "JPEG frame type (SOF marker 0x", absl::Hex(sof, absl::kZeroPad2),
+        ") is not sequential (baseline 0xc0 / extended 0xc1): progressive, lossless and "
+        "arithmetic-coded JPEGs are refused"));
+  return JpegInfo{w, hgt, sof};
 }
 
-absl::StatusOr<ImageU8> DecodeJpeg(std::span<const uint8_t> bytes) {
-  EXO_ASSIGN_OR_RETURN(const JpegInfo info, ReadJpegInfo(bytes));
+absl::StatusOr<ImageU8> DecodeJpeg(std::span<const uint8_t> bytes, const JpegLimits& limits) {
+  EXO_ASSIGN_OR_RETURN(const JpegInfo info, ReadJpegInfo(bytes, limits));
   TjHandle h(tjInitDecompress());
   if (!h) return absl::InternalError("tjInitDecompress failed");
   ImageU8 rgb(info.width, info.height, 3);
   // A truncated stream is only a libjpeg *warning* ("Premature end of JPEG file"; libjpeg fills
   // the rest with grey and TurboJPEG 2.1 returns -1 with TJERR_WARNING). We treat any nonzero
   // return, warning or fatal, as an error; TJFLAG_STOPONWARNING stops the decode at the first
-  // warning instead of finishing a useless image.
+  // warning instead of finishing a useless image. TJFLAG_LIMITSCANS: more than 500 scans (a
+  // progressive-JPEG CPU bomb) is an error.
   const int rc = tjDecompress2(h.get(), bytes.data(), bytes.size(), rgb.data(), info.width, 0,
                                info.height, TJPF_RGB,
-                               TJFLAG_STOPONWARNING);
+                               TJFLAG_STOPONWARNING | TJFLAG_LIMITSCANS);
   if (rc != 0) {
     const bool warning = tjGetErrorCode(h.get()) == TJERR_WARNING;
     return absl::InvalidArgumentError(absl::StrCat(warning ? "corrupt or truncated JPEG data: "

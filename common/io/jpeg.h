@@ -21,14 +21,25 @@ inline constexpr int64_t kMaxJpegPixels = int64_t{1} << 27;  // 134 Mpix
 // Encodes a 3-channel RGB8 image (4:2:0 chroma subsampling, `quality` in [1, 100]).
 absl::StatusOr<std::vector<uint8_t>> EncodeJpeg(const ImageU8& rgb, int quality = 90);
 
-// Decodes any baseline/progressive JPEG to RGB8 (3 channels; greyscale JPEGs are expanded).
-absl::StatusOr<ImageU8> DecodeJpeg(std::span<const uint8_t> bytes);
+// What a decode may cost. The scan limit is always on (TJFLAG_LIMITSCANS: more than 500 scans is
+// an error: a small progressive JPEG with hundreds of scans costs seconds of CPU).
+struct JpegLimits {
+  int64_t max_pixels = kMaxJpegPixels;
+  // Only sequential (baseline / extended Huffman, SOF0/SOF1) JPEGs: one scan per component at
+  // most. The upload path (one MJPEG frame) sets it.
+  bool sequential_only = false;
+};
 
-// Reads only the header: width, height. Same error behaviour as DecodeJpeg.
+// Decodes any baseline/progressive JPEG to RGB8 (3 channels; greyscale JPEGs are expanded).
+absl::StatusOr<ImageU8> DecodeJpeg(std::span<const uint8_t> bytes, const JpegLimits& limits = {});
+
+// Reads only the header: width, height, the frame type. Same error behaviour as DecodeJpeg.
 struct JpegInfo {
   int width = 0;
   int height = 0;
+  int sof_marker = 0;  // 0xC0 baseline, 0xC1 extended sequential, 0xC2 progressive, ...
 };
-absl::StatusOr<JpegInfo> ReadJpegInfo(std::span<const uint8_t> bytes);
+absl::StatusOr<JpegInfo> ReadJpegInfo(std::span<const uint8_t> bytes,
+                                      const JpegLimits& limits = {});
 
 }  // namespace exo

@@ -53,6 +53,7 @@ ModelStore::~ModelStore() { CloseAll(); }
 
 uint64_t ModelStore::CommitLocked(v1::Delta delta) {
   delta.set_version(++version_);
+  snapshot_.reset();  // subscribers holding it keep theirs; no old parts pinned here
   delta.set_source_timestamp_s(t_source_timestamp_s);
   delta.set_model_epoch(lineage_.back().id);
   auto ptr = std::make_shared<const v1::Delta>(std::move(delta));
@@ -78,9 +79,11 @@ v1::Checkpoint ModelStore::MakeCheckpoint(size_t max_log_bytes) const {
     out->set_id(e.id);
     out->set_start_version(e.start_version);
   }
-  for (const DeltaPtr& d : SnapshotLocked()) {
+  for (const DeltaPtr& d : *SnapshotLocked()) {
     if (d->has_snapshot_begin() || d->has_snapshot_end()) continue;
-    *c.add_model() = *d;
+    v1::Delta* m = c.add_model();
+    *m = *d;
+    m->set_version(version_);  // the checkpoint's model is all at its version
   }
   // Newest log entries that fit, kept contiguous up to version_.
   size_t bytes = 0, n = 0;
@@ -99,17 +102,18 @@ absl::Status ModelStore::ApplyModelDeltaLocked(const v1::Delta& d) {
       has_scene_ = true;
       return absl::OkStatus();
     case v1::Delta::kViewAdded: {
-      auto ptr = std::make_shared<v1::ViewAdded>(d.view_added());
-      view_bytes_ += ptr->ByteSizeLong();
-      view_records_[ptr->view_id()] = DigestRecordFromProto(*ptr);
-      views_[ptr->view_id()] = std::move(ptr);
+      auto ptr = std::make_shared<const v1::Delta>(d);
+      const v1::ViewAdded& v = ptr->view_added();
+      view_bytes_ += v.ByteSizeLong();
+      view_records_[v.view_id()] = DigestRecordFromProto(v);
+      views_[v.view_id()] = std::move(ptr);
       return absl::OkStatus();
     }
     case v1::Delta::kMeshChunkUpserted: {
       const auto& m = d.mesh_chunk_upserted();
       EXO_ASSIGN_OR_RETURN(TriangleMesh mesh, MeshFromProto(m));
-      auto ptr = std::make_shared<const v1::MeshChunkUpserted>(m);
-      chunk_bytes_ += ptr->ByteSizeLong();
+      auto ptr = std::make_shared<const v1::Delta>(d);
+      chunk_bytes_ += m.ByteSizeLong();
       chunks_[m.chunk_id()] = std::move(ptr);
       chunk_records_[m.chunk_id()] = {m.chunk_version(), MeshHash(mesh)};
       return absl::OkStatus();
@@ -159,7 +163,8 @@ absl::Status ModelStore::RestoreCheckpoint(const v1::Checkpoint& c) {
 std::vector<std::shared_ptr<const v1::ViewAdded>> ModelStore::Views() const {
   std::lock_guard lock(mu_);
   std::vector<std::shared_ptr<const v1::ViewAdded>> out;
-  for (const auto& [id, v] : views_) out.push_back(v);
+  // Aliasing pointers: the ViewAdded inside each shared snapshot part.
+  for (const auto& [id, part] : views_) out.emplace_back(part, &part->view_added());
   return out;
 }
 
@@ -185,13 +190,17 @@ uint64_t ModelStore::SetSceneParams(const LocalOrigin& origin, double cell_size_
 uint64_t ModelStore::AddView(v1::ViewAdded view) {
   std::lock_guard lock(mu_);
   const ViewId id = view.view_id();
-  if (auto it = views_.find(id); it != views_.end()) view_bytes_ -= it->second->ByteSizeLong();
-  auto ptr = std::make_shared<v1::ViewAdded>(std::move(view));
-  view_bytes_ += ptr->ByteSizeLong();
-  view_records_[id] = DigestRecordFromProto(*ptr);
+  if (auto it = views_.find(id); it != views_.end())
+    view_bytes_ -= it->second->view_added().ByteSizeLong();
+  v1::Delta part;
+  *part.mutable_view_added() = std::move(view);
+  part.set_version(version_ + 1);
+  auto ptr = std::make_shared<const v1::Delta>(std::move(part));
+  view_bytes_ += ptr->view_added().ByteSizeLong();
+  view_records_[id] = DigestRecordFromProto(ptr->view_added());
   views_[id] = ptr;
   v1::Delta d;
-  *d.mutable_view_added() = *ptr;
+  *d.mutable_view_added() = ptr->view_added();
   return CommitLocked(std::move(d));
 }
 
@@ -200,12 +209,13 @@ absl::StatusOr<uint64_t> ModelStore::UpdateView(ViewId id, const Rigid3d& local_
   std::lock_guard lock(mu_);
   auto it = views_.find(id);
   if (it == views_.end()) return absl::NotFoundError(absl::StrCat("no view ", id));
-  // Copy-on-write: snapshots in flight keep the old message.
-  auto updated = std::make_shared<v1::ViewAdded>(*it->second);
-  PoseToProto(local_from_cam, updated->mutable_local_from_cam());
-  updated->set_exposure(exposure);
-  it->second = updated;
-  view_records_[id] = DigestRecordFromProto(*updated);
+  // Copy-on-write: snapshots in flight keep the old part.
+  auto updated = std::make_shared<v1::Delta>(*it->second);
+  PoseToProto(local_from_cam, updated->mutable_view_added()->mutable_local_from_cam());
+  updated->mutable_view_added()->set_exposure(exposure);
+  updated->set_version(version_ + 1);
+  view_records_[id] = DigestRecordFromProto(updated->view_added());
+  it->second = std::move(updated);
   v1::Delta d;
   auto* u = d.mutable_view_updated();
   u->set_view_id(id);
@@ -218,7 +228,7 @@ absl::StatusOr<uint64_t> ModelStore::RemoveView(ViewId id) {
   std::lock_guard lock(mu_);
   auto it = views_.find(id);
   if (it == views_.end()) return absl::NotFoundError(absl::StrCat("no view ", id));
-  view_bytes_ -= it->second->ByteSizeLong();
+  view_bytes_ -= it->second->view_added().ByteSizeLong();
   views_.erase(it);
   view_records_.erase(id);
   v1::Delta d;
@@ -251,10 +261,14 @@ uint64_t ModelStore::UpsertChunk(uint64_t chunk_id, uint64_t chunk_version,
   m->set_chunk_version(chunk_version);
   MeshToProto(mesh, m);  // outside the lock: meshes can be large
   std::lock_guard lock(mu_);
-  if (auto it = chunks_.find(chunk_id); it != chunks_.end()) chunk_bytes_ -= it->second->ByteSizeLong();
-  auto ptr = std::make_shared<const v1::MeshChunkUpserted>(*m);
-  chunk_bytes_ += ptr->ByteSizeLong();
-  chunks_[chunk_id] = ptr;
+  if (auto it = chunks_.find(chunk_id); it != chunks_.end())
+    chunk_bytes_ -= it->second->mesh_chunk_upserted().ByteSizeLong();
+  v1::Delta part;
+  *part.mutable_mesh_chunk_upserted() = *m;
+  part.set_version(version_ + 1);
+  auto ptr = std::make_shared<const v1::Delta>(std::move(part));
+  chunk_bytes_ += ptr->mesh_chunk_upserted().ByteSizeLong();
+  chunks_[chunk_id] = std::move(ptr);
   chunk_records_[chunk_id] = {chunk_version, MeshHash(mesh)};
   return CommitLocked(std::move(d));
 }
@@ -263,7 +277,7 @@ absl::StatusOr<uint64_t> ModelStore::RemoveChunk(uint64_t chunk_id) {
   std::lock_guard lock(mu_);
   auto it = chunks_.find(chunk_id);
   if (it == chunks_.end()) return absl::NotFoundError(absl::StrCat("no chunk ", chunk_id));
-  chunk_bytes_ -= it->second->ByteSizeLong();
+  chunk_bytes_ -= it->second->mesh_chunk_upserted().ByteSizeLong();
   chunks_.erase(it);
   chunk_records_.erase(chunk_id);
   v1::Delta d;
@@ -275,12 +289,13 @@ size_t ModelStore::SnapshotBytesLocked() const {
   return view_bytes_ + chunk_bytes_ + cell_refs_.size() * 24 + 64;
 }
 
-std::vector<DeltaPtr> ModelStore::SnapshotLocked() const {
-  std::vector<DeltaPtr> out;
-  out.reserve(views_.size() + chunks_.size() + 4);
+std::shared_ptr<const std::vector<DeltaPtr>> ModelStore::SnapshotLocked() const {
+  if (snapshot_ && snapshot_version_ == version_) return snapshot_;
+  auto out = std::make_shared<std::vector<DeltaPtr>>();
+  out->reserve(views_.size() + chunks_.size() + 4);
   auto push = [&](v1::Delta d) {
     d.set_version(version_);
-    out.push_back(std::make_shared<const v1::Delta>(std::move(d)));
+    out->push_back(std::make_shared<const v1::Delta>(std::move(d)));
   };
   {
     v1::Delta d;
@@ -292,16 +307,9 @@ std::vector<DeltaPtr> ModelStore::SnapshotLocked() const {
     *d.mutable_scene_params() = scene_;
     push(std::move(d));
   }
-  for (const auto& [id, c] : chunks_) {
-    v1::Delta d;
-    *d.mutable_mesh_chunk_upserted() = *c;
-    push(std::move(d));
-  }
-  for (const auto& [id, v] : views_) {
-    v1::Delta d;
-    *d.mutable_view_added() = *v;
-    push(std::move(d));
-  }
+  // The parts themselves, not copies.
+  for (const auto& [id, part] : chunks_) out->push_back(part);
+  for (const auto& [id, part] : views_) out->push_back(part);
   if (!cell_refs_.empty()) {
     v1::Delta d;
     auto* c = d.mutable_cell_refs_changed();
@@ -318,7 +326,9 @@ std::vector<DeltaPtr> ModelStore::SnapshotLocked() const {
     d.set_model_epoch(EpochAtLocked(version_));
     push(std::move(d));
   }
-  return out;
+  snapshot_ = std::move(out);
+  snapshot_version_ = version_;
+  return snapshot_;
 }
 
 std::shared_ptr<Subscription> ModelStore::Subscribe(uint64_t last_version, uint64_t last_epoch) {
@@ -366,7 +376,7 @@ std::vector<DeltaPtr> Subscription::Next(int timeout_ms) {
     ++snapshots_;
     ++m.snapshots_sent_;
     sent_version_ = m.version_;
-    return m.SnapshotLocked();
+    return *m.SnapshotLocked();  // pointers to the shared parts
   }
   std::vector<DeltaPtr> out;
   if (m.version_ <= sent_version_) return out;

@@ -4,6 +4,11 @@
 // since the current model itself is the snapshot. A subscriber is a cursor into the log: a slow
 // subscriber only lags, it never blocks a mutation or other subscribers; when it falls behind the
 // log (or lags more than `max_subscriber_lag`) it is switched to a snapshot resync.
+// Snapshots are shared, not copied: every view and mesh chunk is held once, as the immutable
+// Delta that a snapshot sends (reference-counted; an update replaces it copy-on-write), and the
+// snapshot of a version is built once and handed to every subscriber that needs it. Inside a
+// snapshot a part's `version` is the version of its last change (SnapshotBegin/End carry the
+// snapshot's version).
 // Thread-safe. No gRPC here: the service layer writes what Next() returns.
 #pragma once
 
@@ -124,7 +129,8 @@ class ModelStore {
  private:
   friend class Subscription;
   uint64_t CommitLocked(v1::Delta delta);          // sets version, appends, compacts, notifies
-  std::vector<DeltaPtr> SnapshotLocked() const;    // SnapshotBegin, model, SnapshotEnd
+  // SnapshotBegin, model, SnapshotEnd: built once per version, shared by every subscriber.
+  std::shared_ptr<const std::vector<DeltaPtr>> SnapshotLocked() const;
   size_t SnapshotBytesLocked() const;
   uint64_t DigestLocked() const;
   uint64_t EpochAtLocked(uint64_t version) const;
@@ -138,10 +144,13 @@ class ModelStore {
   // Model as published.
   bool has_scene_ = false;
   v1::SceneParams scene_;
-  std::map<ViewId, std::shared_ptr<v1::ViewAdded>> views_;
+  // Each view / chunk as its snapshot part (a Delta holding view_added / mesh_chunk_upserted).
+  std::map<ViewId, DeltaPtr> views_;
   std::map<ViewId, ViewDigestRecord> view_records_;
   std::unordered_map<CellId, std::vector<ViewId>> cell_refs_;
-  std::map<uint64_t, std::shared_ptr<const v1::MeshChunkUpserted>> chunks_;
+  std::map<uint64_t, DeltaPtr> chunks_;
+  mutable std::shared_ptr<const std::vector<DeltaPtr>> snapshot_;  // of snapshot_version_
+  mutable uint64_t snapshot_version_ = ~uint64_t{0};
   std::map<uint64_t, ChunkDigestRecord> chunk_records_;
   size_t view_bytes_ = 0, chunk_bytes_ = 0;
   // Delta log: versions (log_.front()->version() .. version_).

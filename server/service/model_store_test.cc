@@ -207,5 +207,38 @@ TEST(ModelStore, ClientAheadOfRestoredCheckpointGetsSnapshot) {
   EXPECT_FALSE(e.RestoreCheckpoint(bad).ok());
 }
 
+// Issue 20: 500 never-reading subscribers each pinned a copy of the model. Every view is now held
+// once, as the snapshot part itself: subscribers at the same or different versions get the same
+// objects, and an update replaces the part copy-on-write (a snapshot in flight keeps the old one).
+TEST(ModelStore, SnapshotsShareOneCopyOfEachView) {
+  ModelStore store;
+  for (ViewId i = 1; i <= 4; ++i) store.AddView(View(i, 10000));
+  constexpr uint64_t kFuture = 1000;  // a client version from the future: a snapshot
+  auto a = store.Subscribe(kFuture, 0);
+  auto b = store.Subscribe(kFuture, 0);
+  const auto da = a->Next(0), db = b->Next(0);
+  ASSERT_EQ(da.size(), db.size());
+  ASSERT_TRUE(da.front()->has_snapshot_begin());
+  std::vector<const v1::Delta*> parts_a;
+  for (size_t i = 0; i < da.size(); ++i) {
+    EXPECT_EQ(da[i].get(), db[i].get()) << i;  // the same objects, not copies
+    if (da[i]->has_view_added()) parts_a.push_back(da[i].get());
+  }
+  ASSERT_EQ(parts_a.size(), 4u);
+  // A subscriber at a later version: the unchanged views are still the same objects.
+  ASSERT_TRUE(store.UpdateView(2, Rigid3d{}, 2.0f).ok());
+  auto c = store.Subscribe(kFuture, 0);
+  std::vector<const v1::Delta*> parts_c;
+  for (const DeltaPtr& d : c->Next(0))
+    if (d->has_view_added()) parts_c.push_back(d.get());
+  ASSERT_EQ(parts_c.size(), 4u);
+  EXPECT_EQ(parts_c[0], parts_a[0]);
+  EXPECT_NE(parts_c[1], parts_a[1]);  // view 2 changed: a new part
+  EXPECT_EQ(parts_c[1]->view_added().exposure(), 2.0f);
+  EXPECT_EQ(parts_a[1]->view_added().exposure(), 1.0f);  // what `a` holds is unchanged
+  EXPECT_EQ(parts_c[2], parts_a[2]);
+  EXPECT_EQ(store.Views()[0].get(), &parts_a[0]->view_added());  // Views() aliases the parts
+}
+
 }  // namespace
 }  // namespace exo

@@ -7,17 +7,25 @@
 #include <chrono>
 #include <cstdio>
 #include <fstream>
+#include <optional>
+#include <sstream>
 #include <mutex>
+#include <unordered_map>
+#include <unordered_set>
 
 #include <grpcpp/ext/proto_server_reflection_plugin.h>
 #include <grpcpp/grpcpp.h>
+#include <grpcpp/resource_quota.h>
 #include <grpcpp/health_check_service_interface.h>
+#include <grpcpp/support/method_handler.h>
 
+#include "absl/strings/match.h"
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_split.h"
 #include "absl/strings/strip.h"
 #include "common/log/log.h"
 #include "proto/exoview.grpc.pb.h"
+#include "server/service/auth.h"
 #include "server/service/stages.h"
 #include "server/service/udp_pose_input.h"
 #include "server/service/upload_log.h"
@@ -25,34 +33,156 @@
 namespace exo {
 
 // ---------------------------------------------------------------------------------------------
+namespace {
+
+// Runs `f` at scope exit.
+template <typename F>
+struct ScopeExit {
+  F f;
+  ~ScopeExit() { f(); }
+};
+template <typename F>
+ScopeExit(F) -> ScopeExit<F>;
+
+// Takes one of `limit` slots; false when all are taken.
+bool TakeSlot(std::atomic<int>* n, int limit) {
+  int cur = n->load();
+  while (cur < limit)
+    if (n->compare_exchange_weak(cur, cur + 1)) return true;
+  return false;
+}
+
+// The client a call comes from, for per-client accounting: the peer host without its port
+// ("ipv4:127.0.0.1:40312" -> "ipv4:127.0.0.1").
+std::string PeerHost(const std::string& peer) {
+  const auto colon = peer.rfind(':');
+  return colon == std::string::npos || colon < 5 ? peer : peer.substr(0, colon);
+}
+
+size_t FrameBytes(const Frame& f) { return f.color.size() + f.depth_m.size() * sizeof(float); }
+
+// Decoded bytes of each client's accepted frames still referenced by the pipeline.
+class InflightLedger {
+ public:
+  explicit InflightLedger(size_t limit) : limit_(limit) {}
+  absl::Status Acquire(const std::string& client, size_t bytes) {
+    std::lock_guard lock(mu_);
+    size_t& held = held_[client];
+    if (held + bytes > limit_) {
+      const size_t h = held;
+      if (h == 0) held_.erase(client);
+      return absl::ResourceExhaustedError(absl::StrCat(
+          "client ", client, " has ", h, " bytes of frames in the pipeline; this frame (", bytes,
+          " bytes decoded) would exceed max_client_inflight_bytes = ", limit_));
+    }
+    held += bytes;
+    return absl::OkStatus();
+  }
+  void Release(const std::string& client, size_t bytes) {
+    std::lock_guard lock(mu_);
+    auto it = held_.find(client);
+    if (it == held_.end()) return;
+    it->second -= std::min(bytes, it->second);
+    if (it->second == 0) held_.erase(it);
+  }
+
+ private:
+  const size_t limit_;
+  std::mutex mu_;
+  std::unordered_map<std::string, size_t> held_;
+};
+
+}  // namespace
 
 class ExoviewServer::Service final : public v1::Exoview::Service {
  public:
   Service(const ServerConfig& config, ModelStore* store, Pipeline* pipeline,
-          const std::atomic<bool>* shutting_down, const UdpPoseInput* udp)
+          const std::atomic<bool>* shutting_down, const UdpPoseInput* udp,
+          std::unique_ptr<Authorizer> auth)
       : config_(config), store_(store), pipeline_(pipeline), shutting_down_(shutting_down),
-        udp_(udp) {}
+        udp_(udp), auth_(std::move(auth)) {
+    // Method 0 of exoview.v1.Exoview is Upload: served on raw bytes (see Upload below).
+    MarkMethodStreamed(
+        0, new grpc::internal::BidiStreamingHandler<Service, grpc::ByteBuffer, grpc::ByteBuffer>(
+               [](Service* s, grpc::ServerContext* ctx,
+                  grpc::ServerReaderWriter<grpc::ByteBuffer, grpc::ByteBuffer>* stream) {
+                 return s->Upload(ctx, stream);
+               },
+               this));
+  }
 
+  ~Service() {
+    {
+      std::lock_guard lock(watch_mu_);
+      stop_watchdog_ = true;
+    }
+    watch_cv_.notify_all();
+    if (watchdog_.joinable()) watchdog_.join();
+  }
+
+  // Upload reads raw bytes (the handler of method 0 is replaced in the constructor) so that a
+  // message that does not parse as a Frame ends the stream with INVALID_ARGUMENT and a reason,
+  // instead of looking like a clean end of stream (gRPC's typed Read() returns false for both).
   grpc::Status Upload(grpc::ServerContext* ctx,
-                      grpc::ServerReaderWriter<v1::Ack, v1::Frame>* stream) override {
+                      grpc::ServerReaderWriter<grpc::ByteBuffer, grpc::ByteBuffer>* stream) {
+    auto who = Authorize(*ctx, Rpc::kUpload);
+    if (!who.ok()) return ToGrpc(who.status());
+    if (!TakeSlot(&upload_streams_, config_.max_upload_streams)) {
+      refused_uploads_.fetch_add(1);
+      return grpc::Status(grpc::StatusCode::RESOURCE_EXHAUSTED,
+                          absl::StrCat("too many upload streams: the limit is max_upload_streams = ",
+                                       config_.max_upload_streams));
+    }
+    ScopeExit release_slot{[this] { upload_streams_.fetch_sub(1); }};
+    Watch watch(ctx, config_.upload_idle_timeout_s);
+    WatchGuard watch_guard(this, &watch);
+    const std::string client = who->empty() ? PeerHost(ctx->peer()) : *who;
     IngestOptions io = config_.ingest;
     io.decode.pose_required = udp_ == nullptr;
     IngestStream ingest(io);
     UploadStreamLog stream_log(ctx->peer(), config_.log_rejections_per_s);
-    v1::Frame msg;
-    while (stream->Read(&msg)) {
+    grpc::ByteBuffer in;
+    uint64_t messages = 0;
+    for (;;) {
+      watch.blocked_since_ns.store(SteadyNowNs());  // idle until the next message
+      const bool got = stream->Read(&in);
+      watch.blocked_since_ns.store(0);
+      if (!got) break;
+      const size_t wire_bytes = in.Length();
+      v1::Frame msg;
+      if (grpc::Status ps = grpc::SerializationTraits<v1::Frame>::Deserialize(&in, &msg);
+          !ps.ok()) {
+        rejected_.fetch_add(1);
+        const std::string reason =
+            absl::StrCat("message ", messages + 1, " of the stream (", wire_bytes,
+                         " bytes) does not parse as an exoview.v1.Frame: ", ps.error_message());
+        log_->warn("upload from {} ended: {}", ctx->peer(), reason);
+        return grpc::Status(grpc::StatusCode::INVALID_ARGUMENT, reason);
+      }
+      ++messages;
       received_.fetch_add(1);
       const int64_t t0 = SteadyNowNs();
       v1::Ack ack;
       ack.set_sequence(msg.sequence());
       if (shutting_down_->load()) {
         Reject(absl::UnavailableError("server is shutting down"), &ack);
-      } else if (auto frame = ingest.Admit(msg, msg.ByteSizeLong()); !frame.ok()) {
+      } else if (auto frame = ingest.Admit(msg, wire_bytes); !frame.ok()) {
         Reject(frame.status(), &ack);
       } else if (absl::Status pose = FillPoseFromUdp(msg, &*frame); !pose.ok()) {
         Reject(pose, &ack);
+      } else if (absl::Status held = ledger_->Acquire(client, FrameBytes(*frame)); !held.ok()) {
+        inflight_rejections_.fetch_add(1);
+        Reject(held, &ack);
       } else {
-        auto pf = std::make_shared<PipelineFrame>();
+        const size_t bytes = FrameBytes(*frame);
+        ingest.Commit(*frame);  // only a frame the server takes moves the stream's marks
+        // The frame's bytes count against its client until the pipeline lets go of it.
+        std::shared_ptr<InflightLedger> ledger = ledger_;
+        auto pf = std::shared_ptr<PipelineFrame>(new PipelineFrame,
+                                                 [ledger, client, bytes](PipelineFrame* p) {
+                                                   delete p;
+                                                   ledger->Release(client, bytes);
+                                                 });
         pf->frame = *std::move(frame);
         pf->received_ns = t0;
         if (pipeline_->Submit(std::move(pf)) == Pipeline::Admission::kAccepted) {
@@ -68,13 +198,30 @@ class ExoviewServer::Service final : public v1::Exoview::Service {
       }
       ack.set_model_version(store_->version());
       stream_log.Record(ack);
-      if (!stream->Write(ack)) break;
+      grpc::ByteBuffer out;
+      bool own = false;
+      if (!grpc::SerializationTraits<v1::Ack>::Serialize(ack, &out, &own).ok()) break;
+      if (!stream->Write(out)) break;
     }
+    if (watch.fired.load())
+      return grpc::Status(grpc::StatusCode::DEADLINE_EXCEEDED,
+                          absl::StrCat("upload stream idle for more than upload_idle_timeout_s = ",
+                                       config_.upload_idle_timeout_s, " s"));
     return grpc::Status::OK;
   }
 
   grpc::Status Subscribe(grpc::ServerContext* ctx, const v1::SubscribeRequest* req,
                          grpc::ServerWriter<v1::Delta>* writer) override {
+    if (auto who = Authorize(*ctx, Rpc::kSubscribe); !who.ok()) return ToGrpc(who.status());
+    if (!TakeSlot(&subscriber_calls_, config_.max_subscribers)) {
+      refused_subscribers_.fetch_add(1);
+      return grpc::Status(grpc::StatusCode::RESOURCE_EXHAUSTED,
+                          absl::StrCat("too many subscribers: the limit is max_subscribers = ",
+                                       config_.max_subscribers));
+    }
+    ScopeExit release_slot{[this] { subscriber_calls_.fetch_sub(1); }};
+    Watch watch(ctx, config_.subscriber_write_timeout_s);
+    WatchGuard watch_guard(this, &watch);
     auto sub = store_->Subscribe(req->last_version(), req->last_model_epoch());
     const std::string peer = ctx->peer();  // "unknown" once the call is cancelled
     log_->info("subscriber connected: peer={} last_version={}", peer, req->last_version());
@@ -82,7 +229,10 @@ class ExoviewServer::Service final : public v1::Exoview::Service {
     bool write_failed = false;
     while (!write_failed && !ctx->IsCancelled() && !shutting_down_->load()) {
       for (const DeltaPtr& d : sub->Next(100)) {
-        if (!writer->Write(*d)) {
+        watch.blocked_since_ns.store(SteadyNowNs());  // a client that does not read blocks here
+        const bool written = writer->Write(*d);
+        watch.blocked_since_ns.store(0);
+        if (!written) {
           write_failed = true;
           break;
         }
@@ -91,7 +241,8 @@ class ExoviewServer::Service final : public v1::Exoview::Service {
         bytes_published_.fetch_add(d->ByteSizeLong());
       }
     }
-    const char* end = ctx->IsCancelled()      ? "cancelled by the client"
+    const char* end = watch.fired.load()      ? "not reading: subscriber_write_timeout_s passed"
+                      : ctx->IsCancelled()     ? "cancelled by the client"
                       : write_failed           ? "write failed"
                                                : "server shutting down";
     log_->info("subscriber disconnected: peer={} deltas={} bytes={} ({})", peer, deltas, bytes,
@@ -99,7 +250,9 @@ class ExoviewServer::Service final : public v1::Exoview::Service {
     return grpc::Status::OK;
   }
 
-  grpc::Status GetStats(grpc::ServerContext*, const v1::StatsRequest*, v1::Stats* out) override {
+  grpc::Status GetStats(grpc::ServerContext* ctx, const v1::StatsRequest*,
+                        v1::Stats* out) override {
+    if (auto who = Authorize(*ctx, Rpc::kGetStats); !who.ok()) return ToGrpc(who.status());
     const ModelStore::Summary s = store_->GetSummary();
     out->set_model_version(s.version);
     out->set_model_digest(s.digest);
@@ -118,6 +271,15 @@ class ExoviewServer::Service final : public v1::Exoview::Service {
     out->set_frames_processed(pipeline_->frames_processed());
     out->set_async_pending(pipeline_->async_pending());
     for (const auto& [k, v] : pipeline_->counters()) (*out->mutable_counters())[k] = v;
+    auto& c = *out->mutable_counters();
+    c["server.upload_streams"] = upload_streams_.load();
+    c["server.subscriber_calls"] = subscriber_calls_.load();
+    c["server.refused_uploads"] = static_cast<double>(refused_uploads_.load());
+    c["server.refused_subscribers"] = static_cast<double>(refused_subscribers_.load());
+    c["server.timed_out_calls"] = static_cast<double>(timed_out_calls_.load());
+    c["server.inflight_rejections"] = static_cast<double>(inflight_rejections_.load());
+    c["server.denied_calls"] = static_cast<double>(denied_calls_.load());
+    c["store.snapshot_bytes"] = static_cast<double>(s.snapshot_bytes);
     return grpc::Status::OK;
   }
 
@@ -138,7 +300,69 @@ class ExoviewServer::Service final : public v1::Exoview::Service {
       return absl::FailedPreconditionError(
           absl::StrCat("no pose for the frame from the UDP pose stream: ", pose.status().message()));
     frame->world_from_cam = *pose;
-    return frame->Validate();
+    return CheckFrame(*frame, config_.ingest.decode.limits);
+  }
+
+  // The one place every RPC is authorized: the principal's name ("" without auth), or
+  // UNAUTHENTICATED / PERMISSION_DENIED.
+  absl::StatusOr<std::string> Authorize(const grpc::ServerContext& ctx, Rpc rpc) {
+    if (!auth_) return std::string();
+    std::optional<std::string> header;
+    const auto& md = ctx.client_metadata();
+    if (auto it = md.find("authorization"); it != md.end())
+      header = std::string(it->second.data(), it->second.size());
+    auto p = auth_->Check(header, rpc);
+    if (!p.ok()) {
+      denied_calls_.fetch_add(1);
+      log_->warn("{} from {} refused: {}", RpcName(rpc), ctx.peer(), std::string(p.status().message()));
+      return p.status();
+    }
+    return absl::StrCat(RoleName(p->role), ":", p->name);
+  }
+  static grpc::Status ToGrpc(const absl::Status& s) {
+    return grpc::Status(static_cast<grpc::StatusCode>(s.code()), std::string(s.message()));
+  }
+
+  // A call that can block on its peer (a Write to a subscriber that does not read, a Read from an
+  // idle uploader): the watchdog cancels it once it has been blocked longer than `limit_s`.
+  struct Watch {
+    Watch(grpc::ServerContext* c, double limit) : ctx(c), limit_s(limit) {}
+    grpc::ServerContext* ctx;
+    double limit_s;                          // 0 = never
+    std::atomic<int64_t> blocked_since_ns{0};  // 0 = not blocked
+    std::atomic<bool> fired{false};
+  };
+  struct WatchGuard {
+    WatchGuard(Service* s, Watch* w) : service(s), watch(w) { service->AddWatch(watch); }
+    ~WatchGuard() { service->RemoveWatch(watch); }
+    Service* service;
+    Watch* watch;
+  };
+  void AddWatch(Watch* w) {
+    if (w->limit_s <= 0) return;
+    std::lock_guard lock(watch_mu_);
+    watches_.insert(w);
+    if (!watchdog_.joinable()) watchdog_ = std::thread([this] { WatchdogLoop(); });
+  }
+  void RemoveWatch(Watch* w) {
+    std::lock_guard lock(watch_mu_);
+    watches_.erase(w);
+  }
+  void WatchdogLoop() {
+    std::unique_lock lock(watch_mu_);
+    while (!watch_cv_.wait_for(lock, std::chrono::milliseconds(100),
+                               [this] { return stop_watchdog_; })) {
+      const int64_t now = SteadyNowNs();
+      for (Watch* w : watches_) {
+        const int64_t since = w->blocked_since_ns.load();
+        if (since == 0 || w->fired.load() || (now - since) * 1e-9 < w->limit_s) continue;
+        w->fired.store(true);
+        timed_out_calls_.fetch_add(1);
+        log_->warn("cancelling a call from {}: blocked on its peer for more than {} s",
+                   w->ctx->peer(), w->limit_s);
+        w->ctx->TryCancel();
+      }
+    }
   }
 
   const ServerConfig& config_;
@@ -148,6 +372,18 @@ class ExoviewServer::Service final : public v1::Exoview::Service {
   const UdpPoseInput* udp_;
   std::shared_ptr<spdlog::logger> log_ = log::Get("server");
   std::atomic<uint64_t> received_{0}, accepted_{0}, rejected_{0}, dropped_{0}, bytes_published_{0};
+  std::unique_ptr<Authorizer> auth_;
+  std::atomic<uint64_t> denied_calls_{0};
+  std::atomic<int> upload_streams_{0}, subscriber_calls_{0};
+  std::atomic<uint64_t> refused_uploads_{0}, refused_subscribers_{0}, timed_out_calls_{0},
+      inflight_rejections_{0};
+  std::shared_ptr<InflightLedger> ledger_ =
+      std::make_shared<InflightLedger>(config_.max_client_inflight_bytes);
+  std::mutex watch_mu_;
+  std::condition_variable watch_cv_;
+  std::unordered_set<Watch*> watches_;
+  bool stop_watchdog_ = false;
+  std::thread watchdog_;
 };
 
 ExoviewServer::ExoviewServer(const ServerConfig& config) : config_(config) {}
@@ -159,25 +395,46 @@ absl::Status ExoviewServer::Start() {
   store_ = std::make_unique<ModelStore>(config_.store);
   EXO_ASSIGN_OR_RETURN(auto stages, MakeStages(config_));
   pipeline_ = std::make_unique<Pipeline>(config_.pipeline, store_.get(), std::move(stages));
-  if (!config_.checkpoint_path.empty() && std::filesystem::exists(config_.checkpoint_path)) {
-    std::ifstream in(config_.checkpoint_path, std::ios::binary);
+  if (!config_.checkpoint_path.empty()) {
+    // The newest generation, or the previous one (path.prev) when the newest is missing or does
+    // not parse (a truncated file must not stop the server from starting).
+    const std::string prev = config_.checkpoint_path + ".prev";
     v1::Checkpoint c;
-    if (!in || !c.ParseFromIstream(&in))
-      return absl::DataLossError(absl::StrCat("cannot parse checkpoint ", config_.checkpoint_path));
-    EXO_RETURN_IF_ERROR(store_->RestoreCheckpoint(c));
-    for (const auto& d : c.model())
-      if (d.has_scene_params()) {
-        const auto& o = d.scene_params().origin_in_world();
-        LocalOrigin origin;
-        origin.origin_in_world = {o.x(), o.y(), o.z()};
-        if (config_.pipeline.model.cell_m > 0 &&
-            d.scene_params().cell_size_m() != config_.pipeline.model.cell_m)
-          return absl::FailedPreconditionError("checkpoint: cell_size_m differs from the config");
-        pipeline_->RestoreOrigin(origin, d.scene_params().cell_size_m());
+    std::string loaded;
+    for (const std::string& path : {config_.checkpoint_path, prev}) {
+      if (!std::filesystem::exists(path)) continue;
+      std::ifstream in(path, std::ios::binary);
+      v1::Checkpoint candidate;
+      if (in && candidate.ParseFromIstream(&in) && candidate.format() == 1) {
+        c = std::move(candidate);
+        loaded = path;
+        break;
       }
-    restored_version_ = checkpoint_version_ = c.version();
-    log::Get("server")->info("restored checkpoint {} at version {} ({} views)",
-                             config_.checkpoint_path, c.version(), store_->GetSummary().num_views);
+      log::Get("server")->error(
+          "checkpoint {} is corrupt or truncated (does not parse); trying the previous "
+          "generation {}",
+          path, prev);
+    }
+    if (loaded.empty() && (std::filesystem::exists(config_.checkpoint_path) ||
+                           std::filesystem::exists(prev)))
+      return absl::DataLossError(absl::StrCat("cannot parse checkpoint ", config_.checkpoint_path,
+                                              " nor its previous generation ", prev));
+    if (!loaded.empty()) {
+      EXO_RETURN_IF_ERROR(store_->RestoreCheckpoint(c));
+      for (const auto& d : c.model())
+        if (d.has_scene_params()) {
+          const auto& o = d.scene_params().origin_in_world();
+          LocalOrigin origin;
+          origin.origin_in_world = {o.x(), o.y(), o.z()};
+          if (config_.pipeline.model.cell_m > 0 &&
+              d.scene_params().cell_size_m() != config_.pipeline.model.cell_m)
+            return absl::FailedPreconditionError("checkpoint: cell_size_m differs from the config");
+          pipeline_->RestoreOrigin(origin, d.scene_params().cell_size_m());
+        }
+      restored_version_ = checkpoint_version_ = c.version();
+      log::Get("server")->info("restored checkpoint {} at version {} ({} views)", loaded,
+                               c.version(), store_->GetSummary().num_views);
+    }
   }
   if (!config_.checkpoint_path.empty() && config_.checkpoint_interval_s > 0) {
     checkpoint_thread_ = std::thread([this] {
@@ -195,8 +452,15 @@ absl::Status ExoviewServer::Start() {
   if (config_.udp_pose_port >= 0) {
     EXO_ASSIGN_OR_RETURN(udp_, UdpPoseInput::Start(config_.udp_pose_address, config_.udp_pose_port));
   }
+  std::unique_ptr<Authorizer> auth;
+  if (!config_.auth_tokens_file.empty()) {
+    EXO_ASSIGN_OR_RETURN(auth, Authorizer::FromFile(config_.auth_tokens_file));
+    log::Get("server")->info("bearer tokens required: {} principals from {}", auth->size(),
+                             config_.auth_tokens_file);
+  }
+  EXO_ASSIGN_OR_RETURN(std::shared_ptr<grpc::ServerCredentials> creds, MakeServerCredentials());
   service_ = std::make_unique<Service>(config_, store_.get(), pipeline_.get(), &shutting_down_,
-                                       udp_.get());
+                                       udp_.get(), std::move(auth));
   if (config_.control.enabled()) {
     EXO_ASSIGN_OR_RETURN(control_, ControlServiceHost::Start(config_.control, store_.get()));
   }
@@ -204,7 +468,20 @@ absl::Status ExoviewServer::Start() {
   // Server reflection: grpcurl-style tools list exoview.v1.Exoview and fetch its descriptors.
   grpc::reflection::InitProtoReflectionServerBuilderPlugin();
   grpc::ServerBuilder builder;
-  builder.AddListeningPort(config_.listen, grpc::InsecureServerCredentials(), &port_);
+  builder.AddListeningPort(config_.listen, creds, &port_);
+  // Keepalive (docs/security.md): ping idle connections, drop the ones that do not answer; allow
+  // client pings no more often than every 10 s (more is a ping flood: the connection is closed).
+  builder.AddChannelArgument(GRPC_ARG_KEEPALIVE_TIME_MS,
+                             static_cast<int>(config_.keepalive_time_s * 1000));
+  builder.AddChannelArgument(GRPC_ARG_KEEPALIVE_TIMEOUT_MS,
+                             static_cast<int>(config_.keepalive_timeout_s * 1000));
+  builder.AddChannelArgument(GRPC_ARG_KEEPALIVE_PERMIT_WITHOUT_CALLS, 1);
+  builder.AddChannelArgument(GRPC_ARG_HTTP2_MIN_RECV_PING_INTERVAL_WITHOUT_DATA_MS, 10000);
+  builder.AddChannelArgument(GRPC_ARG_HTTP2_MAX_PING_STRIKES, 2);
+  // Threads of the synchronous server: one per open call, bounded (beyond: RESOURCE_EXHAUSTED).
+  grpc::ResourceQuota quota("exoview_server");
+  quota.SetMaxThreads(config_.max_upload_streams + config_.max_subscribers + 64);
+  builder.SetResourceQuota(quota);
   builder.SetMaxReceiveMessageSize(static_cast<int>(config_.transport_max_bytes));
   builder.SetMaxSendMessageSize(static_cast<int>(config_.transport_max_bytes));
   builder.RegisterService(service_.get());
@@ -248,11 +525,63 @@ absl::Status ExoviewServer::WriteCheckpoint() {
     std::fclose(f);
     if (!ok) return absl::UnavailableError(absl::StrCat("short write to ", tmp));
   }
-  // Atomic: a reader (a restarted server) sees the old or the new file, never a partial one.
+  // Atomic: a reader (a restarted server) sees the old or the new file, never a partial one. The
+  // previous generation is kept as path.prev (the fallback when the newest does not parse).
+  // (A crash between the two renames leaves only path.prev, which the start also reads.)
+  if (std::filesystem::exists(config_.checkpoint_path) &&
+      std::rename(config_.checkpoint_path.c_str(), (config_.checkpoint_path + ".prev").c_str()) !=
+          0)
+    return absl::UnavailableError(absl::StrCat("cannot keep the previous checkpoint generation of ",
+                                               config_.checkpoint_path));
   if (std::rename(tmp.c_str(), config_.checkpoint_path.c_str()) != 0)
     return absl::UnavailableError(absl::StrCat("cannot rename ", tmp));
   checkpoint_version_ = c.version();
   return absl::OkStatus();
+}
+
+namespace {
+absl::StatusOr<std::string> ReadPem(const std::string& path, const char* what) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return absl::NotFoundError(absl::StrCat("cannot read ", what, " ", path));
+  std::stringstream ss;
+  ss << in.rdbuf();
+  if (ss.str().find("-----BEGIN") == std::string::npos)
+    return absl::InvalidArgumentError(absl::StrCat(what, " ", path, " is not PEM"));
+  return ss.str();
+}
+
+bool IsLoopback(const std::string& listen) {
+  for (const char* p : {"127.", "localhost:", "[::1]:", "ipv4:127.", "ipv6:[::1]:"})
+    if (absl::StartsWith(listen, p)) return true;
+  return false;
+}
+}  // namespace
+
+absl::StatusOr<std::shared_ptr<grpc::ServerCredentials>> ExoviewServer::MakeServerCredentials()
+    const {
+  auto log = log::Get("server");
+  if (config_.tls_cert.empty()) {
+    if (!IsLoopback(config_.listen) && !config_.allow_insecure_remote)
+      return absl::FailedPreconditionError(absl::StrCat(
+          "refusing plain text on ", config_.listen,
+          ": not a loopback address; give --tls_cert and --tls_key (deploy/make_certs.sh makes a "
+          "local CA), or --allow_insecure_remote=true for a trusted network"));
+    log->warn("**** PLAIN TEXT on {}: no TLS, no authentication; anyone who can connect may "
+              "upload, subscribe and read stats. Demo/loopback only (docs/security.md) ****",
+              config_.listen);
+    return grpc::InsecureServerCredentials();
+  }
+  grpc::SslServerCredentialsOptions o;
+  EXO_ASSIGN_OR_RETURN(const std::string cert, ReadPem(config_.tls_cert, "tls_cert"));
+  EXO_ASSIGN_OR_RETURN(const std::string key, ReadPem(config_.tls_key, "tls_key"));
+  o.pem_key_cert_pairs.push_back({key, cert});
+  if (!config_.tls_client_ca.empty()) {
+    EXO_ASSIGN_OR_RETURN(o.pem_root_certs, ReadPem(config_.tls_client_ca, "tls_client_ca"));
+    o.client_certificate_request = GRPC_SSL_REQUEST_AND_REQUIRE_CLIENT_CERTIFICATE_AND_VERIFY;
+  }
+  log->info("TLS on {}{}", config_.listen,
+            config_.tls_client_ca.empty() ? "" : " with required client certificates (mutual TLS)");
+  return grpc::SslServerCredentials(o);
 }
 
 int ExoviewServer::udp_pose_port() const { return udp_ ? udp_->port() : -1; }

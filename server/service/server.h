@@ -24,6 +24,7 @@
 
 namespace grpc {
 class Server;
+class ServerCredentials;
 }
 
 namespace exo {
@@ -52,6 +53,29 @@ struct ServerConfig {
   std::string checkpoint_path;
   double checkpoint_interval_s = 30.0;
   size_t checkpoint_max_log_bytes = size_t{16} << 20;  // delta log tail kept in the checkpoint
+  // Transport security and roles (docs/security.md). TLS when tls_cert/tls_key are given (PEM
+  // files); with tls_client_ca also mutual TLS (a client certificate signed by that CA is
+  // required). Bearer tokens from auth_tokens_file ("ROLE TOKEN NAME" lines) are then required
+  // on every call (server/service/auth.h); tokens need TLS. Plain text is the embedded demo
+  // default and only on a loopback address unless allow_insecure_remote.
+  std::string tls_cert, tls_key, tls_client_ca;
+  std::string auth_tokens_file;
+  bool allow_insecure_remote = false;
+  // Abuse bounds (issue 20 item 4; docs/security.md). Beyond a count limit a new call ends at
+  // once with RESOURCE_EXHAUSTED and a reason naming the limit.
+  int max_upload_streams = 16;
+  int max_subscribers = 1024;
+  // Decoded bytes of a client's accepted frames still inside the pipeline (client = the peer
+  // host, or the authenticated principal); beyond it a frame is REJECTED RESOURCE_EXHAUSTED.
+  size_t max_client_inflight_bytes = size_t{256} << 20;
+  // A subscriber whose Write has not completed for this long (it does not read) is cancelled;
+  // an upload stream with no message for this long is cancelled. 0 = never.
+  double subscriber_write_timeout_s = 10.0;
+  double upload_idle_timeout_s = 120.0;
+  // HTTP/2 keepalive: the server pings an idle connection every keepalive_time_s and closes it
+  // when no answer comes within keepalive_timeout_s (a vanished client frees its calls).
+  double keepalive_time_s = 30.0;
+  double keepalive_timeout_s = 10.0;
   // Log: at most this many rejected-frame lines per second per upload stream (the rest are
   // counted and reported with the next line and in the stream's summary).
   int log_rejections_per_s = 5;
@@ -95,6 +119,7 @@ class ExoviewServer {
 
  private:
   class Service;
+  absl::StatusOr<std::shared_ptr<grpc::ServerCredentials>> MakeServerCredentials() const;
   std::unique_ptr<class UdpPoseInput> udp_;
   ServerConfig config_;
   std::unique_ptr<ModelStore> store_;

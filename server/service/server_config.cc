@@ -64,6 +64,15 @@ std::vector<ConfigKey> MakeKeys() {
       Key("listen", "gRPC address host:port (port 0: a free port)", EXO_FIELD(listen)),
       Key("max_frame_bytes", "per-frame limit; larger frames are REJECTED",
           EXO_FIELD(ingest.max_frame_bytes)),
+      Key("max_pixels", "per-image pixel limit (colour and depth each), checked before decoding",
+          EXO_FIELD(ingest.decode.limits.max_pixels)),
+      Key("scene_radius_m", "camera positions must lie within this radius of the scene centre",
+          EXO_FIELD(ingest.decode.limits.scene_radius_m)),
+      Key("scene_center_x", "scene centre x (world, m)", EXO_FIELD(ingest.decode.limits.scene_center.x)),
+      Key("scene_center_y", "scene centre y (world, m)", EXO_FIELD(ingest.decode.limits.scene_center.y)),
+      Key("scene_center_z", "scene centre z (world, m)", EXO_FIELD(ingest.decode.limits.scene_center.z)),
+      Key("min_exposure", "smallest accepted relative exposure", EXO_FIELD(ingest.decode.limits.min_exposure)),
+      Key("max_exposure", "largest accepted relative exposure", EXO_FIELD(ingest.decode.limits.max_exposure)),
       Key("transport_max_bytes", "gRPC message limit; larger messages end the stream",
           EXO_FIELD(transport_max_bytes)),
       Key("admission_queue", "frames admitted but not yet processed",
@@ -127,6 +136,29 @@ std::vector<ConfigKey> MakeKeys() {
       Key("udp_pose_address", "address of the UDP pose input", EXO_FIELD(udp_pose_address)),
       Key("udp_pose_tolerance_s", "a frame with no UDP pose this close is rejected",
           EXO_FIELD(udp_pose_tolerance_s)),
+      Key("tls_cert", "server certificate chain (PEM); with tls_key: TLS", EXO_FIELD(tls_cert)),
+      Key("tls_key", "server private key (PEM)", EXO_FIELD(tls_key)),
+      Key("tls_client_ca", "CA (PEM) of required client certificates: mutual TLS",
+          EXO_FIELD(tls_client_ca)),
+      Key("auth_tokens_file", "bearer tokens, 'ROLE TOKEN NAME' lines (needs TLS; empty: no auth)",
+          EXO_FIELD(auth_tokens_file)),
+      Key("allow_insecure_remote", "allow plain text on a non-loopback address (never in production)",
+          EXO_FIELD(allow_insecure_remote)),
+      Key("max_upload_streams", "concurrent Upload streams (beyond: RESOURCE_EXHAUSTED)",
+          EXO_FIELD(max_upload_streams)),
+      Key("max_subscribers", "concurrent Subscribe calls (beyond: RESOURCE_EXHAUSTED)",
+          EXO_FIELD(max_subscribers)),
+      Key("max_client_inflight_bytes",
+          "decoded bytes of one client's frames inside the pipeline (beyond: REJECTED)",
+          EXO_FIELD(max_client_inflight_bytes)),
+      Key("subscriber_write_timeout_s", "a subscriber not reading for this long is cancelled (0: never)",
+          EXO_FIELD(subscriber_write_timeout_s)),
+      Key("upload_idle_timeout_s", "an upload stream idle for this long is cancelled (0: never)",
+          EXO_FIELD(upload_idle_timeout_s)),
+      Key("keepalive_time_s", "HTTP/2 keepalive ping interval on idle connections",
+          EXO_FIELD(keepalive_time_s)),
+      Key("keepalive_timeout_s", "a connection that does not answer a ping this fast is closed",
+          EXO_FIELD(keepalive_timeout_s)),
       Key("log_rejections_per_s",
           "rejected-frame log lines per second per stream (the rest counted)",
           EXO_FIELD(log_rejections_per_s)),
@@ -166,6 +198,22 @@ absl::Status ServerConfig::Validate() const {
   EXO_RETURN_IF_ERROR(planning.Validate());
   if (!(checkpoint_interval_s >= 0.0))
     return absl::InvalidArgumentError("checkpoint_interval_s must be >= 0 (0 = only at shutdown)");
+  if (tls_cert.empty() != tls_key.empty())
+    return absl::InvalidArgumentError("tls_cert and tls_key go together");
+  if (!tls_client_ca.empty() && tls_cert.empty())
+    return absl::InvalidArgumentError("tls_client_ca (mutual TLS) needs tls_cert and tls_key");
+  if (!auth_tokens_file.empty() && tls_cert.empty())
+    return absl::InvalidArgumentError(
+        "auth_tokens_file needs TLS (tls_cert, tls_key): bearer tokens in plain text can be read "
+        "by anyone on the path");
+  if (max_upload_streams < 1) return absl::InvalidArgumentError("max_upload_streams must be >= 1");
+  if (max_subscribers < 1) return absl::InvalidArgumentError("max_subscribers must be >= 1");
+  if (max_client_inflight_bytes < (size_t{1} << 20))
+    return absl::InvalidArgumentError("max_client_inflight_bytes must be >= 1 MiB");
+  if (!(subscriber_write_timeout_s >= 0.0) || !(upload_idle_timeout_s >= 0.0))
+    return absl::InvalidArgumentError("timeouts must be >= 0 (0 = never)");
+  if (!(keepalive_time_s >= 1.0) || !(keepalive_timeout_s >= 1.0))
+    return absl::InvalidArgumentError("keepalive_time_s and keepalive_timeout_s must be >= 1");
   if (log_rejections_per_s < 1)
     return absl::InvalidArgumentError("log_rejections_per_s must be >= 1");
   return absl::OkStatus();

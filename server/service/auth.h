@@ -1,0 +1,54 @@
+// Roles and bearer tokens (SPEC §14, issue 20 item 1): the one place where a call's credentials
+// are mapped to a principal and checked against what its role may call. Tokens come from a file
+// ("ROLE TOKEN NAME" lines; deploy/make_certs.sh writes one), never from the command line.
+//   uploader  Upload (and the drone control-state stream when it exists)
+//   viewer    Subscribe, GetStats
+//   operator  the viewer's calls + region marking and drone interactions
+//   admin     everything
+// A call without a token is UNAUTHENTICATED, an unknown token UNAUTHENTICATED, a known token
+// whose role does not cover the call PERMISSION_DENIED. No gRPC here: the service passes the
+// call's `authorization` header value.
+#pragma once
+
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "common/status.h"
+
+namespace exo {
+
+enum class Role { kUploader, kViewer, kOperator, kAdmin };
+enum class Rpc { kUpload, kSubscribe, kGetStats };
+
+const char* RoleName(Role role);
+const char* RpcName(Rpc rpc);
+absl::StatusOr<Role> ParseRole(const std::string& name);
+bool RoleAllows(Role role, Rpc rpc);
+
+struct Principal {
+  std::string name;  // from the token file, e.g. "drone-1"
+  Role role = Role::kAdmin;
+};
+
+class Authorizer {
+ public:
+  // Reads "ROLE TOKEN [NAME]" lines ('#' starts a comment). Tokens: at least 16 characters,
+  // unique; the file must not be readable by others (mode 0600 or stricter group/other bits).
+  static absl::StatusOr<std::unique_ptr<Authorizer>> FromFile(const std::string& path);
+  static absl::StatusOr<std::unique_ptr<Authorizer>> FromText(const std::string& text);
+
+  // `authorization`: the header value ("Bearer TOKEN"), nullopt when the call has none.
+  absl::StatusOr<Principal> Check(const std::optional<std::string>& authorization, Rpc rpc) const;
+  size_t size() const { return entries_.size(); }
+
+ private:
+  struct Entry {
+    std::string token;
+    Principal principal;
+  };
+  std::vector<Entry> entries_;
+};
+
+}  // namespace exo

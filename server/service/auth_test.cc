@@ -1,0 +1,83 @@
+// Roles and tokens without gRPC: the role table, UNAUTHENTICATED for no / malformed / unknown
+// tokens, PERMISSION_DENIED for a role that does not cover the call, and token-file errors. The
+// same checks through a real TLS server: tests/service_auth_test.cc.
+#include "server/service/auth.h"
+
+#include <gtest/gtest.h>
+
+namespace exo {
+namespace {
+
+constexpr char kFile[] =
+    "# role token name\n"
+    "uploader up-0123456789abcdef drone-1\n"
+    "viewer   vw-0123456789abcdef\n"
+    "operator op-0123456789abcdef ops\n"
+    "admin    ad-0123456789abcdef root\n";
+
+TEST(Auth, EachRoleMayCallExactlyItsRpcs) {
+  auto a = Authorizer::FromText(kFile);
+  ASSERT_TRUE(a.ok()) << a.status();
+  EXPECT_EQ((*a)->size(), 4u);
+  struct Case {
+    const char* token;
+    Rpc rpc;
+    absl::StatusCode code;
+  };
+  const Case cases[] = {
+      {"up-0123456789abcdef", Rpc::kUpload, absl::StatusCode::kOk},
+      {"up-0123456789abcdef", Rpc::kSubscribe, absl::StatusCode::kPermissionDenied},
+      {"up-0123456789abcdef", Rpc::kGetStats, absl::StatusCode::kPermissionDenied},
+      {"vw-0123456789abcdef", Rpc::kUpload, absl::StatusCode::kPermissionDenied},
+      {"vw-0123456789abcdef", Rpc::kSubscribe, absl::StatusCode::kOk},
+      {"vw-0123456789abcdef", Rpc::kGetStats, absl::StatusCode::kOk},
+      {"op-0123456789abcdef", Rpc::kUpload, absl::StatusCode::kPermissionDenied},
+      {"op-0123456789abcdef", Rpc::kSubscribe, absl::StatusCode::kOk},
+      {"ad-0123456789abcdef", Rpc::kUpload, absl::StatusCode::kOk},
+      {"ad-0123456789abcdef", Rpc::kSubscribe, absl::StatusCode::kOk},
+      {"ad-0123456789abcdef", Rpc::kGetStats, absl::StatusCode::kOk},
+      {"xx-0123456789abcdef", Rpc::kGetStats, absl::StatusCode::kUnauthenticated},
+      {"up-0123456789abcde", Rpc::kUpload, absl::StatusCode::kUnauthenticated},  // a prefix
+  };
+  for (const Case& c : cases) {
+    auto p = (*a)->Check(std::string("Bearer ") + c.token, c.rpc);
+    EXPECT_EQ(p.status().code(), c.code) << c.token << " " << RpcName(c.rpc) << ": " << p.status();
+  }
+  auto p = (*a)->Check(std::string("Bearer up-0123456789abcdef"), Rpc::kUpload);
+  ASSERT_TRUE(p.ok());
+  EXPECT_EQ(p->name, "drone-1");
+  EXPECT_EQ(p->role, Role::kUploader);
+  auto denied = (*a)->Check(std::string("Bearer up-0123456789abcdef"), Rpc::kSubscribe);
+  EXPECT_EQ(denied.status().message(), "role uploader (drone-1) may not call Subscribe");
+}
+
+TEST(Auth, MissingOrMalformedHeaderIsUnauthenticated) {
+  auto a = Authorizer::FromText(kFile);
+  ASSERT_TRUE(a.ok());
+  auto none = (*a)->Check(std::nullopt, Rpc::kGetStats);
+  EXPECT_EQ(none.status().code(), absl::StatusCode::kUnauthenticated);
+  EXPECT_NE(none.status().message().find("needs a bearer token"), std::string::npos);
+  auto basic = (*a)->Check(std::string("Basic dXNlcjpwYXNz"), Rpc::kGetStats);
+  EXPECT_EQ(basic.status().code(), absl::StatusCode::kUnauthenticated);
+}
+
+TEST(Auth, BadTokenFilesAreRefusedWithTheLine) {
+  EXPECT_NE(Authorizer::FromText("pilot abcdefghijklmnopqrst\n")
+                .status()
+                .message()
+                .find("line 1: unknown role 'pilot'"),
+            std::string::npos);
+  EXPECT_NE(Authorizer::FromText("viewer short\n").status().message().find("at least 16"),
+            std::string::npos);
+  EXPECT_NE(Authorizer::FromText("viewer abcdefghijklmnopqrst\nadmin abcdefghijklmnopqrst\n")
+                .status()
+                .message()
+                .find("line 2: the same token appears twice"),
+            std::string::npos);
+  EXPECT_FALSE(Authorizer::FromText("# only a comment\n").ok());
+  EXPECT_EQ(Authorizer::FromFile("/nonexistent/tokens").status().code(),
+            absl::StatusCode::kNotFound);
+}
+
+}  // namespace
+}  // namespace exo

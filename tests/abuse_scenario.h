@@ -1,0 +1,180 @@
+// The "bounded under abuse" scenario of issue 20 (item 4), shared by tests/service_abuse_test.cc
+// (a scale two CPU cores run in seconds) and the benchmark tests/service_abuse_bench.cc (500
+// never-reading subscribers, printing JSON): a real exoview_server process, an uploader at a
+// fixed rate, normal viewers that sync the whole model, and subscribers that open Subscribe and
+// never read. Measures the server's RSS over time and the viewers' digests.
+#pragma once
+
+#include <grpcpp/grpcpp.h>
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <fstream>
+#include <memory>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "client/uploader/synth_source.h"
+#include "client/uploader/upload_client.h"
+#include "client/viewer/viewer_session.h"
+#include "proto/exoview.grpc.pb.h"
+#include "tests/subprocess.h"
+
+namespace exo::abuse {
+
+inline int64_t ProcKb(pid_t pid, const std::string& key) {
+  std::ifstream in("/proc/" + std::to_string(pid) + "/status");
+  std::string line;
+  while (std::getline(in, line))
+    if (line.rfind(key + ":", 0) == 0) return std::atoll(line.c_str() + key.size() + 1);
+  return -1;
+}
+
+inline v1::Stats ServerStats(const std::string& target) {
+  auto stub = v1::Exoview::NewStub(MakeChannel(target));
+  grpc::ClientContext ctx;
+  ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(10));
+  v1::Stats s;
+  stub->GetStats(&ctx, v1::StatsRequest{}, &s);
+  return s;
+}
+
+// A subscriber that never reads: its own connection, the call open, Read() never called.
+struct NeverReader {
+  std::shared_ptr<grpc::Channel> channel;
+  std::unique_ptr<grpc::ClientContext> ctx;
+  std::unique_ptr<grpc::ClientReader<v1::Delta>> reader;
+};
+
+inline NeverReader OpenNeverReader(const std::string& target, int i) {
+  grpc::ChannelArguments args;
+  args.SetInt("exoview.abuse_connection", i);  // distinct args: a connection of its own
+  args.SetMaxReceiveMessageSize(64 << 20);
+  NeverReader n;
+  n.channel = grpc::CreateCustomChannel(target, grpc::InsecureChannelCredentials(), args);
+  n.ctx = std::make_unique<grpc::ClientContext>();
+  auto stub = v1::Exoview::NewStub(n.channel);
+  v1::SubscribeRequest req;
+  req.set_client_name("never-reads-" + std::to_string(i));
+  n.reader = stub->Subscribe(n.ctx.get(), req);
+  return n;
+}
+
+struct Options {
+  int never_readers = 48;
+  int viewers = 4;
+  int frames = 90;       // uploaded while the subscribers are connected
+  int warm_frames = 40;  // uploaded first (the model the never-readers are sent)
+  double rate_hz = 30.0;
+  int width = 320, height = 240;
+};
+
+struct Result {
+  double rss_before_mb = 0;  // after the warm-up upload, before any subscriber
+  double rss_peak_mb = 0;    // largest VmRSS sample while the subscribers were connected
+  double rss_after_mb = 0;   // after the never-readers were timed out and the viewers left
+  double model_mb = 0;       // server's snapshot size (store.snapshot_bytes)
+  int viewers_equal = 0;     // viewers whose digest equals the server's
+  uint64_t server_digest = 0;
+  double timed_out_calls = 0;
+  double subscribers_left = 0;
+  int threads_peak = 0;
+  std::string error;
+};
+
+// Runs the scenario against a server at `target` (process `pid`, for RSS).
+inline Result Run(const std::string& target, pid_t pid, const Options& o) {
+  Result r;
+  SynthSourceOptions so;
+  so.scene = "apartment";
+  so.trajectory = "walk";
+  so.width = o.width;
+  so.height = o.height;
+  so.num_frames = o.warm_frames + o.frames;
+  auto source = SynthFrameSource::Create(so);
+  if (!source.ok()) {
+    r.error = std::string(source.status().message());
+    return r;
+  }
+  UploadOptions uo;
+  uo.rate_hz = 0;
+  auto warm = UploadFrames(MakeChannel(target), **source, 0, o.warm_frames, uo);
+  if (!warm.ok()) {
+    r.error = std::string(warm.status().message());
+    return r;
+  }
+  auto wait_processed = [&] {
+    for (int i = 0; i < 600; ++i) {
+      const v1::Stats s = ServerStats(target);
+      if (s.frames_processed() == s.frames_accepted() && s.async_pending() == 0) return;
+      std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    }
+  };
+  wait_processed();
+  r.model_mb = ServerStats(target).counters().at("store.snapshot_bytes") / 1e6;
+  r.rss_before_mb = ProcKb(pid, "VmRSS") / 1024.0;
+
+  std::atomic<bool> sampling{true};
+  std::atomic<int64_t> peak_kb{0};
+  std::atomic<int> peak_threads{0};
+  std::thread sampler([&] {
+    while (sampling.load()) {
+      peak_kb.store(std::max<int64_t>(peak_kb.load(), ProcKb(pid, "VmRSS")));
+      peak_threads.store(
+          std::max<int>(peak_threads.load(), static_cast<int>(ProcKb(pid, "Threads"))));
+      std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    }
+  });
+  std::vector<NeverReader> never;
+  for (int i = 0; i < o.never_readers; ++i) never.push_back(OpenNeverReader(target, i));
+  // Viewers follow the model while the uploader goes on.
+  std::vector<std::unique_ptr<ViewerSession>> sessions;
+  for (int i = 0; i < o.viewers; ++i) {
+    auto s = ViewerSession::Open(MakeChannel(target), "");
+    if (s.ok()) sessions.push_back(*std::move(s));
+  }
+  std::vector<std::thread> viewer_threads;
+  std::vector<absl::Status> viewer_status(sessions.size());
+  for (size_t i = 0; i < sessions.size(); ++i)
+    viewer_threads.emplace_back([&, i] {
+      SyncOptions sync;
+      sync.max_seconds = 120;
+      sync.min_server_frames = static_cast<uint64_t>(o.warm_frames + o.frames);
+      sync.client_name = "viewer-" + std::to_string(i);
+      viewer_status[i] = sessions[i]->Sync(sync);
+    });
+  uo.rate_hz = o.rate_hz;
+  auto up = UploadFrames(MakeChannel(target), **source, o.warm_frames, o.frames, uo);
+  if (!up.ok()) r.error = std::string(up.status().message());
+  wait_processed();
+  for (auto& t : viewer_threads) t.join();
+  r.server_digest = ServerStats(target).model_digest();
+  for (size_t i = 0; i < sessions.size(); ++i) {
+    if (!viewer_status[i].ok() && r.error.empty())
+      r.error = std::string(viewer_status[i].message());
+    if (sessions[i]->store().Digest() == r.server_digest) ++r.viewers_equal;
+  }
+  sessions.clear();
+  // The never-readers are still connected: the server times them out on its own.
+  for (int i = 0; i < 200; ++i) {
+    const v1::Stats s = ServerStats(target);
+    if (s.counters().at("server.subscriber_calls") == 0) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  }
+  const v1::Stats s = ServerStats(target);
+  r.timed_out_calls = s.counters().at("server.timed_out_calls");
+  r.subscribers_left = s.counters().at("server.subscriber_calls");
+  sampling.store(false);
+  sampler.join();
+  r.rss_peak_mb = peak_kb.load() / 1024.0;
+  r.threads_peak = peak_threads.load();
+  for (auto& n : never) n.ctx->TryCancel();
+  never.clear();
+  std::this_thread::sleep_for(std::chrono::milliseconds(500));
+  r.rss_after_mb = ProcKb(pid, "VmRSS") / 1024.0;
+  return r;
+}
+
+}  // namespace exo::abuse

@@ -1,0 +1,87 @@
+// service_abuse_bench: issue 20's abuse scenario at full scale (default: 500 never-reading
+// subscribers + 16 viewers + an uploader at 30 Hz) against a real exoview_server process; prints
+// one JSON line: the server's peak RSS in a baseline run without the never-readers (a fresh
+// server), then RSS before / peak / after with them, the model size, the bound (baseline peak +
+// 2 x model + 100 MB), threads, timed-out calls and the viewers' digest equality.
+//   exoview_bench tests/service_abuse_bench [--never_readers=N] [--viewers=V] [--frames=F]
+//                 [--server_arg=--key=value ...]
+#include <cstdio>
+#include <filesystem>
+#include <nlohmann/json.hpp>
+
+#include "common/cli/cli.h"
+#include "tests/abuse_scenario.h"
+
+int main(int argc, char** argv) {
+  CLI::App app{
+      "Never-reading subscribers + viewers + an uploader against a real server; prints JSON.",
+      "service_abuse_bench"};
+  exo::cli::Setup(app);
+  exo::abuse::Options o;
+  o.never_readers = 500;
+  o.viewers = 16;
+  o.frames = 300;
+  std::vector<std::string> server_args;
+  double write_timeout_s = 5.0;
+  app.add_option("--never_readers", o.never_readers, "subscribers that never read")
+      ->check(CLI::NonNegativeNumber);
+  app.add_option("--viewers", o.viewers, "normal viewers")->check(CLI::NonNegativeNumber);
+  app.add_option("--frames", o.frames, "frames uploaded while they are connected")
+      ->check(CLI::PositiveNumber);
+  app.add_option("--warm_frames", o.warm_frames, "frames uploaded first")
+      ->check(CLI::PositiveNumber);
+  app.add_option("--rate_hz", o.rate_hz, "upload rate")->check(CLI::PositiveNumber);
+  app.add_option("--write_timeout_s", write_timeout_s, "server's subscriber_write_timeout_s");
+  app.add_option("--server_arg", server_args, "extra exoview_server flag (repeatable)");
+  if (auto rc = exo::cli::Parse(app, argc, argv)) return *rc;
+
+  char tmpl[] = "/tmp/exoview_abuse_bench_XXXXXX";
+  if (mkdtemp(tmpl) == nullptr) return 1;
+  const std::string dir = tmpl;
+  // One fresh server per run.
+  auto run = [&](const exo::abuse::Options& opt, const std::string& name) {
+    std::vector<std::string> args{
+        "--listen=127.0.0.1:0", "--port_file=" + dir + "/" + name + ".port",
+        "--subscriber_write_timeout_s=" + std::to_string(write_timeout_s),
+        "--max_subscribers=" + std::to_string(opt.never_readers + opt.viewers + 64)};
+    args.insert(args.end(), server_args.begin(), server_args.end());
+    exo::testing::Subprocess server(EXOVIEW_SERVER_BIN, args, dir + "/" + name + ".log");
+    exo::abuse::Result r;
+    if (!exo::testing::WaitForFile(dir + "/" + name + ".port", 30)) {
+      r.error = "the server did not start: " + server.Log();
+      return r;
+    }
+    const std::string target =
+        "127.0.0.1:" + std::to_string(std::stoi(exo::testing::ReadAll(dir + "/" + name + ".port")));
+    r = exo::abuse::Run(target, server.pid(), opt);
+    server.Signal(SIGTERM);
+    server.Wait(10);
+    return r;
+  };
+  exo::abuse::Options base_o = o;
+  base_o.never_readers = 0;
+  const exo::abuse::Result base = run(base_o, "baseline");
+  const exo::abuse::Result r = run(o, "abuse");
+  const double bound = base.rss_peak_mb + 2 * r.model_mb + 100;
+  nlohmann::ordered_json j = {{"bench", "service_abuse"},
+                              {"never_readers", o.never_readers},
+                              {"viewers", o.viewers},
+                              {"frames", o.warm_frames + o.frames},
+                              {"rate_hz", o.rate_hz},
+                              {"model_mb", r.model_mb},
+                              {"baseline_rss_peak_mb", base.rss_peak_mb},
+                              {"baseline_threads_peak", base.threads_peak},
+                              {"rss_before_mb", r.rss_before_mb},
+                              {"rss_peak_mb", r.rss_peak_mb},
+                              {"rss_after_mb", r.rss_after_mb},
+                              {"rss_bound_mb", bound},
+                              {"rss_within_bound", r.rss_peak_mb < bound},
+                              {"threads_peak", r.threads_peak},
+                              {"timed_out_calls", r.timed_out_calls},
+                              {"subscribers_left", r.subscribers_left},
+                              {"viewers_digest_equal", r.viewers_equal},
+                              {"error", r.error.empty() ? base.error : r.error}};
+  std::printf("%s\n", j.dump().c_str());
+  std::filesystem::remove_all(dir);
+  return r.error.empty() && r.viewers_equal == o.viewers && r.rss_peak_mb < bound ? 0 : 1;
+}
