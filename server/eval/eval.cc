@@ -364,6 +364,7 @@ std::string ConfigJson(const std::string& dataset, const std::string& test_poses
                  {"store", c.store},
                  {"r_max", c.r_max},
                  {"lambda", Round(lambda, 2)},
+                 {"blend_lambda", c.blend_lambda >= 0 ? Round(c.blend_lambda, 2) : Round(lambda, 2)},
                  {"cell_m", Round(cell_m, 3)},
                  {"voxel_m", Round(voxel_m, 4)},
                  {"delta_tau_sum", Round(dts, 3)},
@@ -817,7 +818,9 @@ class Engine {
         EvalSink sink;
         EXO_ASSIGN_OR_RETURN(rt.quality, EvalStore(selected, refs, g.grid, proxy_mesh, ts,
                                                    c.test_views, ci == 0, &render_ms,
-                                                   c.lambda >= 0 ? c.lambda : src_.default_lambda,
+                                                   c.blend_lambda >= 0 ? c.blend_lambda
+                                                   : c.lambda >= 0     ? c.lambda
+                                                                       : src_.default_lambda,
                                                    &sink, c.blend ? *c.blend : opt_.blend,
                                                    c.own_depth_proxy));
         rt.render_ms_median = render_ms;

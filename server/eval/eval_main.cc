@@ -123,18 +123,25 @@ absl::StatusOr<std::vector<PolicyConfig>> Configs(const Args& a) {
     std::string name(p);
     // "<policy>:lambda=V" / ":tau_max=V": that policy with one planner option changed, tagged
     // "lambda=V" (e.g. --policies online,online:lambda=1 compares two lambdas on one ingest).
+    // Several options: "online:lambda=1+blend_lambda=0.4".
     if (const size_t colon = name.find(':'); colon != std::string::npos) {
-      const std::string kv = name.substr(colon + 1);
+      const std::string opts = name.substr(colon + 1);
       name.resize(colon);
-      const size_t eq = kv.find('=');
-      double v = 0;
-      if (eq == std::string::npos || !absl::SimpleAtod(kv.substr(eq + 1), &v))
-        return absl::InvalidArgumentError("policy option must be key=value, got " + kv);
-      const std::string key = kv.substr(0, eq);
-      if (key == "lambda") c.lambda = v;
-      else if (key == "tau_max") c.tau_max = v;
-      else return absl::InvalidArgumentError("unknown policy option " + key + " (lambda, tau_max)");
-      c.tag = kv;
+      for (absl::string_view kvv : absl::StrSplit(opts, '+', absl::SkipEmpty())) {
+        const std::string kv(kvv);
+        const size_t eq = kv.find('=');
+        double v = 0;
+        if (eq == std::string::npos || !absl::SimpleAtod(kv.substr(eq + 1), &v))
+          return absl::InvalidArgumentError("policy option must be key=value, got " + kv);
+        const std::string key = kv.substr(0, eq);
+        if (key == "lambda") c.lambda = v;
+        else if (key == "blend_lambda") c.blend_lambda = v;
+        else if (key == "tau_max") c.tau_max = v;
+        else
+          return absl::InvalidArgumentError("unknown policy option " + key +
+                                            " (lambda, blend_lambda, tau_max)");
+      }
+      c.tag = opts;
     }
     // "<baseline>_uncapped": R(b_k) = every selected observer instead of the fair pre-selection.
     if (name.size() > 9 && name.substr(name.size() - 9) == "_uncapped") {
