@@ -32,7 +32,8 @@ from jsonl import read_jsonl  # noqa: E402
 POLICIES = "online,every_n,every_n_online,reservoir,min_distance,keyframe"
 ORACLES = {"every_n", "offline_greedy", "all_frames"}  # know the stream's length / future
 LABEL = {
-    "online": "online planner",
+    "online": "online planner (thesis 3.6)",
+    "online_novelty": "online planner, novelty-weighted φ_p",
     "every_n": "every-N (oracle: knows the length)",
     "every_n_online": "every-N, progressive decimation",
     "reservoir": "reservoir sampling",
@@ -96,6 +97,8 @@ def summarize(rows, metric):
         pol = d["config"]["policy"]
         if pol == "vertex_color":
             continue
+        if pol == "online" and d["config"].get("novelty_positional"):
+            pol = "online_novelty"
         key = (scene, stream, d["test_poses"])
         store = d["config"]["store"]
         cell = acc.setdefault(key, {}).setdefault(pol, {}).setdefault(store, {})
@@ -125,60 +128,70 @@ def summarize(rows, metric):
 
 
 def verdicts(summary, metric):
-    """Paired online - baseline per seed: mean, sd, wins, verdict."""
+    """{key: {store: {planner: {policy: paired planner - policy per seed}}}}: mean, sd, wins, verdict."""
     res = {}
     for key, pols in summary.items():
-        if "online" not in pols:
-            continue
-        for store, on in pols["online"].items():
-            for pol, stores in pols.items():
-                if pol == "online" or store not in stores:
-                    continue
-                b = stores[store]
-                seeds = [s for s in on["per_seed_" + metric] if s in b["per_seed_" + metric]]
-                d = [on["per_seed_" + metric][s] - b["per_seed_" + metric][s] for s in seeds]
-                if not d:
-                    continue
-                m, sd = mean_sd(d)
-                wins = sum(1 for x in d if x > 0)
-                losses = sum(1 for x in d if x < 0)
-                verdict = "win" if wins == len(d) else "loss" if losses == len(d) else "tie"
-                res.setdefault(key, {}).setdefault(store, {})[pol] = {
-                    "delta": m, "delta_sd": sd, "wins": wins, "n": len(d), "verdict": verdict,
-                    "rel_pct": 100 * m / b[metric] if b[metric] else float("nan")}
+        for planner in ("online", "online_novelty"):
+            for store, on in pols.get(planner, {}).items():
+                for pol, stores in pols.items():
+                    if pol == planner or store not in stores:
+                        continue
+                    b = stores[store]
+                    seeds = [s for s in on["per_seed_" + metric] if s in b["per_seed_" + metric]]
+                    d = [on["per_seed_" + metric][s] - b["per_seed_" + metric][s] for s in seeds]
+                    if not d:
+                        continue
+                    m, sd = mean_sd(d)
+                    wins = sum(1 for x in d if x > 0)
+                    losses = sum(1 for x in d if x < 0)
+                    verdict = "win" if wins == len(d) else "loss" if losses == len(d) else "tie"
+                    res.setdefault(key, {}).setdefault(store, {}).setdefault(planner, {})[pol] = {
+                        "delta": m, "delta_sd": sd, "wins": wins, "n": len(d), "verdict": verdict,
+                        "rel_pct": 100 * m / b[metric] if b[metric] else float("nan")}
     return res
 
 
 def print_tables(summary, ver, metric):
+    online_baselines = ["every_n_online", "reservoir", "min_distance", "keyframe"]
     for key in sorted(summary):
         scene, stream, poses = key
         pols = summary[key]
         stores = sorted({s for p in pols.values() for s in p})
-        order = [p for p in ["online", "every_n", "every_n_online", "reservoir", "min_distance",
-                             "keyframe", "offline_greedy"] if p in pols]
+        order = [p for p in ["online", "online_novelty", "every_n", "every_n_online", "reservoir",
+                             "min_distance", "keyframe", "offline_greedy"] if p in pols]
         any_cell = next(iter(next(iter(pols.values())).values()))
         print(f"\n### {scene} / {stream} / {poses} test poses ({any_cell['n_seeds']} seeds)\n")
-        print(f"| policy | " + " | ".join(f"{metric} @ {s}" for s in stores) +
+        print("| policy | " + " | ".join(f"{metric} @ {s}" for s in stores) +
               " | views @ max | MB @ max | plan CPU ms/frame |")
         print("|---|" + "---|" * (len(stores) + 3))
         for p in order:
-            cells = []
-            for s in stores:
-                c = pols[p].get(s)
-                if c is None:
-                    cells.append("-")
-                    continue
-                txt = f"{c[metric]:.4f} ± {c[metric + '_sd']:.4f}"
-                v = ver.get(key, {}).get(s, {}).get(p)
-                if v is not None:
-                    txt += f" ({v['verdict']} {v['delta']:+.4f})"
-                cells.append(txt)
+            cells = [f"{pols[p][s][metric]:.4f} ± {pols[p][s][metric + '_sd']:.4f}"
+                     if s in pols[p] else "-" for s in stores]
             top = pols[p][max(pols[p])]
             print(f"| {LABEL.get(p, p)} | " + " | ".join(cells) +
                   f" | {top['views']:.0f} | {top['store_bytes'] / 2**20:.0f} |"
                   f" {top['plan_cpu_ms']:.3f} |")
-    print("\n(win / loss / tie: the online planner minus that policy, paired per seed; win = online"
-          " better on every seed)")
+    print(f"\n### The planners against the best online baseline and the oracle ({metric}, paired per"
+          " seed: mean ± sd of planner - policy; win / loss = on every seed, else tie)\n")
+    print("| scene / stream / poses | store | best online baseline | thesis planner vs it |"
+          " novelty planner vs it | thesis vs oracle every-N | novelty vs oracle every-N |")
+    print("|---|---|---|---|---|---|---|")
+    for key in sorted(ver):
+        pols = summary[key]
+        for store in sorted(ver[key]):
+            cands = [(pols[p][store][metric], p) for p in online_baselines
+                     if p in pols and store in pols[p]]
+            if not cands:
+                continue
+            best = max(cands)[1]
+            row = [f"{key[0]} / {key[1]} / {key[2]}", str(store), LABEL.get(best, best)]
+            for planner, vs in (("online", best), ("online_novelty", best), ("online", "every_n"),
+                                ("online_novelty", "every_n")):
+                v = ver[key][store].get(planner, {}).get(vs)
+                row.append("-" if v is None else
+                           f"{v['delta']:+.4f} ± {v['delta_sd']:.4f} {v['verdict']}"
+                           f" ({v['rel_pct']:+.1f} %)")
+            print("| " + " | ".join(row) + " |")
 
 
 def chart(summary, path, metric):
@@ -190,7 +203,7 @@ def chart(summary, path, metric):
     cols = sorted({k[1] for k in keys})
     fig, axes = plt.subplots(len(rows), len(cols), figsize=(4.2 * len(cols), 3.2 * len(rows)),
                              squeeze=False)
-    colors = {"online": "#d62728", "every_n": "#7f7f7f", "every_n_online": "#1f77b4",
+    colors = {"online": "#d62728", "online_novelty": "#e377c2", "every_n": "#7f7f7f", "every_n_online": "#1f77b4",
               "reservoir": "#2ca02c", "min_distance": "#9467bd", "keyframe": "#ff7f0e",
               "offline_greedy": "#8c564b"}
     for i, (scene, poses) in enumerate(rows):
@@ -206,7 +219,7 @@ def chart(summary, path, metric):
                 es = [stores[s][metric + "_sd"] for s in xs]
                 ax.errorbar(xs, ys, yerr=es, label=LABEL.get(p, p), color=colors.get(p),
                             linestyle="--" if p in ORACLES else "-", marker="o", ms=3,
-                            capsize=2, lw=2.2 if p == "online" else 1.2)
+                            capsize=2, lw=2.2 if p.startswith("online") else 1.2)
             ax.set_xscale("log", base=2)
             ax.set_xticks(xs)
             ax.set_xticklabels([str(x) for x in xs])
@@ -259,9 +272,10 @@ def main():
                              for k, pols in sorted(summary.items())
                              for p, st in sorted(pols.items()) for s, v in sorted(st.items())],
                    "paired": [{"scene": k[0], "stream": k[1], "test_poses": k[2], "store": s,
-                               "vs": p, **v}
+                               "planner": pl, "vs": p, **v}
                               for k, sts in sorted(ver.items())
-                              for s, ps in sorted(sts.items()) for p, v in sorted(ps.items())]},
+                              for s, pls in sorted(sts.items())
+                              for pl, ps in sorted(pls.items()) for p, v in sorted(ps.items())]},
                   f, indent=1)
     if args.chart:
         chart(summary, args.chart, args.metric)

@@ -238,6 +238,7 @@ planning::PlannerOptions PlannerFor(const PolicyConfig& c, const Source& src, do
   if (c.delta_tau_sum >= 0) po.delta_tau_sum = c.delta_tau_sum;
   if (c.tau_max > 0) po.tau_max = c.tau_max;
   po.cell_size_m = cell_m;
+  po.novelty_positional = c.novelty_positional;
   po.d_max_m = src.scale.d_max_m;
   po.sigma_m = src.scale.sigma_m;
   if (src.scale_mode == ScaleMode::kViewDepth && src.view_depth_m > 0) {
@@ -374,7 +375,8 @@ std::string ConfigJson(const std::string& dataset, const std::string& test_poses
                  {"sigma_m", Round(po.sigma_m, 2)},
                  {"cellid_lod_m", Round(lod_m, 3)},
                  {"face_areas", int(c.face_areas)},
-                 {"online", int(PolicyIsOnline(c.policy))}};
+                 {"online", int(PolicyIsOnline(c.policy))},
+                 {"novelty_positional", int(c.novelty_positional)}};
   j["quality"] = {{"mssim", Round(r.quality.mssim, 4)},
                   {"psnr", Round(r.quality.psnr, 2)},
                   {"coverage", Round(r.quality.coverage, 4)},
@@ -530,6 +532,7 @@ class Engine {
         mo.lambda = po.lambda;
         mo.tau_max = po.tau_max;
         mo.delta_tau_sum = po.delta_tau_sum;
+        mo.novelty_positional = po.novelty_positional;
         mo.cell_areas = !c.face_areas;
         mo.id_buffer_stride = IdStride();
         mo.id_from_proxy = opt_.cell_ids == CellIdSource::kProxy;

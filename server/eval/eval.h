@@ -76,6 +76,9 @@ struct PolicyConfig {
   bool face_areas = false;
   std::string tag;              // free label copied into the JSON ("sweep":"store" ...)
   uint64_t policy_seed = 1;     // reservoir sampling's seed
+  // Issue 22: planners of this config use φ = φ_d (λ + (1 - λ) φ_p) (PlannerOptions::
+  // novelty_positional); exoview_eval's policy "online_novelty" = online with this on.
+  bool novelty_positional = false;
   double keyframe_threshold = 0.7;  // kKeyframe: InpaintFusion's ||I - M_i^-1 M_k||_F
   // Issue 15: blend options of this config's renders (lambda still from `lambda`); unset = the
   // run's. Lets one stream compare blend variants on the same stores.

@@ -116,6 +116,7 @@ absl::StatusOr<std::vector<PolicyConfig>> Configs(const Args& a) {
   base.tag = a.Get("--tag", "main");
   base.face_areas = a.Num("--face_areas", 0) != 0;
   base.policy_seed = uint64_t(a.Num("--policy_seed", 1));
+  base.novelty_positional = a.Num("--novelty_positional", 0) != 0;  // also the sweeps' configs
   base.keyframe_threshold = a.Num("--kf_threshold", 0.7);
   if (!(base.keyframe_threshold > 0))
     return absl::InvalidArgumentError("--kf_threshold must be > 0");
@@ -130,6 +131,11 @@ absl::StatusOr<std::vector<PolicyConfig>> Configs(const Args& a) {
     PolicyConfig c = base;
     c.store = store;
     std::string name(p);
+    // Issue 22: "online_novelty" = the online planner with PlannerOptions::novelty_positional.
+    if (name == "online_novelty") {
+      c.novelty_positional = true;
+      name = "online";
+    }
     // "<baseline>_uncapped": R(b_k) = every selected observer instead of the fair pre-selection.
     if (name.size() > 9 && name.substr(name.size() - 9) == "_uncapped") {
       c.uncapped_refs = true;
@@ -348,6 +354,7 @@ constexpr std::pair<const char*, const char*> kFlags[] = {
     {"--frame_w", "synthetic input frame width (default 640)"},
     {"--frame_h", "synthetic input frame height (default 480)"},
     {"--policy_seed", "reservoir sampling seed (default 1)"},
+    {"--novelty_positional", "1: every planner uses the novelty-weighted positional term (issue 22)"},
     {"--kf_threshold", "keyframe policy: ||I - M_i^-1 M_k||_F threshold (default 0.7)"},
     {"--frames", "input frames (7-Scenes: 0 = all)"},
     {"--proxy", "tsdf | gt"},
