@@ -1,4 +1,4 @@
-#!/usr/bin/env python3
+#!/usr/bin/python3
 """Planner benchmark over realistic streams (issue 22).
 
 Runs `exoview_eval` once per (scene, stream, seed) -- one ingest of the stream, every policy at
@@ -230,8 +230,8 @@ def chart(summary, path, metric):
             ax.tick_params(labelsize=7)
             ax.grid(alpha=0.3)
     h, lab = axes[0][0].get_legend_handles_labels()
-    fig.legend(h, lab, loc="lower center", ncol=min(4, len(lab)), fontsize=8)
-    fig.tight_layout(rect=(0, 0.07, 1, 1))
+    fig.legend(h, lab, loc="lower center", ncol=min(3, len(lab)), fontsize=8)
+    fig.tight_layout(rect=(0, 0.09, 1, 1))
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
     fig.savefig(path, dpi=110)
     print(f"chart: {path}", file=sys.stderr)
