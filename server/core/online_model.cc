@@ -264,6 +264,7 @@ absl::StatusOr<std::unique_ptr<OnlinePlanner>> OnlinePlanner::Create(
   po.lambda = options.lambda;
   po.tau_max = options.tau_max;
   po.delta_tau_sum = options.delta_tau_sum;
+  po.novelty_positional = options.novelty_positional;
   po.cell_size_m = setup.cell_m;
   po.d_max_m = setup.d_max_m;
   po.sigma_m = setup.sigma_m;

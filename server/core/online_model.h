@@ -62,6 +62,7 @@ struct OnlineModelOptions {
   double lambda = 0.4;  // (3.6) directional vs positional
   double tau_max = 4.0;
   double delta_tau_sum = 0.05;
+  bool novelty_positional = false;  // planning::PlannerOptions::novelty_positional (issue 22)
   bool cell_areas = true;  // A(b_k) from the proxy; false: every cell the face area A_cell
   // Bandwidth governor: once the store is full at most this many candidates per second (frame
   // timestamps) reach the planner; 0 = off.

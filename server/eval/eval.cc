@@ -29,6 +29,7 @@
 #include "common/synth/trajectory.h"
 #include "server/core/online_model.h"
 #include "server/eval/attribution.h"
+#include "server/eval/online_baselines.h"
 #include "server/geometry/cell_areas.h"
 #include "server/geometry/scene_scale.h"
 #include "server/planning/cell_id_proxy.h"
@@ -104,11 +105,12 @@ double PoseDistance(const Rigid3d& a, const Rigid3d& b, double metres_per_rad) {
   return dt + metres_per_rad * ang;
 }
 
-class MinDistanceSelector {
+class MinDistanceSelector : public OnlineSelector {
  public:
   MinDistanceSelector(size_t capacity, double metres_per_rad)
       : cap_(capacity), mpr_(metres_per_rad) {}
-  void Offer(int idx, const Rigid3d& pose) {
+  size_t size() const override { return sel_.size(); }
+  void Offer(int idx, const Rigid3d& pose) override {
     if (sel_.size() < cap_) {
       sel_.push_back({idx, pose});
       return;
@@ -143,7 +145,7 @@ class MinDistanceSelector {
     sel_[drop] = {idx, pose};
     pair_dirty_ = true;
   }
-  std::vector<int> Selected() const {
+  std::vector<int> Selected() const override {
     std::vector<int> out;
     for (const auto& s : sel_) out.push_back(s.idx);
     std::sort(out.begin(), out.end());
@@ -237,6 +239,7 @@ planning::PlannerOptions PlannerFor(const PolicyConfig& c, const Source& src, do
   if (c.delta_tau_sum >= 0) po.delta_tau_sum = c.delta_tau_sum;
   if (c.tau_max > 0) po.tau_max = c.tau_max;
   po.cell_size_m = cell_m;
+  po.novelty_positional = c.novelty_positional;
   po.d_max_m = src.scale.d_max_m;
   po.sigma_m = src.scale.sigma_m;
   if (src.scale_mode == ScaleMode::kViewDepth && src.view_depth_m > 0) {
@@ -347,8 +350,7 @@ std::string ConfigJson(const std::string& dataset, const std::string& test_poses
                        double dts, const ConfigResult& r, int idw, int idh,
                        const planning::PlannerOptions& po, const std::string& scale,
                        double lod_m, const char* ids) {
-  const bool baseline = c.policy == Policy::kEveryN || c.policy == Policy::kMinDistance ||
-                        c.policy == Policy::kAll;
+  const bool baseline = PolicyIsBaseline(c.policy);
   const char* refs = c.policy == Policy::kVertexColor ? "none"
                      : baseline && c.uncapped_refs    ? "uncapped"
                                                       : "preselect";
@@ -374,7 +376,9 @@ std::string ConfigJson(const std::string& dataset, const std::string& test_poses
                  {"d_max_m", Round(po.d_max_m, 2)},
                  {"sigma_m", Round(po.sigma_m, 2)},
                  {"cellid_lod_m", Round(lod_m, 3)},
-                 {"face_areas", int(c.face_areas)}};
+                 {"face_areas", int(c.face_areas)},
+                 {"online", int(PolicyIsOnline(c.policy))},
+                 {"novelty_positional", int(c.novelty_positional)}};
   j["quality"] = {{"mssim", Round(r.quality.mssim, 4)},
                   {"psnr", Round(r.quality.psnr, 2)},
                   {"coverage", Round(r.quality.coverage, 4)},
@@ -531,6 +535,7 @@ class Engine {
         mo.lambda = po.lambda;
         mo.tau_max = po.tau_max;
         mo.delta_tau_sum = po.delta_tau_sum;
+        mo.novelty_positional = po.novelty_positional;
         mo.cell_areas = !c.face_areas;
         mo.id_buffer_stride = IdStride();
         mo.id_from_proxy = opt_.cell_ids == CellIdSource::kProxy;
@@ -547,16 +552,28 @@ class Engine {
           u.chunks.push_back(gt);
           EXO_RETURN_IF_ERROR(st.planner->Apply(u));
         }
-      } else if (c.policy == Policy::kOfflineGreedy || c.policy == Policy::kEveryN ||
-                 c.policy == Policy::kMinDistance || c.policy == Policy::kAll ||
+      } else if (c.policy == Policy::kOfflineGreedy || PolicyIsBaseline(c.policy) ||
                  c.policy == Policy::kOnlineFinalAreas) {
         groups_[g].needs_final = true;
       }
-      if (c.policy == Policy::kMinDistance)
-        mindist_.emplace(i, MinDistanceSelector(size_t(std::max(1, c.store)), src_.metres_per_rad));
+      if (auto sel = MakeSelector(c)) selectors_.emplace(i, std::move(sel));
       online_.push_back(std::move(st));
     }
     return absl::OkStatus();
+  }
+
+  // The online baselines that pick views from poses as the stream goes (null for the others).
+  std::unique_ptr<OnlineSelector> MakeSelector(const PolicyConfig& c) const {
+    const size_t cap = size_t(std::max(1, c.store));
+    switch (c.policy) {
+      case Policy::kMinDistance:
+        return std::make_unique<MinDistanceSelector>(cap, src_.metres_per_rad);
+      case Policy::kEveryNOnline: return std::make_unique<ProgressiveEveryN>(cap);
+      case Policy::kReservoir: return std::make_unique<ReservoirSampler>(cap, c.policy_seed);
+      case Policy::kKeyframe:
+        return std::make_unique<KeyframeSelector>(cap, c.keyframe_threshold, src_.metres_per_rad);
+      default: return nullptr;
+    }
   }
 
   // Cell-id buffer = 1/stride of the input frames (160x120 of 640x480).
@@ -633,7 +650,11 @@ class Engine {
       st.plan_cpu_ms.push_back(ThreadCpuMs() - c1 + lod_cpu_ms);
       if (h.accepted) ++st.accepted;
     }
-    for (auto& [ci, sel] : mindist_) sel.Offer(idx, pose);
+    for (auto& [ci, sel] : selectors_) {
+      const double c0 = ThreadCpuMs();
+      sel->Offer(idx, pose);
+      selector_cpu_ms_[ci].push_back(ThreadCpuMs() - c0);
+    }
     return absl::OkStatus();
   }
 
@@ -739,8 +760,8 @@ class Engine {
           // step n / store would leave the tail unsampled when store does not divide n).
           const int m = std::min(n, c.store);
           for (int k = 0; k < m; ++k) selected.push_back(int((int64_t(k) * n) / m));
-        } else if (c.policy == Policy::kMinDistance) {
-          selected = mindist_.at(ci).Selected();
+        } else if (selectors_.count(ci)) {
+          selected = selectors_.at(ci)->Selected();
         } else if (c.policy == Policy::kAll) {
           for (int i = 0; i < n; ++i) selected.push_back(i);
         } else if (c.policy == Policy::kOfflineGreedy) {
@@ -781,6 +802,10 @@ class Engine {
         }
         const double ms = MsSince(t0);
         r.plan_ms_median = r.plan_ms_p95 = ms / std::max(1, n);
+        if (selectors_.count(ci)) {  // the online baselines' own per-frame decision (CPU ms)
+          r.plan_ms_median = r.plan_cpu_ms_median = Pct(selector_cpu_ms_[ci], 0.5);
+          r.plan_ms_p95 = r.plan_cpu_ms_p95 = Pct(selector_cpu_ms_[ci], 0.95);
+        }
         if (c.policy != Policy::kOnlineFinalAreas) r.accepted = selected.size();
         if (c.policy == Policy::kOnlineFinalAreas) {
           // R(b_k) is the replayed planner's own.
@@ -1028,7 +1053,8 @@ class Engine {
   std::vector<Group> groups_;
   std::vector<size_t> cfg_group_;
   std::vector<OnlineState> online_;
-  std::map<size_t, MinDistanceSelector> mindist_;
+  std::map<size_t, std::unique_ptr<OnlineSelector>> selectors_;  // config -> online baseline
+  std::map<size_t, std::vector<double>> selector_cpu_ms_;          // its Offer() per frame
   std::vector<double> integrate_ms_;
   std::vector<double> integrate_cpu_ms_;  // process CPU ms (TSDF worker threads included)
   double lod_cluster_m_ = 0;  // cell-id LOD cluster size (0: full chunk meshes)
@@ -1097,13 +1123,28 @@ const char* PolicyName(Policy p) {
     case Policy::kAll: return "all_frames";
     case Policy::kVertexColor: return "vertex_color";
     case Policy::kOnlineFinalAreas: return "online_final_areas";
+    case Policy::kEveryNOnline: return "every_n_online";
+    case Policy::kReservoir: return "reservoir";
+    case Policy::kKeyframe: return "keyframe";
   }
   return "?";
+}
+
+bool PolicyIsOnline(Policy p) {
+  return p == Policy::kOnline || p == Policy::kMinDistance || p == Policy::kEveryNOnline ||
+         p == Policy::kReservoir || p == Policy::kKeyframe;
+}
+
+bool PolicyIsBaseline(Policy p) {
+  return p == Policy::kEveryN || p == Policy::kMinDistance || p == Policy::kAll ||
+         p == Policy::kEveryNOnline || p == Policy::kReservoir || p == Policy::kKeyframe;
 }
 
 absl::Status SynthRunOptions::Validate() const {
   if (frames < 2) return absl::InvalidArgumentError("eval: frames must be >= 2");
   if (test_views < 1) return absl::InvalidArgumentError("eval: test_views must be >= 1");
+  if (frame_width < 16 || frame_height < 16)
+    return absl::InvalidArgumentError("eval: frame_width / frame_height must be >= 16");
   if (id_width < 8 || id_height < 8) return absl::InvalidArgumentError("eval: id buffer too small");
   if (voxel_m < 0 || !std::isfinite(voxel_m)) return absl::InvalidArgumentError("eval: bad voxel_m");
   if (cellid_lod_m < 0 || !std::isfinite(cellid_lod_m))
@@ -1126,7 +1167,11 @@ absl::StatusOr<std::vector<ConfigResult>> RunSynthetic(const SynthRunOptions& o)
   EXO_ASSIGN_OR_RETURN(synth::SynthScene scene, synth::MakeScene(kind, sco));
   synth::TrajectoryOptions to;
   to.num_frames = o.frames;
+  to.seed = o.traj_seed >= 0 ? uint64_t(o.traj_seed) : o.scene_seed;
   if (o.walk_look_around_deg >= 0) to.walk_look_around_deg = o.walk_look_around_deg;
+  // Aerial streams (fly-over, outdoor drone): λ 0.5 and near test poses +-2 m vertically.
+  const bool aerial = tkind == synth::TrajectoryKind::kFlyover ||
+                      (tkind == synth::TrajectoryKind::kDrone && !scene.indoor);
   EXO_ASSIGN_OR_RETURN(std::vector<synth::TimedPose> traj, synth::MakeTrajectory(scene, tkind, to));
 
   synth::RenderOptions rop;
@@ -1142,10 +1187,12 @@ absl::StatusOr<std::vector<ConfigResult>> RunSynthetic(const SynthRunOptions& o)
     EXO_ASSIGN_OR_RETURN(synth::RenderedFrame f0, synth::RenderFrame(scene, src.poses[0], rop));
     src.view_depth_m = core::MedianDepth(f0.frame.depth_m);
   }
-  src.default_lambda = tkind == synth::TrajectoryKind::kFlyover ? 0.5 : 0.4;
+  src.default_lambda = aerial ? 0.5 : 0.4;
   src.metres_per_rad = std::max(0.5, 0.05 * scene.ExtentM());
   src.dataset = absl::StrCat(o.scene, "/", o.traj);
   if (o.scene_seed != 1) absl::StrAppend(&src.dataset, "/seed", o.scene_seed);
+  if (o.traj_seed >= 0 && uint64_t(o.traj_seed) != o.scene_seed)
+    absl::StrAppend(&src.dataset, "/traj_seed", o.traj_seed);
   const synth::SynthScene* sp = &scene;
   std::vector<Rigid3d> poses_copy = src.poses;
   src.load_view = [sp, rop, poses_copy](int i) -> absl::StatusOr<StoredView> {
@@ -1174,8 +1221,7 @@ absl::StatusOr<std::vector<ConfigResult>> RunSynthetic(const SynthRunOptions& o)
     } else {
       ts.label = "near";
       EXO_ASSIGN_OR_RETURN(ts.poses, NearTrajectoryPoses(scene, src.poses, src.test_camera,
-                                                         o.test_views, o.test_seed,
-                                                         tkind == synth::TrajectoryKind::kFlyover));
+                                                         o.test_views, o.test_seed, aerial));
     }
     for (const Rigid3d& p : ts.poses) {
       EXO_ASSIGN_OR_RETURN(ImageF lin, synth::RenderLinear(scene, p, top));

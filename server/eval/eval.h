@@ -9,10 +9,18 @@
 //   kOnline        the thesis' online planner (SPEC §4), its per-cell pre-selection R(b_k)
 //   kOfflineGreedy greedy maximisation of the same τ_sum objective over ALL frames, seen at once
 //                  with the final proxy (lazy greedy; the upper bound the online planner chases)
-//   kEveryN        keep every N-th frame, N = frames / store
+//   kEveryN        keep every N-th frame, N = frames / store: knows the stream's length, so an
+//                  ORACLE row, not an online policy (JSON "online":0)
 //   kMinDistance   online dispersion: when full, a frame replaces one view of the closest pair
 //                  if its nearest-view pose distance exceeds that pair's distance
 //   kAll           every frame (unbounded store)
+// Issue 22 online baselines (online_baselines.h; they never know the length):
+//   kEveryNOnline  every-N with progressive decimation (keep every frame until full, then drop
+//                  every other kept frame and double N)
+//   kReservoir     reservoir sampling, seeded (PolicyConfig::policy_seed)
+//   kKeyframe      SLAM keyframes: InpaintFusion ||I - M_i^-1 M_k||_F > 0.7 to the last keyframe
+//                  (translation in units of Source::metres_per_rad); when full the threshold
+//                  grows x1.5 and the kept keyframes are re-thinned with it
 // Baselines get their per-cell references R(b_k) from the same pre-selection rule as the
 // planner (R_max cap, fed the selected views in frame order); an "uncapped" variant references
 // every selected view that sees the cell in the final proxy (unbounded R). A further baseline, the per-vertex averaged colour of the
@@ -37,8 +45,13 @@ namespace exo::eval {
 // on (the same per-frame cell ids as the online policy) - the online planner without the growing
 // proxy's areas.
 enum class Policy { kOnline, kOfflineGreedy, kEveryN, kMinDistance, kAll, kVertexColor,
-                    kOnlineFinalAreas };
+                    kOnlineFinalAreas, kEveryNOnline, kReservoir, kKeyframe };
 const char* PolicyName(Policy p);
+// Whether the policy could run on a stream of unknown length, one frame at a time (every_n and
+// offline_greedy cannot: they are oracles).
+bool PolicyIsOnline(Policy p);
+// Baselines whose stored views get the fair pre-selection (or uncapped) references.
+bool PolicyIsBaseline(Policy p);
 enum class ProxyKind { kTsdf, kGroundTruth };
 
 // One store configuration evaluated on the shared stream.
@@ -64,6 +77,11 @@ struct PolicyConfig {
   // area), instead of the TSDF proxy's CellAreas.
   bool face_areas = false;
   std::string tag;              // free label copied into the JSON ("sweep":"store" ...)
+  uint64_t policy_seed = 1;     // reservoir sampling's seed
+  // Issue 22: planners of this config use φ = φ_d (λ + (1 - λ) φ_p) (PlannerOptions::
+  // novelty_positional); exoview_eval's policy "online_novelty" = online with this on.
+  bool novelty_positional = false;
+  double keyframe_threshold = 0.7;  // kKeyframe: InpaintFusion's ||I - M_i^-1 M_k||_F
   // Issue 15: blend options of this config's renders (lambda still from `lambda`); unset = the
   // run's. Lets one stream compare blend variants on the same stores.
   std::optional<blend::BlendOptions> blend;
@@ -144,8 +162,10 @@ const char* CellIdSourceName(CellIdSource s);
 
 struct SynthRunOptions {
   std::string scene = "village";   // village | apartment
-  std::string traj = "flyover";    // flyover | walk
+  std::string traj = "flyover";    // flyover | walk | drone | handheld (issue 22)
   int frames = 600;
+  // drone / handheld: the stream's seed (synth::TrajectoryOptions::seed); < 0: scene_seed.
+  int64_t traj_seed = -1;
   ProxyKind proxy = ProxyKind::kTsdf;
   double voxel_m = 0;              // 0: scene diameter / 640 clamped to [0.02, 0.12]
   int id_width = 160, id_height = 120;   // cell-id buffer resolution

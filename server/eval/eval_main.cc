@@ -24,7 +24,8 @@ constexpr char kUsage[] =
     "(config, quality, speed, memory) on stdout; progress on stderr.\n"
     "\n"
     "  exoview_eval --suite quick|full [--out results.jsonl]      predefined runs (docs/evaluation.md)\n"
-    "  exoview_eval --scene village --traj flyover --frames 600 --proxy tsdf|gt --voxel 0\n"
+    "  exoview_eval --scene village --traj flyover|walk|drone|handheld --frames 600 --proxy tsdf|gt\n"
+    "               --voxel 0\n"
     "               --test_views 200 --policies online,offline_greedy,every_n,min_distance,all\n"
     "               --store 200 --r_max 16 [--lambda 0.5] [--cell 0] [--dts 0.05]\n"
     "               [--sweep store|r_max|lambda|cell] [--sweep_test_views 50]\n"
@@ -57,7 +58,10 @@ constexpr char kUsage[] =
     "  --scale bounds|depth  d_max/σ from scene_scale.h or from the first frame's median depth\n"
     "                        (synthetic default bounds, 7-Scenes default depth)\n"
     "  policies every_n_uncapped, min_distance_uncapped, all_uncapped: baseline referencing every\n"
-    "  selected observer per cell (no R_max cap); plain names use the planner's pre-selection\n";
+    "  selected observer per cell (no R_max cap); plain names use the planner's pre-selection\n"
+    "  issue 22: --traj drone|handheld (seeded by --traj_seed, default the scene seed); online\n"
+    "  baselines every_n_online (progressive decimation), reservoir (--policy_seed), keyframe\n"
+    "  (--kf_threshold, InpaintFusion 0.7); every_n knows the length (an oracle, \"online\":0)\n";
 
 struct Args {
   std::map<std::string, std::string> kv;
@@ -94,6 +98,9 @@ absl::StatusOr<Policy> ParsePolicy(const std::string& s) {
   if (s == "min_distance") return Policy::kMinDistance;
   if (s == "all" || s == "all_frames") return Policy::kAll;
   if (s == "online_final_areas") return Policy::kOnlineFinalAreas;
+  if (s == "every_n_online") return Policy::kEveryNOnline;
+  if (s == "reservoir") return Policy::kReservoir;
+  if (s == "keyframe") return Policy::kKeyframe;
   return absl::InvalidArgumentError("unknown policy " + s);
 }
 
@@ -110,6 +117,11 @@ absl::StatusOr<std::vector<PolicyConfig>> Configs(const Args& a) {
   base.delta_tau_sum = a.Num("--dts", -1);
   base.tag = a.Get("--tag", "main");
   base.face_areas = a.Num("--face_areas", 0) != 0;
+  base.policy_seed = uint64_t(a.Num("--policy_seed", 1));
+  base.novelty_positional = a.Num("--novelty_positional", 0) != 0;  // also the sweeps' configs
+  base.keyframe_threshold = a.Num("--kf_threshold", 0.7);
+  if (!(base.keyframe_threshold > 0))
+    return absl::InvalidArgumentError("--kf_threshold must be > 0");
   std::vector<PolicyConfig> out;
   // --store 50,100,200: the policies at each store size ("all" once: it has no store bound).
   std::vector<int> stores;
@@ -121,6 +133,11 @@ absl::StatusOr<std::vector<PolicyConfig>> Configs(const Args& a) {
     PolicyConfig c = base;
     c.store = store;
     std::string name(p);
+    // Issue 22: "online_novelty" = the online planner with PlannerOptions::novelty_positional.
+    if (name == "online_novelty") {
+      c.novelty_positional = true;
+      name = "online";
+    }
     // "<policy>:lambda=V" / ":tau_max=V": that policy with one planner option changed, tagged
     // "lambda=V" (e.g. --policies online,online:lambda=1 compares two lambdas on one ingest).
     // Several options: "online:lambda=1+blend_lambda=0.4".
@@ -278,6 +295,9 @@ int RunOne(const Args& a) {
   o.voxel_m = a.Num("--voxel", 0);
   o.test_views = int(a.Num("--test_views", 200));
   o.scene_seed = uint64_t(a.Num("--scene_seed", 1));
+  o.traj_seed = int64_t(a.Num("--traj_seed", -1));
+  o.frame_width = int(a.Num("--frame_w", 640));
+  o.frame_height = int(a.Num("--frame_h", 480));
   o.test_seed = uint64_t(a.Num("--test_seed", 7));
   o.test_width = int(a.Num("--test_w", 320));
   o.test_height = int(a.Num("--test_h", 240));
@@ -355,7 +375,13 @@ constexpr std::pair<const char*, const char*> kFlags[] = {
     {"--sevenscenes", "7-Scenes sequence directory (every 10th frame held out)"},
     {"--register", "7-Scenes: 1 (default) depth registered to colour, 0 raw"},
     {"--scene", "village | apartment"},
-    {"--traj", "flyover | walk"},
+    {"--traj", "flyover | walk | drone | handheld"},
+    {"--traj_seed", "drone / handheld stream seed (default: the scene seed)"},
+    {"--frame_w", "synthetic input frame width (default 640)"},
+    {"--frame_h", "synthetic input frame height (default 480)"},
+    {"--policy_seed", "reservoir sampling seed (default 1)"},
+    {"--novelty_positional", "1: every planner uses the novelty-weighted positional term (issue 22)"},
+    {"--kf_threshold", "keyframe policy: ||I - M_i^-1 M_k||_F threshold (default 0.7)"},
     {"--frames", "input frames (7-Scenes: 0 = all)"},
     {"--proxy", "tsdf | gt"},
     {"--voxel", "TSDF voxel (m); 0 = the online model's rule (server/core)"},
@@ -368,7 +394,8 @@ constexpr std::pair<const char*, const char*> kFlags[] = {
     {"--look_around", "walk yaw-sweep amplitude (deg)"},
     {"--idw", "cell-id buffer width"},
     {"--idh", "cell-id buffer height"},
-    {"--policies", "online,offline_greedy,every_n,min_distance,all[,*_uncapped,online_final_areas]"},
+    {"--policies", "online,offline_greedy,every_n,min_distance,all,every_n_online,reservoir,keyframe"
+                   "[,*_uncapped,online_final_areas]"},
     {"--store", "store size (views)"},
     {"--r_max", "R_max"},
     {"--render_refs", "references per cell rendered (0 = R(b_k); N = every stored observer, at most N; default 64)"},

@@ -135,6 +135,48 @@ TEST(EvalSmokeTest, VoxelSizeScalesProxyAndLodStaysFixed) {
   }
 }
 
+// Issue 22: the online baselines on a drone stream keep the store bound, are labelled online (the
+// length-aware every-N is not), get the fair R_max-capped references, and the progressive
+// every-N stores every N-th frame of the stream.
+TEST(EvalSmokeTest, OnlineBaselinesOnADroneStream) {
+  SynthRunOptions o = Tiny();
+  o.traj = "drone";
+  o.proxy = ProxyKind::kGroundTruth;  // no TSDF: the selection is what is tested
+  o.frames = 90;
+  o.frame_width = 160;
+  o.frame_height = 120;
+  o.id_width = 80;
+  o.id_height = 60;
+  o.test_views = 2;
+  o.vertex_color_baseline = false;
+  o.configs.clear();
+  for (Policy p : {Policy::kEveryN, Policy::kEveryNOnline, Policy::kReservoir, Policy::kKeyframe,
+                   Policy::kMinDistance}) {
+    PolicyConfig c;
+    c.policy = p;
+    c.store = 10;
+    c.r_max = 4;
+    c.keyframe_threshold = 0.3;
+    o.configs.push_back(c);
+  }
+  auto r = RunSynthetic(o);
+  ASSERT_TRUE(r.ok()) << r.status();
+  ASSERT_EQ(r->size(), 5u);
+  for (const ConfigResult& c : *r) {
+    const nlohmann::json j = nlohmann::json::parse(c.json);
+    EXPECT_LE(c.store_views, 10u) << c.json;
+    // The drone starts with a hover at its first place: keyframes may hold just that one view.
+    EXPECT_GE(c.store_views, c.config.policy == Policy::kKeyframe ? 1u : 2u) << c.json;
+    EXPECT_LE(c.max_refs, 4u) << c.json;
+    EXPECT_EQ(j["config"]["refs"], "preselect");
+    EXPECT_EQ(j["config"]["online"].get<int>(), c.config.policy == Policy::kEveryN ? 0 : 1);
+    EXPECT_GT(c.quality.mssim, 0.2) << c.json;
+  }
+  // 90 frames into 10 slots: N = 16 after four decimations (0, 16, ..., 80: 6 views).
+  const std::vector<int> prog = (*r)[1].selected;
+  EXPECT_EQ(prog, (std::vector<int>{0, 16, 32, 48, 64, 80}));
+}
+
 TEST(EvalSmokeTest, RejectsBadOptions) {
   SynthRunOptions o = Tiny();
   o.frames = 1;

@@ -145,7 +145,12 @@ double ViewPlanner::CoverageOf(const glm::dvec3& cam, CellId cell, double pixels
   const double phi_d = DirectionalCoverage(
       dir, std::span<const glm::dvec3>(ref_dirs.data(), n_refs), options_.r_max);
   const double g = DistanceQuality(d, options_.d_max_m, options_.sigma_m);
-  return Coverage(options_.lambda, phi_d, PositionalPart(AreaOf(cell), d, g, pixels, pixel_sr));
+  return Phi(phi_d, PositionalPart(AreaOf(cell), d, g, pixels, pixel_sr));
+}
+
+double ViewPlanner::Phi(double phi_d, double phi_p) const {
+  if (options_.novelty_positional) return phi_d * Coverage(options_.lambda, 1.0, phi_p);
+  return Coverage(options_.lambda, phi_d, phi_p);
 }
 
 double ViewPlanner::AreaOf(CellId cell) const {
@@ -229,8 +234,7 @@ bool ViewPlanner::RebuildRefs(int32_t cell) {
   for (const Ref& o : c.observers) {
     const double phi_d = DirectionalCoverage(
         o.dir, std::span<const glm::dvec3>(dirs.data(), c.refs.size()), options_.r_max);
-    const double phi = Coverage(options_.lambda, phi_d,
-                                PositionalPart(area, o.d, o.g, o.pixels, o.pixel_sr));
+    const double phi = Phi(phi_d, PositionalPart(area, o.d, o.g, o.pixels, o.pixel_sr));
     if (!(phi > 0.0)) continue;
     Ref r = o;
     r.phi = static_cast<float>(phi);

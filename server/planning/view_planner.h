@@ -56,6 +56,12 @@ struct PlannerOptions {
   // rendering every observer gains +0.04..+0.13 SSIM and makes quality grow with the store
   // (docs/evaluation.md). The planner's own objective τ still uses R(b_k) only.
   int render_refs_max = 64;
+  // Issue 22: (3.6) as printed, φ = λ φ_d + (1 - λ) φ_p, credits the positional term of a view
+  // that duplicates a reference (same place and direction, φ_d = 0), so a hovering or standing
+  // camera fills the store with copies of one pose (docs/planning.md, "Issue 22"). true:
+  // φ = φ_d (λ + (1 - λ) φ_p): the positional term counts in proportion to the view's directional
+  // novelty (a cell's first view unchanged, a duplicate 0). false = the thesis' form.
+  bool novelty_positional = false;
 
   absl::Status Validate() const;
 
@@ -185,6 +191,8 @@ class ViewPlanner {
   double AreaOf(CellId cell) const;  // A(b_k), or A_cell when unknown
   // φ_p (3.13-3.14) of a view at distance d with distance quality g and ψ_vis = pixels.
   double PositionalPart(double area_m2, double d, double g, double pixels, double pixel_sr) const;
+  // φ of (3.6), or its novelty-weighted form (PlannerOptions::novelty_positional).
+  double Phi(double phi_d, double phi_p) const;
   // Replays the pre-selection over the cell's current observers in acceptance order;
   // true if the set of references changed.
   bool RebuildRefs(int32_t cell);

@@ -156,6 +156,52 @@ TEST(ViewPlanner, FirstViewCoverageUsesErratum1) {
 }
 
 // Guard d -> 0: a camera inside the cell it sees claims no coverage (and never NaN).
+// Issue 22: (3.6) as printed credits a duplicate of a stored view (same pose: φ_d = 0) with its
+// positional term, so a hovering camera's copies are accepted until τ_max; the novelty-weighted
+// form (novelty_positional) gives a duplicate no gain, keeps a cell's first view's φ, and still
+// accepts a view from a new direction.
+TEST(ViewPlanner, NoveltyWeightedPositionalTermRejectsDuplicates) {
+  for (bool novelty : {false, true}) {
+    PlannerOptions o;
+    o.cell_size_m = 1.0;
+    o.lambda = 0.4;
+    o.novelty_positional = novelty;
+    auto p = ViewPlanner::Create(o);
+    ASSERT_TRUE(p.ok());
+    const CellGrid grid = p->grid();
+    const glm::dvec3 eye(0, -3, 2), target(0, 0, 0);
+    auto first = p->Consider(MakeCandidate(1, eye, target, grid));
+    ASSERT_TRUE(first.ok());
+    EXPECT_TRUE(first->accepted);
+    const double tau_first = p->tau_sum();
+    auto dup = p->Consider(MakeCandidate(2, eye, target, grid));
+    ASSERT_TRUE(dup.ok());
+    if (novelty) {
+      EXPECT_FALSE(dup->accepted) << dup->reason;
+      EXPECT_NEAR(dup->gain, 0.0, 1e-9);
+    } else {
+      EXPECT_TRUE(dup->accepted);
+      EXPECT_GT(dup->gain, 0.05 * tau_first);  // (1 - λ) φ_p of every cell again (11 % here)
+    }
+    // A view from the opposite side is new in direction: accepted either way.
+    auto other = p->Consider(MakeCandidate(3, glm::dvec3(0, 3, 2), target, grid));
+    ASSERT_TRUE(other.ok());
+    EXPECT_TRUE(other->accepted);
+    EXPECT_NEAR(p->RecomputeTauSum(), p->tau_sum(), 1e-6);
+  }
+  // The first view of a cell is scored the same by both forms (φ_d = 1).
+  PlannerOptions a, b;
+  a.cell_size_m = b.cell_size_m = 1.0;
+  b.novelty_positional = true;
+  auto pa = ViewPlanner::Create(a), pb = ViewPlanner::Create(b);
+  ASSERT_TRUE(pa.ok() && pb.ok());
+  auto ca = pa->Consider(MakeCandidate(1, glm::dvec3(1, -4, 3), glm::dvec3(0), pa->grid()));
+  auto cb = pb->Consider(MakeCandidate(1, glm::dvec3(1, -4, 3), glm::dvec3(0), pb->grid()));
+  ASSERT_TRUE(ca.ok() && cb.ok());
+  EXPECT_GT(ca->tau_sum, 0.0);
+  EXPECT_DOUBLE_EQ(ca->tau_sum, cb->tau_sum);
+}
+
 TEST(ViewPlanner, CameraInsideCell) {
   PlannerOptions o;
   o.cell_size_m = 1.0;
