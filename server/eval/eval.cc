@@ -366,7 +366,7 @@ std::string ConfigJson(const std::string& dataset, const std::string& test_poses
                  {"store", c.store},
                  {"r_max", c.r_max},
                  {"lambda", Round(lambda, 2)},
-                 {"blend_lambda", c.blend_lambda >= 0 ? Round(c.blend_lambda, 2) : Round(lambda, 2)},
+                 {"blend_lambda", Round(c.blend_lambda >= 0 ? c.blend_lambda : c.blend ? c.blend->lambda : blend::BlendOptions{}.lambda, 2)},
                  {"cell_m", Round(cell_m, 3)},
                  {"voxel_m", Round(voxel_m, 4)},
                  {"delta_tau_sum", Round(dts, 3)},
@@ -843,9 +843,12 @@ class Engine {
         EvalSink sink;
         EXO_ASSIGN_OR_RETURN(rt.quality, EvalStore(selected, refs, g.grid, proxy_mesh, ts,
                                                    c.test_views, ci == 0, &render_ms,
+                                                   // The product's blend lambda
+                                                   // (BlendOptions) unless a policy option
+                                                   // sets it; no longer the planner's.
                                                    c.blend_lambda >= 0 ? c.blend_lambda
-                                                   : c.lambda >= 0     ? c.lambda
-                                                                       : src_.default_lambda,
+                                                   : c.blend           ? c.blend->lambda
+                                                                       : opt_.blend.lambda,
                                                    &sink, c.blend ? *c.blend : opt_.blend,
                                                    c.own_depth_proxy));
         rt.render_ms_median = render_ms;

@@ -70,7 +70,7 @@ struct PolicyConfig {
   //          stored views differs from the online policy;
   //   true  ("uncapped"): every selected view that sees the cell in the final proxy.
   bool uncapped_refs = false;
-  double blend_lambda = -1;  // blend (3.5) lambda; < 0: the planner lambda (as before)
+  double blend_lambda = -1;  // blend (3.5) lambda; < 0: BlendOptions (the product default)
   int render_refs_max = 64;  // planning::PlannerOptions::render_refs_max (0 = R(b_k) only)
   // Every planner of this config (online, offline greedy, the baselines' pre-selection) gets no
   // proxy areas: A(b_k) = the face area A_cell for every cell (the planner's rule for an unknown

@@ -167,7 +167,9 @@ TEST(EvalSmokeTest, OnlineBaselinesOnADroneStream) {
     EXPECT_LE(c.store_views, 10u) << c.json;
     // The drone starts with a hover at its first place: keyframes may hold just that one view.
     EXPECT_GE(c.store_views, c.config.policy == Policy::kKeyframe ? 1u : 2u) << c.json;
-    EXPECT_LE(c.max_refs, 4u) << c.json;
+    // Published references: every stored observer of a cell (at most render_refs_max 64), so
+    // never more than the views stored.
+    EXPECT_LE(c.max_refs, c.store_views) << c.json;
     EXPECT_EQ(j["config"]["refs"], "preselect");
     EXPECT_EQ(j["config"]["online"].get<int>(), c.config.policy == Policy::kEveryN ? 0 : 1);
     EXPECT_GT(c.quality.mssim, 0.2) << c.json;
