@@ -23,6 +23,7 @@
 #include "common/lumigraph/model.h"
 #include "common/metrics/metrics.h"
 #include "common/metrics/perceptual.h"
+#include "common/metrics/view_scores.h"
 #include "common/raster/rasterizer.h"
 #include "common/synth/render.h"
 #include "common/synth/scene.h"
@@ -297,23 +298,14 @@ struct EvalSink {
                    const ImageU8& known, double ms) {
     ImageU8 filled = img;
     FillHoles(filled, known);
-    EXO_ASSIGN_OR_RETURN(double s, Ssim(filled, gt));
-    EXO_ASSIGN_OR_RETURN(double mse, Mse(filled, gt));
-    EXO_ASSIGN_OR_RETURN(double s_raw, Ssim(img, gt));
-    EXO_ASSIGN_OR_RETURN(double mse_raw, Mse(img, gt));
-    EXO_ASSIGN_OR_RETURN(double c, CoveredFraction(mask));
-    ssim.push_back(s);
-    psnr.push_back(std::min(99.0, PsnrFromMse(mse)));
-    ssim_unfilled.push_back(s_raw);
-    psnr_unfilled.push_back(std::min(99.0, PsnrFromMse(mse_raw)));
-    cov.push_back(c);
-    // issue 15: MS-SSIM and GMSD of the filled frame
-    if (MsSsimFits(gt.width(), gt.height())) {
-      EXO_ASSIGN_OR_RETURN(double m, MsSsim(filled, gt));
-      ms_ssim.push_back(m);
-    }
-    EXO_ASSIGN_OR_RETURN(double g, Gmsd(gt, filled));
-    gmsd.push_back(g);
+    EXO_ASSIGN_OR_RETURN(const ViewScores v, ScoreView(filled, img, gt, mask));
+    ssim.push_back(v.ssim);
+    psnr.push_back(v.psnr);
+    ssim_unfilled.push_back(v.ssim_unfilled);
+    psnr_unfilled.push_back(v.psnr_unfilled);
+    cov.push_back(v.coverage);
+    if (v.ms_ssim) ms_ssim.push_back(*v.ms_ssim);  // issue 15: MS-SSIM and GMSD, filled frame
+    gmsd.push_back(v.gmsd);
     {
       ImageU8 fitted = filled;
       FitGainToReference(fitted, gt, mask);
@@ -322,10 +314,7 @@ struct EvalSink {
       ssim_gain_fit.push_back(sf);
       psnr_gain_fit.push_back(std::min(99.0, PsnrFromMse(mf)));
     }
-    if (c > 0) {
-      auto ms_or = MaskedSsim(img, gt, mask);
-      if (ms_or.ok()) ssim_cov.push_back(*ms_or);
-    }
+    if (v.ssim_covered) ssim_cov.push_back(*v.ssim_covered);
     render_ms.push_back(ms);
     return absl::OkStatus();
   }

@@ -35,6 +35,7 @@
 #include "common/lumigraph/model_io.h"
 #include "common/metrics/metrics.h"
 #include "common/metrics/perceptual.h"
+#include "common/metrics/view_scores.h"
 #include "common/raster/rasterizer.h"
 #include "server/core/online_model.h"
 
@@ -70,26 +71,15 @@ struct Sink {
                    double ms) {
     ImageU8 filled = img;
     FillHoles(filled, known);
-    EXO_ASSIGN_OR_RETURN(double s, Ssim(filled, gt));
-    EXO_ASSIGN_OR_RETURN(double mse, Mse(filled, gt));
-    EXO_ASSIGN_OR_RETURN(double s_raw, Ssim(img, gt));
-    EXO_ASSIGN_OR_RETURN(double mse_raw, Mse(img, gt));
-    EXO_ASSIGN_OR_RETURN(double c, CoveredFraction(mask));
-    ssim.push_back(s);
-    psnr.push_back(std::min(99.0, PsnrFromMse(mse)));
-    ssim_unfilled.push_back(s_raw);
-    psnr_unfilled.push_back(std::min(99.0, PsnrFromMse(mse_raw)));
-    coverage.push_back(c);
-    if (MsSsimFits(gt.width(), gt.height())) {
-      EXO_ASSIGN_OR_RETURN(double m, MsSsim(filled, gt));
-      ms_ssim.push_back(m);
-    }
-    EXO_ASSIGN_OR_RETURN(double g, Gmsd(gt, filled));
-    gmsd.push_back(g);
-    if (c > 0) {
-      auto m = MaskedSsim(img, gt, mask);
-      if (m.ok()) ssim_covered.push_back(*m);
-    }
+    EXO_ASSIGN_OR_RETURN(const ViewScores v, ScoreView(filled, img, gt, mask));
+    ssim.push_back(v.ssim);
+    psnr.push_back(v.psnr);
+    ssim_unfilled.push_back(v.ssim_unfilled);
+    psnr_unfilled.push_back(v.psnr_unfilled);
+    coverage.push_back(v.coverage);
+    if (v.ms_ssim) ms_ssim.push_back(*v.ms_ssim);
+    gmsd.push_back(v.gmsd);
+    if (v.ssim_covered) ssim_covered.push_back(*v.ssim_covered);
     render_ms.push_back(ms);
     return absl::OkStatus();
   }
