@@ -24,6 +24,7 @@
 #include "common/metrics/metrics.h"
 #include "common/metrics/perceptual.h"
 #include "common/metrics/view_scores.h"
+#include "common/lumigraph/vertex_color.h"
 #include "common/raster/rasterizer.h"
 #include "common/synth/render.h"
 #include "common/synth/scene.h"
@@ -993,42 +994,10 @@ class Engine {
                                           double* render_ms_median, EvalSink* sink_out) {
     EvalSink& sink = *sink_out;
     const PinholeCamera& cam = src_.test_camera;
-    const int w = cam.width, h = cam.height;
     for (size_t t = 0; t < ts.poses.size(); ++t) {
       auto t0 = Clock::now();
-      ImageU8 img(w, h, 3, 0), mask(w, h, 1, 0);
-      if (!mesh.empty() && mesh.colors.size() == mesh.positions.size()) {
-        RasterOptions ro;
-        ro.z_depth = false;
-        ro.position = true;
-        ro.triangle_id = true;
-        EXO_ASSIGN_OR_RETURN(RasterOutput r, Rasterize(mesh, cam, ts.poses[t], ro));
-        for (int y = 0; y < h; ++y)
-          for (int x = 0; x < w; ++x) {
-            const uint32_t tri = r.triangle_id.at(x, y);
-            if (tri == kNoTriangle) continue;
-            const glm::vec3 p(r.position_local.at(x, y, 0), r.position_local.at(x, y, 1),
-                              r.position_local.at(x, y, 2));
-            const uint32_t* ix = &mesh.indices[3 * size_t(tri)];
-            const glm::vec3 a = mesh.positions[ix[0]], b = mesh.positions[ix[1]],
-                            c = mesh.positions[ix[2]];
-            // Barycentric weights of p in the triangle (areas of the sub-triangles).
-            const glm::vec3 nrm = glm::cross(b - a, c - a);
-            const float nn = glm::dot(nrm, nrm);
-            glm::vec3 col;
-            if (nn > 0) {
-              const float wa = glm::dot(glm::cross(c - b, p - b), nrm) / nn;
-              const float wb = glm::dot(glm::cross(a - c, p - c), nrm) / nn;
-              const float wc = 1.0f - wa - wb;
-              col = wa * mesh.colors[ix[0]] + wb * mesh.colors[ix[1]] + wc * mesh.colors[ix[2]];
-            } else {
-              col = mesh.colors[ix[0]];
-            }
-            for (int ch = 0; ch < 3; ++ch)
-              img.at(x, y, ch) = blend::UnitToU8(blend::LinearToSrgb(col[ch]));
-            mask.at(x, y) = 255;
-          }
-      }
+      ImageU8 img, mask;
+      EXO_RETURN_IF_ERROR(RenderVertexColor(mesh, cam, ts.poses[t], &img, &mask));
       EXO_RETURN_IF_ERROR(sink.Add(img, ts.gt[t], mask, mask, MsSince(t0)));
       sink.surface.push_back(sink.cov.back());
     }
