@@ -38,6 +38,9 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--max_log_bytes", c.store.max_log_bytes, "replica's delta log bound (bytes)")
       ->capture_default_str();
+  app.add_option("--snapshot_when_cheaper", c.store.snapshot_when_cheaper,
+                 "on resume, a snapshot instead of the missed deltas when it is fewer bytes")
+      ->capture_default_str();
   app.add_option("--tls_cert", c.tls_cert, "certificate chain (PEM); with --tls_key: TLS");
   app.add_option("--tls_key", c.tls_key, "private key (PEM)");
   app.add_option("--tls_client_ca", c.tls_client_ca, "CA of required client certificates");
