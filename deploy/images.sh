@@ -29,7 +29,7 @@ export CONTAINERS_CONF="${CONTAINERS_CONF:-$ROOT/deploy/containers.conf}"
 
 bin() {  # path of a built binary
   local p
-  p="$(find "$BUILD_DIR" -type f -name "$1" -perm -u+x -not -path '*/CMakeFiles/*' | head -1)"
+  p="$(find "$BUILD_DIR" -type f -name "$1" -perm -u+x -not -path "*/CMakeFiles/*" | head -1)"
   [ -n "$p" ] || { echo "[images] $1 is not built (cmake --build $BUILD_DIR --target $1)" >&2; exit 1; }
   echo "$p"
 }
@@ -117,5 +117,14 @@ LVP="$(sed -n 's/.*"library_path": *"\([^"]*\)".*/\1/p' "$ICD")"
 add_with_libs "$R" "$LVP"
 build_image exoview-viewer "$R" /usr/bin/exoview_viewer ""
 
+# exoview-nats: Debian's nats-server (JetStream) for the manifests and the podman itest.
+if command -v nats-server >/dev/null; then
+  R="$OUT/nats/rootfs"; base_rootfs "$R"
+  add_with_libs "$R" "$(command -v nats-server)" /usr/bin/nats-server
+  build_image exoview-nats "$R" /usr/bin/nats-server ""
+else
+  echo "[images] nats-server not installed: no exoview-nats image (apt-get install nats-server)" >&2
+fi
+
 T1=$(date +%s.%N)
-printf '{"images": 4, "total_build_s": %.1f}\n' "$(echo "$T1 - $T0" | bc -l)"
+printf '{"images": %s, "total_build_s": %.1f}\n' "$(ls -d "$OUT"/*/rootfs | wc -l)" "$(echo "$T1 - $T0" | bc -l)"
