@@ -119,6 +119,7 @@ class JetStreamDeltaLog final : public DeltaLog {
     (*out)["delta_log.publish_retries"] = static_cast<double>(retries_.load());
     (*out)["delta_log.replayed"] = static_cast<double>(replayed_);
     (*out)["delta_log.gaps"] = static_cast<double>(gaps_.load());
+    (*out)["delta_log.bytes_published"] = static_cast<double>(bytes_published_.load());
   }
 
  private:
@@ -140,6 +141,7 @@ class JetStreamDeltaLog final : public DeltaLog {
     const v1::Checkpoint c = store_->MakeCheckpoint(0);
     EXO_ASSIGN_OR_RETURN(SnapshotManifest m, js_->WriteSnapshot(c));
     snapshot_version_.store(m.version);
+    bytes_published_.fetch_add(m.bytes);
     snapshots_.fetch_add(1);
     last_snapshot_ = std::chrono::steady_clock::now();
     log_->info("delta log: snapshot of version {} ({} bytes, {} chunks)", m.version, m.bytes,
@@ -195,6 +197,7 @@ class JetStreamDeltaLog final : public DeltaLog {
           Backoff();
         }
         published_.store(d->version());
+        bytes_published_.fetch_add(d->ByteSizeLong());
       }
       if (published_.load() > snapshot_version_.load() &&
           std::chrono::steady_clock::now() - last_snapshot_ >
@@ -218,7 +221,8 @@ class JetStreamDeltaLog final : public DeltaLog {
   std::mutex mu_;
   std::condition_variable cv_;
   bool closing_ = false;
-  std::atomic<uint64_t> published_{0}, snapshot_version_{0}, snapshots_{0}, retries_{0}, gaps_{0};
+  std::atomic<uint64_t> published_{0}, snapshot_version_{0}, snapshots_{0}, retries_{0}, gaps_{0},
+      bytes_published_{0};  // deltas + snapshots sent to JetStream
   uint64_t replayed_ = 0;
   std::chrono::steady_clock::time_point last_snapshot_{};
 };
