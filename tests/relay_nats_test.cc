@@ -284,6 +284,20 @@ TEST_F(RelayNats, KilledServerReplaysTheStreamAndRelaysFollowTheNewProcess) {
   EXPECT_EQ(resumed.resumed_from, s1.model_version());
   EXPECT_EQ(resumed.snapshots, 0u);  // the replayed history is the viewer's: deltas only
   EXPECT_EQ(Stats(relay_b).counters().at("relay.rebuilds"), 0.0);
+
+  // Graceful stop right after an upload: the server drains its pipeline and publishes every
+  // delta it committed before it exits (the relay reaches the version it stopped at).
+  ASSERT_EQ(StartUpload(server, 32, 8, 40.0, "up3")->Wait(60), 0) << ReadAll(dir_ + "/up3.log");
+  server_->Signal(SIGTERM);
+  ASSERT_EQ(server_->Wait(30), 0) << ReadAll(dir_ + "/server2.log");
+  const std::string log2 = ReadAll(dir_ + "/server2.log");
+  const auto at = log2.find("stopped at model version ");
+  ASSERT_NE(at, std::string::npos) << log2;
+  const uint64_t stopped = std::stoull(log2.substr(at + 25));
+  ASSERT_GT(stopped, s3.model_version());
+  ASSERT_NO_FATAL_FAILURE(WaitRelayAt(relay_b, stopped));
+  EXPECT_EQ(Stats(relay_b).model_version(), stopped);
+  server_.reset();
 }
 
 }  // namespace

@@ -104,8 +104,8 @@ class ModelStore {
   // markers are refused; a delta that does not apply (e.g. an update of an unknown view) is
   // DATA_LOSS and changes nothing.
   absl::Status ReplayDelta(const v1::Delta& delta);
-  // The log entries after `version` (at most `max`), waiting up to `timeout_ms` for one. Empty when
-  // nothing came or CloseAll() was called; DATA_LOSS when the log no longer holds version + 1
+  // The log entries after `version` (at most `max`), waiting up to `timeout_ms` for one (CloseAll()
+  // ends the wait; entries are still returned after it). Empty when nothing came; DATA_LOSS when the log no longer holds version + 1
   // (compacted away): the reader has lost deltas and must resync from a snapshot.
   absl::StatusOr<std::vector<DeltaPtr>> DeltasAfter(uint64_t version, size_t max, int timeout_ms);
   bool closed() const;

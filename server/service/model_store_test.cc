@@ -352,6 +352,13 @@ TEST(ModelStoreReplica, DeltasAfterReportsACompactedLog) {
   ASSERT_TRUE(ok.ok());
   EXPECT_EQ(ok->size(), 2u);
   EXPECT_TRUE(s.DeltasAfter(5, 10, 0)->empty());
+  // Shutdown: subscribers are woken, but the log shipper still drains what was committed.
+  s.CloseAll();
+  s.AddView(View(6));
+  auto after_close = s.DeltasAfter(5, 10, 1000);
+  ASSERT_TRUE(after_close.ok());
+  ASSERT_EQ(after_close->size(), 1u);
+  EXPECT_EQ(after_close->front()->version(), 6u);
 }
 
 }  // namespace
