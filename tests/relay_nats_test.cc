@@ -7,6 +7,7 @@
 //    ends with the server's version and digest.
 //  - The modeling server is killed (SIGKILL, no checkpoint); a new process replays the stream
 //    (versions and epochs continue), takes more frames, and relays and viewers follow it.
+//  - A relay with TLS and bearer tokens (as deploy/k8s runs it) serves only the viewer role.
 // Skipped with a message when nats-server is not installed (apt-get install nats-server).
 #include <netinet/in.h>
 #include <sys/socket.h>
@@ -298,6 +299,63 @@ TEST_F(RelayNats, KilledServerReplaysTheStreamAndRelaysFollowTheNewProcess) {
   ASSERT_NO_FATAL_FAILURE(WaitRelayAt(relay_b, stopped));
   EXPECT_EQ(Stats(relay_b).model_version(), stopped);
   server_.reset();
+}
+
+}  // namespace
+}  // namespace exo
+
+namespace exo {
+namespace {
+
+// The relay as deploy/k8s/relay.yaml runs it: TLS and bearer tokens (deploy/make_certs.sh). No
+// token -> UNAUTHENTICATED; the uploader's token -> PERMISSION_DENIED on Subscribe; the viewer's
+// token syncs the server's model through the relay.
+TEST_F(RelayNats, RelayWithTlsAndTokensServesOnlyViewers) {
+  const std::string certs = dir_ + "/certs";
+  ASSERT_EQ(std::system((std::string(EXOVIEW_MAKE_CERTS) + " " + certs + " >/dev/null 2>&1").c_str()), 0);
+  const std::string server = StartServer("server.log");
+  std::filesystem::remove(dir_ + "/tls.port");
+  relay_a_ = std::make_unique<Subprocess>(
+      EXOVIEW_RELAY_BIN,
+      std::vector<std::string>{"--listen=127.0.0.1:0", "--port_file=" + dir_ + "/tls.port",
+                               "--nats_url=" + NatsUrl(), "--scene=kitchen",
+                               "--tls_cert=" + certs + "/server.pem",
+                               "--tls_key=" + certs + "/server.key",
+                               "--auth_tokens_file=" + certs + "/tokens.txt"},
+      dir_ + "/relay_tls.log");
+  ASSERT_TRUE(WaitForFile(dir_ + "/tls.port", 30)) << relay_a_->Log();
+  const std::string relay = "127.0.0.1:" + std::to_string(std::stoi(ReadAll(dir_ + "/tls.port")));
+  ASSERT_EQ(StartUpload(server, 0, 8, 40.0, "up1")->Wait(60), 0) << ReadAll(dir_ + "/up1.log");
+  const v1::Stats s = SettledServer(server);
+
+  auto channel = [&](const std::string& token) {
+    ChannelSecurity sec;
+    sec.tls_ca = certs + "/ca.pem";
+    sec.token_file = token.empty() ? "" : certs + "/" + token;
+    auto c = MakeChannel(relay, sec);
+    EXPECT_TRUE(c.ok()) << c.status();
+    return *c;
+  };
+  auto code = [&](const std::string& token) {
+    grpc::ClientContext ctx;
+    v1::Stats out;
+    return v1::Exoview::NewStub(channel(token))->GetStats(&ctx, v1::StatsRequest{}, &out).error_code();
+  };
+  EXPECT_EQ(code(""), grpc::StatusCode::UNAUTHENTICATED);
+  {
+    grpc::ClientContext ctx;
+    auto r = v1::Exoview::NewStub(channel("uploader.token"))->Subscribe(&ctx, v1::SubscribeRequest{});
+    v1::Delta d;
+    EXPECT_FALSE(r->Read(&d));
+    EXPECT_EQ(r->Finish().error_code(), grpc::StatusCode::PERMISSION_DENIED);
+  }
+  auto session = ViewerSession::Open(channel("viewer.token"), "");
+  ASSERT_TRUE(session.ok());
+  SyncOptions o;
+  o.max_seconds = 30;
+  ASSERT_TRUE((*session)->Sync(o).ok());
+  EXPECT_EQ((*session)->store().version(), s.model_version());
+  EXPECT_EQ((*session)->store().Digest(), s.model_digest());
 }
 
 }  // namespace
