@@ -111,6 +111,8 @@ class ExoviewServer::Service final : public v1::Exoview::Service {
                this));
   }
 
+  void set_delta_log(const DeltaLog* log) { delta_log_ = log; }
+
   ~Service() {
     {
       std::lock_guard lock(watch_mu_);
@@ -280,6 +282,11 @@ class ExoviewServer::Service final : public v1::Exoview::Service {
     c["server.inflight_rejections"] = static_cast<double>(inflight_rejections_.load());
     c["server.denied_calls"] = static_cast<double>(denied_calls_.load());
     c["store.snapshot_bytes"] = static_cast<double>(s.snapshot_bytes);
+    if (delta_log_) {
+      std::map<std::string, double> m;
+      delta_log_->AddCounters(&m);
+      for (const auto& [k, v] : m) c[k] = v;
+    }
     return grpc::Status::OK;
   }
 
@@ -370,6 +377,7 @@ class ExoviewServer::Service final : public v1::Exoview::Service {
   Pipeline* pipeline_;
   const std::atomic<bool>* shutting_down_;
   const UdpPoseInput* udp_;
+  const DeltaLog* delta_log_ = nullptr;
   std::shared_ptr<spdlog::logger> log_ = log::Get("server");
   std::atomic<uint64_t> received_{0}, accepted_{0}, rejected_{0}, dropped_{0}, bytes_published_{0};
   std::unique_ptr<Authorizer> auth_;
@@ -421,21 +429,26 @@ absl::Status ExoviewServer::Start() {
                                               " nor its previous generation ", prev));
     if (!loaded.empty()) {
       EXO_RETURN_IF_ERROR(store_->RestoreCheckpoint(c));
-      for (const auto& d : c.model())
-        if (d.has_scene_params()) {
-          const auto& o = d.scene_params().origin_in_world();
-          LocalOrigin origin;
-          origin.origin_in_world = {o.x(), o.y(), o.z()};
-          if (config_.pipeline.model.cell_m > 0 &&
-              d.scene_params().cell_size_m() != config_.pipeline.model.cell_m)
-            return absl::FailedPreconditionError("checkpoint: cell_size_m differs from the config");
-          pipeline_->RestoreOrigin(origin, d.scene_params().cell_size_m());
-        }
       restored_version_ = checkpoint_version_ = c.version();
       log::Get("server")->info("restored checkpoint {} at version {} ({} views)", loaded,
                                c.version(), store_->GetSummary().num_views);
     }
   }
+  // The delta log (SPEC §15): memory, or JetStream (which may replay versions the checkpoint
+  // missed into the store before anything is served).
+  EXO_ASSIGN_OR_RETURN(delta_log_, MakeDeltaLog(config_.delta_log));
+  EXO_RETURN_IF_ERROR(delta_log_->Open(store_.get()));
+  // The scene set-up of a restored model (checkpoint and/or replayed log).
+  if (store_->has_scene()) {
+    const v1::SceneParams scene = store_->scene();
+    const auto& o = scene.origin_in_world();
+    LocalOrigin origin;
+    origin.origin_in_world = {o.x(), o.y(), o.z()};
+    if (config_.pipeline.model.cell_m > 0 && scene.cell_size_m() != config_.pipeline.model.cell_m)
+      return absl::FailedPreconditionError("checkpoint: cell_size_m differs from the config");
+    pipeline_->RestoreOrigin(origin, scene.cell_size_m());
+  }
+  restored_version_ = store_->version();
   if (!config_.checkpoint_path.empty() && config_.checkpoint_interval_s > 0) {
     checkpoint_thread_ = std::thread([this] {
       std::unique_lock lock(checkpoint_mu_);
@@ -461,6 +474,7 @@ absl::Status ExoviewServer::Start() {
   EXO_ASSIGN_OR_RETURN(std::shared_ptr<grpc::ServerCredentials> creds, MakeServerCredentials());
   service_ = std::make_unique<Service>(config_, store_.get(), pipeline_.get(), &shutting_down_,
                                        udp_.get(), std::move(auth));
+  service_->set_delta_log(delta_log_.get());
   if (config_.control.enabled()) {
     EXO_ASSIGN_OR_RETURN(control_, ControlServiceHost::Start(config_.control, store_.get()));
   }
@@ -500,6 +514,7 @@ void ExoviewServer::Shutdown() {
   if (store_) store_->CloseAll();  // wakes subscription loops
   if (server_) server_->Shutdown(std::chrono::system_clock::now() + std::chrono::seconds(2));
   if (pipeline_) pipeline_->Stop();  // every admitted frame is processed before we return
+  if (delta_log_) delta_log_->Close();  // publishes what the pipeline committed (bounded wait)
   udp_.reset();
   {
     std::lock_guard lock(checkpoint_mu_);

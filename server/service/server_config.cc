@@ -135,6 +135,22 @@ std::vector<ConfigKey> MakeKeys() {
           EXO_FIELD(checkpoint_interval_s)),
       Key("checkpoint_max_log_bytes", "delta log tail kept in the checkpoint (bytes)",
           EXO_FIELD(checkpoint_max_log_bytes)),
+      Key("delta_log",
+          "where published deltas go: memory (embedded, the server serves every viewer) or "
+          "jetstream (NATS JetStream, read by exoview_relay; docs/deploy.md)",
+          EXO_FIELD(delta_log.kind)),
+      Key("nats_url", "NATS server URL(s), comma-separated (delta_log=jetstream)",
+          EXO_FIELD(delta_log.nats_url)),
+      Key("scene", "scene name: names the JetStream stream, snapshot stream and KV bucket",
+          EXO_FIELD(delta_log.scene)),
+      Key("nats_replicas", "JetStream stream replicas (3 in a NATS cluster)",
+          EXO_FIELD(delta_log.nats_replicas)),
+      Key("nats_snapshot_interval_s", "seconds between model snapshots in JetStream",
+          EXO_FIELD(delta_log.snapshot_interval_s)),
+      Key("nats_max_stream_bytes", "bound of the scene's delta stream (bytes; oldest dropped)",
+          EXO_FIELD(delta_log.max_stream_bytes)),
+      Key("nats_connect_timeout_s", "how long the server retries the first NATS connection",
+          EXO_FIELD(delta_log.connect_timeout_s)),
       Key("udp_pose_address", "address of the UDP pose input", EXO_FIELD(udp_pose_address)),
       Key("udp_pose_tolerance_s", "a frame with no UDP pose this close is rejected",
           EXO_FIELD(udp_pose_tolerance_s)),
@@ -195,6 +211,7 @@ absl::Status ServerConfig::Validate() const {
     return absl::InvalidArgumentError("transport_max_bytes must be >= max_frame_bytes");
   EXO_RETURN_IF_ERROR(pipeline.Validate());
   EXO_RETURN_IF_ERROR(store.Validate());
+  EXO_RETURN_IF_ERROR(delta_log.Validate());
   EXO_RETURN_IF_ERROR(publish.Validate());
   EXO_RETURN_IF_ERROR(geometry.Validate());
   EXO_RETURN_IF_ERROR(planning.Validate());
