@@ -160,8 +160,13 @@ absl::StatusOr<std::unique_ptr<CpuLumigraphRenderer>> CpuLumigraphRenderer::Crea
     if (!std::isfinite(v.exposure) || v.exposure < 0.0f)
       return absl::InvalidArgumentError(absl::StrCat("view ", id, ": exposure must be finite, >= 0"));
     EXO_RETURN_IF_ERROR(ValidateQuaternion(v.local_from_cam.rotation));
+    if (v.inpainted && (v.labels.width() != v.camera.width ||
+                        v.labels.height() != v.camera.height || v.labels.channels() != 1))
+      return absl::InvalidArgumentError(absl::StrCat("view ", id, ": labels are not 1 channel of the camera size"));
     index[id] = static_cast<int>(r->views_.size());
-    r->views_.push_back({MakeBlendView(v), id, &v.color, &v.depth_m});
+    if (v.inpainted) r->inpainted_.push_back(static_cast<int>(r->views_.size()));
+    r->views_.push_back({MakeBlendView(v), id, &v.color, &v.depth_m,
+                         v.inpainted ? &v.labels : nullptr});
     r->masks_.push_back(std::make_unique<BackgroundMaskEntry>());
   }
   for (const auto& [cell, refs] : model.cell_refs) {
@@ -244,7 +249,7 @@ absl::StatusOr<CpuRenderOutput> CpuLumigraphRenderer::Render(const PinholeCamera
       }
       const std::vector<int> chosen = SelectBackgroundViews(
           camera, local_from_cam, params, ids, bo.background_views,
-          [&](int i) { return MaskOf(i).any; });
+          [&](int i) { return views_[i].labels == nullptr && MaskOf(i).any; });
       for (int i : chosen) {
         bg_views.push_back({&views_[i], &MaskOf(i).mask});
         out.background_views.push_back(views_[i].id);
@@ -297,11 +302,33 @@ absl::StatusOr<CpuRenderOutput> CpuLumigraphRenderer::Render(const PinholeCamera
           auto it = refs_.find(cell);
           refs = it == refs_.end() ? nullptr : &it->second;
         }
-        if (refs == nullptr) continue;  // empty reference set: background, uncovered
         const glm::vec3 p(raster.position_local.at(x, y, 0), raster.position_local.at(x, y, 1),
                           raster.position_local.at(x, y, 2));
+        // InpaintFusion (SPEC §7, 4.17-4.18): a surface point inside an inpainted keyframe's ROI
+        // (its label at the point's projection is L_IP) is blended from the inpainted keyframes
+        // whose ROI holds it only; everywhere else only the cell's observed references count.
+        bool in_roi = false;
         blend::BestN best = blend::EmptyBestN();
-        for (int vi : *refs) {
+        for (int vi : inpainted_) {
+          const ViewData& vd = views_[vi];
+          const blend::Projection proj = blend::ProjectToView(p, vd.params);
+          if (!proj.in_front || !blend::InsideImage(proj.uv, vd.params.size)) continue;
+          const int lx = std::clamp(static_cast<int>(std::floor(proj.uv.x + 0.5f)), 0, vd.params.size.x - 1);
+          const int ly = std::clamp(static_cast<int>(std::floor(proj.uv.y + 0.5f)), 0, vd.params.size.y - 1);
+          if (vd.labels->at(lx, ly) == 0) continue;
+          in_roi = true;
+          const ImageF& depth = *vd.depth;
+          const float v = blend::Validity(p, vd.params, bo, [&](glm::ivec2 q) {
+            return depth.at(q.x, q.y);
+          });
+          if (v == 0.0f) continue;
+          const float wd = blend::DirectionalWeight(p, c_o, vd.params.centre_local);
+          const float wp = blend::PositionalWeight(p, c_o, vd.params.centre_local,
+                                                   bo.positional_mode);
+          blend::InsertBest(best, n, blend::CombinedWeight(v, wd, wp, bo.lambda, bo.min_weight), vi);
+        }
+        if (!in_roi && refs == nullptr) continue;  // empty reference set: background, uncovered
+        for (int vi : in_roi ? std::span<const int>() : std::span<const int>(*refs)) {
           const ViewData& vd = views_[vi];
           const ImageF& depth = *vd.depth;
           const float v = blend::Validity(p, vd.params, bo, [&](glm::ivec2 q) {

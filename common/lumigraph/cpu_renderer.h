@@ -73,6 +73,7 @@ class CpuLumigraphRenderer {
     ViewId id = 0;
     const ImageU8* color = nullptr;
     const ImageF* depth = nullptr;
+    const ImageU8* labels = nullptr;  // inpainted views only (SPEC §7)
   };
   struct BackgroundMaskEntry {
     bool computed = false;
@@ -89,6 +90,7 @@ class CpuLumigraphRenderer {
   TriangleMesh mesh_;
   std::vector<ViewData> views_;
   std::unordered_map<CellId, std::vector<int>> refs_;  // cell -> indices into views_
+  std::vector<int> inpainted_;  // indices into views_ of the inpainted keyframes (SPEC §7)
   mutable std::mutex mask_mutex_;
   mutable std::vector<std::unique_ptr<BackgroundMaskEntry>> masks_;  // per view, lazily
 };

@@ -164,17 +164,13 @@ class InpaintingStageImpl final : public InpaintingStage {
       if (!v->inpainted()) continue;
       next_id_ = std::max<ViewId>(next_id_, v->view_id() + 1);
       auto view = ViewFromProto(*v);
-      auto labels = DepthFromProto(v->labels());
-      if (!view.ok() || !labels.ok() || labels->width() != view->color.width() ||
-          labels->height() != view->color.height())
-        continue;
+      if (!view.ok() || view->labels.empty()) continue;
       auto r = std::make_shared<InpaintResult>();
       r->color = view->color;
       r->depth_m = view->depth_m;
       r->camera = view->camera;
       r->world_from_cam = view->local_from_cam;
-      r->mask = ImageU8(labels->width(), labels->height(), 1, 0);
-      for (size_t i = 0; i < labels->size(); ++i) r->mask.data()[i] = labels->data()[i] > 0 ? 255 : 0;
+      r->mask = view->labels;
       keyframes_.push_back({view->id, std::move(r), view->local_from_cam});
     }
   }
@@ -229,6 +225,8 @@ class InpaintingStageImpl final : public InpaintingStage {
     v.local_from_cam = job.frame.world_from_cam;
     v.color = r->color;
     v.depth_m = r->depth_m;
+    v.inpainted = true;
+    v.labels = r->mask;
     auto msg = ViewToProto(v, options_.publish);
     if (!msg.ok()) {
       log->warn("inpainted keyframe not published: {}", std::string(msg.status().message()));
@@ -236,10 +234,6 @@ class InpaintingStageImpl final : public InpaintingStage {
       ++failed_;
       return;
     }
-    msg->set_inpainted(true);
-    ImageF labels(r->mask.width(), r->mask.height(), 1, 0.f);
-    for (size_t i = 0; i < labels.size(); ++i) labels.data()[i] = r->mask.data()[i] ? 1.f : 0.f;
-    DepthToProto(labels, 1.0, msg->mutable_labels());
     for (uint32_t id : job.regions->ids()) msg->add_region_ids(id);
     {
       ScopedDeltaSource source(job.timestamp_s);
