@@ -130,6 +130,23 @@ std::vector<int> SelectBackgroundViews(const PinholeCamera& camera, const Rigid3
   return out;
 }
 
+std::vector<int> SelectInpaintedViews(const Rigid3d& local_from_cam,
+                                      std::span<const glm::vec3> centres,
+                                      std::span<const ViewId> ids) {
+  const glm::vec3 c_o(local_from_cam.translation);
+  std::vector<std::pair<float, int>> ranked;
+  for (size_t i = 0; i < centres.size(); ++i) ranked.emplace_back(glm::length(centres[i] - c_o), int(i));
+  std::sort(ranked.begin(), ranked.end(), [&](const auto& a, const auto& b) {
+    return a.first != b.first ? a.first < b.first : ids[a.second] < ids[b.second];
+  });
+  std::vector<int> out;
+  for (const auto& [d, i] : ranked) {
+    if (int(out.size()) >= kMaxInpaintedViews) break;
+    out.push_back(i);
+  }
+  return out;
+}
+
 blend::BlendView MakeBlendView(const StoredView& view) {
   blend::BlendView b;
   b.cam_from_local = glm::mat3(glm::transpose(view.local_from_cam.RotationMatrix()));
@@ -260,6 +277,17 @@ absl::StatusOr<CpuRenderOutput> CpuLumigraphRenderer::Render(const PinholeCamera
 
   const glm::vec3 c_o(local_from_cam.translation);
   const int n = bo.n_best;
+  // The inpainted keyframes of this frame (SelectInpaintedViews), nearest first.
+  std::vector<int> inpainted;
+  if (!inpainted_.empty()) {
+    std::vector<glm::vec3> centres;
+    std::vector<ViewId> ids;
+    for (int vi : inpainted_) {
+      centres.push_back(views_[vi].params.centre_local);
+      ids.push_back(views_[vi].id);
+    }
+    for (int k : SelectInpaintedViews(local_from_cam, centres, ids)) inpainted.push_back(inpainted_[k]);
+  }
   std::vector<size_t> covered(options_.num_threads, 0), surface(options_.num_threads, 0),
       background(options_.num_threads, 0);
   const int num_bg = static_cast<int>(bg_views.size());
@@ -309,7 +337,7 @@ absl::StatusOr<CpuRenderOutput> CpuLumigraphRenderer::Render(const PinholeCamera
         // whose ROI holds it only; everywhere else only the cell's observed references count.
         bool in_roi = false;
         blend::BestN best = blend::EmptyBestN();
-        for (int vi : inpainted_) {
+        for (int vi : inpainted) {
           const ViewData& vd = views_[vi];
           const blend::Projection proj = blend::ProjectToView(p, vd.params);
           if (!proj.in_front || !blend::InsideImage(proj.uv, vd.params.size)) continue;

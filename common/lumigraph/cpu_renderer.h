@@ -102,6 +102,15 @@ class CpuLumigraphRenderer {
 // number of pixels filled: 0 when every pixel is known or none is.
 size_t FillHoles(ImageU8& rgb, const ImageU8& known);
 
+// InpaintFusion (SPEC §7): at most this many inpainted keyframes take part in one frame (the
+// Vulkan Frame block holds their layers), the ones nearest the novel camera centre (ties: lower
+// id). `centres`/`ids` of the inpainted views in id order; returns indices into them, nearest
+// first. Identical in CPU and Vulkan.
+inline constexpr int kMaxInpaintedViews = 8;
+std::vector<int> SelectInpaintedViews(const Rigid3d& local_from_cam,
+                                      std::span<const glm::vec3> centres,
+                                      std::span<const ViewId> ids);
+
 // Converts a stored view into the fragment-stage parameters of blend_math.h.
 blend::BlendView MakeBlendView(const StoredView& view);
 
