@@ -150,6 +150,11 @@ class InpaintingStageImpl final : public InpaintingStage {
     return n;
   }
 
+  std::string status() const override {
+    std::lock_guard lock(mu_);
+    return last_error_;
+  }
+
   bool WaitIdle(double timeout_s) override {
     std::unique_lock lock(mu_);
     return idle_cv_.wait_for(lock, std::chrono::duration<double>(timeout_s),
@@ -208,6 +213,7 @@ class InpaintingStageImpl final : public InpaintingStage {
     }
   }
 
+
   void Publish(const Job& job, std::shared_ptr<const InpaintResult> r, double ms,
                const std::shared_ptr<spdlog::logger>& log) {
     std::lock_guard publish(publish_mu_);
@@ -248,6 +254,7 @@ class InpaintingStageImpl final : public InpaintingStage {
         keyframes_.erase(keyframes_.begin());
       }
       ++published_;
+      last_error_ = "ok";
       last_ms_ = ms;
       if (job.previous) {
         ++propagated_;

@@ -54,6 +54,9 @@ class InpaintingStage : public PipelineStage {
   virtual uint32_t Withdraw() = 0;
   // Blocks until no keyframe is in flight (tests, shutdown); false on timeout.
   virtual bool WaitIdle(double timeout_s) = 0;
+  // The outcome of the last keyframe: "" (none yet), "ok", or why it failed (e.g. "no valid
+  // source patch ..." when the ROI leaves nothing to copy from).
+  virtual std::string status() const = 0;
 };
 
 }  // namespace exo

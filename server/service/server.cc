@@ -342,7 +342,11 @@ class ExoviewServer::Service final : public v1::Exoview::Service {
                            v1::ListRegionsReply* out) override {
     if (auto who = Authorize(*ctx, Rpc::kListRegions); !who.ok()) return ToGrpc(who.status());
     if (!regions_) return NoInpainting();
-    for (auto& r : regions_->List()) *out->add_regions() = std::move(r);
+    const std::string status = inpainting_ ? inpainting_->status() : std::string();
+    for (auto& r : regions_->List()) {
+      r.set_inpaint_status(status);
+      *out->add_regions() = std::move(r);
+    }
     return grpc::Status::OK;
   }
 
