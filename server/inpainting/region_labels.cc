@@ -135,10 +135,19 @@ RegionLabels::RegionLabels(std::span<const Region3D* const> regions) {
     voxel_m_ = r->voxel_m;  // every region of a server shares the configured voxel size
     voxels_.insert(r->voxels.begin(), r->voxels.end());
   }
+  bool first = true;
+  for (uint64_t k : voxels_) {
+    const glm::ivec3 v = UnpackVoxel(k);
+    lo_ = first ? v : glm::min(lo_, v);
+    hi_ = first ? v : glm::max(hi_, v);
+    first = false;
+  }
 }
 
 bool RegionLabels::Contains(const glm::dvec3& p_local) const {
   const glm::ivec3 v = VoxelOf(p_local, voxel_m_);
+  if (v.x < lo_.x || v.y < lo_.y || v.z < lo_.z || v.x > hi_.x || v.y > hi_.y || v.z > hi_.z)
+    return false;
   return InRange(v) && voxels_.count(PackVoxel(v.x, v.y, v.z)) != 0;
 }
 

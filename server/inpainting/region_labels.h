@@ -71,6 +71,7 @@ class RegionLabels {
  private:
   double voxel_m_ = 0.02;
   std::unordered_set<uint64_t> voxels_;
+  glm::ivec3 lo_{0}, hi_{-1};  // bounding box of the voxels: most points are rejected by it
 };
 
 // The ROI mask (1 channel, 255 = ROI) of a frame: its pixels whose depth back-projects into a

@@ -37,6 +37,7 @@ struct Job {
   ImageU8 mask;
   std::shared_ptr<const InpaintResult> previous;  // the nearest keyframe (propagation)
   double timestamp_s = 0;
+  uint64_t sequence = 0;
   const char* reason = "";
 };
 
@@ -100,6 +101,7 @@ class InpaintingStageImpl final : public InpaintingStage {
     job.frame.world_from_cam = local_from_cam;  // the library only needs one consistent frame
     job.mask = std::move(mask);
     job.timestamp_s = f.timestamp_s;
+    job.sequence = f.sequence;
     {
       std::lock_guard lock(mu_);
       job_ = std::move(job);
@@ -264,8 +266,9 @@ class InpaintingStageImpl final : public InpaintingStage {
       }
     }
     if (evict) (void)store_->RemoveView(*evict);
-    log->info("inpainted keyframe {} ({}; {} ROI px, {} propagated) in {:.0f} ms", v.id,
-              job.reason, r->stats.target_pixels, r->stats.propagated_pixels, ms);
+    log->info("inpainted keyframe {} of frame {} ({}; {} ROI px, {} propagated) in {:.0f} ms",
+              v.id, job.sequence, job.reason, r->stats.target_pixels,
+              r->stats.propagated_pixels, ms);
   }
 
   void StopWorker() {
