@@ -198,17 +198,15 @@ vec4 ShadePixel(ivec2 pixel) {
     if (!(texelFetch(colors, ivec3(ivec2(pc), layer), 0).a > 0.5)) continue;
     in_roi = true;
     const vec4 ce = texelFetch(view_texels, base + 3);
-    const vec3 b = ce.xyz - x;
-    const float lb = length(b);
+    const float lb = length(ce.xyz - x);
     const float z_stored = texelFetch(depths, ivec3(ivec2(pc), layer), 0).r;
     if (!ValidDepth(z_stored)) continue;
     const float range_d = z_stored * lb / z;
     if (lb > range_d + frame.weights.z + frame.weights.w * range_d) continue;
-    const float w_d = (!(la > kMinDistance) || !(lb > kMinDistance))
-                          ? 0.0 : max(0.0, dot(a, b) / (la * lb));
-    const float w_p = frame.iparams.x == kPositionalPrinted
-                          ? max(0.0, 1.0 - lb / d_o)
-                          : max(0.0, 1.0 - max(0.0, lb - d_o) / d_o);
+    // The shared weight functions (lumigraph_common.glsl = blend_math.h), not the inlined copies
+    // of the reference loop below: this block follows any change of the weights by itself.
+    const float w_d = DirectionalWeight(x, c_o, ce.xyz);
+    const float w_p = PositionalWeight(x, c_o, ce.xyz, frame.iparams.x);
     InsertSample(best, n, CombinedWeight(1.0, w_d, w_p, frame.weights.x, frame.weights.y), j,
                  vec4(clamp(uv, vec2(0.0), size - 1.0), float(layer), ce.w));
   }

@@ -13,7 +13,7 @@
 // change inside the ROI after warping by the ground-truth motion, divided by the ground truth's
 // own), and wall / CPU time per frame; for ours the keyframe count and timings.
 //
-//   dr_bench [--frames N] [--width W] [--height H] [--arc_deg A]
+//   dr_bench [--frames N] [--width W] [--height H] [--arc_deg A]   (--help lists them)
 #include <time.h>
 
 #include <chrono>
@@ -28,6 +28,7 @@
 #include <opencv2/imgproc.hpp>
 #include <opencv2/photo.hpp>
 
+#include "common/cli/cli.h"
 #include "common/metrics/metrics.h"
 #include "server/inpainting/inpaint.h"
 #include "server/inpainting/keyframe_policy.h"
@@ -157,24 +158,15 @@ double Flicker(const ImageU8& cur, const ImageU8& prev, const ImageU8& roi_t, co
 int Main(int argc, char** argv) {
   int frames = 300, width = 320, height = 240;
   double arc_deg = 90.0;
-  for (int i = 1; i < argc; ++i) {
-    auto val = [&](const char* name) -> const char* {
-      const size_t n = std::strlen(name);
-      return std::strncmp(argv[i], name, n) == 0 && argv[i][n] == '=' ? argv[i] + n + 1 : nullptr;
-    };
-    if (const char* v = val("--frames")) frames = std::atoi(v);
-    else if (const char* v = val("--width")) width = std::atoi(v);
-    else if (const char* v = val("--height")) height = std::atoi(v);
-    else if (const char* v = val("--arc_deg")) arc_deg = std::atof(v);
-    else {
-      std::fprintf(stderr, "usage: dr_bench [--frames=N] [--width=W] [--height=H] [--arc_deg=A]\n");
-      return 2;
-    }
-  }
-  if (frames < 2 || width < 64 || height < 48) {
-    std::fprintf(stderr, "dr_bench: need >= 2 frames and >= 64x48\n");
-    return 2;
-  }
+  CLI::App app{"Diminished reality on a synthetic scene with a removable box: Telea, "
+               "Navier-Stokes, per-frame PatchMatch and InpaintFusion keyframes against the "
+               "ground truth without the box; prints JSON"};
+  exo::cli::Setup(app);
+  app.add_option("--frames", frames, "frames on the arc")->check(CLI::Range(2, 100000));
+  app.add_option("--width", width, "frame width")->check(CLI::Range(64, 4096));
+  app.add_option("--height", height, "frame height")->check(CLI::Range(48, 4096));
+  app.add_option("--arc_deg", arc_deg, "degrees of the arc around the box")->check(CLI::Range(1.0, 180.0));
+  if (auto rc = exo::cli::Parse(app, argc, argv)) return *rc;
   PinholeCamera cam;
   cam.width = width;
   cam.height = height;
