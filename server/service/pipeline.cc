@@ -72,6 +72,7 @@ void Pipeline::RunStage(size_t i) {
   while (auto item = queues_[i]->Pop()) {
     const PipelineFramePtr& f = *item;
     const ScopedDeltaSource source(f->frame.timestamp_s);
+    stages_[i]->SetBacklog(queues_[i]->size(), queues_[i]->capacity());
     const int64_t t0 = SteadyNowNs();
     const absl::Status s = stages_[i]->Process(*f, ctx_);
     timers_[i].Add(SteadyNowNs() - t0);

@@ -103,6 +103,8 @@ std::vector<ConfigKey> MakeKeys() {
           EXO_FIELD(geometry.republish_change_fraction)),
       Key("chunk_republish_interval_s", "minimum seconds between republishing a chunk",
           EXO_FIELD(geometry.republish_interval_s)),
+      Key("geometry_shed_backlog", "skip fusing a frame while this fraction of the admission queue waits (0 = never; off with admission_block)",
+          EXO_FIELD(geometry.shed_backlog_fraction)),
       Key("planning", "planning stage (view store)", EXO_FIELD(enable_planning)),
       Key("inpainting", "InpaintFusion: region marking RPCs and the inpainting stage",
           EXO_FIELD(enable_inpainting)),
