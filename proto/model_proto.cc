@@ -78,6 +78,15 @@ absl::StatusOr<v1::ViewAdded> ViewToProto(const StoredView& view, const ViewEnco
     DepthToProto(DownscaleDepth(view.depth_m, options.depth_downscale),
                  options.depth_metres_per_unit, msg.mutable_depth());
   msg.set_exposure(view.exposure);
+  if (view.inpainted) {
+    if (view.labels.width() != view.color.width() || view.labels.height() != view.color.height() ||
+        view.labels.channels() != 1)
+      return absl::InvalidArgumentError("inpainted view: labels must be 1 channel, colour size");
+    msg.set_inpainted(true);
+    ImageF values(view.labels.width(), view.labels.height(), 1, 0.f);
+    for (size_t i = 0; i < values.size(); ++i) values.data()[i] = view.labels.data()[i] ? 1.f : 0.f;
+    DepthToProto(values, 1.0, msg.mutable_labels());
+  }
   return msg;
 }
 
@@ -94,6 +103,16 @@ absl::StatusOr<StoredView> ViewFromProto(const v1::ViewAdded& msg) {
     v.depth_m = UpsampleNearest(d, v.camera.width, v.camera.height);
   }
   v.exposure = msg.exposure();
+  if (msg.inpainted()) {
+    v.inpainted = true;
+    if (!msg.has_labels())
+      return absl::InvalidArgumentError("inpainted view without its label mask");
+    EXO_ASSIGN_OR_RETURN(ImageF labels, DepthFromProto(msg.labels()));
+    if (labels.width() != v.camera.width || labels.height() != v.camera.height)
+      return absl::InvalidArgumentError("inpainted view: label mask size differs from the colour");
+    v.labels = ImageU8(labels.width(), labels.height(), 1, 0);
+    for (size_t i = 0; i < labels.size(); ++i) v.labels.data()[i] = labels.data()[i] > 0.5f ? 255 : 0;
+  }
   return v;
 }
 
@@ -128,6 +147,7 @@ ViewDigestRecord DigestRecordFromProto(const v1::ViewAdded& msg) {
   r.exposure = msg.exposure();
   r.color_hash = Fnv1a64(Bytes(msg.color_jpeg()));
   r.depth_hash = Fnv1a64(Bytes(msg.depth().data()));
+  if (msg.inpainted()) r.depth_hash = Fnv1a64(Bytes(msg.labels().data()), r.depth_hash ^ 1);
   return r;
 }
 

@@ -179,6 +179,38 @@ vec4 ShadePixel(ivec2 pixel) {
   // nor any later one can enter the best n (break); a reference whose actual weight is below
   // nth is skipped before its validity test. Both exact: the selection is unchanged.
   float nth = 0.0;
+  // InpaintFusion (SPEC §7, 4.17-4.18; cpu_renderer.cc): a surface point inside an inpainted
+  // keyframe's ROI (colour alpha = label 1 at the point's nearest pixel) is blended from the
+  // inpainted keyframes whose ROI holds it only; the cell's observed references are then skipped.
+  bool in_roi = false;
+  for (int j = 0; j < frame.ip_params.x; ++j) {
+    const int layer = frame.ip_layers[j / 4][j % 4];
+    const int base = layer * kViewTexels;
+    const vec4 hx = vec4(x, 1.0);
+    const float z = dot(texelFetch(view_texels, base + 2), hx);
+    if (!(z > kMinDistance)) continue;
+    const vec2 uv = vec2(dot(texelFetch(view_texels, base + 0), hx),
+                         dot(texelFetch(view_texels, base + 1), hx)) / z;
+    const vec4 sl = texelFetch(view_texels, base + 4);
+    const vec2 size = sl.xy;
+    if (!(uv.x >= -0.5 && uv.y >= -0.5 && uv.x < size.x - 0.5 && uv.y < size.y - 0.5)) continue;
+    const vec2 pc = clamp(floor(uv + 0.5), vec2(0.0), size - 1.0);
+    if (!(texelFetch(colors, ivec3(ivec2(pc), layer), 0).a > 0.5)) continue;
+    in_roi = true;
+    const vec4 ce = texelFetch(view_texels, base + 3);
+    const float lb = length(ce.xyz - x);
+    const float z_stored = texelFetch(depths, ivec3(ivec2(pc), layer), 0).r;
+    if (!ValidDepth(z_stored)) continue;
+    const float range_d = z_stored * lb / z;
+    if (lb > range_d + frame.weights.z + frame.weights.w * range_d) continue;
+    // The shared weight functions (lumigraph_common.glsl = blend_math.h), not the inlined copies
+    // of the reference loop below: this block follows any change of the weights by itself.
+    const float w_d = DirectionalWeight(x, c_o, ce.xyz);
+    const float w_p = PositionalWeight(x, c_o, ce.xyz, frame.iparams.x);
+    InsertSample(best, n, CombinedWeight(1.0, w_d, w_p, frame.weights.x, frame.weights.y), j,
+                 vec4(clamp(uv, vec2(0.0), size - 1.0), float(layer), ce.w));
+  }
+  if (in_roi) count = 0u;
   for (uint i = 0u; i < count; ++i) {
     const int t = int(2u * (offset + i));
     const uvec4 r0 = texelFetch(ranked_refs, t);

@@ -6,6 +6,7 @@
 const float kMinDistance = 1e-6;
 const int kMaxBlendViews = 4;
 const int kMaxBackgroundViews = 8;
+const int kMaxInpaintedViews = 8;  // cpu_renderer.h kMaxInpaintedViews
 const int kBgViewTexels = 5;
 const int kPositionalPrinted = 0;
 const int kPositionalUlrResolution = 1;
@@ -205,4 +206,7 @@ layout(std140, set = 0, binding = 0) uniform Frame {
   vec4 local_from_pixel[3];
   ivec4 bg_params;
   vec4 bg_views[kBgViewTexels * kMaxBackgroundViews];
+  // InpaintFusion (SPEC §7): ip_params.x inpainted keyframes (nearest first), their layers.
+  ivec4 ip_params;
+  ivec4 ip_layers[kMaxInpaintedViews / 4];
 } frame;

@@ -31,7 +31,7 @@ class ServerProcessTest : public ::testing::Test {
       server_->Signal(SIGTERM);
       server_->Wait(10);
     }
-    if (!HasFailure()) std::filesystem::remove_all(dir_);
+    if (!HasFailure() && !getenv("EXO_KEEP")) std::filesystem::remove_all(dir_);
   }
   // Starts (or restarts) the server with `extra` flags; its output goes to dir_/log.
   void StartServer(const std::vector<std::string>& extra, const std::string& log = "server.log") {

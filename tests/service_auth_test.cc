@@ -74,6 +74,27 @@ class Auth : public ::testing::Test {
     v1::Stats s;
     return stub->GetStats(&ctx, v1::StatsRequest{}, &s).error_code();
   }
+  // Region marking (InpaintFusion): allowed on this empty server means FAILED_PRECONDITION (no
+  // scene yet), i.e. the call got past authorization.
+  static grpc::StatusCode CallMarkRegion(const std::shared_ptr<grpc::Channel>& ch) {
+    auto stub = v1::Exoview::NewStub(ch);
+    grpc::ClientContext ctx;
+    ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(10));
+    v1::MarkRegionRequest req;
+    auto* k = req.mutable_camera();
+    k->set_fx(100);
+    k->set_fy(100);
+    k->set_cx(50);
+    k->set_cy(50);
+    k->set_width(100);
+    k->set_height(100);
+    req.mutable_local_from_cam()->mutable_quaternion()->set_w(1);
+    auto* p = req.add_stroke();
+    p->set_x(50);
+    p->set_y(50);
+    v1::MarkRegionReply out;
+    return stub->MarkRegion(&ctx, req, &out).error_code();
+  }
   // Allowed: the stream stays open (nothing to send yet) until the deadline.
   static grpc::StatusCode CallSubscribe(const std::shared_ptr<grpc::Channel>& ch) {
     auto stub = v1::Exoview::NewStub(ch);
@@ -117,17 +138,21 @@ TEST_F(Auth, EveryRpcTimesNoTokenWrongTokenAndEachRole) {
   using C = grpc::StatusCode;
   struct Row {
     std::string who, token_file;
-    C upload, subscribe, stats;
+    C upload, subscribe, stats, mark;
   };
   const std::string t = *certs_ + "/";
   const Row rows[] = {
-      {"no token", "", C::UNAUTHENTICATED, C::UNAUTHENTICATED, C::UNAUTHENTICATED},
-      {"wrong token", *dir_ + "/wrong.token", C::UNAUTHENTICATED, C::UNAUTHENTICATED,
+      {"no token", "", C::UNAUTHENTICATED, C::UNAUTHENTICATED, C::UNAUTHENTICATED,
        C::UNAUTHENTICATED},
-      {"uploader", t + "uploader.token", C::OK, C::PERMISSION_DENIED, C::PERMISSION_DENIED},
-      {"viewer", t + "viewer.token", C::PERMISSION_DENIED, C::DEADLINE_EXCEEDED, C::OK},
-      {"operator", t + "operator.token", C::PERMISSION_DENIED, C::DEADLINE_EXCEEDED, C::OK},
-      {"admin", t + "admin.token", C::OK, C::DEADLINE_EXCEEDED, C::OK},
+      {"wrong token", *dir_ + "/wrong.token", C::UNAUTHENTICATED, C::UNAUTHENTICATED,
+       C::UNAUTHENTICATED, C::UNAUTHENTICATED},
+      {"uploader", t + "uploader.token", C::OK, C::PERMISSION_DENIED, C::PERMISSION_DENIED,
+       C::PERMISSION_DENIED},
+      {"viewer", t + "viewer.token", C::PERMISSION_DENIED, C::DEADLINE_EXCEEDED, C::OK,
+       C::PERMISSION_DENIED},
+      {"operator", t + "operator.token", C::PERMISSION_DENIED, C::DEADLINE_EXCEEDED, C::OK,
+       C::FAILED_PRECONDITION},
+      {"admin", t + "admin.token", C::OK, C::DEADLINE_EXCEEDED, C::OK, C::FAILED_PRECONDITION},
   };
   for (const Row& r : rows) {
     auto ch = Channel(r.token_file);
@@ -136,13 +161,14 @@ TEST_F(Auth, EveryRpcTimesNoTokenWrongTokenAndEachRole) {
     EXPECT_EQ(acks, r.upload == C::OK ? 1 : 0) << r.who;
     EXPECT_EQ(CallSubscribe(ch), r.subscribe) << r.who << ": Subscribe";
     EXPECT_EQ(CallGetStats(ch), r.stats) << r.who << ": GetStats";
+    EXPECT_EQ(CallMarkRegion(ch), r.mark) << r.who << ": MarkRegion";
   }
   // The refusals are counted (admin reads the counter).
   auto stub = v1::Exoview::NewStub(Channel(t + "admin.token"));
   grpc::ClientContext ctx;
   v1::Stats s;
   ASSERT_TRUE(stub->GetStats(&ctx, v1::StatsRequest{}, &s).ok());
-  EXPECT_EQ(s.counters().at("server.denied_calls"), 10.0);
+  EXPECT_EQ(s.counters().at("server.denied_calls"), 14.0);
 }
 
 TEST_F(Auth, PlainTextClientCannotTalkToTheTlsServer) {

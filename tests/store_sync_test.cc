@@ -100,3 +100,45 @@ TEST(LocalStore, GapOrReplayedVersionIsAnError) {
 
 }  // namespace
 }  // namespace exo
+
+namespace exo {
+namespace {
+
+// An inpainted keyframe (SPEC §7) reaches the client with its flag and label mask, and the
+// digests (which cover the labels) agree.
+TEST(LocalStore, InpaintedViewArrivesWithItsLabels) {
+  ModelStore server;
+  server.SetSceneParams(LocalOrigin{{0.0, 0.0, 0.0}}, 0.5);
+  StoredView v;
+  v.id = 0x40000000u;
+  v.camera = PinholeCamera::FromFov(32, 24, 1.0);
+  v.color = ImageU8(32, 24, 3, 90);
+  v.depth_m = ImageF(32, 24, 1, 2.0f);
+  v.inpainted = true;
+  v.labels = ImageU8(32, 24, 1, 0);
+  for (int x = 5; x < 20; ++x) v.labels.at(x, 10) = 255;
+  auto msg = ViewToProto(v, {});
+  ASSERT_TRUE(msg.ok()) << msg.status();
+  server.AddView(*msg);
+  LocalStore a;
+  auto sub = server.Subscribe(0, 0);
+  ASSERT_TRUE(Pump(*sub, a).ok());
+  EXPECT_EQ(a.Digest(), server.GetSummary().digest);
+  const StoredView& got = a.model().views.at(v.id);
+  EXPECT_TRUE(got.inpainted);
+  ASSERT_EQ(got.labels.width(), 32);
+  EXPECT_EQ(got.labels.at(5, 10), 255);
+  EXPECT_EQ(got.labels.at(4, 10), 0);
+  // Other labels: another digest.
+  v.labels.at(4, 10) = 255;
+  ModelStore other;
+  other.SetSceneParams(LocalOrigin{{0.0, 0.0, 0.0}}, 0.5);
+  other.AddView(*ViewToProto(v, {}));
+  EXPECT_NE(other.GetSummary().digest, server.GetSummary().digest);
+  // An inpainted view without labels is refused.
+  v.labels = ImageU8();
+  EXPECT_FALSE(ViewToProto(v, {}).ok());
+}
+
+}  // namespace
+}  // namespace exo

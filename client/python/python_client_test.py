@@ -136,7 +136,9 @@ class PythonClientTest(unittest.TestCase):
         rc, out, err = run_tool("list_services.py", "--target=" + self.server.target)
         self.assertEqual(rc, 0, err)
         services = json.loads(out)["services"]
-        self.assertEqual(services.get("exoview.v1.Exoview"), ["GetStats", "Subscribe", "Upload"])
+        self.assertEqual(services.get("exoview.v1.Exoview"),
+                         ["ClearRegion", "GetStats", "ListRegions", "MarkRegion", "Subscribe",
+                          "Upload"])
         self.assertIn("grpc.health.v1.Health", services)
 
     def test_uploads_frames_it_wrote_and_reads_stats(self):

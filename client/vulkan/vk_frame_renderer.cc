@@ -31,8 +31,13 @@ struct GpuFrame {
   glm::vec4 local_from_pixel[3];
   glm::ivec4 bg_params;
   glm::vec4 bg_views[kBgViewTexels * blend::kMaxBackgroundViews];
+  // InpaintFusion (SPEC §7): ip_params.x inpainted keyframes of this frame (SelectInpaintedViews,
+  // nearest first), their texture layers in ip_layers (4 per ivec4).
+  glm::ivec4 ip_params;
+  glm::ivec4 ip_layers[kMaxInpaintedViews / 4];
 };
-static_assert(sizeof(GpuFrame) == 128 + 48 + 16 + 16 * kBgViewTexels * blend::kMaxBackgroundViews);
+static_assert(sizeof(GpuFrame) == 128 + 48 + 16 + 16 * kBgViewTexels * blend::kMaxBackgroundViews +
+                                      16 + 16 * (kMaxInpaintedViews / 4));
 
 namespace {
 
@@ -243,9 +248,10 @@ void FrameRenderer::FillBackground(const PinholeCamera& camera, const Rigid3d& l
     params.push_back(e->params);
     ids.push_back(id);
   }
-  const std::vector<int> chosen =
-      SelectBackgroundViews(camera, local_from_cam, params, ids, max_views,
-                            [&](int i) { return sorted[i].second->has_background; });
+  const std::vector<int> chosen = SelectBackgroundViews(
+      camera, local_from_cam, params, ids, max_views, [&](int i) {
+        return !sorted[i].second->inpainted && sorted[i].second->has_background;
+      });
   const glm::mat3 m = LocalFromPixel(camera, local_from_cam);
   for (int c = 0; c < 3; ++c) f->local_from_pixel[c] = glm::vec4(m[c], 0.0f);
   f->bg_params = glm::ivec4(int(chosen.size()), 0, 0, 0);
@@ -260,6 +266,28 @@ void FrameRenderer::FillBackground(const PinholeCamera& camera, const Rigid3d& l
   }
 }
 
+// The inpainted keyframes of this frame (SPEC §7; the CPU reference's SelectInpaintedViews over
+// the resident inpainted views in id order) into the Frame block.
+void FrameRenderer::FillInpainted(const Rigid3d& local_from_cam, GpuFrame* f) const {
+  std::vector<std::pair<ViewId, const ViewStore::Entry*>> sorted;
+  for (const auto& [id, e] : views_.entries())
+    if (e.inpainted) sorted.emplace_back(id, &e);
+  f->ip_params = glm::ivec4(0);
+  if (sorted.empty()) return;
+  std::sort(sorted.begin(), sorted.end(),
+            [](const auto& a, const auto& b) { return a.first < b.first; });
+  std::vector<glm::vec3> centres;
+  std::vector<ViewId> ids;
+  for (const auto& [id, e] : sorted) {
+    centres.push_back(e->params.centre_local);
+    ids.push_back(id);
+  }
+  const std::vector<int> chosen = SelectInpaintedViews(local_from_cam, centres, ids);
+  f->ip_params.x = int(chosen.size());
+  for (size_t j = 0; j < chosen.size(); ++j)
+    f->ip_layers[j / 4][j % 4] = int(sorted[chosen[j]].second->slot);
+}
+
 // The blend pass's Frame block (camera, weights, background list) into frame_ubo_.
 void FrameRenderer::UploadBlendFrame(const PinholeCamera& camera, const Rigid3d& local_from_cam,
                                      const blend::BlendOptions& bo, GpuFrame* f,
@@ -272,6 +300,7 @@ void FrameRenderer::UploadBlendFrame(const PinholeCamera& camera, const Rigid3d&
   f->iparams.y = bo.n_best;
   if (bo.background_views > 0)
     FillBackground(camera, local_from_cam, bo.background_views, f, bg_ids);
+  FillInpainted(local_from_cam, f);
   std::memcpy(frame_ubo_.mapped, f, sizeof(*f));
 }
 

@@ -51,6 +51,7 @@ class FrameRenderer {
   // The render-time options must match what was baked into the resident depth layers.
   absl::Status CheckBakedOptions(const blend::BlendOptions& bo) const;
   void FillFrame(const PinholeCamera& camera, const Rigid3d& local_from_cam, GpuFrame* f) const;
+  void FillInpainted(const Rigid3d& local_from_cam, GpuFrame* f) const;
   void FillBackground(const PinholeCamera& camera, const Rigid3d& local_from_cam, int max_views,
                       GpuFrame* f, std::vector<ViewId>* chosen_ids) const;
   // The blend pass's Frame block (camera, weights, background list) into frame_ubo_.

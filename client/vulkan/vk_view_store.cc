@@ -108,6 +108,9 @@ absl::Status ViewStore::Validate(const StoredView& v) const {
     return absl::InvalidArgumentError(
         absl::StrCat("view ", v.id, ": exposure must be finite and > 0, got ", v.exposure));
   EXO_RETURN_IF_ERROR(ValidateQuaternion(v.local_from_cam.rotation));
+  if (v.inpainted && (v.labels.width() != w || v.labels.height() != h || v.labels.channels() != 1))
+    return absl::InvalidArgumentError(
+        absl::StrCat("view ", v.id, ": labels of an inpainted view must be 1 channel ", w, "x", h));
   const glm::dvec3& t = v.local_from_cam.translation;
   if (!std::isfinite(t.x) || !std::isfinite(t.y) || !std::isfinite(t.z))
     return absl::InvalidArgumentError(absl::StrCat("view ", v.id, ": non-finite position"));
@@ -136,11 +139,13 @@ absl::StatusOr<bool> ViewStore::Stage(const StoredView& v) {
   // sRGB8 -> linear UNORM16 (the texel decode of blend_math.h, done once at upload).
   const auto& lut = Linear16Lut();
   uint16_t* d16 = reinterpret_cast<uint16_t*>(dst);
+  // Alpha: 1 for an observed view; an inpainted keyframe's labels (1 = inside its ROI, SPEC §7).
+  const uint8_t* labels = v.inpainted ? v.labels.data() : nullptr;
   for (size_t i = 0; i < n; ++i) {
     d16[4 * i + 0] = lut[src[3 * i + 0]];
     d16[4 * i + 1] = lut[src[3 * i + 1]];
     d16[4 * i + 2] = lut[src[3 * i + 2]];
-    d16[4 * i + 3] = 65535;
+    d16[4 * i + 3] = labels == nullptr || labels[i] ? 65535 : 0;
   }
   ImageF baked =
       BakeDiscontinuities(v.depth_m, opt_.bake_discontinuity_radius_px,
@@ -208,7 +213,7 @@ absl::StatusOr<bool> ViewStore::Upsert(const StoredView& v, uint64_t fingerprint
   WriteRecord(v, slot);
   stats_.bytes += VkDeviceSize(w) * h * (kColorTexelBytes + kDepthTexelBytes);
   ++stats_.view_uploads;
-  views_[v.id] = Entry{slot, fingerprint, MakeBlendView(v), has_background};
+  views_[v.id] = Entry{slot, fingerprint, MakeBlendView(v), has_background, v.inpainted};
   return is_new;
 }
 

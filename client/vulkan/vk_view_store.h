@@ -36,6 +36,7 @@ class ViewStore {
     uint64_t fingerprint = 0;
     blend::BlendView params;      // as the CPU reference builds it (MakeBlendView)
     bool has_background = false;  // some pixel of the baked background mask is set
+    bool inpainted = false;       // SPEC §7: colour alpha holds its labels (1 = L_IP)
   };
 
   // `ctx`, `opt` and `stats` must outlive the store.

@@ -29,6 +29,8 @@ uint64_t ViewFingerprint(const StoredView& v) {
                             v.local_from_cam.translation.z);
   h = Mix(h, absl::Hash<absl::Span<const uint8_t>>{}(absl::MakeConstSpan(v.color.span())));
   h = Mix(h, absl::Hash<absl::Span<const float>>{}(absl::MakeConstSpan(v.depth_m.span())));
+  if (v.inpainted)
+    h = Mix(h, absl::Hash<absl::Span<const uint8_t>>{}(absl::MakeConstSpan(v.labels.span())));
   return h;
 }
 

@@ -130,6 +130,23 @@ std::vector<int> SelectBackgroundViews(const PinholeCamera& camera, const Rigid3
   return out;
 }
 
+std::vector<int> SelectInpaintedViews(const Rigid3d& local_from_cam,
+                                      std::span<const glm::vec3> centres,
+                                      std::span<const ViewId> ids) {
+  const glm::vec3 c_o(local_from_cam.translation);
+  std::vector<std::pair<float, int>> ranked;
+  for (size_t i = 0; i < centres.size(); ++i) ranked.emplace_back(glm::length(centres[i] - c_o), int(i));
+  std::sort(ranked.begin(), ranked.end(), [&](const auto& a, const auto& b) {
+    return a.first != b.first ? a.first < b.first : ids[a.second] < ids[b.second];
+  });
+  std::vector<int> out;
+  for (const auto& [d, i] : ranked) {
+    if (int(out.size()) >= kMaxInpaintedViews) break;
+    out.push_back(i);
+  }
+  return out;
+}
+
 blend::BlendView MakeBlendView(const StoredView& view) {
   blend::BlendView b;
   b.cam_from_local = glm::mat3(glm::transpose(view.local_from_cam.RotationMatrix()));
@@ -160,8 +177,13 @@ absl::StatusOr<std::unique_ptr<CpuLumigraphRenderer>> CpuLumigraphRenderer::Crea
     if (!std::isfinite(v.exposure) || v.exposure < 0.0f)
       return absl::InvalidArgumentError(absl::StrCat("view ", id, ": exposure must be finite, >= 0"));
     EXO_RETURN_IF_ERROR(ValidateQuaternion(v.local_from_cam.rotation));
+    if (v.inpainted && (v.labels.width() != v.camera.width ||
+                        v.labels.height() != v.camera.height || v.labels.channels() != 1))
+      return absl::InvalidArgumentError(absl::StrCat("view ", id, ": labels are not 1 channel of the camera size"));
     index[id] = static_cast<int>(r->views_.size());
-    r->views_.push_back({MakeBlendView(v), id, &v.color, &v.depth_m});
+    if (v.inpainted) r->inpainted_.push_back(static_cast<int>(r->views_.size()));
+    r->views_.push_back({MakeBlendView(v), id, &v.color, &v.depth_m,
+                         v.inpainted ? &v.labels : nullptr});
     r->masks_.push_back(std::make_unique<BackgroundMaskEntry>());
   }
   for (const auto& [cell, refs] : model.cell_refs) {
@@ -244,7 +266,7 @@ absl::StatusOr<CpuRenderOutput> CpuLumigraphRenderer::Render(const PinholeCamera
       }
       const std::vector<int> chosen = SelectBackgroundViews(
           camera, local_from_cam, params, ids, bo.background_views,
-          [&](int i) { return MaskOf(i).any; });
+          [&](int i) { return views_[i].labels == nullptr && MaskOf(i).any; });
       for (int i : chosen) {
         bg_views.push_back({&views_[i], &MaskOf(i).mask});
         out.background_views.push_back(views_[i].id);
@@ -255,6 +277,17 @@ absl::StatusOr<CpuRenderOutput> CpuLumigraphRenderer::Render(const PinholeCamera
 
   const glm::vec3 c_o(local_from_cam.translation);
   const int n = bo.n_best;
+  // The inpainted keyframes of this frame (SelectInpaintedViews), nearest first.
+  std::vector<int> inpainted;
+  if (!inpainted_.empty()) {
+    std::vector<glm::vec3> centres;
+    std::vector<ViewId> ids;
+    for (int vi : inpainted_) {
+      centres.push_back(views_[vi].params.centre_local);
+      ids.push_back(views_[vi].id);
+    }
+    for (int k : SelectInpaintedViews(local_from_cam, centres, ids)) inpainted.push_back(inpainted_[k]);
+  }
   std::vector<size_t> covered(options_.num_threads, 0), surface(options_.num_threads, 0),
       background(options_.num_threads, 0);
   const int num_bg = static_cast<int>(bg_views.size());
@@ -297,11 +330,33 @@ absl::StatusOr<CpuRenderOutput> CpuLumigraphRenderer::Render(const PinholeCamera
           auto it = refs_.find(cell);
           refs = it == refs_.end() ? nullptr : &it->second;
         }
-        if (refs == nullptr) continue;  // empty reference set: background, uncovered
         const glm::vec3 p(raster.position_local.at(x, y, 0), raster.position_local.at(x, y, 1),
                           raster.position_local.at(x, y, 2));
+        // InpaintFusion (SPEC §7, 4.17-4.18): a surface point inside an inpainted keyframe's ROI
+        // (its label at the point's projection is L_IP) is blended from the inpainted keyframes
+        // whose ROI holds it only; everywhere else only the cell's observed references count.
+        bool in_roi = false;
         blend::BestN best = blend::EmptyBestN();
-        for (int vi : *refs) {
+        for (int vi : inpainted) {
+          const ViewData& vd = views_[vi];
+          const blend::Projection proj = blend::ProjectToView(p, vd.params);
+          if (!proj.in_front || !blend::InsideImage(proj.uv, vd.params.size)) continue;
+          const int lx = std::clamp(static_cast<int>(std::floor(proj.uv.x + 0.5f)), 0, vd.params.size.x - 1);
+          const int ly = std::clamp(static_cast<int>(std::floor(proj.uv.y + 0.5f)), 0, vd.params.size.y - 1);
+          if (vd.labels->at(lx, ly) == 0) continue;
+          in_roi = true;
+          const ImageF& depth = *vd.depth;
+          const float v = blend::Validity(p, vd.params, bo, [&](glm::ivec2 q) {
+            return depth.at(q.x, q.y);
+          });
+          if (v == 0.0f) continue;
+          const float wd = blend::DirectionalWeight(p, c_o, vd.params.centre_local);
+          const float wp = blend::PositionalWeight(p, c_o, vd.params.centre_local,
+                                                   bo.positional_mode);
+          blend::InsertBest(best, n, blend::CombinedWeight(v, wd, wp, bo.lambda, bo.min_weight), vi);
+        }
+        if (!in_roi && refs == nullptr) continue;  // empty reference set: background, uncovered
+        for (int vi : in_roi ? std::span<const int>() : std::span<const int>(*refs)) {
           const ViewData& vd = views_[vi];
           const ImageF& depth = *vd.depth;
           const float v = blend::Validity(p, vd.params, bo, [&](glm::ivec2 q) {

@@ -73,6 +73,7 @@ class CpuLumigraphRenderer {
     ViewId id = 0;
     const ImageU8* color = nullptr;
     const ImageF* depth = nullptr;
+    const ImageU8* labels = nullptr;  // inpainted views only (SPEC §7)
   };
   struct BackgroundMaskEntry {
     bool computed = false;
@@ -89,6 +90,7 @@ class CpuLumigraphRenderer {
   TriangleMesh mesh_;
   std::vector<ViewData> views_;
   std::unordered_map<CellId, std::vector<int>> refs_;  // cell -> indices into views_
+  std::vector<int> inpainted_;  // indices into views_ of the inpainted keyframes (SPEC §7)
   mutable std::mutex mask_mutex_;
   mutable std::vector<std::unique_ptr<BackgroundMaskEntry>> masks_;  // per view, lazily
 };
@@ -99,6 +101,15 @@ class CpuLumigraphRenderer {
 // linear intensity (sRGB decoded, filled, encoded). Known pixels are not changed. Returns the
 // number of pixels filled: 0 when every pixel is known or none is.
 size_t FillHoles(ImageU8& rgb, const ImageU8& known);
+
+// InpaintFusion (SPEC §7): at most this many inpainted keyframes take part in one frame (the
+// Vulkan Frame block holds their layers), the ones nearest the novel camera centre (ties: lower
+// id). `centres`/`ids` of the inpainted views in id order; returns indices into them, nearest
+// first. Identical in CPU and Vulkan.
+inline constexpr int kMaxInpaintedViews = 8;
+std::vector<int> SelectInpaintedViews(const Rigid3d& local_from_cam,
+                                      std::span<const glm::vec3> centres,
+                                      std::span<const ViewId> ids);
 
 // Converts a stored view into the fragment-stage parameters of blend_math.h.
 blend::BlendView MakeBlendView(const StoredView& view);

@@ -549,3 +549,60 @@ TEST(CpuRendererBackground, VillageSkyMatchesGroundTruth) {
 
 }  // namespace
 }  // namespace exo
+
+namespace exo {
+namespace {
+
+// InpaintFusion (SPEC §7, 4.17-4.18): an observed view (flat 60) and an inpainted keyframe (flat
+// 200) whose ROI is the centre square. Inside the ROI only the inpainted keyframe contributes,
+// outside it only the observation; the inpainted view is never a cell reference nor a background
+// view. Without ROI labels (all 0) the inpainted view is ignored.
+TEST(CpuRendererInpainted, InsideTheRoiOnlyInpaintedOutsideOnlyObserved) {
+  LumigraphModel m = OnePlaneModel(Plane(2.1f));
+  StoredView obs = MakeView(1, m.chunks[0].mesh, Rigid3d::Identity(), 1.0f, true);
+  obs.color = ImageU8(64, 48, 3, 60);
+  m.views[1] = obs;
+  ReferenceAllCells(&m);  // only the observed view is referenced
+  StoredView ip = MakeView(0x40000000u, m.chunks[0].mesh, Rigid3d::Identity(), 1.0f, true);
+  ip.color = ImageU8(64, 48, 3, 200);
+  ip.inpainted = true;
+  ip.labels = ImageU8(64, 48, 1, 0);
+  for (int y = 16; y < 32; ++y)
+    for (int x = 24; x < 40; ++x) ip.labels.at(x, y) = 255;
+  m.views[ip.id] = ip;
+  CpuRenderOptions opt;
+  opt.debug_weights = true;
+  auto r = CpuLumigraphRenderer::Create(m, opt).value();
+  // A slightly moved novel camera: the ROI re-projects through the proxy.
+  Rigid3d pose;
+  pose.translation = {0.05, 0.0, 0.0};
+  auto out = r->Render(SmallCam(), pose).value();
+  int inside = 0, outside = 0;
+  for (int y = 0; y < 48; ++y)
+    for (int x = 0; x < 64; ++x) {
+      const int c = out.color.at(x, y, 0);
+      ASSERT_TRUE(c == 60 || c == 200 || out.coverage.at(x, y) == 0) << x << "," << y << ": " << c;
+      if (c == 200) ++inside;
+      if (c == 60) ++outside;
+      if (c == 200) EXPECT_EQ(out.num_views.at(x, y), 1);
+    }
+  EXPECT_NEAR(inside, 16 * 16, 40);  // the ROI's square, shifted
+  EXPECT_GT(outside, 64 * 48 - 16 * 16 - 80);
+  EXPECT_EQ(out.color.at(32, 24, 0), 200);
+  EXPECT_EQ(out.color.at(5, 5, 0), 60);
+
+  // Labels all observed: the inpainted view does not contribute anywhere.
+  m.views[ip.id].labels = ImageU8(64, 48, 1, 0);
+  auto r2 = CpuLumigraphRenderer::Create(m, opt).value();
+  auto out2 = r2->Render(SmallCam(), pose).value();
+  for (int y = 0; y < 48; ++y)
+    for (int x = 0; x < 64; ++x)
+      if (out2.coverage.at(x, y)) ASSERT_EQ(out2.color.at(x, y, 0), 60);
+
+  // Labels of the wrong size are refused.
+  m.views[ip.id].labels = ImageU8(10, 10, 1, 0);
+  EXPECT_FALSE(CpuLumigraphRenderer::Create(m, opt).ok());
+}
+
+}  // namespace
+}  // namespace exo

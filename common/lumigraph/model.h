@@ -26,7 +26,15 @@ struct StoredView {
   ImageU8 color;            // RGB8 sRGB, camera.width x camera.height
   ImageF depth_m;           // z-depth in metres (0 = invalid), same size as colour
   float exposure = 1.0f;    // E_i: linear-intensity factor applied when blending (SPEC §5)
-  size_t bytes() const { return color.bytes() + depth_m.bytes() + sizeof(*this); }
+  // InpaintFusion (SPEC §7): an inpainted keyframe (colour and depth filled inside the regions
+  // of interest). `labels`: 1 channel, colour size, 255 = inpainted (L_IP, inside the ROI),
+  // 0 = observed (L_O); empty on an observed view. Renderers: inside an inpainted view's ROI only
+  // inpainted views contribute, elsewhere only observed views (never referenced by cells).
+  bool inpainted = false;
+  ImageU8 labels;
+  size_t bytes() const {
+    return color.bytes() + depth_m.bytes() + labels.bytes() + sizeof(*this);
+  }
 };
 
 struct MeshChunk {

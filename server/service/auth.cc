@@ -44,6 +44,10 @@ const char* RpcName(Rpc rpc) {
       return "Subscribe";
     case Rpc::kGetStats:
       return "GetStats";
+    case Rpc::kMarkRegion:
+      return "MarkRegion/ClearRegion";
+    case Rpc::kListRegions:
+      return "ListRegions";
   }
   return "?";
 }
@@ -63,8 +67,10 @@ bool RoleAllows(Role role, Rpc rpc) {
     case Role::kUploader:
       return rpc == Rpc::kUpload;
     case Role::kViewer:
+      return rpc == Rpc::kSubscribe || rpc == Rpc::kGetStats || rpc == Rpc::kListRegions;
     case Role::kOperator:
-      return rpc == Rpc::kSubscribe || rpc == Rpc::kGetStats;
+      return rpc == Rpc::kSubscribe || rpc == Rpc::kGetStats || rpc == Rpc::kListRegions ||
+             rpc == Rpc::kMarkRegion;
   }
   return false;
 }

@@ -20,7 +20,8 @@
 namespace exo {
 
 enum class Role { kUploader, kViewer, kOperator, kAdmin };
-enum class Rpc { kUpload, kSubscribe, kGetStats };
+// kMarkRegion covers MarkRegion and ClearRegion (InpaintFusion regions).
+enum class Rpc { kUpload, kSubscribe, kGetStats, kMarkRegion, kListRegions };
 
 const char* RoleName(Role role);
 const char* RpcName(Rpc rpc);

@@ -36,6 +36,14 @@ TEST(Auth, EachRoleMayCallExactlyItsRpcs) {
       {"ad-0123456789abcdef", Rpc::kUpload, absl::StatusCode::kOk},
       {"ad-0123456789abcdef", Rpc::kSubscribe, absl::StatusCode::kOk},
       {"ad-0123456789abcdef", Rpc::kGetStats, absl::StatusCode::kOk},
+      // Region marking (InpaintFusion): operator and admin; listing also for viewers.
+      {"op-0123456789abcdef", Rpc::kMarkRegion, absl::StatusCode::kOk},
+      {"ad-0123456789abcdef", Rpc::kMarkRegion, absl::StatusCode::kOk},
+      {"vw-0123456789abcdef", Rpc::kMarkRegion, absl::StatusCode::kPermissionDenied},
+      {"up-0123456789abcdef", Rpc::kMarkRegion, absl::StatusCode::kPermissionDenied},
+      {"vw-0123456789abcdef", Rpc::kListRegions, absl::StatusCode::kOk},
+      {"op-0123456789abcdef", Rpc::kListRegions, absl::StatusCode::kOk},
+      {"up-0123456789abcdef", Rpc::kListRegions, absl::StatusCode::kPermissionDenied},
       {"xx-0123456789abcdef", Rpc::kGetStats, absl::StatusCode::kUnauthenticated},
       {"up-0123456789abcde", Rpc::kUpload, absl::StatusCode::kUnauthenticated},  // a prefix
   };

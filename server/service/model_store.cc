@@ -318,6 +318,22 @@ std::vector<CellId> ModelStore::CellIds() const {
   return out;
 }
 
+std::vector<std::shared_ptr<const v1::MeshChunkUpserted>> ModelStore::Chunks() const {
+  std::lock_guard lock(mu_);
+  std::vector<std::shared_ptr<const v1::MeshChunkUpserted>> out;
+  for (const auto& [id, part] : chunks_) out.emplace_back(part, &part->mesh_chunk_upserted());
+  return out;
+}
+
+std::optional<LocalOrigin> ModelStore::Origin() const {
+  std::lock_guard lock(mu_);
+  if (!has_scene_) return std::nullopt;
+  LocalOrigin o;
+  o.origin_in_world = {scene_.origin_in_world().x(), scene_.origin_in_world().y(),
+                       scene_.origin_in_world().z()};
+  return o;
+}
+
 uint64_t ModelStore::SetSceneParams(const LocalOrigin& origin, double cell_size_m) {
   std::lock_guard lock(mu_);
   scene_.mutable_origin_in_world()->set_x(origin.origin_in_world.x);

@@ -18,6 +18,7 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <unordered_map>
 #include <vector>
 
@@ -114,6 +115,10 @@ class ModelStore {
   // The published views (for a restarted planner), ordered by id.
   std::vector<std::shared_ptr<const v1::ViewAdded>> Views() const;
   std::vector<CellId> CellIds() const;
+  // The published mesh chunks (shared parts; MeshFromProto turns them into meshes) and the scene
+  // origin (nullopt before the first frame): what region marking renders its depth from.
+  std::vector<std::shared_ptr<const v1::MeshChunkUpserted>> Chunks() const;
+  std::optional<LocalOrigin> Origin() const;
 
   // Subscribe from the client's last applied (version, epoch): only the missed deltas, or a
   // snapshot when the log no longer holds them, when they would cost more bytes than a

@@ -144,6 +144,7 @@ class PlanningStage final : public PipelineStage {
     const auto views = store_->Views();
     if (views.empty()) return absl::OkStatus();
     for (const auto& msg : views) {
+      if (msg->inpainted()) continue;  // hallucinated pixels never reach the planner (SPEC §7)
       EXO_ASSIGN_OR_RETURN(StoredView v, ViewFromProto(*msg));
       absl::StatusOr<core::HandOff> h = planner_->Readmit(v);
       if (!h.ok() || !h->accepted) {

@@ -26,6 +26,7 @@
 #include "common/log/log.h"
 #include "proto/exoview.grpc.pb.h"
 #include "server/service/auth.h"
+#include "proto/frame_proto.h"
 #include "server/service/stages.h"
 #include "server/service/udp_pose_input.h"
 #include "server/service/upload_log.h"
@@ -290,7 +291,91 @@ class ExoviewServer::Service final : public v1::Exoview::Service {
     return grpc::Status::OK;
   }
 
+  void SetInpainting(RegionRegistry* regions, InpaintingStage* stage,
+                     std::function<void()> regions_changed) {
+    regions_ = regions;
+    inpainting_ = stage;
+    regions_changed_ = std::move(regions_changed);
+  }
+
+  // InpaintFusion regions (SPEC §7). Marking and clearing: operator or admin.
+  grpc::Status MarkRegion(grpc::ServerContext* ctx, const v1::MarkRegionRequest* req,
+                          v1::MarkRegionReply* out) override {
+    auto who = Authorize(*ctx, Rpc::kMarkRegion);
+    if (!who.ok()) return ToGrpc(who.status());
+    if (!regions_) return NoInpainting();
+    auto status = [&]() -> absl::Status {
+      EXO_ASSIGN_OR_RETURN(const PinholeCamera camera, IntrinsicsFromProto(req->camera()));
+      if (req->has_world_from_cam() == req->has_local_from_cam())
+        return absl::InvalidArgumentError(
+            "give exactly one pose: world_from_cam (the live camera's frame) or local_from_cam "
+            "(a viewer's window, scene-local)");
+      Rigid3d local_from_cam;
+      if (req->has_local_from_cam()) {
+        EXO_ASSIGN_OR_RETURN(local_from_cam, PoseFromProto(req->local_from_cam()));
+      } else {
+        EXO_ASSIGN_OR_RETURN(const Rigid3d world_from_cam, PoseFromProto(req->world_from_cam()));
+        const std::optional<LocalOrigin> origin = store_->Origin();
+        if (!origin)
+          return absl::FailedPreconditionError(
+              "no scene yet: upload frames before marking a region");
+        local_from_cam = origin->ToLocal(world_from_cam);
+      }
+      std::vector<glm::dvec2> stroke;
+      stroke.reserve(std::min(req->stroke_size(), 8192));
+      for (const auto& p : req->stroke()) {
+        if (stroke.size() >= 8192) break;
+        stroke.push_back({p.x(), p.y()});
+      }
+      if (req->stroke_size() > 8192)
+        return absl::InvalidArgumentError("the stroke has more than 8192 points");
+      EXO_ASSIGN_OR_RETURN(*out->mutable_region(),
+                           regions_->Mark(stroke, camera, local_from_cam, req->radius_px(),
+                                          req->depth_tolerance_m(), req->label(), *who));
+      return absl::OkStatus();
+    }();
+    if (!status.ok()) {
+      log_->info("MarkRegion from {} refused: {}", ctx->peer(), std::string(status.message()));
+      return ToGrpc(status);
+    }
+    log_->info("region {} marked by {} ({} voxels, {} px)", out->region().region_id(),
+               who->empty() ? ctx->peer() : *who, out->region().num_voxels(),
+               out->region().labelled_pixels());
+    if (regions_changed_) regions_changed_();
+    return grpc::Status::OK;
+  }
+
+  grpc::Status ListRegions(grpc::ServerContext* ctx, const v1::ListRegionsRequest*,
+                           v1::ListRegionsReply* out) override {
+    if (auto who = Authorize(*ctx, Rpc::kListRegions); !who.ok()) return ToGrpc(who.status());
+    if (!regions_) return NoInpainting();
+    const std::string status = inpainting_ ? inpainting_->status() : std::string();
+    for (auto& r : regions_->List()) {
+      r.set_inpaint_status(status);
+      *out->add_regions() = std::move(r);
+    }
+    return grpc::Status::OK;
+  }
+
+  grpc::Status ClearRegion(grpc::ServerContext* ctx, const v1::ClearRegionRequest* req,
+                           v1::ClearRegionReply* out) override {
+    if (auto who = Authorize(*ctx, Rpc::kMarkRegion); !who.ok()) return ToGrpc(who.status());
+    if (!regions_) return NoInpainting();
+    auto n = regions_->Clear(req->region_id());
+    if (!n.ok()) return ToGrpc(n.status());
+    out->set_cleared(*n);
+    // The inpainted views were made for the old set of regions: withdrawn; the stage makes new
+    // keyframes for the regions that remain (a keyframe in flight is discarded).
+    if (inpainting_) out->set_views_removed(inpainting_->Withdraw());
+    if (regions_changed_) regions_changed_();
+    return grpc::Status::OK;
+  }
+
  private:
+  static grpc::Status NoInpainting() {
+    return grpc::Status(grpc::StatusCode::UNIMPLEMENTED,
+                        "inpainting is disabled on this server (config inpainting = false)");
+  }
   // A REJECTED ack: the reason text and its machine-readable code (Ack.code = the status code).
   void Reject(const absl::Status& status, v1::Ack* ack) {
     ack->set_status(v1::Ack::REJECTED);
@@ -375,6 +460,9 @@ class ExoviewServer::Service final : public v1::Exoview::Service {
   const ServerConfig& config_;
   ModelStore* store_;
   Pipeline* pipeline_;
+  RegionRegistry* regions_ = nullptr;
+  InpaintingStage* inpainting_ = nullptr;
+  std::function<void()> regions_changed_;
   const std::atomic<bool>* shutting_down_;
   const UdpPoseInput* udp_;
   const DeltaLog* delta_log_ = nullptr;
@@ -401,8 +489,8 @@ ExoviewServer::~ExoviewServer() { Shutdown(); }
 absl::Status ExoviewServer::Start() {
   EXO_RETURN_IF_ERROR(config_.Validate());
   store_ = std::make_unique<ModelStore>(config_.store);
-  EXO_ASSIGN_OR_RETURN(auto stages, MakeStages(config_));
-  pipeline_ = std::make_unique<Pipeline>(config_.pipeline, store_.get(), std::move(stages));
+  if (config_.enable_inpainting)
+    regions_ = std::make_shared<RegionRegistry>(config_.regions, store_.get());
   if (!config_.checkpoint_path.empty()) {
     // The newest generation, or the previous one (path.prev) when the newest is missing or does
     // not parse (a truncated file must not stop the server from starting).
@@ -429,15 +517,21 @@ absl::Status ExoviewServer::Start() {
                                               " nor its previous generation ", prev));
     if (!loaded.empty()) {
       EXO_RETURN_IF_ERROR(store_->RestoreCheckpoint(c));
+      if (regions_) EXO_RETURN_IF_ERROR(regions_->Restore(c));
       restored_version_ = checkpoint_version_ = c.version();
-      log::Get("server")->info("restored checkpoint {} at version {} ({} views)", loaded,
-                               c.version(), store_->GetSummary().num_views);
+      if (regions_) checkpoint_regions_generation_ = regions_->generation();
+      log::Get("server")->info("restored checkpoint {} at version {} ({} views, {} regions)",
+                               loaded, c.version(), store_->GetSummary().num_views,
+                               c.regions_size());
     }
   }
   // The delta log (SPEC §15): memory, or JetStream (which may replay versions the checkpoint
   // missed into the store before anything is served).
   EXO_ASSIGN_OR_RETURN(delta_log_, MakeDeltaLog(config_.delta_log));
   EXO_RETURN_IF_ERROR(delta_log_->Open(store_.get()));
+  // The stages after the checkpoint and the log replay: a restarted stage sees the restored model.
+  EXO_ASSIGN_OR_RETURN(auto stages, MakeStages(config_, regions_, store_.get(), &inpainting_));
+  pipeline_ = std::make_unique<Pipeline>(config_.pipeline, store_.get(), std::move(stages));
   // The scene set-up of a restored model (checkpoint and/or replayed log).
   if (store_->has_scene()) {
     const v1::SceneParams scene = store_->scene();
@@ -475,6 +569,10 @@ absl::Status ExoviewServer::Start() {
   service_ = std::make_unique<Service>(config_, store_.get(), pipeline_.get(), &shutting_down_,
                                        udp_.get(), std::move(auth));
   service_->set_delta_log(delta_log_.get());
+  service_->SetInpainting(regions_.get(), inpainting_, [this] {
+    if (auto s = WriteCheckpoint(true); !s.ok())
+      log::Get("server")->error("checkpoint: {}", std::string(s.message()));
+  });
   if (config_.control.enabled()) {
     EXO_ASSIGN_OR_RETURN(control_, ControlServiceHost::Start(config_.control, store_.get()));
   }
@@ -526,10 +624,15 @@ void ExoviewServer::Shutdown() {
       log::Get("server")->error("checkpoint: {}", std::string(s.message()));
 }
 
-absl::Status ExoviewServer::WriteCheckpoint() {
+absl::Status ExoviewServer::WriteCheckpoint(bool force) {
   if (config_.checkpoint_path.empty() || !store_) return absl::OkStatus();
-  if (store_->version() == checkpoint_version_) return absl::OkStatus();  // unchanged
-  const v1::Checkpoint c = store_->MakeCheckpoint(config_.checkpoint_max_log_bytes);
+  std::lock_guard write_lock(checkpoint_write_mu_);
+  const uint64_t regions_generation = regions_ ? regions_->generation() : 0;
+  if (!force && store_->version() == checkpoint_version_ &&
+      regions_generation == checkpoint_regions_generation_)
+    return absl::OkStatus();  // unchanged
+  v1::Checkpoint c = store_->MakeCheckpoint(config_.checkpoint_max_log_bytes);
+  if (regions_) regions_->ToCheckpoint(&c);
   const std::string tmp = config_.checkpoint_path + ".tmp";
   {
     FILE* f = std::fopen(tmp.c_str(), "wb");
@@ -551,6 +654,7 @@ absl::Status ExoviewServer::WriteCheckpoint() {
   if (std::rename(tmp.c_str(), config_.checkpoint_path.c_str()) != 0)
     return absl::UnavailableError(absl::StrCat("cannot rename ", tmp));
   checkpoint_version_ = c.version();
+  checkpoint_regions_generation_ = regions_generation;
   return absl::OkStatus();
 }
 

@@ -22,6 +22,8 @@
 #include "server/service/pipeline.h"
 #include "server/service/planning_stage.h"
 #include "server/service/control_service.h"
+#include "server/service/inpainting_stage.h"
+#include "server/service/regions.h"
 
 namespace grpc {
 class Server;
@@ -46,6 +48,10 @@ struct ServerConfig {
   bool enable_planning = true;
   PlanningStageOptions planning;     // planning.publish is taken from `publish`
   bool planning_cell_areas = true;   // planner uses geometry's per-cell proxy areas A(b_k)
+  // InpaintFusion (SPEC §7, docs/inpainting.md): region marking RPCs and the inpainting stage.
+  bool enable_inpainting = true;
+  RegionRegistryOptions regions;
+  InpaintingStageOptions inpainting;  // inpainting.publish is taken from `publish`
   // Optional UDP pose input: -1 = off; 0 = any free port (see ExoviewServer::udp_pose_port).
   int udp_pose_port = -1;
   std::string udp_pose_address = "127.0.0.1";
@@ -114,7 +120,7 @@ class ExoviewServer {
   void Wait();
   ModelStore& store() { return *store_; }
   // Writes the checkpoint now (atomic). No-op without checkpoint_path.
-  absl::Status WriteCheckpoint();
+  absl::Status WriteCheckpoint(bool force = false);
   uint64_t restored_version() const { return restored_version_; }
   // The drone control core (null when no flight zone is configured).
   control::ControlCore* control_core() { return control_ ? &control_->core() : nullptr; }
@@ -127,6 +133,8 @@ class ExoviewServer {
   std::unique_ptr<ModelStore> store_;
   std::unique_ptr<DeltaLog> delta_log_;
   std::unique_ptr<Pipeline> pipeline_;
+  std::shared_ptr<RegionRegistry> regions_;  // null without inpainting
+  InpaintingStage* inpainting_ = nullptr;    // owned by pipeline_
   std::unique_ptr<Service> service_;
   std::unique_ptr<ControlServiceHost> control_;
   std::unique_ptr<grpc::Server> server_;
@@ -134,6 +142,8 @@ class ExoviewServer {
   std::atomic<bool> shutting_down_{false};
   uint64_t restored_version_ = 0;
   uint64_t checkpoint_version_ = 0;  // last written
+  uint64_t checkpoint_regions_generation_ = 0;
+  std::mutex checkpoint_write_mu_;  // the periodic thread, shutdown and region RPCs write
   std::mutex checkpoint_mu_;
   std::condition_variable checkpoint_cv_;
   std::thread checkpoint_thread_;

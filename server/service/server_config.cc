@@ -106,6 +106,21 @@ std::vector<ConfigKey> MakeKeys() {
       Key("geometry_shed_backlog", "skip fusing a frame while this fraction of the admission queue waits (0 = never; off with admission_block)",
           EXO_FIELD(geometry.shed_backlog_fraction)),
       Key("planning", "planning stage (view store)", EXO_FIELD(enable_planning)),
+      Key("inpainting", "InpaintFusion: region marking RPCs and the inpainting stage",
+          EXO_FIELD(enable_inpainting)),
+      Key("inpaint_radius_px", "r_ROI: default stroke radius of a marked region (pixels)",
+          EXO_FIELD(regions.region.roi.radius_px)),
+      Key("inpaint_depth_tol_m", "d_ROI: default depth tolerance along the normal (m)",
+          EXO_FIELD(regions.region.roi.depth_tol_m)),
+      Key("inpaint_voxel_m", "size of an L_ROI label voxel (m)", EXO_FIELD(regions.region.voxel_m)),
+      Key("inpaint_max_regions", "marked regions at most", EXO_FIELD(regions.max_regions)),
+      Key("inpaint_max_keyframes", "inpainted keyframes kept (oldest withdrawn beyond)",
+          EXO_FIELD(inpainting.max_keyframes)),
+      Key("inpaint_threads", "threads of one keyframe's PatchMatch", EXO_FIELD(inpainting.inpaint.num_threads)),
+      Key("inpaint_keyframe_pose_distance", "new keyframe beyond this ||I - Mi^-1 Mk||_F",
+          EXO_FIELD(inpainting.policy.max_pose_distance)),
+      Key("inpaint_keyframe_unlabelled", "new keyframe beyond this fraction of the ROI uncovered",
+          EXO_FIELD(inpainting.policy.max_unlabelled_fraction)),
       Key("max_views", "view store capacity (views)", EXO_FIELD(pipeline.model.max_views)),
       Key("max_store_bytes", "view store capacity (bytes)", EXO_FIELD(pipeline.model.max_bytes)),
       Key("r_max", "references per cell of the planner's pre-selection R(b_k)", EXO_FIELD(pipeline.model.r_max)),
@@ -215,6 +230,10 @@ absl::Status ServerConfig::Validate() const {
   EXO_RETURN_IF_ERROR(publish.Validate());
   EXO_RETURN_IF_ERROR(geometry.Validate());
   EXO_RETURN_IF_ERROR(planning.Validate());
+  if (enable_inpainting) {
+    EXO_RETURN_IF_ERROR(regions.Validate());
+    EXO_RETURN_IF_ERROR(inpainting.Validate());
+  }
   if (!(checkpoint_interval_s >= 0.0))
     return absl::InvalidArgumentError("checkpoint_interval_s must be >= 0 (0 = only at shutdown)");
   if (tls_cert.empty() != tls_key.empty())

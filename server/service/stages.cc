@@ -6,9 +6,13 @@
 
 namespace exo {
 
-std::vector<std::string> AvailableStages() { return {"geometry", "planning", "refinement"}; }
+std::vector<std::string> AvailableStages() {
+  return {"geometry", "planning", "refinement", "inpainting"};
+}
 
-absl::StatusOr<std::vector<std::unique_ptr<PipelineStage>>> MakeStages(const ServerConfig& config) {
+absl::StatusOr<std::vector<std::unique_ptr<PipelineStage>>> MakeStages(
+    const ServerConfig& config, std::shared_ptr<RegionRegistry> regions, ModelStore* store,
+    InpaintingStage** inpainting) {
   std::vector<std::unique_ptr<PipelineStage>> stages;
   core::OnlineModelOptions model = config.pipeline.model;
   if (!config.planning_cell_areas) model.cell_areas = false;
@@ -26,6 +30,15 @@ absl::StatusOr<std::vector<std::unique_ptr<PipelineStage>>> MakeStages(const Ser
     PlanningStageOptions p = config.planning;
     p.publish = config.publish;
     EXO_ASSIGN_OR_RETURN(auto s, MakePlanningStage(p, model, handoff));
+    stages.push_back(std::move(s));
+  }
+  if (regions && store) {
+    InpaintingStageOptions o = config.inpainting;
+    o.publish = config.publish;
+    o.region = config.regions.region;
+    EXO_RETURN_IF_ERROR(o.Validate());
+    auto s = MakeInpaintingStage(o, std::move(regions), store);
+    if (inpainting) *inpainting = s.get();
     stages.push_back(std::move(s));
   }
   return stages;

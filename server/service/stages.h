@@ -9,5 +9,11 @@
 
 namespace exo {
 struct ServerConfig;
-absl::StatusOr<std::vector<std::unique_ptr<PipelineStage>>> MakeStages(const ServerConfig& config);
+class RegionRegistry;
+class InpaintingStage;
+// With `regions` (inpainting enabled) the inpainting stage is appended and returned in
+// `*inpainting`.
+absl::StatusOr<std::vector<std::unique_ptr<PipelineStage>>> MakeStages(
+    const ServerConfig& config, std::shared_ptr<RegionRegistry> regions = nullptr,
+    ModelStore* store = nullptr, InpaintingStage** inpainting = nullptr);
 }  // namespace exo

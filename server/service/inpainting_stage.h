@@ -1,0 +1,62 @@
+// Pipeline stage "inpainting" (InpaintFusion, SPEC §7): diminished reality for the marked
+// regions. For every frame the stage re-projects the L_ROI labels (RegionRegistry) into the frame
+// (its registered depth and pose) and applies the keyframe rule (pose distance > 0.7 from the
+// nearest keyframe, or > 10 % of the ROI not covered by it; keyframe_policy.h). A new keyframe is
+// inpainted on the stage's own worker thread (PatchMatch colour + Poisson depth,
+// server/inpainting/inpaint.h), initialised by propagation of the nearest keyframe's offsets
+// (4.3-4.6), and published as a ViewAdded with `inpainted` set and its label mask. The slot for
+// waiting work is bounded (one job in flight, none queued): while a keyframe is computed, frames
+// are only counted, so the stage never slows ingest down. The frames themselves are never
+// changed, so planning, refinement and tracking never see inpainted pixels; inpainted views are
+// never referenced by cells. Clearing a region withdraws every inpainted view (Withdraw) and a
+// keyframe still in flight for the old regions is discarded (generation check under the publish
+// lock).
+#pragma once
+
+#include <memory>
+
+#include "proto/model_proto.h"
+#include "server/inpainting/inpaint.h"
+#include "server/inpainting/keyframe_policy.h"
+#include "server/service/pipeline.h"
+#include "server/service/regions.h"
+
+namespace exo {
+
+// Inpainted keyframes get view ids from this base up (planner ids count from 1).
+inline constexpr ViewId kInpaintedViewIdBase = 0x40000000u;
+
+struct InpaintingStageOptions {
+  inpainting::InpaintOptions inpaint = [] {
+    inpainting::InpaintOptions o;
+    o.num_threads = 1;  // one worker thread: ingest and the other stages keep the other core
+    return o;
+  }();
+  inpainting::KeyframePolicyOptions policy;
+  inpainting::RegionOptions region;  // re-projection margins (the registry's options)
+  size_t max_keyframes = 16;  // oldest inpainted keyframe withdrawn beyond this
+  ViewEncodeOptions publish;
+  absl::Status Validate() const;
+};
+
+class InpaintingStage;
+
+// Created by the server (so that the ClearRegion RPC can reach Withdraw) and handed to the
+// pipeline as a stage.
+std::unique_ptr<InpaintingStage> MakeInpaintingStage(const InpaintingStageOptions& options,
+                                                     std::shared_ptr<RegionRegistry> regions,
+                                                     ModelStore* store);
+
+class InpaintingStage : public PipelineStage {
+ public:
+  // Removes every inpainted view from the model and forgets the keyframes (after the regions
+  // changed); returns how many views were removed. Thread-safe.
+  virtual uint32_t Withdraw() = 0;
+  // Blocks until no keyframe is in flight (tests, shutdown); false on timeout.
+  virtual bool WaitIdle(double timeout_s) = 0;
+  // The outcome of the last keyframe: "" (none yet), "ok", or why it failed (e.g. "no valid
+  // source patch ..." when the ROI leaves nothing to copy from).
+  virtual std::string status() const = 0;
+};
+
+}  // namespace exo

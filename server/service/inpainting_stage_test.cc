@@ -1,0 +1,146 @@
+// The inpainting stage in process (real ModelStore, RegionRegistry, inpainting library): a
+// keyframe is published as an inpainted view with its labels, the keyframe rule holds back a
+// second one at the same pose, clearing the regions while a keyframe is in flight leaves no
+// inpainted view behind, and a ROI with no valid source pixels gives a clear status.
+#include "server/service/inpainting_stage.h"
+
+#include <gtest/gtest.h>
+
+#include "server/inpainting/test_scenes.h"
+
+namespace exo {
+namespace {
+
+using inpainting::testing::RenderPlanes;
+using inpainting::testing::WorldPlane;
+
+std::vector<WorldPlane> Scene() {
+  return {{glm::dvec3(0, 0, -1), -2.0, nullptr},
+          {glm::dvec3(0, 0, -1), -1.5,
+           [](const glm::dvec3& p) { return p.x < 0.0 && p.x > -0.3 && std::fabs(p.y) < 0.25; }}};
+}
+
+PinholeCamera Cam(int w, int h) {
+  PinholeCamera c;
+  c.width = w;
+  c.height = h;
+  c.fx = c.fy = 0.9 * w;
+  c.cx = (w - 1) / 2.0;
+  c.cy = (h - 1) / 2.0;
+  return c;
+}
+
+struct Rig {
+  explicit Rig(int w = 160, int h = 120) : cam(Cam(w, h)) {
+    store.SetSceneParams(LocalOrigin{}, 0.5);
+    ctx.store = &store;
+    regions = std::make_shared<RegionRegistry>(RegionRegistryOptions{}, &store);
+    // The region: a stroke on the box, labelled from the true depth.
+    const auto kf = RenderPlanes(Scene(), cam, Rigid3d::Identity());
+    inpainting::RegionOptions ro;
+    ro.roi.radius_px = 0.1 * w;
+    ro.roi.depth_tol_m = 0.1;
+    const std::vector<glm::dvec2> stroke = {{0.4 * w, 0.5 * h}};
+    auto r = inpainting::RegionFromStroke(stroke, kf.depth_m, cam, {}, ro);
+    EXO_CHECK(r.ok());
+    v1::Checkpoint c;
+    auto* s = c.add_regions();
+    s->mutable_info()->set_region_id(1);
+    s->mutable_info()->set_voxel_size_m(r->voxel_m);
+    s->mutable_voxels()->Add(r->voxels.begin(), r->voxels.end());
+    EXO_CHECK(regions->Restore(c).ok());
+    stage = MakeInpaintingStage(InpaintingStageOptions{}, regions, &store);
+  }
+  PipelineFrame Frame(double x, bool wall_depth = true) const {
+    Rigid3d pose;
+    pose.translation = {x, 0, 0};
+    const auto kf = RenderPlanes(Scene(), cam, pose);
+    PipelineFrame pf;
+    pf.frame.sequence = 1;
+    pf.frame.color_camera = pf.frame.depth_camera = cam;
+    pf.frame.color = kf.color;
+    pf.frame.depth_m = kf.depth_m;
+    if (!wall_depth) {  // depth only where the labels are: nothing outside the ROI has depth
+      const auto set = regions->Get();
+      for (int y = 0; y < cam.height; ++y)
+        for (int x = 0; x < cam.width; ++x) {
+          float& z = pf.frame.depth_m.at(x, y);
+          if (z > 0 && !set->labels.Contains(pose * cam.Unproject({x, y}, z))) z = 0.f;
+        }
+    }
+    pf.frame.world_from_cam = pose;
+    return pf;
+  }
+  int InpaintedViews() const {
+    int n = 0;
+    for (const auto& v : store.Views()) n += v->inpainted();
+    return n;
+  }
+  double Counter(const std::string& k) const {
+    std::map<std::string, double> c;
+    stage->AddCounters(&c);
+    return c.at("inpainting." + k);
+  }
+  PinholeCamera cam;
+  ModelStore store;
+  SceneContext ctx;
+  std::shared_ptr<RegionRegistry> regions;
+  std::unique_ptr<InpaintingStage> stage;
+};
+
+TEST(InpaintingStage, PublishesAKeyframeAndHoldsBackTheSamePose) {
+  Rig rig;
+  ASSERT_TRUE(rig.stage->Process(rig.Frame(0.0), rig.ctx).ok());
+  ASSERT_TRUE(rig.stage->WaitIdle(30));
+  EXPECT_EQ(rig.stage->status(), "ok");
+  ASSERT_EQ(rig.InpaintedViews(), 1);
+  const auto views = rig.store.Views();
+  auto v = ViewFromProto(*views.back());
+  ASSERT_TRUE(v.ok()) << v.status();
+  EXPECT_TRUE(v->inpainted);
+  int roi = 0;
+  for (uint8_t b : v->labels.span()) roi += b != 0;
+  EXPECT_GT(roi, 200);
+  // The frame itself is untouched (planning and refinement see only observations): the stage
+  // takes a const frame; the same pose again gives no second keyframe.
+  ASSERT_TRUE(rig.stage->Process(rig.Frame(0.0), rig.ctx).ok());
+  ASSERT_TRUE(rig.stage->WaitIdle(30));
+  EXPECT_EQ(rig.InpaintedViews(), 1);
+  EXPECT_EQ(rig.Counter("keyframes_published"), 1.0);
+  // 40 cm sideways: more than 10 % of the ROI is not covered by the first keyframe (unlabelled
+  // rule): a second keyframe, propagated from the first.
+  ASSERT_TRUE(rig.stage->Process(rig.Frame(0.4), rig.ctx).ok());
+  ASSERT_TRUE(rig.stage->WaitIdle(30));
+  EXPECT_EQ(rig.Counter("keyframes_published"), 2.0);
+  EXPECT_EQ(rig.Counter("keyframes_propagated"), 1.0);
+}
+
+TEST(InpaintingStage, ClearingWhileAKeyframeIsInFlightLeavesNoInpaintedView) {
+  for (int attempt = 0; attempt < 3; ++attempt) {
+    Rig rig(640, 480);  // a full-size keyframe takes long enough to be in flight
+    ASSERT_TRUE(rig.stage->Process(rig.Frame(0.0), rig.ctx).ok());
+    ASSERT_TRUE(rig.regions->Clear(0).ok());
+    rig.stage->Withdraw();
+    ASSERT_TRUE(rig.stage->WaitIdle(60));
+    EXPECT_EQ(rig.InpaintedViews(), 0);
+    // Either it was discarded in flight or published before the clear and then withdrawn.
+    EXPECT_EQ(rig.Counter("keyframes_discarded") + rig.Counter("views_withdrawn"), 1.0);
+    // No regions: later frames do nothing.
+    ASSERT_TRUE(rig.stage->Process(rig.Frame(0.0), rig.ctx).ok());
+    ASSERT_TRUE(rig.stage->WaitIdle(60));
+    EXPECT_EQ(rig.InpaintedViews(), 0);
+  }
+}
+
+TEST(InpaintingStage, NoValidSourcePixelsIsAClearStatus) {
+  Rig rig;
+  // Only the labelled surface has depth: nothing outside the ROI can serve as a source patch.
+  ASSERT_TRUE(rig.stage->Process(rig.Frame(0.0, /*wall_depth=*/false), rig.ctx).ok());
+  ASSERT_TRUE(rig.stage->WaitIdle(30));
+  EXPECT_EQ(rig.InpaintedViews(), 0);
+  EXPECT_EQ(rig.Counter("keyframes_failed"), 1.0);
+  EXPECT_NE(rig.stage->status().find("no valid source"), std::string::npos) << rig.stage->status();
+}
+
+}  // namespace
+}  // namespace exo

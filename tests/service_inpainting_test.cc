@@ -1,0 +1,250 @@
+// InpaintFusion in the live system (issue 18) over real gRPC: a server process takes frames of a
+// synthetic scene (a textured wall with a box in front of it), an operator marks the box with a
+// stroke, the L_ROI labels re-project into the frames that follow, the inpainting stage publishes
+// inpainted keyframes (ViewAdded.inpainted with a label mask) that a subscriber receives, the
+// regions and keyframes survive a restart (checkpoint), and clearing withdraws the views. Every
+// hard case of marking gets a clear status.
+#include <filesystem>
+#include <fstream>
+#include <iostream>
+
+#include <grpcpp/grpcpp.h>
+#include <gtest/gtest.h>
+
+#include "client/uploader/upload_client.h"
+#include "proto/exoview.grpc.pb.h"
+#include "proto/frame_proto.h"
+#include "server/inpainting/test_scenes.h"
+#include "tests/server_fixture.h"
+
+namespace exo {
+namespace {
+
+using inpainting::testing::RenderPlanes;
+using inpainting::testing::WorldPlane;
+
+PinholeCamera Cam() {
+  PinholeCamera c;
+  c.width = 160;
+  c.height = 120;
+  c.fx = c.fy = 144;
+  c.cx = 79.5;
+  c.cy = 59.5;
+  return c;
+}
+
+// A wall at z = 2 m, a box face at z = 1.5 m (x in [-0.3, 0], |y| < 0.25), camera looking +z.
+std::vector<WorldPlane> Scene() {
+  return {{glm::dvec3(0, 0, -1), -2.0, nullptr},
+          {glm::dvec3(0, 0, -1), -1.5,
+           [](const glm::dvec3& p) { return p.x < 0.0 && p.x > -0.3 && std::fabs(p.y) < 0.25; }}};
+}
+
+Rigid3d PoseAt(double x) {
+  Rigid3d p;
+  p.translation = {x, 0.0, 0.0};
+  return p;
+}
+
+v1::Pose PoseMsg(const Rigid3d& p) {
+  v1::Pose m;
+  PoseToProto(p, &m);
+  return m;
+}
+
+class ServiceInpainting : public testing::ServerProcessTest {
+ protected:
+  void Start(const std::string& log) {
+    StartServer({"--checkpoint_path=" + dir_ + "/model.ckpt", "--checkpoint_interval_s=0.2",
+                 "--voxel_size_m=0.04", "--mesh_every_n_frames=1", "--inpaint_radius_px=12",
+                 "--inpaint_depth_tol_m=0.1", "--log_level=debug"},
+                log);
+    stub_ = v1::Exoview::NewStub(MakeChannel(target_));
+  }
+  // Frames [first, first + n) of a sideways walk from x = -0.15 m in 2 cm steps.
+  void Upload(int first, int n, double rate_hz = 0) {
+    const auto planes = Scene();
+    UploadOptions o;
+    o.rate_hz = rate_hz;
+    auto st = UploadStream(
+        MakeChannel(target_), n,
+        [&](size_t i) -> absl::StatusOr<v1::Frame> {
+          const int k = first + static_cast<int>(i);
+          const auto kf = RenderPlanes(planes, Cam(), PoseAt(-0.15 + 0.02 * k));
+          Frame f;
+          f.sequence = k + 1;
+          f.timestamp_s = 0.1 * (k + 1);
+          f.color_camera = f.depth_camera = Cam();
+          f.color = kf.color;
+          f.depth_m = kf.depth_m;
+          f.world_from_cam = kf.world_from_cam;
+          return FrameToProto(f, {});
+        },
+        o);
+    ASSERT_TRUE(st.ok()) << st.status();
+    ASSERT_EQ(st->accepted, static_cast<uint64_t>(n)) << server_->Log();
+  }
+  v1::Stats WaitProcessed(const std::string& counter = "", double at_least = 0) {
+    const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(60);
+    for (;;) {
+      const v1::Stats s = Stats();
+      const bool counted = counter.empty() || (s.counters().count(counter) &&
+                                                s.counters().at(counter) >= at_least);
+      if (s.frames_processed() == s.frames_accepted() && s.async_pending() == 0 && counted)
+        return s;
+      if (std::chrono::steady_clock::now() > deadline) {
+        ADD_FAILURE() << "timed out waiting for " << counter << "\n" << server_->Log();
+        return s;
+      }
+      std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    }
+  }
+  grpc::Status Mark(const std::vector<glm::dvec2>& stroke, const Rigid3d& world_from_cam,
+                    v1::MarkRegionReply* out, double radius = 0, double tol = 0,
+                    bool both_poses = false) {
+    v1::MarkRegionRequest req;
+    IntrinsicsToProto(Cam(), req.mutable_camera());
+    *req.mutable_world_from_cam() = PoseMsg(world_from_cam);
+    if (both_poses) *req.mutable_local_from_cam() = PoseMsg(world_from_cam);
+    for (const auto& p : stroke) {
+      auto* s = req.add_stroke();
+      s->set_x(p.x);
+      s->set_y(p.y);
+    }
+    req.set_radius_px(radius);
+    req.set_depth_tolerance_m(tol);
+    req.set_label("box");
+    grpc::ClientContext ctx;
+    return stub_->MarkRegion(&ctx, req, out);
+  }
+  std::vector<v1::RegionInfo> List() {
+    grpc::ClientContext ctx;
+    v1::ListRegionsReply r;
+    EXPECT_TRUE(stub_->ListRegions(&ctx, {}, &r).ok());
+    return {r.regions().begin(), r.regions().end()};
+  }
+  // The inpainted views of a fresh snapshot.
+  std::vector<v1::ViewAdded> InpaintedViews() {
+    grpc::ClientContext ctx;
+    ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(20));
+    v1::SubscribeRequest req;
+    auto reader = stub_->Subscribe(&ctx, req);
+    std::vector<v1::ViewAdded> out;
+    v1::Delta d;
+    while (reader->Read(&d)) {
+      if (d.has_view_added() && d.view_added().inpainted()) out.push_back(d.view_added());
+      if (d.has_snapshot_end()) break;
+    }
+    ctx.TryCancel();
+    return out;
+  }
+  std::unique_ptr<v1::Exoview::Stub> stub_;
+};
+
+TEST_F(ServiceInpainting, MarkInpaintPublishRestartAndClear) {
+  Start("server1.log");
+  v1::MarkRegionReply reply;
+  // Before any frame: no scene.
+  EXPECT_EQ(Mark({{60, 60}}, PoseAt(0), &reply).error_code(),
+            grpc::StatusCode::FAILED_PRECONDITION);
+  ASSERT_NO_FATAL_FAILURE(Upload(0, 8));
+  const v1::Stats s0 = WaitProcessed();
+  ASSERT_GT(s0.num_chunks(), 0u) << server_->Log();
+  EXPECT_EQ(s0.counters().at("inpainting.keyframes_published"), 0.0);
+
+  // Hard cases, each a clear status.
+  const Rigid3d here = PoseAt(-0.01);  // the camera of frame 7
+  grpc::Status st = Mark({}, here, &reply);
+  EXPECT_EQ(st.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << st.error_message();
+  st = Mark({{-40, 60}, {500, 60}}, here, &reply);
+  EXPECT_EQ(st.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(st.error_message().find("outside"), std::string::npos) << st.error_message();
+  Rigid3d away = here;  // looking back, away from everything observed: sky / void
+  away.rotation = glm::angleAxis(3.14159265358979, glm::dvec3(0, 1, 0));
+  st = Mark({{80, 60}}, away, &reply);
+  EXPECT_EQ(st.error_code(), grpc::StatusCode::FAILED_PRECONDITION) << st.error_message();
+  st = Mark({{80, 60}}, here, &reply, /*radius=*/1000, /*tol=*/100);
+  EXPECT_EQ(st.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << st.error_message();
+  EXPECT_NE(st.error_message().find("of the frame"), std::string::npos) << st.error_message();
+  st = Mark({{60, 60}}, here, &reply, 0, 0, /*both_poses=*/true);
+  EXPECT_EQ(st.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << st.error_message();
+  {
+    grpc::ClientContext ctx;
+    v1::ClearRegionRequest req;
+    req.set_region_id(77);
+    v1::ClearRegionReply r;
+    EXPECT_EQ(stub_->ClearRegion(&ctx, req, &r).error_code(), grpc::StatusCode::NOT_FOUND);
+  }
+  EXPECT_TRUE(List().empty());
+
+  // The box is at x in [-0.3, 0] at 1.5 m: from x = -0.01 it spans image columns ~[50, 80].
+  st = Mark({{62, 55}, {66, 62}}, here, &reply);
+  ASSERT_TRUE(st.ok()) << st.error_message() << server_->Log();
+  const uint32_t box = reply.region().region_id();
+  EXPECT_GT(reply.region().num_voxels(), 10u);
+  // A second, overlapping region, and one touching the image border (the wall's left edge).
+  ASSERT_TRUE(Mark({{70, 58}}, here, &reply).ok());
+  const uint32_t overlap = reply.region().region_id();
+  ASSERT_TRUE(Mark({{1, 100}}, here, &reply).ok());
+  const uint32_t border = reply.region().region_id();
+  EXPECT_EQ(List().size(), 3u);
+  {
+    grpc::ClientContext ctx;
+    v1::ClearRegionRequest req;
+    req.set_region_id(border);
+    v1::ClearRegionReply r;
+    ASSERT_TRUE(stub_->ClearRegion(&ctx, req, &r).ok());
+    EXPECT_EQ(r.cleared(), 1u);
+  }
+  ASSERT_EQ(List().size(), 2u);
+
+  // Frames after the mark: the labels re-project, keyframes are inpainted and published.
+  ASSERT_NO_FATAL_FAILURE(Upload(8, 18, /*rate_hz=*/20));
+  // The walk goes on for 36 cm past the mark: the ROI's uncovered share grows past 10 % and a
+  // second keyframe is inserted, propagated from the first (4.3-4.6).
+  const v1::Stats s1 = WaitProcessed("inpainting.keyframes_propagated", 1);
+  for (const auto& [k, v] : s1.counters())
+    if (k.rfind("inpainting.", 0) == 0) std::cout << k << " = " << v << "\n";
+  EXPECT_GT(s1.counters().at("inpainting.frames_with_roi"), 0.0);
+  EXPECT_EQ(s1.counters().at("inpainting.keyframes_failed"), 0.0) << server_->Log();
+  const auto views = InpaintedViews();
+  ASSERT_FALSE(views.empty());
+  for (const auto& v : views) {
+    EXPECT_GE(v.view_id(), 0x40000000u);
+    auto labels = DepthFromProto(v.labels());
+    ASSERT_TRUE(labels.ok()) << labels.status();
+    int roi = 0;
+    for (size_t i = 0; i < labels->size(); ++i) roi += labels->data()[i] > 0.5f;
+    EXPECT_GT(roi, 50);
+    EXPECT_LT(roi, labels->width() * labels->height() / 2);
+    EXPECT_EQ(v.region_ids_size(), 2);
+  }
+
+  // Restart: regions and inpainted keyframes come back from the checkpoint.
+  server_->Signal(SIGTERM);
+  ASSERT_TRUE(server_->Wait(20).has_value());
+  Start("server2.log");
+  const auto regions = List();
+  ASSERT_EQ(regions.size(), 2u) << server_->Log();
+  EXPECT_EQ(regions[0].region_id(), box);
+  EXPECT_EQ(regions[1].region_id(), overlap);
+  EXPECT_EQ(InpaintedViews().size(), views.size());
+  // New ids continue after the restored ones.
+  ASSERT_TRUE(Mark({{64, 60}}, here, &reply).ok());
+  EXPECT_GT(reply.region().region_id(), border);
+
+  // Clearing every region withdraws the inpainted views.
+  {
+    grpc::ClientContext ctx;
+    v1::ClearRegionRequest req;  // 0 = all
+    v1::ClearRegionReply r;
+    ASSERT_TRUE(stub_->ClearRegion(&ctx, req, &r).ok());
+    EXPECT_EQ(r.cleared(), 3u);
+    EXPECT_EQ(r.views_removed(), views.size());
+  }
+  EXPECT_TRUE(List().empty());
+  EXPECT_TRUE(InpaintedViews().empty());
+}
+
+}  // namespace
+}  // namespace exo
