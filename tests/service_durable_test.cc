@@ -98,7 +98,7 @@ TEST_F(ServiceDurable, KillNineAtTwentyRandomMomentsLosesNoDurableFrameAndApplie
     o.rate_hz = 40;
     o.max_in_flight = 4;
     o.uploader_id = kUploader;
-    o.reconnect_s = 240;
+    o.reconnect_s = 120;
     o.on_ack = [&](const v1::Ack& a) {
       if (a.status() != v1::Ack::ACCEPTED || !a.durable()) return;
       std::lock_guard lock(mu);
@@ -123,6 +123,15 @@ TEST_F(ServiceDurable, KillNineAtTwentyRandomMomentsLosesNoDurableFrameAndApplie
     upload_done = true;
   });
 
+  // On any early return below: let the uploader finish (or give up) before the thread goes.
+  struct Joiner {
+    std::thread* t;
+    std::atomic<bool>* done;
+    ~Joiner() {
+      *done = true;
+      if (t->joinable()) t->join();
+    }
+  } joiner{&uploader, &kills_done};
   std::mt19937 rng(20);
   std::uniform_real_distribution<double> wait_s(0.05, 0.7);
   double replayed_total = 0;

@@ -44,6 +44,18 @@ const char* RpcName(Rpc rpc) {
       return "Subscribe";
     case Rpc::kGetStats:
       return "GetStats";
+    case Rpc::kDroneLink:
+      return "DroneLink";
+    case Rpc::kPickAndPlace:
+      return "PickAndPlace";
+    case Rpc::kGazeToSee:
+      return "GazeToSee";
+    case Rpc::kJoypad:
+      return "Joypad";
+    case Rpc::kGoToView:
+      return "GoToView";
+    case Rpc::kGetControlState:
+      return "GetControlState";
   }
   return "?";
 }
@@ -61,10 +73,13 @@ bool RoleAllows(Role role, Rpc rpc) {
     case Role::kAdmin:
       return true;
     case Role::kUploader:
-      return rpc == Rpc::kUpload;
+      return rpc == Rpc::kUpload || rpc == Rpc::kDroneLink;
     case Role::kViewer:
+      return rpc == Rpc::kSubscribe || rpc == Rpc::kGetStats || rpc == Rpc::kGetControlState;
     case Role::kOperator:
-      return rpc == Rpc::kSubscribe || rpc == Rpc::kGetStats;
+      return rpc == Rpc::kSubscribe || rpc == Rpc::kGetStats || rpc == Rpc::kGetControlState ||
+             rpc == Rpc::kPickAndPlace || rpc == Rpc::kGazeToSee || rpc == Rpc::kJoypad ||
+             rpc == Rpc::kGoToView;
   }
   return false;
 }

@@ -430,6 +430,11 @@ class ExoviewServer::Service final : public v1::Exoview::Service {
     return grpc::Status::OK;
   }
 
+  // For the control service (same tokens, same counters and log lines).
+  absl::StatusOr<std::string> AuthorizeCall(const grpc::ServerContext& ctx, Rpc rpc) {
+    return Authorize(ctx, rpc);
+  }
+
  private:
   // A REJECTED ack: the reason text and its machine-readable code (Ack.code = the status code).
   void Reject(const absl::Status& status, v1::Ack* ack) {
@@ -622,7 +627,13 @@ absl::Status ExoviewServer::Start() {
   service_ = std::make_unique<Service>(config_, store_.get(), pipeline_.get(), &shutting_down_,
                                        udp_.get(), std::move(auth), durability_.get());
   if (config_.control.enabled()) {
-    EXO_ASSIGN_OR_RETURN(control_, ControlServiceHost::Start(config_.control, store_.get()));
+    // The same tokens and the same one check as the modeling service.
+    Service* svc = service_.get();
+    EXO_ASSIGN_OR_RETURN(control_, ControlServiceHost::Start(
+                                       config_.control, store_.get(),
+                                       [svc](const grpc::ServerContext& ctx, Rpc rpc) {
+                                         return svc->AuthorizeCall(ctx, rpc);
+                                       }));
   }
   grpc::EnableDefaultHealthCheckService(true);
   // Server reflection: grpcurl-style tools list exoview.v1.Exoview and fetch its descriptors.
