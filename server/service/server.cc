@@ -405,6 +405,12 @@ class ExoviewServer::Service final : public v1::Exoview::Service {
     c["server.denied_calls"] = static_cast<double>(denied_calls_.load());
     c["store.snapshot_bytes"] = static_cast<double>(s.snapshot_bytes);
     c["journal.applied_lsn"] = static_cast<double>(store_->applied_lsn());
+    if (udp_) {
+      c["udp.received"] = static_cast<double>(udp_->received());
+      c["udp.malformed"] = static_cast<double>(udp_->malformed());
+      c["udp.unauthenticated"] = static_cast<double>(udp_->unauthenticated());
+      c["udp.replayed"] = static_cast<double>(udp_->replayed());
+    }
     if (FrameJournal* j = dur_->journal.get()) {
       const FrameJournal::Counters jc = j->counters();
       c["journal.appends"] = static_cast<double>(jc.appends);
@@ -615,7 +621,21 @@ absl::Status ExoviewServer::Start() {
     });
   }
   if (config_.udp_pose_port >= 0) {
-    EXO_ASSIGN_OR_RETURN(udp_, UdpPoseInput::Start(config_.udp_pose_address, config_.udp_pose_port));
+    std::string key;
+    if (!config_.udp_pose_key_file.empty()) {
+      EXO_ASSIGN_OR_RETURN(key, ReadPoseKeyFile(config_.udp_pose_key_file));
+    } else if (!absl::StartsWith(config_.udp_pose_address, "127.") &&
+               config_.udp_pose_address != "::1" && !config_.allow_insecure_remote) {
+      return absl::FailedPreconditionError(absl::StrCat(
+          "refusing unauthenticated UDP poses on ", config_.udp_pose_address,
+          ": give udp_pose_key_file (HMAC-SHA256 datagrams, docs/security.md), or "
+          "allow_insecure_remote=true"));
+    }
+    EXO_ASSIGN_OR_RETURN(udp_, UdpPoseInput::Start(config_.udp_pose_address, config_.udp_pose_port,
+                                                   4096, key));
+    log::Get("server")->info("UDP poses on {}:{}{}", config_.udp_pose_address, udp_->port(),
+                             key.empty() ? " (plain datagrams, not authenticated)"
+                                         : " (HMAC-SHA256 authenticated, replay-protected)");
   }
   std::unique_ptr<Authorizer> auth;
   if (!config_.auth_tokens_file.empty()) {

@@ -48,6 +48,9 @@ struct ServerConfig {
   int udp_pose_port = -1;
   std::string udp_pose_address = "127.0.0.1";
   double udp_pose_tolerance_s = 0.02;  // a frame with no pose sample this close is rejected
+  // Shared key of authenticated pose datagrams (HMAC-SHA256, udp_pose_input.h); empty: plain
+  // datagrams, only on a loopback address unless allow_insecure_remote.
+  std::string udp_pose_key_file;
   // Checkpoint (SPEC §12): empty path = off. Written every `checkpoint_interval_s` when the model
   // changed (tmp + fsync + rename) and at graceful shutdown; loaded at start when present.
   std::string checkpoint_path;
