@@ -20,6 +20,7 @@
 #include <nlohmann/json.hpp>
 
 #include "client/uploader/synth_source.h"
+#include "common/cli/cli.h"
 #include "client/uploader/upload_client.h"
 #include "proto/exoview.grpc.pb.h"
 #include "tests/subprocess.h"
@@ -61,7 +62,9 @@ double Loadavg() {
 
 int main(int argc, char** argv) {
   using namespace exo;
-  CLI::App app{"journal_bench: ingest with the frame journal on and off, interleaved"};
+  CLI::App app{"journal_bench: ingest with the frame journal on and off, interleaved",
+               "journal_bench"};
+  exo::cli::Setup(app);
   int runs = 3, frames = 300, streams = 1, width = 640, height = 480;
   bool stages = false;
   std::vector<std::string> server_args;
@@ -72,7 +75,7 @@ int main(int argc, char** argv) {
   app.add_option("--width", width);
   app.add_option("--height", height);
   app.add_option("--server_arg", server_args, "extra server flag (repeatable)");
-  CLI11_PARSE(app, argc, argv);
+  if (auto rc = exo::cli::Parse(app, argc, argv)) return *rc;
 
   SynthSourceOptions so;
   so.scene = "apartment";
