@@ -50,7 +50,9 @@ TEST(Auth, EachRoleMayCallExactlyItsRpcs) {
                                                 {"vw-0123456789abcdef", Role::kViewer},
                                                 {"op-0123456789abcdef", Role::kOperator},
                                                 {"ad-0123456789abcdef", Role::kAdmin}};
-  for (const auto& [token, role] : roles) {
+  for (const auto& entry : roles) {
+    const char* token = entry.first;  // (clang 14 cannot capture a structured binding)
+    const Role role = entry.second;
     const bool up = role == Role::kUploader, op = role == Role::kOperator,
                ad = role == Role::kAdmin;
     auto code = [&](Rpc rpc) { return (*a)->Check(std::string("Bearer ") + token, rpc).status().code(); };
