@@ -186,8 +186,9 @@ vec4 ShadePixel(ivec2 pixel) {
     // ---- weights: DirectionalWeight / PositionalWeight / CombinedWeight with v = 1 ----
     const vec3 b = uintBitsToFloat(r0.xyz) - x;
     const float lb = length(b);  // also the range of x from the view (a rotation keeps lengths)
+    const vec3 dab = a / la - b / lb;  // well-conditioned cosine (blend_math.h)
     const float w_d = (!(la > kMinDistance) || !(lb > kMinDistance))
-                          ? 0.0 : max(0.0, dot(a, b) / (la * lb));
+                          ? 0.0 : max(0.0, 1.0 - 0.5 * dot(dab, dab));
     const float w_p = frame.iparams.x == kPositionalPrinted
                           ? max(0.0, 1.0 - lb / d_o)
                           : max(0.0, 1.0 - max(0.0, lb - d_o) / d_o);

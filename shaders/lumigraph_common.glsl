@@ -44,7 +44,8 @@ float DirectionalWeight(vec3 x, vec3 c_o, vec3 c_i) {
   const float la = length(a);
   const float lb = length(b);
   if (!(la > kMinDistance) || !(lb > kMinDistance)) return 0.0;
-  return max(0.0, dot(a, b) / (la * lb));
+  const vec3 d = a / la - b / lb;  // well-conditioned cosine, see blend_math.h
+  return max(0.0, 1.0 - 0.5 * dot(d, d));
 }
 
 float PositionalWeight(vec3 x, vec3 c_o, vec3 c_i, int mode) {

@@ -16,6 +16,7 @@
 #include <fstream>
 #include <nlohmann/json.hpp>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "absl/strings/str_split.h"
@@ -38,7 +39,9 @@
 namespace {
 
 exo::ViewerSession* g_session = nullptr;
+volatile sig_atomic_t g_signalled = 0;
 void OnSignal(int) {
+  g_signalled = 1;
   if (g_session) g_session->Stop();
 }
 
@@ -219,7 +222,23 @@ int main(int argc, char** argv) {
   so.settle_ms = f.settle_ms;
   so.min_server_frames = f.until_frames;
   const auto t_sync = std::chrono::steady_clock::now();
-  if (auto s = (*session)->Sync(so); !s.ok()) return Fail(s);
+  if (!f.follow) {
+    if (auto s = (*session)->Sync(so); !s.ok()) return Fail(s);
+  } else {
+    // --follow: a stream that ends (server or relay gone) is resumed from the store's (version,
+    // epoch) on a new call; with several addresses (--server=ipv4:A,B) the channel fails over.
+    for (;;) {
+      const double left = f.max_seconds - Ms(std::chrono::steady_clock::now() - t_sync) * 1e-3;
+      if (g_signalled || left <= 0) break;
+      so.max_seconds = left;
+      const absl::Status s = (*session)->Sync(so);
+      if (g_signalled) break;
+      std::fprintf(stderr, "exoview_viewer: stream ended at version %llu (%s); resuming\n",
+                   static_cast<unsigned long long>((*session)->store().version()),
+                   s.ok() ? "closed" : std::string(s.message()).c_str());
+      std::this_thread::sleep_for(std::chrono::milliseconds(300));
+    }
+  }
   const double sync_s = Ms(std::chrono::steady_clock::now() - t_sync) * 1e-3;
   const exo::LocalStore& store = (*session)->store();
   const exo::SessionStats& ss = (*session)->stats();

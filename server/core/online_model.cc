@@ -50,6 +50,7 @@ double MedianDepth(const ImageF& depth) {
 }
 
 absl::Status OnlineModelOptions::Validate() const {
+  EXO_RETURN_IF_ERROR(frame_quality.Validate());
   auto nonneg = [](double v) { return std::isfinite(v) && v >= 0.0; };
   if (!nonneg(voxel_m) || !nonneg(cell_m) || !nonneg(d_max_m) || !nonneg(sigma_m))
     return absl::InvalidArgumentError(
@@ -219,6 +220,7 @@ PlanFrame PlanFrame::Of(const Frame& f, const LocalOrigin& origin) {
   p.local_from_cam = origin.ToLocal(f.world_from_cam);
   p.camera = f.color_camera;
   if (!f.depth_m.empty()) p.depth = &f.depth_m;
+  if (!f.color.empty()) p.color = &f.color;
   p.depth_camera = f.depth_camera;
   p.local_from_depth = p.local_from_cam * f.color_from_depth;
   p.timestamp_s = f.timestamp_s;
@@ -251,7 +253,8 @@ OnlinePlanner::OnlinePlanner(planning::ViewPlanner planner, const OnlineModelOpt
       options_(options),
       setup_(setup),
       areas_(CellGrid{setup.cell_m}),
-      cell_ids_(std::move(cell_ids)) {}
+      cell_ids_(std::move(cell_ids)),
+      quality_(options.frame_quality) {}
 
 absl::StatusOr<std::unique_ptr<OnlinePlanner>> OnlinePlanner::Create(
     const OnlineModelOptions& options, const SceneSetup& setup) {
@@ -265,6 +268,7 @@ absl::StatusOr<std::unique_ptr<OnlinePlanner>> OnlinePlanner::Create(
   po.tau_max = options.tau_max;
   po.delta_tau_sum = options.delta_tau_sum;
   po.novelty_positional = options.novelty_positional;
+  po.soft_saturation = options.soft_saturation;
   po.cell_size_m = setup.cell_m;
   po.d_max_m = setup.d_max_m;
   po.sigma_m = setup.sigma_m;
@@ -334,6 +338,10 @@ absl::StatusOr<HandOff> OnlinePlanner::Plan(const PlanFrame& f) {
   const ViewId id = ++last_id_;
   HandOff none;
   none.id = id;
+  // Every frame enters the quality reference window (also frames the governor skips).
+  const double quality = options_.frame_quality.gamma > 0 && f.color != nullptr
+                             ? quality_.Next(planning::LaplacianVariance(*f.color))
+                             : 1.0;
   if (options_.max_candidates_per_s_when_full > 0 && planner_.num_views() >= options_.max_views) {
     const double min_gap_s = 1.0 / options_.max_candidates_per_s_when_full;
     if (f.timestamp_s - last_candidate_s_ < min_gap_s && f.timestamp_s >= last_candidate_s_) {
@@ -354,6 +362,7 @@ absl::StatusOr<HandOff> OnlinePlanner::Plan(const PlanFrame& f) {
     cand.id_camera = r.camera;
     cand.cells = planning::CountCellPixels(r.cell_id.data(), r.cell_id.size());
     cand.bytes = f.bytes;
+    cand.quality = quality;
     ++counters_.ids_from_proxy;
     return Decide(std::move(cand));
   }
@@ -361,6 +370,7 @@ absl::StatusOr<HandOff> OnlinePlanner::Plan(const PlanFrame& f) {
   EXO_ASSIGN_OR_RETURN(planning::Candidate cand,
                        CandidateFromDepth(id, *f.depth, f.depth_camera, f.local_from_depth,
                                           f.local_from_cam, planner_.grid(), stride, f.bytes));
+  cand.quality = quality;
   return Decide(std::move(cand));
 }
 

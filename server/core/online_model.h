@@ -32,6 +32,7 @@
 #include "server/geometry/scene_scale.h"
 #include "server/geometry/tsdf_volume.h"
 #include "server/planning/cell_id_proxy.h"
+#include "server/planning/frame_quality.h"
 #include "server/planning/view_planner.h"
 
 namespace exo::core {
@@ -63,6 +64,10 @@ struct OnlineModelOptions {
   double tau_max = 4.0;
   double delta_tau_sum = 0.05;
   bool novelty_positional = false;  // planning::PlannerOptions::novelty_positional (issue 22)
+  bool soft_saturation = false;    // planning::PlannerOptions::soft_saturation
+  // Relative sharpness of each frame as the planner's candidate quality (issue 15;
+  // planning/frame_quality.h). gamma 0 = off.
+  planning::FrameQualityOptions frame_quality;
   bool cell_areas = true;  // A(b_k) from the proxy; false: every cell the face area A_cell
   // Bandwidth governor: once the store is full at most this many candidates per second (frame
   // timestamps) reach the planner; 0 = off.
@@ -144,6 +149,7 @@ struct PlanFrame {
   Rigid3d local_from_cam;
   PinholeCamera camera;           // the colour camera (what a stored view shows)
   const ImageF* depth = nullptr;  // null: cell ids only from the proxy
+  const ImageU8* color = nullptr;  // for the frame quality (null: quality 1)
   PinholeCamera depth_camera;
   Rigid3d local_from_depth;
   double timestamp_s = 0.0;
@@ -206,6 +212,7 @@ class OnlinePlanner {
   std::map<ViewId, Rigid3d> poses_;
   ViewId last_id_ = 0;
   double last_candidate_s_ = -1e300;
+  planning::FrameQuality quality_;
   Counters counters_;
 };
 

@@ -242,6 +242,7 @@ planning::PlannerOptions PlannerFor(const PolicyConfig& c, const Source& src, do
   if (c.tau_max > 0) po.tau_max = c.tau_max;
   po.cell_size_m = cell_m;
   po.novelty_positional = c.novelty_positional;
+  po.soft_saturation = c.soft_saturation;
   po.d_max_m = src.scale.d_max_m;
   po.sigma_m = src.scale.sigma_m;
   if (src.scale_mode == ScaleMode::kViewDepth && src.view_depth_m > 0) {
@@ -368,7 +369,9 @@ std::string ConfigJson(const std::string& dataset, const std::string& test_poses
                  {"cellid_lod_m", Round(lod_m, 3)},
                  {"face_areas", int(c.face_areas)},
                  {"online", int(PolicyIsOnline(c.policy))},
-                 {"novelty_positional", int(c.novelty_positional)}};
+                 {"novelty_positional", int(c.novelty_positional)},
+                 {"soft_saturation", int(c.soft_saturation)},
+                 {"sharp_gamma", c.sharp_gamma}};
   j["quality"] = {{"mssim", Round(r.quality.mssim, 4)},
                   {"psnr", Round(r.quality.psnr, 2)},
                   {"coverage", Round(r.quality.coverage, 4)},
@@ -526,6 +529,8 @@ class Engine {
         mo.tau_max = po.tau_max;
         mo.delta_tau_sum = po.delta_tau_sum;
         mo.novelty_positional = po.novelty_positional;
+        mo.soft_saturation = po.soft_saturation;
+        mo.frame_quality.gamma = c.sharp_gamma;
         mo.cell_areas = !c.face_areas;
         mo.id_buffer_stride = IdStride();
         mo.id_from_proxy = opt_.cell_ids == CellIdSource::kProxy;

@@ -81,6 +81,10 @@ struct PolicyConfig {
   // Issue 22: planners of this config use φ = φ_d (λ + (1 - λ) φ_p) (PlannerOptions::
   // novelty_positional); exoview_eval's policy "online_novelty" = online with this on.
   bool novelty_positional = false;
+  // planning::PlannerOptions::soft_saturation; policy option "soft=1".
+  bool soft_saturation = false;
+  // OnlineModelOptions::frame_quality.gamma; policy option "sharp=G" (0 = off).
+  double sharp_gamma = 0.0;
   double keyframe_threshold = 0.7;  // kKeyframe: InpaintFusion's ||I - M_i^-1 M_k||_F
   // Issue 15: blend options of this config's renders (lambda still from `lambda`); unset = the
   // run's. Lets one stream compare blend variants on the same stores.

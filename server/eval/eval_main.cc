@@ -154,9 +154,11 @@ absl::StatusOr<std::vector<PolicyConfig>> Configs(const Args& a) {
         if (key == "lambda") c.lambda = v;
         else if (key == "blend_lambda") c.blend_lambda = v;
         else if (key == "tau_max") c.tau_max = v;
+        else if (key == "soft") c.soft_saturation = v != 0;
+        else if (key == "sharp") c.sharp_gamma = v;
         else
           return absl::InvalidArgumentError("unknown policy option " + key +
-                                            " (lambda, blend_lambda, tau_max)");
+                                            " (lambda, blend_lambda, tau_max, soft, sharp)");
       }
       c.tag = opts;
     }

@@ -128,7 +128,7 @@ int32_t ViewPlanner::CellIndex(CellId id) {
 }
 
 double ViewPlanner::CoverageOf(const glm::dvec3& cam, CellId cell, double pixels,
-                               double pixel_sr) const {
+                               double pixel_sr, double quality) const {
   if (cell == kNoCell || !(pixels > 0.0) || !(pixel_sr > 0.0) || !Finite(cam)) return 0.0;
   // Guard d -> 0 (SPEC §4, §11): a camera inside the cell has no defined direction to it and
   // the 1/d^2 footprint model does not apply: it claims no coverage of that cell.
@@ -141,16 +141,26 @@ double ViewPlanner::CoverageOf(const glm::dvec3& cam, CellId cell, double pixels
   std::array<glm::dvec3, kMaxRMax> ref_dirs;
   size_t n_refs = 0;
   if (auto it = cell_index_.find(cell); it != cell_index_.end())
-    for (const Ref& r : cells_[it->second].refs) ref_dirs[n_refs++] = r.dir;
+    // A reference of lower image quality than the candidate does not make the candidate's
+    // direction redundant (a sharp frame is novel over a blurred one of the same direction);
+    // with every quality 1 (FrameQuality off) this is the thesis' R(b_k).
+    for (const Ref& r : cells_[it->second].refs)
+      if (r.quality >= quality) ref_dirs[n_refs++] = r.dir;
   const double phi_d = DirectionalCoverage(
       dir, std::span<const glm::dvec3>(ref_dirs.data(), n_refs), options_.r_max);
   const double g = DistanceQuality(d, options_.d_max_m, options_.sigma_m);
-  return Phi(phi_d, PositionalPart(AreaOf(cell), d, g, pixels, pixel_sr));
+  return quality * Phi(phi_d, PositionalPart(AreaOf(cell), d, g, pixels, pixel_sr));
 }
 
 double ViewPlanner::Phi(double phi_d, double phi_p) const {
   if (options_.novelty_positional) return phi_d * Coverage(options_.lambda, 1.0, phi_p);
   return Coverage(options_.lambda, phi_d, phi_p);
+}
+
+double ViewPlanner::Sat(double tau) const {
+  const double m = options_.tau_max;
+  if (!options_.soft_saturation) return std::min(tau, m);
+  return m * -std::expm1(-std::max(tau, 0.0) / m);
 }
 
 double ViewPlanner::AreaOf(CellId cell) const {
@@ -166,10 +176,10 @@ double ViewPlanner::PositionalPart(double area_m2, double d, double g, double pi
 
 void ViewPlanner::AddToCellTau(int32_t cell, double dphi) {
   Cell& c = cells_[cell];
-  const double old_clamped = std::min(c.tau, options_.tau_max);
+  const double old_clamped = Sat(c.tau);
   c.tau += dphi;
   if (c.observers.empty()) c.tau = 0.0;  // no drift once a cell is unobserved again
-  tau_sum_ += std::min(c.tau, options_.tau_max) - old_clamped;
+  tau_sum_ += Sat(c.tau) - old_clamped;
 }
 
 void ViewPlanner::AddView(View view, std::vector<CellId>* changed) {
@@ -181,7 +191,8 @@ void ViewPlanner::AddView(View view, std::vector<CellId>* changed) {
     const glm::dvec3 v = view.centre - grid_.Centre(c.id);
     const double d = glm::length(v);
     const Ref ref{view.id, e.phi, v / d, view.pixels[i], d,
-                  DistanceQuality(d, options_.d_max_m, options_.sigma_m), view.pixel_sr};
+                  DistanceQuality(d, options_.d_max_m, options_.sigma_m), view.pixel_sr,
+                  view.quality};
     c.observers.push_back(ref);
     AddToCellTau(e.cell, e.phi);
     if (options_.render_refs_max > 0) changed->push_back(c.id);  // its observers changed
@@ -230,11 +241,16 @@ bool ViewPlanner::RebuildRefs(int32_t cell) {
   size_t n_before = 0;
   for (const Ref& r : c.refs) before[n_before++] = r.view;
   std::array<glm::dvec3, kMaxRMax> dirs;
+  std::array<glm::dvec3, kMaxRMax> eligible;  // the references CoverageOf counted (quality)
   c.refs.clear();
   for (const Ref& o : c.observers) {
+    size_t n_eligible = 0;
+    for (size_t j = 0; j < c.refs.size(); ++j)
+      if (c.refs[j].quality >= o.quality) eligible[n_eligible++] = dirs[j];
     const double phi_d = DirectionalCoverage(
-        o.dir, std::span<const glm::dvec3>(dirs.data(), c.refs.size()), options_.r_max);
-    const double phi = Phi(phi_d, PositionalPart(area, o.d, o.g, o.pixels, o.pixel_sr));
+        o.dir, std::span<const glm::dvec3>(eligible.data(), n_eligible), options_.r_max);
+    const double phi =
+        o.quality * Phi(phi_d, PositionalPart(area, o.d, o.g, o.pixels, o.pixel_sr));
     if (!(phi > 0.0)) continue;
     Ref r = o;
     r.phi = static_cast<float>(phi);
@@ -289,12 +305,15 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
   // φ(I, b_k) for every cell I sees (only these cells can change).
   const glm::dvec3 centre = cand.local_from_cam.translation;
   const double pixel_sr = cand.id_camera.PixelSolidAngle();
-  View view{cand.id, centre, cand.bytes, pixel_sr, {}, {}};
+  if (!(cand.quality > 0.0) || !(cand.quality <= 1.0))
+    return absl::InvalidArgumentError(
+        absl::StrCat("candidate quality must be in (0, 1], got ", cand.quality));
+  View view{cand.id, centre, cand.bytes, pixel_sr, cand.quality, {}, {}};
   view.entries.reserve(cand.cells.size());
   view.pixels.reserve(cand.cells.size());
   for (const CellPixelCount& c : cand.cells) {
     if (c.cell == kNoCell || c.pixels == 0) continue;
-    const double phi = CoverageOf(centre, c.cell, c.pixels, pixel_sr);
+    const double phi = CoverageOf(centre, c.cell, c.pixels, pixel_sr, cand.quality);
     if (!(phi > 0.0)) continue;
     const int32_t idx = CellIndex(c.cell);
     // Duplicate cells in the input are merged (φ is not additive, keep the larger).
@@ -316,11 +335,10 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
     return d;
   }
 
-  const double tau_max = options_.tau_max;
   double gain = 0.0;
   for (const Entry& e : view.entries) {
     const double t = cells_[e.cell].tau;
-    gain += std::min(t + e.phi, tau_max) - std::min(t, tau_max);
+    gain += Sat(t + e.phi) - Sat(t);
   }
 
   std::vector<ViewId> victims;
@@ -350,7 +368,7 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
         double loss = 0.0;  // τ_sum change caused by removing v (<= 0)
         for (const Entry& e : v.entries) {
           const double t = cells_[e.cell].tau + scratch_[e.cell];
-          loss += std::min(t - e.phi, tau_max) - std::min(t, tau_max);
+          loss += Sat(t - e.phi) - Sat(t);
         }
         if (loss > best_loss || (loss == best_loss && best != nullptr && vid < best->id)) {
           best_loss = loss;
@@ -366,7 +384,7 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
     gain = 0.0;
     for (int32_t k : touched) {
       const double t = cells_[k].tau;
-      gain += std::min(t + scratch_[k], tau_max) - std::min(t, tau_max);
+      gain += Sat(t + scratch_[k]) - Sat(t);
     }
   }
 
@@ -425,7 +443,7 @@ double ViewPlanner::RecomputeTauSum() const {
   for (const auto& [id, v] : views_)
     for (const Entry& e : v.entries) tau[e.cell] += e.phi;
   double sum = 0.0;
-  for (double t : tau) sum += std::min(t, options_.tau_max);
+  for (double t : tau) sum += Sat(t);
   return sum;
 }
 

@@ -62,6 +62,13 @@ struct PlannerOptions {
   // φ = φ_d (λ + (1 - λ) φ_p): the positional term counts in proportion to the view's directional
   // novelty (a cell's first view unchanged, a duplicate 0). false = the thesis' form.
   bool novelty_positional = false;
+  // Saturation of a cell's τ in τ_sum (3.16). false: the thesis' hard clamp min(τ, τ_max).
+  // true: S(τ) = τ_max (1 - exp(-τ / τ_max)), the same slope at 0 and the same ceiling, but
+  // strictly increasing: a view over already saturated cells still has a (small) value, so the
+  // victim search and the acceptance test do not meet exact ties (with the clamp every view
+  // over saturated cells costs 0 to remove, and the oldest such view went first) and coverage
+  // keeps spreading over the cells with the fewest observations (issue 15 / 22).
+  bool soft_saturation = false;
 
   absl::Status Validate() const;
 
@@ -97,6 +104,10 @@ struct Candidate {
                                       // A_px = id_camera.PixelSolidAngle() (reduced res ok)
   std::vector<CellPixelCount> cells;  // ψ_vis per visible cell
   size_t bytes = 0;                   // what storing this frame costs (StoredView::bytes())
+  // Image quality of the frame in (0, 1] (e.g. FrameQuality's relative sharpness: a motion-
+  // blurred frame < 1): every φ of the view is multiplied by it, so a blurred frame covers less
+  // and a sharp one of the same place replaces it. 1 = the thesis' planner.
+  double quality = 1.0;
 };
 
 struct Decision {
@@ -133,7 +144,7 @@ class ViewPlanner {
   // `pixels` visible pixels of solid angle `pixel_sr`, against the current R(b_k). 0 for a
   // camera inside the cell (guard d -> 0). Exposed for tests and tools.
   double CoverageOf(const glm::dvec3& cam_centre_local, CellId cell, double pixels,
-                    double pixel_sr) const;
+                    double pixel_sr, double quality = 1.0) const;
 
   const PlannerOptions& options() const { return options_; }
   const CellGrid& grid() const { return grid_; }
@@ -169,6 +180,7 @@ class ViewPlanner {
     double d = 0;        // |camera - cell centre|
     double g = 0;        // distance quality (3.11) at d
     double pixel_sr = 0; // A_px of the view's cell-id buffer
+    double quality = 1;  // Candidate::quality
   };
   struct Cell {
     CellId id = kNoCell;
@@ -185,10 +197,13 @@ class ViewPlanner {
     glm::dvec3 centre;
     size_t bytes;
     double pixel_sr = 0;            // A_px of the candidate's cell-id buffer
+    double quality = 1;             // Candidate::quality
     std::vector<Entry> entries;
     std::vector<uint32_t> pixels;   // ψ_vis per entry (copied into the cell's Ref by AddView)
   };
   double AreaOf(CellId cell) const;  // A(b_k), or A_cell when unknown
+  // A cell's contribution to τ_sum: min(τ, τ_max), or the soft form (soft_saturation).
+  double Sat(double tau) const;
   // φ_p (3.13-3.14) of a view at distance d with distance quality g and ψ_vis = pixels.
   double PositionalPart(double area_m2, double d, double g, double pixels, double pixel_sr) const;
   // φ of (3.6), or its novelty-weighted form (PlannerOptions::novelty_positional).

@@ -28,9 +28,27 @@ class GeometryStage final : public PipelineStage {
       : options_(options), model_(model), handoff_(std::move(handoff)) {}
   std::string name() const override { return "geometry"; }
 
+  void SetBacklog(size_t queued, size_t capacity) override {
+    queued_ = queued;
+    capacity_ = capacity;
+  }
+
   absl::Status Process(const PipelineFrame& f, const SceneContext& ctx) override {
+    // Load shedding (GeometryStageOptions::shed_backlog_fraction): skip fusing this frame.
+    const bool shed = options_.shed_backlog_fraction > 0 && has_geometry_ &&
+                      static_cast<double>(queued_) >=
+                          options_.shed_backlog_fraction * static_cast<double>(capacity_) &&
+                      shed_run_ < options_.shed_max_run;
+    if (shed) {
+      ++shed_run_;
+      shed_.fetch_add(1);
+      if (handoff_) handoff_->Push(core::GeometryUpdate{});
+      return absl::OkStatus();
+    }
+    shed_run_ = 0;
     const int64_t t0 = SteadyNowNs();
     absl::StatusOr<core::GeometryUpdate> u = Integrate(f.frame, ctx);
+    has_geometry_ = true;
     integrate_ns_ += SteadyNowNs() - t0;
     // Exactly one hand-off entry per frame, also when integration failed (an empty update).
     if (handoff_) handoff_->Push(u.ok() ? *u : core::GeometryUpdate{});
@@ -43,6 +61,7 @@ class GeometryStage final : public PipelineStage {
     std::lock_guard lock(mu_);
     if (!geometry_) return;
     (*out)["geometry.fused"] = static_cast<double>(geometry_->fused());
+    (*out)["geometry.shed"] = static_cast<double>(shed_.load());
     (*out)["geometry.digest"] = static_cast<double>(geometry_->Digest());
     (*out)["geometry.voxel_m"] = geometry_->volume().options().voxel_size_m;
     // TSDF integration + dirty-chunk meshing per frame (the rest of process_ms: hand-off, publish)
@@ -109,6 +128,10 @@ class GeometryStage final : public PipelineStage {
   mutable std::mutex mu_;  // geometry_ (stage thread) vs counters (stats thread)
   std::unique_ptr<core::OnlineGeometry> geometry_;  // created on the first frame (scene set-up)
   std::atomic<int64_t> integrate_ns_{0};
+  std::atomic<uint64_t> shed_{0};
+  size_t queued_ = 0, capacity_ = 1;  // stage thread only
+  int shed_run_ = 0;
+  bool has_geometry_ = false;
   std::unordered_map<uint64_t, Published> published_;
   std::unordered_map<uint64_t, MeshChunk> pending_;
 };

@@ -22,7 +22,19 @@ namespace exo {
 struct GeometryStageOptions {
   double republish_change_fraction = 0.2;
   double republish_interval_s = 60.0;
+  // Load shedding (issue 15: "every real frame accepted at 30 Hz"): TSDF fusion is the costliest
+  // stage (~30 ms of a 7-Scenes frame's ~42 ms CPU), so when the machine cannot keep up the
+  // admission queue fills and frames are DROPPED, i.e. lost as view candidates too. Instead,
+  // while at least this fraction of the stage's input queue is waiting, a frame is not fused
+  // (its view is still planned; the proxy is built from its neighbours, which at 30 Hz see the
+  // same surfaces), at most `shed_max_run` frames in a row. 0 = never shed (deterministic runs).
+  double shed_backlog_fraction = 0.5;
+  int shed_max_run = 2;
   absl::Status Validate() const {
+    if (!(shed_backlog_fraction >= 0.0 && shed_backlog_fraction <= 1.0))
+      return absl::InvalidArgumentError("shed_backlog_fraction must be in [0, 1]");
+    if (shed_max_run < 1 || shed_max_run > 100)
+      return absl::InvalidArgumentError("shed_max_run must be in [1, 100]");
     if (!(republish_change_fraction >= 0.0))
       return absl::InvalidArgumentError("republish_change_fraction must be >= 0");
     if (!(republish_interval_s >= 0.0))

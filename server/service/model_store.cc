@@ -29,7 +29,10 @@ absl::Status ModelStoreOptions::Validate() const {
 
 ModelStore::ModelStore(const ModelStoreOptions& options) : options_(options) {
   EXO_CHECK(options_.Validate().ok());
-  lineage_.push_back({NewEpochId(), 0});
+  if (!options_.replica) {
+    own_epoch_ = NewEpochId();
+    lineage_.push_back({own_epoch_, 0});
+  }
 }
 
 uint64_t ModelStore::EpochAtLocked(uint64_t version) const {
@@ -41,7 +44,7 @@ uint64_t ModelStore::EpochAtLocked(uint64_t version) const {
 
 uint64_t ModelStore::epoch() const {
   std::lock_guard lock(mu_);
-  return lineage_.back().id;
+  return lineage_.empty() ? 0 : lineage_.back().id;
 }
 
 uint64_t ModelStore::EpochAt(uint64_t version) const {
@@ -52,11 +55,16 @@ uint64_t ModelStore::EpochAt(uint64_t version) const {
 ModelStore::~ModelStore() { CloseAll(); }
 
 uint64_t ModelStore::CommitLocked(v1::Delta delta) {
+  EXO_CHECK(!options_.replica);  // a replica only replays another store's deltas
   delta.set_version(++version_);
-  snapshot_.reset();  // subscribers holding it keep theirs; no old parts pinned here
   delta.set_source_timestamp_s(t_source_timestamp_s);
   delta.set_model_epoch(lineage_.back().id);
-  auto ptr = std::make_shared<const v1::Delta>(std::move(delta));
+  AppendLogLocked(std::make_shared<const v1::Delta>(std::move(delta)));
+  return version_;
+}
+
+void ModelStore::AppendLogLocked(DeltaPtr ptr) {
+  snapshot_.reset();  // subscribers holding it keep theirs; no old parts pinned here
   log_bytes_ += ptr->ByteSizeLong();
   log_.push_back(std::move(ptr));
   // Compaction: the model is the snapshot, so the oldest deltas can simply go.
@@ -66,7 +74,6 @@ uint64_t ModelStore::CommitLocked(v1::Delta delta) {
     log_.pop_front();
   }
   cv_.notify_all();
-  return version_;
 }
 
 void ModelStore::BeginApply() {
@@ -209,7 +216,8 @@ absl::Status ModelStore::RestoreCheckpoint(const v1::Checkpoint& c) {
   }
   // This process continues the checkpoint's history under a new epoch: versions after
   // c.version() are new content even if an earlier process already produced those numbers.
-  lineage.push_back({lineage_.back().id, c.version()});
+  // A replica has no epoch of its own: its versions after c.version() are replayed ones.
+  if (!options_.replica) lineage.push_back({own_epoch_, c.version()});
   if (lineage.size() > kMaxLineage) lineage.erase(lineage.begin(), lineage.end() - kMaxLineage);
   lineage_ = std::move(lineage);
   version_ = c.version();
@@ -226,6 +234,141 @@ absl::Status ModelStore::RestoreCheckpoint(const v1::Checkpoint& c) {
     log_.push_back(std::move(ptr));
   }
   return absl::OkStatus();
+}
+
+absl::Status ModelStore::ReplayDelta(const v1::Delta& d) {
+  std::lock_guard lock(mu_);
+  if (d.version() != version_ + 1)
+    return absl::DataLossError(absl::StrCat("replay: delta version ", d.version(),
+                                            " does not follow the store's version ", version_));
+  if (d.model_epoch() == 0)
+    return absl::DataLossError(absl::StrCat("replay: delta ", d.version(), " has no model epoch"));
+  // A server replays only before its own epoch produced anything.
+  const bool own_last = !options_.replica && !lineage_.empty() &&
+                        lineage_.back().id == own_epoch_;
+  if (own_last && lineage_.back().start_version != version_)
+    return absl::FailedPreconditionError(
+        "replay: this store has committed deltas of its own; only a fresh or restored store "
+        "replays a log");
+  auto ptr = std::make_shared<v1::Delta>(d);
+  switch (d.kind_case()) {
+    case v1::Delta::kSceneParams:
+      scene_ = d.scene_params();
+      has_scene_ = true;
+      break;
+    case v1::Delta::kViewAdded: {
+      const ViewId id = d.view_added().view_id();
+      if (auto it = views_.find(id); it != views_.end())
+        view_bytes_ -= it->second->view_added().ByteSizeLong();
+      v1::Delta part;
+      *part.mutable_view_added() = d.view_added();
+      part.set_version(d.version());
+      view_bytes_ += part.view_added().ByteSizeLong();
+      view_records_[id] = DigestRecordFromProto(part.view_added());
+      views_[id] = std::make_shared<const v1::Delta>(std::move(part));
+      break;
+    }
+    case v1::Delta::kViewUpdated: {
+      const auto& u = d.view_updated();
+      auto it = views_.find(u.view_id());
+      if (it == views_.end())
+        return absl::DataLossError(absl::StrCat("replay: update of unknown view ", u.view_id()));
+      auto updated = std::make_shared<v1::Delta>(*it->second);
+      *updated->mutable_view_added()->mutable_local_from_cam() = u.local_from_cam();
+      updated->mutable_view_added()->set_exposure(u.exposure());
+      updated->set_version(d.version());
+      view_records_[u.view_id()] = DigestRecordFromProto(updated->view_added());
+      it->second = std::move(updated);
+      break;
+    }
+    case v1::Delta::kViewRemoved: {
+      auto it = views_.find(d.view_removed().view_id());
+      if (it == views_.end())
+        return absl::DataLossError(
+            absl::StrCat("replay: removal of unknown view ", d.view_removed().view_id()));
+      view_bytes_ -= it->second->view_added().ByteSizeLong();
+      view_records_.erase(it->first);
+      views_.erase(it);
+      break;
+    }
+    case v1::Delta::kCellRefsChanged:
+      for (const auto& e : d.cell_refs_changed().cells()) {
+        if (e.view_ids_size() == 0)
+          cell_refs_.erase(e.cell_id());
+        else
+          cell_refs_[e.cell_id()].assign(e.view_ids().begin(), e.view_ids().end());
+      }
+      break;
+    case v1::Delta::kMeshChunkUpserted: {
+      const auto& m = d.mesh_chunk_upserted();
+      EXO_ASSIGN_OR_RETURN(TriangleMesh mesh, MeshFromProto(m));
+      if (auto it = chunks_.find(m.chunk_id()); it != chunks_.end())
+        chunk_bytes_ -= it->second->mesh_chunk_upserted().ByteSizeLong();
+      v1::Delta part;
+      *part.mutable_mesh_chunk_upserted() = m;
+      part.set_version(d.version());
+      chunk_bytes_ += m.ByteSizeLong();
+      chunk_records_[m.chunk_id()] = {m.chunk_version(), MeshHash(mesh)};
+      chunks_[m.chunk_id()] = std::make_shared<const v1::Delta>(std::move(part));
+      break;
+    }
+    case v1::Delta::kMeshChunkRemoved: {
+      auto it = chunks_.find(d.mesh_chunk_removed().chunk_id());
+      if (it == chunks_.end())
+        return absl::DataLossError(absl::StrCat("replay: removal of unknown chunk ",
+                                                d.mesh_chunk_removed().chunk_id()));
+      chunk_bytes_ -= it->second->mesh_chunk_upserted().ByteSizeLong();
+      chunk_records_.erase(it->first);
+      chunks_.erase(it);
+      break;
+    }
+    default:
+      return absl::DataLossError(
+          absl::StrCat("replay: delta ", d.version(), " is not a model change (snapshot marker?)"));
+  }
+  // Lineage: the replayed epoch produced this version; a server's own epoch starts after it.
+  if (own_last) lineage_.pop_back();
+  if (lineage_.empty() || lineage_.back().id != d.model_epoch())
+    lineage_.push_back({d.model_epoch(), version_});
+  ++version_;
+  if (own_last) lineage_.push_back({own_epoch_, version_});
+  if (lineage_.size() > kMaxLineage)
+    lineage_.erase(lineage_.begin(), lineage_.end() - kMaxLineage);
+  AppendLogLocked(std::move(ptr));
+  return absl::OkStatus();
+}
+
+absl::StatusOr<std::vector<DeltaPtr>> ModelStore::DeltasAfter(uint64_t version, size_t max,
+                                                               int timeout_ms) {
+  std::unique_lock lock(mu_);
+  cv_.wait_for(lock, std::chrono::milliseconds(timeout_ms),
+               [&] { return closed_ || version_ > version; });
+  std::vector<DeltaPtr> out;
+  // After CloseAll() too: a log shipper drains what the pipeline committed during shutdown.
+  if (version_ <= version) return out;
+  const uint64_t first = log_.empty() ? version_ + 1 : log_.front()->version();
+  if (version + 1 < first)
+    return absl::DataLossError(absl::StrCat("the delta log starts at version ", first,
+                                            "; version ", version + 1, " was compacted away"));
+  for (size_t i = static_cast<size_t>(version + 1 - first); i < log_.size() && out.size() < max;
+       ++i)
+    out.push_back(log_[i]);
+  return out;
+}
+
+bool ModelStore::closed() const {
+  std::lock_guard lock(mu_);
+  return closed_;
+}
+
+bool ModelStore::has_scene() const {
+  std::lock_guard lock(mu_);
+  return has_scene_;
+}
+
+v1::SceneParams ModelStore::scene() const {
+  std::lock_guard lock(mu_);
+  return scene_;
 }
 
 std::vector<std::shared_ptr<const v1::ViewAdded>> ModelStore::Views() const {

@@ -37,6 +37,9 @@ struct ModelStoreOptions {
   // On resume, send a snapshot instead of the missed deltas when it is fewer bytes. Off: resume
   // with deltas whenever the log still holds them.
   bool snapshot_when_cheaper = true;
+  // A replica (exoview_relay): holds a copy of another store's history, fed by ReplayDelta and
+  // RestoreCheckpoint(..., /*replica=*/true); it has no epoch of its own and never commits.
+  bool replica = false;
   absl::Status Validate() const;
 };
 
@@ -107,8 +110,24 @@ class ModelStore {
   // Checkpoint (SPEC §12): the model as published + at most `max_log_bytes` of the log tail,
   // and the applied-frame ledger.
   v1::Checkpoint MakeCheckpoint(size_t max_log_bytes) const;
-  // Restores a checkpoint into an empty store (version 0): versions continue from it.
+  // Restores a checkpoint into an empty store (version 0): versions continue from it. A replica
+  // store takes the checkpoint's lineage as it is (no epoch of its own after it).
   absl::Status RestoreCheckpoint(const v1::Checkpoint& checkpoint);
+  // Applies a delta committed by another store (the modeling server, read back from an external
+  // delta log, server/service/delta_log.h) with its own version, epoch and source timestamp:
+  // `delta.version()` must be version() + 1. A replica takes every delta this way; a server takes
+  // them only before it commits anything of its own (the replay of a log that is ahead of its
+  // checkpoint at start), its own epoch then begins after the replayed versions. Snapshot
+  // markers are refused; a delta that does not apply (e.g. an update of an unknown view) is
+  // DATA_LOSS and changes nothing.
+  absl::Status ReplayDelta(const v1::Delta& delta);
+  // The log entries after `version` (at most `max`), waiting up to `timeout_ms` for one (CloseAll()
+  // ends the wait; entries are still returned after it). Empty when nothing came; DATA_LOSS when the log no longer holds version + 1
+  // (compacted away): the reader has lost deltas and must resync from a snapshot.
+  absl::StatusOr<std::vector<DeltaPtr>> DeltasAfter(uint64_t version, size_t max, int timeout_ms);
+  bool closed() const;
+  bool has_scene() const;
+  v1::SceneParams scene() const;
   // The published views (for a restarted planner), ordered by id.
   std::vector<std::shared_ptr<const v1::ViewAdded>> Views() const;
   std::vector<CellId> CellIds() const;
@@ -146,6 +165,7 @@ class ModelStore {
  private:
   friend class Subscription;
   uint64_t CommitLocked(v1::Delta delta);          // sets version, appends, compacts, notifies
+  void AppendLogLocked(DeltaPtr delta);             // appends, compacts, notifies
   // SnapshotBegin, model, SnapshotEnd: built once per version, shared by every subscriber.
   std::shared_ptr<const std::vector<DeltaPtr>> SnapshotLocked() const;
   size_t SnapshotBytesLocked() const;
@@ -186,6 +206,7 @@ class ModelStore {
   mutable std::condition_variable apply_cv_;
   uint64_t applied_lsn_ = 0, ledger_changes_ = 0;
   std::map<std::string, UploaderProgress> uploaders_;
+  uint64_t own_epoch_ = 0;  // this store's epoch (0 for a replica)
 };
 
 }  // namespace exo

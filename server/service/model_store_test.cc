@@ -242,3 +242,124 @@ TEST(ModelStore, SnapshotsShareOneCopyOfEachView) {
 
 }  // namespace
 }  // namespace exo
+
+namespace exo {
+namespace {
+
+TriangleMesh Tri(float z) {
+  TriangleMesh m;
+  m.positions = {{0, 0, z}, {1, 0, z}, {0, 1, z}};
+  m.indices = {0, 1, 2};
+  return m;
+}
+
+// Every kind of change on a server store, read back through DeltasAfter and replayed into a
+// replica (what exoview_relay does with the JetStream stream): same digest, same versions, same
+// epochs, so a client resumes on the replica with the server's (version, epoch).
+TEST(ModelStoreReplica, ReplayedDeltasGiveTheSameModelVersionsAndEpochs) {
+  ModelStore server;
+  LocalOrigin o;
+  server.SetSceneParams(o, 0.5);
+  for (ViewId i = 1; i <= 4; ++i) server.AddView(View(i));
+  ASSERT_TRUE(server.UpdateView(2, Rigid3d{}, 0.5f).ok());
+  ASSERT_TRUE(server.RemoveView(3).ok());
+  server.SetCellRefs({{7, {1, 2}}, {8, {4}}});
+  server.SetCellRefs({{8, {}}});
+  server.UpsertChunk(11, 1, Tri(0));
+  server.UpsertChunk(12, 1, Tri(1));
+  ASSERT_TRUE(server.RemoveChunk(12).ok());
+
+  ModelStoreOptions ro;
+  ro.replica = true;
+  ModelStore replica(ro);
+  EXPECT_EQ(replica.epoch(), 0u);
+  auto d = server.DeltasAfter(0, 1000, 0);
+  ASSERT_TRUE(d.ok());
+  ASSERT_EQ(d->size(), server.version());
+  for (const DeltaPtr& x : *d) ASSERT_TRUE(replica.ReplayDelta(*x).ok()) << x->DebugString();
+  EXPECT_EQ(replica.version(), server.version());
+  EXPECT_EQ(replica.GetSummary().digest, server.GetSummary().digest);
+  EXPECT_EQ(replica.EpochAt(5), server.epoch());
+  // A client of the server at version 5 resumes on the replica with deltas only.
+  auto sub = replica.Subscribe(5, server.EpochAt(5));
+  EXPECT_EQ(Drain(*sub).size(), server.version() - 5);
+  EXPECT_EQ(sub->snapshots(), 0u);
+  // The replica's snapshot is the server's model.
+  auto snap = replica.Subscribe(0, 0);
+  auto parts = Drain(*snap);
+  EXPECT_EQ(parts.back()->model_epoch(), server.epoch());
+
+  // Out of order, a snapshot marker or an update of an unknown view: refused, nothing changes.
+  EXPECT_EQ(replica.ReplayDelta(*(*d)[3]).code(), absl::StatusCode::kDataLoss);
+  v1::Delta marker;
+  marker.mutable_snapshot_end();
+  marker.set_version(replica.version() + 1);
+  marker.set_model_epoch(1);
+  EXPECT_EQ(replica.ReplayDelta(marker).code(), absl::StatusCode::kDataLoss);
+  v1::Delta unknown;
+  unknown.mutable_view_updated()->set_view_id(99);
+  unknown.set_version(replica.version() + 1);
+  unknown.set_model_epoch(1);
+  EXPECT_EQ(replica.ReplayDelta(unknown).code(), absl::StatusCode::kDataLoss);
+  EXPECT_EQ(replica.version(), server.version());
+  EXPECT_EQ(replica.GetSummary().digest, server.GetSummary().digest);
+}
+
+// A server restarted from a checkpoint older than its external log replays the log's tail, then
+// commits under its own new epoch; a replica started from the checkpoint (replica = keep its
+// lineage) and fed the same log agrees on every epoch.
+TEST(ModelStoreReplica, RestoredServerReplaysTheLogTailThenCommitsUnderItsOwnEpoch) {
+  ModelStore a;
+  for (ViewId i = 1; i <= 3; ++i) a.AddView(View(i));
+  const v1::Checkpoint c = a.MakeCheckpoint(0);
+  a.AddView(View(4));
+  a.AddView(View(5));
+  auto tail = a.DeltasAfter(3, 100, 0);
+  ASSERT_TRUE(tail.ok());
+  ASSERT_EQ(tail->size(), 2u);
+
+  ModelStore b;
+  ASSERT_TRUE(b.RestoreCheckpoint(c).ok());
+  for (const DeltaPtr& x : *tail) ASSERT_TRUE(b.ReplayDelta(*x).ok());
+  EXPECT_EQ(b.GetSummary().digest, a.GetSummary().digest);
+  EXPECT_EQ(b.EpochAt(5), a.epoch());
+  b.AddView(View(6));
+  EXPECT_EQ(b.EpochAt(6), b.epoch());
+  EXPECT_NE(b.epoch(), a.epoch());
+  // Once it has committed its own deltas, a server replays nothing more.
+  v1::Delta late = *(*tail)[0];
+  late.set_version(b.version() + 1);
+  EXPECT_EQ(b.ReplayDelta(late).code(), absl::StatusCode::kFailedPrecondition);
+
+  ModelStoreOptions ro;
+  ro.replica = true;
+  ModelStore r(ro);
+  ASSERT_TRUE(r.RestoreCheckpoint(c).ok());
+  auto rest = b.DeltasAfter(3, 100, 0);
+  ASSERT_TRUE(rest.ok());
+  for (const DeltaPtr& x : *rest) ASSERT_TRUE(r.ReplayDelta(*x).ok());
+  EXPECT_EQ(r.GetSummary().digest, b.GetSummary().digest);
+  for (uint64_t v = 1; v <= b.version(); ++v) EXPECT_EQ(r.EpochAt(v), b.EpochAt(v)) << v;
+}
+
+TEST(ModelStoreReplica, DeltasAfterReportsACompactedLog) {
+  ModelStoreOptions o;
+  o.max_log_deltas = 2;
+  ModelStore s(o);
+  for (ViewId i = 1; i <= 5; ++i) s.AddView(View(i));
+  EXPECT_EQ(s.DeltasAfter(1, 10, 0).status().code(), absl::StatusCode::kDataLoss);
+  auto ok = s.DeltasAfter(3, 10, 0);
+  ASSERT_TRUE(ok.ok());
+  EXPECT_EQ(ok->size(), 2u);
+  EXPECT_TRUE(s.DeltasAfter(5, 10, 0)->empty());
+  // Shutdown: subscribers are woken, but the log shipper still drains what was committed.
+  s.CloseAll();
+  s.AddView(View(6));
+  auto after_close = s.DeltasAfter(5, 10, 1000);
+  ASSERT_TRUE(after_close.ok());
+  ASSERT_EQ(after_close->size(), 1u);
+  EXPECT_EQ(after_close->front()->version(), 6u);
+}
+
+}  // namespace
+}  // namespace exo

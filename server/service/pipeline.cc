@@ -74,6 +74,7 @@ void Pipeline::RunStage(size_t i) {
   while (auto item = queues_[i]->Pop()) {
     const PipelineFramePtr& f = *item;
     const ScopedDeltaSource source(f->frame.timestamp_s);
+    stages_[i]->SetBacklog(queues_[i]->size(), queues_[i]->capacity());
     const int64_t t0 = SteadyNowNs();
     const bool last = i + 1 == stages_.size();
     // The last stage's changes and the frame's ledger entry go into a checkpoint together.

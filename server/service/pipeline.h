@@ -58,6 +58,9 @@ class PipelineStage {
   virtual absl::Status Process(const PipelineFrame& frame, const SceneContext& ctx) = 0;
   // Called once on the stage's thread after its last frame (shutdown): finish async work.
   virtual void Finish(const SceneContext& /*ctx*/) {}
+  // Called on the stage's thread before each Process with the number of frames still waiting
+  // in the stage's input queue and its capacity (load shedding, e.g. the geometry stage).
+  virtual void SetBacklog(size_t /*queued*/, size_t /*capacity*/) {}
   // Work the stage still does asynchronously for frames it already processed (e.g. refinement).
   virtual uint64_t pending() const { return 0; }
   // Named counters for GetStats ("<stage>.<name>").

@@ -17,6 +17,7 @@
 #include "server/service/ingest.h"
 #include "proto/model_proto.h"
 #include "server/service/model_store.h"
+#include "server/service/delta_log.h"
 #include "server/service/geometry_stage.h"
 #include "server/service/pipeline.h"
 #include "server/service/planning_stage.h"
@@ -37,6 +38,7 @@ struct ServerConfig {
   size_t transport_max_bytes = size_t{64} << 20;
   PipelineOptions pipeline;
   ModelStoreOptions store;
+  DeltaLogOptions delta_log;         // where published deltas go (memory | jetstream)
   ViewEncodeOptions publish;         // what clients receive per view
   // Stages (each only where the server was built with it).
   bool enable_geometry = true;
@@ -141,6 +143,7 @@ class ExoviewServer {
   std::unique_ptr<class UdpPoseInput> udp_;
   ServerConfig config_;
   std::unique_ptr<ModelStore> store_;
+  std::unique_ptr<DeltaLog> delta_log_;
   std::unique_ptr<Pipeline> pipeline_;
   std::unique_ptr<Durability> durability_;
   std::unique_ptr<Service> service_;

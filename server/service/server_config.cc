@@ -103,6 +103,8 @@ std::vector<ConfigKey> MakeKeys() {
           EXO_FIELD(geometry.republish_change_fraction)),
       Key("chunk_republish_interval_s", "minimum seconds between republishing a chunk",
           EXO_FIELD(geometry.republish_interval_s)),
+      Key("geometry_shed_backlog", "skip fusing a frame while this fraction of the admission queue waits (0 = never; off with admission_block)",
+          EXO_FIELD(geometry.shed_backlog_fraction)),
       Key("planning", "planning stage (view store)", EXO_FIELD(enable_planning)),
       Key("max_views", "view store capacity (views)", EXO_FIELD(pipeline.model.max_views)),
       Key("max_store_bytes", "view store capacity (bytes)", EXO_FIELD(pipeline.model.max_bytes)),
@@ -140,6 +142,22 @@ std::vector<ConfigKey> MakeKeys() {
       Key("journal_max_bytes", "journal bytes not yet covered by a checkpoint (beyond: REJECTED)",
           EXO_FIELD(journal_max_bytes)),
       Key("journal_segment_bytes", "journal segment size (bytes)", EXO_FIELD(journal_segment_bytes)),
+      Key("delta_log",
+          "where published deltas go: memory (embedded, the server serves every viewer) or "
+          "jetstream (NATS JetStream, read by exoview_relay; docs/deploy.md)",
+          EXO_FIELD(delta_log.kind)),
+      Key("nats_url", "NATS server URL(s), comma-separated (delta_log=jetstream)",
+          EXO_FIELD(delta_log.nats_url)),
+      Key("scene", "scene name: names the JetStream stream, snapshot stream and KV bucket",
+          EXO_FIELD(delta_log.scene)),
+      Key("nats_replicas", "JetStream stream replicas (3 in a NATS cluster)",
+          EXO_FIELD(delta_log.nats_replicas)),
+      Key("nats_snapshot_interval_s", "seconds between model snapshots in JetStream",
+          EXO_FIELD(delta_log.snapshot_interval_s)),
+      Key("nats_max_stream_bytes", "bound of the scene's delta stream (bytes; oldest dropped)",
+          EXO_FIELD(delta_log.max_stream_bytes)),
+      Key("nats_connect_timeout_s", "how long the server retries the first NATS connection",
+          EXO_FIELD(delta_log.connect_timeout_s)),
       Key("udp_pose_address", "address of the UDP pose input", EXO_FIELD(udp_pose_address)),
       Key("udp_pose_key_file",
           "file with the shared key of HMAC-authenticated UDP pose datagrams (empty: plain)",
@@ -203,6 +221,7 @@ absl::Status ServerConfig::Validate() const {
     return absl::InvalidArgumentError("transport_max_bytes must be >= max_frame_bytes");
   EXO_RETURN_IF_ERROR(pipeline.Validate());
   EXO_RETURN_IF_ERROR(store.Validate());
+  EXO_RETURN_IF_ERROR(delta_log.Validate());
   EXO_RETURN_IF_ERROR(publish.Validate());
   EXO_RETURN_IF_ERROR(geometry.Validate());
   EXO_RETURN_IF_ERROR(planning.Validate());

@@ -15,7 +15,11 @@ absl::StatusOr<std::vector<std::unique_ptr<PipelineStage>>> MakeStages(const Ser
   std::shared_ptr<GeometryHandoff> handoff;
   if (config.enable_geometry) {
     if (config.enable_planning) handoff = std::make_shared<GeometryHandoff>();
-    EXO_ASSIGN_OR_RETURN(auto g, MakeGeometryStage(config.geometry, model, handoff));
+    GeometryStageOptions go = config.geometry;
+    // Lossless (back-pressured) ingest processes every frame in order, deterministically: a
+    // full queue there is not overload, nothing is shed.
+    if (config.pipeline.admission_block) go.shed_backlog_fraction = 0.0;
+    EXO_ASSIGN_OR_RETURN(auto g, MakeGeometryStage(go, model, handoff));
     stages.push_back(std::move(g));
   }
   if (config.enable_planning) {
