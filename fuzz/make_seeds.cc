@@ -11,6 +11,9 @@
 #include "common/io/hostile_inputs.h"
 #include "common/io/jpeg.h"
 #include "proto/frame_proto.h"
+#include "proto/model_proto.h"
+#include "server/service/frame_journal.h"
+#include "server/service/model_store.h"
 
 namespace {
 void Write(const std::string& path, const std::string& bytes) {
@@ -44,7 +47,7 @@ int main(int argc, char** argv) {
     return 2;
   }
   const std::string root = argv[1];
-  for (const char* d : {"jpeg", "depth", "frame"})
+  for (const char* d : {"jpeg", "depth", "frame", "delta", "checkpoint"})
     std::filesystem::create_directories(root + "/" + d);
   const exo::Frame f = SmallFrame(16, 12);
   Write(root + "/jpeg/baseline_16x12.jpg", Str(*exo::EncodeJpeg(f.color, 80)));
@@ -75,6 +78,46 @@ int main(int argc, char** argv) {
   unreg.depth_m = exo::ImageF(8, 6, 1, 1.5f);
   unreg.color_from_depth.translation = {0.02, 0, 0};
   Write(root + "/frame/unregistered_depth.pb", exo::FrameToProto(unreg, {})->SerializeAsString());
+  // A small model as the server publishes it: scene, two views, a mesh chunk, cell references,
+  // an update and a removal. Its checkpoint seeds checkpoint_fuzz; the snapshot a new client
+  // gets plus the delta log seed delta_fuzz.
+  {
+    exo::ModelStore store;
+    store.SetSceneParams(exo::LocalOrigin{}, 0.5);
+    for (uint32_t id : {1u, 2u}) {
+      exo::StoredView v;
+      v.id = id;
+      v.camera = f.color_camera;
+      v.color = f.color;
+      v.depth_m = f.depth_m;
+      v.local_from_cam.translation = {0.1 * id, 0, 0};
+      store.AddView(*exo::ViewToProto(v, {}));
+    }
+    exo::TriangleMesh mesh;
+    mesh.positions = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}};
+    mesh.indices = {0, 1, 2};
+    store.UpsertChunk(7, 1, mesh);
+    store.SetCellRefs({{exo::CellId{42}, {1, 2}}});
+    exo::Rigid3d moved;
+    moved.translation = {0.3, 0.1, 0};
+    (void)store.UpdateView(2, moved, 1.2f);
+    store.BeginApply();
+    store.EndApply(5, "drone-1", 9);
+    Write(root + "/checkpoint/small_model.ckpt", store.MakeCheckpoint(1 << 20).SerializeAsString());
+    exo::v1::Checkpoint batch;
+    auto sub = store.Subscribe(0, 0);
+    for (const auto& d : sub->Next(0)) *batch.add_model() = *d;
+    Write(root + "/delta/snapshot.pb", batch.SerializeAsString());
+    exo::v1::Checkpoint log = store.MakeCheckpoint(1 << 20);
+    log.clear_model();
+    Write(root + "/delta/log.pb", log.SerializeAsString());
+    exo::JournalRecord r;
+    r.lsn = 3;
+    r.sequence = 17;
+    r.uploader = "uploader:drone-1/cam0";
+    r.frame = msg->SerializeAsString();
+    Write(root + "/checkpoint/journal_record.bin", exo::EncodeJournalRecord(r));
+  }
   std::printf("seeds written to %s\n", root.c_str());
   return 0;
 }

@@ -9,8 +9,11 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <map>
+#include <set>
 
 #include "client/uploader/upload_client.h"
+#include "proto/control.grpc.pb.h"
 #include "proto/exoview.grpc.pb.h"
 #include "tests/subprocess.h"
 
@@ -33,7 +36,9 @@ class Auth : public ::testing::Test {
     std::ofstream(*dir_ + "/wrong.token") << "not-a-token-of-this-server-0123456789\n";
     server_ = StartServer(
         {"--tls_cert=" + *certs_ + "/server.pem", "--tls_key=" + *certs_ + "/server.key",
-         "--auth_tokens_file=" + *certs_ + "/tokens.txt"},
+         "--auth_tokens_file=" + *certs_ + "/tokens.txt",
+         // The control service too (served with a flight zone): same tokens, same check.
+         "--control_zones=house:0,0,0,8,4,2.6"},
         "tls", &target_);
   }
   static void TearDownTestSuite() {
@@ -169,6 +174,146 @@ TEST_F(Auth, EveryRpcTimesNoTokenWrongTokenAndEachRole) {
   v1::Stats s;
   ASSERT_TRUE(stub->GetStats(&ctx, v1::StatsRequest{}, &s).ok());
   EXPECT_EQ(s.counters().at("server.denied_calls"), 14.0);
+}
+
+namespace cv1 = exoview::control::v1;
+
+// Every Control RPC: the auth codes, or (allowed) whatever the control core answers.
+std::map<std::string, grpc::StatusCode> CallControl(const std::shared_ptr<grpc::Channel>& ch) {
+  auto stub = cv1::Control::NewStub(ch);
+  std::map<std::string, grpc::StatusCode> out;
+  auto deadline = [](grpc::ClientContext* c) {
+    c->set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(10));
+  };
+  {
+    grpc::ClientContext ctx;
+    deadline(&ctx);
+    auto link = stub->DroneLink(&ctx);
+    cv1::DroneState st;
+    st.set_sequence(1);
+    st.set_timestamp_s(1.0);
+    st.mutable_position()->set_x(1);
+    st.mutable_position()->set_y(1);
+    st.mutable_position()->set_z(1);
+    link->Write(st);
+    link->WritesDone();
+    cv1::Setpoint sp;
+    while (link->Read(&sp)) {
+    }
+    out["DroneLink"] = link->Finish().error_code();
+  }
+  static uint64_t op_seq = 1;
+  cv1::OperatorHeader h;
+  h.set_operator_id("mallory");  // with tokens the server puts the caller's principal here
+  h.set_operator_sequence(op_seq++);
+  {
+    grpc::ClientContext ctx;
+    deadline(&ctx);
+    cv1::JoypadRequest r;
+    *r.mutable_header() = h;
+    r.set_right_y(0.5);
+    r.set_dt_s(0.1);
+    cv1::InteractionReply rep;
+    out["Joypad"] = stub->Joypad(&ctx, r, &rep).error_code();
+  }
+  h.set_operator_sequence(op_seq++);
+  {
+    grpc::ClientContext ctx;
+    deadline(&ctx);
+    cv1::GoToViewRequest r;
+    *r.mutable_header() = h;
+    r.set_view_id(12345);
+    cv1::InteractionReply rep;
+    out["GoToView"] = stub->GoToView(&ctx, r, &rep).error_code();
+  }
+  h.set_operator_sequence(op_seq++);
+  {
+    grpc::ClientContext ctx;
+    deadline(&ctx);
+    cv1::GazeToSeeRequest r;
+    *r.mutable_header() = h;
+    r.mutable_eye()->set_x(1);
+    r.mutable_direction()->set_x(1);
+    cv1::InteractionReply rep;
+    out["GazeToSee"] = stub->GazeToSee(&ctx, r, &rep).error_code();
+  }
+  h.set_operator_sequence(op_seq++);
+  {
+    grpc::ClientContext ctx;
+    deadline(&ctx);
+    cv1::PickAndPlaceRequest r;
+    *r.mutable_header() = h;
+    r.mutable_eye()->set_x(1);
+    r.mutable_hand()->set_x(2);
+    cv1::InteractionReply rep;
+    out["PickAndPlace"] = stub->PickAndPlace(&ctx, r, &rep).error_code();
+  }
+  {
+    grpc::ClientContext ctx;
+    deadline(&ctx);
+    cv1::ControlState st;
+    out["GetControlState"] = stub->GetControlState(&ctx, cv1::ControlStateRequest{}, &st).error_code();
+  }
+  return out;
+}
+
+// Issue 20: the Control service behind the same tokens and the same one check: the drone's
+// stream for uploader and admin, interactions for operator and admin, the control state for
+// every role but uploader; an operator cannot act under another operator's id.
+TEST_F(Auth, ControlServiceRolesDroneLinkInteractionsAndState) {
+  using C = grpc::StatusCode;
+  const std::string t = *certs_ + "/";
+  auto admin = v1::Exoview::NewStub(Channel(t + "admin.token"));
+  auto denied = [&] {
+    grpc::ClientContext ctx;
+    v1::Stats s;
+    EXPECT_TRUE(admin->GetStats(&ctx, v1::StatsRequest{}, &s).ok());
+    return s.counters().at("server.denied_calls");
+  };
+  const double denied_before = denied();
+  const std::vector<std::string> interactions{"Joypad", "GoToView", "GazeToSee", "PickAndPlace"};
+  struct Row {
+    std::string who, token_file;
+    std::set<std::string> allowed;
+  };
+  std::set<std::string> everything{"DroneLink", "GetControlState"};
+  everything.insert(interactions.begin(), interactions.end());
+  std::set<std::string> operator_calls{"GetControlState"};
+  operator_calls.insert(interactions.begin(), interactions.end());
+  const Row rows[] = {
+      {"no token", "", {}},
+      {"wrong token", *dir_ + "/wrong.token", {}},
+      {"uploader", t + "uploader.token", {"DroneLink"}},
+      {"viewer", t + "viewer.token", {"GetControlState"}},
+      {"operator", t + "operator.token", operator_calls},
+      {"admin", t + "admin.token", everything},
+  };
+  int refusals = 0;
+  for (const Row& r : rows) {
+    const bool known = r.who != "no token" && r.who != "wrong token";
+    for (const auto& [rpc, code] : CallControl(Channel(r.token_file))) {
+      SCOPED_TRACE(r.who + ": " + rpc);
+      if (r.allowed.count(rpc)) {
+        EXPECT_NE(code, C::UNAUTHENTICATED);
+        EXPECT_NE(code, C::PERMISSION_DENIED);
+        if (rpc == "DroneLink" || rpc == "GetControlState") EXPECT_EQ(code, C::OK);
+      } else {
+        EXPECT_EQ(code, known ? C::PERMISSION_DENIED : C::UNAUTHENTICATED);
+        ++refusals;
+      }
+    }
+  }
+  EXPECT_EQ(denied() - denied_before, refusals);
+  // The operator's Joypad ran under its principal, not the "mallory" it wrote in the header.
+  auto stub = cv1::Control::NewStub(Channel(t + "operator.token"));
+  grpc::ClientContext ctx;
+  cv1::ControlState st;
+  ASSERT_TRUE(stub->GetControlState(&ctx, cv1::ControlStateRequest{}, &st).ok());
+  EXPECT_TRUE(st.drone_known());
+  EXPECT_NE(st.operator_id(), "mallory");
+  if (!st.operator_id().empty())
+    EXPECT_TRUE(st.operator_id() == "operator:operator-1" || st.operator_id() == "admin:admin-1")
+        << st.operator_id();
 }
 
 TEST_F(Auth, PlainTextClientCannotTalkToTheTlsServer) {

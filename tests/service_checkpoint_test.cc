@@ -26,12 +26,16 @@ using testing::WaitForFile;
 
 class ServiceCheckpoint : public testing::ServerProcessTest {
  protected:
-  void StartCheckpointedServer(const std::string& log) {
+  // `journal` off: these tests check what the checkpoint alone restores (versions, deltas,
+  // resumption); with the frame journal a restart also replays the frames after the checkpoint
+  // (tests/service_durable_test.cc and the last test here).
+  void StartCheckpointedServer(const std::string& log, bool journal = false) {
     // A coarse proxy re-meshed every 5th frame (the server's defaults are the evaluation's 2 cm
     // voxels, meshed every frame): these tests check versions, deltas and resumption.
     StartServer({"--checkpoint_path=" + dir_ + "/model.ckpt", "--checkpoint_interval_s=0.2",
                  "--snapshot_when_cheaper=false", "--voxel_size_m=0.08",
-                 "--mesh_every_n_frames=5", "--fuse_depth_downscale=2"},
+                 "--mesh_every_n_frames=5", "--fuse_depth_downscale=2",
+                 std::string("--journal=") + (journal ? "true" : "false")},
                 log);
   }
   int Upload(int first, int frames, const std::string& name) {
@@ -201,6 +205,49 @@ TEST_F(ServiceCheckpoint, TruncatedNewestCheckpointFallsBackToThePreviousGenerat
                                 "generation"),
             std::string::npos)
       << server_->Log();
+}
+
+
+// With the frame journal a corrupt newest checkpoint loses nothing: the server falls back to the
+// previous generation and replays, from the journal, every frame that generation does not cover
+// (the journal keeps what the older generation does not cover for exactly this case).
+TEST_F(ServiceCheckpoint, JournalRecoversWhatACorruptNewestCheckpointHeld) {
+  StartCheckpointedServer("server1.log", /*journal=*/true);
+  ASSERT_EQ(Upload(0, 10, "up1"), 0);
+  WaitForSettledCheckpoint();
+  ASSERT_EQ(Upload(10, 10, "up2"), 0);
+  const v1::Stats second = WaitForSettledCheckpoint();
+  ASSERT_FALSE(HasFailure());
+  const double applied = second.counters().at("journal.applied_lsn");
+  ASSERT_GT(applied, 0.0);
+  server_->Signal(SIGKILL);
+  server_->Wait(10);
+  const std::string ckpt = dir_ + "/model.ckpt";
+  v1::Checkpoint prev;
+  {
+    std::ifstream in(ckpt + ".prev", std::ios::binary);
+    ASSERT_TRUE(prev.ParseFromIstream(&in));
+  }
+  ASSERT_LT(static_cast<double>(prev.applied_lsn()), applied);
+  for (uintmax_t cut = std::filesystem::file_size(ckpt) / 2;; --cut) {
+    std::filesystem::resize_file(ckpt, cut);
+    v1::Checkpoint c;
+    std::ifstream in(ckpt, std::ios::binary);
+    if (!c.ParseFromIstream(&in)) break;
+  }
+  StartCheckpointedServer("server2.log", /*journal=*/true);
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(30);
+  v1::Stats restored;
+  for (;;) {
+    restored = Stats();
+    if (restored.counters().at("journal.applied_lsn") >= applied) break;
+    ASSERT_LT(std::chrono::steady_clock::now(), deadline) << server_->Log();
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  }
+  EXPECT_EQ(restored.counters().at("journal.applied_lsn"), applied);
+  EXPECT_GT(restored.counters().at("journal.replayed"), 0.0);
+  EXPECT_GT(restored.num_views(), 0u);
+  EXPECT_NE(server_->Log().find("trying the previous generation"), std::string::npos);
 }
 
 }  // namespace

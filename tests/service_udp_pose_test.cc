@@ -2,6 +2,7 @@
 // the UDP pose stream at their timestamp; a frame with no pose sample within the tolerance is
 // rejected with a clear reason and the stream goes on.
 #include <filesystem>
+#include <fstream>
 #include <regex>
 #include <utility>  // before Boost.Asio 1.74 (awaitable.hpp needs std::exchange)
 
@@ -11,6 +12,7 @@
 
 #include "client/uploader/upload_client.h"
 #include "proto/exoview.grpc.pb.h"
+#include "server/service/udp_pose_input.h"
 #include "tests/subprocess.h"
 
 namespace exo {
@@ -73,6 +75,84 @@ TEST(ServiceUdpPose, PoselessFramesTakeTheirPoseFromUdp) {
   EXPECT_EQ(st->acks[2].status(), v1::Ack::ACCEPTED) << st->acks[2].reason();
   server.Signal(SIGTERM);
   EXPECT_EQ(server.Wait(15), 0) << server.Log();
+  std::filesystem::remove_all(dir);
+}
+
+
+// Issue 20 item 5 on the real server: with udp_pose_key_file only HMAC-signed datagrams move
+// poses. A spoofed datagram (5 km off, no MAC) and a replayed one are dropped and counted, and
+// the frame at their timestamp is accepted with the authentic pose (a 5 km pose would be
+// rejected by the scene radius).
+TEST(ServiceUdpPose, AuthenticatedPosesIgnoreSpoofedAndReplayedDatagrams) {
+  char tmpl[] = "/tmp/exoview_udp_XXXXXX";
+  ASSERT_NE(mkdtemp(tmpl), nullptr);
+  const std::string dir = tmpl;
+  const std::string key = "udp-shared-key-0123456789";
+  {
+    std::ofstream(dir + "/udp.key") << key << "\n";
+    std::filesystem::permissions(dir + "/udp.key", std::filesystem::perms::owner_read |
+                                                       std::filesystem::perms::owner_write);
+  }
+  testing::Subprocess server(EXOVIEW_SERVER_BIN,
+                             {"--listen=127.0.0.1:0", "--port_file=" + dir + "/port",
+                              "--udp_pose_port=0", "--udp_pose_tolerance_s=0.02",
+                              "--udp_pose_key_file=" + dir + "/udp.key"},
+                             dir + "/server.log");
+  ASSERT_TRUE(testing::WaitForFile(dir + "/port", 20)) << server.Log();
+  std::smatch m;
+  const std::string log = server.Log();
+  ASSERT_TRUE(std::regex_search(log, m, std::regex("UDP poses on port ([0-9]+)"))) << log;
+  EXPECT_NE(log.find("HMAC-SHA256 authenticated"), std::string::npos) << log;
+  const int udp_port = std::stoi(m[1]);
+  const std::string target = "127.0.0.1:" + std::to_string(std::stoi(testing::ReadAll(dir + "/port")));
+  boost::asio::io_context io;
+  boost::asio::ip::udp::socket s(io, boost::asio::ip::udp::v4());
+  const boost::asio::ip::udp::endpoint to(boost::asio::ip::make_address("127.0.0.1"),
+                                          static_cast<unsigned short>(udp_port));
+  std::string first;
+  for (int i = 0; i <= 120; ++i) {
+    const std::string d = SignPoseDatagram(
+        key, 1000 + i, std::to_string(1.0 + i / 120.0) + " " + std::to_string(0.01 * i) + " 0 0 0 0 0 1");
+    if (i == 0) first = d;
+    s.send_to(boost::asio::buffer(d), to);
+  }
+  s.send_to(boost::asio::buffer(std::string("1.5 5000 0 0 0 0 0 1")), to);  // spoofed
+  s.send_to(boost::asio::buffer(first), to);                                 // replayed
+  std::this_thread::sleep_for(std::chrono::milliseconds(300));
+
+  std::vector<v1::Frame> frames{PoselessFrame(1, 1.5)};
+  UploadOptions opt;
+  opt.rate_hz = 0;
+  auto st = UploadStream(MakeChannel(target), frames.size(),
+                         [&](size_t i) -> absl::StatusOr<v1::Frame> { return frames[i]; }, opt);
+  ASSERT_TRUE(st.ok()) << st.status();
+  ASSERT_EQ(st->acks.size(), 1u);
+  EXPECT_EQ(st->acks[0].status(), v1::Ack::ACCEPTED) << st->acks[0].reason();
+  auto stub = v1::Exoview::NewStub(MakeChannel(target));
+  grpc::ClientContext ctx;
+  v1::Stats stats;
+  ASSERT_TRUE(stub->GetStats(&ctx, v1::StatsRequest{}, &stats).ok());
+  EXPECT_EQ(stats.counters().at("udp.received"), 121.0);
+  EXPECT_EQ(stats.counters().at("udp.unauthenticated"), 1.0);
+  EXPECT_EQ(stats.counters().at("udp.replayed"), 1.0);
+  server.Signal(SIGTERM);
+  EXPECT_EQ(server.Wait(15), 0) << server.Log();
+  std::filesystem::remove_all(dir);
+}
+
+TEST(ServiceUdpPose, PlainPosesOnANonLoopbackAddressAreRefusedAtStart) {
+  char tmpl[] = "/tmp/exoview_udp_XXXXXX";
+  ASSERT_NE(mkdtemp(tmpl), nullptr);
+  const std::string dir = tmpl;
+  testing::Subprocess server(EXOVIEW_SERVER_BIN,
+                             {"--listen=127.0.0.1:0", "--udp_pose_port=0",
+                              "--udp_pose_address=0.0.0.0"},
+                             dir + "/server.log");
+  const auto rc = server.Wait(20);
+  ASSERT_TRUE(rc.has_value());
+  EXPECT_NE(*rc, 0);
+  EXPECT_NE(server.Log().find("refusing unauthenticated UDP poses on 0.0.0.0"), std::string::npos)
+      << server.Log();
   std::filesystem::remove_all(dir);
 }
 

@@ -25,17 +25,21 @@ class Subprocess {
              const std::string& log_path) : log_path_(log_path) {
     std::vector<std::string> argv_s{binary};
     argv_s.insert(argv_s.end(), args.begin(), args.end());
+    // Everything the child needs is built before fork(): in a multi-threaded parent (gRPC
+    // threads, an uploader thread) the child may only make async-signal-safe calls; a malloc
+    // there can deadlock on a lock another thread held at the fork.
+    std::vector<char*> argv;
+    for (auto& s : argv_s) argv.push_back(s.data());
+    argv.push_back(nullptr);
+    const std::string log_copy = log_path;
     pid_ = fork();
     if (pid_ == 0) {
-      const int fd = open(log_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+      const int fd = open(log_copy.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
       if (fd >= 0) {
         dup2(fd, 1);
         dup2(fd, 2);
       }
-      std::vector<char*> argv;
-      for (auto& s : argv_s) argv.push_back(s.data());
-      argv.push_back(nullptr);
-      execv(binary.c_str(), argv.data());
+      execv(argv[0], argv.data());
       _exit(127);
     }
   }

@@ -68,6 +68,13 @@ int main(int argc, char** argv) {
   app.add_option("--jpeg_quality", opt.encode.jpeg_quality, "colour JPEG quality")
       ->check(CLI::Range(1, 100));
   app.add_flag("--progress", opt.progress, "one line per second on stderr");
+  app.add_option("--uploader_id", opt.uploader_id,
+                 "name of this uploader (exoview-uploader-id): a server with a frame journal "
+                 "de-duplicates the frames it resends after a reconnect");
+  app.add_option("--reconnect_s", opt.reconnect_s,
+                 "when the stream breaks, reconnect for up to this long and resend every frame "
+                 "not acked (0 = fail)")
+      ->check(CLI::NonNegativeNumber);
   app.add_option("--stats_json", stats_json, "also write the statistics JSON to this file");
   app.add_option("--drone", drone,
                  "sim: a simulated drone flies the synthetic scene under the server's control "

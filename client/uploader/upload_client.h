@@ -27,11 +27,21 @@ struct UploadOptions {
   int max_in_flight = 16;       // frames sent but not yet acked
   FrameEncodeOptions encode;
   bool progress = false;        // one line per second on stderr
+  // Durable acknowledgements (docs/security.md): the `exoview-uploader-id` call header; with it a
+  // server that runs a frame journal answers a resent frame it already holds as a duplicate.
+  std::string uploader_id;
+  // When the stream breaks (the server restarted), reconnect for up to this long and resend
+  // every frame not yet acked, in order. 0 = the upload fails at the first broken stream.
+  double reconnect_s = 0;
+  std::function<void(const v1::Ack&)> on_ack;  // called on the reader thread for every ack
   absl::Status Validate() const;
 };
 
 struct UploadAckStats {
   uint64_t sent = 0, accepted = 0, rejected = 0, dropped = 0;
+  uint64_t durable = 0;     // ACCEPTED acks that said durable
+  uint64_t duplicates = 0;  // of those, frames the server already held (resent after a restart)
+  uint64_t resent = 0, reconnects = 0;
   std::map<std::string, uint64_t> reject_reasons;
   std::vector<v1::Ack> acks;    // in arrival order
   // (frame timestamp_s, steady-clock ns when written): cross-process latency joins on one host.

@@ -48,6 +48,18 @@ const char* RpcName(Rpc rpc) {
       return "MarkRegion/ClearRegion";
     case Rpc::kListRegions:
       return "ListRegions";
+    case Rpc::kDroneLink:
+      return "DroneLink";
+    case Rpc::kPickAndPlace:
+      return "PickAndPlace";
+    case Rpc::kGazeToSee:
+      return "GazeToSee";
+    case Rpc::kJoypad:
+      return "Joypad";
+    case Rpc::kGoToView:
+      return "GoToView";
+    case Rpc::kGetControlState:
+      return "GetControlState";
   }
   return "?";
 }
@@ -65,12 +77,15 @@ bool RoleAllows(Role role, Rpc rpc) {
     case Role::kAdmin:
       return true;
     case Role::kUploader:
-      return rpc == Rpc::kUpload;
+      return rpc == Rpc::kUpload || rpc == Rpc::kDroneLink;
     case Role::kViewer:
-      return rpc == Rpc::kSubscribe || rpc == Rpc::kGetStats || rpc == Rpc::kListRegions;
+      return rpc == Rpc::kSubscribe || rpc == Rpc::kGetStats || rpc == Rpc::kListRegions ||
+             rpc == Rpc::kGetControlState;
     case Role::kOperator:
       return rpc == Rpc::kSubscribe || rpc == Rpc::kGetStats || rpc == Rpc::kListRegions ||
-             rpc == Rpc::kMarkRegion;
+             rpc == Rpc::kMarkRegion || rpc == Rpc::kGetControlState ||
+             rpc == Rpc::kPickAndPlace || rpc == Rpc::kGazeToSee || rpc == Rpc::kJoypad ||
+             rpc == Rpc::kGoToView;
   }
   return false;
 }

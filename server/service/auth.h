@@ -1,9 +1,9 @@
 // Roles and bearer tokens (SPEC §14, issue 20 item 1): the one place where a call's credentials
 // are mapped to a principal and checked against what its role may call. Tokens come from a file
 // ("ROLE TOKEN NAME" lines; deploy/make_certs.sh writes one), never from the command line.
-//   uploader  Upload (and the drone control-state stream when it exists)
-//   viewer    Subscribe, GetStats
-//   operator  the viewer's calls + region marking and drone interactions
+//   uploader  Upload, DroneLink (the drone's state stream of the control service)
+//   viewer    Subscribe, GetStats, GetControlState
+//   operator  the viewer's calls + drone interactions (PickAndPlace, GazeToSee, Joypad, GoToView)
 //   admin     everything
 // A call without a token is UNAUTHENTICATED, an unknown token UNAUTHENTICATED, a known token
 // whose role does not cover the call PERMISSION_DENIED. No gRPC here: the service passes the
@@ -21,7 +21,11 @@ namespace exo {
 
 enum class Role { kUploader, kViewer, kOperator, kAdmin };
 // kMarkRegion covers MarkRegion and ClearRegion (InpaintFusion regions).
-enum class Rpc { kUpload, kSubscribe, kGetStats, kMarkRegion, kListRegions };
+enum class Rpc {
+  kUpload, kSubscribe, kGetStats, kMarkRegion, kListRegions,
+  // exoview.control.v1.Control
+  kDroneLink, kPickAndPlace, kGazeToSee, kJoypad, kGoToView, kGetControlState,
+};
 
 const char* RoleName(Role role);
 const char* RpcName(Rpc rpc);

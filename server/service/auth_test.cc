@@ -51,6 +51,24 @@ TEST(Auth, EachRoleMayCallExactlyItsRpcs) {
     auto p = (*a)->Check(std::string("Bearer ") + c.token, c.rpc);
     EXPECT_EQ(p.status().code(), c.code) << c.token << " " << RpcName(c.rpc) << ": " << p.status();
   }
+  // The control service (exoview.control.v1.Control): the drone's stream for uploaders, the
+  // interactions for operators, the state for everyone who may read the model.
+  const Rpc interactions[] = {Rpc::kPickAndPlace, Rpc::kGazeToSee, Rpc::kJoypad, Rpc::kGoToView};
+  const std::pair<const char*, Role> roles[] = {{"up-0123456789abcdef", Role::kUploader},
+                                                {"vw-0123456789abcdef", Role::kViewer},
+                                                {"op-0123456789abcdef", Role::kOperator},
+                                                {"ad-0123456789abcdef", Role::kAdmin}};
+  for (const auto& entry : roles) {
+    const char* token = entry.first;  // (clang 14 cannot capture a structured binding)
+    const Role role = entry.second;
+    const bool up = role == Role::kUploader, op = role == Role::kOperator,
+               ad = role == Role::kAdmin;
+    auto code = [&](Rpc rpc) { return (*a)->Check(std::string("Bearer ") + token, rpc).status().code(); };
+    const auto ok = absl::StatusCode::kOk, no = absl::StatusCode::kPermissionDenied;
+    EXPECT_EQ(code(Rpc::kDroneLink), up || ad ? ok : no) << token;
+    EXPECT_EQ(code(Rpc::kGetControlState), up ? no : ok) << token;
+    for (Rpc r : interactions) EXPECT_EQ(code(r), op || ad ? ok : no) << token << " " << RpcName(r);
+  }
   auto p = (*a)->Check(std::string("Bearer up-0123456789abcdef"), Rpc::kUpload);
   ASSERT_TRUE(p.ok());
   EXPECT_EQ(p->name, "drone-1");

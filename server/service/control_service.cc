@@ -1,5 +1,7 @@
 #include "server/service/control_service.h"
 
+#include "server/service/auth.h"
+
 #include <grpcpp/grpcpp.h>
 
 #include <chrono>
@@ -35,8 +37,10 @@ grpc::Status ToGrpc(const absl::Status& s) {
   return grpc::Status(static_cast<grpc::StatusCode>(s.code()), std::string(s.message()));
 }
 
-control::Command CommandOf(const cv1::OperatorHeader& h) {
-  return {h.operator_id(), h.operator_sequence(), h.drone_id().empty() ? "drone" : h.drone_id()};
+// `principal` "" = no authentication: the header's operator id as sent.
+control::Command CommandOf(const cv1::OperatorHeader& h, const std::string& principal) {
+  return {principal.empty() ? h.operator_id() : principal, h.operator_sequence(),
+          h.drone_id().empty() ? "drone" : h.drone_id()};
 }
 
 void FillReply(const control::CommandResult& r, cv1::InteractionReply* out) {
@@ -165,11 +169,13 @@ void AppendControlConfigKeys(std::vector<ConfigKey>* keys) {
 
 class ControlServiceHost::Impl final : public cv1::Control::Service {
  public:
-  explicit Impl(control::ControlCore* core) : core_(core) {}
+  Impl(control::ControlCore* core, AuthorizeFn authorize)
+      : core_(core), authorize_(std::move(authorize)) {}
 
   grpc::Status DroneLink(
       grpc::ServerContext* ctx,
       grpc::ServerReaderWriter<cv1::Setpoint, cv1::DroneState>* stream) override {
+    if (auto who = Authorize(*ctx, Rpc::kDroneLink); !who.ok()) return ToGrpc(who.status());
     links_.fetch_add(1);
     std::string id;
     cv1::DroneState msg;
@@ -203,36 +209,45 @@ class ControlServiceHost::Impl final : public cv1::Control::Service {
     return grpc::Status::OK;
   }
 
-  grpc::Status PickAndPlace(grpc::ServerContext*, const cv1::PickAndPlaceRequest* req,
+  grpc::Status PickAndPlace(grpc::ServerContext* ctx, const cv1::PickAndPlaceRequest* req,
                             cv1::InteractionReply* out) override {
+    auto who = Authorize(*ctx, Rpc::kPickAndPlace);
+    if (!who.ok()) return ToGrpc(who.status());
     auto r =
-        core_->PickAndPlace(CommandOf(req->header()), FromProto(req->eye()), FromProto(req->hand()),
+        core_->PickAndPlace(CommandOf(req->header(), *who), FromProto(req->eye()), FromProto(req->hand()),
                             FromProto(req->hand_displacement()), NowS());
     return Reply(r, out);
   }
 
-  grpc::Status GazeToSee(grpc::ServerContext*, const cv1::GazeToSeeRequest* req,
+  grpc::Status GazeToSee(grpc::ServerContext* ctx, const cv1::GazeToSeeRequest* req,
                          cv1::InteractionReply* out) override {
-    auto r = core_->GazeToSee(CommandOf(req->header()), FromProto(req->eye()),
+    auto who = Authorize(*ctx, Rpc::kGazeToSee);
+    if (!who.ok()) return ToGrpc(who.status());
+    auto r = core_->GazeToSee(CommandOf(req->header(), *who), FromProto(req->eye()),
                               FromProto(req->direction()), NowS());
     return Reply(r, out);
   }
 
-  grpc::Status Joypad(grpc::ServerContext*, const cv1::JoypadRequest* req,
+  grpc::Status Joypad(grpc::ServerContext* ctx, const cv1::JoypadRequest* req,
                       cv1::InteractionReply* out) override {
+    auto who = Authorize(*ctx, Rpc::kJoypad);
+    if (!who.ok()) return ToGrpc(who.status());
     control::JoypadInput in{req->left_x(), req->left_y(), req->right_x(), req->right_y()};
-    auto r = core_->Joypad(CommandOf(req->header()), in, req->dt_s(), NowS());
+    auto r = core_->Joypad(CommandOf(req->header(), *who), in, req->dt_s(), NowS());
     return Reply(r, out);
   }
 
-  grpc::Status GoToView(grpc::ServerContext*, const cv1::GoToViewRequest* req,
+  grpc::Status GoToView(grpc::ServerContext* ctx, const cv1::GoToViewRequest* req,
                         cv1::InteractionReply* out) override {
-    auto r = core_->GoToView(CommandOf(req->header()), req->view_id(), NowS());
+    auto who = Authorize(*ctx, Rpc::kGoToView);
+    if (!who.ok()) return ToGrpc(who.status());
+    auto r = core_->GoToView(CommandOf(req->header(), *who), req->view_id(), NowS());
     return Reply(r, out);
   }
 
-  grpc::Status GetControlState(grpc::ServerContext*, const cv1::ControlStateRequest* req,
+  grpc::Status GetControlState(grpc::ServerContext* ctx, const cv1::ControlStateRequest* req,
                                cv1::ControlState* out) override {
+    if (auto who = Authorize(*ctx, Rpc::kGetControlState); !who.ok()) return ToGrpc(who.status());
     const control::DroneView v = core_->View(req->drone_id().empty() ? "drone" : req->drone_id());
     out->set_drone_known(v.known);
     auto* d = out->mutable_drone();
@@ -272,7 +287,13 @@ class ControlServiceHost::Impl final : public cv1::Control::Service {
     return grpc::Status::OK;
   }
 
+  absl::StatusOr<std::string> Authorize(const grpc::ServerContext& ctx, Rpc rpc) {
+    if (!authorize_) return std::string();
+    return authorize_(ctx, rpc);
+  }
+
   control::ControlCore* core_;
+  AuthorizeFn authorize_;
   std::atomic<int> links_{0};
   std::shared_ptr<spdlog::logger> log_ = log::Get("control");
 };
@@ -280,10 +301,10 @@ class ControlServiceHost::Impl final : public cv1::Control::Service {
 // ---------------------------------------------------------------------------------------------
 
 absl::StatusOr<std::unique_ptr<ControlServiceHost>> ControlServiceHost::Start(
-    const ControlServiceOptions& options, ModelStore* store) {
+    const ControlServiceOptions& options, ModelStore* store, AuthorizeFn authorize) {
   std::unique_ptr<ControlServiceHost> h(new ControlServiceHost());
   EXO_ASSIGN_OR_RETURN(h->core_, control::ControlCore::Create(options.core));
-  h->impl_ = std::make_unique<Impl>(h->core_.get());
+  h->impl_ = std::make_unique<Impl>(h->core_.get(), std::move(authorize));
   h->store_ = store;
   h->feeder_ = std::thread([p = h.get()] { p->Feed(); });
   return h;

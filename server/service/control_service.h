@@ -8,6 +8,7 @@
 #pragma once
 
 #include <atomic>
+#include <functional>
 #include <memory>
 #include <string>
 #include <thread>
@@ -18,6 +19,7 @@
 
 namespace grpc {
 class Service;
+class ServerContext;
 }
 
 namespace exo {
@@ -33,11 +35,18 @@ struct ControlServiceOptions {
 // The config keys of the control service (control_*), appended to the server's ConfigKeys().
 void AppendControlConfigKeys(std::vector<ConfigKey>* keys);
 
+// The server's one authorization check (server/service/auth.h, docs/security.md): the call's
+// principal ("" without authentication) or UNAUTHENTICATED / PERMISSION_DENIED.
+enum class Rpc;
+using AuthorizeFn = std::function<absl::StatusOr<std::string>(const grpc::ServerContext&, Rpc)>;
+
 class ControlServiceHost {
  public:
-  // Errors: invalid options (zones, up axis, ...).
+  // Errors: invalid options (zones, up axis, ...). `authorize` (null = every call allowed) runs
+  // first in every RPC; with authentication an interaction's operator_id is the caller's
+  // principal, whatever the request's header says.
   static absl::StatusOr<std::unique_ptr<ControlServiceHost>> Start(
-      const ControlServiceOptions& options, ModelStore* store);
+      const ControlServiceOptions& options, ModelStore* store, AuthorizeFn authorize = nullptr);
   ~ControlServiceHost();
   grpc::Service* service();
   control::ControlCore& core() { return *core_; }

@@ -76,11 +76,72 @@ void ModelStore::AppendLogLocked(DeltaPtr ptr) {
   cv_.notify_all();
 }
 
+void ModelStore::BeginApply() {
+  std::lock_guard lock(mu_);
+  applying_ = true;
+}
+
+void ModelStore::EndApply(uint64_t lsn, const std::string& uploader, uint64_t sequence) {
+  std::lock_guard lock(mu_);
+  applying_ = false;
+  apply_cv_.notify_all();
+  if (lsn == 0) return;  // not a journaled frame
+  ++ledger_changes_;
+  bool twice = lsn <= applied_lsn_;
+  applied_lsn_ = std::max(applied_lsn_, lsn);
+  if (!uploader.empty()) {
+    auto it = uploaders_.find(uploader);
+    if (it == uploaders_.end()) {
+      if (uploaders_.size() >= kMaxUploaders) {
+        auto oldest = std::min_element(uploaders_.begin(), uploaders_.end(), [](const auto& a, const auto& b) {
+          return a.second.last_lsn < b.second.last_lsn;
+        });
+        uploaders_.erase(oldest);
+      }
+      it = uploaders_.emplace(uploader, UploaderProgress{}).first;
+    }
+    UploaderProgress& p = it->second;
+    if (p.applied_frames > 0 && sequence <= p.applied_max_sequence) twice = true;
+    p.last_lsn = lsn;
+    if (twice) {
+      ++p.double_applied;
+    } else {
+      ++p.applied_frames;
+      p.applied_max_sequence = sequence;
+    }
+  }
+}
+
+uint64_t ModelStore::applied_lsn() const {
+  std::lock_guard lock(mu_);
+  return applied_lsn_;
+}
+
+std::map<std::string, ModelStore::UploaderProgress> ModelStore::Uploaders() const {
+  std::lock_guard lock(mu_);
+  return uploaders_;
+}
+
+uint64_t ModelStore::ledger_changes() const {
+  std::lock_guard lock(mu_);
+  return ledger_changes_;
+}
+
 v1::Checkpoint ModelStore::MakeCheckpoint(size_t max_log_bytes) const {
   v1::Checkpoint c;
-  std::lock_guard lock(mu_);
+  std::unique_lock lock(mu_);
+  // Not while the last stage is between a frame's first view change and its ledger entry.
+  apply_cv_.wait(lock, [this] { return !applying_; });
   c.set_format(1);
   c.set_version(version_);
+  c.set_applied_lsn(applied_lsn_);
+  for (const auto& [name, p] : uploaders_) {
+    auto* u = c.add_uploaders();
+    u->set_uploader(name);
+    u->set_applied_max_sequence(p.applied_max_sequence);
+    u->set_applied_frames(p.applied_frames);
+    u->set_double_applied(p.double_applied);
+  }
   for (const EpochSpan& e : lineage_) {
     auto* out = c.add_lineage();
     out->set_id(e.id);
@@ -160,6 +221,13 @@ absl::Status ModelStore::RestoreCheckpoint(const v1::Checkpoint& c) {
   if (lineage.size() > kMaxLineage) lineage.erase(lineage.begin(), lineage.end() - kMaxLineage);
   lineage_ = std::move(lineage);
   version_ = c.version();
+  applied_lsn_ = c.applied_lsn();
+  for (const auto& u : c.uploaders()) {
+    UploaderProgress& p = uploaders_[u.uploader()];
+    p.applied_max_sequence = u.applied_max_sequence();
+    p.applied_frames = u.applied_frames();
+    p.double_applied = u.double_applied();
+  }
   for (const auto& d : c.log()) {
     auto ptr = std::make_shared<const v1::Delta>(d);
     log_bytes_ += ptr->ByteSizeLong();

@@ -92,7 +92,24 @@ class ModelStore {
   uint64_t UpsertChunk(uint64_t chunk_id, uint64_t chunk_version, const TriangleMesh& mesh);
   absl::StatusOr<uint64_t> RemoveChunk(uint64_t chunk_id);
 
-  // Checkpoint (SPEC §12): the model as published + at most `max_log_bytes` of the log tail.
+  // Ledger of applied frames (the frame journal, issue 20): the pipeline brackets the last
+  // stage of every journaled frame with BeginApply / EndApply, so a checkpoint (which waits for
+  // no frame to be half-applied by that stage) holds either all of a frame's views or none, and
+  // the lsn and the uploader's sequence that came with them. `uploader` "" = anonymous stream
+  // (only the lsn is kept). A frame whose lsn or (uploader, sequence) is not above the ledger's
+  // counts as double_applied (a journal replay bug; the crash test asserts 0).
+  struct UploaderProgress {
+    uint64_t applied_max_sequence = 0, applied_frames = 0, double_applied = 0, last_lsn = 0;
+  };
+  static constexpr size_t kMaxUploaders = 4096;  // beyond: the least recently updated goes
+  void BeginApply();
+  void EndApply(uint64_t lsn, const std::string& uploader, uint64_t sequence);
+  uint64_t applied_lsn() const;
+  std::map<std::string, UploaderProgress> Uploaders() const;
+  uint64_t ledger_changes() const;  // bumped by every EndApply
+
+  // Checkpoint (SPEC §12): the model as published + at most `max_log_bytes` of the log tail,
+  // and the applied-frame ledger.
   v1::Checkpoint MakeCheckpoint(size_t max_log_bytes) const;
   // Restores a checkpoint into an empty store (version 0): versions continue from it. A replica
   // store takes the checkpoint's lineage as it is (no epoch of its own after it).
@@ -189,6 +206,11 @@ class ModelStore {
     uint64_t start_version;
   };
   std::vector<EpochSpan> lineage_;
+  // Applied-frame ledger.
+  bool applying_ = false;
+  mutable std::condition_variable apply_cv_;
+  uint64_t applied_lsn_ = 0, ledger_changes_ = 0;
+  std::map<std::string, UploaderProgress> uploaders_;
   uint64_t own_epoch_ = 0;  // this store's epoch (0 for a replica)
 };
 

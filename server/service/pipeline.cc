@@ -34,7 +34,7 @@ Pipeline::Pipeline(const PipelineOptions& options, ModelStore* store,
 
 Pipeline::~Pipeline() { Stop(); }
 
-Pipeline::Admission Pipeline::Submit(PipelineFramePtr frame) {
+Pipeline::Admission Pipeline::Submit(PipelineFramePtr frame, bool block) {
   if (!origin_set_.load(std::memory_order_acquire)) {
     // The first admitted frame fixes the scene set-up (server/core ChooseSceneSetup: origin =
     // its camera centre, voxel / cell / d_max from what it observes; a restored checkpoint keeps
@@ -59,11 +59,13 @@ Pipeline::Admission Pipeline::Submit(PipelineFramePtr frame) {
     }
   }
   if (stages_.empty()) {
+    ctx_.store->BeginApply();
+    ctx_.store->EndApply(frame->lsn, frame->uploader, frame->frame.sequence);
     processed_.fetch_add(1);
     last_latency_ns_.store(SteadyNowNs() - frame->received_ns);
     return Admission::kAccepted;
   }
-  if (options_.admission_block) return queues_[0]->Push(std::move(frame)) ? Admission::kAccepted : Admission::kDropped;
+  if (options_.admission_block || block) return queues_[0]->Push(std::move(frame)) ? Admission::kAccepted : Admission::kDropped;
   return queues_[0]->TryPush(std::move(frame)) ? Admission::kAccepted : Admission::kDropped;
 }
 
@@ -74,7 +76,11 @@ void Pipeline::RunStage(size_t i) {
     const ScopedDeltaSource source(f->frame.timestamp_s);
     stages_[i]->SetBacklog(queues_[i]->size(), queues_[i]->capacity());
     const int64_t t0 = SteadyNowNs();
+    const bool last = i + 1 == stages_.size();
+    // The last stage's changes and the frame's ledger entry go into a checkpoint together.
+    if (last) ctx_.store->BeginApply();
     const absl::Status s = stages_[i]->Process(*f, ctx_);
+    if (last) ctx_.store->EndApply(f->lsn, f->uploader, f->frame.sequence);
     timers_[i].Add(SteadyNowNs() - t0);
     if (!s.ok()) {
       errors_.fetch_add(1);

@@ -31,6 +31,11 @@ namespace exo {
 struct PipelineFrame {
   Frame frame;
   int64_t received_ns = 0;  // steady clock, when ingest accepted it
+  // Frame journal (issue 20): the frame's log sequence number (0 = not journaled) and the named
+  // uploader it came from ("" = anonymous); recorded in the store's applied ledger after the
+  // last stage.
+  uint64_t lsn = 0;
+  std::string uploader;
 };
 using PipelineFramePtr = std::shared_ptr<const PipelineFrame>;
 
@@ -110,8 +115,9 @@ class Pipeline {
   ~Pipeline();  // Stop()
 
   enum class Admission { kAccepted, kDropped };
-  // Called by ingest with a validated frame. Never blocks (unless admission_block).
-  Admission Submit(PipelineFramePtr frame);
+  // Called by ingest with a validated frame. Never blocks (unless admission_block or `block`:
+  // a journal replay must not drop what it replays).
+  Admission Submit(PipelineFramePtr frame, bool block = false);
   // Drains the queues (every admitted frame is processed) and joins the threads.
   void Stop();
 

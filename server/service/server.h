@@ -56,11 +56,27 @@ struct ServerConfig {
   int udp_pose_port = -1;
   std::string udp_pose_address = "127.0.0.1";
   double udp_pose_tolerance_s = 0.02;  // a frame with no pose sample this close is rejected
+  // Shared key of authenticated pose datagrams (HMAC-SHA256, udp_pose_input.h); empty: plain
+  // datagrams, only on a loopback address unless allow_insecure_remote.
+  std::string udp_pose_key_file;
   // Checkpoint (SPEC §12): empty path = off. Written every `checkpoint_interval_s` when the model
   // changed (tmp + fsync + rename) and at graceful shutdown; loaded at start when present.
   std::string checkpoint_path;
   double checkpoint_interval_s = 30.0;
   size_t checkpoint_max_log_bytes = size_t{16} << 20;  // delta log tail kept in the checkpoint
+  // Frame journal (issue 20 item 3; server/service/frame_journal.h): with a checkpoint path, every
+  // accepted frame is appended to a write-ahead journal and acked `durable` only after an
+  // fdatasync covers it; a restart replays what the checkpoint does not cover. journal_dir ""
+  // = checkpoint_path + ".journal". Beyond journal_max_bytes not yet covered by a checkpoint,
+  // frames are REJECTED RESOURCE_EXHAUSTED (a checkpoint is requested at half of it).
+  bool journal = true;
+  std::string journal_dir;
+  size_t journal_max_bytes = size_t{1} << 30;
+  size_t journal_segment_bytes = size_t{64} << 20;
+  bool journal_enabled() const { return journal && !checkpoint_path.empty(); }
+  std::string journal_directory() const {
+    return journal_dir.empty() ? checkpoint_path + ".journal" : journal_dir;
+  }
   // Transport security and roles (docs/security.md). TLS when tls_cert/tls_key are given (PEM
   // files); with tls_client_ca also mutual TLS (a client certificate signed by that CA is
   // required). Bearer tokens from auth_tokens_file ("ROLE TOKEN NAME" lines) are then required
@@ -127,6 +143,8 @@ class ExoviewServer {
 
  private:
   class Service;
+  struct Durability;
+  absl::Status OpenAndReplayJournal();
   absl::StatusOr<std::shared_ptr<grpc::ServerCredentials>> MakeServerCredentials() const;
   std::unique_ptr<class UdpPoseInput> udp_;
   ServerConfig config_;
@@ -135,6 +153,7 @@ class ExoviewServer {
   std::unique_ptr<Pipeline> pipeline_;
   std::shared_ptr<RegionRegistry> regions_;  // null without inpainting
   InpaintingStage* inpainting_ = nullptr;    // owned by pipeline_
+  std::unique_ptr<Durability> durability_;
   std::unique_ptr<Service> service_;
   std::unique_ptr<ControlServiceHost> control_;
   std::unique_ptr<grpc::Server> server_;
@@ -143,7 +162,11 @@ class ExoviewServer {
   uint64_t restored_version_ = 0;
   uint64_t checkpoint_version_ = 0;  // last written
   uint64_t checkpoint_regions_generation_ = 0;
-  std::mutex checkpoint_write_mu_;  // the periodic thread, shutdown and region RPCs write
+  uint64_t checkpoint_ledger_ = 0;   // ModelStore::ledger_changes() of the last written
+  uint64_t journal_dropped_upto_ = 0;  // applied lsn of the previous generation
+  bool checkpoint_requested_ = false;  // checkpoint_mu_
+  // The periodic thread, shutdown, region RPCs and the journal's requests write checkpoints.
+  std::mutex checkpoint_write_mu_;
   std::mutex checkpoint_mu_;
   std::condition_variable checkpoint_cv_;
   std::thread checkpoint_thread_;

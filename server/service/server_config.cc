@@ -150,6 +150,13 @@ std::vector<ConfigKey> MakeKeys() {
           EXO_FIELD(checkpoint_interval_s)),
       Key("checkpoint_max_log_bytes", "delta log tail kept in the checkpoint (bytes)",
           EXO_FIELD(checkpoint_max_log_bytes)),
+      Key("journal", "write-ahead journal of accepted frames (needs checkpoint_path): acks durable",
+          EXO_FIELD(journal)),
+      Key("journal_dir", "journal directory (empty: checkpoint_path + \".journal\")",
+          EXO_FIELD(journal_dir)),
+      Key("journal_max_bytes", "journal bytes not yet covered by a checkpoint (beyond: REJECTED)",
+          EXO_FIELD(journal_max_bytes)),
+      Key("journal_segment_bytes", "journal segment size (bytes)", EXO_FIELD(journal_segment_bytes)),
       Key("delta_log",
           "where published deltas go: memory (embedded, the server serves every viewer) or "
           "jetstream (NATS JetStream, read by exoview_relay; docs/deploy.md)",
@@ -167,6 +174,9 @@ std::vector<ConfigKey> MakeKeys() {
       Key("nats_connect_timeout_s", "how long the server retries the first NATS connection",
           EXO_FIELD(delta_log.connect_timeout_s)),
       Key("udp_pose_address", "address of the UDP pose input", EXO_FIELD(udp_pose_address)),
+      Key("udp_pose_key_file",
+          "file with the shared key of HMAC-authenticated UDP pose datagrams (empty: plain)",
+          EXO_FIELD(udp_pose_key_file)),
       Key("udp_pose_tolerance_s", "a frame with no UDP pose this close is rejected",
           EXO_FIELD(udp_pose_tolerance_s)),
       Key("tls_cert", "server certificate chain (PEM); with tls_key: TLS", EXO_FIELD(tls_cert)),
@@ -236,6 +246,13 @@ absl::Status ServerConfig::Validate() const {
   }
   if (!(checkpoint_interval_s >= 0.0))
     return absl::InvalidArgumentError("checkpoint_interval_s must be >= 0 (0 = only at shutdown)");
+  if (journal_enabled()) {
+    if (journal_segment_bytes < 4096)
+      return absl::InvalidArgumentError("journal_segment_bytes must be >= 4096");
+    if (journal_max_bytes < 2 * journal_segment_bytes || journal_max_bytes < 2 * transport_max_bytes)
+      return absl::InvalidArgumentError(
+          "journal_max_bytes must be >= 2 x journal_segment_bytes and >= 2 x transport_max_bytes");
+  }
   if (tls_cert.empty() != tls_key.empty())
     return absl::InvalidArgumentError("tls_cert and tls_key go together");
   if (!tls_client_ca.empty() && tls_cert.empty())

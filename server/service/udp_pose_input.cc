@@ -3,7 +3,16 @@
 #include <array>
 #include <sstream>
 
+#include <sys/stat.h>
+
+#include <fstream>
+
 #include <boost/asio.hpp>
+#include <openssl/crypto.h>
+#include <openssl/evp.h>
+#include <openssl/hmac.h>
+
+#include "absl/strings/numbers.h"
 
 namespace exo {
 
@@ -27,14 +36,67 @@ absl::StatusOr<PoseSample> ParsePoseDatagram(const std::string& text) {
   return s;
 }
 
+std::string PoseHmacHex(const std::string& key, const std::string& text) {
+  unsigned char mac[EVP_MAX_MD_SIZE];
+  unsigned int len = 0;
+  HMAC(EVP_sha256(), key.data(), static_cast<int>(key.size()),
+       reinterpret_cast<const unsigned char*>(text.data()), text.size(), mac, &len);
+  static const char* kHex = "0123456789abcdef";
+  std::string out;
+  for (unsigned int i = 0; i < len; ++i) {
+    out.push_back(kHex[mac[i] >> 4]);
+    out.push_back(kHex[mac[i] & 15]);
+  }
+  return out;
+}
+
+std::string SignPoseDatagram(const std::string& key, uint64_t sequence, const std::string& pose_text) {
+  const std::string body = absl::StrCat(sequence, " ", pose_text);
+  return absl::StrCat(body, " ", PoseHmacHex(key, body));
+}
+
+absl::StatusOr<PoseSample> VerifyPoseDatagram(const std::string& key, const std::string& text,
+                                              uint64_t* sequence) {
+  const size_t sp = text.find_last_of(' ');
+  if (sp == std::string::npos || text.size() - sp - 1 != 64)
+    return absl::UnauthenticatedError("pose datagram carries no HMAC");
+  const std::string body = text.substr(0, sp);
+  const std::string want = PoseHmacHex(key, body);
+  if (CRYPTO_memcmp(want.data(), text.data() + sp + 1, 64) != 0)
+    return absl::UnauthenticatedError("pose datagram HMAC does not match");
+  const size_t first = body.find(' ');
+  if (first == std::string::npos || !absl::SimpleAtoi(body.substr(0, first), sequence))
+    return absl::InvalidArgumentError("authenticated pose datagram must start with its sequence");
+  return ParsePoseDatagram(body.substr(first + 1));
+}
+
+absl::StatusOr<std::string> ReadPoseKeyFile(const std::string& path) {
+  struct stat st;
+  if (::stat(path.c_str(), &st) != 0)
+    return absl::NotFoundError(absl::StrCat("cannot open UDP pose key file ", path));
+  if ((st.st_mode & (S_IROTH | S_IWOTH)) != 0)
+    return absl::PermissionDeniedError(absl::StrCat(
+        "UDP pose key file ", path, " is readable or writable by others (chmod 600 it)"));
+  std::ifstream in(path);
+  std::string key;
+  std::getline(in, key);
+  while (!key.empty() && (key.back() == '\r' || key.back() == ' ')) key.pop_back();
+  if (key.size() < 16)
+    return absl::InvalidArgumentError(
+        absl::StrCat("UDP pose key file ", path, ": the key needs at least 16 bytes"));
+  return key;
+}
+
 struct UdpPoseInput::Impl {
   boost::asio::io_context io;
   boost::asio::ip::udp::socket socket{io};
 };
 
 absl::StatusOr<std::unique_ptr<UdpPoseInput>> UdpPoseInput::Start(const std::string& address,
-                                                                  int port, size_t capacity) {
+                                                                  int port, size_t capacity,
+                                                                  const std::string& hmac_key) {
   auto in = std::unique_ptr<UdpPoseInput>(new UdpPoseInput);
+  in->key_ = hmac_key;
   in->stream_ = PoseStream(capacity);
   in->impl_ = std::make_unique<Impl>();
   boost::system::error_code ec;
@@ -53,10 +115,22 @@ absl::StatusOr<std::unique_ptr<UdpPoseInput>> UdpPoseInput::Start(const std::str
       const size_t n = self->impl_->socket.receive_from(boost::asio::buffer(buf), from, 0, ec);
       if (self->stopping_.load()) return;
       if (ec) continue;
-      auto sample = ParsePoseDatagram(std::string(buf.data(), n));
+      const std::string text(buf.data(), n);
+      uint64_t seq = 0;
+      auto sample = self->key_.empty() ? ParsePoseDatagram(text)
+                                       : VerifyPoseDatagram(self->key_, text, &seq);
       if (!sample.ok()) {
-        self->malformed_.fetch_add(1);
+        (sample.status().code() == absl::StatusCode::kUnauthenticated ? self->unauthenticated_
+                                                                       : self->malformed_)
+            .fetch_add(1);
         continue;
+      }
+      if (!self->key_.empty()) {
+        if (seq <= self->last_sequence_) {  // a replay of an earlier datagram
+          self->replayed_.fetch_add(1);
+          continue;
+        }
+        self->last_sequence_ = seq;
       }
       std::lock_guard lock(self->mu_);
       if (self->stream_.Add(sample->timestamp_s, sample->world_from_cam).ok())

@@ -5,6 +5,15 @@
 // Frames uploaded without a pose get theirs by SLERP/lerp at the frame timestamp; a frame with no
 // pose within the tolerance is rejected with the reason. Malformed datagrams are counted and
 // ignored (UDP has no one to answer).
+//
+// Authenticated datagrams (issue 20 item 5; docs/security.md): with a shared key (config
+// udp_pose_key_file) every datagram must be
+//   "SEQ timestamp_s tx ty tz qx qy qz qw MAC"
+// where MAC is the lowercase hex HMAC-SHA256 (OpenSSL) of everything before the last space
+// ("SEQ timestamp_s ... qw"), and SEQ a decimal u64 that increases with every datagram (senders
+// use e.g. microseconds since the epoch, which also survives their restart). A datagram without
+// a valid MAC is dropped and counted (unauthenticated); one whose SEQ is not above the last
+// accepted one is a replay: dropped and counted. Without a key, plain datagrams as above.
 #pragma once
 
 #include <atomic>
@@ -22,17 +31,33 @@ namespace exo {
 // Parses one datagram. Errors: wrong field count, non-numbers, invalid quaternion/translation.
 absl::StatusOr<PoseSample> ParsePoseDatagram(const std::string& text);
 
+// HMAC-SHA256 of `text` under `key`, lowercase hex (64 characters).
+std::string PoseHmacHex(const std::string& key, const std::string& text);
+// "SEQ POSE_TEXT MAC": what an authenticated sender puts in a datagram.
+std::string SignPoseDatagram(const std::string& key, uint64_t sequence, const std::string& pose_text);
+// Checks an authenticated datagram: the MAC (constant-time compare) first, then the fields.
+// Errors: kUnauthenticated (no / bad MAC), kInvalidArgument (fields). Sets *sequence.
+absl::StatusOr<PoseSample> VerifyPoseDatagram(const std::string& key, const std::string& text,
+                                              uint64_t* sequence);
+// Reads a key file: the first line, at least 16 bytes; the file must not be readable by others.
+absl::StatusOr<std::string> ReadPoseKeyFile(const std::string& path);
+
 class UdpPoseInput {
  public:
   // Binds 127.0.0.1/0.0.0.0 `address`:`port` (port 0 = any free port, see port()).
+  // `hmac_key` non-empty: only authenticated datagrams are taken (see above).
   static absl::StatusOr<std::unique_ptr<UdpPoseInput>> Start(const std::string& address, int port,
-                                                             size_t capacity = 4096);
+                                                             size_t capacity = 4096,
+                                                             const std::string& hmac_key = "");
   ~UdpPoseInput();
   int port() const { return port_; }
   // Pose at `timestamp_s` (see PoseStream::Interpolate); NotFound/FailedPrecondition with reason.
   absl::StatusOr<Rigid3d> PoseAt(double timestamp_s, double tolerance_s) const;
   uint64_t received() const { return received_.load(); }
   uint64_t malformed() const { return malformed_.load(); }
+  uint64_t unauthenticated() const { return unauthenticated_.load(); }
+  uint64_t replayed() const { return replayed_.load(); }
+  bool authenticated() const { return !key_.empty(); }
 
  private:
   UdpPoseInput() = default;
@@ -42,7 +67,9 @@ class UdpPoseInput {
   mutable std::mutex mu_;
   PoseStream stream_;
   std::thread thread_;
-  std::atomic<uint64_t> received_{0}, malformed_{0};
+  std::atomic<uint64_t> received_{0}, malformed_{0}, unauthenticated_{0}, replayed_{0};
+  std::string key_;
+  uint64_t last_sequence_ = 0;  // receiver thread only
   std::atomic<bool> stopping_{false};
 };
 

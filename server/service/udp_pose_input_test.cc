@@ -46,5 +46,60 @@ TEST(UdpPose, FramesMatchedByTimestampWithSlerp) {
   EXPECT_FALSE((*in)->PoseAt(12.0, 0.02).ok());
 }
 
+
+// Issue 20 item 5: HMAC-SHA256 datagrams. A valid one verifies; any changed byte, a wrong key or
+// a missing MAC is unauthenticated; the sequence comes back for the replay check.
+TEST(UdpPose, HmacSignedDatagramsVerifyAndAnyChangeIsCaught) {
+  const std::string key = "0123456789abcdef-shared";
+  const std::string d = SignPoseDatagram(key, 42, "1.5 0.1 0.2 0.3 0 0 0 1");
+  uint64_t seq = 0;
+  auto p = VerifyPoseDatagram(key, d, &seq);
+  ASSERT_TRUE(p.ok()) << p.status();
+  EXPECT_EQ(seq, 42u);
+  EXPECT_DOUBLE_EQ(p->timestamp_s, 1.5);
+  EXPECT_DOUBLE_EQ(p->world_from_cam.translation.z, 0.3);
+  // RFC 4231 test case 2: HMAC-SHA256("Jefe", "what do ya want for nothing?").
+  EXPECT_EQ(PoseHmacHex("Jefe", "what do ya want for nothing?"),
+            "5bdcc146bf60754e6a042426089575c75a003f089d2739839dec58b964ec3843");
+  for (size_t i = 0; i < d.size(); ++i) {
+    std::string t = d;
+    t[i] = t[i] == '1' ? '2' : '1';
+    EXPECT_FALSE(VerifyPoseDatagram(key, t, &seq).ok()) << i;
+  }
+  EXPECT_EQ(VerifyPoseDatagram("another-key-0123456", d, &seq).status().code(),
+            absl::StatusCode::kUnauthenticated);
+  EXPECT_EQ(VerifyPoseDatagram(key, "1.5 5000 0 0 0 0 0 1", &seq).status().code(),
+            absl::StatusCode::kUnauthenticated);
+}
+
+TEST(UdpPose, AuthenticatedInputDropsSpoofedAndReplayedDatagramsAndCountsThem) {
+  const std::string key = "0123456789abcdef-shared";
+  auto in = UdpPoseInput::Start("127.0.0.1", 0, 64, key);
+  ASSERT_TRUE(in.ok()) << in.status();
+  boost::asio::io_context io;
+  boost::asio::ip::udp::socket s(io, boost::asio::ip::udp::v4());
+  const boost::asio::ip::udp::endpoint to(boost::asio::ip::make_address("127.0.0.1"),
+                                          static_cast<unsigned short>((*in)->port()));
+  const std::string good1 = SignPoseDatagram(key, 100, "10.0 0 0 0 0 0 0 1");
+  const std::string good2 = SignPoseDatagram(key, 101, "10.1 1 0 0 0 0 0 1");
+  const std::string msgs[] = {
+      good1,
+      "10.05 5000 0 0 0 0 0 1",                                        // spoofed: no MAC
+      SignPoseDatagram("attacker-key-012345", 102, "10.05 5000 0 0 0 0 0 1"),  // wrong key
+      good2,
+      good1,                                                          // replay
+      SignPoseDatagram(key, 101, "10.07 4000 0 0 0 0 0 1"),           // reused sequence
+  };
+  for (const auto& m : msgs) s.send_to(boost::asio::buffer(m), to);
+  for (int i = 0; i < 400 && (*in)->received() + (*in)->unauthenticated() + (*in)->replayed() < 6; ++i)
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  EXPECT_EQ((*in)->received(), 2u);
+  EXPECT_EQ((*in)->unauthenticated(), 2u);
+  EXPECT_EQ((*in)->replayed(), 2u);
+  auto p = (*in)->PoseAt(10.05, 0.06);
+  ASSERT_TRUE(p.ok()) << p.status();
+  EXPECT_NEAR(p->translation.x, 0.5, 1e-9);  // between the two authentic samples only
+}
+
 }  // namespace
 }  // namespace exo

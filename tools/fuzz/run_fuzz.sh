@@ -3,6 +3,7 @@
 # own clang build folder. Not part of `deploy/exoview test` (it takes minutes):
 #
 #   tools/fuzz/run_fuzz.sh [SECONDS_PER_TARGET=60] [BUILD_DIR=build-fuzz]
+#   FUZZ_TARGETS="delta checkpoint" tools/fuzz/run_fuzz.sh 60    # some targets only
 #
 # Seeds: fuzz/corpus/<target>/ (committed; written by fuzz/make_seeds.cc when empty). Prints one
 # JSON line per target: executions, seconds, crashes (files named crash-* / leak-* / timeout-*
@@ -16,11 +17,14 @@ if [ ! -f "$bdir/build.ninja" ]; then
   cmake -S "$root" -B "$bdir" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo \
     -DCMAKE_C_COMPILER=clang -DCMAKE_CXX_COMPILER=clang++ -DEXOVIEW_FUZZ=ON >/dev/null
 fi
-cmake --build "$bdir" -j "$(nproc)" --target jpeg_fuzz depth_fuzz frame_fuzz make_seeds >&2
+cmake --build "$bdir" -j "$(nproc)" --target jpeg_fuzz depth_fuzz frame_fuzz delta_fuzz \
+  checkpoint_fuzz make_seeds >&2
 corpus="$root/fuzz/corpus"
-if [ -z "$(ls -A "$corpus/jpeg" 2>/dev/null)" ]; then "$bdir/fuzz/make_seeds" "$corpus" >&2; fi
+if [ -z "$(ls -A "$corpus/jpeg" 2>/dev/null)" ] || [ -z "$(ls -A "$corpus/delta" 2>/dev/null)" ]; then
+  "$bdir/fuzz/make_seeds" "$corpus" >&2
+fi
 status=0
-for t in jpeg depth frame; do
+for t in ${FUZZ_TARGETS:-jpeg depth frame delta checkpoint}; do
   work="$bdir/fuzz/work_$t"
   art="$bdir/fuzz/artifacts_$t"
   mkdir -p "$work" "$art"
