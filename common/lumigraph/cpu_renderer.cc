@@ -337,6 +337,19 @@ absl::StatusOr<CpuRenderOutput> CpuLumigraphRenderer::Render(const PinholeCamera
         // whose ROI holds it only; everywhere else only the cell's observed references count.
         bool in_roi = false;
         blend::BestN best = blend::EmptyBestN();
+        // (3.4)-(3.5) for one stored view, kept if among the best n.
+        const auto consider = [&](int vi) {
+          const ViewData& vd = views_[vi];
+          const ImageF& depth = *vd.depth;
+          const float v = blend::Validity(p, vd.params, bo, [&](glm::ivec2 q) {
+            return depth.at(q.x, q.y);
+          });
+          if (v == 0.0f) return;
+          const float wd = blend::DirectionalWeight(p, c_o, vd.params.centre_local);
+          const float wp = blend::PositionalWeight(p, c_o, vd.params.centre_local,
+                                                   bo.positional_mode);
+          blend::InsertBest(best, n, blend::CombinedWeight(v, wd, wp, bo.lambda, bo.min_weight), vi);
+        };
         for (int vi : inpainted) {
           const ViewData& vd = views_[vi];
           const blend::Projection proj = blend::ProjectToView(p, vd.params);
@@ -345,29 +358,10 @@ absl::StatusOr<CpuRenderOutput> CpuLumigraphRenderer::Render(const PinholeCamera
           const int ly = std::clamp(static_cast<int>(std::floor(proj.uv.y + 0.5f)), 0, vd.params.size.y - 1);
           if (vd.labels->at(lx, ly) == 0) continue;
           in_roi = true;
-          const ImageF& depth = *vd.depth;
-          const float v = blend::Validity(p, vd.params, bo, [&](glm::ivec2 q) {
-            return depth.at(q.x, q.y);
-          });
-          if (v == 0.0f) continue;
-          const float wd = blend::DirectionalWeight(p, c_o, vd.params.centre_local);
-          const float wp = blend::PositionalWeight(p, c_o, vd.params.centre_local,
-                                                   bo.positional_mode);
-          blend::InsertBest(best, n, blend::CombinedWeight(v, wd, wp, bo.lambda, bo.min_weight), vi);
+          consider(vi);
         }
         if (!in_roi && refs == nullptr) continue;  // empty reference set: background, uncovered
-        for (int vi : in_roi ? std::span<const int>() : std::span<const int>(*refs)) {
-          const ViewData& vd = views_[vi];
-          const ImageF& depth = *vd.depth;
-          const float v = blend::Validity(p, vd.params, bo, [&](glm::ivec2 q) {
-            return depth.at(q.x, q.y);
-          });
-          if (v == 0.0f) continue;
-          const float wd = blend::DirectionalWeight(p, c_o, vd.params.centre_local);
-          const float wp = blend::PositionalWeight(p, c_o, vd.params.centre_local,
-                                                   bo.positional_mode);
-          blend::InsertBest(best, n, blend::CombinedWeight(v, wd, wp, bo.lambda, bo.min_weight), vi);
-        }
+        for (int vi : in_roi ? std::span<const int>() : std::span<const int>(*refs)) consider(vi);
         blend::BlendAccumulator acc;
         int used = 0;
         for (int s = 0; s < n; ++s) {

@@ -21,22 +21,6 @@ grpc::Status ToGrpc(const absl::Status& s) {
   return grpc::Status(static_cast<grpc::StatusCode>(s.code()), std::string(s.message()));
 }
 
-absl::StatusOr<std::string> ReadPem(const std::string& path, const char* what) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) return absl::NotFoundError(absl::StrCat("cannot read ", what, " ", path));
-  std::stringstream ss;
-  ss << in.rdbuf();
-  if (ss.str().find("-----BEGIN") == std::string::npos)
-    return absl::InvalidArgumentError(absl::StrCat(what, " ", path, " is not PEM"));
-  return ss.str();
-}
-
-bool IsLoopback(const std::string& listen) {
-  for (const char* p : {"127.", "localhost:", "[::1]:"})
-    if (absl::StartsWith(listen, p)) return true;
-  return false;
-}
-
 }  // namespace
 
 class Relay::Service final : public v1::Exoview::Service {

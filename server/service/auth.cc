@@ -160,4 +160,20 @@ absl::StatusOr<Principal> Authorizer::Check(const std::optional<std::string>& au
   return found->principal;
 }
 
+absl::StatusOr<std::string> ReadPem(const std::string& path, const char* what) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return absl::NotFoundError(absl::StrCat("cannot read ", what, " ", path));
+  std::stringstream ss;
+  ss << in.rdbuf();
+  if (ss.str().find("-----BEGIN") == std::string::npos)
+    return absl::InvalidArgumentError(absl::StrCat(what, " ", path, " is not PEM"));
+  return ss.str();
+}
+
+bool IsLoopback(const std::string& listen) {
+  for (const char* p : {"127.", "localhost:", "[::1]:", "ipv4:127.", "ipv6:[::1]:"})
+    if (absl::StartsWith(listen, p)) return true;
+  return false;
+}
+
 }  // namespace exo

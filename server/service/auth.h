@@ -56,4 +56,9 @@ class Authorizer {
   std::vector<Entry> entries_;
 };
 
+// TLS material for a listener: the PEM file at `path` (`what` names it in errors: "tls_cert").
+absl::StatusOr<std::string> ReadPem(const std::string& path, const char* what);
+// Whether a listen address (host:port, or a gRPC peer "ipv4:127.0.0.1:5") is loopback only.
+bool IsLoopback(const std::string& listen);
+
 }  // namespace exo
