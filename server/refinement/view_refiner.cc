@@ -1185,6 +1185,19 @@ void Refiner::GuardEnergy(const Pose& pose0, double e0, double e_exposure_only, 
 
 void Refiner::GateInsignificantUpdates(const Pose& pose0, double e_exposure_only, Pose* pose,
                                        double* e) {
+  // Trust region (RefinerOptions::max_pose_correction_*).
+  if (!(pose->t == pose0.t && pose->q.coeffs() == pose0.q.coeffs())) {
+    const Eigen::Vector3d c0 = -(pose0.q.conjugate() * pose0.t);
+    const Eigen::Vector3d c1 = -(pose->q.conjugate() * pose->t);
+    const double moved_m = (c1 - c0).norm();
+    const double turned_deg = pose0.q.angularDistance(pose->q) * 180.0 / M_PI;
+    if ((o_.max_pose_correction_m > 0 && moved_m > o_.max_pose_correction_m) ||
+        (o_.max_pose_correction_deg > 0 && turned_deg > o_.max_pose_correction_deg)) {
+      res_.pose_update_too_large = true;
+      *pose = pose0;
+      *e = e_exposure_only;
+    }
+  }
   // A pose update that explains less than the references' own disagreement is not evidence
   // against the input pose.
   if (o_.min_pose_gain_over_disagreement > 0 &&
@@ -1197,6 +1210,11 @@ void Refiner::GateInsignificantUpdates(const Pose& pose0, double e_exposure_only
       *pose = pose0;
       *e = e_exposure_only;
     }
+  }
+  if (o_.max_exposure_ratio > 1.0 &&
+      std::abs(std::log(*e / o_.prior_exposure)) > std::log(o_.max_exposure_ratio)) {
+    res_.exposure_update_too_large = true;
+    *e = o_.prior_exposure;
   }
   // An exposure that explains less than the references' own disagreement (relative to the
   // prior) is not evidence of an exposure change (real cameras with stable exposure: otherwise
@@ -1328,6 +1346,11 @@ absl::Status RefinementOptions::Validate() const {
     return absl::InvalidArgumentError(absl::StrCat("refinement: pyramid_levels in [1, ", kMaxLevels, "]"));
   if (max_outer_iterations < 1 || max_solver_iterations < 1)
     return absl::InvalidArgumentError("refinement: iteration limits must be >= 1");
+  if (!(max_exposure_ratio == 0.0 || (max_exposure_ratio > 1.0 && std::isfinite(max_exposure_ratio))))
+    return absl::InvalidArgumentError("refinement: max_exposure_ratio must be 0 (off) or > 1");
+  if (!(max_pose_correction_m >= 0) || !std::isfinite(max_pose_correction_m) ||
+      !(max_pose_correction_deg >= 0) || !std::isfinite(max_pose_correction_deg))
+    return absl::InvalidArgumentError("refinement: max_pose_correction_m/deg must be >= 0");
   if (!(initial_exposure > 0) || !std::isfinite(initial_exposure))
     return absl::InvalidArgumentError("refinement: initial_exposure must be > 0");
   if (!(function_tolerance > 0) || !(function_tolerance < 1))

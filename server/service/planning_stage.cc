@@ -25,6 +25,9 @@ class PlanningStage final : public PipelineStage {
       RefinementWorkerOptions wo;
       wo.queue = options_.refine_queue;
       wo.downscale = options_.refine_downscale;
+      wo.refine.max_pose_correction_m = options_.refine_max_pose_m;
+      wo.refine.max_pose_correction_deg = options_.refine_max_pose_deg;
+      wo.refine.max_exposure_ratio = options_.refine_max_exposure_ratio;
       worker_ = std::make_unique<RefinementWorker>(
           wo, [this](const RefinementJob& job, const absl::StatusOr<RefinementResult>& r) {
             ApplyRefinement(job, r);

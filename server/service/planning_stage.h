@@ -26,6 +26,10 @@ struct PlanningStageOptions {
   // input pose and exposure, unrefined (false, default): on real RGB-D (registered 7-Scenes)
   // removing the flagged views lowered held-out SSIM 0.678 -> 0.562 (docs/refinement.md).
   bool refine_remove_outliers = false;
+  // Trust region of the refinement (RefinementOptions::max_pose_correction_*, max_exposure_ratio).
+  double refine_max_pose_m = 0.03;
+  double refine_max_pose_deg = 2.0;
+  double refine_max_exposure_ratio = 1.25;  // issue 15, session 8: real 7-Scenes exposures
   absl::Status Validate() const;
 };
 
