@@ -39,18 +39,7 @@ std::string FindNatsServer() {
   return "";
 }
 
-int FreePort() {
-  const int fd = socket(AF_INET, SOCK_STREAM, 0);
-  sockaddr_in a{};
-  a.sin_family = AF_INET;
-  a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-  a.sin_port = 0;
-  bind(fd, reinterpret_cast<sockaddr*>(&a), sizeof a);
-  socklen_t n = sizeof a;
-  getsockname(fd, reinterpret_cast<sockaddr*>(&a), &n);
-  close(fd);
-  return ntohs(a.sin_port);
-}
+using testing::FreeLoopbackPort;
 
 bool CanConnect(int port) {
   const int fd = socket(AF_INET, SOCK_STREAM, 0);
@@ -76,7 +65,7 @@ class RelayNats : public ::testing::Test {
     // Deltas of a full-resolution view exceed NATS's default 1 MB payload: the deployment's
     // nats-server config raises it (deploy/k8s/nats.yaml does the same).
     std::ofstream(dir_ + "/nats.conf") << "max_payload: 8MB\n";
-    nats_port_ = FreePort();
+    nats_port_ = FreeLoopbackPort();
     nats_ = std::make_unique<Subprocess>(
         nats_bin_,
         std::vector<std::string>{"-c", dir_ + "/nats.conf", "-js", "-a", "127.0.0.1", "-p",

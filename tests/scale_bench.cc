@@ -48,17 +48,7 @@ using testing::ReadAll;
 using testing::Subprocess;
 using testing::WaitForFile;
 
-int FreePort() {
-  const int fd = socket(AF_INET, SOCK_STREAM, 0);
-  sockaddr_in a{};
-  a.sin_family = AF_INET;
-  a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-  bind(fd, reinterpret_cast<sockaddr*>(&a), sizeof a);
-  socklen_t n = sizeof a;
-  getsockname(fd, reinterpret_cast<sockaddr*>(&a), &n);
-  close(fd);
-  return ntohs(a.sin_port);
-}
+using testing::FreeLoopbackPort;
 
 double CpuS(pid_t pid) {
   std::ifstream in("/proc/" + std::to_string(pid) + "/stat");
@@ -290,7 +280,7 @@ int main(int argc, char** argv) {
   char tmpl[] = "/tmp/exoview_scale_XXXXXX";
   const std::string dir = mkdtemp(tmpl);
   std::ofstream(dir + "/nats.conf") << "max_payload: 8MB\n";
-  const int port = exo::FreePort();
+  const int port = exo::testing::FreeLoopbackPort();
   exo::testing::Subprocess nats("/usr/sbin/nats-server",
                                 {"-c", dir + "/nats.conf", "-js", "-a", "127.0.0.1", "-p",
                                  std::to_string(port), "-sd", dir + "/js"},

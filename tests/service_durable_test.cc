@@ -32,18 +32,7 @@ using testing::ReadAll;
 using testing::Subprocess;
 using testing::WaitForFile;
 
-int FreePort() {
-  const int fd = socket(AF_INET, SOCK_STREAM, 0);
-  sockaddr_in a{};
-  a.sin_family = AF_INET;
-  a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-  a.sin_port = 0;
-  bind(fd, reinterpret_cast<sockaddr*>(&a), sizeof a);
-  socklen_t len = sizeof a;
-  getsockname(fd, reinterpret_cast<sockaddr*>(&a), &len);
-  close(fd);
-  return ntohs(a.sin_port);
-}
+using testing::FreeLoopbackPort;
 
 constexpr char kUploader[] = "crash-test";
 
@@ -75,7 +64,7 @@ class ServiceDurable : public testing::ServerProcessTest {
 
 TEST_F(ServiceDurable, KillNineAtTwentyRandomMomentsLosesNoDurableFrameAndAppliesNoneTwice) {
   constexpr int kFrames = 600, kKills = 20;
-  const int port = FreePort();
+  const int port = FreeLoopbackPort();
   ASSERT_NO_FATAL_FAILURE(Start(port, 0));
 
   SynthSourceOptions so;

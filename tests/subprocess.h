@@ -2,8 +2,11 @@
 // loopback, with output captured to a file, timeouts and explicit kills by pid.
 #pragma once
 
+#include <arpa/inet.h>
 #include <fcntl.h>
+#include <netinet/in.h>
 #include <signal.h>
+#include <sys/socket.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -113,6 +116,21 @@ inline uint64_t JsonU64(const std::string& json, const std::string& key) {
   const auto j = nlohmann::json::parse(json, nullptr, /*allow_exceptions=*/false);
   if (!j.is_object() || !j.contains(key) || !j[key].is_number_unsigned()) return 0;
   return j[key].get<uint64_t>();
+}
+
+// A loopback TCP port that was free a moment ago (for processes that must listen on a fixed port,
+// e.g. a server restarted on the same address).
+inline int FreeLoopbackPort() {
+  const int fd = socket(AF_INET, SOCK_STREAM, 0);
+  sockaddr_in a{};
+  a.sin_family = AF_INET;
+  a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  a.sin_port = 0;
+  bind(fd, reinterpret_cast<sockaddr*>(&a), sizeof a);
+  socklen_t len = sizeof a;
+  getsockname(fd, reinterpret_cast<sockaddr*>(&a), &len);
+  close(fd);
+  return ntohs(a.sin_port);
 }
 
 }  // namespace exo::testing

@@ -132,15 +132,8 @@ absl::Status Relay::Start() {
     if (auth) return absl::FailedPreconditionError("auth_tokens_file needs TLS (tls_cert, tls_key)");
     creds = grpc::InsecureServerCredentials();
   } else {
-    grpc::SslServerCredentialsOptions o;
-    EXO_ASSIGN_OR_RETURN(const std::string cert, ReadPem(config_.tls_cert, "tls_cert"));
-    EXO_ASSIGN_OR_RETURN(const std::string key, ReadPem(config_.tls_key, "tls_key"));
-    o.pem_key_cert_pairs.push_back({key, cert});
-    if (!config_.tls_client_ca.empty()) {
-      EXO_ASSIGN_OR_RETURN(o.pem_root_certs, ReadPem(config_.tls_client_ca, "tls_client_ca"));
-      o.client_certificate_request = GRPC_SSL_REQUEST_AND_REQUIRE_CLIENT_CERTIFICATE_AND_VERIFY;
-    }
-    creds = grpc::SslServerCredentials(o);
+    EXO_ASSIGN_OR_RETURN(creds, SslServerCredentialsFromFiles(config_.tls_cert, config_.tls_key,
+                                                              config_.tls_client_ca));
   }
   service_ = std::make_unique<Service>(this, std::move(auth));
   grpc::EnableDefaultHealthCheckService(true);

@@ -170,6 +170,19 @@ absl::StatusOr<std::string> ReadPem(const std::string& path, const char* what) {
   return ss.str();
 }
 
+absl::StatusOr<std::shared_ptr<grpc::ServerCredentials>> SslServerCredentialsFromFiles(
+    const std::string& cert_path, const std::string& key_path, const std::string& client_ca_path) {
+  grpc::SslServerCredentialsOptions o;
+  EXO_ASSIGN_OR_RETURN(const std::string cert, ReadPem(cert_path, "tls_cert"));
+  EXO_ASSIGN_OR_RETURN(const std::string key, ReadPem(key_path, "tls_key"));
+  o.pem_key_cert_pairs.push_back({key, cert});
+  if (!client_ca_path.empty()) {
+    EXO_ASSIGN_OR_RETURN(o.pem_root_certs, ReadPem(client_ca_path, "tls_client_ca"));
+    o.client_certificate_request = GRPC_SSL_REQUEST_AND_REQUIRE_CLIENT_CERTIFICATE_AND_VERIFY;
+  }
+  return grpc::SslServerCredentials(o);
+}
+
 bool IsLoopback(const std::string& listen) {
   for (const char* p : {"127.", "localhost:", "[::1]:", "ipv4:127.", "ipv6:[::1]:"})
     if (absl::StartsWith(listen, p)) return true;

@@ -15,6 +15,8 @@
 #include <string>
 #include <vector>
 
+#include <grpcpp/security/server_credentials.h>
+
 #include "common/status.h"
 
 namespace exo {
@@ -58,6 +60,10 @@ class Authorizer {
 
 // TLS material for a listener: the PEM file at `path` (`what` names it in errors: "tls_cert").
 absl::StatusOr<std::string> ReadPem(const std::string& path, const char* what);
+// TLS server credentials from PEM files (server and relay): certificate + key, and with a
+// client CA, client certificates required and verified (mutual TLS).
+absl::StatusOr<std::shared_ptr<grpc::ServerCredentials>> SslServerCredentialsFromFiles(
+    const std::string& cert_path, const std::string& key_path, const std::string& client_ca_path);
 // Whether a listen address (host:port, or a gRPC peer "ipv4:127.0.0.1:5") is loopback only.
 bool IsLoopback(const std::string& listen);
 

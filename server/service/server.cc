@@ -945,17 +945,11 @@ absl::StatusOr<std::shared_ptr<grpc::ServerCredentials>> ExoviewServer::MakeServ
               config_.listen);
     return grpc::InsecureServerCredentials();
   }
-  grpc::SslServerCredentialsOptions o;
-  EXO_ASSIGN_OR_RETURN(const std::string cert, ReadPem(config_.tls_cert, "tls_cert"));
-  EXO_ASSIGN_OR_RETURN(const std::string key, ReadPem(config_.tls_key, "tls_key"));
-  o.pem_key_cert_pairs.push_back({key, cert});
-  if (!config_.tls_client_ca.empty()) {
-    EXO_ASSIGN_OR_RETURN(o.pem_root_certs, ReadPem(config_.tls_client_ca, "tls_client_ca"));
-    o.client_certificate_request = GRPC_SSL_REQUEST_AND_REQUIRE_CLIENT_CERTIFICATE_AND_VERIFY;
-  }
+  EXO_ASSIGN_OR_RETURN(auto creds, SslServerCredentialsFromFiles(config_.tls_cert, config_.tls_key,
+                                                                 config_.tls_client_ca));
   log->info("TLS on {}{}", config_.listen,
             config_.tls_client_ca.empty() ? "" : " with required client certificates (mutual TLS)");
-  return grpc::SslServerCredentials(o);
+  return creds;
 }
 
 int ExoviewServer::udp_pose_port() const { return udp_ ? udp_->port() : -1; }
