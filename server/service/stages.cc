@@ -26,12 +26,12 @@ absl::StatusOr<std::vector<std::unique_ptr<PipelineStage>>> MakeStages(
     EXO_ASSIGN_OR_RETURN(auto g, MakeGeometryStage(go, model, handoff));
     stages.push_back(std::move(g));
   }
-  if (config.enable_planning) {
-    PlanningStageOptions p = config.planning;
-    p.publish = config.publish;
-    EXO_ASSIGN_OR_RETURN(auto s, MakePlanningStage(p, model, handoff));
-    stages.push_back(std::move(s));
-  }
+  // Inpainting before planning: the planning stage adds the frame's stored views, so it must be
+  // the LAST stage, whose changes the pipeline applies together with the frame's journal ledger
+  // entry (Pipeline::RunStage BeginApply/EndApply). With inpainting last, a checkpoint taken
+  // between the two stages held a view whose frame the journal then replayed: the view was
+  // stored twice (service_durable_test, 1 run in 3 after the merge of issues 18 and 20). The
+  // inpainting stage needs only the regions and the frame, and publishes from its own worker.
   if (regions && store) {
     InpaintingStageOptions o = config.inpainting;
     o.publish = config.publish;
@@ -39,6 +39,12 @@ absl::StatusOr<std::vector<std::unique_ptr<PipelineStage>>> MakeStages(
     EXO_RETURN_IF_ERROR(o.Validate());
     auto s = MakeInpaintingStage(o, std::move(regions), store);
     if (inpainting) *inpainting = s.get();
+    stages.push_back(std::move(s));
+  }
+  if (config.enable_planning) {
+    PlanningStageOptions p = config.planning;
+    p.publish = config.publish;
+    EXO_ASSIGN_OR_RETURN(auto s, MakePlanningStage(p, model, handoff));
     stages.push_back(std::move(s));
   }
   return stages;
