@@ -61,6 +61,15 @@ absl::Status OnlineModelOptions::Validate() const {
     return absl::InvalidArgumentError("fuse_depth_downscale must be in [1, 8]");
   if (mesh_every_n_frames < 1)
     return absl::InvalidArgumentError("mesh_every_n_frames must be >= 1");
+  {
+    // The planner's own checks of the selection options, at configuration time.
+    planning::PlannerOptions po;
+    po.dispersion = dispersion;
+    po.dispersion_m_per_rad = dispersion_m_per_rad;
+    po.dispersion_guard = dispersion_guard;
+    po.dispersion_guard_relative = dispersion_guard_relative;
+    EXO_RETURN_IF_ERROR(po.Validate());
+  }
   if (tsdf_threads < 1) return absl::InvalidArgumentError("tsdf_threads must be >= 1");
   if (id_buffer_stride < 1 || id_buffer_stride > 32)
     return absl::InvalidArgumentError("id_buffer_stride must be in [1, 32]");
@@ -269,6 +278,10 @@ absl::StatusOr<std::unique_ptr<OnlinePlanner>> OnlinePlanner::Create(
   po.delta_tau_sum = options.delta_tau_sum;
   po.novelty_positional = options.novelty_positional;
   po.soft_saturation = options.soft_saturation;
+  po.dispersion = options.dispersion;
+  po.dispersion_m_per_rad = options.dispersion_m_per_rad;
+  po.dispersion_guard = options.dispersion_guard;
+  po.dispersion_guard_relative = options.dispersion_guard_relative;
   po.cell_size_m = setup.cell_m;
   po.d_max_m = setup.d_max_m;
   po.sigma_m = setup.sigma_m;

@@ -65,6 +65,11 @@ struct OnlineModelOptions {
   double delta_tau_sum = 0.05;
   bool novelty_positional = false;  // planning::PlannerOptions::novelty_positional (issue 22)
   bool soft_saturation = false;    // planning::PlannerOptions::soft_saturation
+  // planning::PlannerOptions::dispersion / _m_per_rad (0: d_max) / _guard (issues 15 / 22).
+  planning::PlannerOptions::Dispersion dispersion = planning::PlannerOptions::Dispersion::kOff;
+  double dispersion_m_per_rad = 0.0;
+  double dispersion_guard = 0.5;
+  double dispersion_guard_relative = 0.0;
   // Relative sharpness of each frame as the planner's candidate quality (issue 15;
   // planning/frame_quality.h). gamma 0 = off.
   planning::FrameQualityOptions frame_quality;

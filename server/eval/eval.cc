@@ -243,6 +243,10 @@ planning::PlannerOptions PlannerFor(const PolicyConfig& c, const Source& src, do
   po.cell_size_m = cell_m;
   po.novelty_positional = c.novelty_positional;
   po.soft_saturation = c.soft_saturation;
+  po.dispersion = static_cast<planning::PlannerOptions::Dispersion>(c.dispersion);
+  po.dispersion_m_per_rad = c.dispersion_m_per_rad;
+  po.dispersion_guard = c.dispersion_guard;
+  po.dispersion_guard_relative = c.dispersion_guard_relative;
   po.d_max_m = src.scale.d_max_m;
   po.sigma_m = src.scale.sigma_m;
   if (src.scale_mode == ScaleMode::kViewDepth && src.view_depth_m > 0) {
@@ -371,6 +375,10 @@ std::string ConfigJson(const std::string& dataset, const std::string& test_poses
                  {"online", int(PolicyIsOnline(c.policy))},
                  {"novelty_positional", int(c.novelty_positional)},
                  {"soft_saturation", int(c.soft_saturation)},
+                 {"dispersion", int(c.dispersion)},
+                 {"dispersion_m_per_rad", c.dispersion_m_per_rad},
+                 {"dispersion_guard", c.dispersion_guard},
+                 {"dispersion_guard_relative", c.dispersion_guard_relative},
                  {"sharp_gamma", c.sharp_gamma}};
   j["quality"] = {{"mssim", Round(r.quality.mssim, 4)},
                   {"psnr", Round(r.quality.psnr, 2)},
@@ -530,6 +538,10 @@ class Engine {
         mo.delta_tau_sum = po.delta_tau_sum;
         mo.novelty_positional = po.novelty_positional;
         mo.soft_saturation = po.soft_saturation;
+        mo.dispersion = po.dispersion;
+        mo.dispersion_m_per_rad = po.dispersion_m_per_rad;
+        mo.dispersion_guard = po.dispersion_guard;
+        mo.dispersion_guard_relative = po.dispersion_guard_relative;
         mo.frame_quality.gamma = c.sharp_gamma;
         mo.cell_areas = !c.face_areas;
         mo.id_buffer_stride = IdStride();

@@ -83,6 +83,13 @@ struct PolicyConfig {
   bool novelty_positional = false;
   // planning::PlannerOptions::soft_saturation; policy option "soft=1".
   bool soft_saturation = false;
+  // planning::PlannerOptions::dispersion / dispersion_m_per_rad; policy options "disp=1",
+  // "mpr=V".
+  int dispersion = 0;  // 0 off, 1 ties, 2 first
+  double dispersion_m_per_rad = 0.0;
+  double dispersion_guard = 0.5;  // policy option "dg=V"
+  double dispersion_guard_relative = 0.0;  // policy option "dgr=V"
+
   // OnlineModelOptions::frame_quality.gamma; policy option "sharp=G" (0 = off).
   double sharp_gamma = 0.0;
   double keyframe_threshold = 0.7;  // kKeyframe: InpaintFusion's ||I - M_i^-1 M_k||_F

@@ -155,10 +155,18 @@ absl::StatusOr<std::vector<PolicyConfig>> Configs(const Args& a) {
         else if (key == "blend_lambda") c.blend_lambda = v;
         else if (key == "tau_max") c.tau_max = v;
         else if (key == "soft") c.soft_saturation = v != 0;
+        else if (key == "disp") {
+          if (v != 0 && v != 1 && v != 2)
+            return absl::InvalidArgumentError("disp must be 0 (off), 1 (ties) or 2 (first)");
+          c.dispersion = static_cast<int>(v);
+        } else if (key == "dg") c.dispersion_guard = v;
+        else if (key == "dgr") c.dispersion_guard_relative = v;
+        else if (key == "mpr") c.dispersion_m_per_rad = v;
+        else if (key == "dts") c.delta_tau_sum = v;
         else if (key == "sharp") c.sharp_gamma = v;
         else
           return absl::InvalidArgumentError("unknown policy option " + key +
-                                            " (lambda, blend_lambda, tau_max, soft, sharp)");
+                                            " (lambda, blend_lambda, tau_max, soft, sharp, disp, mpr, dg, dgr, dts)");
       }
       c.tag = opts;
     }

@@ -12,6 +12,8 @@ namespace {
 
 constexpr int kMaxRMax = 64;
 constexpr int kMaxRenderRefs = 1024;
+// τ losses / gains closer than this are ties (a view over saturated cells: exactly 0).
+constexpr double kTie = 1e-9;
 
 bool Finite(const glm::dvec3& v) {
   return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z);
@@ -46,6 +48,18 @@ absl::Status PlannerOptions::Validate() const {
     return absl::InvalidArgumentError("planner delta_tau must be finite and >= 0");
   if (!std::isfinite(cell_size_m) || cell_size_m <= 0.0)
     return absl::InvalidArgumentError("planner cell_size_m must be finite and > 0");
+  if (!std::isfinite(dispersion_m_per_rad) || dispersion_m_per_rad < 0.0)
+    return absl::InvalidArgumentError("planner dispersion_m_per_rad must be finite and >= 0");
+  if (dispersion != Dispersion::kOff && dispersion != Dispersion::kTies &&
+      dispersion != Dispersion::kFirst)
+    return absl::InvalidArgumentError(absl::StrCat(
+        "planner dispersion must be 0 (off), 1 (ties) or 2 (first), got ", int(dispersion)));
+  if (!std::isfinite(dispersion_guard_relative) || dispersion_guard_relative < 0.0)
+    return absl::InvalidArgumentError("planner dispersion_guard_relative must be finite and >= 0");
+  if (!std::isfinite(dispersion_guard) || dispersion_guard < 0.0)
+    return absl::InvalidArgumentError("planner dispersion_guard must be finite and >= 0");
+  if (!std::isfinite(dispersion_min) || dispersion_min < 0.0)
+    return absl::InvalidArgumentError("planner dispersion_min must be finite and >= 0");
   return absl::OkStatus();
 }
 
@@ -211,8 +225,49 @@ void ViewPlanner::AddView(View view, std::vector<CellId>* changed) {
     }
   }
   bytes_ += view.bytes;
+  nearest_dirty_ = true;
   const ViewId id = view.id;
   views_.emplace(id, std::move(view));
+}
+
+double ViewPlanner::PoseDistance(const glm::dvec3& ca, const glm::dquat& qa,
+                                 const glm::dvec3& cb, const glm::dquat& qb) const {
+  const double mpr =
+      options_.dispersion_m_per_rad > 0.0 ? options_.dispersion_m_per_rad : options_.d_max_m;
+  // The rotation angle 2 acos(|q_a · q_b|) from the chord |q_a ∓ q_b| = 2 sin(α / 2) between
+  // the unit quaternions (α = half the rotation angle): 4 asin(chord / 2), well conditioned for
+  // nearly equal rotations, where acos near 1 loses half the digits.
+  const double sign = glm::dot(qa, qb) < 0.0 ? -1.0 : 1.0;
+  const double chord = glm::length(glm::dvec4(qa.w, qa.x, qa.y, qa.z) -
+                                   sign * glm::dvec4(qb.w, qb.x, qb.y, qb.z));
+  const double angle = 4.0 * std::asin(std::min(1.0, 0.5 * chord));
+  return glm::length(ca - cb) + mpr * angle;
+}
+
+void ViewPlanner::UpdateNearest() {
+  if (!nearest_dirty_) return;
+  nearest_.clear();
+  std::vector<const View*> vs;
+  vs.reserve(views_.size());
+  for (const auto& [id, v] : views_) vs.push_back(&v);
+  constexpr double kInf = std::numeric_limits<double>::infinity();
+  std::vector<Nearest> best(vs.size(), Nearest{kInf, kInf});
+  auto add = [](Nearest& n, double d) {
+    if (d < n.d1) {
+      n.d2 = n.d1;
+      n.d1 = d;
+    } else if (d < n.d2) {
+      n.d2 = d;
+    }
+  };
+  for (size_t i = 0; i < vs.size(); ++i)
+    for (size_t j = i + 1; j < vs.size(); ++j) {
+      const double dd = PoseDistance(vs[i]->centre, vs[i]->rotation, vs[j]->centre, vs[j]->rotation);
+      add(best[i], dd);
+      add(best[j], dd);
+    }
+  for (size_t i = 0; i < vs.size(); ++i) nearest_[vs[i]->id] = best[i];
+  nearest_dirty_ = false;
 }
 
 void ViewPlanner::RemoveView(ViewId id, std::vector<int32_t>* stale,
@@ -230,6 +285,7 @@ void ViewPlanner::RemoveView(ViewId id, std::vector<int32_t>* stale,
   }
   bytes_ -= view.bytes;
   views_.erase(it);
+  nearest_dirty_ = true;
 }
 
 bool ViewPlanner::RebuildRefs(int32_t cell) {
@@ -308,7 +364,8 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
   if (!(cand.quality > 0.0) || !(cand.quality <= 1.0))
     return absl::InvalidArgumentError(
         absl::StrCat("candidate quality must be in (0, 1], got ", cand.quality));
-  View view{cand.id, centre, cand.bytes, pixel_sr, cand.quality, {}, {}};
+  View view{cand.id, centre, cand.local_from_cam.rotation, cand.bytes, pixel_sr, cand.quality,
+            {}, {}};
   view.entries.reserve(cand.cells.size());
   view.pixels.reserve(cand.cells.size());
   for (const CellPixelCount& c : cand.cells) {
@@ -341,7 +398,14 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
     gain += Sat(t + e.phi) - Sat(t);
   }
 
+  const bool first = options_.dispersion == PlannerOptions::Dispersion::kFirst;
+  // kFirst's coverage guard in τ units: absolute, or relative to the mean τ per stored view.
+  const double guard = options_.dispersion_guard_relative > 0.0
+                           ? options_.dispersion_guard_relative * tau_sum_ /
+                                 static_cast<double>(std::max<size_t>(1, views_.size()))
+                           : options_.dispersion_guard;
   std::vector<ViewId> victims;
+  double victim_redundancy = 0.0;  // dispersion: the largest redundancy among the victims
   const bool full = views_.size() + 1 > options_.max_views ||
                     bytes_ + cand.bytes > options_.max_bytes;
   if (full) {
@@ -360,9 +424,26 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
     for (const Entry& e : view.entries) touch(e.cell, e.phi);
     size_t count = views_.size() + 1;
     size_t bytes = bytes_ + cand.bytes;
+    if (options_.dispersion != PlannerOptions::Dispersion::kOff) UpdateNearest();
+    // Dispersion: a view's redundancy = pose distance to its nearest neighbour in the store
+    // (smaller = more redundant). The two views of the closest pair tie: the one in the more
+    // crowded place goes (the smaller distance to its second neighbour, the candidate counted),
+    // so the store's smallest distance after the swap is as large as it can be; then the older.
+    auto redundancy = [&](const View& v) { return nearest_.at(v.id).d1; };
+    auto crowding = [&](const View& v) {
+      return std::min(nearest_.at(v.id).d2,
+                      PoseDistance(v.centre, v.rotation, view.centre, view.rotation));
+    };
+    auto more_redundant = [&](const View& v, double red, const View& b, double b_red) {
+      if (red != b_red) return red < b_red;
+      const double cv = crowding(v), cb = crowding(b);
+      if (cv != cb) return cv < cb;
+      return v.id < b.id;
+    };
     while (count > options_.max_views || bytes > options_.max_bytes) {
       const View* best = nullptr;
       double best_loss = -std::numeric_limits<double>::infinity();
+      double best_red = 0.0;
       for (const auto& [vid, v] : views_) {
         if (std::find(victims.begin(), victims.end(), vid) != victims.end()) continue;
         double loss = 0.0;  // τ_sum change caused by removing v (<= 0)
@@ -370,13 +451,44 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
           const double t = cells_[e.cell].tau + scratch_[e.cell];
           loss += Sat(t - e.phi) - Sat(t);
         }
-        if (loss > best_loss || (loss == best_loss && best != nullptr && vid < best->id)) {
+        if (first) {
+          // Dispersion first: the most redundant view among those whose removal loses at most
+          // dispersion_guard of τ (a cell's only views are kept); none such: the thesis' victim.
+          const bool ok = loss >= -guard;
+          const bool best_ok = best != nullptr && best_loss >= -guard;
+          if (best == nullptr || (ok && !best_ok) || (!ok && !best_ok && loss > best_loss)) {
+            best_loss = loss;
+            best = &v;
+            best_red = redundancy(v);
+          } else if (ok && best_ok) {
+            const double red = redundancy(v);
+            if (more_redundant(v, red, *best, best_red)) {
+              best_loss = loss;
+              best = &v;
+              best_red = red;
+            }
+          }
+        } else if (options_.dispersion != PlannerOptions::Dispersion::kOff) {
+          if (best == nullptr || loss > best_loss + kTie) {
+            best_loss = loss;
+            best = &v;
+            best_red = redundancy(v);
+          } else if (loss >= best_loss - kTie) {
+            const double red = redundancy(v);
+            if (more_redundant(v, red, *best, best_red)) {
+              best_loss = std::max(best_loss, loss);
+              best = &v;
+              best_red = red;
+            }
+          }
+        } else if (loss > best_loss || (loss == best_loss && best != nullptr && vid < best->id)) {
           best_loss = loss;
           best = &v;
         }
       }
       if (best == nullptr) break;  // cannot happen: bytes <= max_bytes once the store is empty
       victims.push_back(best->id);
+      victim_redundancy = std::max(victim_redundancy, best_red);
       for (const Entry& e : best->entries) touch(e.cell, -static_cast<double>(e.phi));
       --count;
       bytes -= best->bytes;
@@ -389,7 +501,21 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
   }
 
   d.gain = gain;
-  if (!(gain > options_.delta_tau_sum)) {
+  // Dispersion: not enough coverage gain, but the candidate spreads the store over the camera
+  // poses without losing coverage (full: farther from its nearest stored view than the victim
+  // from its own; room left: not a duplicate of a stored pose).
+  bool spread = false;
+  const double accept_gain = first && full ? guard : options_.delta_tau_sum;
+  const double min_gain = first ? -guard : -kTie;
+  if (options_.dispersion != PlannerOptions::Dispersion::kOff && !(gain > accept_gain) && gain >= min_gain) {
+    // As the min-distance policy: the candidate's nearest stored view (victims included, so a
+    // candidate next to the victim does not just replace it) must be farther than the victim's.
+    double nearest = std::numeric_limits<double>::infinity();
+    for (const auto& [vid, v] : views_)
+      nearest = std::min(nearest, PoseDistance(v.centre, v.rotation, view.centre, view.rotation));
+    spread = full ? nearest > victim_redundancy : nearest > options_.dispersion_min;
+  }
+  if (!(gain > accept_gain) && !spread) {
     d.reason = full ? absl::StrCat("store full and no victim gains more than delta_tau_sum (best ",
                                    gain, ")")
                     : absl::StrCat("coverage gain ", gain, " <= delta_tau_sum ",
@@ -399,7 +525,9 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
   }
 
   d.accepted = true;
-  d.reason = victims.empty() ? "accepted" : "accepted, replacing a victim";
+  d.reason = spread ? (victims.empty() ? "accepted (pose dispersion)"
+                                       : "accepted, replacing a more redundant view (pose dispersion)")
+                    : (victims.empty() ? "accepted" : "accepted, replacing a victim");
   // Victims leave first; the cells whose R(b_k) lost a victim are rebuilt from the final store
   // (the candidate included), the others get the candidate by the incremental rule.
   std::vector<int32_t> stale;

@@ -69,6 +69,31 @@ struct PlannerOptions {
   // over saturated cells costs 0 to remove, and the oldest such view went first) and coverage
   // keeps spreading over the cells with the fewest observations (issue 15 / 22).
   bool soft_saturation = false;
+  // Issue 15 / 22: pose dispersion. kTies: coverage first, pose dispersion among ties. The thesis' τ_sum saturates
+  // (τ_max): once the cells are covered, every view over saturated cells costs 0 to remove and
+  // a new view gains 0, so the store stops following the camera (ties went to the oldest view)
+  // and its views bunch where the camera hovered. kTies:
+  //  - victim ties (equal τ loss) go to the most redundant view: the smallest pose distance to
+  //    its nearest neighbour in the store (the candidate included);
+  //  - a candidate without enough coverage gain is still stored when it does not lose coverage
+  //    and is farther from its nearest stored view than the victim is from its own: a full store
+  //    then spreads over the camera poses like the min-distance policy, without giving up a
+  //    cell's only views; while the store has room, a candidate that is not a duplicate of a
+  //    stored pose (pose distance > dispersion_min) is stored.
+  // Pose distance = |Δt| + m_per_rad · angle (dispersion_m_per_rad; 0: d_max_m, so a turn
+  // counts as the displacement it causes at the typical viewing distance).
+  // kFirst reverses the order: a full store keeps the min-distance rule (the candidate replaces
+  // the most redundant view when it is farther from its nearest stored view than that view is
+  // from its own), restricted to victims whose removal loses at most dispersion_guard of τ_sum
+  // (so a cell's only views stay), and a candidate whose net τ gain exceeds dispersion_guard is
+  // stored as well (new surface), replacing that same most redundant view.
+  enum class Dispersion { kOff = 0, kTies = 1, kFirst = 2 };
+  Dispersion dispersion = Dispersion::kOff;
+  double dispersion_m_per_rad = 0.0;
+  double dispersion_guard = 0.5;  // τ units (kFirst)
+  // > 0: the guard is this fraction of the mean τ per stored view (τ_sum / n) instead.
+  double dispersion_guard_relative = 0.0;
+  double dispersion_min = 1e-3;  // pose-distance units (m)
 
   absl::Status Validate() const;
 
@@ -195,6 +220,7 @@ class ViewPlanner {
   struct View {
     ViewId id;
     glm::dvec3 centre;
+    glm::dquat rotation;
     size_t bytes;
     double pixel_sr = 0;            // A_px of the candidate's cell-id buffer
     double quality = 1;             // Candidate::quality
@@ -230,6 +256,16 @@ class ViewPlanner {
   std::vector<Cell> cells_;
   std::unordered_map<CellId, double> areas_;
   std::vector<double> scratch_;      // per-cell pending τ change during victim search
+  // Pose dispersion (options_.dispersion): distance of each stored view to its nearest other
+  // stored view, recomputed (O(n²)) when the store changed.
+  double PoseDistance(const glm::dvec3& ca, const glm::dquat& qa, const glm::dvec3& cb,
+                      const glm::dquat& qb) const;
+  void UpdateNearest();
+  struct Nearest {
+    double d1, d2;  // distances to the nearest and second-nearest other stored view
+  };
+  std::unordered_map<ViewId, Nearest> nearest_;
+  bool nearest_dirty_ = true;
 };
 
 }  // namespace exo::planning

@@ -1,3 +1,4 @@
+#include <map>
 #include "server/planning/view_planner.h"
 
 #include <cmath>
@@ -200,6 +201,65 @@ TEST(ViewPlanner, NoveltyWeightedPositionalTermRejectsDuplicates) {
   ASSERT_TRUE(ca.ok() && cb.ok());
   EXPECT_GT(ca->tau_sum, 0.0);
   EXPECT_DOUBLE_EQ(ca->tau_sum, cb->tau_sum);
+}
+
+// Issue 15 / 22: with the τ clamp saturated, the thesis' planner stops following the camera; with
+// dispersion a full store spreads over the camera poses without losing coverage, and an exact
+// duplicate pose is not stored.
+TEST(ViewPlanner, DispersionSpreadsASaturatedStoreWithoutLosingCoverage) {
+  auto min_pair = [](const std::vector<glm::dvec3>& c) {
+    double m = 1e300;
+    for (size_t i = 0; i < c.size(); ++i)
+      for (size_t j = i + 1; j < c.size(); ++j) m = std::min(m, glm::length(c[i] - c[j]));
+    return m;
+  };
+  double span[2] = {0, 0}, spread[2] = {0, 0};
+  for (bool disp : {false, true}) {
+    PlannerOptions o;
+    o.cell_size_m = 1.0;
+    o.tau_max = 0.05;  // every cell saturates with its first view
+    o.max_views = 4;
+    o.dispersion = disp ? PlannerOptions::Dispersion::kTies : PlannerOptions::Dispersion::kOff;
+    auto p = ViewPlanner::Create(o);
+    ASSERT_TRUE(p.ok());
+    const CellGrid grid = p->grid();
+    const glm::dvec3 target(0, 0, 0);
+    std::map<ViewId, glm::dvec3> centre;
+    ViewId id = 1;
+    // A hovering camera: four poses within 3 mm fill the store.
+    for (int i = 0; i < 4; ++i, ++id) {
+      const glm::dvec3 eye(0.001 * i, -3, 2);
+      auto d = p->Consider(MakeCandidate(id, eye, target, grid, 1000, 2.0));
+      ASSERT_TRUE(d.ok());
+      if (d->accepted) centre[id] = eye;
+    }
+    // The same pose again is a duplicate: never stored.
+    auto dup = p->Consider(MakeCandidate(id++, glm::dvec3(0, -3, 2), target, grid, 1000, 2.0));
+    ASSERT_TRUE(dup.ok());
+    EXPECT_FALSE(dup->accepted) << dup->reason;
+    // Then the camera moves along x, seeing the same (saturated) cells.
+    for (int i = 1; i <= 6; ++i, ++id) {
+      const glm::dvec3 eye(0.5 * (i % 2 ? i : -i), -3, 2);
+      const double before = p->tau_sum();
+      auto d = p->Consider(MakeCandidate(id, eye, target, grid, 1000, 2.0));
+      ASSERT_TRUE(d.ok());
+      if (!d->accepted) continue;
+      EXPECT_GE(d->tau_sum, before - 1e-9) << "a dispersion swap lost coverage: " << d->reason;
+      for (ViewId r : d->removed) centre.erase(r);
+      centre[id] = eye;
+      EXPECT_LE(p->num_views(), o.max_views);
+    }
+    std::vector<glm::dvec3> cs;
+    for (const auto& [v, c] : centre) cs.push_back(c);
+    ASSERT_EQ(cs.size(), p->num_views());
+    spread[disp] = min_pair(cs);
+    for (const glm::dvec3& c : cs) span[disp] = std::max(span[disp], std::abs(c.x));
+    EXPECT_NEAR(p->RecomputeTauSum(), p->tau_sum(), 1e-6);
+  }
+  EXPECT_LT(span[0], 0.01);    // the thesis' form keeps only the hover's poses
+  EXPECT_GT(span[1], 1.9);     // dispersion: the store follows the camera (x to ±3 m) ...
+  EXPECT_GT(spread[1], 0.9);   // ... and its poses are spread (none of the hover's cluster left
+                               // but one)
 }
 
 TEST(ViewPlanner, CameraInsideCell) {

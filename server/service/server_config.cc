@@ -35,6 +35,8 @@ template <typename T>
 std::string ValueText(const T& v) {
   if constexpr (std::is_same_v<T, bool>) {
     return v ? "true" : "false";
+  } else if constexpr (std::is_enum_v<T>) {
+    return absl::StrCat(static_cast<int>(v));
   } else {
     return absl::StrCat(v);
   }
@@ -131,6 +133,13 @@ std::vector<ConfigKey> MakeKeys() {
           EXO_FIELD(pipeline.model.lambda)),
       Key("delta_tau_sum", "minimum objective gain to accept a view",
           EXO_FIELD(pipeline.model.delta_tau_sum)),
+      Key("planner_dispersion",
+          "view selection: 0 = the thesis' coverage objective alone, 1 = pose dispersion among coverage ties, 2 = pose dispersion first, guarded by coverage (docs/planning.md)",
+          EXO_FIELD(pipeline.model.dispersion)),
+      Key("planner_dispersion_m_per_rad", "pose distance: metres per radian of turn (0: d_max)",
+          EXO_FIELD(pipeline.model.dispersion_m_per_rad)),
+      Key("planner_dispersion_guard", "dispersion 2: a view whose removal loses more coverage (tau) than this is kept, a frame that gains more is stored (1e9: no guard, pure pose dispersion)",
+          EXO_FIELD(pipeline.model.dispersion_guard)),
       Key("max_candidates_per_s_when_full",
           "planner candidates per s once the store is full (0: all)",
           EXO_FIELD(pipeline.model.max_candidates_per_s_when_full)),
