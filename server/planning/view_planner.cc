@@ -225,9 +225,9 @@ void ViewPlanner::AddView(View view, std::vector<CellId>* changed) {
     }
   }
   bytes_ += view.bytes;
-  nearest_dirty_ = true;
   const ViewId id = view.id;
-  views_.emplace(id, std::move(view));
+  auto [it, inserted] = views_.emplace(id, std::move(view));
+  if (options_.dispersion != PlannerOptions::Dispersion::kOff) NearestAdd(it->second);
 }
 
 double ViewPlanner::PoseDistance(const glm::dvec3& ca, const glm::dquat& qa,
@@ -244,30 +244,42 @@ double ViewPlanner::PoseDistance(const glm::dvec3& ca, const glm::dquat& qa,
   return glm::length(ca - cb) + mpr * angle;
 }
 
-void ViewPlanner::UpdateNearest() {
-  if (!nearest_dirty_) return;
-  nearest_.clear();
-  std::vector<const View*> vs;
-  vs.reserve(views_.size());
-  for (const auto& [id, v] : views_) vs.push_back(&v);
+void ViewPlanner::Nearest::Offer(double d, ViewId id) {
+  if (d < d1) {
+    d2 = d1;
+    id2 = id1;
+    d1 = d;
+    id1 = id;
+  } else if (d < d2) {
+    d2 = d;
+    id2 = id;
+  }
+}
+
+ViewPlanner::Nearest ViewPlanner::NearestOf(const View& v) const {
   constexpr double kInf = std::numeric_limits<double>::infinity();
-  std::vector<Nearest> best(vs.size(), Nearest{kInf, kInf});
-  auto add = [](Nearest& n, double d) {
-    if (d < n.d1) {
-      n.d2 = n.d1;
-      n.d1 = d;
-    } else if (d < n.d2) {
-      n.d2 = d;
-    }
-  };
-  for (size_t i = 0; i < vs.size(); ++i)
-    for (size_t j = i + 1; j < vs.size(); ++j) {
-      const double dd = PoseDistance(vs[i]->centre, vs[i]->rotation, vs[j]->centre, vs[j]->rotation);
-      add(best[i], dd);
-      add(best[j], dd);
-    }
-  for (size_t i = 0; i < vs.size(); ++i) nearest_[vs[i]->id] = best[i];
-  nearest_dirty_ = false;
+  Nearest n{kInf, kInf, 0, 0};
+  for (const auto& [id, u] : views_)
+    if (id != v.id) n.Offer(PoseDistance(v.centre, v.rotation, u.centre, u.rotation), id);
+  return n;
+}
+
+void ViewPlanner::NearestAdd(const View& v) {
+  constexpr double kInf = std::numeric_limits<double>::infinity();
+  Nearest n{kInf, kInf, 0, 0};
+  for (const auto& [id, u] : views_) {
+    if (id == v.id) continue;
+    const double d = PoseDistance(v.centre, v.rotation, u.centre, u.rotation);
+    n.Offer(d, id);
+    nearest_.at(id).Offer(d, v.id);
+  }
+  nearest_[v.id] = n;
+}
+
+void ViewPlanner::NearestRemove(ViewId gone) {
+  nearest_.erase(gone);
+  for (auto& [id, n] : nearest_)
+    if (n.id1 == gone || n.id2 == gone) n = NearestOf(views_.at(id));
 }
 
 void ViewPlanner::RemoveView(ViewId id, std::vector<int32_t>* stale,
@@ -285,7 +297,7 @@ void ViewPlanner::RemoveView(ViewId id, std::vector<int32_t>* stale,
   }
   bytes_ -= view.bytes;
   views_.erase(it);
-  nearest_dirty_ = true;
+  if (options_.dispersion != PlannerOptions::Dispersion::kOff) NearestRemove(id);
 }
 
 bool ViewPlanner::RebuildRefs(int32_t cell) {
@@ -424,7 +436,6 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
     for (const Entry& e : view.entries) touch(e.cell, e.phi);
     size_t count = views_.size() + 1;
     size_t bytes = bytes_ + cand.bytes;
-    if (options_.dispersion != PlannerOptions::Dispersion::kOff) UpdateNearest();
     // Dispersion: a view's redundancy = pose distance to its nearest neighbour in the store
     // (smaller = more redundant). The two views of the closest pair tie: the one in the more
     // crowded place goes (the smaller distance to its second neighbour, the candidate counted),

@@ -256,16 +256,20 @@ class ViewPlanner {
   std::vector<Cell> cells_;
   std::unordered_map<CellId, double> areas_;
   std::vector<double> scratch_;      // per-cell pending τ change during victim search
-  // Pose dispersion (options_.dispersion): distance of each stored view to its nearest other
-  // stored view, recomputed (O(n²)) when the store changed.
+  // Pose dispersion (options_.dispersion): each stored view's nearest and second-nearest other
+  // stored view, kept up to date incrementally (O(n) per added view; a removal recomputes only
+  // the views whose neighbour it was).
   double PoseDistance(const glm::dvec3& ca, const glm::dquat& qa, const glm::dvec3& cb,
                       const glm::dquat& qb) const;
-  void UpdateNearest();
   struct Nearest {
-    double d1, d2;  // distances to the nearest and second-nearest other stored view
+    double d1, d2;     // distances to the nearest and second-nearest other stored view
+    ViewId id1, id2;   // those views (0 when none)
+    void Offer(double d, ViewId id);
   };
+  Nearest NearestOf(const View& v) const;  // from scratch, O(n)
+  void NearestAdd(const View& v);          // v already in views_
+  void NearestRemove(ViewId id);           // id already erased from views_
   std::unordered_map<ViewId, Nearest> nearest_;
-  bool nearest_dirty_ = true;
 };
 
 }  // namespace exo::planning
