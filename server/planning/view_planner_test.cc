@@ -1,12 +1,14 @@
-#include <map>
 #include "server/planning/view_planner.h"
 
 #include <cmath>
 #include <limits>
+#include <map>
 #include <random>
 #include <set>
 
 #include <gtest/gtest.h>
+
+#include "absl/strings/match.h"
 
 #include "server/planning/coverage.h"
 
@@ -363,6 +365,63 @@ void CheckInvariants(const ViewPlanner& p, const PlannerOptions& o) {
 
 // A long stream over a 12 m x 12 m ground plane; store bounded by count and bytes with
 // variable frame sizes; incremental τ_sum must equal a from-scratch recomputation.
+// Both dispersion modes on a random stream with the byte bound binding (several victims per
+// candidate): bounds and τ bookkeeping hold, a dispersion swap never loses more coverage than
+// its guard (kTies: none; kFirst: dispersion_guard, absolute or relative), and the incremental
+// nearest-neighbour bookkeeping survives removals from outside.
+TEST(ViewPlanner, DispersionLongStreamKeepsBoundsAndGuard) {
+  using D = PlannerOptions::Dispersion;
+  struct Mode {
+    D mode;
+    double guard, guard_rel;
+  };
+  for (const Mode m : {Mode{D::kTies, 0.5, 0}, Mode{D::kFirst, 0.5, 0}, Mode{D::kFirst, 0, 0.65},
+                       Mode{D::kFirst, 1e9, 0}}) {
+    PlannerOptions o;
+    o.max_views = 12;
+    o.max_bytes = 12 * 1000;
+    o.r_max = 4;
+    o.cell_size_m = 1.0;
+    o.d_max_m = 3.0;
+    o.tau_max = 0.3;  // saturates after a few views: ties and dispersion swaps happen
+    o.delta_tau_sum = 0.01;
+    o.dispersion = m.mode;
+    o.dispersion_guard = m.guard;
+    o.dispersion_guard_relative = m.guard_rel;
+    auto p = ViewPlanner::Create(o).value();
+    std::mt19937 rng(11);
+    std::uniform_real_distribution<double> u(-6, 6), h(1.5, 5.0);
+    std::uniform_int_distribution<int> sz(600, 2500);
+    int spread = 0;
+    std::vector<std::pair<glm::dvec3, glm::dvec3>> past;  // (target, centre)
+    for (ViewId id = 1; id <= 300; ++id) {
+      glm::dvec3 target(u(rng), u(rng), 0);
+      glm::dvec3 centre = target + glm::dvec3(u(rng) * 0.5, u(rng) * 0.5, h(rng));
+      if (id > 20 && id % 2 == 0) {  // every other frame revisits an earlier place (saturation)
+        const auto& [t, c] = past[std::uniform_int_distribution<size_t>(0, past.size() - 1)(rng)];
+        target = t;
+        centre = c + glm::dvec3(u(rng), u(rng), u(rng)) * 0.05;
+      }
+      past.emplace_back(target, centre);
+      const double before = p.tau_sum();
+      const size_t n_before = p.num_views();
+      const double guard =
+          m.guard_rel > 0 ? m.guard_rel * before / double(std::max<size_t>(1, n_before)) : m.guard;
+      auto d = p.Consider(MakeCandidate(id, centre, target, p.grid(), size_t(sz(rng)), 6.0));
+      ASSERT_TRUE(d.ok()) << d.status();
+      if (d->accepted && absl::StrContains(d->reason, "dispersion")) {
+        ++spread;
+        if (m.mode == D::kTies) EXPECT_GE(d->gain, -1e-9) << d->reason;
+        else EXPECT_GE(d->gain, -guard - 1e-9) << d->reason;
+      }
+      CheckInvariants(p, o);
+      ASSERT_NEAR(p.tau_sum(), p.RecomputeTauSum(), 1e-9 * (1 + p.tau_sum())) << "step " << id;
+      if (id % 50 == 0 && p.num_views() > 1) ASSERT_TRUE(p.Remove(p.ViewIds().front()).ok());
+    }
+    EXPECT_GT(spread, 0) << "mode " << int(m.mode) << ": no dispersion decision was exercised";
+  }
+}
+
 TEST(ViewPlanner, LongStreamRespectsBoundsAndIncrementalTauSumIsExact) {
   PlannerOptions o;
   o.max_views = 12;
