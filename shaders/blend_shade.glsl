@@ -31,6 +31,12 @@ const int kViewTexels = 5;
 // n of §3.1.4 (BlendOptions::n_best), a specialisation constant: one pipeline per n, so the
 // disabled best-n slots and the n-th-best pick fold away at compile time.
 layout(constant_id = 0) const int kNBest = 3;
+// Which pixels a pipeline shades: both kinds (ShadePixel, the compute path), only those with a
+// proxy surface (ShadeSurface) or only those without (ShadeBackground); blend.frag.
+const int kBlendPassBoth = 0;
+const int kBlendPassSurface = 1;
+const int kBlendPassBackground = 2;
+layout(constant_id = 1) const int kBlendPass = kBlendPassBoth;
 
 // ---- best-n with the sample parameters carried along ----
 // Same selection as blend_math.h InsertBest (decreasing weight, w <= 0 ignored, ties keep the
@@ -137,12 +143,9 @@ vec4 ShadeBackground(ivec2 pixel) {
   return vec4(srgb, filled ? 64.0 / 255.0 : 0.0);
 }
 
-// rgb = sRGB, a = coverage (1 blended, 128/255 surface without a valid view, 64/255 no surface
-// but filled at infinity, 0 no surface).
-vec4 ShadePixel(ivec2 pixel) {
-  const vec4 g = texelFetch(gbuffer, pixel, 0);
-  if (g.w == 0.0) return ShadeBackground(pixel);  // no proxy surface
-  const vec3 x = g.xyz;
+// The blend at proxy surface point x: rgb = sRGB, a = coverage (1 blended, 128/255 surface
+// without a valid view).
+vec4 ShadeSurface(vec3 x) {
   const vec3 c_o = frame.cam_centre_cell.xyz;
   const float q = frame.cam_centre_cell.w;
   const uvec2 key = PackCell(ivec3(floor(x / q)));
@@ -255,4 +258,12 @@ vec4 ShadePixel(ivec2 pixel) {
   vec3 srgb;
   const bool covered = BlendBest(best, n, srgb);
   return vec4(srgb, covered ? 1.0 : 128.0 / 255.0);
+}
+
+// rgb = sRGB, a = coverage (1 blended, 128/255 surface without a valid view, 64/255 no surface
+// but filled at infinity, 0 no surface).
+vec4 ShadePixel(ivec2 pixel) {
+  const vec4 g = texelFetch(gbuffer, pixel, 0);
+  if (g.w == 0.0) return ShadeBackground(pixel);  // no proxy surface
+  return ShadeSurface(g.xyz);
 }

@@ -202,12 +202,13 @@ void FrameRenderer::FillFrame(const PinholeCamera& camera, const Rigid3d& local_
 
 // Records the proxy draw with `pipe` into `t`, copies the colour attachment to t.readback.
 // deferred == false: draws the proxy chunks with `pipe` into t.fb. deferred == true (blend):
-// first the proxy into the G-buffer (gbuffer_pipe, t.gbuffer_fb), then one full-screen
-// triangle with `pipe` into t.fb, or with a compute pipe blend.comp into t.blend_out and no
-// read-back; one command buffer, one submit.
+// first the proxy into the G-buffer (gbuffer_pipe, t.gbuffer_fb), then full-screen triangles
+// with `pipe` (surface pixels) and `sky_pipe` (pixels without surface, if any) into t.fb, or
+// with a compute pipe blend.comp into t.blend_out and no read-back; one command buffer, one
+// submit.
 absl::Status FrameRenderer::Draw(RenderTarget& t, VkRenderPass pass, VkPipeline pipe,
                                  const VkClearValue& clear, uint32_t texel_bytes, bool deferred,
-                                 VkPipeline compute_pipe) {
+                                 VkPipeline compute_pipe, VkPipeline sky_pipe) {
   EXO_RETURN_IF_ERROR(UpdateDescriptors());
   const Pipelines& p = *pipes_;
   return ctx_.Submit([&](VkCommandBuffer cmd) {
@@ -218,8 +219,15 @@ absl::Status FrameRenderer::Draw(RenderTarget& t, VkRenderPass pass, VkPipeline 
       chunks_.RecordDraws(cmd);
       vkCmdEndRenderPass(cmd);
       if (compute_pipe != VK_NULL_HANDLE) return RecordComputeBlend(cmd, p, t, compute_pipe);
+      // The surface pixels (pipe), then the pixels without a surface (sky_pipe; without it they
+      // keep the clear value, the background colour with alpha 0, what the background pass
+      // writes when it has no view).
       RecordBeginPass(cmd, p, pass, t.fb.get(), clear, pipe, t.w, t.h);
       vkCmdDraw(cmd, 3, 1, 0, 0);
+      if (sky_pipe != VK_NULL_HANDLE) {
+        vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_GRAPHICS, sky_pipe);
+        vkCmdDraw(cmd, 3, 1, 0, 0);
+      }
       vkCmdEndRenderPass(cmd);
     } else {
       RecordBeginPass(cmd, p, pass, t.fb.get(), clear, pipe, t.w, t.h);
@@ -305,12 +313,13 @@ void FrameRenderer::UploadBlendFrame(const PinholeCamera& camera, const Rigid3d&
 }
 
 // The deferred blend of one frame into color_target_ (graphics or compute).
-absl::Status FrameRenderer::DrawBlend(const blend::BlendOptions& bo) {
+absl::Status FrameRenderer::DrawBlend(const blend::BlendOptions& bo, int sky_views) {
   VkClearValue clear{};
   clear.color = {{bo.background_srgb.x, bo.background_srgb.y, bo.background_srgb.z, 0.0f}};
   EXO_RETURN_IF_ERROR(pipes_->EnsureBlendPipe(bo.n_best));
-  return Draw(color_target_, pipes_->color_pass(), pipes_->blend_pipe(bo.n_best), clear, 4,
-              /*deferred=*/true, pipes_->blend_compute_pipe(bo.n_best));
+  return Draw(color_target_, pipes_->blend_pass(), pipes_->blend_pipe(bo.n_best), clear, 4,
+              /*deferred=*/true, pipes_->blend_compute_pipe(bo.n_best),
+              sky_views > 0 ? pipes_->blend_sky_pipe(bo.n_best) : VK_NULL_HANDLE);
 }
 
 absl::StatusOr<RenderResult> FrameRenderer::Render(const PinholeCamera& camera,
@@ -328,7 +337,7 @@ absl::StatusOr<RenderResult> FrameRenderer::Render(const PinholeCamera& camera,
   cells_.RankRefs(glm::vec3(f.cam_centre_cell), camera, local_from_cam, grid_.cell_size_m, bo);
   r.rank_ms = MsSince(tr);
   const auto t0 = Clock::now();
-  EXO_RETURN_IF_ERROR(DrawBlend(bo));
+  EXO_RETURN_IF_ERROR(DrawBlend(bo, f.bg_params.x));
   r.gpu_ms = MsSince(t0);
   const auto t1 = Clock::now();
   UnpackBlendOutput(

@@ -58,11 +58,12 @@ class FrameRenderer {
   void UploadBlendFrame(const PinholeCamera& camera, const Rigid3d& local_from_cam,
                         const blend::BlendOptions& bo, GpuFrame* f,
                         std::vector<ViewId>* bg_ids) const;
-  // The deferred blend of one frame into color_target_ (graphics or compute).
-  absl::Status DrawBlend(const blend::BlendOptions& bo);
+  // The deferred blend of one frame into color_target_ (graphics or compute); sky_views: the
+  // frame's background views (0: the pass for pixels without surface is not drawn).
+  absl::Status DrawBlend(const blend::BlendOptions& bo, int sky_views);
   absl::Status Draw(RenderTarget& t, VkRenderPass pass, VkPipeline pipe, const VkClearValue& clear,
                     uint32_t texel_bytes, bool deferred = false,
-                    VkPipeline compute_pipe = VK_NULL_HANDLE);
+                    VkPipeline compute_pipe = VK_NULL_HANDLE, VkPipeline sky_pipe = VK_NULL_HANDLE);
 
   const Context& ctx_;
   const VulkanRendererOptions& opt_;

@@ -1,7 +1,7 @@
 // PRIVATE to client/vulkan: the renderer's fixed GPU programme state. Samplers, the one
-// descriptor set (bindings 0..8 of shaders/lumigraph_common.glsl) and its layout, the four
-// render passes (blend colour, G-buffer, cell id, view depth) and their pipelines; the blend
-// pipelines are specialised per n_best and created on first use.
+// descriptor set (bindings 0..8 of shaders/lumigraph_common.glsl) and its layout, the render
+// passes (colour, deferred blend colour, G-buffer, cell id, view depth) and their pipelines; the
+// blend pipelines are specialised per n_best and created on first use.
 #pragma once
 
 #include <cstddef>
@@ -33,8 +33,12 @@ class Pipelines {
 
   // Creates the blend pipeline for `n_best` (1..kMaxBlendViews) unless it exists.
   absl::Status EnsureBlendPipe(int n_best);
-  // The blend pipeline of `n_best` for the mode in use; the other mode's is VK_NULL_HANDLE.
+  // The blend pipelines of `n_best` for the mode in use; the other mode's are VK_NULL_HANDLE.
+  // Fragment mode: two full-screen passes selected by the G-buffer pass's depth (early depth
+  // test, so llvmpipe skips every 4x4 block where no fragment passes): blend_pipe shades the
+  // pixels with a proxy surface (depth < 1), blend_sky_pipe the others (background at infinity).
   VkPipeline blend_pipe(int n_best) const { return blend_pipes_[n_best].get(); }
+  VkPipeline blend_sky_pipe(int n_best) const { return blend_sky_pipes_[n_best].get(); }
   VkPipeline blend_compute_pipe(int n_best) const { return blend_comp_pipes_[n_best].get(); }
   bool blend_compute() const { return blend_compute_; }
 
@@ -42,6 +46,9 @@ class Pipelines {
   absl::Status WriteDescriptors(const DescriptorInputs& in);
 
   VkRenderPass color_pass() const { return color_pass_.get(); }
+  // Colour pass of the deferred blend: same attachments as color_pass (compatible framebuffer)
+  // but the depth attachment is LOADED from the G-buffer pass (which stores it).
+  VkRenderPass blend_pass() const { return blend_pass_.get(); }
   VkRenderPass gbuffer_pass() const { return gbuffer_pass_.get(); }
   VkRenderPass cellid_pass() const { return cellid_pass_.get(); }
   VkRenderPass zdepth_pass() const { return zdepth_pass_.get(); }
@@ -58,14 +65,20 @@ class Pipelines {
   absl::Status CreateDescriptorSet();
   absl::StatusOr<UniqueBufferView> MakeBufferView(const Buffer& b, VkFormat format) const;
   // sampled_output: the colour attachment ends in SHADER_READ_ONLY_OPTIMAL for a later pass's
-  // shader (the G-buffer); otherwise in TRANSFER_SRC_OPTIMAL for read-back.
+  // shader (the G-buffer) and the depth attachment is stored; otherwise the colour ends in
+  // TRANSFER_SRC_OPTIMAL for read-back. load_depth: the depth attachment is loaded (the blend
+  // pass reads the G-buffer pass's depth) instead of cleared.
   absl::StatusOr<UniqueRenderPass> CreateRenderPass(VkFormat color_format,
-                                                    bool sampled_output = false) const;
+                                                    bool sampled_output = false,
+                                                    bool load_depth = false) const;
   absl::StatusOr<UniqueShaderModule> CreateModule(const uint32_t* code, size_t bytes) const;
-  // fullscreen: one triangle over the viewport (no vertex input, no depth test) for the
-  // deferred blend pass; otherwise the proxy-mesh pipeline (depth test LESS + write).
+  // kMesh: the proxy-mesh pipeline (depth test LESS + write). The others draw one triangle over
+  // the viewport at depth 1 (no vertex input, no depth write) for the deferred blend pass:
+  // kFullscreenSurface passes where the G-buffer pass left a surface (1 > depth),
+  // kFullscreenSky where it left none (1 <= depth, i.e. the clear value 1).
+  enum class Geometry { kMesh, kFullscreenSurface, kFullscreenSky };
   absl::StatusOr<UniquePipeline> CreatePipeline(VkRenderPass pass, const uint32_t* frag,
-                                                size_t frag_bytes, bool fullscreen = false,
+                                                size_t frag_bytes, Geometry geometry = Geometry::kMesh,
                                                 const VkSpecializationInfo* spec = nullptr) const;
   absl::Status CreateComputeBlendPipe(int n_best, const VkSpecializationInfo& spec);
 
@@ -77,11 +90,12 @@ class Pipelines {
   UniqueDescriptorPool desc_pool_;
   VkDescriptorSet desc_set_ = VK_NULL_HANDLE;
   UniqueBufferView buffer_views_[4];  // views, cell table, refs, ranked refs
-  UniqueRenderPass color_pass_, cellid_pass_, zdepth_pass_, gbuffer_pass_;
+  UniqueRenderPass color_pass_, blend_pass_, cellid_pass_, zdepth_pass_, gbuffer_pass_;
   UniquePipeline gbuffer_pipe_, cellid_pipe_, zdepth_pipe_;
   // Blend pipelines per n_best (specialisation constant 0 of blend.frag / blend.comp: the
   // best-n slots and the n-th-best pick are then compile-time; measured ~6 % of the frame).
   UniquePipeline blend_pipes_[blend::kMaxBlendViews + 1];
+  UniquePipeline blend_sky_pipes_[blend::kMaxBlendViews + 1];
   UniquePipeline blend_comp_pipes_[blend::kMaxBlendViews + 1];
 };
 
