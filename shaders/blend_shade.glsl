@@ -37,6 +37,9 @@ const int kBlendPassBoth = 0;
 const int kBlendPassSurface = 1;
 const int kBlendPassBackground = 2;
 layout(constant_id = 1) const int kBlendPass = kBlendPassBoth;
+// Whether this frame has inpainted keyframes (frame.ip_params.x > 0); 0 compiles their loop out
+// (llvmpipe runs a loop's body at least once, masked, even for a count of 0).
+layout(constant_id = 2) const int kInpainted = 1;
 
 // ---- best-n with the sample parameters carried along ----
 // Same selection as blend_math.h InsertBest (decreasing weight, w <= 0 ignored, ties keep the
@@ -186,7 +189,7 @@ vec4 ShadeSurface(vec3 x) {
   // keyframe's ROI (colour alpha = label 1 at the point's nearest pixel) is blended from the
   // inpainted keyframes whose ROI holds it only; the cell's observed references are then skipped.
   bool in_roi = false;
-  for (int j = 0; j < frame.ip_params.x; ++j) {
+  for (int j = 0; kInpainted != 0 && j < frame.ip_params.x; ++j) {
     const int layer = frame.ip_layers[j / 4][j % 4];
     const int base = layer * kViewTexels;
     const vec4 hx = vec4(x, 1.0);

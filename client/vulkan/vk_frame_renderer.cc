@@ -313,13 +313,14 @@ void FrameRenderer::UploadBlendFrame(const PinholeCamera& camera, const Rigid3d&
 }
 
 // The deferred blend of one frame into color_target_ (graphics or compute).
-absl::Status FrameRenderer::DrawBlend(const blend::BlendOptions& bo, int sky_views) {
+absl::Status FrameRenderer::DrawBlend(const blend::BlendOptions& bo, int sky_views,
+                                      bool inpainted) {
   VkClearValue clear{};
   clear.color = {{bo.background_srgb.x, bo.background_srgb.y, bo.background_srgb.z, 0.0f}};
-  EXO_RETURN_IF_ERROR(pipes_->EnsureBlendPipe(bo.n_best));
-  return Draw(color_target_, pipes_->blend_pass(), pipes_->blend_pipe(bo.n_best), clear, 4,
-              /*deferred=*/true, pipes_->blend_compute_pipe(bo.n_best),
-              sky_views > 0 ? pipes_->blend_sky_pipe(bo.n_best) : VK_NULL_HANDLE);
+  EXO_RETURN_IF_ERROR(pipes_->EnsureBlendPipe(bo.n_best, inpainted));
+  return Draw(color_target_, pipes_->blend_pass(), pipes_->blend_pipe(bo.n_best, inpainted), clear,
+              4, /*deferred=*/true, pipes_->blend_compute_pipe(bo.n_best, inpainted),
+              sky_views > 0 ? pipes_->blend_sky_pipe(bo.n_best, inpainted) : VK_NULL_HANDLE);
 }
 
 absl::StatusOr<RenderResult> FrameRenderer::Render(const PinholeCamera& camera,
@@ -337,7 +338,7 @@ absl::StatusOr<RenderResult> FrameRenderer::Render(const PinholeCamera& camera,
   cells_.RankRefs(glm::vec3(f.cam_centre_cell), camera, local_from_cam, grid_.cell_size_m, bo);
   r.rank_ms = MsSince(tr);
   const auto t0 = Clock::now();
-  EXO_RETURN_IF_ERROR(DrawBlend(bo, f.bg_params.x));
+  EXO_RETURN_IF_ERROR(DrawBlend(bo, f.bg_params.x, f.ip_params.x > 0));
   r.gpu_ms = MsSince(t0);
   const auto t1 = Clock::now();
   UnpackBlendOutput(

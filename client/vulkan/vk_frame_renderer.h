@@ -59,8 +59,9 @@ class FrameRenderer {
                         const blend::BlendOptions& bo, GpuFrame* f,
                         std::vector<ViewId>* bg_ids) const;
   // The deferred blend of one frame into color_target_ (graphics or compute); sky_views: the
-  // frame's background views (0: the pass for pixels without surface is not drawn).
-  absl::Status DrawBlend(const blend::BlendOptions& bo, int sky_views);
+  // frame's background views (0: the pass for pixels without surface is not drawn);
+  // inpainted: the frame has inpainted keyframes (else the pipeline without their loop).
+  absl::Status DrawBlend(const blend::BlendOptions& bo, int sky_views, bool inpainted);
   absl::Status Draw(RenderTarget& t, VkRenderPass pass, VkPipeline pipe, const VkClearValue& clear,
                     uint32_t texel_bytes, bool deferred = false,
                     VkPipeline compute_pipe = VK_NULL_HANDLE, VkPipeline sky_pipe = VK_NULL_HANDLE);

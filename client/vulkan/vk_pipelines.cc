@@ -26,7 +26,7 @@ absl::StatusOr<std::unique_ptr<Pipelines>> Pipelines::Create(const Context& ctx,
                                                              /*sampled_output=*/true));
   EXO_ASSIGN_OR_RETURN(p->cellid_pass_, p->CreateRenderPass(VK_FORMAT_R32G32_UINT));
   EXO_ASSIGN_OR_RETURN(p->zdepth_pass_, p->CreateRenderPass(VK_FORMAT_R32_SFLOAT));
-  EXO_RETURN_IF_ERROR(p->EnsureBlendPipe(blend::BlendOptions{}.n_best));
+  EXO_RETURN_IF_ERROR(p->EnsureBlendPipe(blend::BlendOptions{}.n_best, /*inpainted=*/false));
   EXO_ASSIGN_OR_RETURN(p->gbuffer_pipe_, p->CreatePipeline(p->gbuffer_pass_.get(), kSpvGbufferFrag,
                                                            sizeof(kSpvGbufferFrag)));
   EXO_ASSIGN_OR_RETURN(p->cellid_pipe_, p->CreatePipeline(p->cellid_pass_.get(), kSpvCellidFrag,
@@ -36,30 +36,35 @@ absl::StatusOr<std::unique_ptr<Pipelines>> Pipelines::Create(const Context& ctx,
   return p;
 }
 
-absl::Status Pipelines::EnsureBlendPipe(int n_best) {
+absl::Status Pipelines::EnsureBlendPipe(int n_best, bool inpainted) {
   if (n_best < 1 || n_best > blend::kMaxBlendViews)
     return absl::InvalidArgumentError("n_best out of range");
-  if (blend_compute_ ? bool(blend_comp_pipes_[n_best]) : bool(blend_pipes_[n_best]))
-    return absl::OkStatus();
+  BlendPipes& b = blend_pipes_[n_best][inpainted ? 1 : 0];
+  if (blend_compute_ ? bool(b.compute) : bool(b.surface)) return absl::OkStatus();
   // Specialisation constants of blend_shade.glsl: 0 = n_best, 1 = which pixels the pipeline
-  // shades (kBlendPass: 0 both, the compute path; 1 surface; 2 background at infinity).
-  int32_t values[2] = {n_best, 0};
-  const VkSpecializationMapEntry entries[2] = {{0, 0, sizeof(int32_t)},
-                                               {1, sizeof(int32_t), sizeof(int32_t)}};
-  VkSpecializationInfo spec{2, entries, sizeof(values), values};
-  if (blend_compute_) return CreateComputeBlendPipe(n_best, spec);
+  // shades (kBlendPass: 0 both, the compute path; 1 surface; 2 background at infinity),
+  // 2 = whether the frame has inpainted keyframes (kInpainted: 0 compiles their loop out).
+  int32_t values[3] = {n_best, 0, inpainted ? 1 : 0};
+  const VkSpecializationMapEntry entries[3] = {{0, 0, sizeof(int32_t)},
+                                               {1, sizeof(int32_t), sizeof(int32_t)},
+                                               {2, 2 * sizeof(int32_t), sizeof(int32_t)}};
+  VkSpecializationInfo spec{3, entries, sizeof(values), values};
+  if (blend_compute_) {
+    EXO_ASSIGN_OR_RETURN(b.compute, CreateComputeBlendPipe(spec));
+    return absl::OkStatus();
+  }
   values[1] = 1;
-  EXO_ASSIGN_OR_RETURN(blend_pipes_[n_best],
+  EXO_ASSIGN_OR_RETURN(b.surface,
                        CreatePipeline(blend_pass_.get(), kSpvBlendFrag, sizeof(kSpvBlendFrag),
                                       Geometry::kFullscreenSurface, &spec));
   values[1] = 2;
-  EXO_ASSIGN_OR_RETURN(blend_sky_pipes_[n_best],
-                       CreatePipeline(blend_pass_.get(), kSpvBlendFrag, sizeof(kSpvBlendFrag),
-                                      Geometry::kFullscreenSky, &spec));
+  EXO_ASSIGN_OR_RETURN(b.sky, CreatePipeline(blend_pass_.get(), kSpvBlendFrag, sizeof(kSpvBlendFrag),
+                                             Geometry::kFullscreenSky, &spec));
   return absl::OkStatus();
 }
 
-absl::Status Pipelines::CreateComputeBlendPipe(int n_best, const VkSpecializationInfo& spec) {
+absl::StatusOr<UniquePipeline> Pipelines::CreateComputeBlendPipe(
+    const VkSpecializationInfo& spec) const {
   EXO_ASSIGN_OR_RETURN(auto cs, CreateModule(kSpvBlendComp, sizeof(kSpvBlendComp)));
   VkComputePipelineCreateInfo ci{VK_STRUCTURE_TYPE_COMPUTE_PIPELINE_CREATE_INFO};
   ci.stage.sType = VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO;
@@ -70,8 +75,7 @@ absl::Status Pipelines::CreateComputeBlendPipe(int n_best, const VkSpecializatio
   ci.layout = pipe_layout_.get();
   VkPipeline raw;
   EXO_VK_RETURN(vkCreateComputePipelines(ctx_.device(), VK_NULL_HANDLE, 1, &ci, nullptr, &raw));
-  blend_comp_pipes_[n_best] = UniquePipeline(ctx_.device(), raw);
-  return absl::OkStatus();
+  return UniquePipeline(ctx_.device(), raw);
 }
 
 absl::Status Pipelines::CreateSamplers() {

@@ -31,15 +31,22 @@ class Pipelines {
   // blend_compute: the blend runs as blend.comp over the G-buffer instead of blend.frag.
   static absl::StatusOr<std::unique_ptr<Pipelines>> Create(const Context& ctx, bool blend_compute);
 
-  // Creates the blend pipeline for `n_best` (1..kMaxBlendViews) unless it exists.
-  absl::Status EnsureBlendPipe(int n_best);
+  // Creates the blend pipelines for `n_best` (1..kMaxBlendViews) and frames with / without
+  // inpainted keyframes unless they exist.
+  absl::Status EnsureBlendPipe(int n_best, bool inpainted);
   // The blend pipelines of `n_best` for the mode in use; the other mode's are VK_NULL_HANDLE.
   // Fragment mode: two full-screen passes selected by the G-buffer pass's depth (early depth
   // test, so llvmpipe skips every 4x4 block where no fragment passes): blend_pipe shades the
   // pixels with a proxy surface (depth < 1), blend_sky_pipe the others (background at infinity).
-  VkPipeline blend_pipe(int n_best) const { return blend_pipes_[n_best].get(); }
-  VkPipeline blend_sky_pipe(int n_best) const { return blend_sky_pipes_[n_best].get(); }
-  VkPipeline blend_compute_pipe(int n_best) const { return blend_comp_pipes_[n_best].get(); }
+  VkPipeline blend_pipe(int n_best, bool inpainted) const {
+    return blend_pipes_[n_best][inpainted].surface.get();
+  }
+  VkPipeline blend_sky_pipe(int n_best, bool inpainted) const {
+    return blend_pipes_[n_best][inpainted].sky.get();
+  }
+  VkPipeline blend_compute_pipe(int n_best, bool inpainted) const {
+    return blend_pipes_[n_best][inpainted].compute.get();
+  }
   bool blend_compute() const { return blend_compute_; }
 
   // Points every binding at `in` (new texel-buffer views over the current buffers).
@@ -80,7 +87,7 @@ class Pipelines {
   absl::StatusOr<UniquePipeline> CreatePipeline(VkRenderPass pass, const uint32_t* frag,
                                                 size_t frag_bytes, Geometry geometry = Geometry::kMesh,
                                                 const VkSpecializationInfo* spec = nullptr) const;
-  absl::Status CreateComputeBlendPipe(int n_best, const VkSpecializationInfo& spec);
+  absl::StatusOr<UniquePipeline> CreateComputeBlendPipe(const VkSpecializationInfo& spec) const;
 
   const Context& ctx_;
   const bool blend_compute_;
@@ -93,10 +100,13 @@ class Pipelines {
   UniqueRenderPass color_pass_, blend_pass_, cellid_pass_, zdepth_pass_, gbuffer_pass_;
   UniquePipeline gbuffer_pipe_, cellid_pipe_, zdepth_pipe_;
   // Blend pipelines per n_best (specialisation constant 0 of blend.frag / blend.comp: the
-  // best-n slots and the n-th-best pick are then compile-time; measured ~6 % of the frame).
-  UniquePipeline blend_pipes_[blend::kMaxBlendViews + 1];
-  UniquePipeline blend_sky_pipes_[blend::kMaxBlendViews + 1];
-  UniquePipeline blend_comp_pipes_[blend::kMaxBlendViews + 1];
+  // best-n slots and the n-th-best pick are then compile-time; measured ~6 % of the frame) and
+  // per frame with / without inpainted keyframes (constant 2: their per-pixel loop costs ~4 %
+  // of the frame even with no keyframe, llvmpipe runs a loop body at least once).
+  struct BlendPipes {
+    UniquePipeline surface, sky, compute;
+  };
+  BlendPipes blend_pipes_[blend::kMaxBlendViews + 1][2];
 };
 
 }  // namespace exo::vk
