@@ -35,9 +35,11 @@ struct GpuFrame {
   // nearest first), their texture layers in ip_layers (4 per ivec4).
   glm::ivec4 ip_params;
   glm::ivec4 ip_layers[kMaxInpaintedViews / 4];
+  // RenderFloor (floor.frag): rows of one view's P and (width, height, layer, 0).
+  glm::vec4 floor_view[4];
 };
 static_assert(sizeof(GpuFrame) == 128 + 48 + 16 + 16 * kBgViewTexels * blend::kMaxBackgroundViews +
-                                      16 + 16 * (kMaxInpaintedViews / 4));
+                                      16 + 16 * (kMaxInpaintedViews / 4) + 64);
 
 namespace {
 
@@ -353,6 +355,45 @@ absl::StatusOr<RenderResult> FrameRenderer::Render(const PinholeCamera& camera,
     r.filled_pixels = FillHoles(r.color, known);
     r.fill_ms = MsSince(tf);
   }
+  return r;
+}
+
+absl::StatusOr<RenderResult> FrameRenderer::RenderFloor(const PinholeCamera& camera,
+                                                        const Rigid3d& local_from_cam) {
+  EXO_RETURN_IF_ERROR(CheckCamera(camera, local_from_cam));
+  const uint32_t w = camera.width, h = camera.height;
+  EXO_RETURN_IF_ERROR(
+      floor_target_.Ensure(ctx_, pipes_->color_pass(), VK_FORMAT_R8G8B8A8_UNORM, w, h).status());
+  GpuFrame f{};
+  FillFrame(camera, local_from_cam, &f);
+  // The resident view nearest the novel camera (ties: lower id).
+  const glm::vec3 c_o(local_from_cam.translation);
+  const ViewStore::Entry* best = nullptr;
+  ViewId best_id = 0;
+  float best_d = 0.0f;
+  for (const auto& [id, e] : views_.entries()) {
+    const float d = glm::length(e.params.centre_local - c_o);
+    if (!best || d < best_d || (d == best_d && id < best_id)) {
+      best = &e;
+      best_id = id;
+      best_d = d;
+    }
+  }
+  if (!best) return absl::FailedPreconditionError("RenderFloor needs a resident view");
+  const GpuView& v = views_.records()[best->slot];
+  f.floor_view[0] = v.p0;
+  f.floor_view[1] = v.p1;
+  f.floor_view[2] = v.p2;
+  f.floor_view[3] = glm::vec4(v.size_layer.x, v.size_layer.y, v.size_layer.z, 0.0f);
+  std::memcpy(frame_ubo_.mapped, &f, sizeof(f));
+  VkClearValue clear{};
+  RenderResult r;
+  const auto t0 = Clock::now();
+  EXO_RETURN_IF_ERROR(Draw(floor_target_, pipes_->color_pass(), pipes_->floor_pipe(), clear, 4));
+  r.gpu_ms = MsSince(t0);
+  const auto t1 = Clock::now();
+  UnpackBlendOutput(static_cast<const uint8_t*>(floor_target_.readback.mapped), w, h, &r);
+  r.readback_ms = MsSince(t1);
   return r;
 }
 

@@ -34,6 +34,9 @@ class FrameRenderer {
                                       const blend::BlendOptions& bo);
   absl::StatusOr<exo::Image<uint64_t>> RenderCellIds(const PinholeCamera& camera,
                                                      const Rigid3d& local_from_cam);
+  // VulkanRenderer::RenderFloor (shaders/floor.frag).
+  absl::StatusOr<RenderResult> RenderFloor(const PinholeCamera& camera,
+                                           const Rigid3d& local_from_cam);
   absl::StatusOr<ImageF> RenderProxyDepth(const PinholeCamera& camera,
                                           const Rigid3d& local_from_cam);
 
@@ -74,7 +77,7 @@ class FrameRenderer {
   const MeshChunks& chunks_;
   std::unique_ptr<Pipelines> pipes_;
   Buffer frame_ubo_;
-  RenderTarget color_target_, cellid_target_, zdepth_target_;
+  RenderTarget color_target_, cellid_target_, zdepth_target_, floor_target_;
   Image placeholder_gbuffer_;
   Buffer placeholder_out_;
   bool descriptors_dirty_ = true;

@@ -6,6 +6,7 @@
 #include "shaders/blend.frag.h"
 #include "shaders/blend.vert.h"
 #include "shaders/cellid.frag.h"
+#include "shaders/floor.frag.h"
 #include "shaders/fullscreen.vert.h"
 #include "shaders/gbuffer.frag.h"
 #include "shaders/viewdepth.frag.h"
@@ -33,6 +34,8 @@ absl::StatusOr<std::unique_ptr<Pipelines>> Pipelines::Create(const Context& ctx,
                                                           sizeof(kSpvCellidFrag)));
   EXO_ASSIGN_OR_RETURN(p->zdepth_pipe_, p->CreatePipeline(p->zdepth_pass_.get(), kSpvViewdepthFrag,
                                                           sizeof(kSpvViewdepthFrag)));
+  EXO_ASSIGN_OR_RETURN(p->floor_pipe_, p->CreatePipeline(p->color_pass_.get(), kSpvFloorFrag,
+                                                         sizeof(kSpvFloorFrag)));
   return p;
 }
 

@@ -62,6 +62,7 @@ class Pipelines {
   VkPipeline gbuffer_pipe() const { return gbuffer_pipe_.get(); }
   VkPipeline cellid_pipe() const { return cellid_pipe_.get(); }
   VkPipeline zdepth_pipe() const { return zdepth_pipe_.get(); }
+  VkPipeline floor_pipe() const { return floor_pipe_.get(); }
   VkPipelineLayout layout() const { return pipe_layout_.get(); }
   const VkDescriptorSet* set() const { return &desc_set_; }
 
@@ -98,7 +99,7 @@ class Pipelines {
   VkDescriptorSet desc_set_ = VK_NULL_HANDLE;
   UniqueBufferView buffer_views_[4];  // views, cell table, refs, ranked refs
   UniqueRenderPass color_pass_, blend_pass_, cellid_pass_, zdepth_pass_, gbuffer_pass_;
-  UniquePipeline gbuffer_pipe_, cellid_pipe_, zdepth_pipe_;
+  UniquePipeline gbuffer_pipe_, cellid_pipe_, zdepth_pipe_, floor_pipe_;
   // Blend pipelines per n_best (specialisation constant 0 of blend.frag / blend.comp: the
   // best-n slots and the n-th-best pick are then compile-time; measured ~6 % of the frame) and
   // per frame with / without inpainted keyframes (constant 2: their per-pixel loop costs ~4 %
