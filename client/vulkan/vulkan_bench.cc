@@ -9,7 +9,7 @@
 //   LP_NUM_THREADS=2 vulkan_bench [--frames=5] [--views=60] [--refs=8,16,32,60]
 //       [--sizes=640x480,1280x720,1920x1080] [--scene=village|apartment] [--view_size=320x240]
 //       [--pose=k (all frames from novel pose k)] [--background_views=N (sky pass; 0 = off)]
-//       [--fill_holes=0|1 (push-pull fill of uncovered pixels; default 1)]
+//       [--fill_holes=0|1 (push-pull fill of uncovered pixels; default 1)] [--n_best=1..4]
 // Env: EXO_VULKAN_BENCH_DUMP=<dir> writes every frame + ground truth as PNG.
 #include <algorithm>
 #include <chrono>
@@ -96,6 +96,7 @@ int main(int argc, char** argv) {
   int fixed_pose = -1;  // --pose=k: every frame from novel pose k (profiling)
   int background_views = blend::BlendOptions{}.background_views;
   bool fill_holes = blend::BlendOptions{}.fill_holes;
+  int n_best = blend::BlendOptions{}.n_best;
   std::string scene_name = "village";
   std::string refs_text = "8,16,32,60", sizes_text = "640x480,1280x720,1920x1080",
               view_size_text = "320x240";
@@ -119,6 +120,8 @@ int main(int argc, char** argv) {
   app.add_option("--background_views", background_views, "sky pass views (0 = off)")
       ->check(CLI::NonNegativeNumber);
   app.add_option("--fill_holes", fill_holes, "push-pull fill of uncovered pixels (0|1)");
+  app.add_option("--n_best", n_best, "views blended per pixel")
+      ->check(CLI::Range(1, blend::kMaxBlendViews));
   if (auto rc = exo::cli::Parse(app, argc, argv)) return *rc;
   const std::vector<int> refs_list = ParseInts(refs_text, ',');
   const std::vector<int> sizes = ParseInts(sizes_text, 'x');
@@ -182,9 +185,10 @@ int main(int argc, char** argv) {
       blend::BlendOptions bo;
       bo.background_views = background_views;
       bo.fill_holes = fill_holes;
+      bo.n_best = n_best;
       double first_ms = 0, ssim_sum = 0, floor_first_ms = 0;
       std::vector<double> ms_v, cpu_v, gpu_v, rb_v, rank_v, fill_v, filled_v, floor_ms_v,
-          floor_cpu_v;
+          floor_cpu_v, sky_v;
       int ssim_n = 0;
       for (int k = 0; k <= frames; ++k) {
         const Rigid3d& pose =
@@ -215,6 +219,9 @@ int main(int argc, char** argv) {
         floor_ms_v.push_back(floor_ms); floor_cpu_v.push_back(floor_cpu_ms);
         ms_v.push_back(ms); cpu_v.push_back(cpu_ms); gpu_v.push_back(out->gpu_ms); rb_v.push_back(out->readback_ms); rank_v.push_back(out->rank_ms);
         fill_v.push_back(out->fill_ms); filled_v.push_back(double(out->filled_pixels));
+        double sky = 0;  // pixels filled at infinity (coverage 3)
+        for (uint8_t c : out->coverage.span()) sky += c == 3;
+        sky_v.push_back(sky);
         // SSIM on every timed frame at the smallest size, on the first one otherwise (GT
         // rendering of 1080p frames on the CPU is slower than the bench itself).
         if (k == 1 || si == 0) {
@@ -256,10 +263,12 @@ int main(int argc, char** argv) {
           {"median_gpu_ms", Round(med(gpu_v), 2)},
           {"median_readback_ms", Round(med(rb_v), 2)},
           {"median_rank_ms", Round(med(rank_v), 2)},
+          {"n_best", n_best},
           {"fill_holes", int(fill_holes)},
           {"median_fill_ms", Round(med(fill_v), 2)},
           {"median_filled_px", Round(med(filled_v), 0)},
           {"background_views", background_views},
+          {"median_sky_px", Round(med(sky_v), 0)},
           {"frames", frames},
           {"ssim", Round(ssim_n ? ssim_sum / ssim_n : 0.0, 4)},
           {"ssim_frames", ssim_n},
