@@ -40,6 +40,9 @@ layout(constant_id = 1) const int kBlendPass = kBlendPassBoth;
 // Whether this frame has inpainted keyframes (frame.ip_params.x > 0); 0 compiles their loop out
 // (llvmpipe runs a loop's body at least once, masked, even for a count of 0).
 layout(constant_id = 2) const int kInpainted = 1;
+// Whether frame.weights.x (lambda) is exactly 1: CombinedWeight is then max(w_d, min_weight)
+// exactly (1 * w_d + 0 * w_p with a finite w_p), so the positional weight is compiled out.
+layout(constant_id = 3) const int kLambdaOne = 0;
 
 // ---- best-n with the sample parameters carried along ----
 // Same selection as blend_math.h InsertBest (decreasing weight, w <= 0 ignored, ties keep the
@@ -227,10 +230,15 @@ vec4 ShadeSurface(vec3 x) {
     const vec3 dab = a / la - b / lb;  // well-conditioned cosine (blend_math.h)
     const float w_d = (!(la > kMinDistance) || !(lb > kMinDistance))
                           ? 0.0 : max(0.0, 1.0 - 0.5 * dot(dab, dab));
-    const float w_p = frame.iparams.x == kPositionalPrinted
-                          ? max(0.0, 1.0 - lb / d_o)
-                          : max(0.0, 1.0 - max(0.0, lb - d_o) / d_o);
-    const float w = CombinedWeight(1.0, w_d, w_p, frame.weights.x, frame.weights.y);
+    float w;
+    if (kLambdaOne != 0) {
+      w = max(w_d, frame.weights.y);
+    } else {
+      const float w_p = frame.iparams.x == kPositionalPrinted
+                            ? max(0.0, 1.0 - lb / d_o)
+                            : max(0.0, 1.0 - max(0.0, lb - d_o) / d_o);
+      w = CombinedWeight(1.0, w_d, w_p, frame.weights.x, frame.weights.y);
+    }
     if (!(w >= nth)) continue;
     const uvec4 r1 = texelFetch(ranked_refs, t + 1);
     const int layer = int(r1.x);
@@ -249,7 +257,9 @@ vec4 ShadeSurface(vec3 x) {
     if (!(uv.x >= -0.5 && uv.y >= -0.5 && uv.x < size.x - 0.5 && uv.y < size.y - 0.5)) continue;
     const vec2 pc = clamp(floor(uv + 0.5), vec2(0.0), size - 1.0);
     const float z_stored = texelFetch(depths, ivec3(ivec2(pc), layer), 0).r;
-    if (!ValidDepth(z_stored)) continue;
+    // ValidDepth(z_stored) is z_stored > 0 here: the baked layers hold only finite values (0
+    // invalid, -1 background, > 0 depth; BakeDiscontinuities maps NaN / Inf to 0 at upload).
+    if (!(z_stored > 0.0)) continue;
     const float range_m = lb;
     const float range_d = z_stored * range_m / z;
     if (range_m > range_d + frame.weights.z + frame.weights.w * range_d) continue;

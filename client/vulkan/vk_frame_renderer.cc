@@ -319,10 +319,13 @@ absl::Status FrameRenderer::DrawBlend(const blend::BlendOptions& bo, int sky_vie
                                       bool inpainted) {
   VkClearValue clear{};
   clear.color = {{bo.background_srgb.x, bo.background_srgb.y, bo.background_srgb.z, 0.0f}};
-  EXO_RETURN_IF_ERROR(pipes_->EnsureBlendPipe(bo.n_best, inpainted));
-  return Draw(color_target_, pipes_->blend_pass(), pipes_->blend_pipe(bo.n_best, inpainted), clear,
-              4, /*deferred=*/true, pipes_->blend_compute_pipe(bo.n_best, inpainted),
-              sky_views > 0 ? pipes_->blend_sky_pipe(bo.n_best, inpainted) : VK_NULL_HANDLE);
+  BlendVariant v;
+  v.inpainted = inpainted;
+  v.lambda_one = bo.lambda == 1.0f;
+  EXO_RETURN_IF_ERROR(pipes_->EnsureBlendPipe(bo.n_best, v));
+  return Draw(color_target_, pipes_->blend_pass(), pipes_->blend_pipe(bo.n_best, v), clear, 4,
+              /*deferred=*/true, pipes_->blend_compute_pipe(bo.n_best, v),
+              sky_views > 0 ? pipes_->blend_sky_pipe(bo.n_best, v) : VK_NULL_HANDLE);
 }
 
 absl::StatusOr<RenderResult> FrameRenderer::Render(const PinholeCamera& camera,

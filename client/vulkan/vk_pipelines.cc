@@ -27,7 +27,9 @@ absl::StatusOr<std::unique_ptr<Pipelines>> Pipelines::Create(const Context& ctx,
                                                              /*sampled_output=*/true));
   EXO_ASSIGN_OR_RETURN(p->cellid_pass_, p->CreateRenderPass(VK_FORMAT_R32G32_UINT));
   EXO_ASSIGN_OR_RETURN(p->zdepth_pass_, p->CreateRenderPass(VK_FORMAT_R32_SFLOAT));
-  EXO_RETURN_IF_ERROR(p->EnsureBlendPipe(blend::BlendOptions{}.n_best, /*inpainted=*/false));
+  BlendVariant v;  // the default options: no inpainted keyframe, lambda 1
+  v.lambda_one = blend::BlendOptions{}.lambda == 1.0f;
+  EXO_RETURN_IF_ERROR(p->EnsureBlendPipe(blend::BlendOptions{}.n_best, v));
   EXO_ASSIGN_OR_RETURN(p->gbuffer_pipe_, p->CreatePipeline(p->gbuffer_pass_.get(), kSpvGbufferFrag,
                                                            sizeof(kSpvGbufferFrag)));
   EXO_ASSIGN_OR_RETURN(p->cellid_pipe_, p->CreatePipeline(p->cellid_pass_.get(), kSpvCellidFrag,
@@ -39,19 +41,21 @@ absl::StatusOr<std::unique_ptr<Pipelines>> Pipelines::Create(const Context& ctx,
   return p;
 }
 
-absl::Status Pipelines::EnsureBlendPipe(int n_best, bool inpainted) {
+absl::Status Pipelines::EnsureBlendPipe(int n_best, BlendVariant v) {
   if (n_best < 1 || n_best > blend::kMaxBlendViews)
     return absl::InvalidArgumentError("n_best out of range");
-  BlendPipes& b = blend_pipes_[n_best][inpainted ? 1 : 0];
+  BlendPipes& b = blend_pipes_[n_best][v.index()];
   if (blend_compute_ ? bool(b.compute) : bool(b.surface)) return absl::OkStatus();
   // Specialisation constants of blend_shade.glsl: 0 = n_best, 1 = which pixels the pipeline
   // shades (kBlendPass: 0 both, the compute path; 1 surface; 2 background at infinity),
-  // 2 = whether the frame has inpainted keyframes (kInpainted: 0 compiles their loop out).
-  int32_t values[3] = {n_best, 0, inpainted ? 1 : 0};
-  const VkSpecializationMapEntry entries[3] = {{0, 0, sizeof(int32_t)},
+  // 2 = whether the frame has inpainted keyframes (kInpainted: 0 compiles their loop out),
+  // 3 = whether lambda is exactly 1 (kLambdaOne: the positional weight is compiled out).
+  int32_t values[4] = {n_best, 0, v.inpainted ? 1 : 0, v.lambda_one ? 1 : 0};
+  const VkSpecializationMapEntry entries[4] = {{0, 0, sizeof(int32_t)},
                                                {1, sizeof(int32_t), sizeof(int32_t)},
-                                               {2, 2 * sizeof(int32_t), sizeof(int32_t)}};
-  VkSpecializationInfo spec{3, entries, sizeof(values), values};
+                                               {2, 2 * sizeof(int32_t), sizeof(int32_t)},
+                                               {3, 3 * sizeof(int32_t), sizeof(int32_t)}};
+  VkSpecializationInfo spec{4, entries, sizeof(values), values};
   if (blend_compute_) {
     EXO_ASSIGN_OR_RETURN(b.compute, CreateComputeBlendPipe(spec));
     return absl::OkStatus();

@@ -13,6 +13,15 @@
 
 namespace exo::vk {
 
+// Per-frame choices baked into a blend pipeline as specialisation constants (blend_shade.glsl):
+// the frame has inpainted keyframes (else their loop is compiled out), the blend's lambda is
+// exactly 1 (the positional weight is then multiplied by 0: compiled out, same weights).
+struct BlendVariant {
+  bool inpainted = false;
+  bool lambda_one = false;
+  int index() const { return (inpainted ? 1 : 0) | (lambda_one ? 2 : 0); }
+};
+
 // What the descriptor set binds; every pointer must be non-null and outlive the next write.
 struct DescriptorInputs {
   const Buffer* frame_ubo = nullptr;     // 0: Frame block (uniform buffer)
@@ -31,21 +40,20 @@ class Pipelines {
   // blend_compute: the blend runs as blend.comp over the G-buffer instead of blend.frag.
   static absl::StatusOr<std::unique_ptr<Pipelines>> Create(const Context& ctx, bool blend_compute);
 
-  // Creates the blend pipelines for `n_best` (1..kMaxBlendViews) and frames with / without
-  // inpainted keyframes unless they exist.
-  absl::Status EnsureBlendPipe(int n_best, bool inpainted);
+  // Creates the blend pipelines for `n_best` (1..kMaxBlendViews) and `v` unless they exist.
+  absl::Status EnsureBlendPipe(int n_best, BlendVariant v);
   // The blend pipelines of `n_best` for the mode in use; the other mode's are VK_NULL_HANDLE.
   // Fragment mode: two full-screen passes selected by the G-buffer pass's depth (early depth
   // test, so llvmpipe skips every 4x4 block where no fragment passes): blend_pipe shades the
   // pixels with a proxy surface (depth < 1), blend_sky_pipe the others (background at infinity).
-  VkPipeline blend_pipe(int n_best, bool inpainted) const {
-    return blend_pipes_[n_best][inpainted].surface.get();
+  VkPipeline blend_pipe(int n_best, BlendVariant v) const {
+    return blend_pipes_[n_best][v.index()].surface.get();
   }
-  VkPipeline blend_sky_pipe(int n_best, bool inpainted) const {
-    return blend_pipes_[n_best][inpainted].sky.get();
+  VkPipeline blend_sky_pipe(int n_best, BlendVariant v) const {
+    return blend_pipes_[n_best][v.index()].sky.get();
   }
-  VkPipeline blend_compute_pipe(int n_best, bool inpainted) const {
-    return blend_pipes_[n_best][inpainted].compute.get();
+  VkPipeline blend_compute_pipe(int n_best, BlendVariant v) const {
+    return blend_pipes_[n_best][v.index()].compute.get();
   }
   bool blend_compute() const { return blend_compute_; }
 
@@ -102,12 +110,12 @@ class Pipelines {
   UniquePipeline gbuffer_pipe_, cellid_pipe_, zdepth_pipe_, floor_pipe_;
   // Blend pipelines per n_best (specialisation constant 0 of blend.frag / blend.comp: the
   // best-n slots and the n-th-best pick are then compile-time; measured ~6 % of the frame) and
-  // per frame with / without inpainted keyframes (constant 2: their per-pixel loop costs ~4 %
-  // of the frame even with no keyframe, llvmpipe runs a loop body at least once).
+  // per BlendVariant (constant 2, inpainted keyframes: their per-pixel loop cost ~8 % of the
+  // frame even with no keyframe, llvmpipe runs a loop body at least once; constant 3, lambda 1).
   struct BlendPipes {
     UniquePipeline surface, sky, compute;
   };
-  BlendPipes blend_pipes_[blend::kMaxBlendViews + 1][2];
+  BlendPipes blend_pipes_[blend::kMaxBlendViews + 1][4];
 };
 
 }  // namespace exo::vk
