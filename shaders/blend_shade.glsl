@@ -31,6 +31,18 @@ const int kViewTexels = 5;
 // n of §3.1.4 (BlendOptions::n_best), a specialisation constant: one pipeline per n, so the
 // disabled best-n slots and the n-th-best pick fold away at compile time.
 layout(constant_id = 0) const int kNBest = 3;
+// Which pixels a pipeline shades: both kinds (ShadePixel, the compute path), only those with a
+// proxy surface (ShadeSurface) or only those without (ShadeBackground); blend.frag.
+const int kBlendPassBoth = 0;
+const int kBlendPassSurface = 1;
+const int kBlendPassBackground = 2;
+layout(constant_id = 1) const int kBlendPass = kBlendPassBoth;
+// Whether this frame has inpainted keyframes (frame.ip_params.x > 0); 0 compiles their loop out
+// (llvmpipe runs a loop's body at least once, masked, even for a count of 0).
+layout(constant_id = 2) const int kInpainted = 1;
+// Whether frame.weights.x (lambda) is exactly 1: CombinedWeight is then max(w_d, min_weight)
+// exactly (1 * w_d + 0 * w_p with a finite w_p), so the positional weight is compiled out.
+layout(constant_id = 3) const int kLambdaOne = 0;
 
 // ---- best-n with the sample parameters carried along ----
 // Same selection as blend_math.h InsertBest (decreasing weight, w <= 0 ignored, ties keep the
@@ -137,12 +149,9 @@ vec4 ShadeBackground(ivec2 pixel) {
   return vec4(srgb, filled ? 64.0 / 255.0 : 0.0);
 }
 
-// rgb = sRGB, a = coverage (1 blended, 128/255 surface without a valid view, 64/255 no surface
-// but filled at infinity, 0 no surface).
-vec4 ShadePixel(ivec2 pixel) {
-  const vec4 g = texelFetch(gbuffer, pixel, 0);
-  if (g.w == 0.0) return ShadeBackground(pixel);  // no proxy surface
-  const vec3 x = g.xyz;
+// The blend at proxy surface point x: rgb = sRGB, a = coverage (1 blended, 128/255 surface
+// without a valid view).
+vec4 ShadeSurface(vec3 x) {
   const vec3 c_o = frame.cam_centre_cell.xyz;
   const float q = frame.cam_centre_cell.w;
   const uvec2 key = PackCell(ivec3(floor(x / q)));
@@ -183,7 +192,7 @@ vec4 ShadePixel(ivec2 pixel) {
   // keyframe's ROI (colour alpha = label 1 at the point's nearest pixel) is blended from the
   // inpainted keyframes whose ROI holds it only; the cell's observed references are then skipped.
   bool in_roi = false;
-  for (int j = 0; j < frame.ip_params.x; ++j) {
+  for (int j = 0; kInpainted != 0 && j < frame.ip_params.x; ++j) {
     const int layer = frame.ip_layers[j / 4][j % 4];
     const int base = layer * kViewTexels;
     const vec4 hx = vec4(x, 1.0);
@@ -221,10 +230,15 @@ vec4 ShadePixel(ivec2 pixel) {
     const vec3 dab = a / la - b / lb;  // well-conditioned cosine (blend_math.h)
     const float w_d = (!(la > kMinDistance) || !(lb > kMinDistance))
                           ? 0.0 : max(0.0, 1.0 - 0.5 * dot(dab, dab));
-    const float w_p = frame.iparams.x == kPositionalPrinted
-                          ? max(0.0, 1.0 - lb / d_o)
-                          : max(0.0, 1.0 - max(0.0, lb - d_o) / d_o);
-    const float w = CombinedWeight(1.0, w_d, w_p, frame.weights.x, frame.weights.y);
+    float w;
+    if (kLambdaOne != 0) {
+      w = max(w_d, frame.weights.y);
+    } else {
+      const float w_p = frame.iparams.x == kPositionalPrinted
+                            ? max(0.0, 1.0 - lb / d_o)
+                            : max(0.0, 1.0 - max(0.0, lb - d_o) / d_o);
+      w = CombinedWeight(1.0, w_d, w_p, frame.weights.x, frame.weights.y);
+    }
     if (!(w >= nth)) continue;
     const uvec4 r1 = texelFetch(ranked_refs, t + 1);
     const int layer = int(r1.x);
@@ -243,7 +257,9 @@ vec4 ShadePixel(ivec2 pixel) {
     if (!(uv.x >= -0.5 && uv.y >= -0.5 && uv.x < size.x - 0.5 && uv.y < size.y - 0.5)) continue;
     const vec2 pc = clamp(floor(uv + 0.5), vec2(0.0), size - 1.0);
     const float z_stored = texelFetch(depths, ivec3(ivec2(pc), layer), 0).r;
-    if (!ValidDepth(z_stored)) continue;
+    // ValidDepth(z_stored) is z_stored > 0 here: the baked layers hold only finite values (0
+    // invalid, -1 background, > 0 depth; BakeDiscontinuities maps NaN / Inf to 0 at upload).
+    if (!(z_stored > 0.0)) continue;
     const float range_m = lb;
     const float range_d = z_stored * range_m / z;
     if (range_m > range_d + frame.weights.z + frame.weights.w * range_d) continue;
@@ -255,4 +271,12 @@ vec4 ShadePixel(ivec2 pixel) {
   vec3 srgb;
   const bool covered = BlendBest(best, n, srgb);
   return vec4(srgb, covered ? 1.0 : 128.0 / 255.0);
+}
+
+// rgb = sRGB, a = coverage (1 blended, 128/255 surface without a valid view, 64/255 no surface
+// but filled at infinity, 0 no surface).
+vec4 ShadePixel(ivec2 pixel) {
+  const vec4 g = texelFetch(gbuffer, pixel, 0);
+  if (g.w == 0.0) return ShadeBackground(pixel);  // no proxy surface
+  return ShadeSurface(g.xyz);
 }

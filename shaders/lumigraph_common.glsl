@@ -209,4 +209,6 @@ layout(std140, set = 0, binding = 0) uniform Frame {
   // InpaintFusion (SPEC §7): ip_params.x inpainted keyframes (nearest first), their layers.
   ivec4 ip_params;
   ivec4 ip_layers[kMaxInpaintedViews / 4];
+  // floor.frag only: rows 0..2 of one view's P = K [R^T | -R^T c], (width, height, layer, 0).
+  vec4 floor_view[4];
 } frame;

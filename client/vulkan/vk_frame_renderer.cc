@@ -35,9 +35,11 @@ struct GpuFrame {
   // nearest first), their texture layers in ip_layers (4 per ivec4).
   glm::ivec4 ip_params;
   glm::ivec4 ip_layers[kMaxInpaintedViews / 4];
+  // RenderFloor (floor.frag): rows of one view's P and (width, height, layer, 0).
+  glm::vec4 floor_view[4];
 };
 static_assert(sizeof(GpuFrame) == 128 + 48 + 16 + 16 * kBgViewTexels * blend::kMaxBackgroundViews +
-                                      16 + 16 * (kMaxInpaintedViews / 4));
+                                      16 + 16 * (kMaxInpaintedViews / 4) + 64);
 
 namespace {
 
@@ -202,12 +204,13 @@ void FrameRenderer::FillFrame(const PinholeCamera& camera, const Rigid3d& local_
 
 // Records the proxy draw with `pipe` into `t`, copies the colour attachment to t.readback.
 // deferred == false: draws the proxy chunks with `pipe` into t.fb. deferred == true (blend):
-// first the proxy into the G-buffer (gbuffer_pipe, t.gbuffer_fb), then one full-screen
-// triangle with `pipe` into t.fb, or with a compute pipe blend.comp into t.blend_out and no
-// read-back; one command buffer, one submit.
+// first the proxy into the G-buffer (gbuffer_pipe, t.gbuffer_fb), then full-screen triangles
+// with `pipe` (surface pixels) and `sky_pipe` (pixels without surface, if any) into t.fb, or
+// with a compute pipe blend.comp into t.blend_out and no read-back; one command buffer, one
+// submit.
 absl::Status FrameRenderer::Draw(RenderTarget& t, VkRenderPass pass, VkPipeline pipe,
                                  const VkClearValue& clear, uint32_t texel_bytes, bool deferred,
-                                 VkPipeline compute_pipe) {
+                                 VkPipeline compute_pipe, VkPipeline sky_pipe) {
   EXO_RETURN_IF_ERROR(UpdateDescriptors());
   const Pipelines& p = *pipes_;
   return ctx_.Submit([&](VkCommandBuffer cmd) {
@@ -218,8 +221,15 @@ absl::Status FrameRenderer::Draw(RenderTarget& t, VkRenderPass pass, VkPipeline 
       chunks_.RecordDraws(cmd);
       vkCmdEndRenderPass(cmd);
       if (compute_pipe != VK_NULL_HANDLE) return RecordComputeBlend(cmd, p, t, compute_pipe);
+      // The surface pixels (pipe), then the pixels without a surface (sky_pipe; without it they
+      // keep the clear value, the background colour with alpha 0, what the background pass
+      // writes when it has no view).
       RecordBeginPass(cmd, p, pass, t.fb.get(), clear, pipe, t.w, t.h);
       vkCmdDraw(cmd, 3, 1, 0, 0);
+      if (sky_pipe != VK_NULL_HANDLE) {
+        vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_GRAPHICS, sky_pipe);
+        vkCmdDraw(cmd, 3, 1, 0, 0);
+      }
       vkCmdEndRenderPass(cmd);
     } else {
       RecordBeginPass(cmd, p, pass, t.fb.get(), clear, pipe, t.w, t.h);
@@ -305,12 +315,17 @@ void FrameRenderer::UploadBlendFrame(const PinholeCamera& camera, const Rigid3d&
 }
 
 // The deferred blend of one frame into color_target_ (graphics or compute).
-absl::Status FrameRenderer::DrawBlend(const blend::BlendOptions& bo) {
+absl::Status FrameRenderer::DrawBlend(const blend::BlendOptions& bo, int sky_views,
+                                      bool inpainted) {
   VkClearValue clear{};
   clear.color = {{bo.background_srgb.x, bo.background_srgb.y, bo.background_srgb.z, 0.0f}};
-  EXO_RETURN_IF_ERROR(pipes_->EnsureBlendPipe(bo.n_best));
-  return Draw(color_target_, pipes_->color_pass(), pipes_->blend_pipe(bo.n_best), clear, 4,
-              /*deferred=*/true, pipes_->blend_compute_pipe(bo.n_best));
+  BlendVariant v;
+  v.inpainted = inpainted;
+  v.lambda_one = bo.lambda == 1.0f;
+  EXO_RETURN_IF_ERROR(pipes_->EnsureBlendPipe(bo.n_best, v));
+  return Draw(color_target_, pipes_->blend_pass(), pipes_->blend_pipe(bo.n_best, v), clear, 4,
+              /*deferred=*/true, pipes_->blend_compute_pipe(bo.n_best, v),
+              sky_views > 0 ? pipes_->blend_sky_pipe(bo.n_best, v) : VK_NULL_HANDLE);
 }
 
 absl::StatusOr<RenderResult> FrameRenderer::Render(const PinholeCamera& camera,
@@ -328,7 +343,7 @@ absl::StatusOr<RenderResult> FrameRenderer::Render(const PinholeCamera& camera,
   cells_.RankRefs(glm::vec3(f.cam_centre_cell), camera, local_from_cam, grid_.cell_size_m, bo);
   r.rank_ms = MsSince(tr);
   const auto t0 = Clock::now();
-  EXO_RETURN_IF_ERROR(DrawBlend(bo));
+  EXO_RETURN_IF_ERROR(DrawBlend(bo, f.bg_params.x, f.ip_params.x > 0));
   r.gpu_ms = MsSince(t0);
   const auto t1 = Clock::now();
   UnpackBlendOutput(
@@ -343,6 +358,45 @@ absl::StatusOr<RenderResult> FrameRenderer::Render(const PinholeCamera& camera,
     r.filled_pixels = FillHoles(r.color, known);
     r.fill_ms = MsSince(tf);
   }
+  return r;
+}
+
+absl::StatusOr<RenderResult> FrameRenderer::RenderFloor(const PinholeCamera& camera,
+                                                        const Rigid3d& local_from_cam) {
+  EXO_RETURN_IF_ERROR(CheckCamera(camera, local_from_cam));
+  const uint32_t w = camera.width, h = camera.height;
+  EXO_RETURN_IF_ERROR(
+      floor_target_.Ensure(ctx_, pipes_->color_pass(), VK_FORMAT_R8G8B8A8_UNORM, w, h).status());
+  GpuFrame f{};
+  FillFrame(camera, local_from_cam, &f);
+  // The resident view nearest the novel camera (ties: lower id).
+  const glm::vec3 c_o(local_from_cam.translation);
+  const ViewStore::Entry* best = nullptr;
+  ViewId best_id = 0;
+  float best_d = 0.0f;
+  for (const auto& [id, e] : views_.entries()) {
+    const float d = glm::length(e.params.centre_local - c_o);
+    if (!best || d < best_d || (d == best_d && id < best_id)) {
+      best = &e;
+      best_id = id;
+      best_d = d;
+    }
+  }
+  if (!best) return absl::FailedPreconditionError("RenderFloor needs a resident view");
+  const GpuView& v = views_.records()[best->slot];
+  f.floor_view[0] = v.p0;
+  f.floor_view[1] = v.p1;
+  f.floor_view[2] = v.p2;
+  f.floor_view[3] = glm::vec4(v.size_layer.x, v.size_layer.y, v.size_layer.z, 0.0f);
+  std::memcpy(frame_ubo_.mapped, &f, sizeof(f));
+  VkClearValue clear{};
+  RenderResult r;
+  const auto t0 = Clock::now();
+  EXO_RETURN_IF_ERROR(Draw(floor_target_, pipes_->color_pass(), pipes_->floor_pipe(), clear, 4));
+  r.gpu_ms = MsSince(t0);
+  const auto t1 = Clock::now();
+  UnpackBlendOutput(static_cast<const uint8_t*>(floor_target_.readback.mapped), w, h, &r);
+  r.readback_ms = MsSince(t1);
   return r;
 }
 

@@ -34,6 +34,9 @@ class FrameRenderer {
                                       const blend::BlendOptions& bo);
   absl::StatusOr<exo::Image<uint64_t>> RenderCellIds(const PinholeCamera& camera,
                                                      const Rigid3d& local_from_cam);
+  // VulkanRenderer::RenderFloor (shaders/floor.frag).
+  absl::StatusOr<RenderResult> RenderFloor(const PinholeCamera& camera,
+                                           const Rigid3d& local_from_cam);
   absl::StatusOr<ImageF> RenderProxyDepth(const PinholeCamera& camera,
                                           const Rigid3d& local_from_cam);
 
@@ -58,11 +61,14 @@ class FrameRenderer {
   void UploadBlendFrame(const PinholeCamera& camera, const Rigid3d& local_from_cam,
                         const blend::BlendOptions& bo, GpuFrame* f,
                         std::vector<ViewId>* bg_ids) const;
-  // The deferred blend of one frame into color_target_ (graphics or compute).
-  absl::Status DrawBlend(const blend::BlendOptions& bo);
+  // The deferred blend of one frame into color_target_ (graphics or compute); sky_views: the
+  // frame's background views (0: the pass for pixels without surface is not drawn);
+  // inpainted: the frame has inpainted keyframes (else the pipeline without their loop); the
+  // pipeline variant also follows bo.lambda == 1 (BlendVariant).
+  absl::Status DrawBlend(const blend::BlendOptions& bo, int sky_views, bool inpainted);
   absl::Status Draw(RenderTarget& t, VkRenderPass pass, VkPipeline pipe, const VkClearValue& clear,
                     uint32_t texel_bytes, bool deferred = false,
-                    VkPipeline compute_pipe = VK_NULL_HANDLE);
+                    VkPipeline compute_pipe = VK_NULL_HANDLE, VkPipeline sky_pipe = VK_NULL_HANDLE);
 
   const Context& ctx_;
   const VulkanRendererOptions& opt_;
@@ -72,7 +78,7 @@ class FrameRenderer {
   const MeshChunks& chunks_;
   std::unique_ptr<Pipelines> pipes_;
   Buffer frame_ubo_;
-  RenderTarget color_target_, cellid_target_, zdepth_target_;
+  RenderTarget color_target_, cellid_target_, zdepth_target_, floor_target_;
   Image placeholder_gbuffer_;
   Buffer placeholder_out_;
   bool descriptors_dirty_ = true;

@@ -6,6 +6,7 @@
 #include "shaders/blend.frag.h"
 #include "shaders/blend.vert.h"
 #include "shaders/cellid.frag.h"
+#include "shaders/floor.frag.h"
 #include "shaders/fullscreen.vert.h"
 #include "shaders/gbuffer.frag.h"
 #include "shaders/viewdepth.frag.h"
@@ -19,36 +20,58 @@ absl::StatusOr<std::unique_ptr<Pipelines>> Pipelines::Create(const Context& ctx,
   EXO_RETURN_IF_ERROR(p->CreateSetLayout());
   EXO_RETURN_IF_ERROR(p->CreateDescriptorSet());
   EXO_ASSIGN_OR_RETURN(p->color_pass_, p->CreateRenderPass(VK_FORMAT_R8G8B8A8_UNORM));
+  EXO_ASSIGN_OR_RETURN(p->blend_pass_, p->CreateRenderPass(VK_FORMAT_R8G8B8A8_UNORM,
+                                                           /*sampled_output=*/false,
+                                                           /*load_depth=*/true));
   EXO_ASSIGN_OR_RETURN(p->gbuffer_pass_, p->CreateRenderPass(VK_FORMAT_R32G32B32A32_SFLOAT,
                                                              /*sampled_output=*/true));
   EXO_ASSIGN_OR_RETURN(p->cellid_pass_, p->CreateRenderPass(VK_FORMAT_R32G32_UINT));
   EXO_ASSIGN_OR_RETURN(p->zdepth_pass_, p->CreateRenderPass(VK_FORMAT_R32_SFLOAT));
-  EXO_RETURN_IF_ERROR(p->EnsureBlendPipe(blend::BlendOptions{}.n_best));
+  BlendVariant v;  // the default options: no inpainted keyframe, lambda 1
+  v.lambda_one = blend::BlendOptions{}.lambda == 1.0f;
+  EXO_RETURN_IF_ERROR(p->EnsureBlendPipe(blend::BlendOptions{}.n_best, v));
   EXO_ASSIGN_OR_RETURN(p->gbuffer_pipe_, p->CreatePipeline(p->gbuffer_pass_.get(), kSpvGbufferFrag,
                                                            sizeof(kSpvGbufferFrag)));
   EXO_ASSIGN_OR_RETURN(p->cellid_pipe_, p->CreatePipeline(p->cellid_pass_.get(), kSpvCellidFrag,
                                                           sizeof(kSpvCellidFrag)));
   EXO_ASSIGN_OR_RETURN(p->zdepth_pipe_, p->CreatePipeline(p->zdepth_pass_.get(), kSpvViewdepthFrag,
                                                           sizeof(kSpvViewdepthFrag)));
+  EXO_ASSIGN_OR_RETURN(p->floor_pipe_, p->CreatePipeline(p->color_pass_.get(), kSpvFloorFrag,
+                                                         sizeof(kSpvFloorFrag)));
   return p;
 }
 
-absl::Status Pipelines::EnsureBlendPipe(int n_best) {
+absl::Status Pipelines::EnsureBlendPipe(int n_best, BlendVariant v) {
   if (n_best < 1 || n_best > blend::kMaxBlendViews)
     return absl::InvalidArgumentError("n_best out of range");
-  if (blend_compute_ ? bool(blend_comp_pipes_[n_best]) : bool(blend_pipes_[n_best]))
+  BlendPipes& b = blend_pipes_[n_best][v.index()];
+  if (blend_compute_ ? bool(b.compute) : bool(b.surface)) return absl::OkStatus();
+  // Specialisation constants of blend_shade.glsl: 0 = n_best, 1 = which pixels the pipeline
+  // shades (kBlendPass: 0 both, the compute path; 1 surface; 2 background at infinity),
+  // 2 = whether the frame has inpainted keyframes (kInpainted: 0 compiles their loop out),
+  // 3 = whether lambda is exactly 1 (kLambdaOne: the positional weight is compiled out).
+  int32_t values[4] = {n_best, 0, v.inpainted ? 1 : 0, v.lambda_one ? 1 : 0};
+  const VkSpecializationMapEntry entries[4] = {{0, 0, sizeof(int32_t)},
+                                               {1, sizeof(int32_t), sizeof(int32_t)},
+                                               {2, 2 * sizeof(int32_t), sizeof(int32_t)},
+                                               {3, 3 * sizeof(int32_t), sizeof(int32_t)}};
+  VkSpecializationInfo spec{4, entries, sizeof(values), values};
+  if (blend_compute_) {
+    EXO_ASSIGN_OR_RETURN(b.compute, CreateComputeBlendPipe(spec));
     return absl::OkStatus();
-  const int32_t value = n_best;
-  VkSpecializationMapEntry entry{0, 0, sizeof(int32_t)};
-  VkSpecializationInfo spec{1, &entry, sizeof(int32_t), &value};
-  if (blend_compute_) return CreateComputeBlendPipe(n_best, spec);
-  EXO_ASSIGN_OR_RETURN(blend_pipes_[n_best],
-                       CreatePipeline(color_pass_.get(), kSpvBlendFrag, sizeof(kSpvBlendFrag),
-                                      /*fullscreen=*/true, &spec));
+  }
+  values[1] = 1;
+  EXO_ASSIGN_OR_RETURN(b.surface,
+                       CreatePipeline(blend_pass_.get(), kSpvBlendFrag, sizeof(kSpvBlendFrag),
+                                      Geometry::kFullscreenSurface, &spec));
+  values[1] = 2;
+  EXO_ASSIGN_OR_RETURN(b.sky, CreatePipeline(blend_pass_.get(), kSpvBlendFrag, sizeof(kSpvBlendFrag),
+                                             Geometry::kFullscreenSky, &spec));
   return absl::OkStatus();
 }
 
-absl::Status Pipelines::CreateComputeBlendPipe(int n_best, const VkSpecializationInfo& spec) {
+absl::StatusOr<UniquePipeline> Pipelines::CreateComputeBlendPipe(
+    const VkSpecializationInfo& spec) const {
   EXO_ASSIGN_OR_RETURN(auto cs, CreateModule(kSpvBlendComp, sizeof(kSpvBlendComp)));
   VkComputePipelineCreateInfo ci{VK_STRUCTURE_TYPE_COMPUTE_PIPELINE_CREATE_INFO};
   ci.stage.sType = VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO;
@@ -59,8 +82,7 @@ absl::Status Pipelines::CreateComputeBlendPipe(int n_best, const VkSpecializatio
   ci.layout = pipe_layout_.get();
   VkPipeline raw;
   EXO_VK_RETURN(vkCreateComputePipelines(ctx_.device(), VK_NULL_HANDLE, 1, &ci, nullptr, &raw));
-  blend_comp_pipes_[n_best] = UniquePipeline(ctx_.device(), raw);
-  return absl::OkStatus();
+  return UniquePipeline(ctx_.device(), raw);
 }
 
 absl::Status Pipelines::CreateSamplers() {
@@ -222,7 +244,8 @@ void SubpassDependencies(bool sampled_output, VkSubpassDependency dep[2]) {
 }  // namespace
 
 absl::StatusOr<UniqueRenderPass> Pipelines::CreateRenderPass(VkFormat color_format,
-                                                             bool sampled_output) const {
+                                                             bool sampled_output,
+                                                             bool load_depth) const {
   VkAttachmentDescription att[2]{};
   att[0].format = color_format;
   att[0].samples = VK_SAMPLE_COUNT_1_BIT;
@@ -235,7 +258,12 @@ absl::StatusOr<UniqueRenderPass> Pipelines::CreateRenderPass(VkFormat color_form
                                       : VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL;
   att[1] = att[0];
   att[1].format = VK_FORMAT_D32_SFLOAT;
-  att[1].storeOp = VK_ATTACHMENT_STORE_OP_DONT_CARE;
+  // The G-buffer pass stores its depth for the blend pass, which loads it (surface / sky test).
+  att[1].storeOp = sampled_output ? VK_ATTACHMENT_STORE_OP_STORE : VK_ATTACHMENT_STORE_OP_DONT_CARE;
+  if (load_depth) {
+    att[1].loadOp = VK_ATTACHMENT_LOAD_OP_LOAD;
+    att[1].initialLayout = VK_IMAGE_LAYOUT_DEPTH_STENCIL_ATTACHMENT_OPTIMAL;
+  }
   att[1].finalLayout = VK_IMAGE_LAYOUT_DEPTH_STENCIL_ATTACHMENT_OPTIMAL;
   VkAttachmentReference cref{0, VK_IMAGE_LAYOUT_COLOR_ATTACHMENT_OPTIMAL};
   VkAttachmentReference dref{1, VK_IMAGE_LAYOUT_DEPTH_STENCIL_ATTACHMENT_OPTIMAL};
@@ -290,7 +318,7 @@ struct FixedFunctionState {
   VkPipelineDynamicStateCreateInfo dy{VK_STRUCTURE_TYPE_PIPELINE_DYNAMIC_STATE_CREATE_INFO};
 
   // Not copyable: the create infos point into this object.
-  explicit FixedFunctionState(bool fullscreen) {
+  FixedFunctionState(bool fullscreen, VkCompareOp depth_compare, bool depth_write) {
     vi.vertexBindingDescriptionCount = fullscreen ? 0 : 1;
     vi.pVertexBindingDescriptions = &vb;
     vi.vertexAttributeDescriptionCount = fullscreen ? 0 : 1;
@@ -303,9 +331,9 @@ struct FixedFunctionState {
     rs.frontFace = VK_FRONT_FACE_COUNTER_CLOCKWISE;
     rs.lineWidth = 1.0f;
     ms.rasterizationSamples = VK_SAMPLE_COUNT_1_BIT;
-    ds.depthTestEnable = fullscreen ? VK_FALSE : VK_TRUE;
-    ds.depthWriteEnable = fullscreen ? VK_FALSE : VK_TRUE;
-    ds.depthCompareOp = VK_COMPARE_OP_LESS;
+    ds.depthTestEnable = VK_TRUE;
+    ds.depthWriteEnable = depth_write ? VK_TRUE : VK_FALSE;
+    ds.depthCompareOp = depth_compare;
     cba.colorWriteMask = VK_COLOR_COMPONENT_R_BIT | VK_COLOR_COMPONENT_G_BIT |
                          VK_COLOR_COMPONENT_B_BIT | VK_COLOR_COMPONENT_A_BIT;
     cb.attachmentCount = 1;
@@ -320,8 +348,9 @@ struct FixedFunctionState {
 }  // namespace
 
 absl::StatusOr<UniquePipeline> Pipelines::CreatePipeline(VkRenderPass pass, const uint32_t* frag,
-                                                         size_t frag_bytes, bool fullscreen,
+                                                         size_t frag_bytes, Geometry geometry,
                                                          const VkSpecializationInfo* spec) const {
+  const bool fullscreen = geometry != Geometry::kMesh;
   UniqueShaderModule vs;
   if (fullscreen) {
     EXO_ASSIGN_OR_RETURN(vs, CreateModule(kSpvFullscreenVert, sizeof(kSpvFullscreenVert)));
@@ -338,7 +367,13 @@ absl::StatusOr<UniquePipeline> Pipelines::CreatePipeline(VkRenderPass pass, cons
   stages[1].module = fs.get();
   stages[1].pName = "main";
   stages[1].pSpecializationInfo = spec;
-  const FixedFunctionState st(fullscreen);
+  // The full-screen triangle lies at depth 1 (fullscreen.vert): GREATER passes where the
+  // G-buffer pass drew a surface, LESS_OR_EQUAL where the depth kept its clear value 1.
+  const FixedFunctionState st(fullscreen,
+                              geometry == Geometry::kMesh               ? VK_COMPARE_OP_LESS
+                              : geometry == Geometry::kFullscreenSurface ? VK_COMPARE_OP_GREATER
+                                                                         : VK_COMPARE_OP_LESS_OR_EQUAL,
+                              /*depth_write=*/!fullscreen);
   VkGraphicsPipelineCreateInfo gi{VK_STRUCTURE_TYPE_GRAPHICS_PIPELINE_CREATE_INFO};
   gi.stageCount = 2;
   gi.pStages = stages;

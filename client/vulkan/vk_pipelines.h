@@ -1,7 +1,7 @@
 // PRIVATE to client/vulkan: the renderer's fixed GPU programme state. Samplers, the one
-// descriptor set (bindings 0..8 of shaders/lumigraph_common.glsl) and its layout, the four
-// render passes (blend colour, G-buffer, cell id, view depth) and their pipelines; the blend
-// pipelines are specialised per n_best and created on first use.
+// descriptor set (bindings 0..8 of shaders/lumigraph_common.glsl) and its layout, the render
+// passes (colour, deferred blend colour, G-buffer, cell id, view depth) and their pipelines; the
+// blend pipelines are specialised per n_best and created on first use.
 #pragma once
 
 #include <cstddef>
@@ -12,6 +12,15 @@
 #include "common/lumigraph/blend_math.h"
 
 namespace exo::vk {
+
+// Per-frame choices baked into a blend pipeline as specialisation constants (blend_shade.glsl):
+// the frame has inpainted keyframes (else their loop is compiled out), the blend's lambda is
+// exactly 1 (the positional weight is then multiplied by 0: compiled out, same weights).
+struct BlendVariant {
+  bool inpainted = false;
+  bool lambda_one = false;
+  int index() const { return (inpainted ? 1 : 0) | (lambda_one ? 2 : 0); }
+};
 
 // What the descriptor set binds; every pointer must be non-null and outlive the next write.
 struct DescriptorInputs {
@@ -31,23 +40,37 @@ class Pipelines {
   // blend_compute: the blend runs as blend.comp over the G-buffer instead of blend.frag.
   static absl::StatusOr<std::unique_ptr<Pipelines>> Create(const Context& ctx, bool blend_compute);
 
-  // Creates the blend pipeline for `n_best` (1..kMaxBlendViews) unless it exists.
-  absl::Status EnsureBlendPipe(int n_best);
-  // The blend pipeline of `n_best` for the mode in use; the other mode's is VK_NULL_HANDLE.
-  VkPipeline blend_pipe(int n_best) const { return blend_pipes_[n_best].get(); }
-  VkPipeline blend_compute_pipe(int n_best) const { return blend_comp_pipes_[n_best].get(); }
+  // Creates the blend pipelines for `n_best` (1..kMaxBlendViews) and `v` unless they exist.
+  absl::Status EnsureBlendPipe(int n_best, BlendVariant v);
+  // The blend pipelines of `n_best` for the mode in use; the other mode's are VK_NULL_HANDLE.
+  // Fragment mode: two full-screen passes selected by the G-buffer pass's depth (early depth
+  // test, so llvmpipe skips every 4x4 block where no fragment passes): blend_pipe shades the
+  // pixels with a proxy surface (depth < 1), blend_sky_pipe the others (background at infinity).
+  VkPipeline blend_pipe(int n_best, BlendVariant v) const {
+    return blend_pipes_[n_best][v.index()].surface.get();
+  }
+  VkPipeline blend_sky_pipe(int n_best, BlendVariant v) const {
+    return blend_pipes_[n_best][v.index()].sky.get();
+  }
+  VkPipeline blend_compute_pipe(int n_best, BlendVariant v) const {
+    return blend_pipes_[n_best][v.index()].compute.get();
+  }
   bool blend_compute() const { return blend_compute_; }
 
   // Points every binding at `in` (new texel-buffer views over the current buffers).
   absl::Status WriteDescriptors(const DescriptorInputs& in);
 
   VkRenderPass color_pass() const { return color_pass_.get(); }
+  // Colour pass of the deferred blend: same attachments as color_pass (compatible framebuffer)
+  // but the depth attachment is LOADED from the G-buffer pass (which stores it).
+  VkRenderPass blend_pass() const { return blend_pass_.get(); }
   VkRenderPass gbuffer_pass() const { return gbuffer_pass_.get(); }
   VkRenderPass cellid_pass() const { return cellid_pass_.get(); }
   VkRenderPass zdepth_pass() const { return zdepth_pass_.get(); }
   VkPipeline gbuffer_pipe() const { return gbuffer_pipe_.get(); }
   VkPipeline cellid_pipe() const { return cellid_pipe_.get(); }
   VkPipeline zdepth_pipe() const { return zdepth_pipe_.get(); }
+  VkPipeline floor_pipe() const { return floor_pipe_.get(); }
   VkPipelineLayout layout() const { return pipe_layout_.get(); }
   const VkDescriptorSet* set() const { return &desc_set_; }
 
@@ -58,16 +81,22 @@ class Pipelines {
   absl::Status CreateDescriptorSet();
   absl::StatusOr<UniqueBufferView> MakeBufferView(const Buffer& b, VkFormat format) const;
   // sampled_output: the colour attachment ends in SHADER_READ_ONLY_OPTIMAL for a later pass's
-  // shader (the G-buffer); otherwise in TRANSFER_SRC_OPTIMAL for read-back.
+  // shader (the G-buffer) and the depth attachment is stored; otherwise the colour ends in
+  // TRANSFER_SRC_OPTIMAL for read-back. load_depth: the depth attachment is loaded (the blend
+  // pass reads the G-buffer pass's depth) instead of cleared.
   absl::StatusOr<UniqueRenderPass> CreateRenderPass(VkFormat color_format,
-                                                    bool sampled_output = false) const;
+                                                    bool sampled_output = false,
+                                                    bool load_depth = false) const;
   absl::StatusOr<UniqueShaderModule> CreateModule(const uint32_t* code, size_t bytes) const;
-  // fullscreen: one triangle over the viewport (no vertex input, no depth test) for the
-  // deferred blend pass; otherwise the proxy-mesh pipeline (depth test LESS + write).
+  // kMesh: the proxy-mesh pipeline (depth test LESS + write). The others draw one triangle over
+  // the viewport at depth 1 (no vertex input, no depth write) for the deferred blend pass:
+  // kFullscreenSurface passes where the G-buffer pass left a surface (1 > depth),
+  // kFullscreenSky where it left none (1 <= depth, i.e. the clear value 1).
+  enum class Geometry { kMesh, kFullscreenSurface, kFullscreenSky };
   absl::StatusOr<UniquePipeline> CreatePipeline(VkRenderPass pass, const uint32_t* frag,
-                                                size_t frag_bytes, bool fullscreen = false,
+                                                size_t frag_bytes, Geometry geometry = Geometry::kMesh,
                                                 const VkSpecializationInfo* spec = nullptr) const;
-  absl::Status CreateComputeBlendPipe(int n_best, const VkSpecializationInfo& spec);
+  absl::StatusOr<UniquePipeline> CreateComputeBlendPipe(const VkSpecializationInfo& spec) const;
 
   const Context& ctx_;
   const bool blend_compute_;
@@ -77,12 +106,16 @@ class Pipelines {
   UniqueDescriptorPool desc_pool_;
   VkDescriptorSet desc_set_ = VK_NULL_HANDLE;
   UniqueBufferView buffer_views_[4];  // views, cell table, refs, ranked refs
-  UniqueRenderPass color_pass_, cellid_pass_, zdepth_pass_, gbuffer_pass_;
-  UniquePipeline gbuffer_pipe_, cellid_pipe_, zdepth_pipe_;
+  UniqueRenderPass color_pass_, blend_pass_, cellid_pass_, zdepth_pass_, gbuffer_pass_;
+  UniquePipeline gbuffer_pipe_, cellid_pipe_, zdepth_pipe_, floor_pipe_;
   // Blend pipelines per n_best (specialisation constant 0 of blend.frag / blend.comp: the
-  // best-n slots and the n-th-best pick are then compile-time; measured ~6 % of the frame).
-  UniquePipeline blend_pipes_[blend::kMaxBlendViews + 1];
-  UniquePipeline blend_comp_pipes_[blend::kMaxBlendViews + 1];
+  // best-n slots and the n-th-best pick are then compile-time; measured ~6 % of the frame) and
+  // per BlendVariant (constant 2, inpainted keyframes: their per-pixel loop cost ~8 % of the
+  // frame even with no keyframe, llvmpipe runs a loop body at least once; constant 3, lambda 1).
+  struct BlendPipes {
+    UniquePipeline surface, sky, compute;
+  };
+  BlendPipes blend_pipes_[blend::kMaxBlendViews + 1][4];
 };
 
 }  // namespace exo::vk

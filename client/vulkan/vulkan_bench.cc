@@ -2,11 +2,14 @@
 // 1920x1080 for 8/16/32/60 references per cell (village scene, stored views rendered by
 // common/synth), first frame (pipeline JIT) separately, and SSIM of each configuration against
 // the synthetic ground truth, one JSON object per configuration (median and min of the timed
-// frames, the 1-minute load average, since the machine is shared). Usage:
+// frames, the 1-minute load average, since the machine is shared). Beside every configuration
+// it times the floor (VulkanRenderer::RenderFloor: a forward draw of the same proxy with one
+// bilinear fetch per pixel + the same read-back), interleaved frame by frame with the blend, and
+// prints both with their ratio (floor_*, ratio_wall, ratio_cpu). Usage:
 //   LP_NUM_THREADS=2 vulkan_bench [--frames=5] [--views=60] [--refs=8,16,32,60]
 //       [--sizes=640x480,1280x720,1920x1080] [--scene=village|apartment] [--view_size=320x240]
 //       [--pose=k (all frames from novel pose k)] [--background_views=N (sky pass; 0 = off)]
-//       [--fill_holes=0|1 (push-pull fill of uncovered pixels; default 1)]
+//       [--fill_holes=0|1 (push-pull fill of uncovered pixels; default 1)] [--n_best=1..4]
 // Env: EXO_VULKAN_BENCH_DUMP=<dir> writes every frame + ground truth as PNG.
 #include <algorithm>
 #include <chrono>
@@ -93,6 +96,7 @@ int main(int argc, char** argv) {
   int fixed_pose = -1;  // --pose=k: every frame from novel pose k (profiling)
   int background_views = blend::BlendOptions{}.background_views;
   bool fill_holes = blend::BlendOptions{}.fill_holes;
+  int n_best = blend::BlendOptions{}.n_best;
   std::string scene_name = "village";
   std::string refs_text = "8,16,32,60", sizes_text = "640x480,1280x720,1920x1080",
               view_size_text = "320x240";
@@ -116,6 +120,8 @@ int main(int argc, char** argv) {
   app.add_option("--background_views", background_views, "sky pass views (0 = off)")
       ->check(CLI::NonNegativeNumber);
   app.add_option("--fill_holes", fill_holes, "push-pull fill of uncovered pixels (0|1)");
+  app.add_option("--n_best", n_best, "views blended per pixel")
+      ->check(CLI::Range(1, blend::kMaxBlendViews));
   if (auto rc = exo::cli::Parse(app, argc, argv)) return *rc;
   const std::vector<int> refs_list = ParseInts(refs_text, ',');
   const std::vector<int> sizes = ParseInts(sizes_text, 'x');
@@ -179,8 +185,10 @@ int main(int argc, char** argv) {
       blend::BlendOptions bo;
       bo.background_views = background_views;
       bo.fill_holes = fill_holes;
-      double first_ms = 0, ssim_sum = 0;
-      std::vector<double> ms_v, cpu_v, gpu_v, rb_v, rank_v, fill_v, filled_v;
+      bo.n_best = n_best;
+      double first_ms = 0, ssim_sum = 0, floor_first_ms = 0;
+      std::vector<double> ms_v, cpu_v, gpu_v, rb_v, rank_v, fill_v, filled_v, floor_ms_v,
+          floor_cpu_v, sky_v;
       int ssim_n = 0;
       for (int k = 0; k <= frames; ++k) {
         const Rigid3d& pose =
@@ -200,9 +208,20 @@ int main(int argc, char** argv) {
           if (auto gt = synth::RenderFrame(*scene, pose, gro); gt.ok())
             (void)WriteColorImage(base + "_gt.png", gt->frame.color);
         }
-        if (k == 0) { first_ms = ms; continue; }
+        // The floor on the same pose right after (interleaved, so both see the same load).
+        const auto tf0 = std::chrono::steady_clock::now();
+        const double cf0 = ProcessCpuMs();
+        auto floor_out = r->RenderFloor(cam, pose);
+        const double floor_cpu_ms = ProcessCpuMs() - cf0;
+        const double floor_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - tf0).count();
+        if (!floor_out.ok()) { fprintf(stderr, "%s\n", floor_out.status().ToString().c_str()); return 1; }
+        if (k == 0) { first_ms = ms; floor_first_ms = floor_ms; continue; }
+        floor_ms_v.push_back(floor_ms); floor_cpu_v.push_back(floor_cpu_ms);
         ms_v.push_back(ms); cpu_v.push_back(cpu_ms); gpu_v.push_back(out->gpu_ms); rb_v.push_back(out->readback_ms); rank_v.push_back(out->rank_ms);
         fill_v.push_back(out->fill_ms); filled_v.push_back(double(out->filled_pixels));
+        double sky = 0;  // pixels filled at infinity (coverage 3)
+        for (uint8_t c : out->coverage.span()) sky += c == 3;
+        sky_v.push_back(sky);
         // SSIM on every timed frame at the smallest size, on the first one otherwise (GT
         // rendering of 1080p frames on the CPU is slower than the bench itself).
         if (k == 1 || si == 0) {
@@ -235,13 +254,21 @@ int main(int argc, char** argv) {
           {"median_ms", Round(med(ms_v), 2)},
           {"min_ms", Round(mn(ms_v), 2)},
           {"median_cpu_ms", Round(med(cpu_v), 1)},
+          {"floor_first_frame_ms", Round(floor_first_ms, 1)},
+          {"floor_median_ms", Round(med(floor_ms_v), 2)},
+          {"floor_min_ms", Round(mn(floor_ms_v), 2)},
+          {"floor_median_cpu_ms", Round(med(floor_cpu_v), 1)},
+          {"ratio_wall", Round(med(ms_v) / std::max(1e-3, med(floor_ms_v)), 2)},
+          {"ratio_cpu", Round(med(cpu_v) / std::max(1e-3, med(floor_cpu_v)), 2)},
           {"median_gpu_ms", Round(med(gpu_v), 2)},
           {"median_readback_ms", Round(med(rb_v), 2)},
           {"median_rank_ms", Round(med(rank_v), 2)},
+          {"n_best", n_best},
           {"fill_holes", int(fill_holes)},
           {"median_fill_ms", Round(med(fill_v), 2)},
           {"median_filled_px", Round(med(filled_v), 0)},
           {"background_views", background_views},
+          {"median_sky_px", Round(med(sky_v), 0)},
           {"frames", frames},
           {"ssim", Round(ssim_n ? ssim_sum / ssim_n : 0.0, 4)},
           {"ssim_frames", ssim_n},

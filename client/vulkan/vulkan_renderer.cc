@@ -253,6 +253,10 @@ absl::StatusOr<RenderResult> VulkanRenderer::Render(const PinholeCamera& camera,
                                                     const blend::BlendOptions& options) {
   return impl_->frame->Render(camera, local_from_cam, options);
 }
+absl::StatusOr<RenderResult> VulkanRenderer::RenderFloor(const PinholeCamera& camera,
+                                                         const Rigid3d& local_from_cam) {
+  return impl_->frame->RenderFloor(camera, local_from_cam);
+}
 absl::StatusOr<ImageF> VulkanRenderer::RenderProxyDepth(const PinholeCamera& camera,
                                                         const Rigid3d& local_from_cam) {
   return impl_->frame->RenderProxyDepth(camera, local_from_cam);

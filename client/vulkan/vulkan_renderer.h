@@ -112,6 +112,13 @@ class VulkanRenderer {
   absl::StatusOr<Image<uint64_t>> RenderCellIds(const PinholeCamera& camera,
                                                 const Rigid3d& local_from_cam);
 
+  // The speed floor the blend is measured against (vulkan_bench): a forward draw of the resident
+  // proxy with one bilinear fetch per pixel from the resident view nearest the camera
+  // (projective texturing: no validity, weights or blending), the same read-back and unpack as
+  // Render; coverage 2 where the proxy is drawn. FailedPrecondition without a resident view.
+  absl::StatusOr<RenderResult> RenderFloor(const PinholeCamera& camera,
+                                           const Rigid3d& local_from_cam);
+
   // Z-depth (metres along the optical axis) of the resident proxy mesh seen from a camera, 0
   // where there is no surface: what a client would use if views did not carry depth
   // (shaders/viewdepth.frag; measured against stored sensor depth in docs/vulkan.md).

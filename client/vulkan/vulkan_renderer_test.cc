@@ -108,6 +108,36 @@ TEST(VulkanRendererTest, SamePoseReproducesStoredView) {
   EXPECT_TRUE(r->ValidationErrors().empty()) << r->ValidationErrors()[0];
 }
 
+TEST(VulkanRendererTest, FloorPassReproducesTheNearestView) {
+  // The benchmark's floor (one projective fetch per pixel from the nearest view) is a real
+  // render: from the stored pose it gives back the stored pixels; from a pose nearer to a
+  // second, differently exposed view it samples that one; without views it is an error.
+  LumigraphModel m = PlaneModel();
+  auto r = Make(m);
+  auto out = r->RenderFloor(Cam(), Rigid3d::Identity());
+  ASSERT_TRUE(out.ok()) << out.status();
+  EXPECT_LE(MaxDiff(out->color, m.views.at(1).color), 1);
+  for (uint8_t c : out->coverage.span()) EXPECT_EQ(c, 2);
+  StoredView dark = PlaneView(2, Rigid3d::Identity());
+  for (uint8_t& c : dark.color.span()) c = uint8_t(c / 2);
+  m.views[2] = dark;
+  m.views[2].local_from_cam.translation = glm::dvec3(0.0, 0.0, 0.5);
+  ASSERT_TRUE(r->SyncModel(m).ok());
+  Rigid3d near2 = Rigid3d::Identity();
+  near2.translation = glm::dvec3(0.0, 0.0, 0.45);
+  out = r->RenderFloor(Cam(), near2);
+  ASSERT_TRUE(out.ok()) << out.status();
+  // The centre pixel sees the plane point on view 2's optical axis: view 2's centre colour.
+  const int cx = kW / 2, cy = kH / 2;
+  EXPECT_NEAR(out->color.at(cx, cy, 0), dark.color.at(cx, cy, 0), 2);
+  EXPECT_NEAR(out->color.at(cx, cy, 1), dark.color.at(cx, cy, 1), 2);
+  EXPECT_TRUE(r->ValidationErrors().empty()) << r->ValidationErrors()[0];
+  auto empty = VulkanRenderer::Create(ValidatedOptions());
+  ASSERT_TRUE(empty.ok());
+  EXPECT_EQ((*empty)->RenderFloor(Cam(), Rigid3d::Identity()).status().code(),
+            absl::StatusCode::kFailedPrecondition);
+}
+
 TEST(VulkanRendererTest, CellWithNoReferencesGivesBackground) {
   // Hard case: empty reference set. Guard: the count == 0 path of the hash lookup and
   // Resolve()'s sum_weight > 0 test (without it: 0/0 = NaN colour).
