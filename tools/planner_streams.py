@@ -34,6 +34,7 @@ ORACLES = {"every_n", "offline_greedy", "all_frames"}  # know the stream's lengt
 LABEL = {
     "online": "online planner (thesis 3.6)",
     "online_novelty": "online planner, novelty-weighted φ_p",
+    "online_dispersion": "online planner, pose dispersion first (coverage guard)",
     "every_n": "every-N (oracle: knows the length)",
     "every_n_online": "every-N, progressive decimation",
     "reservoir": "reservoir sampling",
@@ -99,6 +100,8 @@ def summarize(rows, metric):
             continue
         if pol == "online" and d["config"].get("novelty_positional"):
             pol = "online_novelty"
+        if pol == "online" and d["config"].get("dispersion"):
+            pol = "online_dispersion"
         key = (scene, stream, d["test_poses"])
         store = d["config"]["store"]
         cell = acc.setdefault(key, {}).setdefault(pol, {}).setdefault(store, {})
@@ -131,7 +134,7 @@ def verdicts(summary, metric):
     """{key: {store: {planner: {policy: paired planner - policy per seed}}}}: mean, sd, wins, verdict."""
     res = {}
     for key, pols in summary.items():
-        for planner in ("online", "online_novelty"):
+        for planner in ("online", "online_novelty", "online_dispersion"):
             for store, on in pols.get(planner, {}).items():
                 for pol, stores in pols.items():
                     if pol == planner or store not in stores:
@@ -157,7 +160,7 @@ def print_tables(summary, ver, metric):
         scene, stream, poses = key
         pols = summary[key]
         stores = sorted({s for p in pols.values() for s in p})
-        order = [p for p in ["online", "online_novelty", "every_n", "every_n_online", "reservoir",
+        order = [p for p in ["online", "online_novelty", "online_dispersion", "every_n", "every_n_online", "reservoir",
                              "min_distance", "keyframe", "offline_greedy"] if p in pols]
         any_cell = next(iter(next(iter(pols.values())).values()))
         print(f"\n### {scene} / {stream} / {poses} test poses ({any_cell['n_seeds']} seeds)\n")
@@ -174,8 +177,9 @@ def print_tables(summary, ver, metric):
     print(f"\n### The planners against the best online baseline and the oracle ({metric}, paired per"
           " seed: mean ± sd of planner - policy; win / loss = on every seed, else tie)\n")
     print("| scene / stream / poses | store | best online baseline | thesis planner vs it |"
-          " novelty planner vs it | thesis vs oracle every-N | novelty vs oracle every-N |")
-    print("|---|---|---|---|---|---|---|")
+          " novelty planner vs it | dispersion planner vs it | thesis vs oracle every-N |"
+          " novelty vs oracle every-N | dispersion vs oracle every-N |")
+    print("|---|---|---|---|---|---|---|---|---|")
     for key in sorted(ver):
         pols = summary[key]
         for store in sorted(ver[key]):
@@ -185,8 +189,9 @@ def print_tables(summary, ver, metric):
                 continue
             best = max(cands)[1]
             row = [f"{key[0]} / {key[1]} / {key[2]}", str(store), LABEL.get(best, best)]
-            for planner, vs in (("online", best), ("online_novelty", best), ("online", "every_n"),
-                                ("online_novelty", "every_n")):
+            for planner, vs in (("online", best), ("online_novelty", best),
+                                ("online_dispersion", best), ("online", "every_n"),
+                                ("online_novelty", "every_n"), ("online_dispersion", "every_n")):
                 v = ver[key][store].get(planner, {}).get(vs)
                 row.append("-" if v is None else
                            f"{v['delta']:+.4f} ± {v['delta_sd']:.4f} {v['verdict']}"
@@ -203,7 +208,7 @@ def chart(summary, path, metric):
     cols = sorted({k[1] for k in keys})
     fig, axes = plt.subplots(len(rows), len(cols), figsize=(4.2 * len(cols), 3.2 * len(rows)),
                              squeeze=False)
-    colors = {"online": "#d62728", "online_novelty": "#e377c2", "every_n": "#7f7f7f", "every_n_online": "#1f77b4",
+    colors = {"online": "#d62728", "online_novelty": "#e377c2", "online_dispersion": "#17becf", "every_n": "#7f7f7f", "every_n_online": "#1f77b4",
               "reservoir": "#2ca02c", "min_distance": "#9467bd", "keyframe": "#ff7f0e",
               "offline_greedy": "#8c564b"}
     for i, (scene, poses) in enumerate(rows):

@@ -60,16 +60,20 @@ struct OnlineModelOptions {
   // References per cell the clients render with (planning::PlannerOptions::render_refs_max):
   // 0 = R(b_k); N = every stored observer, at most max(N, r_max).
   int render_refs_max = 64;
-  double lambda = 0.4;  // (3.6) directional vs positional
+  // (3.6) directional vs positional. 1 with pose dispersion (issue 15, ten 7-Scenes folds): the
+  // positional term credits views close to a cell, which dispersion already spreads.
+  double lambda = 1.0;
   double tau_max = 4.0;
   double delta_tau_sum = 0.05;
   bool novelty_positional = false;  // planning::PlannerOptions::novelty_positional (issue 22)
   bool soft_saturation = false;    // planning::PlannerOptions::soft_saturation
   // planning::PlannerOptions::dispersion / _m_per_rad (0: d_max) / _guard (issues 15 / 22).
-  planning::PlannerOptions::Dispersion dispersion = planning::PlannerOptions::Dispersion::kOff;
+  // Pose dispersion first, guarded by coverage relative to the mean τ per view (issues 15 / 22,
+  // docs/planning.md "Pose dispersion").
+  planning::PlannerOptions::Dispersion dispersion = planning::PlannerOptions::Dispersion::kFirst;
   double dispersion_m_per_rad = 0.0;
   double dispersion_guard = 0.5;
-  double dispersion_guard_relative = 0.0;
+  double dispersion_guard_relative = 0.65;
   // Relative sharpness of each frame as the planner's candidate quality (issue 15;
   // planning/frame_quality.h). gamma 0 = off.
   planning::FrameQualityOptions frame_quality;

@@ -243,10 +243,15 @@ planning::PlannerOptions PlannerFor(const PolicyConfig& c, const Source& src, do
   po.cell_size_m = cell_m;
   po.novelty_positional = c.novelty_positional;
   po.soft_saturation = c.soft_saturation;
-  po.dispersion = static_cast<planning::PlannerOptions::Dispersion>(c.dispersion);
-  po.dispersion_m_per_rad = c.dispersion_m_per_rad;
-  po.dispersion_guard = c.dispersion_guard;
-  po.dispersion_guard_relative = c.dispersion_guard_relative;
+  const core::OnlineModelOptions product;  // unset options: the server's defaults
+  po.dispersion = c.dispersion >= 0 ? static_cast<planning::PlannerOptions::Dispersion>(c.dispersion)
+                                    : product.dispersion;
+  po.dispersion_m_per_rad =
+      c.dispersion_m_per_rad >= 0 ? c.dispersion_m_per_rad : product.dispersion_m_per_rad;
+  po.dispersion_guard = c.dispersion_guard >= 0 ? c.dispersion_guard : product.dispersion_guard;
+  po.dispersion_guard_relative = c.dispersion_guard_relative >= 0
+                                     ? c.dispersion_guard_relative
+                                     : product.dispersion_guard_relative;
   po.d_max_m = src.scale.d_max_m;
   po.sigma_m = src.scale.sigma_m;
   if (src.scale_mode == ScaleMode::kViewDepth && src.view_depth_m > 0) {
@@ -375,10 +380,10 @@ std::string ConfigJson(const std::string& dataset, const std::string& test_poses
                  {"online", int(PolicyIsOnline(c.policy))},
                  {"novelty_positional", int(c.novelty_positional)},
                  {"soft_saturation", int(c.soft_saturation)},
-                 {"dispersion", int(c.dispersion)},
-                 {"dispersion_m_per_rad", c.dispersion_m_per_rad},
-                 {"dispersion_guard", c.dispersion_guard},
-                 {"dispersion_guard_relative", c.dispersion_guard_relative},
+                 {"dispersion", int(po.dispersion)},
+                 {"dispersion_m_per_rad", po.dispersion_m_per_rad},
+                 {"dispersion_guard", po.dispersion_guard},
+                 {"dispersion_guard_relative", po.dispersion_guard_relative},
                  {"sharp_gamma", c.sharp_gamma}};
   j["quality"] = {{"mssim", Round(r.quality.mssim, 4)},
                   {"psnr", Round(r.quality.psnr, 2)},
@@ -1165,7 +1170,8 @@ absl::StatusOr<std::vector<ConfigResult>> RunSynthetic(const SynthRunOptions& o)
     EXO_ASSIGN_OR_RETURN(synth::RenderedFrame f0, synth::RenderFrame(scene, src.poses[0], rop));
     src.view_depth_m = core::MedianDepth(f0.frame.depth_m);
   }
-  src.default_lambda = aerial ? 0.5 : 0.4;
+  // The product's λ (the server has one for every scene; the thesis used 0.5 aerial, 0.4 indoor).
+  src.default_lambda = core::OnlineModelOptions{}.lambda;
   src.metres_per_rad = std::max(0.5, 0.05 * scene.ExtentM());
   src.dataset = absl::StrCat(o.scene, "/", o.traj);
   if (o.scene_seed != 1) absl::StrAppend(&src.dataset, "/seed", o.scene_seed);
@@ -1308,7 +1314,7 @@ absl::StatusOr<SevenScenesReport> RunSevenScenes(const SevenScenesRunOptions& o)
   src.scale = scale;
   src.scale_mode = o.scale_mode;
   src.view_depth_m = setup.view_depth_m;
-  src.default_lambda = 0.4;
+  src.default_lambda = core::OnlineModelOptions{}.lambda;  // the product's λ
   src.metres_per_rad = 1.0;
   src.dataset = "7scenes/redkitchen";
   const std::vector<Frame>* fp = &frames;

@@ -85,10 +85,11 @@ struct PolicyConfig {
   bool soft_saturation = false;
   // planning::PlannerOptions::dispersion / dispersion_m_per_rad; policy options "disp=1",
   // "mpr=V".
-  int dispersion = 0;  // 0 off, 1 ties, 2 first
-  double dispersion_m_per_rad = 0.0;
-  double dispersion_guard = 0.5;  // policy option "dg=V"
-  double dispersion_guard_relative = 0.0;  // policy option "dgr=V"
+  // -1: the product's default (core::OnlineModelOptions), as every unset planner option.
+  int dispersion = -1;  // 0 off, 1 ties, 2 first
+  double dispersion_m_per_rad = -1;
+  double dispersion_guard = -1;           // policy option "dg=V"
+  double dispersion_guard_relative = -1;  // policy option "dgr=V"
 
   // OnlineModelOptions::frame_quality.gamma; policy option "sharp=G" (0 = off).
   double sharp_gamma = 0.0;

@@ -140,6 +140,8 @@ std::vector<ConfigKey> MakeKeys() {
           EXO_FIELD(pipeline.model.dispersion_m_per_rad)),
       Key("planner_dispersion_guard", "dispersion 2: a view whose removal loses more coverage (tau) than this is kept, a frame that gains more is stored (1e9: no guard, pure pose dispersion)",
           EXO_FIELD(pipeline.model.dispersion_guard)),
+      Key("planner_dispersion_guard_relative", "dispersion 2: the guard as this fraction of the mean tau per stored view (0: the absolute planner_dispersion_guard)",
+          EXO_FIELD(pipeline.model.dispersion_guard_relative)),
       Key("max_candidates_per_s_when_full",
           "planner candidates per s once the store is full (0: all)",
           EXO_FIELD(pipeline.model.max_candidates_per_s_when_full)),
