@@ -1340,12 +1340,25 @@ absl::StatusOr<SevenScenesReport> RunSevenScenes(const SevenScenesRunOptions& o)
     ts.depth.push_back(f.depth_m);  // issue 15 own-depth proxy (attribution)
     if (o.test_width != f.color.width()) {
       ImageU8 small(o.test_width, o.test_height, 3);
-      // Box-free nearest resample is enough for a smoke run; full runs use 640x480.
-      for (int y = 0; y < o.test_height; ++y)
-        for (int x = 0; x < o.test_width; ++x)
-          for (int c = 0; c < 3; ++c)
-            small.at(x, y, c) = f.color.at(x * f.color.width() / o.test_width,
-                                           y * f.color.height() / o.test_height, c);
+      const int fx = f.color.width() / o.test_width, fy = f.color.height() / o.test_height;
+      if (o.test_box && fx >= 1 && fy >= 1 && fx * o.test_width == f.color.width() &&
+          fy * o.test_height == f.color.height()) {
+        for (int y = 0; y < o.test_height; ++y)
+          for (int x = 0; x < o.test_width; ++x)
+            for (int c = 0; c < 3; ++c) {
+              int s = 0;
+              for (int v = 0; v < fy; ++v)
+                for (int u = 0; u < fx; ++u) s += f.color.at(x * fx + u, y * fy + v, c);
+              small.at(x, y, c) = uint8_t((s + fx * fy / 2) / (fx * fy));
+            }
+      } else {
+        // Nearest resample (the historical smoke protocol).
+        for (int y = 0; y < o.test_height; ++y)
+          for (int x = 0; x < o.test_width; ++x)
+            for (int c = 0; c < 3; ++c)
+              small.at(x, y, c) = f.color.at(x * f.color.width() / o.test_width,
+                                             y * f.color.height() / o.test_height, c);
+      }
       ts.gt.push_back(std::move(small));
     } else {
       ts.gt.push_back(f.color);

@@ -236,6 +236,10 @@ struct SevenScenesRunOptions {
   double max_depth_m = 4.0;
   int id_width = 160, id_height = 120;
   int test_width = 640, test_height = 480;
+  // Ground truth at a reduced test size: false = nearest sample (the eval's historical smoke
+  // resample), true = box average over the integer factor (what tools/product_eval compares
+  // against: the anti-aliased reference).
+  bool test_box = false;
   ScaleMode scale_mode = ScaleMode::kViewDepth;
   double cellid_lod_frac = -1;     // see SynthRunOptions
   double cellid_lod_m = 0;         // see SynthRunOptions

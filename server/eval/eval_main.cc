@@ -269,6 +269,7 @@ int RunOne(const Args& a) {
     o.voxel_m = a.Num("--voxel", 0);
     o.test_width = int(a.Num("--test_w", 640));
     o.test_height = int(a.Num("--test_h", 480));
+    o.test_box = a.Num("--test_box", 0) != 0;
     o.cellid_lod_frac = a.Num("--lod", o.cellid_lod_frac);
     o.cellid_lod_m = a.Num("--lod_m", o.cellid_lod_m);
     o.cellid_lod_keep = a.Num("--lod_keep", o.cellid_lod_keep);
@@ -398,6 +399,7 @@ constexpr std::pair<const char*, const char*> kFlags[] = {
     {"--test_views", "synthetic test poses"},
     {"--test_w", "test image width"},
     {"--test_h", "test image height"},
+    {"--test_box", "1: 7-Scenes ground truth box-averaged to the test size (the product eval's reference) instead of nearest samples"},
     {"--test_poses", "scene | near | scene,near"},
     {"--test_seed", "test-pose seed (default 7)"},
     {"--scene_seed", "synthetic scene seed (default 1)"},
