@@ -18,6 +18,7 @@
 #include "proto/model_proto.h"
 #include "server/service/model_store.h"
 #include "server/service/delta_log.h"
+#include "server/service/frame_journal.h"
 #include "server/service/geometry_stage.h"
 #include "server/service/pipeline.h"
 #include "server/service/planning_stage.h"
@@ -144,7 +145,8 @@ class ExoviewServer {
  private:
   class Service;
   struct Durability;
-  absl::Status OpenAndReplayJournal();
+  absl::Status ReplayJournal(std::unique_ptr<FrameJournal> journal,
+                             const FrameJournal::OpenReport& report);
   absl::StatusOr<std::shared_ptr<grpc::ServerCredentials>> MakeServerCredentials() const;
   std::unique_ptr<class UdpPoseInput> udp_;
   ServerConfig config_;
