@@ -413,6 +413,10 @@ class ExoviewServer::Service final : public v1::Exoview::Service {
       c["udp.malformed"] = static_cast<double>(udp_->malformed());
       c["udp.unauthenticated"] = static_cast<double>(udp_->unauthenticated());
       c["udp.replayed"] = static_cast<double>(udp_->replayed());
+      c["udp.rejected_future"] = static_cast<double>(udp_->rejected_future());
+      c["udp.rejected_past"] = static_cast<double>(udp_->rejected_past());
+      c["udp.rejected_backwards"] = static_cast<double>(udp_->rejected_backwards());
+      c["udp.rebased"] = static_cast<double>(udp_->rebased());
     }
     if (FrameJournal* j = dur_->journal.get()) {
       const FrameJournal::Counters jc = j->counters();
@@ -755,7 +759,7 @@ absl::Status ExoviewServer::Start() {
           "allow_insecure_remote=true"));
     }
     EXO_ASSIGN_OR_RETURN(udp_, UdpPoseInput::Start(config_.udp_pose_address, config_.udp_pose_port,
-                                                   4096, key));
+                                                   4096, key, config_.udp_pose_time));
     log::Get("server")->info("UDP poses on {}:{}{}", config_.udp_pose_address, udp_->port(),
                              key.empty() ? " (plain datagrams, not authenticated)"
                                          : " (HMAC-SHA256 authenticated, replay-protected)");
