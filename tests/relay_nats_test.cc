@@ -508,6 +508,10 @@ TEST_F(RelayNats, KillNineWithJournalAndJetStreamLosesNoDurableFrameAndRelaysSta
       std::this_thread::sleep_for(std::chrono::milliseconds(20));
     }
     abandoned += st.counters().at("delta_log.abandoned");
+    std::fprintf(stderr, "[kill %d] abandoned %.0f, unconditional publishes %.0f of version %llu\n",
+                 kills + 1, st.counters().at("delta_log.abandoned"),
+                 st.counters().at("delta_log.unconditional_publishes"),
+                 static_cast<unsigned long long>(st.model_version()));
     replayed += st.counters().at("journal.replayed");
     EXPECT_EQ(st.counters().at("delta_log.replayed"), 0.0)
         << "the stream was replayed on top of the checkpoint: its frames would come twice";

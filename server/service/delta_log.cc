@@ -140,6 +140,7 @@ class JetStreamDeltaLog final : public DeltaLog {
     (*out)["delta_log.replayed"] = static_cast<double>(replayed_);
     (*out)["delta_log.gaps"] = static_cast<double>(gaps_.load());
     (*out)["delta_log.abandoned"] = static_cast<double>(abandoned_);
+    (*out)["delta_log.unconditional_publishes"] = static_cast<double>(unconditional_.load());
     (*out)["delta_log.bytes_published"] = static_cast<double>(bytes_published_.load());
   }
 
@@ -219,6 +220,7 @@ class JetStreamDeltaLog final : public DeltaLog {
         }
         published_.store(d->version());
         bytes_published_.fetch_add(d->ByteSizeLong());
+        unconditional_.store(js_->unconditional_publishes());
       }
       if (published_.load() > snapshot_version_.load() &&
           std::chrono::steady_clock::now() - last_snapshot_ >
@@ -245,7 +247,8 @@ class JetStreamDeltaLog final : public DeltaLog {
   std::atomic<uint64_t> published_{0}, snapshot_version_{0}, snapshots_{0}, retries_{0}, gaps_{0},
       bytes_published_{0};  // deltas + snapshots sent to JetStream
   uint64_t replayed_ = 0;
-  uint64_t abandoned_ = 0;  // stream versions past the checkpoint given up at Open
+  uint64_t abandoned_ = 0;
+  std::atomic<uint64_t> unconditional_{0};  // publishes after a purge (nats-server 2.9)  // stream versions past the checkpoint given up at Open
   std::chrono::steady_clock::time_point last_snapshot_{};
 };
 
