@@ -24,6 +24,14 @@ VIEWER="$BUILD_DIR/client/viewer/exoview_viewer"
 log() { echo "[itest $(date +%T)] $*" >&2; }
 
 command -v podman >/dev/null || { echo "SKIP itest: podman is not installed (apt-get install podman runc)" >&2; exit 77; }
+# One itest per machine at a time: container names, loopback ports, /tmp/exoview-itest and the
+# image tags are fixed, and a second run beside this one (another checkout's test suite) tears
+# down and overwrites this one's pods and images. A second run waits here. (ctest's podman_itest
+# takes the same lock around images.sh + this script and sets EXOVIEW_ITEST_LOCKED.)
+if [ -z "${EXOVIEW_ITEST_LOCKED:-}" ]; then
+  exec 9>/tmp/exoview-itest.lock
+  flock 9
+fi
 [ "$(id -u)" = 0 ] || { echo "SKIP itest: needs root podman (host network, chown of the volumes)" >&2; exit 77; }
 [ -x "$HEALTH" ] && [ -x "$VIEWER" ] || { echo "itest: build exoview_health and exoview_viewer first" >&2; exit 1; }
 for img in server relay uploader viewer nats; do
