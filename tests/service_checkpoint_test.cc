@@ -218,7 +218,7 @@ TEST_F(ServiceCheckpoint, JournalRecoversWhatACorruptNewestCheckpointHeld) {
   const std::string ckpt = dir_ + "/model.ckpt";
   // The case needs a previous generation that does NOT cover every journaled frame. A periodic
   // checkpoint written after the settled one (e.g. for a ledger change that followed the last
-  // version bump) can make .prev cover them all; then stream another batch (at most 4).
+  // version bump) can make .prev cover them all; then stream another batch (at most 8).
   double applied = 0.0;
   v1::Checkpoint prev;
   for (int batch = 1;; ++batch) {
@@ -234,7 +234,9 @@ TEST_F(ServiceCheckpoint, JournalRecoversWhatACorruptNewestCheckpointHeld) {
       ASSERT_TRUE(prev.ParseFromIstream(&in));
     }
     if (static_cast<double>(prev.applied_lsn()) < applied) break;
-    ASSERT_LT(batch, 4) << "every previous generation covered the whole journal";
+    // (4 batches were not always enough under the sanitizer build, where the slow server's
+    // checkpoints fall differently: 8.)
+    ASSERT_LT(batch, 8) << "every previous generation covered the whole journal";
     StartCheckpointedServer("server1_" + std::to_string(batch) + ".log", /*journal=*/true);
   }
   ASSERT_LT(static_cast<double>(prev.applied_lsn()), applied);

@@ -20,7 +20,7 @@ int main(int argc, char** argv) {
       "and prints the ack statistics as JSON.",
       "exoview_uploader"};
   exo::cli::Setup(app);
-  std::string server, synthetic, dataset, stats_json, send_log;
+  std::string server, synthetic, dataset, stats_json, send_log, durable_log;
   exo::SynthSourceOptions synth;
   exo::DatasetOptions data;
   exo::UploadOptions opt;
@@ -90,7 +90,24 @@ int main(int argc, char** argv) {
   app.add_option("--link_loss", flight.link.loss, "sim drone: setpoint loss probability")
       ->check(CLI::Range(0.0, 1.0));
   app.add_option("--send_log", send_log, "write \"timestamp_s steady_ns\" per sent frame");
+  app.add_option("--durable_log", durable_log,
+                 "append the sequence of every frame the server acked durable, one a line, "
+                 "flushed at once (what an operator compares with the server's model: "
+                 "deploy/itest.sh)");
   if (auto rc = exo::cli::Parse(app, argc, argv)) return *rc;
+  std::FILE* durable_file = nullptr;
+  if (!durable_log.empty()) {
+    durable_file = std::fopen(durable_log.c_str(), "a");
+    if (!durable_file) {
+      std::fprintf(stderr, "exoview_uploader: cannot append to %s\n", durable_log.c_str());
+      return 2;
+    }
+    opt.on_ack = [durable_file](const exo::v1::Ack& a) {
+      if (a.status() != exo::v1::Ack::ACCEPTED || !a.durable()) return;
+      std::fprintf(durable_file, "%llu\n", static_cast<unsigned long long>(a.sequence()));
+      std::fflush(durable_file);
+    };
+  }
 
   if (server.empty()) {
     std::fprintf(stderr, "exoview_uploader: --server=HOST:PORT is required\n");

@@ -267,6 +267,14 @@ int main(int argc, char** argv) {
     state["server_digest"] = server->model_digest();
     state["server_frames_received"] = server->frames_received();
     state["server_frames_accepted"] = server->frames_accepted();
+    // The server's applied-frame ledger per named uploader (frame journal, docs/security.md).
+    nlohmann::json uploaders = nlohmann::json::array();
+    for (const auto& u : server->uploaders())
+      uploaders.push_back({{"uploader", u.uploader()},
+                           {"applied_max_sequence", u.applied_max_sequence()},
+                           {"applied_frames", u.applied_frames()},
+                           {"double_applied", u.double_applied()}});
+    state["server_uploaders"] = uploaders;
   }
   std::fprintf(stderr, "exoview_viewer: store %s\n", state.dump().c_str());
   if (!f.state_json.empty()) {

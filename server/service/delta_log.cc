@@ -43,7 +43,7 @@ class JetStreamDeltaLog final : public DeltaLog {
   ~JetStreamDeltaLog() override { Close(); }
   const char* kind() const override { return "jetstream"; }
 
-  absl::Status Open(ModelStore* store) override {
+  absl::Status Open(ModelStore* store, bool store_is_authority) override {
     store_ = store;
     JetStreamSceneOptions so;
     so.url = options_.nats_url;
@@ -57,7 +57,27 @@ class JetStreamDeltaLog final : public DeltaLog {
     log_->info("delta log: JetStream stream {} holds versions {}..{} ({} bytes); the store is at "
                "version {}", js_->stream(), s.first_seq, s.last_seq, s.bytes, c);
     bool need_snapshot = false;
-    if (s.last_seq > c) {
+    if (s.last_seq > c && store_is_authority) {
+      // Reconciliation with the frame journal: the store (checkpoint + the journal it replays
+      // next) is the history; the stream's versions c+1..last are abandoned. Version last+1 is
+      // never published, so a relay that applied some of them meets a gap and resyncs from the
+      // snapshot below instead of joining two histories.
+      EXO_RETURN_IF_ERROR(CheckSameHistory(c, s.first_seq));
+      const uint64_t next = s.last_seq + 2;
+      EXO_RETURN_IF_ERROR(js_->PurgeDeltasBelow(next));
+      EXO_ASSIGN_OR_RETURN(StreamState after, js_->DeltaStreamState());
+      if (after.last_seq != next - 1)
+        return absl::FailedPreconditionError(absl::StrCat(
+            "delta log: could not move stream ", js_->stream(), " up to version ", next - 1,
+            " (it ends at ", after.last_seq, ")"));
+      EXO_RETURN_IF_ERROR(store->SkipVersionsTo(next - 1));
+      abandoned_ = s.last_seq - c;
+      log_->warn("delta log: the stream held versions {}..{} past the checkpoint's {}; abandoned "
+                 "(the frame journal replays their frames once), the model continues at version "
+                 "{} with a snapshot; relays resync from it",
+                 c + 1, s.last_seq, c, next - 1);
+      need_snapshot = true;
+    } else if (s.last_seq > c) {
       // The stream is ahead of the checkpoint (the server died after publishing more): the stream
       // is the newer history; replay it so versions and epochs continue where viewers are.
       if (c + 1 < s.first_seq) {
@@ -119,6 +139,8 @@ class JetStreamDeltaLog final : public DeltaLog {
     (*out)["delta_log.publish_retries"] = static_cast<double>(retries_.load());
     (*out)["delta_log.replayed"] = static_cast<double>(replayed_);
     (*out)["delta_log.gaps"] = static_cast<double>(gaps_.load());
+    (*out)["delta_log.abandoned"] = static_cast<double>(abandoned_);
+    (*out)["delta_log.unconditional_publishes"] = static_cast<double>(unconditional_.load());
     (*out)["delta_log.bytes_published"] = static_cast<double>(bytes_published_.load());
   }
 
@@ -198,6 +220,7 @@ class JetStreamDeltaLog final : public DeltaLog {
         }
         published_.store(d->version());
         bytes_published_.fetch_add(d->ByteSizeLong());
+        unconditional_.store(js_->unconditional_publishes());
       }
       if (published_.load() > snapshot_version_.load() &&
           std::chrono::steady_clock::now() - last_snapshot_ >
@@ -224,6 +247,8 @@ class JetStreamDeltaLog final : public DeltaLog {
   std::atomic<uint64_t> published_{0}, snapshot_version_{0}, snapshots_{0}, retries_{0}, gaps_{0},
       bytes_published_{0};  // deltas + snapshots sent to JetStream
   uint64_t replayed_ = 0;
+  uint64_t abandoned_ = 0;
+  std::atomic<uint64_t> unconditional_{0};  // publishes after a purge (nats-server 2.9)  // stream versions past the checkpoint given up at Open
   std::chrono::steady_clock::time_point last_snapshot_{};
 };
 

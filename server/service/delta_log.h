@@ -38,10 +38,21 @@ class DeltaLog {
   virtual ~DeltaLog() = default;
   virtual const char* kind() const = 0;
   // Called once, before the server serves, with the store as restored from its checkpoint (or
-  // empty). The log and the store are brought to one history: a log ahead of the store is
-  // replayed into it (ModelStore::ReplayDelta), a log behind it is moved up to the store's
-  // version. From then on every delta the store commits goes to the log in version order.
-  virtual absl::Status Open(ModelStore* store) = 0;
+  // empty). The log and the store are brought to one history, from then on every delta the
+  // store commits goes to the log in version order. A log behind the store is moved up to the
+  // store's version. A log ahead of the store (the server died after publishing more than its
+  // checkpoint holds):
+  //  - store_is_authority = false (no frame journal): the log is the newer history and is
+  //    replayed into the store (ModelStore::ReplayDelta);
+  //  - store_is_authority = true (the frame journal, issue 20, holds every durable frame past
+  //    the checkpoint and will replay them): the log's versions past the checkpoint are
+  //    abandoned, because replaying them AND the journal would apply those frames twice (the
+  //    deltas carry no applied-frame ledger, and the log may end in the middle of a frame). The
+  //    store skips to one version past the log's last (ModelStore::SkipVersionsTo), the log is
+  //    purged up to there and a snapshot of the store is written: every follower of the log
+  //    then meets a gap (that one version is never published), which is how a relay knows to
+  //    resync from the snapshot; after it, every delta of the new epoch once, in order.
+  virtual absl::Status Open(ModelStore* store, bool store_is_authority) = 0;
   // Highest model version the log holds (the store's version for "memory"; for "jetstream" the
   // last one the stream acknowledged).
   virtual uint64_t durable_version() const = 0;
@@ -55,7 +66,7 @@ class DeltaLog {
 class MemoryDeltaLog final : public DeltaLog {
  public:
   const char* kind() const override { return "memory"; }
-  absl::Status Open(ModelStore* store) override {
+  absl::Status Open(ModelStore* store, bool) override {
     store_ = store;
     return absl::OkStatus();
   }

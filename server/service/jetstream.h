@@ -73,6 +73,9 @@ class JetStreamScene {
                       const std::function<bool()>& keep_going);
 
   const std::string& stream() const { return stream_; }
+  // Publishes that went without the expected-last-sequence check (after a purge, see
+  // PublishDelta).
+  uint64_t unconditional_publishes() const { return unconditional_; }
   int64_t max_payload() const;
 
  private:
@@ -80,6 +83,8 @@ class JetStreamScene {
   struct Impl;
   std::unique_ptr<Impl> impl_;
   std::string stream_, snap_stream_, subject_, snap_subject_, bucket_;
+  uint64_t unconditional_ = 0;
+  bool expect_unreliable_ = false;  // the server's expected-last-sequence mark went stale
 };
 
 }  // namespace exo

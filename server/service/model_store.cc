@@ -338,6 +338,25 @@ absl::Status ModelStore::ReplayDelta(const v1::Delta& d) {
   return absl::OkStatus();
 }
 
+absl::Status ModelStore::SkipVersionsTo(uint64_t version) {
+  std::lock_guard lock(mu_);
+  if (options_.replica) return absl::FailedPreconditionError("skip: a replica only replays");
+  if (version < version_)
+    return absl::FailedPreconditionError(
+        absl::StrCat("skip: version ", version, " is below the store's ", version_));
+  if (lineage_.empty() || lineage_.back().id != own_epoch_ ||
+      lineage_.back().start_version != version_)
+    return absl::FailedPreconditionError(
+        "skip: this store has committed or replayed deltas of its own epoch");
+  if (version == version_) return absl::OkStatus();
+  version_ = version;  // lineage_.back() (own epoch) now spans the skipped versions too
+  log_.clear();
+  log_bytes_ = 0;
+  snapshot_.reset();
+  cv_.notify_all();
+  return absl::OkStatus();
+}
+
 absl::StatusOr<std::vector<DeltaPtr>> ModelStore::DeltasAfter(uint64_t version, size_t max,
                                                                int timeout_ms) {
   std::unique_lock lock(mu_);

@@ -122,6 +122,12 @@ class ModelStore {
   // markers are refused; a delta that does not apply (e.g. an update of an unknown view) is
   // DATA_LOSS and changes nothing.
   absl::Status ReplayDelta(const v1::Delta& delta);
+  // Moves a server's version up to `version` with no content change (the reconciliation of an
+  // external delta log that holds versions this store abandons, delta_log.h): only before its
+  // own epoch committed anything. The versions in between count as this store's epoch (a client
+  // holding one of them from the abandoned history resyncs by snapshot) and the log is emptied
+  // (no delta joins the two histories).
+  absl::Status SkipVersionsTo(uint64_t version);
   // The log entries after `version` (at most `max`), waiting up to `timeout_ms` for one (CloseAll()
   // ends the wait; entries are still returned after it). Empty when nothing came; DATA_LOSS when the log no longer holds version + 1
   // (compacted away): the reader has lost deltas and must resync from a snapshot.

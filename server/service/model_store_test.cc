@@ -342,6 +342,56 @@ TEST(ModelStoreReplica, RestoredServerReplaysTheLogTailThenCommitsUnderItsOwnEpo
   for (uint64_t v = 1; v <= b.version(); ++v) EXPECT_EQ(r.EpochAt(v), b.EpochAt(v)) << v;
 }
 
+// Reconciliation with an external log that holds versions the store abandons (delta_log.h):
+// the restored server skips past them with no content change; a client holding one of them
+// (old epoch) gets a snapshot, a replica that applied them meets a gap, and the server's next
+// delta follows the skipped version.
+TEST(ModelStoreReplica, SkippedVersionsAreAGapAndClientsOnThemResyncBySnapshot) {
+  ModelStore a;
+  for (ViewId i = 1; i <= 3; ++i) a.AddView(View(i));
+  const v1::Checkpoint c = a.MakeCheckpoint(0);
+  a.AddView(View(4));  // versions 4, 5 reach the log, not the checkpoint
+  a.AddView(View(5));
+  ModelStoreOptions ro;
+  ro.replica = true;
+  ModelStore replica(ro);
+  auto all = a.DeltasAfter(0, 100, 0);
+  ASSERT_TRUE(all.ok());
+  for (const DeltaPtr& x : *all) ASSERT_TRUE(replica.ReplayDelta(*x).ok());
+
+  ModelStore b;
+  ASSERT_TRUE(b.RestoreCheckpoint(c).ok());
+  const uint64_t digest3 = b.GetSummary().digest;
+  EXPECT_EQ(b.SkipVersionsTo(2).code(), absl::StatusCode::kFailedPrecondition);  // backwards
+  ASSERT_TRUE(b.SkipVersionsTo(6).ok());  // the log ended at 5; 6 is never published
+  EXPECT_EQ(b.version(), 6u);
+  EXPECT_EQ(b.GetSummary().digest, digest3);
+  EXPECT_EQ(b.EpochAt(5), b.epoch());
+  EXPECT_EQ(b.EpochAt(3), a.EpochAt(3));
+  // A client at version 5 of the abandoned history, and one at 3 (the log is empty): snapshots.
+  for (uint64_t v : {uint64_t{5}, uint64_t{3}}) {
+    auto sub = b.Subscribe(v, a.EpochAt(v));
+    auto d = Drain(*sub);
+    EXPECT_EQ(sub->snapshots(), 1u) << v;
+    ASSERT_FALSE(d.empty());
+    EXPECT_EQ(d.back()->version(), 6u);
+  }
+  b.AddView(View(7));
+  EXPECT_EQ(b.version(), 7u);
+  auto next = b.DeltasAfter(6, 10, 0);
+  ASSERT_TRUE(next.ok());
+  ASSERT_EQ(next->size(), 1u);
+  // The replica at 5 cannot take 7: a gap (it resyncs from a snapshot).
+  EXPECT_EQ(replica.ReplayDelta(*(*next)[0]).code(), absl::StatusCode::kDataLoss);
+  // Once it has committed, a server skips no more.
+  EXPECT_EQ(b.SkipVersionsTo(10).code(), absl::StatusCode::kFailedPrecondition);
+  // The skip survives a checkpoint: a restored store continues at 7.
+  ModelStore b2;
+  ASSERT_TRUE(b2.RestoreCheckpoint(b.MakeCheckpoint(1 << 20)).ok());
+  EXPECT_EQ(b2.version(), 7u);
+  EXPECT_EQ(b2.GetSummary().digest, b.GetSummary().digest);
+}
+
 TEST(ModelStoreReplica, DeltasAfterReportsACompactedLog) {
   ModelStoreOptions o;
   o.max_log_deltas = 2;

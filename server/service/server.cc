@@ -413,6 +413,10 @@ class ExoviewServer::Service final : public v1::Exoview::Service {
       c["udp.malformed"] = static_cast<double>(udp_->malformed());
       c["udp.unauthenticated"] = static_cast<double>(udp_->unauthenticated());
       c["udp.replayed"] = static_cast<double>(udp_->replayed());
+      c["udp.rejected_future"] = static_cast<double>(udp_->rejected_future());
+      c["udp.rejected_past"] = static_cast<double>(udp_->rejected_past());
+      c["udp.rejected_backwards"] = static_cast<double>(udp_->rejected_backwards());
+      c["udp.rebased"] = static_cast<double>(udp_->rebased());
     }
     if (FrameJournal* j = dur_->journal.get()) {
       const FrameJournal::Counters jc = j->counters();
@@ -687,9 +691,24 @@ absl::Status ExoviewServer::Start() {
   }
   // The delta log (SPEC §15): memory, or JetStream (which may replay versions the checkpoint
   // missed into the store before anything is served).
+  // With the frame journal, the checkpoint + the journal are the model's history (every durable
+  // frame past the checkpoint is replayed from the journal below, exactly once): an external log
+  // that holds versions past the checkpoint is reconciled to it, not replayed (delta_log.h).
+  // Without a checkpoint and with an empty journal (a new volume) the external log, if any, is
+  // the only copy of the scene and is adopted.
+  std::unique_ptr<FrameJournal> journal;
+  FrameJournal::OpenReport journal_report;
+  if (config_.journal_enabled()) {
+    FrameJournalOptions jo;
+    jo.dir = config_.journal_directory();
+    jo.max_bytes = config_.journal_max_bytes;
+    jo.segment_bytes = config_.journal_segment_bytes;
+    EXO_ASSIGN_OR_RETURN(journal, FrameJournal::Open(jo, &journal_report));
+  }
+  const bool store_is_authority =
+      journal && (store_->version() > 0 || journal_report.records > 0);
   EXO_ASSIGN_OR_RETURN(delta_log_, MakeDeltaLog(config_.delta_log));
-  const uint64_t before_delta_log = store_->version();
-  EXO_RETURN_IF_ERROR(delta_log_->Open(store_.get()));
+  EXO_RETURN_IF_ERROR(delta_log_->Open(store_.get(), store_is_authority));
   // The stages after the checkpoint and the log replay: a restarted stage sees the restored model.
   EXO_ASSIGN_OR_RETURN(auto stages, MakeStages(config_, regions_, store_.get(), &inpainting_));
   pipeline_ = std::make_unique<Pipeline>(config_.pipeline, store_.get(), std::move(stages));
@@ -704,17 +723,7 @@ absl::Status ExoviewServer::Start() {
     pipeline_->RestoreOrigin(origin, scene.cell_size_m());
   }
   restored_version_ = store_->version();
-  if (config_.journal_enabled()) {
-    // Not reconciled yet (merge of issues 20 and 21): deltas the external log replayed past the
-    // checkpoint do not carry the applied-frame ledger, so the journal replay below may apply
-    // some of those frames again. Said loudly; docs/security.md.
-    if (store_->version() > before_delta_log)
-      log::Get("server")->warn(
-          "the delta log replayed versions {}..{} past the checkpoint; the frame journal replay "
-          "may apply some of their frames a second time",
-          before_delta_log + 1, store_->version());
-    EXO_RETURN_IF_ERROR(OpenAndReplayJournal());
-  }
+  if (journal) EXO_RETURN_IF_ERROR(ReplayJournal(std::move(journal), journal_report));
   if (!config_.checkpoint_path.empty() &&
       (config_.checkpoint_interval_s > 0 || durability_->journal)) {
     durability_->request_checkpoint = [this] {
@@ -750,7 +759,7 @@ absl::Status ExoviewServer::Start() {
           "allow_insecure_remote=true"));
     }
     EXO_ASSIGN_OR_RETURN(udp_, UdpPoseInput::Start(config_.udp_pose_address, config_.udp_pose_port,
-                                                   4096, key));
+                                                   4096, key, config_.udp_pose_time));
     log::Get("server")->info("UDP poses on {}:{}{}", config_.udp_pose_address, udp_->port(),
                              key.empty() ? " (plain datagrams, not authenticated)"
                                          : " (HMAC-SHA256 authenticated, replay-protected)");
@@ -828,14 +837,9 @@ void ExoviewServer::Shutdown() {
   durability_->journal.reset();
 }
 
-absl::Status ExoviewServer::OpenAndReplayJournal() {
+absl::Status ExoviewServer::ReplayJournal(std::unique_ptr<FrameJournal> journal,
+                                          const FrameJournal::OpenReport& rep) {
   auto log = log::Get("server");
-  FrameJournalOptions jo;
-  jo.dir = config_.journal_directory();
-  jo.max_bytes = config_.journal_max_bytes;
-  jo.segment_bytes = config_.journal_segment_bytes;
-  FrameJournal::OpenReport rep;
-  EXO_ASSIGN_OR_RETURN(std::unique_ptr<FrameJournal> journal, FrameJournal::Open(jo, &rep));
   for (const std::string& cut : rep.cuts)
     log->warn("journal: torn or corrupt tail cut (never replayed): {}", cut);
   Durability& d = *durability_;
@@ -870,7 +874,7 @@ absl::Status ExoviewServer::OpenAndReplayJournal() {
   d.next_lsn = std::max(rep.max_lsn, applied) + 1;
   log->info("journal {}: {} segments, {} records, checkpoint covers lsn <= {}; replayed {} frames "
             "({} skipped) in {:.3f} s; next lsn {}",
-            jo.dir, rep.segments, rep.records, applied, d.replayed.load(), d.replay_skipped.load(),
+            config_.journal_directory(), rep.segments, rep.records, applied, d.replayed.load(), d.replay_skipped.load(),
             (SteadyNowNs() - t0) * 1e-9, d.next_lsn);
   d.journal = std::move(journal);
   journal_dropped_upto_ = applied;

@@ -18,6 +18,8 @@
 #include "proto/model_proto.h"
 #include "server/service/model_store.h"
 #include "server/service/delta_log.h"
+#include "server/service/frame_journal.h"
+#include "server/service/udp_pose_input.h"
 #include "server/service/geometry_stage.h"
 #include "server/service/pipeline.h"
 #include "server/service/planning_stage.h"
@@ -56,6 +58,8 @@ struct ServerConfig {
   int udp_pose_port = -1;
   std::string udp_pose_address = "127.0.0.1";
   double udp_pose_tolerance_s = 0.02;  // a frame with no pose sample this close is rejected
+  // Timestamp bounds of pose datagrams against the server clock (udp_pose_input.h).
+  PoseTimeGateOptions udp_pose_time;
   // Shared key of authenticated pose datagrams (HMAC-SHA256, udp_pose_input.h); empty: plain
   // datagrams, only on a loopback address unless allow_insecure_remote.
   std::string udp_pose_key_file;
@@ -144,7 +148,8 @@ class ExoviewServer {
  private:
   class Service;
   struct Durability;
-  absl::Status OpenAndReplayJournal();
+  absl::Status ReplayJournal(std::unique_ptr<FrameJournal> journal,
+                             const FrameJournal::OpenReport& report);
   absl::StatusOr<std::shared_ptr<grpc::ServerCredentials>> MakeServerCredentials() const;
   std::unique_ptr<class UdpPoseInput> udp_;
   ServerConfig config_;

@@ -1,6 +1,8 @@
 #include "server/service/udp_pose_input.h"
 
 #include <array>
+#include <chrono>
+#include <cmath>
 #include <sstream>
 
 #include <sys/stat.h>
@@ -92,11 +94,68 @@ struct UdpPoseInput::Impl {
   boost::asio::ip::udp::socket socket{io};
 };
 
+absl::Status PoseTimeGateOptions::Validate() const {
+  if (!(max_lead_s > 0) || !(max_lag_s > 0) || !(max_backwards_s >= 0) || !(rebase_after_s > 0) ||
+      !std::isfinite(max_lead_s + max_lag_s + max_backwards_s + rebase_after_s))
+    return absl::InvalidArgumentError(
+        "udp_pose_max_lead_s, udp_pose_max_lag_s and udp_pose_rebase_after_s must be finite and "
+        "> 0, udp_pose_max_backwards_s finite and >= 0");
+  return absl::OkStatus();
+}
+
+const char* PoseTimeGate::Name(Verdict v) {
+  switch (v) {
+    case Verdict::kAccept: return "accept";
+    case Verdict::kRebased: return "rebased";
+    case Verdict::kFuture: return "future";
+    case Verdict::kPast: return "past";
+    case Verdict::kBackwards: return "backwards";
+  }
+  return "?";
+}
+
+PoseTimeGate::Verdict PoseTimeGate::Check(double t, double now_s) {
+  const double off = t - now_s;
+  if (!anchored_) {
+    anchored_ = true;
+    offset_ = off;
+    newest_ = t;
+    return Verdict::kAccept;
+  }
+  const double lead = off - offset_;
+  Verdict v = Verdict::kAccept;
+  if (lead > o_.max_lead_s)
+    v = Verdict::kFuture;
+  else if (lead < -o_.max_lag_s)
+    v = Verdict::kPast;
+  else if (t < newest_ - o_.max_backwards_s)
+    v = Verdict::kBackwards;
+  if (v == Verdict::kAccept) {
+    in_stretch_ = false;
+    newest_ = std::max(newest_, t);
+    return v;
+  }
+  if (!in_stretch_ || std::abs(off - stretch_offset_) > o_.max_lead_s) {
+    in_stretch_ = true;  // a new stretch of rejected datagrams starts here
+    stretch_start_s_ = now_s;
+    stretch_offset_ = off;
+  } else if (now_s - stretch_start_s_ >= o_.rebase_after_s) {
+    in_stretch_ = false;
+    offset_ = off;
+    newest_ = t;
+    return Verdict::kRebased;
+  }
+  return v;
+}
+
 absl::StatusOr<std::unique_ptr<UdpPoseInput>> UdpPoseInput::Start(const std::string& address,
                                                                   int port, size_t capacity,
-                                                                  const std::string& hmac_key) {
+                                                                  const std::string& hmac_key,
+                                                                  const PoseTimeGateOptions& time) {
+  EXO_RETURN_IF_ERROR(time.Validate());
   auto in = std::unique_ptr<UdpPoseInput>(new UdpPoseInput);
   in->key_ = hmac_key;
+  in->gate_ = PoseTimeGate(time);
   in->stream_ = PoseStream(capacity);
   in->impl_ = std::make_unique<Impl>();
   boost::system::error_code ec;
@@ -132,7 +191,26 @@ absl::StatusOr<std::unique_ptr<UdpPoseInput>> UdpPoseInput::Start(const std::str
         }
         self->last_sequence_ = seq;
       }
+      const double now_s =
+          std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
+      const PoseTimeGate::Verdict v = self->gate_.Check(sample->timestamp_s, now_s);
+      if (v == PoseTimeGate::Verdict::kFuture) {
+        self->rejected_future_.fetch_add(1);
+        continue;
+      }
+      if (v == PoseTimeGate::Verdict::kPast) {
+        self->rejected_past_.fetch_add(1);
+        continue;
+      }
+      if (v == PoseTimeGate::Verdict::kBackwards) {
+        self->rejected_backwards_.fetch_add(1);
+        continue;
+      }
       std::lock_guard lock(self->mu_);
+      if (v == PoseTimeGate::Verdict::kRebased) {  // the old samples are in another time base
+        self->rebased_.fetch_add(1);
+        self->stream_ = PoseStream(self->stream_.capacity());
+      }
       if (self->stream_.Add(sample->timestamp_s, sample->world_from_cam).ok())
         self->received_.fetch_add(1);
       else

@@ -42,13 +42,51 @@ absl::StatusOr<PoseSample> VerifyPoseDatagram(const std::string& key, const std:
 // Reads a key file: the first line, at least 16 bytes; the file must not be readable by others.
 absl::StatusOr<std::string> ReadPoseKeyFile(const std::string& path);
 
+// Timestamp bounds of the pose stream against the server's clock (issue 20 item 5). The
+// sender's time base is whatever it uses (mocap clock, dataset time): the first accepted datagram
+// anchors it, offset = timestamp - server receive time. A later datagram's lead = its own offset
+// minus the anchor's (how far its timestamp runs ahead of the server clock since the anchor):
+//  - lead > max_lead_s: "future" (a timestamp the server clock has not reached), rejected;
+//  - lead < -max_lag_s: "past" (too old to be a current pose), rejected;
+//  - timestamp < newest accepted - max_backwards_s: "backwards", rejected.
+// A rejected datagram never enters the stream, so it cannot push good samples out of it.
+// Recovery without a restart: when datagrams have been rejected for rebase_after_s of server
+// time in a row and agree among themselves (offsets within max_lead_s of the stretch's first),
+// the sender's time base changed (or the anchor was bad): the gate re-anchors on them and the
+// stream is cleared (its samples are in the old time base). An interleaved bad sender never
+// rebases a good stream: every accepted datagram ends the stretch.
+struct PoseTimeGateOptions {
+  double max_lead_s = 5.0;
+  double max_lag_s = 5.0;
+  double max_backwards_s = 1.0;
+  double rebase_after_s = 2.0;
+  absl::Status Validate() const;
+};
+
+class PoseTimeGate {
+ public:
+  enum class Verdict { kAccept, kRebased, kFuture, kPast, kBackwards };
+  explicit PoseTimeGate(const PoseTimeGateOptions& o = {}) : o_(o) {}
+  // `now_s`: the server's receive time (steady clock, seconds). kAccept / kRebased: take it.
+  Verdict Check(double timestamp_s, double now_s);
+  static const char* Name(Verdict v);
+
+ private:
+  PoseTimeGateOptions o_;
+  bool anchored_ = false;
+  double offset_ = 0, newest_ = 0;
+  bool in_stretch_ = false;
+  double stretch_start_s_ = 0, stretch_offset_ = 0;
+};
+
 class UdpPoseInput {
  public:
   // Binds 127.0.0.1/0.0.0.0 `address`:`port` (port 0 = any free port, see port()).
   // `hmac_key` non-empty: only authenticated datagrams are taken (see above).
   static absl::StatusOr<std::unique_ptr<UdpPoseInput>> Start(const std::string& address, int port,
                                                              size_t capacity = 4096,
-                                                             const std::string& hmac_key = "");
+                                                             const std::string& hmac_key = "",
+                                                             const PoseTimeGateOptions& time = {});
   ~UdpPoseInput();
   int port() const { return port_; }
   // Pose at `timestamp_s` (see PoseStream::Interpolate); NotFound/FailedPrecondition with reason.
@@ -57,6 +95,11 @@ class UdpPoseInput {
   uint64_t malformed() const { return malformed_.load(); }
   uint64_t unauthenticated() const { return unauthenticated_.load(); }
   uint64_t replayed() const { return replayed_.load(); }
+  // Datagrams the time gate rejected, by reason, and its re-anchorings.
+  uint64_t rejected_future() const { return rejected_future_.load(); }
+  uint64_t rejected_past() const { return rejected_past_.load(); }
+  uint64_t rejected_backwards() const { return rejected_backwards_.load(); }
+  uint64_t rebased() const { return rebased_.load(); }
   bool authenticated() const { return !key_.empty(); }
 
  private:
@@ -67,7 +110,9 @@ class UdpPoseInput {
   mutable std::mutex mu_;
   PoseStream stream_;
   std::thread thread_;
-  std::atomic<uint64_t> received_{0}, malformed_{0}, unauthenticated_{0}, replayed_{0};
+  std::atomic<uint64_t> received_{0}, malformed_{0}, unauthenticated_{0}, replayed_{0},
+      rejected_future_{0}, rejected_past_{0}, rejected_backwards_{0}, rebased_{0};
+  PoseTimeGate gate_;  // receiver thread only
   std::string key_;
   uint64_t last_sequence_ = 0;  // receiver thread only
   std::atomic<bool> stopping_{false};
