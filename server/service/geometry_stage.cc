@@ -82,13 +82,19 @@ class GeometryStage final : public PipelineStage {
   void Publish(core::GeometryUpdate u, const SceneContext& ctx) {
     const int64_t now = SteadyNowNs();
     for (MeshChunk& c : u.chunks) {
+      const uint64_t extractions = ++extractions_[c.id];
       auto it = published_.find(c.id);
       if (it != published_.end()) {
         const double old_n = static_cast<double>(it->second.triangles);
         const double change =
             std::abs(static_cast<double>(c.mesh.num_triangles()) - old_n) / std::max(1.0, old_n);
         const double age_s = (now - it->second.time_ns) * 1e-9;
-        if (change <= options_.republish_change_fraction && age_s < options_.republish_interval_s) {
+        const bool converging =
+            options_.republish_extraction_factor > 0.0 &&
+            static_cast<double>(extractions) >=
+                options_.republish_extraction_factor * static_cast<double>(it->second.extractions);
+        if (change <= options_.republish_change_fraction && age_s < options_.republish_interval_s &&
+            !converging) {
           pending_[c.id] = std::move(c);  // newest mesh, published when due
           continue;
         }
@@ -109,6 +115,7 @@ class GeometryStage final : public PipelineStage {
     }
     for (uint64_t id : u.removed) {
       pending_.erase(id);
+      extractions_.erase(id);
       if (published_.erase(id)) (void)ctx.store->RemoveChunk(id);
     }
   }
@@ -116,9 +123,10 @@ class GeometryStage final : public PipelineStage {
   struct Published {
     size_t triangles = 0;
     int64_t time_ns = 0;
+    uint64_t extractions = 1;  // the chunk's extraction count when it was published
   };
   void PublishChunk(MeshChunk c, int64_t now, const SceneContext& ctx) {
-    published_[c.id] = {c.mesh.num_triangles(), now};
+    published_[c.id] = {c.mesh.num_triangles(), now, std::max<uint64_t>(1, extractions_[c.id])};
     ctx.store->UpsertChunk(c.id, c.version, c.mesh);
   }
 
@@ -134,6 +142,7 @@ class GeometryStage final : public PipelineStage {
   bool has_geometry_ = false;
   std::unordered_map<uint64_t, Published> published_;
   std::unordered_map<uint64_t, MeshChunk> pending_;
+  std::unordered_map<uint64_t, uint64_t> extractions_;  // per chunk: times re-extracted
 };
 
 }  // namespace

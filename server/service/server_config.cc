@@ -103,6 +103,8 @@ std::vector<ConfigKey> MakeKeys() {
       Key("tsdf_threads", "TSDF integration threads", EXO_FIELD(pipeline.model.tsdf_threads)),
       Key("chunk_republish_change", "fraction of a chunk that must change to republish it",
           EXO_FIELD(geometry.republish_change_fraction)),
+      Key("chunk_republish_extractions", "also republish a chunk when the frames fused into it grew by this factor since its last publication (0 = off)",
+          EXO_FIELD(geometry.republish_extraction_factor)),
       Key("chunk_republish_interval_s", "minimum seconds between republishing a chunk",
           EXO_FIELD(geometry.republish_interval_s)),
       Key("geometry_shed_backlog", "skip fusing a frame while this fraction of the admission queue waits (0 = never; off with admission_block)",

@@ -151,6 +151,8 @@ struct Args {
   int hold_out_every = 10, hold_out_offset = -1, frames = 0, max_views = 0;
   int width = 640, height = 480, sheet_views = 0;
   bool ours = true;
+  bool cpu_oracle = false;
+  std::string swap;  // diagnostic: stored-view ingredients replaced by the dataset's
 };
 
 struct Split {
@@ -254,6 +256,31 @@ ImageU8 Hstack(const std::vector<const ImageU8*>& imgs) {
   return out;
 }
 
+// Our fused mesh of the ingested frames (the server's geometry defaults, voxel from the first
+// frame), in the model's local frame, with per-vertex colour.
+absl::StatusOr<TriangleMesh> OurMesh(const Split& split, const LumigraphModel& model,
+                                     nlohmann::json* base) {
+  core::OnlineModelOptions mo;
+  EXO_ASSIGN_OR_RETURN(const core::SceneSetup setup, core::ChooseSceneSetup(split.input[0], mo));
+  const glm::dvec3 d = setup.origin.origin_in_world - model.origin.origin_in_world;
+  if (glm::length(d) > 1e-6)
+    std::fprintf(stderr,
+                 "exoview_product_eval: warning: the model's origin differs from the first "
+                 "ingested frame's by %.3f m (the server's first frame was not frame %llu?)\n",
+                 glm::length(d), static_cast<unsigned long long>(split.input[0].sequence));
+  EXO_ASSIGN_OR_RETURN(auto geo, core::OnlineGeometry::Create(mo, setup));
+  core::ProxyMesh proxy;
+  for (const Frame& f : split.input) {
+    EXO_ASSIGN_OR_RETURN(core::GeometryUpdate u, geo->Integrate(f));
+    proxy.Apply(u);
+  }
+  TriangleMesh m = proxy.All();
+  for (auto& p : m.positions) p = model.origin.ToLocal(setup.origin.ToWorld(p));
+  (*base)["ours_geometry_digest"] = core::DigestHex(geo->Digest());
+  (*base)["ours_voxel_m"] = setup.voxel_m;
+  return m;
+}
+
 absl::Status Run(const Args& a) {
   if (!a.write_registered.empty()) return WriteRegistered(a);
   if (a.model.empty())
@@ -261,7 +288,7 @@ absl::Status Run(const Args& a) {
   EXO_ASSIGN_OR_RETURN(LumigraphModel model, LoadModel(a.model));
   if (model.views.empty())
     return absl::FailedPreconditionError(a.model + ": the model has no views");
-  EXO_ASSIGN_OR_RETURN(Split split, LoadSplit(a, a.ours));
+  EXO_ASSIGN_OR_RETURN(Split split, LoadSplit(a, a.ours || !a.swap.empty()));
   if (split.test.empty()) return absl::FailedPreconditionError("no held-out test frames");
   const PinholeCamera cam = split.test[0].color_camera.Scaled(a.width, a.height);
   if (split.test[0].color.width() % a.width != 0 || split.test[0].color.height() % a.height != 0 ||
@@ -321,28 +348,75 @@ absl::Status Run(const Args& a) {
     std::printf("%s\n", j.dump().c_str());
     std::fflush(stdout);
   }
+  // ---- diagnostic: stored-view ingredients swapped for the dataset's (issue 15 attribution) ----
+  if (!a.swap.empty()) {
+    const bool sc = a.swap.find("color") != std::string::npos;
+    const bool sd = a.swap.find("depth") != std::string::npos;
+    const bool sp = a.swap.find("pose") != std::string::npos;
+    const bool se = a.swap.find("exposure") != std::string::npos;
+    if (a.swap.find("proxy") != std::string::npos) {  // the proxy: our fused mesh, one chunk
+      nlohmann::json scratch;
+      EXO_ASSIGN_OR_RETURN(TriangleMesh m, OurMesh(split, model, &scratch));
+      MeshChunk c;
+      c.id = 1;
+      c.version = 1;
+      c.mesh = std::move(m);
+      std::fprintf(stderr, "exoview_product_eval: proxy %zu -> %zu triangles\n",
+                   model.ProxyMesh().num_triangles(), c.mesh.num_triangles());
+      model.chunks.clear();
+      model.chunks[1] = std::move(c);
+    }
+    size_t matched = 0;
+    double max_dt = 0;
+    for (auto& [id, v] : model.views) {
+      // The ingested frame this view came from: the nearest input pose.
+      double best = 1e300;
+      const Frame* src = nullptr;
+      for (const Frame& f : split.input) {
+        const Rigid3d p = model.origin.ToLocal(f.world_from_cam);
+        const double d = glm::length(p.translation - v.local_from_cam.translation) +
+                         std::abs(1.0 - std::abs(glm::dot(p.rotation, v.local_from_cam.rotation)));
+        if (d < best) {
+          best = d;
+          src = &f;
+        }
+      }
+      if (src == nullptr) continue;
+      ++matched;
+      max_dt = std::max(max_dt, best);
+      if (sc) v.color = src->color;
+      if (sd) v.depth_m = core::RegisterDepthToColor(*src);
+      if (sp) v.local_from_cam = model.origin.ToLocal(src->world_from_cam);
+      if (se) v.exposure = 1.0f;
+    }
+    std::fprintf(stderr, "exoview_product_eval: swapped %s in %zu views (max pose mismatch %.4f)\n",
+                 a.swap.c_str(), matched, max_dt);
+  }
+  // ---- the same store through the CPU oracle (diagnostic: renderer vs model content) ----
+  if (a.cpu_oracle) {
+    CpuRenderOptions ro;
+    ro.blend.fill_holes = false;  // filled by the sink, as above
+    EXO_ASSIGN_OR_RETURN(auto r, CpuLumigraphRenderer::Create(model, ro));
+    Sink sink;
+    for (size_t t = 0; t < poses.size(); ++t) {
+      const auto t0 = Clock::now();
+      EXO_ASSIGN_OR_RETURN(CpuRenderOutput out, r->Render(cam, poses[t]));
+      const double ms = MsSince(t0);
+      ImageU8 known = out.coverage;
+      for (size_t i = 0; i < known.size(); ++i) known.data()[i] |= out.background.data()[i];
+      EXO_RETURN_IF_ERROR(sink.Add(out.color, gt[t], out.coverage, known, ms));
+    }
+    nlohmann::json j = base;
+    j["method"] = "lumigraph_product_cpu_oracle";
+    j["store_views"] = model.views.size();
+    j["quality"] = sink.Json();
+    std::printf("%s\n", j.dump().c_str());
+    std::fflush(stdout);
+  }
   // ---- fused per-vertex-colour meshes ----
   std::vector<std::pair<std::string, TriangleMesh>> meshes;
   if (a.ours) {
-    core::OnlineModelOptions mo;  // the server's geometry defaults (voxel from the first frame)
-    EXO_ASSIGN_OR_RETURN(const core::SceneSetup setup, core::ChooseSceneSetup(split.input[0], mo));
-    const glm::dvec3 d = setup.origin.origin_in_world - model.origin.origin_in_world;
-    if (glm::length(d) > 1e-6)
-      std::fprintf(stderr,
-                   "exoview_product_eval: warning: the model's origin differs from the first "
-                   "ingested frame's by %.3f m (the server's first frame was not frame %llu?)\n",
-                   glm::length(d), static_cast<unsigned long long>(split.input[0].sequence));
-    EXO_ASSIGN_OR_RETURN(auto geo, core::OnlineGeometry::Create(mo, setup));
-    core::ProxyMesh proxy;
-    for (const Frame& f : split.input) {
-      EXO_ASSIGN_OR_RETURN(core::GeometryUpdate u, geo->Integrate(f));
-      proxy.Apply(u);
-    }
-    TriangleMesh m = proxy.All();
-    // Into the model's local frame (the same when the origins agree).
-    for (auto& p : m.positions) p = model.origin.ToLocal(setup.origin.ToWorld(p));
-    base["ours_geometry_digest"] = core::DigestHex(geo->Digest());
-    base["ours_voxel_m"] = setup.voxel_m;
+    EXO_ASSIGN_OR_RETURN(TriangleMesh m, OurMesh(split, model, &base));
     meshes.emplace_back("vertex_color_ours", std::move(m));
   }
   for (const std::string& spec : a.mesh_ply) {
@@ -411,6 +485,11 @@ int Main(int argc, char** argv) {
       ->check(CLI::NonNegativeNumber);
   app.add_option("--width", a.width, "render / test width (divides 640)")->capture_default_str();
   app.add_option("--height", a.height, "render / test height (divides 480)")->capture_default_str();
+  app.add_option("--swap", a.swap,
+                 "diagnostic: before the CPU oracle renders, replace each stored view's "
+                 "color,depth,pose,exposure (any of them) by the ingested frame's, proxy by our fused mesh");
+  app.add_flag("--cpu_oracle", a.cpu_oracle,
+               "also render the store with the CPU oracle (common/lumigraph/cpu_renderer)");
   app.add_option("--ours", a.ours, "also our TSDF vertex-colour mesh (server defaults)")
       ->capture_default_str();
   app.add_option("--mesh_ply", a.mesh_ply,
