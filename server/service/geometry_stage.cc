@@ -91,6 +91,8 @@ class GeometryStage final : public PipelineStage {
         const double age_s = (now - it->second.time_ns) * 1e-9;
         const bool converging =
             options_.republish_extraction_factor > 0.0 &&
+            it->second.extractions <
+                static_cast<uint64_t>(options_.republish_extraction_max) &&
             static_cast<double>(extractions) >=
                 options_.republish_extraction_factor * static_cast<double>(it->second.extractions);
         if (change <= options_.republish_change_fraction && age_s < options_.republish_interval_s &&

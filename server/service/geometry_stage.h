@@ -31,7 +31,14 @@ struct GeometryStageOptions {
   // frequent while the surface is young, rare once converged. 0 = off. Fold 9, store 100: off
   // 0.7545 / coverage 0.876; factor 2: 0.7738 / 0.914; 1.5: 0.7776 / 0.920 at +81 % deltas
   // (8 525 -> 15 424 in the 9-s stream, mostly small chunk meshes).
-  double republish_extraction_factor = 1.5;
+  // OFF by default: it multiplies the proxy's steady-state bandwidth (service_bench --distinct=300
+  // --long=900 --max=0, synthetic fly-over: viewer 2.2 Mbit/s off, 34 Mbit/s at 1.5, 22 Mbit/s
+  // at 1.5 capped at 32 extractions) against SPEC §10's steady-state target; a bandwidth-budgeted
+  // refresh (a token bucket over the held-back chunks, largest growth first) is the next step.
+  double republish_extraction_factor = 0.0;
+  // ... while the chunk is young: the rule stops once a publication held this many extractions
+  // (fold 9: 1.5 capped at 32 gave 0.7695, at 64 0.7708, uncapped 0.7776).
+  int republish_extraction_max = 1 << 30;
   // Load shedding (issue 15: "every real frame accepted at 30 Hz"): TSDF fusion is the costliest
   // stage (~30 ms of a 7-Scenes frame's ~42 ms CPU), so when the machine cannot keep up the
   // admission queue fills and frames are DROPPED, i.e. lost as view candidates too. Instead,
@@ -49,6 +56,8 @@ struct GeometryStageOptions {
       return absl::InvalidArgumentError("republish_change_fraction must be >= 0");
     if (!(republish_extraction_factor == 0.0 || republish_extraction_factor > 1.0))
       return absl::InvalidArgumentError("republish_extraction_factor must be 0 (off) or > 1");
+    if (republish_extraction_max < 1)
+      return absl::InvalidArgumentError("republish_extraction_max must be >= 1");
     if (!(republish_interval_s >= 0.0))
       return absl::InvalidArgumentError("republish_interval_s must be >= 0");
     return absl::OkStatus();

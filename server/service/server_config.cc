@@ -105,6 +105,8 @@ std::vector<ConfigKey> MakeKeys() {
           EXO_FIELD(geometry.republish_change_fraction)),
       Key("chunk_republish_extractions", "also republish a chunk when the frames fused into it grew by this factor since its last publication (0 = off)",
           EXO_FIELD(geometry.republish_extraction_factor)),
+      Key("chunk_republish_extractions_max", "... while the chunk's last publication held fewer extractions than this",
+          EXO_FIELD(geometry.republish_extraction_max)),
       Key("chunk_republish_interval_s", "minimum seconds between republishing a chunk",
           EXO_FIELD(geometry.republish_interval_s)),
       Key("geometry_shed_backlog", "skip fusing a frame while this fraction of the admission queue waits (0 = never; off with admission_block)",
