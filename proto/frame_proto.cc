@@ -1,5 +1,6 @@
 #include "proto/frame_proto.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 
@@ -283,7 +284,118 @@ absl::StatusOr<Frame> FrameFromProto(const v1::Frame& msg, const FrameDecodeOpti
   return f;
 }
 
-void MeshToProto(const TriangleMesh& mesh, v1::MeshChunkUpserted* out) {
+namespace {
+
+constexpr uint8_t kCompactMeshFormat = 1;
+constexpr size_t kCompactHeaderBytes = 1 + 4 + 4 + 4 * 4;
+
+template <typename T>
+void PutLe(std::string* out, T v) {
+  char b[sizeof(T)];
+  std::memcpy(b, &v, sizeof(T));  // the supported targets are little-endian (x86-64, arm64)
+  out->append(b, sizeof(T));
+}
+template <typename T>
+T GetLe(const char* p) {
+  T v;
+  std::memcpy(&v, p, sizeof(T));
+  return v;
+}
+
+void EncodeCompact(const TriangleMesh& mesh, std::string* out) {
+  const size_t nv = mesh.positions.size();
+  glm::vec3 lo(0.0f), hi(0.0f);
+  if (nv > 0) lo = hi = mesh.positions[0];
+  for (const glm::vec3& p : mesh.positions) {
+    lo = glm::min(lo, p);
+    hi = glm::max(hi, p);
+  }
+  const float extent = std::max({hi.x - lo.x, hi.y - lo.y, hi.z - lo.z});
+  // A step that maps the extent to <= 65535 after float rounding (the step is rounded up).
+  const float step = extent > 0.0f ? std::nextafter(extent / 65535.0f, 1e30f) : 1.0f;
+  out->clear();
+  out->reserve(kCompactHeaderBytes + nv * 6 + mesh.indices.size() * 2);
+  out->push_back(static_cast<char>(kCompactMeshFormat));
+  PutLe<uint32_t>(out, static_cast<uint32_t>(nv));
+  PutLe<uint32_t>(out, static_cast<uint32_t>(mesh.indices.size() / 3));
+  for (int k = 0; k < 3; ++k) PutLe<float>(out, lo[k]);
+  PutLe<float>(out, step);
+  for (const glm::vec3& p : mesh.positions)
+    for (int k = 0; k < 3; ++k) {
+      const float q = std::round((p[k] - lo[k]) / step);
+      PutLe<uint16_t>(out, static_cast<uint16_t>(std::clamp(q, 0.0f, 65535.0f)));
+    }
+  int64_t prev = 0;
+  for (uint32_t idx : mesh.indices) {
+    const int64_t d = static_cast<int64_t>(idx) - prev;
+    prev = idx;
+    uint64_t z = (static_cast<uint64_t>(d) << 1) ^ static_cast<uint64_t>(d >> 63);  // zigzag
+    while (z >= 0x80) {
+      out->push_back(static_cast<char>((z & 0x7f) | 0x80));
+      z >>= 7;
+    }
+    out->push_back(static_cast<char>(z));
+  }
+}
+
+absl::StatusOr<TriangleMesh> DecodeCompact(const std::string& b) {
+  if (b.size() < kCompactHeaderBytes)
+    return absl::InvalidArgumentError("compact mesh: shorter than its header");
+  if (static_cast<uint8_t>(b[0]) != kCompactMeshFormat)
+    return absl::InvalidArgumentError(
+        absl::StrCat("compact mesh: unknown format ", static_cast<int>(static_cast<uint8_t>(b[0]))));
+  const char* p = b.data() + 1;
+  const uint64_t nv = GetLe<uint32_t>(p);
+  const uint64_t nt = GetLe<uint32_t>(p + 4);
+  const glm::vec3 origin(GetLe<float>(p + 8), GetLe<float>(p + 12), GetLe<float>(p + 16));
+  const float step = GetLe<float>(p + 20);
+  if (!std::isfinite(origin.x) || !std::isfinite(origin.y) || !std::isfinite(origin.z) ||
+      !std::isfinite(step) || !(step > 0.0f))
+    return absl::InvalidArgumentError("compact mesh: origin or step not finite and positive");
+  // Sizes are checked against the bytes present before anything is allocated (a forged count
+  // cannot make a reader allocate more than the message's own size allows).
+  const size_t body = b.size() - kCompactHeaderBytes;
+  if (nv * 6 > body || nt * 3 > body - nv * 6)
+    return absl::InvalidArgumentError(absl::StrCat("compact mesh: ", nv, " vertices and ", nt,
+                                                   " triangles do not fit in ", b.size(), " bytes"));
+  TriangleMesh m;
+  m.positions.resize(nv);
+  const char* q = b.data() + kCompactHeaderBytes;
+  for (uint64_t i = 0; i < nv; ++i, q += 6)
+    m.positions[i] = origin + step * glm::vec3(GetLe<uint16_t>(q), GetLe<uint16_t>(q + 2),
+                                               GetLe<uint16_t>(q + 4));
+  const char* end = b.data() + b.size();
+  m.indices.resize(nt * 3);
+  int64_t prev = 0;
+  for (uint64_t i = 0; i < nt * 3; ++i) {
+    uint64_t z = 0;
+    int shift = 0;
+    for (;;) {
+      if (q == end) return absl::InvalidArgumentError("compact mesh: indices truncated");
+      if (shift > 63) return absl::InvalidArgumentError("compact mesh: index varint too long");
+      const uint8_t c = static_cast<uint8_t>(*q++);
+      z |= static_cast<uint64_t>(c & 0x7f) << shift;
+      shift += 7;
+      if (!(c & 0x80)) break;
+    }
+    const int64_t d = static_cast<int64_t>(z >> 1) ^ -static_cast<int64_t>(z & 1);
+    prev += d;
+    if (prev < 0 || static_cast<uint64_t>(prev) >= nv)
+      return absl::InvalidArgumentError(
+          absl::StrCat("compact mesh: index ", prev, " outside ", nv, " vertices"));
+    m.indices[i] = static_cast<uint32_t>(prev);
+  }
+  if (q != end) return absl::InvalidArgumentError("compact mesh: trailing bytes");
+  return m;
+}
+
+}  // namespace
+
+void MeshToProto(const TriangleMesh& mesh, v1::MeshChunkUpserted* out, bool plain) {
+  if (!plain) {
+    EncodeCompact(mesh, out->mutable_compact());
+    return;
+  }
   out->mutable_positions()->Reserve(static_cast<int>(mesh.positions.size() * 3));
   for (const auto& p : mesh.positions) {
     out->add_positions(p.x);
@@ -299,6 +411,11 @@ void MeshToProto(const TriangleMesh& mesh, v1::MeshChunkUpserted* out) {
 }
 
 absl::StatusOr<TriangleMesh> MeshFromProto(const v1::MeshChunkUpserted& msg) {
+  if (!msg.compact().empty()) {
+    if (msg.positions_size() || msg.normals_size() || msg.indices_size())
+      return absl::InvalidArgumentError("mesh has both the compact and the plain encoding");
+    return DecodeCompact(msg.compact());
+  }
   if (msg.positions_size() % 3 != 0)
     return absl::InvalidArgumentError("mesh positions are not xyz triples");
   if (msg.normals_size() != 0 && msg.normals_size() != msg.positions_size())

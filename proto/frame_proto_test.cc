@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstring>
 
 #include "proto/test_frames.h"
 
@@ -166,6 +167,99 @@ TEST(FrameProto, MissingIntrinsicsAreRejected) {
   auto r = FrameFromProto(m, {});
   ASSERT_FALSE(r.ok());
   EXPECT_NE(r.status().message().find("missing intrinsics"), std::string::npos) << r.status();
+}
+
+
+// Mesh chunks: the compact encoding (16-bit positions over the chunk's box, delta-coded
+// indices) round-trips within step/2 of the chunk's extent and exactly in its triangles; a far
+// scene coordinate keeps the precision (origin in the header); every malformed buffer is an
+// error, not a crash or a huge allocation.
+TriangleMesh TestChunk(glm::vec3 base, float size, int n) {
+  TriangleMesh m;
+  for (int j = 0; j <= n; ++j)
+    for (int i = 0; i <= n; ++i)
+      m.positions.push_back(base + glm::vec3(size * i / n, size * j / n,
+                                             0.01f * std::sin(0.7f * i + 0.3f * j)));
+  for (int j = 0; j < n; ++j)
+    for (int i = 0; i < n; ++i) {
+      const uint32_t a = j * (n + 1) + i, b = a + 1, c = a + n + 1, d = c + 1;
+      m.indices.insert(m.indices.end(), {a, b, d, a, d, c});
+    }
+  m.normals.assign(m.positions.size(), glm::vec3(0, 0, 1));
+  return m;
+}
+
+TEST(MeshProto, CompactRoundTripWithinQuantisationStep) {
+  for (const glm::vec3 base : {glm::vec3(0.0f), glm::vec3(1e3f, -2e3f, 5e2f)}) {
+    const TriangleMesh m = TestChunk(base, 0.32f, 16);
+    v1::MeshChunkUpserted msg;
+    MeshToProto(m, &msg);
+    EXPECT_EQ(msg.positions_size(), 0);
+    v1::MeshChunkUpserted plain;
+    MeshToProto(m, &plain, /*plain=*/true);
+    EXPECT_LT(msg.ByteSizeLong() * 5, plain.ByteSizeLong() * 2) << "compact is not 2.5x smaller";
+    auto back = MeshFromProto(msg);
+    ASSERT_TRUE(back.ok()) << back.status();
+    EXPECT_EQ(back->indices, m.indices);
+    ASSERT_EQ(back->positions.size(), m.positions.size());
+    EXPECT_TRUE(back->normals.empty());
+    // Extent 0.32 m: step 4.9 um; float rounding of a 1 km coordinate adds ~61 um ulp.
+    const double tol = 0.32 / 65535 + 2.0 * glm::length(base) * 6e-8;
+    for (size_t i = 0; i < m.positions.size(); ++i)
+      EXPECT_LE(glm::length(back->positions[i] - m.positions[i]), tol) << i;
+    auto again = MeshFromProto(plain);
+    ASSERT_TRUE(again.ok());
+    EXPECT_EQ(again->positions, m.positions);
+    EXPECT_EQ(again->normals, m.normals);
+  }
+}
+
+TEST(MeshProto, CompactEdgeCasesRoundTrip) {
+  TriangleMesh empty;
+  v1::MeshChunkUpserted msg;
+  MeshToProto(empty, &msg);
+  auto e = MeshFromProto(msg);
+  ASSERT_TRUE(e.ok()) << e.status();
+  EXPECT_TRUE(e->positions.empty());
+  TriangleMesh one;  // a single degenerate triangle at one point: extent 0
+  one.positions = {glm::vec3(1, 2, 3)};
+  one.indices = {0, 0, 0};
+  msg.Clear();
+  MeshToProto(one, &msg);
+  auto o = MeshFromProto(msg);
+  ASSERT_TRUE(o.ok()) << o.status();
+  EXPECT_EQ(o->positions[0], glm::vec3(1, 2, 3));
+  EXPECT_EQ(o->indices, one.indices);
+}
+
+TEST(MeshProto, MalformedCompactMeshesAreErrors) {
+  v1::MeshChunkUpserted good;
+  MeshToProto(TestChunk(glm::vec3(0.0f), 0.3f, 4), &good);
+  const std::string b = good.compact();
+  auto bad = [](std::string bytes) {
+    v1::MeshChunkUpserted m;
+    m.set_compact(std::move(bytes));
+    return MeshFromProto(m).status();
+  };
+  EXPECT_FALSE(bad(b.substr(0, 10)).ok());                    // header cut
+  EXPECT_FALSE(bad(b.substr(0, b.size() - 1)).ok());          // last index cut
+  EXPECT_FALSE(bad(b + std::string(1, '\0')).ok());           // trailing byte
+  std::string fmt = b;
+  fmt[0] = 7;
+  EXPECT_NE(bad(fmt).message().find("unknown format"), std::string::npos);
+  std::string huge = b;  // 2^32-1 vertices claimed in a few hundred bytes
+  for (int k = 1; k <= 4; ++k) huge[k] = static_cast<char>(0xff);
+  EXPECT_NE(bad(huge).message().find("do not fit"), std::string::npos);
+  std::string nan_step = b;
+  const float nan = std::nanf("");
+  std::memcpy(nan_step.data() + 21, &nan, 4);
+  EXPECT_FALSE(bad(nan_step).ok());
+  std::string out_of_range = b;  // first index delta -> far beyond the vertex count
+  out_of_range[1 + 4 + 4 + 16 + 25 * 6] = 0x7e;
+  EXPECT_NE(bad(out_of_range).message().find("outside"), std::string::npos);
+  v1::MeshChunkUpserted both = good;
+  both.add_positions(1.0f);
+  EXPECT_FALSE(MeshFromProto(both).ok());
 }
 
 }  // namespace

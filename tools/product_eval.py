@@ -73,6 +73,18 @@ def run_lines(cmd, log):
     return [json.loads(l) for l in p.stdout.splitlines() if l.startswith("{")]
 
 
+def viewer_bytes(log_path):
+    """What the viewer received (its 'store {...}' log line): bytes in all, of mesh chunks, of
+    views, and the number of mesh-chunk deltas."""
+    for line in reversed(open(log_path).read().splitlines()):
+        if line.startswith("exoview_viewer: store {"):
+            st = json.loads(line[len("exoview_viewer: store "):])
+            return {"viewer_bytes": st.get("bytes"), "viewer_mesh_bytes": st.get("mesh_bytes"),
+                    "viewer_view_bytes": st.get("view_bytes"),
+                    "viewer_mesh_deltas": st.get("mesh_chunk_deltas")}
+    return {}
+
+
 def run_fold(args, fold, reg_dir, work):
     b = args.build
     stubs = os.path.join(b, "client", "python", "stubs")
@@ -117,6 +129,7 @@ def run_fold(args, fold, reg_dir, work):
               "rejected": acks.get("rejected"), "rate_hz": args.rate_hz,
               "store_views": c.get("planning.views"), "voxel_m": c.get("geometry.voxel_m"),
               "cell_m": c.get("planning.cell_m"), "load_1min": round(os.getloadavg()[0], 2)}
+    ingest.update(viewer_bytes(os.path.join(work, "viewer.log")))
     meshes = []
     if not args.no_open3d and (args.open3d_folds == "all"
                                or str(fold) in args.open3d_folds.split(",")):
@@ -159,6 +172,10 @@ def summarize(lines):
     out["ingest"] = {"sent": sum(a["sent"] or 0 for a in acc),
                      "accepted": sum(a["accepted"] or 0 for a in acc),
                      "dropped": sum(a["dropped"] or 0 for a in acc)}
+    for k in ("viewer_bytes", "viewer_mesh_bytes", "viewer_view_bytes", "viewer_mesh_deltas"):
+        v = [a[k] for a in acc if a.get(k) is not None]
+        if v:
+            out["ingest"][k + "_mean"] = round(statistics.mean(v))
     return out
 
 

@@ -73,7 +73,10 @@ TEST(LocalStore, AppliesDeltasInOrderAndDigestsWhatItReceived) {
   ASSERT_EQ(s.model().chunks.size(), 1u);
   // The digest is the wire library's ModelDigest of exactly the received records.
   std::map<ViewId, ViewDigestRecord> views{{7, DigestRecordFromProto(view.view_added())}};
-  std::map<uint64_t, ChunkDigestRecord> chunks{{1, {4, MeshHash(Triangle(2.0f))}}};
+  // (the mesh as decoded from the wire: the compact encoding quantizes positions)
+  const auto received = MeshFromProto(ChunkDelta(4, 1, Triangle(2.0f)).mesh_chunk_upserted());
+  ASSERT_TRUE(received.ok());
+  std::map<uint64_t, ChunkDigestRecord> chunks{{1, {4, MeshHash(*received)}}};
   EXPECT_EQ(s.Digest(), ModelDigest(views, s.model().cell_refs, chunks));
   // Any change of content changes it.
   const uint64_t before = s.Digest();

@@ -109,7 +109,13 @@ absl::Status ViewerSession::Sync(const SyncOptions& options) {
         break;
       }
       ++stats_.deltas;
-      stats_.bytes += d.ByteSizeLong();
+      const uint64_t n = d.ByteSizeLong();
+      stats_.bytes += n;
+      if (d.has_mesh_chunk_upserted()) {
+        stats_.mesh_bytes += n;
+        ++stats_.mesh_chunks;
+      }
+      if (d.has_view_added() || d.has_view_updated()) stats_.view_bytes += n;
       if (d.has_snapshot_end()) ++stats_.snapshots;
       if (on_delta_) on_delta_(d, t);
       last_change_ns.store(t);

@@ -1,8 +1,11 @@
 #include "server/service/geometry_stage.h"
 
+#include <algorithm>
 #include <atomic>
 #include <cmath>
 #include <unordered_map>
+#include <utility>
+#include <vector>
 
 namespace exo {
 
@@ -53,7 +56,7 @@ class GeometryStage final : public PipelineStage {
     // Exactly one hand-off entry per frame, also when integration failed (an empty update).
     if (handoff_) handoff_->Push(u.ok() ? *u : core::GeometryUpdate{});
     EXO_RETURN_IF_ERROR(u.status());
-    Publish(*std::move(u), ctx);
+    Publish(*std::move(u), ctx, f.frame.timestamp_s);
     return absl::OkStatus();
   }
 
@@ -62,6 +65,7 @@ class GeometryStage final : public PipelineStage {
     if (!geometry_) return;
     (*out)["geometry.fused"] = static_cast<double>(geometry_->fused());
     (*out)["geometry.shed"] = static_cast<double>(shed_.load());
+    (*out)["geometry.chunks_refreshed"] = static_cast<double>(refreshed_.load());
     (*out)["geometry.digest"] = static_cast<double>(geometry_->Digest());
     (*out)["geometry.voxel_m"] = geometry_->volume().options().voxel_size_m;
     // TSDF integration + dirty-chunk meshing per frame (the rest of process_ms: hand-off, publish)
@@ -79,24 +83,17 @@ class GeometryStage final : public PipelineStage {
     return geometry_->Integrate(frame);
   }
 
-  void Publish(core::GeometryUpdate u, const SceneContext& ctx) {
+  void Publish(core::GeometryUpdate u, const SceneContext& ctx, double source_time_s) {
     const int64_t now = SteadyNowNs();
     for (MeshChunk& c : u.chunks) {
-      const uint64_t extractions = ++extractions_[c.id];
+      ++extractions_[c.id];
       auto it = published_.find(c.id);
       if (it != published_.end()) {
         const double old_n = static_cast<double>(it->second.triangles);
         const double change =
             std::abs(static_cast<double>(c.mesh.num_triangles()) - old_n) / std::max(1.0, old_n);
         const double age_s = (now - it->second.time_ns) * 1e-9;
-        const bool converging =
-            options_.republish_extraction_factor > 0.0 &&
-            it->second.extractions <
-                static_cast<uint64_t>(options_.republish_extraction_max) &&
-            static_cast<double>(extractions) >=
-                options_.republish_extraction_factor * static_cast<double>(it->second.extractions);
-        if (change <= options_.republish_change_fraction && age_s < options_.republish_interval_s &&
-            !converging) {
+        if (change <= options_.republish_change_fraction && age_s < options_.republish_interval_s) {
           pending_[c.id] = std::move(c);  // newest mesh, published when due
           continue;
         }
@@ -115,10 +112,55 @@ class GeometryStage final : public PipelineStage {
         ++it;
       }
     }
+    Refresh(now, ctx, source_time_s);
     for (uint64_t id : u.removed) {
       pending_.erase(id);
       extractions_.erase(id);
       if (published_.erase(id)) (void)ctx.store->RemoveChunk(id);
+    }
+  }
+
+  // Held-back chunks whose extraction count grew by republish_extraction_factor since their
+  // publication, largest growth first, within the token bucket (GeometryStageOptions).
+  void Refresh(int64_t now, const SceneContext& ctx, double source_time_s) {
+    if (options_.republish_extraction_factor <= 0.0) return;
+    const double rate = options_.refresh_budget_kbps * 125.0;  // bytes per stream second
+    const double burst = rate * options_.refresh_burst_s;
+    if (rate > 0.0) {
+      // Stream time, clamped: a clock jump or a restart of the stream neither floods nor starves.
+      const double dt = last_source_s_ ? std::clamp(source_time_s - *last_source_s_, 0.0,
+                                                    options_.refresh_burst_s)
+                                       : 0.0;
+      tokens_ = std::min(burst, tokens_ + dt * rate);
+    }
+    last_source_s_ = source_time_s;
+    std::vector<std::pair<double, uint64_t>> due;  // (growth, chunk id)
+    for (const auto& [id, chunk] : pending_) {
+      const auto pub = published_.find(id);
+      if (pub == published_.end() ||
+          pub->second.extractions >= static_cast<uint64_t>(options_.republish_extraction_max))
+        continue;
+      const double growth = static_cast<double>(extractions_[id]) /
+                            static_cast<double>(pub->second.extractions);
+      if (growth >= options_.republish_extraction_factor) due.push_back({growth, id});
+    }
+    std::sort(due.begin(), due.end(), [](const auto& a, const auto& b) {
+      return a.first != b.first ? a.first > b.first : a.second < b.second;
+    });
+    for (const auto& [growth, id] : due) {
+      auto it = pending_.find(id);
+      // The compact wire size of the chunk (proto/frame_proto.h): 6 bytes per vertex, ~1.2 per
+      // index, a 25-byte header.
+      const double bytes = 32.0 + 6.0 * static_cast<double>(it->second.mesh.num_vertices()) +
+                           3.6 * static_cast<double>(it->second.mesh.num_triangles());
+      if (rate > 0.0) {
+        if (tokens_ < std::min(bytes, burst)) break;  // wait for tokens, keep the order
+        tokens_ -= bytes;
+      }
+      MeshChunk c = std::move(it->second);
+      pending_.erase(it);
+      refreshed_.fetch_add(1);
+      PublishChunk(std::move(c), now, ctx);
     }
   }
 
@@ -139,6 +181,9 @@ class GeometryStage final : public PipelineStage {
   std::unique_ptr<core::OnlineGeometry> geometry_;  // created on the first frame (scene set-up)
   std::atomic<int64_t> integrate_ns_{0};
   std::atomic<uint64_t> shed_{0};
+  std::atomic<uint64_t> refreshed_{0};
+  double tokens_ = 0.0;                  // refresh budget, bytes (stage thread only)
+  std::optional<double> last_source_s_;  // stream time of the previous frame
   size_t queued_ = 0, capacity_ = 1;  // stage thread only
   int shed_run_ = 0;
   bool has_geometry_ = false;

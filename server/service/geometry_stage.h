@@ -6,9 +6,12 @@
 // MeshChunkUpserted/Removed deltas; a chunk that already exists on the clients is only
 // re-published when its triangle count changed by more than `republish_change_fraction` or its
 // last publication is older than `republish_interval_s` (fusion noise would otherwise re-send
-// the whole visible proxy every few frames: the steady-state bandwidth target of SPEC §10).
+// the whole visible proxy every few frames: the steady-state bandwidth target of SPEC §10), or
+// as a refresh when fusion has converged it further (republish_extraction_factor), under a
+// bandwidth budget (refresh_budget_kbps).
 #pragma once
 
+#include <cmath>
 #include <deque>
 #include <memory>
 #include <mutex>
@@ -26,19 +29,24 @@ struct GeometryStageOptions {
   // converges, while its triangle count hardly changes; held back by the rules above, the clients
   // rendered the stale surface (on 7-Scenes the viewer's proxy covered 87.6 % of the held-out
   // pixels against 92.9 % for the same TSDF's final mesh, SSIM 0.7545 vs 0.7854). A chunk is
-  // also re-published whenever the number of times it was re-extracted (frames fused into it)
-  // has grown by this factor since its last publication: O(log frames) publications per chunk,
-  // frequent while the surface is young, rare once converged. 0 = off. Fold 9, store 100: off
-  // 0.7545 / coverage 0.876; factor 2: 0.7738 / 0.914; 1.5: 0.7776 / 0.920 at +81 % deltas
-  // (8 525 -> 15 424 in the 9-s stream, mostly small chunk meshes).
-  // OFF by default: it multiplies the proxy's steady-state bandwidth (service_bench --distinct=300
-  // --long=900 --max=0, synthetic fly-over: viewer 2.2 Mbit/s off, 34 Mbit/s at 1.5, 22 Mbit/s
-  // at 1.5 capped at 32 extractions) against SPEC §10's steady-state target; a bandwidth-budgeted
-  // refresh (a token bucket over the held-back chunks, largest growth first) is the next step.
-  double republish_extraction_factor = 0.0;
-  // ... while the chunk is young: the rule stops once a publication held this many extractions
+  // therefore due for a refresh whenever the number of times it was re-extracted (frames fused
+  // into it) has grown by this factor since its last publication: O(log frames) refreshes per
+  // chunk, frequent while the surface is young, rare once converged. 0 = off. Fold 9, store
+  // 100: off 0.7545 / coverage 0.876; factor 2: 0.7738 / 0.914; 1.5: 0.7776 / 0.920.
+  double republish_extraction_factor = 1.5;
+  // ... while the chunk is young: no refresh once a publication held this many extractions
   // (fold 9: 1.5 capped at 32 gave 0.7695, at 64 0.7708, uncapped 0.7776).
   int republish_extraction_max = 1 << 30;
+  // Due refreshes are sent under a budget (a token bucket in the frames' own time, so the
+  // server's output does not depend on thread timing): at most this many kbit of refreshed
+  // chunks per second of the stream, bursts up to `refresh_burst_s` seconds of it, the chunks
+  // whose extraction count grew most since their last publication first. A due chunk that does
+  // not fit waits (its newest mesh is kept) and goes out when tokens have accrued. New chunks
+  // and structural changes (> republish_change_fraction) are not budgeted. 0 = unlimited.
+  // Without the budget the refresh multiplied the steady-state proxy bytes (service_bench
+  // --distinct=300 --long=900 --max=0, plain float meshes: 2.2 -> 34 Mbit/s).
+  double refresh_budget_kbps = 1000.0;
+  double refresh_burst_s = 2.0;
   // Load shedding (issue 15: "every real frame accepted at 30 Hz"): TSDF fusion is the costliest
   // stage (~30 ms of a 7-Scenes frame's ~42 ms CPU), so when the machine cannot keep up the
   // admission queue fills and frames are DROPPED, i.e. lost as view candidates too. Instead,
@@ -56,6 +64,10 @@ struct GeometryStageOptions {
       return absl::InvalidArgumentError("republish_change_fraction must be >= 0");
     if (!(republish_extraction_factor == 0.0 || republish_extraction_factor > 1.0))
       return absl::InvalidArgumentError("republish_extraction_factor must be 0 (off) or > 1");
+    if (!(refresh_budget_kbps >= 0.0) || !std::isfinite(refresh_budget_kbps))
+      return absl::InvalidArgumentError("refresh_budget_kbps must be >= 0 (0 = unlimited)");
+    if (!(refresh_burst_s > 0.0 && refresh_burst_s <= 600.0))
+      return absl::InvalidArgumentError("refresh_burst_s must be in (0, 600]");
     if (republish_extraction_max < 1)
       return absl::InvalidArgumentError("republish_extraction_max must be >= 1");
     if (!(republish_interval_s >= 0.0))

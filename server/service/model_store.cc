@@ -506,6 +506,10 @@ uint64_t ModelStore::UpsertChunk(uint64_t chunk_id, uint64_t chunk_version,
   m->set_chunk_id(chunk_id);
   m->set_chunk_version(chunk_version);
   MeshToProto(mesh, m);  // outside the lock: meshes can be large
+  // The digest covers the mesh the clients decode (compact encoding: quantized positions).
+  absl::StatusOr<TriangleMesh> sent = MeshFromProto(*m);
+  EXO_CHECK(sent.ok());  // a mesh this server built always decodes
+  const uint64_t hash = MeshHash(*sent);
   std::lock_guard lock(mu_);
   if (auto it = chunks_.find(chunk_id); it != chunks_.end())
     chunk_bytes_ -= it->second->mesh_chunk_upserted().ByteSizeLong();
@@ -515,7 +519,7 @@ uint64_t ModelStore::UpsertChunk(uint64_t chunk_id, uint64_t chunk_version,
   auto ptr = std::make_shared<const v1::Delta>(std::move(part));
   chunk_bytes_ += ptr->mesh_chunk_upserted().ByteSizeLong();
   chunks_[chunk_id] = std::move(ptr);
-  chunk_records_[chunk_id] = {chunk_version, MeshHash(mesh)};
+  chunk_records_[chunk_id] = {chunk_version, hash};
   return CommitLocked(std::move(d));
 }
 
