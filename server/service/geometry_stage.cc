@@ -66,6 +66,7 @@ class GeometryStage final : public PipelineStage {
     (*out)["geometry.fused"] = static_cast<double>(geometry_->fused());
     (*out)["geometry.shed"] = static_cast<double>(shed_.load());
     (*out)["geometry.chunks_refreshed"] = static_cast<double>(refreshed_.load());
+    (*out)["geometry.refresh_skipped_still"] = static_cast<double>(refresh_still_.load());
     (*out)["geometry.digest"] = static_cast<double>(geometry_->Digest());
     (*out)["geometry.voxel_m"] = geometry_->volume().options().voxel_size_m;
     // TSDF integration + dirty-chunk meshing per frame (the rest of process_ms: hand-off, publish)
@@ -147,8 +148,17 @@ class GeometryStage final : public PipelineStage {
     std::sort(due.begin(), due.end(), [](const auto& a, const auto& b) {
       return a.first != b.first ? a.first > b.first : a.second < b.second;
     });
+    const double voxel = ctx.setup.voxel_m;
     for (const auto& [growth, id] : due) {
       auto it = pending_.find(id);
+      Published& pub = published_[id];
+      if (options_.refresh_min_move_voxels > 0.0 &&
+          MeanMove(it->second.mesh.positions, pub.positions, voxel) <
+              options_.refresh_min_move_voxels * voxel) {
+        pub.extractions = std::max<uint64_t>(1, extractions_[id]);  // wait for the next step
+        refresh_still_.fetch_add(1);
+        continue;
+      }
       // The compact wire size of the chunk (proto/frame_proto.h): 6 bytes per vertex, ~1.2 per
       // index, a 25-byte header.
       const double bytes = 32.0 + 6.0 * static_cast<double>(it->second.mesh.num_vertices()) +
@@ -167,11 +177,50 @@ class GeometryStage final : public PipelineStage {
   struct Published {
     size_t triangles = 0;
     int64_t time_ns = 0;
-    uint64_t extractions = 1;  // the chunk's extraction count when it was published
+    uint64_t extractions = 1;          // the chunk's extraction count when it was published
+    std::vector<glm::vec3> positions;  // its published vertices (refresh_min_move_voxels)
   };
   void PublishChunk(MeshChunk c, int64_t now, const SceneContext& ctx) {
-    published_[c.id] = {c.mesh.num_triangles(), now, std::max<uint64_t>(1, extractions_[c.id])};
+    Published& p = published_[c.id];
+    p.triangles = c.mesh.num_triangles();
+    p.time_ns = now;
+    p.extractions = std::max<uint64_t>(1, extractions_[c.id]);
+    if (options_.refresh_min_move_voxels > 0.0) p.positions = c.mesh.positions;
     ctx.store->UpsertChunk(c.id, c.version, c.mesh);
+  }
+
+  // Mean over `now` of the distance to the nearest vertex of `before` (hash grid of cell
+  // `voxel`, the 27 cells around; a vertex with no neighbour within one voxel counts one voxel:
+  // new surface). Marching-cubes vertices slide along their voxel edges as the zero crossing
+  // moves, so this is the surface's motion.
+  static double MeanMove(const std::vector<glm::vec3>& now, const std::vector<glm::vec3>& before,
+                         double voxel) {
+    if (now.empty()) return 0.0;
+    if (before.empty() || !(voxel > 0.0)) return voxel;
+    auto key = [voxel](const glm::vec3& p, int dx, int dy, int dz) {
+      const int64_t x = static_cast<int64_t>(std::floor(p.x / voxel)) + dx;
+      const int64_t y = static_cast<int64_t>(std::floor(p.y / voxel)) + dy;
+      const int64_t z = static_cast<int64_t>(std::floor(p.z / voxel)) + dz;
+      return static_cast<uint64_t>((x * 73856093) ^ (y * 19349663) ^ (z * 83492791));
+    };
+    std::unordered_multimap<uint64_t, uint32_t> grid;
+    grid.reserve(before.size());
+    for (uint32_t i = 0; i < before.size(); ++i) grid.emplace(key(before[i], 0, 0, 0), i);
+    double sum = 0.0;
+    for (const glm::vec3& p : now) {
+      double best = voxel * voxel;
+      for (int dz = -1; dz <= 1; ++dz)
+        for (int dy = -1; dy <= 1; ++dy)
+          for (int dx = -1; dx <= 1; ++dx) {
+            auto [a, b] = grid.equal_range(key(p, dx, dy, dz));
+            for (; a != b; ++a) {
+              const glm::vec3 d = before[a->second] - p;
+              best = std::min(best, static_cast<double>(glm::dot(d, d)));
+            }
+          }
+      sum += std::sqrt(best);
+    }
+    return sum / static_cast<double>(now.size());
   }
 
   const GeometryStageOptions options_;
@@ -182,6 +231,7 @@ class GeometryStage final : public PipelineStage {
   std::atomic<int64_t> integrate_ns_{0};
   std::atomic<uint64_t> shed_{0};
   std::atomic<uint64_t> refreshed_{0};
+  std::atomic<uint64_t> refresh_still_{0};
   double tokens_ = 0.0;                  // refresh budget, bytes (stage thread only)
   std::optional<double> last_source_s_;  // stream time of the previous frame
   size_t queued_ = 0, capacity_ = 1;  // stage thread only

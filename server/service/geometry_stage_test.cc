@@ -1,10 +1,12 @@
 // Load shedding of the geometry stage (GeometryStageOptions::shed_backlog_fraction): with a
 // backlog the stage skips fusing (at most shed_max_run frames in a row), still hands one update
 // per frame to planning, and counts what it shed; without a backlog, or with shedding off, every
-// frame is fused.
+// frame is fused. Chunk refresh under a budget (republish_extraction_factor, refresh_budget_kbps).
 #include "server/service/geometry_stage.h"
 
 #include <gtest/gtest.h>
+
+#include <set>
 
 #include "proto/test_frames.h"
 #include "server/service/model_store.h"
@@ -30,9 +32,19 @@ struct Rig {
     EXO_CHECK(s.ok());
     stage = std::move(*s);
   }
-  void Run(uint64_t seq, size_t queued) {
+  // The same surface every frame (stream time 0.1 s * seq); `noise_m` > 0 adds per-pixel depth
+  // noise (a fixed pseudo-random pattern per frame), so the fused surface moves as it converges.
+  void Run(uint64_t seq, size_t queued, float noise_m = 0.0f) {
     PipelineFrame f;
     f.frame = wire_test::SmallFrame(32, 24, seq);
+    if (noise_m > 0.0f) {
+      uint32_t state = static_cast<uint32_t>(seq) * 2654435761u + 1u;
+      for (int y = 0; y < f.frame.depth_m.height(); ++y)
+        for (int x = 0; x < f.frame.depth_m.width(); ++x) {
+          state = state * 1664525u + 1013904223u;
+          f.frame.depth_m.at(x, y) += noise_m * (static_cast<float>(state >> 8) / 8388608.0f - 1.0f);
+        }
+    }
     stage->SetBacklog(queued, 8);
     ASSERT_TRUE(stage->Process(f, ctx).ok());
   }
@@ -77,6 +89,100 @@ TEST(GeometryStage, OptionsValidated) {
   EXPECT_FALSE(go.Validate().ok());
   go = {};
   go.shed_max_run = 0;
+  EXPECT_FALSE(go.Validate().ok());
+}
+
+
+// Chunk refresh (issue 15): the same surface fused again and again makes every chunk due at
+// extraction counts 1, 2, 3, 5, 8, ... (factor 1.5); unlimited, each chunk is re-sent ~log_1.5 n
+// times; under a budget the refreshed bytes stay within rate x stream time + burst; off, none.
+struct RefreshRun {
+  uint64_t first_bytes = 0, refresh_bytes = 0, refreshes = 0, chunks = 0;
+  double counter = 0, still = 0;
+};
+RefreshRun RunRefresh(double factor, double kbps, int frames, double min_move = 0.0,
+                      float noise_m = 0.0f) {
+  GeometryStageOptions go;
+  go.shed_backlog_fraction = 0.0;
+  go.republish_extraction_factor = factor;
+  go.refresh_budget_kbps = kbps;
+  go.refresh_min_move_voxels = min_move;
+  go.refresh_burst_s = 1.0;
+  Rig rig(go);
+  RefreshRun r;
+  std::set<uint64_t> seen;
+  uint64_t version = rig.store.version();
+  for (int s = 1; s <= frames; ++s) {
+    rig.Run(static_cast<uint64_t>(s), 0, noise_m);
+    auto deltas = rig.store.DeltasAfter(version, 1 << 20, 0);
+    EXO_CHECK(deltas.ok());
+    for (const auto& d : *deltas) {
+      if (!d->has_mesh_chunk_upserted()) continue;
+      const uint64_t bytes = d->mesh_chunk_upserted().ByteSizeLong();
+      if (seen.insert(d->mesh_chunk_upserted().chunk_id()).second) {
+        r.first_bytes += bytes;
+      } else {
+        r.refresh_bytes += bytes;
+        ++r.refreshes;
+      }
+    }
+    version = rig.store.version();
+  }
+  r.chunks = seen.size();
+  r.counter = rig.Counter("geometry.chunks_refreshed");
+  r.still = rig.Counter("geometry.refresh_skipped_still");
+  return r;
+}
+
+TEST(GeometryStage, RefreshFollowsExtractionGrowthWithinTheBudget) {
+  const int frames = 60;  // 6 s of stream time
+  const RefreshRun off = RunRefresh(0.0, 0.0, frames);
+  const RefreshRun all = RunRefresh(1.5, 0.0, frames);
+  const RefreshRun budget = RunRefresh(1.5, 4.0, frames);  // 500 bytes per stream second
+  ASSERT_GT(off.chunks, 0u);
+  EXPECT_EQ(off.refreshes, 0u);
+  EXPECT_EQ(off.counter, 0);
+  // Extraction counts 1 -> 2, 3, 5, 8, 12, 18, 27, 41 (60 frames): 8 refreshes per chunk at most
+  // (a chunk first extracted later has fewer).
+  EXPECT_GE(all.refreshes, all.chunks * 5);
+  EXPECT_LE(all.refreshes, all.chunks * 8);
+  EXPECT_EQ(all.counter, static_cast<double>(all.refreshes));
+  EXPECT_EQ(all.first_bytes, off.first_bytes);  // new chunks are never held back
+  EXPECT_GT(budget.refreshes, 0u);
+  EXPECT_LT(budget.refreshes, all.refreshes);
+  // Tokens accrue from the second frame on: 5.9 s x 500 B/s, the estimate errs high (~10 %).
+  EXPECT_LE(budget.refresh_bytes, 5.9 * 500 * 1.15);
+  EXPECT_EQ(budget.first_bytes, off.first_bytes);
+}
+
+
+// A surface that no longer moves is not re-sent (refresh_min_move_voxels): the same frame fused
+// again and again gives the same mesh, so nothing goes out; a noisy surface converging is
+// re-sent while it moves, and less often than without the gate.
+TEST(GeometryStage, RefreshSkipsSurfacesThatDoNotMove) {
+  const int frames = 60;
+  const RefreshRun still = RunRefresh(1.5, 0.0, frames, 0.1);
+  EXPECT_EQ(still.refreshes, 0u);
+  EXPECT_GT(still.still, 0);
+  const RefreshRun noisy_all = RunRefresh(1.5, 0.0, frames, 0.0, 0.01f);
+  const RefreshRun noisy = RunRefresh(1.5, 0.0, frames, 0.1, 0.01f);
+  EXPECT_GT(noisy.refreshes, 0u);
+  EXPECT_GT(noisy.still, 0);
+  EXPECT_LT(noisy.refreshes, noisy_all.refreshes);
+}
+
+TEST(GeometryStage, RefreshOptionsValidated) {
+  GeometryStageOptions go;
+  go.refresh_budget_kbps = -1;
+  EXPECT_FALSE(go.Validate().ok());
+  go = {};
+  go.refresh_burst_s = 0;
+  EXPECT_FALSE(go.Validate().ok());
+  go = {};
+  go.republish_extraction_factor = 1.0;
+  EXPECT_FALSE(go.Validate().ok());
+  go = {};
+  go.refresh_min_move_voxels = -0.5;
   EXPECT_FALSE(go.Validate().ok());
 }
 

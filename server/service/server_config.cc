@@ -109,6 +109,8 @@ std::vector<ConfigKey> MakeKeys() {
           EXO_FIELD(geometry.republish_extraction_max)),
       Key("chunk_refresh_kbps", "budget for those refreshes: kbit per second of the stream's own time, largest growth first (0 = unlimited)",
           EXO_FIELD(geometry.refresh_budget_kbps)),
+      Key("chunk_refresh_min_move_voxels", "... only chunks whose surface moved at least this much (mean vertex motion, voxels; 0 = all)",
+          EXO_FIELD(geometry.refresh_min_move_voxels)),
       Key("chunk_refresh_burst_s", "... bursts of up to this many seconds of the budget",
           EXO_FIELD(geometry.refresh_burst_s)),
       Key("chunk_republish_interval_s", "minimum seconds between republishing a chunk",
