@@ -211,8 +211,23 @@ void PushPullSparseBilinear(int width, int height, int channels, Known known, Va
         wt = std::min(1.f, wt);
       }
     }
+    // Push of cell (x, y) of level 1 from its pixels (not memoised: 4 reads).
+    PxA Pushed0(int x, int y) const {
+      PxA p{};
+      for (int fy = 2 * y; fy <= 2 * y + 1 && fy < height; ++fy) {
+        for (int fx = 2 * x; fx <= 2 * x + 1 && fx < width; ++fx) {
+          const size_t fi = static_cast<size_t>(fy) * width + fx;
+          if (!known(fi)) continue;
+          p[channels] += 1.f;
+          for (int k = 0; k < channels; ++k) p[k] += value(fi, k);
+        }
+      }
+      Normalise(p);
+      return p;
+    }
     // Push of cell (x, y) of level li + 1: the 2x2 children in row order, as PushPull adds them.
     PxA Pushed(int li, int x, int y) {
+      if (li == 0) return Pushed0(x, y);
       {
         const Cell& c = Find(li, x, y);
         if (c.state & 1) return c.pushed;
@@ -220,18 +235,10 @@ void PushPullSparseBilinear(int width, int height, int channels, Known known, Va
       PxA p{};
       for (int fy = 2 * y; fy <= 2 * y + 1; ++fy) {
         for (int fx = 2 * x; fx <= 2 * x + 1; ++fx) {
-          if (li == 0) {
-            if (fx >= width || fy >= height) continue;
-            const size_t fi = static_cast<size_t>(fy) * width + fx;
-            if (!known(fi)) continue;
-            p[channels] += 1.f;
-            for (int k = 0; k < channels; ++k) p[k] += value(fi, k);
-          } else {
-            if (fx >= dims[li - 1].first || fy >= dims[li - 1].second) continue;
-            const PxA c = Pushed(li - 1, fx, fy);
-            p[channels] += c[channels];
-            for (int k = 0; k < channels; ++k) p[k] += c[k];
-          }
+          if (fx >= dims[li - 1].first || fy >= dims[li - 1].second) continue;
+          const PxA c = Pushed(li - 1, fx, fy);
+          p[channels] += c[channels];
+          for (int k = 0; k < channels; ++k) p[k] += c[k];
         }
       }
       Normalise(p);
@@ -242,6 +249,14 @@ void PushPullSparseBilinear(int width, int height, int channels, Known known, Va
     }
     // Value of cell (x, y) of level li + 1 after the pull (the top: its push over its alpha).
     Px Pulled(int li, int x, int y) {
+      if (li == 0 && li != top) {  // the usual case, a level-1 cell with a known pixel: no memo
+        const PxA p = Pushed0(x, y);
+        if (1.f - std::min(1.f, p[channels]) <= 0.f) {
+          Px out{};
+          for (int k = 0; k < channels; ++k) out[k] = p[k];
+          return out;
+        }
+      }
       {
         const Cell& c = Find(li, x, y);
         if (c.state & 2) return c.pulled;
@@ -290,9 +305,7 @@ void PushPullSparseBilinear(int width, int height, int channels, Known known, Va
     if (w == 1 && h == 1) break;
   }
   sp.top = static_cast<int>(sp.dims.size()) - 1;
-  size_t cap = 1024;
-  while (cap < 16 * unknown.size()) cap *= 2;
-  sp.table.resize(cap);
+  sp.table.resize(1024);  // grows with the cells that need a coarser level
   for (size_t i : unknown) {
     const Px px = sp.ReadParent(0, static_cast<int>(i % width), static_cast<int>(i / width));
     for (int k = 0; k < channels; ++k) write(i, k, px[k]);
