@@ -43,10 +43,6 @@ layout(constant_id = 2) const int kInpainted = 1;
 // Whether frame.weights.x (lambda) is exactly 1: CombinedWeight is then max(w_d, min_weight)
 // exactly (1 * w_d + 0 * w_p with a finite w_p), so the positional weight is compiled out.
 layout(constant_id = 3) const int kLambdaOne = 0;
-// The cell table's layout (client/vulkan/vk_cell_table.h): 1 = a dense grid over a box of cells
-// (the entry is read directly at the cell's linear index: no hash, no probe loop), 0 = the hash
-// table with linear probing. Same (offset, count) for every cell either way.
-layout(constant_id = 4) const int kCellGrid = 0;
 
 // ---- best-n with the sample parameters carried along ----
 // Same selection as blend_math.h InsertBest (decreasing weight, w <= 0 ignored, ties keep the
@@ -158,35 +154,24 @@ vec4 ShadeBackground(ivec2 pixel) {
 vec4 ShadeSurface(vec3 x) {
   const vec3 c_o = frame.cam_centre_cell.xyz;
   const float q = frame.cam_centre_cell.w;
-  const ivec3 cell = ivec3(floor(x / q));
+  const uvec2 key = PackCell(ivec3(floor(x / q)));
+
+  // Cell-hash lookup (linear probing), at most max_probe + 1 probes: no resident key is displaced
+  // further from its home slot (tracked on the host), so a miss stops there. The former bound,
+  // the table size, made llvmpipe run ~1000x slower (see docs/vulkan.md).
+  const uint mask = uint(frame.iparams.z);
+  const uint max_probe = uint(frame.iparams.w);
+  uint h = CellHash32(key) & mask;
   uint offset = 0u, count = 0u;
-  if (kCellGrid != 0) {
-    // Grid layout: one fetch at the cell's index in the box; empty cells hold count 0, a cell
-    // outside the box has no entry (count 0).
-    const ivec3 g = cell - frame.cell_grid_origin.xyz;
-    const ivec3 dims = frame.cell_grid_dims.xyz;
-    const bool inside = all(greaterThanEqual(g, ivec3(0))) && all(lessThan(g, dims));
-    const uvec4 e = texelFetch(cell_entries, inside ? (g.z * dims.y + g.y) * dims.x + g.x : 0);
-    offset = e.z;
-    count = inside ? e.w : 0u;
-  } else {
-    // Cell-hash lookup (linear probing), at most max_probe + 1 probes: no resident key is
-    // displaced further from its home slot (tracked on the host), so a miss stops there. The
-    // former bound, the table size, made llvmpipe run ~1000x slower (see docs/vulkan.md).
-    const uvec2 key = PackCell(cell);
-    const uint mask = uint(frame.iparams.z);
-    const uint max_probe = uint(frame.iparams.w);
-    uint h = CellHash32(key) & mask;
-    for (uint probe = 0u; probe <= max_probe; ++probe) {
-      const uvec4 e = texelFetch(cell_entries, int(h));
-      if (e.x == key.x && e.y == key.y) {
-        offset = e.z;
-        count = e.w;
-        break;
-      }
-      if (e.x == 0xFFFFFFFFu && e.y == 0xFFFFFFFFu) break;
-      h = (h + 1u) & mask;
+  for (uint probe = 0u; probe <= max_probe; ++probe) {
+    const uvec4 e = texelFetch(cell_entries, int(h));
+    if (e.x == key.x && e.y == key.y) {
+      offset = e.z;
+      count = e.w;
+      break;
     }
+    if (e.x == 0xFFFFFFFFu && e.y == 0xFFFFFFFFu) break;
+    h = (h + 1u) & mask;
   }
 
   const int n = kNBest;

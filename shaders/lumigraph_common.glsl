@@ -211,8 +211,4 @@ layout(std140, set = 0, binding = 0) uniform Frame {
   ivec4 ip_layers[kMaxInpaintedViews / 4];
   // floor.frag only: rows 0..2 of one view's P = K [R^T | -R^T c], (width, height, layer, 0).
   vec4 floor_view[4];
-  // Cell table in the grid layout (kCellGrid, client/vulkan/vk_cell_table.h): box origin and
-  // dimensions in cells (xyz).
-  ivec4 cell_grid_origin;
-  ivec4 cell_grid_dims;
 } frame;

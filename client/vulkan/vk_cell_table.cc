@@ -4,7 +4,6 @@
 #include <array>
 #include <cmath>
 #include <cstring>
-#include <limits>
 
 namespace exo::vk {
 namespace {
@@ -30,51 +29,8 @@ uint32_t FloatBits(float f) {
 }  // namespace
 
 absl::Status CellTable::Init() {
-  EXO_RETURN_IF_ERROR(Relayout(kNoCell));
+  EXO_RETURN_IF_ERROR(RebuildTable(64));
   return GrowSlabs(1);
-}
-
-bool CellTable::InGrid(CellId id) const {
-  const glm::ivec3 c = UnpackCell(id) - grid_origin_;
-  return c.x >= 0 && c.y >= 0 && c.z >= 0 && c.x < grid_dims_.x && c.y < grid_dims_.y &&
-         c.z < grid_dims_.z;
-}
-
-uint32_t CellTable::GridIndex(CellId id) const {
-  const glm::ivec3 c = UnpackCell(id) - grid_origin_;
-  return uint32_t((c.z * grid_dims_.y + c.y) * grid_dims_.x + c.x);
-}
-
-absl::Status CellTable::Relayout(CellId extra) {
-  const int64_t max_cells = opt_.cell_grid_max_cells;
-  if (max_cells > 0) {
-    glm::ivec3 lo(std::numeric_limits<int32_t>::max()), hi(std::numeric_limits<int32_t>::min());
-    auto add = [&](CellId id) {
-      const glm::ivec3 c = UnpackCell(id);
-      lo = glm::min(lo, c);
-      hi = glm::max(hi, c);
-    };
-    for (const auto& [id, c] : cells_) add(id);
-    if (extra != kNoCell) add(extra);
-    if (lo.x > hi.x) lo = hi = glm::ivec3(0);  // no cell yet: a 1-cell box
-    // Growth margin (a quarter of the extent, at least 2 cells per side) so that a scene that
-    // grows cell by cell rebuilds O(log) times; without it if that alone does not fit.
-    for (int with_margin = 1; with_margin >= 0; --with_margin) {
-      const glm::ivec3 m = with_margin ? glm::max(glm::ivec3(2), (hi - lo + 1) / 4) : glm::ivec3(0);
-      const glm::i64vec3 dims = glm::i64vec3(hi - lo + 1 + 2 * m);
-      if (dims.x * dims.y * dims.z <= max_cells) {
-        grid_ = true;
-        grid_origin_ = lo - m;
-        grid_dims_ = glm::ivec3(dims);
-        return RebuildTable(uint32_t(dims.x * dims.y * dims.z));
-      }
-    }
-  }
-  grid_ = false;
-  grid_origin_ = grid_dims_ = glm::ivec3(0);
-  uint32_t cap = 64;
-  while (2 * (cells_.size() + 1) > cap / 2) cap *= 2;  // headroom: load <= 1/4
-  return RebuildTable(cap);
 }
 
 absl::Status CellTable::GrowSlabs(uint32_t slabs) {
@@ -99,7 +55,6 @@ absl::Status CellTable::GrowSlabs(uint32_t slabs) {
 }
 
 uint32_t CellTable::Probe(CellId id, bool for_insert) const {
-  if (grid_) return InGrid(id) ? GridIndex(id) : kNoSlot;
   const uint32_t lo = uint32_t(id), hi = uint32_t(id >> 32);
   const uint32_t mask = table_mask();
   uint32_t h = CellHash32(lo, hi) & mask;
@@ -120,7 +75,6 @@ uint32_t CellTable::Probe(CellId id, bool for_insert) const {
 // loop runs max_probe + 1 probes at most: a resident key is never displaced further, so a miss
 // can stop there. (An unbounded "until empty" loop measured ~1000x slower on llvmpipe.)
 uint32_t CellTable::Displacement(CellId id, uint32_t i) const {
-  if (grid_) return 0;
   const uint32_t mask = table_mask();
   return (i - (CellHash32(uint32_t(id), uint32_t(id >> 32)) & mask)) & mask;
 }
@@ -180,23 +134,21 @@ void CellTable::Unlink(CellId id, const Entry& c) {
 
 void CellTable::Erase(std::unordered_map<CellId, Entry>::iterator it) {
   const uint32_t ti = it->second.table_index;
-  if (grid_) {
-    table_[ti] = glm::uvec4(kEmptyKey, kEmptyKey, 0, 0);  // direct index: no probe chain
-  } else {
-    table_[ti] = glm::uvec4(kTombKeyLo, kEmptyKey, 0, 0);
-    ++tombstones_;
-  }
+  table_[ti] = glm::uvec4(kTombKeyLo, kEmptyKey, 0, 0);
   UploadTableEntry(ti);
+  ++tombstones_;
   free_slabs_.push_back(it->second.slab);
   cells_.erase(it);
 }
 
 absl::StatusOr<std::unordered_map<CellId, CellTable::Entry>::iterator> CellTable::Insert(
     CellId id) {
-  // Grid: the cell must lie in the box. Hash: keep load (cells + tombstones) <= 1/2 of the
-  // table. Otherwise a new layout (which may switch between grid and hash).
-  if (grid_ ? !InGrid(id) : 2 * (cells_.size() + 1 + tombstones_) > table_.size())
-    EXO_RETURN_IF_ERROR(Relayout(id));
+  // Keep load (cells + tombstones) <= 1/2 of the table.
+  if (2 * (cells_.size() + 1 + tombstones_) > table_.size()) {
+    uint32_t cap = uint32_t(table_.size());
+    while (2 * (cells_.size() + 1) > cap / 2) cap *= 2;  // headroom: load <= 1/4 after
+    EXO_RETURN_IF_ERROR(RebuildTable(cap));
+  }
   if (free_slabs_.empty()) EXO_RETURN_IF_ERROR(GrowSlabs(slab_capacity_ + 1));
   Entry c;
   c.slab = free_slabs_.back();

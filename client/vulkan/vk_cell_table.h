@@ -1,10 +1,6 @@
-// PRIVATE to client/vulkan: the GPU cell reference table R(b_k). It maps a CellId to its slab of
-// max_refs_per_cell view slots, entries (key lo, key hi, slab offset, count), in one of two
-// layouts: a dense GRID over a box of cell coordinates (entry index = linear index of the cell
-// in the box; the shader reads one entry per pixel, no hash, no probe loop; empty cells hold
-// count 0), used while the resident cells' box fits VulkanRendererOptions::cell_grid_max_cells,
-// or an open-addressing HASH table (linear probing, tombstones; same hash as
-// shaders/lumigraph_common.glsl). A host mirror keeps uploads to the changed entries. Per
+// PRIVATE to client/vulkan: the GPU cell reference table R(b_k). An open-addressing hash table
+// (linear probing, tombstones; same hash as shaders/lumigraph_common.glsl) maps a CellId to its
+// slab of max_refs_per_cell view slots; a host mirror keeps uploads to the changed entries. Per
 // frame, RankRefs writes every visible cell's references sorted by an upper bound of their
 // blend weight (the ranked buffer blend.frag walks).
 #pragma once
@@ -49,11 +45,6 @@ class CellTable {
   const std::unordered_map<CellId, Entry>& entries() const { return cells_; }
   uint32_t table_mask() const { return uint32_t(table_.size() - 1); }
   uint32_t max_probe() const { return max_probe_; }
-  // Grid layout: entry of cell c is (c.z - o.z) dims.x dims.y + (c.y - o.y) dims.x + c.x - o.x
-  // for c in [o, o + dims); the blend pipelines are specialised on the layout (kCellGrid).
-  bool grid() const { return grid_; }
-  glm::ivec3 grid_origin() const { return grid_origin_; }
-  glm::ivec3 grid_dims() const { return grid_dims_; }
   const Buffer& table_buffer() const { return table_buf_; }
   const Buffer& refs_buffer() const { return refs_buf_; }
   const Buffer& ranked_buffer() const { return ranked_buf_; }
@@ -63,14 +54,8 @@ class CellTable {
 
  private:
   absl::Status GrowSlabs(uint32_t slabs);
-  // Chooses the layout for the resident cells plus `extra` (kNoCell: none): the grid over their
-  // bounding box with a growth margin when it fits cell_grid_max_cells, else the hash table with
-  // load <= 1/4, and re-inserts every cell (RebuildTable).
-  absl::Status Relayout(CellId extra);
-  // Re-inserts every cell into a table of `capacity` entries (grid_ layout, box) and uploads it.
+  // Re-hashes every cell into a table of `capacity` entries and uploads it whole.
   absl::Status RebuildTable(uint32_t capacity);
-  bool InGrid(CellId id) const;
-  uint32_t GridIndex(CellId id) const;  // requires InGrid(id)
   uint32_t Probe(CellId id, bool for_insert) const;
   uint32_t Displacement(CellId id, uint32_t i) const;
   glm::uvec4 EntryOf(CellId id, const Entry& c) const;
@@ -91,8 +76,6 @@ class CellTable {
   std::unordered_map<ViewId, std::unordered_set<CellId>> cells_of_view_;  // reverse index
   std::vector<glm::uvec4> table_;  // host mirror of the GPU hash table
   uint32_t max_probe_ = 0;         // largest displacement of a resident key (lookup bound)
-  bool grid_ = false;              // layout of table_ (see the top of this file)
-  glm::ivec3 grid_origin_{0}, grid_dims_{0};
   uint32_t tombstones_ = 0;
   Buffer table_buf_;
   std::vector<uint32_t> free_slabs_;

@@ -37,12 +37,9 @@ struct GpuFrame {
   glm::ivec4 ip_layers[kMaxInpaintedViews / 4];
   // RenderFloor (floor.frag): rows of one view's P and (width, height, layer, 0).
   glm::vec4 floor_view[4];
-  // Cell table in the grid layout (CellTable::grid()): box origin and dimensions in cells.
-  glm::ivec4 cell_grid_origin;
-  glm::ivec4 cell_grid_dims;
 };
 static_assert(sizeof(GpuFrame) == 128 + 48 + 16 + 16 * kBgViewTexels * blend::kMaxBackgroundViews +
-                                      16 + 16 * (kMaxInpaintedViews / 4) + 64 + 32);
+                                      16 + 16 * (kMaxInpaintedViews / 4) + 64);
 
 namespace {
 
@@ -124,8 +121,7 @@ absl::StatusOr<std::unique_ptr<FrameRenderer>> FrameRenderer::Create(
   std::unique_ptr<FrameRenderer> r(new FrameRenderer(ctx, opt, grid, views, cells, chunks));
   EXO_ASSIGN_OR_RETURN(r->frame_ubo_,
                        Buffer::Create(ctx, sizeof(GpuFrame), VK_BUFFER_USAGE_UNIFORM_BUFFER_BIT));
-  EXO_ASSIGN_OR_RETURN(r->pipes_, Pipelines::Create(ctx, opt.blend_in_compute,
-                                                  /*cell_grid=*/opt.cell_grid_max_cells > 0));
+  EXO_ASSIGN_OR_RETURN(r->pipes_, Pipelines::Create(ctx, opt.blend_in_compute));
   EXO_RETURN_IF_ERROR(r->CreatePlaceholders());
   return r;
 }
@@ -204,8 +200,6 @@ void FrameRenderer::FillFrame(const PinholeCamera& camera, const Rigid3d& local_
   f->clip_from_local = glm::mat4(ClipFromCam(camera, opt_.near_m, opt_.far_m) * cam_from_local);
   f->cam_centre_cell = glm::vec4(glm::vec3(local_from_cam.translation), float(grid_.cell_size_m));
   f->iparams = glm::ivec4(0, 0, int(cells_.table_mask()), int(cells_.max_probe()));
-  f->cell_grid_origin = glm::ivec4(cells_.grid_origin(), 0);
-  f->cell_grid_dims = glm::ivec4(cells_.grid_dims(), 0);
 }
 
 // Records the proxy draw with `pipe` into `t`, copies the colour attachment to t.readback.
@@ -328,7 +322,6 @@ absl::Status FrameRenderer::DrawBlend(const blend::BlendOptions& bo, int sky_vie
   BlendVariant v;
   v.inpainted = inpainted;
   v.lambda_one = bo.lambda == 1.0f;
-  v.cell_grid = cells_.grid();
   EXO_RETURN_IF_ERROR(pipes_->EnsureBlendPipe(bo.n_best, v));
   return Draw(color_target_, pipes_->blend_pass(), pipes_->blend_pipe(bo.n_best, v), clear, 4,
               /*deferred=*/true, pipes_->blend_compute_pipe(bo.n_best, v),

@@ -14,7 +14,7 @@
 namespace exo::vk {
 
 absl::StatusOr<std::unique_ptr<Pipelines>> Pipelines::Create(const Context& ctx,
-                                                             bool blend_compute, bool cell_grid) {
+                                                             bool blend_compute) {
   std::unique_ptr<Pipelines> p(new Pipelines(ctx, blend_compute));
   EXO_RETURN_IF_ERROR(p->CreateSamplers());
   EXO_RETURN_IF_ERROR(p->CreateSetLayout());
@@ -29,7 +29,6 @@ absl::StatusOr<std::unique_ptr<Pipelines>> Pipelines::Create(const Context& ctx,
   EXO_ASSIGN_OR_RETURN(p->zdepth_pass_, p->CreateRenderPass(VK_FORMAT_R32_SFLOAT));
   BlendVariant v;  // the default options: no inpainted keyframe, lambda 1
   v.lambda_one = blend::BlendOptions{}.lambda == 1.0f;
-  v.cell_grid = cell_grid;
   EXO_RETURN_IF_ERROR(p->EnsureBlendPipe(blend::BlendOptions{}.n_best, v));
   EXO_ASSIGN_OR_RETURN(p->gbuffer_pipe_, p->CreatePipeline(p->gbuffer_pass_.get(), kSpvGbufferFrag,
                                                            sizeof(kSpvGbufferFrag)));
@@ -50,15 +49,13 @@ absl::Status Pipelines::EnsureBlendPipe(int n_best, BlendVariant v) {
   // Specialisation constants of blend_shade.glsl: 0 = n_best, 1 = which pixels the pipeline
   // shades (kBlendPass: 0 both, the compute path; 1 surface; 2 background at infinity),
   // 2 = whether the frame has inpainted keyframes (kInpainted: 0 compiles their loop out),
-  // 3 = whether lambda is exactly 1 (kLambdaOne: the positional weight is compiled out),
-  // 4 = the cell table's layout (kCellGrid: 1 grid, 0 hash; vk_cell_table.h).
-  int32_t values[5] = {n_best, 0, v.inpainted ? 1 : 0, v.lambda_one ? 1 : 0, v.cell_grid ? 1 : 0};
-  const VkSpecializationMapEntry entries[5] = {{0, 0, sizeof(int32_t)},
+  // 3 = whether lambda is exactly 1 (kLambdaOne: the positional weight is compiled out).
+  int32_t values[4] = {n_best, 0, v.inpainted ? 1 : 0, v.lambda_one ? 1 : 0};
+  const VkSpecializationMapEntry entries[4] = {{0, 0, sizeof(int32_t)},
                                                {1, sizeof(int32_t), sizeof(int32_t)},
                                                {2, 2 * sizeof(int32_t), sizeof(int32_t)},
-                                               {3, 3 * sizeof(int32_t), sizeof(int32_t)},
-                                               {4, 4 * sizeof(int32_t), sizeof(int32_t)}};
-  VkSpecializationInfo spec{5, entries, sizeof(values), values};
+                                               {3, 3 * sizeof(int32_t), sizeof(int32_t)}};
+  VkSpecializationInfo spec{4, entries, sizeof(values), values};
   if (blend_compute_) {
     EXO_ASSIGN_OR_RETURN(b.compute, CreateComputeBlendPipe(spec));
     return absl::OkStatus();

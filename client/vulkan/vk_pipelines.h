@@ -15,14 +15,11 @@ namespace exo::vk {
 
 // Per-frame choices baked into a blend pipeline as specialisation constants (blend_shade.glsl):
 // the frame has inpainted keyframes (else their loop is compiled out), the blend's lambda is
-// exactly 1 (the positional weight is then multiplied by 0: compiled out, same weights), the
-// cell table is in the grid layout (one direct fetch instead of the hash probe loop).
+// exactly 1 (the positional weight is then multiplied by 0: compiled out, same weights).
 struct BlendVariant {
   bool inpainted = false;
   bool lambda_one = false;
-  bool cell_grid = false;
-  static constexpr int kCount = 8;
-  int index() const { return (inpainted ? 1 : 0) | (lambda_one ? 2 : 0) | (cell_grid ? 4 : 0); }
+  int index() const { return (inpainted ? 1 : 0) | (lambda_one ? 2 : 0); }
 };
 
 // What the descriptor set binds; every pointer must be non-null and outlive the next write.
@@ -41,9 +38,7 @@ struct DescriptorInputs {
 class Pipelines {
  public:
   // blend_compute: the blend runs as blend.comp over the G-buffer instead of blend.frag.
-  // cell_grid: the default blend pipelines are created for the grid layout of the cell table.
-  static absl::StatusOr<std::unique_ptr<Pipelines>> Create(const Context& ctx, bool blend_compute,
-                                                           bool cell_grid);
+  static absl::StatusOr<std::unique_ptr<Pipelines>> Create(const Context& ctx, bool blend_compute);
 
   // Creates the blend pipelines for `n_best` (1..kMaxBlendViews) and `v` unless they exist.
   absl::Status EnsureBlendPipe(int n_best, BlendVariant v);
@@ -116,12 +111,11 @@ class Pipelines {
   // Blend pipelines per n_best (specialisation constant 0 of blend.frag / blend.comp: the
   // best-n slots and the n-th-best pick are then compile-time; measured ~6 % of the frame) and
   // per BlendVariant (constant 2, inpainted keyframes: their per-pixel loop cost ~8 % of the
-  // frame even with no keyframe, llvmpipe runs a loop body at least once; constant 3, lambda 1;
-  // constant 4, the cell table's grid layout).
+  // frame even with no keyframe, llvmpipe runs a loop body at least once; constant 3, lambda 1).
   struct BlendPipes {
     UniquePipeline surface, sky, compute;
   };
-  BlendPipes blend_pipes_[blend::kMaxBlendViews + 1][BlendVariant::kCount];
+  BlendPipes blend_pipes_[blend::kMaxBlendViews + 1][4];
 };
 
 }  // namespace exo::vk

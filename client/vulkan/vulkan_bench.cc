@@ -10,7 +10,6 @@
 //       [--sizes=640x480,1280x720,1920x1080] [--scene=village|apartment] [--view_size=320x240]
 //       [--pose=k (all frames from novel pose k)] [--background_views=N (sky pass; 0 = off)]
 //       [--fill_holes=0|1 (push-pull fill of uncovered pixels; default 1)] [--n_best=1..4]
-//       [--cell_grid_max_cells=N (VulkanRendererOptions; 0 = the hash-table layout)]
 // Env: EXO_VULKAN_BENCH_DUMP=<dir> writes every frame + ground truth as PNG.
 #include <algorithm>
 #include <chrono>
@@ -98,7 +97,6 @@ int main(int argc, char** argv) {
   int background_views = blend::BlendOptions{}.background_views;
   bool fill_holes = blend::BlendOptions{}.fill_holes;
   int n_best = blend::BlendOptions{}.n_best;
-  int cell_grid_max_cells = VulkanRendererOptions{}.cell_grid_max_cells;
   std::string scene_name = "village";
   std::string refs_text = "8,16,32,60", sizes_text = "640x480,1280x720,1920x1080",
               view_size_text = "320x240";
@@ -124,9 +122,6 @@ int main(int argc, char** argv) {
   app.add_option("--fill_holes", fill_holes, "push-pull fill of uncovered pixels (0|1)");
   app.add_option("--n_best", n_best, "views blended per pixel")
       ->check(CLI::Range(1, blend::kMaxBlendViews));
-  app.add_option("--cell_grid_max_cells", cell_grid_max_cells,
-                 "cell table as a grid up to this many cells (0: hash table)")
-      ->check(CLI::Range(0, 1 << 24));
   if (auto rc = exo::cli::Parse(app, argc, argv)) return *rc;
   const std::vector<int> refs_list = ParseInts(refs_text, ',');
   const std::vector<int> sizes = ParseInts(sizes_text, 'x');
@@ -177,7 +172,6 @@ int main(int argc, char** argv) {
     mean_refs /= std::max<size_t>(1, all_refs.size());
     for (size_t si = 0; si + 1 < sizes.size(); si += 2) {
       VulkanRendererOptions vo; vo.max_refs_per_cell = std::max(16, n_refs);
-      vo.cell_grid_max_cells = cell_grid_max_cells;
       const auto tc = std::chrono::steady_clock::now();
       auto rr = VulkanRenderer::Create(vo);
       if (!rr.ok()) { fprintf(stderr, "%s\n", rr.status().ToString().c_str()); return 1; }
@@ -254,8 +248,6 @@ int main(int argc, char** argv) {
           {"views", model.views.size()},
           {"view_size", std::to_string(view_size[0]) + "x" + std::to_string(view_size[1])},
           {"triangles", scene->mesh.num_triangles()},
-          {"cells", r->num_cells()},
-          {"cell_table", r->cell_table_is_grid() ? "grid" : "hash"},
           {"create_ms", Round(create_ms, 1)},
           {"upload_ms", Round(sync_ms, 1)},
           {"first_frame_ms", Round(first_ms, 1)},

@@ -102,9 +102,6 @@ absl::Status VulkanRendererOptions::Validate() const {
   if (max_refs_per_cell < 1 || max_refs_per_cell > 1024)
     return absl::InvalidArgumentError(
         absl::StrCat("max_refs_per_cell must be in [1,1024], got ", max_refs_per_cell));
-  if (cell_grid_max_cells < 0 || cell_grid_max_cells > (1 << 24))
-    return absl::InvalidArgumentError(
-        absl::StrCat("cell_grid_max_cells must be in [0,2^24], got ", cell_grid_max_cells));
   if (!(near_m > 0.0f) || !(far_m > near_m) || !std::isfinite(far_m))
     return absl::InvalidArgumentError("need 0 < near_m < far_m < inf");
   blend::BlendOptions b;
@@ -274,7 +271,6 @@ void VulkanRenderer::ResetStats() { impl_->stats = UploadStats{}; }
 uint64_t VulkanRenderer::ResidentBytes() const { return impl_->ResidentBytes(); }
 size_t VulkanRenderer::num_views() const { return impl_->views->entries().size(); }
 size_t VulkanRenderer::num_cells() const { return impl_->cells->entries().size(); }
-bool VulkanRenderer::cell_table_is_grid() const { return impl_->cells->grid(); }
 size_t VulkanRenderer::num_chunks() const { return impl_->chunks->entries().size(); }
 std::string VulkanRenderer::DeviceName() const { return impl_->ctx->device_name(); }
 std::vector<std::string> VulkanRenderer::ValidationErrors() const {

@@ -46,12 +46,6 @@ struct VulkanRendererOptions {
   // full-screen triangle (blend.frag); same per-pixel code and result. Off by default: measured
   // 5-7 % slower on lavapipe (docs/vulkan.md); kept for devices where compute is the better path.
   bool blend_in_compute = false;
-  // The cell table's layout (client/vulkan/vk_cell_table.h): while the bounding box of the
-  // resident cells (with a growth margin) holds at most this many cells, the table is a dense
-  // grid over that box, indexed directly by the cell's coordinates (one fetch per pixel, no hash
-  // probe; 16 bytes per cell of the box, 16 MiB at the default); beyond it an open-addressing
-  // hash table (linear probing). Same lookup result either way; 0 = always the hash table.
-  int cell_grid_max_cells = 1 << 20;
 
   absl::Status Validate() const;
 };
@@ -138,8 +132,6 @@ class VulkanRenderer {
   uint64_t ResidentBytes() const;
   size_t num_views() const;
   size_t num_cells() const;
-  // Whether the cell table is in the grid layout now (VulkanRendererOptions::cell_grid_max_cells).
-  bool cell_table_is_grid() const;
   size_t num_chunks() const;
   std::string DeviceName() const;
   std::vector<std::string> ValidationErrors() const;

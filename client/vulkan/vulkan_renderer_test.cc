@@ -83,13 +83,8 @@ LumigraphModel PlaneModel(double cell = 0.5) {
   return m;
 }
 
-// cell_grid_max_cells: the cell table's layout (0 = hash table; the default = grid).
-std::unique_ptr<VulkanRenderer> Make(
-    const LumigraphModel& m,
-    int cell_grid_max_cells = VulkanRendererOptions{}.cell_grid_max_cells) {
-  VulkanRendererOptions o = ValidatedOptions();
-  o.cell_grid_max_cells = cell_grid_max_cells;
-  auto r = VulkanRenderer::Create(o);
+std::unique_ptr<VulkanRenderer> Make(const LumigraphModel& m) {
+  auto r = VulkanRenderer::Create(ValidatedOptions());
   EXPECT_TRUE(r.ok()) << r.status();
   EXPECT_TRUE((*r)->SyncModel(m).ok());
   return std::move(*r);
@@ -266,87 +261,29 @@ TEST(VulkanRendererTest, IncrementalUploadsOnlyWhatChanged) {
   EXPECT_TRUE(r->ValidationErrors().empty()) << r->ValidationErrors()[0];
 }
 
-// Both layouts of the cell table (vk_cell_table.h): the hash table (0) and the grid (default).
-constexpr int kLayouts[] = {0, VulkanRendererOptions{}.cell_grid_max_cells};
-
 TEST(VulkanRendererTest, ManyCellsGrowTheHashTable) {
   // 14400 cells force several table rebuilds and slab regrowths; every cell stays findable.
   // Guard: fails if inserts do not raise the lookup bound max_probe (displaced keys missed).
-  // The grid layout: cells inserted one by one grow the box.
   LumigraphModel m = PlaneModel(0.05);  // 0.05 m cells: the plane spans 120 x 120 cells
   m.cell_refs.clear();
   for (int x = -60; x < 60; ++x)
     for (int y = -60; y < 60; ++y) m.cell_refs[PackCell({x, y, 40})] = {1};
-  for (int layout : kLayouts) {
-    SCOPED_TRACE(layout);
-    auto r = Make(m, layout);
-    EXPECT_EQ(r->cell_table_is_grid(), layout > 0);
-    EXPECT_EQ(r->num_cells(), 14400u);
-    auto out = r->Render(Cam(), Rigid3d::Identity(), blend::BlendOptions{});
-    ASSERT_TRUE(out.ok());
-    EXPECT_LE(MaxDiff(out->color, m.views.at(1).color), 1);
-    EXPECT_TRUE(r->ValidationErrors().empty());
-  }
-}
-
-TEST(VulkanRendererTest, CellTableSwitchesLayoutAndRendersTheSame) {
-  // A grid limited to 20000 cells: the 120 x 120 plane fits (grid), one far cell makes the box
-  // too large (hash table); removing it and adding a near one keeps the hash table (the layout
-  // is chosen again only when the table is rebuilt, not per removal). Every state
-  // renders byte for byte what a renderer that always uses the hash table renders; with the
-  // far cell, the plane's cells are still found (guard: a lookup that ignored the layout would
-  // blend nothing or the wrong cells).
-  LumigraphModel m = PlaneModel(0.05);
-  m.cell_refs.clear();
-  for (int x = -60; x < 60; ++x)
-    for (int y = -60; y < 60; ++y)
-      if ((x + 2 * y) % 3 != 0) m.cell_refs[PackCell({x, y, 40})] = {1};  // holes: count 0
-  auto hash = Make(m, 0);
-  auto grid = Make(m, 20000);
-  const ViewId one[] = {1};
-  const CellId far_cell = PackCell({5000, 0, 40}), near_cell = PackCell({0, 0, 41});
-  for (int step = 0; step < 3; ++step) {
-    SCOPED_TRACE(step);
-    if (step == 1) {
-      for (auto* r : {&hash, &grid}) ASSERT_TRUE((*r)->SetCellRefs(far_cell, one).ok());
-    } else if (step == 2) {
-      for (auto* r : {&hash, &grid}) {
-        ASSERT_TRUE((*r)->SetCellRefs(far_cell, {}).ok());
-        ASSERT_TRUE((*r)->SetCellRefs(near_cell, one).ok());
-        ASSERT_TRUE((*r)->SetCellRefs(PackCell({1, 1, 40}), {}).ok());
-      }
-    }
-    EXPECT_EQ(grid->cell_table_is_grid(), step == 0);
-    EXPECT_FALSE(hash->cell_table_is_grid());
-    auto a = hash->Render(Cam(), Rigid3d::Identity(), blend::BlendOptions{});
-    auto b = grid->Render(Cam(), Rigid3d::Identity(), blend::BlendOptions{});
-    ASSERT_TRUE(a.ok() && b.ok());
-    EXPECT_EQ(MaxDiff(a->color, b->color), 0);
-    EXPECT_EQ(a->coverage.span().size(), b->coverage.span().size());
-    int blended = 0, surface_only = 0, differ = 0;
-    for (size_t i = 0; i < a->coverage.size(); ++i) {
-      blended += b->coverage.data()[i] == 2;
-      surface_only += b->coverage.data()[i] == 1;
-      differ += a->coverage.data()[i] != b->coverage.data()[i];
-    }
-    EXPECT_EQ(differ, 0);
-    EXPECT_GT(blended, kW * kH / 2);
-    EXPECT_GT(surface_only, kW * kH / 6);
-  }
-  EXPECT_TRUE(grid->ValidationErrors().empty());
+  auto r = Make(m);
+  EXPECT_EQ(r->num_cells(), 14400u);
+  auto out = r->Render(Cam(), Rigid3d::Identity(), blend::BlendOptions{});
+  ASSERT_TRUE(out.ok());
+  EXPECT_LE(MaxDiff(out->color, m.views.at(1).color), 1);
 }
 
 TEST(VulkanRendererTest, RemovedAndReinsertedCellsStayFindable) {
   // Removal (tombstones) and re-insertion into tombstones with the bounded lookup (the shader
   // probes at most max_probe + 1 slots). The displacement bound itself is guarded by
-  // ManyCellsGrowTheHashTable (it fails when inserts do not update max_probe). Both layouts.
+  // ManyCellsGrowTheHashTable (it fails when inserts do not update max_probe).
   LumigraphModel m = PlaneModel(0.05);
   m.cell_refs.clear();
   for (int x = -60; x < 60; ++x)
     for (int y = -60; y < 60; ++y) m.cell_refs[PackCell({x, y, 40})] = {1};
-  for (int layout : kLayouts) {
-  SCOPED_TRACE(layout);
-  auto r = Make(m, layout);
+  auto r = Make(m);
   // Remove every other column of cells: those pixels become "surface, no view" (background).
   for (int x = -60; x < 60; x += 2)
     for (int y = -60; y < 60; ++y) ASSERT_TRUE(r->SetCellRefs(PackCell({x, y, 40}), {}).ok());
@@ -368,7 +305,6 @@ TEST(VulkanRendererTest, RemovedAndReinsertedCellsStayFindable) {
   ASSERT_TRUE(full.ok());
   EXPECT_LE(MaxDiff(full->color, m.views.at(1).color), 1);
   EXPECT_TRUE(r->ValidationErrors().empty());
-  }
 }
 
 TEST(VulkanRendererTest, ProxyDepthPassGivesPlaneDepth) {
