@@ -185,6 +185,33 @@ ImageF BackgroundDepth(const View& kf, const PinholeCamera& cam, const Rigid3d& 
   std::vector<uint8_t> known(d.size());
   for (size_t i = 0; i < d.size(); ++i) known[i] = d.data()[i] > 0.f;
   PushPullFill(std::span<float>(d.data(), d.size()), 1, known, w, h, PullFilter::kBilinear);
+  // Two fixed-point steps: each pixel's point is looked up in the keyframe (bilinear depth there)
+  // and re-projected, which removes the nearest-pixel staircase of the splat.
+  const Rigid3d kf_from_cam = cam_from_kf.Inverse();
+  for (int it = 0; it < 2; ++it) {
+    ImageF next = d;
+    for (int y = 0; y < h; ++y)
+      for (int x = 0; x < w; ++x) {
+        if (!roi.at(x, y) || !(d.at(x, y) > 0.f)) continue;
+        glm::dvec2 uv;
+        if (!kf.cam.Project(kf_from_cam * cam.Unproject({x, y}, d.at(x, y)), &uv) ||
+            !kf.cam.InImage(uv, 1.0))
+          continue;
+        const int x0 = static_cast<int>(uv.x), y0 = static_cast<int>(uv.y);
+        const float z00 = kf.depth.at(x0, y0), z10 = kf.depth.at(x0 + 1, y0),
+                    z01 = kf.depth.at(x0, y0 + 1), z11 = kf.depth.at(x0 + 1, y0 + 1);
+        if (!(z00 > 0.f && z10 > 0.f && z01 > 0.f && z11 > 0.f)) continue;
+        const float zmin = std::min({z00, z10, z01, z11}), zmax = std::max({z00, z10, z01, z11});
+        if (zmax - zmin > 0.05f * zmin) continue;  // a depth edge: keep the splat's value
+        const double ax = uv.x - x0, ay = uv.y - y0;
+        const double z = (1 - ay) * ((1 - ax) * z00 + ax * z10) + ay * ((1 - ax) * z01 + ax * z11);
+        const glm::dvec3 q = cam_from_kf * kf.cam.Unproject(uv, z);
+        // The re-projected point lands near (x, y); its depth along this pixel's ray, to first
+        // order, is its z.
+        if (q.z > 0) next.at(x, y) = static_cast<float>(q.z);
+      }
+    d = std::move(next);
+  }
   return d;
 }
 
@@ -195,12 +222,30 @@ ImageF BackgroundDepth(const View& kf, const PinholeCamera& cam, const Rigid3d& 
 // 255 where anything did.
 void LookUp(const std::vector<const View*>& views, const PinholeCamera& cam, const Rigid3d& pose,
             const ImageU8& region, const ImageF& depth, ImageU8* color, ImageU8* observed,
-            ImageU8* filled) {
-  auto bilinear = [](const View& v, const glm::dvec2& uv, int c) {
+            ImageU8* filled, bool bicubic) {
+  // Catmull-Rom bicubic (sharper than bilinear: a resampled wooden floor keeps its grain),
+  // bilinear within a pixel of the border.
+  auto bilinear = [bicubic](const View& v, const glm::dvec2& uv, int c) {
     const double x = std::clamp(uv.x, 0.0, v.cam.width - 1.001),
                  y = std::clamp(uv.y, 0.0, v.cam.height - 1.001);
     const int x0 = static_cast<int>(x), y0 = static_cast<int>(y);
     const double ax = x - x0, ay = y - y0;
+    if (bicubic && x0 >= 1 && y0 >= 1 && x0 + 2 < v.cam.width && y0 + 2 < v.cam.height) {
+      auto w = [](double t, double* k) {
+        const double t2 = t * t, t3 = t2 * t;
+        k[0] = 0.5 * (-t3 + 2 * t2 - t);
+        k[1] = 0.5 * (3 * t3 - 5 * t2 + 2);
+        k[2] = 0.5 * (-3 * t3 + 4 * t2 + t);
+        k[3] = 0.5 * (t3 - t2);
+      };
+      double kx[4], ky[4];
+      w(ax, kx);
+      w(ay, ky);
+      double sum = 0;
+      for (int j = 0; j < 4; ++j)
+        for (int i = 0; i < 4; ++i) sum += kx[i] * ky[j] * v.color.at(x0 - 1 + i, y0 - 1 + j, c);
+      return std::clamp(sum, 0.0, 255.0);
+    }
     return (1 - ay) * ((1 - ax) * v.color.at(x0, y0, c) + ax * v.color.at(x0 + 1, y0, c)) +
            ay * ((1 - ax) * v.color.at(x0, y0 + 1, c) + ax * v.color.at(x0 + 1, y0 + 1, c));
   };
@@ -331,15 +376,36 @@ int Main(int argc, char** argv) {
       ->check(CLI::Range(1, 1000));
   app.add_option("--obs_views", obs_views, "ours: observation views kept (0 = keyframes only)")
       ->check(CLI::Range(0, 1000));
-  app.add_option("--blend", blend, "ours: paste or poisson (gradient-domain with the border)")
-      ->check(CLI::IsMember({"paste", "poisson"}));
+  app.add_option("--blend", blend, "ours: paste, poisson (gradient-domain with the border) or poisson_hallucinated (only the "
+                 "pixels no view observed are solved; observed ones stay as looked up)")
+      ->check(CLI::IsMember({"paste", "poisson", "poisson_hallucinated"}));
   std::string sheet;
   int sheet_every = 50;
   app.add_option("--sheet", sheet, "write a contact sheet (JPEG): rows = frames every "
                  "--sheet_every, columns = input, ground truth, telea, pm, kf_warp, ours");
   app.add_option("--sheet_every", sheet_every, "frames between contact-sheet rows")
       ->check(CLI::Range(1, 100000));
-  bool prefer_observed = true, kf_context = true;
+  std::vector<std::string> only_methods;
+  app.add_option("--methods", only_methods, "run only these (telea, ns, pm, kf_warp, ours)")
+      ->delimiter(',')
+      ->check(CLI::IsMember({"telea", "ns", "pm", "kf_warp", "ours"}));
+  bool prefer_observed = true, kf_context = true, bicubic = false;
+  app.add_option("--bicubic", bicubic, "ours: bicubic colour look-up (false: bilinear)");
+  std::string ring = "lookup";
+  app.add_option("--ring", ring, "ours: the blend's guide on the one-pixel ring around the ROI: "
+                 "observed (looked up where another view observed it, else the frame), lookup "
+                 "(looked up, hallucinated too), frame")
+      ->check(CLI::IsMember({"observed", "lookup", "frame"}));
+  double ring_sigma = 0.0, temporal = 0.8;
+  bool depth_poisson = true, temporal_hallucinated_only = true;
+  app.add_option("--depth_poisson", depth_poisson, "ours: between keyframes the depth is the warped "
+                 "depth's gradients anchored on the frame's depth around the ROI (Poisson)");
+  app.add_option("--temporal", temporal, "ours: weight of the previous output (warped by the "
+                 "camera motion) in an exponential smoothing, 0 = none")->check(CLI::Range(0.0, 0.99));
+  app.add_option("--temporal_hallucinated_only", temporal_hallucinated_only,
+                 "ours: smooth only the pixels no view observed");
+  app.add_option("--ring_sigma", ring_sigma, "ours: blend only the mismatch on the ring smoothed "
+                 "by a Gaussian of this sigma (px, 0 = all of it)")->check(CLI::Range(0.0, 100.0));
   app.add_option("--kf_context", kf_context,
                  "ours: a keyframe takes the observed colour first and inpaints only the rest "
                  "(false: inpaints the whole ROI, then observed colour replaces PatchMatch's)");
@@ -417,7 +483,8 @@ int Main(int argc, char** argv) {
   KeyframePolicyOptions policy;
   policy.max_pose_distance = kf_pose;
   policy.max_unlabelled_fraction = kf_unlabelled;
-  const std::vector<std::string> methods = {"telea", "ns", "pm", "kf_warp", "ours"};
+  std::vector<std::string> methods = {"telea", "ns", "pm", "kf_warp", "ours"};
+  if (!only_methods.empty()) methods = only_methods;
   std::map<std::string, Scores> scores;
   std::map<std::string, ImageU8> prev_out;
   ImageU8 prev_gt;
@@ -431,6 +498,8 @@ int Main(int argc, char** argv) {
   std::vector<std::shared_ptr<View>> our_kfs;
   std::deque<std::shared_ptr<View>> obs;
   int our_inpainted = 0, our_propagated = 0;
+  ImageU8 our_prev_color;
+  Rigid3d our_prev_pose;
   double our_first_ms = 0, our_propagated_ms = 0, our_frame_ms = 0, observed_frac = 0;
   long our_roi_px = 0, our_observed_px = 0;
   int our_frames = 0;
@@ -544,7 +613,7 @@ int Main(int argc, char** argv) {
           cv::dilate(r, g, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(3, 3)));
         }
         ImageU8 guide = f.color, observed(width, height, 1, 0), filled(width, height, 1, 0);
-        ImageF depth = f.depth_m;
+        ImageF depth = f.depth_m, warped;
         // The views, nearest pose first: every keyframe and observation view, or (without
         // --prefer_observed) only the nearest keyframe.
         std::vector<const View*> views;
@@ -558,8 +627,13 @@ int Main(int argc, char** argv) {
           views.push_back(our_kfs[d.nearest].get());
         }
         if (!d.insert) {
-          depth = BackgroundDepth(*our_kfs[d.nearest], cam, pose, roi, f.depth_m);
-          LookUp(views, cam, pose, region, depth, &guide, &observed, &filled);
+          // Warped over the ROI and its ring (the ring's warped values give the depth blend its
+          // gradients across the border); the look-up uses the frame's own depth on the ring.
+          warped = BackgroundDepth(*our_kfs[d.nearest], cam, pose, region, f.depth_m);
+          depth = warped;
+          for (size_t i = 0; i < roi.size(); ++i)
+            if (!roi.data()[i]) depth.data()[i] = f.depth_m.data()[i];
+          LookUp(views, cam, pose, region, depth, &guide, &observed, &filled, bicubic);
         } else {
           // A keyframe: the library inpaints the whole ROI (colour and depth, propagated from
           // the nearest keyframe); where a view observed the inpainted surface, its colour
@@ -582,7 +656,7 @@ int Main(int argc, char** argv) {
             // Observed colour (and the warped depth) first; the library fills only the rest,
             // with the observed pixels as its context.
             depth = BackgroundDepth(*our_kfs[d.nearest], cam, pose, roi, f.depth_m);
-            LookUp(views, cam, pose, region, depth, &guide, &observed, &filled);
+            LookUp(views, cam, pose, region, depth, &guide, &observed, &filled, bicubic);
             for (size_t i = 0; i < roi.size(); ++i)
               if (roi.data()[i] && observed.data()[i]) {
                 for (int c = 0; c < 3; ++c) kf.color.data()[3 * i + c] = guide.data()[3 * i + c];
@@ -617,7 +691,7 @@ int Main(int argc, char** argv) {
           v->hallucinated = t_mask;
           depth = v->depth;
           if (!kf_context && !views.empty()) {
-            LookUp(views, cam, pose, region, depth, &guide, &observed, &filled);
+            LookUp(views, cam, pose, region, depth, &guide, &observed, &filled, bicubic);
             for (size_t i = 0; i < roi.size(); ++i)
               if (roi.data()[i] && observed.data()[i]) {
                 for (int c = 0; c < 3; ++c) v->color.data()[3 * i + c] = guide.data()[3 * i + c];
@@ -644,19 +718,118 @@ int Main(int argc, char** argv) {
           cv::inpaint(rgb, Wrap(holes), dst, 3.0, cv::INPAINT_TELEA);
           std::memcpy(guide.data(), dst.data, guide.size());
         }
-        // Ring pixels not reached keep the frame's colour (they are observed).
+        // Ring pixels that no other view observed take the frame's own colour (the frame observes
+        // them; a hallucinated sample there is 20-45 grey levels off in the village and the blend
+        // would spread that mismatch into the ROI, differently every frame).
         for (size_t i = 0; i < region.size(); ++i)
-          if (region.data()[i] && !roi.data()[i] && !filled.data()[i])
+          if (region.data()[i] && !roi.data()[i] &&
+              (ring == "frame" || (ring == "observed" && !observed.data()[i]) || !filled.data()[i]))
             for (int c = 0; c < 3; ++c) guide.data()[3 * i + c] = f.color.data()[3 * i + c];
         for (size_t i = 0; i < roi.size(); ++i)
           if (roi.data()[i]) {
             for (int c = 0; c < 3; ++c) out.color.data()[3 * i + c] = guide.data()[3 * i + c];
             out.depth.data()[i] = depth.data()[i];
           }
-        if (blend == "poisson" && !PoissonBlend(guide, roi, &out.color)) {
+        if (blend == "poisson" && ring_sigma > 0) {
+          // Only the low frequencies of the mismatch on the ring are blended in: the ring's
+          // guide becomes frame - smooth(frame - guide) (normalised Gaussian over the ring).
+          cv::Mat ring(height, width, CV_32FC1, cv::Scalar(0)), diff(height, width, CV_32FC3,
+                                                                     cv::Scalar(0, 0, 0));
+          for (int y = 0; y < height; ++y)
+            for (int x = 0; x < width; ++x)
+              if (region.at(x, y) && !roi.at(x, y)) {
+                ring.at<float>(y, x) = 1.f;
+                for (int c = 0; c < 3; ++c)
+                  diff.at<cv::Vec3f>(y, x)[c] = float(f.color.at(x, y, c)) - float(guide.at(x, y, c));
+              }
+          cv::Mat sd, sr;
+          cv::GaussianBlur(diff, sd, cv::Size(0, 0), ring_sigma);
+          cv::GaussianBlur(ring, sr, cv::Size(0, 0), ring_sigma);
+          for (int y = 0; y < height; ++y)
+            for (int x = 0; x < width; ++x)
+              if (region.at(x, y) && !roi.at(x, y))
+                for (int c = 0; c < 3; ++c)
+                  guide.at(x, y, c) = static_cast<uint8_t>(std::clamp(
+                      std::lround(f.color.at(x, y, c) - sd.at<cv::Vec3f>(y, x)[c] /
+                                                            std::max(1e-6f, sr.at<float>(y, x))),
+                      0L, 255L));
+        }
+        if (std::getenv("DR_DEBUG")) {
+          double so = 0, sh = 0;
+          long no = 0, nh = 0;
+          for (size_t i = 0; i < roi.size(); ++i)
+            if (region.data()[i] && !roi.data()[i]) {
+              double dd = 0;
+              for (int c = 0; c < 3; ++c) dd += std::abs(int(f.color.data()[3 * i + c]) - int(guide.data()[3 * i + c]));
+              if (observed.data()[i]) { so += dd / 3; ++no; } else { sh += dd / 3; ++nh; }
+            }
+          std::fprintf(stderr, "ring t %d kf %d observed %ld mad %.1f other %ld mad %.1f\n", t, int(d.insert), no,
+                       no ? so / no : 0.0, nh, nh ? sh / nh : 0.0);
+        }
+        ImageU8 blend_region = roi;
+        if (blend == "poisson_hallucinated")
+          for (size_t i = 0; i < roi.size(); ++i)
+            if (observed.data()[i]) blend_region.data()[i] = 0;
+        if (blend != "paste" && !PoissonBlend(guide, blend_region, &out.color)) {
           std::fprintf(stderr, "ours frame %d: Poisson blend failed\n", t);
           return 1;
         }
+        if (depth_poisson && !d.insert) {
+          // The warped depth's gradients, anchored on the frame's own depth around the ROI
+          // (the library's gradient-domain depth, eqs. 4.13-4.16): removes the offset a chain
+          // of warps leaves.
+          const float nan = std::numeric_limits<float>::quiet_NaN();
+          ImageF values(width, height, 1, nan), gx(width, height, 1, nan), gy(width, height, 1, nan);
+          for (int y = 0; y < height; ++y)
+            for (int x = 0; x < width; ++x) {
+              if (!roi.at(x, y) && f.depth_m.at(x, y) > 0.f) values.at(x, y) = f.depth_m.at(x, y);
+              if (x + 1 < width && (roi.at(x, y) || roi.at(x + 1, y)))
+                gx.at(x, y) = warped.at(x, y) - warped.at(x + 1, y);
+              if (y + 1 < height && (roi.at(x, y) || roi.at(x, y + 1)))
+                gy.at(x, y) = warped.at(x, y) - warped.at(x, y + 1);
+            }
+          PoissonProblem pb;
+          pb.region = &roi;
+          pb.values = &values;
+          pb.gx = &gx;
+          pb.gy = &gy;
+          pb.gauge = &warped;
+          PoissonOptions po;
+          po.tolerance = 1e-6;
+          auto r = SolvePoisson(pb, po);
+          if (!r.ok()) {
+            std::fprintf(stderr, "ours frame %d: depth Poisson: %s\n", t,
+                         std::string(r.status().message()).c_str());
+            return 1;
+          }
+          for (size_t i = 0; i < roi.size(); ++i)
+            if (roi.data()[i]) out.depth.data()[i] = r->data()[i];
+        }
+        if (temporal > 0 && !our_prev_color.empty()) {
+          // Exponential smoothing along the camera motion: the previous output, looked up through
+          // this frame's background depth and the previous pose.
+          const Rigid3d prev_from_cur = our_prev_pose.Inverse() * pose;
+          for (int y = 0; y < height; ++y)
+            for (int x = 0; x < width; ++x) {
+              if (!roi.at(x, y) || !(out.depth.at(x, y) > 0.f)) continue;
+              if (temporal_hallucinated_only && observed.at(x, y)) continue;
+              glm::dvec2 uv;
+              if (!cam.Project(prev_from_cur * cam.Unproject({x, y}, out.depth.at(x, y)), &uv) ||
+                  !cam.InImage(uv, 1.0))
+                continue;
+              const int x0 = static_cast<int>(uv.x), y0 = static_cast<int>(uv.y);
+              const double ax = uv.x - x0, ay = uv.y - y0;
+              for (int c = 0; c < 3; ++c) {
+                auto P = [&](int u, int v) { return double(our_prev_color.at(u, v, c)); };
+                const double prev = (1 - ay) * ((1 - ax) * P(x0, y0) + ax * P(x0 + 1, y0)) +
+                                    ay * ((1 - ax) * P(x0, y0 + 1) + ax * P(x0 + 1, y0 + 1));
+                out.color.at(x, y, c) = static_cast<uint8_t>(std::clamp(
+                    std::lround(temporal * prev + (1 - temporal) * out.color.at(x, y, c)), 0L, 255L));
+              }
+            }
+        }
+        our_prev_color = out.color;
+        our_prev_pose = pose;
         // This frame as an observation view for later frames (its ROI unusable).
         if (obs_views > 0 && t % obs_stride == 0) {
           auto o = std::make_shared<View>();
@@ -714,7 +887,14 @@ int Main(int argc, char** argv) {
     }
     if (!sheet.empty() && t % sheet_every == 0) {
       std::vector<cv::Mat> cols = {Wrap(f.color).clone(), Wrap(gt.color).clone()};
-      for (const char* m : {"telea", "pm", "kf_warp", "ours"}) cols.push_back(Wrap(prev_out[m]).clone());
+      for (const char* m : {"telea", "pm", "kf_warp", "ours"})
+        if (!prev_out[m].empty()) cols.push_back(Wrap(prev_out[m]).clone());
+      for (const char* m : {"telea", "ours"})
+        if (!prev_out[m].empty()) {
+          cv::Mat e;
+          cv::absdiff(Wrap(prev_out[m]), Wrap(gt.color), e);
+          cols.push_back(e * 4);  // |method - ground truth| x 4
+        }
       for (cv::Mat& c : cols) {
         cv::Mat r = Wrap(roi), edge;
         cv::morphologyEx(r, edge, cv::MORPH_GRADIENT, cv::Mat());
