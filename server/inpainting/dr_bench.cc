@@ -397,7 +397,7 @@ int Main(int argc, char** argv) {
                  "(looked up, hallucinated too), frame")
       ->check(CLI::IsMember({"observed", "lookup", "frame"}));
   double ring_sigma = 0.0, temporal = 0.8;
-  bool depth_poisson = true, temporal_hallucinated_only = true;
+  bool depth_poisson = true, temporal_hallucinated_only = false;
   app.add_option("--depth_poisson", depth_poisson, "ours: between keyframes the depth is the warped "
                  "depth's gradients anchored on the frame's depth around the ROI (Poisson)");
   app.add_option("--temporal", temporal, "ours: weight of the previous output (warped by the "
