@@ -15,7 +15,11 @@
 //                --obs_views frames, one every --obs_stride, outside their own ROI, depth
 //                agreeing), else from the nearest keyframe's inpainted colour; a new keyframe
 //                is inpainted only where no view observed the background (observations are
-//                preferred, SPEC 4.x), optional gradient-domain blend with the frame's border,
+//                preferred); the output depth is the warped depth refined through the keyframe
+//                and re-anchored on the frame's depth around the ROI (Poisson); the colour is
+//                blended with the frame's border in the gradient domain and smoothed in time
+//                along the camera motion (0.8 previous, looked up through the depth);
+//                docs/inpainting.md "Session 10" has the ablations behind these choices,
 // and prints one JSON object: per method PSNR / SSIM inside the ROI and in a 10-px seam band
 // across its boundary (5 px inside, 5 px outside), depth MAE (mm) inside the ROI, the flicker ratio (mean absolute frame-to-frame
 // change inside the ROI after warping by the ground-truth motion, divided by the ground truth's
@@ -29,7 +33,9 @@
 #include <cstdio>
 #include <cstring>
 #include <fstream>
+#include <limits>
 #include <map>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -500,7 +506,7 @@ int Main(int argc, char** argv) {
   int our_inpainted = 0, our_propagated = 0;
   ImageU8 our_prev_color;
   Rigid3d our_prev_pose;
-  double our_first_ms = 0, our_propagated_ms = 0, our_frame_ms = 0, observed_frac = 0;
+  double our_first_ms = 0, our_propagated_ms = 0, our_frame_ms = 0;
   long our_roi_px = 0, our_observed_px = 0;
   int our_frames = 0;
   SsimOptions so;
@@ -754,18 +760,6 @@ int Main(int argc, char** argv) {
                                                             std::max(1e-6f, sr.at<float>(y, x))),
                       0L, 255L));
         }
-        if (std::getenv("DR_DEBUG")) {
-          double so = 0, sh = 0;
-          long no = 0, nh = 0;
-          for (size_t i = 0; i < roi.size(); ++i)
-            if (region.data()[i] && !roi.data()[i]) {
-              double dd = 0;
-              for (int c = 0; c < 3; ++c) dd += std::abs(int(f.color.data()[3 * i + c]) - int(guide.data()[3 * i + c]));
-              if (observed.data()[i]) { so += dd / 3; ++no; } else { sh += dd / 3; ++nh; }
-            }
-          std::fprintf(stderr, "ring t %d kf %d observed %ld mad %.1f other %ld mad %.1f\n", t, int(d.insert), no,
-                       no ? so / no : 0.0, nh, nh ? sh / nh : 0.0);
-        }
         ImageU8 blend_region = roi;
         if (blend == "poisson_hallucinated")
           for (size_t i = 0; i < roi.size(); ++i)
@@ -872,8 +866,6 @@ int Main(int argc, char** argv) {
           dsum += std::fabs(out.depth.data()[i] - gt.depth_m.data()[i]);
           ++dn;
         }
-      if (dn && std::getenv("DR_DEBUG"))
-        std::fprintf(stderr, "t %d %s depth %.1f\n", t, method.c_str(), 1000.0 * dsum / dn);
       if (dn) {
         s.depth_mae_mm += 1000.0 * dsum / dn;
         ++s.depth_frames;
@@ -916,7 +908,6 @@ int Main(int argc, char** argv) {
       return 1;
     }
   }
-  (void)observed_frac;
   double load = 0;
   std::ifstream("/proc/loadavg") >> load;
   std::printf("{\"bench\": \"dr_bench\", \"scene\": \"%s\", \"seed\": %llu, \"frames\": %d, "
