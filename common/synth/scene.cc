@@ -7,6 +7,9 @@
 namespace exo::synth {
 namespace {
 
+// Where the apartment's removable chair stands (living room, local frame).
+constexpr double kApartmentChairX = 4.3, kApartmentChairY = 2.4;
+
 // Builds a mesh of subdivided quads/boxes with one material per triangle.
 class MeshBuilder {
  public:
@@ -45,6 +48,7 @@ class MeshBuilder {
     if (bottom) Quad(lo, Y, X, top);                         // -z
   }
   TriangleMesh Take() { return std::move(mesh_); }
+  uint32_t NumTriangles() const { return static_cast<uint32_t>(mesh_.material.size()); }
 
  private:
   int Divisions(double len) const {
@@ -58,6 +62,23 @@ class MeshBuilder {
   double max_edge_;
   TriangleMesh mesh_;
 };
+
+// Appends the boxes of one removable object (after everything else in the scene).
+void AddRemovable(MeshBuilder* mb, SynthScene* s, const std::string& name,
+                  const std::vector<std::pair<Box3, std::pair<Material, Material>>>& boxes) {
+  RemovableObject o;
+  o.name = name;
+  o.first_triangle = mb->NumTriangles();
+  o.bounds = {glm::dvec3(1e300), glm::dvec3(-1e300)};
+  for (const auto& [b, m] : boxes) {
+    mb->Box(b.min, b.max, m.first, m.second, b.min.z > 0);
+    o.bounds.min = glm::min(o.bounds.min, b.min);
+    o.bounds.max = glm::max(o.bounds.max, b.max);
+  }
+  o.num_triangles = mb->NumTriangles() - o.first_triangle;
+  s->solids.push_back(o.bounds);
+  s->removable.push_back(std::move(o));
+}
 
 Box3 MeshBounds(const TriangleMesh& mesh) {
   Box3 b{glm::dvec3(1e300), glm::dvec3(-1e300)};
@@ -272,6 +293,21 @@ absl::StatusOr<SynthScene> MakeVillage(const SceneOptions& options) {
         s.solids.push_back({{x - 0.25, y - 0.25, 0}, {x + 0.25, y + 0.25, 4.3}});
       }
 
+  if (options.removable_objects) {
+    // A hand cart at the west kerb of the street x = -14 (wooden bed on a metal frame, wheels
+    // as blocks, a handle bar).
+    const glm::dvec2 c(-16.4, -21.0);
+    const auto W = std::make_pair(Material::kWood, Material::kWood);
+    const auto M = std::make_pair(Material::kMetal, Material::kMetal);
+    AddRemovable(&mb, &s, "cart",
+                 {{{{c.x - 0.45, c.y - 0.7, 0.35}, {c.x + 0.45, c.y + 0.7, 0.75}}, W},
+                  {{{c.x - 0.55, c.y - 0.35, 0.0}, {c.x - 0.45, c.y + 0.35, 0.45}}, M},
+                  {{{c.x + 0.45, c.y - 0.35, 0.0}, {c.x + 0.55, c.y + 0.35, 0.45}}, M},
+                  {{{c.x - 0.3, c.y + 0.7, 0.7}, {c.x - 0.25, c.y + 1.3, 0.78}}, M},
+                  {{{c.x + 0.25, c.y + 0.7, 0.7}, {c.x + 0.3, c.y + 1.3, 0.78}}, M},
+                  {{{c.x - 0.3, c.y + 1.25, 0.7}, {c.x + 0.3, c.y + 1.3, 0.8}}, M}});
+  }
+
   s.mesh = mb.Take();
   s.bounds = MeshBounds(s.mesh);
   s.navigable = {{-half + 2, -half + 2, 0.5}, {half - 2, half - 2, s.flyover_altitude_m + 4}};
@@ -374,6 +410,22 @@ absl::StatusOr<SynthScene> MakeApartment(const SceneOptions& options) {
   solid_box({7.6, 8.5, 0}, {9.4, 8.95, 1.8}, Material::kWood, Material::kWood);
   solid_box({11.0, 5.0, 0}, {11.9, 5.9, 0.8}, Material::kFabric, Material::kFabric);
 
+  if (options.removable_objects) {
+    // A chair in the middle of the living room (fabric seat, wooden legs and backrest).
+    const glm::dvec2 c(kApartmentChairX, kApartmentChairY);
+    const double h = 0.22, seat = 0.45;
+    const auto F = std::make_pair(Material::kFabric, Material::kFabric);
+    const auto Wd = std::make_pair(Material::kWood, Material::kWood);
+    std::vector<std::pair<Box3, std::pair<Material, Material>>> boxes;
+    boxes.push_back({{{c.x - h, c.y - h, seat - 0.06}, {c.x + h, c.y + h, seat}}, F});
+    for (int i = 0; i < 4; ++i) {
+      const double lx = (i & 1) ? c.x + h - 0.045 : c.x - h, ly = (i & 2) ? c.y + h - 0.045 : c.y - h;
+      boxes.push_back({{{lx, ly, 0.0}, {lx + 0.045, ly + 0.045, seat - 0.06}}, Wd});
+    }
+    boxes.push_back({{{c.x - h, c.y - h, seat}, {c.x + h, c.y - h + 0.05, seat + 0.5}}, Wd});
+    AddRemovable(&mb, &s, "chair", boxes);
+  }
+
   s.mesh = mb.Take();
   s.bounds = MeshBounds(s.mesh);
   s.navigable = {{0.2, 0.2, 0.3}, {W - 0.2, D - 0.2, H - 0.3}};
@@ -385,6 +437,47 @@ absl::StatusOr<SynthScene> MakeApartment(const SceneOptions& options) {
                       {9.5, 3.6, e}, {9.5, 5.4, e}, {9.2, 6.5, e}, {7.8, 6.5, e}, {6.2, 6.5, e},
                       {4.5, 6.8, e}, {3.5, 5.9, e}, {3.5, 4.1, e}, {3.0, 3.0, e}};
   return s;
+}
+
+absl::StatusOr<SynthScene> RemoveObjects(const SynthScene& scene,
+                                         const std::vector<std::string>& names) {
+  for (const std::string& n : names) {
+    bool found = false;
+    for (const RemovableObject& o : scene.removable) found |= o.name == n;
+    if (!found)
+      return absl::NotFoundError(
+          absl::StrCat("scene '", scene.name, "' has no removable object '", n, "'"));
+  }
+  std::vector<char> drop(scene.mesh.material.size(), 0);
+  SynthScene out = scene;
+  out.removable.clear();
+  std::vector<Box3> dropped;
+  for (const RemovableObject& o : scene.removable) {
+    if (!names.empty() && std::find(names.begin(), names.end(), o.name) == names.end()) {
+      out.removable.push_back(o);
+      continue;
+    }
+    for (uint32_t t = 0; t < o.num_triangles; ++t) drop[o.first_triangle + t] = 1;
+    dropped.push_back(o.bounds);
+  }
+  out.mesh.indices.clear();
+  out.mesh.material.clear();
+  std::vector<uint32_t> new_index(drop.size(), 0);
+  uint32_t kept = 0;
+  for (size_t t = 0; t < drop.size(); ++t) {
+    new_index[t] = kept;
+    if (drop[t]) continue;
+    ++kept;
+    for (int k = 0; k < 3; ++k) out.mesh.indices.push_back(scene.mesh.indices[3 * t + k]);
+    out.mesh.material.push_back(scene.mesh.material[t]);
+  }
+  for (RemovableObject& o : out.removable) o.first_triangle = new_index[o.first_triangle];
+  std::erase_if(out.solids, [&](const Box3& b) {
+    for (const Box3& d : dropped)
+      if (b.min == d.min && b.max == d.max) return true;
+    return false;
+  });
+  return out;
 }
 
 }  // namespace exo::synth

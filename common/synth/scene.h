@@ -60,7 +60,19 @@ struct SceneOptions {
   double max_edge_m = 2.0;
   // Scene-local origin in the world: frames carry world poses = local + origin (test 1e5 m).
   glm::dvec3 origin_in_world{0.0};
+  // Removable objects (issue 18, diminished-reality ground truth): a chair in the apartment's
+  // living room, a hand cart in the village street. Off by default (the scenes stay as they
+  // were). They are appended after everything else and draw nothing from the seed's random
+  // stream, so RemoveObjects() of a scene built with them is the scene built without them.
+  bool removable_objects = false;
   absl::Status Validate() const;
+};
+
+// One removable object: its triangles are mesh.indices[3 * first_triangle ...] (contiguous).
+struct RemovableObject {
+  std::string name;       // "chair", "cart"
+  Box3 bounds;            // AABB (local frame)
+  uint32_t first_triangle = 0, num_triangles = 0;
 };
 
 struct SynthScene {
@@ -82,6 +94,7 @@ struct SynthScene {
   std::vector<double> street_x;    // streets running along y at these x
   std::vector<double> street_y;    // streets running along x at these y
   double street_half_width_m = 3.0;
+  std::vector<RemovableObject> removable;  // empty unless SceneOptions::removable_objects
 
   // Scene diameter (AABB diagonal), metres: others derive cell size and d_max from it.
   double ExtentM() const { return glm::length(bounds.Size()); }
@@ -92,5 +105,10 @@ struct SynthScene {
 absl::StatusOr<SynthScene> MakeScene(SceneKind kind, const SceneOptions& options);
 absl::StatusOr<SynthScene> MakeVillage(const SceneOptions& options);
 absl::StatusOr<SynthScene> MakeApartment(const SceneOptions& options);
+
+// The scene without the named removable objects (empty = all of them): their triangles and
+// solids are dropped, the rest is unchanged. NotFound for a name the scene does not have.
+absl::StatusOr<SynthScene> RemoveObjects(const SynthScene& scene,
+                                         const std::vector<std::string>& names = {});
 
 }  // namespace exo::synth

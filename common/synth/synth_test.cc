@@ -56,6 +56,54 @@ TEST(SynthSceneTest, DeterministicValidMeshes) {
   EXPECT_FALSE(MakeVillage(bad).ok());
 }
 
+// Removable objects (issue 18): a chair in the apartment, a cart in the village; the scene with
+// them minus them is the scene built without them, and a render differs only where the object
+// is (its pixels are nearer than the background there).
+TEST(SynthSceneTest, RemovableObjectsRenderWithAndWithout) {
+  for (SceneKind k : {SceneKind::kVillage, SceneKind::kApartment}) {
+    SceneOptions with_opt;
+    with_opt.removable_objects = true;
+    auto with = MakeScene(k, with_opt);
+    auto plain = MakeScene(k, {});
+    ASSERT_TRUE(with.ok() && plain.ok());
+    EXPECT_TRUE(plain->removable.empty());
+    ASSERT_EQ(with->removable.size(), 1u);
+    const RemovableObject& o = with->removable[0];
+    EXPECT_EQ(o.name, k == SceneKind::kApartment ? "chair" : "cart");
+    EXPECT_GT(o.num_triangles, 12u);
+    EXPECT_EQ(with->solids.size(), plain->solids.size() + 1);
+    auto without = RemoveObjects(*with);
+    ASSERT_TRUE(without.ok()) << without.status();
+    EXPECT_EQ(without->mesh.indices, plain->mesh.indices);
+    EXPECT_EQ(without->mesh.material, plain->mesh.material);
+    EXPECT_EQ(without->solids.size(), plain->solids.size());
+    EXPECT_TRUE(without->removable.empty());
+    EXPECT_EQ(RemoveObjects(*with, {"piano"}).status().code(), absl::StatusCode::kNotFound);
+    // A camera 1.5 m from the object, looking at it.
+    const glm::dvec3 c = o.bounds.Centre();
+    const Rigid3d pose = LookAt(c + glm::dvec3(1.2, 0.9, 1.6 - c.z), c);
+    auto a = RenderFrame(*with, pose, Small());
+    auto b = RenderFrame(*without, pose, Small());
+    ASSERT_TRUE(a.ok() && b.ok());
+    int nearer = 0, differ_elsewhere = 0;
+    for (int y = 0; y < 120; ++y)
+      for (int x = 0; x < 160; ++x) {
+        const float za = a->frame.depth_m.at(x, y), zb = b->frame.depth_m.at(x, y);
+        if (za + 1e-4f < zb || (za > 0 && zb == 0)) {
+          ++nearer;
+          continue;
+        }
+        EXPECT_NEAR(za, zb, 1e-4);
+        for (int ch = 0; ch < 3; ++ch)
+          differ_elsewhere += a->frame.color.at(x, y, ch) != b->frame.color.at(x, y, ch);
+      }
+    EXPECT_GT(nearer, 400) << o.name << " barely visible";
+    EXPECT_LT(nearer, 160 * 120 / 2);
+    // Only where the object touches the ground (its legs' feet are at the floor's own depth).
+    EXPECT_LE(differ_elsewhere, 60) << o.name;
+  }
+}
+
 TEST(SynthTrajectoryTest, HilbertCurveVisitsGridWithUnitSteps) {
   for (int order : {1, 2, 3, 4}) {
     const auto pts = HilbertCurve(order);

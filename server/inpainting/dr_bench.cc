@@ -1,13 +1,25 @@
-// Diminished-reality benchmark (issue 18, SPEC §7): a synthetic scene (textured back wall and
-// floor) with a removable box, rendered with and without it from a camera path that walks 90
-// degrees around the box, so the scene without the box is the exact ground truth of every frame.
-// On the same frames and masks (the box's pixels, dilated 4 px) it compares
+// Diminished-reality benchmark (issue 18, SPEC §7): a synthetic scene with a removable object
+// (--scene: the apartment's chair or the village's cart, common/synth removable objects, or the
+// old planes scene with a box), rendered with and without it from a camera path that walks
+// --arc_deg around the object, so the scene without the object is the exact ground truth of
+// every frame. On the same frames and masks (the object's pixels, dilated 4 px) it compares
 //   telea / ns : OpenCV cv::inpaint per frame (colour and depth),
 //   pm         : our PatchMatch + Poisson keyframe inpainting per frame, no propagation,
-//   ours       : InpaintFusion keyframes (the 0.7 / 10 % rule, keyframe_policy.h) with
-//                propagation of the previous keyframe's offsets; a frame between keyframes is
-//                the nearest keyframe's inpainted ROI forward-warped through its inpainted depth,
-//                the few pixels the warp does not reach filled by Telea,
+//   kf_warp    : session-9 "ours": InpaintFusion keyframes (the 0.7 / 10 % rule,
+//                keyframe_policy.h) with propagation; a frame between keyframes is the nearest
+//                keyframe's inpainted ROI forward-warped, the pixels the warp misses Telea-filled,
+//   ours       : the same keyframes, but every ROI pixel of a frame is looked up through 3D:
+//                its background depth is the nearest keyframe's (observed + inpainted) depth
+//                forward-warped into the frame, and its colour is taken from the nearest view
+//                that OBSERVED that point (the keyframes' observed pixels and the last
+//                --obs_views frames, one every --obs_stride, outside their own ROI, depth
+//                agreeing), else from the nearest keyframe's inpainted colour; a new keyframe
+//                is inpainted only where no view observed the background (observations are
+//                preferred); the output depth is the warped depth refined through the keyframe
+//                and re-anchored on the frame's depth around the ROI (Poisson); the colour is
+//                blended with the frame's border in the gradient domain and smoothed in time
+//                along the camera motion (0.8 previous, looked up through the depth);
+//                docs/inpainting.md "Session 10" has the ablations behind these choices,
 // and prints one JSON object: per method PSNR / SSIM inside the ROI and in a 10-px seam band
 // across its boundary (5 px inside, 5 px outside), depth MAE (mm) inside the ROI, the flicker ratio (mean absolute frame-to-frame
 // change inside the ROI after warping by the ground-truth motion, divided by the ground truth's
@@ -21,24 +33,38 @@
 #include <cstdio>
 #include <cstring>
 #include <fstream>
+#include <limits>
 #include <map>
+#include <span>
 #include <string>
 #include <vector>
 
+#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 #include <opencv2/photo.hpp>
 
+#include <algorithm>
+#include <deque>
+#include <functional>
+#include <memory>
+
 #include "common/cli/cli.h"
+#include "common/image_fill.h"
 #include "common/metrics/metrics.h"
+#include "common/synth/render.h"
+#include "common/synth/scene.h"
+#include "common/synth/trajectory.h"
 #include "server/inpainting/inpaint.h"
 #include "server/inpainting/keyframe_policy.h"
+#include "server/inpainting/dr_view.h"
+#include "server/inpainting/poisson.h"
 #include "server/inpainting/test_scenes.h"
 
 namespace exo::inpainting {
 namespace {
 
-using testing::RenderPlanes;
-using testing::WorldPlane;
+using exo::inpainting::testing::RenderPlanes;
+using exo::inpainting::testing::WorldPlane;
 
 const glm::dvec3 kBoxCentre(0.0, 0.35, 2.0);
 constexpr double kBoxHalf = 0.25;
@@ -128,6 +154,8 @@ ImageU8 WarpKeyframe(const InpaintResult& kf, const PinholeCamera& cam, const Ri
   return hit;
 }
 
+using View = DrView;
+
 struct Scores {
   double psnr_roi = 0, ssim_roi = 0, psnr_seam = 0, ssim_seam = 0, depth_mae_mm = 0;
   double flicker = 0, gt_flicker = 0;
@@ -156,52 +184,178 @@ double Flicker(const ImageU8& cur, const ImageU8& prev, const ImageU8& roi_t, co
 }
 
 int Main(int argc, char** argv) {
-  int frames = 300, width = 320, height = 240;
-  double arc_deg = 90.0;
-  CLI::App app{"Diminished reality on a synthetic scene with a removable box: Telea, "
+  int frames = 300, width = 320, height = 240, obs_stride = 10, obs_views = 24, score_first = 0,
+      last = -1;
+  double arc_deg = 90.0, kf_pose = 0.7, kf_unlabelled = 0.10;
+  std::string scene_name = "apartment", blend = "poisson";
+  uint64_t seed = 1;
+  CLI::App app{"Diminished reality on a synthetic scene with a removable object: Telea, "
                "Navier-Stokes, per-frame PatchMatch and InpaintFusion keyframes against the "
-               "ground truth without the box; prints JSON"};
+               "ground truth without the object; prints JSON"};
   exo::cli::Setup(app);
+  app.add_option("--scene", scene_name, "apartment (chair), village (cart) or planes (box)")
+      ->check(CLI::IsMember({"apartment", "village", "planes"}));
+  app.add_option("--seed", seed, "synthetic scene seed (apartment / village)");
   app.add_option("--frames", frames, "frames on the arc")->check(CLI::Range(2, 100000));
+  app.add_option("--first", score_first, "score frames from this index on (all are processed)");
+  app.add_option("--last", last, "score frames up to this index (-1 = the last)");
   app.add_option("--width", width, "frame width")->check(CLI::Range(64, 4096));
   app.add_option("--height", height, "frame height")->check(CLI::Range(48, 4096));
-  app.add_option("--arc_deg", arc_deg, "degrees of the arc around the box")->check(CLI::Range(1.0, 180.0));
+  app.add_option("--arc_deg", arc_deg, "degrees of the arc around the object")->check(CLI::Range(1.0, 180.0));
+  app.add_option("--kf_pose", kf_pose, "keyframe rule: pose distance")->check(CLI::Range(0.01, 10.0));
+  app.add_option("--kf_unlabelled", kf_unlabelled, "keyframe rule: unlabelled ROI fraction")
+      ->check(CLI::Range(0.0, 1.0));
+  app.add_option("--obs_stride", obs_stride, "ours: keep every Nth frame as an observation view")
+      ->check(CLI::Range(1, 1000));
+  app.add_option("--obs_views", obs_views, "ours: observation views kept (0 = keyframes only)")
+      ->check(CLI::Range(0, 1000));
+  app.add_option("--blend", blend, "ours: paste, poisson (gradient-domain with the border) or poisson_hallucinated (only the "
+                 "pixels no view observed are solved; observed ones stay as looked up)")
+      ->check(CLI::IsMember({"paste", "poisson", "poisson_hallucinated"}));
+  std::string sheet;
+  int sheet_every = 50;
+  app.add_option("--sheet", sheet, "write a contact sheet (JPEG): rows = frames every "
+                 "--sheet_every, columns = input, ground truth, telea, pm, kf_warp, ours");
+  app.add_option("--sheet_every", sheet_every, "frames between contact-sheet rows")
+      ->check(CLI::Range(1, 100000));
+  std::vector<std::string> only_methods;
+  app.add_option("--methods", only_methods, "run only these (telea, ns, pm, kf_warp, ours)")
+      ->delimiter(',')
+      ->check(CLI::IsMember({"telea", "ns", "pm", "kf_warp", "ours"}));
+  bool prefer_observed = true, kf_context = true, bicubic = false;
+  app.add_option("--bicubic", bicubic, "ours: bicubic colour look-up (false: bilinear)");
+  std::string ring = "lookup";
+  app.add_option("--ring", ring, "ours: the blend's guide on the one-pixel ring around the ROI: "
+                 "observed (looked up where another view observed it, else the frame), lookup "
+                 "(looked up, hallucinated too), frame")
+      ->check(CLI::IsMember({"observed", "lookup", "frame"}));
+  double ring_sigma = 0.0, temporal = 0.8;
+  bool depth_poisson = true, temporal_hallucinated_only = false;
+  app.add_option("--depth_poisson", depth_poisson, "ours: between keyframes the depth is the warped "
+                 "depth's gradients anchored on the frame's depth around the ROI (Poisson)");
+  app.add_option("--temporal", temporal, "ours: weight of the previous output (warped by the "
+                 "camera motion) in an exponential smoothing, 0 = none")->check(CLI::Range(0.0, 0.99));
+  app.add_option("--temporal_hallucinated_only", temporal_hallucinated_only,
+                 "ours: smooth only the pixels no view observed");
+  app.add_option("--ring_sigma", ring_sigma, "ours: blend only the mismatch on the ring smoothed "
+                 "by a Gaussian of this sigma (px, 0 = all of it)")->check(CLI::Range(0.0, 100.0));
+  app.add_option("--kf_context", kf_context,
+                 "ours: a keyframe takes the observed colour first and inpaints only the rest "
+                 "(false: inpaints the whole ROI, then observed colour replaces PatchMatch's)");
+  app.add_option("--prefer_observed", prefer_observed,
+                 "ours: look colour up in every view that observed the point (false: only the "
+                 "nearest keyframe, observed + inpainted)");
   if (auto rc = exo::cli::Parse(app, argc, argv)) return *rc;
+  if (last < 0) last = frames - 1;
+  std::vector<cv::Mat> sheet_rows;
+
+  // The scene: a renderer of (with object, ground truth without) and the camera path.
   PinholeCamera cam;
-  cam.width = width;
-  cam.height = height;
-  cam.fx = cam.fy = 0.9 * width;
-  cam.cx = (width - 1) / 2.0;
-  cam.cy = (height - 1) / 2.0;
-  const auto with_box = WithBox(), background = Background();
+  std::function<absl::Status(const Rigid3d&, RgbdKeyframe*, RgbdKeyframe*)> render;
+  std::vector<Rigid3d> poses;
+  std::shared_ptr<synth::SynthScene> with_obj, without_obj;
+  synth::RenderOptions ro;
+  ro.width = width;
+  ro.height = height;
+  ro.num_threads = 1;
+  if (scene_name == "planes") {
+    cam.width = width;
+    cam.height = height;
+    cam.fx = cam.fy = 0.9 * width;
+    cam.cx = (width - 1) / 2.0;
+    cam.cy = (height - 1) / 2.0;
+    auto with_box = std::make_shared<std::vector<WorldPlane>>(WithBox());
+    auto background = std::make_shared<std::vector<WorldPlane>>(Background());
+    render = [=](const Rigid3d& pose, RgbdKeyframe* f, RgbdKeyframe* gt) {
+      *f = RenderPlanes(*with_box, cam, pose);
+      *gt = RenderPlanes(*background, cam, pose);
+      return absl::OkStatus();
+    };
+    for (int t = 0; t < frames; ++t) {
+      const double a = (-0.5 + double(t) / (frames - 1)) * arc_deg * M_PI / 180.0;
+      const glm::dvec3 eye = kBoxCentre + glm::dvec3(1.6 * std::sin(a), -0.45, -1.6 * std::cos(a));
+      poses.push_back(LookAt(eye, kBoxCentre + glm::dvec3(0, 0.1, 0)));
+    }
+  } else {
+    synth::SceneOptions so;
+    so.seed = seed;
+    so.removable_objects = true;
+    auto s = synth::MakeScene(scene_name == "village" ? synth::SceneKind::kVillage
+                                                      : synth::SceneKind::kApartment, so);
+    if (!s.ok()) {
+      std::fprintf(stderr, "%s\n", std::string(s.status().message()).c_str());
+      return 1;
+    }
+    auto wo = synth::RemoveObjects(*s);
+    if (!wo.ok()) return 1;
+    with_obj = std::make_shared<synth::SynthScene>(*std::move(s));
+    without_obj = std::make_shared<synth::SynthScene>(*std::move(wo));
+    cam = ro.Camera();
+    render = [=](const Rigid3d& pose, RgbdKeyframe* f, RgbdKeyframe* gt) -> absl::Status {
+      EXO_ASSIGN_OR_RETURN(synth::RenderedFrame a, synth::RenderFrame(*with_obj, pose, ro));
+      EXO_ASSIGN_OR_RETURN(synth::RenderedFrame b, synth::RenderFrame(*without_obj, pose, ro));
+      *f = {std::move(a.frame.color), std::move(a.frame.depth_m), cam, pose};
+      *gt = {std::move(b.frame.color), std::move(b.frame.depth_m), cam, pose};
+      return absl::OkStatus();
+    };
+    // A walk on a circle around the object, eye height, looking at it: the chair from the
+    // north side of the living room (the bookshelf wall and the wooden floor behind it), the
+    // cart from the street (the pavement and the houses behind it).
+    const glm::dvec3 c = with_obj->removable[0].bounds.Centre();
+    const bool apt = scene_name == "apartment";
+    const double radius = apt ? 1.7 : 3.2, eye_z = apt ? 1.5 : 1.6;
+    const double a0 = apt ? 90.0 : 0.0;
+    for (int t = 0; t < frames; ++t) {
+      const double a = (a0 + (-0.5 + double(t) / (frames - 1)) * arc_deg) * M_PI / 180.0;
+      poses.push_back(synth::LookAt({c.x + radius * std::cos(a), c.y + radius * std::sin(a), eye_z},
+                                    {c.x, c.y, c.z}));
+    }
+  }
   InpaintOptions opt;
   opt.num_threads = 1;
   KeyframePolicyOptions policy;
-  const std::vector<std::string> methods = {"telea", "ns", "pm", "ours"};
+  policy.max_pose_distance = kf_pose;
+  policy.max_unlabelled_fraction = kf_unlabelled;
+  std::vector<std::string> methods = {"telea", "ns", "pm", "kf_warp", "ours"};
+  if (!only_methods.empty()) methods = only_methods;
   std::map<std::string, Scores> scores;
   std::map<std::string, ImageU8> prev_out;
   ImageU8 prev_gt;
   Rigid3d prev_pose;
-  // Ours: keyframes (results) and timings.
+  // kf_warp: keyframes (results) and timings.
   std::vector<std::shared_ptr<InpaintResult>> keyframes;
   int propagated = 0;
   double first_kf_ms = 0, propagated_ms = 0, warp_ms = 0;
   int warped_frames = 0;
+  // ours: keyframe views, observation views, timings.
+  std::vector<std::shared_ptr<View>> our_kfs;
+  std::deque<std::shared_ptr<View>> obs;
+  int our_inpainted = 0, our_propagated = 0;
+  ImageU8 our_prev_color;
+  Rigid3d our_prev_pose;
+  double our_first_ms = 0, our_propagated_ms = 0, our_frame_ms = 0;
+  long our_roi_px = 0, our_observed_px = 0;
+  int our_frames = 0;
   SsimOptions so;
-  const double radius = 1.6;
   for (int t = 0; t < frames; ++t) {
-    const double a = (-0.5 + double(t) / (frames - 1)) * arc_deg * M_PI / 180.0;
-    const glm::dvec3 eye = kBoxCentre + glm::dvec3(radius * std::sin(a), -0.45, -radius * std::cos(a));
-    const Rigid3d pose = LookAt(eye, kBoxCentre + glm::dvec3(0, 0.1, 0));
-    RgbdKeyframe f = RenderPlanes(with_box, cam, pose);
-    const RgbdKeyframe gt = RenderPlanes(background, cam, pose);
+    const Rigid3d pose = poses[t];
+    RgbdKeyframe f, gt;
+    if (auto st = render(pose, &f, &gt); !st.ok()) {
+      std::fprintf(stderr, "render: %s\n", std::string(st.message()).c_str());
+      return 1;
+    }
     ImageU8 roi(width, height, 1, 0);
     for (size_t i = 0; i < roi.size(); ++i)
-      roi.data()[i] = f.depth_m.data()[i] + 0.01f < gt.depth_m.data()[i] ? 255 : 0;
+      roi.data()[i] = (f.depth_m.data()[i] + 1e-4f < gt.depth_m.data()[i] ||
+                       (f.depth_m.data()[i] > 0.f && !(gt.depth_m.data()[i] > 0.f)))
+                          ? 255
+                          : 0;
     {
       cv::Mat m = Wrap(roi);
       cv::dilate(m, m, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(9, 9)));
     }
+    int roi_px = 0;
+    for (size_t i = 0; i < roi.size(); ++i) roi_px += roi.data()[i] != 0;
     // The seam: a 10-px band around the ROI's boundary (5 px inside, 5 px outside).
     ImageU8 seam(width, height, 1, 0);
     {
@@ -211,10 +365,13 @@ int Main(int argc, char** argv) {
       cv::erode(r, inner, k);
       s.setTo(0, inner);
     }
+    const bool scored = t >= score_first && t <= last && roi_px > 0;
     for (const std::string& method : methods) {
       Output out{f.color, f.depth_m};
       const double w0 = WallMs(), c0 = CpuMs();
-      if (method == "telea" || method == "ns") {
+      if (roi_px == 0) {
+        // Nothing to remove in this frame.
+      } else if (method == "telea" || method == "ns") {
         const int flag = method == "telea" ? cv::INPAINT_TELEA : cv::INPAINT_NS;
         cv::Mat rgb = Wrap(f.color), dst;
         cv::inpaint(rgb, Wrap(roi), dst, 5.0, flag);
@@ -233,7 +390,7 @@ int Main(int argc, char** argv) {
           return 1;
         }
         out = {r->color, r->depth_m};
-      } else {  // ours
+      } else if (method == "kf_warp") {
         std::vector<KeyframeView> views;
         for (const auto& k : keyframes) views.push_back({&k->mask, &k->depth_m, k->camera, k->world_from_cam});
         const KeyframeDecision d = DecideKeyframe(roi, cam, pose, views, policy);
@@ -242,7 +399,7 @@ int Main(int argc, char** argv) {
           const double k0 = WallMs();
           auto r = InpaintKeyframe(f, roi, opt, previous);
           if (!r.ok()) {
-            std::fprintf(stderr, "ours frame %d: %s\n", t, std::string(r.status().message()).c_str());
+            std::fprintf(stderr, "kf_warp frame %d: %s\n", t, std::string(r.status().message()).c_str());
             return 1;
           }
           const double ms = WallMs() - k0;
@@ -277,10 +434,253 @@ int Main(int argc, char** argv) {
           warp_ms += WallMs() - k0;
           ++warped_frames;
         }
+      } else {  // ours
+        const double k0 = WallMs();
+        std::vector<KeyframeView> kviews;
+        for (const auto& k : our_kfs) kviews.push_back({&k->roi, &k->depth, k->cam, k->world_from_cam});
+        const KeyframeDecision d = DecideKeyframe(roi, cam, pose, kviews, policy);
+        // The ROI and a one-pixel ring (the guide of the gradient-domain blend).
+        ImageU8 region(width, height, 1, 0);
+        {
+          cv::Mat r = Wrap(roi), g = Wrap(region);
+          cv::dilate(r, g, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(3, 3)));
+        }
+        ImageU8 guide = f.color, observed(width, height, 1, 0), filled(width, height, 1, 0);
+        ImageF depth = f.depth_m, warped;
+        // The views, nearest pose first: every keyframe and observation view, or (without
+        // --prefer_observed) only the nearest keyframe.
+        std::vector<const View*> views;
+        if (prefer_observed) {
+          for (const auto& k : our_kfs) views.push_back(k.get());
+          for (const auto& o : obs) views.push_back(o.get());
+          std::stable_sort(views.begin(), views.end(), [&](const View* a, const View* b) {
+            return PoseDistance(a->world_from_cam, pose) < PoseDistance(b->world_from_cam, pose);
+          });
+        } else if (d.nearest >= 0) {
+          views.push_back(our_kfs[d.nearest].get());
+        }
+        if (!d.insert) {
+          // Warped over the ROI and its ring (the ring's warped values give the depth blend its
+          // gradients across the border); the look-up uses the frame's own depth on the ring.
+          warped = WarpBackgroundDepth(*our_kfs[d.nearest], cam, pose, region, f.depth_m);
+          depth = warped;
+          for (size_t i = 0; i < roi.size(); ++i)
+            if (!roi.data()[i]) depth.data()[i] = f.depth_m.data()[i];
+          LookUpInViews(views, cam, pose, region, depth, &guide, &observed, &filled, bicubic);
+        } else {
+          // A keyframe: the library inpaints the whole ROI (colour and depth, propagated from
+          // the nearest keyframe); where a view observed the inpainted surface, its colour
+          // replaces PatchMatch's (observations preferred), the rest stays hallucinated.
+          const InpaintResult* previous = nullptr;
+          double best = 1e300;
+          for (const auto& k : our_kfs)
+            if (k->result && PoseDistance(k->world_from_cam, pose) < best) {
+              best = PoseDistance(k->world_from_cam, pose);
+              previous = k->result.get();
+            }
+          auto v = std::make_shared<View>();
+          v->cam = cam;
+          v->world_from_cam = pose;
+          v->cam_from_world = pose.Inverse();
+          v->roi = roi;
+          RgbdKeyframe kf = f;
+          ImageU8 t_mask = roi;
+          if (kf_context && d.nearest >= 0) {
+            // Observed colour (and the warped depth) first; the library fills only the rest,
+            // with the observed pixels as its context.
+            depth = WarpBackgroundDepth(*our_kfs[d.nearest], cam, pose, roi, f.depth_m);
+            LookUpInViews(views, cam, pose, region, depth, &guide, &observed, &filled, bicubic);
+            for (size_t i = 0; i < roi.size(); ++i)
+              if (roi.data()[i] && observed.data()[i]) {
+                for (int c = 0; c < 3; ++c) kf.color.data()[3 * i + c] = guide.data()[3 * i + c];
+                kf.depth_m.data()[i] = depth.data()[i];
+                t_mask.data()[i] = 0;
+              }
+          }
+          int n_t = 0;
+          for (size_t i = 0; i < t_mask.size(); ++i) n_t += t_mask.data()[i] != 0;
+          if (n_t > 0) {
+            const double i0 = WallMs();
+            auto r = InpaintKeyframe(kf, t_mask, opt, previous);
+            if (!r.ok()) {
+              std::fprintf(stderr, "ours frame %d: %s\n", t, std::string(r.status().message()).c_str());
+              return 1;
+            }
+            const double ms = WallMs() - i0;
+            if (previous) {
+              ++our_propagated;
+              our_propagated_ms += ms;
+            } else {
+              our_first_ms = ms;
+            }
+            ++our_inpainted;
+            v->result = std::make_shared<InpaintResult>(*std::move(r));
+            v->color = v->result->color;
+            v->depth = v->result->depth_m;
+          } else {
+            v->color = kf.color;
+            v->depth = kf.depth_m;
+          }
+          v->hallucinated = t_mask;
+          depth = v->depth;
+          if (!kf_context && !views.empty()) {
+            LookUpInViews(views, cam, pose, region, depth, &guide, &observed, &filled, bicubic);
+            for (size_t i = 0; i < roi.size(); ++i)
+              if (roi.data()[i] && observed.data()[i]) {
+                for (int c = 0; c < 3; ++c) v->color.data()[3 * i + c] = guide.data()[3 * i + c];
+                v->hallucinated.data()[i] = 0;
+              }
+          }
+          for (size_t i = 0; i < roi.size(); ++i) {
+            if (!roi.data()[i]) continue;
+            for (int c = 0; c < 3; ++c) guide.data()[3 * i + c] = v->color.data()[3 * i + c];
+            filled.data()[i] = 255;
+          }
+          our_kfs.push_back(v);
+        }
+        // Pixels no view reached (outside every view): Telea from what is there.
+        ImageU8 holes(width, height, 1, 0);
+        int n_holes = 0;
+        for (size_t i = 0; i < holes.size(); ++i)
+          if (roi.data()[i] && !filled.data()[i]) {
+            holes.data()[i] = 255;
+            ++n_holes;
+          }
+        if (n_holes > 0) {
+          cv::Mat rgb = Wrap(guide), dst;
+          cv::inpaint(rgb, Wrap(holes), dst, 3.0, cv::INPAINT_TELEA);
+          std::memcpy(guide.data(), dst.data, guide.size());
+        }
+        // Ring pixels that no other view observed take the frame's own colour (the frame observes
+        // them; a hallucinated sample there is 20-45 grey levels off in the village and the blend
+        // would spread that mismatch into the ROI, differently every frame).
+        for (size_t i = 0; i < region.size(); ++i)
+          if (region.data()[i] && !roi.data()[i] &&
+              (ring == "frame" || (ring == "observed" && !observed.data()[i]) || !filled.data()[i]))
+            for (int c = 0; c < 3; ++c) guide.data()[3 * i + c] = f.color.data()[3 * i + c];
+        for (size_t i = 0; i < roi.size(); ++i)
+          if (roi.data()[i]) {
+            for (int c = 0; c < 3; ++c) out.color.data()[3 * i + c] = guide.data()[3 * i + c];
+            out.depth.data()[i] = depth.data()[i];
+          }
+        if (blend == "poisson" && ring_sigma > 0) {
+          // Only the low frequencies of the mismatch on the ring are blended in: the ring's
+          // guide becomes frame - smooth(frame - guide) (normalised Gaussian over the ring).
+          cv::Mat ring(height, width, CV_32FC1, cv::Scalar(0)), diff(height, width, CV_32FC3,
+                                                                     cv::Scalar(0, 0, 0));
+          for (int y = 0; y < height; ++y)
+            for (int x = 0; x < width; ++x)
+              if (region.at(x, y) && !roi.at(x, y)) {
+                ring.at<float>(y, x) = 1.f;
+                for (int c = 0; c < 3; ++c)
+                  diff.at<cv::Vec3f>(y, x)[c] = float(f.color.at(x, y, c)) - float(guide.at(x, y, c));
+              }
+          cv::Mat sd, sr;
+          cv::GaussianBlur(diff, sd, cv::Size(0, 0), ring_sigma);
+          cv::GaussianBlur(ring, sr, cv::Size(0, 0), ring_sigma);
+          for (int y = 0; y < height; ++y)
+            for (int x = 0; x < width; ++x)
+              if (region.at(x, y) && !roi.at(x, y))
+                for (int c = 0; c < 3; ++c)
+                  guide.at(x, y, c) = static_cast<uint8_t>(std::clamp(
+                      std::lround(f.color.at(x, y, c) - sd.at<cv::Vec3f>(y, x)[c] /
+                                                            std::max(1e-6f, sr.at<float>(y, x))),
+                      0L, 255L));
+        }
+        ImageU8 blend_region = roi;
+        if (blend == "poisson_hallucinated")
+          for (size_t i = 0; i < roi.size(); ++i)
+            if (observed.data()[i]) blend_region.data()[i] = 0;
+        if (blend != "paste" && !PoissonBlendColor(guide, blend_region, &out.color).ok()) {
+          std::fprintf(stderr, "ours frame %d: Poisson blend failed\n", t);
+          return 1;
+        }
+        if (depth_poisson && !d.insert) {
+          // The warped depth's gradients, anchored on the frame's own depth around the ROI
+          // (the library's gradient-domain depth, eqs. 4.13-4.16): removes the offset a chain
+          // of warps leaves.
+          const float nan = std::numeric_limits<float>::quiet_NaN();
+          ImageF values(width, height, 1, nan), gx(width, height, 1, nan), gy(width, height, 1, nan);
+          for (int y = 0; y < height; ++y)
+            for (int x = 0; x < width; ++x) {
+              if (!roi.at(x, y) && f.depth_m.at(x, y) > 0.f) values.at(x, y) = f.depth_m.at(x, y);
+              if (x + 1 < width && (roi.at(x, y) || roi.at(x + 1, y)))
+                gx.at(x, y) = warped.at(x, y) - warped.at(x + 1, y);
+              if (y + 1 < height && (roi.at(x, y) || roi.at(x, y + 1)))
+                gy.at(x, y) = warped.at(x, y) - warped.at(x, y + 1);
+            }
+          PoissonProblem pb;
+          pb.region = &roi;
+          pb.values = &values;
+          pb.gx = &gx;
+          pb.gy = &gy;
+          pb.gauge = &warped;
+          PoissonOptions po;
+          po.tolerance = 1e-6;
+          auto r = SolvePoisson(pb, po);
+          if (!r.ok()) {
+            std::fprintf(stderr, "ours frame %d: depth Poisson: %s\n", t,
+                         std::string(r.status().message()).c_str());
+            return 1;
+          }
+          for (size_t i = 0; i < roi.size(); ++i)
+            if (roi.data()[i]) out.depth.data()[i] = r->data()[i];
+        }
+        if (temporal > 0 && !our_prev_color.empty()) {
+          // Exponential smoothing along the camera motion: the previous output, looked up through
+          // this frame's background depth and the previous pose.
+          const Rigid3d prev_from_cur = our_prev_pose.Inverse() * pose;
+          for (int y = 0; y < height; ++y)
+            for (int x = 0; x < width; ++x) {
+              if (!roi.at(x, y) || !(out.depth.at(x, y) > 0.f)) continue;
+              if (temporal_hallucinated_only && observed.at(x, y)) continue;
+              glm::dvec2 uv;
+              if (!cam.Project(prev_from_cur * cam.Unproject({x, y}, out.depth.at(x, y)), &uv) ||
+                  !cam.InImage(uv, 1.0))
+                continue;
+              const int x0 = static_cast<int>(uv.x), y0 = static_cast<int>(uv.y);
+              const double ax = uv.x - x0, ay = uv.y - y0;
+              for (int c = 0; c < 3; ++c) {
+                auto P = [&](int u, int v) { return double(our_prev_color.at(u, v, c)); };
+                const double prev = (1 - ay) * ((1 - ax) * P(x0, y0) + ax * P(x0 + 1, y0)) +
+                                    ay * ((1 - ax) * P(x0, y0 + 1) + ax * P(x0 + 1, y0 + 1));
+                out.color.at(x, y, c) = static_cast<uint8_t>(std::clamp(
+                    std::lround(temporal * prev + (1 - temporal) * out.color.at(x, y, c)), 0L, 255L));
+              }
+            }
+        }
+        our_prev_color = out.color;
+        our_prev_pose = pose;
+        // This frame as an observation view for later frames (its ROI unusable).
+        if (obs_views > 0 && t % obs_stride == 0) {
+          auto o = std::make_shared<View>();
+          o->color = f.color;
+          o->depth = f.depth_m;
+          for (size_t i = 0; i < roi.size(); ++i)
+            if (roi.data()[i]) o->depth.data()[i] = 0.f;
+          o->cam = cam;
+          o->world_from_cam = pose;
+          o->cam_from_world = pose.Inverse();
+          obs.push_back(o);
+          if (static_cast<int>(obs.size()) > obs_views) obs.pop_front();
+        }
+        our_frame_ms += WallMs() - k0;
+        ++our_frames;
+        long n_obs = 0;
+        for (size_t i = 0; i < roi.size(); ++i) n_obs += roi.data()[i] && observed.data()[i];
+        if (!d.insert) {
+          our_roi_px += roi_px;
+          our_observed_px += n_obs;
+        }
       }
       Scores& s = scores[method];
-      s.wall_ms += WallMs() - w0;
-      s.cpu_ms += CpuMs() - c0;
+      const double wall = WallMs() - w0, cpu = CpuMs() - c0;
+      if (!scored) {
+        prev_out[method] = out.color;
+        continue;
+      }
+      s.wall_ms += wall;
+      s.cpu_ms += cpu;
       ++s.frames;
       s.psnr_roi += MaskedPsnr(out.color, gt.color, roi).value_or(0.0);
       s.ssim_roi += MaskedSsim(out.color, gt.color, roi, so).value_or(0.0);
@@ -297,21 +697,52 @@ int Main(int argc, char** argv) {
         s.depth_mae_mm += 1000.0 * dsum / dn;
         ++s.depth_frames;
       }
-      if (t > 0) {
+      if (t > score_first && !prev_out[method].empty()) {
         s.flicker += Flicker(out.color, prev_out[method], roi, gt.depth_m, cam, pose, prev_pose);
         s.gt_flicker += Flicker(gt.color, prev_gt, roi, gt.depth_m, cam, pose, prev_pose);
         ++s.flicker_frames;
       }
       prev_out[method] = out.color;
     }
+    if (!sheet.empty() && t % sheet_every == 0) {
+      std::vector<cv::Mat> cols = {Wrap(f.color).clone(), Wrap(gt.color).clone()};
+      for (const char* m : {"telea", "pm", "kf_warp", "ours"})
+        if (!prev_out[m].empty()) cols.push_back(Wrap(prev_out[m]).clone());
+      for (const char* m : {"telea", "ours"})
+        if (!prev_out[m].empty()) {
+          cv::Mat e;
+          cv::absdiff(Wrap(prev_out[m]), Wrap(gt.color), e);
+          cols.push_back(e * 4);  // |method - ground truth| x 4
+        }
+      for (cv::Mat& c : cols) {
+        cv::Mat r = Wrap(roi), edge;
+        cv::morphologyEx(r, edge, cv::MORPH_GRADIENT, cv::Mat());
+        c.setTo(cv::Scalar(255, 0, 255), edge);  // the ROI's outline
+      }
+      cv::Mat row;
+      cv::hconcat(cols, row);
+      sheet_rows.push_back(row);
+    }
     prev_gt = gt.color;
     prev_pose = pose;
   }
+  if (!sheet.empty() && !sheet_rows.empty()) {
+    cv::Mat all, bgr;
+    cv::vconcat(sheet_rows, all);
+    cv::cvtColor(all, bgr, cv::COLOR_RGB2BGR);
+    if (!cv::imwrite(sheet, bgr, {cv::IMWRITE_JPEG_QUALITY, 85})) {
+      std::fprintf(stderr, "cannot write %s\n", sheet.c_str());
+      return 1;
+    }
+  }
   double load = 0;
   std::ifstream("/proc/loadavg") >> load;
-  std::printf("{\"bench\": \"dr_bench\", \"frames\": %d, \"width\": %d, \"height\": %d, "
-              "\"arc_deg\": %.1f, \"load1\": %.2f, \"methods\": {",
-              frames, width, height, arc_deg, load);
+  std::printf("{\"bench\": \"dr_bench\", \"scene\": \"%s\", \"seed\": %llu, \"frames\": %d, "
+              "\"scored\": [%d, %d], \"width\": %d, \"height\": %d, \"arc_deg\": %.1f, "
+              "\"kf_pose\": %.3f, \"kf_unlabelled\": %.3f, \"blend\": \"%s\", "
+              "\"obs_stride\": %d, \"obs_views\": %d, \"load1\": %.2f, \"methods\": {",
+              scene_name.c_str(), static_cast<unsigned long long>(seed), frames, score_first, last, width,
+              height, arc_deg, kf_pose, kf_unlabelled, blend.c_str(), obs_stride, obs_views, load);
   bool first = true;
   for (const std::string& m : methods) {
     const Scores& s = scores[m];
@@ -324,11 +755,19 @@ int Main(int argc, char** argv) {
                 s.gt_flicker > 0 ? s.flicker / s.gt_flicker : 0.0, s.wall_ms / n, s.cpu_ms / n);
     first = false;
   }
-  std::printf("}, \"ours\": {\"keyframes\": %zu, \"propagated\": %d, \"first_keyframe_ms\": %.1f, "
+  std::printf("}, \"kf_warp\": {\"keyframes\": %zu, \"propagated\": %d, \"first_keyframe_ms\": %.1f, "
               "\"propagated_keyframe_ms_mean\": %.1f, \"warped_frames\": %d, "
-              "\"warp_ms_mean\": %.2f}}\n",
+              "\"warp_ms_mean\": %.2f}",
               keyframes.size(), propagated, first_kf_ms, propagated ? propagated_ms / propagated : 0.0,
               warped_frames, warped_frames ? warp_ms / warped_frames : 0.0);
+  std::printf(", \"ours\": {\"keyframes\": %zu, \"inpainted\": %d, \"propagated\": %d, "
+              "\"first_keyframe_ms\": %.1f, "
+              "\"propagated_keyframe_ms_mean\": %.1f, \"frame_ms_mean\": %.2f, "
+              "\"observed_fraction_between_keyframes\": %.3f}}\n",
+              our_kfs.size(), our_inpainted, our_propagated, our_first_ms,
+              our_propagated ? our_propagated_ms / our_propagated : 0.0,
+              our_frames ? our_frame_ms / our_frames : 0.0,
+              our_roi_px ? double(our_observed_px) / our_roi_px : 0.0);
   return 0;
 }
 
