@@ -132,7 +132,8 @@ struct RunResult {
 };
 
 RunResult Run(const synth::SynthScene& scene, const std::string& policy, uint64_t seed,
-              double max_flight_s, double coverage_cell_m, double cell_m, ExploreOptions eo) {
+              double max_flight_s, double coverage_cell_m, double cell_m, double dwell_s,
+              ExploreOptions eo) {
   RunResult out;
   std::mt19937_64 rng(seed);
   const SceneFrame frame = SceneFrame::ZUp();
@@ -161,7 +162,7 @@ RunResult Run(const synth::SynthScene& scene, const std::string& policy, uint64_
 
   std::vector<glm::dvec3> route;
   size_t wp = 0;
-  double goal_yaw = yaw0, route_start = 0;
+  double goal_yaw = yaw0, route_start = 0, arrived_at = -1;
   // Camera gimbal: pitch (+ up) towards the goal's on the last leg, level while travelling,
   // at most 1.5 rad/s.
   double goal_pitch = 0, cam_pitch = 0;
@@ -214,7 +215,12 @@ RunResult Run(const synth::SynthScene& scene, const std::string& policy, uint64_
                          glm::length(s.position - route.back()) < 0.15 &&
                          std::abs(WrapAngle(s.yaw - goal_yaw)) < 0.1 &&
                          std::abs(cam_pitch - goal_pitch) < 0.05;
-    if (route.empty() || at_goal || t - route_start > 30) {
+    // At the goal the drone hovers `dwell_s` (frames keep coming: τ grows from the chosen view).
+    if (at_goal && arrived_at < 0) arrived_at = t;
+    if (!at_goal) arrived_at = -1;
+    const bool dwelt = at_goal && t - arrived_at >= dwell_s;
+    if (route.empty() || dwelt || t - route_start > 30) {
+      arrived_at = -1;
       route_start = t;
       goal_pitch = 0;
       if (t < 4.0) {  // initial look-around: four quarter turns in place
@@ -293,6 +299,7 @@ int main(int argc, char** argv) {
   std::vector<std::string> policies = {"autonomous", "frontier", "scripted"};
   int runs = 3;
   uint64_t seed0 = 1000;
+  double dwell_s = 1.0;
   double max_flight_s = 180, coverage_cell_m = 0.5, cell_m = 0.15;
   app.add_option("--scene", scene_name, "apartment | village");
   app.add_option("--policies", policies, "autonomous, frontier, scripted")->delimiter(',');
@@ -317,6 +324,7 @@ int main(int argc, char** argv) {
   app.add_option("--pitches", eo.pitches,
                  "camera gimbal pitch candidates, rad (+ up); 0 = a level camera")
       ->delimiter(',');
+  app.add_option("--dwell_s", dwell_s, "hover this long at each goal before the next decision");
   app.add_option("--seed0", seed0, "first run's seed (runs use seed0, seed0 + 1, ...)");
   if (auto rc = exo::cli::Parse(app, argc, argv)) return *rc;
   for (const auto& p : policies)
@@ -347,7 +355,7 @@ int main(int argc, char** argv) {
     const double levels[3] = {0.5, 0.8, 0.95};
     for (int r = 0; r < runs; ++r) {
       const RunResult res =
-          Run(*scene, policy, seed0 + r, max_flight_s, coverage_cell_m, cell_m, eo);
+          Run(*scene, policy, seed0 + r, max_flight_s, coverage_cell_m, cell_m, dwell_s, eo);
       final_seen.push_back(res.final_seen);
       collisions += res.collisions;
       replans += res.replans;
@@ -402,6 +410,7 @@ int main(int argc, char** argv) {
     j["tau_goal"] = eo.tau_goal;
     j["area_weight"] = eo.area_weight;
     j["seed0"] = seed0;
+    j["dwell_s"] = dwell_s;
     j["collisions"] = collisions;
     j["replans"] = replans;
     j["decisions"] = decisions;
