@@ -14,7 +14,6 @@
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
-#include <cstdlib>
 #include <map>
 #include <nlohmann/json.hpp>
 #include <random>
@@ -133,7 +132,7 @@ struct RunResult {
 
 RunResult Run(const synth::SynthScene& scene, const std::string& policy, uint64_t seed,
               double max_flight_s, double coverage_cell_m, double cell_m, double dwell_s,
-              ExploreOptions eo) {
+              const std::string& dump_cells, ExploreOptions eo) {
   RunResult out;
   std::mt19937_64 rng(seed);
   const SceneFrame frame = SceneFrame::ZUp();
@@ -274,8 +273,8 @@ RunResult Run(const synth::SynthScene& scene, const std::string& policy, uint64_
   out.collisions = collisions.collisions();
   out.final_coverage = out.curve.empty() ? 0 : out.curve.back().second;
   out.final_seen = cov.Fraction(1e-9);
-  if (std::getenv("EXO_EXPLORE_DUMP")) {
-    FILE* f = std::fopen(std::getenv("EXO_EXPLORE_DUMP"), "w");
+  if (!dump_cells.empty()) {  // the last run's cells win
+    FILE* f = std::fopen(dump_cells.c_str(), "w");
     if (f) {
       cov.Dump(f);
       std::fclose(f);
@@ -324,6 +323,10 @@ int main(int argc, char** argv) {
   app.add_option("--pitches", eo.pitches,
                  "camera gimbal pitch candidates, rad (+ up); 0 = a level camera")
       ->delimiter(',');
+  std::string dump_cells;
+  app.add_option("--dump_cells", dump_cells,
+                 "write the last run's ground-truth cells (x y z area tau area_up area_down "
+                 "area_side refs, cell indices at --coverage_cell_m) to this file");
   app.add_option("--dwell_s", dwell_s, "hover this long at each goal before the next decision");
   app.add_option("--seed0", seed0, "first run's seed (runs use seed0, seed0 + 1, ...)");
   if (auto rc = exo::cli::Parse(app, argc, argv)) return *rc;
@@ -355,7 +358,8 @@ int main(int argc, char** argv) {
     const double levels[3] = {0.5, 0.8, 0.95};
     for (int r = 0; r < runs; ++r) {
       const RunResult res =
-          Run(*scene, policy, seed0 + r, max_flight_s, coverage_cell_m, cell_m, dwell_s, eo);
+          Run(*scene, policy, seed0 + r, max_flight_s, coverage_cell_m, cell_m, dwell_s,
+              dump_cells, eo);
       final_seen.push_back(res.final_seen);
       collisions += res.collisions;
       replans += res.replans;
