@@ -26,8 +26,8 @@ void ExplorationPlanner::Observe(const OccupancyGrid& grid, const ImageF& depth_
   const double sample_sr = (sx * stride / camera.fx) * (sy * stride / camera.fy);
   const double face = grid.options().cell_m * grid.options().cell_m;
   struct Hits {
-    double phi_p_sum = 0;
-    glm::dvec3 dir{0.0};
+    double samples = 0, g_sum = 0, d_sum = 0;
+    glm::dvec3 dir{0.0};  // sum of the directions sample -> camera
   };
   std::unordered_map<size_t, Hits> hits;
   for (int y = stride / 2; y < depth_m.height(); y += stride)
@@ -39,18 +39,23 @@ void ExplorationPlanner::Observe(const OccupancyGrid& grid, const ImageF& depth_
       const glm::ivec3 c = grid.CellOf(p);
       if (!grid.InGrid(c) || grid.At(c) != Occupancy::kOccupied) continue;
       const double d = glm::length(p - frame_from_cam.translation);
-      const double expected = std::max(1.0, face / (d * d) / sample_sr);
       Hits& h = hits[grid.Index(c)];
-      h.phi_p_sum += DistanceQuality(d, options_.d_max_m, options_.sigma_m) / expected;
-      h.dir = (frame_from_cam.translation - grid.CentreOf(c));
+      h.samples += 1;
+      h.g_sum += DistanceQuality(d, options_.d_max_m, options_.sigma_m);
+      h.d_sum += d;
+      h.dir += frame_from_cam.translation - p;
     }
   for (const auto& [i, h] : hits) {
     Cell& c = cells_[i];
     const double len = glm::length(h.dir);
     if (!(len > 0)) continue;
     const glm::dvec3 dir = h.dir / len;
+    // φ_p = g · ψ_vis / ψ_total (3.13, 3.14) at the samples' mean distance.
+    const double d = std::max(0.1, h.d_sum / h.samples);
+    const double expected = std::max(1.0, face / (d * d) / sample_sr);
+    const double phi_p = std::min(1.0, (h.g_sum / h.samples) * h.samples / expected);
     const double phi = options_.lambda * DirectionalNovelty(c, dir) +
-                       (1 - options_.lambda) * std::min(1.0, h.phi_p_sum);
+                       (1 - options_.lambda) * phi_p;
     c.tau = std::min(options_.tau_max, c.tau + phi);
     if (static_cast<int>(c.refs.size()) < options_.r_max) c.refs.push_back(glm::vec3(dir));
   }
@@ -114,27 +119,30 @@ std::vector<float> ExplorationPlanner::Distances(const SafeFlight& safe,
 }
 
 double ExplorationPlanner::Gain(const OccupancyGrid& grid, const Setpoint& pose,
-                                const SceneFrame& frame) const {
+                                const SceneFrame& frame, double pitch) const {
   const double step = 0.5 * grid.options().cell_m;
+  const double goal = options_.tau_goal > 0 ? options_.tau_goal : options_.tau_max;
   double gain = 0;
   for (int iy = 0; iy < options_.rays_y; ++iy)
     for (int ix = 0; ix < options_.rays_x; ++ix) {
       const double a = (ix + 0.5) / options_.rays_x - 0.5, b = (iy + 0.5) / options_.rays_y - 0.5;
       const double yaw = pose.yaw - a * options_.hfov_rad;
-      const double elev = -b * options_.vfov_rad;
+      const double elev = pitch - b * options_.vfov_rad;
       const glm::dvec3 dir = std::cos(elev) * frame.Heading(yaw) + std::sin(elev) * frame.up;
       for (double t = step; t <= options_.range_m; t += step) {
         const glm::ivec3 c = grid.CellOf(pose.position + t * dir);
         if (!grid.InGrid(c)) break;
         const Occupancy o = grid.At(c);
         if (o == Occupancy::kFree) continue;
+        const double area = options_.area_weight ? (t * t) / (options_.d_max_m * options_.d_max_m)
+                                                 : 1.0;
         if (o == Occupancy::kUnknown) {
-          gain += options_.unknown_gain;
+          gain += area * options_.unknown_gain;
         } else {
           auto it = cells_.find(grid.Index(c));
           const double tau = it == cells_.end() ? 0.0 : it->second.tau;
           const double novelty = it == cells_.end() ? 1.0 : DirectionalNovelty(it->second, -dir);
-          gain += (options_.tau_max - tau) / options_.tau_max *
+          gain += area * std::clamp((goal - tau) / goal, 0.0, 1.0) *
                   (options_.lambda * novelty +
                    (1 - options_.lambda) * DistanceQuality(t, options_.d_max_m, options_.sigma_m));
         }
@@ -157,14 +165,16 @@ std::optional<NextView> ExplorationPlanner::Autonomous(const SafeFlight& safe,
   for (int k = 0; k < options_.candidates; ++k) {
     const size_t i =
         reachable[std::uniform_int_distribution<size_t>(0, reachable.size() - 1)(rng_)];
-    for (int y = 0; y < options_.yaws; ++y) {
-      NextView v;
-      v.pose = Setpoint{g.CentreOf(g.CellOfIndex(i)), WrapAngle(2 * kPi * y / options_.yaws)};
-      v.path_m = dist[i];
-      v.gain = Gain(g, v.pose, frame);
-      v.score = v.gain / (v.path_m + options_.travel_offset_m);
-      if (v.gain > 0 && (!best || v.score > best->score)) best = v;
-    }
+    for (int y = 0; y < options_.yaws; ++y)
+      for (double pitch : options_.pitches) {
+        NextView v;
+        v.pose = Setpoint{g.CentreOf(g.CellOfIndex(i)), WrapAngle(2 * kPi * y / options_.yaws)};
+        v.pitch = pitch;
+        v.path_m = dist[i];
+        v.gain = Gain(g, v.pose, frame, pitch);
+        v.score = v.gain / (v.path_m + options_.travel_offset_m);
+        if (v.gain > 0 && (!best || v.score > best->score)) best = v;
+      }
   }
   return best;
 }
@@ -179,6 +189,11 @@ std::optional<NextView> ExplorationPlanner::NearestFrontier(const SafeFlight& sa
     if (std::isfinite(dist[i]) && dist[i] >= options_.min_goal_distance_m) order.push_back(i);
   std::sort(order.begin(), order.end(), [&](size_t a, size_t b) { return dist[a] < dist[b]; });
   const int r = static_cast<int>(std::ceil(options_.frontier_reach_m / g.options().cell_m));
+  double lowest = 0, highest = 0;
+  if (!options_.pitches.empty()) {
+    lowest = *std::min_element(options_.pitches.begin(), options_.pitches.end());
+    highest = *std::max_element(options_.pitches.begin(), options_.pitches.end());
+  }
   for (size_t i : order) {
     if (tried_.count(i)) continue;
     const glm::ivec3 c = g.CellOfIndex(i);
@@ -197,16 +212,25 @@ std::optional<NextView> ExplorationPlanner::NearestFrontier(const SafeFlight& sa
                 glm::ivec3(0, -1, 0), glm::ivec3(0, 0, 1), glm::ivec3(0, 0, -1)})
             if (g.At(q + n) == Occupancy::kFree) next_to_free = true;
           if (!next_to_free) continue;
-          // Only unknown space the (level) camera can look at from here counts.
+          // Only unknown space the camera can look at from here (at one of its pitches) counts.
           const double h = glm::length(frame.Horizontal(glm::dvec3(dx, dy, dz)));
           const double v = glm::dot(glm::dvec3(dx, dy, dz), frame.up);
-          if (h == 0 || std::abs(std::atan2(v, h)) > 0.5 * options_.vfov_rad) continue;
+          const double elev = std::atan2(v, h);
+          if (h == 0 || elev < lowest - 0.5 * options_.vfov_rad ||
+              elev > highest + 0.5 * options_.vfov_rad)
+            continue;
           ++unknown;
           towards += glm::dvec3(dx, dy, dz);
         }
     if (unknown == 0) continue;
     NextView v;
     v.pose = Setpoint{g.CentreOf(c), frame.YawOf(towards)};
+    // The pitch candidate closest to the frontier's mean elevation.
+    const double elev = std::atan2(glm::dot(towards, frame.up),
+                                   glm::length(frame.Horizontal(towards)));
+    if (!options_.pitches.empty()) v.pitch = options_.pitches.front();
+    for (double p : options_.pitches)
+      if (std::abs(p - elev) < std::abs(v.pitch - elev)) v.pitch = p;
     v.path_m = dist[i];
     v.gain = unknown;
     v.score = unknown / (v.path_m + options_.travel_offset_m);

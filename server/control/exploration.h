@@ -32,18 +32,28 @@
 namespace exo::control {
 
 struct ExploreOptions {
-  int candidates = 60;
+  int candidates = 120;
   int yaws = 8;
   int rays_x = 16, rays_y = 6;
   double hfov_rad = 1.134;  // 65°
   double vfov_rad = 0.9;
-  double range_m = 4.0;
+  // Camera (gimbal) pitch candidates, rad, + up: {0} = a level camera. A drone with a gimbal
+  // can look at floors and ceilings face-on instead of at the grazing angles a level camera
+  // sees them at (SPEC §4's φ_p counts the cell's pixels against a face-on view).
+  std::vector<double> pitches = {0.0};
+  double range_m = 6.0;
   double d_max_m = 2.0, sigma_m = 2.0;  // (3.11)
   double tau_max = 4.0;
   double lambda = 0.4;
   int r_max = 16;
   double unknown_gain = 1.0;
-  double travel_offset_m = 4.0;
+  // A surface cell's weight in the gain is (tau_goal − τ)/tau_goal, clamped to [0, 1]; 0 = τ_max
+  // (every cell is worth raising to τ_max).
+  double tau_goal = 0.0;
+  // Weight a ray's gain by (t/d_max)²: a ray reaching farther sweeps more surface (the cells a
+  // ray stands for grow with the square of the distance), so the gain estimates τ_sum, not rays.
+  bool area_weight = true;
+  double travel_offset_m = 8.0;
   double min_goal_distance_m = 0.5;
   double frontier_reach_m = 0.6;
   uint64_t seed = 1;
@@ -51,6 +61,7 @@ struct ExploreOptions {
 
 struct NextView {
   Setpoint pose;
+  double pitch = 0.0;  // camera pitch, rad, + up (one of ExploreOptions::pitches)
   double gain = 0.0, path_m = 0.0, score = 0.0;
 };
 
@@ -66,7 +77,8 @@ class ExplorationPlanner {
   // Dijkstra path lengths (m) over permitted cells from `from` (infinity: unreachable).
   std::vector<float> Distances(const SafeFlight& safe, const glm::dvec3& from) const;
   // Expected gain of a pose (see the header comment).
-  double Gain(const OccupancyGrid& grid, const Setpoint& pose, const SceneFrame& frame) const;
+  double Gain(const OccupancyGrid& grid, const Setpoint& pose, const SceneFrame& frame,
+              double pitch = 0.0) const;
   // Best-scoring candidate; nullopt when nothing reachable gains anything.
   std::optional<NextView> Autonomous(const SafeFlight& safe, const glm::dvec3& from,
                                      const SceneFrame& frame);

@@ -77,6 +77,40 @@ TEST(Exploration, ObservingASurfaceRaisesTauAndLowersTheGain) {
   EXPECT_LT(after, 0.7 * before);
 }
 
+TEST(Exploration, AGimbalLooksDownAtAnUnseenFloor) {
+  // A known room, free but for its floor (occupied, never observed: τ = 0).
+  SafeFlightOptions o;
+  o.zones = {{"room", {0, 0, 0}, {6, 4, 3}}};
+  o.cell_m = 0.1;
+  o.region_fallback = false;
+  auto s = SafeFlight::Create(o);
+  ASSERT_TRUE(s.ok());
+  OccupancyGrid& g = s->grid();
+  for (size_t i = 0; i < g.num_cells(); ++i) {
+    const glm::ivec3 c = g.CellOfIndex(i);
+    g.Set(c, g.CentreOf(c).z < 0.1 ? Occupancy::kOccupied : Occupancy::kFree);
+  }
+  ExploreOptions eo;
+  eo.pitches = {-0.5, 0.0, 0.5};
+  eo.seed = 5;
+  ExplorationPlanner p(eo);
+  const Setpoint pose{{1, 2, 1.5}, 0.0};
+  const double level = p.Gain(g, pose, SceneFrame::ZUp(), 0.0);
+  const double down = p.Gain(g, pose, SceneFrame::ZUp(), -0.5);
+  const double up = p.Gain(g, pose, SceneFrame::ZUp(), 0.5);
+  EXPECT_GT(level, 0);
+  EXPECT_GT(down, 1.5 * level);
+  EXPECT_EQ(up, 0);  // nothing but free space above
+  auto v = p.Autonomous(*s, {1, 2, 1.5}, SceneFrame::ZUp());
+  ASSERT_TRUE(v.has_value());
+  EXPECT_DOUBLE_EQ(v->pitch, -0.5);
+  // A level-only planner never proposes a pitch.
+  ExplorationPlanner level_only{ExploreOptions{}};
+  auto w = level_only.Autonomous(*s, {1, 2, 1.5}, SceneFrame::ZUp());
+  ASSERT_TRUE(w.has_value());
+  EXPECT_EQ(w->pitch, 0.0);
+}
+
 TEST(Exploration, NothingReachableGivesNoView) {
   SafeFlightOptions o;
   o.zones = {{"room", {0, 0, 0}, {4, 4, 3}}};

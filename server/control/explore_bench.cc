@@ -35,6 +35,7 @@ using namespace exo::control;
 
 struct CoverageCell {
   double area = 0, tau = 0;
+  double area_by_class[3] = {0, 0, 0};  // facing up (floors, tops), down (ceiling), sideways
   std::vector<glm::dvec3> refs;
 };
 
@@ -49,9 +50,15 @@ class GroundTruthCoverage {
       const double len = std::max({glm::length(b - a), glm::length(c - a), glm::length(c - b)});
       const int n = std::max(1, static_cast<int>(std::ceil(len / (0.25 * q))));
       const double w = area / ((n + 1) * (n + 2) / 2.0);
+      const double nz = glm::normalize(glm::cross(b - a, c - a)).z;
+      const int cls = nz > 0.7 ? 0 : nz < -0.7 ? 1 : 2;
+      class_total_[cls] += area;
       for (int i = 0; i <= n; ++i)
-        for (int j = 0; i + j <= n; ++j)
-          cells_[Key(a + (b - a) * (double(i) / n) + (c - a) * (double(j) / n))].area += w;
+        for (int j = 0; i + j <= n; ++j) {
+          CoverageCell& cc = cells_[Key(a + (b - a) * (double(i) / n) + (c - a) * (double(j) / n))];
+          cc.area += w;
+          cc.area_by_class[cls] += w;
+        }
       total_ += area;
     }
   }
@@ -84,6 +91,22 @@ class GroundTruthCoverage {
       if (c.refs.size() < 16) c.refs.push_back(dir);
     }
   }
+  // Per surface class (0 up, 1 down, 2 sideways): its share of the area and the fraction of it
+  // in cells with τ >= tau.
+  double ClassShare(int cls) const { return total_ > 0 ? class_total_[cls] / total_ : 0; }
+  double ClassFraction(int cls, double tau) const {
+    double a = 0;
+    for (const auto& [k, c] : cells_)
+      if (c.tau >= tau) a += c.area_by_class[cls];
+    return class_total_[cls] > 0 ? a / class_total_[cls] : 0;
+  }
+  void Dump(FILE* f) const {
+    for (const auto& [k, c] : cells_) {
+      const glm::ivec3 i = UnpackCell(k);
+      std::fprintf(f, "%d %d %d %.4f %.3f %.4f %.4f %.4f %zu\n", i.x, i.y, i.z, c.area, c.tau,
+                   c.area_by_class[0], c.area_by_class[1], c.area_by_class[2], c.refs.size());
+    }
+  }
   double Fraction(double tau) const {
     double a = 0;
     for (const auto& [k, c] : cells_)
@@ -94,6 +117,7 @@ class GroundTruthCoverage {
  private:
   double q_;
   double total_ = 0;
+  double class_total_[3] = {0, 0, 0};
   std::unordered_map<CellId, CoverageCell> cells_;
 };
 
@@ -103,10 +127,12 @@ struct RunResult {
   std::vector<double> path_at;                   // path length at each curve sample
   uint64_t collisions = 0, decisions = 0, replans = 0;
   double decision_ms = 0, final_coverage = 0, path_m = 0;
+  double class_share[3] = {0, 0, 0}, class_coverage[3] = {0, 0, 0}, class_seen[3] = {0, 0, 0};
 };
 
 RunResult Run(const synth::SynthScene& scene, const std::string& policy, uint64_t seed,
-              double max_flight_s, double coverage_cell_m, double cell_m, ExploreOptions eo) {
+              double max_flight_s, double coverage_cell_m, double cell_m, double dwell_s,
+              const std::string& dump_cells, ExploreOptions eo) {
   RunResult out;
   std::mt19937_64 rng(seed);
   const SceneFrame frame = SceneFrame::ZUp();
@@ -135,7 +161,10 @@ RunResult Run(const synth::SynthScene& scene, const std::string& policy, uint64_
 
   std::vector<glm::dvec3> route;
   size_t wp = 0;
-  double goal_yaw = yaw0, route_start = 0;
+  double goal_yaw = yaw0, route_start = 0, arrived_at = -1;
+  // Camera gimbal: pitch (+ up) towards the goal's on the last leg, level while travelling,
+  // at most 1.5 rad/s.
+  double goal_pitch = 0, cam_pitch = 0;
   size_t script_index = 0;
   glm::dvec3 prev = start;
   double next_frame = 0;
@@ -146,7 +175,9 @@ RunResult Run(const synth::SynthScene& scene, const std::string& policy, uint64_
     const DroneState s = drone.state();
     if (t >= next_frame) {
       next_frame += 0.5;
-      const Rigid3d pose = synth::LookAt(s.position, s.position + frame.Heading(s.yaw));
+      const Rigid3d pose = synth::LookAt(
+          s.position, s.position + std::cos(cam_pitch) * frame.Heading(s.yaw) +
+                          std::sin(cam_pitch) * frame.up);
       ImageF z;
       if (synth::RenderLinear(scene, pose, ro, &z).ok()) {
         // The drone's own volume is free; the frame carves the rest.
@@ -181,9 +212,16 @@ RunResult Run(const synth::SynthScene& scene, const std::string& policy, uint64_
     // Decide when idle: spin first, then the policy.
     const bool at_goal = !route.empty() && wp + 1 == route.size() &&
                          glm::length(s.position - route.back()) < 0.15 &&
-                         std::abs(WrapAngle(s.yaw - goal_yaw)) < 0.1;
-    if (route.empty() || at_goal || t - route_start > 30) {
+                         std::abs(WrapAngle(s.yaw - goal_yaw)) < 0.1 &&
+                         std::abs(cam_pitch - goal_pitch) < 0.05;
+    // At the goal the drone hovers `dwell_s` (frames keep coming: τ grows from the chosen view).
+    if (at_goal && arrived_at < 0) arrived_at = t;
+    if (!at_goal) arrived_at = -1;
+    const bool dwelt = at_goal && t - arrived_at >= dwell_s;
+    if (route.empty() || dwelt || t - route_start > 30) {
+      arrived_at = -1;
       route_start = t;
+      goal_pitch = 0;
       if (t < 4.0) {  // initial look-around: four quarter turns in place
         route = {start};
         wp = 0;
@@ -214,6 +252,7 @@ RunResult Run(const synth::SynthScene& scene, const std::string& policy, uint64_
           route = r->waypoints;
           wp = 0;
           goal_yaw = v->pose.yaw;
+          goal_pitch = v->pitch;
         } else {
           route = {s.position};  // unreachable this time: turn and look again
           wp = 0;
@@ -223,6 +262,8 @@ RunResult Run(const synth::SynthScene& scene, const std::string& policy, uint64_
     }
     while (wp + 1 < route.size() && glm::length(s.position - route[wp]) < 0.15) ++wp;
     const bool last = wp + 1 == route.size();
+    const double want_pitch = last ? goal_pitch : 0.0, max_step = 1.5 / dopt.rate_hz;
+    cam_pitch += std::clamp(want_pitch - cam_pitch, -max_step, max_step);
     drone.Receive({route[wp], last ? goal_yaw : frame.YawOf(route[wp] - s.position)}, t);
     const DroneState& n = drone.Step();
     collisions.Update(n.position);
@@ -232,6 +273,18 @@ RunResult Run(const synth::SynthScene& scene, const std::string& policy, uint64_
   out.collisions = collisions.collisions();
   out.final_coverage = out.curve.empty() ? 0 : out.curve.back().second;
   out.final_seen = cov.Fraction(1e-9);
+  if (!dump_cells.empty()) {  // the last run's cells win
+    FILE* f = std::fopen(dump_cells.c_str(), "w");
+    if (f) {
+      cov.Dump(f);
+      std::fclose(f);
+    }
+  }
+  for (int c = 0; c < 3; ++c) {
+    out.class_share[c] = cov.ClassShare(c);
+    out.class_coverage[c] = cov.ClassFraction(c, 2.0);
+    out.class_seen[c] = cov.ClassFraction(c, 1e-9);
+  }
   return out;
 }
 
@@ -244,6 +297,8 @@ int main(int argc, char** argv) {
   std::string scene_name = "apartment";
   std::vector<std::string> policies = {"autonomous", "frontier", "scripted"};
   int runs = 3;
+  uint64_t seed0 = 1000;
+  double dwell_s = 1.0;
   double max_flight_s = 180, coverage_cell_m = 0.5, cell_m = 0.15;
   app.add_option("--scene", scene_name, "apartment | village");
   app.add_option("--policies", policies, "autonomous, frontier, scripted")->delimiter(',');
@@ -253,11 +308,27 @@ int main(int argc, char** argv) {
       ->check(CLI::PositiveNumber);
   app.add_option("--cell_m", cell_m, "occupancy cell")->check(CLI::PositiveNumber);
   ExploreOptions eo;
+  eo.tau_goal = 2.0;              // the coverage threshold τ_max/2
+  eo.pitches = {-0.5, 0.0, 0.5};  // a gimbal: ±29° (the camera's vertical FOV is ±25°)
   app.add_option("--unknown_gain", eo.unknown_gain,
                  "autonomous: gain of a ray ending in unknown space");
   app.add_option("--travel_offset_m", eo.travel_offset_m,
                  "autonomous: score = gain / (path + this)");
   app.add_option("--candidates", eo.candidates, "autonomous: candidate positions per decision");
+  app.add_option("--range_m", eo.range_m, "autonomous: frustum ray length in the gain");
+  app.add_option("--tau_goal", eo.tau_goal,
+                 "autonomous: a cell's weight is (tau_goal - tau)/tau_goal (0: tau_max)");
+  app.add_option("--area_weight", eo.area_weight,
+                 "autonomous: weight a ray's gain by (distance/d_max)^2");
+  app.add_option("--pitches", eo.pitches,
+                 "camera gimbal pitch candidates, rad (+ up); 0 = a level camera")
+      ->delimiter(',');
+  std::string dump_cells;
+  app.add_option("--dump_cells", dump_cells,
+                 "write the last run's ground-truth cells (x y z area tau area_up area_down "
+                 "area_side refs, cell indices at --coverage_cell_m) to this file");
+  app.add_option("--dwell_s", dwell_s, "hover this long at each goal before the next decision");
+  app.add_option("--seed0", seed0, "first run's seed (runs use seed0, seed0 + 1, ...)");
   if (auto rc = exo::cli::Parse(app, argc, argv)) return *rc;
   for (const auto& p : policies)
     if (p != "autonomous" && p != "frontier" && p != "scripted") {
@@ -280,17 +351,32 @@ int main(int argc, char** argv) {
     j["runs"] = runs;
     j["max_flight_s"] = max_flight_s;
     std::map<int, std::vector<double>> time_to, path_to;
-    std::vector<double> final_cov, final_seen, dec_ms;
-    uint64_t collisions = 0, replans = 0;
+    std::vector<double> final_cov, final_seen, dec_ms, cls_share[3], cls_cov[3], cls_seen[3];
+    uint64_t collisions = 0, replans = 0, decisions = 0;
+    std::map<int, std::vector<double>> cov_at;  // coverage at every 30 s of flight
     int reached[3] = {0, 0, 0};
     const double levels[3] = {0.5, 0.8, 0.95};
     for (int r = 0; r < runs; ++r) {
       const RunResult res =
-          Run(*scene, policy, 1000 + r, max_flight_s, coverage_cell_m, cell_m, eo);
+          Run(*scene, policy, seed0 + r, max_flight_s, coverage_cell_m, cell_m, dwell_s,
+              dump_cells, eo);
       final_seen.push_back(res.final_seen);
       collisions += res.collisions;
       replans += res.replans;
+      decisions += res.decisions;
+      for (int s30 = 30; s30 <= max_flight_s + 1e-9; s30 += 30) {
+        double c = res.curve.empty() ? 0 : res.curve.back().second;  // stopped early: final
+        for (const auto& [ft, fc] : res.curve)
+          if (ft <= s30) c = fc;
+          else break;
+        cov_at[s30].push_back(c);
+      }
       final_cov.push_back(res.final_coverage);
+      for (int c = 0; c < 3; ++c) {
+        cls_share[c].push_back(res.class_share[c]);
+        cls_cov[c].push_back(res.class_coverage[c]);
+        cls_seen[c].push_back(res.class_seen[c]);
+      }
       if (res.decisions) dec_ms.push_back(res.decision_ms / res.decisions);
       for (int l = 0; l < 3; ++l)
         for (size_t k = 0; k < res.curve.size(); ++k)
@@ -315,10 +401,26 @@ int main(int argc, char** argv) {
     }
     j["mean_final_coverage"] = mean(final_cov);
     j["mean_final_seen"] = mean(final_seen);
+    // Final coverage (τ >= τ_max/2) and seen (τ > 0) per surface class, with its area share.
+    const char* cls_name[3] = {"up", "down", "side"};
+    for (int c = 0; c < 3; ++c)
+      j["surface_" + std::string(cls_name[c])] = {{"area_share", mean(cls_share[c])},
+                                                  {"coverage", mean(cls_cov[c])},
+                                                  {"seen", mean(cls_seen[c])}};
     j["unknown_gain"] = eo.unknown_gain;
     j["travel_offset_m"] = eo.travel_offset_m;
+    j["pitches"] = eo.pitches;
+    j["range_m"] = eo.range_m;
+    j["tau_goal"] = eo.tau_goal;
+    j["area_weight"] = eo.area_weight;
+    j["seed0"] = seed0;
+    j["dwell_s"] = dwell_s;
     j["collisions"] = collisions;
     j["replans"] = replans;
+    j["decisions"] = decisions;
+    nlohmann::json curve = nlohmann::json::object();
+    for (const auto& [s30, v] : cov_at) curve[std::to_string(s30)] = mean(v);
+    j["mean_coverage_at_s"] = curve;
     j["mean_decision_ms"] = mean(dec_ms);
     std::printf("%s\n", j.dump().c_str());
     std::fflush(stdout);

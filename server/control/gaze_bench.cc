@@ -53,6 +53,9 @@ int main(int argc, char** argv) {
   app.add_option("--voxel_m", voxel_m, "TSDF voxel")->check(CLI::PositiveNumber);
   app.add_option("--max_flight_s", max_flight_s, "flight time limit per ray")
       ->check(CLI::PositiveNumber);
+  bool gimbal = true;
+  app.add_option("--gimbal", gimbal,
+                 "the camera pitches to face P_gaze from the reached target (false: level camera)");
   if (auto rc = exo::cli::Parse(app, argc, argv)) return *rc;
 
   auto fail = [](const absl::Status& s) {
@@ -158,9 +161,14 @@ int main(int argc, char** argv) {
     if (t_arrive < 0) continue;
     ++arrived;
     flight_s.push_back(t_arrive);
-    // The drone camera's view (level, facing its yaw) and the ground-truth depth.
+    // The drone camera's view (facing its yaw; level, or pitched by the gimbal towards P_gaze
+    // from the target the route reached, which safe flight may have clamped) and the
+    // ground-truth depth.
     const glm::dvec3 p = drone.state().position;
-    const Rigid3d local_from_cam = synth::LookAt(p, p + frame.Heading(drone.state().yaw));
+    const double pitch = gimbal ? CameraPitchToward(r->target.position, r->gaze->hit.point, frame)
+                                : 0.0;
+    const Rigid3d local_from_cam = synth::LookAt(
+        p, p + std::cos(pitch) * frame.Heading(drone.state().yaw) + std::sin(pitch) * frame.up);
     ImageF z;
     if (!synth::RenderLinear(*scene, local_from_cam, ro, &z).ok()) continue;
     const glm::dvec3 pc = local_from_cam.Inverse() * r->gaze->hit.point;
@@ -180,6 +188,7 @@ int main(int argc, char** argv) {
   j["bench"] = "gaze_to_see";
   j["scene"] = scene_name;
   j["rays"] = rays;
+  j["gimbal"] = gimbal;
   j["model"] = {{"frames", frames},
                 {"proxy_triangles", proxy.num_triangles()},
                 {"free_cells", core.CountCells(Occupancy::kFree)},

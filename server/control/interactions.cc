@@ -96,7 +96,16 @@ absl::StatusOr<GazeResult> GazeToSee(const MeshRaycaster& model, const glm::dvec
   }
   r.target.position = pos;
   r.target.yaw = frame.YawOf(hit->point - pos);
+  r.camera_pitch = CameraPitchToward(pos, hit->point, frame);
   return r;
+}
+
+double CameraPitchToward(const glm::dvec3& from, const glm::dvec3& point, const SceneFrame& frame,
+                         const GimbalLimits& limits) {
+  const glm::dvec3 d = point - from;
+  const double h = glm::length(frame.Horizontal(d)), v = glm::dot(d, frame.up);
+  if (!(h > 0) && v == 0) return 0.0;
+  return std::clamp(std::atan2(v, h), limits.min_pitch_rad, limits.max_pitch_rad);
 }
 
 JoypadResult IntegrateJoypad(const Setpoint& current, const JoypadInput& in, double dt_s,

@@ -5,7 +5,8 @@
 //   - Gaze-to-see (5.2): the gaze ray is cast into the proxy mesh → P_gaze, N_g; unless the
 //     surface is horizontal (|N_g·up| ≥ 0.9|N_g|) the drone goes x metres off the surface along
 //     N_g made horizontal, yaw facing P_gaze; on a horizontal surface it goes x metres back along
-//     the gaze ray (between the user and the point, mimicking the user's view).
+//     the gaze ray (between the user and the point, mimicking the user's view). The camera's
+//     gimbal pitch faces P_gaze too (floors and table tops are seen from above, centred).
 //   - Joypad (Mode 2): left stick = yaw rate (x) and climb rate (y), right stick = lateral (x)
 //     and forward (y) speed in the drone's heading frame; integrated into the setpoint, which
 //     slides along the permitted space's boundary instead of stopping at it.
@@ -70,7 +71,20 @@ struct GazeResult {
   RayHit hit;  // P_gaze, N_g
   Setpoint target;
   bool horizontal_surface = false;
+  // Camera (gimbal) pitch that centres P_gaze from `target` (CameraPitchToward). A level camera
+  // 0.5 m from a floor point sees it ~40° below its axis, outside the central third.
+  double camera_pitch = 0.0;
 };
+
+// Gimbal pitch range, rad (+ up): a typical drone gimbal looks straight down to 30° up.
+struct GimbalLimits {
+  double min_pitch_rad = -1.5707963267948966;
+  double max_pitch_rad = 0.5235987755982988;
+};
+// The pitch (+ up, about the camera's horizontal axis, within `limits`) at which a camera at
+// `from` with its yaw facing `point` has the point on its optical axis. 0 for from == point.
+double CameraPitchToward(const glm::dvec3& from, const glm::dvec3& point, const SceneFrame& frame,
+                         const GimbalLimits& limits = {});
 // Errors: InvalidArgument for a zero/non-finite ray; NotFound when the ray hits no surface
 // ("gaze at the sky").
 absl::StatusOr<GazeResult> GazeToSee(const MeshRaycaster& model, const glm::dvec3& eye,

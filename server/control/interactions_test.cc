@@ -91,6 +91,30 @@ TEST(GazeToSee, HorizontalFloorPlacesTheDroneBetweenUserAndPoint) {
   EXPECT_NEAR(glm::length(glm::cross(r->target.position - eye, dir)), 0.0, 1e-9);
   EXPECT_GT(r->target.position.z, 0.0);
   EXPECT_NEAR(r->target.yaw, std::atan2(0.5, 1.0), 1e-9);  // the user's horizontal view
+  // The gimbal looks down the gaze ray: the user's view direction, P_gaze on the optical axis.
+  const glm::dvec3 axis = std::cos(r->camera_pitch) * SceneFrame::ZUp().Heading(r->target.yaw) +
+                          std::sin(r->camera_pitch) * glm::dvec3(0, 0, 1);
+  EXPECT_NEAR(glm::dot(axis, dir), 1.0, 1e-9);
+  EXPECT_NEAR(r->camera_pitch, std::asin(dir.z), 1e-9);
+}
+
+TEST(GazeToSee, CameraPitchTowardIsWithinTheGimbalLimits) {
+  const SceneFrame z = SceneFrame::ZUp();
+  EXPECT_NEAR(CameraPitchToward({0, 0, 1}, {1, 0, 1}, z), 0.0, 1e-12);     // level
+  EXPECT_NEAR(CameraPitchToward({0, 0, 1}, {1, 0, 0}, z), -kPi / 4, 1e-12);  // 45° down
+  EXPECT_NEAR(CameraPitchToward({0, 0, 1}, {0, 0, 0}, z), -kPi / 2, 1e-12);  // straight down
+  EXPECT_NEAR(CameraPitchToward({0, 0, 0}, {0, 0, 3}, z), kPi / 6, 1e-12);   // capped at +30°
+  EXPECT_EQ(CameraPitchToward({1, 2, 3}, {1, 2, 3}, z), 0.0);
+  // y down (7-Scenes): "up" is -y.
+  auto y_down = SceneFrame::FromUp({0, -1, 0});
+  ASSERT_TRUE(y_down.ok());
+  EXPECT_NEAR(CameraPitchToward({0, 0, 0}, {0, 1, 1}, *y_down), -kPi / 4, 1e-12);
+  // A wall straight ahead: the gaze target faces it level.
+  const auto model = ZUpScene();
+  auto wall = GazeToSee(model, {0, 0, 1.6}, {1, 0, 0}, z);
+  ASSERT_TRUE(wall.ok()) << wall.status();
+  EXPECT_FALSE(wall->horizontal_surface);
+  EXPECT_NEAR(wall->camera_pitch, 0.0, 1e-9);
 }
 
 TEST(GazeToSee, UpAxisIsAParameterSevenScenesIsYDown) {

@@ -23,17 +23,30 @@
 
 namespace exo::control {
 
+// A box, or a prism: a polygon in the plane of two world axes with a floor and a ceiling along
+// the third (`vertical_axis`, 0/1/2 = x/y/z; 7-Scenes' up is -y: vertical axis 1). Polygon
+// vertices are (u, v) = the coordinates along the world axes (vertical+1)%3 and (vertical+2)%3,
+// in order (either orientation, simple, convex or not). min/max = the prism's bounding box.
 struct Zone {
   std::string name;
   glm::dvec3 min{0.0}, max{0.0};
-  bool Contains(const glm::dvec3& p, double eps = 1e-9) const {
-    return p.x >= min.x - eps && p.y >= min.y - eps && p.z >= min.z - eps && p.x <= max.x + eps &&
-           p.y <= max.y + eps && p.z <= max.z + eps;
-  }
-  glm::dvec3 Nearest(const glm::dvec3& p) const { return glm::clamp(p, min, max); }
+  int vertical_axis = -1;           // -1: a box
+  std::vector<glm::dvec2> polygon;  // vertical_axis >= 0 only
+  bool Contains(const glm::dvec3& p, double eps = 1e-9) const;
+  // The nearest point of the zone (the point itself when inside).
+  glm::dvec3 Nearest(const glm::dvec3& p) const;
+  // Errors: fewer than 3 vertices, zero area, crossing edges, non-finite, floor >= ceiling.
+  // Sets min/max from the polygon and the floor/ceiling.
+  static absl::StatusOr<Zone> Prism(std::string name, int vertical_axis,
+                                    std::vector<glm::dvec2> polygon, double floor,
+                                    double ceiling);
 };
-// "name:minx,miny,minz,maxx,maxy,maxz" (name optional) -> Zone; errors name the bad part.
+// "name:minx,miny,minz,maxx,maxy,maxz" (a box; name optional) or
+// "name:poly<x|y|z>:floor,ceiling:u1,v1,u2,v2,u3,v3,..." (a prism, see Zone) -> Zone; errors
+// name the bad part.
 absl::StatusOr<Zone> ParseZone(const std::string& text);
+// The inverse of ParseZone.
+std::string ZoneText(const Zone& zone);
 
 struct SafeFlightOptions {
   std::vector<Zone> zones;

@@ -59,6 +59,101 @@ TEST(ParseZone, ReadsAndRejects) {
   EXPECT_FALSE(SafeFlight::Create(none).ok());
 }
 
+TEST(ParseZone, PolygonZonesWithFloorAndCeiling) {
+  // An L: the square [0,6]² without its corner [3,6]x[3,6]; floor 0.3, ceiling 2.4 along z.
+  auto z = ParseZone("ell: polyz: 0.3, 2.4: 0,0, 6,0, 6,3, 3,3, 3,6, 0,6");
+  ASSERT_TRUE(z.ok()) << z.status();
+  EXPECT_EQ(z->name, "ell");
+  EXPECT_EQ(z->vertical_axis, 2);
+  EXPECT_EQ(z->min, glm::dvec3(0, 0, 0.3));
+  EXPECT_EQ(z->max, glm::dvec3(6, 6, 2.4));
+  EXPECT_TRUE(z->Contains({1, 5, 1}));
+  EXPECT_TRUE(z->Contains({5, 1, 2.4}));    // on the ceiling
+  EXPECT_FALSE(z->Contains({5, 5, 1}));     // in the notch
+  EXPECT_FALSE(z->Contains({1, 1, 0.2}));   // below the floor
+  EXPECT_FALSE(z->Contains({1, 1, 2.5}));   // above the ceiling
+  // Nearest: the notch goes to its nearest edge, height clamped to floor/ceiling.
+  const glm::dvec3 n = z->Nearest({4, 3.5, 3.0});
+  EXPECT_NEAR(n.x, 4.0, 1e-12);
+  EXPECT_NEAR(n.y, 3.0, 1e-12);
+  EXPECT_NEAR(n.z, 2.4, 1e-12);
+  EXPECT_EQ(z->Nearest({1, 1, 1}), glm::dvec3(1, 1, 1));
+  // Round trip through the config text.
+  auto again = ParseZone(ZoneText(*z));
+  ASSERT_TRUE(again.ok()) << again.status();
+  EXPECT_EQ(again->polygon, z->polygon);
+  EXPECT_EQ(again->min, z->min);
+  EXPECT_EQ(again->max, z->max);
+  // 7-Scenes is y down: a prism along y (floor/ceiling in y, the polygon over z, x).
+  auto y = ParseZone("seven:polyy:-2.2,-0.2:0,0,4,0,0,3");
+  ASSERT_TRUE(y.ok()) << y.status();
+  EXPECT_TRUE(y->Contains({0.5, -1, 0.5}));  // (u, v) = (z, x) = (0.5, 0.5)
+  EXPECT_FALSE(y->Contains({2.5, -1, 2.5}));
+  // Errors name the problem.
+  EXPECT_NE(ParseZone("a:polyz:0,2:0,0,1,0").status().message().find("at least 3"),
+            std::string::npos);
+  EXPECT_NE(ParseZone("a:polyz:2,1:0,0,1,0,0,1").status().message().find("ceiling"),
+            std::string::npos);
+  EXPECT_NE(ParseZone("a:polyz:0,2:0,0,2,1,2,0,0,2").status().message().find("cross"),
+            std::string::npos);  // a bow tie
+  EXPECT_NE(ParseZone("a:polyz:0,2:0,0,1,0,2,0").status().message().find("no area"),
+            std::string::npos);
+  EXPECT_NE(ParseZone("a:polyz:0,2:0,0,1,0,1").status().message().find("pairs"),
+            std::string::npos);
+  EXPECT_NE(ParseZone("a:polyw:0,2:0,0,1,0,0,1").status().message().find("poly<x|y|z>"),
+            std::string::npos);
+  EXPECT_NE(ParseZone("a:polyz:0,2:0,0,1,q,0,1").status().message().find("'q'"),
+            std::string::npos);
+  // A hand-built zone with a broken polygon is refused by the options.
+  SafeFlightOptions bad;
+  bad.zones = {*z};
+  bad.zones[0].polygon.resize(2);
+  EXPECT_FALSE(SafeFlight::Create(bad).ok());
+}
+
+TEST(SafeFlight, PolygonZoneRoutesAroundItsNotchAndClampsToItsBorder) {
+  SafeFlightOptions o;
+  auto ell = ParseZone("ell:polyz:0.3,2.4:0,0,6,0,6,3,3,3,3,6,0,6");
+  ASSERT_TRUE(ell.ok()) << ell.status();
+  o.zones = {*ell};
+  o.cell_m = 0.1;
+  o.drone_radius_m = 0.2;
+  o.region_fallback = false;
+  auto safe = SafeFlight::Create(o);
+  ASSERT_TRUE(safe.ok()) << safe.status();
+  OccupancyGrid& g = safe->grid();
+  for (size_t i = 0; i < g.num_cells(); ++i) g.Set(g.CellOfIndex(i), Occupancy::kFree);
+  // The notch is known free space but outside the zone: never flown through.
+  EXPECT_FALSE(safe->Permitted({4.5, 4.5, 1.2}));
+  EXPECT_TRUE(safe->Permitted({4.5, 1.5, 1.2}));
+  const glm::dvec3 from(5.0, 1.0, 1.2), to(1.0, 5.0, 1.2);
+  auto r = safe->Plan(from, to);
+  ASSERT_TRUE(r.ok()) << r.status();
+  EXPECT_FALSE(r->clamped);
+  ExpectRouteSafe(*safe, from, *r);
+  glm::dvec3 prev = from;
+  for (const glm::dvec3& w : r->waypoints) {
+    for (int k = 0; k <= 20; ++k) EXPECT_TRUE(ell->Contains(prev + (w - prev) * (k / 20.0)));
+    prev = w;
+  }
+  // A target in the notch is clamped to the nearest border and reached.
+  auto c = safe->Plan(from, {4.5, 3.4, 1.2});
+  ASSERT_TRUE(c.ok()) << c.status();
+  EXPECT_TRUE(c->clamped);
+  EXPECT_NEAR(c->target.y, 3.0, 1e-9);
+  EXPECT_NEAR(c->target.x, 4.5, 1e-9);
+  ExpectRouteSafe(*safe, from, *c);
+  // Above the ceiling: clamped down below it (the drone's radius from the grid's unknown
+  // outside, as for a box zone), straight below the request.
+  auto up = safe->Clamp({1.0, 1.0, 2.9});
+  ASSERT_TRUE(up.ok());
+  EXPECT_TRUE(safe->Permitted(*up));
+  EXPECT_LE(up->z, 2.4);
+  EXPECT_GT(up->z, 2.0);
+  EXPECT_NEAR(up->x, 1.0, 0.06);
+  EXPECT_NEAR(up->y, 1.0, 0.06);
+}
+
 TEST(Occupancy, InflationKeepsTheDroneRadiusFromOccupiedAndUnknown) {
   SafeFlight safe = MakeWorld();
   const OccupancyGrid& g = safe.grid();

@@ -97,12 +97,18 @@ void AppendControlConfigKeys(std::vector<ConfigKey>* keys) {
   ConfigKey zones;
   zones.name = "control_zones";
   zones.help =
-      "drone flight zones, 'name:minx,miny,minz,maxx,maxy,maxz' separated by ';' (world frame; "
-      "empty: no control service)";
+      "drone flight zones separated by ';' (world frame; empty: no control service): boxes "
+      "'name:minx,miny,minz,maxx,maxy,maxz' or prisms 'name:poly<x|y|z>:floor,ceiling:u1,v1,u2,v2,"
+      "u3,v3,...' (a polygon over the two other axes, floor and ceiling along the named one)";
   zones.get = [](const ServerConfig& c) {
     std::string s;
-    for (const auto& z : c.control.core.safe.zones)
-      absl::StrAppend(&s, s.empty() ? "" : ";", z.name, ":", Vec3Text(z.min), ",", Vec3Text(z.max));
+    for (const auto& z : c.control.core.safe.zones) {
+      if (z.vertical_axis >= 0)
+        absl::StrAppend(&s, s.empty() ? "" : ";", control::ZoneText(z));
+      else
+        absl::StrAppend(&s, s.empty() ? "" : ";", z.name, ":", Vec3Text(z.min), ",",
+                        Vec3Text(z.max));
+    }
     return s;
   };
   zones.set = [](const std::string& v, ServerConfig* c) -> absl::Status {

@@ -278,6 +278,20 @@ TEST(ControlServiceConfig, KeysParseAndRejectWithClearErrors) {
   EXPECT_FALSE(ApplyConfigValue("control_cell_m", "-1", &c).ok());
   ASSERT_TRUE(ApplyConfigValue("control_cell_m", "0.2", &c).ok());
   EXPECT_EQ(c.control.core.safe.cell_m, 0.2);
+  // A polygon zone (floor and ceiling along z) beside a box; printed back as it was read.
+  ASSERT_TRUE(
+      ApplyConfigValue("control_zones", "hall:polyz:0.3,2.4:0,0,6,0,6,3,3,3,3,6,0,6; b:6,0,0,8,2,3",
+                       &c)
+          .ok());
+  ASSERT_EQ(c.control.core.safe.zones.size(), 2u);
+  EXPECT_EQ(c.control.core.safe.zones[0].vertical_axis, 2);
+  EXPECT_EQ(c.control.core.safe.zones[0].polygon.size(), 6u);
+  std::string text;
+  for (const ConfigKey& k : ConfigKeys())
+    if (k.name == "control_zones") text = k.get(c);
+  EXPECT_EQ(text, "hall:polyz:0.3,2.4:0,0,6,0,6,3,3,3,3,6,0,6;b:6,0,0,8,2,3");
+  auto crossing = ApplyConfigValue("control_zones", "x:polyz:0,2:0,0,2,1,2,0,0,2", &c);
+  EXPECT_NE(crossing.message().find("cross"), std::string::npos) << crossing;
 }
 
 }  // namespace
