@@ -73,7 +73,7 @@ TEST_F(ServerFlags, BadFlagValueNamesTheFlag) {
   EXPECT_NE(out2.find("--udp_pose_port"), std::string::npos) << out2;
   const auto [rc3, out3] = RunToExit({"--malloc_arena_max=-1"});
   EXPECT_EQ(rc3, 2) << out3;
-  EXPECT_NE(out3.find("malloc_arena_max must be >= 0"), std::string::npos) << out3;
+  EXPECT_NE(out3.find("--malloc_arena_max"), std::string::npos) << out3;
 }
 
 TEST_F(ServerFlags, FlagsOverrideTheConfigFileInBothSyntaxes) {
