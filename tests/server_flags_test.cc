@@ -71,6 +71,9 @@ TEST_F(ServerFlags, BadFlagValueNamesTheFlag) {
   const auto [rc2, out2] = RunToExit({"--udp_pose_port=70000"});
   EXPECT_EQ(rc2, 2) << out2;
   EXPECT_NE(out2.find("--udp_pose_port"), std::string::npos) << out2;
+  const auto [rc3, out3] = RunToExit({"--malloc_arena_max=-1"});
+  EXPECT_EQ(rc3, 2) << out3;
+  EXPECT_NE(out3.find("--malloc_arena_max"), std::string::npos) << out3;
 }
 
 TEST_F(ServerFlags, FlagsOverrideTheConfigFileInBothSyntaxes) {

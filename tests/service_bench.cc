@@ -330,8 +330,24 @@ int Main(int argc, char** argv) {
         accepted += up->accepted;
         dropped += up->dropped;
       }
-      (void)wait_drained();
+      const v1::Stats d = wait_drained();
       samples.push_back(RssKb(server.pid()) / 1024);
+      // One line per sample: what could grow beside RSS (the delta log against its bounds, the
+      // glibc heap's live and free bytes, the store).
+      auto counter = [&d](const char* k) {
+        auto it = d.counters().find(k);
+        return it == d.counters().end() ? -1.0 : it->second;
+      };
+      PrintLine({{"phase", "rss_sample"},
+                 {"frames", done + std::min(1000, rss_frames - done)},
+                 {"rss_mb", samples.back()},
+                 {"heap_in_use_mb", Round(counter("process.heap_in_use_bytes") / 1048576.0, 1)},
+                 {"heap_free_mb", Round(counter("process.heap_free_bytes") / 1048576.0, 1)},
+                 {"log_deltas", counter("store.log_deltas")},
+                 {"log_mb", Round(counter("store.log_bytes") / 1048576.0, 1)},
+                 {"snapshot_mb", Round(counter("store.snapshot_bytes") / 1048576.0, 1)},
+                 {"views", d.num_views()},
+                 {"chunks", d.num_chunks()}});
     }
     const v1::Stats s = stats();
     PrintLine({{"phase", "rss_long"},

@@ -664,6 +664,8 @@ ModelStore::Summary ModelStore::GetSummary() const {
   s.num_chunks = static_cast<uint32_t>(chunks_.size());
   s.log_first_version = log_.empty() ? version_ + 1 : log_.front()->version();
   s.snapshot_bytes = SnapshotBytesLocked();
+  s.log_deltas = log_.size();
+  s.log_bytes = log_bytes_;
   s.subscribers = static_cast<uint32_t>(subscribers_);
   s.snapshots_sent = snapshots_sent_;
   return s;

@@ -166,6 +166,7 @@ class ModelStore {
     uint32_t num_views = 0, num_cells = 0, num_chunks = 0;
     uint64_t log_first_version = 0;
     uint64_t snapshot_bytes = 0;
+    uint64_t log_deltas = 0, log_bytes = 0;  // the delta log's size against its bounds
     uint32_t subscribers = 0;
     uint64_t snapshots_sent = 0;
   };

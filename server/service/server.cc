@@ -1,6 +1,9 @@
 #include "server/service/server.h"
 
 #include <fcntl.h>
+#if defined(__GLIBC__)
+#include <malloc.h>
+#endif
 #include <unistd.h>
 
 #include <filesystem>
@@ -407,6 +410,15 @@ class ExoviewServer::Service final : public v1::Exoview::Service {
     c["server.inflight_rejections"] = static_cast<double>(inflight_rejections_.load());
     c["server.denied_calls"] = static_cast<double>(denied_calls_.load());
     c["store.snapshot_bytes"] = static_cast<double>(s.snapshot_bytes);
+    c["store.log_deltas"] = static_cast<double>(s.log_deltas);
+    c["store.log_bytes"] = static_cast<double>(s.log_bytes);
+#if defined(__GLIBC__)
+    {  // glibc heap: live bytes vs free bytes the arenas hold (RSS growth: live data or fragmentation)
+      const struct mallinfo2 mi = mallinfo2();
+      c["process.heap_in_use_bytes"] = static_cast<double>(mi.uordblks + mi.hblkhd);
+      c["process.heap_free_bytes"] = static_cast<double>(mi.fordblks);
+    }
+#endif
     c["journal.applied_lsn"] = static_cast<double>(store_->applied_lsn());
     if (udp_) {
       c["udp.received"] = static_cast<double>(udp_->received());
