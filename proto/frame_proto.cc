@@ -6,6 +6,7 @@
 
 #include "common/io/depth_codec.h"
 #include "common/io/jpeg.h"
+#include "common/io/zstd.h"
 
 namespace exo {
 
@@ -287,7 +288,9 @@ absl::StatusOr<Frame> FrameFromProto(const v1::Frame& msg, const FrameDecodeOpti
 namespace {
 
 constexpr uint8_t kCompactMeshFormat = 1;
+constexpr uint8_t kCompactMeshZstd = 2;  // u8 2, u32 size of the format-1 bytes, zstd frame of them
 constexpr size_t kCompactHeaderBytes = 1 + 4 + 4 + 4 * 4;
+constexpr size_t kMaxCompactMeshBytes = size_t{64} << 20;  // a chunk is < 1 MB in practice
 
 template <typename T>
 void PutLe(std::string* out, T v) {
@@ -338,7 +341,40 @@ void EncodeCompact(const TriangleMesh& mesh, std::string* out) {
   }
 }
 
+// Format 2: the format-1 bytes through zstd when that is smaller (the on-grid coordinates of
+// marching-cubes vertices and the small index steps repeat).
+void ZstdWrap(std::string* out) {
+  auto z = ZstdCompress(reinterpret_cast<const uint8_t*>(out->data()), out->size(), 3,
+                        std::vector<uint8_t>{});
+  if (!z.ok() || z->size() + 5 >= out->size()) return;  // keep format 1
+  std::string w;
+  w.reserve(5 + z->size());
+  w.push_back(static_cast<char>(kCompactMeshZstd));
+  PutLe<uint32_t>(&w, static_cast<uint32_t>(out->size()));
+  w.append(reinterpret_cast<const char*>(z->data()), z->size());
+  *out = std::move(w);
+}
+
+absl::StatusOr<TriangleMesh> DecodeCompact(const std::string& b);
+
+absl::StatusOr<TriangleMesh> DecodeCompactZstd(const std::string& b) {
+  if (b.size() < 5) return absl::InvalidArgumentError("compact mesh: zstd header cut");
+  const uint32_t raw_size = GetLe<uint32_t>(b.data() + 1);
+  if (raw_size < kCompactHeaderBytes || raw_size > kMaxCompactMeshBytes)
+    return absl::InvalidArgumentError(
+        absl::StrCat("compact mesh: ", raw_size, " decoded bytes outside [", kCompactHeaderBytes,
+                     ", ", kMaxCompactMeshBytes, "]"));
+  std::string raw(raw_size, '\0');
+  EXO_RETURN_IF_ERROR(ZstdDecompress(
+      std::span<const uint8_t>(reinterpret_cast<const uint8_t*>(b.data()) + 5, b.size() - 5),
+      reinterpret_cast<uint8_t*>(raw.data()), raw.size(), "compact mesh"));
+  if (static_cast<uint8_t>(raw[0]) != kCompactMeshFormat)
+    return absl::InvalidArgumentError("compact mesh: zstd payload is not format 1");
+  return DecodeCompact(raw);
+}
+
 absl::StatusOr<TriangleMesh> DecodeCompact(const std::string& b) {
+  if (!b.empty() && static_cast<uint8_t>(b[0]) == kCompactMeshZstd) return DecodeCompactZstd(b);
   if (b.size() < kCompactHeaderBytes)
     return absl::InvalidArgumentError("compact mesh: shorter than its header");
   if (static_cast<uint8_t>(b[0]) != kCompactMeshFormat)
@@ -394,6 +430,7 @@ absl::StatusOr<TriangleMesh> DecodeCompact(const std::string& b) {
 void MeshToProto(const TriangleMesh& mesh, v1::MeshChunkUpserted* out, bool plain) {
   if (!plain) {
     EncodeCompact(mesh, out->mutable_compact());
+    ZstdWrap(out->mutable_compact());
     return;
   }
   out->mutable_positions()->Reserve(static_cast<int>(mesh.positions.size() * 3));

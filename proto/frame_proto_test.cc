@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstring>
 
+#include "common/io/zstd.h"
 #include "proto/test_frames.h"
 
 namespace exo {
@@ -235,7 +236,17 @@ TEST(MeshProto, CompactEdgeCasesRoundTrip) {
 TEST(MeshProto, MalformedCompactMeshesAreErrors) {
   v1::MeshChunkUpserted good;
   MeshToProto(TestChunk(glm::vec3(0.0f), 0.3f, 4), &good);
-  const std::string b = good.compact();
+  // The server sends format 2 (the format-1 bytes through zstd) when smaller, as here.
+  const std::string z = good.compact();
+  ASSERT_EQ(z[0], 2);
+  uint32_t raw_size;
+  std::memcpy(&raw_size, z.data() + 1, 4);
+  std::string b(raw_size, '\0');  // format 1
+  ASSERT_TRUE(ZstdDecompress(std::span<const uint8_t>(
+                                 reinterpret_cast<const uint8_t*>(z.data()) + 5, z.size() - 5),
+                             reinterpret_cast<uint8_t*>(b.data()), b.size(), "test")
+                  .ok());
+  ASSERT_EQ(b[0], 1);
   auto bad = [](std::string bytes) {
     v1::MeshChunkUpserted m;
     m.set_compact(std::move(bytes));
@@ -257,6 +268,20 @@ TEST(MeshProto, MalformedCompactMeshesAreErrors) {
   std::string out_of_range = b;  // first index delta -> far beyond the vertex count
   out_of_range[1 + 4 + 4 + 16 + 25 * 6] = 0x7e;
   EXPECT_NE(bad(out_of_range).message().find("outside"), std::string::npos);
+  // Format 2: every layer checked.
+  EXPECT_TRUE(MeshFromProto(good).ok());
+  EXPECT_FALSE(bad(z.substr(0, 3)).ok());               // header cut
+  EXPECT_FALSE(bad(z.substr(0, z.size() - 2)).ok());    // zstd frame cut
+  std::string big = z;  // declares 4 GB of format-1 bytes
+  for (int k = 1; k <= 4; ++k) big[k] = static_cast<char>(0xff);
+  EXPECT_NE(bad(big).message().find("decoded bytes outside"), std::string::npos);
+  std::string off_by_one = z;  // declares one byte more than the frame holds
+  const uint32_t more = raw_size + 1;
+  std::memcpy(off_by_one.data() + 1, &more, 4);
+  EXPECT_FALSE(bad(off_by_one).ok());
+  std::string flipped = z;  // a corrupt payload (checksum)
+  flipped[z.size() / 2] = static_cast<char>(flipped[z.size() / 2] ^ 0x5a);
+  EXPECT_FALSE(bad(flipped).ok());
   v1::MeshChunkUpserted both = good;
   both.add_positions(1.0f);
   EXPECT_FALSE(MeshFromProto(both).ok());

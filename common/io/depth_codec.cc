@@ -11,6 +11,7 @@
 #include <memory>
 #include <opencv2/imgcodecs.hpp>
 
+#include "common/io/zstd.h"
 #include "common/io/cv_adapter.h"
 
 namespace exo {
@@ -59,51 +60,6 @@ void Reconstruct(ImageU16* d, Get get) {
     for (int x = 1; x < w; ++x) row[x] = static_cast<uint16_t>(row[x - 1] + UnZigZag(get(i++)));
   }
 }
-
-// One zstd context per thread, reused across calls and freed when the thread exits (a raw
-// thread_local pointer leaked ~96 KB per short-lived thread: found by LeakSanitizer).
-struct ZstdCCtxDeleter {
-  void operator()(ZSTD_CCtx* c) const { ZSTD_freeCCtx(c); }
-};
-struct ZstdDCtxDeleter {
-  void operator()(ZSTD_DCtx* c) const { ZSTD_freeDCtx(c); }
-};
-
-absl::StatusOr<std::vector<uint8_t>> ZstdCompress(const uint8_t* src, size_t n, int level,
-                                                  std::vector<uint8_t> out) {
-  const size_t offset = out.size();
-  out.resize(offset + ZSTD_compressBound(n));
-  thread_local std::unique_ptr<ZSTD_CCtx, ZstdCCtxDeleter> cctx_owner(ZSTD_createCCtx());
-  ZSTD_CCtx* cctx = cctx_owner.get();
-  ZSTD_CCtx_reset(cctx, ZSTD_reset_session_and_parameters);
-  ZSTD_CCtx_setParameter(cctx, ZSTD_c_compressionLevel, level);
-  ZSTD_CCtx_setParameter(cctx, ZSTD_c_checksumFlag, 1);
-  const size_t r = ZSTD_compress2(cctx, out.data() + offset, out.size() - offset, src, n);
-  if (ZSTD_isError(r))
-    return absl::InternalError(absl::StrCat("zstd compress failed: ", ZSTD_getErrorName(r)));
-  out.resize(offset + r);
-  return out;
-}
-
-absl::Status ZstdDecompress(std::span<const uint8_t> src, uint8_t* dst, size_t expected) {
-  const unsigned long long content = ZSTD_getFrameContentSize(src.data(), src.size());
-  if (content == ZSTD_CONTENTSIZE_ERROR)
-    return absl::InvalidArgumentError("depth payload is not a zstd frame (corrupt data)");
-  if (content != ZSTD_CONTENTSIZE_UNKNOWN && content != expected)
-    return absl::InvalidArgumentError(absl::StrCat("depth payload decodes to ", content,
-                                                   " bytes, header says ", expected));
-  thread_local std::unique_ptr<ZSTD_DCtx, ZstdDCtxDeleter> dctx_owner(ZSTD_createDCtx());
-  ZSTD_DCtx* dctx = dctx_owner.get();
-  const size_t r = ZSTD_decompressDCtx(dctx, dst, expected, src.data(), src.size());
-  if (ZSTD_isError(r))
-    return absl::InvalidArgumentError(
-        absl::StrCat("corrupt or truncated depth payload: zstd: ", ZSTD_getErrorName(r)));
-  if (r != expected)
-    return absl::InvalidArgumentError(
-        absl::StrCat("depth payload decoded to ", r, " bytes, expected ", expected));
-  return absl::OkStatus();
-}
-
 
 // ---- 16-bit greyscale PNG through libpng (never a general image decoder) ----
 constexpr uint8_t kPngSignature[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1A, '\n'};
@@ -331,14 +287,14 @@ absl::StatusOr<ImageU16> DecodeDepth(std::span<const uint8_t> bytes, int64_t max
   switch (info.codec) {
     case DepthCodec::kRawZstd: {
       std::vector<uint8_t> raw(2 * n);
-      EXO_RETURN_IF_ERROR(ZstdDecompress(body, raw.data(), raw.size()));
+      EXO_RETURN_IF_ERROR(ZstdDecompress(body, raw.data(), raw.size(), "depth payload"));
       for (size_t i = 0; i < n; ++i)
         depth.data()[i] = static_cast<uint16_t>(raw[2 * i] | raw[2 * i + 1] << 8);
       return depth;
     }
     case DepthCodec::kDeltaZstd: {
       std::vector<uint8_t> raw(2 * n);
-      EXO_RETURN_IF_ERROR(ZstdDecompress(body, raw.data(), raw.size()));
+      EXO_RETURN_IF_ERROR(ZstdDecompress(body, raw.data(), raw.size(), "depth payload"));
       Reconstruct(&depth, [&](size_t i) {
         return static_cast<uint16_t>(raw[2 * i] | raw[2 * i + 1] << 8);
       });
@@ -346,7 +302,7 @@ absl::StatusOr<ImageU16> DecodeDepth(std::span<const uint8_t> bytes, int64_t max
     }
     case DepthCodec::kDeltaPlanesZstd: {
       std::vector<uint8_t> raw(2 * n);
-      EXO_RETURN_IF_ERROR(ZstdDecompress(body, raw.data(), raw.size()));
+      EXO_RETURN_IF_ERROR(ZstdDecompress(body, raw.data(), raw.size(), "depth payload"));
       const uint8_t* hi = raw.data();
       const uint8_t* lo = raw.data() + n;
       Reconstruct(&depth, [&](size_t i) { return static_cast<uint16_t>(hi[i] << 8 | lo[i]); });
