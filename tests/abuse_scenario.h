@@ -12,6 +12,7 @@
 #include <chrono>
 #include <fstream>
 #include <memory>
+#include <mutex>
 #include <string>
 #include <thread>
 #include <vector>
@@ -69,6 +70,7 @@ struct Options {
   int warm_frames = 40;  // uploaded first (the model the never-readers are sent)
   double rate_hz = 30.0;
   int width = 320, height = 240;
+  double rss_sample_s = 10.0;
 };
 
 struct Result {
@@ -81,6 +83,8 @@ struct Result {
   double timed_out_calls = 0;
   double subscribers_left = 0;
   int threads_peak = 0;
+  // VmRSS every `rss_sample_s` seconds while the subscribers were connected (a long run's curve).
+  std::vector<double> rss_samples_mb;
   std::string error;
 };
 
@@ -119,9 +123,20 @@ inline Result Run(const std::string& target, pid_t pid, const Options& o) {
   std::atomic<bool> sampling{true};
   std::atomic<int64_t> peak_kb{0};
   std::atomic<int> peak_threads{0};
+  std::mutex samples_mu;
   std::thread sampler([&] {
+    const auto t0 = std::chrono::steady_clock::now();
+    double next_sample_s = 0.0;
     while (sampling.load()) {
-      peak_kb.store(std::max<int64_t>(peak_kb.load(), ProcKb(pid, "VmRSS")));
+      const int64_t kb = ProcKb(pid, "VmRSS");
+      peak_kb.store(std::max<int64_t>(peak_kb.load(), kb));
+      const double t =
+          std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+      if (t >= next_sample_s) {
+        std::lock_guard lock(samples_mu);
+        r.rss_samples_mb.push_back(kb / 1024.0);
+        next_sample_s += o.rss_sample_s;
+      }
       peak_threads.store(
           std::max<int>(peak_threads.load(), static_cast<int>(ProcKb(pid, "Threads"))));
       std::this_thread::sleep_for(std::chrono::milliseconds(50));
@@ -140,7 +155,7 @@ inline Result Run(const std::string& target, pid_t pid, const Options& o) {
   for (size_t i = 0; i < sessions.size(); ++i)
     viewer_threads.emplace_back([&, i] {
       SyncOptions sync;
-      sync.max_seconds = 120;
+      sync.max_seconds = std::max(120.0, 2.0 * o.frames / o.rate_hz + 60.0);  // long runs
       sync.min_server_frames = static_cast<uint64_t>(o.warm_frames + o.frames);
       sync.client_name = "viewer-" + std::to_string(i);
       viewer_status[i] = sessions[i]->Sync(sync);

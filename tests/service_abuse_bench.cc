@@ -5,6 +5,7 @@
 // 2 x model + 100 MB), threads, timed-out calls and the viewers' digest equality.
 //   exoview_bench tests/service_abuse_bench [--never_readers=N] [--viewers=V] [--frames=F]
 //                 [--server_arg=--key=value ...]
+#include <algorithm>
 #include <cstdio>
 #include <filesystem>
 #include <nlohmann/json.hpp>
@@ -33,6 +34,11 @@ int main(int argc, char** argv) {
   app.add_option("--rate_hz", o.rate_hz, "upload rate")->check(CLI::PositiveNumber);
   app.add_option("--write_timeout_s", write_timeout_s, "server's subscriber_write_timeout_s");
   app.add_option("--server_arg", server_args, "extra exoview_server flag (repeatable)");
+  bool skip_baseline = false;
+  app.add_flag("--skip_baseline", skip_baseline,
+               "no baseline run without the never-readers (a long run: the RSS curve only)");
+  app.add_option("--rss_sample_s", o.rss_sample_s, "seconds between RSS samples")
+      ->check(CLI::PositiveNumber);
   if (auto rc = exo::cli::Parse(app, argc, argv)) return *rc;
 
   char tmpl[] = "/tmp/exoview_abuse_bench_XXXXXX";
@@ -60,9 +66,18 @@ int main(int argc, char** argv) {
   };
   exo::abuse::Options base_o = o;
   base_o.never_readers = 0;
-  const exo::abuse::Result base = run(base_o, "baseline");
+  const exo::abuse::Result base = skip_baseline ? exo::abuse::Result{} : run(base_o, "baseline");
   const exo::abuse::Result r = run(o, "abuse");
-  const double bound = base.rss_peak_mb + 2 * r.model_mb + 100;
+  const double bound =
+      (skip_baseline ? r.rss_before_mb : base.rss_peak_mb) + 2 * r.model_mb + 100;
+  // Flat after warm-up: the spread of the samples of the last two thirds of the run.
+  const auto& rs = r.rss_samples_mb;
+  double late_min = 0, late_max = 0;
+  if (!rs.empty()) {
+    const auto first = rs.begin() + static_cast<std::ptrdiff_t>(rs.size() / 3);
+    late_min = *std::min_element(first, rs.end());
+    late_max = *std::max_element(first, rs.end());
+  }
   nlohmann::ordered_json j = {{"bench", "service_abuse"},
                               {"never_readers", o.never_readers},
                               {"viewers", o.viewers},
@@ -80,6 +95,12 @@ int main(int argc, char** argv) {
                               {"timed_out_calls", r.timed_out_calls},
                               {"subscribers_left", r.subscribers_left},
                               {"viewers_digest_equal", r.viewers_equal},
+                              {"rss_samples_mb", r.rss_samples_mb},
+                              {"rss_sample_s", o.rss_sample_s},
+                              {"rss_last_two_thirds_min_mb", late_min},
+                              {"rss_last_two_thirds_max_mb", late_max},
+                              {"rss_last_two_thirds_spread",
+                               late_min > 0 ? (late_max - late_min) / late_min : 0.0},
                               {"error", r.error.empty() ? base.error : r.error}};
   std::printf("%s\n", j.dump().c_str());
   std::filesystem::remove_all(dir);
