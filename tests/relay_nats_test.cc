@@ -28,6 +28,7 @@
 #include "client/uploader/upload_client.h"
 #include "client/viewer/viewer_session.h"
 #include "proto/exoview.grpc.pb.h"
+#include "tests/durable_upload.h"
 #include "tests/subprocess.h"
 
 namespace exo {
@@ -440,60 +441,17 @@ TEST_F(RelayNats, KillNineWithJournalAndJetStreamLosesNoDurableFrameAndRelaysSta
     }
   } viewer_join{&viewer_thread, &stop_viewer};
 
-  std::mutex mu;
-  uint64_t max_durable_acked = 0;
-  std::set<uint64_t> durable_acked;
-  std::atomic<bool> kills_done{false}, upload_done{false};
-  absl::StatusOr<UploadAckStats> result = absl::UnknownError("not run");
-  std::thread uploader([&] {
-    UploadOptions o;
-    o.rate_hz = 40;
-    o.max_in_flight = 4;
-    o.uploader_id = kUploader;
-    o.reconnect_s = 120;
-    o.on_ack = [&](const v1::Ack& a) {
-      if (a.status() != v1::Ack::ACCEPTED || !a.durable()) return;
-      std::lock_guard lock(mu);
-      durable_acked.insert(a.sequence());
-      max_durable_acked = std::max(max_durable_acked, a.sequence());
-    };
-    grpc::ChannelArguments args;
-    args.SetInt(GRPC_ARG_INITIAL_RECONNECT_BACKOFF_MS, 50);
-    args.SetInt(GRPC_ARG_MIN_RECONNECT_BACKOFF_MS, 50);
-    args.SetInt(GRPC_ARG_MAX_RECONNECT_BACKOFF_MS, 200);
-    auto channel = grpc::CreateCustomChannel(target, grpc::InsecureChannelCredentials(), args);
-    result = UploadStream(channel, kFrames,
-                          [&](size_t i) -> absl::StatusOr<v1::Frame> {
-                            // The last frames wait for the last kill: every kill is mid-stream.
-                            while (i + 10 >= static_cast<size_t>(kFrames) && !kills_done)
-                              std::this_thread::sleep_for(std::chrono::milliseconds(10));
-                            return load(i);
-                          },
-                          o);
-    upload_done = true;
-  });
-  struct UploadJoin {
-    std::thread* t;
-    std::atomic<bool>* done;
-    ~UploadJoin() {
-      *done = true;
-      if (t->joinable()) t->join();
-    }
-  } upload_join{&uploader, &kills_done};
+  testing::DurableUploadThread uploader(target, kUploader, kFrames, load);
 
   std::mt19937 rng(21);
   std::uniform_real_distribution<double> wait_s(0.3, 0.9);
   double abandoned = 0, replayed = 0;
   int kills = 0;
-  for (; kills < kKills && !upload_done; ++kills) {
+  for (; kills < kKills && !uploader.done(); ++kills) {
     std::this_thread::sleep_for(std::chrono::duration<double>(wait_s(rng)));
     server_->Signal(SIGKILL);
     ASSERT_TRUE(server_->Wait(10).has_value());
-    uint64_t acked;
-    {
-      std::lock_guard lock(mu);
-      acked = max_durable_acked;
-    }
+    const uint64_t acked = uploader.max_durable_acked();
     ASSERT_NO_FATAL_FAILURE(start_server(kills + 1, dir_ + "/model.ckpt", true));
     const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(60);
     v1::Stats st;
@@ -520,8 +478,9 @@ TEST_F(RelayNats, KillNineWithJournalAndJetStreamLosesNoDurableFrameAndRelaysSta
     EXPECT_EQ(p->applied_frames(), p->applied_max_sequence());  // 1..max, none missing
     EXPECT_EQ(p->double_applied(), 0u);
   }
-  kills_done = true;
-  uploader.join();
+  const absl::StatusOr<UploadAckStats>& result = uploader.Join();
+  const std::multiset<uint64_t> acks = uploader.durable_acked();
+  const std::set<uint64_t> durable_acked(acks.begin(), acks.end());  // distinct sequences
   ASSERT_TRUE(result.ok()) << result.status();
   EXPECT_EQ(kills, kKills) << "the upload ended before the last kill";
   EXPECT_GT(abandoned, 0.0) << "no restart found the stream ahead of the checkpoint: the "

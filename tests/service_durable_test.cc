@@ -22,6 +22,7 @@
 #include "client/uploader/synth_source.h"
 #include "client/uploader/upload_client.h"
 #include "proto/exoview.grpc.pb.h"
+#include "tests/durable_upload.h"
 #include "tests/server_fixture.h"
 #include "tests/subprocess.h"
 
@@ -76,64 +77,20 @@ TEST_F(ServiceDurable, KillNineAtTwentyRandomMomentsLosesNoDurableFrameAndApplie
   auto source = SynthFrameSource::Create(so);
   ASSERT_TRUE(source.ok()) << source.status();
 
-  std::mutex mu;
-  uint64_t max_durable_acked = 0;
-  std::multiset<uint64_t> durable_acked;  // every durable ack the uploader received
-  std::atomic<bool> upload_done{false};
-  std::atomic<bool> kills_done{false};
-  absl::StatusOr<UploadAckStats> result = absl::UnknownError("not run");
-  std::thread uploader([&] {
-    UploadOptions o;
-    o.rate_hz = 40;
-    o.max_in_flight = 4;
-    o.uploader_id = kUploader;
-    o.reconnect_s = 120;
-    o.on_ack = [&](const v1::Ack& a) {
-      if (a.status() != v1::Ack::ACCEPTED || !a.durable()) return;
-      std::lock_guard lock(mu);
-      durable_acked.insert(a.sequence());
-      max_durable_acked = std::max(max_durable_acked, a.sequence());
-    };
-    // The last frames wait for the 20th kill: every kill lands in the middle of the stream.
-    // Reconnect quickly after a restart (gRPC's default first backoff is 1 s).
-    grpc::ChannelArguments args;
-    args.SetInt(GRPC_ARG_INITIAL_RECONNECT_BACKOFF_MS, 50);
-    args.SetInt(GRPC_ARG_MIN_RECONNECT_BACKOFF_MS, 50);
-    args.SetInt(GRPC_ARG_MAX_RECONNECT_BACKOFF_MS, 200);
-    auto channel = grpc::CreateCustomChannel(target_, grpc::InsecureChannelCredentials(), args);
-    result = UploadStream(channel, kFrames,
-                          [&](size_t i) -> absl::StatusOr<v1::Frame> {
-                            while (i + 10 >= static_cast<size_t>(kFrames) && !kills_done)
-                              std::this_thread::sleep_for(std::chrono::milliseconds(10));
-                            EXO_ASSIGN_OR_RETURN(Frame f, (*source)->Load(i));
-                            return FrameToProto(f, o.encode);
-                          },
-                          o);
-    upload_done = true;
-  });
-
-  // On any early return below: let the uploader finish (or give up) before the thread goes.
-  struct Joiner {
-    std::thread* t;
-    std::atomic<bool>* done;
-    ~Joiner() {
-      *done = true;
-      if (t->joinable()) t->join();
-    }
-  } joiner{&uploader, &kills_done};
+  testing::DurableUploadThread uploader(target_, kUploader, kFrames,
+                                        [&](size_t i) -> absl::StatusOr<v1::Frame> {
+                                          EXO_ASSIGN_OR_RETURN(Frame f, (*source)->Load(i));
+                                          return FrameToProto(f, UploadOptions{}.encode);
+                                        });
   std::mt19937 rng(20);
   std::uniform_real_distribution<double> wait_s(0.05, 0.7);
   double replayed_total = 0;
   int kills = 0;
-  for (; kills < kKills && !upload_done; ++kills) {
+  for (; kills < kKills && !uploader.done(); ++kills) {
     std::this_thread::sleep_for(std::chrono::duration<double>(wait_s(rng)));
     server_->Signal(SIGKILL);
     ASSERT_TRUE(server_->Wait(10).has_value());
-    uint64_t acked;
-    {
-      std::lock_guard lock(mu);
-      acked = max_durable_acked;
-    }
+    const uint64_t acked = uploader.max_durable_acked();
     ASSERT_NO_FATAL_FAILURE(Start(port, kills + 1));
     // The restarted server's ledger: checkpoint + journal replay through the pipeline.
     const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(60);
@@ -155,8 +112,8 @@ TEST_F(ServiceDurable, KillNineAtTwentyRandomMomentsLosesNoDurableFrameAndApplie
     EXPECT_EQ(p->double_applied(), 0u);
     EXPECT_EQ(st.counters().at("journal.not_durable"), 0.0);
   }
-  kills_done = true;
-  uploader.join();
+  const absl::StatusOr<UploadAckStats>& result = uploader.Join();
+  const std::multiset<uint64_t> durable_acked = uploader.durable_acked();  // repeats included
   ASSERT_TRUE(result.ok()) << result.status();
   EXPECT_EQ(kills, kKills) << "the upload ended before the 20th kill";
   EXPECT_GT(replayed_total, 0.0) << "no restart replayed the journal: the test missed its point";
