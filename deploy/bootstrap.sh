@@ -10,7 +10,7 @@ PKGS=(build-essential cmake ninja-build pkg-config
       libboost-dev libprotobuf-dev protobuf-compiler libgrpc++-dev protobuf-compiler-grpc
       libopencv-dev libvulkan-dev mesa-vulkan-drivers vulkan-tools vulkan-validationlayers
       glslang-tools glslang-dev libglm-dev libturbojpeg0-dev libpng-dev libceres-dev
-      libgtest-dev libgmock-dev ccache
+      libgtest-dev libgmock-dev ccache libmeshoptimizer-dev
       nlohmann-json3-dev libcli11-dev libspdlog-dev python3-matplotlib python3-grpcio
       python3-grpc-tools python3-protobuf python3-numpy python3-pil python3-open3d
       libsdl2-dev libimgui-dev xvfb xdotool imagemagick chromium libssl-dev zlib1g-dev

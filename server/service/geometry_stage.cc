@@ -1,5 +1,7 @@
 #include "server/service/geometry_stage.h"
 
+#include "server/geometry/mesh_lod.h"
+
 #include <algorithm>
 #include <atomic>
 #include <cmath>
@@ -67,6 +69,10 @@ class GeometryStage final : public PipelineStage {
     (*out)["geometry.shed"] = static_cast<double>(shed_.load());
     (*out)["geometry.chunks_refreshed"] = static_cast<double>(refreshed_.load());
     (*out)["geometry.refresh_skipped_still"] = static_cast<double>(refresh_still_.load());
+    (*out)["geometry.lod_triangles_in"] = static_cast<double>(lod_in_.load());
+    (*out)["geometry.lod_triangles_out"] = static_cast<double>(lod_out_.load());
+    (*out)["geometry.lod_fallbacks"] = static_cast<double>(lod_fallbacks_.load());
+    (*out)["geometry.lod_ms"] = static_cast<double>(lod_ns_.load()) * 1e-6;
     (*out)["geometry.digest"] = static_cast<double>(geometry_->Digest());
     (*out)["geometry.voxel_m"] = geometry_->volume().options().voxel_size_m;
     // TSDF integration + dirty-chunk meshing per frame (the rest of process_ms: hand-off, publish)
@@ -162,8 +168,12 @@ class GeometryStage final : public PipelineStage {
       // The compact wire size of the chunk before zstd (proto/frame_proto.h): 6 bytes per vertex,
       // ~1.2 per index, a 25-byte header (zstd takes ~17 % off on 7-Scenes: the budget errs
       // on the safe side).
-      const double bytes = 32.0 + 6.0 * static_cast<double>(it->second.mesh.num_vertices()) +
-                           3.6 * static_cast<double>(it->second.mesh.num_triangles());
+      // With the clients' LOD the chunk shrinks by the ratio seen so far.
+      const double lod = lod_in_.load() > 0 ? static_cast<double>(lod_out_.load()) /
+                                                  static_cast<double>(lod_in_.load())
+                                            : 1.0;
+      const double bytes = 32.0 + lod * (6.0 * static_cast<double>(it->second.mesh.num_vertices()) +
+                                         3.6 * static_cast<double>(it->second.mesh.num_triangles()));
       if (rate > 0.0) {
         if (tokens_ < std::min(bytes, burst)) break;  // wait for tokens, keep the order
         tokens_ -= bytes;
@@ -187,6 +197,18 @@ class GeometryStage final : public PipelineStage {
     p.time_ns = now;
     p.extractions = std::max<uint64_t>(1, extractions_[c.id]);
     if (options_.refresh_min_move_voxels > 0.0) p.positions = c.mesh.positions;
+    if (options_.publish_lod_error_voxels > 0.0) {
+      const int64_t t0 = SteadyNowNs();
+      geometry::MeshLodStats st;
+      const TriangleMesh lod = geometry::SimplifyMesh(
+          c.mesh, {options_.publish_lod_error_voxels * ctx.setup.voxel_m}, &st);
+      lod_ns_ += SteadyNowNs() - t0;
+      lod_in_ += st.triangles_in;
+      lod_out_ += st.triangles_out;
+      lod_fallbacks_ += st.fallback;
+      ctx.store->UpsertChunk(c.id, c.version, lod);
+      return;
+    }
     ctx.store->UpsertChunk(c.id, c.version, c.mesh);
   }
 
@@ -233,6 +255,8 @@ class GeometryStage final : public PipelineStage {
   std::atomic<uint64_t> shed_{0};
   std::atomic<uint64_t> refreshed_{0};
   std::atomic<uint64_t> refresh_still_{0};
+  std::atomic<uint64_t> lod_in_{0}, lod_out_{0}, lod_fallbacks_{0};
+  std::atomic<int64_t> lod_ns_{0};
   double tokens_ = 0.0;                  // refresh budget, bytes (stage thread only)
   std::optional<double> last_source_s_;  // stream time of the previous frame
   size_t queued_ = 0, capacity_ = 1;  // stage thread only

@@ -111,6 +111,8 @@ std::vector<ConfigKey> MakeKeys() {
           EXO_FIELD(geometry.refresh_budget_kbps)),
       Key("chunk_refresh_min_move_voxels", "... only chunks whose surface moved at least this much (mean vertex motion, voxels; 0 = all)",
           EXO_FIELD(geometry.refresh_min_move_voxels)),
+      Key("chunk_lod_error_voxels", "clients' proxy LOD: published chunks simplified (quadric edge collapse, chunk borders locked) within this many voxels of the full mesh (0 = full resolution)",
+          EXO_FIELD(geometry.publish_lod_error_voxels)),
       Key("chunk_refresh_burst_s", "... bursts of up to this many seconds of the budget",
           EXO_FIELD(geometry.refresh_burst_s)),
       Key("chunk_republish_interval_s", "minimum seconds between republishing a chunk",
