@@ -8,6 +8,7 @@
 
 #include <set>
 
+#include "proto/frame_proto.h"
 #include "proto/test_frames.h"
 #include "server/service/model_store.h"
 
@@ -184,6 +185,57 @@ TEST(GeometryStage, RefreshOptionsValidated) {
   go = {};
   go.refresh_min_move_voxels = -0.5;
   EXPECT_FALSE(go.Validate().ok());
+}
+
+// The clients' proxy LOD (publish_lod_error_voxels): the published chunks carry fewer triangles
+// than the full mesh, the counters add up to what went out, and the server's own mesh (what
+// planning gets through the hand-off) is the full one.
+TEST(GeometryStage, PublishedChunksAreSimplifiedWithinTheLod) {
+  auto run = [](double lod_voxels, uint64_t* handed_triangles, double* counter_out) {
+    GeometryStageOptions go;
+    go.shed_backlog_fraction = 0.0;
+    go.republish_extraction_factor = 0.0;
+    go.publish_lod_error_voxels = lod_voxels;
+    Rig rig(go);
+    uint64_t published = 0;
+    *handed_triangles = 0;
+    for (uint64_t s = 1; s <= 4; ++s) {
+      const uint64_t v = rig.store.version();
+      rig.Run(s, 0);
+      auto deltas = rig.store.DeltasAfter(v, 1 << 20, 0);
+      EXO_CHECK(deltas.ok());
+      for (const auto& d : *deltas)
+        if (d->has_mesh_chunk_upserted()) {
+          auto m = MeshFromProto(d->mesh_chunk_upserted());
+          EXO_CHECK(m.ok());
+          published += m->num_triangles();
+        }
+      while (auto u = rig.handoff->Pop())
+        for (const MeshChunk& c : u->chunks) *handed_triangles += c.mesh.num_triangles();
+    }
+    *counter_out = rig.Counter("geometry.lod_triangles_out");
+    EXPECT_EQ(rig.Counter("geometry.lod_fallbacks") >= 0, true);
+    return published;
+  };
+  uint64_t handed_full = 0, handed_lod = 0;
+  double out_full = 0, out_lod = 0;
+  const uint64_t full = run(0.0, &handed_full, &out_full);
+  const uint64_t lod = run(1.0, &handed_lod, &out_lod);
+  ASSERT_GT(full, 0u);
+  EXPECT_LT(lod * 2, full) << "the LOD should at least halve a plane's triangles";
+  EXPECT_EQ(out_full, 0.0);
+  EXPECT_EQ(out_lod, static_cast<double>(lod));
+  EXPECT_EQ(handed_lod, handed_full);  // planning sees the full mesh either way
+}
+
+TEST(GeometryStage, LodOptionValidated) {
+  GeometryStageOptions go;
+  go.publish_lod_error_voxels = -1;
+  EXPECT_FALSE(go.Validate().ok());
+  go.publish_lod_error_voxels = 11;
+  EXPECT_FALSE(go.Validate().ok());
+  go.publish_lod_error_voxels = 0.5;
+  EXPECT_TRUE(go.Validate().ok());
 }
 
 }  // namespace
