@@ -7,6 +7,8 @@
 #include <optional>
 #include <thread>
 
+#include <time.h>
+
 #include "common/log/log.h"
 #include "proto/frame_proto.h"
 #include "server/core/online_model.h"
@@ -18,24 +20,42 @@ absl::Status InpaintingStageOptions::Validate() const {
   EXO_RETURN_IF_ERROR(policy.Validate());
   if (max_keyframes == 0 || max_keyframes > 256)
     return absl::InvalidArgumentError("inpaint_max_keyframes must be in [1, 256]");
+  if (method != "dr" && method != "keyframe")
+    return absl::InvalidArgumentError("inpaint_method must be dr or keyframe");
+  if (observation_views < 0 || observation_views > 256)
+    return absl::InvalidArgumentError("inpaint_observation_views must be in [0, 256]");
+  if (observation_stride < 1 || observation_stride > 1000)
+    return absl::InvalidArgumentError("inpaint_observation_stride must be in [1, 1000]");
   return absl::OkStatus();
 }
 
 namespace {
 
-using inpainting::InpaintResult;
+using inpainting::DiminishedReality;
+using inpainting::DrKeyframe;
+using inpainting::DrOptions;
 
-struct Keyframe {
-  ViewId id = 0;
-  std::shared_ptr<const InpaintResult> result;  // colour, depth, mask, source map, camera
-  Rigid3d local_from_cam;
-};
+double ThreadCpuMs() {
+  timespec t;
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
+  return t.tv_sec * 1e3 + t.tv_nsec * 1e-6;
+}
+
+DrOptions ToDrOptions(const InpaintingStageOptions& o) {
+  DrOptions d;
+  d.inpaint = o.inpaint;
+  d.policy = o.policy;
+  d.max_keyframes = o.max_keyframes;
+  d.obs_stride = o.observation_stride;
+  const bool dr = o.method == "dr";
+  d.obs_views = dr ? o.observation_views : 0;
+  d.kf_context = dr;  // "keyframe" (session 9): the library inpaints the whole ROI
+  return d;
+}
 
 struct Job {
   std::shared_ptr<const RegionSet> regions;
-  inpainting::RgbdKeyframe frame;  // pose: scene-local
-  ImageU8 mask;
-  std::shared_ptr<const InpaintResult> previous;  // the nearest keyframe (propagation)
+  inpainting::DrKeyframeJob dr;  // frame (pose: scene-local), ROI, the views it may look up
   double timestamp_s = 0;
   uint64_t sequence = 0;
   const char* reason = "";
@@ -45,7 +65,8 @@ class InpaintingStageImpl final : public InpaintingStage {
  public:
   InpaintingStageImpl(const InpaintingStageOptions& o, std::shared_ptr<RegionRegistry> regions,
                       ModelStore* store)
-      : options_(o), regions_(std::move(regions)), store_(store) {
+      : options_(o), dr_options_(ToDrOptions(o)), dr_(dr_options_), regions_(std::move(regions)),
+        store_(store) {
     RestoreFromStore();
     worker_ = std::thread([this] { WorkerLoop(); });
   }
@@ -58,9 +79,12 @@ class InpaintingStageImpl final : public InpaintingStage {
     if (set->regions.empty()) return absl::OkStatus();
     const Frame& f = pf.frame;
     if (f.depth_m.empty()) return absl::OkStatus();
+    int64_t index = 0;
     {
       std::lock_guard lock(mu_);
-      if (job_ || busy_) {  // the one slot is taken: this frame is only counted
+      index = frames_seen_++;
+      // The one slot is taken: this frame is only counted, unless it is due as an observation.
+      if ((job_ || busy_) && (dr_options_.obs_views == 0 || index % dr_options_.obs_stride != 0)) {
         ++skipped_busy_;
         return absl::OkStatus();
       }
@@ -71,6 +95,7 @@ class InpaintingStageImpl final : public InpaintingStage {
     ImageU8 mask = inpainting::ProjectRegions(set->labels, depth, f.color_camera, local_from_cam,
                                               options_.region);
     const int roi = inpainting::CountNonZero(mask);
+    inpainting::RgbdKeyframe frame{f.color, std::move(depth), f.color_camera, local_from_cam};
     Job job;
     {
       std::lock_guard lock(mu_);
@@ -79,27 +104,29 @@ class InpaintingStageImpl final : public InpaintingStage {
         return absl::OkStatus();
       }
       ++frames_with_roi_;
-      std::vector<inpainting::KeyframeView> views;
-      for (const Keyframe& k : keyframes_)
-        views.push_back({&k.result->mask, &k.result->depth_m, k.result->camera, k.local_from_cam});
-      const inpainting::KeyframeDecision d =
-          inpainting::DecideKeyframe(mask, f.color_camera, local_from_cam, views, options_.policy);
+      if (job_ || busy_) {
+        ++skipped_busy_;
+        dr_.AddObservation(frame, mask, index);
+        return absl::OkStatus();
+      }
+      const inpainting::KeyframeDecision d = dr_.Decide(mask, f.color_camera, local_from_cam);
       decide_ns_ += SteadyNowNs() - t0;
       log::Get("inpainting")->debug("frame {}: ROI {} px, nearest keyframe {} at {:.3f}, {:.1f} % unlabelled -> {}",
                 f.sequence, roi, d.nearest, d.pose_distance, 100.0 * d.unlabelled_fraction,
                 d.insert ? d.reason : "no keyframe");
       ++decisions_;
+      if (d.insert) {
+        job.dr = dr_.MakeJob(frame, mask, d);
+        if (options_.method == "keyframe") {  // session 9: nothing is looked up
+          job.dr.views.clear();
+          job.dr.nearest.reset();
+        }
+        job.reason = d.reason;
+      }
+      dr_.AddObservation(frame, mask, index);
       if (!d.insert) return absl::OkStatus();
-      if (d.nearest >= 0 && keyframes_[d.nearest].result->source.width() > 0)
-        job.previous = keyframes_[d.nearest].result;
-      job.reason = d.reason;
     }
     job.regions = set;
-    job.frame.color = f.color;
-    job.frame.depth_m = std::move(depth);
-    job.frame.camera = f.color_camera;
-    job.frame.world_from_cam = local_from_cam;  // the library only needs one consistent frame
-    job.mask = std::move(mask);
     job.timestamp_s = f.timestamp_s;
     job.sequence = f.sequence;
     {
@@ -121,7 +148,7 @@ class InpaintingStageImpl final : public InpaintingStage {
     std::lock_guard lock(mu_);
     auto& c = *out;
     c["inpainting.regions"] = static_cast<double>(regions_->Get()->regions.size());
-    c["inpainting.keyframes"] = static_cast<double>(keyframes_.size());
+    c["inpainting.keyframes"] = static_cast<double>(ids_.size());
     c["inpainting.keyframes_published"] = static_cast<double>(published_);
     c["inpainting.keyframes_propagated"] = static_cast<double>(propagated_);
     c["inpainting.keyframes_discarded"] = static_cast<double>(discarded_);
@@ -134,15 +161,20 @@ class InpaintingStageImpl final : public InpaintingStage {
     c["inpainting.first_keyframe_ms"] = first_ms_;
     c["inpainting.propagated_keyframe_ms_mean"] = propagated_ ? propagated_ms_ / propagated_ : 0.0;
     c["inpainting.keyframe_ms_last"] = last_ms_;
+    c["inpainting.keyframe_ms_mean"] = published_ ? sum_ms_ / published_ : 0.0;
+    c["inpainting.keyframe_cpu_ms_mean"] = published_ ? sum_cpu_ms_ / published_ : 0.0;
+    c["inpainting.keyframe_observed_fraction"] =
+        keyframe_roi_px_ ? static_cast<double>(keyframe_observed_px_) / keyframe_roi_px_ : 0.0;
+    c["inpainting.observation_views"] = static_cast<double>(dr_.observations());
+    c["inpainting.in_flight"] = (job_ || busy_) ? 1.0 : 0.0;  // a keyframe is being computed
   }
 
   uint32_t Withdraw() override {
     std::lock_guard publish(publish_mu_);
-    std::vector<ViewId> ids;
     {
       std::lock_guard lock(mu_);
-      for (const Keyframe& k : keyframes_) ids.push_back(k.id);
-      keyframes_.clear();
+      dr_.Clear();
+      ids_.clear();
     }
     uint32_t n = 0;
     for (const auto& v : store_->Views())
@@ -165,20 +197,20 @@ class InpaintingStageImpl final : public InpaintingStage {
 
  private:
   // A restarted server: the inpainted views of the checkpoint are the keyframes again (without
-  // their source maps, so the next keyframe is searched from scratch rather than propagated).
+  // their source maps, so the next keyframe is searched from scratch rather than propagated;
+  // their whole ROI counts as inpainted, so their colour there is never taken as observed).
   void RestoreFromStore() {
     for (const auto& v : store_->Views()) {
       if (!v->inpainted()) continue;
       next_id_ = std::max<ViewId>(next_id_, v->view_id() + 1);
       auto view = ViewFromProto(*v);
       if (!view.ok() || view->labels.empty()) continue;
-      auto r = std::make_shared<InpaintResult>();
-      r->color = view->color;
-      r->depth_m = view->depth_m;
-      r->camera = view->camera;
-      r->world_from_cam = view->local_from_cam;
-      r->mask = view->labels;
-      keyframes_.push_back({view->id, std::move(r), view->local_from_cam});
+      ImageU8 roi = view->labels;
+      for (size_t i = 0; i < roi.size(); ++i) roi.data()[i] = roi.data()[i] ? 255 : 0;
+      dr_.AddKeyframe(inpainting::MakeKeyframeView(
+          {view->color, view->depth_m, view->camera, view->local_from_cam}, roi, {}));
+      ids_.push_back(view->id);
+      if (ids_.size() > options_.max_keyframes) ids_.pop_front();
     }
   }
 
@@ -195,9 +227,9 @@ class InpaintingStageImpl final : public InpaintingStage {
         busy_ = true;
       }
       const int64_t t0 = SteadyNowNs();
-      absl::StatusOr<InpaintResult> r =
-          inpainting::InpaintKeyframe(job.frame, job.mask, options_.inpaint, job.previous.get());
-      const double ms = (SteadyNowNs() - t0) * 1e-6;
+      const double c0 = ThreadCpuMs();
+      absl::StatusOr<DrKeyframe> r = DiminishedReality::ComputeKeyframe(job.dr, dr_options_);
+      const double ms = (SteadyNowNs() - t0) * 1e-6, cpu_ms = ThreadCpuMs() - c0;
       if (!r.ok()) {
         // E.g. "no valid source patch": the ROI stays as observed in this frame.
         log->warn("inpainting keyframe failed: {}", std::string(r.status().message()));
@@ -208,15 +240,14 @@ class InpaintingStageImpl final : public InpaintingStage {
         idle_cv_.notify_all();
         continue;
       }
-      Publish(job, std::make_shared<InpaintResult>(*std::move(r)), ms, log);
+      Publish(job, *std::move(r), ms, cpu_ms, log);
       std::lock_guard lock(mu_);
       busy_ = false;
       idle_cv_.notify_all();
     }
   }
 
-
-  void Publish(const Job& job, std::shared_ptr<const InpaintResult> r, double ms,
+  void Publish(const Job& job, DrKeyframe k, double ms, double cpu_ms,
                const std::shared_ptr<spdlog::logger>& log) {
     std::lock_guard publish(publish_mu_);
     if (regions_->generation() != job.regions->generation) {
@@ -224,17 +255,18 @@ class InpaintingStageImpl final : public InpaintingStage {
       ++discarded_;  // the regions changed while it was in flight
       return;
     }
+    const inpainting::DrView& kv = *k.view;
     StoredView v;
     {
       std::lock_guard lock(mu_);
       v.id = next_id_++;
     }
-    v.camera = r->camera;
-    v.local_from_cam = job.frame.world_from_cam;
-    v.color = r->color;
-    v.depth_m = r->depth_m;
+    v.camera = kv.cam;
+    v.local_from_cam = kv.world_from_cam;
+    v.color = kv.color;
+    v.depth_m = kv.depth;
     v.inpainted = true;
-    v.labels = r->mask;
+    v.labels = kv.roi;
     auto msg = ViewToProto(v, options_.publish);
     if (!msg.ok()) {
       log->warn("inpainted keyframe not published: {}", std::string(msg.status().message()));
@@ -247,18 +279,24 @@ class InpaintingStageImpl final : public InpaintingStage {
       ScopedDeltaSource source(job.timestamp_s);
       store_->AddView(*std::move(msg));
     }
+    const int roi_px = inpainting::CountNonZero(kv.roi);
     std::optional<ViewId> evict;
     {
       std::lock_guard lock(mu_);
-      keyframes_.push_back({v.id, r, v.local_from_cam});
-      if (keyframes_.size() > options_.max_keyframes) {
-        evict = keyframes_.front().id;
-        keyframes_.erase(keyframes_.begin());
+      dr_.AddKeyframe(k.view, &k);  // forgets its oldest beyond max_keyframes, as ids_ below
+      ids_.push_back(v.id);
+      if (ids_.size() > options_.max_keyframes) {
+        evict = ids_.front();
+        ids_.pop_front();
       }
       ++published_;
       last_error_ = "ok";
       last_ms_ = ms;
-      if (job.previous) {
+      sum_ms_ += ms;
+      sum_cpu_ms_ += cpu_ms;
+      keyframe_roi_px_ += roi_px;
+      keyframe_observed_px_ += k.observed_px;
+      if (k.propagated) {
         ++propagated_;
         propagated_ms_ += ms;
       } else if (first_ms_ == 0.0) {
@@ -266,9 +304,10 @@ class InpaintingStageImpl final : public InpaintingStage {
       }
     }
     if (evict) (void)store_->RemoveView(*evict);
-    log->info("inpainted keyframe {} of frame {} ({}; {} ROI px, {} propagated) in {:.0f} ms",
-              v.id, job.sequence, job.reason, r->stats.target_pixels,
-              r->stats.propagated_pixels, ms);
+    log->info("inpainted keyframe {} of frame {} ({}; {} ROI px, {} observed in other views, {} "
+              "inpainted, {} propagated) in {:.0f} ms ({:.0f} ms CPU)",
+              v.id, job.sequence, job.reason, roi_px, k.observed_px, k.hallucinated_px,
+              k.stats.propagated_pixels, ms, cpu_ms);
   }
 
   void StopWorker() {
@@ -281,6 +320,8 @@ class InpaintingStageImpl final : public InpaintingStage {
   }
 
   const InpaintingStageOptions options_;
+  const DrOptions dr_options_;
+  DiminishedReality dr_;  // under mu_ (ComputeKeyframe works on a job's own snapshot)
   std::shared_ptr<RegionRegistry> regions_;
   ModelStore* store_;
   std::mutex publish_mu_;  // publish vs Withdraw
@@ -288,12 +329,13 @@ class InpaintingStageImpl final : public InpaintingStage {
   std::condition_variable cv_, idle_cv_;
   std::optional<Job> job_;
   bool busy_ = false, stop_ = false;
-  std::vector<Keyframe> keyframes_;
+  std::deque<ViewId> ids_;  // the published keyframes, in dr_.keyframes() order
   ViewId next_id_ = kInpaintedViewIdBase;
   uint64_t published_ = 0, propagated_ = 0, discarded_ = 0, failed_ = 0, frames_with_roi_ = 0,
-           frames_without_roi_ = 0, skipped_busy_ = 0, withdrawn_ = 0, decisions_ = 0;
-  int64_t decide_ns_ = 0;
-  double first_ms_ = 0, propagated_ms_ = 0, last_ms_ = 0;
+           frames_without_roi_ = 0, skipped_busy_ = 0, withdrawn_ = 0, decisions_ = 0,
+           frames_seen_ = 0;
+  int64_t decide_ns_ = 0, keyframe_roi_px_ = 0, keyframe_observed_px_ = 0;
+  double first_ms_ = 0, propagated_ms_ = 0, last_ms_ = 0, sum_ms_ = 0, sum_cpu_ms_ = 0;
   std::string last_error_;
   std::thread worker_;
 };
