@@ -221,6 +221,52 @@ void DiminishedReality::AddObservation(const RgbdKeyframe& frame, const ImageU8&
   if (static_cast<int>(obs_.size()) > options_.obs_views) obs_.pop_front();
 }
 
+std::vector<std::shared_ptr<const DrView>> DiminishedReality::ViewsAround(const DrView& kf) const {
+  std::vector<std::shared_ptr<const DrView>> views;
+  for (const auto& k : keyframes_)
+    if (k.get() != &kf) views.push_back(k);
+  for (const auto& o : obs_) views.push_back(o);
+  std::stable_sort(views.begin(), views.end(), [&](const auto& a, const auto& b) {
+    return PoseDistance(a->world_from_cam, kf.world_from_cam) <
+           PoseDistance(b->world_from_cam, kf.world_from_cam);
+  });
+  return views;
+}
+
+DiminishedReality::Refresh DiminishedReality::RefreshKeyframe(
+    const DrView& kf, const std::vector<std::shared_ptr<const DrView>>& views) {
+  Refresh out;
+  if (kf.hallucinated.empty()) return out;
+  out.hallucinated_before = Count(kf.hallucinated);
+  if (out.hallucinated_before == 0 || views.empty()) return out;
+  std::vector<const DrView*> raw;
+  for (const auto& v : views)
+    if (v.get() != &kf) raw.push_back(v.get());
+  const int w = kf.cam.width, h = kf.cam.height;
+  ImageU8 color = kf.color, observed(w, h, 1, 0), filled(w, h, 1, 0);
+  LookUpInViews(raw, kf.cam, kf.world_from_cam, kf.hallucinated, kf.depth, &color, &observed,
+                &filled);
+  for (size_t i = 0; i < observed.size(); ++i) out.replaced += kf.hallucinated.data()[i] && observed.data()[i];
+  if (out.replaced == 0) return out;
+  auto v = std::make_shared<DrView>(kf);
+  for (size_t i = 0; i < observed.size(); ++i)
+    if (kf.hallucinated.data()[i] && observed.data()[i]) {
+      for (int c = 0; c < 3; ++c) v->color.data()[3 * i + c] = color.data()[3 * i + c];
+      v->hallucinated.data()[i] = 0;
+    }
+  out.view = std::move(v);
+  return out;
+}
+
+bool DiminishedReality::ReplaceKeyframe(const DrView* old, std::shared_ptr<const DrView> now) {
+  for (auto& k : keyframes_)
+    if (k.get() == old) {
+      k = std::move(now);
+      return true;
+    }
+  return false;
+}
+
 void DiminishedReality::Clear() {
   keyframes_.clear();
   obs_.clear();

@@ -120,6 +120,22 @@ class DiminishedReality {
   // Forgets keyframes, observations and the smoothing state (the regions changed).
   void Clear();
 
+  // --- observations preferred after the fact (SPEC §7: a hole that is later observed is
+  // replaced by the observation) ---
+  // Every keyframe and observation view except `kf`, nearest to `kf`'s pose first.
+  std::vector<std::shared_ptr<const DrView>> ViewsAround(const DrView& kf) const;
+  // The keyframe's hallucinated pixels that one of `views` OBSERVED (visible there at the
+  // keyframe's depth: within 2 % + 1 cm, not inpainted there) take that colour and stop being
+  // hallucinated. Pure, any thread; `kf` is not changed. `view` is null when nothing was replaced.
+  struct Refresh {
+    std::shared_ptr<DrView> view;
+    int replaced = 0, hallucinated_before = 0;
+  };
+  static Refresh RefreshKeyframe(const DrView& kf,
+                                 const std::vector<std::shared_ptr<const DrView>>& views);
+  // Swaps a keyframe for its refreshed copy; false when `old` is no longer a keyframe.
+  bool ReplaceKeyframe(const DrView* old, std::shared_ptr<const DrView> now);
+
   const std::vector<std::shared_ptr<const DrView>>& keyframes() const { return keyframes_; }
   size_t observations() const { return obs_.size(); }
   const DrStats& stats() const { return stats_; }

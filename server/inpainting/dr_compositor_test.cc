@@ -151,6 +151,38 @@ TEST(DiminishedReality, AsynchronousKeyframesEqualSynchronous) {
   EXPECT_EQ(async.stats().keyframes_propagated, sync.stats().keyframes_propagated);
 }
 
+TEST(DiminishedReality, LaterObservationsReplaceAKeyframesHoles) {
+  // The first keyframe (x = -0.4) is inpainted whole; the walk to x = 0.4 sees the wall that the
+  // box hides from there.
+  const Walk w = MakeWalk(21);
+  DiminishedReality dr(Options());
+  for (size_t t = 0; t < w.frames.size(); ++t)
+    ASSERT_TRUE(dr.ProcessFrame(w.frames[t], w.rois[t], static_cast<int64_t>(t)).ok());
+  const std::shared_ptr<const DrView> first = dr.keyframes().front();
+  ASSERT_EQ(first->world_from_cam.translation, w.frames[0].world_from_cam.translation);
+  const auto r = DiminishedReality::RefreshKeyframe(*first, dr.ViewsAround(*first));
+  ASSERT_NE(r.view, nullptr);
+  EXPECT_EQ(r.hallucinated_before, Count(first->roi));
+  EXPECT_GT(r.replaced, r.hallucinated_before / 2);
+  EXPECT_EQ(Count(r.view->hallucinated), r.hallucinated_before - r.replaced);
+  const double before = RoiMeanAbs(first->color, w.truth[0].color, first->roi);
+  const double after = RoiMeanAbs(r.view->color, w.truth[0].color, first->roi);
+  std::printf("first keyframe: %d of %d hallucinated pixels replaced by observations; ROI mean "
+              "|error| %.1f -> %.1f\n", r.replaced, r.hallucinated_before, before, after);
+  EXPECT_LT(after, 0.6 * before);
+  // Outside what was hallucinated nothing changes.
+  for (size_t i = 0; i < first->roi.size(); ++i)
+    if (!first->hallucinated.data()[i])
+      ASSERT_EQ(r.view->color.data()[3 * i], first->color.data()[3 * i]);
+  ASSERT_TRUE(dr.ReplaceKeyframe(first.get(), r.view));
+  EXPECT_EQ(dr.keyframes().front(), r.view);
+  EXPECT_FALSE(dr.ReplaceKeyframe(first.get(), r.view));  // no longer a keyframe
+  // Refreshing again finds (almost) nothing new; no views: nothing.
+  const auto again = DiminishedReality::RefreshKeyframe(*r.view, dr.ViewsAround(*r.view));
+  EXPECT_LT(again.replaced, r.replaced / 10 + 1);
+  EXPECT_EQ(DiminishedReality::RefreshKeyframe(*first, {}).replaced, 0);
+}
+
 TEST(DiminishedReality, BadInputEmptyRoiAndBounds) {
   const Walk w = MakeWalk(9);
   DrOptions o = Options();

@@ -26,6 +26,7 @@ absl::Status InpaintingStageOptions::Validate() const {
     return absl::InvalidArgumentError("inpaint_observation_views must be in [0, 256]");
   if (observation_stride < 1 || observation_stride > 1000)
     return absl::InvalidArgumentError("inpaint_observation_stride must be in [1, 1000]");
+  if (refresh_min_px < 0) return absl::InvalidArgumentError("inpaint_refresh_min_px must be >= 0");
   return absl::OkStatus();
 }
 
@@ -55,6 +56,9 @@ DrOptions ToDrOptions(const InpaintingStageOptions& o) {
 
 struct Job {
   std::shared_ptr<const RegionSet> regions;
+  // A refresh of an existing keyframe (observations preferred) instead of a new keyframe.
+  std::shared_ptr<const inpainting::DrView> refresh;
+  uint64_t refresh_obs = 0;      // observation views kept when the refresh was asked for
   inpainting::DrKeyframeJob dr;  // frame (pose: scene-local), ROI, the views it may look up
   double timestamp_s = 0;
   uint64_t sequence = 0;
@@ -106,7 +110,7 @@ class InpaintingStageImpl final : public InpaintingStage {
       ++frames_with_roi_;
       if (job_ || busy_) {
         ++skipped_busy_;
-        dr_.AddObservation(frame, mask, index);
+        AddObservationLocked(frame, mask, index);
         return absl::OkStatus();
       }
       const inpainting::KeyframeDecision d = dr_.Decide(mask, f.color_camera, local_from_cam);
@@ -123,8 +127,12 @@ class InpaintingStageImpl final : public InpaintingStage {
         }
         job.reason = d.reason;
       }
-      dr_.AddObservation(frame, mask, index);
-      if (!d.insert) return absl::OkStatus();
+      AddObservationLocked(frame, mask, index);
+      if (!d.insert) {
+        // The worker is idle: a keyframe whose holes a newer observation may show is refreshed.
+        if (!PickRefreshLocked(&job)) return absl::OkStatus();
+        job.reason = "refresh";
+      }
     }
     job.regions = set;
     job.timestamp_s = f.timestamp_s;
@@ -166,6 +174,9 @@ class InpaintingStageImpl final : public InpaintingStage {
     c["inpainting.keyframe_observed_fraction"] =
         keyframe_roi_px_ ? static_cast<double>(keyframe_observed_px_) / keyframe_roi_px_ : 0.0;
     c["inpainting.observation_views"] = static_cast<double>(dr_.observations());
+    c["inpainting.keyframes_refreshed"] = static_cast<double>(refreshed_);
+    c["inpainting.refreshed_pixels"] = static_cast<double>(refreshed_px_);
+    c["inpainting.refresh_jobs"] = static_cast<double>(refresh_jobs_);
     c["inpainting.in_flight"] = (job_ || busy_) ? 1.0 : 0.0;  // a keyframe is being computed
   }
 
@@ -196,6 +207,71 @@ class InpaintingStageImpl final : public InpaintingStage {
   }
 
  private:
+  void AddObservationLocked(const inpainting::RgbdKeyframe& frame, const ImageU8& mask,
+                            int64_t index) {
+    const bool due = dr_options_.obs_views > 0 && index % dr_options_.obs_stride == 0;
+    dr_.AddObservation(frame, mask, index);
+    if (due) ++obs_kept_;
+  }
+
+  // The oldest keyframe with holes that has not been looked up in the newest observations.
+  bool PickRefreshLocked(Job* job) {
+    if (options_.method != "dr" || options_.refresh_min_px <= 0) return false;
+    const auto& kfs = dr_.keyframes();
+    for (size_t i = 0; i < ids_.size() && i < kfs.size(); ++i) {
+      KeyframeMeta& m = ids_[i];
+      if (m.holes < options_.refresh_min_px || m.refreshed_at >= obs_kept_) continue;
+      job->refresh = kfs[i];
+      job->refresh_obs = obs_kept_;
+      job->dr.views = dr_.ViewsAround(*kfs[i]);
+      ++refresh_jobs_;
+      return true;
+    }
+    return false;
+  }
+
+  void PublishRefresh(const Job& job, DiminishedReality::Refresh r, double cpu_ms,
+                      const std::shared_ptr<spdlog::logger>& log) {
+    std::lock_guard publish(publish_mu_);
+    if (regions_->generation() != job.regions->generation) return;
+    std::optional<ViewId> id;
+    {
+      std::lock_guard lock(mu_);
+      const auto& kfs = dr_.keyframes();
+      for (size_t i = 0; i < ids_.size() && i < kfs.size(); ++i)
+        if (kfs[i] == job.refresh) {
+          ids_[i].refreshed_at = job.refresh_obs;
+          if (r.view && r.replaced >= options_.refresh_min_px) {
+            id = ids_[i].id;
+            ids_[i].holes = r.hallucinated_before - r.replaced;
+          }
+        }
+    }
+    if (!id) return;  // evicted meanwhile, or too little to republish
+    const inpainting::DrView& kv = *r.view;
+    StoredView v;
+    v.id = *id;
+    v.camera = kv.cam;
+    v.local_from_cam = kv.world_from_cam;
+    v.color = kv.color;
+    v.depth_m = kv.depth;
+    v.inpainted = true;
+    v.labels = kv.roi;
+    auto msg = ViewToProto(v, options_.publish);
+    if (!msg.ok()) return;
+    for (uint32_t rid : job.regions->ids()) msg->add_region_ids(rid);
+    {
+      ScopedDeltaSource source(job.timestamp_s);
+      store_->AddView(*std::move(msg));  // same id: replaces the keyframe for every viewer
+    }
+    std::lock_guard lock(mu_);
+    dr_.ReplaceKeyframe(job.refresh.get(), r.view);
+    ++refreshed_;
+    refreshed_px_ += r.replaced;
+    log->info("keyframe {} refreshed: {} of {} hallucinated pixels replaced by observations "
+              "({:.0f} ms CPU)", *id, r.replaced, r.hallucinated_before, cpu_ms);
+  }
+
   // A restarted server: the inpainted views of the checkpoint are the keyframes again (without
   // their source maps, so the next keyframe is searched from scratch rather than propagated;
   // their whole ROI counts as inpainted, so their colour there is never taken as observed).
@@ -209,7 +285,7 @@ class InpaintingStageImpl final : public InpaintingStage {
       for (size_t i = 0; i < roi.size(); ++i) roi.data()[i] = roi.data()[i] ? 255 : 0;
       dr_.AddKeyframe(inpainting::MakeKeyframeView(
           {view->color, view->depth_m, view->camera, view->local_from_cam}, roi, {}));
-      ids_.push_back(view->id);
+      ids_.push_back({view->id, 0, inpainting::CountNonZero(roi)});
       if (ids_.size() > options_.max_keyframes) ids_.pop_front();
     }
   }
@@ -225,6 +301,15 @@ class InpaintingStageImpl final : public InpaintingStage {
         job = std::move(*job_);
         job_.reset();
         busy_ = true;
+      }
+      if (job.refresh) {
+        const double c0 = ThreadCpuMs();
+        auto r = DiminishedReality::RefreshKeyframe(*job.refresh, job.dr.views);
+        PublishRefresh(job, std::move(r), ThreadCpuMs() - c0, log);
+        std::lock_guard lock(mu_);
+        busy_ = false;
+        idle_cv_.notify_all();
+        continue;
       }
       const int64_t t0 = SteadyNowNs();
       const double c0 = ThreadCpuMs();
@@ -284,9 +369,9 @@ class InpaintingStageImpl final : public InpaintingStage {
     {
       std::lock_guard lock(mu_);
       dr_.AddKeyframe(k.view, &k);  // forgets its oldest beyond max_keyframes, as ids_ below
-      ids_.push_back(v.id);
+      ids_.push_back({v.id, obs_kept_, k.hallucinated_px});
       if (ids_.size() > options_.max_keyframes) {
-        evict = ids_.front();
+        evict = ids_.front().id;
         ids_.pop_front();
       }
       ++published_;
@@ -329,11 +414,17 @@ class InpaintingStageImpl final : public InpaintingStage {
   std::condition_variable cv_, idle_cv_;
   std::optional<Job> job_;
   bool busy_ = false, stop_ = false;
-  std::deque<ViewId> ids_;  // the published keyframes, in dr_.keyframes() order
+  struct KeyframeMeta {
+    ViewId id = 0;
+    uint64_t refreshed_at = 0;  // obs_kept_ when it was made or last refreshed
+    int holes = 0;              // hallucinated pixels
+  };
+  std::deque<KeyframeMeta> ids_;  // the published keyframes, in dr_.keyframes() order
+  uint64_t obs_kept_ = 0;         // observation views kept so far
   ViewId next_id_ = kInpaintedViewIdBase;
   uint64_t published_ = 0, propagated_ = 0, discarded_ = 0, failed_ = 0, frames_with_roi_ = 0,
            frames_without_roi_ = 0, skipped_busy_ = 0, withdrawn_ = 0, decisions_ = 0,
-           frames_seen_ = 0;
+           frames_seen_ = 0, refreshed_ = 0, refreshed_px_ = 0, refresh_jobs_ = 0;
   int64_t decide_ns_ = 0, keyframe_roi_px_ = 0, keyframe_observed_px_ = 0;
   double first_ms_ = 0, propagated_ms_ = 0, last_ms_ = 0, sum_ms_ = 0, sum_cpu_ms_ = 0;
   std::string last_error_;

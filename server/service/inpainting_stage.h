@@ -11,7 +11,10 @@
 // is computed on the stage's own worker thread and published as a ViewAdded with `inpainted`
 // set and its label mask. The slot for waiting work is bounded (one job in flight, none queued):
 // while a keyframe is computed, frames are only counted (every obs_stride-th is still kept as an
-// observation), so the stage never slows ingest down. The frames themselves are never
+// observation), so the stage never slows ingest down. When the worker is idle and a new
+// observation view was kept, the worker refreshes one keyframe: its hallucinated pixels that an
+// observation now shows take the observed colour (observations preferred, SPEC §7), and the
+// keyframe is republished under the same view id. The frames themselves are never
 // changed, so planning, refinement and tracking never see inpainted pixels; inpainted views are
 // never referenced by cells. Clearing a region withdraws every inpainted view (Withdraw) and a
 // keyframe still in flight for the old regions is discarded (generation check under the publish
@@ -46,6 +49,10 @@ struct InpaintingStageOptions {
   std::string method = "dr";
   int observation_views = 24;   // "dr": observation views kept (memory: ~2 MB each at 640x480)
   int observation_stride = 10;  // "dr": every Nth frame with the ROI visible is one
+  // "dr": when the worker is idle, a keyframe's hallucinated pixels that a newer observation view
+  // saw are replaced by the observation and the keyframe is republished (same view id), once at
+  // least this many pixels changed (0 = never).
+  int refresh_min_px = 16;
   ViewEncodeOptions publish;
   absl::Status Validate() const;
 };

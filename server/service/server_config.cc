@@ -134,6 +134,8 @@ std::vector<ConfigKey> MakeKeys() {
           EXO_FIELD(inpainting.observation_views)),
       Key("inpaint_observation_stride", "dr: every Nth frame while a region is marked is kept as one",
           EXO_FIELD(inpainting.observation_stride)),
+      Key("inpaint_refresh_min_px", "dr: republish a keyframe once this many of its inpainted pixels were later observed (0 = never)",
+          EXO_FIELD(inpainting.refresh_min_px)),
       Key("inpaint_threads", "threads of one keyframe's PatchMatch", EXO_FIELD(inpainting.inpaint.num_threads)),
       Key("inpaint_keyframe_pose_distance", "new keyframe beyond this ||I - Mi^-1 Mk||_F",
           EXO_FIELD(inpainting.policy.max_pose_distance)),
