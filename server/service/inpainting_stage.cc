@@ -1,5 +1,6 @@
 #include "server/service/inpainting_stage.h"
 
+#include <algorithm>
 #include <chrono>
 #include <condition_variable>
 #include <deque>
@@ -26,6 +27,8 @@ absl::Status InpaintingStageOptions::Validate() const {
     return absl::InvalidArgumentError("inpaint_observation_views must be in [0, 256]");
   if (observation_stride < 1 || observation_stride > 1000)
     return absl::InvalidArgumentError("inpaint_observation_stride must be in [1, 1000]");
+  if (frame_stride < 1 || frame_stride > 100)
+    return absl::InvalidArgumentError("inpaint_frame_stride must be in [1, 100]");
   if (refresh_min_px < 0) return absl::InvalidArgumentError("inpaint_refresh_min_px must be >= 0");
   return absl::OkStatus();
 }
@@ -47,7 +50,7 @@ DrOptions ToDrOptions(const InpaintingStageOptions& o) {
   d.inpaint = o.inpaint;
   d.policy = o.policy;
   d.max_keyframes = o.max_keyframes;
-  d.obs_stride = o.observation_stride;
+  d.obs_stride = std::max(1, o.observation_stride / std::max(1, o.frame_stride));  // in looked-at frames
   const bool dr = o.method == "dr";
   d.obs_views = dr ? o.observation_views : 0;
   d.kf_context = dr;  // "keyframe" (session 9): the library inpaints the whole ROI
@@ -86,7 +89,14 @@ class InpaintingStageImpl final : public InpaintingStage {
     int64_t index = 0;
     {
       std::lock_guard lock(mu_);
-      index = frames_seen_++;
+      const int64_t seen = frames_seen_++;
+      // Only every frame_stride-th frame is looked at (the rule needs no 30 Hz; each look costs
+      // the registration and re-projection at full resolution on the pipeline thread).
+      if (seen % options_.frame_stride != 0) {
+        ++frames_strided_;
+        return absl::OkStatus();
+      }
+      index = seen / options_.frame_stride;
       // The one slot is taken: this frame is only counted, unless it is due as an observation.
       if ((job_ || busy_) && (dr_options_.obs_views == 0 || index % dr_options_.obs_stride != 0)) {
         ++skipped_busy_;
@@ -94,6 +104,16 @@ class InpaintingStageImpl final : public InpaintingStage {
       }
     }
     const int64_t t0 = SteadyNowNs();
+    const double c0 = ThreadCpuMs();
+    struct CpuTally {  // CPU of this frame's work on the pipeline thread, however it returns
+      InpaintingStageImpl* self;
+      double c0;
+      ~CpuTally() {
+        std::lock_guard lock(self->mu_);
+        self->frame_cpu_ms_ += ThreadCpuMs() - c0;
+        ++self->frames_measured_;
+      }
+    } tally{this, c0};
     const Rigid3d local_from_cam = ctx.origin.ToLocal(f.world_from_cam);
     ImageF depth = core::RegisterDepthToColor(f);
     ImageU8 mask = inpainting::ProjectRegions(set->labels, depth, f.color_camera, local_from_cam,
@@ -164,6 +184,7 @@ class InpaintingStageImpl final : public InpaintingStage {
     c["inpainting.frames_with_roi"] = static_cast<double>(frames_with_roi_);
     c["inpainting.frames_without_roi"] = static_cast<double>(frames_without_roi_);
     c["inpainting.frames_skipped_busy"] = static_cast<double>(skipped_busy_);
+    c["inpainting.frames_skipped_stride"] = static_cast<double>(frames_strided_);
     c["inpainting.views_withdrawn"] = static_cast<double>(withdrawn_);
     c["inpainting.decide_ms_mean"] = decisions_ ? decide_ns_ * 1e-6 / decisions_ : 0.0;
     c["inpainting.first_keyframe_ms"] = first_ms_;
@@ -177,6 +198,10 @@ class InpaintingStageImpl final : public InpaintingStage {
     c["inpainting.keyframes_refreshed"] = static_cast<double>(refreshed_);
     c["inpainting.refreshed_pixels"] = static_cast<double>(refreshed_px_);
     c["inpainting.refresh_jobs"] = static_cast<double>(refresh_jobs_);
+    c["inpainting.refresh_cpu_ms_total"] = refresh_cpu_ms_;
+    // CPU of the stage's per-frame work on the pipeline thread (registration, re-projection,
+    // the rule, observation copies), frames that got past the busy check.
+    c["inpainting.frame_cpu_ms_mean"] = frames_measured_ ? frame_cpu_ms_ / frames_measured_ : 0.0;
     c["inpainting.in_flight"] = (job_ || busy_) ? 1.0 : 0.0;  // a keyframe is being computed
   }
 
@@ -305,7 +330,12 @@ class InpaintingStageImpl final : public InpaintingStage {
       if (job.refresh) {
         const double c0 = ThreadCpuMs();
         auto r = DiminishedReality::RefreshKeyframe(*job.refresh, job.dr.views);
-        PublishRefresh(job, std::move(r), ThreadCpuMs() - c0, log);
+        const double cpu_ms = ThreadCpuMs() - c0;
+        {
+          std::lock_guard lock(mu_);
+          refresh_cpu_ms_ += cpu_ms;
+        }
+        PublishRefresh(job, std::move(r), cpu_ms, log);
         std::lock_guard lock(mu_);
         busy_ = false;
         idle_cv_.notify_all();
@@ -424,9 +454,11 @@ class InpaintingStageImpl final : public InpaintingStage {
   ViewId next_id_ = kInpaintedViewIdBase;
   uint64_t published_ = 0, propagated_ = 0, discarded_ = 0, failed_ = 0, frames_with_roi_ = 0,
            frames_without_roi_ = 0, skipped_busy_ = 0, withdrawn_ = 0, decisions_ = 0,
-           frames_seen_ = 0, refreshed_ = 0, refreshed_px_ = 0, refresh_jobs_ = 0;
+           frames_seen_ = 0, frames_strided_ = 0, refreshed_ = 0, refreshed_px_ = 0, refresh_jobs_ = 0;
   int64_t decide_ns_ = 0, keyframe_roi_px_ = 0, keyframe_observed_px_ = 0;
   double first_ms_ = 0, propagated_ms_ = 0, last_ms_ = 0, sum_ms_ = 0, sum_cpu_ms_ = 0;
+  double refresh_cpu_ms_ = 0, frame_cpu_ms_ = 0;  // worker's refreshes; pipeline thread per frame
+  uint64_t frames_measured_ = 0;
   std::string last_error_;
   std::thread worker_;
 };

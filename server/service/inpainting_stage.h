@@ -48,7 +48,9 @@ struct InpaintingStageOptions {
   // session-9 keyframes (the whole ROI inpainted).
   std::string method = "dr";
   int observation_views = 24;   // "dr": observation views kept (memory: ~2 MB each at 640x480)
-  int observation_stride = 10;  // "dr": every Nth frame with the ROI visible is one
+  int observation_stride = 10;  // "dr": every Nth frame (of all frames) with the ROI visible is one
+  // The stage looks at every Nth frame only (re-projection, rule, observation): 1 = every frame.
+  int frame_stride = 1;
   // "dr": when the worker is idle, a keyframe's hallucinated pixels that a newer observation view
   // saw are replaced by the observation and the keyframe is republished (same view id), once at
   // least this many pixels changed (0 = never).

@@ -184,11 +184,28 @@ TEST(InpaintingStage, DrKeyframesTakeObservedColourSessionNineDoesNot) {
               error[0], error[1]);
   EXPECT_LT(error[0], 0.8 * error[1]);  // measured 22.8 vs 35.1
   InpaintingStageOptions bad;
+  bad.frame_stride = 0;
+  EXPECT_FALSE(bad.Validate().ok());
+  bad = InpaintingStageOptions();
   bad.refresh_min_px = -1;
   EXPECT_FALSE(bad.Validate().ok());
   bad = InpaintingStageOptions();
   bad.method = "magic";
   EXPECT_FALSE(bad.Validate().ok());
+}
+
+TEST(InpaintingStage, FrameStrideLooksAtEveryNthFrame) {
+  InpaintingStageOptions o;
+  o.frame_stride = 3;
+  Rig rig(160, 120, o);
+  for (int i = 0; i < 7; ++i) {
+    ASSERT_TRUE(rig.stage->Process(rig.Frame(0.0), rig.ctx).ok());
+    ASSERT_TRUE(rig.stage->WaitIdle(30));
+  }
+  // Frames 0, 3, 6 looked at (one keyframe, then the same pose holds back); 4 only counted.
+  EXPECT_EQ(rig.Counter("frames_skipped_stride"), 4.0);
+  EXPECT_EQ(rig.Counter("frames_with_roi"), 3.0);
+  EXPECT_EQ(rig.Counter("keyframes_published"), 1.0);
 }
 
 TEST(InpaintingStage, LaterObservationsReplaceAPublishedKeyframesHoles) {

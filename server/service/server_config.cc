@@ -136,6 +136,8 @@ std::vector<ConfigKey> MakeKeys() {
           EXO_FIELD(inpainting.observation_stride)),
       Key("inpaint_refresh_min_px", "dr: republish a keyframe once this many of its inpainted pixels were later observed (0 = never)",
           EXO_FIELD(inpainting.refresh_min_px)),
+      Key("inpaint_frame_stride", "the inpainting stage looks at every Nth frame (re-projection of the regions, keyframe rule, observations); 1 = every frame",
+          EXO_FIELD(inpainting.frame_stride)),
       Key("inpaint_threads", "threads of one keyframe's PatchMatch", EXO_FIELD(inpainting.inpaint.num_threads)),
       Key("inpaint_keyframe_pose_distance", "new keyframe beyond this ||I - Mi^-1 Mk||_F",
           EXO_FIELD(inpainting.policy.max_pose_distance)),
