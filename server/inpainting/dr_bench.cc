@@ -19,7 +19,9 @@
 //                and re-anchored on the frame's depth around the ROI (Poisson); the colour is
 //                blended with the frame's border in the gradient domain and smoothed in time
 //                along the camera motion (0.8 previous, looked up through the depth);
-//                docs/inpainting.md "Session 10" has the ablations behind these choices,
+//                docs/inpainting.md "Session 10" has the ablations behind these choices;
+//                the per-frame orchestration is the library class DiminishedReality
+//                (dr_compositor.h, session 11), the flags below map onto its DrOptions,
 // and prints one JSON object: per method PSNR / SSIM inside the ROI and in a 10-px seam band
 // across its boundary (5 px inside, 5 px outside), depth MAE (mm) inside the ROI, the flicker ratio (mean absolute frame-to-frame
 // change inside the ROI after warping by the ground-truth motion, divided by the ground truth's
@@ -56,6 +58,7 @@
 #include "common/synth/trajectory.h"
 #include "server/inpainting/inpaint.h"
 #include "server/inpainting/keyframe_policy.h"
+#include "server/inpainting/dr_compositor.h"
 #include "server/inpainting/dr_view.h"
 #include "server/inpainting/poisson.h"
 #include "server/inpainting/test_scenes.h"
@@ -153,8 +156,6 @@ ImageU8 WarpKeyframe(const InpaintResult& kf, const PinholeCamera& cam, const Ri
     }
   return hit;
 }
-
-using View = DrView;
 
 struct Scores {
   double psnr_roi = 0, ssim_roi = 0, psnr_seam = 0, ssim_seam = 0, depth_mae_mm = 0;
@@ -327,13 +328,30 @@ int Main(int argc, char** argv) {
   int propagated = 0;
   double first_kf_ms = 0, propagated_ms = 0, warp_ms = 0;
   int warped_frames = 0;
-  // ours: keyframe views, observation views, timings.
-  std::vector<std::shared_ptr<View>> our_kfs;
-  std::deque<std::shared_ptr<View>> obs;
-  int our_inpainted = 0, our_propagated = 0;
-  ImageU8 our_prev_color;
-  Rigid3d our_prev_pose;
-  double our_first_ms = 0, our_propagated_ms = 0, our_frame_ms = 0;
+  // ours: the per-frame orchestration of the library (keyframes, observation views, look-up,
+  // blend, depth Poisson, temporal smoothing), synchronous here.
+  DrOptions dro;
+  dro.inpaint = opt;
+  dro.policy = policy;
+  dro.obs_stride = obs_stride;
+  dro.obs_views = obs_views;
+  dro.blend = blend == "paste" ? DrBlend::kPaste
+              : blend == "poisson" ? DrBlend::kPoisson
+                                   : DrBlend::kPoissonHallucinated;
+  dro.ring = ring == "observed" ? DrRing::kObserved : ring == "frame" ? DrRing::kFrame : DrRing::kLookUp;
+  dro.ring_sigma = ring_sigma;
+  dro.temporal = temporal;
+  dro.temporal_hallucinated_only = temporal_hallucinated_only;
+  dro.depth_poisson = depth_poisson;
+  dro.kf_context = kf_context;
+  dro.prefer_observed = prefer_observed;
+  dro.bicubic = bicubic;
+  if (auto st = dro.Validate(); !st.ok()) {
+    std::fprintf(stderr, "%s\n", std::string(st.message()).c_str());
+    return 1;
+  }
+  DiminishedReality ours(dro);
+  double our_frame_ms = 0;
   long our_roi_px = 0, our_observed_px = 0;
   int our_frames = 0;
   SsimOptions so;
@@ -434,243 +452,19 @@ int Main(int argc, char** argv) {
           warp_ms += WallMs() - k0;
           ++warped_frames;
         }
-      } else {  // ours
+      } else {  // ours: the library's DiminishedReality (dr_compositor.h), synchronous keyframes
         const double k0 = WallMs();
-        std::vector<KeyframeView> kviews;
-        for (const auto& k : our_kfs) kviews.push_back({&k->roi, &k->depth, k->cam, k->world_from_cam});
-        const KeyframeDecision d = DecideKeyframe(roi, cam, pose, kviews, policy);
-        // The ROI and a one-pixel ring (the guide of the gradient-domain blend).
-        ImageU8 region(width, height, 1, 0);
-        {
-          cv::Mat r = Wrap(roi), g = Wrap(region);
-          cv::dilate(r, g, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(3, 3)));
-        }
-        ImageU8 guide = f.color, observed(width, height, 1, 0), filled(width, height, 1, 0);
-        ImageF depth = f.depth_m, warped;
-        // The views, nearest pose first: every keyframe and observation view, or (without
-        // --prefer_observed) only the nearest keyframe.
-        std::vector<const View*> views;
-        if (prefer_observed) {
-          for (const auto& k : our_kfs) views.push_back(k.get());
-          for (const auto& o : obs) views.push_back(o.get());
-          std::stable_sort(views.begin(), views.end(), [&](const View* a, const View* b) {
-            return PoseDistance(a->world_from_cam, pose) < PoseDistance(b->world_from_cam, pose);
-          });
-        } else if (d.nearest >= 0) {
-          views.push_back(our_kfs[d.nearest].get());
-        }
-        if (!d.insert) {
-          // Warped over the ROI and its ring (the ring's warped values give the depth blend its
-          // gradients across the border); the look-up uses the frame's own depth on the ring.
-          warped = WarpBackgroundDepth(*our_kfs[d.nearest], cam, pose, region, f.depth_m);
-          depth = warped;
-          for (size_t i = 0; i < roi.size(); ++i)
-            if (!roi.data()[i]) depth.data()[i] = f.depth_m.data()[i];
-          LookUpInViews(views, cam, pose, region, depth, &guide, &observed, &filled, bicubic);
-        } else {
-          // A keyframe: the library inpaints the whole ROI (colour and depth, propagated from
-          // the nearest keyframe); where a view observed the inpainted surface, its colour
-          // replaces PatchMatch's (observations preferred), the rest stays hallucinated.
-          const InpaintResult* previous = nullptr;
-          double best = 1e300;
-          for (const auto& k : our_kfs)
-            if (k->result && PoseDistance(k->world_from_cam, pose) < best) {
-              best = PoseDistance(k->world_from_cam, pose);
-              previous = k->result.get();
-            }
-          auto v = std::make_shared<View>();
-          v->cam = cam;
-          v->world_from_cam = pose;
-          v->cam_from_world = pose.Inverse();
-          v->roi = roi;
-          RgbdKeyframe kf = f;
-          ImageU8 t_mask = roi;
-          if (kf_context && d.nearest >= 0) {
-            // Observed colour (and the warped depth) first; the library fills only the rest,
-            // with the observed pixels as its context.
-            depth = WarpBackgroundDepth(*our_kfs[d.nearest], cam, pose, roi, f.depth_m);
-            LookUpInViews(views, cam, pose, region, depth, &guide, &observed, &filled, bicubic);
-            for (size_t i = 0; i < roi.size(); ++i)
-              if (roi.data()[i] && observed.data()[i]) {
-                for (int c = 0; c < 3; ++c) kf.color.data()[3 * i + c] = guide.data()[3 * i + c];
-                kf.depth_m.data()[i] = depth.data()[i];
-                t_mask.data()[i] = 0;
-              }
-          }
-          int n_t = 0;
-          for (size_t i = 0; i < t_mask.size(); ++i) n_t += t_mask.data()[i] != 0;
-          if (n_t > 0) {
-            const double i0 = WallMs();
-            auto r = InpaintKeyframe(kf, t_mask, opt, previous);
-            if (!r.ok()) {
-              std::fprintf(stderr, "ours frame %d: %s\n", t, std::string(r.status().message()).c_str());
-              return 1;
-            }
-            const double ms = WallMs() - i0;
-            if (previous) {
-              ++our_propagated;
-              our_propagated_ms += ms;
-            } else {
-              our_first_ms = ms;
-            }
-            ++our_inpainted;
-            v->result = std::make_shared<InpaintResult>(*std::move(r));
-            v->color = v->result->color;
-            v->depth = v->result->depth_m;
-          } else {
-            v->color = kf.color;
-            v->depth = kf.depth_m;
-          }
-          v->hallucinated = t_mask;
-          depth = v->depth;
-          if (!kf_context && !views.empty()) {
-            LookUpInViews(views, cam, pose, region, depth, &guide, &observed, &filled, bicubic);
-            for (size_t i = 0; i < roi.size(); ++i)
-              if (roi.data()[i] && observed.data()[i]) {
-                for (int c = 0; c < 3; ++c) v->color.data()[3 * i + c] = guide.data()[3 * i + c];
-                v->hallucinated.data()[i] = 0;
-              }
-          }
-          for (size_t i = 0; i < roi.size(); ++i) {
-            if (!roi.data()[i]) continue;
-            for (int c = 0; c < 3; ++c) guide.data()[3 * i + c] = v->color.data()[3 * i + c];
-            filled.data()[i] = 255;
-          }
-          our_kfs.push_back(v);
-        }
-        // Pixels no view reached (outside every view): Telea from what is there.
-        ImageU8 holes(width, height, 1, 0);
-        int n_holes = 0;
-        for (size_t i = 0; i < holes.size(); ++i)
-          if (roi.data()[i] && !filled.data()[i]) {
-            holes.data()[i] = 255;
-            ++n_holes;
-          }
-        if (n_holes > 0) {
-          cv::Mat rgb = Wrap(guide), dst;
-          cv::inpaint(rgb, Wrap(holes), dst, 3.0, cv::INPAINT_TELEA);
-          std::memcpy(guide.data(), dst.data, guide.size());
-        }
-        // Ring pixels that no other view observed take the frame's own colour (the frame observes
-        // them; a hallucinated sample there is 20-45 grey levels off in the village and the blend
-        // would spread that mismatch into the ROI, differently every frame).
-        for (size_t i = 0; i < region.size(); ++i)
-          if (region.data()[i] && !roi.data()[i] &&
-              (ring == "frame" || (ring == "observed" && !observed.data()[i]) || !filled.data()[i]))
-            for (int c = 0; c < 3; ++c) guide.data()[3 * i + c] = f.color.data()[3 * i + c];
-        for (size_t i = 0; i < roi.size(); ++i)
-          if (roi.data()[i]) {
-            for (int c = 0; c < 3; ++c) out.color.data()[3 * i + c] = guide.data()[3 * i + c];
-            out.depth.data()[i] = depth.data()[i];
-          }
-        if (blend == "poisson" && ring_sigma > 0) {
-          // Only the low frequencies of the mismatch on the ring are blended in: the ring's
-          // guide becomes frame - smooth(frame - guide) (normalised Gaussian over the ring).
-          cv::Mat ring(height, width, CV_32FC1, cv::Scalar(0)), diff(height, width, CV_32FC3,
-                                                                     cv::Scalar(0, 0, 0));
-          for (int y = 0; y < height; ++y)
-            for (int x = 0; x < width; ++x)
-              if (region.at(x, y) && !roi.at(x, y)) {
-                ring.at<float>(y, x) = 1.f;
-                for (int c = 0; c < 3; ++c)
-                  diff.at<cv::Vec3f>(y, x)[c] = float(f.color.at(x, y, c)) - float(guide.at(x, y, c));
-              }
-          cv::Mat sd, sr;
-          cv::GaussianBlur(diff, sd, cv::Size(0, 0), ring_sigma);
-          cv::GaussianBlur(ring, sr, cv::Size(0, 0), ring_sigma);
-          for (int y = 0; y < height; ++y)
-            for (int x = 0; x < width; ++x)
-              if (region.at(x, y) && !roi.at(x, y))
-                for (int c = 0; c < 3; ++c)
-                  guide.at(x, y, c) = static_cast<uint8_t>(std::clamp(
-                      std::lround(f.color.at(x, y, c) - sd.at<cv::Vec3f>(y, x)[c] /
-                                                            std::max(1e-6f, sr.at<float>(y, x))),
-                      0L, 255L));
-        }
-        ImageU8 blend_region = roi;
-        if (blend == "poisson_hallucinated")
-          for (size_t i = 0; i < roi.size(); ++i)
-            if (observed.data()[i]) blend_region.data()[i] = 0;
-        if (blend != "paste" && !PoissonBlendColor(guide, blend_region, &out.color).ok()) {
-          std::fprintf(stderr, "ours frame %d: Poisson blend failed\n", t);
+        auto r = ours.ProcessFrame(f, roi, t);
+        if (!r.ok()) {
+          std::fprintf(stderr, "ours frame %d: %s\n", t, std::string(r.status().message()).c_str());
           return 1;
         }
-        if (depth_poisson && !d.insert) {
-          // The warped depth's gradients, anchored on the frame's own depth around the ROI
-          // (the library's gradient-domain depth, eqs. 4.13-4.16): removes the offset a chain
-          // of warps leaves.
-          const float nan = std::numeric_limits<float>::quiet_NaN();
-          ImageF values(width, height, 1, nan), gx(width, height, 1, nan), gy(width, height, 1, nan);
-          for (int y = 0; y < height; ++y)
-            for (int x = 0; x < width; ++x) {
-              if (!roi.at(x, y) && f.depth_m.at(x, y) > 0.f) values.at(x, y) = f.depth_m.at(x, y);
-              if (x + 1 < width && (roi.at(x, y) || roi.at(x + 1, y)))
-                gx.at(x, y) = warped.at(x, y) - warped.at(x + 1, y);
-              if (y + 1 < height && (roi.at(x, y) || roi.at(x, y + 1)))
-                gy.at(x, y) = warped.at(x, y) - warped.at(x, y + 1);
-            }
-          PoissonProblem pb;
-          pb.region = &roi;
-          pb.values = &values;
-          pb.gx = &gx;
-          pb.gy = &gy;
-          pb.gauge = &warped;
-          PoissonOptions po;
-          po.tolerance = 1e-6;
-          auto r = SolvePoisson(pb, po);
-          if (!r.ok()) {
-            std::fprintf(stderr, "ours frame %d: depth Poisson: %s\n", t,
-                         std::string(r.status().message()).c_str());
-            return 1;
-          }
-          for (size_t i = 0; i < roi.size(); ++i)
-            if (roi.data()[i]) out.depth.data()[i] = r->data()[i];
-        }
-        if (temporal > 0 && !our_prev_color.empty()) {
-          // Exponential smoothing along the camera motion: the previous output, looked up through
-          // this frame's background depth and the previous pose.
-          const Rigid3d prev_from_cur = our_prev_pose.Inverse() * pose;
-          for (int y = 0; y < height; ++y)
-            for (int x = 0; x < width; ++x) {
-              if (!roi.at(x, y) || !(out.depth.at(x, y) > 0.f)) continue;
-              if (temporal_hallucinated_only && observed.at(x, y)) continue;
-              glm::dvec2 uv;
-              if (!cam.Project(prev_from_cur * cam.Unproject({x, y}, out.depth.at(x, y)), &uv) ||
-                  !cam.InImage(uv, 1.0))
-                continue;
-              const int x0 = static_cast<int>(uv.x), y0 = static_cast<int>(uv.y);
-              const double ax = uv.x - x0, ay = uv.y - y0;
-              for (int c = 0; c < 3; ++c) {
-                auto P = [&](int u, int v) { return double(our_prev_color.at(u, v, c)); };
-                const double prev = (1 - ay) * ((1 - ax) * P(x0, y0) + ax * P(x0 + 1, y0)) +
-                                    ay * ((1 - ax) * P(x0, y0 + 1) + ax * P(x0 + 1, y0 + 1));
-                out.color.at(x, y, c) = static_cast<uint8_t>(std::clamp(
-                    std::lround(temporal * prev + (1 - temporal) * out.color.at(x, y, c)), 0L, 255L));
-              }
-            }
-        }
-        our_prev_color = out.color;
-        our_prev_pose = pose;
-        // This frame as an observation view for later frames (its ROI unusable).
-        if (obs_views > 0 && t % obs_stride == 0) {
-          auto o = std::make_shared<View>();
-          o->color = f.color;
-          o->depth = f.depth_m;
-          for (size_t i = 0; i < roi.size(); ++i)
-            if (roi.data()[i]) o->depth.data()[i] = 0.f;
-          o->cam = cam;
-          o->world_from_cam = pose;
-          o->cam_from_world = pose.Inverse();
-          obs.push_back(o);
-          if (static_cast<int>(obs.size()) > obs_views) obs.pop_front();
-        }
+        out = {std::move(r->color), std::move(r->depth)};
         our_frame_ms += WallMs() - k0;
         ++our_frames;
-        long n_obs = 0;
-        for (size_t i = 0; i < roi.size(); ++i) n_obs += roi.data()[i] && observed.data()[i];
-        if (!d.insert) {
+        if (!r->keyframe) {
           our_roi_px += roi_px;
-          our_observed_px += n_obs;
+          our_observed_px += r->observed_px;
         }
       }
       Scores& s = scores[method];
@@ -764,8 +558,11 @@ int Main(int argc, char** argv) {
               "\"first_keyframe_ms\": %.1f, "
               "\"propagated_keyframe_ms_mean\": %.1f, \"frame_ms_mean\": %.2f, "
               "\"observed_fraction_between_keyframes\": %.3f}}\n",
-              our_kfs.size(), our_inpainted, our_propagated, our_first_ms,
-              our_propagated ? our_propagated_ms / our_propagated : 0.0,
+              ours.keyframes().size(), ours.stats().keyframes_inpainted,
+              ours.stats().keyframes_propagated, ours.stats().first_keyframe_ms,
+              ours.stats().keyframes_propagated
+                  ? ours.stats().propagated_keyframe_ms / ours.stats().keyframes_propagated
+                  : 0.0,
               our_frames ? our_frame_ms / our_frames : 0.0,
               our_roi_px ? double(our_observed_px) / our_roi_px : 0.0);
   return 0;

@@ -1,11 +1,14 @@
 #include "server/service/inpainting_stage.h"
 
+#include <algorithm>
 #include <chrono>
 #include <condition_variable>
 #include <deque>
 #include <mutex>
 #include <optional>
 #include <thread>
+
+#include <time.h>
 
 #include "common/log/log.h"
 #include "proto/frame_proto.h"
@@ -18,24 +21,48 @@ absl::Status InpaintingStageOptions::Validate() const {
   EXO_RETURN_IF_ERROR(policy.Validate());
   if (max_keyframes == 0 || max_keyframes > 256)
     return absl::InvalidArgumentError("inpaint_max_keyframes must be in [1, 256]");
+  if (method != "dr" && method != "keyframe")
+    return absl::InvalidArgumentError("inpaint_method must be dr or keyframe");
+  if (observation_views < 0 || observation_views > 256)
+    return absl::InvalidArgumentError("inpaint_observation_views must be in [0, 256]");
+  if (observation_stride < 1 || observation_stride > 1000)
+    return absl::InvalidArgumentError("inpaint_observation_stride must be in [1, 1000]");
+  if (frame_stride < 1 || frame_stride > 100)
+    return absl::InvalidArgumentError("inpaint_frame_stride must be in [1, 100]");
+  if (refresh_min_px < 0) return absl::InvalidArgumentError("inpaint_refresh_min_px must be >= 0");
   return absl::OkStatus();
 }
 
 namespace {
 
-using inpainting::InpaintResult;
+using inpainting::DiminishedReality;
+using inpainting::DrKeyframe;
+using inpainting::DrOptions;
 
-struct Keyframe {
-  ViewId id = 0;
-  std::shared_ptr<const InpaintResult> result;  // colour, depth, mask, source map, camera
-  Rigid3d local_from_cam;
-};
+double ThreadCpuMs() {
+  timespec t;
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
+  return t.tv_sec * 1e3 + t.tv_nsec * 1e-6;
+}
+
+DrOptions ToDrOptions(const InpaintingStageOptions& o) {
+  DrOptions d;
+  d.inpaint = o.inpaint;
+  d.policy = o.policy;
+  d.max_keyframes = o.max_keyframes;
+  d.obs_stride = std::max(1, o.observation_stride / std::max(1, o.frame_stride));  // in looked-at frames
+  const bool dr = o.method == "dr";
+  d.obs_views = dr ? o.observation_views : 0;
+  d.kf_context = dr;  // "keyframe" (session 9): the library inpaints the whole ROI
+  return d;
+}
 
 struct Job {
   std::shared_ptr<const RegionSet> regions;
-  inpainting::RgbdKeyframe frame;  // pose: scene-local
-  ImageU8 mask;
-  std::shared_ptr<const InpaintResult> previous;  // the nearest keyframe (propagation)
+  // A refresh of an existing keyframe (observations preferred) instead of a new keyframe.
+  std::shared_ptr<const inpainting::DrView> refresh;
+  uint64_t refresh_obs = 0;      // observation views kept when the refresh was asked for
+  inpainting::DrKeyframeJob dr;  // frame (pose: scene-local), ROI, the views it may look up
   double timestamp_s = 0;
   uint64_t sequence = 0;
   const char* reason = "";
@@ -45,7 +72,8 @@ class InpaintingStageImpl final : public InpaintingStage {
  public:
   InpaintingStageImpl(const InpaintingStageOptions& o, std::shared_ptr<RegionRegistry> regions,
                       ModelStore* store)
-      : options_(o), regions_(std::move(regions)), store_(store) {
+      : options_(o), dr_options_(ToDrOptions(o)), dr_(dr_options_), regions_(std::move(regions)),
+        store_(store) {
     RestoreFromStore();
     worker_ = std::thread([this] { WorkerLoop(); });
   }
@@ -58,19 +86,40 @@ class InpaintingStageImpl final : public InpaintingStage {
     if (set->regions.empty()) return absl::OkStatus();
     const Frame& f = pf.frame;
     if (f.depth_m.empty()) return absl::OkStatus();
+    int64_t index = 0;
     {
       std::lock_guard lock(mu_);
-      if (job_ || busy_) {  // the one slot is taken: this frame is only counted
+      const int64_t seen = frames_seen_++;
+      // Only every frame_stride-th frame is looked at (the rule needs no 30 Hz; each look costs
+      // the registration and re-projection at full resolution on the pipeline thread).
+      if (seen % options_.frame_stride != 0) {
+        ++frames_strided_;
+        return absl::OkStatus();
+      }
+      index = seen / options_.frame_stride;
+      // The one slot is taken: this frame is only counted, unless it is due as an observation.
+      if ((job_ || busy_) && (dr_options_.obs_views == 0 || index % dr_options_.obs_stride != 0)) {
         ++skipped_busy_;
         return absl::OkStatus();
       }
     }
     const int64_t t0 = SteadyNowNs();
+    const double c0 = ThreadCpuMs();
+    struct CpuTally {  // CPU of this frame's work on the pipeline thread, however it returns
+      InpaintingStageImpl* self;
+      double c0;
+      ~CpuTally() {
+        std::lock_guard lock(self->mu_);
+        self->frame_cpu_ms_ += ThreadCpuMs() - c0;
+        ++self->frames_measured_;
+      }
+    } tally{this, c0};
     const Rigid3d local_from_cam = ctx.origin.ToLocal(f.world_from_cam);
     ImageF depth = core::RegisterDepthToColor(f);
     ImageU8 mask = inpainting::ProjectRegions(set->labels, depth, f.color_camera, local_from_cam,
                                               options_.region);
     const int roi = inpainting::CountNonZero(mask);
+    inpainting::RgbdKeyframe frame{f.color, std::move(depth), f.color_camera, local_from_cam};
     Job job;
     {
       std::lock_guard lock(mu_);
@@ -79,27 +128,33 @@ class InpaintingStageImpl final : public InpaintingStage {
         return absl::OkStatus();
       }
       ++frames_with_roi_;
-      std::vector<inpainting::KeyframeView> views;
-      for (const Keyframe& k : keyframes_)
-        views.push_back({&k.result->mask, &k.result->depth_m, k.result->camera, k.local_from_cam});
-      const inpainting::KeyframeDecision d =
-          inpainting::DecideKeyframe(mask, f.color_camera, local_from_cam, views, options_.policy);
+      if (job_ || busy_) {
+        ++skipped_busy_;
+        AddObservationLocked(frame, mask, index);
+        return absl::OkStatus();
+      }
+      const inpainting::KeyframeDecision d = dr_.Decide(mask, f.color_camera, local_from_cam);
       decide_ns_ += SteadyNowNs() - t0;
       log::Get("inpainting")->debug("frame {}: ROI {} px, nearest keyframe {} at {:.3f}, {:.1f} % unlabelled -> {}",
                 f.sequence, roi, d.nearest, d.pose_distance, 100.0 * d.unlabelled_fraction,
                 d.insert ? d.reason : "no keyframe");
       ++decisions_;
-      if (!d.insert) return absl::OkStatus();
-      if (d.nearest >= 0 && keyframes_[d.nearest].result->source.width() > 0)
-        job.previous = keyframes_[d.nearest].result;
-      job.reason = d.reason;
+      if (d.insert) {
+        job.dr = dr_.MakeJob(frame, mask, d);
+        if (options_.method == "keyframe") {  // session 9: nothing is looked up
+          job.dr.views.clear();
+          job.dr.nearest.reset();
+        }
+        job.reason = d.reason;
+      }
+      AddObservationLocked(frame, mask, index);
+      if (!d.insert) {
+        // The worker is idle: a keyframe whose holes a newer observation may show is refreshed.
+        if (!PickRefreshLocked(&job)) return absl::OkStatus();
+        job.reason = "refresh";
+      }
     }
     job.regions = set;
-    job.frame.color = f.color;
-    job.frame.depth_m = std::move(depth);
-    job.frame.camera = f.color_camera;
-    job.frame.world_from_cam = local_from_cam;  // the library only needs one consistent frame
-    job.mask = std::move(mask);
     job.timestamp_s = f.timestamp_s;
     job.sequence = f.sequence;
     {
@@ -121,7 +176,7 @@ class InpaintingStageImpl final : public InpaintingStage {
     std::lock_guard lock(mu_);
     auto& c = *out;
     c["inpainting.regions"] = static_cast<double>(regions_->Get()->regions.size());
-    c["inpainting.keyframes"] = static_cast<double>(keyframes_.size());
+    c["inpainting.keyframes"] = static_cast<double>(ids_.size());
     c["inpainting.keyframes_published"] = static_cast<double>(published_);
     c["inpainting.keyframes_propagated"] = static_cast<double>(propagated_);
     c["inpainting.keyframes_discarded"] = static_cast<double>(discarded_);
@@ -129,20 +184,33 @@ class InpaintingStageImpl final : public InpaintingStage {
     c["inpainting.frames_with_roi"] = static_cast<double>(frames_with_roi_);
     c["inpainting.frames_without_roi"] = static_cast<double>(frames_without_roi_);
     c["inpainting.frames_skipped_busy"] = static_cast<double>(skipped_busy_);
+    c["inpainting.frames_skipped_stride"] = static_cast<double>(frames_strided_);
     c["inpainting.views_withdrawn"] = static_cast<double>(withdrawn_);
     c["inpainting.decide_ms_mean"] = decisions_ ? decide_ns_ * 1e-6 / decisions_ : 0.0;
     c["inpainting.first_keyframe_ms"] = first_ms_;
     c["inpainting.propagated_keyframe_ms_mean"] = propagated_ ? propagated_ms_ / propagated_ : 0.0;
     c["inpainting.keyframe_ms_last"] = last_ms_;
+    c["inpainting.keyframe_ms_mean"] = published_ ? sum_ms_ / published_ : 0.0;
+    c["inpainting.keyframe_cpu_ms_mean"] = published_ ? sum_cpu_ms_ / published_ : 0.0;
+    c["inpainting.keyframe_observed_fraction"] =
+        keyframe_roi_px_ ? static_cast<double>(keyframe_observed_px_) / keyframe_roi_px_ : 0.0;
+    c["inpainting.observation_views"] = static_cast<double>(dr_.observations());
+    c["inpainting.keyframes_refreshed"] = static_cast<double>(refreshed_);
+    c["inpainting.refreshed_pixels"] = static_cast<double>(refreshed_px_);
+    c["inpainting.refresh_jobs"] = static_cast<double>(refresh_jobs_);
+    c["inpainting.refresh_cpu_ms_total"] = refresh_cpu_ms_;
+    // CPU of the stage's per-frame work on the pipeline thread (registration, re-projection,
+    // the rule, observation copies), frames that got past the busy check.
+    c["inpainting.frame_cpu_ms_mean"] = frames_measured_ ? frame_cpu_ms_ / frames_measured_ : 0.0;
+    c["inpainting.in_flight"] = (job_ || busy_) ? 1.0 : 0.0;  // a keyframe is being computed
   }
 
   uint32_t Withdraw() override {
     std::lock_guard publish(publish_mu_);
-    std::vector<ViewId> ids;
     {
       std::lock_guard lock(mu_);
-      for (const Keyframe& k : keyframes_) ids.push_back(k.id);
-      keyframes_.clear();
+      dr_.Clear();
+      ids_.clear();
     }
     uint32_t n = 0;
     for (const auto& v : store_->Views())
@@ -164,21 +232,86 @@ class InpaintingStageImpl final : public InpaintingStage {
   }
 
  private:
+  void AddObservationLocked(const inpainting::RgbdKeyframe& frame, const ImageU8& mask,
+                            int64_t index) {
+    const bool due = dr_options_.obs_views > 0 && index % dr_options_.obs_stride == 0;
+    dr_.AddObservation(frame, mask, index);
+    if (due) ++obs_kept_;
+  }
+
+  // The oldest keyframe with holes that has not been looked up in the newest observations.
+  bool PickRefreshLocked(Job* job) {
+    if (options_.method != "dr" || options_.refresh_min_px <= 0) return false;
+    const auto& kfs = dr_.keyframes();
+    for (size_t i = 0; i < ids_.size() && i < kfs.size(); ++i) {
+      KeyframeMeta& m = ids_[i];
+      if (m.holes < options_.refresh_min_px || m.refreshed_at >= obs_kept_) continue;
+      job->refresh = kfs[i];
+      job->refresh_obs = obs_kept_;
+      job->dr.views = dr_.ViewsAround(*kfs[i]);
+      ++refresh_jobs_;
+      return true;
+    }
+    return false;
+  }
+
+  void PublishRefresh(const Job& job, DiminishedReality::Refresh r, double cpu_ms,
+                      const std::shared_ptr<spdlog::logger>& log) {
+    std::lock_guard publish(publish_mu_);
+    if (regions_->generation() != job.regions->generation) return;
+    std::optional<ViewId> id;
+    {
+      std::lock_guard lock(mu_);
+      const auto& kfs = dr_.keyframes();
+      for (size_t i = 0; i < ids_.size() && i < kfs.size(); ++i)
+        if (kfs[i] == job.refresh) {
+          ids_[i].refreshed_at = job.refresh_obs;
+          if (r.view && r.replaced >= options_.refresh_min_px) {
+            id = ids_[i].id;
+            ids_[i].holes = r.hallucinated_before - r.replaced;
+          }
+        }
+    }
+    if (!id) return;  // evicted meanwhile, or too little to republish
+    const inpainting::DrView& kv = *r.view;
+    StoredView v;
+    v.id = *id;
+    v.camera = kv.cam;
+    v.local_from_cam = kv.world_from_cam;
+    v.color = kv.color;
+    v.depth_m = kv.depth;
+    v.inpainted = true;
+    v.labels = kv.roi;
+    auto msg = ViewToProto(v, options_.publish);
+    if (!msg.ok()) return;
+    for (uint32_t rid : job.regions->ids()) msg->add_region_ids(rid);
+    {
+      ScopedDeltaSource source(job.timestamp_s);
+      store_->AddView(*std::move(msg));  // same id: replaces the keyframe for every viewer
+    }
+    std::lock_guard lock(mu_);
+    dr_.ReplaceKeyframe(job.refresh.get(), r.view);
+    ++refreshed_;
+    refreshed_px_ += r.replaced;
+    log->info("keyframe {} refreshed: {} of {} hallucinated pixels replaced by observations "
+              "({:.0f} ms CPU)", *id, r.replaced, r.hallucinated_before, cpu_ms);
+  }
+
   // A restarted server: the inpainted views of the checkpoint are the keyframes again (without
-  // their source maps, so the next keyframe is searched from scratch rather than propagated).
+  // their source maps, so the next keyframe is searched from scratch rather than propagated;
+  // their whole ROI counts as inpainted, so their colour there is never taken as observed).
   void RestoreFromStore() {
     for (const auto& v : store_->Views()) {
       if (!v->inpainted()) continue;
       next_id_ = std::max<ViewId>(next_id_, v->view_id() + 1);
       auto view = ViewFromProto(*v);
       if (!view.ok() || view->labels.empty()) continue;
-      auto r = std::make_shared<InpaintResult>();
-      r->color = view->color;
-      r->depth_m = view->depth_m;
-      r->camera = view->camera;
-      r->world_from_cam = view->local_from_cam;
-      r->mask = view->labels;
-      keyframes_.push_back({view->id, std::move(r), view->local_from_cam});
+      ImageU8 roi = view->labels;
+      for (size_t i = 0; i < roi.size(); ++i) roi.data()[i] = roi.data()[i] ? 255 : 0;
+      dr_.AddKeyframe(inpainting::MakeKeyframeView(
+          {view->color, view->depth_m, view->camera, view->local_from_cam}, roi, {}));
+      ids_.push_back({view->id, 0, inpainting::CountNonZero(roi)});
+      if (ids_.size() > options_.max_keyframes) ids_.pop_front();
     }
   }
 
@@ -194,10 +327,24 @@ class InpaintingStageImpl final : public InpaintingStage {
         job_.reset();
         busy_ = true;
       }
+      if (job.refresh) {
+        const double c0 = ThreadCpuMs();
+        auto r = DiminishedReality::RefreshKeyframe(*job.refresh, job.dr.views);
+        const double cpu_ms = ThreadCpuMs() - c0;
+        {
+          std::lock_guard lock(mu_);
+          refresh_cpu_ms_ += cpu_ms;
+        }
+        PublishRefresh(job, std::move(r), cpu_ms, log);
+        std::lock_guard lock(mu_);
+        busy_ = false;
+        idle_cv_.notify_all();
+        continue;
+      }
       const int64_t t0 = SteadyNowNs();
-      absl::StatusOr<InpaintResult> r =
-          inpainting::InpaintKeyframe(job.frame, job.mask, options_.inpaint, job.previous.get());
-      const double ms = (SteadyNowNs() - t0) * 1e-6;
+      const double c0 = ThreadCpuMs();
+      absl::StatusOr<DrKeyframe> r = DiminishedReality::ComputeKeyframe(job.dr, dr_options_);
+      const double ms = (SteadyNowNs() - t0) * 1e-6, cpu_ms = ThreadCpuMs() - c0;
       if (!r.ok()) {
         // E.g. "no valid source patch": the ROI stays as observed in this frame.
         log->warn("inpainting keyframe failed: {}", std::string(r.status().message()));
@@ -208,15 +355,14 @@ class InpaintingStageImpl final : public InpaintingStage {
         idle_cv_.notify_all();
         continue;
       }
-      Publish(job, std::make_shared<InpaintResult>(*std::move(r)), ms, log);
+      Publish(job, *std::move(r), ms, cpu_ms, log);
       std::lock_guard lock(mu_);
       busy_ = false;
       idle_cv_.notify_all();
     }
   }
 
-
-  void Publish(const Job& job, std::shared_ptr<const InpaintResult> r, double ms,
+  void Publish(const Job& job, DrKeyframe k, double ms, double cpu_ms,
                const std::shared_ptr<spdlog::logger>& log) {
     std::lock_guard publish(publish_mu_);
     if (regions_->generation() != job.regions->generation) {
@@ -224,17 +370,18 @@ class InpaintingStageImpl final : public InpaintingStage {
       ++discarded_;  // the regions changed while it was in flight
       return;
     }
+    const inpainting::DrView& kv = *k.view;
     StoredView v;
     {
       std::lock_guard lock(mu_);
       v.id = next_id_++;
     }
-    v.camera = r->camera;
-    v.local_from_cam = job.frame.world_from_cam;
-    v.color = r->color;
-    v.depth_m = r->depth_m;
+    v.camera = kv.cam;
+    v.local_from_cam = kv.world_from_cam;
+    v.color = kv.color;
+    v.depth_m = kv.depth;
     v.inpainted = true;
-    v.labels = r->mask;
+    v.labels = kv.roi;
     auto msg = ViewToProto(v, options_.publish);
     if (!msg.ok()) {
       log->warn("inpainted keyframe not published: {}", std::string(msg.status().message()));
@@ -247,18 +394,24 @@ class InpaintingStageImpl final : public InpaintingStage {
       ScopedDeltaSource source(job.timestamp_s);
       store_->AddView(*std::move(msg));
     }
+    const int roi_px = inpainting::CountNonZero(kv.roi);
     std::optional<ViewId> evict;
     {
       std::lock_guard lock(mu_);
-      keyframes_.push_back({v.id, r, v.local_from_cam});
-      if (keyframes_.size() > options_.max_keyframes) {
-        evict = keyframes_.front().id;
-        keyframes_.erase(keyframes_.begin());
+      dr_.AddKeyframe(k.view, &k);  // forgets its oldest beyond max_keyframes, as ids_ below
+      ids_.push_back({v.id, obs_kept_, k.hallucinated_px});
+      if (ids_.size() > options_.max_keyframes) {
+        evict = ids_.front().id;
+        ids_.pop_front();
       }
       ++published_;
       last_error_ = "ok";
       last_ms_ = ms;
-      if (job.previous) {
+      sum_ms_ += ms;
+      sum_cpu_ms_ += cpu_ms;
+      keyframe_roi_px_ += roi_px;
+      keyframe_observed_px_ += k.observed_px;
+      if (k.propagated) {
         ++propagated_;
         propagated_ms_ += ms;
       } else if (first_ms_ == 0.0) {
@@ -266,9 +419,10 @@ class InpaintingStageImpl final : public InpaintingStage {
       }
     }
     if (evict) (void)store_->RemoveView(*evict);
-    log->info("inpainted keyframe {} of frame {} ({}; {} ROI px, {} propagated) in {:.0f} ms",
-              v.id, job.sequence, job.reason, r->stats.target_pixels,
-              r->stats.propagated_pixels, ms);
+    log->info("inpainted keyframe {} of frame {} ({}; {} ROI px, {} observed in other views, {} "
+              "inpainted, {} propagated) in {:.0f} ms ({:.0f} ms CPU)",
+              v.id, job.sequence, job.reason, roi_px, k.observed_px, k.hallucinated_px,
+              k.stats.propagated_pixels, ms, cpu_ms);
   }
 
   void StopWorker() {
@@ -281,6 +435,8 @@ class InpaintingStageImpl final : public InpaintingStage {
   }
 
   const InpaintingStageOptions options_;
+  const DrOptions dr_options_;
+  DiminishedReality dr_;  // under mu_ (ComputeKeyframe works on a job's own snapshot)
   std::shared_ptr<RegionRegistry> regions_;
   ModelStore* store_;
   std::mutex publish_mu_;  // publish vs Withdraw
@@ -288,12 +444,21 @@ class InpaintingStageImpl final : public InpaintingStage {
   std::condition_variable cv_, idle_cv_;
   std::optional<Job> job_;
   bool busy_ = false, stop_ = false;
-  std::vector<Keyframe> keyframes_;
+  struct KeyframeMeta {
+    ViewId id = 0;
+    uint64_t refreshed_at = 0;  // obs_kept_ when it was made or last refreshed
+    int holes = 0;              // hallucinated pixels
+  };
+  std::deque<KeyframeMeta> ids_;  // the published keyframes, in dr_.keyframes() order
+  uint64_t obs_kept_ = 0;         // observation views kept so far
   ViewId next_id_ = kInpaintedViewIdBase;
   uint64_t published_ = 0, propagated_ = 0, discarded_ = 0, failed_ = 0, frames_with_roi_ = 0,
-           frames_without_roi_ = 0, skipped_busy_ = 0, withdrawn_ = 0, decisions_ = 0;
-  int64_t decide_ns_ = 0;
-  double first_ms_ = 0, propagated_ms_ = 0, last_ms_ = 0;
+           frames_without_roi_ = 0, skipped_busy_ = 0, withdrawn_ = 0, decisions_ = 0,
+           frames_seen_ = 0, frames_strided_ = 0, refreshed_ = 0, refreshed_px_ = 0, refresh_jobs_ = 0;
+  int64_t decide_ns_ = 0, keyframe_roi_px_ = 0, keyframe_observed_px_ = 0;
+  double first_ms_ = 0, propagated_ms_ = 0, last_ms_ = 0, sum_ms_ = 0, sum_cpu_ms_ = 0;
+  double refresh_cpu_ms_ = 0, frame_cpu_ms_ = 0;  // worker's refreshes; pipeline thread per frame
+  uint64_t frames_measured_ = 0;
   std::string last_error_;
   std::thread worker_;
 };

@@ -1,12 +1,20 @@
 // Pipeline stage "inpainting" (InpaintFusion, SPEC §7): diminished reality for the marked
 // regions. For every frame the stage re-projects the L_ROI labels (RegionRegistry) into the frame
 // (its registered depth and pose) and applies the keyframe rule (pose distance > 0.7 from the
-// nearest keyframe, or > 10 % of the ROI not covered by it; keyframe_policy.h). A new keyframe is
-// inpainted on the stage's own worker thread (PatchMatch colour + Poisson depth,
-// server/inpainting/inpaint.h), initialised by propagation of the nearest keyframe's offsets
-// (4.3-4.6), and published as a ViewAdded with `inpainted` set and its label mask. The slot for
-// waiting work is bounded (one job in flight, none queued): while a keyframe is computed, frames
-// are only counted, so the stage never slows ingest down. The frames themselves are never
+// nearest keyframe, or > 10 % of the ROI not covered by it; keyframe_policy.h). The keyframes
+// are those of the library's DiminishedReality (server/inpainting/dr_compositor.h, method "dr",
+// the default): every 10th frame with the ROI visible is kept as an observation view (its ROI
+// unusable), and a new keyframe takes the colour of each ROI pixel that an earlier view OBSERVED
+// (at the background depth warped from the nearest keyframe); PatchMatch colour + Poisson depth
+// (server/inpainting/inpaint.h), propagated from the nearest keyframe (4.3-4.6), fill only the
+// rest. Method "keyframe" is session 9's: the whole ROI inpainted, no observations. A keyframe
+// is computed on the stage's own worker thread and published as a ViewAdded with `inpainted`
+// set and its label mask. The slot for waiting work is bounded (one job in flight, none queued):
+// while a keyframe is computed, frames are only counted (every obs_stride-th is still kept as an
+// observation), so the stage never slows ingest down. When the worker is idle and a new
+// observation view was kept, the worker refreshes one keyframe: its hallucinated pixels that an
+// observation now shows take the observed colour (observations preferred, SPEC §7), and the
+// keyframe is republished under the same view id. The frames themselves are never
 // changed, so planning, refinement and tracking never see inpainted pixels; inpainted views are
 // never referenced by cells. Clearing a region withdraws every inpainted view (Withdraw) and a
 // keyframe still in flight for the old regions is discarded (generation check under the publish
@@ -16,6 +24,7 @@
 #include <memory>
 
 #include "proto/model_proto.h"
+#include "server/inpainting/dr_compositor.h"
 #include "server/inpainting/inpaint.h"
 #include "server/inpainting/keyframe_policy.h"
 #include "server/service/pipeline.h"
@@ -35,6 +44,17 @@ struct InpaintingStageOptions {
   inpainting::KeyframePolicyOptions policy;
   inpainting::RegionOptions region;  // re-projection margins (the registry's options)
   size_t max_keyframes = 16;  // oldest inpainted keyframe withdrawn beyond this
+  // "dr": the session-11 keyframes (observed colour first, observation views); "keyframe": the
+  // session-9 keyframes (the whole ROI inpainted).
+  std::string method = "dr";
+  int observation_views = 24;   // "dr": observation views kept (memory: ~2 MB each at 640x480)
+  int observation_stride = 10;  // "dr": every Nth frame (of all frames) with the ROI visible is one
+  // The stage looks at every Nth frame only (re-projection, rule, observation): 1 = every frame.
+  int frame_stride = 1;
+  // "dr": when the worker is idle, a keyframe's hallucinated pixels that a newer observation view
+  // saw are replaced by the observation and the keyframe is republished (same view id), once at
+  // least this many pixels changed (0 = never).
+  int refresh_min_px = 16;
   ViewEncodeOptions publish;
   absl::Status Validate() const;
 };
