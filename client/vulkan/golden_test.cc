@@ -108,6 +108,13 @@ absl::StatusOr<Fixture> MakeFixture(synth::SceneKind kind, bool eye_level_sky = 
   return f;
 }
 
+int MaxDiff(const ImageU8& a, const ImageU8& b) {
+  int m = 0;
+  for (size_t i = 0; i < a.size(); ++i)
+    m = std::max(m, std::abs(int(a.data()[i]) - int(b.data()[i])));
+  return m;
+}
+
 struct Agreement {
   size_t compared = 0, within = 0, coverage_mismatch = 0, value_mismatch = 0;
   double psnr = 0;
@@ -259,6 +266,47 @@ TEST(GoldenBlendOptionsTest, EveryNBestAndPositionalModeMatchCpuReference) {
     const auto errs = r->ValidationErrors();
     EXPECT_TRUE(errs.empty()) << errs.size() << " validation messages, first: " << errs[0];
   }
+}
+
+// RenderApprox::max_candidates (the viewer window's moving frames): a cap at or above the most
+// references of any cell renders exactly what the uncapped blend renders (bit for bit); a cap of
+// 1 changes pixels of cells with many references (it is an approximation that can fail to be
+// one) but stays close to the exact frame.
+TEST(GoldenApproxTest, CandidateCapIsExactWhenLargeAndCloseWhenSmall) {
+  auto fx = MakeFixture(synth::SceneKind::kVillage);
+  ASSERT_TRUE(fx.ok()) << fx.status();
+  size_t max_refs = 0;
+  for (const auto& [c, refs] : fx->model.cell_refs) max_refs = std::max(max_refs, refs.size());
+  ASSERT_GT(max_refs, 3u);
+  VulkanRendererOptions vo;
+  vo.enable_validation = true;
+  auto gpu = VulkanRenderer::Create(vo);
+  ASSERT_TRUE(gpu.ok()) << gpu.status();
+  ASSERT_TRUE((*gpu)->SyncModel(fx->model).ok());
+  blend::BlendOptions bo;
+  size_t changed = 0, covered = 0;
+  double worst_psnr = 1e9;
+  for (size_t i = 0; i < fx->novel.size(); i += 3) {
+    auto exact = (*gpu)->Render(fx->camera, fx->novel[i], bo);
+    ASSERT_TRUE(exact.ok()) << exact.status();
+    auto large = (*gpu)->Render(fx->camera, fx->novel[i], bo, {int(max_refs)});
+    ASSERT_TRUE(large.ok()) << large.status();
+    EXPECT_EQ(MaxDiff(large->color, exact->color), 0) << "frame " << i;
+    auto one = (*gpu)->Render(fx->camera, fx->novel[i], bo, {1});
+    ASSERT_TRUE(one.ok()) << one.status();
+    const Agreement ag = Compare(one->color, exact->color, exact->coverage, one->coverage,
+                                 exact->coverage);
+    changed += ag.compared - ag.within;
+    covered += ag.compared;
+    worst_psnr = std::min(worst_psnr, ag.psnr);
+  }
+  fprintf(stderr, "[golden approx] cap 1: %zu of %zu px differ by > 2/255, worst PSNR %.1f dB\n",
+          changed, covered, worst_psnr);
+  EXPECT_GT(changed, 0u) << "a cap of 1 reference changed nothing: the cap is not applied";
+  EXPECT_GE(worst_psnr, 20.0);
+  EXPECT_FALSE((*gpu)->Render(fx->camera, fx->novel[0], bo, {-1}).ok());
+  const auto errs = (*gpu)->ValidationErrors();
+  EXPECT_TRUE(errs.empty()) << errs.size() << " validation messages, first: " << errs[0];
 }
 
 // Background at infinity (sky) on eye-level village views with a third of the frame sky: CPU and

@@ -39,6 +39,7 @@ struct WindowAppOptions {
   bool bench = false;
   int bench_frames = 40;
   std::string bench_json, bench_label;
+  std::string bench_modes = "adaptive_budget,adaptive_fixed,full_always";
 };
 
 // Runs the app; returns the process exit code (0 ok, 1 runtime error, 2 bad input).
