@@ -268,42 +268,50 @@ TEST(GoldenBlendOptionsTest, EveryNBestAndPositionalModeMatchCpuReference) {
   }
 }
 
-// RenderApprox::max_candidates (the viewer window's moving frames): a cap at or above the most
-// references of any cell renders exactly what the uncapped blend renders (bit for bit); a cap of
-// 1 changes pixels of cells with many references (it is an approximation that can fail to be
-// one) but stays close to the exact frame.
-TEST(GoldenApproxTest, CandidateCapIsExactWhenLargeAndCloseWhenSmall) {
+// RenderApprox::max_candidates (the viewer window's moving frames): the references of a cell are
+// ordered by an estimate (the weight at the cell centre; views that do not see it last) and at
+// most K are evaluated. Not exact, so checked for closeness to the exact frame: K = 8 close
+// (PSNR floor), K = 1 visibly different (the cap is applied), K < 0 rejected.
+TEST(GoldenApproxTest, CandidateCapStaysCloseToTheExactBlend) {
   auto fx = MakeFixture(synth::SceneKind::kVillage);
   ASSERT_TRUE(fx.ok()) << fx.status();
   size_t max_refs = 0;
   for (const auto& [c, refs] : fx->model.cell_refs) max_refs = std::max(max_refs, refs.size());
-  ASSERT_GT(max_refs, 3u);
+  ASSERT_GT(max_refs, 8u);
   VulkanRendererOptions vo;
   vo.enable_validation = true;
   auto gpu = VulkanRenderer::Create(vo);
   ASSERT_TRUE(gpu.ok()) << gpu.status();
   ASSERT_TRUE((*gpu)->SyncModel(fx->model).ok());
   blend::BlendOptions bo;
-  size_t changed = 0, covered = 0;
-  double worst_psnr = 1e9;
-  for (size_t i = 0; i < fx->novel.size(); i += 3) {
-    auto exact = (*gpu)->Render(fx->camera, fx->novel[i], bo);
-    ASSERT_TRUE(exact.ok()) << exact.status();
-    auto large = (*gpu)->Render(fx->camera, fx->novel[i], bo, {int(max_refs)});
-    ASSERT_TRUE(large.ok()) << large.status();
-    EXPECT_EQ(MaxDiff(large->color, exact->color), 0) << "frame " << i;
-    auto one = (*gpu)->Render(fx->camera, fx->novel[i], bo, {1});
-    ASSERT_TRUE(one.ok()) << one.status();
-    const Agreement ag = Compare(one->color, exact->color, exact->coverage, one->coverage,
-                                 exact->coverage);
-    changed += ag.compared - ag.within;
-    covered += ag.compared;
-    worst_psnr = std::min(worst_psnr, ag.psnr);
+  for (int cap : {8, 1}) {
+    size_t changed = 0, covered = 0;
+    double worst_psnr = 1e9;
+    for (size_t i = 0; i < fx->novel.size(); i += 3) {
+      auto exact = (*gpu)->Render(fx->camera, fx->novel[i], bo);
+      ASSERT_TRUE(exact.ok()) << exact.status();
+      auto capped = (*gpu)->Render(fx->camera, fx->novel[i], bo, {cap});
+      ASSERT_TRUE(capped.ok()) << capped.status();
+      const Agreement ag = Compare(capped->color, exact->color, exact->coverage,
+                                   capped->coverage, exact->coverage);
+      changed += ag.compared - ag.within;
+      covered += ag.compared;
+      worst_psnr = std::min(worst_psnr, ag.psnr);
+    }
+    fprintf(stderr, "[golden approx] cap %d (max refs %zu): %zu of %zu px differ by > 2/255, "
+            "worst PSNR %.1f dB\n", cap, max_refs, changed, covered, worst_psnr);
+    if (cap == 8) {
+      EXPECT_GE(worst_psnr, 35.0);
+    } else {
+      EXPECT_GT(changed, covered / 20) << "a cap of 1 changed little: not applied?";
+    }
   }
-  fprintf(stderr, "[golden approx] cap 1: %zu of %zu px differ by > 2/255, worst PSNR %.1f dB\n",
-          changed, covered, worst_psnr);
-  EXPECT_GT(changed, 0u) << "a cap of 1 reference changed nothing: the cap is not applied";
-  EXPECT_GE(worst_psnr, 20.0);
+  // The exact blend is unchanged by an approximate frame before it.
+  auto a = (*gpu)->Render(fx->camera, fx->novel[0], bo);
+  ASSERT_TRUE((*gpu)->Render(fx->camera, fx->novel[0], bo, {1}).ok());
+  auto b = (*gpu)->Render(fx->camera, fx->novel[0], bo);
+  ASSERT_TRUE(a.ok() && b.ok());
+  EXPECT_EQ(MaxDiff(a->color, b->color), 0);
   EXPECT_FALSE((*gpu)->Render(fx->camera, fx->novel[0], bo, {-1}).ok());
   const auto errs = (*gpu)->ValidationErrors();
   EXPECT_TRUE(errs.empty()) << errs.size() << " validation messages, first: " << errs[0];

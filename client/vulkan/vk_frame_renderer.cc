@@ -346,7 +346,8 @@ absl::StatusOr<RenderResult> FrameRenderer::Render(const PinholeCamera& camera,
   f.bg_params.y = approx.max_candidates;  // blend_shade.glsl: 0 = every reference (exact)
   std::memcpy(frame_ubo_.mapped, &f, sizeof(f));
   const auto tr = Clock::now();
-  cells_.RankRefs(glm::vec3(f.cam_centre_cell), camera, local_from_cam, grid_.cell_size_m, bo);
+  cells_.RankRefs(glm::vec3(f.cam_centre_cell), camera, local_from_cam, grid_.cell_size_m, bo,
+                  /*by_centre_weight=*/approx.max_candidates > 0);
   r.rank_ms = MsSince(tr);
   const auto t0 = Clock::now();
   EXO_RETURN_IF_ERROR(DrawBlend(bo, f.bg_params.x, f.ip_params.x > 0));

@@ -24,6 +24,9 @@ struct WindowAppOptions {
   bool adaptive = true;
   int moving_divisor = 4;   // start divisor while moving
   double target_ms = 33.3;  // moving frame budget (0 = keep moving_divisor)
+  // References a pixel evaluates in a moving frame (RenderApprox::max_candidates; 0 = all,
+  // exact). Frames after the camera stops are always exact.
+  int moving_candidates = 8;
   int start_view = -1;      // initial pose: this stored view (default: the smallest id)
   bool overlays = true;     // HUD + scene overlays at start (Tab toggles)
   std::string record;       // TUM path of the session, written at exit
