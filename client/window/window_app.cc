@@ -466,8 +466,11 @@ class App {
     ImGui::Begin("Exoview", nullptr,
                  ImGuiWindowFlags_NoDecoration | ImGuiWindowFlags_AlwaysAutoResize |
                      ImGuiWindowFlags_NoFocusOnAppearing | ImGuiWindowFlags_NoNav);
-    ImGui::Text("frame %.1f ms (%.0f fps)  render %.1f ms  present %.1f ms", frame_ms_,
-                frame_ms_ > 0 ? 1000.0 / frame_ms_ : 0.0, render_ms_, present_ms_);
+    if (frame_moving_)
+      ImGui::Text("frame %.1f ms (%.0f fps)  render %.1f ms  present %.1f ms", frame_ms_,
+                  frame_ms_ > 0 ? 1000.0 / frame_ms_ : 0.0, render_ms_, present_ms_);
+    else
+      ImGui::Text("still: refined in %.1f ms  present %.1f ms", render_ms_, present_ms_);
     auto stage_name = [](int d) {
       return d == 1 ? "full" : d == 2 ? "1/2" : d == 4 ? "1/4" : d == 8 ? "1/8" : "?";
     };
@@ -565,9 +568,10 @@ class App {
         [this](const nav::RenderJob& j, WindowFrame* f) -> absl::Status {
           const int W = j.request.width, H = j.request.height, d = j.divisor;
           const Rigid3d& pose = j.request.pose;
-          // Moving frames (the view changed) may be approximate; refinements are exact.
+          // Reduced-resolution frames for a moving camera may be approximate; refinements and
+          // every full-resolution frame (the one left on screen) are exact.
           EXO_ASSIGN_OR_RETURN(RenderResult r, RenderFull(pose, std::max(1, W / d),
-                                                          std::max(1, H / d), j.changed));
+                                                          std::max(1, H / d), j.changed && d > 1));
           f->image = std::move(r.color);
           f->gpu_ms = r.gpu_ms;
           if (want_occ_.load()) {
@@ -753,7 +757,10 @@ class App {
       if (auto st = sched->status(); !st.ok()) return Fail(st);
       std::optional<Scheduler::Done> nf = sched->TakeFrame();
       if (nf) {
-        frame_ms_ = MsSince(t_new_frame);  // what the person sees: time between new pictures
+        // While moving, what the person sees: the time between new pictures (refinement frames
+        // after the camera stopped say their render time instead).
+        frame_ms_ = nf->job.changed ? MsSince(t_new_frame) : nf->render_ms;
+        frame_moving_ = nf->job.changed;
         t_new_frame = Clock::now();
         shown = std::move(nf);
         info = shown->frame.info;
@@ -1167,7 +1174,8 @@ class App {
   std::optional<nav::PickResult> centre_pick_, cursor_pick_;
   std::string last_sync_state_;
   std::atomic<bool> want_occ_{false};  // the render thread adds the overlays' proxy depth
-  double ui_max_gap_ms_ = 0;  // longest UI-loop iteration (input to present), waits excluded
+  double ui_max_gap_ms_ = 0;
+  bool frame_moving_ = true;  // the frame on screen was rendered for a moving camera  // longest UI-loop iteration (input to present), waits excluded
 };
 
 }  // namespace
