@@ -220,6 +220,9 @@ vec4 ShadeSurface(vec3 x) {
                  vec4(clamp(uv, vec2(0.0), size - 1.0), float(layer), ce.w));
   }
   if (in_roi) count = 0u;
+  // RenderApprox::max_candidates (vulkan_renderer.h): at most this many references, in rank
+  // order (0 = all: exact).
+  if (frame.bg_params.y > 0) count = min(count, uint(frame.bg_params.y));
   for (uint i = 0u; i < count; ++i) {
     const int t = int(2u * (offset + i));
     const uvec4 r0 = texelFetch(ranked_refs, t);

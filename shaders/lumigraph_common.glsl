@@ -204,7 +204,7 @@ layout(std140, set = 0, binding = 0) uniform Frame {
   // mat3(local_from_pixel) * (x, y, 1); bg_params.x background views, each kBgViewTexels vec4:
   // cam_from_local columns 0..2, intrinsics (fx, fy, cx, cy), (width, height, layer, exposure).
   vec4 local_from_pixel[3];
-  ivec4 bg_params;
+  ivec4 bg_params;  // y: RenderApprox::max_candidates (0 = every reference)
   vec4 bg_views[kBgViewTexels * kMaxBackgroundViews];
   // InpaintFusion (SPEC §7): ip_params.x inpainted keyframes (nearest first), their layers.
   ivec4 ip_params;

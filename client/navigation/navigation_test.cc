@@ -2,10 +2,15 @@
 
 #include <gtest/gtest.h>
 
+#include <atomic>
+#include <condition_variable>
 #include <cstdio>
+#include <mutex>
+#include <thread>
 #include <filesystem>
 #include <fstream>
 
+#include "client/navigation/render_scheduler.h"
 #include "common/synth/render.h"
 #include "common/synth/scene.h"
 #include "common/synth/trajectory.h"
@@ -218,6 +223,158 @@ TEST(TumPath, RoundTripsAndNamesTheBadLine) {
   std::ofstream(file) << "1 0 0 0 0 0 0 2\n";
   EXPECT_NE(ReadTumPath(file).status().message().find("not unit"), std::string::npos);
   EXPECT_TRUE(absl::IsNotFound(ReadTumPath(dir + "/missing.txt").status()));
+}
+
+
+// ---- the render thread (render_scheduler.h) ----
+namespace sched {
+
+struct Log {
+  std::mutex mu;
+  std::condition_variable cv;
+  std::vector<RenderJob> jobs;
+  bool gate_open = true, in_render = false;
+};
+
+ViewRequest At(double z) {
+  ViewRequest r;
+  r.pose.translation = {0, 0, z};
+  r.width = 64;
+  r.height = 48;
+  return r;
+}
+
+AdaptiveOptions Fixed4() {
+  AdaptiveOptions o;
+  o.moving_divisor = 4;
+  o.target_ms = 0;  // keep the moving divisor
+  return o;
+}
+
+// Waits (bounded) for pred; false on timeout.
+template <typename P>
+bool WaitFor(P pred, double seconds = 20) {
+  const auto t0 = std::chrono::steady_clock::now();
+  while (!pred()) {
+    if (std::chrono::steady_clock::now() - t0 > std::chrono::duration<double>(seconds))
+      return false;
+    std::this_thread::sleep_for(std::chrono::milliseconds(2));
+  }
+  return true;
+}
+
+}  // namespace sched
+
+TEST(RenderScheduler, RefinesToFullResolutionThenStops) {
+  sched::Log log;
+  std::atomic<int> wakes{0};
+  RenderScheduler<int> s(
+      sched::Fixed4(),
+      [&](const RenderJob& j, int* f) {
+        std::lock_guard lock(log.mu);
+        log.jobs.push_back(j);
+        *f = j.divisor;
+        return absl::OkStatus();
+      },
+      [] { return absl::StatusOr<bool>(false); }, [&] { wakes.fetch_add(1); }, 20);
+  s.Post(sched::At(1));
+  ASSERT_TRUE(sched::WaitFor([&] { return s.converged(); }));
+  std::this_thread::sleep_for(std::chrono::milliseconds(100));  // several idle polls: no renders
+  {
+    std::lock_guard lock(log.mu);
+    ASSERT_EQ(log.jobs.size(), 3u);
+    EXPECT_EQ(log.jobs[0].divisor, 4);
+    EXPECT_TRUE(log.jobs[0].changed);
+    EXPECT_EQ(log.jobs[1].divisor, 2);
+    EXPECT_FALSE(log.jobs[1].changed);
+    EXPECT_EQ(log.jobs[2].divisor, 1);
+  }
+  EXPECT_EQ(wakes.load(), 3);
+  auto d = s.TakeFrame();  // only the newest is kept
+  ASSERT_TRUE(d.has_value());
+  EXPECT_EQ(d->seq, 3u);
+  EXPECT_EQ(d->frame, 1);
+  EXPECT_FALSE(s.TakeFrame().has_value());
+  // The same view again is no work; a new epoch is.
+  s.Post(sched::At(1));
+  ViewRequest forced = sched::At(1);
+  forced.epoch = 1;
+  s.Post(forced);
+  EXPECT_TRUE(sched::WaitFor([&] { return s.frames_rendered() == 6 && s.converged(); }));
+}
+
+// While a full-resolution frame renders, the UI thread posts and takes frames without waiting;
+// the views posted meanwhile are coalesced into the newest, rendered next at the moving divisor.
+TEST(RenderScheduler, PostAndTakeNeverWaitForARenderAndCoalesce) {
+  sched::Log log;
+  log.gate_open = false;
+  RenderScheduler<int> s(
+      sched::Fixed4(),
+      [&](const RenderJob& j, int* f) {
+        std::unique_lock lock(log.mu);
+        log.jobs.push_back(j);
+        *f = j.divisor;
+        if (j.divisor == 1) {
+          log.in_render = true;
+          log.cv.wait(lock, [&] { return log.gate_open; });
+          log.in_render = false;
+        }
+        return absl::OkStatus();
+      },
+      [] { return absl::StatusOr<bool>(false); }, [] {}, 20);
+  s.Post(sched::At(1));
+  ASSERT_TRUE(sched::WaitFor([&] {
+    std::lock_guard lock(log.mu);
+    return log.in_render;
+  }));
+  EXPECT_EQ(s.busy_divisor(), 1);
+  s.Post(sched::At(2));  // returns although the render is blocked ...
+  s.Post(sched::At(3));
+  auto half = s.TakeFrame();  // ... and so does this, with the ½ frame
+  {
+    std::lock_guard lock(log.mu);
+    EXPECT_TRUE(log.in_render);  // still blocked: nothing above waited for it
+  }
+  ASSERT_TRUE(half.has_value());
+  EXPECT_EQ(half->job.divisor, 2);
+  EXPECT_FALSE(s.converged());
+  {
+    std::lock_guard lock(log.mu);
+    log.gate_open = true;
+  }
+  log.cv.notify_all();
+  ASSERT_TRUE(sched::WaitFor([&] { return s.converged(); }));
+  std::lock_guard lock(log.mu);
+  ASSERT_EQ(log.jobs.size(), 6u);  // 4 2 1 at z=1, then 4 2 1 at z=3; z=2 never rendered
+  EXPECT_EQ(log.jobs[3].request.pose.translation.z, 3.0);
+  EXPECT_TRUE(log.jobs[3].changed);
+  EXPECT_EQ(log.jobs[3].divisor, 4);
+  EXPECT_EQ(log.jobs[5].divisor, 1);
+  EXPECT_TRUE(s.status().ok());
+}
+
+TEST(RenderScheduler, ModelChangeRerendersAndErrorsStopTheWorker) {
+  std::atomic<bool> model_changed{false};
+  std::atomic<int> renders{0};
+  std::atomic<bool> fail{false};
+  RenderScheduler<int> s(
+      sched::Fixed4(),
+      [&](const RenderJob& j, int*) {
+        renders.fetch_add(1);
+        if (fail.load()) return absl::InternalError("device lost");
+        return absl::OkStatus();
+      },
+      [&] { return absl::StatusOr<bool>(model_changed.exchange(false)); }, [] {}, 5);
+  s.Post(sched::At(1));
+  ASSERT_TRUE(sched::WaitFor([&] { return s.converged(); }));
+  EXPECT_EQ(renders.load(), 3);
+  model_changed = true;  // e.g. a live delta arrived: picked up by the idle poll
+  ASSERT_TRUE(sched::WaitFor([&] { return renders.load() == 6 && s.converged(); }));
+  fail = true;
+  s.Post(sched::At(2));
+  ASSERT_TRUE(sched::WaitFor([&] { return !s.status().ok(); }));
+  EXPECT_EQ(s.status().message(), "device lost");
+  s.Stop();
 }
 
 }  // namespace

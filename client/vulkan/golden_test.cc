@@ -108,6 +108,13 @@ absl::StatusOr<Fixture> MakeFixture(synth::SceneKind kind, bool eye_level_sky = 
   return f;
 }
 
+int MaxDiff(const ImageU8& a, const ImageU8& b) {
+  int m = 0;
+  for (size_t i = 0; i < a.size(); ++i)
+    m = std::max(m, std::abs(int(a.data()[i]) - int(b.data()[i])));
+  return m;
+}
+
 struct Agreement {
   size_t compared = 0, within = 0, coverage_mismatch = 0, value_mismatch = 0;
   double psnr = 0;
@@ -259,6 +266,55 @@ TEST(GoldenBlendOptionsTest, EveryNBestAndPositionalModeMatchCpuReference) {
     const auto errs = r->ValidationErrors();
     EXPECT_TRUE(errs.empty()) << errs.size() << " validation messages, first: " << errs[0];
   }
+}
+
+// RenderApprox::max_candidates (the viewer window's moving frames): the references of a cell are
+// ordered by an estimate (the weight at the cell centre; views that do not see it last) and at
+// most K are evaluated. Not exact, so checked for closeness to the exact frame: K = 8 close
+// (PSNR floor), K = 1 visibly different (the cap is applied), K < 0 rejected.
+TEST(GoldenApproxTest, CandidateCapStaysCloseToTheExactBlend) {
+  auto fx = MakeFixture(synth::SceneKind::kVillage);
+  ASSERT_TRUE(fx.ok()) << fx.status();
+  size_t max_refs = 0;
+  for (const auto& [c, refs] : fx->model.cell_refs) max_refs = std::max(max_refs, refs.size());
+  ASSERT_GT(max_refs, 8u);
+  VulkanRendererOptions vo;
+  vo.enable_validation = true;
+  auto gpu = VulkanRenderer::Create(vo);
+  ASSERT_TRUE(gpu.ok()) << gpu.status();
+  ASSERT_TRUE((*gpu)->SyncModel(fx->model).ok());
+  blend::BlendOptions bo;
+  for (int cap : {8, 1}) {
+    size_t changed = 0, covered = 0;
+    double worst_psnr = 1e9;
+    for (size_t i = 0; i < fx->novel.size(); i += 3) {
+      auto exact = (*gpu)->Render(fx->camera, fx->novel[i], bo);
+      ASSERT_TRUE(exact.ok()) << exact.status();
+      auto capped = (*gpu)->Render(fx->camera, fx->novel[i], bo, {cap});
+      ASSERT_TRUE(capped.ok()) << capped.status();
+      const Agreement ag = Compare(capped->color, exact->color, exact->coverage,
+                                   capped->coverage, exact->coverage);
+      changed += ag.compared - ag.within;
+      covered += ag.compared;
+      worst_psnr = std::min(worst_psnr, ag.psnr);
+    }
+    fprintf(stderr, "[golden approx] cap %d (max refs %zu): %zu of %zu px differ by > 2/255, "
+            "worst PSNR %.1f dB\n", cap, max_refs, changed, covered, worst_psnr);
+    if (cap == 8) {
+      EXPECT_GE(worst_psnr, 35.0);
+    } else {
+      EXPECT_GT(changed, covered / 20) << "a cap of 1 changed little: not applied?";
+    }
+  }
+  // The exact blend is unchanged by an approximate frame before it.
+  auto a = (*gpu)->Render(fx->camera, fx->novel[0], bo);
+  ASSERT_TRUE((*gpu)->Render(fx->camera, fx->novel[0], bo, {1}).ok());
+  auto b = (*gpu)->Render(fx->camera, fx->novel[0], bo);
+  ASSERT_TRUE(a.ok() && b.ok());
+  EXPECT_EQ(MaxDiff(a->color, b->color), 0);
+  EXPECT_FALSE((*gpu)->Render(fx->camera, fx->novel[0], bo, {-1}).ok());
+  const auto errs = (*gpu)->ValidationErrors();
+  EXPECT_TRUE(errs.empty()) << errs.size() << " validation messages, first: " << errs[0];
 }
 
 // Background at infinity (sky) on eye-level village views with a third of the frame sky: CPU and

@@ -233,7 +233,7 @@ void WriteRankedSlot(const GpuView* v, float bound, uint32_t position, glm::uvec
 }  // namespace
 
 void CellTable::RankCell(const Entry& c, const glm::dvec3& m, double r, const glm::dvec3& c_o,
-                         const blend::BlendOptions& bo) {
+                         bool by_centre, const blend::BlendOptions& bo) {
   const size_t per_slab = size_t(opt_.max_refs_per_cell);
   const uint32_t* slots = static_cast<const uint32_t*>(refs_buf_.mapped) + c.slab * per_slab;
   const GpuView* recs = views_.records();
@@ -246,7 +246,21 @@ void CellTable::RankCell(const Entry& c, const glm::dvec3& m, double r, const gl
       continue;
     }
     const glm::dvec3 c_i(glm::vec3(recs[slot].centre_exposure));
-    rank_scratch_.emplace_back(BlendWeightUpperBound(m, r, c_o, c_i, bo), uint32_t(i));
+    if (!by_centre) {
+      rank_scratch_.emplace_back(BlendWeightUpperBound(m, r, c_o, c_i, bo), uint32_t(i));
+      continue;
+    }
+    // Estimate: the weight at the centre (a ball of radius 0), times 1e-3 when the view does
+    // not see the centre (behind it or outside its image: most likely invalid at the cell).
+    float key = BlendWeightUpperBound(m, 0.0, c_o, c_i, bo);
+    const GpuView& v = recs[slot];
+    const glm::vec4 hm(glm::vec3(m), 1.0f);
+    const float z = glm::dot(v.p2, hm);
+    const float u = glm::dot(v.p0, hm) / z, w = glm::dot(v.p1, hm) / z;
+    if (!(z > 0.0f && u >= -0.5f && w >= -0.5f && u < v.size_layer.x - 0.5f &&
+          w < v.size_layer.y - 0.5f))
+      key *= 1e-3f;
+    rank_scratch_.emplace_back(key, uint32_t(i));
   }
   std::stable_sort(rank_scratch_.begin(), rank_scratch_.end(),
                    [](const auto& x, const auto& y) { return x.first > y.first; });
@@ -278,7 +292,7 @@ void CellTable::RankCell(const Entry& c, const glm::dvec3& m, double r, const gl
 // stale records are never read (exact).
 void CellTable::RankRefs(const glm::vec3& c_o_f, const PinholeCamera& cam,
                          const Rigid3d& local_from_cam, double cell_size_m,
-                         const blend::BlendOptions& bo) {
+                         const blend::BlendOptions& bo, bool by_centre_weight) {
   const double q = cell_size_m;
   const glm::dvec3 c_o(c_o_f);
   const glm::dmat3 cam_from_local = glm::transpose(local_from_cam.RotationMatrix());
@@ -290,7 +304,7 @@ void CellTable::RankRefs(const glm::vec3& c_o_f, const PinholeCamera& cam,
     const glm::dvec3 m_cam = cam_from_local * (m - c_o);
     bool outside = false;
     for (const glm::dvec3& n : planes) outside = outside || glm::dot(n, m_cam) < -1.01 * r;
-    if (!outside) RankCell(c, m, r, c_o, bo);
+    if (!outside) RankCell(c, m, r, c_o, by_centre_weight, bo);
   }
 }
 

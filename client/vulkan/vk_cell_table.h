@@ -38,9 +38,11 @@ class CellTable {
   absl::Status SetRefs(CellId id, std::span<const ViewId> refs);
   // Rewrites the slabs of the cells that reference `view` (after it arrived or left).
   void RefreshCellsOf(ViewId view);
-  // Per-frame reference ranking into the ranked buffer (see the .cc for the bound).
+  // Per-frame reference ranking into the ranked buffer (see the .cc for the bound). With
+  // `by_centre_weight` (RenderApprox::max_candidates > 0) the order is an estimate instead: the
+  // weight at the cell centre, views that do not see the centre last (not exact).
   void RankRefs(const glm::vec3& c_o, const PinholeCamera& cam, const Rigid3d& local_from_cam,
-                double cell_size_m, const blend::BlendOptions& bo);
+                double cell_size_m, const blend::BlendOptions& bo, bool by_centre_weight = false);
 
   const std::unordered_map<CellId, Entry>& entries() const { return cells_; }
   uint32_t table_mask() const { return uint32_t(table_.size() - 1); }
@@ -65,7 +67,7 @@ class CellTable {
   void Erase(std::unordered_map<CellId, Entry>::iterator it);
   absl::StatusOr<std::unordered_map<CellId, Entry>::iterator> Insert(CellId id);
   // Ranks one cell's references (ball B(m, r)) for the camera at c_o into ranked_buf_.
-  void RankCell(const Entry& c, const glm::dvec3& m, double r, const glm::dvec3& c_o,
+  void RankCell(const Entry& c, const glm::dvec3& m, double r, const glm::dvec3& c_o, bool by_centre,
                 const blend::BlendOptions& bo);
 
   const Context& ctx_;

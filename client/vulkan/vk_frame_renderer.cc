@@ -117,7 +117,7 @@ void UnpackBlendOutput(const uint8_t* src, uint32_t w, uint32_t h, RenderResult*
 
 absl::StatusOr<std::unique_ptr<FrameRenderer>> FrameRenderer::Create(
     const Context& ctx, const VulkanRendererOptions& opt, const CellGrid& grid, ViewStore& views,
-    CellTable& cells, const MeshChunks& chunks) {
+    CellTable& cells, MeshChunks& chunks) {
   std::unique_ptr<FrameRenderer> r(new FrameRenderer(ctx, opt, grid, views, cells, chunks));
   EXO_ASSIGN_OR_RETURN(r->frame_ubo_,
                        Buffer::Create(ctx, sizeof(GpuFrame), VK_BUFFER_USAGE_UNIFORM_BUFFER_BIT));
@@ -212,6 +212,7 @@ absl::Status FrameRenderer::Draw(RenderTarget& t, VkRenderPass pass, VkPipeline 
                                  const VkClearValue& clear, uint32_t texel_bytes, bool deferred,
                                  VkPipeline compute_pipe, VkPipeline sky_pipe) {
   EXO_RETURN_IF_ERROR(UpdateDescriptors());
+  EXO_RETURN_IF_ERROR(chunks_.PrepareDraw());
   const Pipelines& p = *pipes_;
   return ctx_.Submit([&](VkCommandBuffer cmd) {
     if (deferred) {
@@ -330,8 +331,11 @@ absl::Status FrameRenderer::DrawBlend(const blend::BlendOptions& bo, int sky_vie
 
 absl::StatusOr<RenderResult> FrameRenderer::Render(const PinholeCamera& camera,
                                                    const Rigid3d& local_from_cam,
-                                                   const blend::BlendOptions& bo) {
+                                                   const blend::BlendOptions& bo,
+                                                   const RenderApprox& approx) {
   EXO_RETURN_IF_ERROR(bo.Validate());
+  if (approx.max_candidates < 0)
+    return absl::InvalidArgumentError("RenderApprox::max_candidates must be >= 0");
   EXO_RETURN_IF_ERROR(CheckCamera(camera, local_from_cam));
   EXO_RETURN_IF_ERROR(CheckBakedOptions(bo));
   const uint32_t w = camera.width, h = camera.height;
@@ -339,8 +343,11 @@ absl::StatusOr<RenderResult> FrameRenderer::Render(const PinholeCamera& camera,
   GpuFrame f{};
   RenderResult r;
   UploadBlendFrame(camera, local_from_cam, bo, &f, &r.background_views);
+  f.bg_params.y = approx.max_candidates;  // blend_shade.glsl: 0 = every reference (exact)
+  std::memcpy(frame_ubo_.mapped, &f, sizeof(f));
   const auto tr = Clock::now();
-  cells_.RankRefs(glm::vec3(f.cam_centre_cell), camera, local_from_cam, grid_.cell_size_m, bo);
+  cells_.RankRefs(glm::vec3(f.cam_centre_cell), camera, local_from_cam, grid_.cell_size_m, bo,
+                  /*by_centre_weight=*/approx.max_candidates > 0);
   r.rank_ms = MsSince(tr);
   const auto t0 = Clock::now();
   EXO_RETURN_IF_ERROR(DrawBlend(bo, f.bg_params.x, f.ip_params.x > 0));

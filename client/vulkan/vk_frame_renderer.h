@@ -28,10 +28,11 @@ class FrameRenderer {
                                                                const VulkanRendererOptions& opt,
                                                                const CellGrid& grid,
                                                                ViewStore& views, CellTable& cells,
-                                                               const MeshChunks& chunks);
+                                                               MeshChunks& chunks);
 
   absl::StatusOr<RenderResult> Render(const PinholeCamera& camera, const Rigid3d& local_from_cam,
-                                      const blend::BlendOptions& bo);
+                                      const blend::BlendOptions& options,
+                                      const RenderApprox& approx = {});
   absl::StatusOr<exo::Image<uint64_t>> RenderCellIds(const PinholeCamera& camera,
                                                      const Rigid3d& local_from_cam);
   // VulkanRenderer::RenderFloor (shaders/floor.frag).
@@ -42,7 +43,7 @@ class FrameRenderer {
 
  private:
   FrameRenderer(const Context& ctx, const VulkanRendererOptions& opt, const CellGrid& grid,
-                ViewStore& views, CellTable& cells, const MeshChunks& chunks)
+                ViewStore& views, CellTable& cells, MeshChunks& chunks)
       : ctx_(ctx), opt_(opt), grid_(grid), views_(views), cells_(cells), chunks_(chunks) {}
   // A 4-byte blend output and a 1x1 G-buffer in SHADER_READ_ONLY_OPTIMAL for bindings 8 and 6
   // before any blend target exists (lavapipe reads every binding of a bound set).
@@ -75,7 +76,7 @@ class FrameRenderer {
   const CellGrid& grid_;
   ViewStore& views_;
   CellTable& cells_;
-  const MeshChunks& chunks_;
+  MeshChunks& chunks_;
   std::unique_ptr<Pipelines> pipes_;
   Buffer frame_ubo_;
   RenderTarget color_target_, cellid_target_, zdepth_target_, floor_target_;

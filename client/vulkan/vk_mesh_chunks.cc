@@ -18,19 +18,16 @@ absl::Status MeshChunks::Upsert(const MeshChunk& chunk) {
     if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z))
       return absl::InvalidArgumentError(
           absl::StrCat("chunk ", chunk.id, ": non-finite vertex position"));
+  dirty_ = true;
   if (m.indices.empty()) {
     chunks_.erase(chunk.id);
     return absl::OkStatus();
   }
   Entry g;
   g.version = chunk.version;
-  g.index_count = uint32_t(m.indices.size());
-  const size_t vb = m.positions.size() * sizeof(glm::vec3), ib = m.indices.size() * 4;
-  EXO_ASSIGN_OR_RETURN(g.vertices, Buffer::Create(ctx_, vb, VK_BUFFER_USAGE_VERTEX_BUFFER_BIT));
-  EXO_ASSIGN_OR_RETURN(g.indices, Buffer::Create(ctx_, ib, VK_BUFFER_USAGE_INDEX_BUFFER_BIT));
-  std::memcpy(g.vertices.mapped, m.positions.data(), vb);
-  std::memcpy(g.indices.mapped, m.indices.data(), ib);
-  stats_.bytes += vb + ib;
+  g.positions = m.positions;
+  g.indices = m.indices;
+  stats_.bytes += m.positions.size() * sizeof(glm::vec3) + m.indices.size() * 4;
   ++stats_.chunk_uploads;
   chunks_[chunk.id] = std::move(g);
   return absl::OkStatus();
@@ -39,23 +36,53 @@ absl::Status MeshChunks::Upsert(const MeshChunk& chunk) {
 absl::Status MeshChunks::Remove(uint64_t chunk_id) {
   if (chunks_.erase(chunk_id) == 0)
     return absl::NotFoundError(absl::StrCat("chunk ", chunk_id, " not resident"));
+  dirty_ = true;
+  return absl::OkStatus();
+}
+
+absl::Status MeshChunks::PrepareDraw() {
+  if (!dirty_) return absl::OkStatus();
+  size_t nv = 0, ni = 0;
+  for (const auto& [id, c] : chunks_) {
+    nv += c.positions.size();
+    ni += c.indices.size();
+  }
+  if (nv > UINT32_MAX) return absl::ResourceExhaustedError("proxy mesh above 2^32 vertices");
+  index_count_ = 0;
+  if (ni > 0) {
+    // Grow (power of two) only; the buffers are host-visible and mapped (lavapipe: host memory).
+    const VkDeviceSize vb = nv * sizeof(glm::vec3), ib = ni * 4;
+    if (vertices_.size < vb) {
+      EXO_ASSIGN_OR_RETURN(vertices_, Buffer::Create(ctx_, std::max<VkDeviceSize>(vb, 2 * vertices_.size),
+                                                     VK_BUFFER_USAGE_VERTEX_BUFFER_BIT));
+    }
+    if (indices_.size < ib) {
+      EXO_ASSIGN_OR_RETURN(indices_, Buffer::Create(ctx_, std::max<VkDeviceSize>(ib, 2 * indices_.size),
+                                                    VK_BUFFER_USAGE_INDEX_BUFFER_BIT));
+    }
+    auto* pv = static_cast<glm::vec3*>(vertices_.mapped);
+    auto* pi = static_cast<uint32_t*>(indices_.mapped);
+    uint32_t base = 0;
+    for (const auto& [id, c] : chunks_) {
+      std::memcpy(pv + base, c.positions.data(), c.positions.size() * sizeof(glm::vec3));
+      for (uint32_t i : c.indices) *pi++ = base + i;
+      base += uint32_t(c.positions.size());
+    }
+    index_count_ = uint32_t(ni);
+  }
+  dirty_ = false;
   return absl::OkStatus();
 }
 
 void MeshChunks::RecordDraws(VkCommandBuffer cmd) const {
-  for (const auto& [id, c] : chunks_) {
-    VkBuffer vb = c.vertices.buffer.get();
-    VkDeviceSize off = 0;
-    vkCmdBindVertexBuffers(cmd, 0, 1, &vb, &off);
-    vkCmdBindIndexBuffer(cmd, c.indices.buffer.get(), 0, VK_INDEX_TYPE_UINT32);
-    vkCmdDrawIndexed(cmd, c.index_count, 1, 0, 0, 0);
-  }
+  if (index_count_ == 0) return;
+  VkBuffer vb = vertices_.buffer.get();
+  VkDeviceSize off = 0;
+  vkCmdBindVertexBuffers(cmd, 0, 1, &vb, &off);
+  vkCmdBindIndexBuffer(cmd, indices_.buffer.get(), 0, VK_INDEX_TYPE_UINT32);
+  vkCmdDrawIndexed(cmd, index_count_, 1, 0, 0, 0);
 }
 
-uint64_t MeshChunks::ResidentBytes() const {
-  uint64_t b = 0;
-  for (const auto& [id, c] : chunks_) b += c.vertices.size + c.indices.size;
-  return b;
-}
+uint64_t MeshChunks::ResidentBytes() const { return vertices_.size + indices_.size; }
 
 }  // namespace exo::vk

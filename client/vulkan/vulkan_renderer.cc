@@ -250,8 +250,9 @@ absl::Status VulkanRenderer::SyncModel(const LumigraphModel& model) {
 
 absl::StatusOr<RenderResult> VulkanRenderer::Render(const PinholeCamera& camera,
                                                     const Rigid3d& local_from_cam,
-                                                    const blend::BlendOptions& options) {
-  return impl_->frame->Render(camera, local_from_cam, options);
+                                                    const blend::BlendOptions& options,
+                                                    const RenderApprox& approx) {
+  return impl_->frame->Render(camera, local_from_cam, options, approx);
 }
 absl::StatusOr<RenderResult> VulkanRenderer::RenderFloor(const PinholeCamera& camera,
                                                          const Rigid3d& local_from_cam) {

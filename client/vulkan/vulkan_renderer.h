@@ -75,6 +75,17 @@ struct RenderResult {
   std::vector<ViewId> background_views;  // this frame's background view list (rank order)
 };
 
+// Approximations Render() may take for interactive frames (the viewer window while the camera
+// moves); the defaults are exact.
+struct RenderApprox {
+  // Evaluate at most this many of a pixel's cell references, in decreasing order of their
+  // per-frame weight bound (CellTable::RankRefs), instead of every reference that could still
+  // enter the best n (0 = every one: exact). The shader's cost per pixel is the references it
+  // evaluates: on a 7-Scenes model (up to 64 references per cell) 4 cut a moving frame's CPU
+  // time 3x (docs/viewer.md); the picture differs where a lower-ranked reference would have won.
+  int max_candidates = 0;
+};
+
 // Packs a 64-bit CellId into the 2 x 32-bit form of the cell-id pass (R32G32_UINT, lo = x).
 inline CellId CellIdFromUints(uint32_t lo, uint32_t hi) {
   return (static_cast<uint64_t>(hi) << 32) | lo;
@@ -105,9 +116,11 @@ class VulkanRenderer {
   absl::Status SyncModel(const LumigraphModel& model);
 
   // ---- rendering ----
-  // Blends a novel view (camera at local_from_cam in the scene-local frame).
+  // Blends a novel view (camera at local_from_cam in the scene-local frame); exact unless
+  // `approx` says otherwise.
   absl::StatusOr<RenderResult> Render(const PinholeCamera& camera, const Rigid3d& local_from_cam,
-                                      const blend::BlendOptions& options);
+                                      const blend::BlendOptions& options,
+                                      const RenderApprox& approx = {});
   // Cell-id pass: the CellId of the proxy surface per pixel (kNoCell where none).
   absl::StatusOr<Image<uint64_t>> RenderCellIds(const PinholeCamera& camera,
                                                 const Rigid3d& local_from_cam);

@@ -12,6 +12,7 @@ A small synthetic model is served on a free loopback port; the test then
 With --docs_dir the browser screenshot is also written there.
 """
 import argparse
+import base64
 import io
 import json
 import math
@@ -71,6 +72,170 @@ def stream_reader(port, seconds, out, idx, drop_after=None):
     finally:
         s.close()
     out[idx] = frames
+
+
+class DevTools:
+    """A minimal Chrome DevTools Protocol client over one page target's websocket (Debian's
+    python3-websocket): send a method, wait for the reply with the same id (events skipped)."""
+
+    def __init__(self, ws_url):
+        import websocket  # python3-websocket
+        self.ws = websocket.create_connection(ws_url, timeout=60, suppress_origin=True)
+        self.next_id = 0
+
+    def call(self, method, **params):
+        self.next_id += 1
+        self.ws.send(json.dumps({"id": self.next_id, "method": method, "params": params}))
+        while True:
+            msg = json.loads(self.ws.recv())
+            if msg.get("id") == self.next_id:
+                if "error" in msg:
+                    fail(f"DevTools {method}: {msg['error']}")
+                return msg.get("result", {})
+
+    def eval(self, expr):
+        r = self.call("Runtime.evaluate", expression=expr, returnByValue=True)
+        return r.get("result", {}).get("value")
+
+    def screenshot(self):
+        png = base64.b64decode(self.call("Page.captureScreenshot", format="png")["data"])
+        return np.asarray(Image.open(io.BytesIO(png)).convert("RGB"))
+
+    def key(self, kind, code, key, vk):
+        self.call("Input.dispatchKeyEvent", type=kind, code=code, key=key,
+                  windowsVirtualKeyCode=vk, nativeVirtualKeyCode=vk)
+
+    def close(self):
+        self.ws.close()
+
+
+def devtools_part(chromium, base, work, env, docs_dir):
+    """The page in headless Chromium driven through its DevTools protocol like a person: the key
+    goes through the browser (Input.dispatchKeyEvent -> the page's onkeydown -> its HTTP input
+    call), and what the browser shows is read back from it (screenshot, DOM)."""
+    try:
+        import websocket  # noqa: F401  (python3-websocket)
+    except ImportError:
+        log("python3-websocket not installed: SKIPPED the DevTools part "
+            "(apt-get install python3-websocket)")
+        return
+    profile = os.path.join(work, "chromium-devtools-profile")
+    shutil.rmtree(profile, ignore_errors=True)
+    os.makedirs(profile)
+    port_file = os.path.join(profile, "DevToolsActivePort")
+    browser = subprocess.Popen([chromium, "--headless=new", "--no-sandbox", "--disable-gpu",
+                                "--hide-scrollbars", "--window-size=800,660",
+                                "--remote-debugging-port=0", "--remote-debugging-address=127.0.0.1",
+                                f"--user-data-dir={profile}", base + "/"],
+                               env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    dt = None
+    try:
+        t0 = time.time()
+        while not (os.path.exists(port_file) and len(open(port_file).read().split()) >= 2):
+            if browser.poll() is not None or time.time() - t0 > 60:
+                fail("chromium did not open its DevTools port")
+            time.sleep(0.2)
+        dport = int(open(port_file).read().split()[0])
+        pages = []
+        while time.time() - t0 < 60:
+            targets = json.loads(get(f"http://127.0.0.1:{dport}/json/list")[2])
+            pages = [t for t in targets if t.get("type") == "page" and t["url"].startswith(base)]
+            if pages:
+                break
+            time.sleep(0.2)
+        if not pages:
+            fail("no DevTools page target for the viewer's page")
+        dt = DevTools(pages[0]["webSocketDebuggerUrl"])
+        dt.call("Page.enable")
+        dt.call("Emulation.setFocusEmulationEnabled", enabled=True)
+
+        def page_state():
+            """The page's frame sequence, picture width and stats line (zeros while loading)."""
+            v = dt.eval("JSON.stringify({seq: seq, shown: document.getElementById('v')"
+                        ".naturalWidth, stats: document.getElementById('s').textContent})")
+            return v if v is not None else '{"seq": 0, "shown": 0, "stats": ""}'
+
+        def wait_page(pred, what, timeout=90):
+            t1 = time.time()
+            while time.time() - t1 < timeout:
+                st = json.loads(page_state())
+                if pred(st):
+                    return st
+                time.sleep(0.3)
+            fail(f"the browser page: no {what} within {timeout} s")
+
+        def settled_page(what):
+            """The page shows the viewer's newest full-resolution frame and nothing is coming."""
+            t1 = time.time()
+            while time.time() - t1 < 120:
+                s = json.loads(get(base + "/status")[2])
+                st = json.loads(page_state())
+                if s.get("stage") == 1 and st["seq"] >= s["frames"] and st["shown"] > 0:
+                    time.sleep(0.8)
+                    s2 = json.loads(get(base + "/status")[2])
+                    if s2["frames"] == s["frames"]:
+                        return s, json.loads(page_state())
+                time.sleep(0.3)
+            fail(f"the browser page did not settle ({what})")
+
+        wait_page(lambda s: s["seq"] > 0 and s["shown"] > 0 and "views 10" in s["stats"],
+                  "frame and stats")
+        def page_picture():
+            """The pixels the page's <img> shows (drawn into a canvas in the page)."""
+            for _ in range(50):  # between two frames the <img> may be decoding its new source
+                url = dt.eval("(() => { const i = document.getElementById('v'); "
+                              "if (!i.complete || !i.naturalWidth) return ''; "
+                              "const c = document.createElement('canvas'); c.width = i.naturalWidth; "
+                              "c.height = i.naturalHeight; c.getContext('2d').drawImage(i, 0, 0); "
+                              "return c.toDataURL('image/png'); })()")
+                if url and url.startswith("data:image/png;base64,"):
+                    return np.asarray(Image.open(io.BytesIO(base64.b64decode(url.split(",", 1)[1])))
+                                      .convert("RGB"))
+                time.sleep(0.1)
+            fail("could not read the picture the page shows")
+
+        def viewer_picture():
+            body = get(base + "/frame.jpg?after=0", timeout=30)[2]
+            return np.asarray(Image.open(io.BytesIO(body)).convert("RGB"))
+
+        s0, p0 = settled_page("before the key")
+        img0 = dt.screenshot()
+        shown0, sent0 = page_picture(), viewer_picture()
+        # W held for 0.6 s in the browser (the page re-sends held keys every 200 ms).
+        dt.key("keyDown", "KeyW", "w", 87)
+        time.sleep(0.6)
+        dt.key("keyUp", "KeyW", "w", 87)
+        s1, p1 = settled_page("after W")
+        img1 = dt.screenshot()
+        shown1, sent1 = page_picture(), viewer_picture()
+        moved = float(np.linalg.norm(np.array(s1["pose_local"]["t"]) -
+                                     np.array(s0["pose_local"]["t"])))
+        view0, view1 = img0[50:550, 100:700], img1[50:550, 100:700]
+        log(f"DevTools: W pressed in the browser: viewer moved {moved:.3f} m, page frame seq "
+            f"{p0['seq']} -> {p1['seq']}; the page's picture vs the viewer's frame: before "
+            f"{psnr(shown0, sent0):.1f} dB, after {psnr(shown1, sent1):.1f} dB; page after vs "
+            f"before {psnr(shown0, shown1):.1f} dB (screenshots {psnr(view0, view1):.1f} dB); "
+            f"stats '{p0['stats'][:40]}...' -> '{p1['stats'][:40]}...'")
+        if not moved > 0.05:
+            fail("the key pressed in the browser did not move the viewer's camera")
+        if p1["seq"] <= p0["seq"]:
+            fail("the browser received no new frame after the key")
+        if shown1.shape != sent1.shape or psnr(shown1, sent1) < 40 or psnr(shown0, sent0) < 40:
+            fail("the page does not show the viewer's newest frame")
+        if psnr(shown0, shown1) > 40 or view1.std() < 10:
+            fail("the browser does not show a changed picture after the key")
+        if p1["stats"] == p0["stats"] or f"frames {s1['frames']}" not in p1["stats"]:
+            fail("the browser's stats line did not update after the key")
+        if docs_dir:
+            Image.fromarray(img1).save(os.path.join(docs_dir, "browser_view_after_w.png"))
+    finally:
+        if dt is not None:
+            dt.close()
+        browser.terminate()
+        try:
+            browser.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            browser.kill()
 
 
 def main():
@@ -221,6 +386,7 @@ def main():
             if args.docs_dir:
                 os.makedirs(args.docs_dir, exist_ok=True)
                 shutil.copy(shot, os.path.join(args.docs_dir, "browser_view.png"))
+            devtools_part(chromium, base, work, env, args.docs_dir)
         log("PASS")
         return 0
     finally:

@@ -46,6 +46,12 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(2, 10000));
   app.add_option("--bench_json", o.bench_json, "also write the benchmark JSON here");
   app.add_option("--bench_label", o.bench_label, "label of the benchmark run (e.g. the scene)");
+  app.add_option("--moving_candidates", o.moving_candidates,
+                 "references evaluated per pixel while the camera moves (0 = all, exact; frames "
+                 "after it stops are always exact)")
+      ->check(CLI::Range(0, 1024));
+  app.add_option("--bench_modes", o.bench_modes,
+                 "comma-separated benchmark modes (adaptive_budget,adaptive_fixed,full_always)");
   if (auto rc = exo::cli::Parse(app, argc, argv)) return *rc;
   return exo::RunWindowApp(o);
 }

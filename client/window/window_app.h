@@ -1,9 +1,11 @@
 // The interactive viewer (issue 17): a window on a saved model file or a live subscription,
 // fly navigation (WASD + mouse look with the left button held, arrow keys turn, Q/E down/up,
 // scroll = speed, R = reset to the nearest stored view, F = follow the live camera (the newest
-// stored view), Tab = overlays, P = save the model, Esc = quit), adaptive resolution (¼ of the
-// window per side while moving, ½ then full once the camera stops, the last frame reused while
-// nothing changes), a HUD and scene overlays (stored-view frusta coloured by age, the live
+// stored view), Tab = overlays, P = save the model, Esc = quit), rendering on its own thread
+// (nav::RenderScheduler: input and the HUD never wait for a render), adaptive resolution (⅛-¼ of
+// the window per side while moving, with at most moving_candidates references per pixel; ½ then
+// the exact full frame once the camera stops, the last frame reused while nothing changes), a HUD
+// and scene overlays (stored-view frusta coloured by age, the live
 // camera, the proxy wireframe, cells coloured by their reference count). Also the scripted
 // modes that need no window: renders along a TUM path, and the frame-time benchmark (which
 // does need a window: it measures what the person sees, presentation included).
@@ -24,6 +26,10 @@ struct WindowAppOptions {
   bool adaptive = true;
   int moving_divisor = 4;   // start divisor while moving
   double target_ms = 33.3;  // moving frame budget (0 = keep moving_divisor)
+  // References a pixel evaluates in a reduced-resolution moving frame (RenderApprox::
+  // max_candidates; 0 = all, exact). Frames after the camera stops and every full-resolution
+  // frame are exact.
+  int moving_candidates = 8;
   int start_view = -1;      // initial pose: this stored view (default: the smallest id)
   bool overlays = true;     // HUD + scene overlays at start (Tab toggles)
   std::string record;       // TUM path of the session, written at exit
@@ -39,6 +45,7 @@ struct WindowAppOptions {
   bool bench = false;
   int bench_frames = 40;
   std::string bench_json, bench_label;
+  std::string bench_modes = "adaptive_budget,adaptive_fixed,full_always";
 };
 
 // Runs the app; returns the process exit code (0 ok, 1 runtime error, 2 bad input).
