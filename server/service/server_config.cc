@@ -230,8 +230,7 @@ std::vector<ConfigKey> MakeKeys() {
           EXO_FIELD(max_upload_streams)),
       Key("max_subscribers", "concurrent Subscribe calls (beyond: RESOURCE_EXHAUSTED)",
           EXO_FIELD(max_subscribers)),
-      Key("malloc_arena_max", "glibc malloc arenas (0: glibc default, 8 per core); bounds the "
-          "free memory threads keep", EXO_FIELD(malloc_arena_max)),
+      Key("malloc_arena_max", process::kMallocArenaMaxHelp, EXO_FIELD(malloc_arena_max)),
       Key("max_client_inflight_bytes",
           "decoded bytes of one client's frames inside the pipeline (beyond: REJECTED)",
           EXO_FIELD(max_client_inflight_bytes)),
