@@ -98,7 +98,7 @@ int Main(int argc, char** argv) {
       ->check(CLI::NonNegativeNumber);
   int rss_fill_frames = 0;
   app.add_option("--rss_fill_frames", rss_fill_frames,
-                 "phase 5: the first N frames in batches of 4, the pipeline drained after each "
+                 "phase 5: the first N frames in batches of 8, the pipeline drained after each "
                  "(every frame processed, none dropped): the store fills sooner")
       ->check(CLI::NonNegativeNumber);
   app.add_option("--server_arg", server_args,
@@ -332,10 +332,14 @@ int Main(int argc, char** argv) {
     json samples = json::array();
     uint64_t accepted = 0, dropped = 0;
     const auto t0 = Clock::now();
-    // Fill: frames [0, rss_fill_frames) go in batches of 4 (half the admission queue), each
-    // drained before the next, so every one reaches the planner instead of ~1 in 7.
+    // Fill: frames [0, rss_fill_frames) go in batches of 8 (the admission queue), each drained
+    // before the next, so every one reaches the planner instead of ~1 in 7. `sent` keeps the
+    // cycle going across calls (UploadStream numbers each call's frames from 0).
+    size_t sent = 0;
     auto upload = [&](int n) {
-      auto up = UploadStream(channel, n, make, fast);
+      const size_t first = sent;
+      sent += n;
+      auto up = UploadStream(channel, n, [&](size_t i) { return make(first + i); }, fast);
       if (up.ok()) {
         accepted += up->accepted;
         dropped += up->dropped;
@@ -344,8 +348,8 @@ int Main(int argc, char** argv) {
     for (int done = 0; done < rss_frames; done += 1000) {
       const int n = std::min(1000, rss_frames - done);
       const int fill = std::clamp(rss_fill_frames - done, 0, n);
-      for (int b = 0; b < fill; b += 4) {
-        upload(std::min(4, fill - b));
+      for (int b = 0; b < fill; b += 8) {
+        upload(std::min(8, fill - b));
         wait_drained();
       }
       if (n > fill) upload(n - fill);
