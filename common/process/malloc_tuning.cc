@@ -18,6 +18,16 @@ absl::Status LimitMallocArenas(int max_arenas) {
   return absl::OkStatus();
 }
 
+absl::Status SetMallocMmapThreshold(size_t bytes) {
+  if (bytes > (size_t{32} << 20))
+    return absl::InvalidArgumentError("malloc_mmap_threshold must be <= 32 MiB (0 = glibc dynamic)");
+#if defined(__GLIBC__)
+  if (bytes > 0 && mallopt(M_MMAP_THRESHOLD, static_cast<int>(bytes)) != 1)
+    return absl::InternalError("mallopt(M_MMAP_THRESHOLD, " + std::to_string(bytes) + ") failed");
+#endif
+  return absl::OkStatus();
+}
+
 HeapUsage ReadHeapUsage() {
   HeapUsage h;
 #if defined(__GLIBC__)

@@ -101,6 +101,8 @@ int main(int argc, char** argv) {
   // Before any thread exists (gRPC's and the pipeline's start in server.Start()).
   if (auto s = exo::process::LimitMallocArenas(config.malloc_arena_max); !s.ok())
     log->warn("{}", std::string(s.message()));
+  if (auto s = exo::process::SetMallocMmapThreshold(config.malloc_mmap_threshold); !s.ok())
+    log->warn("{}", std::string(s.message()));
   exo::ExoviewServer server(config);
   if (auto s = server.Start(); !s.ok()) {
     log->critical("cannot start: {}", std::string(s.message()));
