@@ -20,6 +20,8 @@
 #include "client/uploader/synth_source.h"
 #include "client/uploader/upload_client.h"
 #include "client/viewer/viewer_session.h"
+#include "common/status.h"
+#include "proto/frame_proto.h"
 #include "proto/exoview.grpc.pb.h"
 #include "tests/subprocess.h"
 
@@ -71,6 +73,21 @@ struct Options {
   double rate_hz = 30.0;
   int width = 320, height = 240;
   double rss_sample_s = 10.0;
+  // > 0: a closed-loop stream for a steady state. The walk is rendered over `loop_frames` frames;
+  // the warm-up uploads all of them once (instead of `warm_frames`), then the `frames` uploaded
+  // while the subscribers are connected cycle over the same encoded loop with fresh sequence
+  // numbers and timestamps: the model (TSDF, store) covers the path after the first pass, so what
+  // still grows is the process, not the scene.
+  int loop_frames = 0;
+};
+
+// One sample of the server's memory while the subscribers are connected.
+struct MemorySample {
+  double t_s = 0;
+  double rss_mb = 0;
+  double heap_in_use_mb = 0, heap_free_mb = 0;  // glibc mallinfo2 (live vs kept free)
+  double log_mb = 0, snapshot_mb = 0;           // delta log, model snapshot
+  uint64_t views = 0, cells = 0, chunks = 0, frames_accepted = 0;
 };
 
 struct Result {
@@ -85,6 +102,7 @@ struct Result {
   int threads_peak = 0;
   // VmRSS every `rss_sample_s` seconds while the subscribers were connected (a long run's curve).
   std::vector<double> rss_samples_mb;
+  std::vector<MemorySample> memory_samples;  // the same moments, with the heap and the model
   std::string error;
 };
 
@@ -96,7 +114,9 @@ inline Result Run(const std::string& target, pid_t pid, const Options& o) {
   so.trajectory = "walk";
   so.width = o.width;
   so.height = o.height;
-  so.num_frames = o.warm_frames + o.frames;
+  const bool loop = o.loop_frames > 0;
+  const int warm_frames = loop ? o.loop_frames : o.warm_frames;
+  so.num_frames = loop ? o.loop_frames : o.warm_frames + o.frames;
   auto source = SynthFrameSource::Create(so);
   if (!source.ok()) {
     r.error = std::string(source.status().message());
@@ -104,7 +124,15 @@ inline Result Run(const std::string& target, pid_t pid, const Options& o) {
   }
   UploadOptions uo;
   uo.rate_hz = 0;
-  auto warm = UploadFrames(MakeChannel(target), **source, 0, o.warm_frames, uo);
+  std::vector<v1::Frame> loop_protos;  // the encoded loop, kept for the cycles
+  auto warm = UploadStream(MakeChannel(target), warm_frames,
+                           [&](size_t i) -> absl::StatusOr<v1::Frame> {
+                             EXO_ASSIGN_OR_RETURN(Frame f, (*source)->Load(i));
+                             EXO_ASSIGN_OR_RETURN(v1::Frame m, FrameToProto(f, uo.encode));
+                             if (loop) loop_protos.push_back(m);
+                             return m;
+                           },
+                           uo);
   if (!warm.ok()) {
     r.error = std::string(warm.status().message());
     return r;
@@ -133,8 +161,25 @@ inline Result Run(const std::string& target, pid_t pid, const Options& o) {
       const double t =
           std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
       if (t >= next_sample_s) {
+        const v1::Stats st = ServerStats(target);
+        auto counter = [&](const char* k) {
+          const auto it = st.counters().find(k);
+          return it == st.counters().end() ? 0.0 : it->second / 1048576.0;
+        };
+        MemorySample m;
+        m.t_s = t;
+        m.rss_mb = kb / 1024.0;
+        m.heap_in_use_mb = counter("process.heap_in_use_bytes");
+        m.heap_free_mb = counter("process.heap_free_bytes");
+        m.log_mb = counter("store.log_bytes");
+        m.snapshot_mb = counter("store.snapshot_bytes");
+        m.views = st.num_views();
+        m.cells = st.num_cells();
+        m.chunks = st.num_chunks();
+        m.frames_accepted = st.frames_accepted();
         std::lock_guard lock(samples_mu);
-        r.rss_samples_mb.push_back(kb / 1024.0);
+        r.rss_samples_mb.push_back(m.rss_mb);
+        r.memory_samples.push_back(m);
         next_sample_s += o.rss_sample_s;
       }
       peak_threads.store(
@@ -156,12 +201,26 @@ inline Result Run(const std::string& target, pid_t pid, const Options& o) {
     viewer_threads.emplace_back([&, i] {
       SyncOptions sync;
       sync.max_seconds = std::max(120.0, 2.0 * o.frames / o.rate_hz + 60.0);  // long runs
-      sync.min_server_frames = static_cast<uint64_t>(o.warm_frames + o.frames);
+      sync.min_server_frames = static_cast<uint64_t>(warm_frames + o.frames);
       sync.client_name = "viewer-" + std::to_string(i);
       viewer_status[i] = sessions[i]->Sync(sync);
     });
   uo.rate_hz = o.rate_hz;
-  auto up = UploadFrames(MakeChannel(target), **source, o.warm_frames, o.frames, uo);
+  absl::StatusOr<UploadAckStats> up;
+  if (loop && !loop_protos.empty()) {
+    const uint64_t seq0 = loop_protos.back().sequence();
+    const double t0 = loop_protos.back().timestamp_s();
+    up = UploadStream(MakeChannel(target), o.frames,
+                      [&](size_t i) -> absl::StatusOr<v1::Frame> {
+                        v1::Frame f = loop_protos[i % loop_protos.size()];
+                        f.set_sequence(seq0 + i + 1);
+                        f.set_timestamp_s(t0 + (i + 1) / so.frame_rate_hz);
+                        return f;
+                      },
+                      uo);
+  } else {
+    up = UploadFrames(MakeChannel(target), **source, o.warm_frames, o.frames, uo);
+  }
   if (!up.ok()) r.error = std::string(up.status().message());
   wait_processed();
   for (auto& t : viewer_threads) t.join();

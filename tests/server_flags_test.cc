@@ -74,6 +74,9 @@ TEST_F(ServerFlags, BadFlagValueNamesTheFlag) {
   const auto [rc3, out3] = RunToExit({"--malloc_arena_max=-1"});
   EXPECT_EQ(rc3, 2) << out3;
   EXPECT_NE(out3.find("--malloc_arena_max"), std::string::npos) << out3;
+  const auto [rc4, out4] = RunToExit({"--malloc_mmap_threshold=40000000"});  // > 32 MiB
+  EXPECT_EQ(rc4, 2) << out4;
+  EXPECT_NE(out4.find("malloc_mmap_threshold must be <= 32 MiB"), std::string::npos) << out4;
 }
 
 TEST_F(ServerFlags, FlagsOverrideTheConfigFileInBothSyntaxes) {

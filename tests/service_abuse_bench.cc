@@ -4,8 +4,13 @@
 // server), then RSS before / peak / after with them, the model size, the bound (baseline peak +
 // 2 x model + 100 MB), threads, timed-out calls and the viewers' digest equality.
 //   exoview_bench tests/service_abuse_bench [--never_readers=N] [--viewers=V] [--frames=F]
-//                 [--server_arg=--key=value ...]
+//                 [--loop_frames=L] [--server_arg=--key=value ...]
+// The long steady-state run (issue 20, docs/security.md §3): 16 viewers + an uploader at 30 Hz for
+// 10 minutes over a closed loop of an already-modelled walk, RSS + heap live/free every 15 s:
+//   service_abuse_bench --never_readers=0 --viewers=16 --frames=18000 --loop_frames=900
+//                       --skip_baseline --rss_sample_s=15
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <nlohmann/json.hpp>
@@ -39,6 +44,13 @@ int main(int argc, char** argv) {
                "no baseline run without the never-readers (a long run: the RSS curve only)");
   app.add_option("--rss_sample_s", o.rss_sample_s, "seconds between RSS samples")
       ->check(CLI::PositiveNumber);
+  app.add_option("--loop_frames", o.loop_frames,
+                 "> 0: the walk rendered over this many frames is uploaded once (warm-up, instead "
+                 "of --warm_frames), then --frames cycle over it with fresh sequences/timestamps")
+      ->check(CLI::NonNegativeNumber);
+  double flat_after_s = -1;
+  app.add_option("--flat_after_s", flat_after_s,
+                 "warm-up end for the flatness figures (default: a third of the run)");
   if (auto rc = exo::cli::Parse(app, argc, argv)) return *rc;
 
   char tmpl[] = "/tmp/exoview_abuse_bench_XXXXXX";
@@ -78,10 +90,47 @@ int main(int argc, char** argv) {
     late_min = *std::min_element(first, rs.end());
     late_max = *std::max_element(first, rs.end());
   }
+  // After the warm-up (--flat_after_s): RSS and the heap's live / free bytes, first and range.
+  nlohmann::ordered_json after_warmup = nlohmann::ordered_json::object();
+  {
+    const auto& ms = r.memory_samples;
+    const double from_s =
+        flat_after_s >= 0 ? flat_after_s : (ms.empty() ? 0.0 : ms.back().t_s / 3.0);
+    std::vector<exo::abuse::MemorySample> late;
+    for (const auto& m : ms)
+      if (m.t_s >= from_s) late.push_back(m);
+    auto range = [&](auto field) {
+      double lo = 1e300, hi = -1e300;
+      for (const auto& m : late) lo = std::min(lo, field(m)), hi = std::max(hi, field(m));
+      return nlohmann::ordered_json{{"first", field(late.front())}, {"min", lo}, {"max", hi},
+                                    {"last", field(late.back())},
+                                    {"spread_of_first", (hi - lo) / field(late.front())}};
+    };
+    if (!late.empty())
+      after_warmup = {{"from_s", from_s},
+                      {"samples", late.size()},
+                      {"rss_mb", range([](const auto& m) { return m.rss_mb; })},
+                      {"heap_in_use_mb", range([](const auto& m) { return m.heap_in_use_mb; })},
+                      {"heap_free_mb", range([](const auto& m) { return m.heap_free_mb; })}};
+  }
+  nlohmann::ordered_json samples = nlohmann::ordered_json::array();
+  for (const auto& m : r.memory_samples)
+    samples.push_back({{"t_s", std::round(m.t_s)},
+                       {"rss_mb", std::round(m.rss_mb * 10) / 10},
+                       {"heap_in_use_mb", std::round(m.heap_in_use_mb * 10) / 10},
+                       {"heap_free_mb", std::round(m.heap_free_mb * 10) / 10},
+                       {"log_mb", std::round(m.log_mb * 10) / 10},
+                       {"snapshot_mb", std::round(m.snapshot_mb * 100) / 100},
+                       {"views", m.views},
+                       {"cells", m.cells},
+                       {"chunks", m.chunks},
+                       {"frames_accepted", m.frames_accepted}});
   nlohmann::ordered_json j = {{"bench", "service_abuse"},
                               {"never_readers", o.never_readers},
                               {"viewers", o.viewers},
-                              {"frames", o.warm_frames + o.frames},
+                              {"frames", (o.loop_frames > 0 ? o.loop_frames : o.warm_frames) +
+                                             o.frames},
+                              {"loop_frames", o.loop_frames},
                               {"rate_hz", o.rate_hz},
                               {"model_mb", r.model_mb},
                               {"baseline_rss_peak_mb", base.rss_peak_mb},
@@ -101,6 +150,8 @@ int main(int argc, char** argv) {
                               {"rss_last_two_thirds_max_mb", late_max},
                               {"rss_last_two_thirds_spread",
                                late_min > 0 ? (late_max - late_min) / late_min : 0.0},
+                              {"after_warmup", after_warmup},
+                              {"memory_samples", samples},
                               {"error", r.error.empty() ? base.error : r.error}};
   std::printf("%s\n", j.dump().c_str());
   std::filesystem::remove_all(dir);

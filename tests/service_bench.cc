@@ -6,8 +6,11 @@
 //   steady_state    long 30 Hz upload (frames repeat with new sequence numbers): bytes/s at the
 //                   viewer, server RSS samples (flat after warm-up?)
 //   ingest_max      upload as fast as the server acks: admitted fps, processed fps, dropped
+//   rss_sample      (--rss_frames) long unpaced upload: RSS, heap live/free, log, store per 1000
+//                   frames; --rss_fill_frames processes the first N frames without drops so the
+//                   store is full sooner (docs/service.md "Memory over a long session")
 //   exoview_bench tests/service_bench [--distinct=N] [--long=M] [--max=K] [--width=W --height=H]
-//                 [--server_arg=--key=value ...]
+//                 [--rss_frames=F [--rss_fill_frames=N]] [--server_arg=--key=value ...]
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -92,6 +95,11 @@ int Main(int argc, char** argv) {
   app.add_option("--width", width, "frame width")->check(CLI::PositiveNumber);
   app.add_option("--height", height, "frame height")->check(CLI::PositiveNumber);
   app.add_option("--rss_frames", rss_frames, "unpaced upload with RSS per 1000 frames (phase 5)")
+      ->check(CLI::NonNegativeNumber);
+  int rss_fill_frames = 0;
+  app.add_option("--rss_fill_frames", rss_fill_frames,
+                 "phase 5: the first N frames in batches of 8, the pipeline drained after each "
+                 "(every frame processed, none dropped): the store fills sooner")
       ->check(CLI::NonNegativeNumber);
   app.add_option("--server_arg", server_args,
                  "a flag passed to exoview_server, repeatable: --server_arg=--key=value")
@@ -324,12 +332,27 @@ int Main(int argc, char** argv) {
     json samples = json::array();
     uint64_t accepted = 0, dropped = 0;
     const auto t0 = Clock::now();
-    for (int done = 0; done < rss_frames; done += 1000) {
-      auto up = UploadStream(channel, std::min(1000, rss_frames - done), make, fast);
+    // Fill: frames [0, rss_fill_frames) go in batches of 8 (the admission queue), each drained
+    // before the next, so every one reaches the planner instead of ~1 in 7. `sent` keeps the
+    // cycle going across calls (UploadStream numbers each call's frames from 0).
+    size_t sent = 0;
+    auto upload = [&](int n) {
+      const size_t first = sent;
+      sent += n;
+      auto up = UploadStream(channel, n, [&](size_t i) { return make(first + i); }, fast);
       if (up.ok()) {
         accepted += up->accepted;
         dropped += up->dropped;
       }
+    };
+    for (int done = 0; done < rss_frames; done += 1000) {
+      const int n = std::min(1000, rss_frames - done);
+      const int fill = std::clamp(rss_fill_frames - done, 0, n);
+      for (int b = 0; b < fill; b += 8) {
+        upload(std::min(8, fill - b));
+        wait_drained();
+      }
+      if (n > fill) upload(n - fill);
       const v1::Stats d = wait_drained();
       samples.push_back(RssKb(server.pid()) / 1024);
       // One line per sample: what could grow beside RSS (the delta log against its bounds, the
@@ -340,7 +363,9 @@ int Main(int argc, char** argv) {
       };
       PrintLine({{"phase", "rss_sample"},
                  {"frames", done + std::min(1000, rss_frames - done)},
+                 {"seconds", Round(std::chrono::duration<double>(Clock::now() - t0).count(), 1)},
                  {"rss_mb", samples.back()},
+                 {"accepted", accepted},
                  {"heap_in_use_mb", Round(counter("process.heap_in_use_bytes") / 1048576.0, 1)},
                  {"heap_free_mb", Round(counter("process.heap_free_bytes") / 1048576.0, 1)},
                  {"log_deltas", counter("store.log_deltas")},
@@ -352,6 +377,7 @@ int Main(int argc, char** argv) {
     const v1::Stats s = stats();
     PrintLine({{"phase", "rss_long"},
                {"frames", rss_frames},
+               {"fill_frames", rss_fill_frames},
                {"seconds", Round(std::chrono::duration<double>(Clock::now() - t0).count(), 1)},
                {"accepted", accepted},
                {"dropped", dropped},

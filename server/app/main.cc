@@ -5,9 +5,6 @@
 // default. --listen=127.0.0.1:0 picks a free port; --port_file writes the port once listening.
 // SIGINT/SIGTERM: graceful shutdown (admitted frames are processed, subscribers end, exit 0).
 #include <pthread.h>
-#if defined(__GLIBC__)
-#include <malloc.h>
-#endif
 #include <signal.h>
 
 #include <cstdio>
@@ -20,6 +17,7 @@
 #include "absl/strings/str_join.h"
 #include "common/cli/cli.h"
 #include "common/log/log.h"
+#include "common/process/malloc_tuning.h"
 #include "server/service/server.h"
 
 namespace {
@@ -100,11 +98,11 @@ int main(int argc, char** argv) {
     return 2;
   }
 
-#if defined(__GLIBC__)
   // Before any thread exists (gRPC's and the pipeline's start in server.Start()).
-  if (config.malloc_arena_max > 0 && mallopt(M_ARENA_MAX, config.malloc_arena_max) != 1)
-    log->warn("mallopt(M_ARENA_MAX, {}) failed", config.malloc_arena_max);
-#endif
+  if (auto s = exo::process::LimitMallocArenas(config.malloc_arena_max); !s.ok())
+    log->warn("{}", std::string(s.message()));
+  if (auto s = exo::process::SetMallocMmapThreshold(config.malloc_mmap_threshold); !s.ok())
+    log->warn("{}", std::string(s.message()));
   exo::ExoviewServer server(config);
   if (auto s = server.Start(); !s.ok()) {
     log->critical("cannot start: {}", std::string(s.message()));

@@ -11,6 +11,7 @@
 
 #include "common/cli/cli.h"
 #include "common/log/log.h"
+#include "common/process/malloc_tuning.h"
 #include "server/relay/relay.h"
 
 int main(int argc, char** argv) {
@@ -26,6 +27,8 @@ int main(int argc, char** argv) {
   exo::cli::Setup(app);
   exo::RelayConfig c;
   std::string port_file, log_level = "info";
+  int malloc_arena_max = exo::process::kDefaultMallocArenaMax;
+  size_t malloc_mmap_threshold = exo::process::kDefaultMallocMmapThreshold;
   app.add_option("--listen", c.listen, "gRPC address host:port (port 0: a free port)")
       ->capture_default_str();
   app.add_option("--nats_url", c.nats.url, "NATS server URL(s), comma-separated")
@@ -48,18 +51,30 @@ int main(int argc, char** argv) {
   app.add_option("--allow_insecure_remote", c.allow_insecure_remote,
                  "allow plain text on a non-loopback address")
       ->capture_default_str();
+  app.add_option("--malloc_arena_max", malloc_arena_max, exo::process::kMallocArenaMaxHelp)
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
+  app.add_option("--malloc_mmap_threshold", malloc_mmap_threshold,
+                 exo::process::kMallocMmapThresholdHelp)
+      ->check(CLI::Range(size_t{0}, size_t{32} << 20))
+      ->capture_default_str();
   app.add_option("--port_file", port_file, "write the port here once listening");
   app.add_option("--log_level", log_level, "log level")->check(CLI::IsMember(exo::log::LevelNames()));
   if (auto rc = exo::cli::Parse(app, argc, argv)) return *rc;
   exo::log::SetLevel(log_level);
   auto log = exo::log::Get("relay");
+  // Before any thread exists (gRPC's and the NATS client's start in relay.Start()).
+  if (auto s = exo::process::LimitMallocArenas(malloc_arena_max); !s.ok())
+    log->warn("{}", std::string(s.message()));
+  if (auto s = exo::process::SetMallocMmapThreshold(malloc_mmap_threshold); !s.ok())
+    log->warn("{}", std::string(s.message()));
   exo::Relay relay(c);
   if (auto s = relay.Start(); !s.ok()) {
     log->critical("cannot start: {}", std::string(s.message()));
     return 1;
   }
-  log->info("exoview_relay {} listening on port {}; scene {} from {}", exo::cli::Version(),
-            relay.port(), c.nats.scene, c.nats.url);
+  log->info("exoview_relay {} listening on port {}; scene {} from {}; malloc_arena_max {}",
+            exo::cli::Version(), relay.port(), c.nats.scene, c.nats.url, malloc_arena_max);
   if (!port_file.empty()) {
     const std::string tmp = port_file + ".tmp";
     std::ofstream(tmp) << relay.port() << "\n";

@@ -1,9 +1,6 @@
 #include "server/service/server.h"
 
 #include <fcntl.h>
-#if defined(__GLIBC__)
-#include <malloc.h>
-#endif
 #include <unistd.h>
 
 #include <filesystem>
@@ -28,6 +25,7 @@
 #include "absl/strings/str_split.h"
 #include "absl/strings/strip.h"
 #include "common/log/log.h"
+#include "common/process/malloc_tuning.h"
 #include "proto/exoview.grpc.pb.h"
 #include "server/service/auth.h"
 #include "proto/frame_proto.h"
@@ -412,13 +410,11 @@ class ExoviewServer::Service final : public v1::Exoview::Service {
     c["store.snapshot_bytes"] = static_cast<double>(s.snapshot_bytes);
     c["store.log_deltas"] = static_cast<double>(s.log_deltas);
     c["store.log_bytes"] = static_cast<double>(s.log_bytes);
-#if defined(__GLIBC__)
-    {  // glibc heap: live bytes vs free bytes the arenas hold (RSS growth: live data or fragmentation)
-      const struct mallinfo2 mi = mallinfo2();
-      c["process.heap_in_use_bytes"] = static_cast<double>(mi.uordblks + mi.hblkhd);
-      c["process.heap_free_bytes"] = static_cast<double>(mi.fordblks);
+    // glibc heap: live bytes vs free bytes the arenas hold (RSS growth: live data or fragmentation)
+    if (const process::HeapUsage h = process::ReadHeapUsage(); h.known) {
+      c["process.heap_in_use_bytes"] = static_cast<double>(h.in_use_bytes);
+      c["process.heap_free_bytes"] = static_cast<double>(h.free_bytes);
     }
-#endif
     c["journal.applied_lsn"] = static_cast<double>(store_->applied_lsn());
     if (udp_) {
       c["udp.received"] = static_cast<double>(udp_->received());

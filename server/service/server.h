@@ -13,6 +13,7 @@
 #include <string>
 #include <vector>
 
+#include "common/process/malloc_tuning.h"
 #include "common/status.h"
 #include "server/service/ingest.h"
 #include "proto/model_proto.h"
@@ -97,7 +98,11 @@ struct ServerConfig {
   // default of 8 per core). With the default, the pipeline's and gRPC's threads each grow their
   // own arena and the free memory they keep rose 91 -> 162 MB over 10 000 unpaced frames; 2 keeps
   // it near 56 MB and RSS flat (docs/service.md "Memory over a long session").
-  int malloc_arena_max = 2;
+  int malloc_arena_max = process::kDefaultMallocArenaMax;
+  // glibc M_MMAP_THRESHOLD (bytes; 0 = glibc's dynamic threshold), set with malloc_arena_max:
+  // a fixed 128 KiB keeps large transient buffers (frames, meshes) out of the arenas, where they
+  // left ~40 MB of free holes (docs/service.md "Memory over a long session").
+  size_t malloc_mmap_threshold = process::kDefaultMallocMmapThreshold;
   // Decoded bytes of a client's accepted frames still inside the pipeline (client = the peer
   // host, or the authenticated principal); beyond it a frame is REJECTED RESOURCE_EXHAUSTED.
   size_t max_client_inflight_bytes = size_t{256} << 20;

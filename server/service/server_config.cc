@@ -242,8 +242,9 @@ std::vector<ConfigKey> MakeKeys() {
           EXO_FIELD(max_upload_streams)),
       Key("max_subscribers", "concurrent Subscribe calls (beyond: RESOURCE_EXHAUSTED)",
           EXO_FIELD(max_subscribers)),
-      Key("malloc_arena_max", "glibc malloc arenas (0: glibc default, 8 per core); bounds the "
-          "free memory threads keep", EXO_FIELD(malloc_arena_max)),
+      Key("malloc_arena_max", process::kMallocArenaMaxHelp, EXO_FIELD(malloc_arena_max)),
+      Key("malloc_mmap_threshold", process::kMallocMmapThresholdHelp,
+          EXO_FIELD(malloc_mmap_threshold)),
       Key("max_client_inflight_bytes",
           "decoded bytes of one client's frames inside the pipeline (beyond: REJECTED)",
           EXO_FIELD(max_client_inflight_bytes)),
@@ -318,6 +319,8 @@ absl::Status ServerConfig::Validate() const {
   if (max_subscribers < 1) return absl::InvalidArgumentError("max_subscribers must be >= 1");
   if (malloc_arena_max < 0)
     return absl::InvalidArgumentError("malloc_arena_max must be >= 0 (0 = glibc default)");
+  if (malloc_mmap_threshold > (size_t{32} << 20))
+    return absl::InvalidArgumentError("malloc_mmap_threshold must be <= 32 MiB (0 = glibc dynamic)");
   if (max_client_inflight_bytes < (size_t{1} << 20))
     return absl::InvalidArgumentError("max_client_inflight_bytes must be >= 1 MiB");
   if (!(subscriber_write_timeout_s >= 0.0) || !(upload_idle_timeout_s >= 0.0))
