@@ -74,6 +74,7 @@ struct OnlineModelOptions {
   double dispersion_m_per_rad = 0.0;
   double dispersion_guard = 0.5;
   double dispersion_guard_relative = 0.65;
+  bool dispersion_guard_unique = false;  // PlannerOptions::dispersion_guard_unique (session 11)
   // Relative sharpness of each frame as the planner's candidate quality (issue 15;
   // planning/frame_quality.h). gamma 0 = off.
   planning::FrameQualityOptions frame_quality;

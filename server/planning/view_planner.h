@@ -93,6 +93,15 @@ struct PlannerOptions {
   double dispersion_guard = 0.5;  // τ units (kFirst)
   // > 0: the guard is this fraction of the mean τ per stored view (τ_sum / n) instead.
   double dispersion_guard_relative = 0.0;
+  // kFirst: what the guard measures. false: the τ_sum a removal loses, from the φ frozen at
+  // acceptance. A cell's first view holds its φ_d = 1 and later views from nearby hold ~0, so
+  // removing a view that first saw some cells "loses" them although other stored views still
+  // see them; on a long stream nearly every view then exceeds the guard and the store keeps the
+  // stream's first sightings instead of spreading (docs/planning.md, "Session 11"). true:
+  // unique coverage: a removal loses only the cells it would leave with no stored observer (the
+  // candidate counted), each valued at the φ the view would have as the cell's only view; a
+  // candidate's gain is its φ over the cells no stored view observes.
+  bool dispersion_guard_unique = false;
   double dispersion_min = 1e-3;  // pose-distance units (m)
 
   absl::Status Validate() const;
@@ -270,6 +279,10 @@ class ViewPlanner {
   void NearestAdd(const View& v);          // v already in views_
   void NearestRemove(ViewId id);           // id already erased from views_
   std::unordered_map<ViewId, Nearest> nearest_;
+  // dispersion_guard_unique: per-cell pending observer-count change during the victim search,
+  // and the coverage a view alone holds (the cells it would leave unobserved).
+  std::vector<int32_t> obs_scratch_;
+  double UniqueLoss(const View& v) const;
 };
 
 }  // namespace exo::planning

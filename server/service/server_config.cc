@@ -152,6 +152,8 @@ std::vector<ConfigKey> MakeKeys() {
           EXO_FIELD(pipeline.model.dispersion_guard)),
       Key("planner_dispersion_guard_relative", "dispersion 2: the guard as this fraction of the mean tau per stored view (0: the absolute planner_dispersion_guard)",
           EXO_FIELD(pipeline.model.dispersion_guard_relative)),
+      Key("planner_dispersion_guard_unique", "dispersion 2: the guard counts only the coverage a removal leaves with no stored view (true) instead of the tau from the coverage frozen at acceptance (false)",
+          EXO_FIELD(pipeline.model.dispersion_guard_unique)),
       Key("max_candidates_per_s_when_full",
           "planner candidates per s once the store is full (0: all)",
           EXO_FIELD(pipeline.model.max_candidates_per_s_when_full)),
