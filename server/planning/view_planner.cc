@@ -438,7 +438,7 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
   double unique_net = 0.0;
   if (guard_unique)
     for (const Entry& e : view.entries)
-      if (cells_[e.cell].observers.empty()) unique_net += e.phi;
+      if (cells_[e.cell].observers.empty()) unique_net += Sat(e.phi);
   std::vector<ViewId> victims;
   double victim_redundancy = 0.0;  // dispersion: the largest redundancy among the victims
   const bool full = views_.size() + 1 > options_.max_views ||
