@@ -75,6 +75,7 @@ struct OnlineModelOptions {
   double dispersion_guard = 0.5;
   double dispersion_guard_relative = 0.65;
   bool dispersion_guard_unique = false;  // PlannerOptions::dispersion_guard_unique (session 11)
+  double dispersion_guard_unique_after = 0.0;  // PlannerOptions::dispersion_guard_unique_after
   // Relative sharpness of each frame as the planner's candidate quality (issue 15;
   // planning/frame_quality.h). gamma 0 = off.
   planning::FrameQualityOptions frame_quality;

@@ -254,6 +254,9 @@ planning::PlannerOptions PlannerFor(const PolicyConfig& c, const Source& src, do
                                      : product.dispersion_guard_relative;
   po.dispersion_guard_unique = c.dispersion_guard_unique >= 0 ? c.dispersion_guard_unique != 0
                                                               : product.dispersion_guard_unique;
+  po.dispersion_guard_unique_after = c.dispersion_guard_unique_after >= 0
+                                         ? c.dispersion_guard_unique_after
+                                         : product.dispersion_guard_unique_after;
   po.d_max_m = src.scale.d_max_m;
   po.sigma_m = src.scale.sigma_m;
   if (src.scale_mode == ScaleMode::kViewDepth && src.view_depth_m > 0) {
@@ -387,6 +390,7 @@ std::string ConfigJson(const std::string& dataset, const std::string& test_poses
                  {"dispersion_guard", po.dispersion_guard},
                  {"dispersion_guard_relative", po.dispersion_guard_relative},
                  {"dispersion_guard_unique", int(po.dispersion_guard_unique)},
+                 {"dispersion_guard_unique_after", po.dispersion_guard_unique_after},
                  {"sharp_gamma", c.sharp_gamma}};
   j["quality"] = {{"mssim", Round(r.quality.mssim, 4)},
                   {"psnr", Round(r.quality.psnr, 2)},
@@ -551,6 +555,7 @@ class Engine {
         mo.dispersion_guard = po.dispersion_guard;
         mo.dispersion_guard_relative = po.dispersion_guard_relative;
         mo.dispersion_guard_unique = po.dispersion_guard_unique;
+        mo.dispersion_guard_unique_after = po.dispersion_guard_unique_after;
         mo.frame_quality.gamma = c.sharp_gamma;
         mo.cell_areas = !c.face_areas;
         mo.id_buffer_stride = IdStride();

@@ -58,6 +58,8 @@ absl::Status PlannerOptions::Validate() const {
     return absl::InvalidArgumentError("planner dispersion_guard_relative must be finite and >= 0");
   if (!std::isfinite(dispersion_guard) || dispersion_guard < 0.0)
     return absl::InvalidArgumentError("planner dispersion_guard must be finite and >= 0");
+  if (!std::isfinite(dispersion_guard_unique_after) || dispersion_guard_unique_after < 0.0)
+    return absl::InvalidArgumentError("planner dispersion_guard_unique_after must be finite and >= 0");
   if (!std::isfinite(dispersion_min) || dispersion_min < 0.0)
     return absl::InvalidArgumentError("planner dispersion_min must be finite and >= 0");
   return absl::OkStatus();
@@ -434,7 +436,12 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
                            : options_.dispersion_guard;
   // Unique-coverage guard (kFirst): the candidate's φ over the cells no stored view observes,
   // minus what the victims alone observed (set when full).
-  const bool guard_unique = first && options_.dispersion_guard_unique;
+  ++offered_;
+  const bool guard_unique =
+      first && (options_.dispersion_guard_unique ||
+                (options_.dispersion_guard_unique_after > 0.0 &&
+                 static_cast<double>(offered_) >
+                     options_.dispersion_guard_unique_after * static_cast<double>(options_.max_views)));
   double unique_net = 0.0;
   if (guard_unique)
     for (const Entry& e : view.entries)

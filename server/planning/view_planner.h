@@ -102,6 +102,12 @@ struct PlannerOptions {
   // candidate counted), each valued at the φ the view would have as the cell's only view; a
   // candidate's gain is its φ over the cells no stored view observes.
   bool dispersion_guard_unique = false;
+  // > 0: the unique-coverage guard from the moment the planner has been offered more than this
+  // many candidates per view of capacity (max_views), the frozen-τ guard before. The frozen φ
+  // describe the store while most of the references they were judged against are still stored
+  // (short streams: the ten 7-Scenes folds offer <= 5.4 frames per view and the frozen-τ guard
+  // wins there); on a long stream they are stale (docs/planning.md, "Session 11").
+  double dispersion_guard_unique_after = 0.0;
   double dispersion_min = 1e-3;  // pose-distance units (m)
 
   absl::Status Validate() const;
@@ -283,6 +289,7 @@ class ViewPlanner {
   // and the coverage a view alone holds (the cells it would leave unobserved).
   std::vector<int32_t> obs_scratch_;
   double UniqueLoss(const View& v) const;
+  uint64_t offered_ = 0;  // candidates that passed validation (dispersion_guard_unique_after)
 };
 
 }  // namespace exo::planning

@@ -581,11 +581,16 @@ TEST(ViewPlanner, UniqueCoverageGuardThinsAPairTheFrozenTauGuardKeeps) {
     bool unique;
     double guard, guard_rel;
     bool e;  // view 1 also sees E, which no other view sees
+    // dispersion_guard_unique_after: candidate 5 is the 5th offered, 4 views of capacity: 1.0
+    // switches to the unique guard before it (5 > 4), 2.0 does not (5 <= 8).
+    double after = 0.0;
   };
   for (const Case k : {Case{false, 0, 0.65, false}, Case{true, 0, 0.65, false},
-                       Case{false, 0, 0.65, true}, Case{true, 0.5, 0, true}}) {
+                       Case{false, 0, 0.65, true}, Case{true, 0.5, 0, true},
+                       Case{false, 0, 0.65, false, 1.0}, Case{false, 0, 0.65, false, 2.0}}) {
     SCOPED_TRACE(::testing::Message() << "unique " << k.unique << " guard " << k.guard << " rel "
-                                      << k.guard_rel << " E " << k.e);
+                                      << k.guard_rel << " E " << k.e << " after " << k.after);
+    const bool unique = k.unique || (k.after > 0 && k.after < 1.25);
     PlannerOptions o;
     o.max_views = 4;
     o.lambda = 1.0;  // φ = φ_d: 1 for a cell's first view, ~0 for one from the same direction
@@ -594,6 +599,7 @@ TEST(ViewPlanner, UniqueCoverageGuardThinsAPairTheFrozenTauGuardKeeps) {
     o.dispersion_guard = k.guard;
     o.dispersion_guard_relative = k.guard_rel;
     o.dispersion_guard_unique = k.unique;
+    o.dispersion_guard_unique_after = k.after;
     auto p = ViewPlanner::Create(o).value();
     std::vector<std::pair<int, int>> rows1 = {{kA, 6}};
     if (k.e) rows1.push_back({kE, 3});
@@ -613,7 +619,7 @@ TEST(ViewPlanner, UniqueCoverageGuardThinsAPairTheFrozenTauGuardKeeps) {
     const ViewId victim = d.removed[0];
     const auto ids = p.ViewIds();
     const std::set<ViewId> stored(ids.begin(), ids.end());
-    if (!k.unique) {
+    if (!unique) {
       // The frozen-τ guard: 1 and 2 each hold 6 τ > 0.65 x mean τ, 3 holds 12; only 4 (whose C
       // cells 3 saw first) is a permitted victim, although it is 20 m from every other view.
       EXPECT_EQ(victim, 4u);
@@ -632,13 +638,18 @@ TEST(ViewPlanner, UniqueCoverageGuardThinsAPairTheFrozenTauGuardKeeps) {
       for (int x = 0; x < 3; ++x) EXPECT_EQ(p.Refs(PackCell({x, kE, 0})), std::vector<ViewId>{1});
     }
     // Every cell any view saw is still observed by a stored view under the unique guard.
-    if (k.unique)
+    if (unique)
       for (auto [y, n] : std::vector<std::pair<int, int>>{{kA, 6}, {kB, 6}, {kC, 6}, {kD, 3}})
         for (int x = 0; x < n; ++x) EXPECT_FALSE(p.Refs(PackCell({x, y, 0})).empty()) << x << "," << y;
     EXPECT_EQ(p.num_views(), 4u);
     EXPECT_NEAR(p.tau_sum(), p.RecomputeTauSum(), 1e-9);
     EXPECT_GT(p.tau_sum(), tau_before);  // 5 added D and a second direction of A
   }
+  PlannerOptions bad;
+  bad.dispersion_guard_unique_after = -1.0;
+  EXPECT_FALSE(bad.Validate().ok());
+  bad.dispersion_guard_unique_after = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_FALSE(bad.Validate().ok());
 }
 
 TEST(ViewPlanner, PreSelectionKeepsAtMostRMaxReferences) {

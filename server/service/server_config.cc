@@ -154,6 +154,8 @@ std::vector<ConfigKey> MakeKeys() {
           EXO_FIELD(pipeline.model.dispersion_guard_relative)),
       Key("planner_dispersion_guard_unique", "dispersion 2: the guard counts only the coverage a removal leaves with no stored view (true) instead of the tau from the coverage frozen at acceptance (false)",
           EXO_FIELD(pipeline.model.dispersion_guard_unique)),
+      Key("planner_dispersion_guard_unique_after", "dispersion 2: the unique-coverage guard once the planner has been offered more than this many frames per view of capacity (0: never; planner_dispersion_guard_unique=true: always)",
+          EXO_FIELD(pipeline.model.dispersion_guard_unique_after)),
       Key("max_candidates_per_s_when_full",
           "planner candidates per s once the store is full (0: all)",
           EXO_FIELD(pipeline.model.max_candidates_per_s_when_full)),
