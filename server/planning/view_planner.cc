@@ -494,13 +494,11 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
       for (const auto& [vid, v] : views_) {
         if (std::find(victims.begin(), victims.end(), vid) != victims.end()) continue;
         double loss = 0.0;  // τ_sum change caused by removing v (<= 0)
-        if (guard_unique)
-          loss = -UniqueLoss(v);
-        else
-          for (const Entry& e : v.entries) {
-            const double t = cells_[e.cell].tau + scratch_[e.cell];
-            loss += Sat(t - e.phi) - Sat(t);
-          }
+        for (const Entry& e : v.entries) {
+          const double t = cells_[e.cell].tau + scratch_[e.cell];
+          loss += Sat(t - e.phi) - Sat(t);
+        }
+        if (guard_unique) loss = -UniqueLoss(v);  // what the unique-coverage guard counts
         if (first) {
           // Dispersion first: the most redundant view among those whose removal loses at most
           // dispersion_guard of τ (a cell's only views are kept); none such: the thesis' victim.
