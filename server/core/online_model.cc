@@ -68,6 +68,8 @@ absl::Status OnlineModelOptions::Validate() const {
     po.dispersion_m_per_rad = dispersion_m_per_rad;
     po.dispersion_guard = dispersion_guard;
     po.dispersion_guard_relative = dispersion_guard_relative;
+    po.dispersion_guard_unique = dispersion_guard_unique;
+    po.dispersion_guard_unique_after = dispersion_guard_unique_after;
     EXO_RETURN_IF_ERROR(po.Validate());
   }
   if (tsdf_threads < 1) return absl::InvalidArgumentError("tsdf_threads must be >= 1");
@@ -282,6 +284,8 @@ absl::StatusOr<std::unique_ptr<OnlinePlanner>> OnlinePlanner::Create(
   po.dispersion_m_per_rad = options.dispersion_m_per_rad;
   po.dispersion_guard = options.dispersion_guard;
   po.dispersion_guard_relative = options.dispersion_guard_relative;
+  po.dispersion_guard_unique = options.dispersion_guard_unique;
+  po.dispersion_guard_unique_after = options.dispersion_guard_unique_after;
   po.cell_size_m = setup.cell_m;
   po.d_max_m = setup.d_max_m;
   po.sigma_m = setup.sigma_m;

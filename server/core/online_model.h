@@ -74,6 +74,11 @@ struct OnlineModelOptions {
   double dispersion_m_per_rad = 0.0;
   double dispersion_guard = 0.5;
   double dispersion_guard_relative = 0.65;
+  // PlannerOptions::dispersion_guard_unique / _after (session 11): the frozen-τ guard while the
+  // stream has offered <= 8 frames per view of capacity (the ten 7-Scenes folds: <= 5.4, where it
+  // wins), the unique-coverage guard after (long streams, where the frozen τ are stale).
+  bool dispersion_guard_unique = false;
+  double dispersion_guard_unique_after = 8.0;
   // Relative sharpness of each frame as the planner's candidate quality (issue 15;
   // planning/frame_quality.h). gamma 0 = off.
   planning::FrameQualityOptions frame_quality;

@@ -252,6 +252,11 @@ planning::PlannerOptions PlannerFor(const PolicyConfig& c, const Source& src, do
   po.dispersion_guard_relative = c.dispersion_guard_relative >= 0
                                      ? c.dispersion_guard_relative
                                      : product.dispersion_guard_relative;
+  po.dispersion_guard_unique = c.dispersion_guard_unique >= 0 ? c.dispersion_guard_unique != 0
+                                                              : product.dispersion_guard_unique;
+  po.dispersion_guard_unique_after = c.dispersion_guard_unique_after >= 0
+                                         ? c.dispersion_guard_unique_after
+                                         : product.dispersion_guard_unique_after;
   po.d_max_m = src.scale.d_max_m;
   po.sigma_m = src.scale.sigma_m;
   if (src.scale_mode == ScaleMode::kViewDepth && src.view_depth_m > 0) {
@@ -384,6 +389,8 @@ std::string ConfigJson(const std::string& dataset, const std::string& test_poses
                  {"dispersion_m_per_rad", po.dispersion_m_per_rad},
                  {"dispersion_guard", po.dispersion_guard},
                  {"dispersion_guard_relative", po.dispersion_guard_relative},
+                 {"dispersion_guard_unique", int(po.dispersion_guard_unique)},
+                 {"dispersion_guard_unique_after", po.dispersion_guard_unique_after},
                  {"sharp_gamma", c.sharp_gamma}};
   j["quality"] = {{"mssim", Round(r.quality.mssim, 4)},
                   {"psnr", Round(r.quality.psnr, 2)},
@@ -547,6 +554,8 @@ class Engine {
         mo.dispersion_m_per_rad = po.dispersion_m_per_rad;
         mo.dispersion_guard = po.dispersion_guard;
         mo.dispersion_guard_relative = po.dispersion_guard_relative;
+        mo.dispersion_guard_unique = po.dispersion_guard_unique;
+        mo.dispersion_guard_unique_after = po.dispersion_guard_unique_after;
         mo.frame_quality.gamma = c.sharp_gamma;
         mo.cell_areas = !c.face_areas;
         mo.id_buffer_stride = IdStride();

@@ -161,12 +161,14 @@ absl::StatusOr<std::vector<PolicyConfig>> Configs(const Args& a) {
           c.dispersion = static_cast<int>(v);
         } else if (key == "dg") c.dispersion_guard = v;
         else if (key == "dgr") c.dispersion_guard_relative = v;
+        else if (key == "dgu") c.dispersion_guard_unique = v != 0 ? 1 : 0;
+        else if (key == "dgua") c.dispersion_guard_unique_after = v;
         else if (key == "mpr") c.dispersion_m_per_rad = v;
         else if (key == "dts") c.delta_tau_sum = v;
         else if (key == "sharp") c.sharp_gamma = v;
         else
           return absl::InvalidArgumentError("unknown policy option " + key +
-                                            " (lambda, blend_lambda, tau_max, soft, sharp, disp, mpr, dg, dgr, dts)");
+                                            " (lambda, blend_lambda, tau_max, soft, sharp, disp, mpr, dg, dgr, dgu, dgua, dts)");
       }
       c.tag = opts;
     }

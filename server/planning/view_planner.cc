@@ -58,6 +58,8 @@ absl::Status PlannerOptions::Validate() const {
     return absl::InvalidArgumentError("planner dispersion_guard_relative must be finite and >= 0");
   if (!std::isfinite(dispersion_guard) || dispersion_guard < 0.0)
     return absl::InvalidArgumentError("planner dispersion_guard must be finite and >= 0");
+  if (!std::isfinite(dispersion_guard_unique_after) || dispersion_guard_unique_after < 0.0)
+    return absl::InvalidArgumentError("planner dispersion_guard_unique_after must be finite and >= 0");
   if (!std::isfinite(dispersion_min) || dispersion_min < 0.0)
     return absl::InvalidArgumentError("planner dispersion_min must be finite and >= 0");
   return absl::OkStatus();
@@ -244,6 +246,22 @@ double ViewPlanner::PoseDistance(const glm::dvec3& ca, const glm::dquat& qa,
   return glm::length(ca - cb) + mpr * angle;
 }
 
+double ViewPlanner::UniqueLoss(const View& v) const {
+  // The cells v would leave with no stored observer (obs_scratch_: the candidate and the chosen
+  // victims), each at the φ v would have there as the cell's only view (φ_d = 1): its frozen φ
+  // may be ~0 when a view that has left since was the reference it was judged against.
+  double loss = 0.0;
+  for (size_t i = 0; i < v.entries.size(); ++i) {
+    const Entry& e = v.entries[i];
+    const Cell& c = cells_[e.cell];
+    if (static_cast<int64_t>(c.observers.size()) + obs_scratch_[e.cell] != 1) continue;
+    const double d = glm::length(v.centre - grid_.Centre(c.id));
+    const double g = DistanceQuality(d, options_.d_max_m, options_.sigma_m);
+    loss += Sat(v.quality * Phi(1.0, PositionalPart(AreaOf(c.id), d, g, v.pixels[i], v.pixel_sr)));
+  }
+  return loss;
+}
+
 void ViewPlanner::Nearest::Offer(double d, ViewId id) {
   if (d < d1) {
     d2 = d1;
@@ -416,6 +434,18 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
                            ? options_.dispersion_guard_relative * tau_sum_ /
                                  static_cast<double>(std::max<size_t>(1, views_.size()))
                            : options_.dispersion_guard;
+  // Unique-coverage guard (kFirst): the candidate's φ over the cells no stored view observes,
+  // minus what the victims alone observed (set when full).
+  ++offered_;
+  const bool guard_unique =
+      first && (options_.dispersion_guard_unique ||
+                (options_.dispersion_guard_unique_after > 0.0 &&
+                 static_cast<double>(offered_) >
+                     options_.dispersion_guard_unique_after * static_cast<double>(options_.max_views)));
+  double unique_net = 0.0;
+  if (guard_unique)
+    for (const Entry& e : view.entries)
+      if (cells_[e.cell].observers.empty()) unique_net += Sat(e.phi);
   std::vector<ViewId> victims;
   double victim_redundancy = 0.0;  // dispersion: the largest redundancy among the victims
   const bool full = views_.size() + 1 > options_.max_views ||
@@ -434,6 +464,12 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
       }
     };
     for (const Entry& e : view.entries) touch(e.cell, e.phi);
+    // Unique-coverage guard: the pending change of each cell's observer count (the candidate
+    // +1, chosen victims -1); a removal loses the cells only it would still observe.
+    if (guard_unique) {
+      obs_scratch_.assign(cells_.size(), 0);
+      for (const Entry& e : view.entries) ++obs_scratch_[e.cell];
+    }
     size_t count = views_.size() + 1;
     size_t bytes = bytes_ + cand.bytes;
     // Dispersion: a view's redundancy = pose distance to its nearest neighbour in the store
@@ -462,6 +498,7 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
           const double t = cells_[e.cell].tau + scratch_[e.cell];
           loss += Sat(t - e.phi) - Sat(t);
         }
+        if (guard_unique) loss = -UniqueLoss(v);  // what the unique-coverage guard counts
         if (first) {
           // Dispersion first: the most redundant view among those whose removal loses at most
           // dispersion_guard of τ (a cell's only views are kept); none such: the thesis' victim.
@@ -500,6 +537,10 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
       if (best == nullptr) break;  // cannot happen: bytes <= max_bytes once the store is empty
       victims.push_back(best->id);
       victim_redundancy = std::max(victim_redundancy, best_red);
+      if (guard_unique) {
+        unique_net += best_loss;
+        for (const Entry& e : best->entries) --obs_scratch_[e.cell];
+      }
       for (const Entry& e : best->entries) touch(e.cell, -static_cast<double>(e.phi));
       --count;
       bytes -= best->bytes;
@@ -518,7 +559,10 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
   bool spread = false;
   const double accept_gain = first && full ? guard : options_.delta_tau_sum;
   const double min_gain = first ? -guard : -kTie;
-  if (options_.dispersion != PlannerOptions::Dispersion::kOff && !(gain > accept_gain) && gain >= min_gain) {
+  // What the guard tests: the τ gain, or (unique-coverage guard, store full) the net unique one.
+  const double guard_gain = guard_unique && full ? unique_net : gain;
+  if (options_.dispersion != PlannerOptions::Dispersion::kOff && !(guard_gain > accept_gain) &&
+      guard_gain >= min_gain) {
     // As the min-distance policy: the candidate's nearest stored view (victims included, so a
     // candidate next to the victim does not just replace it) must be farther than the victim's.
     double nearest = std::numeric_limits<double>::infinity();
@@ -526,7 +570,7 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
       nearest = std::min(nearest, PoseDistance(v.centre, v.rotation, view.centre, view.rotation));
     spread = full ? nearest > victim_redundancy : nearest > options_.dispersion_min;
   }
-  if (!(gain > accept_gain) && !spread) {
+  if (!(guard_gain > accept_gain) && !spread) {
     d.reason = full ? absl::StrCat("store full and no victim gains more than delta_tau_sum (best ",
                                    gain, ")")
                     : absl::StrCat("coverage gain ", gain, " <= delta_tau_sum ",

@@ -93,6 +93,21 @@ struct PlannerOptions {
   double dispersion_guard = 0.5;  // τ units (kFirst)
   // > 0: the guard is this fraction of the mean τ per stored view (τ_sum / n) instead.
   double dispersion_guard_relative = 0.0;
+  // kFirst: what the guard measures. false: the τ_sum a removal loses, from the φ frozen at
+  // acceptance. A cell's first view holds its φ_d = 1 and later views from nearby hold ~0, so
+  // removing a view that first saw some cells "loses" them although other stored views still
+  // see them; on a long stream nearly every view then exceeds the guard and the store keeps the
+  // stream's first sightings instead of spreading (docs/planning.md, "Session 11"). true:
+  // unique coverage: a removal loses only the cells it would leave with no stored observer (the
+  // candidate counted), each valued at the φ the view would have as the cell's only view; a
+  // candidate's gain is its φ over the cells no stored view observes.
+  bool dispersion_guard_unique = false;
+  // > 0: the unique-coverage guard from the moment the planner has been offered more than this
+  // many candidates per view of capacity (max_views), the frozen-τ guard before. The frozen φ
+  // describe the store while most of the references they were judged against are still stored
+  // (short streams: the ten 7-Scenes folds offer <= 5.4 frames per view and the frozen-τ guard
+  // wins there); on a long stream they are stale (docs/planning.md, "Session 11").
+  double dispersion_guard_unique_after = 0.0;
   double dispersion_min = 1e-3;  // pose-distance units (m)
 
   absl::Status Validate() const;
@@ -270,6 +285,11 @@ class ViewPlanner {
   void NearestAdd(const View& v);          // v already in views_
   void NearestRemove(ViewId id);           // id already erased from views_
   std::unordered_map<ViewId, Nearest> nearest_;
+  // dispersion_guard_unique: per-cell pending observer-count change during the victim search,
+  // and the coverage a view alone holds (the cells it would leave unobserved).
+  std::vector<int32_t> obs_scratch_;
+  double UniqueLoss(const View& v) const;
+  uint64_t offered_ = 0;  // candidates that passed validation (dispersion_guard_unique_after)
 };
 
 }  // namespace exo::planning

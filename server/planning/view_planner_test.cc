@@ -374,9 +374,11 @@ TEST(ViewPlanner, DispersionLongStreamKeepsBoundsAndGuard) {
   struct Mode {
     D mode;
     double guard, guard_rel;
+    bool unique = false;
   };
   for (const Mode m : {Mode{D::kTies, 0.5, 0}, Mode{D::kFirst, 0.5, 0}, Mode{D::kFirst, 0, 0.65},
-                       Mode{D::kFirst, 1e9, 0}}) {
+                       Mode{D::kFirst, 1e9, 0}, Mode{D::kFirst, 0, 0.65, true},
+                       Mode{D::kFirst, 0.2, 0, true}}) {
     PlannerOptions o;
     o.max_views = 12;
     o.max_bytes = 12 * 1000;
@@ -388,7 +390,14 @@ TEST(ViewPlanner, DispersionLongStreamKeepsBoundsAndGuard) {
     o.dispersion = m.mode;
     o.dispersion_guard = m.guard;
     o.dispersion_guard_relative = m.guard_rel;
+    o.dispersion_guard_unique = m.unique;
     auto p = ViewPlanner::Create(o).value();
+    // The cells some stored view observes (= a non-empty R(b_k)).
+    auto observed = [&p] {
+      std::set<CellId> out;
+      for (const auto& [cell, refs] : p.CellRefs()) out.insert(cell);
+      return out;
+    };
     std::mt19937 rng(11);
     std::uniform_real_distribution<double> u(-6, 6), h(1.5, 5.0);
     std::uniform_int_distribution<int> sz(600, 2500);
@@ -407,12 +416,24 @@ TEST(ViewPlanner, DispersionLongStreamKeepsBoundsAndGuard) {
       const size_t n_before = p.num_views();
       const double guard =
           m.guard_rel > 0 ? m.guard_rel * before / double(std::max<size_t>(1, n_before)) : m.guard;
+      const std::set<CellId> seen_before = m.unique ? observed() : std::set<CellId>{};
       auto d = p.Consider(MakeCandidate(id, centre, target, p.grid(), size_t(sz(rng)), 6.0));
       ASSERT_TRUE(d.ok()) << d.status();
       if (d->accepted && absl::StrContains(d->reason, "dispersion")) {
         ++spread;
-        if (m.mode == D::kTies) EXPECT_GE(d->gain, -1e-9) << d->reason;
-        else EXPECT_GE(d->gain, -guard - 1e-9) << d->reason;
+        if (m.unique) {
+          // Unique guard: the cells left with no stored view, net of the cells the candidate
+          // observes first, at Sat(φ of a cell's only view) = τ_max = 0.3 each (φ >= λ = 0.5).
+          const std::set<CellId> seen_after = observed();
+          int lost = 0, added = 0;
+          for (CellId c : seen_before) lost += !seen_after.count(c);
+          for (CellId c : seen_after) added += !seen_before.count(c);
+          EXPECT_GE(o.tau_max * (added - lost), -guard - 1e-9) << d->reason;
+        } else if (m.mode == D::kTies) {
+          EXPECT_GE(d->gain, -1e-9) << d->reason;
+        } else {
+          EXPECT_GE(d->gain, -guard - 1e-9) << d->reason;
+        }
       }
       CheckInvariants(p, o);
       ASSERT_NEAR(p.tau_sum(), p.RecomputeTauSum(), 1e-9 * (1 + p.tau_sum())) << "step " << id;
@@ -535,6 +556,100 @@ TEST(ViewPlanner, VictimIsTheViewWhoseRemovalLosesLeast) {
   EXPECT_EQ(p.ViewIds(), (std::vector<ViewId>{2, 3}));
   // B lost view 1 from its references and was refilled from its remaining observer (view 2).
   EXPECT_EQ(p.Refs(PackCell({5, 0, 0})), std::vector<ViewId>{2});
+}
+
+// Session 11 (docs/planning.md): φ is frozen at acceptance, so a cell's first view holds its
+// φ_d = 1 and a later view from nearly the same pose ~0. Two views 1 cm apart (1 first saw A,
+// 2 first saw B, and A and B are seen by other stored views too) then each "lose" 6 τ on removal
+// and the τ guard keeps both, evicting a view 20 m from every other one instead. The
+// unique-coverage guard counts only the cells a removal leaves with no stored view: it thins the
+// pair, keeps every cell observed, and still keeps a cell's only view (E).
+TEST(ViewPlanner, UniqueCoverageGuardThinsAPairTheFrozenTauGuardKeeps) {
+  const PinholeCamera cam = PinholeCamera::FromFov(40, 30, 1.0);
+  auto cand = [&](ViewId id, std::vector<std::pair<int, int>> rows, glm::dvec3 centre) {
+    Candidate c;
+    c.id = id;
+    c.local_from_cam.translation = centre;
+    c.id_camera = cam;
+    for (auto [y, n] : rows)  // n cells (0..n-1, y, 0)
+      for (int x = 0; x < n; ++x) c.cells.push_back({PackCell({x, y, 0}), 10});
+    c.bytes = 1;
+    return c;
+  };
+  constexpr int kA = 0, kB = 2, kC = 4, kD = -10, kE = 8;
+  struct Case {
+    bool unique;
+    double guard, guard_rel;
+    bool e;  // view 1 also sees E, which no other view sees
+    // dispersion_guard_unique_after: candidate 5 is the 5th offered, 4 views of capacity: 1.0
+    // switches to the unique guard before it (5 > 4), 2.0 does not (5 <= 8).
+    double after = 0.0;
+  };
+  for (const Case k : {Case{false, 0, 0.65, false}, Case{true, 0, 0.65, false},
+                       Case{false, 0, 0.65, true}, Case{true, 0.5, 0, true},
+                       Case{false, 0, 0.65, false, 1.0}, Case{false, 0, 0.65, false, 2.0}}) {
+    SCOPED_TRACE(::testing::Message() << "unique " << k.unique << " guard " << k.guard << " rel "
+                                      << k.guard_rel << " E " << k.e << " after " << k.after);
+    const bool unique = k.unique || (k.after > 0 && k.after < 1.25);
+    PlannerOptions o;
+    o.max_views = 4;
+    o.lambda = 1.0;  // φ = φ_d: 1 for a cell's first view, ~0 for one from the same direction
+    o.cell_size_m = 1.0;
+    o.dispersion = PlannerOptions::Dispersion::kFirst;
+    o.dispersion_guard = k.guard;
+    o.dispersion_guard_relative = k.guard_rel;
+    o.dispersion_guard_unique = k.unique;
+    o.dispersion_guard_unique_after = k.after;
+    auto p = ViewPlanner::Create(o).value();
+    std::vector<std::pair<int, int>> rows1 = {{kA, 6}};
+    if (k.e) rows1.push_back({kE, 3});
+    const std::map<ViewId, glm::dvec3> centres = {{1, {0.5, 20.5, 0.5}},  // sees A (+E)
+                                                  {2, {0.51, 20.5, 0.5}},  // 1 cm away: A, B
+                                                  {3, {0.5, 0.5, 20.5}},   // from above: B, C
+                                                  {4, {0.5, 0.5, 40.5}},   // behind 3: C
+                                                  {5, {0.5, -19.5, 0.5}}};  // other side: A, D
+    ASSERT_TRUE(p.Consider(cand(1, rows1, centres.at(1))).value().accepted);
+    ASSERT_TRUE(p.Consider(cand(2, {{kA, 6}, {kB, 6}}, centres.at(2))).value().accepted);
+    ASSERT_TRUE(p.Consider(cand(3, {{kB, 6}, {kC, 6}}, centres.at(3))).value().accepted);
+    ASSERT_TRUE(p.Consider(cand(4, {{kC, 6}}, centres.at(4))).value().accepted);
+    const double tau_before = p.tau_sum();
+    auto d = p.Consider(cand(5, {{kA, 6}, {kD, 3}}, centres.at(5))).value();
+    ASSERT_TRUE(d.accepted) << d.reason;
+    ASSERT_EQ(d.removed.size(), 1u);
+    const ViewId victim = d.removed[0];
+    const auto ids = p.ViewIds();
+    const std::set<ViewId> stored(ids.begin(), ids.end());
+    if (!unique) {
+      // The frozen-τ guard: 1 and 2 each hold 6 τ > 0.65 x mean τ, 3 holds 12; only 4 (whose C
+      // cells 3 saw first) is a permitted victim, although it is 20 m from every other view.
+      EXPECT_EQ(victim, 4u);
+      EXPECT_TRUE(stored.count(1) && stored.count(2));
+    } else if (!k.e) {
+      // Unique coverage: no view holds a cell alone; the 1 cm pair is thinned.
+      EXPECT_TRUE(victim == 1 || victim == 2) << victim;
+      double min_pair = 1e300;
+      for (ViewId a : ids)
+        for (ViewId b : ids)
+          if (a < b) min_pair = std::min(min_pair, glm::length(centres.at(a) - centres.at(b)));
+      EXPECT_GT(min_pair, 19.0);
+    } else {
+      // E is 1's alone (3 cells > guard 0.5): 2, the other view of the pair, goes.
+      EXPECT_EQ(victim, 2u);
+      for (int x = 0; x < 3; ++x) EXPECT_EQ(p.Refs(PackCell({x, kE, 0})), std::vector<ViewId>{1});
+    }
+    // Every cell any view saw is still observed by a stored view under the unique guard.
+    if (unique)
+      for (auto [y, n] : std::vector<std::pair<int, int>>{{kA, 6}, {kB, 6}, {kC, 6}, {kD, 3}})
+        for (int x = 0; x < n; ++x) EXPECT_FALSE(p.Refs(PackCell({x, y, 0})).empty()) << x << "," << y;
+    EXPECT_EQ(p.num_views(), 4u);
+    EXPECT_NEAR(p.tau_sum(), p.RecomputeTauSum(), 1e-9);
+    EXPECT_GT(p.tau_sum(), tau_before);  // 5 added D and a second direction of A
+  }
+  PlannerOptions bad;
+  bad.dispersion_guard_unique_after = -1.0;
+  EXPECT_FALSE(bad.Validate().ok());
+  bad.dispersion_guard_unique_after = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_FALSE(bad.Validate().ok());
 }
 
 TEST(ViewPlanner, PreSelectionKeepsAtMostRMaxReferences) {
