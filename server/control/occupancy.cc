@@ -62,6 +62,18 @@ size_t OccupancyGrid::CountState(Occupancy s) const {
   return static_cast<size_t>(std::count(cells_.begin(), cells_.end(), static_cast<uint8_t>(s)));
 }
 
+void OccupancyGrid::MarkSphereFree(const glm::dvec3& p, double radius_m) {
+  const glm::ivec3 c = CellOf(p);
+  Set(c, Occupancy::kFree);
+  const int r = static_cast<int>(std::ceil(radius_m / options_.cell_m));
+  for (int dz = -r; dz <= r; ++dz)
+    for (int dy = -r; dy <= r; ++dy)
+      for (int dx = -r; dx <= r; ++dx) {
+        const glm::ivec3 q = c + glm::ivec3(dx, dy, dz);
+        if (glm::length(CentreOf(q) - p) <= radius_m) Set(q, Occupancy::kFree);
+      }
+}
+
 void OccupancyGrid::Set(const glm::ivec3& c, Occupancy s) {
   if (!InGrid(c)) return;
   uint8_t& v = cells_[Index(c)];

@@ -66,6 +66,8 @@ class OccupancyGrid {
   }
   Occupancy At(const glm::dvec3& p) const { return At(CellOf(p)); }
   void Set(const glm::ivec3& c, Occupancy s);  // occupied stays occupied
+  // The cells whose centres lie within `radius_m` of p (and p's own cell) become known free.
+  void MarkSphereFree(const glm::dvec3& p, double radius_m);
 
   // Space carving from one depth image (z-depth metres, 0/NaN = no measurement) seen from
   // `frame_from_cam`. Every `stride`-th pixel in both directions; measurements beyond
