@@ -155,16 +155,26 @@ absl::StatusOr<SimFlightStats> FlySimDrone(const std::shared_ptr<grpc::Channel>&
 
   // The camera: frames rendered from the drone's pose, uploaded at frame_rate_hz.
   UploadOptions up = upload;
+  double last_frame_s = -1.0;
   up.rate_hz = options.frame_rate_hz;
   const size_t count = static_cast<size_t>(std::ceil(options.flight_s * options.frame_rate_hz));
   auto uploaded = UploadStream(
       channel, count,
       [&](size_t i) -> absl::StatusOr<v1::Frame> {
+        // Each frame at a newer drone time than the last: under load the upload may catch up
+        // faster than the drone's clock advances, and the server refuses a repeated timestamp.
         control::DroneState s;
-        {
-          std::lock_guard lock(mu);
-          s = drone.state();
+        for (int wait = 0;; ++wait) {
+          {
+            std::lock_guard lock(mu);
+            s = drone.state();
+          }
+          if (s.timestamp_s > last_frame_s) break;
+          if (stop.load() || wait > 1000)
+            return absl::UnavailableError("sim flight: the drone's clock stopped advancing");
+          std::this_thread::sleep_for(std::chrono::milliseconds(2));
         }
+        last_frame_s = s.timestamp_s;
         const Rigid3d local_from_cam = SimCameraPose(s);
         {
           std::lock_guard lock(mu);
