@@ -191,7 +191,8 @@ struct RunResult {
 
 RunResult Run(const synth::SynthScene& scene, const std::string& policy, uint64_t seed,
               double max_flight_s, double coverage_cell_m, double cell_m, double dwell_s,
-              const std::string& dump_cells, ExploreOptions eo, double grid_margin_m) {
+              const std::string& dump_cells, ExploreOptions eo, double grid_margin_m,
+              bool no_return_is_free) {
   RunResult out;
   std::mt19937_64 rng(seed);
   const SceneFrame frame = SceneFrame::ZUp();
@@ -249,7 +250,7 @@ RunResult Run(const synth::SynthScene& scene, const std::string& policy, uint64_
             for (int dx = -r; dx <= r; ++dx)
               if (glm::length(glm::dvec3(dx, dy, dz)) * cell_m <= dopt.radius_m)
                 g.Set(c + glm::ivec3(dx, dy, dz), Occupancy::kFree);
-        g.CarveDepth(z, cam, pose, 2, 5.0);
+        g.CarveDepth(z, cam, pose, 2, 5.0, no_return_is_free);
         planner.Observe(g, z, cam, pose, 2);
         cov.AddFrame(z, cam, pose, 2);
       }
@@ -466,6 +467,10 @@ int main(int argc, char** argv) {
   app.add_option("--grid_margin_m", grid_margin_m,
                  "occupancy view beyond the navigable box (0: the box only, session 10)")
       ->check(CLI::NonNegativeNumber);
+  bool no_return_is_free = false;
+  app.add_option("--sky_is_free", no_return_is_free,
+                 "pixels without depth (the renderer's sky) carve free space to 5 m; off: they "
+                 "carve nothing and the sky inside the navigable box stays unknown");
   bool per_run = false;
   app.add_option("--per_run", per_run,
                  "also print one line per run (bench explore_run): coverage, decisions before and "
@@ -507,7 +512,7 @@ int main(int argc, char** argv) {
     for (int r = 0; r < runs; ++r) {
       const RunResult res =
           Run(*scene, policy, seed0 + r, max_flight_s, coverage_cell_m, cell_m, dwell_s,
-              dump_cells, eo, grid_margin_m);
+              dump_cells, eo, grid_margin_m, no_return_is_free);
       if (per_run) PrintRun(scene_name, policy, seed0 + r, res);
       final_seen.push_back(res.final_seen);
       collisions += res.collisions;
@@ -565,6 +570,7 @@ int main(int argc, char** argv) {
     j["seed0"] = seed0;
     j["dwell_s"] = dwell_s;
     j["grid_margin_m"] = grid_margin_m;
+    j["sky_is_free"] = no_return_is_free;
     j["collisions"] = collisions;
     j["replans"] = replans;
     j["decisions"] = decisions;
