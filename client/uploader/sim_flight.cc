@@ -2,7 +2,10 @@
 
 #include <grpcpp/grpcpp.h>
 
+#include <algorithm>
 #include <atomic>
+#include <cmath>
+#include <glm/gtc/quaternion.hpp>
 #include <chrono>
 #include <mutex>
 #include <nlohmann/json.hpp>
@@ -47,8 +50,24 @@ std::string SimFlightStats::ToJson() const {
   j["path_length_m"] = path_length_m;
   j["final_position_local"] = {final_local.x, final_local.y, final_local.z};
   j["final_yaw"] = final_yaw;
+  j["final_camera_pitch"] = final_camera_pitch;
+  j["frame_pitch"] = {{"min", min_frame_pitch}, {"max", max_frame_pitch}, {"last", last_frame_pitch}};
   j["upload"] = nlohmann::json::parse(upload.ToJson());
   return j.dump();
+}
+
+Rigid3d SimCameraPose(const control::DroneState& s) {
+  const control::SceneFrame z_up = control::SceneFrame::ZUp();
+  const glm::dvec3 dir = std::cos(s.camera_pitch) * z_up.Heading(s.yaw) +
+                         std::sin(s.camera_pitch) * z_up.up;
+  // No roll: the image's right axis is horizontal whatever the pitch (also straight down), as
+  // synth::LookAt builds it for a level camera.
+  const glm::dvec3 right = glm::normalize(glm::cross(z_up.Heading(s.yaw), z_up.up));
+  const glm::dvec3 down = glm::cross(dir, right);
+  Rigid3d out;
+  out.rotation = glm::normalize(glm::quat_cast(glm::dmat3(right, down, dir)));
+  out.translation = s.position;
+  return out;
 }
 
 std::string SceneZoneText(const synth::SynthScene& scene) {
@@ -91,9 +110,9 @@ absl::StatusOr<SimFlightStats> FlySimDrone(const std::shared_ptr<grpc::Channel>&
       std::lock_guard lock(mu);
       ++stats.setpoints_received;
       stats.last_command_sequence = sp.command_sequence();
-      link.Send(
-          {glm::dvec3(sp.position().x(), sp.position().y(), sp.position().z()) - origin, sp.yaw()},
-          drone.state().timestamp_s);
+      link.Send({glm::dvec3(sp.position().x(), sp.position().y(), sp.position().z()) - origin,
+                 sp.yaw(), sp.camera_pitch()},
+                drone.state().timestamp_s);
     }
   });
   absl::Status drone_error;
@@ -119,6 +138,7 @@ absl::StatusOr<SimFlightStats> FlySimDrone(const std::shared_ptr<grpc::Channel>&
         ToProto(s.position + origin, msg.mutable_position());
         ToProto(s.velocity, msg.mutable_velocity());
         msg.set_yaw(s.yaw);
+        msg.set_camera_pitch(s.camera_pitch);
         msg.set_battery(-1);
         msg.set_mode(drone.mode() == control::FlightMode::kHold ? cv1::HOLD_POSITION
                                                                 : cv1::OFFBOARD);
@@ -135,18 +155,35 @@ absl::StatusOr<SimFlightStats> FlySimDrone(const std::shared_ptr<grpc::Channel>&
 
   // The camera: frames rendered from the drone's pose, uploaded at frame_rate_hz.
   UploadOptions up = upload;
+  double last_frame_s = -1.0;
   up.rate_hz = options.frame_rate_hz;
   const size_t count = static_cast<size_t>(std::ceil(options.flight_s * options.frame_rate_hz));
   auto uploaded = UploadStream(
       channel, count,
       [&](size_t i) -> absl::StatusOr<v1::Frame> {
+        // Each frame at a newer drone time than the last: under load the upload may catch up
+        // faster than the drone's clock advances, and the server refuses a repeated timestamp.
         control::DroneState s;
+        for (int wait = 0;; ++wait) {
+          {
+            std::lock_guard lock(mu);
+            s = drone.state();
+          }
+          if (s.timestamp_s > last_frame_s) break;
+          if (stop.load() || wait > 1000)
+            return absl::UnavailableError("sim flight: the drone's clock stopped advancing");
+          std::this_thread::sleep_for(std::chrono::milliseconds(2));
+        }
+        last_frame_s = s.timestamp_s;
+        const Rigid3d local_from_cam = SimCameraPose(s);
         {
           std::lock_guard lock(mu);
-          s = drone.state();
+          const glm::dvec3 fwd = local_from_cam.rotation * glm::dvec3(0, 0, 1);
+          const double pitch = std::asin(std::clamp(fwd.z, -1.0, 1.0));
+          stats.min_frame_pitch = std::min(stats.min_frame_pitch, pitch);
+          stats.max_frame_pitch = std::max(stats.max_frame_pitch, pitch);
+          stats.last_frame_pitch = pitch;
         }
-        const control::SceneFrame z_up = control::SceneFrame::ZUp();
-        const Rigid3d local_from_cam = synth::LookAt(s.position, s.position + z_up.Heading(s.yaw));
         EXO_ASSIGN_OR_RETURN(
             synth::RenderedFrame r,
             synth::RenderFrame(scene, local_from_cam, render, {}, i + 1, s.timestamp_s));
@@ -170,6 +207,7 @@ absl::StatusOr<SimFlightStats> FlySimDrone(const std::shared_ptr<grpc::Channel>&
   stats.setpoints_lost = link.lost();
   stats.final_local = drone.state().position;
   stats.final_yaw = drone.state().yaw;
+  stats.final_camera_pitch = drone.state().camera_pitch;
   return stats;
 }
 

@@ -3,8 +3,8 @@
 //   - Drone side of exoview.control.v1.Control/DroneLink: the state goes out at 120 Hz (real
 //     time), setpoints come in through a link with the configured delay and loss; with no
 //     setpoint for a while the drone brakes and holds.
-//   - Camera: at `frame_rate_hz` the scene is rendered from the drone's pose (level, facing its
-//     yaw; z up as the synthetic scenes are) and uploaded over the Upload stream, so where the
+//   - Camera: at `frame_rate_hz` the scene is rendered from the drone's pose (facing its yaw,
+//     pitched by its gimbal as the setpoints' camera_pitch asks; z up as the synthetic scenes are) and uploaded over the Upload stream, so where the
 //     operators (or an autonomous planner) send the drone is what gets modelled.
 //   - Collisions of the drone's sphere with the scene's ground-truth mesh are counted.
 #pragma once
@@ -44,9 +44,16 @@ struct SimFlightStats {
   double min_clearance_m = 0.0, path_length_m = 0.0;
   glm::dvec3 final_local{0.0};
   double final_yaw = 0.0;
+  double final_camera_pitch = 0.0;
+  // The camera pitch of the frames rendered (from their poses), rad, + up.
+  double min_frame_pitch = 1e9, max_frame_pitch = -1e9, last_frame_pitch = 0.0;
   UploadAckStats upload;
   std::string ToJson() const;
 };
+
+// The sim camera's pose: at the drone, facing its yaw, pitched by its gimbal (z up as the
+// synthetic scenes are).
+Rigid3d SimCameraPose(const control::DroneState& s);
 
 // "name:minx,...,maxz" of the scene's navigable box in world coordinates: the control_zones
 // value that matches the scene.

@@ -58,6 +58,9 @@ const char* InteractionName(InteractionKind k);
 struct Setpoint {
   glm::dvec3 position{0.0};
   double yaw = 0.0;  // rad about SceneFrame::up
+  // The camera gimbal's pitch, rad, + up (0: level). Applied by the drone within its gimbal's
+  // limits; a setpoint without one (an older server) keeps the camera level.
+  double camera_pitch = 0.0;
 };
 
 struct DroneState {
@@ -66,6 +69,7 @@ struct DroneState {
   glm::dvec3 velocity{0.0};
   double yaw = 0.0;
   double yaw_rate = 0.0;
+  double camera_pitch = 0.0;  // the gimbal's pitch now, rad, + up
 };
 
 }  // namespace exo::control

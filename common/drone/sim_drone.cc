@@ -43,7 +43,7 @@ absl::Status SimDroneOptions::Validate() const {
     return absl::InvalidArgumentError("sim drone: rate_hz > 0 and substeps >= 1 required");
   if (!(position_gain > 0 && velocity_gain > 0 && attitude_tau_s >= 0 && max_speed_mps > 0 &&
         max_accel_mps2 > 0 && yaw_gain > 0 && max_yaw_rate_rad_s > 0 && hold_timeout_s > 0 &&
-        radius_m >= 0))
+        radius_m >= 0 && gimbal_rate_rad_s > 0 && min_camera_pitch_rad <= max_camera_pitch_rad))
     return absl::InvalidArgumentError(
         "sim drone: gains, limits and the hold timeout must be positive");
   return absl::OkStatus();
@@ -90,7 +90,7 @@ const DroneState& SimDrone::Step() {
       // Link lost: brake and hold where the drone is now.
       mode_ = FlightMode::kHold;
       braking_ = true;
-      active_ = Setpoint{state_.position, state_.yaw};
+      active_ = Setpoint{state_.position, state_.yaw, state_.camera_pitch};
       ++hold_events_;
     }
     if (braking_ && glm::length(state_.velocity) < 0.05) {
@@ -115,6 +115,10 @@ const DroneState& SimDrone::Step() {
     state_.yaw_rate = std::clamp(options_.yaw_gain * yaw_err, -options_.max_yaw_rate_rad_s,
                                  options_.max_yaw_rate_rad_s);
     state_.yaw = WrapAngle(state_.yaw + state_.yaw_rate * dt);
+    const double pitch_goal = std::clamp(active_.camera_pitch, options_.min_camera_pitch_rad,
+                                         options_.max_camera_pitch_rad);
+    const double pitch_step = options_.gimbal_rate_rad_s * dt;
+    state_.camera_pitch += std::clamp(pitch_goal - state_.camera_pitch, -pitch_step, pitch_step);
     state_.timestamp_s = now;
   }
   return state_;

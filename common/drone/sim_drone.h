@@ -35,6 +35,11 @@ struct SimDroneOptions {
   double max_yaw_rate_rad_s = 1.5;
   double hold_timeout_s = 0.5;  // no setpoint for this long: HOLD
   double radius_m = 0.15;       // 25 cm frame + margin
+  // Camera gimbal: pitch (+ up) follows the setpoint's camera_pitch at this rate, within
+  // [min, max] (straight down to 30° up).
+  double gimbal_rate_rad_s = 1.5;
+  double min_camera_pitch_rad = -1.5707963267948966;
+  double max_camera_pitch_rad = 0.5235987755982988;
   absl::Status Validate() const;
 };
 

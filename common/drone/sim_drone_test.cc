@@ -141,6 +141,40 @@ TEST(SimDrone, HoldsPositionWhenSetpointsStop) {
   EXPECT_GT(stopped.final_position.x, 0.2);
 }
 
+// The camera gimbal follows the setpoint's pitch at its rate limit, stops at its limits, and
+// keeps its pitch when the link is lost (HOLD).
+TEST(SimDrone, GimbalFollowsTheSetpointPitchWithinItsRateAndLimits) {
+  const SimDroneOptions o;
+  SimDrone d(o);
+  d.Reset({0, 0, 1}, 0);
+  EXPECT_EQ(d.state().camera_pitch, 0.0);
+  const Setpoint down{{0, 0, 1}, 0, -0.9};
+  double at_half_second = 0;
+  for (int i = 0; i < 120; ++i) {
+    d.Receive(down, d.state().timestamp_s);
+    d.Step();
+    if (i == 59) at_half_second = d.state().camera_pitch;
+  }
+  // 1.5 rad/s: -0.75 after 0.5 s, at -0.9 by 0.6 s.
+  EXPECT_NEAR(at_half_second, -0.75, 0.01);
+  EXPECT_NEAR(d.state().camera_pitch, -0.9, 1e-9);
+  // Beyond the gimbal's range: clamped (30° up at most, straight down at least).
+  for (int i = 0; i < 240; ++i) {
+    d.Receive({{0, 0, 1}, 0, 2.0}, d.state().timestamp_s);
+    d.Step();
+  }
+  EXPECT_NEAR(d.state().camera_pitch, o.max_camera_pitch_rad, 1e-9);
+  for (int i = 0; i < 360; ++i) {
+    d.Receive({{0, 0, 1}, 0, -3.0}, d.state().timestamp_s);
+    d.Step();
+  }
+  EXPECT_NEAR(d.state().camera_pitch, o.min_camera_pitch_rad, 1e-9);
+  // Setpoints stop: HOLD keeps the camera where it looks.
+  for (int i = 0; i < 240; ++i) d.Step();
+  EXPECT_EQ(d.mode(), FlightMode::kHold);
+  EXPECT_NEAR(d.state().camera_pitch, o.min_camera_pitch_rad, 1e-9);
+}
+
 TEST(CollisionMonitor, CountsContactsWithTheMesh) {
   TriangleMesh wall;
   testing::AddQuad(&wall, {3, -5, 0}, {3, 5, 0}, {3, 5, 3}, {3, -5, 3});

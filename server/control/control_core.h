@@ -29,6 +29,7 @@
 #include "common/mesh.h"
 #include "common/rigid3.h"
 #include "common/status.h"
+#include "server/control/exploration.h"
 #include "server/control/interactions.h"
 #include "server/control/safe_flight.h"
 
@@ -40,10 +41,24 @@ struct ControlCoreOptions {
   GazeOptions gaze;
   PickAndPlaceOptions pick;
   JoypadOptions joypad;
+  GimbalLimits gimbal;  // the camera pitch range setpoints ask for
   double waypoint_tolerance_m = 0.15;
   double setpoint_rate_hz = 30.0;
   int carve_stride = 4;  // depth pixels carved per view: every k-th in both directions
   double carve_max_range_m = 5.0;
+  // Autonomous exploration (the Explore interaction): the planner's options (its τ comes from
+  // the stored views' depth), the hover at each goal before the next decision, and the time
+  // after which a goal not reached is given up.
+  ExploreOptions explore = DefaultExploreOptions();
+  double explore_dwell_s = 1.0;
+  double explore_goal_timeout_s = 30.0;
+  double drone_sphere_m = 0.15;  // an exploring drone's own volume, marked free
+  static ExploreOptions DefaultExploreOptions() {
+    ExploreOptions e;
+    e.tau_goal = 2.0;              // τ_max/2: the coverage threshold of SPEC §8's metric
+    e.pitches = {-0.5, 0.0, 0.5};  // the gimbal's pitch candidates (setpoint camera_pitch)
+    return e;
+  }
   absl::Status Validate() const;
 };
 
@@ -83,6 +98,17 @@ struct DroneView {
   std::vector<glm::dvec3> waypoints;
   uint32_t waypoint_index = 0;
   uint64_t setpoint_sequence = 0;
+  // Autonomous exploration: on (started by an operator, until stopped, another interaction or
+  // nothing left to gain), decisions taken, the last decision's note.
+  bool exploring = false;
+  std::string explore_operator;
+  uint64_t explore_decisions = 0;
+  std::string explore_note;
+};
+
+// What the exploration planner knows: surface cells with a τ estimate and those at τ_goal.
+struct ExploreCoverage {
+  size_t surface_cells = 0, covered_cells = 0;
 };
 
 class ControlCore {
@@ -119,6 +145,18 @@ class ControlCore {
   absl::StatusOr<CommandResult> Joypad(const Command& c, const JoypadInput& in, double dt_s,
                                        double now_s);
   absl::StatusOr<CommandResult> GoToView(const Command& c, uint32_t view_id, double now_s);
+  // Starts (or stops) autonomous exploration for the drone. While it runs, ExploreStep proposes
+  // the next view (ExplorationPlanner::Autonomous: expected τ gain per metre over reachable
+  // safe poses) whenever the drone has reached its goal and hovered explore_dwell_s; the views
+  // are commands of kind kExplore routed by safe flight like any other. Any other interaction
+  // takes over (exploration stops); stopping holds the drone where it is.
+  absl::StatusOr<CommandResult> Explore(const Command& c, bool start, double now_s);
+  // One step of exploration for a drone (the host calls it a few times a second, off the wire
+  // threads): decides when due, planning on copies of the world outside the lock. Returns
+  // whether a new view was commanded. A command that arrived meanwhile wins.
+  bool ExploreStep(const std::string& drone_id, double now_s);
+  std::vector<std::string> ExploringDrones() const;
+  ExploreCoverage Coverage() const;
 
   DroneView View(const std::string& drone_id) const;
   const ControlCoreOptions& options() const { return options_; }
@@ -132,14 +170,19 @@ class ControlCore {
     double issued_s = 0.0;
     double last_sent_s = -1e9;
     uint64_t sent_sequence = 0;  // the setpoint sequence last sent
+    double arrived_s = -1.0;     // exploring: when the drone reached its goal (-1: not there)
+    int idle_turns = 0;          // exploring: turns in place with nothing to gain, in a row
   };
   ControlCore(const ControlCoreOptions& options, const SceneFrame& frame, SafeFlight safe)
-      : options_(options), frame_(frame), safe_(std::move(safe)) {}
+      : options_(options), frame_(frame), safe_(std::move(safe)), planner_(options.explore) {}
   // Checks the operator's sequence and the drone; returns the drone (created if new).
   absl::StatusOr<Drone*> Admit(const Command& c);
   // Routes from the drone's position to `target` and makes it the drone's command.
   absl::StatusOr<CommandResult> Commit(const Command& c, Drone* d, InteractionKind kind,
                                        const Setpoint& target, double now_s);
+  // Makes `at` the drone's command as it is (no route: hold there, or turn in place).
+  CommandResult Hold(const Command& c, Drone* d, InteractionKind kind, const Setpoint& at,
+                     double now_s);
   const MeshRaycaster& Raycaster();
   glm::dvec3 DronePosition(const Drone& d) const;
 
@@ -147,6 +190,7 @@ class ControlCore {
   SceneFrame frame_;
   mutable std::mutex mu_;
   SafeFlight safe_;
+  ExplorationPlanner planner_;
   glm::dvec3 origin_{0.0};
   std::map<uint64_t, TriangleMesh> chunks_;
   std::optional<MeshRaycaster> raycaster_;  // rebuilt lazily

@@ -119,10 +119,11 @@ std::vector<float> ExplorationPlanner::Distances(const SafeFlight& safe,
 }
 
 double ExplorationPlanner::Gain(const OccupancyGrid& grid, const Setpoint& pose,
-                                const SceneFrame& frame, double pitch) const {
+                                const SceneFrame& frame, double pitch,
+                                double* unknown_part) const {
   const double step = 0.5 * grid.options().cell_m;
   const double goal = options_.tau_goal > 0 ? options_.tau_goal : options_.tau_max;
-  double gain = 0;
+  double gain = 0, unknown = 0;
   for (int iy = 0; iy < options_.rays_y; ++iy)
     for (int ix = 0; ix < options_.rays_x; ++ix) {
       const double a = (ix + 0.5) / options_.rays_x - 0.5, b = (iy + 0.5) / options_.rays_y - 0.5;
@@ -138,6 +139,7 @@ double ExplorationPlanner::Gain(const OccupancyGrid& grid, const Setpoint& pose,
                                                  : 1.0;
         if (o == Occupancy::kUnknown) {
           gain += area * options_.unknown_gain;
+          unknown += area * options_.unknown_gain;
         } else {
           auto it = cells_.find(grid.Index(c));
           const double tau = it == cells_.end() ? 0.0 : it->second.tau;
@@ -149,6 +151,7 @@ double ExplorationPlanner::Gain(const OccupancyGrid& grid, const Setpoint& pose,
         break;
       }
     }
+  if (unknown_part) *unknown_part = unknown;
   return gain;
 }
 
@@ -171,7 +174,7 @@ std::optional<NextView> ExplorationPlanner::Autonomous(const SafeFlight& safe,
         v.pose = Setpoint{g.CentreOf(g.CellOfIndex(i)), WrapAngle(2 * kPi * y / options_.yaws)};
         v.pitch = pitch;
         v.path_m = dist[i];
-        v.gain = Gain(g, v.pose, frame, pitch);
+        v.gain = Gain(g, v.pose, frame, pitch, &v.gain_unknown);
         v.score = v.gain / (v.path_m + options_.travel_offset_m);
         if (v.gain > 0 && (!best || v.score > best->score)) best = v;
       }

@@ -63,12 +63,22 @@ struct NextView {
   Setpoint pose;
   double pitch = 0.0;  // camera pitch, rad, + up (one of ExploreOptions::pitches)
   double gain = 0.0, path_m = 0.0, score = 0.0;
+  double gain_unknown = 0.0;  // the part of `gain` from rays ending in unknown space
 };
 
 class ExplorationPlanner {
  public:
   explicit ExplorationPlanner(const ExploreOptions& options)
       : options_(options), rng_(options.seed) {}
+  const ExploreOptions& options() const { return options_; }
+  // Restarts the candidate sampling (a copy planning off the lock gets its own sequence).
+  void Reseed(uint64_t seed) { rng_.seed(seed); }
+  // Surface cells with a τ estimate, and those at or above `tau`.
+  size_t CellsAtOrAbove(double tau) const {
+    size_t n = 0;
+    for (const auto& [i, c] : cells_) n += c.tau >= tau;
+    return n;
+  }
   // The frame's depth (every `stride`-th pixel) raises τ of the occupied cells it hits.
   void Observe(const OccupancyGrid& grid, const ImageF& depth_m, const PinholeCamera& camera,
                const Rigid3d& frame_from_cam, int stride = 4);
@@ -77,8 +87,9 @@ class ExplorationPlanner {
   // Dijkstra path lengths (m) over permitted cells from `from` (infinity: unreachable).
   std::vector<float> Distances(const SafeFlight& safe, const glm::dvec3& from) const;
   // Expected gain of a pose (see the header comment).
+  // `unknown_part` (optional): the part of the gain from rays ending in unknown space.
   double Gain(const OccupancyGrid& grid, const Setpoint& pose, const SceneFrame& frame,
-              double pitch = 0.0) const;
+              double pitch = 0.0, double* unknown_part = nullptr) const;
   // Best-scoring candidate; nullopt when nothing reachable gains anything.
   std::optional<NextView> Autonomous(const SafeFlight& safe, const glm::dvec3& from,
                                      const SceneFrame& frame);

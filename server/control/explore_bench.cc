@@ -107,6 +107,57 @@ class GroundTruthCoverage {
                    c.area_by_class[0], c.area_by_class[1], c.area_by_class[2], c.refs.size());
     }
   }
+  // Where the uncovered area (τ < tau) sits in the planner's view: cells whose box holds an
+  // occupied occupancy cell the planner still rates below tau ("known"), only occupied cells it
+  // rates at or above tau ("planner_covered"), or no occupied cell at all ("unmodelled"; of
+  // which "unmodelled_outside_grid": the box lies wholly outside the occupancy view); as
+  // fractions of the whole surface area. `reachable_view`: of the "known" area, the part with a
+  // clear cell within `view_m` of the cell's centre.
+  nlohmann::json Gap(const OccupancyGrid& g, const ExplorationPlanner& p, double tau,
+                     double view_m) const {
+    double known = 0, covered = 0, unmodelled = 0, near_clear = 0, outside = 0;
+    const int rv = static_cast<int>(std::ceil(view_m / g.options().cell_m));
+    for (const auto& [k, c] : cells_) {
+      if (c.tau >= tau) continue;
+      const glm::dvec3 lo = glm::dvec3(UnpackCell(k)) * q_;
+      const glm::ivec3 a = g.CellOf(lo + 1e-6), b = g.CellOf(lo + q_ - 1e-6);
+      int occupied = 0, low = 0, in_grid = 0;
+      for (int z = a.z; z <= b.z; ++z)
+        for (int y = a.y; y <= b.y; ++y)
+          for (int x = a.x; x <= b.x; ++x) {
+            const glm::ivec3 q(x, y, z);
+            if (!g.InGrid(q)) continue;
+            ++in_grid;
+            if (g.At(q) != Occupancy::kOccupied) continue;
+            ++occupied;
+            if (p.Tau(g.Index(q)) < tau) ++low;
+          }
+      if (occupied == 0) {
+        unmodelled += c.area;
+        if (in_grid == 0) outside += c.area;
+      } else if (low == 0) {
+        covered += c.area;
+      } else {
+        known += c.area;
+        const glm::ivec3 m = g.CellOf(lo + 0.5 * q_);
+        bool clear = false;
+        for (int dz = -rv; dz <= rv && !clear; ++dz)
+          for (int dy = -rv; dy <= rv && !clear; ++dy)
+            for (int dx = -rv; dx <= rv && !clear; ++dx) {
+              const glm::ivec3 q = m + glm::ivec3(dx, dy, dz);
+              if (g.InGrid(q) && g.IsClear(q)) clear = true;
+            }
+        if (clear) near_clear += c.area;
+      }
+    }
+    const double t = total_ > 0 ? total_ : 1;
+    return {{"known_below", known / t},
+            {"planner_covered", covered / t},
+            {"unmodelled", unmodelled / t},
+            {"unmodelled_outside_grid", outside / t},
+            {"known_below_with_clear_cell_within_m", view_m},
+            {"known_below_near_clear", near_clear / t}};
+  }
   double Fraction(double tau) const {
     double a = 0;
     for (const auto& [k, c] : cells_)
@@ -128,11 +179,20 @@ struct RunResult {
   uint64_t collisions = 0, decisions = 0, replans = 0;
   double decision_ms = 0, final_coverage = 0, path_m = 0;
   double class_share[3] = {0, 0, 0}, class_coverage[3] = {0, 0, 0}, class_seen[3] = {0, 0, 0};
+  // Per decision (autonomous / frontier): what was chosen and how it ended.
+  struct Decision {
+    double t = 0, coverage = 0, gain = 0, gain_unknown = 0, path_m = 0;
+    glm::dvec3 goal{0.0};
+    std::string outcome;  // none | unreachable | reached | timeout | replanned | open
+  };
+  std::vector<Decision> log;
+  nlohmann::json gap;  // GroundTruthCoverage::Gap at the end
 };
 
 RunResult Run(const synth::SynthScene& scene, const std::string& policy, uint64_t seed,
               double max_flight_s, double coverage_cell_m, double cell_m, double dwell_s,
-              const std::string& dump_cells, ExploreOptions eo) {
+              const std::string& dump_cells, ExploreOptions eo, double grid_margin_m,
+              bool no_return_is_free) {
   RunResult out;
   std::mt19937_64 rng(seed);
   const SceneFrame frame = SceneFrame::ZUp();
@@ -141,6 +201,7 @@ RunResult Run(const synth::SynthScene& scene, const std::string& policy, uint64_
   so.cell_m = cell_m;
   so.drone_radius_m = 0.2;
   so.region_fallback = false;
+  so.grid_margin_m = grid_margin_m;
   auto safe_or = SafeFlight::Create(so);
   EXO_CHECK(safe_or.ok());
   SafeFlight& safe = *safe_or;
@@ -189,7 +250,7 @@ RunResult Run(const synth::SynthScene& scene, const std::string& policy, uint64_
             for (int dx = -r; dx <= r; ++dx)
               if (glm::length(glm::dvec3(dx, dy, dz)) * cell_m <= dopt.radius_m)
                 g.Set(c + glm::ivec3(dx, dy, dz), Occupancy::kFree);
-        g.CarveDepth(z, cam, pose, 2, 5.0);
+        g.CarveDepth(z, cam, pose, 2, 5.0, no_return_is_free);
         planner.Observe(g, z, cam, pose, 2);
         cov.AddFrame(z, cam, pose, 2);
       }
@@ -219,6 +280,8 @@ RunResult Run(const synth::SynthScene& scene, const std::string& policy, uint64_
     if (!at_goal) arrived_at = -1;
     const bool dwelt = at_goal && t - arrived_at >= dwell_s;
     if (route.empty() || dwelt || t - route_start > 30) {
+      if (!out.log.empty() && out.log.back().outcome == "open")
+        out.log.back().outcome = dwelt ? "reached" : route.empty() ? "replanned" : "timeout";
       arrived_at = -1;
       route_start = t;
       goal_pitch = 0;
@@ -246,6 +309,17 @@ RunResult Run(const synth::SynthScene& scene, const std::string& policy, uint64_
             std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0)
                 .count();
         ++out.decisions;
+        RunResult::Decision dl;
+        dl.t = t;
+        dl.coverage = out.curve.empty() ? 0 : out.curve.back().second;
+        if (v) {
+          dl.gain = v->gain;
+          dl.gain_unknown = v->gain_unknown;
+          dl.path_m = v->path_m;
+          dl.goal = v->pose.position;
+        }
+        dl.outcome = !v ? "none" : r ? "open" : "unreachable";
+        out.log.push_back(dl);
         if (!v) {
           finished = true;  // nothing left to explore
         } else if (r) {
@@ -270,6 +344,7 @@ RunResult Run(const synth::SynthScene& scene, const std::string& policy, uint64_
     out.path_m += glm::length(n.position - prev);
     prev = n.position;
   }
+  if (policy != "scripted") out.gap = cov.Gap(safe.grid(), planner, 2.0, 2.5);
   out.collisions = collisions.collisions();
   out.final_coverage = out.curve.empty() ? 0 : out.curve.back().second;
   out.final_seen = cov.Fraction(1e-9);
@@ -286,6 +361,71 @@ RunResult Run(const synth::SynthScene& scene, const std::string& policy, uint64_
     out.class_seen[c] = cov.ClassFraction(c, 1e-9);
   }
   return out;
+}
+
+// One line per run: the plateau is the first time after which coverage rose by less than 2
+// points up to the end; decisions before and after it are summarised by outcome, share of the
+// chosen gain from unknown space, and repeats (a goal within 0.3 m of an earlier goal).
+void PrintRun(const std::string& scene, const std::string& policy, uint64_t seed,
+              const RunResult& res) {
+  nlohmann::json j;
+  j["bench"] = "explore_run";
+  j["scene"] = scene;
+  j["policy"] = policy;
+  j["seed"] = seed;
+  j["final_coverage"] = res.final_coverage;
+  j["final_seen"] = res.final_seen;
+  j["collisions"] = res.collisions;
+  double t80 = -1, plateau = 0;
+  for (const auto& [t, c] : res.curve)
+    if (c >= 0.8) {
+      t80 = t;
+      break;
+    }
+  for (const auto& [t, c] : res.curve)
+    if (res.final_coverage - c < 0.02) {
+      plateau = t;
+      break;
+    }
+  j["t80_s"] = t80 >= 0 ? nlohmann::json(t80) : nlohmann::json(nullptr);
+  j["plateau_s"] = plateau;
+  j["flight_s"] = res.curve.empty() ? 0 : res.curve.back().first;
+  auto summarise = [&](bool after) {
+    std::map<std::string, int> outcomes;
+    int n = 0, repeats = 0, mostly_unknown = 0;
+    double gain = 0, unknown = 0, path = 0;
+    std::vector<glm::dvec3> goals;
+    for (const auto& d : res.log) {
+      if ((d.t >= plateau) != after) continue;
+      ++n;
+      ++outcomes[d.outcome];
+      if (d.outcome == "none") continue;
+      gain += d.gain;
+      unknown += d.gain_unknown;
+      path += d.path_m;
+      if (d.gain_unknown > 0.5 * d.gain) ++mostly_unknown;
+      for (const auto& g : goals)
+        if (glm::length(g - d.goal) < 0.3) {
+          ++repeats;
+          break;
+        }
+      goals.push_back(d.goal);
+    }
+    nlohmann::json s;
+    s["decisions"] = n;
+    s["outcomes"] = outcomes;
+    s["mean_gain"] = n ? gain / n : 0;
+    s["unknown_share_of_gain"] = gain > 0 ? unknown / gain : 0;
+    s["mostly_unknown"] = mostly_unknown;
+    s["repeated_goals"] = repeats;
+    s["mean_path_m"] = n ? path / n : 0;
+    return s;
+  };
+  j["before_plateau"] = summarise(false);
+  j["after_plateau"] = summarise(true);
+  j["uncovered_in_planner_view"] = res.gap;
+  std::printf("%s\n", j.dump().c_str());
+  std::fflush(stdout);
 }
 
 }  // namespace
@@ -323,6 +463,19 @@ int main(int argc, char** argv) {
   app.add_option("--pitches", eo.pitches,
                  "camera gimbal pitch candidates, rad (+ up); 0 = a level camera")
       ->delimiter(',');
+  double grid_margin_m = SafeFlightOptions{}.grid_margin_m;
+  app.add_option("--grid_margin_m", grid_margin_m,
+                 "occupancy view beyond the navigable box (0: the box only, session 10)")
+      ->check(CLI::NonNegativeNumber);
+  bool no_return_is_free = false;
+  app.add_option("--sky_is_free", no_return_is_free,
+                 "pixels without depth (the renderer's sky) carve free space to 5 m; off: they "
+                 "carve nothing and the sky inside the navigable box stays unknown");
+  bool per_run = false;
+  app.add_option("--per_run", per_run,
+                 "also print one line per run (bench explore_run): coverage, decisions before and "
+                 "after the plateau (what the planner picked once coverage stopped growing), "
+                 "where the uncovered area sits in the planner's view");
   std::string dump_cells;
   app.add_option("--dump_cells", dump_cells,
                  "write the last run's ground-truth cells (x y z area tau area_up area_down "
@@ -359,7 +512,8 @@ int main(int argc, char** argv) {
     for (int r = 0; r < runs; ++r) {
       const RunResult res =
           Run(*scene, policy, seed0 + r, max_flight_s, coverage_cell_m, cell_m, dwell_s,
-              dump_cells, eo);
+              dump_cells, eo, grid_margin_m, no_return_is_free);
+      if (per_run) PrintRun(scene_name, policy, seed0 + r, res);
       final_seen.push_back(res.final_seen);
       collisions += res.collisions;
       replans += res.replans;
@@ -415,6 +569,8 @@ int main(int argc, char** argv) {
     j["area_weight"] = eo.area_weight;
     j["seed0"] = seed0;
     j["dwell_s"] = dwell_s;
+    j["grid_margin_m"] = grid_margin_m;
+    j["sky_is_free"] = no_return_is_free;
     j["collisions"] = collisions;
     j["replans"] = replans;
     j["decisions"] = decisions;

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 #include "absl/strings/str_cat.h"
 #include "common/cells.h"
@@ -62,6 +63,18 @@ size_t OccupancyGrid::CountState(Occupancy s) const {
   return static_cast<size_t>(std::count(cells_.begin(), cells_.end(), static_cast<uint8_t>(s)));
 }
 
+void OccupancyGrid::MarkSphereFree(const glm::dvec3& p, double radius_m) {
+  const glm::ivec3 c = CellOf(p);
+  Set(c, Occupancy::kFree);
+  const int r = static_cast<int>(std::ceil(radius_m / options_.cell_m));
+  for (int dz = -r; dz <= r; ++dz)
+    for (int dy = -r; dy <= r; ++dy)
+      for (int dx = -r; dx <= r; ++dx) {
+        const glm::ivec3 q = c + glm::ivec3(dx, dy, dz);
+        if (glm::length(CentreOf(q) - p) <= radius_m) Set(q, Occupancy::kFree);
+      }
+}
+
 void OccupancyGrid::Set(const glm::ivec3& c, Occupancy s) {
   if (!InGrid(c)) return;
   uint8_t& v = cells_[Index(c)];
@@ -73,7 +86,8 @@ void OccupancyGrid::Set(const glm::ivec3& c, Occupancy s) {
 }
 
 void OccupancyGrid::CarveDepth(const ImageF& depth_m, const PinholeCamera& camera,
-                               const Rigid3d& frame_from_cam, int stride, double max_range_m) {
+                               const Rigid3d& frame_from_cam, int stride, double max_range_m,
+                               bool no_return_is_free) {
   if (depth_m.empty() || camera.width <= 0 || camera.fx <= 0) return;
   stride = std::max(1, stride);
   // The depth image may be a downscaled version of the camera.
@@ -83,8 +97,10 @@ void OccupancyGrid::CarveDepth(const ImageF& depth_m, const PinholeCamera& camer
   const double step = 0.5 * options_.cell_m;
   for (int y = stride / 2; y < depth_m.height(); y += stride) {
     for (int x = stride / 2; x < depth_m.width(); x += stride) {
-      const float z = depth_m.at(x, y);
-      if (!(z > 0) || !std::isfinite(z)) continue;
+      float z = depth_m.at(x, y);
+      const bool no_return = !(z > 0) || !std::isfinite(z);
+      if (no_return && !no_return_is_free) continue;
+      if (no_return) z = std::numeric_limits<float>::infinity();  // free to max_range_m
       const glm::dvec2 uv((x + 0.5) * sx - 0.5, (y + 0.5) * sy - 0.5);
       const glm::dvec3 ray = frame_from_cam.rotation * camera.RayZ1(uv);
       const double range = z * glm::length(ray);

@@ -66,12 +66,17 @@ class OccupancyGrid {
   }
   Occupancy At(const glm::dvec3& p) const { return At(CellOf(p)); }
   void Set(const glm::ivec3& c, Occupancy s);  // occupied stays occupied
+  // The cells whose centres lie within `radius_m` of p (and p's own cell) become known free.
+  void MarkSphereFree(const glm::dvec3& p, double radius_m);
 
   // Space carving from one depth image (z-depth metres, 0/NaN = no measurement) seen from
   // `frame_from_cam`. Every `stride`-th pixel in both directions; measurements beyond
   // `max_range_m` carve free space up to max_range_m and mark nothing occupied.
+  // `no_return_is_free`: a pixel without a measurement carves free space up to max_range_m as
+  // well (a renderer's sky: nothing within range; not for real sensors, where a missing depth
+  // may be a dark or shiny surface).
   void CarveDepth(const ImageF& depth_m, const PinholeCamera& camera, const Rigid3d& frame_from_cam,
-                  int stride = 4, double max_range_m = 5.0);
+                  int stride = 4, double max_range_m = 5.0, bool no_return_is_free = false);
   // The TSDF's evidence; `frame_from_local` maps the TSDF's local frame to the grid's frame.
   void MarkFromTsdf(const TsdfVolume& volume, const glm::dvec3& frame_from_local_offset);
   // Cells crossed by the triangles are occupied.

@@ -223,6 +223,7 @@ absl::Status SafeFlightOptions::Validate() const {
   }
   if (!(cell_m > 0)) return absl::InvalidArgumentError("safe flight: cell_m must be > 0");
   if (!(drone_radius_m >= 0)) return absl::InvalidArgumentError("safe flight: drone_radius_m < 0");
+  if (!(grid_margin_m >= 0)) return absl::InvalidArgumentError("safe flight: grid_margin_m < 0");
   return absl::OkStatus();
 }
 
@@ -235,6 +236,8 @@ absl::StatusOr<SafeFlight> SafeFlight::Create(const SafeFlightOptions& options) 
     o.min = glm::min(o.min, z.min);
     o.max = glm::max(o.max, z.max);
   }
+  o.min -= glm::dvec3(options.grid_margin_m);
+  o.max += glm::dvec3(options.grid_margin_m);
   o.cell_m = options.cell_m;
   o.drone_radius_m = options.drone_radius_m;
   o.inflate_unknown = options.inflate_unknown;

@@ -55,6 +55,11 @@ struct SafeFlightOptions {
   double drone_radius_m = 0.2;
   bool inflate_unknown = true;
   bool region_fallback = true;  // use the region scheme while nothing is modelled
+  // The occupancy view reaches this far beyond the zones' bounding box: the surfaces that bound
+  // the flight space (a room's floor, ceiling and walls just outside a zone with a margin) are
+  // modelled too, so exploration can see and rate them, and the unknown space just outside a
+  // zone keeps the drone's sphere away as any unknown space does. Flight stays in the zones.
+  double grid_margin_m = 0.5;
   absl::Status Validate() const;
 };
 

@@ -60,6 +60,8 @@ const char* RpcName(Rpc rpc) {
       return "GoToView";
     case Rpc::kGetControlState:
       return "GetControlState";
+    case Rpc::kExplore:
+      return "Explore";
   }
   return "?";
 }
@@ -85,7 +87,7 @@ bool RoleAllows(Role role, Rpc rpc) {
       return rpc == Rpc::kSubscribe || rpc == Rpc::kGetStats || rpc == Rpc::kListRegions ||
              rpc == Rpc::kMarkRegion || rpc == Rpc::kGetControlState ||
              rpc == Rpc::kPickAndPlace || rpc == Rpc::kGazeToSee || rpc == Rpc::kJoypad ||
-             rpc == Rpc::kGoToView;
+             rpc == Rpc::kGoToView || rpc == Rpc::kExplore;
   }
   return false;
 }

@@ -26,7 +26,7 @@ enum class Role { kUploader, kViewer, kOperator, kAdmin };
 enum class Rpc {
   kUpload, kSubscribe, kGetStats, kMarkRegion, kListRegions,
   // exoview.control.v1.Control
-  kDroneLink, kPickAndPlace, kGazeToSee, kJoypad, kGoToView, kGetControlState,
+  kDroneLink, kPickAndPlace, kGazeToSee, kJoypad, kGoToView, kGetControlState, kExplore,
 };
 
 const char* RoleName(Role role);

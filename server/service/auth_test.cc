@@ -53,7 +53,8 @@ TEST(Auth, EachRoleMayCallExactlyItsRpcs) {
   }
   // The control service (exoview.control.v1.Control): the drone's stream for uploaders, the
   // interactions for operators, the state for everyone who may read the model.
-  const Rpc interactions[] = {Rpc::kPickAndPlace, Rpc::kGazeToSee, Rpc::kJoypad, Rpc::kGoToView};
+  const Rpc interactions[] = {Rpc::kPickAndPlace, Rpc::kGazeToSee, Rpc::kJoypad, Rpc::kGoToView,
+                              Rpc::kExplore};
   const std::pair<const char*, Role> roles[] = {{"up-0123456789abcdef", Role::kUploader},
                                                 {"vw-0123456789abcdef", Role::kViewer},
                                                 {"op-0123456789abcdef", Role::kOperator},

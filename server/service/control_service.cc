@@ -52,6 +52,7 @@ void FillReply(const control::CommandResult& r, cv1::InteractionReply* out) {
   for (const auto& w : r.route.waypoints) ToProto(w, out->add_waypoints());
   out->set_note(r.note);
   out->set_route_length_m(r.route.length_m);
+  out->set_camera_pitch(r.target.camera_pitch);
   if (r.gaze) {
     out->set_has_gaze(true);
     ToProto(r.gaze->hit.point, out->mutable_gaze_point());
@@ -195,6 +196,7 @@ class ControlServiceHost::Impl final : public cv1::Control::Service {
       s.position = FromProto(msg.position());
       s.velocity = FromProto(msg.velocity());
       s.yaw = msg.yaw();
+      s.camera_pitch = msg.camera_pitch();
       const double now = NowS();
       core_->OnDroneState(id, s, now);
       if (auto sp = core_->NextSetpoint(id, now)) {
@@ -202,6 +204,7 @@ class ControlServiceHost::Impl final : public cv1::Control::Service {
         out.set_sequence(sp->sequence);
         ToProto(sp->setpoint.position, out.mutable_position());
         out.set_yaw(sp->setpoint.yaw);
+        out.set_camera_pitch(sp->setpoint.camera_pitch);
         out.set_interaction(static_cast<cv1::Interaction>(sp->kind));
         out.set_command_sequence(sp->command_sequence);
         out.set_operator_id(sp->operator_id);
@@ -251,6 +254,14 @@ class ControlServiceHost::Impl final : public cv1::Control::Service {
     return Reply(r, out);
   }
 
+  grpc::Status Explore(grpc::ServerContext* ctx, const cv1::ExploreRequest* req,
+                       cv1::InteractionReply* out) override {
+    auto who = Authorize(*ctx, Rpc::kExplore);
+    if (!who.ok()) return ToGrpc(who.status());
+    auto r = core_->Explore(CommandOf(req->header(), *who), req->start(), NowS());
+    return Reply(r, out);
+  }
+
   grpc::Status GetControlState(grpc::ServerContext* ctx, const cv1::ControlStateRequest* req,
                                cv1::ControlState* out) override {
     if (auto who = Authorize(*ctx, Rpc::kGetControlState); !who.ok()) return ToGrpc(who.status());
@@ -262,11 +273,13 @@ class ControlServiceHost::Impl final : public cv1::Control::Service {
     ToProto(v.state.position, d->mutable_position());
     ToProto(v.state.velocity, d->mutable_velocity());
     d->set_yaw(v.state.yaw);
+    d->set_camera_pitch(v.state.camera_pitch);
     out->set_command_sequence(v.command_sequence);
     out->set_interaction(static_cast<cv1::Interaction>(v.kind));
     out->set_operator_id(v.operator_id);
     ToProto(v.target.position, out->mutable_target());
     out->set_target_yaw(v.target.yaw);
+    out->set_target_camera_pitch(v.target.camera_pitch);
     for (const auto& w : v.waypoints) ToProto(w, out->add_waypoints());
     out->set_waypoint_index(v.waypoint_index);
     out->set_setpoint_sequence(v.setpoint_sequence);
@@ -283,6 +296,12 @@ class ControlServiceHost::Impl final : public cv1::Control::Service {
     }
     ToProto(core_->frame().up, out->mutable_up());
     out->set_drone_links(static_cast<uint32_t>(links_.load()));
+    out->set_exploring(v.exploring);
+    out->set_explore_decisions(v.explore_decisions);
+    out->set_explore_note(v.explore_note);
+    const control::ExploreCoverage cov = core_->Coverage();
+    out->set_explore_surface_cells(cov.surface_cells);
+    out->set_explore_covered_cells(cov.covered_cells);
     return grpc::Status::OK;
   }
 
@@ -313,6 +332,13 @@ absl::StatusOr<std::unique_ptr<ControlServiceHost>> ControlServiceHost::Start(
   h->impl_ = std::make_unique<Impl>(h->core_.get(), std::move(authorize));
   h->store_ = store;
   h->feeder_ = std::thread([p = h.get()] { p->Feed(); });
+  // Autonomous exploration: a few decisions' checks a second, off the wire threads.
+  h->explorer_ = std::thread([p = h.get()] {
+    while (!p->stop_.load()) {
+      for (const std::string& id : p->core_->ExploringDrones()) p->core_->ExploreStep(id, NowS());
+      std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    }
+  });
   return h;
 }
 
@@ -323,6 +349,7 @@ grpc::Service* ControlServiceHost::service() { return impl_.get(); }
 void ControlServiceHost::Stop() {
   stop_.store(true);
   if (feeder_.joinable()) feeder_.join();
+  if (explorer_.joinable()) explorer_.join();
 }
 
 void ControlServiceHost::Feed() {

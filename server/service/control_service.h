@@ -50,7 +50,7 @@ class ControlServiceHost {
   ~ControlServiceHost();
   grpc::Service* service();
   control::ControlCore& core() { return *core_; }
-  // Stops the model feeder (the store must still exist).
+  // Stops the model feeder (the store must still exist) and the exploration thread.
   void Stop();
 
  private:
@@ -62,6 +62,7 @@ class ControlServiceHost {
   ModelStore* store_ = nullptr;
   std::atomic<bool> stop_{false};
   std::thread feeder_;
+  std::thread explorer_;
 };
 
 }  // namespace exo

@@ -4,8 +4,11 @@
 #include <grpcpp/grpcpp.h>
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <mutex>
+#include <set>
 #include <thread>
 
 #include "common/drone/sim_drone.h"
@@ -118,7 +121,9 @@ class DroneSide {
     }
     const double now = drone_->state().timestamp_s;
     for (const auto& sp : got)
-      drone_->Receive({{sp.position().x(), sp.position().y(), sp.position().z()}, sp.yaw()}, now);
+      drone_->Receive(
+          {{sp.position().x(), sp.position().y(), sp.position().z()}, sp.yaw(), sp.camera_pitch()},
+          now);
     const control::DroneState& s = drone_->Step();
     cv1::DroneState msg;
     msg.set_drone_id("drone");
@@ -128,6 +133,7 @@ class DroneSide {
     msg.mutable_position()->set_y(s.position.y);
     msg.mutable_position()->set_z(s.position.z);
     msg.set_yaw(s.yaw);
+    msg.set_camera_pitch(s.camera_pitch);
     msg.set_mode(drone_->mode() == control::FlightMode::kHold ? cv1::HOLD_POSITION : cv1::OFFBOARD);
     return stream_->Write(msg);
   }
@@ -260,6 +266,119 @@ TEST_F(ControlServiceTest, GazeRouteThroughTheDoorSurvivesADroneReconnect) {
   EXPECT_EQ(st.waypoint_index() + 1u, static_cast<uint32_t>(st.waypoints_size()));
   EXPECT_GT(st.states_received(), 1000u);
   second.Close();
+}
+
+// Gaze at a floor point: the setpoint on the wire carries the gimbal pitch that faces P_gaze,
+// the simulated drone pitches its camera down by that much, and its optical axis then passes
+// through P_gaze. Waypoints before the last one keep the camera level.
+TEST_F(ControlServiceTest, GazeAtTheFloorPitchesTheSimulatedCameraDown) {
+  control::SimDrone drone{control::SimDroneOptions{}};
+  drone.Reset({1, 1, 1.2}, 0);
+  DroneSide side(stub_.get(), &drone);
+  ASSERT_TRUE(side.Step());
+  for (int i = 0; i < 200 && !State().drone_known(); ++i)
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  EXPECT_EQ(State().drone().camera_pitch(), 0.0);
+  cv1::InteractionReply reply;
+  const glm::dvec3 eye(0.5, 2, 1.7), floor_point(2.5, 2, 0);
+  const grpc::Status st = Gaze("alice", 1, eye, floor_point - eye, &reply);
+  ASSERT_TRUE(st.ok()) << st.error_message();
+  ASSERT_TRUE(reply.has_gaze());
+  EXPECT_TRUE(reply.horizontal_surface());
+  const glm::dvec3 p_gaze(reply.gaze_point().x(), reply.gaze_point().y(), reply.gaze_point().z());
+  EXPECT_LT(glm::length(p_gaze - floor_point), 1e-6);
+  const glm::dvec3 target(reply.target().x(), reply.target().y(), reply.target().z());
+  // The amount: the pitch that puts P_gaze on the optical axis from the target, well down.
+  const double expected = control::CameraPitchToward(target, p_gaze, control::SceneFrame::ZUp());
+  EXPECT_NEAR(reply.camera_pitch(), expected, 1e-9);
+  EXPECT_LT(reply.camera_pitch(), -0.5);
+  EXPECT_NEAR(State().target_camera_pitch(), reply.camera_pitch(), 1e-9);
+
+  Fly(&side, 5.0, nullptr, drone);
+  const auto got = side.received();
+  ASSERT_FALSE(got.empty());
+  EXPECT_EQ(got.back().waypoint_index() + 1, got.back().waypoint_count());
+  for (const auto& sp : got) {
+    if (sp.command_sequence() != reply.command_sequence()) continue;
+    if (sp.waypoint_index() + 1 == sp.waypoint_count())
+      EXPECT_NEAR(sp.camera_pitch(), reply.camera_pitch(), 1e-9);
+    else
+      EXPECT_EQ(sp.camera_pitch(), 0.0);  // level while travelling
+  }
+  // The drone's camera pitched down by that amount and the server sees it in the state.
+  const control::DroneState& s = drone.state();
+  EXPECT_LT(glm::length(s.position - target), 0.05);
+  EXPECT_NEAR(s.camera_pitch, reply.camera_pitch(), 1e-3);
+  EXPECT_NEAR(State().drone().camera_pitch(), s.camera_pitch, 0.01);
+  const control::SceneFrame z = control::SceneFrame::ZUp();
+  const glm::dvec3 axis =
+      std::cos(s.camera_pitch) * z.Heading(s.yaw) + std::sin(s.camera_pitch) * z.up;
+  const double off_axis = std::acos(std::clamp(
+      glm::dot(axis, glm::normalize(p_gaze - s.position)), -1.0, 1.0));
+  EXPECT_LT(off_axis, 0.05) << "P_gaze is " << off_axis << " rad off the camera axis";
+  side.Close();
+}
+
+// Autonomous exploration over the service: an operator starts it, the drone side receives the
+// planner's views (interaction EXPLORE, a command sequence of their own) through safe flight,
+// another operator's interaction takes over, stopping holds the drone.
+TEST_F(ControlServiceTest, ExploreStartsStreamsViewsAndYieldsToOtherInteractions) {
+  auto explore = [&](const std::string& op, uint64_t seq, bool start, cv1::InteractionReply* out) {
+    cv1::ExploreRequest r;
+    r.mutable_header()->set_operator_id(op);
+    r.mutable_header()->set_operator_sequence(seq);
+    r.set_start(start);
+    grpc::ClientContext ctx;
+    return stub_->Explore(&ctx, r, out);
+  };
+  cv1::InteractionReply reply;
+  EXPECT_EQ(explore("alice", 1, true, &reply).error_code(), grpc::StatusCode::FAILED_PRECONDITION);
+  control::SimDrone drone{control::SimDroneOptions{}};
+  drone.Reset({1, 1, 1.2}, 0);
+  control::CollisionMonitor collisions(House(), drone.options().radius_m);
+  DroneSide side(stub_.get(), &drone);
+  ASSERT_TRUE(side.Step());
+  for (int i = 0; i < 200 && !State().drone_known(); ++i)
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  ASSERT_TRUE(explore("alice", 2, true, &reply).ok());
+  EXPECT_EQ(reply.interaction(), cv1::EXPLORE);
+  const uint64_t started = reply.command_sequence();
+  EXPECT_TRUE(State().exploring());
+  // The hold, 1 s of dwell, then the planner's views (the house's walls and floor are unseen
+  // surface: every view gains).
+  Fly(&side, 6.0, &collisions, drone);
+  cv1::ControlState st = State();
+  EXPECT_TRUE(st.exploring()) << st.explore_note();
+  EXPECT_GE(st.explore_decisions(), 2u) << st.explore_note();
+  EXPECT_EQ(st.interaction(), cv1::EXPLORE);
+  EXPECT_GT(st.command_sequence(), started);
+  EXPECT_EQ(st.operator_id(), "alice");
+  std::set<uint64_t> views;
+  for (const auto& sp : side.received())
+    if (sp.interaction() == cv1::EXPLORE && sp.command_sequence() > started)
+      views.insert(sp.command_sequence());
+  EXPECT_GE(views.size(), 2u);
+  EXPECT_GT(glm::length(drone.state().position - glm::dvec3(1, 1, 1.2)), 0.3);
+  EXPECT_EQ(collisions.collisions(), 0u);
+  // Bob's gaze takes over: exploration stops, no more EXPLORE setpoints after his command.
+  cv1::InteractionReply gaze;
+  ASSERT_TRUE(Gaze("bob", 1, {1, 2, 1.5}, {1, 0.05, 0}, &gaze).ok());
+  st = State();
+  EXPECT_FALSE(st.exploring());
+  EXPECT_EQ(st.interaction(), cv1::GAZE_TO_SEE);
+  Fly(&side, 0.5, &collisions, drone);
+  EXPECT_EQ(State().command_sequence(), gaze.command_sequence());
+  EXPECT_EQ(side.received().back().interaction(), cv1::GAZE_TO_SEE);
+  // Restart, then stop: the drone holds where it is.
+  ASSERT_TRUE(explore("alice", 3, true, &reply).ok());
+  EXPECT_TRUE(State().exploring());
+  ASSERT_TRUE(explore("alice", 4, false, &reply).ok());
+  EXPECT_EQ(reply.interaction(), cv1::HOLD);
+  EXPECT_NE(reply.note().find("exploration stopped"), std::string::npos);
+  st = State();
+  EXPECT_FALSE(st.exploring());
+  EXPECT_EQ(st.interaction(), cv1::HOLD);
+  side.Close();
 }
 
 TEST(ControlServiceConfig, KeysParseAndRejectWithClearErrors) {
