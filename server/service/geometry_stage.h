@@ -59,11 +59,11 @@ struct GeometryStageOptions {
   // The clients' proxy LOD (geometry/mesh_lod.h): each published chunk is simplified by
   // quadric edge collapse with the chunk's open boundary locked, moving the surface by at most
   // this many voxels; the server keeps the full mesh for fusion and planning. 0 = publish the
-  // full-resolution chunk. 7-Scenes store 100, folds 0/3/6/9 (tools/product_eval.py, 10 Hz,
-  // load 13-17): 0 -> 0.5 -> 1 voxel: SSIM 0.7782 / 0.7778 / 0.7762, proxy at the viewer 114k /
-  // 38.6k / 37.3k triangles, mesh bytes 4.78 / 3.31 / 3.23 MB (the chunk borders, locked, bound
-  // what 1 voxel can add). Synthetic apartment initial sync (service_bench): mesh 7.7 -> 4.7 MB.
-  double publish_lod_error_voxels = 0.5;
+  // full-resolution chunk. 7-Scenes store 100, ten folds, idle machine (tools/product_eval.py,
+  // 30 Hz, 0 dropped): 0 / 0.25 / 0.5 voxel: SSIM 0.7791 / 0.7786 / 0.7780, proxy at the viewer
+  // 114k / 43k / 39k triangles, viewer bytes 9.87 / 8.52 / 8.35 MB (docs/service.md "The
+  // clients' proxy LOD"; the chunk borders, locked, bound what a larger error can remove).
+  double publish_lod_error_voxels = 0.25;
   // Load shedding (issue 15: "every real frame accepted at 30 Hz"): TSDF fusion is the costliest
   // stage (~30 ms of a 7-Scenes frame's ~42 ms CPU), so when the machine cannot keep up the
   // admission queue fills and frames are DROPPED, i.e. lost as view candidates too. Instead,
