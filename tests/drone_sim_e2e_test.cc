@@ -28,16 +28,22 @@ constexpr double kMinModelled = 0.14;     // measured 0.218, 0.211 (from 0.072)
 constexpr double kMinModelledGain = 0.07;
 constexpr double kMinPathM = 5.0;         // measured 13.2, 11.8 m
 
+// The synthetic apartment and a server (modelling + control service, the scene's zones, a coarse
+// proxy) on a free loopback port.
+ServerConfig ApartmentServerConfig(const synth::SynthScene& scene) {
+  ServerConfig c;
+  c.listen = "127.0.0.1:0";
+  EXO_CHECK(ApplyConfigValue("control_zones", SceneZoneText(scene), &c).ok());
+  EXO_CHECK(ApplyConfigValue("voxel_size_m", "0.08", &c).ok());
+  EXO_CHECK(ApplyConfigValue("control_cell_m", "0.15", &c).ok());
+  return c;
+}
+
 TEST(DroneSimE2E, JoypadTurnsTheSimulatedDroneAndItsFramesBuildTheModel) {
   synth::SceneOptions so;
   auto scene = synth::MakeScene(synth::SceneKind::kApartment, so);
   ASSERT_TRUE(scene.ok());
-  ServerConfig c;
-  c.listen = "127.0.0.1:0";
-  ASSERT_TRUE(ApplyConfigValue("control_zones", SceneZoneText(*scene), &c).ok());
-  ASSERT_TRUE(ApplyConfigValue("voxel_size_m", "0.08", &c).ok());
-  ASSERT_TRUE(ApplyConfigValue("control_cell_m", "0.15", &c).ok());
-  ExoviewServer server(c);
+  ExoviewServer server(ApartmentServerConfig(*scene));
   ASSERT_TRUE(server.Start().ok());
   const std::string addr = "127.0.0.1:" + std::to_string(server.port());
 
@@ -145,12 +151,7 @@ TEST(DroneSimE2E, ExploreOverTheControlServiceGrowsTheModel) {
   synth::SceneOptions so;
   auto scene = synth::MakeScene(synth::SceneKind::kApartment, so);
   ASSERT_TRUE(scene.ok());
-  ServerConfig c;
-  c.listen = "127.0.0.1:0";
-  ASSERT_TRUE(ApplyConfigValue("control_zones", SceneZoneText(*scene), &c).ok());
-  ASSERT_TRUE(ApplyConfigValue("voxel_size_m", "0.08", &c).ok());
-  ASSERT_TRUE(ApplyConfigValue("control_cell_m", "0.15", &c).ok());
-  ExoviewServer server(c);
+  ExoviewServer server(ApartmentServerConfig(*scene));
   ASSERT_TRUE(server.Start().ok());
   const std::string addr = "127.0.0.1:" + std::to_string(server.port());
   control::ControlCore* core = server.control_core();
