@@ -289,6 +289,9 @@ def live_part(args, env, work, shot):
                          and s["stage"] == 1, "the first live frame")
         log(f"live: {st['views']} views, model v{st['model_version']}, '{st['sync']}'")
         time.sleep(2.0)  # >= one checkpoint interval after the upload ended
+        # The reference is the model the window holds when the server goes away (deltas such as
+        # refreshed chunks may still have arrived during the wait above).
+        st = read_status(lambda s: s["views"] > 0, "the model before the server goes away")
         _, before = shot("live")
         server.kill()
         server.wait(timeout=10)
