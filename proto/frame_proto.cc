@@ -4,6 +4,8 @@
 #include <cmath>
 #include <cstring>
 
+#include <meshoptimizer.h>
+
 #include "common/io/depth_codec.h"
 #include "common/io/jpeg.h"
 #include "common/io/zstd.h"
@@ -288,8 +290,10 @@ absl::StatusOr<Frame> FrameFromProto(const v1::Frame& msg, const FrameDecodeOpti
 namespace {
 
 constexpr uint8_t kCompactMeshFormat = 1;
-constexpr uint8_t kCompactMeshZstd = 2;  // u8 2, u32 size of the format-1 bytes, zstd frame of them
+constexpr uint8_t kCompactMeshZstd = 2;  // u8 2, u32 size of the format-1/3 bytes, zstd frame of them
+constexpr uint8_t kCompactMeshCodec = 3;  // header as format 1, u32 vertex bytes, meshopt streams
 constexpr size_t kCompactHeaderBytes = 1 + 4 + 4 + 4 * 4;
+constexpr size_t kMeshoptVertexBytes = 8;  // u16 x, y, z, 0 (the vertex codec wants 4-byte multiples)
 constexpr size_t kMaxCompactMeshBytes = size_t{64} << 20;  // a chunk is < 1 MB in practice
 
 template <typename T>
@@ -341,6 +345,55 @@ void EncodeCompact(const TriangleMesh& mesh, std::string* out) {
   }
 }
 
+// Format 3 (MeshWireOptions::step_m > 0): the same header as format 1 (origin snapped to a
+// multiple of the step), u32 size of the vertex stream, meshopt_encodeVertexBuffer of u16[4]
+// quantized positions in first-use order, meshopt_encodeIndexBuffer of the triangles in
+// vertex-cache order. meshoptimizer's codecs are built for this (delta + bit packing of vertex
+// bytes, a triangle-fan/edge cache for indices) and leave zstd the redundancy they miss.
+void EncodeCodec(const TriangleMesh& mesh, float step_m, std::string* out) {
+  const size_t nv = mesh.positions.size();
+  const size_t ni = mesh.indices.size();
+  glm::dvec3 lo(0.0), hi(0.0);
+  if (nv > 0) lo = hi = glm::dvec3(mesh.positions[0]);
+  for (const glm::vec3& p : mesh.positions) {
+    lo = glm::min(lo, glm::dvec3(p));
+    hi = glm::max(hi, glm::dvec3(p));
+  }
+  double step = step_m;
+  const double extent = std::max({hi.x - lo.x, hi.y - lo.y, hi.z - lo.z});
+  if (extent / step > 65000.0) step = std::nextafter(float(extent / 65000.0), 1e30f);
+  const glm::vec3 origin(glm::floor(lo / step) * step);
+  const float stepf = float(step);
+  // Vertex-cache order, then vertices renumbered in first-use order (what both codecs like).
+  std::vector<uint32_t> idx(ni);
+  meshopt_optimizeVertexCache(idx.data(), mesh.indices.data(), ni, nv);
+  std::vector<uint16_t> q(nv * 4, 0);
+  for (size_t i = 0; i < nv; ++i)
+    for (int k = 0; k < 3; ++k) {
+      const float v = std::round((mesh.positions[i][k] - origin[k]) / stepf);
+      q[4 * i + k] = static_cast<uint16_t>(std::clamp(v, 0.0f, 65535.0f));
+    }
+  std::vector<uint16_t> qv(nv * 4);
+  const size_t used = meshopt_optimizeVertexFetch(qv.data(), idx.data(), ni, q.data(), nv,
+                                                  kMeshoptVertexBytes);
+  qv.resize(used * 4);
+  std::vector<unsigned char> vbuf(meshopt_encodeVertexBufferBound(used, kMeshoptVertexBytes));
+  vbuf.resize(meshopt_encodeVertexBuffer(vbuf.data(), vbuf.size(), qv.data(), used,
+                                         kMeshoptVertexBytes));
+  std::vector<unsigned char> ibuf(meshopt_encodeIndexBufferBound(ni, used));
+  ibuf.resize(meshopt_encodeIndexBuffer(ibuf.data(), ibuf.size(), idx.data(), ni));
+  out->clear();
+  out->reserve(kCompactHeaderBytes + 4 + vbuf.size() + ibuf.size());
+  out->push_back(static_cast<char>(kCompactMeshCodec));
+  PutLe<uint32_t>(out, static_cast<uint32_t>(used));
+  PutLe<uint32_t>(out, static_cast<uint32_t>(ni / 3));
+  for (int k = 0; k < 3; ++k) PutLe<float>(out, origin[k]);
+  PutLe<float>(out, stepf);
+  PutLe<uint32_t>(out, static_cast<uint32_t>(vbuf.size()));
+  out->append(reinterpret_cast<const char*>(vbuf.data()), vbuf.size());
+  out->append(reinterpret_cast<const char*>(ibuf.data()), ibuf.size());
+}
+
 // Format 2: the format-1 bytes through zstd when that is smaller (the on-grid coordinates of
 // marching-cubes vertices and the small index steps repeat).
 void ZstdWrap(std::string* out) {
@@ -368,13 +421,55 @@ absl::StatusOr<TriangleMesh> DecodeCompactZstd(const std::string& b) {
   EXO_RETURN_IF_ERROR(ZstdDecompress(
       std::span<const uint8_t>(reinterpret_cast<const uint8_t*>(b.data()) + 5, b.size() - 5),
       reinterpret_cast<uint8_t*>(raw.data()), raw.size(), "compact mesh"));
-  if (static_cast<uint8_t>(raw[0]) != kCompactMeshFormat)
-    return absl::InvalidArgumentError("compact mesh: zstd payload is not format 1");
+  const uint8_t inner = static_cast<uint8_t>(raw[0]);
+  if (inner != kCompactMeshFormat && inner != kCompactMeshCodec)
+    return absl::InvalidArgumentError("compact mesh: zstd payload is not format 1 or 3");
   return DecodeCompact(raw);
+}
+
+absl::StatusOr<TriangleMesh> DecodeCodec(const std::string& b) {
+  if (b.size() < kCompactHeaderBytes + 4)
+    return absl::InvalidArgumentError("compact mesh: shorter than its header");
+  const char* p = b.data() + 1;
+  const uint64_t nv = GetLe<uint32_t>(p);
+  const uint64_t nt = GetLe<uint32_t>(p + 4);
+  const glm::vec3 origin(GetLe<float>(p + 8), GetLe<float>(p + 12), GetLe<float>(p + 16));
+  const float step = GetLe<float>(p + 20);
+  const uint64_t vbytes = GetLe<uint32_t>(p + 24);
+  if (!std::isfinite(origin.x) || !std::isfinite(origin.y) || !std::isfinite(origin.z) ||
+      !std::isfinite(step) || !(step > 0.0f))
+    return absl::InvalidArgumentError("compact mesh: origin or step not finite and positive");
+  const size_t body = b.size() - kCompactHeaderBytes - 4;
+  // Counts checked against the bytes present before anything is allocated: the index codec
+  // spends at least one byte per triangle, the vertex codec at least 32 bytes per block of 256
+  // 8-byte vertices (2 bits per 16-vertex group and byte lane).
+  if (vbytes > body || nt > body - vbytes || nv > 8 * vbytes + 256 ||
+      nv * kMeshoptVertexBytes > kMaxCompactMeshBytes || nt * 12 > kMaxCompactMeshBytes)
+    return absl::InvalidArgumentError(absl::StrCat("compact mesh: ", nv, " vertices (", vbytes,
+                                                   " bytes) and ", nt, " triangles do not fit in ",
+                                                   b.size(), " bytes"));
+  const auto* vb = reinterpret_cast<const unsigned char*>(b.data()) + kCompactHeaderBytes + 4;
+  std::vector<uint16_t> q(nv * 4);
+  if (nv > 0 && meshopt_decodeVertexBuffer(q.data(), nv, kMeshoptVertexBytes, vb, vbytes) != 0)
+    return absl::InvalidArgumentError("compact mesh: vertex stream does not decode");
+  TriangleMesh m;
+  m.indices.resize(nt * 3);
+  if (nt > 0 && meshopt_decodeIndexBuffer(m.indices.data(), nt * 3, sizeof(uint32_t), vb + vbytes,
+                                          body - vbytes) != 0)
+    return absl::InvalidArgumentError("compact mesh: index stream does not decode");
+  for (uint32_t i : m.indices)
+    if (i >= nv)
+      return absl::InvalidArgumentError(
+          absl::StrCat("compact mesh: index ", i, " outside ", nv, " vertices"));
+  m.positions.resize(nv);
+  for (uint64_t i = 0; i < nv; ++i)
+    m.positions[i] = origin + step * glm::vec3(q[4 * i], q[4 * i + 1], q[4 * i + 2]);
+  return m;
 }
 
 absl::StatusOr<TriangleMesh> DecodeCompact(const std::string& b) {
   if (!b.empty() && static_cast<uint8_t>(b[0]) == kCompactMeshZstd) return DecodeCompactZstd(b);
+  if (!b.empty() && static_cast<uint8_t>(b[0]) == kCompactMeshCodec) return DecodeCodec(b);
   if (b.size() < kCompactHeaderBytes)
     return absl::InvalidArgumentError("compact mesh: shorter than its header");
   if (static_cast<uint8_t>(b[0]) != kCompactMeshFormat)
@@ -427,9 +522,13 @@ absl::StatusOr<TriangleMesh> DecodeCompact(const std::string& b) {
 
 }  // namespace
 
-void MeshToProto(const TriangleMesh& mesh, v1::MeshChunkUpserted* out, bool plain) {
+void MeshToProto(const TriangleMesh& mesh, v1::MeshChunkUpserted* out, bool plain,
+                 const MeshWireOptions& options) {
   if (!plain) {
-    EncodeCompact(mesh, out->mutable_compact());
+    if (options.step_m > 0.0f && std::isfinite(options.step_m))
+      EncodeCodec(mesh, options.step_m, out->mutable_compact());
+    else
+      EncodeCompact(mesh, out->mutable_compact());
     ZstdWrap(out->mutable_compact());
     return;
   }

@@ -64,7 +64,19 @@ absl::StatusCode StatusCodeFromAck(v1::Ack::Code code);
 // extent, delta-coded indices, no normals; 2.7x smaller than the plain floats on 7-Scenes);
 // `plain` writes the float fields with the mesh's normals. MeshFromProto reads both and checks
 // every index.
-void MeshToProto(const TriangleMesh& mesh, v1::MeshChunkUpserted* out, bool plain = false);
+//
+// MeshWireOptions::step_m > 0 (the server's choice: a fraction of its voxel) writes format 3
+// instead: positions quantized to that step on a grid snapped to multiples of the step (so the
+// on-grid coordinates of marching-cubes vertices land on exact integers), triangles in vertex-cache
+// order and vertices in first-use order, both through meshoptimizer's vertex and index codecs,
+// then zstd. The decoded position is within step_m / 2 of the input (per coordinate); a chunk
+// wider than 65 535 steps uses the coarser step extent / 65 535 instead. Triangle order may change
+// (each triangle keeps its winding); the mesh's normals and colours are not sent.
+struct MeshWireOptions {
+  float step_m = 0.0f;  // 0: format 1/2 (16 bits over the chunk's bounding box)
+};
+void MeshToProto(const TriangleMesh& mesh, v1::MeshChunkUpserted* out, bool plain = false,
+                 const MeshWireOptions& options = {});
 absl::StatusOr<TriangleMesh> MeshFromProto(const v1::MeshChunkUpserted& msg);
 
 }  // namespace exo

@@ -4,6 +4,7 @@
 
 #include <gtest/gtest.h>
 
+#include <array>
 #include <cmath>
 #include <cstring>
 
@@ -285,6 +286,138 @@ TEST(MeshProto, MalformedCompactMeshesAreErrors) {
   v1::MeshChunkUpserted both = good;
   both.add_positions(1.0f);
   EXPECT_FALSE(MeshFromProto(both).ok());
+}
+
+// Format 3 (MeshWireOptions::step_m, what the server sends): every triangle comes back with its
+// winding, each corner within step/2 per coordinate (snapped grid: a coordinate on a multiple of
+// the step is exact), smaller than format 2 on a marching-cubes-like chunk; a chunk wider than
+// 65 000 steps falls back to a coarser step; malformed streams are errors.
+std::vector<std::array<glm::vec3, 3>> Triangles(const TriangleMesh& m) {
+  std::vector<std::array<glm::vec3, 3>> t;
+  for (size_t k = 0; k + 2 < m.indices.size(); k += 3)
+    t.push_back({m.positions[m.indices[k]], m.positions[m.indices[k + 1]],
+                 m.positions[m.indices[k + 2]]});
+  return t;
+}
+// Each triangle of `a` has a triangle of `b` with the same corners in the same cyclic order
+// within `tol` (per coordinate), and the counts match.
+void ExpectSameTriangles(const TriangleMesh& a, const TriangleMesh& b, float tol) {
+  auto ta = Triangles(a), tb = Triangles(b);
+  ASSERT_EQ(ta.size(), tb.size());
+  std::vector<bool> used(tb.size(), false);
+  auto near = [&](glm::vec3 p, glm::vec3 q) {
+    return std::abs(p.x - q.x) <= tol && std::abs(p.y - q.y) <= tol && std::abs(p.z - q.z) <= tol;
+  };
+  for (const auto& x : ta) {
+    bool found = false;
+    for (size_t j = 0; j < tb.size() && !found; ++j) {
+      if (used[j]) continue;
+      for (int r = 0; r < 3 && !found; ++r)
+        if (near(x[0], tb[j][r]) && near(x[1], tb[j][(r + 1) % 3]) && near(x[2], tb[j][(r + 2) % 3]))
+          used[j] = found = true;
+    }
+    EXPECT_TRUE(found) << "triangle (" << x[0].x << "," << x[0].y << "," << x[0].z << ") lost";
+  }
+}
+
+TEST(MeshProto, CodecRoundTripWithinTheStep) {
+  const float step = 0.02f / 32;
+  for (const glm::vec3 base : {glm::vec3(0.0f), glm::vec3(12.34f, -7.5f, 3.0f)}) {
+    const TriangleMesh m = TestChunk(base, 0.16f, 8);
+    v1::MeshChunkUpserted msg, old;
+    MeshToProto(m, &msg, /*plain=*/false, {step});
+    MeshToProto(m, &old);
+    EXPECT_LT(msg.ByteSizeLong(), old.ByteSizeLong());
+    auto back = MeshFromProto(msg);
+    ASSERT_TRUE(back.ok()) << back.status();
+    EXPECT_TRUE(back->normals.empty());
+    EXPECT_EQ(back->positions.size(), m.positions.size());
+    ExpectSameTriangles(m, *back, 0.5f * step * 1.001f + 4e-6f);
+  }
+  // On-grid coordinates stay on the grid (what lets neighbouring chunks share seam vertices).
+  TriangleMesh g;
+  g.positions = {{0.02f, 0.04f, 0.013f}, {0.04f, 0.04f, 0.011f}, {0.02f, 0.06f, 0.017f}};
+  g.indices = {0, 1, 2};
+  v1::MeshChunkUpserted gm;
+  MeshToProto(g, &gm, false, {step});
+  auto gb = MeshFromProto(gm);
+  ASSERT_TRUE(gb.ok());
+  for (const glm::vec3& p : gb->positions) {
+    EXPECT_NEAR(std::remainder(p.x, 0.02f), 0.0f, 1e-6f);
+    EXPECT_NEAR(std::remainder(p.y, 0.02f), 0.0f, 1e-6f);
+  }
+  // Wider than 65 000 steps: the step grows to extent / 65 000 (still within it / 2).
+  TriangleMesh wide = TestChunk(glm::vec3(0.0f), 100.0f, 3);
+  v1::MeshChunkUpserted wm;
+  MeshToProto(wide, &wm, false, {step});
+  auto wb = MeshFromProto(wm);
+  ASSERT_TRUE(wb.ok());
+  ExpectSameTriangles(wide, *wb, 0.5f * 100.0f / 65000.0f * 1.01f);
+  // Empty and one-point meshes.
+  for (const TriangleMesh& e : {TriangleMesh{}, TriangleMesh{{glm::vec3(1, 2, 3)}, {}, {}, {0, 0, 0}}}) {
+    v1::MeshChunkUpserted em;
+    MeshToProto(e, &em, false, {step});
+    auto eb = MeshFromProto(em);
+    ASSERT_TRUE(eb.ok()) << eb.status();
+    EXPECT_EQ(eb->indices, e.indices);
+  }
+}
+
+TEST(MeshProto, MalformedCodecMeshesAreErrors) {
+  v1::MeshChunkUpserted good;
+  MeshToProto(TestChunk(glm::vec3(0.0f), 0.16f, 8), &good, false, {0.02f / 32});
+  std::string b = good.compact();
+  if (b[0] == 2) {  // unwrap zstd
+    uint32_t raw;
+    std::memcpy(&raw, b.data() + 1, 4);
+    std::string r(raw, '\0');
+    ASSERT_TRUE(ZstdDecompress(std::span<const uint8_t>(
+                                   reinterpret_cast<const uint8_t*>(b.data()) + 5, b.size() - 5),
+                               reinterpret_cast<uint8_t*>(r.data()), r.size(), "test")
+                    .ok());
+    b = r;
+  }
+  ASSERT_EQ(b[0], 3);
+  auto bad = [](std::string bytes) {
+    v1::MeshChunkUpserted m;
+    m.set_compact(std::move(bytes));
+    return MeshFromProto(m).status();
+  };
+  ASSERT_TRUE(bad(b).ok());
+  EXPECT_FALSE(bad(b.substr(0, 20)).ok());            // header cut
+  EXPECT_FALSE(bad(b.substr(0, b.size() - 3)).ok());  // index stream cut
+  uint32_t vbytes;
+  std::memcpy(&vbytes, b.data() + 25, 4);
+  EXPECT_FALSE(bad(b.substr(0, 29 + vbytes / 2)).ok());  // vertex stream cut
+  std::string huge = b;  // 2^32-1 vertices claimed
+  for (int k = 1; k <= 4; ++k) huge[k] = static_cast<char>(0xff);
+  EXPECT_NE(bad(huge).message().find("do not fit"), std::string::npos);
+  std::string many = b;  // 2^32-1 triangles claimed
+  for (int k = 5; k <= 8; ++k) many[k] = static_cast<char>(0xff);
+  EXPECT_NE(bad(many).message().find("do not fit"), std::string::npos);
+  std::string vlen = b;  // vertex stream longer than the message
+  const uint32_t too_long = static_cast<uint32_t>(b.size());
+  std::memcpy(vlen.data() + 25, &too_long, 4);
+  EXPECT_FALSE(bad(vlen).ok());
+  std::string nan_step = b;
+  const float nan = std::nanf("");
+  std::memcpy(nan_step.data() + 21, &nan, 4);
+  EXPECT_FALSE(bad(nan_step).ok());
+  std::string fewer = b;  // fewer vertices than the indices use
+  const uint32_t three = 3;
+  std::memcpy(fewer.data() + 1, &three, 4);
+  EXPECT_FALSE(bad(fewer).ok());
+  // Every single-byte corruption of the streams is an error or a mesh whose indices are valid
+  // (meshoptimizer's decoders are safe on untrusted input; the index check does the rest).
+  for (size_t k = 29; k < b.size(); ++k) {
+    std::string f = b;
+    f[k] = static_cast<char>(f[k] ^ 0xa5);
+    v1::MeshChunkUpserted m;
+    m.set_compact(f);
+    auto r = MeshFromProto(m);
+    if (r.ok())
+      for (uint32_t i : r->indices) ASSERT_LT(i, r->positions.size());
+  }
 }
 
 }  // namespace

@@ -165,23 +165,15 @@ class GeometryStage final : public PipelineStage {
         refresh_still_.fetch_add(1);
         continue;
       }
-      // The compact wire size of the chunk before zstd (proto/frame_proto.h): 6 bytes per vertex,
-      // ~1.2 per index, a 25-byte header (zstd takes ~17 % off on 7-Scenes: the budget errs
-      // on the safe side).
-      // With the clients' LOD the chunk shrinks by the ratio seen so far.
-      const double lod = lod_in_.load() > 0 ? static_cast<double>(lod_out_.load()) /
-                                                  static_cast<double>(lod_in_.load())
-                                            : 1.0;
-      const double bytes = 32.0 + lod * (6.0 * static_cast<double>(it->second.mesh.num_vertices()) +
-                                         3.6 * static_cast<double>(it->second.mesh.num_triangles()));
-      if (rate > 0.0) {
-        if (tokens_ < std::min(bytes, burst)) break;  // wait for tokens, keep the order
-        tokens_ -= bytes;
-      }
+      // A refresh goes out while the bucket holds tokens and is charged its actual bytes on the
+      // wire (the encoding, LOD and zstd decide them): the bucket may go into debt by one chunk,
+      // so the long-run rate is the budget in real bytes.
+      if (rate > 0.0 && tokens_ <= 0.0) break;  // wait for tokens, keep the order
       MeshChunk c = std::move(it->second);
       pending_.erase(it);
       refreshed_.fetch_add(1);
-      PublishChunk(std::move(c), now, ctx);
+      const size_t bytes = PublishChunk(std::move(c), now, ctx);
+      if (rate > 0.0) tokens_ -= static_cast<double>(bytes);
     }
   }
 
@@ -191,7 +183,9 @@ class GeometryStage final : public PipelineStage {
     uint64_t extractions = 1;          // the chunk's extraction count when it was published
     std::vector<glm::vec3> positions;  // its published vertices (refresh_min_move_voxels)
   };
-  void PublishChunk(MeshChunk c, int64_t now, const SceneContext& ctx) {
+  // Returns the chunk's bytes on the wire.
+  size_t PublishChunk(MeshChunk c, int64_t now, const SceneContext& ctx) {
+    const MeshWireOptions wire{static_cast<float>(options_.publish_step_voxels * ctx.setup.voxel_m)};
     Published& p = published_[c.id];
     p.triangles = c.mesh.num_triangles();
     p.time_ns = now;
@@ -206,10 +200,13 @@ class GeometryStage final : public PipelineStage {
       lod_in_ += st.triangles_in;
       lod_out_ += st.triangles_out;
       lod_fallbacks_ += st.fallback;
-      ctx.store->UpsertChunk(c.id, c.version, lod);
-      return;
+      size_t bytes = 0;
+      ctx.store->UpsertChunk(c.id, c.version, lod, wire, &bytes);
+      return bytes;
     }
-    ctx.store->UpsertChunk(c.id, c.version, c.mesh);
+    size_t bytes = 0;
+    ctx.store->UpsertChunk(c.id, c.version, c.mesh, wire, &bytes);
+    return bytes;
   }
 
   // Mean over `now` of the distance to the nearest vertex of `before` (hash grid of cell

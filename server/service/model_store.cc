@@ -500,16 +500,18 @@ uint64_t ModelStore::SetCellRefs(
 }
 
 uint64_t ModelStore::UpsertChunk(uint64_t chunk_id, uint64_t chunk_version,
-                                 const TriangleMesh& mesh) {
+                                 const TriangleMesh& mesh, const MeshWireOptions& wire,
+                                 size_t* wire_bytes) {
   v1::Delta d;
   auto* m = d.mutable_mesh_chunk_upserted();
   m->set_chunk_id(chunk_id);
   m->set_chunk_version(chunk_version);
-  MeshToProto(mesh, m);  // outside the lock: meshes can be large
+  MeshToProto(mesh, m, /*plain=*/false, wire);  // outside the lock: meshes can be large
   // The digest covers the mesh the clients decode (compact encoding: quantized positions).
   absl::StatusOr<TriangleMesh> sent = MeshFromProto(*m);
   EXO_CHECK(sent.ok());  // a mesh this server built always decodes
   const uint64_t hash = MeshHash(*sent);
+  if (wire_bytes) *wire_bytes = m->ByteSizeLong();
   std::lock_guard lock(mu_);
   if (auto it = chunks_.find(chunk_id); it != chunks_.end())
     chunk_bytes_ -= it->second->mesh_chunk_upserted().ByteSizeLong();

@@ -25,6 +25,7 @@
 #include "common/lumigraph/model.h"
 #include "common/status.h"
 #include "proto/exoview.pb.h"
+#include "proto/frame_proto.h"
 #include "proto/model_proto.h"
 
 namespace exo {
@@ -89,7 +90,11 @@ class ModelStore {
   absl::StatusOr<uint64_t> RemoveView(ViewId id);
   // Replaces the reference lists of the given cells (empty list = cell removed).
   uint64_t SetCellRefs(const std::vector<std::pair<CellId, std::vector<ViewId>>>& cells);
-  uint64_t UpsertChunk(uint64_t chunk_id, uint64_t chunk_version, const TriangleMesh& mesh);
+  // `wire` picks the chunk's encoding (proto/frame_proto.h MeshWireOptions); the digest covers
+  // the mesh as the clients decode it.
+  // `wire_bytes`, when given, receives the chunk's size on the wire (the MeshChunkUpserted).
+  uint64_t UpsertChunk(uint64_t chunk_id, uint64_t chunk_version, const TriangleMesh& mesh,
+                       const MeshWireOptions& wire = {}, size_t* wire_bytes = nullptr);
   absl::StatusOr<uint64_t> RemoveChunk(uint64_t chunk_id);
 
   // Ledger of applied frames (the frame journal, issue 20): the pipeline brackets the last

@@ -113,6 +113,8 @@ std::vector<ConfigKey> MakeKeys() {
           EXO_FIELD(geometry.refresh_min_move_voxels)),
       Key("chunk_lod_error_voxels", "clients' proxy LOD: published chunks simplified (quadric edge collapse, chunk borders locked) within this many voxels of the full mesh (0 = full resolution)",
           EXO_FIELD(geometry.publish_lod_error_voxels)),
+      Key("chunk_step_voxels", "position step of the published chunks on the wire, voxels (0 = 16 bits over each chunk's box)",
+          EXO_FIELD(geometry.publish_step_voxels)),
       Key("chunk_refresh_burst_s", "... bursts of up to this many seconds of the budget",
           EXO_FIELD(geometry.refresh_burst_s)),
       Key("chunk_republish_interval_s", "minimum seconds between republishing a chunk",
