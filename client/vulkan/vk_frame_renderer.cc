@@ -1,8 +1,10 @@
 #include "client/vulkan/vk_frame_renderer.h"
 
 #include <algorithm>
+#include <bit>
 #include <chrono>
 #include <cstring>
+#include <limits>
 
 #include "common/lumigraph/cpu_renderer.h"
 
@@ -57,6 +59,73 @@ glm::dmat4 ClipFromCam(const PinholeCamera& cam, double n, double f) {
   return p;
 }
 
+// Background pass tiles: kSkyTilePx x kSkyTilePx screen pixels (a multiple of llvmpipe's 4x4
+// blocks, so a block never mixes two view lists).
+constexpr int kSkyTilePx = 16;
+
+// Bit j set: background view j of frame `f` may be valid for the ray of some pixel in
+// [x0, x1] x [y0, y1] (inclusive). Conservative w.r.t. blend_shade.glsl ShadeBackground, which
+// needs, for the ray d = local_from_pixel (x, y, 1) and p = cam_from_local_j d: p.z > 1e-6 |p|,
+// uv = (fx p.x / p.z + cx, fy p.y / p.z + cy) inside the view, and the baked background mask
+// set at the nearest pixel, i.e. uv in [x0 - 0.5, x1 + 0.5] x [y0 - 0.5, y1 + 0.5] of the mask's
+// bounding box. The tile's rays are the convex combinations of its 4 corner rays (d is affine
+// in the pixel), so p.z < 0 at all corners excludes every ray, and with p.z > 0 at all corners
+// the image of the tile is the convex hull of the corners' uv (a projective map keeps segments
+// in front of the camera). Margins: 1e-3 |p| for "behind", 1e-2 |p| for "in front" (else the
+// view is kept), 1 px on the box (the shader's float rays differ from these double ones by
+// far less).
+uint32_t SkyTileViews(const GpuFrame& f, const std::vector<glm::ivec4>& boxes, int x0, int y0,
+                      int x1, int y1) {
+  const glm::dvec3 m0(f.local_from_pixel[0]), m1(f.local_from_pixel[1]), m2(f.local_from_pixel[2]);
+  glm::dvec3 d[4];
+  int k = 0;
+  for (const int py : {y0, y1})
+    for (const int px : {x0, x1}) d[k++] = m0 * double(px) + m1 * double(py) + m2;
+  uint32_t mask = 0;
+  for (int j = 0; j < f.bg_params.x; ++j) {
+    const glm::vec4* v = f.bg_views + kBgViewTexels * j;
+    const glm::dvec3 r0(v[0]), r1(v[1]), r2(v[2]);  // columns of cam_from_local
+    const glm::dvec4 intr(v[3]);
+    const glm::ivec4& box = boxes[size_t(j)];
+    if (box.x > box.z || box.y > box.w) continue;  // no background pixel: never valid
+    int behind = 0;
+    bool uncertain = false;
+    glm::dvec2 lo(std::numeric_limits<double>::infinity()), hi(-lo);
+    for (const glm::dvec3& dc : d) {
+      const glm::dvec3 p = r0 * dc.x + r1 * dc.y + r2 * dc.z;
+      const double len = glm::length(p);
+      if (p.z < -1e-3 * len) {
+        ++behind;
+        continue;
+      }
+      if (!(p.z > 1e-2 * len)) {
+        uncertain = true;
+        continue;
+      }
+      const glm::dvec2 uv(intr.x * p.x / p.z + intr.z, intr.y * p.y / p.z + intr.w);
+      lo = glm::min(lo, uv);
+      hi = glm::max(hi, uv);
+    }
+    if (behind == 4) continue;
+    if (!uncertain && behind == 0) {
+      constexpr double kMarginPx = 1.0;
+      if (hi.x < box.x - 0.5 - kMarginPx || lo.x > box.z + 0.5 + kMarginPx ||
+          hi.y < box.y - 0.5 - kMarginPx || lo.y > box.w + 0.5 + kMarginPx)
+        continue;
+    }
+    mask |= 1u << j;
+  }
+  return mask;
+}
+
+// blend_shade.glsl SkyList: the count in bits 0..3, the k-th set bit's index in bits 4 + 3k.
+uint32_t PackSkyList(uint32_t mask) {
+  uint32_t packed = 0, count = 0;
+  for (uint32_t j = 0; j < 32; ++j)
+    if (mask & (1u << j)) packed |= j << (4 + 3 * count++);
+  return packed | count;
+}
+
 // Begins render pass `rp` on `fb` (clear colour c0, depth 1) over the whole target and binds
 // `pipe` with the renderer's descriptor set.
 void RecordBeginPass(VkCommandBuffer cmd, const Pipelines& pipes, VkRenderPass rp, VkFramebuffer fb,
@@ -78,6 +147,11 @@ void RecordBeginPass(VkCommandBuffer cmd, const Pipelines& pipes, VkRenderPass r
   vkCmdSetScissor(cmd, 0, 1, &sc);
   vkCmdBindDescriptorSets(cmd, VK_PIPELINE_BIND_POINT_GRAPHICS, pipes.layout(), 0, 1, pipes.set(),
                           0, nullptr);
+  // Every blend pipeline declares the background pass's push constant (blend_shade.glsl
+  // SkyList; only kBlendPassBackground reads it), so it must be set before any draw.
+  const uint32_t no_list = 0;
+  vkCmdPushConstants(cmd, pipes.layout(), VK_SHADER_STAGE_FRAGMENT_BIT | VK_SHADER_STAGE_COMPUTE_BIT,
+                     0, sizeof(no_list), &no_list);
 }
 
 // blend.comp over the G-buffer (the G-buffer pass's dependency covers the compute read)
@@ -87,6 +161,9 @@ void RecordComputeBlend(VkCommandBuffer cmd, const Pipelines& pipes, const Rende
   vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, compute_pipe);
   vkCmdBindDescriptorSets(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, pipes.layout(), 0, 1, pipes.set(), 0,
                           nullptr);
+  const uint32_t no_list = 0;  // SkyList (unread by the compute path, but declared)
+  vkCmdPushConstants(cmd, pipes.layout(), VK_SHADER_STAGE_FRAGMENT_BIT | VK_SHADER_STAGE_COMPUTE_BIT,
+                     0, sizeof(no_list), &no_list);
   vkCmdDispatch(cmd, (t.w + 7) / 8, (t.h + 7) / 8, 1);
   VkBufferMemoryBarrier ob{VK_STRUCTURE_TYPE_BUFFER_MEMORY_BARRIER};
   ob.srcAccessMask = VK_ACCESS_SHADER_WRITE_BIT;
@@ -227,9 +304,17 @@ absl::Status FrameRenderer::Draw(RenderTarget& t, VkRenderPass pass, VkPipeline 
       // writes when it has no view).
       RecordBeginPass(cmd, p, pass, t.fb.get(), clear, pipe, t.w, t.h);
       vkCmdDraw(cmd, 3, 1, 0, 0);
-      if (sky_pipe != VK_NULL_HANDLE) {
+      if (sky_pipe != VK_NULL_HANDLE && !sky_draws_.empty()) {
         vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_GRAPHICS, sky_pipe);
-        vkCmdDraw(cmd, 3, 1, 0, 0);
+        const VkBuffer vb = sky_vb_.buffer.get();
+        const VkDeviceSize offset = 0;
+        vkCmdBindVertexBuffers(cmd, 0, 1, &vb, &offset);
+        for (const SkyDraw& d : sky_draws_) {
+          vkCmdPushConstants(cmd, p.layout(),
+                             VK_SHADER_STAGE_FRAGMENT_BIT | VK_SHADER_STAGE_COMPUTE_BIT, 0,
+                             sizeof(d.packed), &d.packed);
+          vkCmdDraw(cmd, d.vertex_count, 1, d.first_vertex, 0);
+        }
       }
       vkCmdEndRenderPass(cmd);
     } else {
@@ -244,8 +329,8 @@ absl::Status FrameRenderer::Draw(RenderTarget& t, VkRenderPass pass, VkPipeline 
 // The per-frame background view list (SelectBackgroundViews over the resident views in id
 // order: the CPU reference's order) and the pixel-to-direction matrix, into the Frame block.
 void FrameRenderer::FillBackground(const PinholeCamera& camera, const Rigid3d& local_from_cam,
-                                   int max_views, GpuFrame* f,
-                                   std::vector<ViewId>* chosen_ids) const {
+                                   int max_views, GpuFrame* f, std::vector<ViewId>* chosen_ids,
+                                   std::vector<glm::ivec4>* bg_boxes) const {
   std::vector<std::pair<ViewId, const ViewStore::Entry*>> sorted;
   sorted.reserve(views_.entries().size());
   for (const auto& [id, e] : views_.entries()) sorted.emplace_back(id, &e);
@@ -274,7 +359,62 @@ void FrameRenderer::FillBackground(const PinholeCamera& camera, const Rigid3d& l
     dst[4] =
         glm::vec4(float(e.params.size.x), float(e.params.size.y), float(e.slot), e.params.exposure);
     chosen_ids->push_back(ids[chosen[j]]);
+    bg_boxes->push_back(e.bg_box);
   }
+}
+
+// The background pass's geometry for frame `f` of w x h pixels: every kSkyTilePx tile whose view
+// list (SkyTileViews) is not empty, as rectangles (runs of equal lists along a tile row), drawn
+// grouped by list with the list as push constant; tiles with an empty list are not drawn (their
+// pixels keep the clear value, what ShadeBackground returns without a valid view).
+absl::Status FrameRenderer::BuildSkyDraws(const GpuFrame& f, const std::vector<glm::ivec4>& boxes,
+                                          uint32_t w, uint32_t h) {
+  struct Rect {
+    uint32_t mask;
+    int x0, y0, x1, y1;  // pixel edges: [x0, x1) x [y0, y1)
+  };
+  std::vector<Rect> rects;
+  const int iw = int(w), ih = int(h);
+  for (int y0 = 0; y0 < ih; y0 += kSkyTilePx) {
+    const int y1 = std::min(y0 + kSkyTilePx, ih);
+    Rect run{0, 0, y0, 0, y1};
+    for (int x0 = 0; x0 < iw; x0 += kSkyTilePx) {
+      const int x1 = std::min(x0 + kSkyTilePx, iw);
+      const uint32_t m = SkyTileViews(f, boxes, x0, y0, x1 - 1, y1 - 1);
+      if (m != 0 && m == run.mask) {
+        run.x1 = x1;
+        continue;
+      }
+      if (run.mask != 0) rects.push_back(run);
+      run = Rect{m, x0, y0, x1, y1};
+    }
+    if (run.mask != 0) rects.push_back(run);
+  }
+  std::stable_sort(rects.begin(), rects.end(),
+                   [](const Rect& a, const Rect& b) { return a.mask < b.mask; });
+  sky_draws_.clear();
+  sky_listed_views_px_ = 0;
+  if (rects.empty()) return absl::OkStatus();
+  const VkDeviceSize bytes = rects.size() * 6 * sizeof(glm::vec3);
+  if (!sky_vb_.buffer || sky_vb_.size < bytes) {
+    EXO_ASSIGN_OR_RETURN(sky_vb_, Buffer::Create(ctx_, std::max<VkDeviceSize>(2 * bytes, 4096),
+                                                 VK_BUFFER_USAGE_VERTEX_BUFFER_BIT));
+  }
+  glm::vec3* v = static_cast<glm::vec3*>(sky_vb_.mapped);
+  const auto ndc_x = [&](int x) { return float(2.0 * x / iw - 1.0); };
+  const auto ndc_y = [&](int y) { return float(2.0 * y / ih - 1.0); };
+  for (size_t i = 0; i < rects.size(); ++i) {
+    const Rect& r = rects[i];
+    const glm::vec3 a(ndc_x(r.x0), ndc_y(r.y0), 1.0f), b(ndc_x(r.x1), ndc_y(r.y0), 1.0f),
+        c(ndc_x(r.x1), ndc_y(r.y1), 1.0f), d(ndc_x(r.x0), ndc_y(r.y1), 1.0f);
+    const glm::vec3 quad[6] = {a, b, c, a, c, d};
+    std::memcpy(v + 6 * i, quad, sizeof(quad));
+    if (i == 0 || r.mask != rects[i - 1].mask)
+      sky_draws_.push_back(SkyDraw{PackSkyList(r.mask), uint32_t(6 * i), 0});
+    sky_draws_.back().vertex_count += 6;
+    sky_listed_views_px_ += double(std::popcount(r.mask)) * (r.x1 - r.x0) * (r.y1 - r.y0);
+  }
+  return absl::OkStatus();
 }
 
 // The inpainted keyframes of this frame (SPEC §7; the CPU reference's SelectInpaintedViews over
@@ -302,7 +442,8 @@ void FrameRenderer::FillInpainted(const Rigid3d& local_from_cam, GpuFrame* f) co
 // The blend pass's Frame block (camera, weights, background list) into frame_ubo_.
 void FrameRenderer::UploadBlendFrame(const PinholeCamera& camera, const Rigid3d& local_from_cam,
                                      const blend::BlendOptions& bo, GpuFrame* f,
-                                     std::vector<ViewId>* bg_ids) const {
+                                     std::vector<ViewId>* bg_ids,
+                                     std::vector<glm::ivec4>* bg_boxes) const {
   FillFrame(camera, local_from_cam, f);
   f->weights =
       glm::vec4(bo.lambda, bo.min_weight, bo.occlusion_epsilon_m, bo.occlusion_epsilon_rel);
@@ -310,7 +451,7 @@ void FrameRenderer::UploadBlendFrame(const PinholeCamera& camera, const Rigid3d&
   f->iparams.x = static_cast<int>(bo.positional_mode);
   f->iparams.y = bo.n_best;
   if (bo.background_views > 0)
-    FillBackground(camera, local_from_cam, bo.background_views, f, bg_ids);
+    FillBackground(camera, local_from_cam, bo.background_views, f, bg_ids, bg_boxes);
   FillInpainted(local_from_cam, f);
   std::memcpy(frame_ubo_.mapped, f, sizeof(*f));
 }
@@ -342,9 +483,18 @@ absl::StatusOr<RenderResult> FrameRenderer::Render(const PinholeCamera& camera,
   EXO_RETURN_IF_ERROR(EnsureBlendTarget(w, h));
   GpuFrame f{};
   RenderResult r;
-  UploadBlendFrame(camera, local_from_cam, bo, &f, &r.background_views);
+  std::vector<glm::ivec4> bg_boxes;
+  UploadBlendFrame(camera, local_from_cam, bo, &f, &r.background_views, &bg_boxes);
   f.bg_params.y = approx.max_candidates;  // blend_shade.glsl: 0 = every reference (exact)
   std::memcpy(frame_ubo_.mapped, &f, sizeof(f));
+  sky_draws_.clear();
+  sky_listed_views_px_ = 0;
+  if (f.bg_params.x > 0 && !pipes_->blend_compute()) {
+    const auto ts = Clock::now();
+    EXO_RETURN_IF_ERROR(BuildSkyDraws(f, bg_boxes, w, h));
+    r.sky_tiles_ms = MsSince(ts);
+    r.sky_views_per_px = sky_listed_views_px_ / (double(w) * h);
+  }
   const auto tr = Clock::now();
   cells_.RankRefs(glm::vec3(f.cam_centre_cell), camera, local_from_cam, grid_.cell_size_m, bo,
                   /*by_centre_weight=*/approx.max_candidates > 0);

@@ -126,7 +126,7 @@ absl::StatusOr<uint32_t> ViewStore::AcquireSlot(ViewId id, int w, int h, bool is
   return slot;
 }
 
-absl::StatusOr<bool> ViewStore::Stage(const StoredView& v) {
+absl::StatusOr<bool> ViewStore::Stage(const StoredView& v, glm::ivec4* bg_box) {
   // Staging: linear UNORM16 RGBA colour then R32F baked depth.
   const size_t n = v.color.width() * size_t(v.color.height());
   const VkDeviceSize color_bytes = n * kColorTexelBytes, depth_bytes = n * kDepthTexelBytes;
@@ -153,10 +153,15 @@ absl::StatusOr<bool> ViewStore::Stage(const StoredView& v) {
   // Background at infinity: -1 marks the guarded background mask (invalid for surfaces too).
   const ImageU8 bg_mask = BackgroundMask(v.depth_m, opt_.bake_background_guard_radius_px);
   bool has_background = false;
+  const int bw = baked.width();
+  *bg_box = glm::ivec4(bw, baked.height(), -1, -1);
   for (size_t i = 0, m = baked.size(); i < m; ++i)
     if (bg_mask.data()[i]) {
       baked.data()[i] = -1.0f;
       has_background = true;
+      const int x = int(i % size_t(bw)), y = int(i / size_t(bw));
+      *bg_box = glm::ivec4(std::min(bg_box->x, x), std::min(bg_box->y, y),
+                           std::max(bg_box->z, x), std::max(bg_box->w, y));
     }
   std::memcpy(dst + color_bytes, baked.data(), depth_bytes);
   return has_background;
@@ -208,12 +213,14 @@ absl::StatusOr<bool> ViewStore::Upsert(const StoredView& v, uint64_t fingerprint
   const bool is_new = !views_.contains(v.id);
   const int w = v.camera.width, h = v.camera.height;
   EXO_ASSIGN_OR_RETURN(const uint32_t slot, AcquireSlot(v.id, w, h, is_new));
-  EXO_ASSIGN_OR_RETURN(const bool has_background, Stage(v));
+  glm::ivec4 bg_box;
+  EXO_ASSIGN_OR_RETURN(const bool has_background, Stage(v, &bg_box));
   EXO_RETURN_IF_ERROR(CopyStagingToLayer(slot, uint32_t(w), uint32_t(h)));
   WriteRecord(v, slot);
   stats_.bytes += VkDeviceSize(w) * h * (kColorTexelBytes + kDepthTexelBytes);
   ++stats_.view_uploads;
-  views_[v.id] = Entry{slot, fingerprint, MakeBlendView(v), has_background, v.inpainted};
+  views_[v.id] =
+      Entry{slot, fingerprint, MakeBlendView(v), has_background, bg_box, v.inpainted};
   return is_new;
 }
 

@@ -36,6 +36,9 @@ class ViewStore {
     uint64_t fingerprint = 0;
     blend::BlendView params;      // as the CPU reference builds it (MakeBlendView)
     bool has_background = false;  // some pixel of the baked background mask is set
+    // Bounding box of the baked background mask in pixels, inclusive (x0, y0, x1, y1); empty
+    // (x0 > x1) without background. The background pass's per-tile view lists test against it.
+    glm::ivec4 bg_box{0, 0, -1, -1};
     bool inpainted = false;       // SPEC §7: colour alpha holds its labels (1 = L_IP)
   };
 
@@ -72,7 +75,8 @@ class ViewStore {
   // The slot of `id` (a free one when new), after growing the arrays to hold it.
   absl::StatusOr<uint32_t> AcquireSlot(ViewId id, int w, int h, bool is_new);
   // Writes linear UNORM16 colour then baked depth into staging_; returns has_background.
-  absl::StatusOr<bool> Stage(const StoredView& v);
+  // Also returns the mask's bounding box in *bg_box (Entry::bg_box).
+  absl::StatusOr<bool> Stage(const StoredView& v, glm::ivec4* bg_box);
   absl::Status CopyStagingToLayer(uint32_t slot, uint32_t w, uint32_t h);
   void WriteRecord(const StoredView& v, uint32_t slot);
 
