@@ -63,59 +63,70 @@ glm::dmat4 ClipFromCam(const PinholeCamera& cam, double n, double f) {
 // blocks, so a block never mixes two view lists).
 constexpr int kSkyTilePx = 16;
 
-// Bit j set: background view j of frame `f` may be valid for the ray of some pixel in
-// [x0, x1] x [y0, y1] (inclusive). Conservative w.r.t. blend_shade.glsl ShadeBackground, which
-// needs, for the ray d = local_from_pixel (x, y, 1) and p = cam_from_local_j d: p.z > 1e-6 |p|,
-// uv = (fx p.x / p.z + cx, fy p.y / p.z + cy) inside the view, and the baked background mask
-// set at the nearest pixel, i.e. uv in [x0 - 0.5, x1 + 0.5] x [y0 - 0.5, y1 + 0.5] of the mask's
-// bounding box. The tile's rays are the convex combinations of its 4 corner rays (d is affine
-// in the pixel), so p.z < 0 at all corners excludes every ray, and with p.z > 0 at all corners
-// the image of the tile is the convex hull of the corners' uv (a projective map keeps segments
-// in front of the camera). Margins: 1e-3 |p| for "behind", 1e-2 |p| for "in front" (else the
-// view is kept), 1 px on the box (the shader's float rays differ from these double ones by
-// far less).
-uint32_t SkyTileViews(const GpuFrame& f, const std::vector<glm::ivec4>& boxes, int x0, int y0,
-                      int x1, int y1) {
+// Where the corner ray of a tile grid point meets background view j (SkyViewCorners).
+struct SkyCorner {
+  enum State : uint8_t { kFront, kBehind, kUncertain } state = kUncertain;
+  glm::dvec2 uv{0.0};
+};
+
+// Background view j of frame `f` at the (gx + 1) x (gy + 1) tile grid points (pixel
+// (min(cx T, w - 1), min(cy T, h - 1)), T = kSkyTilePx), for SkyTileMayUseView. blend_shade.glsl
+// ShadeBackground needs, for the ray d = local_from_pixel (x, y, 1) and p = cam_from_local_j d:
+// p.z > 1e-6 |p|, uv = (fx p.x / p.z + cx, fy p.y / p.z + cy) inside the view and the baked
+// background mask set at the nearest pixel. Margins: behind if p.z < -1e-3 |p|, in front if
+// p.z > 1e-2 |p| (between: uncertain, the view is kept).
+void SkyViewCorners(const GpuFrame& f, int j, int w, int h, int gx, int gy,
+                    std::vector<SkyCorner>* out) {
   const glm::dvec3 m0(f.local_from_pixel[0]), m1(f.local_from_pixel[1]), m2(f.local_from_pixel[2]);
-  glm::dvec3 d[4];
-  int k = 0;
-  for (const int py : {y0, y1})
-    for (const int px : {x0, x1}) d[k++] = m0 * double(px) + m1 * double(py) + m2;
-  uint32_t mask = 0;
-  for (int j = 0; j < f.bg_params.x; ++j) {
-    const glm::vec4* v = f.bg_views + kBgViewTexels * j;
-    const glm::dvec3 r0(v[0]), r1(v[1]), r2(v[2]);  // columns of cam_from_local
-    const glm::dvec4 intr(v[3]);
-    const glm::ivec4& box = boxes[size_t(j)];
-    if (box.x > box.z || box.y > box.w) continue;  // no background pixel: never valid
-    int behind = 0;
-    bool uncertain = false;
-    glm::dvec2 lo(std::numeric_limits<double>::infinity()), hi(-lo);
-    for (const glm::dvec3& dc : d) {
-      const glm::dvec3 p = r0 * dc.x + r1 * dc.y + r2 * dc.z;
+  const glm::vec4* v = f.bg_views + kBgViewTexels * j;
+  const glm::dvec3 r0(v[0]), r1(v[1]), r2(v[2]);  // columns of cam_from_local
+  const glm::dvec4 intr(v[3]);
+  out->resize(size_t(gx + 1) * (gy + 1));
+  for (int cy = 0; cy <= gy; ++cy)
+    for (int cx = 0; cx <= gx; ++cx) {
+      const glm::dvec3 d = m0 * double(std::min(cx * kSkyTilePx, w - 1)) +
+                           m1 * double(std::min(cy * kSkyTilePx, h - 1)) + m2;
+      const glm::dvec3 p = r0 * d.x + r1 * d.y + r2 * d.z;
       const double len = glm::length(p);
+      SkyCorner& c = (*out)[size_t(cy) * (gx + 1) + cx];
       if (p.z < -1e-3 * len) {
-        ++behind;
-        continue;
+        c.state = SkyCorner::kBehind;
+      } else if (p.z > 1e-2 * len) {
+        c.state = SkyCorner::kFront;
+        c.uv = glm::dvec2(intr.x * p.x / p.z + intr.z, intr.y * p.y / p.z + intr.w);
+      } else {
+        c.state = SkyCorner::kUncertain;
       }
-      if (!(p.z > 1e-2 * len)) {
-        uncertain = true;
-        continue;
-      }
-      const glm::dvec2 uv(intr.x * p.x / p.z + intr.z, intr.y * p.y / p.z + intr.w);
-      lo = glm::min(lo, uv);
-      hi = glm::max(hi, uv);
     }
-    if (behind == 4) continue;
-    if (!uncertain && behind == 0) {
-      constexpr double kMarginPx = 1.0;
-      if (hi.x < box.x - 0.5 - kMarginPx || lo.x > box.z + 0.5 + kMarginPx ||
-          hi.y < box.y - 0.5 - kMarginPx || lo.y > box.w + 0.5 + kMarginPx)
-        continue;
-    }
-    mask |= 1u << j;
+}
+
+// Whether background view `e` (corners `c` from SkyViewCorners) may be valid for the ray of some
+// pixel of tile (tx, ty) (conservative). The tile's rays are convex combinations of its corner
+// rays (d is affine in the pixel; the grid points enclose the tile's pixels), so p.z < 0 at all 4
+// corners excludes every ray, and with p.z > 0 at all 4 the tile's image is inside the convex
+// hull of the corners' uv (a projective map keeps segments in front of the camera): its box,
+// widened by 1 px (the shader's float rays differ from these double ones by far less), gives the
+// nearest pixels to test against the view's background mask (ViewStore::BackgroundMaskAny).
+bool SkyTileMayUseView(const ViewStore::Entry& e, const std::vector<SkyCorner>& c, int gx, int tx,
+                       int ty) {
+  const SkyCorner* q[4] = {&c[size_t(ty) * (gx + 1) + tx], &c[size_t(ty) * (gx + 1) + tx + 1],
+                           &c[size_t(ty + 1) * (gx + 1) + tx],
+                           &c[size_t(ty + 1) * (gx + 1) + tx + 1]};
+  int behind = 0, front = 0;
+  glm::dvec2 lo(std::numeric_limits<double>::infinity()), hi(-lo);
+  for (const SkyCorner* k : q) {
+    behind += k->state == SkyCorner::kBehind;
+    if (k->state != SkyCorner::kFront) continue;
+    ++front;
+    lo = glm::min(lo, k->uv);
+    hi = glm::max(hi, k->uv);
   }
-  return mask;
+  if (behind == 4) return false;
+  if (front < 4) return e.has_background;
+  constexpr double kMarginPx = 1.0, kFar = 1e7;
+  const auto pixel = [&](double u) { return int(std::floor(std::clamp(u + 0.5, -kFar, kFar))); };
+  return ViewStore::BackgroundMaskAny(e, pixel(lo.x - kMarginPx), pixel(lo.y - kMarginPx),
+                                      pixel(hi.x + kMarginPx), pixel(hi.y + kMarginPx));
 }
 
 // blend_shade.glsl SkyList: the count in bits 0..3, the k-th set bit's index in bits 4 + 3k.
@@ -330,7 +341,7 @@ absl::Status FrameRenderer::Draw(RenderTarget& t, VkRenderPass pass, VkPipeline 
 // order: the CPU reference's order) and the pixel-to-direction matrix, into the Frame block.
 void FrameRenderer::FillBackground(const PinholeCamera& camera, const Rigid3d& local_from_cam,
                                    int max_views, GpuFrame* f, std::vector<ViewId>* chosen_ids,
-                                   std::vector<glm::ivec4>* bg_boxes) const {
+                                   std::vector<const ViewStore::Entry*>* bg_entries) const {
   std::vector<std::pair<ViewId, const ViewStore::Entry*>> sorted;
   sorted.reserve(views_.entries().size());
   for (const auto& [id, e] : views_.entries()) sorted.emplace_back(id, &e);
@@ -359,28 +370,39 @@ void FrameRenderer::FillBackground(const PinholeCamera& camera, const Rigid3d& l
     dst[4] =
         glm::vec4(float(e.params.size.x), float(e.params.size.y), float(e.slot), e.params.exposure);
     chosen_ids->push_back(ids[chosen[j]]);
-    bg_boxes->push_back(e.bg_box);
+    bg_entries->push_back(&e);
   }
 }
 
 // The background pass's geometry for frame `f` of w x h pixels: every kSkyTilePx tile whose view
-// list (SkyTileViews) is not empty, as rectangles (runs of equal lists along a tile row), drawn
+// list (SkyTileMayUseView) is not empty, as rectangles (runs of equal lists along a tile row), drawn
 // grouped by list with the list as push constant; tiles with an empty list are not drawn (their
 // pixels keep the clear value, what ShadeBackground returns without a valid view).
-absl::Status FrameRenderer::BuildSkyDraws(const GpuFrame& f, const std::vector<glm::ivec4>& boxes,
+absl::Status FrameRenderer::BuildSkyDraws(const GpuFrame& f,
+                                          const std::vector<const ViewStore::Entry*>& bg_entries,
                                           uint32_t w, uint32_t h) {
   struct Rect {
     uint32_t mask;
     int x0, y0, x1, y1;  // pixel edges: [x0, x1) x [y0, y1)
   };
-  std::vector<Rect> rects;
   const int iw = int(w), ih = int(h);
-  for (int y0 = 0; y0 < ih; y0 += kSkyTilePx) {
-    const int y1 = std::min(y0 + kSkyTilePx, ih);
+  const int gx = (iw + kSkyTilePx - 1) / kSkyTilePx, gy = (ih + kSkyTilePx - 1) / kSkyTilePx;
+  std::vector<uint32_t> masks(size_t(gx) * gy, 0);
+  std::vector<SkyCorner> corners;
+  for (int j = 0; j < f.bg_params.x; ++j) {
+    SkyViewCorners(f, j, iw, ih, gx, gy, &corners);
+    for (int ty = 0; ty < gy; ++ty)
+      for (int tx = 0; tx < gx; ++tx)
+        if (SkyTileMayUseView(*bg_entries[size_t(j)], corners, gx, tx, ty))
+          masks[size_t(ty) * gx + tx] |= 1u << j;
+  }
+  std::vector<Rect> rects;
+  for (int ty = 0; ty < gy; ++ty) {
+    const int y0 = ty * kSkyTilePx, y1 = std::min(y0 + kSkyTilePx, ih);
     Rect run{0, 0, y0, 0, y1};
-    for (int x0 = 0; x0 < iw; x0 += kSkyTilePx) {
-      const int x1 = std::min(x0 + kSkyTilePx, iw);
-      const uint32_t m = SkyTileViews(f, boxes, x0, y0, x1 - 1, y1 - 1);
+    for (int tx = 0; tx < gx; ++tx) {
+      const int x0 = tx * kSkyTilePx, x1 = std::min(x0 + kSkyTilePx, iw);
+      const uint32_t m = masks[size_t(ty) * gx + tx];
       if (m != 0 && m == run.mask) {
         run.x1 = x1;
         continue;
@@ -443,7 +465,7 @@ void FrameRenderer::FillInpainted(const Rigid3d& local_from_cam, GpuFrame* f) co
 void FrameRenderer::UploadBlendFrame(const PinholeCamera& camera, const Rigid3d& local_from_cam,
                                      const blend::BlendOptions& bo, GpuFrame* f,
                                      std::vector<ViewId>* bg_ids,
-                                     std::vector<glm::ivec4>* bg_boxes) const {
+                                     std::vector<const ViewStore::Entry*>* bg_entries) const {
   FillFrame(camera, local_from_cam, f);
   f->weights =
       glm::vec4(bo.lambda, bo.min_weight, bo.occlusion_epsilon_m, bo.occlusion_epsilon_rel);
@@ -451,7 +473,7 @@ void FrameRenderer::UploadBlendFrame(const PinholeCamera& camera, const Rigid3d&
   f->iparams.x = static_cast<int>(bo.positional_mode);
   f->iparams.y = bo.n_best;
   if (bo.background_views > 0)
-    FillBackground(camera, local_from_cam, bo.background_views, f, bg_ids, bg_boxes);
+    FillBackground(camera, local_from_cam, bo.background_views, f, bg_ids, bg_entries);
   FillInpainted(local_from_cam, f);
   std::memcpy(frame_ubo_.mapped, f, sizeof(*f));
 }
@@ -483,15 +505,15 @@ absl::StatusOr<RenderResult> FrameRenderer::Render(const PinholeCamera& camera,
   EXO_RETURN_IF_ERROR(EnsureBlendTarget(w, h));
   GpuFrame f{};
   RenderResult r;
-  std::vector<glm::ivec4> bg_boxes;
-  UploadBlendFrame(camera, local_from_cam, bo, &f, &r.background_views, &bg_boxes);
+  std::vector<const ViewStore::Entry*> bg_entries;
+  UploadBlendFrame(camera, local_from_cam, bo, &f, &r.background_views, &bg_entries);
   f.bg_params.y = approx.max_candidates;  // blend_shade.glsl: 0 = every reference (exact)
   std::memcpy(frame_ubo_.mapped, &f, sizeof(f));
   sky_draws_.clear();
   sky_listed_views_px_ = 0;
   if (f.bg_params.x > 0 && !pipes_->blend_compute()) {
     const auto ts = Clock::now();
-    EXO_RETURN_IF_ERROR(BuildSkyDraws(f, bg_boxes, w, h));
+    EXO_RETURN_IF_ERROR(BuildSkyDraws(f, bg_entries, w, h));
     r.sky_tiles_ms = MsSince(ts);
     r.sky_views_per_px = sky_listed_views_px_ / (double(w) * h);
   }

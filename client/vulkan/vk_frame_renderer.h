@@ -56,18 +56,19 @@ class FrameRenderer {
   absl::Status CheckBakedOptions(const blend::BlendOptions& bo) const;
   void FillFrame(const PinholeCamera& camera, const Rigid3d& local_from_cam, GpuFrame* f) const;
   void FillInpainted(const Rigid3d& local_from_cam, GpuFrame* f) const;
-  // Also the chosen views' background-mask boxes (ViewStore::Entry::bg_box) in *bg_boxes.
+  // Also the chosen views' store entries in *bg_entries (their background masks).
   void FillBackground(const PinholeCamera& camera, const Rigid3d& local_from_cam, int max_views,
                       GpuFrame* f, std::vector<ViewId>* chosen_ids,
-                      std::vector<glm::ivec4>* bg_boxes) const;
+                      std::vector<const ViewStore::Entry*>* bg_entries) const;
   // The blend pass's Frame block (camera, weights, background list) into frame_ubo_.
   void UploadBlendFrame(const PinholeCamera& camera, const Rigid3d& local_from_cam,
                         const blend::BlendOptions& bo, GpuFrame* f, std::vector<ViewId>* bg_ids,
-                        std::vector<glm::ivec4>* bg_boxes) const;
+                        std::vector<const ViewStore::Entry*>* bg_entries) const;
   // The background pass's tile rectangles into sky_vb_ and their draws (grouped by the tiles'
   // background-view list) into sky_draws_.
-  absl::Status BuildSkyDraws(const GpuFrame& f, const std::vector<glm::ivec4>& bg_boxes,
-                             uint32_t w, uint32_t h);
+  absl::Status BuildSkyDraws(const GpuFrame& f,
+                             const std::vector<const ViewStore::Entry*>& bg_entries, uint32_t w,
+                             uint32_t h);
   // The deferred blend of one frame into color_target_ (graphics or compute); sky_views: the
   // frame's background views (0: the pass for pixels without surface is not drawn);
   // inpainted: the frame has inpainted keyframes (else the pipeline without their loop); the
