@@ -44,6 +44,15 @@ layout(constant_id = 2) const int kInpainted = 1;
 // exactly (1 * w_d + 0 * w_p with a finite w_p), so the positional weight is compiled out.
 layout(constant_id = 3) const int kLambdaOne = 0;
 
+// Background pass (blend.frag, kBlendPassBackground): the screen is drawn as rectangles of
+// 16x16-pixel tiles grouped by the list of background views that can be valid for some ray of
+// the tile (FrameRenderer::BuildSkyDraws, a conservative test on the host), one push constant per
+// group: the count in bits 0..3, the k-th view index j in bits 4 + 3k .. 6 + 3k (j ascending).
+// A view left out is one every ray of the tile fails (behind it, outside its image or outside
+// the box of its background mask), so the selection equals the loop over all views. The
+// compute path (kBlendPassBoth) walks every view.
+layout(push_constant) uniform SkyList { uint packed; } sky_list;
+
 // ---- best-n with the sample parameters carried along ----
 // Same selection as blend_math.h InsertBest (decreasing weight, w <= 0 ignored, ties keep the
 // earlier reference), unrolled over slots with constant indices (see BestStep in
@@ -121,8 +130,9 @@ bool BlendBest(BestSamples best, int n, out vec3 srgb) {
 // pixel of u_j, weighted by BorderWeight; best n (ties: lower j), normalised blend with exposure.
 // a = 64/255 where filled, 0 (background colour) where no view is valid or the pass is off.
 vec4 ShadeBackground(ivec2 pixel) {
-  const int count = frame.bg_params.x;
-  if (count == 0) return vec4(frame.background.rgb, 0.0);
+  if (frame.bg_params.x == 0) return vec4(frame.background.rgb, 0.0);
+  const bool listed = kBlendPass == kBlendPassBackground;
+  const int count = listed ? int(sky_list.packed & 15u) : frame.bg_params.x;
   const vec3 d = mat3(frame.local_from_pixel[0].xyz, frame.local_from_pixel[1].xyz,
                       frame.local_from_pixel[2].xyz) * vec3(vec2(pixel), 1.0);
   const int n = kNBest;
@@ -130,7 +140,8 @@ vec4 ShadeBackground(ivec2 pixel) {
   best.weight = vec4(0.0);
   best.index = ivec4(0x7FFFFFFF);
   best.s0 = best.s1 = best.s2 = best.s3 = vec4(0.0);
-  for (int j = 0; j < count; ++j) {
+  for (int k = 0; k < count; ++k) {
+    const int j = listed ? int((sky_list.packed >> (4u + 3u * uint(k))) & 7u) : k;
     const int b = kBgViewTexels * j;
     const mat3 cam_from_local = mat3(frame.bg_views[b].xyz, frame.bg_views[b + 1].xyz,
                                      frame.bg_views[b + 2].xyz);

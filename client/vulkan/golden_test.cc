@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
+#include <optional>
 
 #include <gtest/gtest.h>
 
@@ -336,13 +337,30 @@ TEST(GoldenBackgroundTest, VillageSkyMatchesCpuReference) {
   CpuRenderOptions co;
   auto cpu = CpuLumigraphRenderer::Create(fx->model, co);
   ASSERT_TRUE(cpu.ok()) << cpu.status();
-  size_t compared = 0, within = 0, filled = 0, mismatched = 0;
+  size_t compared = 0, within = 0, filled = 0, mismatched = 0, sky_equal = 0, sky_px = 0;
+  double listed_views = 0;
   for (size_t i = 0; i < fx->novel.size(); i += 2) {
     auto e = (*cpu)->Render(fx->camera, fx->novel[i]);
     ASSERT_TRUE(e.ok()) << e.status();
+    std::optional<RenderResult> fragment;
     for (auto* r : {gpu->get(), gpu_cs->get()}) {
       auto a = r->Render(fx->camera, fx->novel[i], co.blend);
       ASSERT_TRUE(a.ok()) << a.status();
+      // The fragment path walks each 16x16 tile's culled background-view list
+      // (FrameRenderer::BuildSkyDraws), the compute path every view: same pixels at infinity.
+      if (r == gpu->get()) {
+        listed_views += a->sky_views_per_px;
+        fragment = *a;
+      } else {
+        for (int y = 0; y < kH; ++y)
+          for (int x = 0; x < kW; ++x) {
+            if (a->coverage.at(x, y) != 3 && fragment->coverage.at(x, y) != 3) continue;
+            ++sky_px;
+            bool same = a->coverage.at(x, y) == fragment->coverage.at(x, y);
+            for (int c = 0; c < 3; ++c) same &= a->color.at(x, y, c) == fragment->color.at(x, y, c);
+            sky_equal += same;
+          }
+      }
       // The CPU reference skips the selection when no pixel lacks a proxy surface; the GPU
       // selects before it knows (the list is then unused).
       if (e->background_pixels > 0 || !e->background_views.empty()) {
@@ -364,6 +382,12 @@ TEST(GoldenBackgroundTest, VillageSkyMatchesCpuReference) {
           "%zu coverage mismatches\n",
           compared, filled, frac, mismatched);
   EXPECT_GT(filled, compared / 5) << "too little sky to test the pass";
+  // Tile lists exact (every sky pixel as with all views) and not trivial (views were culled).
+  const double mean_listed = listed_views / double((fx->novel.size() + 1) / 2);
+  fprintf(stderr, "[golden village sky] tile lists: %.2f views per pixel, %zu / %zu sky px equal\n",
+          mean_listed, sky_equal, sky_px);
+  EXPECT_EQ(sky_equal, sky_px);
+  EXPECT_LT(mean_listed, 0.9 * co.blend.background_views);
   EXPECT_GE(frac, 0.999);
   EXPECT_LE(double(mismatched), 0.001 * double(compared));
   // Off: no pixel filled at infinity, every no-surface pixel at the background colour.

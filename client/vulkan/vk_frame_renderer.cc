@@ -1,8 +1,10 @@
 #include "client/vulkan/vk_frame_renderer.h"
 
 #include <algorithm>
+#include <bit>
 #include <chrono>
 #include <cstring>
+#include <limits>
 
 #include "common/lumigraph/cpu_renderer.h"
 
@@ -57,6 +59,84 @@ glm::dmat4 ClipFromCam(const PinholeCamera& cam, double n, double f) {
   return p;
 }
 
+// Background pass tiles: kSkyTilePx x kSkyTilePx screen pixels (a multiple of llvmpipe's 4x4
+// blocks, so a block never mixes two view lists).
+constexpr int kSkyTilePx = 16;
+
+// Where the corner ray of a tile grid point meets background view j (SkyViewCorners).
+struct SkyCorner {
+  enum State : uint8_t { kFront, kBehind, kUncertain } state = kUncertain;
+  glm::dvec2 uv{0.0};
+};
+
+// Background view j of frame `f` at the (gx + 1) x (gy + 1) tile grid points (pixel
+// (min(cx T, w - 1), min(cy T, h - 1)), T = kSkyTilePx), for SkyTileMayUseView. blend_shade.glsl
+// ShadeBackground needs, for the ray d = local_from_pixel (x, y, 1) and p = cam_from_local_j d:
+// p.z > 1e-6 |p|, uv = (fx p.x / p.z + cx, fy p.y / p.z + cy) inside the view and the baked
+// background mask set at the nearest pixel. Margins: behind if p.z < -1e-3 |p|, in front if
+// p.z > 1e-2 |p| (between: uncertain, the view is kept).
+void SkyViewCorners(const GpuFrame& f, int j, int w, int h, int gx, int gy,
+                    std::vector<SkyCorner>* out) {
+  const glm::dvec3 m0(f.local_from_pixel[0]), m1(f.local_from_pixel[1]), m2(f.local_from_pixel[2]);
+  const glm::vec4* v = f.bg_views + kBgViewTexels * j;
+  const glm::dvec3 r0(v[0]), r1(v[1]), r2(v[2]);  // columns of cam_from_local
+  const glm::dvec4 intr(v[3]);
+  out->resize(size_t(gx + 1) * (gy + 1));
+  for (int cy = 0; cy <= gy; ++cy)
+    for (int cx = 0; cx <= gx; ++cx) {
+      const glm::dvec3 d = m0 * double(std::min(cx * kSkyTilePx, w - 1)) +
+                           m1 * double(std::min(cy * kSkyTilePx, h - 1)) + m2;
+      const glm::dvec3 p = r0 * d.x + r1 * d.y + r2 * d.z;
+      const double len = glm::length(p);
+      SkyCorner& c = (*out)[size_t(cy) * (gx + 1) + cx];
+      if (p.z < -1e-3 * len) {
+        c.state = SkyCorner::kBehind;
+      } else if (p.z > 1e-2 * len) {
+        c.state = SkyCorner::kFront;
+        c.uv = glm::dvec2(intr.x * p.x / p.z + intr.z, intr.y * p.y / p.z + intr.w);
+      } else {
+        c.state = SkyCorner::kUncertain;
+      }
+    }
+}
+
+// Whether background view `e` (corners `c` from SkyViewCorners) may be valid for the ray of some
+// pixel of tile (tx, ty) (conservative). The tile's rays are convex combinations of its corner
+// rays (d is affine in the pixel; the grid points enclose the tile's pixels), so p.z < 0 at all 4
+// corners excludes every ray, and with p.z > 0 at all 4 the tile's image is inside the convex
+// hull of the corners' uv (a projective map keeps segments in front of the camera): its box,
+// widened by 1 px (the shader's float rays differ from these double ones by far less), gives the
+// nearest pixels to test against the view's background mask (ViewStore::BackgroundMaskAny).
+bool SkyTileMayUseView(const ViewStore::Entry& e, const std::vector<SkyCorner>& c, int gx, int tx,
+                       int ty) {
+  const SkyCorner* q[4] = {&c[size_t(ty) * (gx + 1) + tx], &c[size_t(ty) * (gx + 1) + tx + 1],
+                           &c[size_t(ty + 1) * (gx + 1) + tx],
+                           &c[size_t(ty + 1) * (gx + 1) + tx + 1]};
+  int behind = 0, front = 0;
+  glm::dvec2 lo(std::numeric_limits<double>::infinity()), hi(-lo);
+  for (const SkyCorner* k : q) {
+    behind += k->state == SkyCorner::kBehind;
+    if (k->state != SkyCorner::kFront) continue;
+    ++front;
+    lo = glm::min(lo, k->uv);
+    hi = glm::max(hi, k->uv);
+  }
+  if (behind == 4) return false;
+  if (front < 4) return e.has_background;
+  constexpr double kMarginPx = 1.0, kFar = 1e7;
+  const auto pixel = [&](double u) { return int(std::floor(std::clamp(u + 0.5, -kFar, kFar))); };
+  return ViewStore::BackgroundMaskAny(e, pixel(lo.x - kMarginPx), pixel(lo.y - kMarginPx),
+                                      pixel(hi.x + kMarginPx), pixel(hi.y + kMarginPx));
+}
+
+// blend_shade.glsl SkyList: the count in bits 0..3, the k-th set bit's index in bits 4 + 3k.
+uint32_t PackSkyList(uint32_t mask) {
+  uint32_t packed = 0, count = 0;
+  for (uint32_t j = 0; j < 32; ++j)
+    if (mask & (1u << j)) packed |= j << (4 + 3 * count++);
+  return packed | count;
+}
+
 // Begins render pass `rp` on `fb` (clear colour c0, depth 1) over the whole target and binds
 // `pipe` with the renderer's descriptor set.
 void RecordBeginPass(VkCommandBuffer cmd, const Pipelines& pipes, VkRenderPass rp, VkFramebuffer fb,
@@ -78,6 +158,11 @@ void RecordBeginPass(VkCommandBuffer cmd, const Pipelines& pipes, VkRenderPass r
   vkCmdSetScissor(cmd, 0, 1, &sc);
   vkCmdBindDescriptorSets(cmd, VK_PIPELINE_BIND_POINT_GRAPHICS, pipes.layout(), 0, 1, pipes.set(),
                           0, nullptr);
+  // Every blend pipeline declares the background pass's push constant (blend_shade.glsl
+  // SkyList; only kBlendPassBackground reads it), so it must be set before any draw.
+  const uint32_t no_list = 0;
+  vkCmdPushConstants(cmd, pipes.layout(), VK_SHADER_STAGE_FRAGMENT_BIT | VK_SHADER_STAGE_COMPUTE_BIT,
+                     0, sizeof(no_list), &no_list);
 }
 
 // blend.comp over the G-buffer (the G-buffer pass's dependency covers the compute read)
@@ -87,6 +172,9 @@ void RecordComputeBlend(VkCommandBuffer cmd, const Pipelines& pipes, const Rende
   vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, compute_pipe);
   vkCmdBindDescriptorSets(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, pipes.layout(), 0, 1, pipes.set(), 0,
                           nullptr);
+  const uint32_t no_list = 0;  // SkyList (unread by the compute path, but declared)
+  vkCmdPushConstants(cmd, pipes.layout(), VK_SHADER_STAGE_FRAGMENT_BIT | VK_SHADER_STAGE_COMPUTE_BIT,
+                     0, sizeof(no_list), &no_list);
   vkCmdDispatch(cmd, (t.w + 7) / 8, (t.h + 7) / 8, 1);
   VkBufferMemoryBarrier ob{VK_STRUCTURE_TYPE_BUFFER_MEMORY_BARRIER};
   ob.srcAccessMask = VK_ACCESS_SHADER_WRITE_BIT;
@@ -227,9 +315,17 @@ absl::Status FrameRenderer::Draw(RenderTarget& t, VkRenderPass pass, VkPipeline 
       // writes when it has no view).
       RecordBeginPass(cmd, p, pass, t.fb.get(), clear, pipe, t.w, t.h);
       vkCmdDraw(cmd, 3, 1, 0, 0);
-      if (sky_pipe != VK_NULL_HANDLE) {
+      if (sky_pipe != VK_NULL_HANDLE && !sky_draws_.empty()) {
         vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_GRAPHICS, sky_pipe);
-        vkCmdDraw(cmd, 3, 1, 0, 0);
+        const VkBuffer vb = sky_vb_.buffer.get();
+        const VkDeviceSize offset = 0;
+        vkCmdBindVertexBuffers(cmd, 0, 1, &vb, &offset);
+        for (const SkyDraw& d : sky_draws_) {
+          vkCmdPushConstants(cmd, p.layout(),
+                             VK_SHADER_STAGE_FRAGMENT_BIT | VK_SHADER_STAGE_COMPUTE_BIT, 0,
+                             sizeof(d.packed), &d.packed);
+          vkCmdDraw(cmd, d.vertex_count, 1, d.first_vertex, 0);
+        }
       }
       vkCmdEndRenderPass(cmd);
     } else {
@@ -244,8 +340,8 @@ absl::Status FrameRenderer::Draw(RenderTarget& t, VkRenderPass pass, VkPipeline 
 // The per-frame background view list (SelectBackgroundViews over the resident views in id
 // order: the CPU reference's order) and the pixel-to-direction matrix, into the Frame block.
 void FrameRenderer::FillBackground(const PinholeCamera& camera, const Rigid3d& local_from_cam,
-                                   int max_views, GpuFrame* f,
-                                   std::vector<ViewId>* chosen_ids) const {
+                                   int max_views, GpuFrame* f, std::vector<ViewId>* chosen_ids,
+                                   std::vector<const ViewStore::Entry*>* bg_entries) const {
   std::vector<std::pair<ViewId, const ViewStore::Entry*>> sorted;
   sorted.reserve(views_.entries().size());
   for (const auto& [id, e] : views_.entries()) sorted.emplace_back(id, &e);
@@ -274,7 +370,73 @@ void FrameRenderer::FillBackground(const PinholeCamera& camera, const Rigid3d& l
     dst[4] =
         glm::vec4(float(e.params.size.x), float(e.params.size.y), float(e.slot), e.params.exposure);
     chosen_ids->push_back(ids[chosen[j]]);
+    bg_entries->push_back(&e);
   }
+}
+
+// The background pass's geometry for frame `f` of w x h pixels: every kSkyTilePx tile whose view
+// list (SkyTileMayUseView) is not empty, as rectangles (runs of equal lists along a tile row), drawn
+// grouped by list with the list as push constant; tiles with an empty list are not drawn (their
+// pixels keep the clear value, what ShadeBackground returns without a valid view).
+absl::Status FrameRenderer::BuildSkyDraws(const GpuFrame& f,
+                                          const std::vector<const ViewStore::Entry*>& bg_entries,
+                                          uint32_t w, uint32_t h) {
+  struct Rect {
+    uint32_t mask;
+    int x0, y0, x1, y1;  // pixel edges: [x0, x1) x [y0, y1)
+  };
+  const int iw = int(w), ih = int(h);
+  const int gx = (iw + kSkyTilePx - 1) / kSkyTilePx, gy = (ih + kSkyTilePx - 1) / kSkyTilePx;
+  std::vector<uint32_t> masks(size_t(gx) * gy, 0);
+  std::vector<SkyCorner> corners;
+  for (int j = 0; j < f.bg_params.x; ++j) {
+    SkyViewCorners(f, j, iw, ih, gx, gy, &corners);
+    for (int ty = 0; ty < gy; ++ty)
+      for (int tx = 0; tx < gx; ++tx)
+        if (SkyTileMayUseView(*bg_entries[size_t(j)], corners, gx, tx, ty))
+          masks[size_t(ty) * gx + tx] |= 1u << j;
+  }
+  std::vector<Rect> rects;
+  for (int ty = 0; ty < gy; ++ty) {
+    const int y0 = ty * kSkyTilePx, y1 = std::min(y0 + kSkyTilePx, ih);
+    Rect run{0, 0, y0, 0, y1};
+    for (int tx = 0; tx < gx; ++tx) {
+      const int x0 = tx * kSkyTilePx, x1 = std::min(x0 + kSkyTilePx, iw);
+      const uint32_t m = masks[size_t(ty) * gx + tx];
+      if (m != 0 && m == run.mask) {
+        run.x1 = x1;
+        continue;
+      }
+      if (run.mask != 0) rects.push_back(run);
+      run = Rect{m, x0, y0, x1, y1};
+    }
+    if (run.mask != 0) rects.push_back(run);
+  }
+  std::stable_sort(rects.begin(), rects.end(),
+                   [](const Rect& a, const Rect& b) { return a.mask < b.mask; });
+  sky_draws_.clear();
+  sky_listed_views_px_ = 0;
+  if (rects.empty()) return absl::OkStatus();
+  const VkDeviceSize bytes = rects.size() * 6 * sizeof(glm::vec3);
+  if (!sky_vb_.buffer || sky_vb_.size < bytes) {
+    EXO_ASSIGN_OR_RETURN(sky_vb_, Buffer::Create(ctx_, std::max<VkDeviceSize>(2 * bytes, 4096),
+                                                 VK_BUFFER_USAGE_VERTEX_BUFFER_BIT));
+  }
+  glm::vec3* v = static_cast<glm::vec3*>(sky_vb_.mapped);
+  const auto ndc_x = [&](int x) { return float(2.0 * x / iw - 1.0); };
+  const auto ndc_y = [&](int y) { return float(2.0 * y / ih - 1.0); };
+  for (size_t i = 0; i < rects.size(); ++i) {
+    const Rect& r = rects[i];
+    const glm::vec3 a(ndc_x(r.x0), ndc_y(r.y0), 1.0f), b(ndc_x(r.x1), ndc_y(r.y0), 1.0f),
+        c(ndc_x(r.x1), ndc_y(r.y1), 1.0f), d(ndc_x(r.x0), ndc_y(r.y1), 1.0f);
+    const glm::vec3 quad[6] = {a, b, c, a, c, d};
+    std::memcpy(v + 6 * i, quad, sizeof(quad));
+    if (i == 0 || r.mask != rects[i - 1].mask)
+      sky_draws_.push_back(SkyDraw{PackSkyList(r.mask), uint32_t(6 * i), 0});
+    sky_draws_.back().vertex_count += 6;
+    sky_listed_views_px_ += double(std::popcount(r.mask)) * (r.x1 - r.x0) * (r.y1 - r.y0);
+  }
+  return absl::OkStatus();
 }
 
 // The inpainted keyframes of this frame (SPEC §7; the CPU reference's SelectInpaintedViews over
@@ -302,7 +464,8 @@ void FrameRenderer::FillInpainted(const Rigid3d& local_from_cam, GpuFrame* f) co
 // The blend pass's Frame block (camera, weights, background list) into frame_ubo_.
 void FrameRenderer::UploadBlendFrame(const PinholeCamera& camera, const Rigid3d& local_from_cam,
                                      const blend::BlendOptions& bo, GpuFrame* f,
-                                     std::vector<ViewId>* bg_ids) const {
+                                     std::vector<ViewId>* bg_ids,
+                                     std::vector<const ViewStore::Entry*>* bg_entries) const {
   FillFrame(camera, local_from_cam, f);
   f->weights =
       glm::vec4(bo.lambda, bo.min_weight, bo.occlusion_epsilon_m, bo.occlusion_epsilon_rel);
@@ -310,7 +473,7 @@ void FrameRenderer::UploadBlendFrame(const PinholeCamera& camera, const Rigid3d&
   f->iparams.x = static_cast<int>(bo.positional_mode);
   f->iparams.y = bo.n_best;
   if (bo.background_views > 0)
-    FillBackground(camera, local_from_cam, bo.background_views, f, bg_ids);
+    FillBackground(camera, local_from_cam, bo.background_views, f, bg_ids, bg_entries);
   FillInpainted(local_from_cam, f);
   std::memcpy(frame_ubo_.mapped, f, sizeof(*f));
 }
@@ -342,9 +505,18 @@ absl::StatusOr<RenderResult> FrameRenderer::Render(const PinholeCamera& camera,
   EXO_RETURN_IF_ERROR(EnsureBlendTarget(w, h));
   GpuFrame f{};
   RenderResult r;
-  UploadBlendFrame(camera, local_from_cam, bo, &f, &r.background_views);
+  std::vector<const ViewStore::Entry*> bg_entries;
+  UploadBlendFrame(camera, local_from_cam, bo, &f, &r.background_views, &bg_entries);
   f.bg_params.y = approx.max_candidates;  // blend_shade.glsl: 0 = every reference (exact)
   std::memcpy(frame_ubo_.mapped, &f, sizeof(f));
+  sky_draws_.clear();
+  sky_listed_views_px_ = 0;
+  if (f.bg_params.x > 0 && !pipes_->blend_compute()) {
+    const auto ts = Clock::now();
+    EXO_RETURN_IF_ERROR(BuildSkyDraws(f, bg_entries, w, h));
+    r.sky_tiles_ms = MsSince(ts);
+    r.sky_views_per_px = sky_listed_views_px_ / (double(w) * h);
+  }
   const auto tr = Clock::now();
   cells_.RankRefs(glm::vec3(f.cam_centre_cell), camera, local_from_cam, grid_.cell_size_m, bo,
                   /*by_centre_weight=*/approx.max_candidates > 0);

@@ -56,12 +56,19 @@ class FrameRenderer {
   absl::Status CheckBakedOptions(const blend::BlendOptions& bo) const;
   void FillFrame(const PinholeCamera& camera, const Rigid3d& local_from_cam, GpuFrame* f) const;
   void FillInpainted(const Rigid3d& local_from_cam, GpuFrame* f) const;
+  // Also the chosen views' store entries in *bg_entries (their background masks).
   void FillBackground(const PinholeCamera& camera, const Rigid3d& local_from_cam, int max_views,
-                      GpuFrame* f, std::vector<ViewId>* chosen_ids) const;
+                      GpuFrame* f, std::vector<ViewId>* chosen_ids,
+                      std::vector<const ViewStore::Entry*>* bg_entries) const;
   // The blend pass's Frame block (camera, weights, background list) into frame_ubo_.
   void UploadBlendFrame(const PinholeCamera& camera, const Rigid3d& local_from_cam,
-                        const blend::BlendOptions& bo, GpuFrame* f,
-                        std::vector<ViewId>* bg_ids) const;
+                        const blend::BlendOptions& bo, GpuFrame* f, std::vector<ViewId>* bg_ids,
+                        std::vector<const ViewStore::Entry*>* bg_entries) const;
+  // The background pass's tile rectangles into sky_vb_ and their draws (grouped by the tiles'
+  // background-view list) into sky_draws_.
+  absl::Status BuildSkyDraws(const GpuFrame& f,
+                             const std::vector<const ViewStore::Entry*>& bg_entries, uint32_t w,
+                             uint32_t h);
   // The deferred blend of one frame into color_target_ (graphics or compute); sky_views: the
   // frame's background views (0: the pass for pixels without surface is not drawn);
   // inpainted: the frame has inpainted keyframes (else the pipeline without their loop); the
@@ -83,6 +90,16 @@ class FrameRenderer {
   Image placeholder_gbuffer_;
   Buffer placeholder_out_;
   bool descriptors_dirty_ = true;
+  // Background pass (fragment path): one draw per distinct tile view list (blend_shade.glsl
+  // SkyList); the rectangles' vertices (vec3 NDC) in sky_vb_.
+  struct SkyDraw {
+    uint32_t packed = 0;
+    uint32_t first_vertex = 0;
+    uint32_t vertex_count = 0;
+  };
+  std::vector<SkyDraw> sky_draws_;
+  Buffer sky_vb_;
+  double sky_listed_views_px_ = 0;  // sum over drawn pixels of their list's length
 };
 
 }  // namespace exo::vk

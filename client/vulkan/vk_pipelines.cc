@@ -9,6 +9,7 @@
 #include "shaders/floor.frag.h"
 #include "shaders/fullscreen.vert.h"
 #include "shaders/gbuffer.frag.h"
+#include "shaders/sky.vert.h"
 #include "shaders/viewdepth.frag.h"
 
 namespace exo::vk {
@@ -130,6 +131,11 @@ absl::Status Pipelines::CreateSetLayout() {
   VkPipelineLayoutCreateInfo pli{VK_STRUCTURE_TYPE_PIPELINE_LAYOUT_CREATE_INFO};
   pli.setLayoutCount = 1;
   pli.pSetLayouts = &raw_layout;
+  // The background pass's per-tile-group view list (blend_shade.glsl SkyList, one uint).
+  const VkPushConstantRange push{VK_SHADER_STAGE_FRAGMENT_BIT | VK_SHADER_STAGE_COMPUTE_BIT, 0,
+                                 sizeof(uint32_t)};
+  pli.pushConstantRangeCount = 1;
+  pli.pPushConstantRanges = &push;
   VkPipelineLayout raw_pl;
   EXO_VK_RETURN(vkCreatePipelineLayout(ctx_.device(), &pli, nullptr, &raw_pl));
   pipe_layout_ = UniquePipelineLayout(ctx_.device(), raw_pl);
@@ -318,10 +324,10 @@ struct FixedFunctionState {
   VkPipelineDynamicStateCreateInfo dy{VK_STRUCTURE_TYPE_PIPELINE_DYNAMIC_STATE_CREATE_INFO};
 
   // Not copyable: the create infos point into this object.
-  FixedFunctionState(bool fullscreen, VkCompareOp depth_compare, bool depth_write) {
-    vi.vertexBindingDescriptionCount = fullscreen ? 0 : 1;
+  FixedFunctionState(bool vertex_input, VkCompareOp depth_compare, bool depth_write) {
+    vi.vertexBindingDescriptionCount = vertex_input ? 1 : 0;
     vi.pVertexBindingDescriptions = &vb;
-    vi.vertexAttributeDescriptionCount = fullscreen ? 0 : 1;
+    vi.vertexAttributeDescriptionCount = vertex_input ? 1 : 0;
     vi.pVertexAttributeDescriptions = &va;
     ia.topology = VK_PRIMITIVE_TOPOLOGY_TRIANGLE_LIST;
     vp.viewportCount = 1;
@@ -352,8 +358,10 @@ absl::StatusOr<UniquePipeline> Pipelines::CreatePipeline(VkRenderPass pass, cons
                                                          const VkSpecializationInfo* spec) const {
   const bool fullscreen = geometry != Geometry::kMesh;
   UniqueShaderModule vs;
-  if (fullscreen) {
+  if (geometry == Geometry::kFullscreenSurface) {
     EXO_ASSIGN_OR_RETURN(vs, CreateModule(kSpvFullscreenVert, sizeof(kSpvFullscreenVert)));
+  } else if (geometry == Geometry::kFullscreenSky) {
+    EXO_ASSIGN_OR_RETURN(vs, CreateModule(kSpvSkyVert, sizeof(kSpvSkyVert)));
   } else {
     EXO_ASSIGN_OR_RETURN(vs, CreateModule(kSpvBlendVert, sizeof(kSpvBlendVert)));
   }
@@ -367,9 +375,10 @@ absl::StatusOr<UniquePipeline> Pipelines::CreatePipeline(VkRenderPass pass, cons
   stages[1].module = fs.get();
   stages[1].pName = "main";
   stages[1].pSpecializationInfo = spec;
-  // The full-screen triangle lies at depth 1 (fullscreen.vert): GREATER passes where the
-  // G-buffer pass drew a surface, LESS_OR_EQUAL where the depth kept its clear value 1.
-  const FixedFunctionState st(fullscreen,
+  // The full-screen triangle (fullscreen.vert) and the background pass's tile rectangles
+  // (sky.vert, vec3 vertices) lie at depth 1: GREATER passes where the G-buffer pass drew a
+  // surface, LESS_OR_EQUAL where the depth kept its clear value 1.
+  const FixedFunctionState st(geometry != Geometry::kFullscreenSurface,
                               geometry == Geometry::kMesh               ? VK_COMPARE_OP_LESS
                               : geometry == Geometry::kFullscreenSurface ? VK_COMPARE_OP_GREATER
                                                                          : VK_COMPARE_OP_LESS_OR_EQUAL,

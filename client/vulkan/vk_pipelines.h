@@ -91,7 +91,8 @@ class Pipelines {
   // kMesh: the proxy-mesh pipeline (depth test LESS + write). The others draw one triangle over
   // the viewport at depth 1 (no vertex input, no depth write) for the deferred blend pass:
   // kFullscreenSurface passes where the G-buffer pass left a surface (1 > depth),
-  // kFullscreenSky where it left none (1 <= depth, i.e. the clear value 1).
+  // kFullscreenSky where it left none (1 <= depth, i.e. the clear value 1); the latter draws the
+  // background pass's tile rectangles (sky.vert, vec3 vertices at depth 1), not one triangle.
   enum class Geometry { kMesh, kFullscreenSurface, kFullscreenSky };
   absl::StatusOr<UniquePipeline> CreatePipeline(VkRenderPass pass, const uint32_t* frag,
                                                 size_t frag_bytes, Geometry geometry = Geometry::kMesh,

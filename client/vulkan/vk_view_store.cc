@@ -126,7 +126,23 @@ absl::StatusOr<uint32_t> ViewStore::AcquireSlot(ViewId id, int w, int h, bool is
   return slot;
 }
 
-absl::StatusOr<bool> ViewStore::Stage(const StoredView& v) {
+bool ViewStore::BackgroundMaskAny(const Entry& e, int x0, int y0, int x1, int y1) {
+  const glm::ivec4& b = e.bg_box;
+  x0 = std::max(x0, b.x);
+  y0 = std::max(y0, b.y);
+  x1 = std::min(x1, b.z);
+  y1 = std::min(y1, b.w);
+  if (x0 > x1 || y0 > y1) return false;
+  if (e.bg_block_sat.empty()) return true;
+  const int stride = (e.params.size.x + kBgBlockPx - 1) / kBgBlockPx + 1;
+  const int bx0 = x0 / kBgBlockPx, by0 = y0 / kBgBlockPx;
+  const int bx1 = x1 / kBgBlockPx + 1, by1 = y1 / kBgBlockPx + 1;
+  const auto at = [&](int x, int y) { return int(e.bg_block_sat[size_t(y) * stride + x]); };
+  return at(bx1, by1) - at(bx0, by1) - at(bx1, by0) + at(bx0, by0) > 0;
+}
+
+absl::StatusOr<bool> ViewStore::Stage(const StoredView& v, glm::ivec4* bg_box,
+                                      std::vector<uint16_t>* bg_block_sat) {
   // Staging: linear UNORM16 RGBA colour then R32F baked depth.
   const size_t n = v.color.width() * size_t(v.color.height());
   const VkDeviceSize color_bytes = n * kColorTexelBytes, depth_bytes = n * kDepthTexelBytes;
@@ -153,11 +169,33 @@ absl::StatusOr<bool> ViewStore::Stage(const StoredView& v) {
   // Background at infinity: -1 marks the guarded background mask (invalid for surfaces too).
   const ImageU8 bg_mask = BackgroundMask(v.depth_m, opt_.bake_background_guard_radius_px);
   bool has_background = false;
+  const int bw = baked.width();
+  *bg_box = glm::ivec4(bw, baked.height(), -1, -1);
   for (size_t i = 0, m = baked.size(); i < m; ++i)
     if (bg_mask.data()[i]) {
       baked.data()[i] = -1.0f;
       has_background = true;
+      const int x = int(i % size_t(bw)), y = int(i / size_t(bw));
+      *bg_box = glm::ivec4(std::min(bg_box->x, x), std::min(bg_box->y, y),
+                           std::max(bg_box->z, x), std::max(bg_box->w, y));
     }
+  // Blocks of kBgBlockPx pixels holding a mask pixel, as a summed-area table.
+  bg_block_sat->clear();
+  const int nbx = (bw + kBgBlockPx - 1) / kBgBlockPx;
+  const int nby = (baked.height() + kBgBlockPx - 1) / kBgBlockPx;
+  if (has_background && nbx * nby <= 65535) {
+    std::vector<uint8_t> block(size_t(nbx) * nby, 0);
+    for (size_t i = 0, m = baked.size(); i < m; ++i)
+      if (bg_mask.data()[i])
+        block[size_t(i / size_t(bw)) / kBgBlockPx * nbx + (i % size_t(bw)) / kBgBlockPx] = 1;
+    bg_block_sat->assign(size_t(nbx + 1) * (nby + 1), 0);
+    for (int y = 0; y < nby; ++y)
+      for (int x = 0; x < nbx; ++x)
+        (*bg_block_sat)[size_t(y + 1) * (nbx + 1) + x + 1] = uint16_t(
+            block[size_t(y) * nbx + x] + (*bg_block_sat)[size_t(y) * (nbx + 1) + x + 1] +
+            (*bg_block_sat)[size_t(y + 1) * (nbx + 1) + x] -
+            (*bg_block_sat)[size_t(y) * (nbx + 1) + x]);
+  }
   std::memcpy(dst + color_bytes, baked.data(), depth_bytes);
   return has_background;
 }
@@ -208,12 +246,16 @@ absl::StatusOr<bool> ViewStore::Upsert(const StoredView& v, uint64_t fingerprint
   const bool is_new = !views_.contains(v.id);
   const int w = v.camera.width, h = v.camera.height;
   EXO_ASSIGN_OR_RETURN(const uint32_t slot, AcquireSlot(v.id, w, h, is_new));
-  EXO_ASSIGN_OR_RETURN(const bool has_background, Stage(v));
+  glm::ivec4 bg_box;
+  std::vector<uint16_t> bg_block_sat;
+  EXO_ASSIGN_OR_RETURN(const bool has_background, Stage(v, &bg_box, &bg_block_sat));
   EXO_RETURN_IF_ERROR(CopyStagingToLayer(slot, uint32_t(w), uint32_t(h)));
   WriteRecord(v, slot);
   stats_.bytes += VkDeviceSize(w) * h * (kColorTexelBytes + kDepthTexelBytes);
   ++stats_.view_uploads;
-  views_[v.id] = Entry{slot, fingerprint, MakeBlendView(v), has_background, v.inpainted};
+  views_[v.id] =
+      Entry{slot,   fingerprint,           MakeBlendView(v), has_background,
+            bg_box, std::move(bg_block_sat), v.inpainted};
   return is_new;
 }
 

@@ -18,6 +18,7 @@ namespace exo::vk {
 
 // No view slot: a reference to a view that is not resident.
 inline constexpr uint32_t kNoSlot = 0xFFFFFFFFu;
+inline constexpr int kBgBlockPx = 8;  // block size of Entry::bg_block_sat
 
 // A view record: 5 RGBA32F texels of the Views texel buffer (shaders/blend.frag): rows of
 // P = K [R^T | -R^T c] (local point -> (z u, z v, z)), centre + exposure, and width, height,
@@ -36,6 +37,13 @@ class ViewStore {
     uint64_t fingerprint = 0;
     blend::BlendView params;      // as the CPU reference builds it (MakeBlendView)
     bool has_background = false;  // some pixel of the baked background mask is set
+    // Bounding box of the baked background mask in pixels, inclusive (x0, y0, x1, y1); empty
+    // (x0 > x1) without background. The background pass's per-tile view lists test against it.
+    glm::ivec4 bg_box{0, 0, -1, -1};
+    // The same mask in kBgBlockPx blocks (a block is set when any of its pixels is) as a
+    // summed-area table of (blocks_x + 1) x (blocks_y + 1) counts, row-major; empty when the
+    // block count exceeds 65535 (then only bg_box is used). BackgroundMaskAny reads it.
+    std::vector<uint16_t> bg_block_sat;
     bool inpainted = false;       // SPEC §7: colour alpha holds its labels (1 = L_IP)
   };
 
@@ -51,6 +59,9 @@ class ViewStore {
   absl::Status Remove(ViewId id);
 
   const std::unordered_map<ViewId, Entry>& entries() const { return views_; }
+  // Whether the background mask of `e` may hold a pixel of [x0, x1] x [y0, y1] (inclusive,
+  // clipped to the view): false only when it holds none (block table, else the box).
+  static bool BackgroundMaskAny(const Entry& e, int x0, int y0, int x1, int y1);
   // The slot of a resident view, kNoSlot otherwise.
   uint32_t SlotOf(ViewId id) const {
     auto it = views_.find(id);
@@ -72,7 +83,9 @@ class ViewStore {
   // The slot of `id` (a free one when new), after growing the arrays to hold it.
   absl::StatusOr<uint32_t> AcquireSlot(ViewId id, int w, int h, bool is_new);
   // Writes linear UNORM16 colour then baked depth into staging_; returns has_background.
-  absl::StatusOr<bool> Stage(const StoredView& v);
+  // Also returns the mask's bounding box and block table (Entry::bg_box, bg_block_sat).
+  absl::StatusOr<bool> Stage(const StoredView& v, glm::ivec4* bg_box,
+                             std::vector<uint16_t>* bg_block_sat);
   absl::Status CopyStagingToLayer(uint32_t slot, uint32_t w, uint32_t h);
   void WriteRecord(const StoredView& v, uint32_t slot);
 

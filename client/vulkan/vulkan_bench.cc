@@ -188,7 +188,7 @@ int main(int argc, char** argv) {
       bo.n_best = n_best;
       double first_ms = 0, ssim_sum = 0, floor_first_ms = 0;
       std::vector<double> ms_v, cpu_v, gpu_v, rb_v, rank_v, fill_v, filled_v, floor_ms_v,
-          floor_cpu_v, sky_v;
+          floor_cpu_v, sky_v, sky_tiles_v, sky_views_v;
       int ssim_n = 0;
       for (int k = 0; k <= frames; ++k) {
         const Rigid3d& pose =
@@ -218,6 +218,7 @@ int main(int argc, char** argv) {
         if (k == 0) { first_ms = ms; floor_first_ms = floor_ms; continue; }
         floor_ms_v.push_back(floor_ms); floor_cpu_v.push_back(floor_cpu_ms);
         ms_v.push_back(ms); cpu_v.push_back(cpu_ms); gpu_v.push_back(out->gpu_ms); rb_v.push_back(out->readback_ms); rank_v.push_back(out->rank_ms);
+        sky_tiles_v.push_back(out->sky_tiles_ms); sky_views_v.push_back(out->sky_views_per_px);
         fill_v.push_back(out->fill_ms); filled_v.push_back(double(out->filled_pixels));
         double sky = 0;  // pixels filled at infinity (coverage 3)
         for (uint8_t c : out->coverage.span()) sky += c == 3;
@@ -269,6 +270,8 @@ int main(int argc, char** argv) {
           {"median_filled_px", Round(med(filled_v), 0)},
           {"background_views", background_views},
           {"median_sky_px", Round(med(sky_v), 0)},
+          {"median_sky_tiles_ms", Round(med(sky_tiles_v), 2)},
+          {"median_sky_views_per_px", Round(med(sky_views_v), 3)},
           {"frames", frames},
           {"ssim", Round(ssim_n ? ssim_sum / ssim_n : 0.0, 4)},
           {"ssim_frames", ssim_n},

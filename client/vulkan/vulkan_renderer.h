@@ -72,6 +72,10 @@ struct RenderResult {
   size_t filled_pixels = 0;
   double fill_ms = 0;
   double rank_ms = 0;      // host: per-frame ranking of every cell's references (RankRefs)
+  // Background pass (fragment path): host time of the per-tile background-view lists, and the
+  // mean list length over all pixels of the frame (views each tile's pixels may loop over).
+  double sky_tiles_ms = 0;
+  double sky_views_per_px = 0;
   std::vector<ViewId> background_views;  // this frame's background view list (rank order)
 };
 

@@ -3,6 +3,8 @@
 // One JSON object per line. Usage: codec_bench [--shared DIR] [--reps N] [--frames N]
 #include <algorithm>
 #include <chrono>
+#include <cstdlib>
+#include <ctime>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -36,6 +38,16 @@ double Round(double x, int digits) {
 
 double Ms(Clock::time_point a, Clock::time_point b) {
   return std::chrono::duration<double, std::milli>(b - a).count();
+}
+// CPU time of this (single) thread in ms: beside the wall medians, steady on a loaded machine.
+double ThreadCpuMs() {
+  timespec ts{};
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+  return ts.tv_sec * 1e3 + ts.tv_nsec * 1e-6;
+}
+double Load1() {
+  double l[1] = {0.0};
+  return getloadavg(l, 1) == 1 ? l[0] : -1.0;
 }
 double Median(std::vector<double> v) {
   std::sort(v.begin(), v.end());
@@ -126,19 +138,24 @@ void BenchDepth(const std::string& source, const std::vector<ImageU16>& frames, 
     o.codec = c.codec;
     if (c.codec == DepthCodec::kPng) o.png_compression = c.level;
     else o.zstd_level = c.level;
-    std::vector<double> enc, dec;
+    std::vector<double> enc, dec, enc_cpu, dec_cpu;
     size_t raw = 0, packed = 0;
     bool lossless = true;
     for (const ImageU16& d : frames) {
       std::vector<uint8_t> bytes;
       for (int r = 0; r < reps; ++r) {
+        const double c0 = ThreadCpuMs();
         auto t0 = Clock::now();
         bytes = *EncodeDepth(d, o);
         auto t1 = Clock::now();
+        const double c1 = ThreadCpuMs();
         auto back = DecodeDepth(bytes);
         auto t2 = Clock::now();
+        const double c2 = ThreadCpuMs();
         enc.push_back(Ms(t0, t1));
         dec.push_back(Ms(t1, t2));
+        enc_cpu.push_back(c1 - c0);
+        dec_cpu.push_back(c2 - c1);
         lossless = lossless && back.ok() && *back == d;
       }
       raw += d.bytes();
@@ -153,9 +170,12 @@ void BenchDepth(const std::string& source, const std::vector<ImageU16>& frames, 
                        {"level", c.level},
                        {"encode_ms", Round(Median(enc), 3)},
                        {"decode_ms", Round(Median(dec), 3)},
+                       {"encode_cpu_ms", Round(Median(enc_cpu), 3)},
+                       {"decode_cpu_ms", Round(Median(dec_cpu), 3)},
                        {"bytes_per_frame", packed / frames.size()},
                        {"ratio", Round(double(raw) / packed, 3)},
-                       {"lossless", lossless}};
+                       {"lossless", lossless},
+                       {"load1", Round(Load1(), 2)}};
     std::printf("%s\n", line.dump().c_str());
   }
 }
