@@ -680,6 +680,17 @@ int main(int argc, char** argv) {
       ->check(CLI::PositiveNumber);
   app.add_option("--store", store_views, "views the view planner keeps (MSSIM)")
       ->check(CLI::PositiveNumber);
+  std::vector<double> levels = {0.5, 0.8, 0.95};
+  app.add_option("--levels", levels,
+                 "coverage levels to report flight time and path to (fractions of the surface "
+                 "area)")
+      ->delimiter(',');
+  int visible_poses = 0;
+  app.add_option("--visible_poses", visible_poses,
+                 "estimate how much of the surface can be seen at all: render this many random "
+                 "poses in the navigable free space (0.3 m from solids, pitch -90..+30 deg), "
+                 "print the area fraction they see (bench explore_visible) and run nothing else")
+      ->check(CLI::NonNegativeNumber);
   if (auto rc = exo::cli::Parse(app, argc, argv)) return *rc;
   for (const auto& p : policies)
     if (p != "autonomous" && p != "frontier" && p != "scripted") {
@@ -698,6 +709,43 @@ int main(int argc, char** argv) {
   fixed_scale.cell_m = coverage_cell_m;
   const SceneScale derived = DeriveSceneScale(scene->bounds.min, scene->bounds.max);
   MetricScale scene_derived{derived.cell_size_m, derived.d_max_m, derived.sigma_m};
+  if (visible_poses > 0) {
+    const MetricScale m = scene_scale ? scene_derived : fixed_scale;
+    GroundTruthCoverage vis(scene->mesh, m.cell_m, m.d_max_m, m.sigma_m);
+    std::mt19937_64 rng(99);
+    auto uni = [&](double a, double b) { return std::uniform_real_distribution<double>(a, b)(rng); };
+    synth::RenderOptions ro;
+    ro.width = 160;
+    ro.height = 120;
+    const PinholeCamera cam = ro.Camera();
+    const SceneFrame frame = SceneFrame::ZUp();
+    const auto& nb = scene->navigable;
+    int done = 0;
+    for (int tries = 0; done < visible_poses && tries < 100 * visible_poses; ++tries) {
+      const glm::dvec3 p(uni(nb.min.x, nb.max.x), uni(nb.min.y, nb.max.y),
+                         uni(nb.min.z, nb.max.z));
+      if (!scene->IsFree(p, 0.3)) continue;
+      const double yaw = uni(-kPi, kPi), pitch = uni(-kPi / 2 + 1e-3, 0.52);
+      const Rigid3d pose = synth::LookAt(
+          p, p + std::cos(pitch) * frame.Heading(yaw) + std::sin(pitch) * frame.up);
+      ImageF z;
+      if (!synth::RenderLinear(*scene, pose, ro, &z).ok()) continue;
+      vis.AddFrame(z, cam, pose, 2);
+      ++done;
+    }
+    nlohmann::json j;
+    j["bench"] = "explore_visible";
+    j["scene"] = scene_name;
+    j["poses"] = done;
+    j["metric"] = m.Json();
+    j["visible_fraction"] = vis.Fraction(1e-9);
+    const char* cls_name[3] = {"up", "down", "side"};
+    for (int c = 0; c < 3; ++c)
+      j["visible_" + std::string(cls_name[c])] = {{"area_share", vis.ClassShare(c)},
+                                                  {"visible", vis.ClassFraction(c, 1e-9)}};
+    std::printf("%s\n", j.dump().c_str());
+    return 0;
+  }
   RunConfig base;
   base.max_flight_s = max_flight_s;
   base.cell_m = cell_m;
@@ -746,14 +794,13 @@ int main(int argc, char** argv) {
     j["policy"] = policy;
     j["runs"] = runs;
     j["max_flight_s"] = max_flight_s;
-    std::map<int, std::vector<double>> time_to, path_to;
+    std::map<size_t, std::vector<double>> time_to, path_to;
     std::vector<double> final_cov, final_seen, dec_ms, cls_share[3], cls_cov[3], cls_seen[3];
     uint64_t collisions = 0, replans = 0, decisions = 0;
     std::map<int, std::vector<double>> cov_at;  // coverage at every 30 s of flight
     std::map<int, std::vector<double>> alt_at, mssim_at;
     std::vector<double> final_alt, mssim_cpu;
-    int reached[3] = {0, 0, 0};
-    const double levels[3] = {0.5, 0.8, 0.95};
+    std::vector<int> reached(levels.size(), 0);
     for (int r = 0; r < runs; ++r) {
       RunConfig rc = base;
       rc.policy = policy;
@@ -788,7 +835,7 @@ int main(int argc, char** argv) {
         cls_seen[c].push_back(res.class_seen[c]);
       }
       if (res.decisions) dec_ms.push_back(res.decision_ms / res.decisions);
-      for (int l = 0; l < 3; ++l)
+      for (size_t l = 0; l < levels.size(); ++l)
         for (size_t k = 0; k < res.curve.size(); ++k)
           if (res.curve[k].second >= levels[l]) {
             time_to[l].push_back(res.curve[k].first);
@@ -803,8 +850,11 @@ int main(int argc, char** argv) {
       for (double x : v) s += x;
       return s / v.size();
     };
-    for (int l = 0; l < 3; ++l) {
-      const std::string k = std::to_string(static_cast<int>(levels[l] * 100));
+    for (size_t l = 0; l < levels.size(); ++l) {
+      // 0.8 -> "80", 0.668 -> "66.8"
+      char buf[32];
+      std::snprintf(buf, sizeof(buf), "%g", std::round(levels[l] * 1000) / 10);
+      const std::string k = buf;
       j["runs_reaching_" + k] = reached[l];
       j["mean_flight_s_to_" + k] = mean(time_to[l]);
       j["mean_path_m_to_" + k] = mean(path_to[l]);
