@@ -134,8 +134,14 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "exoview_uploader: sim drone '%s' in %s for %.0f s (server needs "
                  "control_zones=%s)\n", flight.drone_id.c_str(), synth.scene.c_str(),
                  flight.flight_s, exo::SceneZoneText((*s)->scene()).c_str());
-    auto stats = exo::FlySimDrone(exo::MakeChannel(server), (*s)->scene(), (*s)->render_options(),
-                                  flight, opt);
+    // The same TLS and token as the upload path (the drone's DroneLink is an uploader's call).
+    auto channel = exo::MakeChannel(server, security);
+    if (!channel.ok()) {
+      std::fprintf(stderr, "exoview_uploader: %s\n",
+                   std::string(channel.status().message()).c_str());
+      return 2;
+    }
+    auto stats = exo::FlySimDrone(*channel, (*s)->scene(), (*s)->render_options(), flight, opt);
     if (!stats.ok()) {
       std::fprintf(stderr, "exoview_uploader: %s\n", std::string(stats.status().message()).c_str());
       return 1;

@@ -11,6 +11,20 @@
 // time and path length to 50 / 80 / 95 % coverage (null: not reached within --max_flight_s),
 // final coverage, collisions with the ground-truth mesh, per-decision cost; over --runs seeded
 // start poses.
+// Scale: by default the metric and the planner use the apartment's values (0.5 m cells, d_max =
+// σ = 2 m, 5 m carving range, 6 m planner range); --scene_scale true derives them from the scene
+// (server/geometry/scene_scale.h, SPEC §4: cell size and d_max from the scene's diameter; the
+// village: 1 m cells, d_max 13.8 m, σ 18.4 m) and sets the carving and planner range to d_max + σ
+// (at most 30 m). Every run also reports the coverage under the other scale (`alt_`), so a flight
+// can be read under both metrics.
+// Outdoor scenes (a fly-over altitude) fly the scripted policy as the scene's Hilbert fly-over
+// (synth::HilbertCurve at the fly-over altitude, camera pitched 40° down), indoor ones the walk.
+// MSSIM over time (--mssim_every_s): the frames feed the product's view planner (planning::
+// ViewPlanner, ψ_vis from the frame's depth, --store views); every that many seconds of flight the
+// stored views are rendered by the CPU lumigraph renderer (the ground-truth mesh as the proxy, so
+// the figure measures which views were collected, not the geometry) at --test_views held-out test
+// poses (synth::MakeTestPoses, the same for every policy and run) and compared with the ground
+// truth (SSIM on luma, mean over the poses).
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
@@ -22,11 +36,16 @@
 #include "common/cells.h"
 #include "common/cli/cli.h"
 #include "common/drone/sim_drone.h"
+#include "common/lumigraph/cpu_renderer.h"
+#include "common/metrics/metrics.h"
 #include "common/synth/render.h"
 #include "common/synth/scene.h"
 #include "common/synth/trajectory.h"
 #include "server/control/exploration.h"
+#include "server/geometry/cell_areas.h"
+#include "server/geometry/scene_scale.h"
 #include "server/planning/coverage.h"
+#include "server/planning/view_planner.h"
 
 namespace {
 
@@ -41,7 +60,8 @@ struct CoverageCell {
 
 class GroundTruthCoverage {
  public:
-  GroundTruthCoverage(const TriangleMesh& mesh, double q) : q_(q) {
+  GroundTruthCoverage(const TriangleMesh& mesh, double q, double d_max, double sigma)
+      : q_(q), d_max_(d_max), sigma_(sigma) {
     for (size_t t = 0; t + 2 < mesh.indices.size(); t += 3) {
       const glm::dvec3 a(mesh.positions[mesh.indices[t]]), b(mesh.positions[mesh.indices[t + 1]]),
           c(mesh.positions[mesh.indices[t + 2]]);
@@ -83,7 +103,7 @@ class GroundTruthCoverage {
       if (d < 1e-6) continue;
       const glm::dvec3 dir = (eye - centre) / d;
       const double phi_d = planning::DirectionalCoverage(dir, c.refs, 16);
-      const double g = planning::DistanceQuality(d, 2.0, 2.0);
+      const double g = planning::DistanceQuality(d, d_max_, sigma_);
       const double psi_total = planning::PsiTotal(c.area, q_ * q_, d, sample_sr, 0.1);
       const double phi =
           planning::Coverage(0.4, phi_d, planning::PositionalCoverage(g, n, psi_total));
@@ -166,14 +186,54 @@ class GroundTruthCoverage {
   }
 
  private:
-  double q_;
+  double q_, d_max_, sigma_;
   double total_ = 0;
   double class_total_[3] = {0, 0, 0};
   std::unordered_map<CellId, CoverageCell> cells_;
 };
 
+// The metric's scale: ground-truth cell, d_max and σ of (3.11).
+struct MetricScale {
+  double cell_m = 0.5, d_max_m = 2.0, sigma_m = 2.0;
+  nlohmann::json Json() const {
+    return {{"cell_m", cell_m}, {"d_max_m", d_max_m}, {"sigma_m", sigma_m}};
+  }
+};
+
+// Held-out test poses and their ground-truth images (the same for every policy and run).
+struct TestSet {
+  PinholeCamera camera;
+  std::vector<Rigid3d> poses;
+  std::vector<ImageU8> truth;
+};
+
+ImageU8 ToSrgb8(const ImageF& linear) {
+  ImageU8 out(linear.width(), linear.height(), linear.channels());
+  for (size_t k = 0; k < out.size(); ++k) out.data()[k] = synth::LinearToSrgb8(linear.data()[k]);
+  return out;
+}
+
+struct RunConfig {
+  std::string policy;
+  uint64_t seed = 0;
+  double max_flight_s = 180, cell_m = 0.15, dwell_s = 1.0, grid_margin_m = 0.5;
+  double carve_range_m = 5.0;
+  MetricScale metric, alt_metric;
+  std::string dump_cells;
+  ExploreOptions eo;
+  bool no_return_is_free = false;
+  // MSSIM over time: every this many seconds of flight (0: off), views kept by the planner.
+  double mssim_every_s = 0;
+  int store_views = 100;
+  const TestSet* tests = nullptr;
+};
+
 struct RunResult {
   std::vector<std::pair<double, double>> curve;  // (flight s, coverage)
+  std::vector<std::pair<double, double>> alt_curve;  // (flight s, coverage at the other scale)
+  std::vector<std::pair<double, double>> mssim;  // (flight s, MSSIM at the test poses)
+  size_t stored_views = 0;
+  double mssim_cpu_s = 0;  // lumigraph renders at the test poses (not in decision_ms)
   double final_seen = 0;                         // area fraction with τ > 0
   std::vector<double> path_at;                   // path length at each curve sample
   uint64_t collisions = 0, decisions = 0, replans = 0;
@@ -189,10 +249,42 @@ struct RunResult {
   nlohmann::json gap;  // GroundTruthCoverage::Gap at the end
 };
 
-RunResult Run(const synth::SynthScene& scene, const std::string& policy, uint64_t seed,
-              double max_flight_s, double coverage_cell_m, double cell_m, double dwell_s,
-              const std::string& dump_cells, ExploreOptions eo, double grid_margin_m,
-              bool no_return_is_free) {
+// MSSIM of the store at the test poses (ground-truth mesh as the proxy).
+double StoreMssim(const synth::SynthScene& scene, const planning::ViewPlanner& vp,
+                  const std::map<ViewId, StoredView>& stored, const TestSet& tests) {
+  LumigraphModel model;
+  model.grid = vp.grid();
+  MeshChunk chunk;
+  chunk.id = 0;
+  chunk.version = 1;
+  chunk.mesh = scene.mesh;
+  model.chunks[0] = std::move(chunk);
+  for (const auto& [id, v] : stored) model.views[id] = v;
+  model.cell_refs = vp.CellPublishedRefs();
+  auto renderer = CpuLumigraphRenderer::Create(model, {});
+  if (!renderer.ok()) return 0;
+  double sum = 0;
+  int n = 0;
+  for (size_t i = 0; i < tests.poses.size(); ++i) {
+    auto r = (*renderer)->Render(tests.camera, tests.poses[i]);
+    if (!r.ok()) continue;
+    auto ssim = Ssim(r->color, tests.truth[i]);
+    if (!ssim.ok()) continue;
+    sum += *ssim;
+    ++n;
+  }
+  return n ? sum / n : 0;
+}
+
+double CpuSeconds() {
+  return static_cast<double>(std::clock()) / CLOCKS_PER_SEC;
+}
+
+RunResult Run(const synth::SynthScene& scene, const RunConfig& rc) {
+  const std::string& policy = rc.policy;
+  const uint64_t seed = rc.seed;
+  const double max_flight_s = rc.max_flight_s, cell_m = rc.cell_m, dwell_s = rc.dwell_s;
+  ExploreOptions eo = rc.eo;
   RunResult out;
   std::mt19937_64 rng(seed);
   const SceneFrame frame = SceneFrame::ZUp();
@@ -201,7 +293,7 @@ RunResult Run(const synth::SynthScene& scene, const std::string& policy, uint64_
   so.cell_m = cell_m;
   so.drone_radius_m = 0.2;
   so.region_fallback = false;
-  so.grid_margin_m = grid_margin_m;
+  so.grid_margin_m = rc.grid_margin_m;
   auto safe_or = SafeFlight::Create(so);
   EXO_CHECK(safe_or.ok());
   SafeFlight& safe = *safe_or;
@@ -214,7 +306,43 @@ RunResult Run(const synth::SynthScene& scene, const std::string& policy, uint64_
   const double yaw0 = std::uniform_real_distribution<double>(-kPi, kPi)(rng);
   drone.Reset(start, yaw0);
   CollisionMonitor collisions(scene.mesh, dopt.radius_m);
-  GroundTruthCoverage cov(scene.mesh, coverage_cell_m);
+  GroundTruthCoverage cov(scene.mesh, rc.metric.cell_m, rc.metric.d_max_m, rc.metric.sigma_m);
+  GroundTruthCoverage alt(scene.mesh, rc.alt_metric.cell_m, rc.alt_metric.d_max_m,
+                          rc.alt_metric.sigma_m);
+  // The product's view planner over the same frames (MSSIM over time): ψ_vis from the frame's
+  // depth, cell areas from the ground-truth mesh (the proxy the store is rendered with).
+  std::optional<planning::ViewPlanner> vp;
+  std::map<ViewId, StoredView> stored;
+  if (rc.mssim_every_s > 0 && rc.tests) {
+    planning::PlannerOptions po;
+    po.cell_size_m = rc.metric.cell_m;
+    po.d_max_m = rc.metric.d_max_m;
+    po.sigma_m = rc.metric.sigma_m;
+    po.lambda = scene.flyover_altitude_m > 0 ? 0.5 : 0.4;
+    po.max_views = rc.store_views;
+    auto p = planning::ViewPlanner::Create(po);
+    EXO_CHECK(p.ok());
+    vp.emplace(std::move(*p));
+    CellAreas areas(vp->grid());
+    MeshChunk chunk;
+    chunk.mesh = scene.mesh;
+    areas.UpdateChunk(chunk);
+    for (const auto& [cell, a] : areas.areas()) (void)vp->SetCellArea(cell, a);
+  }
+  double next_mssim = rc.mssim_every_s;
+  ViewId next_view = 1;
+  // Outdoor scenes: the scripted policy is the Hilbert fly-over at the fly-over altitude (a
+  // climb from the start first), the camera 40° down; indoor: the eye-height walk.
+  const bool flyover = policy == "scripted" && scene.flyover_altitude_m > 0;
+  std::vector<glm::dvec3> script = scene.walk_waypoints;
+  if (flyover) {
+    const glm::dvec3 lo = scene.navigable.min, hi = scene.navigable.max;
+    const double inset = 0.15 * std::min(hi.x - lo.x, hi.y - lo.y);
+    script.clear();
+    for (const glm::dvec2& h : synth::HilbertCurve(3))
+      script.push_back({lo.x + inset + h.x * (hi.x - lo.x - 2 * inset),
+                        lo.y + inset + h.y * (hi.y - lo.y - 2 * inset), scene.flyover_altitude_m});
+  }
   synth::RenderOptions ro;
   ro.width = 160;
   ro.height = 120;
@@ -240,7 +368,8 @@ RunResult Run(const synth::SynthScene& scene, const std::string& policy, uint64_
           s.position, s.position + std::cos(cam_pitch) * frame.Heading(s.yaw) +
                           std::sin(cam_pitch) * frame.up);
       ImageF z;
-      if (synth::RenderLinear(scene, pose, ro, &z).ok()) {
+      auto colour = synth::RenderLinear(scene, pose, ro, &z);
+      if (colour.ok()) {
         // The drone's own volume is free; the frame carves the rest.
         OccupancyGrid& g = safe.grid();
         const glm::ivec3 c = g.CellOf(s.position);
@@ -250,13 +379,42 @@ RunResult Run(const synth::SynthScene& scene, const std::string& policy, uint64_
             for (int dx = -r; dx <= r; ++dx)
               if (glm::length(glm::dvec3(dx, dy, dz)) * cell_m <= dopt.radius_m)
                 g.Set(c + glm::ivec3(dx, dy, dz), Occupancy::kFree);
-        g.CarveDepth(z, cam, pose, 2, 5.0, no_return_is_free);
+        g.CarveDepth(z, cam, pose, 2, rc.carve_range_m, rc.no_return_is_free);
         planner.Observe(g, z, cam, pose, 2);
         cov.AddFrame(z, cam, pose, 2);
+        alt.AddFrame(z, cam, pose, 2);
+        if (vp) {
+          planning::Candidate c;
+          c.id = next_view++;
+          c.local_from_cam = pose;
+          auto cells = planning::CountDepthCellPixels(z, cam, pose, vp->grid(), 2, &c.id_camera);
+          if (cells.ok()) {
+            c.cells = std::move(*cells);
+            c.bytes = size_t(cam.width) * cam.height * 7 + sizeof(StoredView);
+            auto d = vp->Consider(c);
+            if (d.ok() && d->accepted) {
+              for (ViewId v : d->removed) stored.erase(v);
+              StoredView sv;
+              sv.id = c.id;
+              sv.camera = cam;
+              sv.local_from_cam = pose;
+              sv.color = ToSrgb8(*colour);
+              sv.depth_m = z;
+              stored[c.id] = std::move(sv);
+            }
+          }
+        }
       }
       out.curve.emplace_back(t, cov.Fraction(2.0));
+      out.alt_curve.emplace_back(t, alt.Fraction(2.0));
+      if (vp && t + 1e-9 >= next_mssim) {
+        const double c0 = CpuSeconds();
+        out.mssim.emplace_back(next_mssim, StoreMssim(scene, *vp, stored, *rc.tests));
+        out.mssim_cpu_s += CpuSeconds() - c0;
+        next_mssim += rc.mssim_every_s;
+      }
       out.path_at.push_back(out.path_m);
-      if (out.curve.back().second >= 0.95) break;
+      if (out.curve.back().second >= 0.95 && !vp) break;
       // A route that crosses newly found obstacles is dropped.
       if (!route.empty()) {
         glm::dvec3 a = s.position;
@@ -290,11 +448,17 @@ RunResult Run(const synth::SynthScene& scene, const std::string& policy, uint64_
         wp = 0;
         goal_yaw = WrapAngle(yaw0 + kPi / 2 * (1 + std::floor(t)));
       } else if (policy == "scripted") {
-        const glm::dvec3 target = scene.walk_waypoints[script_index % scene.walk_waypoints.size()];
-        ++script_index;
+        glm::dvec3 target = script[script_index % script.size()];
+        // The fly-over climbs above the start before its first leg.
+        if (flyover && s.position.z < scene.flyover_altitude_m - 0.5)
+          target = {s.position.x, s.position.y, scene.flyover_altitude_m};
+        else
+          ++script_index;
         route = {target};
         wp = 0;
-        goal_yaw = frame.YawOf(target - s.position);
+        const glm::dvec3 dir = target - s.position;
+        goal_yaw = glm::length(glm::dvec2(dir.x, dir.y)) > 0.3 ? frame.YawOf(dir) : s.yaw;
+        goal_pitch = flyover ? -glm::radians(40.0) : 0.0;
       } else {
         const auto t0 = std::chrono::steady_clock::now();
         std::optional<NextView> v = policy == "autonomous"
@@ -348,8 +512,16 @@ RunResult Run(const synth::SynthScene& scene, const std::string& policy, uint64_
   out.collisions = collisions.collisions();
   out.final_coverage = out.curve.empty() ? 0 : out.curve.back().second;
   out.final_seen = cov.Fraction(1e-9);
-  if (!dump_cells.empty()) {  // the last run's cells win
-    FILE* f = std::fopen(dump_cells.c_str(), "w");
+  // MSSIM checkpoints not reached (a run that ended early): the store as it ended.
+  while (vp && next_mssim <= max_flight_s + 1e-9) {
+    const double c0 = CpuSeconds();
+    out.mssim.emplace_back(next_mssim, StoreMssim(scene, *vp, stored, *rc.tests));
+    out.mssim_cpu_s += CpuSeconds() - c0;
+    next_mssim += rc.mssim_every_s;
+  }
+  out.stored_views = stored.size();
+  if (!rc.dump_cells.empty()) {  // the last run's cells win
+    FILE* f = std::fopen(rc.dump_cells.c_str(), "w");
     if (f) {
       cov.Dump(f);
       std::fclose(f);
@@ -424,6 +596,11 @@ void PrintRun(const std::string& scene, const std::string& policy, uint64_t seed
   j["before_plateau"] = summarise(false);
   j["after_plateau"] = summarise(true);
   j["uncovered_in_planner_view"] = res.gap;
+  j["final_coverage_alt"] = res.alt_curve.empty() ? 0 : res.alt_curve.back().second;
+  nlohmann::json m = nlohmann::json::object();
+  for (const auto& [t, v] : res.mssim) m[std::to_string(static_cast<int>(std::lround(t)))] = v;
+  j["mssim_at_s"] = m;
+  j["stored_views"] = res.stored_views;
   std::printf("%s\n", j.dump().c_str());
   std::fflush(stdout);
 }
@@ -482,6 +659,38 @@ int main(int argc, char** argv) {
                  "area_side refs, cell indices at --coverage_cell_m) to this file");
   app.add_option("--dwell_s", dwell_s, "hover this long at each goal before the next decision");
   app.add_option("--seed0", seed0, "first run's seed (runs use seed0, seed0 + 1, ...)");
+  bool scene_scale = false;
+  app.add_option("--scene_scale", scene_scale,
+                 "derive the metric's cell, d_max and sigma and the planner's d_max, sigma and "
+                 "range (= carving range = d_max + sigma, at most 30 m) from the scene's diameter "
+                 "(scene_scale.h); false: the apartment's 0.5 m cells, d_max = sigma = 2 m, "
+                 "5 m carving and 6 m planner range");
+  double carve_range_m = 0;
+  app.add_option("--carve_range_m", carve_range_m,
+                 "depth beyond this carves nothing (0: 5 m, or the planner range with "
+                 "--scene_scale)")
+      ->check(CLI::NonNegativeNumber);
+  double mssim_every_s = 0;
+  int test_views = 12, store_views = 100;
+  app.add_option("--mssim_every_s", mssim_every_s,
+                 "MSSIM of the planner's store at the held-out test poses every this many "
+                 "seconds of flight (0: off)")
+      ->check(CLI::NonNegativeNumber);
+  app.add_option("--test_views", test_views, "held-out test poses (160x120)")
+      ->check(CLI::PositiveNumber);
+  app.add_option("--store", store_views, "views the view planner keeps (MSSIM)")
+      ->check(CLI::PositiveNumber);
+  std::vector<double> levels = {0.5, 0.8, 0.95};
+  app.add_option("--levels", levels,
+                 "coverage levels to report flight time and path to (fractions of the surface "
+                 "area)")
+      ->delimiter(',');
+  int visible_poses = 0;
+  app.add_option("--visible_poses", visible_poses,
+                 "estimate how much of the surface can be seen at all: render this many random "
+                 "poses in the navigable free space (0.3 m from solids, pitch -90..+30 deg), "
+                 "print the area fraction they see (bench explore_visible) and run nothing else")
+      ->check(CLI::NonNegativeNumber);
   if (auto rc = exo::cli::Parse(app, argc, argv)) return *rc;
   for (const auto& p : policies)
     if (p != "autonomous" && p != "frontier" && p != "scripted") {
@@ -496,6 +705,88 @@ int main(int argc, char** argv) {
   }
   auto scene = synth::MakeScene(*kind, synth::SceneOptions{});
   if (!scene.ok()) return 1;
+  MetricScale fixed_scale;
+  fixed_scale.cell_m = coverage_cell_m;
+  const SceneScale derived = DeriveSceneScale(scene->bounds.min, scene->bounds.max);
+  MetricScale scene_derived{derived.cell_size_m, derived.d_max_m, derived.sigma_m};
+  if (visible_poses > 0) {
+    const MetricScale m = scene_scale ? scene_derived : fixed_scale;
+    GroundTruthCoverage vis(scene->mesh, m.cell_m, m.d_max_m, m.sigma_m);
+    std::mt19937_64 rng(99);
+    auto uni = [&](double a, double b) { return std::uniform_real_distribution<double>(a, b)(rng); };
+    synth::RenderOptions ro;
+    ro.width = 160;
+    ro.height = 120;
+    const PinholeCamera cam = ro.Camera();
+    const SceneFrame frame = SceneFrame::ZUp();
+    const auto& nb = scene->navigable;
+    int done = 0;
+    for (int tries = 0; done < visible_poses && tries < 100 * visible_poses; ++tries) {
+      const glm::dvec3 p(uni(nb.min.x, nb.max.x), uni(nb.min.y, nb.max.y),
+                         uni(nb.min.z, nb.max.z));
+      if (!scene->IsFree(p, 0.3)) continue;
+      const double yaw = uni(-kPi, kPi), pitch = uni(-kPi / 2 + 1e-3, 0.52);
+      const Rigid3d pose = synth::LookAt(
+          p, p + std::cos(pitch) * frame.Heading(yaw) + std::sin(pitch) * frame.up);
+      ImageF z;
+      if (!synth::RenderLinear(*scene, pose, ro, &z).ok()) continue;
+      vis.AddFrame(z, cam, pose, 2);
+      ++done;
+    }
+    nlohmann::json j;
+    j["bench"] = "explore_visible";
+    j["scene"] = scene_name;
+    j["poses"] = done;
+    j["metric"] = m.Json();
+    j["visible_fraction"] = vis.Fraction(1e-9);
+    const char* cls_name[3] = {"up", "down", "side"};
+    for (int c = 0; c < 3; ++c)
+      j["visible_" + std::string(cls_name[c])] = {{"area_share", vis.ClassShare(c)},
+                                                  {"visible", vis.ClassFraction(c, 1e-9)}};
+    std::printf("%s\n", j.dump().c_str());
+    return 0;
+  }
+  RunConfig base;
+  base.max_flight_s = max_flight_s;
+  base.cell_m = cell_m;
+  base.dwell_s = dwell_s;
+  base.grid_margin_m = grid_margin_m;
+  base.no_return_is_free = no_return_is_free;
+  base.dump_cells = dump_cells;
+  base.metric = scene_scale ? scene_derived : fixed_scale;
+  base.alt_metric = scene_scale ? fixed_scale : scene_derived;
+  if (scene_scale) {
+    eo.d_max_m = derived.d_max_m;
+    eo.sigma_m = derived.sigma_m;
+    if (app.count("--range_m") == 0) eo.range_m = std::min(30.0, derived.d_max_m + derived.sigma_m);
+  }
+  base.carve_range_m = carve_range_m > 0 ? carve_range_m : scene_scale ? eo.range_m : 5.0;
+  base.eo = eo;
+  base.mssim_every_s = mssim_every_s;
+  base.store_views = store_views;
+  TestSet tests;
+  if (mssim_every_s > 0) {
+    synth::RenderOptions tro;
+    tro.width = 160;
+    tro.height = 120;
+    tests.camera = tro.Camera();
+    synth::TestPoseOptions tpo;
+    tpo.count = test_views;
+    tpo.seed = 7;
+    auto poses = synth::MakeTestPoses(*scene, tests.camera, tpo);
+    if (!poses.ok()) {
+      std::fprintf(stderr, "exoview_explore_bench: %s\n",
+                   std::string(poses.status().message()).c_str());
+      return 1;
+    }
+    tests.poses = *poses;
+    for (const Rigid3d& p : tests.poses) {
+      auto lin = synth::RenderLinear(*scene, p, tro);
+      if (!lin.ok()) return 1;
+      tests.truth.push_back(ToSrgb8(*lin));
+    }
+    base.tests = &tests;
+  }
   for (const std::string& policy : policies) {
     nlohmann::json j;
     j["bench"] = "explore";
@@ -503,16 +794,28 @@ int main(int argc, char** argv) {
     j["policy"] = policy;
     j["runs"] = runs;
     j["max_flight_s"] = max_flight_s;
-    std::map<int, std::vector<double>> time_to, path_to;
+    std::map<size_t, std::vector<double>> time_to, path_to;
     std::vector<double> final_cov, final_seen, dec_ms, cls_share[3], cls_cov[3], cls_seen[3];
     uint64_t collisions = 0, replans = 0, decisions = 0;
     std::map<int, std::vector<double>> cov_at;  // coverage at every 30 s of flight
-    int reached[3] = {0, 0, 0};
-    const double levels[3] = {0.5, 0.8, 0.95};
+    std::map<int, std::vector<double>> alt_at, mssim_at;
+    std::vector<double> final_alt, mssim_cpu;
+    std::vector<int> reached(levels.size(), 0);
     for (int r = 0; r < runs; ++r) {
-      const RunResult res =
-          Run(*scene, policy, seed0 + r, max_flight_s, coverage_cell_m, cell_m, dwell_s,
-              dump_cells, eo, grid_margin_m, no_return_is_free);
+      RunConfig rc = base;
+      rc.policy = policy;
+      rc.seed = seed0 + r;
+      const RunResult res = Run(*scene, rc);
+      final_alt.push_back(res.alt_curve.empty() ? 0 : res.alt_curve.back().second);
+      for (const auto& [t, v] : res.mssim) mssim_at[static_cast<int>(std::lround(t))].push_back(v);
+      mssim_cpu.push_back(res.mssim_cpu_s);
+      for (int s30 = 30; s30 <= max_flight_s + 1e-9; s30 += 30) {
+        double c = res.alt_curve.empty() ? 0 : res.alt_curve.back().second;
+        for (const auto& [ft, fc] : res.alt_curve)
+          if (ft <= s30) c = fc;
+          else break;
+        alt_at[s30].push_back(c);
+      }
       if (per_run) PrintRun(scene_name, policy, seed0 + r, res);
       final_seen.push_back(res.final_seen);
       collisions += res.collisions;
@@ -532,7 +835,7 @@ int main(int argc, char** argv) {
         cls_seen[c].push_back(res.class_seen[c]);
       }
       if (res.decisions) dec_ms.push_back(res.decision_ms / res.decisions);
-      for (int l = 0; l < 3; ++l)
+      for (size_t l = 0; l < levels.size(); ++l)
         for (size_t k = 0; k < res.curve.size(); ++k)
           if (res.curve[k].second >= levels[l]) {
             time_to[l].push_back(res.curve[k].first);
@@ -547,8 +850,11 @@ int main(int argc, char** argv) {
       for (double x : v) s += x;
       return s / v.size();
     };
-    for (int l = 0; l < 3; ++l) {
-      const std::string k = std::to_string(static_cast<int>(levels[l] * 100));
+    for (size_t l = 0; l < levels.size(); ++l) {
+      // 0.8 -> "80", 0.668 -> "66.8"
+      char buf[32];
+      std::snprintf(buf, sizeof(buf), "%g", std::round(levels[l] * 1000) / 10);
+      const std::string k = buf;
       j["runs_reaching_" + k] = reached[l];
       j["mean_flight_s_to_" + k] = mean(time_to[l]);
       j["mean_path_m_to_" + k] = mean(path_to[l]);
@@ -578,6 +884,27 @@ int main(int argc, char** argv) {
     for (const auto& [s30, v] : cov_at) curve[std::to_string(s30)] = mean(v);
     j["mean_coverage_at_s"] = curve;
     j["mean_decision_ms"] = mean(dec_ms);
+    j["metric"] = base.metric.Json();
+    j["scene_scale"] = scene_scale;
+    j["d_max_m"] = base.eo.d_max_m;
+    j["sigma_m"] = base.eo.sigma_m;
+    j["carve_range_m"] = base.carve_range_m;
+    j["cell_m"] = cell_m;
+    // The same flights under the other scale's metric (see the header comment).
+    j["alt_metric"] = base.alt_metric.Json();
+    j["alt_mean_final_coverage"] = mean(final_alt);
+    nlohmann::json alt_curve = nlohmann::json::object();
+    for (const auto& [s30, v] : alt_at) alt_curve[std::to_string(s30)] = mean(v);
+    j["alt_mean_coverage_at_s"] = alt_curve;
+    if (mssim_every_s > 0) {
+      nlohmann::json mc = nlohmann::json::object();
+      for (const auto& [t, v] : mssim_at) mc[std::to_string(t)] = mean(v);
+      j["mean_mssim_at_s"] = mc;
+      j["test_views"] = tests.poses.size();
+      j["store"] = store_views;
+      j["mssim_proxy"] = "ground-truth mesh";
+      j["mean_mssim_cpu_s_per_run"] = mean(mssim_cpu);
+    }
     std::printf("%s\n", j.dump().c_str());
     std::fflush(stdout);
   }

@@ -170,6 +170,20 @@ void AppendControlConfigKeys(std::vector<ConfigKey>* keys) {
   keys->push_back(DoubleKey("control_waypoint_tolerance_m",
                             "distance at which the next waypoint is streamed",
                             [](ServerConfig& c) { return &c.control.core.waypoint_tolerance_m; }));
+  // The scale of exploration (docs/control.md, session 12: the defaults are a room's; a 60 m
+  // village needs d_max ~14 m, sigma ~18 m and a 30 m range, as scene_scale.h derives them).
+  keys->push_back(DoubleKey("control_carve_range_m",
+                            "stored views' depth beyond this carves no free space, in m",
+                            [](ServerConfig& c) { return &c.control.core.carve_max_range_m; }));
+  keys->push_back(DoubleKey("control_explore_range_m",
+                            "exploration: frustum ray length of a view's expected gain, in m",
+                            [](ServerConfig& c) { return &c.control.core.explore.range_m; }));
+  keys->push_back(DoubleKey("control_explore_d_max_m",
+                            "exploration: ideal view distance d_max of (3.11), in m",
+                            [](ServerConfig& c) { return &c.control.core.explore.d_max_m; }));
+  keys->push_back(DoubleKey("control_explore_sigma_m",
+                            "exploration: sigma of (3.11), in m",
+                            [](ServerConfig& c) { return &c.control.core.explore.sigma_m; }));
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -411,6 +411,20 @@ TEST(ControlServiceConfig, KeysParseAndRejectWithClearErrors) {
   EXPECT_EQ(text, "hall:polyz:0.3,2.4:0,0,6,0,6,3,3,3,3,6,0,6;b:6,0,0,8,2,3");
   auto crossing = ApplyConfigValue("control_zones", "x:polyz:0,2:0,0,2,1,2,0,0,2", &c);
   EXPECT_NE(crossing.message().find("cross"), std::string::npos) << crossing;
+  // Exploration's scale (a village's values from docs/control.md, session 12).
+  EXPECT_EQ(c.control.core.carve_max_range_m, 5.0);
+  EXPECT_EQ(c.control.core.explore.range_m, 6.0);
+  ASSERT_TRUE(ApplyConfigValue("control_carve_range_m", "30", &c).ok());
+  ASSERT_TRUE(ApplyConfigValue("control_explore_range_m", "30", &c).ok());
+  ASSERT_TRUE(ApplyConfigValue("control_explore_d_max_m", "13.7", &c).ok());
+  ASSERT_TRUE(ApplyConfigValue("control_explore_sigma_m", "18.3", &c).ok());
+  EXPECT_EQ(c.control.core.carve_max_range_m, 30.0);
+  EXPECT_EQ(c.control.core.explore.range_m, 30.0);
+  EXPECT_EQ(c.control.core.explore.d_max_m, 13.7);
+  EXPECT_EQ(c.control.core.explore.sigma_m, 18.3);
+  auto zero = ApplyConfigValue("control_explore_range_m", "0", &c);
+  EXPECT_NE(zero.message().find("control_explore_range_m"), std::string::npos) << zero;
+  EXPECT_EQ(c.control.core.explore.range_m, 30.0);  // unchanged by the refused value
 }
 
 }  // namespace
