@@ -14,6 +14,8 @@
 #include <time.h>
 #include <unistd.h>
 
+#include <cerrno>
+
 #include "common/log/log.h"
 #include "proto/frame_proto.h"
 #include "server/core/online_model.h"
@@ -52,12 +54,17 @@ double ThreadCpuMs() {
   return t.tv_sec * 1e3 + t.tv_nsec * 1e-6;
 }
 
-// Lowers the calling thread's priority (Linux: nice is per thread).
+// Lowers the calling thread's priority by `nice` below the server's own (Linux: nice is per
+// thread; a server started at nice -10 runs these at 0).
 void NiceThisThread(int nice) {
   if (nice <= 0) return;
-  const pid_t tid = static_cast<pid_t>(syscall(SYS_gettid));
-  if (setpriority(PRIO_PROCESS, static_cast<id_t>(tid), nice) != 0)
-    log::Get("inpainting")->warn("setpriority({}) failed: {}", nice, errno);
+  const id_t tid = static_cast<id_t>(syscall(SYS_gettid));
+  errno = 0;
+  const int now = getpriority(PRIO_PROCESS, tid);
+  if (errno != 0) return;
+  const int target = std::min(19, now + nice);
+  if (setpriority(PRIO_PROCESS, tid, target) != 0)
+    log::Get("inpainting")->warn("setpriority({}) failed: {}", target, errno);
 }
 
 DrOptions ToDrOptions(const InpaintingStageOptions& o) {

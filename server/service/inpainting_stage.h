@@ -60,8 +60,8 @@ struct InpaintingStageOptions {
   // always with live_always (benchmarks).
   int live_views = 4;
   bool live_always = false;
-  // Nice value of the stage's two threads (frames, keyframes): the DR work yields the CPU to
-  // ingest and the modelling stages (0 = the server's priority).
+  // The stage's two threads (frames, keyframes) run this much nicer than the server: the DR
+  // work yields the CPU to ingest and the modelling stages (0 = the server's priority).
   int nice = 10;
   ViewEncodeOptions publish;
   absl::Status Validate() const;

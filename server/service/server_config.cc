@@ -144,7 +144,7 @@ std::vector<ConfigKey> MakeKeys() {
           EXO_FIELD(inpainting.live_views)),
       Key("inpaint_live_always", "live DR view: composite every frame even when nobody watches (benchmarks)",
           EXO_FIELD(inpainting.live_always)),
-      Key("inpaint_nice", "nice value of the inpainting stage's threads (0 = the server's priority)",
+      Key("inpaint_nice", "the inpainting stage's threads run this much nicer than the server (0 = the same priority)",
           EXO_FIELD(inpainting.nice)),
       Key("inpaint_threads", "threads of one keyframe's PatchMatch", EXO_FIELD(inpainting.inpaint.num_threads)),
       Key("inpaint_keyframe_pose_distance", "new keyframe beyond this ||I - Mi^-1 Mk||_F",
