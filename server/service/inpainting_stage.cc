@@ -113,6 +113,7 @@ class InpaintingStageImpl final : public InpaintingStage {
     if (set->regions.empty()) return absl::OkStatus();
     const Frame& f = pf.frame;
     if (f.depth_m.empty()) return absl::OkStatus();
+    int64_t next_index = 0;  // counts the frames that arrive (observation stride)
     {
       std::lock_guard lock(mu_);
       const int64_t seen = frames_seen_++;
@@ -123,6 +124,7 @@ class InpaintingStageImpl final : public InpaintingStage {
       }
       if (slot_) ++frames_superseded_;
       if (!origin_) origin_ = ctx.origin;
+      next_index = seen / options_.frame_stride;
     }
     auto copy = std::make_shared<PipelineFrame>();
     copy->frame = f;  // ~2 MB at 640x480: well under a millisecond
@@ -131,6 +133,7 @@ class InpaintingStageImpl final : public InpaintingStage {
       std::lock_guard lock(mu_);
       slot_ = std::move(copy);
       slot_set_ = set;
+      slot_index_ = next_index;
     }
     frame_cv_.notify_all();
     return absl::OkStatus();
@@ -158,6 +161,7 @@ class InpaintingStageImpl final : public InpaintingStage {
       std::shared_ptr<PipelineFrame> pf;
       std::shared_ptr<const RegionSet> set;
       LocalOrigin origin;
+      int64_t index = 0;
       {
         std::unique_lock lock(mu_);
         frame_cv_.wait(lock, [this] { return stop_ || slot_; });
@@ -165,29 +169,30 @@ class InpaintingStageImpl final : public InpaintingStage {
         pf = std::move(slot_);
         slot_.reset();
         set = std::move(slot_set_);
+        index = slot_index_;
         origin = *origin_;
         frame_busy_ = true;
       }
-      ProcessFrame(*pf, set, origin);
+      ProcessFrame(*pf, set, origin, index);
       std::lock_guard lock(mu_);
       frame_busy_ = false;
       idle_cv_.notify_all();
     }
   }
 
+  // `index` counts the frames that arrived (not only those looked at), so observation views stay
+  // one every obs_stride arriving frames however many the slot superseded.
   void ProcessFrame(const PipelineFrame& pf, const std::shared_ptr<const RegionSet>& set,
-                    const LocalOrigin& origin) {
+                    const LocalOrigin& origin, int64_t index) {
     const Frame& f = pf.frame;
-    int64_t index = 0;
     bool live = false;
     {
       std::lock_guard lock(mu_);
-      index = frames_looked_++;
+      ++frames_looked_;
       live = options_.live_always || watchers_ > 0;
       // The keyframe slot is taken and no live view is watched: this frame is only counted,
       // unless it is due as an observation.
-      if (!live && (job_ || busy_) &&
-          (dr_options_.obs_views == 0 || index % dr_options_.obs_stride != 0)) {
+      if (!live && SlotTakenLocked() && !ObservationDueLocked(index)) {
         ++skipped_busy_;
         return;
       }
@@ -219,7 +224,7 @@ class InpaintingStageImpl final : public InpaintingStage {
       } else {
         ++frames_with_roi_;
         if (live) snap = dr_.LiveSnapshot(local_from_cam, options_.live_views);
-        if (job_ || busy_) {
+        if (SlotTakenLocked()) {
           ++skipped_busy_;
           AddObservationLocked(frame, mask, index);
         } else {
@@ -359,6 +364,7 @@ class InpaintingStageImpl final : public InpaintingStage {
       std::lock_guard lock(mu_);
       dr_.Clear();
       ids_.clear();
+      last_obs_index_ = -1;
     }
     uint32_t n = 0;
     for (const auto& v : store_->Views())
@@ -380,11 +386,21 @@ class InpaintingStageImpl final : public InpaintingStage {
   }
 
  private:
+  // A keyframe is computed or waits for the worker (a waiting refresh gives way to a keyframe).
+  bool SlotTakenLocked() const { return busy_ || (job_ && !job_->refresh); }
+
+  // An observation view is due once obs_stride frames arrived since the last one kept (the
+  // frame thread may not see the one frame in obs_stride that a modulo would pick).
+  bool ObservationDueLocked(int64_t index) const {
+    return dr_options_.obs_views > 0 &&
+           (last_obs_index_ < 0 || index - last_obs_index_ >= dr_options_.obs_stride);
+  }
   void AddObservationLocked(const inpainting::RgbdKeyframe& frame, const ImageU8& mask,
                             int64_t index) {
-    const bool due = dr_options_.obs_views > 0 && index % dr_options_.obs_stride == 0;
-    dr_.AddObservation(frame, mask, index);
-    if (due) ++obs_kept_;
+    if (!ObservationDueLocked(index)) return;
+    dr_.AddObservation(frame, mask, 0);  // index 0: kept (the library's own stride rule)
+    last_obs_index_ = index;
+    ++obs_kept_;
   }
 
   // The oldest keyframe with holes that has not been looked up in the newest observations.
@@ -488,6 +504,7 @@ class InpaintingStageImpl final : public InpaintingStage {
         PublishRefresh(job, std::move(r), cpu_ms, log);
         std::lock_guard lock(mu_);
         busy_ = false;
+        QueueRefreshLocked();
         idle_cv_.notify_all();
         continue;
       }
@@ -508,8 +525,23 @@ class InpaintingStageImpl final : public InpaintingStage {
       Publish(job, *std::move(r), ms, cpu_ms, log);
       std::lock_guard lock(mu_);
       busy_ = false;
+      QueueRefreshLocked();
       idle_cv_.notify_all();
     }
+  }
+
+  // The worker just became idle: when a keyframe's holes may be shown by observations kept since
+  // it was made (or last refreshed), its refresh is the next job (a newer keyframe job from the
+  // frame thread replaces it if that comes first). Frames need not arrive for it: the frame
+  // thread looks at fewer frames when the machine is busy.
+  void QueueRefreshLocked() {
+    if (job_ || stop_) return;
+    Job job;
+    if (!PickRefreshLocked(&job)) return;
+    job.reason = "refresh";
+    job.regions = regions_->Get();
+    job_ = std::move(job);
+    cv_.notify_all();
   }
 
   void Publish(const Job& job, DrKeyframe k, double ms, double cpu_ms,
@@ -617,6 +649,8 @@ class InpaintingStageImpl final : public InpaintingStage {
   };
   std::deque<KeyframeMeta> ids_;  // the published keyframes, in dr_.keyframes() order
   uint64_t obs_kept_ = 0;         // observation views kept so far
+  int64_t last_obs_index_ = -1;   // arrival index of the last one (-1: none yet)
+  int64_t slot_index_ = 0;        // arrival index of the frame in the slot
   ViewId next_id_ = kInpaintedViewIdBase;
   uint64_t published_ = 0, propagated_ = 0, discarded_ = 0, failed_ = 0, frames_with_roi_ = 0,
            frames_without_roi_ = 0, skipped_busy_ = 0, withdrawn_ = 0, decisions_ = 0,
