@@ -138,7 +138,7 @@ class PythonClientTest(unittest.TestCase):
         services = json.loads(out)["services"]
         self.assertEqual(services.get("exoview.v1.Exoview"),
                          ["ClearRegion", "GetStats", "ListRegions", "MarkRegion", "Subscribe",
-                          "Upload"])
+                          "Upload", "WatchDrView"])
         self.assertIn("grpc.health.v1.Health", services)
 
     def test_uploads_frames_it_wrote_and_reads_stats(self):

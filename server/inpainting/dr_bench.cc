@@ -220,9 +220,12 @@ int Main(int argc, char** argv) {
   app.add_option("--sheet_every", sheet_every, "frames between contact-sheet rows")
       ->check(CLI::Range(1, 100000));
   std::vector<std::string> only_methods;
-  app.add_option("--methods", only_methods, "run only these (telea, ns, pm, kf_warp, ours)")
+  app.add_option("--methods", only_methods, "run only these (telea, ns, pm, kf_warp, ours, live)")
       ->delimiter(',')
-      ->check(CLI::IsMember({"telea", "ns", "pm", "kf_warp", "ours"}));
+      ->check(CLI::IsMember({"telea", "ns", "pm", "kf_warp", "ours", "live"}));
+  int live_views = 4;
+  app.add_option("--live_views", live_views, "live: look-up views per frame (nearest first)")
+      ->check(CLI::Range(1, 64));
   bool prefer_observed = true, kf_context = true, bicubic = false;
   app.add_option("--bicubic", bicubic, "ours: bicubic colour look-up (false: bilinear)");
   std::string ring = "lookup";
@@ -351,6 +354,19 @@ int Main(int argc, char** argv) {
     return 1;
   }
   DiminishedReality ours(dro);
+  // live: the server's live DR view. The same keyframes and observation views as ours, but a
+  // keyframe is ready only from the NEXT frame on (the server computes it asynchronously; its
+  // latency is not modelled beyond that), and every frame's output is ComposeLiveFrame (no
+  // keyframe work, push-pull instead of Poisson). cpu_ms_per_frame of "live" is the compose
+  // only; the keyframes' CPU is reported apart ("live" block).
+  DiminishedReality live(dro);
+  DrLiveOptions live_opt;
+  live_opt.max_views = live_views;
+  live_opt.temporal = temporal;
+  DrLiveState live_state;
+  double live_kf_cpu_ms = 0, live_first_kf_ms = 0, live_prop_kf_ms = 0;
+  int live_keyframes = 0, live_composited = 0;
+  long live_unreached = 0;
   double our_frame_ms = 0;
   long our_roi_px = 0, our_observed_px = 0;
   int our_frames = 0;
@@ -452,6 +468,16 @@ int Main(int argc, char** argv) {
           warp_ms += WallMs() - k0;
           ++warped_frames;
         }
+      } else if (method == "live") {
+        auto r = ComposeLiveFrame(f, roi, live.LiveSnapshot(pose, live_opt.max_views), live_opt,
+                                  &live_state);
+        if (!r.ok()) {
+          std::fprintf(stderr, "live frame %d: %s\n", t, std::string(r.status().message()).c_str());
+          return 1;
+        }
+        live_composited += r->composited;
+        live_unreached += r->unreached_px;
+        out = {std::move(r->color), std::move(r->depth)};
       } else {  // ours: the library's DiminishedReality (dr_compositor.h), synchronous keyframes
         const double k0 = WallMs();
         auto r = ours.ProcessFrame(f, roi, t);
@@ -469,6 +495,25 @@ int Main(int argc, char** argv) {
       }
       Scores& s = scores[method];
       const double wall = WallMs() - w0, cpu = CpuMs() - c0;
+      if (method == "live" && roi_px > 0) {
+        // After the frame's output: the keyframe the rule asks for (ready for the next frame)
+        // and the observation view, as the server's worker and stage thread do.
+        const double k0 = CpuMs(), kw = WallMs();
+        const KeyframeDecision d = live.Decide(roi, cam, pose);
+        if (d.insert) {
+          auto k = DiminishedReality::ComputeKeyframe(live.MakeJob(f, roi, d), dro);
+          if (!k.ok()) {
+            std::fprintf(stderr, "live keyframe %d: %s\n", t, std::string(k.status().message()).c_str());
+            return 1;
+          }
+          live.AddKeyframe(k->view, &*k);
+          if (live_keyframes == 0) live_first_kf_ms = WallMs() - kw;
+          else live_prop_kf_ms += WallMs() - kw;
+          ++live_keyframes;
+        }
+        live.AddObservation(f, roi, t);
+        live_kf_cpu_ms += CpuMs() - k0;
+      }
       if (!scored) {
         prev_out[method] = out.color;
         continue;
@@ -500,9 +545,9 @@ int Main(int argc, char** argv) {
     }
     if (!sheet.empty() && t % sheet_every == 0) {
       std::vector<cv::Mat> cols = {Wrap(f.color).clone(), Wrap(gt.color).clone()};
-      for (const char* m : {"telea", "pm", "kf_warp", "ours"})
+      for (const char* m : {"telea", "pm", "kf_warp", "ours", "live"})
         if (!prev_out[m].empty()) cols.push_back(Wrap(prev_out[m]).clone());
-      for (const char* m : {"telea", "ours"})
+      for (const char* m : {"telea", "ours", "live"})
         if (!prev_out[m].empty()) {
           cv::Mat e;
           cv::absdiff(Wrap(prev_out[m]), Wrap(gt.color), e);
@@ -557,7 +602,7 @@ int Main(int argc, char** argv) {
   std::printf(", \"ours\": {\"keyframes\": %zu, \"inpainted\": %d, \"propagated\": %d, "
               "\"first_keyframe_ms\": %.1f, "
               "\"propagated_keyframe_ms_mean\": %.1f, \"frame_ms_mean\": %.2f, "
-              "\"observed_fraction_between_keyframes\": %.3f}}\n",
+              "\"observed_fraction_between_keyframes\": %.3f}",
               ours.keyframes().size(), ours.stats().keyframes_inpainted,
               ours.stats().keyframes_propagated, ours.stats().first_keyframe_ms,
               ours.stats().keyframes_propagated
@@ -565,6 +610,19 @@ int Main(int argc, char** argv) {
                   : 0.0,
               our_frames ? our_frame_ms / our_frames : 0.0,
               our_roi_px ? double(our_observed_px) / our_roi_px : 0.0);
+  if (std::find(methods.begin(), methods.end(), "live") != methods.end()) {
+    const Scores& s = scores["live"];
+    const double cpu = s.frames ? s.cpu_ms / s.frames : 0.0;
+    std::printf(", \"live\": {\"compose_cpu_ms_per_frame\": %.2f, \"compose_fps_one_core\": %.1f, "
+                "\"composited_frames\": %d, \"unreached_px_mean\": %.1f, \"keyframes\": %d, "
+                "\"first_keyframe_ms\": %.1f, \"propagated_keyframe_ms_mean\": %.1f, "
+                "\"keyframe_and_observation_cpu_ms_total\": %.1f, \"views\": %d}",
+                cpu, cpu > 0 ? 1000.0 / cpu : 0.0, live_composited,
+                live_composited ? double(live_unreached) / live_composited : 0.0, live_keyframes,
+                live_first_kf_ms, live_keyframes > 1 ? live_prop_kf_ms / (live_keyframes - 1) : 0.0,
+                live_kf_cpu_ms, live_opt.max_views);
+  }
+  std::printf("}\n");
   return 0;
 }
 

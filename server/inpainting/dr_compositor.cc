@@ -9,6 +9,7 @@
 #include <opencv2/imgproc.hpp>
 #include <opencv2/photo.hpp>
 
+#include "common/image_fill.h"
 #include "server/inpainting/poisson.h"
 
 namespace exo::inpainting {
@@ -429,6 +430,153 @@ absl::StatusOr<DrFrameResult> DiminishedReality::ProcessFrame(const RgbdKeyframe
   // This frame as an observation view for later frames (its ROI unusable).
   AddObservation(f, roi, index);
   for (size_t i = 0; i < roi.size(); ++i) out.observed_px += roi.data()[i] && observed.data()[i];
+  return out;
+}
+
+}  // namespace exo::inpainting
+
+namespace exo::inpainting {
+
+absl::Status DrLiveOptions::Validate() const {
+  if (max_views < 1 || max_views > 64)
+    return absl::InvalidArgumentError("live max_views must be in [1, 64]");
+  if (!(temporal >= 0.0 && temporal < 1.0))
+    return absl::InvalidArgumentError("live temporal must be in [0, 1)");
+  return absl::OkStatus();
+}
+
+DrLiveSnapshot DiminishedReality::LiveSnapshot(const Rigid3d& pose, int max_views) const {
+  DrLiveSnapshot s;
+  double best = 1e300;
+  for (const auto& k : keyframes_)
+    if (const double d = PoseDistance(k->world_from_cam, pose); d < best) {
+      best = d;
+      s.nearest = k;
+    }
+  if (!s.nearest) return s;
+  std::vector<std::pair<double, std::shared_ptr<const DrView>>> all;
+  for (const auto& k : keyframes_) all.emplace_back(PoseDistance(k->world_from_cam, pose), k);
+  for (const auto& o : obs_) all.emplace_back(PoseDistance(o->world_from_cam, pose), o);
+  std::stable_sort(all.begin(), all.end(),
+                   [](const auto& a, const auto& b) { return a.first < b.first; });
+  bool has_nearest = false;
+  for (size_t i = 0; i < all.size() && static_cast<int>(i) < std::max(1, max_views); ++i) {
+    has_nearest |= all[i].second == s.nearest;
+    s.views.push_back(all[i].second);
+  }
+  // The nearest keyframe always: its inpainted samples are the fallback of the look-up.
+  if (!has_nearest) s.views.push_back(s.nearest);
+  return s;
+}
+
+absl::StatusOr<DrLiveResult> ComposeLiveFrame(const RgbdKeyframe& f, const ImageU8& roi,
+                                              const DrLiveSnapshot& snap,
+                                              const DrLiveOptions& o, DrLiveState* state) {
+  EXO_RETURN_IF_ERROR(CheckFrame(f, roi));
+  EXO_RETURN_IF_ERROR(o.Validate());
+  DrLiveResult out;
+  out.color = f.color;
+  out.depth = f.depth_m;
+  out.roi_px = Count(roi);
+  if (out.roi_px == 0 || !snap.nearest) {
+    // Nothing removed in this frame: the next one is not smoothed against it.
+    if (state) state->Reset();
+    return out;
+  }
+  const int width = f.camera.width, height = f.camera.height;
+  const PinholeCamera& cam = f.camera;
+  const Rigid3d& pose = f.world_from_cam;
+  // The ROI and its one-pixel ring; every per-pixel pass below stays in their bounding box.
+  ImageU8 region(width, height, 1, 0);
+  {
+    ImageU8 r = roi;
+    cv::Mat g = Wrap(region);
+    cv::dilate(Wrap(r), g, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(3, 3)));
+  }
+  int bx0 = width, by0 = height, bx1 = -1, by1 = -1;
+  for (int y = 0; y < height; ++y) {
+    const uint8_t* r = region.row(y);
+    for (int x = 0; x < width; ++x)
+      if (r[x]) {
+        bx0 = std::min(bx0, x);
+        bx1 = std::max(bx1, x);
+        by0 = std::min(by0, y);
+        by1 = std::max(by1, y);
+      }
+  }
+  const int bw = bx1 - bx0 + 1, bh = by1 - by0 + 1;
+  ImageF depth = WarpBackgroundDepth(*snap.nearest, cam, pose, region, f.depth_m);
+  for (size_t i = 0; i < roi.size(); ++i)
+    if (!roi.data()[i]) depth.data()[i] = f.depth_m.data()[i];  // the ring: the frame's own
+  ImageU8 guide = f.color, observed(width, height, 1, 0), filled(width, height, 1, 0);
+  std::vector<const DrView*> views;
+  for (const auto& v : snap.views) views.push_back(v.get());
+  LookUpInViews(views, cam, pose, region, depth, &guide, &observed, &filled);
+  // Colour in the box: looked up inside the ROI (unreached pixels push-pull filled from their
+  // neighbours), the frame outside. The ring's mismatch (frame - looked up) is spread over the
+  // ROI by push-pull: a smooth correction that meets the frame at the border.
+  const size_t bn = static_cast<size_t>(bw) * bh;
+  std::vector<float> col(bn * 3), diff(bn * 3, 0.f);
+  std::vector<uint8_t> known(bn, 0), ring(bn, 0);
+  for (int y = 0; y < bh; ++y)
+    for (int x = 0; x < bw; ++x) {
+      const int gx = bx0 + x, gy = by0 + y;
+      const size_t j = static_cast<size_t>(y) * bw + x;
+      if (!roi.at(gx, gy)) {
+        known[j] = 1;
+        for (int c = 0; c < 3; ++c) col[3 * j + c] = f.color.at(gx, gy, c);
+        if (region.at(gx, gy)) {
+          ring[j] = 1;
+          if (filled.at(gx, gy))
+            for (int c = 0; c < 3; ++c)
+              diff[3 * j + c] = float(f.color.at(gx, gy, c)) - float(guide.at(gx, gy, c));
+        }
+      } else if (filled.at(gx, gy)) {
+        known[j] = 1;
+        for (int c = 0; c < 3; ++c) col[3 * j + c] = guide.at(gx, gy, c);
+        out.observed_px += observed.at(gx, gy) != 0;
+      } else {
+        ++out.unreached_px;
+      }
+    }
+  if (out.unreached_px > 0) PushPullFill(col, 3, known, bw, bh, PullFilter::kBilinear);
+  if (o.blend) PushPullFill(diff, 3, ring, bw, bh, PullFilter::kBilinear);
+  for (int y = 0; y < bh; ++y)
+    for (int x = 0; x < bw; ++x) {
+      const int gx = bx0 + x, gy = by0 + y;
+      if (!roi.at(gx, gy)) continue;
+      const size_t j = static_cast<size_t>(y) * bw + x;
+      for (int c = 0; c < 3; ++c)
+        out.color.at(gx, gy, c) = static_cast<uint8_t>(
+            std::clamp(std::lround(col[3 * j + c] + (o.blend ? diff[3 * j + c] : 0.f)), 0L, 255L));
+      out.depth.at(gx, gy) = depth.at(gx, gy);
+    }
+  if (state && o.temporal > 0 && state->prev_color.SameShape(out.color)) {
+    // Exponential smoothing along the camera motion (as ProcessFrame).
+    const Rigid3d prev_from_cur = state->prev_pose.Inverse() * pose;
+    const ImageU8& prev = state->prev_color;
+    for (int y = by0; y <= by1; ++y)
+      for (int x = bx0; x <= bx1; ++x) {
+        if (!roi.at(x, y) || !(out.depth.at(x, y) > 0.f)) continue;
+        glm::dvec2 uv;
+        if (!cam.Project(prev_from_cur * cam.Unproject({x, y}, out.depth.at(x, y)), &uv) ||
+            !cam.InImage(uv, 1.0))
+          continue;
+        const int x0 = static_cast<int>(uv.x), y0 = static_cast<int>(uv.y);
+        const double ax = uv.x - x0, ay = uv.y - y0;
+        for (int c = 0; c < 3; ++c) {
+          const double p = (1 - ay) * ((1 - ax) * prev.at(x0, y0, c) + ax * prev.at(x0 + 1, y0, c)) +
+                           ay * ((1 - ax) * prev.at(x0, y0 + 1, c) + ax * prev.at(x0 + 1, y0 + 1, c));
+          out.color.at(x, y, c) = static_cast<uint8_t>(std::clamp(
+              std::lround(o.temporal * p + (1 - o.temporal) * out.color.at(x, y, c)), 0L, 255L));
+        }
+      }
+  }
+  if (state) {
+    state->prev_color = out.color;
+    state->prev_pose = pose;
+  }
+  out.composited = true;
   return out;
 }
 

@@ -96,6 +96,43 @@ struct DrStats {
   double first_keyframe_ms = 0, propagated_keyframe_ms = 0;  // wall, sum over propagated
 };
 
+// The live DR view (issue 18: the camera's stream with the ROI removed at the camera's frame
+// rate, keyframes computed elsewhere, asynchronously). Per frame: the background depth of the
+// ROI warped from the nearest keyframe (pose distance), the colour looked up in the `max_views`
+// nearest views (observed first, else inpainted), pixels no view reaches and the mismatch on the
+// one-pixel ring spread over the ROI by push-pull (a cheap membrane instead of the three Poisson
+// solves of ProcessFrame), and the exponential smoothing along the camera motion. Never computes
+// a keyframe and never keeps the frame: O(ROI + one splat of the keyframe).
+struct DrLiveOptions {
+  int max_views = 4;      // look-up views, nearest pose first (bounds the per-pixel cost)
+  double temporal = 0.8;  // weight of the previous output (DrOptions::temporal), 0 = none
+  bool blend = true;      // spread the ring mismatch over the ROI (false: paste)
+  absl::Status Validate() const;
+};
+// What one live frame reads (shared, immutable views): take it under the caller's lock, compose
+// outside it.
+struct DrLiveSnapshot {
+  std::shared_ptr<const DrView> nearest;  // background depth; null = no keyframe yet
+  std::vector<std::shared_ptr<const DrView>> views;  // look-up, nearest pose first
+};
+// Smoothing state of one live stream (the previous output and its pose).
+struct DrLiveState {
+  ImageU8 prev_color;
+  Rigid3d prev_pose;
+  void Reset() { prev_color = ImageU8(); }
+};
+// The frame with its ROI removed. Without a keyframe (`snap.nearest` null) the frame comes back
+// unchanged with `composited` false. Errors: sizes (InvalidArgument).
+struct DrLiveResult {
+  ImageU8 color;
+  ImageF depth;
+  bool composited = false;
+  int roi_px = 0, observed_px = 0, unreached_px = 0;
+};
+absl::StatusOr<DrLiveResult> ComposeLiveFrame(const RgbdKeyframe& frame, const ImageU8& roi,
+                                              const DrLiveSnapshot& snap,
+                                              const DrLiveOptions& options, DrLiveState* state);
+
 class DiminishedReality {
  public:
   explicit DiminishedReality(const DrOptions& options) : options_(options) {}
@@ -135,6 +172,10 @@ class DiminishedReality {
                                  const std::vector<std::shared_ptr<const DrView>>& views);
   // Swaps a keyframe for its refreshed copy; false when `old` is no longer a keyframe.
   bool ReplaceKeyframe(const DrView* old, std::shared_ptr<const DrView> now);
+
+  // The views a live frame at `pose` reads (ComposeLiveFrame): the nearest keyframe and the
+  // `max_views` nearest keyframes and observation views.
+  DrLiveSnapshot LiveSnapshot(const Rigid3d& pose, int max_views) const;
 
   const std::vector<std::shared_ptr<const DrView>>& keyframes() const { return keyframes_; }
   size_t observations() const { return obs_.size(); }

@@ -220,5 +220,83 @@ TEST(DiminishedReality, BadInputEmptyRoiAndBounds) {
   EXPECT_FALSE(invalid.Validate().ok());
 }
 
+// The live DR view (ComposeLiveFrame): keyframes computed apart (as the server's worker does, one
+// frame late), every frame composited from them. The box is removed nearly as well as by the
+// synchronous ProcessFrame; outside the ROI nothing changes; without a keyframe the frame comes
+// back unchanged and flagged; bad sizes and options are errors.
+TEST(DiminishedReality, LiveFramesRemoveTheBoxFromTheKeyframesSoFar) {
+  const Walk w = MakeWalk(21);
+  DiminishedReality dr(Options()), sync(Options());
+  DrLiveOptions lo;
+  DrLiveState state;
+  double err_in = 0, err_live = 0, err_sync = 0;
+  int composited = 0;
+  for (size_t t = 0; t < w.frames.size(); ++t) {
+    const RgbdKeyframe& f = w.frames[t];
+    auto r = ComposeLiveFrame(f, w.rois[t], dr.LiveSnapshot(f.world_from_cam, lo.max_views), lo,
+                              &state);
+    ASSERT_TRUE(r.ok()) << r.status();
+    EXPECT_EQ(r->roi_px, Count(w.rois[t]));
+    if (t == 0) {
+      // No keyframe yet: the frame as it is.
+      EXPECT_FALSE(r->composited);
+      EXPECT_TRUE(r->color == f.color);
+    } else {
+      ASSERT_TRUE(r->composited);
+      ++composited;
+      err_in += RoiMeanAbs(f.color, w.truth[t].color, w.rois[t]);
+      err_live += RoiMeanAbs(r->color, w.truth[t].color, w.rois[t]);
+      for (size_t i = 0; i < w.rois[t].size(); ++i)
+        if (!w.rois[t].data()[i]) {
+          ASSERT_EQ(r->color.data()[3 * i + 1], f.color.data()[3 * i + 1]);
+          ASSERT_EQ(r->depth.data()[i], f.depth_m.data()[i]);
+        }
+      auto s = sync.ProcessFrame(f, w.rois[t], static_cast<int64_t>(t));
+      ASSERT_TRUE(s.ok());
+      err_sync += RoiMeanAbs(s->color, w.truth[t].color, w.rois[t]);
+    } 
+    if (t == 0) ASSERT_TRUE(sync.ProcessFrame(f, w.rois[t], 0).ok());
+    // After the frame: the keyframe the rule asks for (ready from the next frame on).
+    const KeyframeDecision d = dr.Decide(w.rois[t], f.camera, f.world_from_cam);
+    if (d.insert) {
+      auto k = DiminishedReality::ComputeKeyframe(dr.MakeJob(f, w.rois[t], d), dr.options());
+      ASSERT_TRUE(k.ok()) << k.status();
+      dr.AddKeyframe(k->view, &*k);
+    }
+    dr.AddObservation(f, w.rois[t], static_cast<int64_t>(t));
+  }
+  err_in /= composited;
+  err_live /= composited;
+  err_sync /= composited;
+  std::printf("live ROI mean |error|: input %.1f, live %.1f, synchronous ProcessFrame %.1f\n",
+              err_in, err_live, err_sync);
+  EXPECT_LT(err_live, 0.4 * err_in);
+  EXPECT_LT(err_live, err_sync + 4.0);
+  // No keyframe at all: never composited, whatever the ROI.
+  DiminishedReality empty(Options());
+  auto none = ComposeLiveFrame(w.frames[3], w.rois[3], empty.LiveSnapshot(w.frames[3].world_from_cam, 4),
+                               lo, &state);
+  ASSERT_TRUE(none.ok());
+  EXPECT_FALSE(none->composited);
+  EXPECT_TRUE(state.prev_color.empty());  // the next frame is not smoothed against it
+  // Bad input.
+  EXPECT_EQ(ComposeLiveFrame(w.frames[3], ImageU8(10, 10, 1, 255),
+                             dr.LiveSnapshot(w.frames[3].world_from_cam, 4), lo, &state)
+                .status()
+                .code(),
+            absl::StatusCode::kInvalidArgument);
+  DrLiveOptions bad;
+  bad.max_views = 0;
+  EXPECT_FALSE(bad.Validate().ok());
+  bad = DrLiveOptions();
+  bad.temporal = 1.0;
+  EXPECT_FALSE(bad.Validate().ok());
+  // The snapshot: the nearest keyframe always among the views, at most max_views (+ it).
+  const DrLiveSnapshot snap = dr.LiveSnapshot(w.frames[10].world_from_cam, 1);
+  ASSERT_TRUE(snap.nearest);
+  ASSERT_LE(snap.views.size(), 2u);
+  EXPECT_TRUE(snap.views.front() == snap.nearest || snap.views.back() == snap.nearest);
+}
+
 }  // namespace
 }  // namespace exo::inpainting

@@ -8,7 +8,13 @@
 #include <optional>
 #include <thread>
 
+#include <pthread.h>
+#include <sys/resource.h>
+#include <sys/syscall.h>
 #include <time.h>
+#include <unistd.h>
+
+#include <cerrno>
 
 #include "common/log/log.h"
 #include "proto/frame_proto.h"
@@ -30,6 +36,9 @@ absl::Status InpaintingStageOptions::Validate() const {
   if (frame_stride < 1 || frame_stride > 100)
     return absl::InvalidArgumentError("inpaint_frame_stride must be in [1, 100]");
   if (refresh_min_px < 0) return absl::InvalidArgumentError("inpaint_refresh_min_px must be >= 0");
+  if (live_views < 1 || live_views > 64)
+    return absl::InvalidArgumentError("inpaint_live_views must be in [1, 64]");
+  if (nice < 0 || nice > 19) return absl::InvalidArgumentError("inpaint_nice must be in [0, 19]");
   return absl::OkStatus();
 }
 
@@ -43,6 +52,19 @@ double ThreadCpuMs() {
   timespec t;
   clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
   return t.tv_sec * 1e3 + t.tv_nsec * 1e-6;
+}
+
+// Lowers the calling thread's priority by `nice` below the server's own (Linux: nice is per
+// thread; a server started at nice -10 runs these at 0).
+void NiceThisThread(int nice) {
+  if (nice <= 0) return;
+  const id_t tid = static_cast<id_t>(syscall(SYS_gettid));
+  errno = 0;
+  const int now = getpriority(PRIO_PROCESS, tid);
+  if (errno != 0) return;
+  const int target = std::min(19, now + nice);
+  if (setpriority(PRIO_PROCESS, tid, target) != 0)
+    log::Get("inpainting")->warn("setpriority({}) failed: {}", target, errno);
 }
 
 DrOptions ToDrOptions(const InpaintingStageOptions& o) {
@@ -76,36 +98,108 @@ class InpaintingStageImpl final : public InpaintingStage {
         store_(store) {
     RestoreFromStore();
     worker_ = std::thread([this] { WorkerLoop(); });
+    frames_thread_ = std::thread([this] { FrameLoop(); });
   }
   ~InpaintingStageImpl() override { StopWorker(); }
 
   std::string name() const override { return "inpainting"; }
 
+  // On the pipeline thread: only a hand-off. The frame is copied into a one-frame slot (a newer
+  // frame replaces one the stage's frame thread has not taken yet: the DR view and the rule need
+  // the newest frame, not every frame), so the stage never holds the chain of stages back and
+  // ingest keeps its rate whatever the DR work costs.
   absl::Status Process(const PipelineFrame& pf, const SceneContext& ctx) override {
     const std::shared_ptr<const RegionSet> set = regions_->Get();
     if (set->regions.empty()) return absl::OkStatus();
     const Frame& f = pf.frame;
     if (f.depth_m.empty()) return absl::OkStatus();
-    int64_t index = 0;
+    int64_t next_index = 0;  // counts the frames that arrive (observation stride)
     {
       std::lock_guard lock(mu_);
       const int64_t seen = frames_seen_++;
-      // Only every frame_stride-th frame is looked at (the rule needs no 30 Hz; each look costs
-      // the registration and re-projection at full resolution on the pipeline thread).
+      // Only every frame_stride-th frame is looked at.
       if (seen % options_.frame_stride != 0) {
         ++frames_strided_;
         return absl::OkStatus();
       }
-      index = seen / options_.frame_stride;
-      // The one slot is taken: this frame is only counted, unless it is due as an observation.
-      if ((job_ || busy_) && (dr_options_.obs_views == 0 || index % dr_options_.obs_stride != 0)) {
+      if (slot_) ++frames_superseded_;
+      if (!origin_) origin_ = ctx.origin;
+      next_index = seen / options_.frame_stride;
+    }
+    auto copy = std::make_shared<PipelineFrame>();
+    copy->frame = f;  // ~2 MB at 640x480: well under a millisecond
+    copy->received_ns = pf.received_ns;
+    {
+      std::lock_guard lock(mu_);
+      slot_ = std::move(copy);
+      slot_set_ = set;
+      slot_index_ = next_index;
+    }
+    frame_cv_.notify_all();
+    return absl::OkStatus();
+  }
+
+  std::shared_ptr<const DrLiveFrame> WaitLiveFrame(uint64_t after, double timeout_s) override {
+    std::unique_lock lock(mu_);
+    live_cv_.wait_for(lock, std::chrono::duration<double>(timeout_s),
+                      [&] { return stop_ || (live_ && live_->index > after); });
+    return live_ && live_->index > after ? live_ : nullptr;
+  }
+
+  void AddLiveWatcher(int delta) override {
+    std::lock_guard lock(mu_);
+    watchers_ += delta;
+  }
+
+ private:
+  // The stage's frame thread: re-projection of the labels, the keyframe rule, observations and
+  // the live DR view, for the newest handed-off frame.
+  void FrameLoop() {
+    pthread_setname_np(pthread_self(), "exo-dr-frames");
+    NiceThisThread(options_.nice);
+    for (;;) {
+      std::shared_ptr<PipelineFrame> pf;
+      std::shared_ptr<const RegionSet> set;
+      LocalOrigin origin;
+      int64_t index = 0;
+      {
+        std::unique_lock lock(mu_);
+        frame_cv_.wait(lock, [this] { return stop_ || slot_; });
+        if (stop_) return;
+        pf = std::move(slot_);
+        slot_.reset();
+        set = std::move(slot_set_);
+        index = slot_index_;
+        origin = *origin_;
+        frame_busy_ = true;
+      }
+      ProcessFrame(*pf, set, origin, index);
+      std::lock_guard lock(mu_);
+      frame_busy_ = false;
+      idle_cv_.notify_all();
+    }
+  }
+
+  // `index` counts the frames that arrived (not only those looked at), so observation views stay
+  // one every obs_stride arriving frames however many the slot superseded.
+  void ProcessFrame(const PipelineFrame& pf, const std::shared_ptr<const RegionSet>& set,
+                    const LocalOrigin& origin, int64_t index) {
+    const Frame& f = pf.frame;
+    bool live = false;
+    {
+      std::lock_guard lock(mu_);
+      ++frames_looked_;
+      live = options_.live_always || watchers_ > 0;
+      // The keyframe slot is taken and no live view is watched: this frame is only counted,
+      // unless it is due as an observation.
+      if (!live && SlotTakenLocked() && !ObservationDueLocked(index)) {
         ++skipped_busy_;
-        return absl::OkStatus();
+        return;
       }
     }
     const int64_t t0 = SteadyNowNs();
     const double c0 = ThreadCpuMs();
-    struct CpuTally {  // CPU of this frame's work on the pipeline thread, however it returns
+    struct CpuTally {  // CPU of this frame's work on the frame thread, however it returns
       InpaintingStageImpl* self;
       double c0;
       ~CpuTally() {
@@ -114,62 +208,110 @@ class InpaintingStageImpl final : public InpaintingStage {
         ++self->frames_measured_;
       }
     } tally{this, c0};
-    const Rigid3d local_from_cam = ctx.origin.ToLocal(f.world_from_cam);
+    const Rigid3d local_from_cam = origin.ToLocal(f.world_from_cam);
     ImageF depth = core::RegisterDepthToColor(f);
     ImageU8 mask = inpainting::ProjectRegions(set->labels, depth, f.color_camera, local_from_cam,
                                               options_.region);
     const int roi = inpainting::CountNonZero(mask);
     inpainting::RgbdKeyframe frame{f.color, std::move(depth), f.color_camera, local_from_cam};
     Job job;
+    bool submit = false;
+    inpainting::DrLiveSnapshot snap;
     {
       std::lock_guard lock(mu_);
       if (roi == 0) {
         ++frames_without_roi_;
-        return absl::OkStatus();
-      }
-      ++frames_with_roi_;
-      if (job_ || busy_) {
-        ++skipped_busy_;
-        AddObservationLocked(frame, mask, index);
-        return absl::OkStatus();
-      }
-      const inpainting::KeyframeDecision d = dr_.Decide(mask, f.color_camera, local_from_cam);
-      decide_ns_ += SteadyNowNs() - t0;
-      log::Get("inpainting")->debug("frame {}: ROI {} px, nearest keyframe {} at {:.3f}, {:.1f} % unlabelled -> {}",
-                f.sequence, roi, d.nearest, d.pose_distance, 100.0 * d.unlabelled_fraction,
-                d.insert ? d.reason : "no keyframe");
-      ++decisions_;
-      if (d.insert) {
-        job.dr = dr_.MakeJob(frame, mask, d);
-        if (options_.method == "keyframe") {  // session 9: nothing is looked up
-          job.dr.views.clear();
-          job.dr.nearest.reset();
+      } else {
+        ++frames_with_roi_;
+        if (live) snap = dr_.LiveSnapshot(local_from_cam, options_.live_views);
+        if (SlotTakenLocked()) {
+          ++skipped_busy_;
+          AddObservationLocked(frame, mask, index);
+        } else {
+          const inpainting::KeyframeDecision d = dr_.Decide(mask, f.color_camera, local_from_cam);
+          decide_ns_ += SteadyNowNs() - t0;
+          log::Get("inpainting")->debug("frame {}: ROI {} px, nearest keyframe {} at {:.3f}, {:.1f} % unlabelled -> {}",
+                    f.sequence, roi, d.nearest, d.pose_distance, 100.0 * d.unlabelled_fraction,
+                    d.insert ? d.reason : "no keyframe");
+          ++decisions_;
+          if (d.insert) {
+            job.dr = dr_.MakeJob(frame, mask, d);
+            if (options_.method == "keyframe") {  // session 9: nothing is looked up
+              job.dr.views.clear();
+              job.dr.nearest.reset();
+            }
+            job.reason = d.reason;
+            submit = true;
+          } else if (PickRefreshLocked(&job)) {
+            // The worker is idle: a keyframe whose holes a newer observation may show.
+            job.reason = "refresh";
+            submit = true;
+          }
+          AddObservationLocked(frame, mask, index);
         }
-        job.reason = d.reason;
-      }
-      AddObservationLocked(frame, mask, index);
-      if (!d.insert) {
-        // The worker is idle: a keyframe whose holes a newer observation may show is refreshed.
-        if (!PickRefreshLocked(&job)) return absl::OkStatus();
-        job.reason = "refresh";
       }
     }
-    job.regions = set;
-    job.timestamp_s = f.timestamp_s;
-    job.sequence = f.sequence;
-    {
-      std::lock_guard lock(mu_);
-      job_ = std::move(job);
+    if (submit) {
+      job.regions = set;
+      job.timestamp_s = f.timestamp_s;
+      job.sequence = f.sequence;
+      {
+        std::lock_guard lock(mu_);
+        job_ = std::move(job);
+      }
+      cv_.notify_all();
     }
-    cv_.notify_all();
-    return absl::OkStatus();
+    if (live) {
+      if (set->generation != live_generation_) live_state_.Reset();  // the regions changed
+      live_generation_ = set->generation;
+      ComposeLive(pf, frame, mask, snap);
+    }
   }
 
+  // The live DR view of this frame (outside the lock: the snapshot's views are immutable).
+  void ComposeLive(const PipelineFrame& pf, const inpainting::RgbdKeyframe& frame,
+                   const ImageU8& mask, const inpainting::DrLiveSnapshot& snap) {
+    const int64_t t0 = SteadyNowNs();
+    const double c0 = ThreadCpuMs();
+    inpainting::DrLiveOptions lo;
+    lo.max_views = options_.live_views;
+    lo.temporal = dr_options_.temporal;
+    auto r = inpainting::ComposeLiveFrame(frame, mask, snap, lo, &live_state_);
+    const double ms = (SteadyNowNs() - t0) * 1e-6, cpu = ThreadCpuMs() - c0;
+    auto lf = std::make_shared<DrLiveFrame>();
+    lf->sequence = pf.frame.sequence;
+    lf->timestamp_s = pf.frame.timestamp_s;
+    lf->world_from_cam = pf.frame.world_from_cam;
+    if (r.ok()) {
+      lf->color = std::move(r->color);
+      lf->composited = r->composited;
+      lf->roi_px = r->roi_px;
+    } else {
+      log::Get("inpainting")->warn("live DR frame {}: {}", pf.frame.sequence,
+                                   std::string(r.status().message()));
+      lf->color = frame.color;
+    }
+    lf->compose_ms = ms;
+    lf->compose_cpu_ms = cpu;
+    lf->latency_ms = (SteadyNowNs() - pf.received_ns) * 1e-6;
+    {
+      std::lock_guard lock(mu_);
+      lf->index = ++live_frames_;
+      live_composited_ += lf->composited;
+      live_ms_ += ms;
+      live_cpu_ms_ += cpu;
+      live_latency_ms_ += lf->latency_ms;
+      live_ = std::move(lf);
+    }
+    live_cv_.notify_all();
+  }
+
+ public:
   void Finish(const SceneContext&) override { WaitIdle(60.0); }
 
   uint64_t pending() const override {
     std::lock_guard lock(mu_);
-    return (job_ ? 1 : 0) + (busy_ ? 1 : 0);
+    return (job_ ? 1 : 0) + (busy_ ? 1 : 0) + (slot_ ? 1 : 0) + (frame_busy_ ? 1 : 0);
   }
 
   void AddCounters(std::map<std::string, double>* out) const override {
@@ -203,6 +345,17 @@ class InpaintingStageImpl final : public InpaintingStage {
     // the rule, observation copies), frames that got past the busy check.
     c["inpainting.frame_cpu_ms_mean"] = frames_measured_ ? frame_cpu_ms_ / frames_measured_ : 0.0;
     c["inpainting.in_flight"] = (job_ || busy_) ? 1.0 : 0.0;  // a keyframe is being computed
+    // Frames handed to the frame thread that a newer one replaced before it was looked at.
+    c["inpainting.frames_superseded"] = static_cast<double>(frames_superseded_);
+    c["inpainting.frames_looked_at"] = static_cast<double>(frames_looked_);
+    // The live DR view: frames out, of them composited (a keyframe existed, ROI in view), and
+    // per frame the compose's wall / CPU and the latency from admission to output.
+    c["inpainting.live_frames"] = static_cast<double>(live_frames_);
+    c["inpainting.live_composited"] = static_cast<double>(live_composited_);
+    c["inpainting.live_compose_ms_mean"] = live_frames_ ? live_ms_ / live_frames_ : 0.0;
+    c["inpainting.live_compose_cpu_ms_mean"] = live_frames_ ? live_cpu_ms_ / live_frames_ : 0.0;
+    c["inpainting.live_latency_ms_mean"] = live_frames_ ? live_latency_ms_ / live_frames_ : 0.0;
+    c["inpainting.live_watchers"] = static_cast<double>(watchers_);
   }
 
   uint32_t Withdraw() override {
@@ -211,6 +364,7 @@ class InpaintingStageImpl final : public InpaintingStage {
       std::lock_guard lock(mu_);
       dr_.Clear();
       ids_.clear();
+      last_obs_index_ = -1;
     }
     uint32_t n = 0;
     for (const auto& v : store_->Views())
@@ -228,15 +382,25 @@ class InpaintingStageImpl final : public InpaintingStage {
   bool WaitIdle(double timeout_s) override {
     std::unique_lock lock(mu_);
     return idle_cv_.wait_for(lock, std::chrono::duration<double>(timeout_s),
-                             [this] { return !job_ && !busy_; });
+                             [this] { return !job_ && !busy_ && !slot_ && !frame_busy_; });
   }
 
  private:
+  // A keyframe is computed or waits for the worker (a waiting refresh gives way to a keyframe).
+  bool SlotTakenLocked() const { return busy_ || (job_ && !job_->refresh); }
+
+  // An observation view is due once obs_stride frames arrived since the last one kept (the
+  // frame thread may not see the one frame in obs_stride that a modulo would pick).
+  bool ObservationDueLocked(int64_t index) const {
+    return dr_options_.obs_views > 0 &&
+           (last_obs_index_ < 0 || index - last_obs_index_ >= dr_options_.obs_stride);
+  }
   void AddObservationLocked(const inpainting::RgbdKeyframe& frame, const ImageU8& mask,
                             int64_t index) {
-    const bool due = dr_options_.obs_views > 0 && index % dr_options_.obs_stride == 0;
-    dr_.AddObservation(frame, mask, index);
-    if (due) ++obs_kept_;
+    if (!ObservationDueLocked(index)) return;
+    dr_.AddObservation(frame, mask, 0);  // index 0: kept (the library's own stride rule)
+    last_obs_index_ = index;
+    ++obs_kept_;
   }
 
   // The oldest keyframe with holes that has not been looked up in the newest observations.
@@ -316,6 +480,8 @@ class InpaintingStageImpl final : public InpaintingStage {
   }
 
   void WorkerLoop() {
+    pthread_setname_np(pthread_self(), "exo-dr-keyframe");
+    NiceThisThread(options_.nice);
     auto log = log::Get("inpainting");
     for (;;) {
       Job job;
@@ -338,6 +504,7 @@ class InpaintingStageImpl final : public InpaintingStage {
         PublishRefresh(job, std::move(r), cpu_ms, log);
         std::lock_guard lock(mu_);
         busy_ = false;
+        QueueRefreshLocked();
         idle_cv_.notify_all();
         continue;
       }
@@ -358,8 +525,23 @@ class InpaintingStageImpl final : public InpaintingStage {
       Publish(job, *std::move(r), ms, cpu_ms, log);
       std::lock_guard lock(mu_);
       busy_ = false;
+      QueueRefreshLocked();
       idle_cv_.notify_all();
     }
+  }
+
+  // The worker just became idle: when a keyframe's holes may be shown by observations kept since
+  // it was made (or last refreshed), its refresh is the next job (a newer keyframe job from the
+  // frame thread replaces it if that comes first). Frames need not arrive for it: the frame
+  // thread looks at fewer frames when the machine is busy.
+  void QueueRefreshLocked() {
+    if (job_ || stop_) return;
+    Job job;
+    if (!PickRefreshLocked(&job)) return;
+    job.reason = "refresh";
+    job.regions = regions_->Get();
+    job_ = std::move(job);
+    cv_.notify_all();
   }
 
   void Publish(const Job& job, DrKeyframe k, double ms, double cpu_ms,
@@ -431,6 +613,9 @@ class InpaintingStageImpl final : public InpaintingStage {
       stop_ = true;
     }
     cv_.notify_all();
+    frame_cv_.notify_all();
+    live_cv_.notify_all();
+    if (frames_thread_.joinable()) frames_thread_.join();
     if (worker_.joinable()) worker_.join();
   }
 
@@ -441,7 +626,20 @@ class InpaintingStageImpl final : public InpaintingStage {
   ModelStore* store_;
   std::mutex publish_mu_;  // publish vs Withdraw
   mutable std::mutex mu_;
-  std::condition_variable cv_, idle_cv_;
+  std::condition_variable cv_, idle_cv_, frame_cv_, live_cv_;
+  // The frame thread's one-frame slot (Process -> FrameLoop).
+  std::shared_ptr<PipelineFrame> slot_;
+  std::shared_ptr<const RegionSet> slot_set_;
+  std::optional<LocalOrigin> origin_;
+  bool frame_busy_ = false;
+  uint64_t frames_superseded_ = 0, frames_looked_ = 0;
+  // The live DR view.
+  int watchers_ = 0;
+  inpainting::DrLiveState live_state_;  // frame thread only
+  uint64_t live_generation_ = 0;        // frame thread only
+  std::shared_ptr<const DrLiveFrame> live_;
+  uint64_t live_frames_ = 0, live_composited_ = 0;
+  double live_ms_ = 0, live_cpu_ms_ = 0, live_latency_ms_ = 0;
   std::optional<Job> job_;
   bool busy_ = false, stop_ = false;
   struct KeyframeMeta {
@@ -451,6 +649,8 @@ class InpaintingStageImpl final : public InpaintingStage {
   };
   std::deque<KeyframeMeta> ids_;  // the published keyframes, in dr_.keyframes() order
   uint64_t obs_kept_ = 0;         // observation views kept so far
+  int64_t last_obs_index_ = -1;   // arrival index of the last one (-1: none yet)
+  int64_t slot_index_ = 0;        // arrival index of the frame in the slot
   ViewId next_id_ = kInpaintedViewIdBase;
   uint64_t published_ = 0, propagated_ = 0, discarded_ = 0, failed_ = 0, frames_with_roi_ = 0,
            frames_without_roi_ = 0, skipped_busy_ = 0, withdrawn_ = 0, decisions_ = 0,
@@ -460,7 +660,7 @@ class InpaintingStageImpl final : public InpaintingStage {
   double refresh_cpu_ms_ = 0, frame_cpu_ms_ = 0;  // worker's refreshes; pipeline thread per frame
   uint64_t frames_measured_ = 0;
   std::string last_error_;
-  std::thread worker_;
+  std::thread worker_, frames_thread_;
 };
 
 }  // namespace

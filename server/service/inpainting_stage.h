@@ -55,6 +55,14 @@ struct InpaintingStageOptions {
   // saw are replaced by the observation and the keyframe is republished (same view id), once at
   // least this many pixels changed (0 = never).
   int refresh_min_px = 16;
+  // The live DR view (the camera's stream with the ROI removed; WatchDrView): composited per
+  // frame from the keyframes so far (inpainting::ComposeLiveFrame) while someone watches, or
+  // always with live_always (benchmarks).
+  int live_views = 4;
+  bool live_always = false;
+  // The stage's two threads (frames, keyframes) run this much nicer than the server: the DR
+  // work yields the CPU to ingest and the modelling stages (0 = the server's priority).
+  int nice = 10;
   ViewEncodeOptions publish;
   absl::Status Validate() const;
 };
@@ -67,8 +75,25 @@ std::unique_ptr<InpaintingStage> MakeInpaintingStage(const InpaintingStageOption
                                                      std::shared_ptr<RegionRegistry> regions,
                                                      ModelStore* store);
 
+// One frame of the live DR view.
+struct DrLiveFrame {
+  uint64_t index = 0;  // counts the live frames of this server (WaitLiveFrame's `after`)
+  uint64_t sequence = 0;
+  double timestamp_s = 0;
+  Rigid3d world_from_cam;
+  ImageU8 color;            // RGB8, the ROI removed (unchanged when !composited)
+  bool composited = false;  // false: no keyframe yet or the ROI is not in view
+  int roi_px = 0;
+  double compose_ms = 0, compose_cpu_ms = 0;
+  double latency_ms = 0;  // from the frame's admission to this output
+};
+
 class InpaintingStage : public PipelineStage {
  public:
+  // The live DR view: the newest frame with index > `after`, waiting up to `timeout_s`; null
+  // when none came. Frames are composited only while at least one watcher is registered.
+  virtual std::shared_ptr<const DrLiveFrame> WaitLiveFrame(uint64_t after, double timeout_s) = 0;
+  virtual void AddLiveWatcher(int delta) = 0;
   // Removes every inpainted view from the model and forgets the keyframes (after the regions
   // changed); returns how many views were removed. Thread-safe.
   virtual uint32_t Withdraw() = 0;

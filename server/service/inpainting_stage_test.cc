@@ -253,3 +253,77 @@ TEST(InpaintingStage, LaterObservationsReplaceAPublishedKeyframesHoles) {
 
 }  // namespace
 }  // namespace exo
+
+namespace exo {
+namespace {
+
+// The live DR view: while someone watches, every frame the stage looks at comes out with the box
+// removed from the keyframes so far (the first frame, before any keyframe, unchanged and
+// flagged); nobody watching, nothing is composited. The pipeline thread only hands the frame
+// over (Process does no per-frame work: frames it passes faster than the frame thread takes them
+// replace each other).
+TEST(InpaintingStage, LiveViewRemovesTheBoxWhileWatched) {
+  InpaintingStageOptions o;
+  o.observation_stride = 2;
+  o.live_views = 12;  // the views at +-0.5 m are the ones that saw the wall behind the box
+  Rig rig(160, 120, o);
+  rig.stage->AddLiveWatcher(1);
+  ASSERT_TRUE(rig.stage->Process(rig.Frame(0.0), rig.ctx).ok());
+  ASSERT_TRUE(rig.stage->WaitIdle(30));
+  auto first = rig.stage->WaitLiveFrame(0, 10);
+  ASSERT_TRUE(first);
+  EXPECT_FALSE(first->composited);  // composed before its own keyframe existed
+  ASSERT_EQ(rig.InpaintedViews(), 1);
+  // A walk from 0.5 m left to 0.5 m right: the wall behind the box is seen from both sides (all
+  // but a 6 cm strip of it, seen from x = 0), the keyframes and observation views take it.
+  std::shared_ptr<const DrLiveFrame> live = first;
+  for (int k = 0; k <= 10; ++k) {
+    ASSERT_TRUE(rig.stage->Process(rig.Frame(-0.5 + 0.1 * k), rig.ctx).ok());
+    ASSERT_TRUE(rig.stage->WaitIdle(30));
+  }
+  const PipelineFrame pf = rig.Frame(0.0);
+  ASSERT_TRUE(rig.stage->Process(pf, rig.ctx).ok());
+  ASSERT_TRUE(rig.stage->WaitIdle(30));
+  live = rig.stage->WaitLiveFrame(first->index, 10);
+  ASSERT_TRUE(live);
+  EXPECT_EQ(live->index, 13u);
+  ASSERT_TRUE(live->composited);
+  EXPECT_GT(live->roi_px, 200);
+  // Against the wall alone from the same pose, inside the box's pixels.
+  const auto truth =
+      RenderPlanes({Scene().front()}, rig.cam, pf.frame.world_from_cam);
+  double err_in = 0, err_live = 0;
+  long n = 0;
+  for (size_t i = 0; i < truth.depth_m.size(); ++i) {
+    if (!(pf.frame.depth_m.data()[i] + 1e-3f < truth.depth_m.data()[i])) continue;
+    for (int c = 0; c < 3; ++c) {
+      err_in += std::abs(int(pf.frame.color.data()[3 * i + c]) - int(truth.color.data()[3 * i + c]));
+      err_live += std::abs(int(live->color.data()[3 * i + c]) - int(truth.color.data()[3 * i + c]));
+    }
+    n += 3;
+  }
+  ASSERT_GT(n, 600);
+  std::printf("live view, box pixels: mean |input - truth| %.1f, |live - truth| %.1f; %g "
+              "keyframes, %.2f of their ROI observed\n",
+              err_in / n, err_live / n, rig.Counter("keyframes_published"),
+              rig.Counter("keyframe_observed_fraction"));
+  // Measured 28.2 vs 54.0 (deterministic: one frame at a time); the live view returning the
+  // input, or a keyframe's pure PatchMatch guess (38-40 here), fails.
+  EXPECT_LT(err_live, 0.6 * err_in);
+  EXPECT_EQ(rig.Counter("live_frames"), 13.0);
+  EXPECT_EQ(rig.Counter("live_composited"), 12.0);
+  // Nobody watching: nothing composited.
+  rig.stage->AddLiveWatcher(-1);
+  ASSERT_TRUE(rig.stage->Process(rig.Frame(0.1), rig.ctx).ok());
+  ASSERT_TRUE(rig.stage->WaitIdle(30));
+  EXPECT_EQ(rig.Counter("live_frames"), 13.0);
+  // Ten frames handed over back to back: every Process returns, each frame is either looked at
+  // or replaced by a newer one before it was (none is queued beyond one).
+  const double looked = rig.Counter("frames_looked_at");
+  for (int k = 0; k < 10; ++k) ASSERT_TRUE(rig.stage->Process(rig.Frame(0.1 + 0.01 * k), rig.ctx).ok());
+  ASSERT_TRUE(rig.stage->WaitIdle(30));
+  EXPECT_EQ(rig.Counter("frames_looked_at") - looked + rig.Counter("frames_superseded"), 10.0);
+}
+
+}  // namespace
+}  // namespace exo

@@ -24,6 +24,7 @@
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_split.h"
 #include "absl/strings/strip.h"
+#include "common/io/jpeg.h"
 #include "common/log/log.h"
 #include "common/process/malloc_tuning.h"
 #include "proto/exoview.grpc.pb.h"
@@ -533,6 +534,50 @@ class ExoviewServer::Service final : public v1::Exoview::Service {
     // keyframes for the regions that remain (a keyframe in flight is discarded).
     if (inpainting_) out->set_views_removed(inpainting_->Withdraw());
     if (regions_changed_) regions_changed_();
+    return grpc::Status::OK;
+  }
+
+  // The live DR view (issue 18): the newest composited frame, as long as the client reads.
+  grpc::Status WatchDrView(grpc::ServerContext* ctx, const v1::WatchDrViewRequest* req,
+                           grpc::ServerWriter<v1::DrViewFrame>* writer) override {
+    if (auto who = Authorize(*ctx, Rpc::kSubscribe); !who.ok()) return ToGrpc(who.status());
+    if (!inpainting_) return NoInpainting();
+    if (req->jpeg_quality() < 0 || req->jpeg_quality() > 100)
+      return grpc::Status(grpc::StatusCode::INVALID_ARGUMENT, "jpeg_quality must be in [0, 100]");
+    if (!TakeSlot(&subscriber_calls_, config_.max_subscribers)) {
+      refused_subscribers_.fetch_add(1);
+      return grpc::Status(grpc::StatusCode::RESOURCE_EXHAUSTED,
+                          absl::StrCat("too many subscribers: the limit is max_subscribers = ",
+                                       config_.max_subscribers));
+    }
+    ScopeExit release_slot{[this] { subscriber_calls_.fetch_sub(1); }};
+    inpainting_->AddLiveWatcher(1);
+    ScopeExit unwatch{[this] { inpainting_->AddLiveWatcher(-1); }};
+    uint64_t last = 0;
+    while (!ctx->IsCancelled() && !shutting_down_->load()) {
+      auto f = inpainting_->WaitLiveFrame(last, 0.1);
+      if (!f) continue;
+      last = f->index;
+      v1::DrViewFrame m;
+      m.set_index(f->index);
+      m.set_sequence(f->sequence);
+      m.set_timestamp_s(f->timestamp_s);
+      PoseToProto(f->world_from_cam, m.mutable_world_from_cam());
+      m.set_width(f->color.width());
+      m.set_height(f->color.height());
+      if (req->raw()) {
+        m.set_color_rgb(f->color.data(), f->color.size());
+      } else {
+        auto jpeg = EncodeJpeg(f->color, req->jpeg_quality() ? req->jpeg_quality() : 90);
+        if (!jpeg.ok()) return ToGrpc(jpeg.status());
+        m.set_color_jpeg(jpeg->data(), jpeg->size());
+      }
+      m.set_composited(f->composited);
+      m.set_roi_px(f->roi_px);
+      m.set_compose_ms(f->compose_ms);
+      m.set_latency_ms(f->latency_ms);
+      if (!writer->Write(m)) break;
+    }
     return grpc::Status::OK;
   }
 
