@@ -9,7 +9,10 @@ A small synthetic model is served on a free loopback port; the test then
     of them disconnects mid-stream and the others keep receiving;
   - with Debian's chromium installed: loads the page headless and checks, through its DevTools
     protocol, that the browser shows the stream (screenshot not blank) and the stats line (DOM),
-    then presses W in the browser; skipped with a message otherwise.
+    then presses W in the browser; skipped with a message otherwise;
+  - with Debian's firefox-esr installed: the same in headless Firefox, driven over WebDriver
+    BiDi (picture, stats, W held in the browser moves the camera, the page shows the newest
+    frame); skipped with a message otherwise.
 With --docs_dir the browser screenshot is also written there.
 """
 import argparse
@@ -294,6 +297,156 @@ def devtools_part(chromium, base, work, env, docs_dir):
         c.close()
 
 
+class Firefox:
+    """Headless Firefox (Debian firefox-esr) on `url`, driven over WebDriver BiDi (its
+    --remote-debugging-port websocket; python3-websocket): evaluate in the page, capture a
+    screenshot, send input actions."""
+
+    def __init__(self, firefox, url, work, env, name):
+        import re
+        import websocket  # python3-websocket
+        self.profile = os.path.join(work, name)
+        shutil.rmtree(self.profile, ignore_errors=True)
+        os.makedirs(self.profile)
+        self.proc = subprocess.Popen(
+            [firefox, "--headless", "--remote-debugging-port=0", "--profile", self.profile,
+             "--no-remote", "--width=800", "--height=660", "about:blank"],
+            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        self.ws = None
+        ws_url = None
+        t0 = time.time()
+        while time.time() - t0 < 90 and self.proc.poll() is None:
+            line = self.proc.stderr.readline()
+            m = re.search(r"WebDriver BiDi listening on (ws://\S+)", line)
+            if m:
+                ws_url = m.group(1)
+                break
+        if ws_url is None:
+            self.close()
+            fail("firefox did not open its WebDriver BiDi port")
+        threading.Thread(target=lambda: self.proc.stderr.read(), daemon=True).start()
+        self.ws = websocket.create_connection(ws_url + "/session", timeout=90,
+                                              suppress_origin=True)
+        self.next_id = 0
+        self.call("session.new", capabilities={})
+        self.ctx = self.call("browsingContext.getTree")["contexts"][0]["context"]
+        self.call("browsingContext.navigate", context=self.ctx, url=url, wait="complete")
+
+    def call(self, method, **params):
+        self.next_id += 1
+        self.ws.send(json.dumps({"id": self.next_id, "method": method, "params": params}))
+        while True:
+            msg = json.loads(self.ws.recv())
+            if msg.get("id") == self.next_id:
+                if msg.get("type") == "error":
+                    fail(f"BiDi {method}: {msg.get('error')}: {msg.get('message')}")
+                return msg.get("result", {})
+
+    def eval(self, expr):
+        r = self.call("script.evaluate", expression=expr, target={"context": self.ctx},
+                      awaitPromise=False)
+        return r.get("result", {}).get("value")
+
+    def screenshot(self):
+        png = base64.b64decode(self.call("browsingContext.captureScreenshot",
+                                         context=self.ctx)["data"])
+        return np.asarray(Image.open(io.BytesIO(png)).convert("RGB"))
+
+    def hold_key(self, key, seconds):
+        self.call("input.performActions", context=self.ctx, actions=[
+            {"type": "key", "id": "keyboard", "actions": [
+                {"type": "keyDown", "value": key},
+                {"type": "pause", "duration": int(seconds * 1000)},
+                {"type": "keyUp", "value": key}]}])
+
+    def close(self):
+        if self.ws is not None:
+            try:
+                self.call("session.end")
+            except Exception:  # noqa: BLE001 (the browser may be gone already)
+                pass
+            self.ws.close()
+        self.proc.terminate()
+        try:
+            self.proc.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+
+
+def firefox_part(firefox, base, work, env, docs_dir):
+    """The page in headless Firefox over WebDriver BiDi: it shows the stream and the stats, W
+    held in the browser (its own key handler) moves the viewer's camera, and the page then shows
+    the viewer's newest frame."""
+    if not have_websocket():
+        return
+    ff = Firefox(firefox, base + "/", work, env, "firefox-profile")
+    try:
+        def page_state():
+            v = ff.eval("JSON.stringify({seq: seq, shown: document.getElementById('v')"
+                        ".naturalWidth, stats: document.getElementById('s').textContent})")
+            return json.loads(v) if v else {"seq": 0, "shown": 0, "stats": ""}
+
+        def page_picture():
+            for _ in range(50):
+                url = ff.eval("(() => { const i = document.getElementById('v'); "
+                              "if (!i.complete || !i.naturalWidth) return ''; "
+                              "const c = document.createElement('canvas'); c.width = i.naturalWidth; "
+                              "c.height = i.naturalHeight; c.getContext('2d').drawImage(i, 0, 0); "
+                              "return c.toDataURL('image/png'); })()")
+                if url and url.startswith("data:image/png;base64,"):
+                    return np.asarray(Image.open(io.BytesIO(base64.b64decode(url.split(",", 1)[1])))
+                                      .convert("RGB"))
+                time.sleep(0.1)
+            fail("firefox: could not read the picture the page shows")
+
+        def settled(what):
+            t1 = time.time()
+            while time.time() - t1 < 120:
+                s = json.loads(get(base + "/status")[2])
+                st = page_state()
+                if s.get("stage") == 1 and st["seq"] >= s["frames"] and st["shown"] > 0:
+                    time.sleep(0.8)
+                    s2 = json.loads(get(base + "/status")[2])
+                    if s2["frames"] == s["frames"]:
+                        return s, page_state()
+                time.sleep(0.3)
+            fail(f"firefox: the page did not settle ({what})")
+
+        def viewer_picture():
+            body = get(base + "/frame.jpg?after=0", timeout=30)[2]
+            return np.asarray(Image.open(io.BytesIO(body)).convert("RGB"))
+
+        s0, p0 = settled("before the key")
+        img0 = ff.screenshot()
+        shown0, sent0 = page_picture(), viewer_picture()
+        ff.hold_key("w", 0.6)
+        s1, p1 = settled("after W")
+        img1 = ff.screenshot()
+        shown1, sent1 = page_picture(), viewer_picture()
+        moved = float(np.linalg.norm(np.array(s1["pose_local"]["t"]) -
+                                     np.array(s0["pose_local"]["t"])))
+        view1 = img1[50:550, 100:700]
+        log(f"Firefox (WebDriver BiDi): screenshot {img1.shape[1]}x{img1.shape[0]}, view area std "
+            f"{view1.std():.1f}; W held in the browser: viewer moved {moved:.3f} m, page frame seq "
+            f"{p0['seq']} -> {p1['seq']}; page picture vs the viewer's frame "
+            f"{psnr(shown1, sent1):.1f} dB, after vs before {psnr(shown0, shown1):.1f} dB; stats "
+            f"'{p1['stats'][:40]}...'")
+        if "views 10" not in p0["stats"] or view1.std() < 10:
+            fail("firefox does not show the picture and the stats line")
+        if not moved > 0.05 or p1["seq"] <= p0["seq"]:
+            fail("W held in firefox did not move the viewer's camera / bring new frames")
+        if shown1.shape != sent1.shape or psnr(shown1, sent1) < 40 or psnr(shown0, sent0) < 40:
+            fail("firefox does not show the viewer's newest frame")
+        if psnr(shown0, shown1) > 40:
+            fail("firefox does not show a changed picture after the key")
+        if p1["stats"] == p0["stats"] or f"frames {s1['frames']}" not in p1["stats"]:
+            fail("firefox's stats line did not update after the key")
+        if docs_dir:
+            Image.fromarray(img1).save(os.path.join(docs_dir, "browser_firefox.png"))
+    finally:
+        ff.close()
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--window_bin", required=True)
@@ -410,6 +563,12 @@ def main():
         else:
             first_look_part(chromium, base, work, env, args.docs_dir)
             devtools_part(chromium, base, work, env, args.docs_dir)
+        # ---- Firefox (Debian firefox-esr, headless, driven over WebDriver BiDi) ----
+        firefox = shutil.which("firefox-esr") or shutil.which("firefox")
+        if firefox is None:
+            log("firefox-esr not installed: SKIPPED the Firefox part (apt-get install firefox-esr)")
+        else:
+            firefox_part(firefox, base, work, env, args.docs_dir)
         log("PASS")
         return 0
     finally:

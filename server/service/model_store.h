@@ -89,6 +89,10 @@ class ModelStore {
   absl::StatusOr<uint64_t> RemoveView(ViewId id);
   // Replaces the reference lists of the given cells (empty list = cell removed).
   uint64_t SetCellRefs(const std::vector<std::pair<CellId, std::vector<ViewId>>>& cells);
+  // The same, with the cells' coverage (CellCoverage: τ/τ_max in whole percent) in the same
+  // delta; either list may be empty.
+  uint64_t SetCellRefs(const std::vector<std::pair<CellId, std::vector<ViewId>>>& cells,
+                       const std::vector<std::pair<CellId, uint8_t>>& coverage);
   uint64_t UpsertChunk(uint64_t chunk_id, uint64_t chunk_version, const TriangleMesh& mesh);
   absl::StatusOr<uint64_t> RemoveChunk(uint64_t chunk_id);
 
@@ -138,6 +142,8 @@ class ModelStore {
   // The published views (for a restarted planner), ordered by id.
   std::vector<std::shared_ptr<const v1::ViewAdded>> Views() const;
   std::vector<CellId> CellIds() const;
+  // The published coverage per cell (τ/τ_max in whole percent; cells never given one absent).
+  std::unordered_map<CellId, uint8_t> CellCoverage() const;
   // The published mesh chunks (shared parts; MeshFromProto turns them into meshes) and the scene
   // origin (nullopt before the first frame): what region marking renders its depth from.
   std::vector<std::shared_ptr<const v1::MeshChunkUpserted>> Chunks() const;
@@ -197,6 +203,7 @@ class ModelStore {
   std::map<ViewId, DeltaPtr> views_;
   std::map<ViewId, ViewDigestRecord> view_records_;
   std::unordered_map<CellId, std::vector<ViewId>> cell_refs_;
+  std::unordered_map<CellId, uint8_t> cell_coverage_;  // CellCoverage.tau_percent
   std::map<uint64_t, DeltaPtr> chunks_;
   mutable std::shared_ptr<const std::vector<DeltaPtr>> snapshot_;  // of snapshot_version_
   mutable uint64_t snapshot_version_ = ~uint64_t{0};
