@@ -200,7 +200,7 @@ def first_look_part(chromium, base, work, env, docs_dir):
             fail("the browser's stats line did not update")
         if docs_dir:
             os.makedirs(docs_dir, exist_ok=True)
-            Image.fromarray(im).save(os.path.join(docs_dir, "browser_view.png"))
+            Image.fromarray(im).save(os.path.join(docs_dir, "browser_first_look.png"))
     finally:
         c.close()
 
