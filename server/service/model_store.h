@@ -89,10 +89,6 @@ class ModelStore {
   absl::StatusOr<uint64_t> RemoveView(ViewId id);
   // Replaces the reference lists of the given cells (empty list = cell removed).
   uint64_t SetCellRefs(const std::vector<std::pair<CellId, std::vector<ViewId>>>& cells);
-  // The same, with the cells' coverage (CellCoverage: τ/τ_max in whole percent) in the same
-  // delta; either list may be empty.
-  uint64_t SetCellRefs(const std::vector<std::pair<CellId, std::vector<ViewId>>>& cells,
-                       const std::vector<std::pair<CellId, uint8_t>>& coverage);
   uint64_t UpsertChunk(uint64_t chunk_id, uint64_t chunk_version, const TriangleMesh& mesh);
   absl::StatusOr<uint64_t> RemoveChunk(uint64_t chunk_id);
 
@@ -144,6 +140,10 @@ class ModelStore {
   std::vector<CellId> CellIds() const;
   // The published coverage per cell (τ/τ_max in whole percent; cells never given one absent).
   std::unordered_map<CellId, uint8_t> CellCoverage() const;
+  // Mutation: SetCellRefs with the cells' coverage (CellCoverage: τ/τ_max in whole percent,
+  // clamped to 100) in the same delta; either list may be empty. Returns the new version.
+  uint64_t SetCellRefs(const std::vector<std::pair<CellId, std::vector<ViewId>>>& cells,
+                       const std::vector<std::pair<CellId, uint8_t>>& coverage);
   // The published mesh chunks (shared parts; MeshFromProto turns them into meshes) and the scene
   // origin (nullopt before the first frame): what region marking renders its depth from.
   std::vector<std::shared_ptr<const v1::MeshChunkUpserted>> Chunks() const;
