@@ -13,7 +13,7 @@ PKGS=(build-essential cmake ninja-build pkg-config
       libgtest-dev libgmock-dev ccache libmeshoptimizer-dev
       nlohmann-json3-dev libcli11-dev libspdlog-dev python3-matplotlib python3-grpcio
       python3-grpc-tools python3-protobuf python3-numpy python3-pil python3-open3d
-      libsdl2-dev libimgui-dev xvfb xdotool imagemagick chromium python3-websocket libssl-dev
+      libsdl2-dev libimgui-dev xvfb xdotool imagemagick chromium firefox-esr python3-websocket libssl-dev
       zlib1g-dev
       nats-server libnats-dev python3-kubernetes podman runc)
 

@@ -11,6 +11,7 @@
 #include <fstream>
 
 #include "client/navigation/render_scheduler.h"
+#include "client/navigation/scene_overlay.h"
 #include "common/synth/render.h"
 #include "common/synth/scene.h"
 #include "common/synth/trajectory.h"
@@ -379,3 +380,138 @@ TEST(RenderScheduler, ModelChangeRerendersAndErrorsStopTheWorker) {
 
 }  // namespace
 }  // namespace exo::nav
+
+namespace exo {
+namespace {
+
+// ---- scene overlays (cells by coverage τ, the drone: issues 17 and 19) ----
+
+TEST(SceneOverlay, CoverageColourGoesFromRedThroughYellowToGreen) {
+  auto rgb = [](uint32_t c) { return glm::ivec3(c & 255, (c >> 8) & 255, (c >> 16) & 255); };
+  EXPECT_EQ(rgb(nav::CoverageColor(0)), glm::ivec3(255, 0, 40));     // uncovered: red
+  EXPECT_EQ(rgb(nav::CoverageColor(50)), glm::ivec3(255, 255, 40));  // τ_max / 2: yellow
+  EXPECT_EQ(rgb(nav::CoverageColor(100)), glm::ivec3(0, 255, 40));   // τ >= τ_max: green
+  EXPECT_EQ(nav::CoverageColor(130), nav::CoverageColor(100));       // clamped
+  EXPECT_EQ(nav::CoverageColor(-5), nav::CoverageColor(0));
+  EXPECT_EQ(nav::CoverageColor(100, 200) >> 24, 200u);
+  for (int p = 0; p < 100; ++p) {  // red never rises, green never falls with τ
+    EXPECT_GE(rgb(nav::CoverageColor(p)).x, rgb(nav::CoverageColor(p + 1)).x) << p;
+    EXPECT_LE(rgb(nav::CoverageColor(p)).y, rgb(nav::CoverageColor(p + 1)).y) << p;
+  }
+}
+
+TEST(SceneOverlay, DroneCameraAxesFollowYawPitchAndTheSceneUp) {
+  auto near = [](const glm::dvec3& a, const glm::dvec3& b) { return glm::length(a - b) < 1e-9; };
+  // z up, yaw 0: forward +x, right -y (x forward / y left), down -z.
+  glm::dmat3 a = nav::DroneCameraAxes({0, 0, 1}, 0.0, 0.0);
+  EXPECT_TRUE(near(a[2], {1, 0, 0}));
+  EXPECT_TRUE(near(a[0], {0, -1, 0}));
+  EXPECT_TRUE(near(a[1], {0, 0, -1}));
+  // yaw +90°: forward +y; pitch -90°: straight down, the image's right still horizontal.
+  a = nav::DroneCameraAxes({0, 0, 1}, M_PI / 2, 0.0);
+  EXPECT_TRUE(near(a[2], {0, 1, 0}));
+  a = nav::DroneCameraAxes({0, 0, 1}, 0.0, -M_PI / 2);
+  EXPECT_TRUE(near(a[2], {0, 0, -1}));
+  EXPECT_NEAR(a[0].z, 0.0, 1e-12);
+  // 7-Scenes: y down (up = -y): the image's down is +y for a level camera.
+  a = nav::DroneCameraAxes({0, -1, 0}, 0.3, 0.0);
+  EXPECT_TRUE(near(a[1], {0, 1, 0}));
+  EXPECT_NEAR(a[2].y, 0.0, 1e-12);
+  EXPECT_NEAR(glm::determinant(a), 1.0, 1e-12);  // right-handed: x right, y down, z forward
+}
+
+TEST(SceneOverlay, DroneOverlayLinesAreInTheLocalFrame) {
+  nav::ControlView c;
+  c.drone_known = true;
+  c.drone = {3, 2, 1.5};
+  c.yaw = 0.0;
+  c.camera_pitch = -0.4;
+  LocalOrigin origin;
+  origin.origin_in_world = {1, 0, 0};
+  nav::DroneOverlayOptions o;
+  std::vector<nav::OverlayLine> lines = nav::DroneOverlayLines(c, origin, o);
+  const glm::dvec3 p(2, 2, 1.5);  // the drone, scene-local
+  size_t body = 0, frustum = 0;
+  glm::dvec3 far_centre(0.0);
+  for (const auto& l : lines) {
+    if (l.kind == nav::OverlayKind::kDrone) {
+      ++body;
+      // Every body line lies within arm + rotor of the drone, in its horizontal plane.
+      EXPECT_LE(glm::length(l.a - p), o.arm_m + o.rotor_m + 1e-9);
+      EXPECT_NEAR(l.a.z, 1.5, 1e-12);
+    }
+    if (l.kind == nav::OverlayKind::kFrustum && glm::length(l.a - p) < 1e-12) {
+      ++frustum;
+      far_centre += 0.25 * l.b;
+    }
+    EXPECT_NE(l.kind, nav::OverlayKind::kRoute);  // no command: no route, no target
+    EXPECT_NE(l.kind, nav::OverlayKind::kTarget);
+  }
+  EXPECT_EQ(body, 4u + 4u * 10u + 1u);  // arms, rotor rings, nose
+  EXPECT_EQ(frustum, 4u);
+  // The frustum looks along the heading, pitched down by 0.4 rad, frustum_m deep.
+  const glm::dvec3 dir = glm::normalize(far_centre - p);
+  EXPECT_NEAR(dir.x, std::cos(0.4), 1e-9);
+  EXPECT_NEAR(dir.z, -std::sin(0.4), 1e-9);
+  EXPECT_NEAR(glm::dot(far_centre - p, dir), o.frustum_m, 1e-9);
+
+  // A command with a route of 3 waypoints, flying the second: 1 flown (dim), drone -> wp1,
+  // wp1 -> wp2 (bright); the target's cross + heading; a box zone's 12 edges; an L prism's 3 per
+  // vertex.
+  c.has_command = true;
+  c.target = {5, 2, 1.0};
+  c.waypoints = {{3, 2, 1.5}, {4, 2, 1.2}, {5, 2, 1.0}};
+  c.waypoint_index = 1;
+  nav::ZoneView box;
+  box.min = {0, 0, 0};
+  box.max = {6, 4, 3};
+  nav::ZoneView prism;
+  prism.prism_axis = 2;
+  prism.min = {0, 0, 0.2};
+  prism.max = {2, 2, 2.5};
+  prism.polygon = {{0, 0}, {2, 0}, {2, 1}, {1, 1}, {1, 2}, {0, 2}};
+  c.zones = {box, prism};
+  lines = nav::DroneOverlayLines(c, origin, o);
+  std::vector<nav::OverlayLine> route, zone;
+  size_t target = 0;
+  for (const auto& l : lines) {
+    if (l.kind == nav::OverlayKind::kRoute) route.push_back(l);
+    if (l.kind == nav::OverlayKind::kZone) zone.push_back(l);
+    if (l.kind == nav::OverlayKind::kTarget) ++target;
+  }
+  ASSERT_EQ(route.size(), 3u);
+  EXPECT_EQ(route[0].a, glm::dvec3(2, 2, 1.5));  // flown: wp0 -> wp1
+  EXPECT_EQ(route[1].a, p);                      // the drone -> the waypoint being flown
+  EXPECT_EQ(route[1].b, glm::dvec3(3, 2, 1.2));
+  EXPECT_EQ(route[2].b, glm::dvec3(4, 2, 1.0));  // -> the target
+  EXPECT_NE(route[0].rgba, route[1].rgba);        // flown part dim
+  EXPECT_EQ(target, 4u);
+  ASSERT_EQ(zone.size(), 12u + 18u);
+  for (size_t i = 0; i < 12; ++i)  // the box's corners, local (x - 1)
+    for (const glm::dvec3& q : {zone[i].a, zone[i].b}) {
+      EXPECT_TRUE(q.x == -1 || q.x == 5) << q.x;
+      EXPECT_TRUE(q.z == 0 || q.z == 3) << q.z;
+    }
+  for (size_t i = 12; i < zone.size(); ++i)  // the prism: floor 0.2, ceiling 2.5 along z
+    for (const glm::dvec3& q : {zone[i].a, zone[i].b}) EXPECT_TRUE(q.z == 0.2 || q.z == 2.5);
+  // Not known: only the zones.
+  c.drone_known = false;
+  EXPECT_EQ(nav::DroneOverlayLines(c, origin, o).size(), 30u);
+}
+
+TEST(SceneOverlay, ProjectSegmentClipsAtTheNearPlane) {
+  const PinholeCamera cam = PinholeCamera::FromFov(100, 100, M_PI / 2);
+  Rigid3d at;  // identity: camera at the origin looking along +z
+  auto s = nav::ProjectSegment(cam, at, {0, 0, 2}, {1, 0, 2});
+  ASSERT_TRUE(s.has_value());
+  EXPECT_NEAR(s->a.x, cam.cx, 1e-9);
+  EXPECT_NEAR(s->b.x, cam.cx + cam.fx * 0.5, 1e-9);
+  // From behind the camera to in front: clipped at z = near, still drawn.
+  s = nav::ProjectSegment(cam, at, {0, 0.1, -1}, {0, 0.1, 1}, 0.05);
+  ASSERT_TRUE(s.has_value());
+  EXPECT_NEAR(s->a.y, cam.cy + cam.fy * 0.1 / 0.05, 1e-6);
+  EXPECT_FALSE(nav::ProjectSegment(cam, at, {0, 0, -1}, {1, 0, -2}).has_value());
+}
+
+}  // namespace
+}  // namespace exo

@@ -43,12 +43,18 @@ absl::Status LocalStore::ApplyKind(const v1::Delta& d, LumigraphModel* model,
       views->erase(d.view_removed().view_id());
       return absl::OkStatus();
     case v1::Delta::kCellRefsChanged:
+      for (const auto& c : d.cell_refs_changed().coverage())  // checked first: all or nothing
+        if (c.tau_percent() > 100)
+          return absl::InvalidArgumentError(
+              absl::StrCat("cell coverage ", c.tau_percent(), " % is above 100"));
       for (const auto& c : d.cell_refs_changed().cells()) {
         if (c.view_ids().empty())
           model->cell_refs.erase(c.cell_id());
         else
           model->cell_refs[c.cell_id()].assign(c.view_ids().begin(), c.view_ids().end());
       }
+      for (const auto& c : d.cell_refs_changed().coverage())
+        model->cell_coverage[c.cell_id()] = uint8_t(c.tau_percent());
       return absl::OkStatus();
     case v1::Delta::kMeshChunkUpserted: {
       const auto& m = d.mesh_chunk_upserted();

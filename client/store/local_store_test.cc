@@ -162,5 +162,31 @@ TEST(LocalStore, UnusableViewsAreSkippedAndReported) {
   EXPECT_EQ(s.model().views.size(), 2u);  // the store itself keeps what the server sent
 }
 
+TEST(LocalStore, CellCoverageIsKeptPerCellAndOutOfRangeIsAnError) {
+  LocalStore s;
+  ASSERT_TRUE(s.Apply(SceneDelta(1, 0.0)).ok());
+  v1::Delta d = CellsDelta(2, 7, {1});
+  auto* c = d.mutable_cell_refs_changed()->add_coverage();
+  c->set_cell_id(7);
+  c->set_tau_percent(35);
+  ASSERT_TRUE(s.Apply(d).ok());
+  v1::Delta only;  // coverage without a reference change
+  only.set_version(3);
+  auto* c2 = only.mutable_cell_refs_changed()->add_coverage();
+  c2->set_cell_id(7);
+  c2->set_tau_percent(100);
+  ASSERT_TRUE(s.Apply(only).ok());
+  EXPECT_EQ(s.model().cell_coverage.at(7), 100);
+  EXPECT_EQ(s.model().cell_refs.at(7), std::vector<ViewId>{1});
+  const uint64_t digest = s.Digest();
+  c2->set_tau_percent(101);
+  only.set_version(4);
+  const absl::Status st = s.Apply(only);
+  EXPECT_EQ(st.code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_NE(st.message().find("above 100"), std::string::npos) << st;
+  EXPECT_EQ(s.version(), 3u);  // nothing applied
+  EXPECT_EQ(s.Digest(), digest);
+}
+
 }  // namespace
 }  // namespace exo

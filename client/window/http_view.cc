@@ -28,9 +28,10 @@ constexpr char kPage[] = R"HTML(<!doctype html>
 <style>
 body{margin:0;background:#111;color:#ddd;font:13px monospace}
 #v{width:100vw;height:calc(100vh - 44px);object-fit:contain;display:block;background:#000;cursor:grab}
+#o{position:absolute;left:0;top:0;pointer-events:none}
 #s{padding:4px 8px;white-space:pre}
 </style></head>
-<body><img id="v" alt="Exoview live view"><div id="s">connecting...</div>
+<body><img id="v" alt="Exoview live view"><canvas id="o"></canvas><div id="s">connecting...</div>
 <script>
 "use strict";
 let seq = 0;
@@ -53,6 +54,35 @@ async function frames() {
     } catch (e) { await sleep(500); }
   }
 }
+// Overlays (the drone, its camera, target, route, flight zones; cells by coverage): lines and
+// dots in the frame's pixels (/overlay.json), drawn on a canvas over the picture.
+const cv = document.getElementById("o");
+let overlay = null;
+function drawOverlay() {
+  const r = img.getBoundingClientRect();
+  cv.style.left = r.left + window.scrollX + "px"; cv.style.top = r.top + window.scrollY + "px";
+  cv.width = r.width; cv.height = r.height;
+  const g = cv.getContext("2d");
+  g.clearRect(0, 0, cv.width, cv.height);
+  if (!overlay || !overlay.width) return;
+  const k = Math.min(r.width / overlay.width, r.height / overlay.height);
+  const ox = (r.width - k * overlay.width) / 2, oy = (r.height - k * overlay.height) / 2;
+  for (const [x0, y0, x1, y1, c, w] of overlay.lines) {
+    g.strokeStyle = c; g.lineWidth = w; g.beginPath();
+    g.moveTo(ox + k * x0, oy + k * y0); g.lineTo(ox + k * x1, oy + k * y1); g.stroke();
+  }
+  for (const [x, y, c] of overlay.dots) {
+    g.fillStyle = c; g.beginPath(); g.arc(ox + k * x, oy + k * y, 3, 0, 2 * Math.PI); g.fill();
+  }
+}
+async function overlays() {
+  for (;;) {
+    try { overlay = await (await fetch("/overlay.json")).json(); drawOverlay(); } catch (e) {}
+    if (maxFrames > 0 && shown >= maxFrames) return;
+    await sleep(200);
+  }
+}
+onresize = drawOverlay;
 async function stats() {
   for (;;) {
     try {
@@ -60,7 +90,8 @@ async function stats() {
       document.getElementById("s").textContent =
         `frame ${j.frame_ms.toFixed(1)} ms  resolution 1/${j.stage}  model v${j.model_version}  ` +
         `views ${j.views}  cells ${j.cells}  ${j.sync}  frames ${j.frames}  browsers ${j.clients}  ` +
-        `| WASD QE move, drag/arrows look, wheel speed, R reset, F follow`;
+        (j.control ? `\n${j.control}  ` : "") +
+        `| WASD QE move, drag/arrows look, wheel speed, R reset, F follow, G drone, 3 cells, 4 tau/refs, 5 drone`;
       if (maxFrames > 0 && shown >= maxFrames) return;
     } catch (e) {}
     await sleep(500);
@@ -68,7 +99,7 @@ async function stats() {
 }
 const keys = {KeyW:"w",KeyA:"a",KeyS:"s",KeyD:"d",KeyQ:"q",KeyE:"e",ArrowLeft:"left",
   ArrowRight:"right",ArrowUp:"up",ArrowDown:"down",KeyR:"r",KeyF:"f",Digit1:"1",Digit2:"2",
-  Digit3:"3"};
+  Digit3:"3",Digit4:"4",Digit5:"5",KeyG:"g"};
 const held = new Set();
 const send = q => fetch("/input?" + q, {method: "POST"}).catch(() => {});
 onkeydown = e => { const k = keys[e.code]; if (!k) return; e.preventDefault();
@@ -82,6 +113,7 @@ onmousemove = e => { if (drag) send("dx=" + e.movementX + "&dy=" + e.movementY);
 img.onwheel = e => { e.preventDefault(); send("wheel=" + (e.deltaY < 0 ? 1 : -1)); };
 frames();
 stats();
+overlays();
 </script></body></html>
 )HTML";
 
@@ -228,6 +260,14 @@ class HttpView::Impl {
       return Text(socket, req, http::status::ok, "application/json", status_());
     if (req.method() == http::verb::get && path == "/metrics")
       return Text(socket, req, http::status::ok, "text/plain; version=0.0.4", metrics_());
+    if (req.method() == http::verb::get && path == "/overlay.json") {
+      std::string body;
+      {
+        std::lock_guard lock(frame_mu_);
+        body = overlay_;
+      }
+      return Text(socket, req, http::status::ok, "application/json", std::move(body));
+    }
     if (req.method() == http::verb::get && path == "/frame.jpg") {
       const auto q = Query(target);
       uint64_t after = 0;
@@ -296,7 +336,7 @@ class HttpView::Impl {
       const bool down = q.count("down") && q.at("down") == "1";
       static const std::set<std::string> kHeld = {"w", "a",    "s",     "d",  "q",
                                                   "e", "left", "right", "up", "down"};
-      static const std::set<std::string> kOnce = {"r", "f", "tab", "1", "2", "3"};
+      static const std::set<std::string> kOnce = {"r", "f", "g", "tab", "1", "2", "3", "4", "5"};
       if (kHeld.count(k->second)) {
         if (down)
           held_[k->second] = Clock::now();
@@ -364,6 +404,7 @@ class HttpView::Impl {
   std::mutex frame_mu_;
   std::condition_variable frame_cv_;
   std::shared_ptr<const std::vector<uint8_t>> latest_;
+  std::string overlay_ = R"({"width":0,"height":0,"lines":[],"dots":[]})";
   uint64_t seq_ = 0;
   std::atomic<uint64_t> frames_sent_{0};
   std::mutex input_mu_;
@@ -389,6 +430,10 @@ HttpView::~HttpView() = default;
 int HttpView::port() const { return impl_->port_; }
 void HttpView::PublishFrame(std::vector<uint8_t> jpeg) { impl_->Publish(std::move(jpeg)); }
 HttpInput HttpView::TakeInput() { return impl_->Take(); }
+void HttpView::SetOverlay(std::string json) {
+  std::lock_guard lock(impl_->frame_mu_);
+  impl_->overlay_ = std::move(json);
+}
 uint64_t HttpView::frames_sent() const { return impl_->frames_sent_.load(); }
 int HttpView::clients() const {
   std::lock_guard lock(impl_->conn_mu_);

@@ -8,9 +8,11 @@
 //   GET /stream       the same frames as MJPEG (multipart/x-mixed-replace), for <img> or players
 //   GET /status       read-only JSON of the viewer's state
 //   GET /metrics      Prometheus text (frame time, bytes received, model version, clients)
+//   GET /overlay.json the overlays of the newest frame (drone, camera, target, route, zones;
+//                     cells by coverage), drawn by the page on a canvas over the picture
 //   POST /input?key=K&down=0|1   held keys (w a s d q e, arrows; expire 0.6 s after the last
 //                     refresh, so a browser that goes away never leaves a key held), one-shot
-//                     keys (r f tab 1 2 3), POST /input?dx=..&dy=.. mouse look, &wheel=..
+//                     keys (r f g tab 1 2 3 4 5), POST /input?dx=..&dy=.. mouse look, &wheel=..
 // Frames are shared: the renderer publishes one JPEG and every client takes the newest (a slow
 // client skips frames, nothing queues up per client).
 #pragma once
@@ -44,6 +46,10 @@ class HttpView {
   ~HttpView();
   int port() const;
   void PublishFrame(std::vector<uint8_t> jpeg);
+  // GET /overlay.json: what the page draws over the picture, in the frame's full-size pixels:
+  // {"width", "height", "lines": [[x0, y0, x1, y1, css colour, width], ...],
+  //  "dots": [[x, y, css colour], ...]}.
+  void SetOverlay(std::string json);
   HttpInput TakeInput();
   // Counters for the metrics.
   uint64_t frames_sent() const;

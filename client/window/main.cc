@@ -52,6 +52,12 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(0, 1024));
   app.add_option("--bench_modes", o.bench_modes,
                  "comma-separated benchmark modes (adaptive_budget,adaptive_fixed,full_always)");
+  app.add_option("--control", o.control,
+                 "control service for the drone overlays: HOST:PORT, 'none' (default: the "
+                 "--server of a live model)");
+  app.add_option("--drone_id", o.drone_id, "the drone shown (control service drone id)");
+  app.add_flag("!--cells_by_refs", o.cells_by_tau,
+               "colour cells by their reference count instead of the coverage τ (key 4)");
   if (auto rc = exo::cli::Parse(app, argc, argv)) return *rc;
   return exo::RunWindowApp(o);
 }

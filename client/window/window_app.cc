@@ -7,6 +7,7 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <condition_variable>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -18,6 +19,7 @@
 
 #include "client/navigation/navigation.h"
 #include "client/navigation/render_scheduler.h"
+#include "client/navigation/scene_overlay.h"
 #include "client/store/local_store.h"
 #include "client/uploader/upload_client.h"
 #include "client/viewer/viewer_session.h"
@@ -30,6 +32,8 @@
 #include "common/metrics/metrics.h"
 #include "common/run_info/run_info.h"
 #include "imgui.h"
+#include "proto/control.grpc.pb.h"
+#include <grpcpp/grpcpp.h>
 
 namespace exo {
 namespace {
@@ -177,6 +181,113 @@ class ModelSource {
   Clock::time_point last_delta_ = Clock::now();
 };
 
+// The drone overlays' source (issue 19, item 5): a thread polls the control service's
+// GetControlState (10 Hz) and keeps the newest state as a nav::ControlView. A server without the
+// control service (UNIMPLEMENTED) is asked again every 5 s; the HUD says which.
+class ControlSource {
+ public:
+  ControlSource(const std::string& address, std::string drone_id)
+      : drone_id_(std::move(drone_id)),
+        stub_(exoview::control::v1::Control::NewStub(MakeChannel(address))) {
+    state_ = "control: connecting to " + address;
+    thread_ = std::thread([this] { Run(); });
+  }
+  ~ControlSource() {
+    {
+      std::lock_guard lock(mu_);
+      stop_ = true;
+    }
+    cv_.notify_all();
+    thread_.join();
+  }
+  std::optional<nav::ControlView> view() {
+    std::lock_guard lock(mu_);
+    return view_;
+  }
+  std::string state() {
+    std::lock_guard lock(mu_);
+    return state_;
+  }
+  uint64_t polls() const { return polls_.load(); }
+
+ private:
+  void Run() {
+    namespace cv1 = exoview::control::v1;
+    std::unique_lock lock(mu_);
+    while (!stop_) {
+      lock.unlock();
+      cv1::ControlStateRequest req;
+      req.set_drone_id(drone_id_);
+      cv1::ControlState st;
+      grpc::ClientContext ctx;
+      ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(2));
+      const grpc::Status gs = stub_->GetControlState(&ctx, req, &st);
+      polls_.fetch_add(1);
+      lock.lock();
+      int wait_ms = 100;
+      if (gs.ok()) {
+        view_ = Convert(st);
+        state_ = st.drone_known()
+                     ? "control: drone '" + drone_id_ + "' " +
+                           cv1::Interaction_Name(st.interaction()) +
+                           (st.waypoints_size()
+                                ? " waypoint " + std::to_string(st.waypoint_index() + 1) + "/" +
+                                      std::to_string(st.waypoints_size())
+                                : std::string()) +
+                           (st.exploring() ? " EXPLORING" : "")
+                     : "control: no drone '" + drone_id_ + "' connected";
+      } else if (gs.error_code() == grpc::StatusCode::UNIMPLEMENTED) {
+        state_ = "control: not served by this server";
+        view_.reset();
+        wait_ms = 5000;
+      } else {
+        state_ = "control: " + gs.error_message();
+        wait_ms = 1000;
+      }
+      cv_.wait_for(lock, std::chrono::milliseconds(wait_ms), [&] { return stop_; });
+    }
+  }
+  static nav::ControlView Convert(const exoview::control::v1::ControlState& s) {
+    auto v3 = [](const exoview::control::v1::Vec3& v) { return glm::dvec3(v.x(), v.y(), v.z()); };
+    nav::ControlView c;
+    c.drone_known = s.drone_known();
+    c.drone = v3(s.drone().position());
+    c.velocity = v3(s.drone().velocity());
+    c.yaw = s.drone().yaw();
+    c.camera_pitch = s.drone().camera_pitch();
+    c.has_command = s.command_sequence() > 0;
+    c.target = v3(s.target());
+    c.target_yaw = s.target_yaw();
+    c.target_pitch = s.target_camera_pitch();
+    for (const auto& w : s.waypoints()) c.waypoints.push_back(v3(w));
+    c.waypoint_index = s.waypoint_index();
+    for (const auto& z : s.zones()) {
+      nav::ZoneView zv;
+      zv.name = z.name();
+      zv.min = v3(z.min());
+      zv.max = v3(z.max());
+      zv.prism_axis = int(z.prism_axis()) - 1;
+      for (int i = 0; i + 1 < z.polygon_size(); i += 2)
+        zv.polygon.push_back({z.polygon(i), z.polygon(i + 1)});
+      c.zones.push_back(std::move(zv));
+    }
+    if (s.has_up() && glm::length(v3(s.up())) > 0) c.up = v3(s.up());
+    c.interaction = exoview::control::v1::Interaction_Name(s.interaction());
+    c.exploring = s.exploring();
+    return c;
+  }
+
+  const std::string drone_id_;
+  std::unique_ptr<exoview::control::v1::Control::Stub> stub_;
+  std::mutex mu_;
+  std::condition_variable cv_;
+  bool stop_ = false;
+  std::optional<nav::ControlView> view_;
+  std::string state_;
+  std::atomic<uint64_t> polls_{0};
+  std::thread thread_;
+};
+
 // What the overlays and picking need from the model, without the pixels (copied on change).
 struct SceneInfo {
   LumigraphModel geom;  // origin, grid, chunks, views (poses + cameras only), cell refs
@@ -193,6 +304,7 @@ SceneInfo CopySceneInfo(const LumigraphModel& m, uint64_t version) {
   s.geom.grid = m.grid;
   s.geom.chunks = m.chunks;
   s.geom.cell_refs = m.cell_refs;
+  s.geom.cell_coverage = m.cell_coverage;
   for (const auto& [id, v] : m.views) {
     StoredView sv;
     sv.id = id;
@@ -233,6 +345,23 @@ nlohmann::json PoseJson(const Rigid3d& p) {
           {"q_wxyz", {p.rotation.w, p.rotation.x, p.rotation.y, p.rotation.z}}};
 }
 
+// A view of the drone from behind and above it (key G): 1.6 m back along its heading, 0.7 m up,
+// looking at a point 0.3 m above it (the drone below the picture's centre, clear of the HUD);
+// scene-local.
+Rigid3d ChaseView(const nav::ControlView& c, const LocalOrigin& origin) {
+  const glm::dvec3 up = glm::length(c.up) > 0 ? glm::normalize(c.up) : glm::dvec3(0, 0, 1);
+  const glm::dvec3 heading = nav::DroneCameraAxes(up, c.yaw, 0.0)[2];
+  const glm::dvec3 drone = c.drone - origin.origin_in_world;
+  const glm::dvec3 eye = drone - 1.6 * heading + 0.7 * up;
+  const glm::dvec3 fwd = glm::normalize(drone + 0.3 * up - eye);
+  const glm::dvec3 right = glm::normalize(glm::cross(fwd, up));
+  const glm::dvec3 down = glm::cross(fwd, right);
+  Rigid3d p;
+  p.rotation = glm::normalize(glm::quat_cast(glm::dmat3(right, down, fwd)));
+  p.translation = eye;
+  return p;
+}
+
 // What the render thread hands the UI thread with each frame.
 struct WindowFrame {
   ImageU8 image;     // RGB8, 1/divisor of the window per side
@@ -258,6 +387,10 @@ class App {
         std::this_thread::sleep_for(std::chrono::milliseconds(100));
       }
     }
+    cells_by_tau_ = o_.cells_by_tau;
+    const std::string control = o_.control.empty() ? (source_->live() ? o_.server : "") : o_.control;
+    if (!control.empty() && control != "none")
+      control_ = std::make_unique<ControlSource>(control, o_.drone_id);
     EXO_ASSIGN_OR_RETURN(renderer_, VulkanRenderer::Create({}));
     EXO_RETURN_IF_ERROR(SyncRenderer());
     if (need_views && info_->geom.views.empty())
@@ -402,17 +535,65 @@ class App {
         }
       }
     }
+    probe_ = nlohmann::json::object();
     if (show_cells_ && info.geom.grid.cell_size_m > 0) {
       size_t stride = std::max<size_t>(1, info.cells / 8000);
       size_t k = 0;
+      // Coverage τ (the server's, CellCoverage) when the model has it: red (τ = 0) -> yellow ->
+      // green (τ >= τ_max); else the reference count relative to the fullest cell.
+      const bool by_tau = cells_by_tau_ && !info.geom.cell_coverage.empty();
+      nlohmann::json drawn = nlohmann::json::array();
       for (const auto& [cell, refs] : info.geom.cell_refs) {
         if (k++ % stride) continue;
         ImVec2 p;
         const glm::dvec3 centre = info.geom.grid.Centre(cell);
         if (!project(centre, &p) || !seen(centre)) continue;
-        // Reference count relative to the fullest cell: red (1 ref) -> green (full).
-        const float f = std::clamp(float(refs.size()) / float(info.max_refs), 0.f, 1.f);
-        dl->AddCircleFilled(p, 2.5f, IM_COL32(int(255 * (1 - f)), int(255 * f), 40, 200));
+        int percent = -1;
+        uint32_t col;
+        if (by_tau) {
+          auto it = info.geom.cell_coverage.find(cell);
+          percent = it == info.geom.cell_coverage.end() ? 0 : it->second;
+          col = nav::CoverageColor(percent, 255);
+        } else {
+          col = nav::RefCountColor(refs.size(), size_t(info.max_refs), 255);
+        }
+        dl->AddCircleFilled(p, 3.f, col);
+        if (drawn.size() < 2000 && p.x >= 0 && p.y >= 0 && p.x < W && p.y < H)
+          drawn.push_back({p.x, p.y, percent, refs.size()});
+      }
+      probe_["cells_by"] = by_tau ? "tau" : "refs";
+      probe_["cells"] = std::move(drawn);  // [x, y, τ percent (-1: by refs), references]
+    }
+    // The drone, its camera, target, route and the flight zones (issue 19): always on top (not
+    // hidden by the proxy: a person must find the drone behind a wall too).
+    if (show_drone_ && control_) {
+      if (auto cv = control_->view()) {
+        nav::DroneOverlayOptions dopt;
+        if (info.newest) {  // the drone's camera: that of the newest stored view (its uploads)
+          const PinholeCamera& vc = info.geom.views.at(*info.newest).camera;
+          dopt.hfov_rad = 2 * std::atan(0.5 * vc.width / vc.fx);
+          dopt.aspect = double(vc.width) / vc.height;
+        }
+        dopt.frustum_m = std::max(0.3, 1.5 * scale);
+        size_t n = 0;
+        for (const nav::OverlayLine& l : nav::DroneOverlayLines(*cv, info.geom.origin, dopt)) {
+          auto s2 = nav::ProjectSegment(cam, pose, l.a, l.b);
+          if (!s2) continue;
+          dl->AddLine(ImVec2(float(s2->a.x + 0.5), float(s2->a.y + 0.5)),
+                      ImVec2(float(s2->b.x + 0.5), float(s2->b.y + 0.5)), l.rgba, l.width);
+          ++n;
+        }
+        auto px = [&](const glm::dvec3& w) -> nlohmann::json {
+          ImVec2 p;
+          if (!project(w - info.geom.origin.origin_in_world, &p)) return nullptr;
+          return {p.x, p.y};
+        };
+        probe_["drone_lines"] = n;
+        probe_["drone_known"] = cv->drone_known;
+        if (cv->drone_known) probe_["drone_px"] = px(cv->drone);
+        if (cv->has_command) probe_["target_px"] = px(cv->target);
+        probe_["waypoints"] = cv->waypoints.size();
+        probe_["zones"] = cv->zones.size();
       }
     }
     if (show_frusta_ && !info.geom.views.empty()) {
@@ -500,13 +681,37 @@ class App {
       ImGui::Text("picked: (%.2f %.2f %.2f)  cell %llx", cursor_pick_->point_local.x,
                   cursor_pick_->point_local.y, cursor_pick_->point_local.z,
                   (unsigned long long)cursor_pick_->cell);
+    if (control_) {
+      ImGui::Text("%s", control_->state().c_str());
+      if (auto cv = control_->view(); cv && cv->drone_known) {
+        const glm::dvec3 p = cv->drone;
+        ImGui::Text("drone (%.2f %.2f %.2f) yaw %.0f° pitch %.0f°  %.2f m/s", p.x, p.y, p.z,
+                    cv->yaw * 180 / M_PI, cv->camera_pitch * 180 / M_PI,
+                    glm::length(cv->velocity));
+      }
+    }
+    if (show_cells_) {
+      if (cells_by_tau_ && !info.geom.cell_coverage.empty())
+        ImGui::TextColored(ImVec4(0.9f, 0.9f, 0.5f, 1.f),
+                           "cells: coverage tau/tau_max  red 0 - yellow 0.5 - green >= 1");
+      else
+        ImGui::TextColored(ImVec4(0.9f, 0.9f, 0.5f, 1.f), "cells: references  red 1 - green %d%s",
+                           info.max_refs,
+                           info.geom.cell_coverage.empty() ? "  (no coverage in this model)" : "");
+    }
     ImGui::Checkbox("frusta", &show_frusta_);
     ImGui::SameLine();
     ImGui::Checkbox("wireframe", &show_wire_);
     ImGui::SameLine();
     ImGui::Checkbox("cells", &show_cells_);
+    ImGui::SameLine();
+    ImGui::Checkbox("tau", &cells_by_tau_);
+    ImGui::SameLine();
+    ImGui::Checkbox("drone", &show_drone_);
     ImGui::TextDisabled(
-        "WASD/QE move, drag/arrows look, wheel speed, right-click pick, R F Tab P Esc");
+        "WASD/QE move, drag/arrows look, wheel speed, right-click pick, R F G Tab 1-5 P Esc");
+    const ImVec2 hp = ImGui::GetWindowPos(), hs = ImGui::GetWindowSize();
+    probe_["hud"] = {hp.x, hp.y, hs.x, hs.y};
     ImGui::End();
   }
 
@@ -527,7 +732,15 @@ class App {
                         {"render_ms", render_ms_},
                         {"ui_max_gap_ms", ui_max_gap_ms_},
                         {"overlays", overlays_},
-                        {"follow", follow_}};
+                        {"follow", follow_},
+                        {"cells_with_coverage", info.geom.cell_coverage.size()},
+                        {"overlay", probe_}};
+    {
+      std::vector<int> hist(11, 0);  // τ/τ_max in tenths (the last bin: 100 %)
+      for (const auto& [c, p] : info.geom.cell_coverage) ++hist[std::min<int>(p / 10, 10)];
+      j["coverage_histogram"] = hist;
+    }
+    if (control_) j["control"] = control_->state();
     const Rigid3d world = {pose.rotation, pose.translation + info.geom.origin.origin_in_world};
     j["pose_world"] = PoseJson(world);
     if (auto n = nav::NearestView(info.geom, pose.translation)) {
@@ -688,6 +901,21 @@ class App {
               show_cells_ = !show_cells_;
               overlay_changed = true;
               break;
+            case SDLK_4:
+              cells_by_tau_ = !cells_by_tau_;
+              overlay_changed = true;
+              break;
+            case SDLK_5:
+              show_drone_ = !show_drone_;
+              overlay_changed = true;
+              break;
+            case SDLK_g:  // look at the drone from behind and above it
+              if (control_)
+                if (auto cv = control_->view(); cv && cv->drone_known) {
+                  cam.Reset(ChaseView(*cv, info->geom.origin));
+                  follow_ = false;
+                }
+              break;
             default:
               break;
           }
@@ -814,6 +1042,75 @@ class App {
     return 0;
   }
 
+  // The browser page's overlays (/overlay.json) for a frame rendered at `pose` (W x H): the
+  // drone lines (not depth-tested, as in the window) and, with cells on, the cells' dots hidden
+  // behind the proxy by `occ` (proxy z-depth at 1/8).
+  nlohmann::json OverlayJson(const SceneInfo& info, const Rigid3d& pose, int W, int H,
+                             const ImageF& occ) {
+    const PinholeCamera cam = Camera(W, H);
+    auto css = [](uint32_t c) {
+      char b[48];
+      std::snprintf(b, sizeof(b), "rgba(%u,%u,%u,%.3f)", c & 255, (c >> 8) & 255, (c >> 16) & 255,
+                    ((c >> 24) & 255) / 255.0);
+      return std::string(b);
+    };
+    nlohmann::json lines = nlohmann::json::array(), dots = nlohmann::json::array();
+    nlohmann::json j = {{"width", W}, {"height", H}};
+    if (show_drone_ && control_) {
+      if (auto cv = control_->view()) {
+        nav::DroneOverlayOptions dopt;
+        if (info.newest) {
+          const PinholeCamera& vc = info.geom.views.at(*info.newest).camera;
+          dopt.hfov_rad = 2 * std::atan(0.5 * vc.width / vc.fx);
+          dopt.aspect = double(vc.width) / vc.height;
+        }
+        dopt.frustum_m = std::max(0.3, 1.5 * std::max(0.05, nav::ModelBounds(info.geom).Diagonal() * 0.02));
+        for (const nav::OverlayLine& l : nav::DroneOverlayLines(*cv, info.geom.origin, dopt)) {
+          auto s2 = nav::ProjectSegment(cam, pose, l.a, l.b);
+          if (!s2) continue;
+          lines.push_back({s2->a.x + 0.5, s2->a.y + 0.5, s2->b.x + 0.5, s2->b.y + 0.5,
+                           css(l.rgba), l.width, nav::OverlayKindName(l.kind)});
+        }
+        if (cv->drone_known) {
+          glm::dvec2 uv;
+          const glm::dvec3 pc = pose.Inverse() * (cv->drone - info.geom.origin.origin_in_world);
+          if (cam.Project(pc, &uv)) j["drone_px"] = {uv.x + 0.5, uv.y + 0.5};
+        }
+      }
+    }
+    if (show_cells_) {
+      const bool by_tau = cells_by_tau_ && !info.geom.cell_coverage.empty();
+      const Rigid3d cam_from_local = pose.Inverse();
+      size_t k = 0, stride = std::max<size_t>(1, info.cells / 4000);
+      for (const auto& [cell, refs] : info.geom.cell_refs) {
+        if (k++ % stride) continue;
+        const glm::dvec3 pc = cam_from_local * info.geom.grid.Centre(cell);
+        glm::dvec2 uv;
+        if (pc.z < 0.05 || !cam.Project(pc, &uv) || !cam.InImage(uv)) continue;
+        if (!occ.empty()) {
+          const int x = std::clamp(int((uv.x + 0.5) * occ.width() / W), 0, occ.width() - 1);
+          const int y = std::clamp(int((uv.y + 0.5) * occ.height() / H), 0, occ.height() - 1);
+          const float z = occ.at(x, y);
+          if (z > 0 && pc.z > z * 1.03 + 0.01) continue;
+        }
+        int percent = -1;
+        uint32_t col;
+        if (by_tau) {
+          auto it = info.geom.cell_coverage.find(cell);
+          percent = it == info.geom.cell_coverage.end() ? 0 : it->second;
+          col = nav::CoverageColor(percent, 255);
+        } else {
+          col = nav::RefCountColor(refs.size(), size_t(info.max_refs), 255);
+        }
+        dots.push_back({uv.x + 0.5, uv.y + 0.5, css(col), percent});
+      }
+      j["cells_by"] = by_tau ? "tau" : "refs";
+    }
+    j["lines"] = std::move(lines);
+    j["dots"] = std::move(dots);
+    return j;
+  }
+
   // ---- browser view (no window) ----
   int RunHttp() {
     if (auto s = InitModelAndRenderer(true); !s.ok()) return Fail(s);
@@ -877,8 +1174,9 @@ class App {
     nav::AdaptiveResolution adaptive(ao);
     const int W = o_.width, H = o_.height;
     const auto t_start = Clock::now();
-    auto t_last = Clock::now();
-    bool force = true;
+    auto t_last = Clock::now(), t_overlay = Clock::now();
+    bool force = true, overlay_due = true, have_frame = false;
+    Rigid3d last_pose;
     while (!g_stop.load()) {
       if (o_.max_seconds > 0 && MsSince(t_start) > o_.max_seconds * 1e3) break;
       const HttpInput hi = (*http)->TakeInput();
@@ -903,7 +1201,35 @@ class App {
         } else if (k == "f") {
           follow_ = !follow_;
           force = true;
+        } else if (k == "g") {  // look at the drone from behind and above it
+          if (control_)
+            if (auto cv = control_->view(); cv && cv->drone_known) {
+              cam.Reset(ChaseView(*cv, info_->geom.origin));
+              follow_ = false;
+              force = true;
+            }
+        } else if (k == "3") {
+          show_cells_ = !show_cells_;
+          overlay_due = true;
+        } else if (k == "4") {
+          cells_by_tau_ = !cells_by_tau_;
+          overlay_due = true;
+        } else if (k == "5") {
+          show_drone_ = !show_drone_;
+          overlay_due = true;
         }
+      }
+      // The overlays follow the drone at 5 Hz even when no frame is rendered.
+      if (have_frame && (overlay_due || MsSince(t_overlay) >= 200)) {
+        ImageF occ;
+        if (show_cells_) {
+          auto z = renderer_->RenderProxyDepth(Camera(std::max(1, W / 8), std::max(1, H / 8)),
+                                               last_pose);
+          if (z.ok()) occ = *std::move(z);
+        }
+        (*http)->SetOverlay(OverlayJson(*info_, last_pose, W, H, occ).dump());
+        t_overlay = Clock::now();
+        overlay_due = false;
       }
       bool changed = cam.Step(in, dt) || force;
       force = false;
@@ -928,6 +1254,9 @@ class App {
       auto jpeg = EncodeJpeg(*img, o_.jpeg_quality);
       if (!jpeg.ok()) return Fail(jpeg.status());
       (*http)->PublishFrame(*std::move(jpeg));
+      last_pose = cam.pose();
+      have_frame = true;
+      overlay_due = true;
       const double ms = MsSince(t0);
       if (changed) adaptive.ReportMovingFrame(ms);
       stage_ = d;
@@ -945,7 +1274,9 @@ class App {
                           {"clients", (*http)->clients()},
                           {"follow", follow_},
                           {"speed_mps", cam.speed_mps()},
+                          {"cells_with_coverage", info_->geom.cell_coverage.size()},
                           {"pose_local", PoseJson(p)}};
+      if (control_) j["control"] = control_->state();
       std::lock_guard lock(status_mu);
       frame_ms = ms;
       ++frames;
@@ -1168,6 +1499,9 @@ class App {
   std::shared_ptr<const SceneInfo> info_ = std::make_shared<SceneInfo>();
   bool synced_once_ = false;
   bool overlays_ = true, show_frusta_ = true, show_wire_ = false, show_cells_ = false;
+  bool cells_by_tau_ = true, show_drone_ = true;
+  std::unique_ptr<ControlSource> control_;  // drone overlays (nullptr: no control service)
+  nlohmann::json probe_ = nlohmann::json::object();  // what the overlays drew (status file)
   bool follow_ = false, replaying_ = false;
   int stage_ = 1;
   double frame_ms_ = 0, render_ms_ = 0, present_ms_ = 0;

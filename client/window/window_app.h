@@ -6,7 +6,8 @@
 // the window per side while moving, with at most moving_candidates references per pixel; ½ then
 // the exact full frame once the camera stops, the last frame reused while nothing changes), a HUD
 // and scene overlays (stored-view frusta coloured by age, the live
-// camera, the proxy wireframe, cells coloured by their reference count). Also the scripted
+// camera, the proxy wireframe, cells coloured by the server's coverage τ or their reference
+// count, the drone with its camera frustum, target, route and flight zones). Also the scripted
 // modes that need no window: renders along a TUM path, and the frame-time benchmark (which
 // does need a window: it measures what the person sees, presentation included).
 #pragma once
@@ -46,6 +47,12 @@ struct WindowAppOptions {
   int bench_frames = 40;
   std::string bench_json, bench_label;
   std::string bench_modes = "adaptive_budget,adaptive_fixed,full_always";
+  // Drone overlays (issue 19): the control service polled (GetControlState, 10 Hz) for the
+  // drone, its camera, target, route and zones. "" = the --server of a live model (none for a
+  // file), "none" = off, else HOST:PORT.
+  std::string control;
+  std::string drone_id = "drone";
+  bool cells_by_tau = true;  // cells coloured by coverage τ when the model has it (key 4)
 };
 
 // Runs the app; returns the process exit code (0 ok, 1 runtime error, 2 bad input).

@@ -48,6 +48,9 @@ struct LumigraphModel {
   CellGrid grid;
   std::map<ViewId, StoredView> views;
   std::unordered_map<CellId, std::vector<ViewId>> cell_refs;  // R(b_k), |R| <= R_max
+  // Coverage τ(b_k)/τ_max of the server's planner in whole percent (0..100; exoview.v1
+  // CellCoverage), for display; empty when the model's source did not publish it.
+  std::unordered_map<CellId, uint8_t> cell_coverage;
   std::map<uint64_t, MeshChunk> chunks;
   uint64_t version = 0;   // model version (publisher deltas)
 

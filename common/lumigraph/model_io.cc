@@ -23,6 +23,8 @@ constexpr uint32_t kTagOrigin = Tag('O', 'R', 'I', 'G');
 constexpr uint32_t kTagView = Tag('V', 'I', 'E', 'W');
 constexpr uint32_t kTagCells = Tag('C', 'E', 'L', 'L');
 constexpr uint32_t kTagChunk = Tag('C', 'H', 'N', 'K');
+// Optional (a reader that predates it skips it): per-cell coverage, u64 count, (u64 cell, u8 %).
+constexpr uint32_t kTagCoverage = Tag('C', 'O', 'V', 'R');
 constexpr uint8_t kColorRaw = 0, kColorJpeg = 1;
 // Sanity bounds (a corrupt count must not allocate gigabytes before failing).
 constexpr uint64_t kMaxSection = uint64_t{1} << 34;
@@ -215,7 +217,8 @@ absl::StatusOr<std::vector<uint8_t>> SerializeModel(const LumigraphModel& model,
   Writer file;
   file.out.insert(file.out.end(), kMagic, kMagic + 8);
   file.Put(kFormatVersion);
-  file.Put<uint32_t>(uint32_t(2 + model.views.size() + model.chunks.size()));
+  file.Put<uint32_t>(uint32_t(2 + model.views.size() + model.chunks.size() +
+                             (model.cell_coverage.empty() ? 0 : 1)));
   {
     Writer w;
     for (int k = 0; k < 3; ++k) w.Put<double>(model.origin.origin_in_world[k]);
@@ -238,6 +241,15 @@ absl::StatusOr<std::vector<uint8_t>> SerializeModel(const LumigraphModel& model,
       for (ViewId r : refs) w.Put<uint32_t>(r);
     }
     PutSection(file, kTagCells, w.out);
+  }
+  if (!model.cell_coverage.empty()) {
+    Writer w;
+    w.Put<uint64_t>(model.cell_coverage.size());
+    for (const auto& [cell, percent] : model.cell_coverage) {
+      w.Put<uint64_t>(cell);
+      w.Put<uint8_t>(percent);
+    }
+    PutSection(file, kTagCoverage, w.out);
   }
   for (const auto& [id, c] : model.chunks) {
     Writer w;
@@ -308,6 +320,18 @@ absl::StatusOr<LumigraphModel> DeserializeModel(std::span<const uint8_t> bytes) 
       }
       if (!p.done()) return absl::DataLossError("model file: trailing bytes in cells");
       have_cells = true;
+    } else if (tag == kTagCoverage) {
+      Reader p(payload, "coverage");
+      EXO_ASSIGN_OR_RETURN(uint64_t cells, p.GetCount(9));
+      for (uint64_t c = 0; c < cells; ++c) {
+        uint64_t id = 0;
+        uint8_t percent = 0;
+        EXO_RETURN_IF_ERROR(p.Get(&id));
+        EXO_RETURN_IF_ERROR(p.Get(&percent));
+        if (percent > 100) return absl::DataLossError("model file: coverage above 100 %");
+        m.cell_coverage[id] = percent;
+      }
+      if (!p.done()) return absl::DataLossError("model file: trailing bytes in coverage");
     } else if (tag == kTagChunk) {
       Reader p(payload, "mesh chunk");
       MeshChunk c;

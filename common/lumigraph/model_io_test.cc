@@ -33,6 +33,8 @@ LumigraphModel SmallModel() {
   }
   m.cell_refs[PackCell({1, 2, 3})] = {3, 9};
   m.cell_refs[PackCell({-4, 0, 7})] = {9};
+  m.cell_coverage[PackCell({1, 2, 3})] = 100;
+  m.cell_coverage[PackCell({-4, 0, 7})] = 37;
   MeshChunk c;
   c.id = 17;
   c.version = 5;
@@ -52,6 +54,7 @@ TEST(ModelIoTest, RoundTripIsExactForRawColourAndQuantisedDepth) {
   EXPECT_EQ(back->grid.cell_size_m, m.grid.cell_size_m);
   EXPECT_EQ(back->version, 42u);
   EXPECT_EQ(back->cell_refs, m.cell_refs);
+  EXPECT_EQ(back->cell_coverage, m.cell_coverage);
   ASSERT_EQ(back->chunks.size(), 1u);
   EXPECT_EQ(back->chunks.at(17).version, 5u);
   EXPECT_EQ(back->chunks.at(17).mesh.positions, m.chunks.at(17).mesh.positions);

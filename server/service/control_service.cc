@@ -307,6 +307,13 @@ class ControlServiceHost::Impl final : public cv1::Control::Service {
       oz->set_name(z.name);
       ToProto(z.min, oz->mutable_min());
       ToProto(z.max, oz->mutable_max());
+      if (z.vertical_axis >= 0) {  // a prism: its polygon, so viewers can draw it
+        oz->set_prism_axis(static_cast<uint32_t>(z.vertical_axis + 1));
+        for (const glm::dvec2& uv : z.polygon) {
+          oz->add_polygon(uv.x);
+          oz->add_polygon(uv.y);
+        }
+      }
     }
     ToProto(core_->frame().up, out->mutable_up());
     out->set_drone_links(static_cast<uint32_t>(links_.load()));

@@ -1,5 +1,6 @@
 #include "server/service/model_store.h"
 
+#include <algorithm>
 #include <chrono>
 #include <random>
 
@@ -189,6 +190,8 @@ absl::Status ModelStore::ApplyModelDeltaLocked(const v1::Delta& d) {
     case v1::Delta::kCellRefsChanged:
       for (const auto& e : d.cell_refs_changed().cells())
         if (e.view_ids_size() > 0) cell_refs_[e.cell_id()].assign(e.view_ids().begin(), e.view_ids().end());
+      for (const auto& e : d.cell_refs_changed().coverage())
+        cell_coverage_[e.cell_id()] = uint8_t(std::min<uint32_t>(e.tau_percent(), 100));
       return absl::OkStatus();
     default:
       return absl::DataLossError("checkpoint: unexpected delta kind in the model");
@@ -298,6 +301,8 @@ absl::Status ModelStore::ReplayDelta(const v1::Delta& d) {
         else
           cell_refs_[e.cell_id()].assign(e.view_ids().begin(), e.view_ids().end());
       }
+      for (const auto& e : d.cell_refs_changed().coverage())
+        cell_coverage_[e.cell_id()] = uint8_t(std::min<uint32_t>(e.tau_percent(), 100));
       break;
     case v1::Delta::kMeshChunkUpserted: {
       const auto& m = d.mesh_chunk_upserted();
@@ -405,6 +410,11 @@ std::vector<CellId> ModelStore::CellIds() const {
   return out;
 }
 
+std::unordered_map<CellId, uint8_t> ModelStore::CellCoverage() const {
+  std::lock_guard lock(mu_);
+  return cell_coverage_;
+}
+
 std::vector<std::shared_ptr<const v1::MeshChunkUpserted>> ModelStore::Chunks() const {
   std::lock_guard lock(mu_);
   std::vector<std::shared_ptr<const v1::MeshChunkUpserted>> out;
@@ -484,6 +494,12 @@ absl::StatusOr<uint64_t> ModelStore::RemoveView(ViewId id) {
 
 uint64_t ModelStore::SetCellRefs(
     const std::vector<std::pair<CellId, std::vector<ViewId>>>& cells) {
+  return SetCellRefs(cells, {});
+}
+
+uint64_t ModelStore::SetCellRefs(
+    const std::vector<std::pair<CellId, std::vector<ViewId>>>& cells,
+    const std::vector<std::pair<CellId, uint8_t>>& coverage) {
   std::lock_guard lock(mu_);
   v1::Delta d;
   auto* c = d.mutable_cell_refs_changed();
@@ -495,6 +511,13 @@ uint64_t ModelStore::SetCellRefs(
     auto* e = c->add_cells();
     e->set_cell_id(cell);
     e->mutable_view_ids()->Add(refs.begin(), refs.end());
+  }
+  for (const auto& [cell, percent] : coverage) {
+    const uint8_t p = std::min<uint8_t>(percent, 100);
+    cell_coverage_[cell] = p;
+    auto* e = c->add_coverage();
+    e->set_cell_id(cell);
+    e->set_tau_percent(p);
   }
   return CommitLocked(std::move(d));
 }
@@ -538,7 +561,7 @@ absl::StatusOr<uint64_t> ModelStore::RemoveChunk(uint64_t chunk_id) {
 }
 
 size_t ModelStore::SnapshotBytesLocked() const {
-  return view_bytes_ + chunk_bytes_ + cell_refs_.size() * 24 + 64;
+  return view_bytes_ + chunk_bytes_ + cell_refs_.size() * 24 + cell_coverage_.size() * 12 + 64;
 }
 
 std::shared_ptr<const std::vector<DeltaPtr>> ModelStore::SnapshotLocked() const {
@@ -562,13 +585,18 @@ std::shared_ptr<const std::vector<DeltaPtr>> ModelStore::SnapshotLocked() const 
   // The parts themselves, not copies.
   for (const auto& [id, part] : chunks_) out->push_back(part);
   for (const auto& [id, part] : views_) out->push_back(part);
-  if (!cell_refs_.empty()) {
+  if (!cell_refs_.empty() || !cell_coverage_.empty()) {
     v1::Delta d;
     auto* c = d.mutable_cell_refs_changed();
     for (const auto& [cell, refs] : cell_refs_) {
       auto* e = c->add_cells();
       e->set_cell_id(cell);
       e->mutable_view_ids()->Add(refs.begin(), refs.end());
+    }
+    for (const auto& [cell, percent] : cell_coverage_) {
+      auto* e = c->add_coverage();
+      e->set_cell_id(cell);
+      e->set_tau_percent(percent);
     }
     push(std::move(d));
   }

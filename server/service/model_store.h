@@ -143,6 +143,12 @@ class ModelStore {
   // The published views (for a restarted planner), ordered by id.
   std::vector<std::shared_ptr<const v1::ViewAdded>> Views() const;
   std::vector<CellId> CellIds() const;
+  // The published coverage per cell (τ/τ_max in whole percent; cells never given one absent).
+  std::unordered_map<CellId, uint8_t> CellCoverage() const;
+  // Mutation: SetCellRefs with the cells' coverage (CellCoverage: τ/τ_max in whole percent,
+  // clamped to 100) in the same delta; either list may be empty. Returns the new version.
+  uint64_t SetCellRefs(const std::vector<std::pair<CellId, std::vector<ViewId>>>& cells,
+                       const std::vector<std::pair<CellId, uint8_t>>& coverage);
   // The published mesh chunks (shared parts; MeshFromProto turns them into meshes) and the scene
   // origin (nullopt before the first frame): what region marking renders its depth from.
   std::vector<std::shared_ptr<const v1::MeshChunkUpserted>> Chunks() const;
@@ -202,6 +208,7 @@ class ModelStore {
   std::map<ViewId, DeltaPtr> views_;
   std::map<ViewId, ViewDigestRecord> view_records_;
   std::unordered_map<CellId, std::vector<ViewId>> cell_refs_;
+  std::unordered_map<CellId, uint8_t> cell_coverage_;  // CellCoverage.tau_percent
   std::map<uint64_t, DeltaPtr> chunks_;
   mutable std::shared_ptr<const std::vector<DeltaPtr>> snapshot_;  // of snapshot_version_
   mutable uint64_t snapshot_version_ = ~uint64_t{0};

@@ -413,3 +413,53 @@ TEST(ModelStoreReplica, DeltasAfterReportsACompactedLog) {
 
 }  // namespace
 }  // namespace exo
+
+namespace exo {
+namespace {
+
+// Per-cell coverage (CellCoverage, issue 17): sent in the CellRefsChanged delta with (or without)
+// reference changes, part of the snapshot, the checkpoint and a replica; not of the digest.
+TEST(ModelStoreCoverage, CoverageTravelsInDeltasSnapshotsCheckpointsAndReplicas) {
+  ModelStore server;
+  server.SetSceneParams(LocalOrigin{}, 0.5);
+  const uint64_t digest0 = server.GetSummary().digest;
+  server.SetCellRefs({{7, {1, 2}}}, {{7, 40}, {9, 0}});
+  server.SetCellRefs({}, {{7, 100}});  // τ rose, references unchanged: coverage only
+  EXPECT_EQ(server.CellCoverage(), (std::unordered_map<CellId, uint8_t>{{7, 100}, {9, 0}}));
+  server.SetCellRefs({}, {{9, 250}});  // clamped to 100 %
+  EXPECT_EQ(server.CellCoverage().at(9), 100);
+  // The last delta carries only coverage.
+  auto d = server.DeltasAfter(server.version() - 1, 10, 0);
+  ASSERT_TRUE(d.ok());
+  ASSERT_EQ(d->size(), 1u);
+  EXPECT_EQ((*d)[0]->cell_refs_changed().cells_size(), 0);
+  ASSERT_EQ((*d)[0]->cell_refs_changed().coverage_size(), 1);
+  EXPECT_EQ((*d)[0]->cell_refs_changed().coverage(0).tau_percent(), 100u);
+  // Not part of the digest (display data): only the references changed it.
+  ModelStore refs_only;
+  refs_only.SetSceneParams(LocalOrigin{}, 0.5);
+  refs_only.SetCellRefs({{7, {1, 2}}});
+  EXPECT_EQ(server.GetSummary().digest, refs_only.GetSummary().digest);
+  EXPECT_NE(server.GetSummary().digest, digest0);
+  // A new subscriber's snapshot has the coverage of every cell.
+  auto sub = server.Subscribe(0, 0);
+  std::unordered_map<CellId, uint32_t> snap;
+  for (const DeltaPtr& p : Drain(*sub))
+    if (p->has_cell_refs_changed())
+      for (const auto& c : p->cell_refs_changed().coverage()) snap[c.cell_id()] = c.tau_percent();
+  EXPECT_EQ(snap, (std::unordered_map<CellId, uint32_t>{{7, 100}, {9, 100}}));
+  // A checkpoint restores it; a replica replaying the deltas has it.
+  ModelStore restored;
+  ASSERT_TRUE(restored.RestoreCheckpoint(server.MakeCheckpoint(1 << 20)).ok());
+  EXPECT_EQ(restored.CellCoverage(), server.CellCoverage());
+  ModelStoreOptions ro;
+  ro.replica = true;
+  ModelStore replica(ro);
+  auto all = server.DeltasAfter(0, 1000, 0);
+  ASSERT_TRUE(all.ok());
+  for (const DeltaPtr& x : *all) ASSERT_TRUE(replica.ReplayDelta(*x).ok());
+  EXPECT_EQ(replica.CellCoverage(), server.CellCoverage());
+}
+
+}  // namespace
+}  // namespace exo

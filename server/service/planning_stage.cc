@@ -1,5 +1,7 @@
 #include "server/service/planning_stage.h"
 
+#include <algorithm>
+#include <cmath>
 #include <map>
 #include <mutex>
 
@@ -73,7 +75,10 @@ class PlanningStage final : public PipelineStage {
     StoredView view = core::StoredViewOf(f, h.id, ctx.origin);
     EXO_ASSIGN_OR_RETURN(v1::ViewAdded msg, ViewToProto(view, options_.publish));
     ctx.store->AddView(std::move(msg));
-    if (!h.cell_refs.empty()) store_->SetCellRefs(h.cell_refs);
+    {
+      const auto coverage = CoverageChangesLocked(h.cell_refs);
+      if (!h.cell_refs.empty() || !coverage.empty()) store_->SetCellRefs(h.cell_refs, coverage);
+    }
     if (worker_) {
       // The first view fixes the exposure gauge (E = 1); later ones are refined against the
       // stored views (as cached at 1/k resolution) off this thread.
@@ -169,8 +174,31 @@ class PlanningStage final : public PipelineStage {
     for (CellId c : store_->CellIds()) refs[c];  // cells the planner no longer references: cleared
     for (auto& [c, r] : planner_->planner().CellPublishedRefs()) refs[c] = std::move(r);
     std::vector<std::pair<CellId, std::vector<ViewId>>> cells(refs.begin(), refs.end());
-    if (!cells.empty()) store_->SetCellRefs(cells);
+    const auto coverage = CoverageChangesLocked(cells);
+    if (!cells.empty() || !coverage.empty()) store_->SetCellRefs(cells, coverage);
     return absl::OkStatus();
+  }
+
+  // The cells whose published coverage (CellCoverage: τ/τ_max in whole percent) differs from the
+  // planner's now: every cell with references in the store or in `refs` (the references about
+  // to be published). O(cells) lookups per accepted frame; only changed values go on the wire.
+  std::vector<std::pair<CellId, uint8_t>> CoverageChangesLocked(
+      const std::vector<std::pair<CellId, std::vector<ViewId>>>& refs) const {
+    const auto& planner = planner_->planner();
+    const double tau_max = planner.options().tau_max;
+    const auto published = store_->CellCoverage();
+    std::vector<CellId> cells = store_->CellIds();
+    for (const auto& [c, r] : refs) cells.push_back(c);
+    std::sort(cells.begin(), cells.end());
+    cells.erase(std::unique(cells.begin(), cells.end()), cells.end());
+    std::vector<std::pair<CellId, uint8_t>> out;
+    for (CellId c : cells) {
+      const double f = tau_max > 0 ? std::clamp(planner.CellTau(c) / tau_max, 0.0, 1.0) : 0.0;
+      const uint8_t q = uint8_t(std::lround(100.0 * f));
+      auto it = published.find(c);
+      if (it == published.end() || it->second != q) out.emplace_back(c, q);
+    }
+    return out;
   }
 
   // On the refinement thread. The view may have been evicted meanwhile (stale: nothing to do).
@@ -187,7 +215,8 @@ class PlanningStage final : public PipelineStage {
       auto changed = planner_->Remove(job.id);
       if (!changed.ok()) return;
       (void)store_->RemoveView(job.id);
-      if (!changed->empty()) store_->SetCellRefs(*changed);
+      const auto coverage = CoverageChangesLocked(*changed);
+      if (!changed->empty() || !coverage.empty()) store_->SetCellRefs(*changed, coverage);
       ref_cache_.erase(job.id);
       ++outliers_removed_;
       return;
