@@ -661,6 +661,7 @@ ExoviewServer::~ExoviewServer() { Shutdown(); }
 absl::Status ExoviewServer::Start() {
   EXO_RETURN_IF_ERROR(config_.Validate());
   store_ = std::make_unique<ModelStore>(config_.store);
+  std::string pipeline_state;  // of the checkpoint (Pipeline::SaveState)
   if (config_.enable_inpainting)
     regions_ = std::make_shared<RegionRegistry>(config_.regions, store_.get());
   if (!config_.checkpoint_path.empty()) {
@@ -688,6 +689,7 @@ absl::Status ExoviewServer::Start() {
       return absl::DataLossError(absl::StrCat("cannot parse checkpoint ", config_.checkpoint_path,
                                               " nor its previous generation ", prev));
     if (!loaded.empty()) {
+      pipeline_state = std::move(*c.mutable_pipeline_state());
       EXO_RETURN_IF_ERROR(store_->RestoreCheckpoint(c));
       if (regions_) EXO_RETURN_IF_ERROR(regions_->Restore(c));
       restored_version_ = checkpoint_version_ = c.version();
@@ -720,8 +722,20 @@ absl::Status ExoviewServer::Start() {
   // The stages after the checkpoint and the log replay: a restarted stage sees the restored model.
   EXO_ASSIGN_OR_RETURN(auto stages, MakeStages(config_, regions_, store_.get(), &inpainting_));
   pipeline_ = std::make_unique<Pipeline>(config_.pipeline, store_.get(), std::move(stages));
-  // The scene set-up of a restored model (checkpoint and/or replayed log).
-  if (store_->has_scene()) {
+  // The pipeline's state at the checkpoint (scene set-up, TSDF, planner): the journal replay and
+  // the next frames continue exactly as an uninterrupted server would have (issue 20).
+  if (!pipeline_state.empty()) {
+    if (absl::Status s = pipeline_->RestoreState(pipeline_state); !s.ok()) {
+      log::Get("server")->error("checkpoint: the pipeline state is not usable ({}); the stages "
+                                "rebuild from the stored views instead",
+                                std::string(s.message()));
+      pipeline_state.clear();
+      EXO_ASSIGN_OR_RETURN(auto fresh, MakeStages(config_, regions_, store_.get(), &inpainting_));
+      pipeline_ = std::make_unique<Pipeline>(config_.pipeline, store_.get(), std::move(fresh));
+    }
+  }
+  // The scene set-up of a restored model without pipeline state (checkpoint and/or replayed log).
+  if (pipeline_state.empty() && store_->has_scene()) {
     const v1::SceneParams scene = store_->scene();
     const auto& o = scene.origin_in_world();
     LocalOrigin origin;
@@ -901,8 +915,31 @@ absl::Status ExoviewServer::WriteCheckpoint(bool force) {
   // Records appended from now on go to a new segment; the closed ones are deleted once a
   // checkpoint that covers them is on disk (see below).
   if (journal) journal->Rotate();
-  const uint64_t ledger = store_->ledger_changes();
-  v1::Checkpoint c = store_->MakeCheckpoint(config_.checkpoint_max_log_bytes);
+  // The model and the pipeline's state at one frame: admission pauses until every admitted frame
+  // went through every stage (Pipeline::Quiesce); the file is written after it resumes.
+  uint64_t ledger = 0;
+  v1::Checkpoint c;
+  auto snapshot = [&] {
+    ledger = store_->ledger_changes();
+    c = store_->MakeCheckpoint(config_.checkpoint_max_log_bytes);
+    if (!pipeline_) return;
+    absl::StatusOr<std::string> state = pipeline_->SaveState();
+    if (state.ok()) {
+      c.set_pipeline_state(*std::move(state));
+    } else if (!pipeline_state_warned_.exchange(true)) {
+      log::Get("server")->warn("checkpoint without the pipeline's state ({}): a restart rebuilds "
+                               "the planner from the stored views and starts a new TSDF",
+                               std::string(state.status().message()));
+    }
+  };
+  if (!pipeline_ || !pipeline_->Quiesce(config_.checkpoint_quiesce_s, snapshot)) {
+    if (pipeline_)
+      log::Get("server")->warn("checkpoint: the pipeline did not drain within {} s; written "
+                               "without its state",
+                               config_.checkpoint_quiesce_s);
+    ledger = store_->ledger_changes();
+    c = store_->MakeCheckpoint(config_.checkpoint_max_log_bytes);
+  }
   if (regions_) regions_->ToCheckpoint(&c);
   const std::string tmp = config_.checkpoint_path + ".tmp";
   {
