@@ -4,7 +4,11 @@
 // acked durable before the kill is in the recovered model's applied-frame ledger, the ledger is
 // contiguous (no frame lost in between) and no frame came twice; at the end every frame was acked
 // durable exactly once, the final checkpoint holds each frame once, and no two stored views share
-// a pose (a frame applied twice would add its view again under a new id).
+// a pose (a frame applied twice would add its view again under a new id). Then the same frames go
+// through a server that is never interrupted: the stored views (ids, poses, exposures) and the
+// geometry, planning and model digests must be equal (the checkpoint carries the pipeline's
+// state, the journal replays through the same stages; refinement, asynchronous and
+// timing-driven, is off in both runs: docs/security.md §4).
 #include <netinet/in.h>
 #include <sys/socket.h>
 #include <unistd.h>
@@ -253,6 +257,9 @@ TEST_F(ServiceDurable, KillNineAtTwentyRandomMomentsLosesNoDurableFrameAndApplie
   std::ifstream in(dir_ + "/model.ckpt", std::ios::binary);
   ASSERT_TRUE(c.ParseFromIstream(&in));
   ASSERT_EQ(c.uploaders_size(), 1);
+  EXPECT_FALSE(c.pipeline_state().empty()) << "the final checkpoint carries no pipeline state";
+  std::printf("{\"checkpoint_bytes\": %zu, \"pipeline_state_bytes\": %zu}\n", c.ByteSizeLong(),
+              c.pipeline_state().size());
   EXPECT_EQ(c.uploaders(0).applied_frames(), static_cast<uint64_t>(kFrames));
   EXPECT_EQ(c.uploaders(0).applied_max_sequence(), static_cast<uint64_t>(kFrames));
   EXPECT_EQ(c.uploaders(0).double_applied(), 0u);

@@ -115,7 +115,7 @@ std::vector<ConfigKey> MakeKeys() {
           EXO_FIELD(geometry.publish_lod_error_voxels)),
       Key("chunk_refresh_burst_s", "... bursts of up to this many seconds of the budget",
           EXO_FIELD(geometry.refresh_burst_s)),
-      Key("chunk_republish_interval_s", "minimum seconds between republishing a chunk",
+      Key("chunk_republish_interval_s", "minimum seconds of stream time (frame timestamps) between republishing a chunk",
           EXO_FIELD(geometry.republish_interval_s)),
       Key("geometry_shed_backlog", "skip fusing a frame while this fraction of the admission queue waits (0 = never; off with admission_block)",
           EXO_FIELD(geometry.shed_backlog_fraction)),
