@@ -7,6 +7,8 @@
 
 #include <chrono>
 #include <cstdio>
+#include <cstring>
+#include <span>
 #include <fstream>
 #include <optional>
 #include <sstream>
@@ -24,6 +26,7 @@
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_split.h"
 #include "absl/strings/strip.h"
+#include "common/io/zstd.h"
 #include "common/log/log.h"
 #include "common/process/malloc_tuning.h"
 #include "proto/exoview.grpc.pb.h"
@@ -61,6 +64,34 @@ bool TakeSlot(std::atomic<int>* n, int limit) {
 std::string PeerHost(const std::string& peer) {
   const auto colon = peer.rfind(':');
   return colon == std::string::npos || colon < 5 ? peer : peer.substr(0, colon);
+}
+
+// Checkpoint.pipeline_state on disk: "EXZ1", the size of Pipeline::SaveState's bytes (u64) and
+// their zstd frame (level 1; the TSDF's unobserved voxels and the mesh arrays compress well).
+constexpr char kStateMagic[4] = {'E', 'X', 'Z', '1'};
+absl::StatusOr<std::string> CompressState(const std::string& raw) {
+  std::vector<uint8_t> out(sizeof(kStateMagic) + sizeof(uint64_t));
+  std::memcpy(out.data(), kStateMagic, sizeof(kStateMagic));
+  const uint64_t n = raw.size();
+  std::memcpy(out.data() + sizeof(kStateMagic), &n, sizeof(n));
+  EXO_ASSIGN_OR_RETURN(out, ZstdCompress(reinterpret_cast<const uint8_t*>(raw.data()), raw.size(),
+                                         1, std::move(out)));
+  return std::string(out.begin(), out.end());
+}
+absl::StatusOr<std::string> DecompressState(const std::string& stored) {
+  constexpr size_t kHeader = sizeof(kStateMagic) + sizeof(uint64_t);
+  if (stored.size() < kHeader || std::memcmp(stored.data(), kStateMagic, sizeof(kStateMagic)) != 0)
+    return absl::DataLossError("pipeline state: not a compressed state");
+  uint64_t n = 0;
+  std::memcpy(&n, stored.data() + sizeof(kStateMagic), sizeof(n));
+  const size_t z = stored.size() - kHeader;
+  if (n > (uint64_t{4} << 30) || n > 4096 * static_cast<uint64_t>(z) + (1 << 20))
+    return absl::DataLossError(absl::StrCat("pipeline state: implausible size ", n));
+  std::string raw(n, '\0');
+  EXO_RETURN_IF_ERROR(ZstdDecompress(
+      std::span<const uint8_t>(reinterpret_cast<const uint8_t*>(stored.data()) + kHeader, z),
+      reinterpret_cast<uint8_t*>(raw.data()), n, "pipeline state"));
+  return raw;
 }
 
 size_t FrameBytes(const Frame& f) { return f.color.size() + f.depth_m.size() * sizeof(float); }
@@ -725,7 +756,8 @@ absl::Status ExoviewServer::Start() {
   // The pipeline's state at the checkpoint (scene set-up, TSDF, planner): the journal replay and
   // the next frames continue exactly as an uninterrupted server would have (issue 20).
   if (!pipeline_state.empty()) {
-    if (absl::Status s = pipeline_->RestoreState(pipeline_state); !s.ok()) {
+    absl::StatusOr<std::string> raw = DecompressState(pipeline_state);
+    if (absl::Status s = raw.ok() ? pipeline_->RestoreState(*raw) : raw.status(); !s.ok()) {
       log::Get("server")->error("checkpoint: the pipeline state is not usable ({}); the stages "
                                 "rebuild from the stored views instead",
                                 std::string(s.message()));
@@ -919,13 +951,14 @@ absl::Status ExoviewServer::WriteCheckpoint(bool force) {
   // went through every stage (Pipeline::Quiesce); the file is written after it resumes.
   uint64_t ledger = 0;
   v1::Checkpoint c;
+  std::string state_raw;  // compressed after admission resumed
   auto snapshot = [&] {
     ledger = store_->ledger_changes();
     c = store_->MakeCheckpoint(config_.checkpoint_max_log_bytes);
     if (!pipeline_) return;
     absl::StatusOr<std::string> state = pipeline_->SaveState();
     if (state.ok()) {
-      c.set_pipeline_state(*std::move(state));
+      state_raw = *std::move(state);
     } else if (!pipeline_state_warned_.exchange(true)) {
       log::Get("server")->warn("checkpoint without the pipeline's state ({}): a restart rebuilds "
                                "the planner from the stored views and starts a new TSDF",
@@ -939,6 +972,12 @@ absl::Status ExoviewServer::WriteCheckpoint(bool force) {
                                config_.checkpoint_quiesce_s);
     ledger = store_->ledger_changes();
     c = store_->MakeCheckpoint(config_.checkpoint_max_log_bytes);
+  }
+  if (!state_raw.empty()) {
+    absl::StatusOr<std::string> z = CompressState(state_raw);
+    if (z.ok()) c.set_pipeline_state(*std::move(z));
+    else log::Get("server")->warn("checkpoint without the pipeline's state: {}",
+                                  std::string(z.status().message()));
   }
   if (regions_) regions_->ToCheckpoint(&c);
   const std::string tmp = config_.checkpoint_path + ".tmp";
