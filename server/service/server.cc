@@ -965,7 +965,13 @@ absl::Status ExoviewServer::WriteCheckpoint(bool force) {
                                std::string(state.status().message()));
     }
   };
-  if (!pipeline_ || !pipeline_->Quiesce(config_.checkpoint_quiesce_s, snapshot)) {
+  const int64_t quiesce_t0 = SteadyNowNs();
+  int64_t paused_ns = 0;
+  const bool quiesced = pipeline_ && pipeline_->Quiesce(config_.checkpoint_quiesce_s, [&] {
+    snapshot();
+    paused_ns = SteadyNowNs() - quiesce_t0;
+  });
+  if (!quiesced) {
     if (pipeline_)
       log::Get("server")->warn("checkpoint: the pipeline did not drain within {} s; written "
                                "without its state",
@@ -1007,6 +1013,10 @@ absl::Status ExoviewServer::WriteCheckpoint(bool force) {
     if (fd >= 0) ::close(fd);
     if (!synced) return absl::UnavailableError(absl::StrCat("cannot fsync ", dir));
   }
+  log::Get("server")->debug(
+      "checkpoint: version {}, {} bytes, pipeline state {} -> {} bytes, admission paused {:.1f} ms",
+      c.version(), c.ByteSizeLong(), state_raw.size(), c.pipeline_state().size(),
+      paused_ns * 1e-6);
   checkpoint_version_ = c.version();
   checkpoint_regions_generation_ = regions_generation;
   checkpoint_ledger_ = ledger;
