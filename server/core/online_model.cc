@@ -188,6 +188,28 @@ uint64_t OnlineGeometry::Digest() const {
   return h.Get48();
 }
 
+void OnlineGeometry::SaveState(StateWriter* w) const {
+  w->Put<uint64_t>(fused_);
+  w->Put<uint64_t>(live_.size());
+  for (const auto& [id, version] : live_) {
+    w->Put(id);
+    w->Put(version);
+  }
+  volume_.SaveState(w);
+}
+
+absl::Status OnlineGeometry::LoadState(StateReader* r) {
+  uint64_t n = 0;
+  r->Get(&fused_) && r->Count(&n, 2 * sizeof(uint64_t));
+  live_.clear();
+  for (uint64_t i = 0; r->ok() && i < n; ++i) {
+    uint64_t id = 0, version = 0;
+    if (r->Get(&id) && r->Get(&version)) live_[id] = version;
+  }
+  EXO_RETURN_IF_ERROR(r->Status("online geometry"));
+  return volume_.LoadState(r);
+}
+
 void ProxyMesh::Apply(const GeometryUpdate& u) {
   for (const MeshChunk& c : u.chunks) chunks_[c.id] = c;
   for (uint64_t id : u.removed) chunks_.erase(id);
@@ -408,6 +430,42 @@ absl::StatusOr<std::vector<std::pair<CellId, std::vector<ViewId>>>> OnlinePlanne
   EXO_ASSIGN_OR_RETURN(std::vector<CellId> changed, planner_.Remove(id));
   poses_.erase(id);
   return RefsOf(changed);
+}
+
+absl::Status OnlinePlanner::SaveState(StateWriter* w) const {
+  if (cell_ids_)
+    return absl::UnimplementedError("planner state with cell ids from the proxy (id_from_proxy)");
+  planner_.SaveState(w);
+  areas_.SaveState(w);
+  w->Put<uint64_t>(poses_.size());
+  for (const auto& [id, pose] : poses_) {
+    w->Put(id);
+    w->Put(pose);
+  }
+  w->Put(last_id_);
+  w->Put(last_candidate_s_);
+  w->PutVec(quality_.State());
+  w->Put(counters_);
+  return absl::OkStatus();
+}
+
+absl::Status OnlinePlanner::LoadState(StateReader* r) {
+  if (cell_ids_)
+    return absl::UnimplementedError("planner state with cell ids from the proxy (id_from_proxy)");
+  EXO_RETURN_IF_ERROR(planner_.LoadState(r));
+  EXO_RETURN_IF_ERROR(areas_.LoadState(r));
+  uint64_t n = 0;
+  r->Count(&n, sizeof(ViewId) + sizeof(Rigid3d));
+  poses_.clear();
+  for (uint64_t i = 0; r->ok() && i < n; ++i) {
+    ViewId id = 0;
+    Rigid3d pose;
+    if (r->Get(&id) && r->Get(&pose)) poses_[id] = pose;
+  }
+  std::vector<double> recent;
+  r->Get(&last_id_) && r->Get(&last_candidate_s_) && r->GetVec(&recent) && r->Get(&counters_);
+  quality_.SetState(recent);
+  return r->Status("online planner");
 }
 
 uint64_t OnlinePlanner::Digest() const {

@@ -132,6 +132,10 @@ class OnlineGeometry {
   uint64_t fused() const { return fused_; }
   // Hash of the live chunks (id, version), 48 bits (exact in a double).
   uint64_t Digest() const;
+  // The TSDF and the chunk bookkeeping, for the server's checkpoint (common/state_io.h): a
+  // geometry made with the same options and set-up that loads it continues exactly as this one.
+  void SaveState(StateWriter* w) const;
+  absl::Status LoadState(StateReader* r);
 
  private:
   OnlineGeometry(const TsdfOptions& tsdf, const OnlineModelOptions& options,
@@ -205,6 +209,11 @@ class OnlinePlanner {
   const SceneSetup& setup() const { return setup_; }
   // Hash of the stored views (id, pose) and every R(b_k), 48 bits.
   uint64_t Digest() const;
+  // Everything Plan decides from, for the server's checkpoint (common/state_io.h): a planner
+  // made with the same options and set-up that loads it plans the next frames exactly as this
+  // one. Unimplemented with id_from_proxy (the cell-id renderer's meshes are not saved).
+  absl::Status SaveState(StateWriter* w) const;
+  absl::Status LoadState(StateReader* r);
   struct Counters {
     uint64_t frames = 0, candidates = 0, accepted = 0, governed = 0, areas_set = 0;
     uint64_t ids_from_proxy = 0, cellid_update_errors = 0;

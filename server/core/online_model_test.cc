@@ -180,5 +180,68 @@ TEST(RegisterDepthToColor, IdentityKeepsDepthAndAShiftMovesIt) {
   EXPECT_EQ(v.depth_m.at(10, 10), moved.at(10, 10));
 }
 
+// The checkpoint of a restarted server (issue 20): geometry and planner saved after 12 frames
+// and loaded into new ones continue exactly as the ones that were never stopped (same hand-off
+// for every later frame, same digests); a truncated or corrupt state is an error, never a crash.
+TEST(OnlineModelState, SavedAndLoadedHalvesContinueExactlyAsUninterrupted) {
+  const auto frames = ApartmentFrames(24);
+  const OnlineModelOptions o = SmallOptions();
+  auto setup = ChooseSceneSetup(frames[0], o);
+  ASSERT_TRUE(setup.ok()) << setup.status();
+  auto g = OnlineGeometry::Create(o, *setup);
+  auto p = OnlinePlanner::Create(o, *setup);
+  ASSERT_TRUE(g.ok() && p.ok());
+  auto step = [&](OnlineGeometry& geo, OnlinePlanner& plan, const Frame& f) {
+    auto u = geo.Integrate(f);
+    EXPECT_TRUE(u.ok()) << u.status();
+    EXPECT_TRUE(plan.Apply(*u).ok());
+    auto h = plan.Plan(PlanFrame::Of(f, setup->origin));
+    EXPECT_TRUE(h.ok()) << h.status();
+    return *h;
+  };
+  for (int i = 0; i < 12; ++i) step(**g, **p, frames[i]);
+  StateWriter gw, pw;
+  (*g)->SaveState(&gw);
+  ASSERT_TRUE((*p)->SaveState(&pw).ok());
+  auto g2 = OnlineGeometry::Create(o, *setup);
+  auto p2 = OnlinePlanner::Create(o, *setup);
+  ASSERT_TRUE(g2.ok() && p2.ok());
+  StateReader gr(gw.str()), pr(pw.str());
+  ASSERT_TRUE((*g2)->LoadState(&gr).ok());
+  ASSERT_TRUE((*p2)->LoadState(&pr).ok());
+  EXPECT_TRUE(gr.done() && pr.done());
+  EXPECT_EQ((*g2)->Digest(), (*g)->Digest());
+  EXPECT_EQ((*p2)->Digest(), (*p)->Digest());
+  int accepted = 0;
+  for (int i = 12; i < 24; ++i) {
+    const HandOff a = step(**g, **p, frames[i]);
+    const HandOff b = step(**g2, **p2, frames[i]);
+    EXPECT_EQ(a.accepted, b.accepted) << "frame " << i;
+    EXPECT_EQ(a.id, b.id) << "frame " << i;
+    EXPECT_EQ(a.removed, b.removed) << "frame " << i;
+    EXPECT_EQ(a.tau_sum, b.tau_sum) << "frame " << i;
+    accepted += a.accepted;
+  }
+  EXPECT_GT(accepted, 0) << "no frame after the restart changed the store: nothing compared";
+  EXPECT_EQ((*g2)->Digest(), (*g)->Digest());
+  EXPECT_EQ((*p2)->Digest(), (*p)->Digest());
+  EXPECT_EQ((*g2)->volume().ExtractAll().positions, (*g)->volume().ExtractAll().positions);
+
+  // Every truncation of the states, and a flipped count, is refused with an error.
+  for (const std::string* state : {&gw.str(), &pw.str()})
+    for (size_t n = 0; n < state->size(); n += 1 + state->size() / 97) {
+      StateReader r(std::string_view(*state).substr(0, n));
+      auto g3 = OnlineGeometry::Create(o, *setup);
+      auto p3 = OnlinePlanner::Create(o, *setup);
+      const absl::Status s = state == &gw.str() ? (*g3)->LoadState(&r) : (*p3)->LoadState(&r);
+      EXPECT_FALSE(s.ok() && r.done()) << "a state cut at " << n << " bytes was accepted";
+    }
+  std::string bad = pw.str();
+  for (size_t i = 32; i < 40; ++i) bad[i] = '\xff';  // the number of views
+  StateReader r(bad);
+  auto p4 = OnlinePlanner::Create(o, *setup);
+  EXPECT_FALSE((*p4)->LoadState(&r).ok());
+}
+
 }  // namespace
 }  // namespace exo::core

@@ -1,5 +1,7 @@
 #include "server/geometry/cell_areas.h"
 
+#include <algorithm>
+
 #include <cmath>
 #include <limits>
 
@@ -164,6 +166,61 @@ double CellAreas::TotalArea() const {
   double s = 0;
   for (const auto& [c, a] : area_) s += a;
   return s;
+}
+
+namespace {
+template <typename K, typename V>
+struct KeyValue {
+  K first;
+  V second;
+};
+template <typename K, typename V>
+std::vector<KeyValue<K, V>> Sorted(const absl::flat_hash_map<K, V>& m) {
+  std::vector<KeyValue<K, V>> v;
+  v.reserve(m.size());
+  for (const auto& [k, x] : m) v.push_back({k, x});
+  std::sort(v.begin(), v.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
+  return v;
+}
+template <typename K, typename V>
+absl::flat_hash_map<K, V> MapOf(const std::vector<KeyValue<K, V>>& v) {
+  absl::flat_hash_map<K, V> m;
+  m.reserve(v.size());
+  for (const auto& [k, x] : v) m[k] = x;
+  return m;
+}
+}  // namespace
+
+void CellAreas::SaveState(StateWriter* w) const {
+  w->Put<uint64_t>(per_chunk_.size());
+  for (const auto& [chunk, cells] : Sorted(per_chunk_)) {
+    w->Put(chunk);
+    w->PutVec(Sorted(cells));
+  }
+  w->PutVec(Sorted(area_));
+  w->PutVec(Sorted(chunk_count_));
+  std::vector<CellId> changed(changed_.begin(), changed_.end());
+  std::sort(changed.begin(), changed.end());
+  w->PutVec(changed);
+}
+
+absl::Status CellAreas::LoadState(StateReader* r) {
+  per_chunk_.clear();
+  uint64_t n = 0;
+  r->Count(&n, sizeof(uint64_t) * 2);
+  for (uint64_t i = 0; r->ok() && i < n; ++i) {
+    uint64_t chunk = 0;
+    std::vector<KeyValue<CellId, double>> cells;
+    if (r->Get(&chunk) && r->GetVec(&cells)) per_chunk_[chunk] = MapOf(cells);
+  }
+  std::vector<KeyValue<CellId, double>> area;
+  std::vector<KeyValue<CellId, int>> count;
+  std::vector<CellId> changed;
+  r->GetVec(&area) && r->GetVec(&count) && r->GetVec(&changed);
+  area_ = MapOf(area);
+  chunk_count_ = MapOf(count);
+  changed_ = absl::flat_hash_set<CellId>(changed.begin(), changed.end());
+  return r->Status("cell areas");
 }
 
 std::vector<CellId> CellAreas::TakeChangedCells() {

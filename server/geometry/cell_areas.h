@@ -16,6 +16,7 @@
 #include "common/cells.h"
 #include "common/lumigraph/model.h"
 #include "common/mesh.h"
+#include "common/state_io.h"
 
 namespace exo {
 
@@ -37,6 +38,10 @@ class CellAreas {
   std::vector<CellId> TakeChangedCells();
   // Every cell with surface and its area.
   const absl::flat_hash_map<CellId, double>& areas() const { return area_; }
+
+  // The whole bookkeeping, for the server's checkpoint (common/state_io.h).
+  void SaveState(StateWriter* w) const;
+  absl::Status LoadState(StateReader* r);
 
   // Area of one mesh per cell (the clipping used above; exposed for tests and tools).
   static absl::flat_hash_map<CellId, double> AreaPerCell(const TriangleMesh& mesh,

@@ -233,6 +233,64 @@ std::vector<uint64_t> TsdfVolume::BlockKeys() const {
   return keys;
 }
 
+void TsdfVolume::SaveState(StateWriter* w) const {
+  w->Put<float>(options_.voxel_size_m);
+  w->Put<int32_t>(options_.block_size);
+  w->Put<uint8_t>(origin_set_);
+  w->Put(origin_.origin_in_world);
+  w->Put(bmin_);
+  w->Put(bmax_);
+  w->Put<uint64_t>(stamp_);
+  std::vector<uint64_t> dirty(dirty_.begin(), dirty_.end());
+  std::sort(dirty.begin(), dirty.end());
+  w->PutVec(dirty);
+  w->PutVec(removed_);
+  std::vector<uint64_t> keys = BlockKeys();
+  std::sort(keys.begin(), keys.end());
+  w->Put<uint64_t>(keys.size());
+  for (uint64_t k : keys) {
+    const Block& b = *blocks_.at(k);
+    w->Put<uint64_t>(k);
+    w->Put(b.coord);
+    w->Put<uint64_t>(b.version);
+    w->Put<uint8_t>(b.has_chunk);
+    w->Put<uint64_t>(b.stamp);
+    w->PutVec(b.voxels);
+  }
+}
+
+absl::Status TsdfVolume::LoadState(StateReader* r) {
+  float voxel = 0;
+  int32_t block_size = 0;
+  uint8_t origin_set = 0;
+  r->Get(&voxel) && r->Get(&block_size);
+  if (r->ok() && (voxel != options_.voxel_size_m || block_size != options_.block_size))
+    return absl::FailedPreconditionError(absl::StrCat(
+        "TSDF state of voxel ", voxel, " m / block ", block_size, " does not fit a volume of ",
+        options_.voxel_size_m, " m / ", options_.block_size));
+  std::vector<uint64_t> dirty;
+  uint64_t n = 0;
+  r->Get(&origin_set) && r->Get(&origin_.origin_in_world) && r->Get(&bmin_) && r->Get(&bmax_) &&
+      r->Get(&stamp_) && r->GetVec(&dirty) && r->GetVec(&removed_) &&
+      r->Count(&n, sizeof(uint64_t) * 3);
+  origin_set_ = origin_set != 0;
+  dirty_ = absl::flat_hash_set<uint64_t>(dirty.begin(), dirty.end());
+  blocks_.clear();
+  const size_t voxels = static_cast<size_t>(block_size) * block_size * block_size;
+  for (uint64_t i = 0; r->ok() && i < n; ++i) {
+    uint64_t key = 0;
+    uint8_t has_chunk = 0;
+    auto b = std::make_unique<Block>();
+    r->Get(&key) && r->Get(&b->coord) && r->Get(&b->version) && r->Get(&has_chunk) &&
+        r->Get(&b->stamp) && r->GetVec(&b->voxels);
+    b->has_chunk = has_chunk != 0;
+    if (r->ok() && (b->voxels.size() != voxels || PackCell(b->coord) != key))
+      return absl::DataLossError("TSDF state: a block of the wrong size or key");
+    blocks_[key] = std::move(b);
+  }
+  return r->Status("TSDF volume");
+}
+
 size_t TsdfVolume::bytes() const {
   const size_t per_block = sizeof(Block) + sizeof(TsdfVoxel) * options_.block_size *
                                                options_.block_size * options_.block_size;

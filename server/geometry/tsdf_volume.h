@@ -36,6 +36,7 @@
 #include "common/lumigraph/model.h"
 #include "common/mesh.h"
 #include "common/rigid3.h"
+#include "common/state_io.h"
 #include "common/status.h"
 
 namespace exo {
@@ -125,6 +126,12 @@ class TsdfVolume {
   glm::ivec3 BlockCoordOf(const glm::vec3& p_local) const;
   // All allocated block keys (unordered).
   std::vector<uint64_t> BlockKeys() const;
+
+  // The whole field (blocks, chunk versions, dirty / removed sets, origin) for the server's
+  // checkpoint (common/state_io.h); LoadState into a volume of the same voxel and block size
+  // (an error otherwise, or for a truncated / corrupt state) replaces everything.
+  void SaveState(StateWriter* w) const;
+  absl::Status LoadState(StateReader* r);
 
  private:
   struct Block;

@@ -10,6 +10,7 @@
 
 #include <cstddef>
 #include <deque>
+#include <vector>
 
 #include "common/image.h"
 #include "common/status.h"
@@ -35,6 +36,9 @@ class FrameQuality {
   // Quality in [floor, 1] of the next frame with sharpness `s` (LaplacianVariance); 1 when off,
   // for the first frame, or when s is not finite / not positive (no information).
   double Next(double s);
+  // The window of recent sharpness values (the server's checkpoint).
+  std::vector<double> State() const { return {recent_.begin(), recent_.end()}; }
+  void SetState(const std::vector<double>& recent) { recent_.assign(recent.begin(), recent.end()); }
 
  private:
   FrameQualityOptions options_;

@@ -699,6 +699,65 @@ std::unordered_map<CellId, std::vector<ViewId>> ViewPlanner::CellPublishedRefs()
   return out;
 }
 
+void ViewPlanner::SaveState(StateWriter* w) const {
+  w->Put<double>(tau_sum_);
+  w->Put<uint64_t>(bytes_);
+  w->Put<uint64_t>(offered_);
+  PutUnordered(w, views_, [w](const View& v) {
+    w->Put(v.id);
+    w->Put(v.centre);
+    w->Put(v.rotation);
+    w->Put<uint64_t>(v.bytes);
+    w->Put(v.pixel_sr);
+    w->Put(v.quality);
+    w->PutVec(v.entries);
+    w->PutVec(v.pixels);
+  });
+  PutUnorderedPod(w, cell_index_);
+  w->Put<uint64_t>(cells_.size());
+  for (const Cell& c : cells_) {
+    w->Put(c.id);
+    w->Put(c.tau);
+    w->PutVec(c.observers);
+    w->PutVec(c.refs);
+  }
+  PutUnorderedPod(w, areas_);
+  w->PutVec(scratch_);
+  PutUnorderedPod(w, nearest_);
+  w->PutVec(obs_scratch_);
+}
+
+absl::Status ViewPlanner::LoadState(StateReader* r) {
+  uint64_t bytes = 0, cells = 0;
+  r->Get(&tau_sum_) && r->Get(&bytes) && r->Get(&offered_);
+  bytes_ = bytes;
+  GetUnordered(r, &views_, [r](View* v) {
+    uint64_t b = 0;
+    const bool ok = r->Get(&v->id) && r->Get(&v->centre) && r->Get(&v->rotation) &&
+                    r->Get(&b) && r->Get(&v->pixel_sr) && r->Get(&v->quality) &&
+                    r->GetVec(&v->entries) && r->GetVec(&v->pixels);
+    v->bytes = b;
+    return ok;
+  }) && GetUnorderedPod(r, &cell_index_) && r->Count(&cells, sizeof(CellId) + sizeof(double));
+  cells_.assign(r->ok() ? cells : 0, Cell{});
+  for (Cell& c : cells_)
+    if (!(r->Get(&c.id) && r->Get(&c.tau) && r->GetVec(&c.observers) && r->GetVec(&c.refs))) break;
+  GetUnorderedPod(r, &areas_) && r->GetVec(&scratch_) && GetUnorderedPod(r, &nearest_) &&
+      r->GetVec(&obs_scratch_);
+  EXO_RETURN_IF_ERROR(r->Status("view planner"));
+  // Every index must point into cells_ (a corrupt state must not crash a later Consider).
+  for (const auto& [id, v] : views_)
+    for (const Entry& e : v.entries)
+      if (e.cell < 0 || static_cast<size_t>(e.cell) >= cells_.size())
+        return absl::DataLossError("view planner state: an entry outside the cells");
+  for (const auto& [id, i] : cell_index_)
+    if (i < 0 || static_cast<size_t>(i) >= cells_.size())
+      return absl::DataLossError("view planner state: a cell index outside the cells");
+  if (scratch_.size() != cells_.size() && !scratch_.empty())
+    scratch_.assign(cells_.size(), 0.0);
+  return absl::OkStatus();
+}
+
 size_t ViewPlanner::BookkeepingBytes() const {
   size_t b = cells_.capacity() * sizeof(Cell) + cell_index_.size() * (sizeof(CellId) + 16) +
              areas_.size() * (sizeof(CellId) + sizeof(double) + 16);

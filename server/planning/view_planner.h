@@ -32,6 +32,7 @@
 #include "common/image.h"
 #include "common/lumigraph/model.h"
 #include "common/rigid3.h"
+#include "common/state_io.h"
 #include "common/status.h"
 
 namespace exo::planning {
@@ -208,6 +209,12 @@ class ViewPlanner {
   std::unordered_map<CellId, std::vector<ViewId>> CellPublishedRefs() const;
   // Approximate memory of the planner's own bookkeeping (bytes).
   size_t BookkeepingBytes() const;
+
+  // Everything the planner decides from (views, cells, τ, areas, dispersion neighbours), for the
+  // server's checkpoint (common/state_io.h); LoadState into a planner made with the same options
+  // replaces it (error: truncated / corrupt state, nothing usable).
+  void SaveState(StateWriter* w) const;
+  absl::Status LoadState(StateReader* r);
 
  private:
   explicit ViewPlanner(const PlannerOptions& options);

@@ -1,6 +1,7 @@
 #include "server/service/geometry_stage.h"
 
 #include "server/geometry/mesh_lod.h"
+#include "common/state_io.h"
 
 #include <algorithm>
 #include <atomic>
@@ -91,7 +92,10 @@ class GeometryStage final : public PipelineStage {
   }
 
   void Publish(core::GeometryUpdate u, const SceneContext& ctx, double source_time_s) {
-    const int64_t now = SteadyNowNs();
+    // The stream's own time (the frame's timestamp), not the server's clock: what is published
+    // is a function of the frames alone (a restarted server replaying its journal at full speed
+    // publishes what an uninterrupted one did, issue 20).
+    const int64_t now = static_cast<int64_t>(std::llround(source_time_s * 1e9));
     for (MeshChunk& c : u.chunks) {
       ++extractions_[c.id];
       auto it = published_.find(c.id);
@@ -177,6 +181,82 @@ class GeometryStage final : public PipelineStage {
     }
   }
 
+  static void PutMesh(StateWriter* w, const TriangleMesh& m) {
+    w->PutVec(m.positions);
+    w->PutVec(m.normals);
+    w->PutVec(m.colors);
+    w->PutVec(m.indices);
+    w->PutVec(m.material);
+  }
+  static bool GetMesh(StateReader* r, TriangleMesh* m) {
+    return r->GetVec(&m->positions) && r->GetVec(&m->normals) && r->GetVec(&m->colors) &&
+           r->GetVec(&m->indices) && r->GetVec(&m->material);
+  }
+
+ public:
+  absl::StatusOr<std::string> SaveState() const override {
+    std::lock_guard lock(mu_);
+    if (!geometry_) return std::string();
+    StateWriter w;
+    geometry_->SaveState(&w);
+    w.Put(tokens_);
+    w.Put<uint8_t>(last_source_s_.has_value());
+    w.Put(last_source_s_.value_or(0.0));
+    w.Put<int32_t>(shed_run_);
+    w.Put<uint8_t>(has_geometry_);
+    for (uint64_t v : {lod_in_.load(), lod_out_.load(), lod_fallbacks_.load(), shed_.load(),
+                       refreshed_.load(), refresh_still_.load()})
+      w.Put(v);
+    PutUnordered(&w, published_, [&w](const Published& p) {
+      w.Put<uint64_t>(p.triangles);
+      w.Put(p.time_ns);
+      w.Put(p.extractions);
+      w.PutVec(p.positions);
+    });
+    PutUnordered(&w, pending_, [&w](const MeshChunk& c) {
+      w.Put(c.id);
+      w.Put(c.version);
+      PutMesh(&w, c.mesh);
+    });
+    PutUnorderedPod(&w, extractions_);
+    return std::move(w.str());
+  }
+
+  absl::Status RestoreState(std::string_view state, const SceneContext& ctx) override {
+    if (state.empty()) return absl::OkStatus();
+    std::lock_guard lock(mu_);
+    EXO_ASSIGN_OR_RETURN(geometry_, core::OnlineGeometry::Create(model_, ctx.setup));
+    StateReader r(state);
+    EXO_RETURN_IF_ERROR(geometry_->LoadState(&r));
+    uint8_t has_last = 0, has_geometry = 0;
+    double last = 0;
+    int32_t shed_run = 0;
+    r.Get(&tokens_) && r.Get(&has_last) && r.Get(&last) && r.Get(&shed_run) &&
+        r.Get(&has_geometry);
+    if (has_last) last_source_s_ = last;
+    shed_run_ = shed_run;
+    has_geometry_ = has_geometry != 0;
+    for (std::atomic<uint64_t>* v :
+         {&lod_in_, &lod_out_, &lod_fallbacks_, &shed_, &refreshed_, &refresh_still_}) {
+      uint64_t x = 0;
+      r.Get(&x);
+      v->store(x);
+    }
+    GetUnordered(&r, &published_, [&r](Published* p) {
+      uint64_t t = 0;
+      const bool ok = r.Get(&t) && r.Get(&p->time_ns) && r.Get(&p->extractions) &&
+                      r.GetVec(&p->positions);
+      p->triangles = t;
+      return ok;
+    }) && GetUnordered(&r, &pending_, [&r](MeshChunk* c) {
+      return r.Get(&c->id) && r.Get(&c->version) && GetMesh(&r, &c->mesh);
+    }) && GetUnorderedPod(&r, &extractions_);
+    EXO_RETURN_IF_ERROR(r.Status("geometry stage"));
+    if (!r.done()) return absl::DataLossError("geometry stage state: trailing bytes");
+    return absl::OkStatus();
+  }
+
+ private:
   struct Published {
     size_t triangles = 0;
     int64_t time_ns = 0;

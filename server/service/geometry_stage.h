@@ -5,7 +5,7 @@
 // server's decisions do not depend on thread timing). Re-meshed chunks are published as
 // MeshChunkUpserted/Removed deltas; a chunk that already exists on the clients is only
 // re-published when its triangle count changed by more than `republish_change_fraction` or its
-// last publication is older than `republish_interval_s` (fusion noise would otherwise re-send
+// last publication is older than `republish_interval_s` of stream time (fusion noise would otherwise re-send
 // the whole visible proxy every few frames: the steady-state bandwidth target of SPEC §10), or
 // as a refresh when fusion has converged it further (republish_extraction_factor), under a
 // bandwidth budget (refresh_budget_kbps).
@@ -24,6 +24,9 @@ namespace exo {
 
 struct GeometryStageOptions {
   double republish_change_fraction = 0.2;
+  // Seconds of the stream's own time (frame timestamps), not of the server's clock: the
+  // publications are a function of the frames alone (issue 20: a restarted server replaying its
+  // journal at full speed publishes what an uninterrupted one did).
   double republish_interval_s = 60.0;
   // Issue 15: a chunk's first meshes come from one or two noisy frames and move as fusion
   // converges, while its triangle count hardly changes; held back by the rules above, the clients

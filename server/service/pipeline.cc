@@ -5,8 +5,10 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <thread>
 
 #include "common/log/log.h"
+#include "common/state_io.h"
 
 namespace exo {
 
@@ -35,6 +37,18 @@ Pipeline::Pipeline(const PipelineOptions& options, ModelStore* store,
 Pipeline::~Pipeline() { Stop(); }
 
 Pipeline::Admission Pipeline::Submit(PipelineFramePtr frame, bool block) {
+  {
+    std::unique_lock lock(pause_mu_);
+    pause_cv_.wait(lock, [this] { return !paused_; });
+    inflight_.fetch_add(1);
+  }
+  struct Leave {  // a frame that does not enter the queue is no longer in flight
+    std::atomic<int64_t>* n;
+    bool entered = false;
+    ~Leave() {
+      if (!entered) n->fetch_sub(1);
+    }
+  } leave{&inflight_};
   if (!origin_set_.load(std::memory_order_acquire)) {
     // The first admitted frame fixes the scene set-up (server/core ChooseSceneSetup: origin =
     // its camera centre, voxel / cell / d_max from what it observes; a restored checkpoint keeps
@@ -65,8 +79,98 @@ Pipeline::Admission Pipeline::Submit(PipelineFramePtr frame, bool block) {
     last_latency_ns_.store(SteadyNowNs() - frame->received_ns);
     return Admission::kAccepted;
   }
-  if (options_.admission_block || block) return queues_[0]->Push(std::move(frame)) ? Admission::kAccepted : Admission::kDropped;
-  return queues_[0]->TryPush(std::move(frame)) ? Admission::kAccepted : Admission::kDropped;
+  leave.entered = options_.admission_block || block ? queues_[0]->Push(std::move(frame))
+                                                    : queues_[0]->TryPush(std::move(frame));
+  return leave.entered ? Admission::kAccepted : Admission::kDropped;
+}
+
+bool Pipeline::Quiesce(double timeout_s, const std::function<void()>& fn) {
+  {
+    std::lock_guard lock(pause_mu_);
+    paused_ = true;
+  }
+  struct Resume {
+    Pipeline* p;
+    ~Resume() {
+      {
+        std::lock_guard lock(p->pause_mu_);
+        p->paused_ = false;
+      }
+      p->pause_cv_.notify_all();
+    }
+  } resume{this};
+  const int64_t deadline = SteadyNowNs() + static_cast<int64_t>(timeout_s * 1e9);
+  while (inflight_.load() > 0 || async_pending() > 0) {
+    if (SteadyNowNs() > deadline) return false;
+    std::this_thread::sleep_for(std::chrono::microseconds(500));
+  }
+  fn();
+  return true;
+}
+
+namespace {
+constexpr uint32_t kPipelineStateFormat = 0x45585031;  // "EXP1"
+}  // namespace
+
+absl::StatusOr<std::string> Pipeline::SaveState() const {
+  if (!origin_set_.load()) return std::string();
+  StateWriter w;
+  w.Put(kPipelineStateFormat);
+  const core::SceneSetup& s = ctx_.setup;
+  w.Put(s.origin.origin_in_world);
+  for (double v : {s.diameter_m, s.view_depth_m, s.voxel_m, s.cell_m, s.d_max_m, s.sigma_m,
+                   s.scale.diameter_m, s.scale.cell_size_m, s.scale.d_max_m, s.scale.sigma_m})
+    w.Put(v);
+  w.Put<uint64_t>(stages_.size());
+  for (const auto& stage : stages_) {
+    EXO_ASSIGN_OR_RETURN(std::string state, stage->SaveState());
+    w.PutBytes(stage->name());
+    w.PutBytes(state);
+  }
+  return std::move(w.str());
+}
+
+absl::Status Pipeline::RestoreState(std::string_view state) {
+  if (state.empty()) return absl::OkStatus();
+  if (origin_set_.load()) return absl::FailedPreconditionError("pipeline already started");
+  StateReader r(state);
+  uint32_t format = 0;
+  r.Get(&format);
+  if (r.ok() && format != kPipelineStateFormat)
+    return absl::FailedPreconditionError("pipeline state of another format");
+  core::SceneSetup s;
+  r.Get(&s.origin.origin_in_world);
+  for (double* v : {&s.diameter_m, &s.view_depth_m, &s.voxel_m, &s.cell_m, &s.d_max_m,
+                    &s.sigma_m, &s.scale.diameter_m, &s.scale.cell_size_m, &s.scale.d_max_m,
+                    &s.scale.sigma_m})
+    r.Get(v);
+  uint64_t n = 0;
+  r.Count(&n, 16);
+  if (r.ok() && n != stages_.size())
+    return absl::FailedPreconditionError(
+        absl::StrCat("pipeline state of ", n, " stages, this server runs ", stages_.size()));
+  std::vector<std::string> states(stages_.size());
+  for (size_t i = 0; r.ok() && i < stages_.size(); ++i) {
+    std::string name;
+    r.GetBytes(&name) && r.GetBytes(&states[i]);
+    if (r.ok() && name != stages_[i]->name())
+      return absl::FailedPreconditionError(absl::StrCat(
+          "pipeline state: stage ", i, " is ", name, ", this server runs ", stages_[i]->name()));
+  }
+  EXO_RETURN_IF_ERROR(r.Status("pipeline"));
+  if (!r.done()) return absl::DataLossError("pipeline state: trailing bytes");
+  ctx_.setup = s;
+  ctx_.origin = s.origin;
+  ctx_.cell_size_m = s.cell_m;
+  for (size_t i = 0; i < stages_.size(); ++i)
+    EXO_RETURN_IF_ERROR(stages_[i]->RestoreState(states[i], ctx_));
+  for (size_t i = 0; i < stages_.size(); ++i) threads_.emplace_back([this, i] { RunStage(i); });
+  origin_set_.store(true, std::memory_order_release);
+  log::Get("pipeline")->info(
+      "scene set-up and the state of {} stages restored from the checkpoint: voxel {:.3f} m, "
+      "cell {:.2f} m, d_max {:.2f} m",
+      stages_.size(), s.voxel_m, s.cell_m, s.d_max_m);
+  return absl::OkStatus();
 }
 
 void Pipeline::RunStage(size_t i) {
@@ -92,6 +196,7 @@ void Pipeline::RunStage(size_t i) {
     } else {
       processed_.fetch_add(1);
       last_latency_ns_.store(SteadyNowNs() - f->received_ns);
+      inflight_.fetch_sub(1);
     }
   }
   stages_[i]->Finish(ctx_);

@@ -9,6 +9,9 @@
 
 #include <algorithm>
 #include <atomic>
+#include <condition_variable>
+#include <functional>
+#include <string_view>
 #include <cstdint>
 #include <map>
 #include <memory>
@@ -20,6 +23,7 @@
 
 #include "common/frame.h"
 #include "common/rigid3.h"
+#include "absl/strings/str_cat.h"
 #include "common/status.h"
 #include "server/core/online_model.h"
 #include "server/service/bounded_queue.h"
@@ -65,6 +69,16 @@ class PipelineStage {
   virtual uint64_t pending() const { return 0; }
   // Named counters for GetStats ("<stage>.<name>").
   virtual void AddCounters(std::map<std::string, double>* /*out*/) const {}
+  // Checkpoint (issue 20, docs/service.md "Durability"): the stage's state after the frames it
+  // processed, taken while the pipeline is quiescent (Pipeline::Quiesce; no frame in a queue,
+  // no async work pending). "" = the stage keeps nothing a restart needs; an error = it cannot
+  // save its state (the checkpoint then carries none and a restart rebuilds as before).
+  virtual absl::StatusOr<std::string> SaveState() const { return std::string(); }
+  // Before the first frame of a restarted server, with the restored scene set-up in `ctx`.
+  virtual absl::Status RestoreState(std::string_view state, const SceneContext& /*ctx*/) {
+    return state.empty() ? absl::OkStatus()
+                         : absl::UnimplementedError(absl::StrCat(name(), " keeps no state"));
+  }
 };
 
 struct PipelineOptions {
@@ -124,6 +138,17 @@ class Pipeline {
   std::vector<std::string> stage_names() const;
   uint64_t async_pending() const;
   std::map<std::string, double> counters() const;
+  // Checkpoint of the stages' state (issue 20): pauses admission (Submit waits), waits until
+  // every admitted frame went through every stage and no stage has async work pending, runs
+  // `fn` (which reads the store and SaveState at one consistent frame) and resumes. false: the
+  // pipeline did not drain within timeout_s (fn not run).
+  bool Quiesce(double timeout_s, const std::function<void()>& fn);
+  // Inside Quiesce: the scene set-up and every stage's state; "" before the first frame. An
+  // error when a stage cannot save its state.
+  absl::StatusOr<std::string> SaveState() const;
+  // Before the first Submit of a restarted server: the scene set-up and the stages' state of
+  // SaveState; the next frame continues exactly where the saved pipeline stood.
+  absl::Status RestoreState(std::string_view state);
   // A restarted server keeps the origin of its checkpoint (call before the first Submit; the
   // store already holds the scene parameters).
   void RestoreOrigin(const LocalOrigin& origin, double cell_size_m) {
@@ -147,6 +172,11 @@ class Pipeline {
   std::vector<std::unique_ptr<BoundedQueue<PipelineFramePtr>>> queues_;  // queues_[i] feeds stage i
   std::vector<std::thread> threads_;
   std::atomic<uint64_t> processed_{0}, errors_{0};
+  // Quiesce: admission paused; frames admitted and not yet through the last stage.
+  std::mutex pause_mu_;
+  std::condition_variable pause_cv_;
+  bool paused_ = false;
+  std::atomic<int64_t> inflight_{0};
   std::atomic<int64_t> last_latency_ns_{0};
   bool stopped_ = false;
   std::optional<LocalOrigin> restored_origin_;

@@ -5,6 +5,8 @@
 #include <map>
 #include <mutex>
 
+#include "common/state_io.h"
+
 #include "server/service/refinement_worker.h"
 
 namespace exo {
@@ -95,6 +97,44 @@ class PlanningStage final : public PipelineStage {
       }
       ref_cache_[view.id] = std::move(small);
     }
+    return absl::OkStatus();
+  }
+
+  // The planner's whole state (server/core OnlinePlanner::SaveState). Not saved: the
+  // refinement worker's reference cache (the views at 1/k resolution; rebuilt from the stored,
+  // published views on restore) and its queue (empty: the pipeline is quiescent).
+  absl::StatusOr<std::string> SaveState() const override {
+    std::lock_guard lock(mu_);
+    if (!planner_) return std::string();
+    if (!unapplied_.empty())
+      return absl::FailedPreconditionError("planning: geometry updates not yet applied");
+    StateWriter w;
+    EXO_RETURN_IF_ERROR(planner_->SaveState(&w));
+    for (uint64_t v : {outliers_removed_, outliers_kept_, updated_, stale_}) w.Put(v);
+    return std::move(w.str());
+  }
+
+  absl::Status RestoreState(std::string_view state, const SceneContext& ctx) override {
+    if (state.empty()) return absl::OkStatus();
+    std::lock_guard lock(mu_);
+    store_ = ctx.store;
+    EXO_ASSIGN_OR_RETURN(planner_, core::OnlinePlanner::Create(model_, ctx.setup));
+    StateReader r(state);
+    absl::Status s = planner_->LoadState(&r);
+    for (uint64_t* v : {&outliers_removed_, &outliers_kept_, &updated_, &stale_}) r.Get(v);
+    if (s.ok()) s = r.Status("planning stage");
+    if (s.ok() && !r.done()) s = absl::DataLossError("planning stage state: trailing bytes");
+    if (!s.ok()) {
+      planner_.reset();  // the first frame rebuilds the planner from the stored views
+      return s;
+    }
+    if (worker_)
+      for (const auto& msg : store_->Views()) {
+        if (msg->inpainted() || !planner_->planner().HasView(msg->view_id())) continue;
+        EXO_ASSIGN_OR_RETURN(StoredView v, ViewFromProto(*msg));
+        ref_cache_[v.id] =
+            std::make_shared<const StoredView>(DownscaleView(v, options_.refine_downscale));
+      }
     return absl::OkStatus();
   }
 

@@ -7,6 +7,8 @@
 
 #include <chrono>
 #include <cstdio>
+#include <cstring>
+#include <span>
 #include <fstream>
 #include <optional>
 #include <sstream>
@@ -25,6 +27,7 @@
 #include "absl/strings/str_split.h"
 #include "absl/strings/strip.h"
 #include "common/io/jpeg.h"
+#include "common/io/zstd.h"
 #include "common/log/log.h"
 #include "common/process/malloc_tuning.h"
 #include "proto/exoview.grpc.pb.h"
@@ -62,6 +65,34 @@ bool TakeSlot(std::atomic<int>* n, int limit) {
 std::string PeerHost(const std::string& peer) {
   const auto colon = peer.rfind(':');
   return colon == std::string::npos || colon < 5 ? peer : peer.substr(0, colon);
+}
+
+// Checkpoint.pipeline_state on disk: "EXZ1", the size of Pipeline::SaveState's bytes (u64) and
+// their zstd frame (level 1; the TSDF's unobserved voxels and the mesh arrays compress well).
+constexpr char kStateMagic[4] = {'E', 'X', 'Z', '1'};
+absl::StatusOr<std::string> CompressState(const std::string& raw) {
+  std::vector<uint8_t> out(sizeof(kStateMagic) + sizeof(uint64_t));
+  std::memcpy(out.data(), kStateMagic, sizeof(kStateMagic));
+  const uint64_t n = raw.size();
+  std::memcpy(out.data() + sizeof(kStateMagic), &n, sizeof(n));
+  EXO_ASSIGN_OR_RETURN(out, ZstdCompress(reinterpret_cast<const uint8_t*>(raw.data()), raw.size(),
+                                         1, std::move(out)));
+  return std::string(out.begin(), out.end());
+}
+absl::StatusOr<std::string> DecompressState(const std::string& stored) {
+  constexpr size_t kHeader = sizeof(kStateMagic) + sizeof(uint64_t);
+  if (stored.size() < kHeader || std::memcmp(stored.data(), kStateMagic, sizeof(kStateMagic)) != 0)
+    return absl::DataLossError("pipeline state: not a compressed state");
+  uint64_t n = 0;
+  std::memcpy(&n, stored.data() + sizeof(kStateMagic), sizeof(n));
+  const size_t z = stored.size() - kHeader;
+  if (n > (uint64_t{4} << 30) || n > 4096 * static_cast<uint64_t>(z) + (1 << 20))
+    return absl::DataLossError(absl::StrCat("pipeline state: implausible size ", n));
+  std::string raw(n, '\0');
+  EXO_RETURN_IF_ERROR(ZstdDecompress(
+      std::span<const uint8_t>(reinterpret_cast<const uint8_t*>(stored.data()) + kHeader, z),
+      reinterpret_cast<uint8_t*>(raw.data()), n, "pipeline state"));
+  return raw;
 }
 
 size_t FrameBytes(const Frame& f) { return f.color.size() + f.depth_m.size() * sizeof(float); }
@@ -706,6 +737,7 @@ ExoviewServer::~ExoviewServer() { Shutdown(); }
 absl::Status ExoviewServer::Start() {
   EXO_RETURN_IF_ERROR(config_.Validate());
   store_ = std::make_unique<ModelStore>(config_.store);
+  std::string pipeline_state;  // of the checkpoint (Pipeline::SaveState)
   if (config_.enable_inpainting)
     regions_ = std::make_shared<RegionRegistry>(config_.regions, store_.get());
   if (!config_.checkpoint_path.empty()) {
@@ -733,6 +765,7 @@ absl::Status ExoviewServer::Start() {
       return absl::DataLossError(absl::StrCat("cannot parse checkpoint ", config_.checkpoint_path,
                                               " nor its previous generation ", prev));
     if (!loaded.empty()) {
+      pipeline_state = std::move(*c.mutable_pipeline_state());
       EXO_RETURN_IF_ERROR(store_->RestoreCheckpoint(c));
       if (regions_) EXO_RETURN_IF_ERROR(regions_->Restore(c));
       restored_version_ = checkpoint_version_ = c.version();
@@ -765,8 +798,21 @@ absl::Status ExoviewServer::Start() {
   // The stages after the checkpoint and the log replay: a restarted stage sees the restored model.
   EXO_ASSIGN_OR_RETURN(auto stages, MakeStages(config_, regions_, store_.get(), &inpainting_));
   pipeline_ = std::make_unique<Pipeline>(config_.pipeline, store_.get(), std::move(stages));
-  // The scene set-up of a restored model (checkpoint and/or replayed log).
-  if (store_->has_scene()) {
+  // The pipeline's state at the checkpoint (scene set-up, TSDF, planner): the journal replay and
+  // the next frames continue exactly as an uninterrupted server would have (issue 20).
+  if (!pipeline_state.empty()) {
+    absl::StatusOr<std::string> raw = DecompressState(pipeline_state);
+    if (absl::Status s = raw.ok() ? pipeline_->RestoreState(*raw) : raw.status(); !s.ok()) {
+      log::Get("server")->error("checkpoint: the pipeline state is not usable ({}); the stages "
+                                "rebuild from the stored views instead",
+                                std::string(s.message()));
+      pipeline_state.clear();
+      EXO_ASSIGN_OR_RETURN(auto fresh, MakeStages(config_, regions_, store_.get(), &inpainting_));
+      pipeline_ = std::make_unique<Pipeline>(config_.pipeline, store_.get(), std::move(fresh));
+    }
+  }
+  // The scene set-up of a restored model without pipeline state (checkpoint and/or replayed log).
+  if (pipeline_state.empty() && store_->has_scene()) {
     const v1::SceneParams scene = store_->scene();
     const auto& o = scene.origin_in_world();
     LocalOrigin origin;
@@ -946,8 +992,44 @@ absl::Status ExoviewServer::WriteCheckpoint(bool force) {
   // Records appended from now on go to a new segment; the closed ones are deleted once a
   // checkpoint that covers them is on disk (see below).
   if (journal) journal->Rotate();
-  const uint64_t ledger = store_->ledger_changes();
-  v1::Checkpoint c = store_->MakeCheckpoint(config_.checkpoint_max_log_bytes);
+  // The model and the pipeline's state at one frame: admission pauses until every admitted frame
+  // went through every stage (Pipeline::Quiesce); the file is written after it resumes.
+  uint64_t ledger = 0;
+  v1::Checkpoint c;
+  std::string state_raw;  // compressed after admission resumed
+  auto snapshot = [&] {
+    ledger = store_->ledger_changes();
+    c = store_->MakeCheckpoint(config_.checkpoint_max_log_bytes);
+    if (!pipeline_) return;
+    absl::StatusOr<std::string> state = pipeline_->SaveState();
+    if (state.ok()) {
+      state_raw = *std::move(state);
+    } else if (!pipeline_state_warned_.exchange(true)) {
+      log::Get("server")->warn("checkpoint without the pipeline's state ({}): a restart rebuilds "
+                               "the planner from the stored views and starts a new TSDF",
+                               std::string(state.status().message()));
+    }
+  };
+  const int64_t quiesce_t0 = SteadyNowNs();
+  int64_t paused_ns = 0;
+  const bool quiesced = pipeline_ && pipeline_->Quiesce(config_.checkpoint_quiesce_s, [&] {
+    snapshot();
+    paused_ns = SteadyNowNs() - quiesce_t0;
+  });
+  if (!quiesced) {
+    if (pipeline_)
+      log::Get("server")->warn("checkpoint: the pipeline did not drain within {} s; written "
+                               "without its state",
+                               config_.checkpoint_quiesce_s);
+    ledger = store_->ledger_changes();
+    c = store_->MakeCheckpoint(config_.checkpoint_max_log_bytes);
+  }
+  if (!state_raw.empty()) {
+    absl::StatusOr<std::string> z = CompressState(state_raw);
+    if (z.ok()) c.set_pipeline_state(*std::move(z));
+    else log::Get("server")->warn("checkpoint without the pipeline's state: {}",
+                                  std::string(z.status().message()));
+  }
   if (regions_) regions_->ToCheckpoint(&c);
   const std::string tmp = config_.checkpoint_path + ".tmp";
   {
@@ -976,6 +1058,10 @@ absl::Status ExoviewServer::WriteCheckpoint(bool force) {
     if (fd >= 0) ::close(fd);
     if (!synced) return absl::UnavailableError(absl::StrCat("cannot fsync ", dir));
   }
+  log::Get("server")->debug(
+      "checkpoint: version {}, {} bytes, pipeline state {} -> {} bytes, admission paused {:.1f} ms",
+      c.version(), c.ByteSizeLong(), state_raw.size(), c.pipeline_state().size(),
+      paused_ns * 1e-6);
   checkpoint_version_ = c.version();
   checkpoint_regions_generation_ = regions_generation;
   checkpoint_ledger_ = ledger;

@@ -69,6 +69,10 @@ struct ServerConfig {
   std::string checkpoint_path;
   double checkpoint_interval_s = 30.0;
   size_t checkpoint_max_log_bytes = size_t{16} << 20;  // delta log tail kept in the checkpoint
+  // A checkpoint pauses admission until the pipeline has drained (every admitted frame through
+  // every stage, no async work pending) and saves the stages' state with the model; beyond this
+  // wait it is written without that state (a restart then rebuilds the planner, new TSDF).
+  double checkpoint_quiesce_s = 10.0;
   // Frame journal (issue 20 item 3; server/service/frame_journal.h): with a checkpoint path, every
   // accepted frame is appended to a write-ahead journal and acked `durable` only after an
   // fdatasync covers it; a restart replays what the checkpoint does not cover. journal_dir ""
@@ -174,6 +178,7 @@ class ExoviewServer {
   std::unique_ptr<grpc::Server> server_;
   int port_ = 0;
   std::atomic<bool> shutting_down_{false};
+  std::atomic<bool> pipeline_state_warned_{false};
   uint64_t restored_version_ = 0;
   uint64_t checkpoint_version_ = 0;  // last written
   uint64_t checkpoint_regions_generation_ = 0;

@@ -117,7 +117,7 @@ std::vector<ConfigKey> MakeKeys() {
           EXO_FIELD(geometry.publish_step_voxels)),
       Key("chunk_refresh_burst_s", "... bursts of up to this many seconds of the budget",
           EXO_FIELD(geometry.refresh_burst_s)),
-      Key("chunk_republish_interval_s", "minimum seconds between republishing a chunk",
+      Key("chunk_republish_interval_s", "minimum seconds of stream time (frame timestamps) between republishing a chunk",
           EXO_FIELD(geometry.republish_interval_s)),
       Key("geometry_shed_backlog", "skip fusing a frame while this fraction of the admission queue waits (0 = never; off with admission_block)",
           EXO_FIELD(geometry.shed_backlog_fraction)),
@@ -201,6 +201,8 @@ std::vector<ConfigKey> MakeKeys() {
           EXO_FIELD(checkpoint_interval_s)),
       Key("checkpoint_max_log_bytes", "delta log tail kept in the checkpoint (bytes)",
           EXO_FIELD(checkpoint_max_log_bytes)),
+      Key("checkpoint_quiesce_s", "a checkpoint waits at most this long for the pipeline to drain (beyond: written without the stages' state)",
+          EXO_FIELD(checkpoint_quiesce_s)),
       Key("journal", "write-ahead journal of accepted frames (needs checkpoint_path): acks durable",
           EXO_FIELD(journal)),
       Key("journal_dir", "journal directory (empty: checkpoint_path + \".journal\")",
@@ -310,6 +312,8 @@ absl::Status ServerConfig::Validate() const {
     EXO_RETURN_IF_ERROR(regions.Validate());
     EXO_RETURN_IF_ERROR(inpainting.Validate());
   }
+  if (!(checkpoint_quiesce_s >= 0.0 && checkpoint_quiesce_s <= 600.0))
+    return absl::InvalidArgumentError("checkpoint_quiesce_s must be in [0, 600]");
   if (!(checkpoint_interval_s >= 0.0))
     return absl::InvalidArgumentError("checkpoint_interval_s must be >= 0 (0 = only at shutdown)");
   if (journal_enabled()) {
