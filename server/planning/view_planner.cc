@@ -62,6 +62,10 @@ absl::Status PlannerOptions::Validate() const {
     return absl::InvalidArgumentError("planner dispersion_guard_unique_after must be finite and >= 0");
   if (!std::isfinite(dispersion_min) || dispersion_min < 0.0)
     return absl::InvalidArgumentError("planner dispersion_min must be finite and >= 0");
+  if (!std::isfinite(dispersion_weight_exponent) || dispersion_weight_exponent < 0.0 ||
+      dispersion_weight_exponent > 0.95)
+    return absl::InvalidArgumentError(absl::StrCat(
+        "planner dispersion_weight_exponent must be in [0, 0.95], got ", dispersion_weight_exponent));
   return absl::OkStatus();
 }
 
@@ -260,6 +264,32 @@ double ViewPlanner::UniqueLoss(const View& v) const {
     loss += Sat(v.quality * Phi(1.0, PositionalPart(AreaOf(c.id), d, g, v.pixels[i], v.pixel_sr)));
   }
   return loss;
+}
+
+void ViewPlanner::GiveWeight(const glm::dvec3& centre, const glm::dquat& rotation,
+                             double weight) {
+  View* best = nullptr;
+  double best_d = std::numeric_limits<double>::infinity();
+  for (auto& [id, u] : views_) {
+    const double d = PoseDistance(centre, rotation, u.centre, u.rotation);
+    if (d < best_d || (d == best_d && best != nullptr && id < best->id)) {
+      best_d = d;
+      best = &u;
+    }
+  }
+  if (best != nullptr) best->weight += weight;
+}
+
+double ViewPlanner::WeightedSpacing(double d1, double weight) const {
+  const double beta = options_.dispersion_weight_exponent;
+  if (!(beta > 0.0)) return d1;
+  // d1 × (w / d1)^β = w^β d1^(1-β); d1 = ∞ (a single view) stays ∞.
+  return std::pow(weight, beta) * std::pow(d1, 1.0 - beta);
+}
+
+double ViewPlanner::ViewWeight(ViewId id) const {
+  const auto it = views_.find(id);
+  return it == views_.end() ? 0.0 : it->second.weight;
 }
 
 void ViewPlanner::Nearest::Offer(double d, ViewId id) {
@@ -476,7 +506,9 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
     // (smaller = more redundant). The two views of the closest pair tie: the one in the more
     // crowded place goes (the smaller distance to its second neighbour, the candidate counted),
     // so the store's smallest distance after the swap is as large as it can be; then the older.
-    auto redundancy = [&](const View& v) { return nearest_.at(v.id).d1; };
+    // Density-weighted (dispersion_weight_exponent β > 0): d1 × ρ^β with the frame density
+    // ρ = w / d1 around the view.
+    auto redundancy = [&](const View& v) { return WeightedSpacing(nearest_.at(v.id).d1, v.weight); };
     auto crowding = [&](const View& v) {
       return std::min(nearest_.at(v.id).d2,
                       PoseDistance(v.centre, v.rotation, view.centre, view.rotation));
@@ -566,11 +598,29 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
     // As the min-distance policy: the candidate's nearest stored view (victims included, so a
     // candidate next to the victim does not just replace it) must be farther than the victim's.
     double nearest = std::numeric_limits<double>::infinity();
-    for (const auto& [vid, v] : views_)
-      nearest = std::min(nearest, PoseDistance(v.centre, v.rotation, view.centre, view.rotation));
-    spread = full ? nearest > victim_redundancy : nearest > options_.dispersion_min;
+    const View* nearest_view = nullptr;
+    for (const auto& [vid, v] : views_) {
+      const double dist = PoseDistance(v.centre, v.rotation, view.centre, view.rotation);
+      if (dist < nearest) {
+        nearest = dist;
+        nearest_view = &v;
+      }
+    }
+    // Density-weighted: the candidate would stand for frames around its nearest view u, at u's
+    // density ρ_u = w_u / d1_u.
+    double candidate_redundancy = nearest;
+    if (options_.dispersion_weight_exponent > 0.0 && nearest_view != nullptr) {
+      const double d1 = nearest_.at(nearest_view->id).d1;
+      const double rho = nearest_view->weight / std::max(d1, std::max(options_.dispersion_min, 1e-9));
+      candidate_redundancy = std::pow(rho, options_.dispersion_weight_exponent) *
+                             std::pow(nearest, 1.0 - options_.dispersion_weight_exponent);
+    }
+    spread = full ? candidate_redundancy > victim_redundancy : nearest > options_.dispersion_min;
   }
   if (!(guard_gain > accept_gain) && !spread) {
+    // The frame is represented by its nearest stored view (density-weighted dispersion).
+    if (options_.dispersion != PlannerOptions::Dispersion::kOff)
+      GiveWeight(view.centre, view.rotation, view.weight);
     d.reason = full ? absl::StrCat("store full and no victim gains more than delta_tau_sum (best ",
                                    gain, ")")
                     : absl::StrCat("coverage gain ", gain, " <= delta_tau_sum ",
@@ -586,10 +636,23 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
   // Victims leave first; the cells whose R(b_k) lost a victim are rebuilt from the final store
   // (the candidate included), the others get the candidate by the incremental rule.
   std::vector<int32_t> stale;
-  for (ViewId v : victims) RemoveView(v, &stale, &d.changed_cells);
+  struct Gone {
+    glm::dvec3 centre;
+    glm::dquat rotation;
+    double weight;
+  };
+  std::vector<Gone> gone;
+  for (ViewId v : victims) {
+    const View& g = views_.at(v);
+    gone.push_back({g.centre, g.rotation, g.weight});
+    RemoveView(v, &stale, &d.changed_cells);
+  }
   std::sort(stale.begin(), stale.end());
   stale.erase(std::unique(stale.begin(), stale.end()), stale.end());
   AddView(std::move(view), &d.changed_cells);
+  // The frames a victim stood for move to its nearest view left (the candidate included).
+  if (options_.dispersion != PlannerOptions::Dispersion::kOff)
+    for (const Gone& g : gone) GiveWeight(g.centre, g.rotation, g.weight);
   for (int32_t k : stale)
     if (RebuildRefs(k)) d.changed_cells.push_back(cells_[k].id);
   d.removed = std::move(victims);
