@@ -589,6 +589,30 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
   // poses without losing coverage (full: farther from its nearest stored view than the victim
   // from its own; room left: not a duplicate of a stored pose).
   bool spread = false;
+  // Density-weighted dispersion: the candidate's nearest stored view u (victims included) and
+  // the share of u's weight the candidate would take if stored: 1/2 for a duplicate of u (the
+  // two split u's frames), falling as the candidate lies beyond u's own neighbour distance d1
+  // (share = d1 / (2 (d1 + δ))); the weights stay consistent with the spacing, so a view next
+  // to a heavy one is not credited with the heavy one's density.
+  const bool weighted = options_.dispersion != PlannerOptions::Dispersion::kOff &&
+                        options_.dispersion_weight_exponent > 0.0;
+  double nearest = std::numeric_limits<double>::infinity();
+  ViewId nearest_id = 0;
+  double share = 0.0;
+  if (options_.dispersion != PlannerOptions::Dispersion::kOff) {
+    for (const auto& [vid, v] : views_) {
+      const double dist = PoseDistance(v.centre, v.rotation, view.centre, view.rotation);
+      if (dist < nearest || (dist == nearest && vid < nearest_id)) {
+        nearest = dist;
+        nearest_id = vid;
+      }
+    }
+    if (weighted && nearest_id != 0) {
+      const double d1 = nearest_.at(nearest_id).d1;
+      share = std::isfinite(d1) ? 0.5 * d1 / (d1 + nearest) : 0.5;
+      if (!std::isfinite(share)) share = 0.5;  // d1 = δ = 0
+    }
+  }
   const double accept_gain = first && full ? guard : options_.delta_tau_sum;
   const double min_gain = first ? -guard : -kTie;
   // What the guard tests: the τ gain, or (unique-coverage guard, store full) the net unique one.
@@ -597,24 +621,9 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
       guard_gain >= min_gain) {
     // As the min-distance policy: the candidate's nearest stored view (victims included, so a
     // candidate next to the victim does not just replace it) must be farther than the victim's.
-    double nearest = std::numeric_limits<double>::infinity();
-    const View* nearest_view = nullptr;
-    for (const auto& [vid, v] : views_) {
-      const double dist = PoseDistance(v.centre, v.rotation, view.centre, view.rotation);
-      if (dist < nearest) {
-        nearest = dist;
-        nearest_view = &v;
-      }
-    }
-    // Density-weighted: the candidate would stand for frames around its nearest view u, at u's
-    // density ρ_u = w_u / d1_u.
-    double candidate_redundancy = nearest;
-    if (options_.dispersion_weight_exponent > 0.0 && nearest_view != nullptr) {
-      const double d1 = nearest_.at(nearest_view->id).d1;
-      const double rho = nearest_view->weight / std::max(d1, std::max(options_.dispersion_min, 1e-9));
-      candidate_redundancy = std::pow(rho, options_.dispersion_weight_exponent) *
-                             std::pow(nearest, 1.0 - options_.dispersion_weight_exponent);
-    }
+    // Density-weighted: the candidate's own weight would be 1 + its share of u's frames.
+    const double candidate_redundancy =
+        weighted ? WeightedSpacing(nearest, 1.0 + share * views_.at(nearest_id).weight) : nearest;
     spread = full ? candidate_redundancy > victim_redundancy : nearest > options_.dispersion_min;
   }
   if (!(guard_gain > accept_gain) && !spread) {
@@ -653,6 +662,13 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
   // The frames a victim stood for move to its nearest view left (the candidate included).
   if (options_.dispersion != PlannerOptions::Dispersion::kOff)
     for (const Gone& g : gone) GiveWeight(g.centre, g.rotation, g.weight);
+  // ... and the candidate takes its share of the frames of its nearest view (if still stored).
+  if (weighted && nearest_id != 0 && views_.count(nearest_id) && views_.count(cand.id)) {
+    View& u = views_.at(nearest_id);
+    const double moved = share * u.weight;
+    u.weight -= moved;
+    views_.at(cand.id).weight += moved;
+  }
   for (int32_t k : stale)
     if (RebuildRefs(k)) d.changed_cells.push_back(cells_[k].id);
   d.removed = std::move(victims);
