@@ -63,9 +63,11 @@ absl::Status PlannerOptions::Validate() const {
   if (!std::isfinite(dispersion_min) || dispersion_min < 0.0)
     return absl::InvalidArgumentError("planner dispersion_min must be finite and >= 0");
   if (!std::isfinite(dispersion_weight_exponent) || dispersion_weight_exponent < 0.0 ||
-      dispersion_weight_exponent > 0.95)
+      dispersion_weight_exponent > 0.95 || !std::isfinite(dispersion_weight_after) ||
+      dispersion_weight_after < 0.0)
     return absl::InvalidArgumentError(absl::StrCat(
-        "planner dispersion_weight_exponent must be in [0, 0.95], got ", dispersion_weight_exponent));
+        "planner dispersion_weight_exponent must be in [0, 0.95] and dispersion_weight_after >= 0, "
+        "got ", dispersion_weight_exponent, " and ", dispersion_weight_after));
   return absl::OkStatus();
 }
 
@@ -280,9 +282,16 @@ void ViewPlanner::GiveWeight(const glm::dvec3& centre, const glm::dquat& rotatio
   if (best != nullptr) best->weight += weight;
 }
 
+bool ViewPlanner::Weighted() const {
+  return options_.dispersion != PlannerOptions::Dispersion::kOff &&
+         options_.dispersion_weight_exponent > 0.0 &&
+         static_cast<double>(offered_) >
+             options_.dispersion_weight_after * static_cast<double>(options_.max_views);
+}
+
 double ViewPlanner::WeightedSpacing(double d1, double weight) const {
   const double beta = options_.dispersion_weight_exponent;
-  if (!(beta > 0.0)) return d1;
+  if (!Weighted()) return d1;
   // d1 × (w / d1)^β = w^β d1^(1-β); d1 = ∞ (a single view) stays ∞.
   return std::pow(weight, beta) * std::pow(d1, 1.0 - beta);
 }
@@ -594,8 +603,7 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
   // two split u's frames), falling as the candidate lies beyond u's own neighbour distance d1
   // (share = d1 / (2 (d1 + δ))); the weights stay consistent with the spacing, so a view next
   // to a heavy one is not credited with the heavy one's density.
-  const bool weighted = options_.dispersion != PlannerOptions::Dispersion::kOff &&
-                        options_.dispersion_weight_exponent > 0.0;
+  const bool weighted = Weighted();
   double nearest = std::numeric_limits<double>::infinity();
   ViewId nearest_id = 0;
   double share = 0.0;

@@ -125,6 +125,11 @@ struct PlannerOptions {
   // theory: the mean distance to the nearest stored view is smallest at β = D / (D + 1) for
   // poses of dimension D.
   double dispersion_weight_exponent = 0.0;
+  // > 0: the density-weighted redundancy only once the planner has been offered more than this
+  // many candidates per view of capacity (the weights are kept from the start); the plain
+  // distance before. Ten 7-Scenes folds: the weighting wins at 10.8 frames per view (store 25)
+  // and loses at 5.6 and 2.8 (stores 48, 95; docs/planning.md "Session 12").
+  double dispersion_weight_after = 0.0;
 
   absl::Status Validate() const;
 
@@ -314,6 +319,8 @@ class ViewPlanner {
   // A view's redundancy from its nearest-neighbour distance d1 and weight
   // (dispersion_weight_exponent β: d1 × (w / d1)^β; β = 0: d1).
   double WeightedSpacing(double d1, double weight) const;
+  // The density-weighted redundancy is in force (dispersion_weight_exponent, _after).
+  bool Weighted() const;
   uint64_t offered_ = 0;  // candidates that passed validation (dispersion_guard_unique_after)
 };
 

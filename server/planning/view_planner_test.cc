@@ -492,6 +492,34 @@ TEST(ViewPlanner, DensityWeightedDispersionKeepsMoreViewsWhereTheCameraLingers) 
       mean_error[weighted] += best / double(xs.size());
     }
   }
+  // dispersion_weight_after: the plain distance until the stream has offered more than T
+  // frames per view of capacity, so a T beyond the stream's length is min-distance exactly.
+  {
+    PlannerOptions o;
+    o.max_views = store;
+    o.cell_size_m = 1.0;
+    o.tau_max = 0.05;
+    o.dispersion = PlannerOptions::Dispersion::kFirst;
+    o.dispersion_guard = 1e9;
+    o.dispersion_guard_relative = 0;
+    o.dispersion_weight_exponent = 0.5;
+    o.dispersion_weight_after = double(xs.size()) / double(store) + 1;  // never reached
+    auto p = ViewPlanner::Create(o).value();
+    int in_linger = 0;
+    std::map<ViewId, double> x_of;
+    ViewId id = 1;
+    for (double x : xs) {
+      const glm::dvec3 eye(x, 0, 2);
+      auto d = p.Consider(MakeCandidate(id, eye, eye + glm::dvec3(1, 0, -1), p.grid())).value();
+      if (d.accepted) x_of[id] = x;
+      for (ViewId r : d.removed) x_of.erase(r);
+      ++id;
+    }
+    for (const auto& [v, x] : x_of) in_linger += x >= 10 && x < 12;
+    EXPECT_EQ(in_linger, lingering[0]) << "before the switch the store is min-distance's";
+    o.dispersion_weight_after = -1;
+    EXPECT_FALSE(o.Validate().ok());
+  }
   const double every_n = double(store) * 200.0 / double(xs.size());  // ~8.6
   EXPECT_LE(lingering[0], 2) << "min-distance is uniform over the line";
   EXPECT_GE(lingering[1], lingering[0] + 2) << "the weighted store keeps more views where the camera lingers";
