@@ -603,11 +603,15 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
   // two split u's frames), falling as the candidate lies beyond u's own neighbour distance d1
   // (share = d1 / (2 (d1 + δ))); the weights stay consistent with the spacing, so a view next
   // to a heavy one is not credited with the heavy one's density.
+  // Weights are kept whenever β > 0 (also before dispersion_weight_after switches them in);
+  // β = 0 costs nothing extra.
+  const bool track = options_.dispersion != PlannerOptions::Dispersion::kOff &&
+                     options_.dispersion_weight_exponent > 0.0;
   const bool weighted = Weighted();
   double nearest = std::numeric_limits<double>::infinity();
   ViewId nearest_id = 0;
   double share = 0.0;
-  if (options_.dispersion != PlannerOptions::Dispersion::kOff) {
+  if (track) {
     for (const auto& [vid, v] : views_) {
       const double dist = PoseDistance(v.centre, v.rotation, view.centre, view.rotation);
       if (dist < nearest || (dist == nearest && vid < nearest_id)) {
@@ -629,15 +633,19 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
       guard_gain >= min_gain) {
     // As the min-distance policy: the candidate's nearest stored view (victims included, so a
     // candidate next to the victim does not just replace it) must be farther than the victim's.
+    if (!track)
+      for (const auto& [vid, v] : views_)
+        nearest = std::min(nearest, PoseDistance(v.centre, v.rotation, view.centre, view.rotation));
     // Density-weighted: the candidate's own weight would be 1 + its share of u's frames.
     const double candidate_redundancy =
-        weighted ? WeightedSpacing(nearest, 1.0 + share * views_.at(nearest_id).weight) : nearest;
+        weighted && nearest_id != 0
+            ? WeightedSpacing(nearest, 1.0 + share * views_.at(nearest_id).weight)
+            : nearest;
     spread = full ? candidate_redundancy > victim_redundancy : nearest > options_.dispersion_min;
   }
   if (!(guard_gain > accept_gain) && !spread) {
     // The frame is represented by its nearest stored view (density-weighted dispersion).
-    if (options_.dispersion != PlannerOptions::Dispersion::kOff)
-      GiveWeight(view.centre, view.rotation, view.weight);
+    if (track) GiveWeight(view.centre, view.rotation, view.weight);
     d.reason = full ? absl::StrCat("store full and no victim gains more than delta_tau_sum (best ",
                                    gain, ")")
                     : absl::StrCat("coverage gain ", gain, " <= delta_tau_sum ",
@@ -668,7 +676,7 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
   stale.erase(std::unique(stale.begin(), stale.end()), stale.end());
   AddView(std::move(view), &d.changed_cells);
   // The frames a victim stood for move to its nearest view left (the candidate included).
-  if (options_.dispersion != PlannerOptions::Dispersion::kOff)
+  if (track)
     for (const Gone& g : gone) GiveWeight(g.centre, g.rotation, g.weight);
   // ... and the candidate takes its share of the frames of its nearest view (if still stored).
   if (weighted && nearest_id != 0 && views_.count(nearest_id) && views_.count(cand.id)) {

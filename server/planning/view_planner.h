@@ -229,8 +229,8 @@ class ViewPlanner {
   std::unordered_map<CellId, std::vector<ViewId>> CellPublishedRefs() const;
   // Approximate memory of the planner's own bookkeeping (bytes).
   size_t BookkeepingBytes() const;
-  // The weight of a stored view (PlannerOptions::dispersion_weight_exponent: the stream frames
-  // it stands for; 1 per stored view when dispersion is off); 0 if not stored.
+  // The weight of a stored view (PlannerOptions::dispersion_weight_exponent > 0 with dispersion
+  // on: the stream frames it stands for; otherwise 1); 0 if not stored.
   double ViewWeight(ViewId id) const;
 
  private:
