@@ -70,6 +70,8 @@ absl::Status OnlineModelOptions::Validate() const {
     po.dispersion_guard_relative = dispersion_guard_relative;
     po.dispersion_guard_unique = dispersion_guard_unique;
     po.dispersion_guard_unique_after = dispersion_guard_unique_after;
+    po.dispersion_weight_exponent = dispersion_weight_exponent;
+    po.dispersion_weight_after = dispersion_weight_after;
     EXO_RETURN_IF_ERROR(po.Validate());
   }
   if (tsdf_threads < 1) return absl::InvalidArgumentError("tsdf_threads must be >= 1");
@@ -308,6 +310,8 @@ absl::StatusOr<std::unique_ptr<OnlinePlanner>> OnlinePlanner::Create(
   po.dispersion_guard_relative = options.dispersion_guard_relative;
   po.dispersion_guard_unique = options.dispersion_guard_unique;
   po.dispersion_guard_unique_after = options.dispersion_guard_unique_after;
+  po.dispersion_weight_exponent = options.dispersion_weight_exponent;
+  po.dispersion_weight_after = options.dispersion_weight_after;
   po.cell_size_m = setup.cell_m;
   po.d_max_m = setup.d_max_m;
   po.sigma_m = setup.sigma_m;

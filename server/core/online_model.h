@@ -79,6 +79,9 @@ struct OnlineModelOptions {
   // wins), the unique-coverage guard after (long streams, where the frozen τ are stale).
   bool dispersion_guard_unique = false;
   double dispersion_guard_unique_after = 8.0;
+  // PlannerOptions::dispersion_weight_exponent (density-weighted dispersion; 0 = off).
+  double dispersion_weight_exponent = 0.0;
+  double dispersion_weight_after = 0.0;  // PlannerOptions::dispersion_weight_after
   // Relative sharpness of each frame as the planner's candidate quality (issue 15;
   // planning/frame_quality.h). gamma 0 = off.
   planning::FrameQualityOptions frame_quality;

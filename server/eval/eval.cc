@@ -257,6 +257,11 @@ planning::PlannerOptions PlannerFor(const PolicyConfig& c, const Source& src, do
   po.dispersion_guard_unique_after = c.dispersion_guard_unique_after >= 0
                                          ? c.dispersion_guard_unique_after
                                          : product.dispersion_guard_unique_after;
+  po.dispersion_weight_exponent = c.dispersion_weight_exponent >= 0
+                                      ? c.dispersion_weight_exponent
+                                      : product.dispersion_weight_exponent;
+  po.dispersion_weight_after = c.dispersion_weight_after >= 0 ? c.dispersion_weight_after
+                                                              : product.dispersion_weight_after;
   po.d_max_m = src.scale.d_max_m;
   po.sigma_m = src.scale.sigma_m;
   if (src.scale_mode == ScaleMode::kViewDepth && src.view_depth_m > 0) {
@@ -391,6 +396,8 @@ std::string ConfigJson(const std::string& dataset, const std::string& test_poses
                  {"dispersion_guard_relative", po.dispersion_guard_relative},
                  {"dispersion_guard_unique", int(po.dispersion_guard_unique)},
                  {"dispersion_guard_unique_after", po.dispersion_guard_unique_after},
+                 {"dispersion_weight_exponent", po.dispersion_weight_exponent},
+                 {"dispersion_weight_after", po.dispersion_weight_after},
                  {"sharp_gamma", c.sharp_gamma}};
   j["quality"] = {{"mssim", Round(r.quality.mssim, 4)},
                   {"psnr", Round(r.quality.psnr, 2)},
@@ -556,6 +563,8 @@ class Engine {
         mo.dispersion_guard_relative = po.dispersion_guard_relative;
         mo.dispersion_guard_unique = po.dispersion_guard_unique;
         mo.dispersion_guard_unique_after = po.dispersion_guard_unique_after;
+        mo.dispersion_weight_exponent = po.dispersion_weight_exponent;
+        mo.dispersion_weight_after = po.dispersion_weight_after;
         mo.frame_quality.gamma = c.sharp_gamma;
         mo.cell_areas = !c.face_areas;
         mo.id_buffer_stride = IdStride();

@@ -92,6 +92,8 @@ struct PolicyConfig {
   double dispersion_guard_relative = -1;  // policy option "dgr=V"
   int dispersion_guard_unique = -1;       // policy option "dgu=0|1"
   double dispersion_guard_unique_after = -1;  // policy option "dgua=V"
+  double dispersion_weight_exponent = -1;     // policy option "dwe=V"
+  double dispersion_weight_after = -1;        // policy option "dwa=V"
 
   // OnlineModelOptions::frame_quality.gamma; policy option "sharp=G" (0 = off).
   double sharp_gamma = 0.0;

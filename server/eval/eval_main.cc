@@ -163,12 +163,14 @@ absl::StatusOr<std::vector<PolicyConfig>> Configs(const Args& a) {
         else if (key == "dgr") c.dispersion_guard_relative = v;
         else if (key == "dgu") c.dispersion_guard_unique = v != 0 ? 1 : 0;
         else if (key == "dgua") c.dispersion_guard_unique_after = v;
+        else if (key == "dwe") c.dispersion_weight_exponent = v;
+        else if (key == "dwa") c.dispersion_weight_after = v;
         else if (key == "mpr") c.dispersion_m_per_rad = v;
         else if (key == "dts") c.delta_tau_sum = v;
         else if (key == "sharp") c.sharp_gamma = v;
         else
           return absl::InvalidArgumentError("unknown policy option " + key +
-                                            " (lambda, blend_lambda, tau_max, soft, sharp, disp, mpr, dg, dgr, dgu, dgua, dts)");
+                                            " (lambda, blend_lambda, tau_max, soft, sharp, disp, mpr, dg, dgr, dgu, dgua, dwe, dwa, dts)");
       }
       c.tag = opts;
     }

@@ -62,6 +62,12 @@ absl::Status PlannerOptions::Validate() const {
     return absl::InvalidArgumentError("planner dispersion_guard_unique_after must be finite and >= 0");
   if (!std::isfinite(dispersion_min) || dispersion_min < 0.0)
     return absl::InvalidArgumentError("planner dispersion_min must be finite and >= 0");
+  if (!std::isfinite(dispersion_weight_exponent) || dispersion_weight_exponent < 0.0 ||
+      dispersion_weight_exponent > 0.95 || !std::isfinite(dispersion_weight_after) ||
+      dispersion_weight_after < 0.0)
+    return absl::InvalidArgumentError(absl::StrCat(
+        "planner dispersion_weight_exponent must be in [0, 0.95] and dispersion_weight_after >= 0, "
+        "got ", dispersion_weight_exponent, " and ", dispersion_weight_after));
   return absl::OkStatus();
 }
 
@@ -260,6 +266,39 @@ double ViewPlanner::UniqueLoss(const View& v) const {
     loss += Sat(v.quality * Phi(1.0, PositionalPart(AreaOf(c.id), d, g, v.pixels[i], v.pixel_sr)));
   }
   return loss;
+}
+
+void ViewPlanner::GiveWeight(const glm::dvec3& centre, const glm::dquat& rotation,
+                             double weight) {
+  View* best = nullptr;
+  double best_d = std::numeric_limits<double>::infinity();
+  for (auto& [id, u] : views_) {
+    const double d = PoseDistance(centre, rotation, u.centre, u.rotation);
+    if (d < best_d || (d == best_d && best != nullptr && id < best->id)) {
+      best_d = d;
+      best = &u;
+    }
+  }
+  if (best != nullptr) best->weight += weight;
+}
+
+bool ViewPlanner::Weighted() const {
+  return options_.dispersion != PlannerOptions::Dispersion::kOff &&
+         options_.dispersion_weight_exponent > 0.0 &&
+         static_cast<double>(offered_) >
+             options_.dispersion_weight_after * static_cast<double>(options_.max_views);
+}
+
+double ViewPlanner::WeightedSpacing(double d1, double weight) const {
+  const double beta = options_.dispersion_weight_exponent;
+  if (!Weighted()) return d1;
+  // d1 × (w / d1)^β = w^β d1^(1-β); d1 = ∞ (a single view) stays ∞.
+  return std::pow(weight, beta) * std::pow(d1, 1.0 - beta);
+}
+
+double ViewPlanner::ViewWeight(ViewId id) const {
+  const auto it = views_.find(id);
+  return it == views_.end() ? 0.0 : it->second.weight;
 }
 
 void ViewPlanner::Nearest::Offer(double d, ViewId id) {
@@ -476,7 +515,9 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
     // (smaller = more redundant). The two views of the closest pair tie: the one in the more
     // crowded place goes (the smaller distance to its second neighbour, the candidate counted),
     // so the store's smallest distance after the swap is as large as it can be; then the older.
-    auto redundancy = [&](const View& v) { return nearest_.at(v.id).d1; };
+    // Density-weighted (dispersion_weight_exponent β > 0): d1 × ρ^β with the frame density
+    // ρ = w / d1 around the view.
+    auto redundancy = [&](const View& v) { return WeightedSpacing(nearest_.at(v.id).d1, v.weight); };
     auto crowding = [&](const View& v) {
       return std::min(nearest_.at(v.id).d2,
                       PoseDistance(v.centre, v.rotation, view.centre, view.rotation));
@@ -557,6 +598,33 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
   // poses without losing coverage (full: farther from its nearest stored view than the victim
   // from its own; room left: not a duplicate of a stored pose).
   bool spread = false;
+  // Density-weighted dispersion: the candidate's nearest stored view u (victims included) and
+  // the share of u's weight the candidate would take if stored: 1/2 for a duplicate of u (the
+  // two split u's frames), falling as the candidate lies beyond u's own neighbour distance d1
+  // (share = d1 / (2 (d1 + δ))); the weights stay consistent with the spacing, so a view next
+  // to a heavy one is not credited with the heavy one's density.
+  // Weights are kept whenever β > 0 (also before dispersion_weight_after switches them in);
+  // β = 0 costs nothing extra.
+  const bool track = options_.dispersion != PlannerOptions::Dispersion::kOff &&
+                     options_.dispersion_weight_exponent > 0.0;
+  const bool weighted = Weighted();
+  double nearest = std::numeric_limits<double>::infinity();
+  ViewId nearest_id = 0;
+  double share = 0.0;
+  if (track) {
+    for (const auto& [vid, v] : views_) {
+      const double dist = PoseDistance(v.centre, v.rotation, view.centre, view.rotation);
+      if (dist < nearest || (dist == nearest && vid < nearest_id)) {
+        nearest = dist;
+        nearest_id = vid;
+      }
+    }
+    if (weighted && nearest_id != 0) {
+      const double d1 = nearest_.at(nearest_id).d1;
+      share = std::isfinite(d1) ? 0.5 * d1 / (d1 + nearest) : 0.5;
+      if (!std::isfinite(share)) share = 0.5;  // d1 = δ = 0
+    }
+  }
   const double accept_gain = first && full ? guard : options_.delta_tau_sum;
   const double min_gain = first ? -guard : -kTie;
   // What the guard tests: the τ gain, or (unique-coverage guard, store full) the net unique one.
@@ -565,12 +633,19 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
       guard_gain >= min_gain) {
     // As the min-distance policy: the candidate's nearest stored view (victims included, so a
     // candidate next to the victim does not just replace it) must be farther than the victim's.
-    double nearest = std::numeric_limits<double>::infinity();
-    for (const auto& [vid, v] : views_)
-      nearest = std::min(nearest, PoseDistance(v.centre, v.rotation, view.centre, view.rotation));
-    spread = full ? nearest > victim_redundancy : nearest > options_.dispersion_min;
+    if (!track)
+      for (const auto& [vid, v] : views_)
+        nearest = std::min(nearest, PoseDistance(v.centre, v.rotation, view.centre, view.rotation));
+    // Density-weighted: the candidate's own weight would be 1 + its share of u's frames.
+    const double candidate_redundancy =
+        weighted && nearest_id != 0
+            ? WeightedSpacing(nearest, 1.0 + share * views_.at(nearest_id).weight)
+            : nearest;
+    spread = full ? candidate_redundancy > victim_redundancy : nearest > options_.dispersion_min;
   }
   if (!(guard_gain > accept_gain) && !spread) {
+    // The frame is represented by its nearest stored view (density-weighted dispersion).
+    if (track) GiveWeight(view.centre, view.rotation, view.weight);
     d.reason = full ? absl::StrCat("store full and no victim gains more than delta_tau_sum (best ",
                                    gain, ")")
                     : absl::StrCat("coverage gain ", gain, " <= delta_tau_sum ",
@@ -586,10 +661,30 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
   // Victims leave first; the cells whose R(b_k) lost a victim are rebuilt from the final store
   // (the candidate included), the others get the candidate by the incremental rule.
   std::vector<int32_t> stale;
-  for (ViewId v : victims) RemoveView(v, &stale, &d.changed_cells);
+  struct Gone {
+    glm::dvec3 centre;
+    glm::dquat rotation;
+    double weight;
+  };
+  std::vector<Gone> gone;
+  for (ViewId v : victims) {
+    const View& g = views_.at(v);
+    gone.push_back({g.centre, g.rotation, g.weight});
+    RemoveView(v, &stale, &d.changed_cells);
+  }
   std::sort(stale.begin(), stale.end());
   stale.erase(std::unique(stale.begin(), stale.end()), stale.end());
   AddView(std::move(view), &d.changed_cells);
+  // The frames a victim stood for move to its nearest view left (the candidate included).
+  if (track)
+    for (const Gone& g : gone) GiveWeight(g.centre, g.rotation, g.weight);
+  // ... and the candidate takes its share of the frames of its nearest view (if still stored).
+  if (weighted && nearest_id != 0 && views_.count(nearest_id) && views_.count(cand.id)) {
+    View& u = views_.at(nearest_id);
+    const double moved = share * u.weight;
+    u.weight -= moved;
+    views_.at(cand.id).weight += moved;
+  }
   for (int32_t k : stale)
     if (RebuildRefs(k)) d.changed_cells.push_back(cells_[k].id);
   d.removed = std::move(victims);

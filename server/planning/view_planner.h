@@ -110,6 +110,27 @@ struct PlannerOptions {
   // wins there); on a long stream they are stale (docs/planning.md, "Session 11").
   double dispersion_guard_unique_after = 0.0;
   double dispersion_min = 1e-3;  // pose-distance units (m)
+  // Density-weighted dispersion (kFirst / kTies; β = this option in [0, 0.95]; 0 = off, the
+  // min-distance redundancy above). Each stored view carries a weight w = the number of stream
+  // frames it stands for: 1 when stored, plus every candidate that is not stored (added to its
+  // nearest stored view by pose distance) and the weight of every view evicted (added to its
+  // nearest view left in the store); the weights sum to the candidates offered. w / d1 (d1 =
+  // distance to the nearest stored view) estimates the frame density ρ around a view, and the
+  // redundancy of a view becomes d1 × ρ^β = w^β d1^(1-β); a candidate's is its distance to its
+  // nearest stored view u times ρ_u^β (it would stand for frames of u's neighbourhood). The
+  // victim is the view of smallest redundancy and the candidate is stored when its own is
+  // larger, so spacing × ρ^β evens out: the stored point density follows ρ^β, between
+  // min-distance (β = 0: uniform over the poses) and every-N (β = 1: the time density of the
+  // stream) — a place where the camera lingered keeps more views than one it passed once, and
+  // held-out frames of the same stream fall where it lingered (issue 15 / 22). Quantisation
+  // theory: the mean distance to the nearest stored view is smallest at β = D / (D + 1) for
+  // poses of dimension D.
+  double dispersion_weight_exponent = 0.0;
+  // > 0: the density-weighted redundancy only once the planner has been offered more than this
+  // many candidates per view of capacity (the weights are kept from the start); the plain
+  // distance before. Ten 7-Scenes folds: the weighting wins at 10.8 frames per view (store 25)
+  // and loses at 5.6 and 2.8 (stores 48, 95; docs/planning.md "Session 12").
+  double dispersion_weight_after = 0.0;
 
   absl::Status Validate() const;
 
@@ -209,6 +230,9 @@ class ViewPlanner {
   std::unordered_map<CellId, std::vector<ViewId>> CellPublishedRefs() const;
   // Approximate memory of the planner's own bookkeeping (bytes).
   size_t BookkeepingBytes() const;
+  // The weight of a stored view (PlannerOptions::dispersion_weight_exponent > 0 with dispersion
+  // on: the stream frames it stands for; otherwise 1); 0 if not stored.
+  double ViewWeight(ViewId id) const;
 
   // Everything the planner decides from (views, cells, τ, areas, dispersion neighbours), for the
   // server's checkpoint (common/state_io.h); LoadState into a planner made with the same options
@@ -248,6 +272,7 @@ class ViewPlanner {
     double quality = 1;             // Candidate::quality
     std::vector<Entry> entries;
     std::vector<uint32_t> pixels;   // ψ_vis per entry (copied into the cell's Ref by AddView)
+    double weight = 1.0;            // stream frames it stands for (dispersion_weight_exponent)
   };
   double AreaOf(CellId cell) const;  // A(b_k), or A_cell when unknown
   // A cell's contribution to τ_sum: min(τ, τ_max), or the soft form (soft_saturation).
@@ -296,6 +321,13 @@ class ViewPlanner {
   // and the coverage a view alone holds (the cells it would leave unobserved).
   std::vector<int32_t> obs_scratch_;
   double UniqueLoss(const View& v) const;
+  // Adds `weight` to the stored view nearest (pose distance) to the pose; none stored: dropped.
+  void GiveWeight(const glm::dvec3& centre, const glm::dquat& rotation, double weight);
+  // A view's redundancy from its nearest-neighbour distance d1 and weight
+  // (dispersion_weight_exponent β: d1 × (w / d1)^β; β = 0: d1).
+  double WeightedSpacing(double d1, double weight) const;
+  // The density-weighted redundancy is in force (dispersion_weight_exponent, _after).
+  bool Weighted() const;
   uint64_t offered_ = 0;  // candidates that passed validation (dispersion_guard_unique_after)
 };
 
