@@ -56,6 +56,7 @@ int Main(int argc, char** argv) {
   app.add_option("--frames", frames, "frames to fuse");
   app.add_option("--voxel", voxel, "TSDF voxel size (m)");
   app.add_option("--lod_voxels", lod_voxels, "published LOD error bound (voxels)");
+  cli::Setup(app);
   if (auto rc = cli::Parse(app, argc, argv)) return *rc;
 
   auto reader_or = SevenScenesReader::Open(data);
