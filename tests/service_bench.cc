@@ -74,6 +74,9 @@ const char* KindName(const v1::Delta& d) {
     case v1::Delta::kViewAdded: return "view_added";
     case v1::Delta::kMeshChunkUpserted: return "mesh_chunk";
     case v1::Delta::kCellRefsChanged: return "cell_refs";
+    case v1::Delta::kViewUpdated: return "view_updated";
+    case v1::Delta::kViewRemoved: return "view_removed";
+    case v1::Delta::kMeshChunkRemoved: return "mesh_chunk_removed";
     default: return "other";
   }
 }
@@ -164,10 +167,12 @@ int Main(int argc, char** argv) {
   std::map<double, int64_t> sent_ns;     // frame timestamp -> send time
   std::map<double, double> latency_ms;   // first delta per source frame
   uint64_t live_bytes = 0;
+  std::map<std::string, uint64_t> live_by_kind;  // what the live viewer's bytes are
   auto viewer = ViewerSession::Open(channel, "");
   (*viewer)->SetOnDelta([&](const v1::Delta& d, int64_t recv_ns) {
     std::lock_guard lock(mu);
     live_bytes += d.ByteSizeLong();
+    live_by_kind[KindName(d)] += d.ByteSizeLong();
     if (d.source_timestamp_s() == 0) return;
     auto it = sent_ns.find(d.source_timestamp_s());
     if (it != sent_ns.end() && !latency_ms.count(d.source_timestamp_s()))
@@ -263,9 +268,11 @@ int Main(int argc, char** argv) {
   // Phase 3: long paced upload: steady-state bytes/s and server RSS.
   {
     uint64_t bytes0;
+    std::map<std::string, uint64_t> kinds0;
     {
       std::lock_guard lock(mu);
       bytes0 = live_bytes;
+      kinds0 = live_by_kind;
     }
     std::vector<long> rss;
     std::atomic<bool> done{false};
@@ -282,9 +289,11 @@ int Main(int argc, char** argv) {
     done.store(true);
     sampler.join();
     uint64_t bytes1;
+    json by_kind = json::object();  // steady-state bytes per delta kind
     {
       std::lock_guard lock(mu);
       bytes1 = live_bytes;
+      for (const auto& [k, v] : live_by_kind) by_kind[k] = v - kinds0[k];
     }
     json samples = json::array();
     for (long r : rss) samples.push_back(r / 1024);
@@ -298,6 +307,7 @@ int Main(int argc, char** argv) {
                {"chunks", s.num_chunks()},
                {"viewer_bytes", bytes1 - bytes0},
                {"viewer_kbit_per_s", Round((bytes1 - bytes0) * 8 / 1000.0 / sec, 1)},
+               {"viewer_bytes_by_kind", by_kind},
                {"rss_mb_after_warmup", rss.empty() ? -1 : rss[q] / 1024},
                {"rss_mb_end", rss.empty() ? -1 : rss.back() / 1024},
                {"rss_mb_samples", samples}});
