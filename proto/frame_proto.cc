@@ -575,4 +575,45 @@ absl::StatusOr<TriangleMesh> MeshFromProto(const v1::MeshChunkUpserted& msg) {
   return m;
 }
 
+// ---- cell references ----
+namespace {
+constexpr size_t kMaxCellRefsBytes = size_t{64} << 20;  // a whole 200-view model is ~0.2 MB
+}  // namespace
+
+void PackCellRefs(v1::CellRefsChanged* msg) {
+  if (!msg->packed().empty()) return;
+  const std::string raw = msg->SerializeAsString();
+  if (raw.size() < 64 || raw.size() > kMaxCellRefsBytes) return;
+  auto z = ZstdCompress(reinterpret_cast<const uint8_t*>(raw.data()), raw.size(), 9,
+                        std::vector<uint8_t>{});
+  if (!z.ok() || z->size() + 4 >= raw.size()) return;  // not smaller: stay plain
+  std::string packed;
+  packed.reserve(4 + z->size());
+  PutLe<uint32_t>(&packed, static_cast<uint32_t>(raw.size()));
+  packed.append(reinterpret_cast<const char*>(z->data()), z->size());
+  msg->Clear();
+  msg->set_packed(std::move(packed));
+}
+
+absl::StatusOr<v1::CellRefsChanged> UnpackCellRefs(const v1::CellRefsChanged& msg) {
+  if (msg.packed().empty()) return msg;
+  if (msg.cells_size() > 0 || msg.coverage_size() > 0)
+    return absl::InvalidArgumentError("cell refs: both packed and plain entries");
+  const std::string& b = msg.packed();
+  if (b.size() < 4) return absl::InvalidArgumentError("cell refs: packed header cut");
+  const uint32_t raw_size = GetLe<uint32_t>(b.data());
+  if (raw_size == 0 || raw_size > kMaxCellRefsBytes)
+    return absl::InvalidArgumentError(absl::StrCat("cell refs: ", raw_size,
+                                                   " packed bytes outside [1, ",
+                                                   kMaxCellRefsBytes, "]"));
+  std::string raw(raw_size, '\0');
+  EXO_RETURN_IF_ERROR(ZstdDecompress(
+      std::span<const uint8_t>(reinterpret_cast<const uint8_t*>(b.data()) + 4, b.size() - 4),
+      reinterpret_cast<uint8_t*>(raw.data()), raw.size(), "cell refs"));
+  v1::CellRefsChanged out;
+  if (!out.ParseFromString(raw)) return absl::InvalidArgumentError("cell refs: packed payload does not parse");
+  if (!out.packed().empty()) return absl::InvalidArgumentError("cell refs: nested packed payload");
+  return out;
+}
+
 }  // namespace exo

@@ -79,4 +79,12 @@ void MeshToProto(const TriangleMesh& mesh, v1::MeshChunkUpserted* out, bool plai
                  const MeshWireOptions& options = {});
 absl::StatusOr<TriangleMesh> MeshFromProto(const v1::MeshChunkUpserted& msg);
 
+// Cell references on the wire (CellRefsChanged.packed): PackCellRefs replaces the cells and
+// coverage of `msg` by their zstd-packed form when that is smaller (an empty or tiny message is
+// left as it is); UnpackCellRefs returns the plain message (a plain input unchanged; a packed one
+// decoded, bounded in size, and rejected if it is corrupt, nests another packed payload, or also
+// carries plain entries).
+void PackCellRefs(v1::CellRefsChanged* msg);
+absl::StatusOr<v1::CellRefsChanged> UnpackCellRefs(const v1::CellRefsChanged& msg);
+
 }  // namespace exo

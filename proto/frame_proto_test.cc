@@ -420,5 +420,80 @@ TEST(MeshProto, MalformedCodecMeshesAreErrors) {
   }
 }
 
+// Cell references on the wire: a delta for a new view repeats the cells' whole lists, which
+// neighbouring cells share; the packed form must decode to exactly the plain message.
+v1::CellRefsChanged SomeCellRefs(int cells) {
+  v1::CellRefsChanged m;
+  for (int c = 0; c < cells; ++c) {
+    auto* e = m.add_cells();
+    e->set_cell_id((uint64_t{1} << 40) + 977 * static_cast<uint64_t>(c));
+    for (uint32_t v = 1000 + c % 7; v < 1064; v += 1 + (c % 3 == 0)) e->add_view_ids(v);
+    auto* t = m.add_coverage();
+    t->set_cell_id(e->cell_id());
+    t->set_tau_percent(static_cast<uint32_t>(c % 101));
+  }
+  m.add_cells()->set_cell_id(42);  // an emptied cell (no references any more)
+  return m;
+}
+
+TEST(CellRefsWire, PackedDecodesToThePlainMessageAndIsSmaller) {
+  const v1::CellRefsChanged plain = SomeCellRefs(500);
+  v1::CellRefsChanged packed = plain;
+  PackCellRefs(&packed);
+  ASSERT_FALSE(packed.packed().empty());
+  EXPECT_EQ(packed.cells_size(), 0);
+  EXPECT_EQ(packed.coverage_size(), 0);
+  EXPECT_LT(packed.ByteSizeLong() * 4, plain.ByteSizeLong());  // shared lists compress
+  auto back = UnpackCellRefs(packed);
+  ASSERT_TRUE(back.ok()) << back.status();
+  EXPECT_EQ(back->SerializeAsString(), plain.SerializeAsString());
+  // Plain messages pass through; packing twice is a no-op; a tiny message stays plain.
+  auto same = UnpackCellRefs(plain);
+  ASSERT_TRUE(same.ok());
+  EXPECT_EQ(same->SerializeAsString(), plain.SerializeAsString());
+  v1::CellRefsChanged twice = packed;
+  PackCellRefs(&twice);
+  EXPECT_EQ(twice.SerializeAsString(), packed.SerializeAsString());
+  v1::CellRefsChanged tiny;
+  tiny.add_coverage()->set_cell_id(7);
+  PackCellRefs(&tiny);
+  EXPECT_TRUE(tiny.packed().empty());
+  EXPECT_EQ(tiny.coverage_size(), 1);
+}
+
+TEST(CellRefsWire, BadPackedPayloadsAreClearErrors) {
+  v1::CellRefsChanged packed = SomeCellRefs(200);
+  PackCellRefs(&packed);
+  ASSERT_FALSE(packed.packed().empty());
+  auto bad = [](std::string b) {
+    v1::CellRefsChanged m;
+    m.set_packed(std::move(b));
+    return UnpackCellRefs(m).status();
+  };
+  const std::string& b = packed.packed();
+  EXPECT_NE(bad(b.substr(0, 3)).message().find("header cut"), std::string::npos);
+  std::string huge = b;  // claims 4 GB
+  for (int k = 0; k < 4; ++k) huge[k] = static_cast<char>(0xff);
+  EXPECT_NE(bad(huge).message().find("outside"), std::string::npos);
+  EXPECT_FALSE(bad(b.substr(0, b.size() - 5)).ok());  // truncated frame
+  std::string flipped = b;
+  flipped[b.size() / 2] = static_cast<char>(flipped[b.size() / 2] ^ 0x5a);
+  EXPECT_FALSE(bad(flipped).ok());  // zstd's checksum
+  // Both forms at once, and a packed payload that is itself packed, are refused.
+  v1::CellRefsChanged both = packed;
+  both.add_cells()->set_cell_id(1);
+  EXPECT_NE(UnpackCellRefs(both).status().message().find("both"), std::string::npos);
+  v1::CellRefsChanged inner;
+  inner.set_packed(std::string(100, 'x'));
+  const std::string raw = inner.SerializeAsString();
+  auto z = ZstdCompress(reinterpret_cast<const uint8_t*>(raw.data()), raw.size(), 3, {});
+  ASSERT_TRUE(z.ok());
+  std::string nested(4, '\0');
+  const uint32_t n = static_cast<uint32_t>(raw.size());
+  std::memcpy(nested.data(), &n, 4);
+  nested.append(reinterpret_cast<const char*>(z->data()), z->size());
+  EXPECT_NE(bad(nested).message().find("nested"), std::string::npos);
+}
+
 }  // namespace
 }  // namespace exo

@@ -274,6 +274,7 @@ int Main(int argc, char** argv) {
       bytes0 = live_bytes;
       kinds0 = live_by_kind;
     }
+    const v1::Stats counters0 = stats();
     std::vector<long> rss;
     std::atomic<bool> done{false};
     std::thread sampler([&] {
@@ -308,6 +309,17 @@ int Main(int argc, char** argv) {
                {"viewer_bytes", bytes1 - bytes0},
                {"viewer_kbit_per_s", Round((bytes1 - bytes0) * 8 / 1000.0 / sec, 1)},
                {"viewer_bytes_by_kind", by_kind},
+               {"server_published_chunk_bytes", [&] {
+                  // Why the server published mesh chunks in this phase (geometry stage counters).
+                  json out = json::object();
+                  for (const char* r : {"new", "structural", "interval", "refresh"}) {
+                    const std::string k = std::string("geometry.published_bytes_") + r;
+                    const auto a = counters0.counters().find(k), b = s.counters().find(k);
+                    if (a != counters0.counters().end() && b != s.counters().end())
+                      out[r] = b->second - a->second;
+                  }
+                  return out;
+                }()},
                {"rss_mb_after_warmup", rss.empty() ? -1 : rss[q] / 1024},
                {"rss_mb_end", rss.empty() ? -1 : rss.back() / 1024},
                {"rss_mb_samples", samples}});

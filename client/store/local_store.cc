@@ -1,5 +1,7 @@
 #include "client/store/local_store.h"
 
+#include "proto/frame_proto.h"
+
 #include <algorithm>
 #include <cmath>
 #include <utility>
@@ -42,20 +44,23 @@ absl::Status LocalStore::ApplyKind(const v1::Delta& d, LumigraphModel* model,
             absl::StrCat("removal of unknown view ", d.view_removed().view_id()));
       views->erase(d.view_removed().view_id());
       return absl::OkStatus();
-    case v1::Delta::kCellRefsChanged:
-      for (const auto& c : d.cell_refs_changed().coverage())  // checked first: all or nothing
+    case v1::Delta::kCellRefsChanged: {
+      // Packed (zstd) or plain; decoded and checked before anything changes: all or nothing.
+      EXO_ASSIGN_OR_RETURN(const v1::CellRefsChanged refs, UnpackCellRefs(d.cell_refs_changed()));
+      for (const auto& c : refs.coverage())
         if (c.tau_percent() > 100)
           return absl::InvalidArgumentError(
               absl::StrCat("cell coverage ", c.tau_percent(), " % is above 100"));
-      for (const auto& c : d.cell_refs_changed().cells()) {
+      for (const auto& c : refs.cells()) {
         if (c.view_ids().empty())
           model->cell_refs.erase(c.cell_id());
         else
           model->cell_refs[c.cell_id()].assign(c.view_ids().begin(), c.view_ids().end());
       }
-      for (const auto& c : d.cell_refs_changed().coverage())
+      for (const auto& c : refs.coverage())
         model->cell_coverage[c.cell_id()] = uint8_t(c.tau_percent());
       return absl::OkStatus();
+    }
     case v1::Delta::kMeshChunkUpserted: {
       const auto& m = d.mesh_chunk_upserted();
       EXO_ASSIGN_OR_RETURN(TriangleMesh mesh, MeshFromProto(m));

@@ -5,6 +5,8 @@
 
 #include <gtest/gtest.h>
 
+#include "proto/frame_proto.h"
+
 namespace exo {
 namespace {
 
@@ -186,6 +188,41 @@ TEST(LocalStore, CellCoverageIsKeptPerCellAndOutOfRangeIsAnError) {
   EXPECT_NE(st.message().find("above 100"), std::string::npos) << st;
   EXPECT_EQ(s.version(), 3u);  // nothing applied
   EXPECT_EQ(s.Digest(), digest);
+}
+
+TEST(LocalStore, PackedCellRefsApplyLikeThePlainOnesAndCorruptOnesChangeNothing) {
+  // The server packs CellRefsChanged with zstd (proto/frame_proto.h PackCellRefs).
+  v1::Delta plain;
+  plain.set_version(2);
+  auto* refs = plain.mutable_cell_refs_changed();
+  for (CellId cell = 100; cell < 400; ++cell) {
+    auto* e = refs->add_cells();
+    e->set_cell_id(cell);
+    for (ViewId v = 1; v <= 40; ++v) e->add_view_ids(v);
+    auto* t = refs->add_coverage();
+    t->set_cell_id(cell);
+    t->set_tau_percent(static_cast<uint32_t>(cell % 100));
+  }
+  v1::Delta packed = plain;
+  PackCellRefs(packed.mutable_cell_refs_changed());
+  ASSERT_FALSE(packed.cell_refs_changed().packed().empty());
+  LocalStore a, b;
+  for (LocalStore* s : {&a, &b}) ASSERT_TRUE(s->Apply(SceneDelta(1, 0.0)).ok());
+  ASSERT_TRUE(a.Apply(plain).ok());
+  ASSERT_TRUE(b.Apply(packed).ok());
+  EXPECT_EQ(a.Digest(), b.Digest());
+  EXPECT_EQ(a.model().cell_refs, b.model().cell_refs);
+  EXPECT_EQ(a.model().cell_coverage, b.model().cell_coverage);
+  // A corrupt packed delta is an error and leaves the store as it was.
+  v1::Delta bad = packed;
+  bad.set_version(3);
+  std::string p = bad.cell_refs_changed().packed();
+  p.resize(p.size() - 3);
+  bad.mutable_cell_refs_changed()->set_packed(p);
+  const uint64_t digest = b.Digest();
+  EXPECT_EQ(b.Apply(bad).code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_EQ(b.version(), 2u);
+  EXPECT_EQ(b.Digest(), digest);
 }
 
 }  // namespace

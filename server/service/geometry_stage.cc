@@ -69,6 +69,12 @@ class GeometryStage final : public PipelineStage {
     (*out)["geometry.fused"] = static_cast<double>(geometry_->fused());
     (*out)["geometry.shed"] = static_cast<double>(shed_.load());
     (*out)["geometry.chunks_refreshed"] = static_cast<double>(refreshed_.load());
+    // Wire bytes of the published chunks by why they went out (diagnostics, not checkpointed).
+    (*out)["geometry.published_bytes_new"] = static_cast<double>(pub_bytes_[kNew].load());
+    (*out)["geometry.published_bytes_structural"] =
+        static_cast<double>(pub_bytes_[kStructural].load());
+    (*out)["geometry.published_bytes_interval"] = static_cast<double>(pub_bytes_[kInterval].load());
+    (*out)["geometry.published_bytes_refresh"] = static_cast<double>(pub_bytes_[kRefresh].load());
     (*out)["geometry.refresh_skipped_still"] = static_cast<double>(refresh_still_.load());
     (*out)["geometry.lod_triangles_in"] = static_cast<double>(lod_in_.load());
     (*out)["geometry.lod_triangles_out"] = static_cast<double>(lod_out_.load());
@@ -108,8 +114,11 @@ class GeometryStage final : public PipelineStage {
           pending_[c.id] = std::move(c);  // newest mesh, published when due
           continue;
         }
+        pub_bytes_[age_s >= options_.republish_interval_s ? kInterval : kStructural] +=
+            PublishChunk(std::move(c), now, ctx);
+        continue;
       }
-      PublishChunk(std::move(c), now, ctx);
+      pub_bytes_[kNew] += PublishChunk(std::move(c), now, ctx);
     }
     // Held-back chunks whose interval has passed.
     for (auto it = pending_.begin(); it != pending_.end();) {
@@ -118,7 +127,7 @@ class GeometryStage final : public PipelineStage {
           (now - pub->second.time_ns) * 1e-9 >= options_.republish_interval_s) {
         MeshChunk c = std::move(it->second);
         it = pending_.erase(it);
-        PublishChunk(std::move(c), now, ctx);
+        pub_bytes_[kInterval] += PublishChunk(std::move(c), now, ctx);
       } else {
         ++it;
       }
@@ -177,6 +186,7 @@ class GeometryStage final : public PipelineStage {
       pending_.erase(it);
       refreshed_.fetch_add(1);
       const size_t bytes = PublishChunk(std::move(c), now, ctx);
+      pub_bytes_[kRefresh] += bytes;
       if (rate > 0.0) tokens_ -= static_cast<double>(bytes);
     }
   }
@@ -332,6 +342,8 @@ class GeometryStage final : public PipelineStage {
   std::atomic<uint64_t> shed_{0};
   std::atomic<uint64_t> refreshed_{0};
   std::atomic<uint64_t> refresh_still_{0};
+  enum PublishReason { kNew, kStructural, kInterval, kRefresh, kReasons };
+  std::atomic<uint64_t> pub_bytes_[kReasons] = {};
   std::atomic<uint64_t> lod_in_{0}, lod_out_{0}, lod_fallbacks_{0};
   std::atomic<int64_t> lod_ns_{0};
   double tokens_ = 0.0;                  // refresh budget, bytes (stage thread only)

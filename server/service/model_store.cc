@@ -187,12 +187,14 @@ absl::Status ModelStore::ApplyModelDeltaLocked(const v1::Delta& d) {
       chunk_records_[m.chunk_id()] = {m.chunk_version(), MeshHash(mesh)};
       return absl::OkStatus();
     }
-    case v1::Delta::kCellRefsChanged:
-      for (const auto& e : d.cell_refs_changed().cells())
+    case v1::Delta::kCellRefsChanged: {
+      EXO_ASSIGN_OR_RETURN(const v1::CellRefsChanged c, UnpackCellRefs(d.cell_refs_changed()));
+      for (const auto& e : c.cells())
         if (e.view_ids_size() > 0) cell_refs_[e.cell_id()].assign(e.view_ids().begin(), e.view_ids().end());
-      for (const auto& e : d.cell_refs_changed().coverage())
+      for (const auto& e : c.coverage())
         cell_coverage_[e.cell_id()] = uint8_t(std::min<uint32_t>(e.tau_percent(), 100));
       return absl::OkStatus();
+    }
     default:
       return absl::DataLossError("checkpoint: unexpected delta kind in the model");
   }
@@ -294,16 +296,18 @@ absl::Status ModelStore::ReplayDelta(const v1::Delta& d) {
       views_.erase(it);
       break;
     }
-    case v1::Delta::kCellRefsChanged:
-      for (const auto& e : d.cell_refs_changed().cells()) {
+    case v1::Delta::kCellRefsChanged: {
+      EXO_ASSIGN_OR_RETURN(const v1::CellRefsChanged c, UnpackCellRefs(d.cell_refs_changed()));
+      for (const auto& e : c.cells()) {
         if (e.view_ids_size() == 0)
           cell_refs_.erase(e.cell_id());
         else
           cell_refs_[e.cell_id()].assign(e.view_ids().begin(), e.view_ids().end());
       }
-      for (const auto& e : d.cell_refs_changed().coverage())
+      for (const auto& e : c.coverage())
         cell_coverage_[e.cell_id()] = uint8_t(std::min<uint32_t>(e.tau_percent(), 100));
       break;
+    }
     case v1::Delta::kMeshChunkUpserted: {
       const auto& m = d.mesh_chunk_upserted();
       EXO_ASSIGN_OR_RETURN(TriangleMesh mesh, MeshFromProto(m));
@@ -500,25 +504,27 @@ uint64_t ModelStore::SetCellRefs(
 uint64_t ModelStore::SetCellRefs(
     const std::vector<std::pair<CellId, std::vector<ViewId>>>& cells,
     const std::vector<std::pair<CellId, uint8_t>>& coverage) {
-  std::lock_guard lock(mu_);
   v1::Delta d;
   auto* c = d.mutable_cell_refs_changed();
   for (const auto& [cell, refs] : cells) {
-    if (refs.empty())
-      cell_refs_.erase(cell);
-    else
-      cell_refs_[cell] = refs;
     auto* e = c->add_cells();
     e->set_cell_id(cell);
     e->mutable_view_ids()->Add(refs.begin(), refs.end());
   }
   for (const auto& [cell, percent] : coverage) {
-    const uint8_t p = std::min<uint8_t>(percent, 100);
-    cell_coverage_[cell] = p;
     auto* e = c->add_coverage();
     e->set_cell_id(cell);
-    e->set_tau_percent(p);
+    e->set_tau_percent(std::min<uint8_t>(percent, 100));
   }
+  PackCellRefs(c);  // outside the lock
+  std::lock_guard lock(mu_);
+  for (const auto& [cell, refs] : cells) {
+    if (refs.empty())
+      cell_refs_.erase(cell);
+    else
+      cell_refs_[cell] = refs;
+  }
+  for (const auto& [cell, percent] : coverage) cell_coverage_[cell] = std::min<uint8_t>(percent, 100);
   return CommitLocked(std::move(d));
 }
 
@@ -598,6 +604,7 @@ std::shared_ptr<const std::vector<DeltaPtr>> ModelStore::SnapshotLocked() const 
       e->set_cell_id(cell);
       e->set_tau_percent(percent);
     }
+    PackCellRefs(c);
     push(std::move(d));
   }
   {
