@@ -110,8 +110,11 @@ class GeometryStage final : public PipelineStage {
         const double change =
             std::abs(static_cast<double>(c.mesh.num_triangles()) - old_n) / std::max(1.0, old_n);
         const double age_s = (now - it->second.time_ns) * 1e-9;
-        if (change <= options_.republish_change_fraction && age_s < options_.republish_interval_s) {
-          pending_[c.id] = std::move(c);  // newest mesh, published when due
+        if (age_s < options_.republish_interval_s &&
+            (change <= options_.republish_change_fraction || BudgetsStructural())) {
+          // Newest mesh, published when due: at the interval, or by Refresh (a structural change
+          // first, within the budget, when structural changes are budgeted).
+          pending_[c.id] = std::move(c);
           continue;
         }
         pub_bytes_[age_s >= options_.republish_interval_s ? kInterval : kStructural] +=
@@ -142,6 +145,13 @@ class GeometryStage final : public PipelineStage {
 
   // Held-back chunks whose extraction count grew by republish_extraction_factor since their
   // publication, largest growth first, within the token bucket (GeometryStageOptions).
+  // Structural changes of published chunks share the refresh bucket (ahead of the growth
+  // refreshes) when there is a bucket to share.
+  bool BudgetsStructural() const {
+    return options_.budget_structural && options_.republish_extraction_factor > 0.0 &&
+           options_.refresh_budget_kbps > 0.0;
+  }
+
   void Refresh(int64_t now, const SceneContext& ctx, double source_time_s) {
     if (options_.republish_extraction_factor <= 0.0) return;
     const double rate = options_.refresh_budget_kbps * 125.0;  // bytes per stream second
@@ -154,11 +164,24 @@ class GeometryStage final : public PipelineStage {
       tokens_ = std::min(burst, tokens_ + dt * rate);
     }
     last_source_s_ = source_time_s;
-    std::vector<std::pair<double, uint64_t>> due;  // (growth, chunk id)
+    // (priority, chunk id): structural changes (budgeted) first, by relative change, then the
+    // growth refreshes by growth.
+    constexpr double kStructuralFirst = 1e12;
+    std::vector<std::pair<double, uint64_t>> due;
+    const bool structural = BudgetsStructural();
     for (const auto& [id, chunk] : pending_) {
       const auto pub = published_.find(id);
-      if (pub == published_.end() ||
-          pub->second.extractions >= static_cast<uint64_t>(options_.republish_extraction_max))
+      if (pub == published_.end()) continue;
+      if (structural) {
+        const double old_n = static_cast<double>(pub->second.triangles);
+        const double change =
+            std::abs(static_cast<double>(chunk.mesh.num_triangles()) - old_n) / std::max(1.0, old_n);
+        if (change > options_.republish_change_fraction) {
+          due.push_back({kStructuralFirst + change, id});
+          continue;
+        }
+      }
+      if (pub->second.extractions >= static_cast<uint64_t>(options_.republish_extraction_max))
         continue;
       const double growth = static_cast<double>(extractions_[id]) /
                             static_cast<double>(pub->second.extractions);
@@ -168,10 +191,11 @@ class GeometryStage final : public PipelineStage {
       return a.first != b.first ? a.first > b.first : a.second < b.second;
     });
     const double voxel = ctx.setup.voxel_m;
-    for (const auto& [growth, id] : due) {
+    for (const auto& [priority, id] : due) {
       auto it = pending_.find(id);
       Published& pub = published_[id];
-      if (options_.refresh_min_move_voxels > 0.0 &&
+      const bool is_structural = priority >= kStructuralFirst;
+      if (!is_structural && options_.refresh_min_move_voxels > 0.0 &&
           MeanMove(it->second.mesh.positions, pub.positions, voxel) <
               options_.refresh_min_move_voxels * voxel) {
         pub.extractions = std::max<uint64_t>(1, extractions_[id]);  // wait for the next step
@@ -184,9 +208,9 @@ class GeometryStage final : public PipelineStage {
       if (rate > 0.0 && tokens_ <= 0.0) break;  // wait for tokens, keep the order
       MeshChunk c = std::move(it->second);
       pending_.erase(it);
-      refreshed_.fetch_add(1);
+      if (!is_structural) refreshed_.fetch_add(1);
       const size_t bytes = PublishChunk(std::move(c), now, ctx);
-      pub_bytes_[kRefresh] += bytes;
+      pub_bytes_[is_structural ? kStructural : kRefresh] += bytes;
       if (rate > 0.0) tokens_ -= static_cast<double>(bytes);
     }
   }

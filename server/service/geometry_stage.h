@@ -56,6 +56,14 @@ struct GeometryStageOptions {
   // 0.7788 / 0.7787 at 500 / 1000 / 2000, viewer 7.45 / 7.64 / 7.73 MB: the budget no longer
   // buys quality above 500, so 1000 (SPEC §10's steady state is <= 1 Mbit/s in all).
   double refresh_budget_kbps = 1000.0;
+  // Session 13: structural changes of chunks the clients already have (triangle count changed by
+  // more than republish_change_fraction) go through the same bucket, ahead of the growth
+  // refreshes, instead of out at once; new chunks are never held back. Then the mesh bytes are
+  // bounded by the new chunks plus the budget. Off by default: at 1 Mbit/s it holds back the
+  // modelling phase's structural changes (service_bench, admission_block: the initial sync's mesh
+  // 3.28 -> 2.76 MB, i.e. staler) and the steady state then drains that backlog at the full
+  // budget (mesh 2.77 -> 3.14 MB over 30 s); docs/service.md "Cell references packed".
+  bool budget_structural = false;
   double refresh_burst_s = 2.0;
   // A due chunk whose surface has hardly moved since its publication is not re-sent (its
   // extraction count is taken as published, so it waits for the next growth step): moved = the

@@ -35,9 +35,14 @@ struct Rig {
   }
   // The same surface every frame (stream time 0.1 s * seq); `noise_m` > 0 adds per-pixel depth
   // noise (a fixed pseudo-random pattern per frame), so the fused surface moves as it converges.
-  void Run(uint64_t seq, size_t queued, float noise_m = 0.0f) {
+  // `valid_cols` > 0 keeps only the first columns' depth (the rest invalid): a surface that
+  // grows frame by frame changes its chunks' triangle counts (structural changes).
+  void Run(uint64_t seq, size_t queued, float noise_m = 0.0f, int valid_cols = 0) {
     PipelineFrame f;
     f.frame = wire_test::SmallFrame(32, 24, seq);
+    if (valid_cols > 0)
+      for (int y = 0; y < f.frame.depth_m.height(); ++y)
+        for (int x = valid_cols; x < f.frame.depth_m.width(); ++x) f.frame.depth_m.at(x, y) = 0.0f;
     if (noise_m > 0.0f) {
       uint32_t state = static_cast<uint32_t>(seq) * 2654435761u + 1u;
       for (int y = 0; y < f.frame.depth_m.height(); ++y)
@@ -170,6 +175,62 @@ TEST(GeometryStage, RefreshSkipsSurfacesThatDoNotMove) {
   EXPECT_GT(noisy.refreshes, 0u);
   EXPECT_GT(noisy.still, 0);
   EXPECT_LT(noisy.refreshes, noisy_all.refreshes);
+}
+
+// Structural changes (triangle count beyond republish_change_fraction) of chunks the clients
+// already have share the refresh bucket when budget_structural is on: the re-published bytes stay
+// within rate x stream time + burst + one chunk of debt; off, they go out at once. New chunks are
+// never held back, and with an unlimited budget nothing changes.
+struct GrowRun {
+  uint64_t first_bytes = 0, again_bytes = 0, again = 0, max_chunk = 0;
+  double structural_counter = 0;
+};
+GrowRun RunGrowing(bool budget_structural, double kbps) {
+  GeometryStageOptions go;
+  go.shed_backlog_fraction = 0.0;
+  go.refresh_budget_kbps = kbps;
+  go.refresh_burst_s = 0.5;
+  go.budget_structural = budget_structural;
+  go.publish_lod_error_voxels = 0.0;
+  Rig rig(go);
+  GrowRun r;
+  std::set<uint64_t> seen;
+  uint64_t version = rig.store.version();
+  for (int s = 1; s <= 32; ++s) {
+    rig.Run(static_cast<uint64_t>(s), 0, 0.0f, s);  // 1 ... 32 valid columns
+    auto deltas = rig.store.DeltasAfter(version, 1 << 20, 0);
+    EXO_CHECK(deltas.ok());
+    for (const auto& d : *deltas) {
+      if (!d->has_mesh_chunk_upserted()) continue;
+      const uint64_t bytes = d->mesh_chunk_upserted().ByteSizeLong();
+      r.max_chunk = std::max(r.max_chunk, bytes);
+      if (seen.insert(d->mesh_chunk_upserted().chunk_id()).second) {
+        r.first_bytes += bytes;
+      } else {
+        r.again_bytes += bytes;
+        ++r.again;
+      }
+    }
+    version = rig.store.version();
+  }
+  r.structural_counter = rig.Counter("geometry.published_bytes_structural");
+  return r;
+}
+
+TEST(GeometryStage, StructuralChangesShareTheBudgetWhenAsked) {
+  const GrowRun at_once = RunGrowing(false, 2.0);  // 250 bytes per stream second
+  const GrowRun budgeted = RunGrowing(true, 2.0);
+  const GrowRun unlimited_on = RunGrowing(true, 0.0);
+  const GrowRun unlimited_off = RunGrowing(false, 0.0);
+  ASSERT_GT(at_once.structural_counter, 0);  // the growing surface makes structural changes
+  EXPECT_EQ(budgeted.first_bytes, at_once.first_bytes);  // new chunks are never held back
+  EXPECT_LT(budgeted.again_bytes, at_once.again_bytes);
+  // 31 frames of 0.1 s after the first: 3.1 s x 250 B/s + 0.5 s burst + one chunk of debt.
+  EXPECT_LE(budgeted.again_bytes, 3.1 * 250 + 0.5 * 250 + budgeted.max_chunk);
+  // Unlimited: budget_structural has no effect.
+  EXPECT_EQ(unlimited_on.first_bytes, unlimited_off.first_bytes);
+  EXPECT_EQ(unlimited_on.again_bytes, unlimited_off.again_bytes);
+  EXPECT_EQ(unlimited_on.again, unlimited_off.again);
 }
 
 TEST(GeometryStage, RefreshOptionsValidated) {

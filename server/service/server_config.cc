@@ -109,6 +109,8 @@ std::vector<ConfigKey> MakeKeys() {
           EXO_FIELD(geometry.republish_extraction_max)),
       Key("chunk_refresh_kbps", "budget for those refreshes: kbit per second of the stream's own time, largest growth first (0 = unlimited)",
           EXO_FIELD(geometry.refresh_budget_kbps)),
+      Key("chunk_budget_structural", "structural chunk changes (triangle count beyond chunk_republish_change) share that budget, ahead of the refreshes (0 = sent at once)",
+          EXO_FIELD(geometry.budget_structural)),
       Key("chunk_refresh_min_move_voxels", "... only chunks whose surface moved at least this much (mean vertex motion, voxels; 0 = all)",
           EXO_FIELD(geometry.refresh_min_move_voxels)),
       Key("chunk_lod_error_voxels", "clients' proxy LOD: published chunks simplified (quadric edge collapse, chunk borders locked) within this many voxels of the full mesh (0 = full resolution)",
