@@ -4,6 +4,7 @@
 
 #include <cmath>
 
+#include "client/navigation/navigation.h"
 #include "common/camera.h"
 
 namespace exo::nav {
@@ -117,6 +118,28 @@ TEST(DroneOps, XrayPlaneThroughThePickedPointOrInFront) {
   EXPECT_DOUBLE_EQ(XrayClipDistance(std::nullopt, 0.3, 1.5), 1.5);
   EXPECT_DOUBLE_EQ(XrayClipDistance(-1.0, 0.3, 1.5), 1.5);
   EXPECT_DOUBLE_EQ(XrayClipDistance(std::nullopt, 0.3, 0.0), 0.05);
+}
+
+// Picking in X-ray mode skips the surfaces in front of the cut-away plane.
+TEST(DroneOps, PickBeyondTheXrayPlane) {
+  LumigraphModel m;
+  m.grid.cell_size_m = 0.5;
+  for (int k = 0; k < 2; ++k) {
+    MeshChunk& c = m.chunks[k + 1];
+    c.id = k + 1;
+    const float z = k == 0 ? 2.0f : 4.0f;
+    c.mesh.positions = {{-5, -5, z}, {5, -5, z}, {5, 5, z}, {-5, 5, z}};
+    c.mesh.indices = {0, 1, 2, 0, 2, 3};
+  }
+  const PinholeCamera c = Cam();
+  auto front = Pick(m, c, Rigid3d{}, {100, 100});
+  ASSERT_TRUE(front);
+  EXPECT_NEAR(front->z_depth_m, 2.0, 1e-9);
+  auto behind = Pick(m, c, Rigid3d{}, {100, 100}, 2.3);
+  ASSERT_TRUE(behind);
+  EXPECT_NEAR(behind->z_depth_m, 4.0, 1e-9);
+  EXPECT_EQ(behind->chunk_id, 2u);
+  EXPECT_FALSE(Pick(m, c, Rigid3d{}, {100, 100}, 4.5));
 }
 
 }  // namespace
