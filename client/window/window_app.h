@@ -53,6 +53,12 @@ struct WindowAppOptions {
   std::string control;
   std::string drone_id = "drone";
   bool cells_by_tau = true;  // cells coloured by coverage τ when the model has it (key 4)
+  // Steering the drone (issue 19 item 5; docs/viewer.md): the operator id sent with the
+  // commands ("" = window-<pid>), the mouse-hand's distance from the eye, the X-ray plane's
+  // margin behind the point under the cursor and its distance when there is none.
+  std::string operator_id;
+  double hand_m = 0.5;
+  double xray_margin_m = 0.3, xray_default_m = 1.5;
 };
 
 // Runs the app; returns the process exit code (0 ok, 1 runtime error, 2 bad input).
