@@ -769,6 +769,7 @@ class App {
         probe_["drone_known"] = cv->drone_known;
         if (cv->drone_known) probe_["drone_px"] = px(cv->drone);
         if (cv->has_command) probe_["target_px"] = px(cv->target);
+        if (cv->has_command) probe_["target"] = {cv->target.x, cv->target.y, cv->target.z};
         probe_["waypoints"] = cv->waypoints.size();
         probe_["zones"] = cv->zones.size();
       }
@@ -1322,11 +1323,58 @@ class App {
     return j;
   }
 
+  // The browser page's drone gestures (HttpInput), at the pose of the frame the page shows.
+  // True when the view must be rendered again (the X-ray plane changed).
+  bool HttpOperator(const HttpInput& hi, const Rigid3d& at, int W, int H, double dt) {
+    const SceneInfo& info = *info_;
+    const PinholeCamera cam = Camera(W, H);
+    nav::JoypadKeys k;
+    for (const std::string& h : hi.held) {
+      k.forward |= h == "i";
+      k.back |= h == "k";
+      k.left |= h == "j";
+      k.right |= h == "l";
+      k.turn_left |= h == "u";
+      k.turn_right |= h == "o";
+      k.up |= h == "y";
+      k.down |= h == "h";
+    }
+    controls_->Joypad(k, dt);
+    for (const auto& g : hi.gazes) {
+      const glm::dvec2 px(g[0] - 0.5, g[1] - 0.5);  // page pixels: corners at integers
+      auto hit = nav::Pick(info.geom, cam, at, px, xray_clip_m_.load());
+      controls_->Click(cam, at, info.geom.origin, px,
+                       hit ? std::optional(hit->point_local) : std::nullopt);
+    }
+    for (const auto& p : hi.picks) {
+      const glm::dvec2 p0(p[0] - 0.5, p[1] - 0.5), p1(p[2] - 0.5, p[3] - 0.5);
+      auto d = DroneOnScreen(info, at, W, H);
+      if (d && glm::length(d->second - p0) <= 40)  // a drag that starts on the drone
+        controls_->Drag(cam, at, info.geom.origin, p0, p1, p[4], p[5], d->first);
+    }
+    bool again = false;
+    for (const std::string& key : hi.presses) {
+      if (key == "x") {
+        auto c = nav::Pick(info.geom, cam, at, {W / 2.0 - 0.5, H / 2.0 - 0.5});
+        controls_->ToggleXray(c ? std::optional(c->z_depth_m) : std::nullopt);
+      } else if (key == "xnear" || key == "xfar") {
+        controls_->MoveXray(key == "xnear" ? -1 : 1);
+      } else {
+        continue;
+      }
+      SyncXray();
+      again = true;
+    }
+    rerender_ = false;
+    return again;
+  }
+
   // ---- browser view (no window) ----
   int RunHttp() {
     if (auto s = InitModelAndRenderer(true); !s.ok()) return Fail(s);
     std::mutex status_mu;
     std::string status_text = "{}";
+    std::string controls_text;  // DroneControls::StatusJson, refreshed by the loop
     double frame_ms = 0;
     uint64_t frames = 0;
     HttpView* view_ptr = nullptr;
@@ -1334,7 +1382,11 @@ class App {
         o_.http,
         [&] {
           std::lock_guard lock(status_mu);
-          return status_text;
+          if (controls_text.empty()) return status_text;
+          nlohmann::json j = nlohmann::json::parse(status_text, nullptr, false);
+          if (j.is_discarded()) return status_text;
+          j["drone_controls"] = nlohmann::json::parse(controls_text, nullptr, false);
+          return j.dump();
         },
         [&] {
           std::lock_guard lock(status_mu);
@@ -1385,7 +1437,7 @@ class App {
     nav::AdaptiveResolution adaptive(ao);
     const int W = o_.width, H = o_.height;
     const auto t_start = Clock::now();
-    auto t_last = Clock::now(), t_overlay = Clock::now();
+    auto t_last = Clock::now(), t_overlay = Clock::now(), t_controls = Clock::now();
     bool force = true, overlay_due = true, have_frame = false;
     Rigid3d last_pose;
     while (!g_stop.load()) {
@@ -1403,6 +1455,12 @@ class App {
       in.look_dx_px = hi.look_dx_px + 400.0 * dt * (hi.turn_right - hi.turn_left);
       in.look_dy_px = hi.look_dy_px + 400.0 * dt * (hi.turn_down - hi.turn_up);
       in.wheel = hi.wheel;
+      if (have_frame && HttpOperator(hi, last_pose, W, H, dt)) force = true;
+      if (MsSince(t_controls) >= 200) {
+        std::lock_guard lock(status_mu);
+        controls_text = controls_->StatusJson().dump();
+        t_controls = Clock::now();
+      }
       for (const std::string& k : hi.presses) {
         if (k == "r") {
           if (auto n = nav::NearestView(info_->geom, cam.pose().translation))
@@ -1460,6 +1518,7 @@ class App {
         continue;
       }
       const auto t0 = Clock::now();
+      if (auto s = ApplyNearPlane(); !s.ok()) return Fail(s);  // the X-ray cut-away
       auto img = Render(cam.pose(), std::max(1, W / d), std::max(1, H / d));
       if (!img.ok()) return Fail(img.status());
       auto jpeg = EncodeJpeg(*img, o_.jpeg_quality);
