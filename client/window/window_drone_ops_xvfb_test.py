@@ -244,7 +244,8 @@ def main():
         if gesture["px"] != [px, py]:
             fail(f"the click was not at the pixel clicked: {gesture['px']}")
         err = np.linalg.norm(np.array(gaze["gaze_point"]) - np.array(gesture["local_hit"]))
-        log(f"P_gaze {np.round(gaze['gaze_point'], 3)} vs the point under the cursor: {err * 100:.1f} cm")
+        log(f"P_gaze {np.round(gaze['gaze_point'], 3)} vs the point under the cursor: {err * 100:.1f} cm "
+            f"(GazeToSee round trip {gaze['rtt_ms']:.1f} ms)")
         if err > 0.10:
             fail("the server's P_gaze is not the surface point under the cursor")
         cs = cstate()
@@ -321,7 +322,8 @@ def main():
         if not pick["ok"]:
             fail("the pick-and-place was refused")
         off = np.linalg.norm(np.array(pick["target"]) - np.array(gesture["preview_target"]))
-        log(f"server target vs the window's preview: {off * 100:.1f} cm (clamped {pick['clamped']})")
+        log(f"server target vs the window's preview: {off * 100:.1f} cm (clamped {pick['clamped']}; "
+            f"PickAndPlace round trip {pick['rtt_ms']:.1f} ms)")
         if not pick["clamped"] and off > 0.05:
             fail("the server's pick-and-place target is not eq. (5.1) of the drag")
         cs = cstate()
@@ -622,6 +624,9 @@ def browser_part(args, env, work, addr, pb, cstate):
         post("key=x&down=1")
         s = status(lambda s: s.get("drone_controls", {}).get("xray"), "X-ray on")
         log(f"browser X: X-ray on, cut at {s['drone_controls']['xray_clip_m']:.2f} m")
+        post("key=x&down=1")
+        status(lambda s: not s.get("drone_controls", {}).get("xray"), "X-ray off")
+        chromium_part(args, env, work, base_url, status, last, cstate)
     finally:
         if view.poll() is None:
             view.terminate()
@@ -629,6 +634,80 @@ def browser_part(args, env, work, addr, pb, cstate):
                 view.wait(timeout=20)
             except subprocess.TimeoutExpired:
                 view.kill()
+
+
+def chromium_part(args, env, work, base_url, status, last, cstate):
+    """The page's own gestures in headless Chromium (DevTools Input events): ctrl + click on the
+    picture sends a gaze at that pixel; ctrl + drag from the drone draws the preview line and
+    sends a pick-and-place from the drone's pixel."""
+    chromium = shutil.which("chromium") or shutil.which("chromium-browser")
+    if chromium is None:
+        log("chromium not installed: SKIPPED the page's gesture check")
+        return
+    import http_view_test as hv
+    if not hv.have_websocket():
+        return
+    c = hv.Chromium(chromium, base_url + "/", work, env, "chromium-ops")
+    try:
+        page = None
+        t0 = time.time()
+        while time.time() - t0 < 90:
+            v = c.dt.eval("JSON.stringify({seq: seq, ov: overlay, "
+                          "r: document.getElementById('v').getBoundingClientRect()})")
+            page = json.loads(v) if v else {}
+            if page.get("seq", 0) > 0 and (page.get("ov") or {}).get("drone_px"):
+                break
+            time.sleep(0.3)
+        else:
+            fail("the page did not show the frames and the drone")
+        ov, r = page["ov"], page["r"]
+        k = min(r["width"] / ov["width"], r["height"] / ov["height"])
+        ox = r["x"] + (r["width"] - k * ov["width"]) / 2
+        oy = r["y"] + (r["height"] - k * ov["height"]) / 2
+
+        def mouse(kind, fx, fy, buttons):
+            c.dt.call("Input.dispatchMouseEvent", type=kind, x=ox + k * fx, y=oy + k * fy,
+                      button="left", buttons=buttons, clickCount=1, modifiers=2)  # 2 = ctrl
+
+        s0 = status(lambda s: True, "a status")
+        n_gaze = (last(s0, "gaze") or {}).get("operator_sequence", 0)
+        n_pick = (last(s0, "pick") or {}).get("operator_sequence", 0)
+        cx, cy = ov["width"] / 2, ov["height"] / 4  # above the drone (below the centre)
+        mouse("mousePressed", cx, cy, 1)
+        mouse("mouseReleased", cx, cy, 0)
+        s = status(lambda s: (last(s, "gaze") or {}).get("operator_sequence", 0) > n_gaze,
+                   "the page's ctrl+click")
+        g = s["drone_controls"]["last_gesture"]
+        log(f"chromium ctrl+click at frame pixel ({cx:.0f}, {cy:.0f}): sent at {g['px']}; "
+            f"{last(s, 'gaze')['summary']}")
+        if g["gesture"] != "click" or math.hypot(g["px"][0] + 0.5 - cx, g["px"][1] + 0.5 - cy) > 2:
+            fail("the page's click did not send a gaze at the clicked pixel")
+        t1 = time.time()  # the drone flies to the gaze target: drag it once it rests there
+        while time.time() - t1 < 40 and (time.time() - t1 < 1 or np.linalg.norm(
+                v3(cstate().drone.velocity)) > 0.05):
+            time.sleep(0.2)
+        time.sleep(0.6)  # the page's overlay (5 Hz) has the drone where it rests
+        ov = json.loads(c.dt.eval("JSON.stringify(overlay)"))
+        dx, dy = ov["drone_px"]
+        mouse("mousePressed", dx, dy, 1)
+        for i in range(1, 5):
+            mouse("mouseMoved", dx + 15 * i, dy - 5 * i, 1)
+        drawn = c.dt.eval("press && onDrone && cursor ? 1 : 0")
+        img = c.dt.screenshot()
+        mouse("mouseReleased", dx + 60, dy - 20, 0)
+        s = status(lambda s: (last(s, "pick") or {}).get("operator_sequence", 0) > n_pick,
+                   "the page's ctrl+drag")
+        g = s["drone_controls"]["last_gesture"]
+        log(f"chromium ctrl+drag from the drone ({dx:.0f}, {dy:.0f}): sent from {g['px0']} to "
+            f"{g['px1']}, preview line drawn {bool(drawn)}; {last(s, 'pick')['summary']}")
+        if g["gesture"] != "drag" or math.hypot(g["px0"][0] + 0.5 - dx, g["px0"][1] + 0.5 - dy) > 2:
+            fail("the page's drag did not send a pick-and-place from the drone")
+        if not drawn:
+            fail("the page did not draw the drag's preview")
+        if args.docs_dir:
+            Image.fromarray(img).save(os.path.join(args.docs_dir, "browser_drone_drag.png"))
+    finally:
+        c.close()
 
 
 if __name__ == "__main__":
