@@ -75,15 +75,14 @@ Sticks SticksFromGamepad(double left_x, double left_y, double right_x, double ri
     return std::abs(v) < deadzone ? 0.0 : v;
   };
   Sticks s;
-  s.left_x = -dz(left_x);   // stick right: turn right (yaw decreases)
-  s.left_y = -dz(left_y);   // stick up (y < 0): climb
-  s.right_x = dz(right_x);  // stick right: move right
-  s.right_y = -dz(right_y); // stick up: forward
+  s.left_x = -dz(left_x);    // stick right: turn right (yaw decreases)
+  s.left_y = -dz(left_y);    // stick up (y < 0): climb
+  s.right_x = dz(right_x);   // stick right: move right
+  s.right_y = -dz(right_y);  // stick up: forward
   return s;
 }
 
-double XrayClipDistance(std::optional<double> picked_z_depth_m, double margin_m,
-                        double default_m) {
+double XrayClipDistance(std::optional<double> picked_z_depth_m, double margin_m, double default_m) {
   if (picked_z_depth_m && std::isfinite(*picked_z_depth_m) && *picked_z_depth_m > 0)
     return *picked_z_depth_m + std::max(0.0, margin_m);
   return std::max(0.05, default_m);

@@ -15,9 +15,8 @@
 //   - X-ray: the cut-away plane facing the viewer at a distance along the optical axis.
 #pragma once
 
-#include <optional>
-
 #include <glm/glm.hpp>
+#include <optional>
 
 #include "common/camera.h"
 #include "common/rigid3.h"

@@ -80,8 +80,8 @@ TEST(DroneOps, HandAtTheEyeIsGuarded) {
   EXPECT_TRUE(std::isfinite(p.target.x) && std::isfinite(p.target.y) && std::isfinite(p.target.z));
   EXPECT_NEAR(glm::length(p.target - drone), 20.0 * 0.05, 1e-9);
   const glm::dvec3 far = pose.translation + glm::dvec3(1000, 0, 0);
-  const PickPlacePreview capped = PreviewPickAndPlace(far, h.eye, h.eye + glm::dvec3(0.5, 0, 0),
-                                                      glm::dvec3(0, 1, 0));
+  const PickPlacePreview capped =
+      PreviewPickAndPlace(far, h.eye, h.eye + glm::dvec3(0.5, 0, 0), glm::dvec3(0, 1, 0));
   EXPECT_TRUE(capped.guarded);
   EXPECT_EQ(capped.scale, 50.0);
   const PickPlacePreview bad = PreviewPickAndPlace(drone, h.eye, glm::dvec3(NAN, 0, 0), {});

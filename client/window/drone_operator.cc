@@ -1,10 +1,10 @@
 #include "client/window/drone_operator.h"
 
+#include <grpcpp/grpcpp.h>
+
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
-
-#include <grpcpp/grpcpp.h>
 
 namespace exo {
 namespace {
@@ -23,18 +23,30 @@ nlohmann::json J(const glm::dvec3& v) { return {v.x, v.y, v.z}; }
 
 const char* CodeName(grpc::StatusCode c) {
   switch (c) {
-    case grpc::StatusCode::OK: return "OK";
-    case grpc::StatusCode::CANCELLED: return "CANCELLED";
-    case grpc::StatusCode::INVALID_ARGUMENT: return "INVALID_ARGUMENT";
-    case grpc::StatusCode::DEADLINE_EXCEEDED: return "DEADLINE_EXCEEDED";
-    case grpc::StatusCode::NOT_FOUND: return "NOT_FOUND";
-    case grpc::StatusCode::PERMISSION_DENIED: return "PERMISSION_DENIED";
-    case grpc::StatusCode::FAILED_PRECONDITION: return "FAILED_PRECONDITION";
-    case grpc::StatusCode::ABORTED: return "ABORTED";
-    case grpc::StatusCode::UNIMPLEMENTED: return "UNIMPLEMENTED";
-    case grpc::StatusCode::UNAVAILABLE: return "UNAVAILABLE";
-    case grpc::StatusCode::UNAUTHENTICATED: return "UNAUTHENTICATED";
-    default: return "ERROR";
+    case grpc::StatusCode::OK:
+      return "OK";
+    case grpc::StatusCode::CANCELLED:
+      return "CANCELLED";
+    case grpc::StatusCode::INVALID_ARGUMENT:
+      return "INVALID_ARGUMENT";
+    case grpc::StatusCode::DEADLINE_EXCEEDED:
+      return "DEADLINE_EXCEEDED";
+    case grpc::StatusCode::NOT_FOUND:
+      return "NOT_FOUND";
+    case grpc::StatusCode::PERMISSION_DENIED:
+      return "PERMISSION_DENIED";
+    case grpc::StatusCode::FAILED_PRECONDITION:
+      return "FAILED_PRECONDITION";
+    case grpc::StatusCode::ABORTED:
+      return "ABORTED";
+    case grpc::StatusCode::UNIMPLEMENTED:
+      return "UNIMPLEMENTED";
+    case grpc::StatusCode::UNAVAILABLE:
+      return "UNAVAILABLE";
+    case grpc::StatusCode::UNAUTHENTICATED:
+      return "UNAUTHENTICATED";
+    default:
+      return "ERROR";
   }
 }
 
@@ -47,16 +59,16 @@ std::string OperatorReply::Summary() const {
     return buf;
   }
   std::snprintf(buf, sizeof(buf), "%s #%llu: target (%.2f %.2f %.2f) %zu waypoint%s%s%s%s",
-                action.c_str(), (unsigned long long)command_sequence, target.x, target.y,
-                target.z, waypoints.size(), waypoints.size() == 1 ? "" : "s",
-                clamped ? " clamped" : "", note.empty() ? "" : "; ", note.c_str());
+                action.c_str(), (unsigned long long)command_sequence, target.x, target.y, target.z,
+                waypoints.size(), waypoints.size() == 1 ? "" : "s", clamped ? " clamped" : "",
+                note.empty() ? "" : "; ", note.c_str());
   return buf;
 }
 
 nlohmann::json OperatorReply::ToJson() const {
-  nlohmann::json j = {{"action", action},         {"ok", ok},
-                      {"code", code},             {"message", message},
-                      {"rtt_ms", rtt_ms},         {"operator_sequence", operator_sequence},
+  nlohmann::json j = {{"action", action},    {"ok", ok},
+                      {"code", code},        {"message", message},
+                      {"rtt_ms", rtt_ms},    {"operator_sequence", operator_sequence},
                       {"summary", Summary()}};
   if (ok) {
     j["command_sequence"] = command_sequence;
@@ -169,8 +181,8 @@ void DroneOperator::Run() {
   std::unique_lock lock(mu_);
   while (!stop_) {
     const bool joy_due =
-        joy_dt_ > 0 && std::chrono::duration<double>(Clock::now() - t_joy).count() >=
-                           joypad_period_s_;
+        joy_dt_ > 0 &&
+        std::chrono::duration<double>(Clock::now() - t_joy).count() >= joypad_period_s_;
     if (jobs_.empty() && !joy_due) {
       if (joy_dt_ > 0)
         cv_.wait_for(lock, std::chrono::milliseconds(int(joypad_period_s_ * 1000) + 1));
@@ -289,20 +301,15 @@ void DroneControls::SendPick(const PinholeCamera& cam, const Rigid3d& pose,
                              const LocalOrigin& origin, const DragState& d) {
   const nav::MouseHand h = nav::HandFromDrag(cam, pose, d.px0, d.hand0, d.px1, d.hand1);
   const glm::dvec3 eye = h.eye + origin.origin_in_world, hand = h.hand + origin.origin_in_world;
-  const nav::PickPlacePreview p = nav::PreviewPickAndPlace(d.drone_world, eye, hand, h.displacement);
+  const nav::PickPlacePreview p =
+      nav::PreviewPickAndPlace(d.drone_world, eye, hand, h.displacement);
   ++drags_;
-  last_gesture_ = {{"gesture", "drag"},
-                   {"px0", {d.px0.x, d.px0.y}},
-                   {"px1", {d.px1.x, d.px1.y}},
-                   {"hand0_m", d.hand0},
-                   {"hand1_m", d.hand1},
-                   {"eye", J(eye)},
-                   {"hand", J(hand)},
-                   {"hand_displacement", J(h.displacement)},
-                   {"drone", J(d.drone_world)},
-                   {"preview_target", J(p.target)},
-                   {"preview_scale", p.scale},
-                   {"preview_guarded", p.guarded}};
+  last_gesture_ = {{"gesture", "drag"},         {"px0", {d.px0.x, d.px0.y}},
+                   {"px1", {d.px1.x, d.px1.y}}, {"hand0_m", d.hand0},
+                   {"hand1_m", d.hand1},        {"eye", J(eye)},
+                   {"hand", J(hand)},           {"hand_displacement", J(h.displacement)},
+                   {"drone", J(d.drone_world)}, {"preview_target", J(p.target)},
+                   {"preview_scale", p.scale},  {"preview_guarded", p.guarded}};
   if (op_) op_->PickAndPlace(eye, hand, h.displacement);
 }
 
@@ -340,7 +347,8 @@ void DroneControls::Gamepad(const nav::Sticks& s, double dt_s) {
 
 void DroneControls::ToggleXray(std::optional<double> z_under_cursor) {
   xray_ = !xray_;
-  if (xray_) xray_clip_m_ = nav::XrayClipDistance(z_under_cursor, o_.xray_margin_m, o_.xray_default_m);
+  if (xray_)
+    xray_clip_m_ = nav::XrayClipDistance(z_under_cursor, o_.xray_margin_m, o_.xray_default_m);
 }
 
 void DroneControls::MoveXray(int steps) {
@@ -364,11 +372,15 @@ std::string DroneControls::HudLine() const {
 }
 
 nlohmann::json DroneControls::StatusJson() const {
-  nlohmann::json j = {{"drone_mode", drone_mode_}, {"xray", xray_},
-                      {"xray_clip_m", xray_ ? nlohmann::json(xray_clip_m_) : nlohmann::json(nullptr)},
-                      {"dragging", drag_.has_value()}, {"clicks", clicks_},
-                      {"drags", drags_}, {"joypad_held_ms", joypad_s_ms_},
-                      {"last_gesture", last_gesture_}};
+  nlohmann::json j = {
+      {"drone_mode", drone_mode_},
+      {"xray", xray_},
+      {"xray_clip_m", xray_ ? nlohmann::json(xray_clip_m_) : nlohmann::json(nullptr)},
+      {"dragging", drag_.has_value()},
+      {"clicks", clicks_},
+      {"drags", drags_},
+      {"joypad_held_ms", joypad_s_ms_},
+      {"last_gesture", last_gesture_}};
   if (op_) j["operator"] = op_->StatusJson();
   return j;
 }

@@ -11,16 +11,15 @@
 #include <condition_variable>
 #include <cstdint>
 #include <deque>
+#include <glm/glm.hpp>
 #include <map>
 #include <memory>
 #include <mutex>
+#include <nlohmann/json.hpp>
 #include <optional>
 #include <string>
 #include <thread>
 #include <vector>
-
-#include <glm/glm.hpp>
-#include <nlohmann/json.hpp>
 
 #include "client/navigation/drone_ops.h"
 #include "common/camera.h"
@@ -107,7 +106,7 @@ struct DroneControlsOptions {
   double hand_m = 0.5;        // the hand's distance from the eye along the cursor's ray
   double hand_step_m = 0.05;  // per wheel click during a drag
   double pick_radius_px = 40;
-  double click_slop_px = 5;   // a press that moves farther is not a click
+  double click_slop_px = 5;    // a press that moves farther is not a click
   double xray_margin_m = 0.3;  // behind the picked point (a wall's thickness)
   double xray_default_m = 1.5;
   double xray_step_m = 0.25;
@@ -115,8 +114,7 @@ struct DroneControlsOptions {
 
 class DroneControls {
  public:
-  DroneControls(DroneOperator* op, const DroneControlsOptions& options)
-      : op_(op), o_(options) {}
+  DroneControls(DroneOperator* op, const DroneControlsOptions& options) : op_(op), o_(options) {}
   bool drone_mode() const { return drone_mode_; }
   void ToggleDroneMode() { drone_mode_ = !drone_mode_; }
   bool dragging() const { return drag_.has_value(); }

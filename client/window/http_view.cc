@@ -99,10 +99,12 @@ async function stats() {
         (j.control ? `\n${j.control}  ` : "") +
         (j.drone_controls && j.drone_controls.operator && j.drone_controls.operator.last
            ? `${j.drone_controls.operator.last.summary}  ` : "") +
-        (j.drone_controls && j.drone_controls.xray ? `X-RAY cut at ${j.drone_controls.xray_clip_m.toFixed(2)} m  ` : "") +
+        (j.drone_controls && j.drone_controls.xray
+           ? `X-RAY cut at ${j.drone_controls.xray_clip_m.toFixed(2)} m  ` : "") +
         (droneMode ? "DRONE MODE  " : "") +
         `| WASD QE move, drag/arrows look, wheel speed, R reset, F follow, G drone, 3 cells, 4 tau/refs, 5 drone` +
-        `\n| drone: ctrl/M + click = gaze-to-see, + drag from the drone = pick-and-place, IJKL UO YH joypad, X x-ray ([ ] plane)`;
+        `\n| drone: ctrl/M + click = gaze-to-see, + drag from the drone = pick-and-place, ` +
+        `IJKL UO YH joypad, X x-ray ([ ] plane)`;
       if (maxFrames > 0 && shown >= maxFrames) return;
     } catch (e) {}
     await sleep(500);
