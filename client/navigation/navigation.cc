@@ -121,9 +121,11 @@ int AdaptiveResolution::Next(bool changed) {
 }
 
 std::optional<PickResult> Pick(const LumigraphModel& model, const PinholeCamera& camera,
-                               const Rigid3d& local_from_cam, const glm::dvec2& uv) {
+                               const Rigid3d& local_from_cam, const glm::dvec2& uv,
+                               double min_z_depth_m) {
   const glm::dvec3 o = local_from_cam.translation;
   const glm::dvec3 dir_cam = glm::normalize(camera.RayZ1(uv));
+  const double min_dist = std::max(1e-9, min_z_depth_m / dir_cam.z);
   const glm::dvec3 d = local_from_cam.rotation * dir_cam;
   std::optional<PickResult> best;
   double best_t = std::numeric_limits<double>::max();
@@ -145,7 +147,7 @@ std::optional<PickResult> Pick(const LumigraphModel& model, const PinholeCamera&
       const double v = glm::dot(d, q) * inv;
       if (v < 0 || u + v > 1) continue;
       const double dist = glm::dot(e2, q) * inv;
-      if (dist <= 1e-9 || dist >= best_t) continue;
+      if (dist <= min_dist || dist >= best_t) continue;
       best_t = dist;
       PickResult r;
       r.point_local = o + dist * d;

@@ -106,9 +106,11 @@ struct PickResult {
   uint32_t triangle = 0;  // index within the chunk
 };
 // Casts the ray through pixel `uv` (pixel centres at integers) of `camera` at `local_from_cam`
-// into the proxy mesh (every chunk); the nearest hit, nullopt when the ray hits nothing.
+// into the proxy mesh (every chunk); the nearest hit, nullopt when the ray hits nothing. Hits
+// nearer than `min_z_depth_m` along the optical axis are skipped (the X-ray cut-away's plane).
 std::optional<PickResult> Pick(const LumigraphModel& model, const PinholeCamera& camera,
-                               const Rigid3d& local_from_cam, const glm::dvec2& uv);
+                               const Rigid3d& local_from_cam, const glm::dvec2& uv,
+                               double min_z_depth_m = 0.0);
 
 // ---- camera paths (TUM: "timestamp tx ty tz qx qy qz qw", world_from_cam) ----
 struct PathPose {

@@ -267,6 +267,15 @@ absl::StatusOr<Image<uint64_t>> VulkanRenderer::RenderCellIds(const PinholeCamer
   return impl_->frame->RenderCellIds(camera, local_from_cam);
 }
 
+absl::Status VulkanRenderer::SetNearPlane(float near_m) {
+  if (!(near_m > 0.0f) || !(near_m < impl_->opt.far_m))
+    return absl::InvalidArgumentError(
+        absl::StrCat("near plane must be in (0, ", impl_->opt.far_m, ") m, got ", near_m));
+  impl_->opt.near_m = near_m;  // the frame renderer reads the options at every frame
+  return absl::OkStatus();
+}
+float VulkanRenderer::near_plane() const { return impl_->opt.near_m; }
+
 const UploadStats& VulkanRenderer::stats() const { return impl_->stats; }
 void VulkanRenderer::ResetStats() { impl_->stats = UploadStats{}; }
 uint64_t VulkanRenderer::ResidentBytes() const { return impl_->ResidentBytes(); }

@@ -142,6 +142,13 @@ class VulkanRenderer {
   absl::StatusOr<ImageF> RenderProxyDepth(const PinholeCamera& camera,
                                           const Rigid3d& local_from_cam);
 
+  // The novel camera's near clip plane from now on (metres along the optical axis; default
+  // VulkanRendererOptions::near_m): the viewer's X-ray cut-away sets it behind a wall, so the
+  // proxy nearer than it is not drawn and the modelled interior behind shows (Render,
+  // RenderProxyDepth, RenderCellIds, RenderFloor). InvalidArgument unless 0 < near_m < far_m.
+  absl::Status SetNearPlane(float near_m);
+  float near_plane() const;
+
   // ---- introspection ----
   const UploadStats& stats() const;
   void ResetStats();

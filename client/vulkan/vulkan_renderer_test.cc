@@ -326,6 +326,35 @@ TEST(VulkanRendererTest, ProxyDepthPassGivesPlaneDepth) {
   EXPECT_TRUE(r->ValidationErrors().empty());
 }
 
+// The viewer's X-ray cut-away (issue 19): a near plane behind the front plane (z = 2) shows the
+// plane behind it (z = 4) in every pass; back to the default, the front one again.
+TEST(VulkanRendererTest, NearPlaneCutsAwayTheFrontSurface) {
+  LumigraphModel m = PlaneModel();
+  m.chunks[8] = Plane(8, 6.0f, 4.0f);
+  auto r = Make(m);
+  const float default_near = r->near_plane();
+  auto depth_at = [&](float near_m) {
+    EXPECT_TRUE(r->SetNearPlane(near_m).ok());
+    auto d = r->RenderProxyDepth(Cam(), Rigid3d::Identity());
+    EXPECT_TRUE(d.ok()) << d.status();
+    return d.ok() ? d->at(kW / 2, kH / 2) : -1.0f;
+  };
+  EXPECT_NEAR(depth_at(default_near), 2.0, 1e-5);
+  EXPECT_NEAR(depth_at(2.5f), 4.0, 1e-5);
+  auto ids = r->RenderCellIds(Cam(), Rigid3d::Identity());
+  ASSERT_TRUE(ids.ok());
+  EXPECT_EQ(ids->at(kW / 2, kH / 2), m.grid.IdOf({0, 0, 4.0}));
+  auto frame = r->Render(Cam(), Rigid3d::Identity(), blend::BlendOptions{});
+  ASSERT_TRUE(frame.ok()) << frame.status();
+  EXPECT_NE(frame->coverage.at(kW / 2, kH / 2), 0);  // a surface is drawn there (the far plane)
+  EXPECT_NEAR(depth_at(4.5f), 0.0, 1e-6);            // nothing beyond both planes
+  EXPECT_NEAR(depth_at(default_near), 2.0, 1e-5);
+  EXPECT_FALSE(r->SetNearPlane(0.0f).ok());
+  EXPECT_FALSE(r->SetNearPlane(1e9f).ok());
+  EXPECT_EQ(r->near_plane(), default_near);
+  EXPECT_TRUE(r->ValidationErrors().empty());
+}
+
 TEST(VulkanRendererTest, CellIdPassMatchesCpuRasterizer) {
   const LumigraphModel m = PlaneModel(0.3);  // z = 2 m is not on a cell boundary
   auto r = Make(m);

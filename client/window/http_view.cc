@@ -74,6 +74,12 @@ function drawOverlay() {
   for (const [x, y, c] of overlay.dots) {
     g.fillStyle = c; g.beginPath(); g.arc(ox + k * x, oy + k * y, 3, 0, 2 * Math.PI); g.fill();
   }
+  if (press && onDrone && cursor && overlay.drone_px) {  // the drag: drone -> where it goes
+    const [dx, dy] = overlay.drone_px;
+    g.strokeStyle = "rgb(80,200,255)"; g.lineWidth = 2; g.beginPath();
+    g.moveTo(ox + k * dx, oy + k * dy); g.lineTo(ox + k * cursor.x, oy + k * cursor.y); g.stroke();
+    g.beginPath(); g.arc(ox + k * cursor.x, oy + k * cursor.y, 10, 0, 2 * Math.PI); g.stroke();
+  }
 }
 async function overlays() {
   for (;;) {
@@ -91,7 +97,14 @@ async function stats() {
         `frame ${j.frame_ms.toFixed(1)} ms  resolution 1/${j.stage}  model v${j.model_version}  ` +
         `views ${j.views}  cells ${j.cells}  ${j.sync}  frames ${j.frames}  browsers ${j.clients}  ` +
         (j.control ? `\n${j.control}  ` : "") +
-        `| WASD QE move, drag/arrows look, wheel speed, R reset, F follow, G drone, 3 cells, 4 tau/refs, 5 drone`;
+        (j.drone_controls && j.drone_controls.operator && j.drone_controls.operator.last
+           ? `${j.drone_controls.operator.last.summary}  ` : "") +
+        (j.drone_controls && j.drone_controls.xray
+           ? `X-RAY cut at ${j.drone_controls.xray_clip_m.toFixed(2)} m  ` : "") +
+        (droneMode ? "DRONE MODE  " : "") +
+        `| WASD QE move, drag/arrows look, wheel speed, R reset, F follow, G drone, 3 cells, 4 tau/refs, 5 drone` +
+        `\n| drone: ctrl/M + click = gaze-to-see, + drag from the drone = pick-and-place, ` +
+        `IJKL UO YH joypad, X x-ray ([ ] plane)`;
       if (maxFrames > 0 && shown >= maxFrames) return;
     } catch (e) {}
     await sleep(500);
@@ -99,17 +112,50 @@ async function stats() {
 }
 const keys = {KeyW:"w",KeyA:"a",KeyS:"s",KeyD:"d",KeyQ:"q",KeyE:"e",ArrowLeft:"left",
   ArrowRight:"right",ArrowUp:"up",ArrowDown:"down",KeyR:"r",KeyF:"f",Digit1:"1",Digit2:"2",
-  Digit3:"3",Digit4:"4",Digit5:"5",KeyG:"g"};
+  Digit3:"3",Digit4:"4",Digit5:"5",KeyG:"g",KeyI:"i",KeyJ:"j",KeyK:"k",KeyL:"l",KeyU:"u",
+  KeyO:"o",KeyY:"y",KeyH:"h",KeyX:"x",BracketLeft:"xnear",BracketRight:"xfar"};
+// Steering the drone: ctrl (or drone mode, M) + click = gaze-to-see at that pixel; + drag that
+// starts on the drone = pick-and-place (the mouse as the hand, docs/viewer.md).
+let droneMode = false, press = null, onDrone = false, cursor = null;
+function framePx(e) {
+  const r = img.getBoundingClientRect();
+  if (!overlay || !overlay.width) return null;
+  const k = Math.min(r.width / overlay.width, r.height / overlay.height);
+  return {x: (e.clientX - r.left - (r.width - k * overlay.width) / 2) / k,
+          y: (e.clientY - r.top - (r.height - k * overlay.height) / 2) / k};
+}
 const held = new Set();
 const send = q => fetch("/input?" + q, {method: "POST"}).catch(() => {});
-onkeydown = e => { const k = keys[e.code]; if (!k) return; e.preventDefault();
+onkeydown = e => { if (e.code === "KeyM" && !e.repeat) { droneMode = !droneMode; return; }
+  const k = keys[e.code]; if (!k) return; e.preventDefault();
   if (!held.has(k)) { held.add(k); send("key=" + k + "&down=1"); } };
 onkeyup = e => { const k = keys[e.code]; if (!k) return; held.delete(k); send("key=" + k + "&down=0"); };
 setInterval(() => held.forEach(k => send("key=" + k + "&down=1")), 200);
 let drag = false;
-img.onmousedown = e => { drag = true; e.preventDefault(); };
-onmouseup = () => { drag = false; };
-onmousemove = e => { if (drag) send("dx=" + e.movementX + "&dy=" + e.movementY); };
+img.onmousedown = e => {
+  e.preventDefault();
+  if (droneMode || e.ctrlKey) {
+    press = framePx(e);
+    const d = overlay && overlay.drone_px;
+    onDrone = !!(press && d && Math.hypot(press.x - d[0], press.y - d[1]) <= 40);
+    return;
+  }
+  drag = true;
+};
+onmouseup = e => {
+  drag = false;
+  if (!press) return;
+  const p = framePx(e) || press;
+  if (onDrone && Math.hypot(p.x - press.x, p.y - press.y) >= 1)
+    send(`pick=${press.x},${press.y},${p.x},${p.y}`);
+  else if (!onDrone && Math.hypot(p.x - press.x, p.y - press.y) <= 5)
+    send(`gaze=${p.x},${p.y}`);
+  press = null; cursor = null; drawOverlay();
+};
+onmousemove = e => {
+  if (press) { if (onDrone) { cursor = framePx(e); drawOverlay(); } return; }
+  if (drag) send("dx=" + e.movementX + "&dy=" + e.movementY);
+};
 img.onwheel = e => { e.preventDefault(); send("wheel=" + (e.deltaY < 0 ? 1 : -1)); };
 frames();
 stats();
@@ -335,8 +381,11 @@ class HttpView::Impl {
     if (auto k = q.find("key"); k != q.end()) {
       const bool down = q.count("down") && q.at("down") == "1";
       static const std::set<std::string> kHeld = {"w", "a",    "s",     "d",  "q",
-                                                  "e", "left", "right", "up", "down"};
-      static const std::set<std::string> kOnce = {"r", "f", "g", "tab", "1", "2", "3", "4", "5"};
+                                                  "e", "left", "right", "up", "down",
+                                                  "i", "j",    "k",     "l",  "u",
+                                                  "o", "y",    "h"};
+      static const std::set<std::string> kOnce = {"r", "f", "g", "tab", "1", "2", "3",
+                                                  "4", "5", "x", "xnear", "xfar"};
       if (kHeld.count(k->second)) {
         if (down)
           held_[k->second] = Clock::now();
@@ -349,6 +398,27 @@ class HttpView::Impl {
     if (auto it = q.find("dx"); it != q.end()) dx_ += ToDouble(it->second);
     if (auto it = q.find("dy"); it != q.end()) dy_ += ToDouble(it->second);
     if (auto it = q.find("wheel"); it != q.end()) wheel_ += ToDouble(it->second);
+    // Drone gestures (bounded: a page cannot queue more than 16 of each between two frames).
+    auto numbers = [](const std::string& csv) {
+      std::vector<double> v;
+      size_t start = 0;
+      while (start <= csv.size() && v.size() < 8) {
+        const size_t comma = csv.find(',', start);
+        v.push_back(ToDouble(csv.substr(start, comma - start)));
+        if (comma == std::string::npos) break;
+        start = comma + 1;
+      }
+      return v;
+    };
+    if (auto it = q.find("gaze"); it != q.end() && gazes_.size() < 16) {
+      const auto v = numbers(it->second);
+      if (v.size() == 2) gazes_.push_back({v[0], v[1]});
+    }
+    if (auto it = q.find("pick"); it != q.end() && picks_.size() < 16) {
+      const auto v = numbers(it->second);
+      auto hand = [&](const char* k) { return q.count(k) ? ToDouble(q.at(k)) : -1.0; };
+      if (v.size() == 4) picks_.push_back({v[0], v[1], v[2], v[3], hand("hand0"), hand("hand1")});
+    }
   }
 
   HttpInput Take() {
@@ -371,12 +441,15 @@ class HttpView::Impl {
       in.turn_right |= k == "right";
       in.turn_up |= k == "up";
       in.turn_down |= k == "down";
+      in.held.push_back(k);
       ++it;
     }
     in.look_dx_px = std::exchange(dx_, 0.0);
     in.look_dy_px = std::exchange(dy_, 0.0);
     in.wheel = std::exchange(wheel_, 0.0);
     in.presses = std::exchange(presses_, {});
+    in.gazes = std::exchange(gazes_, {});
+    in.picks = std::exchange(picks_, {});
     return in;
   }
 
@@ -410,6 +483,8 @@ class HttpView::Impl {
   std::mutex input_mu_;
   std::map<std::string, Clock::time_point> held_;
   std::vector<std::string> presses_;
+  std::vector<std::array<double, 2>> gazes_;
+  std::vector<std::array<double, 6>> picks_;
   double dx_ = 0, dy_ = 0, wheel_ = 0;
 };
 

@@ -13,10 +13,13 @@
 //   POST /input?key=K&down=0|1   held keys (w a s d q e, arrows; expire 0.6 s after the last
 //                     refresh, so a browser that goes away never leaves a key held), one-shot
 //                     keys (r f g tab 1 2 3 4 5), POST /input?dx=..&dy=.. mouse look, &wheel=..
+//                     steering the drone: held i j k l u o y h (joypad), one-shot x xnear xfar
+//                     (X-ray), gaze=X,Y (a click), pick=X0,Y0,X1,Y1[&hand0=M&hand1=M] (a drag)
 // Frames are shared: the renderer publishes one JPEG and every client takes the newest (a slow
 // client skips frames, nothing queues up per client).
 #pragma once
 
+#include <array>
 #include <chrono>
 #include <cstdint>
 #include <functional>
@@ -33,6 +36,12 @@ struct HttpInput {
   bool turn_left = false, turn_right = false, turn_up = false, turn_down = false;
   double look_dx_px = 0, look_dy_px = 0, wheel = 0;
   std::vector<std::string> presses;  // one-shot keys since the last TakeInput
+  // Steering the drone (issue 19 item 5): held keys (also the joypad's i j k l u o y h),
+  // clicks (gaze-to-see) and drags from the drone (pick-and-place) in the frame's pixels since
+  // the last TakeInput: {x, y} and {x0, y0, x1, y1, hand0_m, hand1_m} (hand < 0: the default).
+  std::vector<std::string> held;
+  std::vector<std::array<double, 2>> gazes;
+  std::vector<std::array<double, 6>> picks;
 };
 
 class HttpView {

@@ -58,6 +58,19 @@ int main(int argc, char** argv) {
   app.add_option("--drone_id", o.drone_id, "the drone shown (control service drone id)");
   app.add_flag("!--cells_by_refs", o.cells_by_tau,
                "colour cells by their reference count instead of the coverage τ (key 4)");
+  app.add_option("--operator_id", o.operator_id,
+                 "operator id of the drone commands (default window-PID)");
+  app.add_option("--hand_m", o.hand_m,
+                 "pick-and-place by drag: the mouse-hand's distance from the eye (m; 0 = at the "
+                 "eye, guarded)")
+      ->check(CLI::Range(0.0, 10.0));
+  app.add_option("--xray_margin_m", o.xray_margin_m,
+                 "X-ray: the cut-away plane this far behind the point under the cursor (m)")
+      ->check(CLI::Range(0.0, 100.0));
+  app.add_option("--xray_default_m", o.xray_default_m,
+                 "X-ray: the plane's distance in front of the camera when no surface is under "
+                 "the cursor (m)")
+      ->check(CLI::Range(0.05, 1000.0));
   if (auto rc = exo::cli::Parse(app, argc, argv)) return *rc;
   return exo::RunWindowApp(o);
 }

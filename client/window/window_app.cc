@@ -2,6 +2,7 @@
 
 #include <SDL2/SDL.h>
 #include <signal.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <atomic>
@@ -17,6 +18,7 @@
 #include <thread>
 #include <vector>
 
+#include "client/navigation/drone_ops.h"
 #include "client/navigation/navigation.h"
 #include "client/navigation/render_scheduler.h"
 #include "client/navigation/scene_overlay.h"
@@ -24,6 +26,7 @@
 #include "client/uploader/upload_client.h"
 #include "client/viewer/viewer_session.h"
 #include "client/vulkan/vulkan_renderer.h"
+#include "client/window/drone_operator.h"
 #include "client/window/http_view.h"
 #include "client/window/presenter.h"
 #include "common/io/image_file.h"
@@ -389,9 +392,19 @@ class App {
     }
     cells_by_tau_ = o_.cells_by_tau;
     const std::string control = o_.control.empty() ? (source_->live() ? o_.server : "") : o_.control;
-    if (!control.empty() && control != "none")
+    if (!control.empty() && control != "none") {
       control_ = std::make_unique<ControlSource>(control, o_.drone_id);
+      operator_ = std::make_unique<DroneOperator>(
+          MakeChannel(control), o_.drone_id,
+          o_.operator_id.empty() ? "window-" + std::to_string(getpid()) : o_.operator_id);
+    }
+    DroneControlsOptions dco;
+    dco.hand_m = o_.hand_m;
+    dco.xray_margin_m = o_.xray_margin_m;
+    dco.xray_default_m = o_.xray_default_m;
+    controls_ = std::make_unique<DroneControls>(operator_.get(), dco);
     EXO_ASSIGN_OR_RETURN(renderer_, VulkanRenderer::Create({}));
+    default_near_m_ = renderer_->near_plane();
     EXO_RETURN_IF_ERROR(SyncRenderer());
     if (need_views && info_->geom.views.empty())
       return absl::FailedPreconditionError("the model has no stored views (nothing to show)");
@@ -444,6 +457,170 @@ class App {
     RenderApprox approx;
     if (moving) approx.max_candidates = o_.moving_candidates;
     return renderer_->Render(Camera(w, h), pose, bo, approx);
+  }
+
+  // ---- steering the drone (issue 19 item 5; client/window/drone_operator.h) ----
+  // The render thread's near plane: the X-ray cut-away's, else the renderer's default.
+  absl::Status ApplyNearPlane() {
+    const double clip = xray_clip_m_.load();
+    const float want = clip > 0 ? float(clip) : default_near_m_;
+    if (renderer_->near_plane() == want) return absl::OkStatus();
+    return renderer_->SetNearPlane(want);
+  }
+  void SyncXray() {
+    xray_clip_m_ = controls_->xray() ? controls_->xray_clip_m() : 0.0;
+    rerender_ = true;
+  }
+  // The drone (world) and where it is on screen for the frame at `pose`.
+  std::optional<std::pair<glm::dvec3, glm::dvec2>> DroneOnScreen(const SceneInfo& info,
+                                                                 const Rigid3d& pose, int W,
+                                                                 int H) const {
+    if (!control_) return std::nullopt;
+    auto cv = control_->view();
+    if (!cv || !cv->drone_known) return std::nullopt;
+    const glm::dvec3 pc = pose.Inverse() * (cv->drone - info.geom.origin.origin_in_world);
+    glm::dvec2 uv;
+    if (pc.z < 0.05 || !Camera(W, H).Project(pc, &uv)) return std::nullopt;
+    return std::pair(cv->drone, uv);
+  }
+  // The window's operator gestures: ctrl (or drone mode, M) + left click = gaze-to-see, + left
+  // drag from the drone = pick-and-place (wheel: the hand along the ray), M, X, [ ]. True when
+  // the event was consumed (not navigation).
+  bool HandleOperatorEvent(const SDL_Event& e, const SceneInfo& info, const Rigid3d& at, int W,
+                           int H) {
+    if (e.type == SDL_CONTROLLERDEVICEADDED && !gamepad_) {
+      gamepad_ = SDL_GameControllerOpen(e.cdevice.which);
+      return true;
+    }
+    if (e.type == SDL_CONTROLLERDEVICEREMOVED && gamepad_ &&
+        e.cdevice.which == SDL_JoystickInstanceID(SDL_GameControllerGetJoystick(gamepad_))) {
+      SDL_GameControllerClose(gamepad_);
+      gamepad_ = nullptr;
+      return true;
+    }
+    const bool op_mod = controls_->drone_mode() || (SDL_GetModState() & KMOD_CTRL);
+    const PinholeCamera cam = Camera(W, H);
+    if (e.type == SDL_KEYDOWN && !e.key.repeat) {
+      switch (e.key.keysym.sym) {
+        case SDLK_m:
+          controls_->ToggleDroneMode();
+          return true;
+        case SDLK_x: {
+          int mx = W / 2, my = H / 2;
+          SDL_GetMouseState(&mx, &my);
+          auto p = nav::Pick(info.geom, cam, at, {double(mx), double(my)});
+          if (!p) p = nav::Pick(info.geom, cam, at, {W / 2.0 - 0.5, H / 2.0 - 0.5});
+          controls_->ToggleXray(p ? std::optional(p->z_depth_m) : std::nullopt);
+          SyncXray();
+          return true;
+        }
+        case SDLK_LEFTBRACKET:
+        case SDLK_RIGHTBRACKET:
+          controls_->MoveXray(e.key.keysym.sym == SDLK_LEFTBRACKET ? -1 : 1);
+          SyncXray();
+          return true;
+        default:
+          return false;
+      }
+    }
+    if (e.type == SDL_MOUSEBUTTONDOWN && e.button.button == SDL_BUTTON_LEFT && op_mod) {
+      const glm::dvec2 px(e.button.x, e.button.y);
+      auto d = DroneOnScreen(info, at, W, H);
+      if (!controls_->BeginDrag(px, d ? std::optional(d->second) : std::nullopt,
+                                d ? std::optional(d->first) : std::nullopt))
+        press_px_ = px;
+      return true;
+    }
+    if (e.type == SDL_MOUSEMOTION && (controls_->dragging() || press_px_)) {
+      controls_->Drag({double(e.motion.x), double(e.motion.y)});
+      return true;
+    }
+    if (e.type == SDL_MOUSEWHEEL && controls_->dragging()) {
+      controls_->Wheel(e.wheel.y);
+      return true;
+    }
+    if (e.type == SDL_MOUSEBUTTONUP && e.button.button == SDL_BUTTON_LEFT) {
+      const glm::dvec2 px(e.button.x, e.button.y);
+      if (controls_->EndDrag(cam, at, info.geom.origin)) return true;
+      if (press_px_) {
+        const glm::dvec2 p0 = *press_px_;
+        press_px_.reset();
+        if (glm::length(px - p0) <= 5.0) {
+          const double clip = xray_clip_m_.load();
+          auto hit = nav::Pick(info.geom, cam, at, px, clip);
+          controls_->Click(cam, at, info.geom.origin, px,
+                           hit ? std::optional(hit->point_local) : std::nullopt);
+        }
+        return true;
+      }
+    }
+    return false;
+  }
+  // Held keys / an open game controller -> joypad commands. True while some stick is deflected.
+  bool OperatorSticks(double dt) {
+    nav::JoypadKeys k;
+    if (!ImGui::GetIO().WantCaptureKeyboard) {
+      const Uint8* ks = SDL_GetKeyboardState(nullptr);
+      k.forward = ks[SDL_SCANCODE_I];
+      k.back = ks[SDL_SCANCODE_K];
+      k.left = ks[SDL_SCANCODE_J];
+      k.right = ks[SDL_SCANCODE_L];
+      k.turn_left = ks[SDL_SCANCODE_U];
+      k.turn_right = ks[SDL_SCANCODE_O];
+      k.up = ks[SDL_SCANCODE_Y];
+      k.down = ks[SDL_SCANCODE_H];
+    }
+    if (k.any()) {
+      controls_->Joypad(k, dt);
+      return true;
+    }
+    if (gamepad_) {
+      auto axis = [&](SDL_GameControllerAxis a) {
+        return SDL_GameControllerGetAxis(gamepad_, a) / 32767.0;
+      };
+      const nav::Sticks s = nav::SticksFromGamepad(
+          axis(SDL_CONTROLLER_AXIS_LEFTX), axis(SDL_CONTROLLER_AXIS_LEFTY),
+          axis(SDL_CONTROLLER_AXIS_RIGHTX), axis(SDL_CONTROLLER_AXIS_RIGHTY));
+      controls_->Gamepad(s, dt);
+      return !s.zero();
+    }
+    controls_->Joypad(k, dt);
+    return false;
+  }
+  // The drag's preview (drone -> the target the server will set) and the last gaze's P_gaze.
+  void DrawOperatorOverlays(ImDrawList* dl, const SceneInfo& info, const Rigid3d& pose, int W,
+                            int H) {
+    const PinholeCamera cam = Camera(W, H);
+    auto px = [&](const glm::dvec3& world, ImVec2* out) {
+      const glm::dvec3 pc = pose.Inverse() * (world - info.geom.origin.origin_in_world);
+      glm::dvec2 uv;
+      if (pc.z < 0.05 || !cam.Project(pc, &uv)) return false;
+      *out = ImVec2(float(uv.x + 0.5), float(uv.y + 0.5));
+      return true;
+    };
+    const ImU32 preview_col = IM_COL32(80, 200, 255, 255);
+    if (auto p = controls_->Preview(cam, pose, info.geom.origin)) {
+      ImVec2 a, b;
+      const bool has_a = px(*controls_->drag_drone_world(), &a), has_b = px(p->target, &b);
+      if (has_a && has_b) dl->AddLine(a, b, preview_col, 2.f);
+      if (has_b) {
+        dl->AddCircle(b, 10.f, preview_col, 24, 2.5f);
+        char t[64];
+        std::snprintf(t, sizeof(t), "x%.1f%s", p->scale, p->guarded ? " guarded" : "");
+        dl->AddText(ImVec2(b.x + 12, b.y - 6), preview_col, t);
+        probe_["drag_preview_px"] = {b.x, b.y};
+      }
+      probe_["drag_preview"] = {p->target.x, p->target.y, p->target.z};
+    }
+    if (operator_)
+      if (auto r = operator_->last(); r && r->ok && r->has_gaze) {
+        ImVec2 g;
+        if (px(r->gaze_point, &g)) {
+          dl->AddCircle(g, 8.f, IM_COL32(255, 255, 255, 230), 16, 2.f);
+          dl->AddCircle(g, 3.f, IM_COL32(255, 60, 255, 255), 8, 2.f);
+          probe_["gaze_px"] = {g.x, g.y};
+        }
+      }
   }
 
   // ---- scripted render along a TUM path (no window) ----
@@ -592,10 +769,12 @@ class App {
         probe_["drone_known"] = cv->drone_known;
         if (cv->drone_known) probe_["drone_px"] = px(cv->drone);
         if (cv->has_command) probe_["target_px"] = px(cv->target);
+        if (cv->has_command) probe_["target"] = {cv->target.x, cv->target.y, cv->target.z};
         probe_["waypoints"] = cv->waypoints.size();
         probe_["zones"] = cv->zones.size();
       }
     }
+    if (controls_) DrawOperatorOverlays(dl, info, pose, W, H);
     if (show_frusta_ && !info.geom.views.empty()) {
       const ViewId first = info.geom.views.begin()->first;
       const ViewId last = info.geom.views.rbegin()->first;
@@ -681,6 +860,16 @@ class App {
       ImGui::Text("picked: (%.2f %.2f %.2f)  cell %llx", cursor_pick_->point_local.x,
                   cursor_pick_->point_local.y, cursor_pick_->point_local.z,
                   (unsigned long long)cursor_pick_->cell);
+    if (controls_) {
+      ImGui::TextColored(controls_->drone_mode() || controls_->xray()
+                             ? ImVec4(0.4f, 0.85f, 1.f, 1.f)
+                             : ImVec4(0.7f, 0.7f, 0.7f, 1.f),
+                         "%s", controls_->HudLine().c_str());
+      if (operator_)
+        if (auto r = operator_->last())
+          ImGui::TextColored(r->ok ? ImVec4(0.6f, 1.f, 0.6f, 1.f) : ImVec4(1.f, 0.5f, 0.4f, 1.f),
+                             "%s", r->Summary().c_str());
+    }
     if (control_) {
       ImGui::Text("%s", control_->state().c_str());
       if (auto cv = control_->view(); cv && cv->drone_known) {
@@ -741,6 +930,7 @@ class App {
       j["coverage_histogram"] = hist;
     }
     if (control_) j["control"] = control_->state();
+    if (controls_) j["drone_controls"] = controls_->StatusJson();
     const Rigid3d world = {pose.rotation, pose.translation + info.geom.origin.origin_in_world};
     j["pose_world"] = PoseJson(world);
     if (auto n = nav::NearestView(info.geom, pose.translation)) {
@@ -781,6 +971,7 @@ class App {
         [this](const nav::RenderJob& j, WindowFrame* f) -> absl::Status {
           const int W = j.request.width, H = j.request.height, d = j.divisor;
           const Rigid3d& pose = j.request.pose;
+          EXO_RETURN_IF_ERROR(ApplyNearPlane());  // the X-ray cut-away (key X)
           // Reduced-resolution frames for a moving camera may be approximate; refinements and
           // every full-resolution frame (the one left on screen) are exact.
           EXO_ASSIGN_OR_RETURN(RenderResult r, RenderFull(pose, std::max(1, W / d),
@@ -793,7 +984,8 @@ class App {
             if (z.ok()) f->occ_depth = *std::move(z);
           }
           if (d == 1 || j.changed)
-            f->centre = nav::Pick(info_->geom, Camera(W, H), pose, {W / 2.0 - 0.5, H / 2.0 - 0.5});
+            f->centre = nav::Pick(info_->geom, Camera(W, H), pose, {W / 2.0 - 0.5, H / 2.0 - 0.5},
+                                  xray_clip_m_.load());
           f->info = info_;
           return absl::OkStatus();
         },
@@ -856,6 +1048,8 @@ class App {
     size_t replay_i = 0;
     replaying_ = !replay.empty();
     int last_busy = 0;
+    auto t_status = Clock::now();
+    SDL_InitSubSystem(SDL_INIT_GAMECONTROLLER);  // a gamepad steers the drone (Mode 2)
     while (!quit) {
       ui_max_gap_ms_ = std::max(ui_max_gap_ms_, MsSince(t_iter));
       t_iter = Clock::now();
@@ -867,6 +1061,12 @@ class App {
         events = true;
         const bool imgui = presenter_->ProcessEvent(e);
         if (e.type == SDL_QUIT) quit = true;
+        if (!imgui && controls_ &&
+            HandleOperatorEvent(e, *info, shown ? shown->job.request.pose : cam.pose(),
+                                presenter_->width(), presenter_->height())) {
+          overlay_changed = true;
+          continue;
+        }
         if (e.type == SDL_KEYDOWN && !e.key.repeat && !imgui) {
           switch (e.key.keysym.sym) {
             case SDLK_ESCAPE:
@@ -964,6 +1164,11 @@ class App {
         if (ks[SDL_SCANCODE_UP]) in.look_dy_px -= turn_px;
         if (ks[SDL_SCANCODE_DOWN]) in.look_dy_px += turn_px;
       }
+      const bool sticks = controls_ && OperatorSticks(dt);  // joypad keys / gamepad
+      if (rerender_) {  // the X-ray plane moved: the same view again
+        ++epoch;
+        rerender_ = false;
+      }
       bool moving = cam.Step(in, dt);
       if (follow_ && info->newest) {
         const Rigid3d& live = info->geom.views.at(*info->newest).local_from_cam;
@@ -1022,13 +1227,20 @@ class App {
       // Status after each full-resolution frame, and when the sync state changes (e.g. the
       // server went away: the last model stays on screen, the HUD says "reconnecting").
       const std::string sync_state = source_->state();
-      if (shown && ((nf && stage_ == 1) || sync_state != last_sync_state_))
+      if (shown && ((nf && stage_ == 1) || sync_state != last_sync_state_ ||
+                    (operator_ && MsSince(t_status) > 250))) {  // the operator's replies too
         WriteStatus(*info, shown->job.request.pose, shown->seq);
+        t_status = Clock::now();
+      }
       last_sync_state_ = sync_state;
       if (o_.max_seconds > 0 && MsSince(t_start) > o_.max_seconds * 1e3) quit = true;
       // Moving: step the camera at ~100 Hz; a render in progress: wake for its frame (or input);
       // converged: wait for input (HUD refresh 4 Hz).
-      const int wait_ms = moving || follow_ || replaying_ ? 10 : busy ? 100 : overlays_ ? 250 : 1000;
+      const int wait_ms = moving || follow_ || replaying_ || sticks ? 10
+                          : controls_->dragging()                  ? 20
+                          : busy                                   ? 100
+                          : overlays_                              ? 250
+                                                                   : 1000;
       t_iter = Clock::now();  // the wait below is idle time, not a UI stall
       SDL_WaitEventTimeout(nullptr, wait_ms);
     }
@@ -1111,11 +1323,58 @@ class App {
     return j;
   }
 
+  // The browser page's drone gestures (HttpInput), at the pose of the frame the page shows.
+  // True when the view must be rendered again (the X-ray plane changed).
+  bool HttpOperator(const HttpInput& hi, const Rigid3d& at, int W, int H, double dt) {
+    const SceneInfo& info = *info_;
+    const PinholeCamera cam = Camera(W, H);
+    nav::JoypadKeys k;
+    for (const std::string& h : hi.held) {
+      k.forward |= h == "i";
+      k.back |= h == "k";
+      k.left |= h == "j";
+      k.right |= h == "l";
+      k.turn_left |= h == "u";
+      k.turn_right |= h == "o";
+      k.up |= h == "y";
+      k.down |= h == "h";
+    }
+    controls_->Joypad(k, dt);
+    for (const auto& g : hi.gazes) {
+      const glm::dvec2 px(g[0] - 0.5, g[1] - 0.5);  // page pixels: corners at integers
+      auto hit = nav::Pick(info.geom, cam, at, px, xray_clip_m_.load());
+      controls_->Click(cam, at, info.geom.origin, px,
+                       hit ? std::optional(hit->point_local) : std::nullopt);
+    }
+    for (const auto& p : hi.picks) {
+      const glm::dvec2 p0(p[0] - 0.5, p[1] - 0.5), p1(p[2] - 0.5, p[3] - 0.5);
+      auto d = DroneOnScreen(info, at, W, H);
+      if (d && glm::length(d->second - p0) <= 40)  // a drag that starts on the drone
+        controls_->Drag(cam, at, info.geom.origin, p0, p1, p[4], p[5], d->first);
+    }
+    bool again = false;
+    for (const std::string& key : hi.presses) {
+      if (key == "x") {
+        auto c = nav::Pick(info.geom, cam, at, {W / 2.0 - 0.5, H / 2.0 - 0.5});
+        controls_->ToggleXray(c ? std::optional(c->z_depth_m) : std::nullopt);
+      } else if (key == "xnear" || key == "xfar") {
+        controls_->MoveXray(key == "xnear" ? -1 : 1);
+      } else {
+        continue;
+      }
+      SyncXray();
+      again = true;
+    }
+    rerender_ = false;
+    return again;
+  }
+
   // ---- browser view (no window) ----
   int RunHttp() {
     if (auto s = InitModelAndRenderer(true); !s.ok()) return Fail(s);
     std::mutex status_mu;
     std::string status_text = "{}";
+    std::string controls_text;  // DroneControls::StatusJson, refreshed by the loop
     double frame_ms = 0;
     uint64_t frames = 0;
     HttpView* view_ptr = nullptr;
@@ -1123,7 +1382,11 @@ class App {
         o_.http,
         [&] {
           std::lock_guard lock(status_mu);
-          return status_text;
+          if (controls_text.empty()) return status_text;
+          nlohmann::json j = nlohmann::json::parse(status_text, nullptr, false);
+          if (j.is_discarded()) return status_text;
+          j["drone_controls"] = nlohmann::json::parse(controls_text, nullptr, false);
+          return j.dump();
         },
         [&] {
           std::lock_guard lock(status_mu);
@@ -1174,7 +1437,7 @@ class App {
     nav::AdaptiveResolution adaptive(ao);
     const int W = o_.width, H = o_.height;
     const auto t_start = Clock::now();
-    auto t_last = Clock::now(), t_overlay = Clock::now();
+    auto t_last = Clock::now(), t_overlay = Clock::now(), t_controls = Clock::now();
     bool force = true, overlay_due = true, have_frame = false;
     Rigid3d last_pose;
     while (!g_stop.load()) {
@@ -1192,6 +1455,12 @@ class App {
       in.look_dx_px = hi.look_dx_px + 400.0 * dt * (hi.turn_right - hi.turn_left);
       in.look_dy_px = hi.look_dy_px + 400.0 * dt * (hi.turn_down - hi.turn_up);
       in.wheel = hi.wheel;
+      if (have_frame && HttpOperator(hi, last_pose, W, H, dt)) force = true;
+      if (MsSince(t_controls) >= 200) {
+        std::lock_guard lock(status_mu);
+        controls_text = controls_->StatusJson().dump();
+        t_controls = Clock::now();
+      }
       for (const std::string& k : hi.presses) {
         if (k == "r") {
           if (auto n = nav::NearestView(info_->geom, cam.pose().translation))
@@ -1249,6 +1518,7 @@ class App {
         continue;
       }
       const auto t0 = Clock::now();
+      if (auto s = ApplyNearPlane(); !s.ok()) return Fail(s);  // the X-ray cut-away
       auto img = Render(cam.pose(), std::max(1, W / d), std::max(1, H / d));
       if (!img.ok()) return Fail(img.status());
       auto jpeg = EncodeJpeg(*img, o_.jpeg_quality);
@@ -1501,6 +1771,15 @@ class App {
   bool overlays_ = true, show_frusta_ = true, show_wire_ = false, show_cells_ = false;
   bool cells_by_tau_ = true, show_drone_ = true;
   std::unique_ptr<ControlSource> control_;  // drone overlays (nullptr: no control service)
+  // Steering the drone from the viewer (issue 19 item 5): the commands' sender (nullptr: no
+  // control service) and the gestures; the X-ray plane the render thread applies (0 = off).
+  std::unique_ptr<DroneOperator> operator_;
+  std::unique_ptr<DroneControls> controls_;
+  float default_near_m_ = 0.01f;
+  std::atomic<double> xray_clip_m_{0.0};
+  std::optional<glm::dvec2> press_px_;  // an operator press that is not (yet) a drag
+  bool rerender_ = false;               // the X-ray plane changed: render the view again
+  SDL_GameController* gamepad_ = nullptr;
   nlohmann::json probe_ = nlohmann::json::object();  // what the overlays drew (status file)
   bool follow_ = false, replaying_ = false;
   int stage_ = 1;

@@ -7,7 +7,9 @@
 // the exact full frame once the camera stops, the last frame reused while nothing changes), a HUD
 // and scene overlays (stored-view frusta coloured by age, the live
 // camera, the proxy wireframe, cells coloured by the server's coverage τ or their reference
-// count, the drone with its camera frustum, target, route and flight zones). Also the scripted
+// count, the drone with its camera frustum, target, route and flight zones), and steering the
+// drone (issue 19 item 5: Ctrl/M + click = gaze-to-see, + drag from the drone = pick-and-place,
+// I K J L U O Y H = joypad, X [ ] = the X-ray cut-away; client/window/drone_operator.h). Also the scripted
 // modes that need no window: renders along a TUM path, and the frame-time benchmark (which
 // does need a window: it measures what the person sees, presentation included).
 #pragma once
@@ -53,6 +55,12 @@ struct WindowAppOptions {
   std::string control;
   std::string drone_id = "drone";
   bool cells_by_tau = true;  // cells coloured by coverage τ when the model has it (key 4)
+  // Steering the drone (issue 19 item 5; docs/viewer.md): the operator id sent with the
+  // commands ("" = window-<pid>), the mouse-hand's distance from the eye, the X-ray plane's
+  // margin behind the point under the cursor and its distance when there is none.
+  std::string operator_id;
+  double hand_m = 0.5;
+  double xray_margin_m = 0.3, xray_default_m = 1.5;
 };
 
 // Runs the app; returns the process exit code (0 ok, 1 runtime error, 2 bad input).
