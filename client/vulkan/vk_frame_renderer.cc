@@ -37,7 +37,8 @@ struct GpuFrame {
   // nearest first), their texture layers in ip_layers (4 per ivec4).
   glm::ivec4 ip_params;
   glm::ivec4 ip_layers[kMaxInpaintedViews / 4];
-  // RenderFloor (floor.frag): rows of one view's P and (width, height, layer, 0).
+  // RenderFloor: rows of one view's P and (width, height, layer, 0) (floorproj.frag) or
+  // (1 / width, 1 / height, 0, 0) of the floor texture (floor.vert).
   glm::vec4 floor_view[4];
 };
 static_assert(sizeof(GpuFrame) == 128 + 48 + 16 + 16 * kBgViewTexels * blend::kMaxBackgroundViews +
@@ -241,6 +242,7 @@ absl::Status FrameRenderer::UpdateDescriptors() {
   in.gbuffer = color_target_.gbuffer.image ? &color_target_.gbuffer : &placeholder_gbuffer_;
   in.ranked_refs = &cells_.ranked_buffer();
   in.blend_out = color_target_.blend_out.buffer ? &color_target_.blend_out : &placeholder_out_;
+  in.floor_colors = floor_tex_.image ? &floor_tex_ : &placeholder_gbuffer_;
   EXO_RETURN_IF_ERROR(pipes_->WriteDescriptors(in));
   descriptors_dirty_ = false;
   return absl::OkStatus();
@@ -540,38 +542,113 @@ absl::StatusOr<RenderResult> FrameRenderer::Render(const PinholeCamera& camera,
   return r;
 }
 
-absl::StatusOr<RenderResult> FrameRenderer::RenderFloor(const PinholeCamera& camera,
-                                                        const Rigid3d& local_from_cam) {
+const ViewStore::Entry* FrameRenderer::NearestView(const Rigid3d& local_from_cam,
+                                                   ViewId* id) const {
+  const glm::vec3 c_o(local_from_cam.translation);
+  const ViewStore::Entry* best = nullptr;
+  float best_d = 0.0f;
+  for (const auto& [vid, e] : views_.entries()) {
+    const float d = glm::length(e.params.centre_local - c_o);
+    if (!best || d < best_d || (d == best_d && vid < *id)) {
+      best = &e;
+      *id = vid;
+      best_d = d;
+    }
+  }
+  return best;
+}
+
+absl::Status FrameRenderer::PrepareFloor(const PinholeCamera& camera,
+                                         const Rigid3d& local_from_cam) {
   EXO_RETURN_IF_ERROR(CheckCamera(camera, local_from_cam));
+  ViewId id = 0;
+  const ViewStore::Entry* e = NearestView(local_from_cam, &id);
+  if (!e) return absl::FailedPreconditionError("RenderFloor needs a resident view");
+  const uint32_t w = uint32_t(e->params.size.x), h = uint32_t(e->params.size.y);
+  if (floor_tex_.image && id == floor_id_ && e->fingerprint == floor_fingerprint_ &&
+      floor_tex_.width == w && floor_tex_.height == h)
+    return absl::OkStatus();
+  if (!floor_tex_.image || floor_tex_.width != w || floor_tex_.height != h) {
+    EXO_ASSIGN_OR_RETURN(floor_stage_,
+                         Image::Create(ctx_, w, h, 1, VK_FORMAT_R8G8B8A8_SRGB,
+                                       VK_IMAGE_USAGE_TRANSFER_DST_BIT |
+                                           VK_IMAGE_USAGE_TRANSFER_SRC_BIT |
+                                           VK_IMAGE_USAGE_SAMPLED_BIT,  // Image::Create's view
+                                       VK_IMAGE_ASPECT_COLOR_BIT, false));
+    EXO_ASSIGN_OR_RETURN(floor_tex_,
+                         Image::Create(ctx_, w, h, 1, VK_FORMAT_R8G8B8A8_UNORM,
+                                       VK_IMAGE_USAGE_TRANSFER_DST_BIT | VK_IMAGE_USAGE_SAMPLED_BIT,
+                                       VK_IMAGE_ASPECT_COLOR_BIT, false));
+    descriptors_dirty_ = true;  // binding 9
+  }
+  // The view's linear colour layer -> R8G8B8A8_SRGB (the blit encodes: the stored sRGB bytes
+  // again) -> copied bit for bit into the UNORM texture the floor samples (same texel size).
+  const Image& colors = views_.colors();
+  const uint32_t layer = e->slot;
+  EXO_RETURN_IF_ERROR(ctx_.Submit([&](VkCommandBuffer cmd) {
+    TransitionImage(cmd, colors.image.get(), VK_IMAGE_ASPECT_COLOR_BIT,
+                    VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL, VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL,
+                    layer, 1);
+    TransitionImage(cmd, floor_stage_.image.get(), VK_IMAGE_ASPECT_COLOR_BIT,
+                    VK_IMAGE_LAYOUT_UNDEFINED, VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, 0, 1);
+    VkImageBlit blit{};
+    blit.srcSubresource = {VK_IMAGE_ASPECT_COLOR_BIT, 0, layer, 1};
+    blit.srcOffsets[1] = {int32_t(w), int32_t(h), 1};
+    blit.dstSubresource = {VK_IMAGE_ASPECT_COLOR_BIT, 0, 0, 1};
+    blit.dstOffsets[1] = {int32_t(w), int32_t(h), 1};
+    vkCmdBlitImage(cmd, colors.image.get(), VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL,
+                   floor_stage_.image.get(), VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, 1, &blit,
+                   VK_FILTER_NEAREST);
+    TransitionImage(cmd, colors.image.get(), VK_IMAGE_ASPECT_COLOR_BIT,
+                    VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL, VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL,
+                    layer, 1);
+    TransitionImage(cmd, floor_stage_.image.get(), VK_IMAGE_ASPECT_COLOR_BIT,
+                    VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL, 0,
+                    1);
+    TransitionImage(cmd, floor_tex_.image.get(), VK_IMAGE_ASPECT_COLOR_BIT,
+                    VK_IMAGE_LAYOUT_UNDEFINED, VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, 0, 1);
+    VkImageCopy copy{};
+    copy.srcSubresource = {VK_IMAGE_ASPECT_COLOR_BIT, 0, 0, 1};
+    copy.dstSubresource = {VK_IMAGE_ASPECT_COLOR_BIT, 0, 0, 1};
+    copy.extent = {w, h, 1};
+    vkCmdCopyImage(cmd, floor_stage_.image.get(), VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL,
+                   floor_tex_.image.get(), VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, 1, &copy);
+    TransitionImage(cmd, floor_tex_.image.get(), VK_IMAGE_ASPECT_COLOR_BIT,
+                    VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL,
+                    0, 1);
+  }));
+  floor_id_ = id;
+  floor_fingerprint_ = e->fingerprint;
+  return absl::OkStatus();
+}
+
+absl::StatusOr<RenderResult> FrameRenderer::RenderFloor(const PinholeCamera& camera,
+                                                        const Rigid3d& local_from_cam,
+                                                        bool projective) {
+  EXO_RETURN_IF_ERROR(CheckCamera(camera, local_from_cam));
+  if (!projective) EXO_RETURN_IF_ERROR(PrepareFloor(camera, local_from_cam));
   const uint32_t w = camera.width, h = camera.height;
   EXO_RETURN_IF_ERROR(
       floor_target_.Ensure(ctx_, pipes_->color_pass(), VK_FORMAT_R8G8B8A8_UNORM, w, h).status());
   GpuFrame f{};
   FillFrame(camera, local_from_cam, &f);
-  // The resident view nearest the novel camera (ties: lower id).
-  const glm::vec3 c_o(local_from_cam.translation);
-  const ViewStore::Entry* best = nullptr;
-  ViewId best_id = 0;
-  float best_d = 0.0f;
-  for (const auto& [id, e] : views_.entries()) {
-    const float d = glm::length(e.params.centre_local - c_o);
-    if (!best || d < best_d || (d == best_d && id < best_id)) {
-      best = &e;
-      best_id = id;
-      best_d = d;
-    }
-  }
+  ViewId id = 0;
+  const ViewStore::Entry* best = NearestView(local_from_cam, &id);
   if (!best) return absl::FailedPreconditionError("RenderFloor needs a resident view");
   const GpuView& v = views_.records()[best->slot];
   f.floor_view[0] = v.p0;
   f.floor_view[1] = v.p1;
   f.floor_view[2] = v.p2;
-  f.floor_view[3] = glm::vec4(v.size_layer.x, v.size_layer.y, v.size_layer.z, 0.0f);
+  f.floor_view[3] = projective ? glm::vec4(v.size_layer.x, v.size_layer.y, v.size_layer.z, 0.0f)
+                               : glm::vec4(1.0f / float(floor_tex_.width),
+                                           1.0f / float(floor_tex_.height), 0.0f, 0.0f);
   std::memcpy(frame_ubo_.mapped, &f, sizeof(f));
   VkClearValue clear{};
   RenderResult r;
   const auto t0 = Clock::now();
-  EXO_RETURN_IF_ERROR(Draw(floor_target_, pipes_->color_pass(), pipes_->floor_pipe(), clear, 4));
+  EXO_RETURN_IF_ERROR(Draw(floor_target_, pipes_->color_pass(),
+                           projective ? pipes_->floor_projective_pipe() : pipes_->floor_pipe(),
+                           clear, 4));
   r.gpu_ms = MsSince(t0);
   const auto t1 = Clock::now();
   UnpackBlendOutput(static_cast<const uint8_t*>(floor_target_.readback.mapped), w, h, &r);
