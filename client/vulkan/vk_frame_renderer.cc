@@ -1,6 +1,7 @@
 #include "client/vulkan/vk_frame_renderer.h"
 
 #include <algorithm>
+#include <array>
 #include <bit>
 #include <chrono>
 #include <cstring>
@@ -187,19 +188,39 @@ void RecordComputeBlend(VkCommandBuffer cmd, const Pipelines& pipes, const Rende
                        nullptr, 1, &ob, 0, nullptr);
 }
 
-// The RGBA8 blend output as RGB8 colour + coverage codes (blend_shade.glsl alpha codes).
-void UnpackBlendOutput(const uint8_t* src, uint32_t w, uint32_t h, RenderResult* r) {
+// The RGBA8 blend output as RGB8 colour + coverage codes (blend_shade.glsl alpha codes) and,
+// when `known` is not null, the hole fill's mask (coverage >= 2: blended or filled at infinity)
+// in the same pass. Table lookups instead of the alpha compare chain (serial host time: the
+// frame's wall time pays it 1:1).
+void UnpackBlendOutput(const uint8_t* src, uint32_t w, uint32_t h, RenderResult* r,
+                       ImageU8* known = nullptr) {
+  struct Tables {
+    std::array<uint8_t, 256> coverage, known;
+  };
+  static constexpr Tables kT = [] {
+    Tables t{};
+    for (int a = 0; a < 256; ++a) {
+      t.coverage[a] = a == 0 ? 0 : a == 255 ? 2 : a == 64 ? 3 : 1;
+      t.known[a] = t.coverage[a] >= 2;
+    }
+    return t;
+  }();
   r->color = ImageU8(w, h, 3);
   r->coverage = ImageU8(w, h, 1);
   uint8_t* dst = r->color.data();
   uint8_t* cov = r->coverage.data();
-  for (size_t i = 0, n = size_t(w) * h; i < n; ++i) {
-    dst[3 * i + 0] = src[4 * i + 0];
-    dst[3 * i + 1] = src[4 * i + 1];
-    dst[3 * i + 2] = src[4 * i + 2];
-    const uint8_t a = src[4 * i + 3];
-    cov[i] = a == 0 ? 0 : a == 255 ? 2 : a == 64 ? 3 : 1;
+  const size_t n = size_t(w) * h;
+  if (known) *known = ImageU8(w, h, 1);
+  uint8_t* kn = known ? known->data() : nullptr;
+  for (size_t i = 0; i < n; ++i) {
+    const uint8_t* p = src + 4 * i;
+    dst[3 * i + 0] = p[0];
+    dst[3 * i + 1] = p[1];
+    dst[3 * i + 2] = p[2];
+    cov[i] = kT.coverage[p[3]];
   }
+  if (kn)
+    for (size_t i = 0; i < n; ++i) kn[i] = kT.known[src[4 * i + 3]];
 }
 
 }  // namespace
@@ -527,15 +548,14 @@ absl::StatusOr<RenderResult> FrameRenderer::Render(const PinholeCamera& camera,
   EXO_RETURN_IF_ERROR(DrawBlend(bo, f.bg_params.x, f.ip_params.x > 0));
   r.gpu_ms = MsSince(t0);
   const auto t1 = Clock::now();
+  ImageU8 known;  // the fill's mask (coverage >= 2), unpacked with the frame
   UnpackBlendOutput(
       static_cast<const uint8_t*>(pipes_->blend_compute() ? color_target_.blend_out.mapped
                                                           : color_target_.readback.mapped),
-      w, h, &r);
+      w, h, &r, bo.fill_holes ? &known : nullptr);
   r.readback_ms = MsSince(t1);
   if (bo.fill_holes) {  // host post-pass on the read-back frame, same function as the CPU oracle
     const auto tf = Clock::now();
-    ImageU8 known(w, h, 1, 0);
-    for (size_t i = 0; i < known.size(); ++i) known.data()[i] = r.coverage.data()[i] >= 2;
     r.filled_pixels = FillHoles(r.color, known);
     r.fill_ms = MsSince(tf);
   }
