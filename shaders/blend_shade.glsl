@@ -27,6 +27,12 @@ layout(set = 0, binding = 6) uniform sampler2D gbuffer;
 //   exposure bits). bound = -1: reference not resident.
 layout(set = 0, binding = 7) uniform usamplerBuffer ranked_refs;
 
+// The frame's background views, the same texels as frame.bg_views (kBgViewTexels per view):
+// the background loop reads them with a loop-dependent index, which llvmpipe turns into a
+// per-lane, per-component gather with bounds checks from a uniform block, a vector gather per
+// texel from a texel buffer (docs/vulkan.md, issue 16 session 13).
+layout(set = 0, binding = 10) uniform samplerBuffer bg_texels;
+
 const int kViewTexels = 5;
 const int kRankedTexels = 5;  // client/vulkan/vk_cell_table.h
 // n of §3.1.4 (BlendOptions::n_best), a specialisation constant: one pipeline per n, so the
@@ -144,11 +150,12 @@ vec4 ShadeBackground(ivec2 pixel) {
   for (int k = 0; k < count; ++k) {
     const int j = listed ? int((sky_list.packed >> (4u + 3u * uint(k))) & 7u) : k;
     const int b = kBgViewTexels * j;
-    const mat3 cam_from_local = mat3(frame.bg_views[b].xyz, frame.bg_views[b + 1].xyz,
-                                     frame.bg_views[b + 2].xyz);
-    const vec4 wh = frame.bg_views[b + 4];
+    const mat3 cam_from_local = mat3(texelFetch(bg_texels, b).xyz,
+                                     texelFetch(bg_texels, b + 1).xyz,
+                                     texelFetch(bg_texels, b + 2).xyz);
+    const vec4 wh = texelFetch(bg_texels, b + 4);
     vec2 uv;
-    if (!ProjectDirection(d, cam_from_local, frame.bg_views[b + 3], uv)) continue;
+    if (!ProjectDirection(d, cam_from_local, texelFetch(bg_texels, b + 3), uv)) continue;
     const vec2 size = wh.xy;
     if (!(uv.x >= -0.5 && uv.y >= -0.5 && uv.x < size.x - 0.5 && uv.y < size.y - 0.5)) continue;
     const vec2 pc = clamp(floor(uv + 0.5), vec2(0.0), size - 1.0);

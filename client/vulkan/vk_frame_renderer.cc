@@ -231,6 +231,9 @@ absl::StatusOr<std::unique_ptr<FrameRenderer>> FrameRenderer::Create(
   std::unique_ptr<FrameRenderer> r(new FrameRenderer(ctx, opt, grid, views, cells, chunks));
   EXO_ASSIGN_OR_RETURN(r->frame_ubo_,
                        Buffer::Create(ctx, sizeof(GpuFrame), VK_BUFFER_USAGE_UNIFORM_BUFFER_BIT));
+  EXO_ASSIGN_OR_RETURN(r->bg_views_buf_,
+                       Buffer::Create(ctx, sizeof(GpuFrame::bg_views),
+                                      VK_BUFFER_USAGE_UNIFORM_TEXEL_BUFFER_BIT));
   EXO_ASSIGN_OR_RETURN(r->pipes_, Pipelines::Create(ctx, opt.blend_in_compute));
   EXO_RETURN_IF_ERROR(r->CreatePlaceholders());
   return r;
@@ -264,6 +267,7 @@ absl::Status FrameRenderer::UpdateDescriptors() {
   in.ranked_refs = &cells_.ranked_buffer();
   in.blend_out = color_target_.blend_out.buffer ? &color_target_.blend_out : &placeholder_out_;
   in.floor_colors = floor_tex_.image ? &floor_tex_ : &placeholder_gbuffer_;
+  in.bg_views = &bg_views_buf_;
   EXO_RETURN_IF_ERROR(pipes_->WriteDescriptors(in));
   descriptors_dirty_ = false;
   return absl::OkStatus();
@@ -532,6 +536,7 @@ absl::StatusOr<RenderResult> FrameRenderer::Render(const PinholeCamera& camera,
   UploadBlendFrame(camera, local_from_cam, bo, &f, &r.background_views, &bg_entries);
   f.bg_params.y = approx.max_candidates;  // blend_shade.glsl: 0 = every reference (exact)
   std::memcpy(frame_ubo_.mapped, &f, sizeof(f));
+  std::memcpy(bg_views_buf_.mapped, f.bg_views, sizeof(f.bg_views));
   sky_draws_.clear();
   sky_listed_views_px_ = 0;
   if (f.bg_params.x > 0 && !pipes_->blend_compute()) {

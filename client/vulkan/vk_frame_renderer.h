@@ -90,6 +90,9 @@ class FrameRenderer {
   MeshChunks& chunks_;
   std::unique_ptr<Pipelines> pipes_;
   Buffer frame_ubo_;
+  // The Frame block's background views again as an RGBA32F texel buffer (binding 10,
+  // blend_shade.glsl bg_texels), written with it.
+  Buffer bg_views_buf_;
   RenderTarget color_target_, cellid_target_, zdepth_target_, floor_target_;
   Image placeholder_gbuffer_;
   // The kForward floor's texture: view floor_id_ (fingerprint floor_fingerprint_) as RGBA8

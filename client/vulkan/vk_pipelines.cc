@@ -110,8 +110,8 @@ absl::Status Pipelines::CreateSamplers() {
 }
 
 absl::Status Pipelines::CreateSetLayout() {
-  VkDescriptorSetLayoutBinding b[10]{};
-  for (uint32_t i = 0; i < 10; ++i) {
+  VkDescriptorSetLayoutBinding b[11]{};
+  for (uint32_t i = 0; i < 11; ++i) {
     b[i].binding = i;
     b[i].descriptorCount = 1;
     b[i].stageFlags = VK_SHADER_STAGE_FRAGMENT_BIT | VK_SHADER_STAGE_COMPUTE_BIT;
@@ -128,8 +128,11 @@ absl::Status Pipelines::CreateSetLayout() {
   b[7].descriptorType = VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER;  // ranked refs (per frame)
   b[8].descriptorType = VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;        // blend.comp output (RGBA8)
   b[9].descriptorType = VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER; // RenderFloor's texture
+  // The frame's background views (blend_shade.glsl bg_texels): read with a loop-dependent index,
+  // which llvmpipe makes a per-lane, per-component gather from a uniform block.
+  b[10].descriptorType = VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER;
   VkDescriptorSetLayoutCreateInfo li{VK_STRUCTURE_TYPE_DESCRIPTOR_SET_LAYOUT_CREATE_INFO};
-  li.bindingCount = 10;
+  li.bindingCount = 11;
   li.pBindings = b;
   VkDescriptorSetLayout raw_layout;
   EXO_VK_RETURN(vkCreateDescriptorSetLayout(ctx_.device(), &li, nullptr, &raw_layout));
@@ -150,7 +153,7 @@ absl::Status Pipelines::CreateSetLayout() {
 
 absl::Status Pipelines::CreateDescriptorSet() {
   VkDescriptorPoolSize sizes[4] = {{VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER, 1},
-                                   {VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER, 4},
+                                   {VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER, 5},
                                    {VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER, 4},
                                    {VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, 1}};
   VkDescriptorPoolCreateInfo pi{VK_STRUCTURE_TYPE_DESCRIPTOR_POOL_CREATE_INFO};
@@ -192,6 +195,8 @@ absl::Status Pipelines::WriteDescriptors(const DescriptorInputs& in) {
   VkDescriptorBufferInfo ubo{in.frame_ubo->buffer.get(), 0, VK_WHOLE_SIZE};
   VkBufferView tb[3] = {buffer_views_[0].get(), buffer_views_[1].get(), buffer_views_[2].get()};
   VkBufferView ranked_view = buffer_views_[3].get();
+  EXO_ASSIGN_OR_RETURN(buffer_views_[4], MakeBufferView(*in.bg_views, VK_FORMAT_R32G32B32A32_SFLOAT));
+  VkBufferView bg_view = buffer_views_[4].get();
   VkDescriptorImageInfo ii[3] = {
       {linear_sampler_.get(), in.colors->view.get(), VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL},
       {sampler_.get(), in.depths->view.get(), VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL},
@@ -199,8 +204,8 @@ absl::Status Pipelines::WriteDescriptors(const DescriptorInputs& in) {
   VkDescriptorImageInfo floor_info{linear_sampler_.get(), in.floor_colors->view.get(),
                                    VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL};
   VkDescriptorBufferInfo out_info{in.blend_out->buffer.get(), 0, VK_WHOLE_SIZE};
-  const uint32_t writes = 10;
-  VkWriteDescriptorSet w[10]{};
+  const uint32_t writes = 11;
+  VkWriteDescriptorSet w[11]{};
   for (uint32_t i = 0; i < writes; ++i) {
     w[i].sType = VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET;
     w[i].dstSet = desc_set_;
@@ -218,6 +223,9 @@ absl::Status Pipelines::WriteDescriptors(const DescriptorInputs& in) {
     } else if (i == 8) {
       w[i].descriptorType = VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;
       w[i].pBufferInfo = &out_info;
+    } else if (i == 10) {
+      w[i].descriptorType = VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER;
+      w[i].pTexelBufferView = &bg_view;
     } else if (i == 9) {
       w[i].descriptorType = VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER;
       w[i].pImageInfo = &floor_info;

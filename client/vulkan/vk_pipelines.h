@@ -34,6 +34,7 @@ struct DescriptorInputs {
   const Buffer* ranked_refs = nullptr;   // 7: per-frame ranked references (RGBA32UI)
   const Buffer* blend_out = nullptr;     // 8: blend.comp output (storage buffer)
   const Image* floor_colors = nullptr;   // 9: RenderFloor's RGBA8 texture (bilinear sampler)
+  const Buffer* bg_views = nullptr;      // 10: the frame's background views (RGBA32F texel buffer)
 };
 
 class Pipelines {
@@ -111,7 +112,7 @@ class Pipelines {
   UniquePipelineLayout pipe_layout_;
   UniqueDescriptorPool desc_pool_;
   VkDescriptorSet desc_set_ = VK_NULL_HANDLE;
-  UniqueBufferView buffer_views_[4];  // views, cell table, refs, ranked refs
+  UniqueBufferView buffer_views_[5];  // views, cell table, refs, ranked refs, background views
   UniqueRenderPass color_pass_, blend_pass_, cellid_pass_, zdepth_pass_, gbuffer_pass_;
   UniquePipeline gbuffer_pipe_, cellid_pipe_, zdepth_pipe_, floor_pipe_, floor_projective_pipe_;
   // Blend pipelines per n_best (specialisation constant 0 of blend.frag / blend.comp: the
