@@ -223,6 +223,42 @@ void UnpackBlendOutput(const uint8_t* src, uint32_t w, uint32_t h, RenderResult*
     for (size_t i = 0; i < n; ++i) kn[i] = kT.known[src[4 * i + 3]];
 }
 
+// RenderFloor's texture: layer `layer` of the linear colour array -> `stage` (R8G8B8A8_SRGB:
+// the blit encodes, giving back the stored sRGB bytes) -> copied bit for bit into `tex`
+// (R8G8B8A8_UNORM, same texel size), which ends in SHADER_READ_ONLY_OPTIMAL.
+void RecordFloorTexture(VkCommandBuffer cmd, const Image& colors, uint32_t layer,
+                        const Image& stage, const Image& tex) {
+  const uint32_t w = tex.width, h = tex.height;
+  TransitionImage(cmd, colors.image.get(), VK_IMAGE_ASPECT_COLOR_BIT,
+                  VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL, VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL,
+                  layer, 1);
+  TransitionImage(cmd, stage.image.get(), VK_IMAGE_ASPECT_COLOR_BIT, VK_IMAGE_LAYOUT_UNDEFINED,
+                  VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, 0, 1);
+  VkImageBlit blit{};
+  blit.srcSubresource = {VK_IMAGE_ASPECT_COLOR_BIT, 0, layer, 1};
+  blit.srcOffsets[1] = {int32_t(w), int32_t(h), 1};
+  blit.dstSubresource = {VK_IMAGE_ASPECT_COLOR_BIT, 0, 0, 1};
+  blit.dstOffsets[1] = {int32_t(w), int32_t(h), 1};
+  vkCmdBlitImage(cmd, colors.image.get(), VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL, stage.image.get(),
+                 VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, 1, &blit, VK_FILTER_NEAREST);
+  TransitionImage(cmd, colors.image.get(), VK_IMAGE_ASPECT_COLOR_BIT,
+                  VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL, VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL,
+                  layer, 1);
+  TransitionImage(cmd, stage.image.get(), VK_IMAGE_ASPECT_COLOR_BIT,
+                  VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL, 0, 1);
+  TransitionImage(cmd, tex.image.get(), VK_IMAGE_ASPECT_COLOR_BIT, VK_IMAGE_LAYOUT_UNDEFINED,
+                  VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, 0, 1);
+  VkImageCopy copy{};
+  copy.srcSubresource = {VK_IMAGE_ASPECT_COLOR_BIT, 0, 0, 1};
+  copy.dstSubresource = {VK_IMAGE_ASPECT_COLOR_BIT, 0, 0, 1};
+  copy.extent = {w, h, 1};
+  vkCmdCopyImage(cmd, stage.image.get(), VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL, tex.image.get(),
+                 VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, 1, &copy);
+  TransitionImage(cmd, tex.image.get(), VK_IMAGE_ASPECT_COLOR_BIT,
+                  VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL, 0,
+                  1);
+}
+
 }  // namespace
 
 absl::StatusOr<std::unique_ptr<FrameRenderer>> FrameRenderer::Create(
@@ -606,41 +642,9 @@ absl::Status FrameRenderer::PrepareFloor(const PinholeCamera& camera,
                                        VK_IMAGE_ASPECT_COLOR_BIT, false));
     descriptors_dirty_ = true;  // binding 9
   }
-  // The view's linear colour layer -> R8G8B8A8_SRGB (the blit encodes: the stored sRGB bytes
-  // again) -> copied bit for bit into the UNORM texture the floor samples (same texel size).
   const Image& colors = views_.colors();
-  const uint32_t layer = e->slot;
   EXO_RETURN_IF_ERROR(ctx_.Submit([&](VkCommandBuffer cmd) {
-    TransitionImage(cmd, colors.image.get(), VK_IMAGE_ASPECT_COLOR_BIT,
-                    VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL, VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL,
-                    layer, 1);
-    TransitionImage(cmd, floor_stage_.image.get(), VK_IMAGE_ASPECT_COLOR_BIT,
-                    VK_IMAGE_LAYOUT_UNDEFINED, VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, 0, 1);
-    VkImageBlit blit{};
-    blit.srcSubresource = {VK_IMAGE_ASPECT_COLOR_BIT, 0, layer, 1};
-    blit.srcOffsets[1] = {int32_t(w), int32_t(h), 1};
-    blit.dstSubresource = {VK_IMAGE_ASPECT_COLOR_BIT, 0, 0, 1};
-    blit.dstOffsets[1] = {int32_t(w), int32_t(h), 1};
-    vkCmdBlitImage(cmd, colors.image.get(), VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL,
-                   floor_stage_.image.get(), VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, 1, &blit,
-                   VK_FILTER_NEAREST);
-    TransitionImage(cmd, colors.image.get(), VK_IMAGE_ASPECT_COLOR_BIT,
-                    VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL, VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL,
-                    layer, 1);
-    TransitionImage(cmd, floor_stage_.image.get(), VK_IMAGE_ASPECT_COLOR_BIT,
-                    VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL, 0,
-                    1);
-    TransitionImage(cmd, floor_tex_.image.get(), VK_IMAGE_ASPECT_COLOR_BIT,
-                    VK_IMAGE_LAYOUT_UNDEFINED, VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, 0, 1);
-    VkImageCopy copy{};
-    copy.srcSubresource = {VK_IMAGE_ASPECT_COLOR_BIT, 0, 0, 1};
-    copy.dstSubresource = {VK_IMAGE_ASPECT_COLOR_BIT, 0, 0, 1};
-    copy.extent = {w, h, 1};
-    vkCmdCopyImage(cmd, floor_stage_.image.get(), VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL,
-                   floor_tex_.image.get(), VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, 1, &copy);
-    TransitionImage(cmd, floor_tex_.image.get(), VK_IMAGE_ASPECT_COLOR_BIT,
-                    VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL,
-                    0, 1);
+    RecordFloorTexture(cmd, colors, e->slot, floor_stage_, floor_tex_);
   }));
   floor_id_ = id;
   floor_fingerprint_ = e->fingerprint;
