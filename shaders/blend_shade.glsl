@@ -27,7 +27,14 @@ layout(set = 0, binding = 6) uniform sampler2D gbuffer;
 //   exposure bits). bound = -1: reference not resident.
 layout(set = 0, binding = 7) uniform usamplerBuffer ranked_refs;
 
+// The frame's background views, the same texels as frame.bg_views (kBgViewTexels per view):
+// the background loop reads them with a loop-dependent index, which llvmpipe turns into a
+// per-lane, per-component gather with bounds checks from a uniform block, a vector gather per
+// texel from a texel buffer (docs/vulkan.md, issue 16 session 13).
+layout(set = 0, binding = 10) uniform samplerBuffer bg_texels;
+
 const int kViewTexels = 5;
+const int kRankedTexels = 5;  // client/vulkan/vk_cell_table.h
 // n of §3.1.4 (BlendOptions::n_best), a specialisation constant: one pipeline per n, so the
 // disabled best-n slots and the n-th-best pick fold away at compile time.
 layout(constant_id = 0) const int kNBest = 3;
@@ -143,11 +150,12 @@ vec4 ShadeBackground(ivec2 pixel) {
   for (int k = 0; k < count; ++k) {
     const int j = listed ? int((sky_list.packed >> (4u + 3u * uint(k))) & 7u) : k;
     const int b = kBgViewTexels * j;
-    const mat3 cam_from_local = mat3(frame.bg_views[b].xyz, frame.bg_views[b + 1].xyz,
-                                     frame.bg_views[b + 2].xyz);
-    const vec4 wh = frame.bg_views[b + 4];
+    const mat3 cam_from_local = mat3(texelFetch(bg_texels, b).xyz,
+                                     texelFetch(bg_texels, b + 1).xyz,
+                                     texelFetch(bg_texels, b + 2).xyz);
+    const vec4 wh = texelFetch(bg_texels, b + 4);
     vec2 uv;
-    if (!ProjectDirection(d, cam_from_local, frame.bg_views[b + 3], uv)) continue;
+    if (!ProjectDirection(d, cam_from_local, texelFetch(bg_texels, b + 3), uv)) continue;
     const vec2 size = wh.xy;
     if (!(uv.x >= -0.5 && uv.y >= -0.5 && uv.x < size.x - 0.5 && uv.y < size.y - 0.5)) continue;
     const vec2 pc = clamp(floor(uv + 0.5), vec2(0.0), size - 1.0);
@@ -235,7 +243,7 @@ vec4 ShadeSurface(vec3 x) {
   // order (0 = all: exact).
   if (frame.bg_params.y > 0) count = min(count, uint(frame.bg_params.y));
   for (uint i = 0u; i < count; ++i) {
-    const int t = int(2u * (offset + i));
+    const int t = kRankedTexels * int(offset + i);
     const uvec4 r0 = texelFetch(ranked_refs, t);
     if (uintBitsToFloat(r0.w) < nth) break;  // also: bound -1 = not resident (sorted last)
     // ---- weights: DirectionalWeight / PositionalWeight / CombinedWeight with v = 1 ----
@@ -256,17 +264,16 @@ vec4 ShadeSurface(vec3 x) {
     if (!(w >= nth)) continue;
     const uvec4 r1 = texelFetch(ranked_refs, t + 1);
     const int layer = int(r1.x);
-    const int base = layer * kViewTexels;
     // ---- validity (3.4), blend_math.h Validity() with the discontinuity test baked into the
     // depth layer. Projection by P = K [R^T | -R^T c]: hp = (z u, z v, z) with z the camera
     // z-depth, so in_front is z > kMinDistance and uv = hp.xy / z, algebraically the same as
     // K (R^T (x - c)). The range of x is |x - c| = lb, and the stored range along the same ray
     // is z_stored * range / z (= z_stored * |ray|, RangeFromZDepth).
     const vec4 hx = vec4(x, 1.0);
-    const float z = dot(texelFetch(view_texels, base + 2), hx);
+    const float z = dot(uintBitsToFloat(texelFetch(ranked_refs, t + 4)), hx);
     if (!(z > kMinDistance)) continue;
-    const vec2 uv = vec2(dot(texelFetch(view_texels, base + 0), hx),
-                         dot(texelFetch(view_texels, base + 1), hx)) / z;
+    const vec2 uv = vec2(dot(uintBitsToFloat(texelFetch(ranked_refs, t + 2)), hx),
+                         dot(uintBitsToFloat(texelFetch(ranked_refs, t + 3)), hx)) / z;
     const vec2 size = vec2(float(r1.z & 0xFFFFu), float(r1.z >> 16));
     if (!(uv.x >= -0.5 && uv.y >= -0.5 && uv.x < size.x - 0.5 && uv.y < size.y - 0.5)) continue;
     const vec2 pc = clamp(floor(uv + 0.5), vec2(0.0), size - 1.0);

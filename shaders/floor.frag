@@ -1,23 +1,9 @@
 #version 450
-// The speed floor of the blend (VulkanRenderer::RenderFloor, vulkan_bench's "floor" rows): a
-// forward draw of the proxy mesh with ONE bilinear fetch per pixel, from the resident view
-// nearest the novel camera (projective texturing, no validity or weights), sRGB-encoded.
-#extension GL_GOOGLE_include_directive : require
-#include "lumigraph_common.glsl"
+// The issue-16 speed floor (floor.vert): one bilinear fetch per pixel from an RGBA8 texture
+// holding the nearest view's stored sRGB bytes, written out as it is (no conversion).
+layout(set = 0, binding = 9) uniform sampler2D floor_colors;
 
-layout(set = 0, binding = 4) uniform sampler2DArray colors;
-
-layout(location = 0) in vec3 in_p_local;
+layout(location = 0) in vec2 in_uv;
 layout(location = 0) out vec4 out_color;
 
-void main() {
-  const vec4 hx = vec4(in_p_local, 1.0);
-  const float z = dot(frame.floor_view[2], hx);
-  const vec2 size = frame.floor_view[3].xy;
-  const vec2 uv = clamp(vec2(dot(frame.floor_view[0], hx), dot(frame.floor_view[1], hx)) / z,
-                        vec2(0.0), size - 1.0);
-  const vec2 layer_size = vec2(textureSize(colors, 0).xy);
-  const vec3 lin =
-      textureLod(colors, vec3((uv + 0.5) / layer_size, frame.floor_view[3].z), 0.0).rgb;
-  out_color = vec4(LinearToSrgb3(lin), 1.0);
-}
+void main() { out_color = vec4(textureLod(floor_colors, in_uv, 0.0).rgb, 1.0); }

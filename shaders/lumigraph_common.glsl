@@ -209,6 +209,8 @@ layout(std140, set = 0, binding = 0) uniform Frame {
   // InpaintFusion (SPEC §7): ip_params.x inpainted keyframes (nearest first), their layers.
   ivec4 ip_params;
   ivec4 ip_layers[kMaxInpaintedViews / 4];
-  // floor.frag only: rows 0..2 of one view's P = K [R^T | -R^T c], (width, height, layer, 0).
+  // RenderFloor only: rows 0..2 of one view's P = K [R^T | -R^T c]; then (width, height,
+  // layer, 0) for floorproj.frag, (1 / width, 1 / height, 0, 0) of the floor texture
+  // for floor.vert.
   vec4 floor_view[4];
 } frame;

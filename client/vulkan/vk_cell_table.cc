@@ -44,9 +44,11 @@ absl::Status CellTable::GrowSlabs(uint32_t slabs) {
   // Device-to-device copy of the old slabs (on lavapipe both are host memory).
   if (refs_buf_.buffer) std::memcpy(nb.mapped, refs_buf_.mapped, slab_capacity_ * slab_bytes);
   for (uint32_t s = ns; s-- > slab_capacity_;) free_slabs_.push_back(s);
-  EXO_ASSIGN_OR_RETURN(Buffer nr, Buffer::Create(ctx_, ns * slab_bytes * 8,
+  // kRankedTexels RGBA32UI texels (16 bytes each) per 4-byte reference slot.
+  const size_t ranked_bytes = ns * slab_bytes * 4 * kRankedTexels;
+  EXO_ASSIGN_OR_RETURN(Buffer nr, Buffer::Create(ctx_, ranked_bytes,
                                                  VK_BUFFER_USAGE_UNIFORM_TEXEL_BUFFER_BIT));
-  std::memset(nr.mapped, 0, ns * slab_bytes * 8);
+  std::memset(nr.mapped, 0, ranked_bytes);
   refs_buf_ = std::move(nb);
   ranked_buf_ = std::move(nr);
   slab_capacity_ = ns;
@@ -220,7 +222,7 @@ std::array<glm::dvec3, 5> FrustumPlanes(const PinholeCamera& cam) {
 void WriteRankedSlot(const GpuView* v, float bound, uint32_t position, glm::uvec4* dst) {
   if (bound < 0.0f) {
     dst[0] = glm::uvec4(0u, 0u, 0u, FloatBits(-1.0f));
-    dst[1] = glm::uvec4(0u);
+    for (int k = 1; k < kRankedTexels; ++k) dst[k] = glm::uvec4(0u);
     return;
   }
   dst[0] = glm::uvec4(FloatBits(v->centre_exposure.x), FloatBits(v->centre_exposure.y),
@@ -228,6 +230,10 @@ void WriteRankedSlot(const GpuView* v, float bound, uint32_t position, glm::uvec
   dst[1] = glm::uvec4(uint32_t(v->size_layer.z), position,
                       uint32_t(v->size_layer.x) | (uint32_t(v->size_layer.y) << 16),
                       FloatBits(v->centre_exposure.w));
+  const glm::vec4* rows[3] = {&v->p0, &v->p1, &v->p2};
+  for (int k = 0; k < 3; ++k)
+    dst[2 + k] = glm::uvec4(FloatBits(rows[k]->x), FloatBits(rows[k]->y), FloatBits(rows[k]->z),
+                            FloatBits(rows[k]->w));
 }
 
 }  // namespace
@@ -264,10 +270,11 @@ void CellTable::RankCell(const Entry& c, const glm::dvec3& m, double r, const gl
   }
   std::stable_sort(rank_scratch_.begin(), rank_scratch_.end(),
                    [](const auto& x, const auto& y) { return x.first > y.first; });
-  glm::uvec4* dst = static_cast<glm::uvec4*>(ranked_buf_.mapped) + 2 * size_t(c.slab) * per_slab;
+  glm::uvec4* dst =
+      static_cast<glm::uvec4*>(ranked_buf_.mapped) + kRankedTexels * size_t(c.slab) * per_slab;
   for (size_t k = 0; k < n; ++k) {
     const auto [bound, i] = rank_scratch_[k];
-    WriteRankedSlot(bound < 0.0f ? nullptr : &recs[slots[i]], bound, i, dst + 2 * k);
+    WriteRankedSlot(bound < 0.0f ? nullptr : &recs[slots[i]], bound, i, dst + kRankedTexels * k);
   }
 }
 

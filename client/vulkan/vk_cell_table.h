@@ -19,6 +19,10 @@
 
 namespace exo::vk {
 
+// RGBA32UI texels per reference slot of the per-frame ranked buffer (blend_shade.glsl
+// kRankedTexels): (c_i, bound), (layer, list position, size, exposure), the view's P rows 0..2.
+inline constexpr int kRankedTexels = 5;
+
 class CellTable {
  public:
   struct Entry {

@@ -1,6 +1,7 @@
 #include "client/vulkan/vk_frame_renderer.h"
 
 #include <algorithm>
+#include <array>
 #include <bit>
 #include <chrono>
 #include <cstring>
@@ -37,7 +38,8 @@ struct GpuFrame {
   // nearest first), their texture layers in ip_layers (4 per ivec4).
   glm::ivec4 ip_params;
   glm::ivec4 ip_layers[kMaxInpaintedViews / 4];
-  // RenderFloor (floor.frag): rows of one view's P and (width, height, layer, 0).
+  // RenderFloor: rows of one view's P and (width, height, layer, 0) (floorproj.frag) or
+  // (1 / width, 1 / height, 0, 0) of the floor texture (floor.vert).
   glm::vec4 floor_view[4];
 };
 static_assert(sizeof(GpuFrame) == 128 + 48 + 16 + 16 * kBgViewTexels * blend::kMaxBackgroundViews +
@@ -186,19 +188,75 @@ void RecordComputeBlend(VkCommandBuffer cmd, const Pipelines& pipes, const Rende
                        nullptr, 1, &ob, 0, nullptr);
 }
 
-// The RGBA8 blend output as RGB8 colour + coverage codes (blend_shade.glsl alpha codes).
-void UnpackBlendOutput(const uint8_t* src, uint32_t w, uint32_t h, RenderResult* r) {
+// The RGBA8 blend output as RGB8 colour + coverage codes (blend_shade.glsl alpha codes) and,
+// when `known` is not null, the hole fill's mask (coverage >= 2: blended or filled at infinity)
+// in the same pass. Table lookups instead of the alpha compare chain (serial host time: the
+// frame's wall time pays it 1:1).
+void UnpackBlendOutput(const uint8_t* src, uint32_t w, uint32_t h, RenderResult* r,
+                       ImageU8* known = nullptr) {
+  struct Tables {
+    std::array<uint8_t, 256> coverage, known;
+  };
+  static constexpr Tables kT = [] {
+    Tables t{};
+    for (int a = 0; a < 256; ++a) {
+      t.coverage[a] = a == 0 ? 0 : a == 255 ? 2 : a == 64 ? 3 : 1;
+      t.known[a] = t.coverage[a] >= 2;
+    }
+    return t;
+  }();
   r->color = ImageU8(w, h, 3);
   r->coverage = ImageU8(w, h, 1);
   uint8_t* dst = r->color.data();
   uint8_t* cov = r->coverage.data();
-  for (size_t i = 0, n = size_t(w) * h; i < n; ++i) {
-    dst[3 * i + 0] = src[4 * i + 0];
-    dst[3 * i + 1] = src[4 * i + 1];
-    dst[3 * i + 2] = src[4 * i + 2];
-    const uint8_t a = src[4 * i + 3];
-    cov[i] = a == 0 ? 0 : a == 255 ? 2 : a == 64 ? 3 : 1;
+  const size_t n = size_t(w) * h;
+  if (known) *known = ImageU8(w, h, 1);
+  uint8_t* kn = known ? known->data() : nullptr;
+  for (size_t i = 0; i < n; ++i) {
+    const uint8_t* p = src + 4 * i;
+    dst[3 * i + 0] = p[0];
+    dst[3 * i + 1] = p[1];
+    dst[3 * i + 2] = p[2];
+    cov[i] = kT.coverage[p[3]];
   }
+  if (kn)
+    for (size_t i = 0; i < n; ++i) kn[i] = kT.known[src[4 * i + 3]];
+}
+
+// RenderFloor's texture: layer `layer` of the linear colour array -> `stage` (R8G8B8A8_SRGB:
+// the blit encodes, giving back the stored sRGB bytes) -> copied bit for bit into `tex`
+// (R8G8B8A8_UNORM, same texel size), which ends in SHADER_READ_ONLY_OPTIMAL.
+void RecordFloorTexture(VkCommandBuffer cmd, const Image& colors, uint32_t layer,
+                        const Image& stage, const Image& tex) {
+  const uint32_t w = tex.width, h = tex.height;
+  TransitionImage(cmd, colors.image.get(), VK_IMAGE_ASPECT_COLOR_BIT,
+                  VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL, VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL,
+                  layer, 1);
+  TransitionImage(cmd, stage.image.get(), VK_IMAGE_ASPECT_COLOR_BIT, VK_IMAGE_LAYOUT_UNDEFINED,
+                  VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, 0, 1);
+  VkImageBlit blit{};
+  blit.srcSubresource = {VK_IMAGE_ASPECT_COLOR_BIT, 0, layer, 1};
+  blit.srcOffsets[1] = {int32_t(w), int32_t(h), 1};
+  blit.dstSubresource = {VK_IMAGE_ASPECT_COLOR_BIT, 0, 0, 1};
+  blit.dstOffsets[1] = {int32_t(w), int32_t(h), 1};
+  vkCmdBlitImage(cmd, colors.image.get(), VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL, stage.image.get(),
+                 VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, 1, &blit, VK_FILTER_NEAREST);
+  TransitionImage(cmd, colors.image.get(), VK_IMAGE_ASPECT_COLOR_BIT,
+                  VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL, VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL,
+                  layer, 1);
+  TransitionImage(cmd, stage.image.get(), VK_IMAGE_ASPECT_COLOR_BIT,
+                  VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL, 0, 1);
+  TransitionImage(cmd, tex.image.get(), VK_IMAGE_ASPECT_COLOR_BIT, VK_IMAGE_LAYOUT_UNDEFINED,
+                  VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, 0, 1);
+  VkImageCopy copy{};
+  copy.srcSubresource = {VK_IMAGE_ASPECT_COLOR_BIT, 0, 0, 1};
+  copy.dstSubresource = {VK_IMAGE_ASPECT_COLOR_BIT, 0, 0, 1};
+  copy.extent = {w, h, 1};
+  vkCmdCopyImage(cmd, stage.image.get(), VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL, tex.image.get(),
+                 VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, 1, &copy);
+  TransitionImage(cmd, tex.image.get(), VK_IMAGE_ASPECT_COLOR_BIT,
+                  VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL, 0,
+                  1);
 }
 
 }  // namespace
@@ -209,6 +267,9 @@ absl::StatusOr<std::unique_ptr<FrameRenderer>> FrameRenderer::Create(
   std::unique_ptr<FrameRenderer> r(new FrameRenderer(ctx, opt, grid, views, cells, chunks));
   EXO_ASSIGN_OR_RETURN(r->frame_ubo_,
                        Buffer::Create(ctx, sizeof(GpuFrame), VK_BUFFER_USAGE_UNIFORM_BUFFER_BIT));
+  EXO_ASSIGN_OR_RETURN(r->bg_views_buf_,
+                       Buffer::Create(ctx, sizeof(GpuFrame::bg_views),
+                                      VK_BUFFER_USAGE_UNIFORM_TEXEL_BUFFER_BIT));
   EXO_ASSIGN_OR_RETURN(r->pipes_, Pipelines::Create(ctx, opt.blend_in_compute));
   EXO_RETURN_IF_ERROR(r->CreatePlaceholders());
   return r;
@@ -241,6 +302,8 @@ absl::Status FrameRenderer::UpdateDescriptors() {
   in.gbuffer = color_target_.gbuffer.image ? &color_target_.gbuffer : &placeholder_gbuffer_;
   in.ranked_refs = &cells_.ranked_buffer();
   in.blend_out = color_target_.blend_out.buffer ? &color_target_.blend_out : &placeholder_out_;
+  in.floor_colors = floor_tex_.image ? &floor_tex_ : &placeholder_gbuffer_;
+  in.bg_views = &bg_views_buf_;
   EXO_RETURN_IF_ERROR(pipes_->WriteDescriptors(in));
   descriptors_dirty_ = false;
   return absl::OkStatus();
@@ -509,6 +572,7 @@ absl::StatusOr<RenderResult> FrameRenderer::Render(const PinholeCamera& camera,
   UploadBlendFrame(camera, local_from_cam, bo, &f, &r.background_views, &bg_entries);
   f.bg_params.y = approx.max_candidates;  // blend_shade.glsl: 0 = every reference (exact)
   std::memcpy(frame_ubo_.mapped, &f, sizeof(f));
+  std::memcpy(bg_views_buf_.mapped, f.bg_views, sizeof(f.bg_views));
   sky_draws_.clear();
   sky_listed_views_px_ = 0;
   if (f.bg_params.x > 0 && !pipes_->blend_compute()) {
@@ -525,53 +589,95 @@ absl::StatusOr<RenderResult> FrameRenderer::Render(const PinholeCamera& camera,
   EXO_RETURN_IF_ERROR(DrawBlend(bo, f.bg_params.x, f.ip_params.x > 0));
   r.gpu_ms = MsSince(t0);
   const auto t1 = Clock::now();
+  ImageU8 known;  // the fill's mask (coverage >= 2), unpacked with the frame
   UnpackBlendOutput(
       static_cast<const uint8_t*>(pipes_->blend_compute() ? color_target_.blend_out.mapped
                                                           : color_target_.readback.mapped),
-      w, h, &r);
+      w, h, &r, bo.fill_holes ? &known : nullptr);
   r.readback_ms = MsSince(t1);
   if (bo.fill_holes) {  // host post-pass on the read-back frame, same function as the CPU oracle
     const auto tf = Clock::now();
-    ImageU8 known(w, h, 1, 0);
-    for (size_t i = 0; i < known.size(); ++i) known.data()[i] = r.coverage.data()[i] >= 2;
     r.filled_pixels = FillHoles(r.color, known);
     r.fill_ms = MsSince(tf);
   }
   return r;
 }
 
-absl::StatusOr<RenderResult> FrameRenderer::RenderFloor(const PinholeCamera& camera,
-                                                        const Rigid3d& local_from_cam) {
+const ViewStore::Entry* FrameRenderer::NearestView(const Rigid3d& local_from_cam,
+                                                   ViewId* id) const {
+  const glm::vec3 c_o(local_from_cam.translation);
+  const ViewStore::Entry* best = nullptr;
+  float best_d = 0.0f;
+  for (const auto& [vid, e] : views_.entries()) {
+    const float d = glm::length(e.params.centre_local - c_o);
+    if (!best || d < best_d || (d == best_d && vid < *id)) {
+      best = &e;
+      *id = vid;
+      best_d = d;
+    }
+  }
+  return best;
+}
+
+absl::Status FrameRenderer::PrepareFloor(const PinholeCamera& camera,
+                                         const Rigid3d& local_from_cam) {
   EXO_RETURN_IF_ERROR(CheckCamera(camera, local_from_cam));
+  ViewId id = 0;
+  const ViewStore::Entry* e = NearestView(local_from_cam, &id);
+  if (!e) return absl::FailedPreconditionError("RenderFloor needs a resident view");
+  const uint32_t w = uint32_t(e->params.size.x), h = uint32_t(e->params.size.y);
+  if (floor_tex_.image && id == floor_id_ && e->fingerprint == floor_fingerprint_ &&
+      floor_tex_.width == w && floor_tex_.height == h)
+    return absl::OkStatus();
+  if (!floor_tex_.image || floor_tex_.width != w || floor_tex_.height != h) {
+    EXO_ASSIGN_OR_RETURN(floor_stage_,
+                         Image::Create(ctx_, w, h, 1, VK_FORMAT_R8G8B8A8_SRGB,
+                                       VK_IMAGE_USAGE_TRANSFER_DST_BIT |
+                                           VK_IMAGE_USAGE_TRANSFER_SRC_BIT |
+                                           VK_IMAGE_USAGE_SAMPLED_BIT,  // Image::Create's view
+                                       VK_IMAGE_ASPECT_COLOR_BIT, false));
+    EXO_ASSIGN_OR_RETURN(floor_tex_,
+                         Image::Create(ctx_, w, h, 1, VK_FORMAT_R8G8B8A8_UNORM,
+                                       VK_IMAGE_USAGE_TRANSFER_DST_BIT | VK_IMAGE_USAGE_SAMPLED_BIT,
+                                       VK_IMAGE_ASPECT_COLOR_BIT, false));
+    descriptors_dirty_ = true;  // binding 9
+  }
+  const Image& colors = views_.colors();
+  EXO_RETURN_IF_ERROR(ctx_.Submit([&](VkCommandBuffer cmd) {
+    RecordFloorTexture(cmd, colors, e->slot, floor_stage_, floor_tex_);
+  }));
+  floor_id_ = id;
+  floor_fingerprint_ = e->fingerprint;
+  return absl::OkStatus();
+}
+
+absl::StatusOr<RenderResult> FrameRenderer::RenderFloor(const PinholeCamera& camera,
+                                                        const Rigid3d& local_from_cam,
+                                                        bool projective) {
+  EXO_RETURN_IF_ERROR(CheckCamera(camera, local_from_cam));
+  if (!projective) EXO_RETURN_IF_ERROR(PrepareFloor(camera, local_from_cam));
   const uint32_t w = camera.width, h = camera.height;
   EXO_RETURN_IF_ERROR(
       floor_target_.Ensure(ctx_, pipes_->color_pass(), VK_FORMAT_R8G8B8A8_UNORM, w, h).status());
   GpuFrame f{};
   FillFrame(camera, local_from_cam, &f);
-  // The resident view nearest the novel camera (ties: lower id).
-  const glm::vec3 c_o(local_from_cam.translation);
-  const ViewStore::Entry* best = nullptr;
-  ViewId best_id = 0;
-  float best_d = 0.0f;
-  for (const auto& [id, e] : views_.entries()) {
-    const float d = glm::length(e.params.centre_local - c_o);
-    if (!best || d < best_d || (d == best_d && id < best_id)) {
-      best = &e;
-      best_id = id;
-      best_d = d;
-    }
-  }
+  ViewId id = 0;
+  const ViewStore::Entry* best = NearestView(local_from_cam, &id);
   if (!best) return absl::FailedPreconditionError("RenderFloor needs a resident view");
   const GpuView& v = views_.records()[best->slot];
   f.floor_view[0] = v.p0;
   f.floor_view[1] = v.p1;
   f.floor_view[2] = v.p2;
-  f.floor_view[3] = glm::vec4(v.size_layer.x, v.size_layer.y, v.size_layer.z, 0.0f);
+  f.floor_view[3] = projective ? glm::vec4(v.size_layer.x, v.size_layer.y, v.size_layer.z, 0.0f)
+                               : glm::vec4(1.0f / float(floor_tex_.width),
+                                           1.0f / float(floor_tex_.height), 0.0f, 0.0f);
   std::memcpy(frame_ubo_.mapped, &f, sizeof(f));
   VkClearValue clear{};
   RenderResult r;
   const auto t0 = Clock::now();
-  EXO_RETURN_IF_ERROR(Draw(floor_target_, pipes_->color_pass(), pipes_->floor_pipe(), clear, 4));
+  EXO_RETURN_IF_ERROR(Draw(floor_target_, pipes_->color_pass(),
+                           projective ? pipes_->floor_projective_pipe() : pipes_->floor_pipe(),
+                           clear, 4));
   r.gpu_ms = MsSince(t0);
   const auto t1 = Clock::now();
   UnpackBlendOutput(static_cast<const uint8_t*>(floor_target_.readback.mapped), w, h, &r);

@@ -35,9 +35,11 @@ class FrameRenderer {
                                       const RenderApprox& approx = {});
   absl::StatusOr<exo::Image<uint64_t>> RenderCellIds(const PinholeCamera& camera,
                                                      const Rigid3d& local_from_cam);
-  // VulkanRenderer::RenderFloor (shaders/floor.frag).
+  // VulkanRenderer::RenderFloor (kForward: shaders/floor.vert + floor.frag; projective:
+  // floorproj.frag) and PrepareFloor.
   absl::StatusOr<RenderResult> RenderFloor(const PinholeCamera& camera,
-                                           const Rigid3d& local_from_cam);
+                                           const Rigid3d& local_from_cam, bool projective);
+  absl::Status PrepareFloor(const PinholeCamera& camera, const Rigid3d& local_from_cam);
   absl::StatusOr<ImageF> RenderProxyDepth(const PinholeCamera& camera,
                                           const Rigid3d& local_from_cam);
 
@@ -55,6 +57,8 @@ class FrameRenderer {
   // The render-time options must match what was baked into the resident depth layers.
   absl::Status CheckBakedOptions(const blend::BlendOptions& bo) const;
   void FillFrame(const PinholeCamera& camera, const Rigid3d& local_from_cam, GpuFrame* f) const;
+  // The resident view nearest the camera centre (ties: lower id), nullptr without views.
+  const ViewStore::Entry* NearestView(const Rigid3d& local_from_cam, ViewId* id) const;
   void FillInpainted(const Rigid3d& local_from_cam, GpuFrame* f) const;
   // Also the chosen views' store entries in *bg_entries (their background masks).
   void FillBackground(const PinholeCamera& camera, const Rigid3d& local_from_cam, int max_views,
@@ -86,8 +90,16 @@ class FrameRenderer {
   MeshChunks& chunks_;
   std::unique_ptr<Pipelines> pipes_;
   Buffer frame_ubo_;
+  // The Frame block's background views again as an RGBA32F texel buffer (binding 10,
+  // blend_shade.glsl bg_texels), written with it.
+  Buffer bg_views_buf_;
   RenderTarget color_target_, cellid_target_, zdepth_target_, floor_target_;
   Image placeholder_gbuffer_;
+  // The kForward floor's texture: view floor_id_ (fingerprint floor_fingerprint_) as RGBA8
+  // holding its sRGB bytes (floor_stage_: the same as R8G8B8A8_SRGB, the blit's target).
+  Image floor_tex_, floor_stage_;
+  ViewId floor_id_ = 0;
+  uint64_t floor_fingerprint_ = 0;
   Buffer placeholder_out_;
   bool descriptors_dirty_ = true;
   // Background pass (fragment path): one draw per distinct tile view list (blend_shade.glsl

@@ -7,6 +7,8 @@
 #include "shaders/blend.vert.h"
 #include "shaders/cellid.frag.h"
 #include "shaders/floor.frag.h"
+#include "shaders/floor.vert.h"
+#include "shaders/floorproj.frag.h"
 #include "shaders/fullscreen.vert.h"
 #include "shaders/gbuffer.frag.h"
 #include "shaders/sky.vert.h"
@@ -38,7 +40,10 @@ absl::StatusOr<std::unique_ptr<Pipelines>> Pipelines::Create(const Context& ctx,
   EXO_ASSIGN_OR_RETURN(p->zdepth_pipe_, p->CreatePipeline(p->zdepth_pass_.get(), kSpvViewdepthFrag,
                                                           sizeof(kSpvViewdepthFrag)));
   EXO_ASSIGN_OR_RETURN(p->floor_pipe_, p->CreatePipeline(p->color_pass_.get(), kSpvFloorFrag,
-                                                         sizeof(kSpvFloorFrag)));
+                                                         sizeof(kSpvFloorFrag), Geometry::kFloor));
+  EXO_ASSIGN_OR_RETURN(p->floor_projective_pipe_,
+                       p->CreatePipeline(p->color_pass_.get(), kSpvFloorprojFrag,
+                                         sizeof(kSpvFloorprojFrag)));
   return p;
 }
 
@@ -105,8 +110,8 @@ absl::Status Pipelines::CreateSamplers() {
 }
 
 absl::Status Pipelines::CreateSetLayout() {
-  VkDescriptorSetLayoutBinding b[9]{};
-  for (uint32_t i = 0; i < 9; ++i) {
+  VkDescriptorSetLayoutBinding b[11]{};
+  for (uint32_t i = 0; i < 11; ++i) {
     b[i].binding = i;
     b[i].descriptorCount = 1;
     b[i].stageFlags = VK_SHADER_STAGE_FRAGMENT_BIT | VK_SHADER_STAGE_COMPUTE_BIT;
@@ -122,8 +127,12 @@ absl::Status Pipelines::CreateSetLayout() {
       VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER;
   b[7].descriptorType = VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER;  // ranked refs (per frame)
   b[8].descriptorType = VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;        // blend.comp output (RGBA8)
+  b[9].descriptorType = VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER; // RenderFloor's texture
+  // The frame's background views (blend_shade.glsl bg_texels): read with a loop-dependent index,
+  // which llvmpipe makes a per-lane, per-component gather from a uniform block.
+  b[10].descriptorType = VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER;
   VkDescriptorSetLayoutCreateInfo li{VK_STRUCTURE_TYPE_DESCRIPTOR_SET_LAYOUT_CREATE_INFO};
-  li.bindingCount = 9;
+  li.bindingCount = 11;
   li.pBindings = b;
   VkDescriptorSetLayout raw_layout;
   EXO_VK_RETURN(vkCreateDescriptorSetLayout(ctx_.device(), &li, nullptr, &raw_layout));
@@ -144,8 +153,8 @@ absl::Status Pipelines::CreateSetLayout() {
 
 absl::Status Pipelines::CreateDescriptorSet() {
   VkDescriptorPoolSize sizes[4] = {{VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER, 1},
-                                   {VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER, 4},
-                                   {VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER, 3},
+                                   {VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER, 5},
+                                   {VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER, 4},
                                    {VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, 1}};
   VkDescriptorPoolCreateInfo pi{VK_STRUCTURE_TYPE_DESCRIPTOR_POOL_CREATE_INFO};
   pi.maxSets = 1;
@@ -186,13 +195,17 @@ absl::Status Pipelines::WriteDescriptors(const DescriptorInputs& in) {
   VkDescriptorBufferInfo ubo{in.frame_ubo->buffer.get(), 0, VK_WHOLE_SIZE};
   VkBufferView tb[3] = {buffer_views_[0].get(), buffer_views_[1].get(), buffer_views_[2].get()};
   VkBufferView ranked_view = buffer_views_[3].get();
+  EXO_ASSIGN_OR_RETURN(buffer_views_[4], MakeBufferView(*in.bg_views, VK_FORMAT_R32G32B32A32_SFLOAT));
+  VkBufferView bg_view = buffer_views_[4].get();
   VkDescriptorImageInfo ii[3] = {
       {linear_sampler_.get(), in.colors->view.get(), VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL},
       {sampler_.get(), in.depths->view.get(), VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL},
       {sampler_.get(), in.gbuffer->view.get(), VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL}};
+  VkDescriptorImageInfo floor_info{linear_sampler_.get(), in.floor_colors->view.get(),
+                                   VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL};
   VkDescriptorBufferInfo out_info{in.blend_out->buffer.get(), 0, VK_WHOLE_SIZE};
-  const uint32_t writes = 9;
-  VkWriteDescriptorSet w[9]{};
+  const uint32_t writes = 11;
+  VkWriteDescriptorSet w[11]{};
   for (uint32_t i = 0; i < writes; ++i) {
     w[i].sType = VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET;
     w[i].dstSet = desc_set_;
@@ -210,6 +223,12 @@ absl::Status Pipelines::WriteDescriptors(const DescriptorInputs& in) {
     } else if (i == 8) {
       w[i].descriptorType = VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;
       w[i].pBufferInfo = &out_info;
+    } else if (i == 10) {
+      w[i].descriptorType = VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER;
+      w[i].pTexelBufferView = &bg_view;
+    } else if (i == 9) {
+      w[i].descriptorType = VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER;
+      w[i].pImageInfo = &floor_info;
     } else {
       w[i].descriptorType = VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER;
       w[i].pImageInfo = &ii[i - 4];
@@ -356,10 +375,12 @@ struct FixedFunctionState {
 absl::StatusOr<UniquePipeline> Pipelines::CreatePipeline(VkRenderPass pass, const uint32_t* frag,
                                                          size_t frag_bytes, Geometry geometry,
                                                          const VkSpecializationInfo* spec) const {
-  const bool fullscreen = geometry != Geometry::kMesh;
+  const bool mesh = geometry == Geometry::kMesh || geometry == Geometry::kFloor;
   UniqueShaderModule vs;
   if (geometry == Geometry::kFullscreenSurface) {
     EXO_ASSIGN_OR_RETURN(vs, CreateModule(kSpvFullscreenVert, sizeof(kSpvFullscreenVert)));
+  } else if (geometry == Geometry::kFloor) {
+    EXO_ASSIGN_OR_RETURN(vs, CreateModule(kSpvFloorVert, sizeof(kSpvFloorVert)));
   } else if (geometry == Geometry::kFullscreenSky) {
     EXO_ASSIGN_OR_RETURN(vs, CreateModule(kSpvSkyVert, sizeof(kSpvSkyVert)));
   } else {
@@ -379,10 +400,10 @@ absl::StatusOr<UniquePipeline> Pipelines::CreatePipeline(VkRenderPass pass, cons
   // (sky.vert, vec3 vertices) lie at depth 1: GREATER passes where the G-buffer pass drew a
   // surface, LESS_OR_EQUAL where the depth kept its clear value 1.
   const FixedFunctionState st(geometry != Geometry::kFullscreenSurface,
-                              geometry == Geometry::kMesh               ? VK_COMPARE_OP_LESS
+                              mesh                                       ? VK_COMPARE_OP_LESS
                               : geometry == Geometry::kFullscreenSurface ? VK_COMPARE_OP_GREATER
                                                                          : VK_COMPARE_OP_LESS_OR_EQUAL,
-                              /*depth_write=*/!fullscreen);
+                              /*depth_write=*/mesh);
   VkGraphicsPipelineCreateInfo gi{VK_STRUCTURE_TYPE_GRAPHICS_PIPELINE_CREATE_INFO};
   gi.stageCount = 2;
   gi.pStages = stages;

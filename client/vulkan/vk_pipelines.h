@@ -33,6 +33,8 @@ struct DescriptorInputs {
   const Image* gbuffer = nullptr;        // 6: G-buffer of the blend target (nearest sampler)
   const Buffer* ranked_refs = nullptr;   // 7: per-frame ranked references (RGBA32UI)
   const Buffer* blend_out = nullptr;     // 8: blend.comp output (storage buffer)
+  const Image* floor_colors = nullptr;   // 9: RenderFloor's RGBA8 texture (bilinear sampler)
+  const Buffer* bg_views = nullptr;      // 10: the frame's background views (RGBA32F texel buffer)
 };
 
 class Pipelines {
@@ -70,7 +72,10 @@ class Pipelines {
   VkPipeline gbuffer_pipe() const { return gbuffer_pipe_.get(); }
   VkPipeline cellid_pipe() const { return cellid_pipe_.get(); }
   VkPipeline zdepth_pipe() const { return zdepth_pipe_.get(); }
+  // RenderFloor: the issue-16 floor (floor.vert + floor.frag) and the session-9 one
+  // (floorproj.frag).
   VkPipeline floor_pipe() const { return floor_pipe_.get(); }
+  VkPipeline floor_projective_pipe() const { return floor_projective_pipe_.get(); }
   VkPipelineLayout layout() const { return pipe_layout_.get(); }
   const VkDescriptorSet* set() const { return &desc_set_; }
 
@@ -93,7 +98,8 @@ class Pipelines {
   // kFullscreenSurface passes where the G-buffer pass left a surface (1 > depth),
   // kFullscreenSky where it left none (1 <= depth, i.e. the clear value 1); the latter draws the
   // background pass's tile rectangles (sky.vert, vec3 vertices at depth 1), not one triangle.
-  enum class Geometry { kMesh, kFullscreenSurface, kFullscreenSky };
+  // kFloor: the proxy mesh like kMesh but with floor.vert (per-vertex texture coordinate).
+  enum class Geometry { kMesh, kFullscreenSurface, kFullscreenSky, kFloor };
   absl::StatusOr<UniquePipeline> CreatePipeline(VkRenderPass pass, const uint32_t* frag,
                                                 size_t frag_bytes, Geometry geometry = Geometry::kMesh,
                                                 const VkSpecializationInfo* spec = nullptr) const;
@@ -106,9 +112,9 @@ class Pipelines {
   UniquePipelineLayout pipe_layout_;
   UniqueDescriptorPool desc_pool_;
   VkDescriptorSet desc_set_ = VK_NULL_HANDLE;
-  UniqueBufferView buffer_views_[4];  // views, cell table, refs, ranked refs
+  UniqueBufferView buffer_views_[5];  // views, cell table, refs, ranked refs, background views
   UniqueRenderPass color_pass_, blend_pass_, cellid_pass_, zdepth_pass_, gbuffer_pass_;
-  UniquePipeline gbuffer_pipe_, cellid_pipe_, zdepth_pipe_, floor_pipe_;
+  UniquePipeline gbuffer_pipe_, cellid_pipe_, zdepth_pipe_, floor_pipe_, floor_projective_pipe_;
   // Blend pipelines per n_best (specialisation constant 0 of blend.frag / blend.comp: the
   // best-n slots and the n-th-best pick are then compile-time; measured ~6 % of the frame) and
   // per BlendVariant (constant 2, inpainted keyframes: their per-pixel loop cost ~8 % of the

@@ -5,7 +5,8 @@
 // frames, the 1-minute load average, since the machine is shared). Beside every configuration
 // it times the floor (VulkanRenderer::RenderFloor: a forward draw of the same proxy with one
 // bilinear fetch per pixel + the same read-back), interleaved frame by frame with the blend, and
-// prints both with their ratio (floor_*, ratio_wall, ratio_cpu). Usage:
+// prints both with their ratio (floor_*, ratio_wall, ratio_cpu: issue 16's floor, kForward;
+// floor_proj_*, ratio_*_proj: the heavier per-fragment projective floor of session 9). Usage:
 //   LP_NUM_THREADS=2 vulkan_bench [--frames=5] [--views=60] [--refs=8,16,32,60]
 //       [--sizes=640x480,1280x720,1920x1080] [--scene=village|apartment] [--view_size=320x240]
 //       [--pose=k (all frames from novel pose k)] [--background_views=N (sky pass; 0 = off)]
@@ -188,7 +189,7 @@ int main(int argc, char** argv) {
       bo.n_best = n_best;
       double first_ms = 0, ssim_sum = 0, floor_first_ms = 0;
       std::vector<double> ms_v, cpu_v, gpu_v, rb_v, rank_v, fill_v, filled_v, floor_ms_v,
-          floor_cpu_v, sky_v, sky_tiles_v, sky_views_v;
+          floor_cpu_v, proj_ms_v, proj_cpu_v, sky_v, sky_tiles_v, sky_views_v;
       int ssim_n = 0;
       for (int k = 0; k <= frames; ++k) {
         const Rigid3d& pose =
@@ -208,15 +209,28 @@ int main(int argc, char** argv) {
           if (auto gt = synth::RenderFrame(*scene, pose, gro); gt.ok())
             (void)WriteColorImage(base + "_gt.png", gt->frame.color);
         }
-        // The floor on the same pose right after (interleaved, so both see the same load).
-        const auto tf0 = std::chrono::steady_clock::now();
-        const double cf0 = ProcessCpuMs();
-        auto floor_out = r->RenderFloor(cam, pose);
-        const double floor_cpu_ms = ProcessCpuMs() - cf0;
-        const double floor_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - tf0).count();
-        if (!floor_out.ok()) { fprintf(stderr, "%s\n", floor_out.status().ToString().c_str()); return 1; }
+        // The floors on the same pose right after (interleaved, so all see the same load): the
+        // issue's forward draw with its texture made resident first (untimed), then the
+        // session-9 per-fragment projective one.
+        if (auto st = r->PrepareFloor(cam, pose); !st.ok()) {
+          fprintf(stderr, "%s\n", st.ToString().c_str());
+          return 1;
+        }
+        double floor_ms = 0, floor_cpu_ms = 0, proj_ms = 0, proj_cpu_ms = 0;
+        for (const auto kind : {VulkanRenderer::FloorKind::kForward,
+                                VulkanRenderer::FloorKind::kProjective}) {
+          const auto tf0 = std::chrono::steady_clock::now();
+          const double cf0 = ProcessCpuMs();
+          auto floor_out = r->RenderFloor(cam, pose, kind);
+          const double fc = ProcessCpuMs() - cf0;
+          const double fm = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - tf0).count();
+          if (!floor_out.ok()) { fprintf(stderr, "%s\n", floor_out.status().ToString().c_str()); return 1; }
+          (kind == VulkanRenderer::FloorKind::kForward ? floor_ms : proj_ms) = fm;
+          (kind == VulkanRenderer::FloorKind::kForward ? floor_cpu_ms : proj_cpu_ms) = fc;
+        }
         if (k == 0) { first_ms = ms; floor_first_ms = floor_ms; continue; }
         floor_ms_v.push_back(floor_ms); floor_cpu_v.push_back(floor_cpu_ms);
+        proj_ms_v.push_back(proj_ms); proj_cpu_v.push_back(proj_cpu_ms);
         ms_v.push_back(ms); cpu_v.push_back(cpu_ms); gpu_v.push_back(out->gpu_ms); rb_v.push_back(out->readback_ms); rank_v.push_back(out->rank_ms);
         sky_tiles_v.push_back(out->sky_tiles_ms); sky_views_v.push_back(out->sky_views_per_px);
         fill_v.push_back(out->fill_ms); filled_v.push_back(double(out->filled_pixels));
@@ -261,6 +275,10 @@ int main(int argc, char** argv) {
           {"floor_median_cpu_ms", Round(med(floor_cpu_v), 1)},
           {"ratio_wall", Round(med(ms_v) / std::max(1e-3, med(floor_ms_v)), 2)},
           {"ratio_cpu", Round(med(cpu_v) / std::max(1e-3, med(floor_cpu_v)), 2)},
+          {"floor_proj_median_ms", Round(med(proj_ms_v), 2)},
+          {"floor_proj_median_cpu_ms", Round(med(proj_cpu_v), 1)},
+          {"ratio_wall_proj", Round(med(ms_v) / std::max(1e-3, med(proj_ms_v)), 2)},
+          {"ratio_cpu_proj", Round(med(cpu_v) / std::max(1e-3, med(proj_cpu_v)), 2)},
           {"median_gpu_ms", Round(med(gpu_v), 2)},
           {"median_readback_ms", Round(med(rb_v), 2)},
           {"median_rank_ms", Round(med(rank_v), 2)},

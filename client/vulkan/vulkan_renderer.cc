@@ -255,8 +255,13 @@ absl::StatusOr<RenderResult> VulkanRenderer::Render(const PinholeCamera& camera,
   return impl_->frame->Render(camera, local_from_cam, options, approx);
 }
 absl::StatusOr<RenderResult> VulkanRenderer::RenderFloor(const PinholeCamera& camera,
-                                                         const Rigid3d& local_from_cam) {
-  return impl_->frame->RenderFloor(camera, local_from_cam);
+                                                         const Rigid3d& local_from_cam,
+                                                         FloorKind kind) {
+  return impl_->frame->RenderFloor(camera, local_from_cam, kind == FloorKind::kProjective);
+}
+absl::Status VulkanRenderer::PrepareFloor(const PinholeCamera& camera,
+                                          const Rigid3d& local_from_cam) {
+  return impl_->frame->PrepareFloor(camera, local_from_cam);
 }
 absl::StatusOr<ImageF> VulkanRenderer::RenderProxyDepth(const PinholeCamera& camera,
                                                         const Rigid3d& local_from_cam) {

@@ -130,11 +130,24 @@ class VulkanRenderer {
                                                 const Rigid3d& local_from_cam);
 
   // The speed floor the blend is measured against (vulkan_bench): a forward draw of the resident
-  // proxy with one bilinear fetch per pixel from the resident view nearest the camera
-  // (projective texturing: no validity, weights or blending), the same read-back and unpack as
-  // Render; coverage 2 where the proxy is drawn. FailedPrecondition without a resident view.
+  // proxy with one bilinear fetch per pixel from the resident view nearest the camera (no
+  // validity, weights or blending), the same read-back and unpack as Render; coverage 2 where
+  // the proxy is drawn. FailedPrecondition without a resident view.
+  //   kForward (default): issue 16's floor, the plain textured forward draw: the texture
+  //     coordinate is each vertex's projection into the view, interpolated over the triangle,
+  //     fetched from an RGBA8 copy of the view's stored sRGB colour and written out unchanged
+  //     (shaders/floor.vert, floor.frag). The copy is made by PrepareFloor.
+  //   kProjective: the session-9 floor: projected per fragment from the linear colour layers the
+  //     blend reads, sRGB-encoded in the shader (floorproj.frag; ~1.7x kForward's CPU
+  //     time at 720p, docs/vulkan.md session 13).
+  enum class FloorKind { kForward, kProjective };
   absl::StatusOr<RenderResult> RenderFloor(const PinholeCamera& camera,
-                                           const Rigid3d& local_from_cam);
+                                           const Rigid3d& local_from_cam,
+                                           FloorKind kind = FloorKind::kForward);
+  // Makes the kForward floor's texture (the nearest view's colour as RGBA8) resident for this
+  // camera unless it already is (RenderFloor calls it too; vulkan_bench calls it before timing,
+  // so the floor measures the draw with a resident texture).
+  absl::Status PrepareFloor(const PinholeCamera& camera, const Rigid3d& local_from_cam);
 
   // Z-depth (metres along the optical axis) of the resident proxy mesh seen from a camera, 0
   // where there is no surface: what a client would use if views did not carry depth
