@@ -765,8 +765,10 @@ class App {
   absl::Status SaveModel() {
     if (o_.save_model.empty()) return absl::OkStatus();
     absl::Status st;
+    ModelIoOptions mo;
+    mo.color_jpeg_quality = o_.save_model_jpeg_quality;
     source_->With(
-        [&](const LumigraphModel& m, uint64_t) { st = exo::SaveModel(o_.save_model, m); });
+        [&](const LumigraphModel& m, uint64_t) { st = exo::SaveModel(o_.save_model, m, mo); });
     if (st.ok())
       std::fprintf(stderr, "exoview_window: saved the model to %s\n", o_.save_model.c_str());
     return st;

@@ -308,6 +308,16 @@ def live_part(args, env, work, shot):
         log(f"checkpoint rendered at the live pose vs the live screenshot: {psnr(ck, before):.1f} dB")
         if psnr(ck, before) < 35:
             fail("the server checkpoint does not show what the live window showed")
+        # The model the window saved (views' colour as JPEG 90, as exoview_viewer saves) shows
+        # the same at that pose.
+        sv_dir = os.path.join(work, "saved_render")
+        subprocess.run([args.window_bin, f"--model={saved}", f"--path={tum}",
+                        f"--out_dir={sv_dir}", f"--width={W}", f"--height={H}"], check=True,
+                       env=env, stdout=subprocess.DEVNULL)
+        sv = np.asarray(Image.open(os.path.join(sv_dir, "frame_00000.png")).convert("RGB"))
+        log(f"saved model rendered at the live pose vs the live screenshot: {psnr(sv, before):.1f} dB")
+        if psnr(sv, before) < 30:
+            fail("the model the window saved does not show what the live window showed")
     finally:
         if win is not None and win.poll() is None:
             win.kill()
