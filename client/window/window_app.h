@@ -23,6 +23,7 @@ struct WindowAppOptions {
   std::string model_file, server, journal;
   std::string checkpoint;  // or a server checkpoint (exoview_server --checkpoint_path)
   std::string save_model;  // written on P and on exit (live sessions)
+  int save_model_jpeg_quality = 90;  // its views' colour: JPEG quality, 0 = raw (as exoview_viewer)
   int width = 1280, height = 720;
   double hfov_deg = 65.0;
   int n_best = 3;

@@ -29,6 +29,8 @@ import urllib.request
 import numpy as np
 from PIL import Image
 
+from xvfb_display import Display, missing_tools
+
 W, H = 960, 540
 
 
@@ -52,24 +54,6 @@ def coverage_rgb(p):
 def orange_mask(img):
     r, g, b = (img[..., k].astype(int) for k in range(3))
     return (r > 200) & (g > 100) & (g < 215) & (b < 90)
-
-
-class Display:
-    def __init__(self):
-        r, w = os.pipe()
-        self.proc = subprocess.Popen(
-            ["Xvfb", "-displayfd", str(w), "-screen", "0", f"{W}x{H}x24", "-nolisten", "tcp"],
-            pass_fds=(w,), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        os.close(w)
-        with os.fdopen(r) as f:
-            num = f.readline().strip()
-        if not num:
-            fail("Xvfb did not report a display number")
-        self.name = f":{num}"
-
-    def close(self):
-        self.proc.terminate()
-        self.proc.wait(timeout=10)
 
 
 def control_stubs(work):
@@ -127,7 +111,7 @@ def main():
     ap.add_argument("--docs_dir", default="")
     ap.add_argument("--timeout_s", type=float, default=120)
     args = ap.parse_args()
-    missing = [t for t in ("Xvfb", "xdotool", "import") if shutil.which(t) is None]
+    missing = missing_tools()
     if missing:
         log(f"SKIPPED: {', '.join(missing)} not installed (apt-get install xvfb xdotool imagemagick)")
         return 0
@@ -169,7 +153,7 @@ def main():
                                   f"--server={addr}", "--flight_s=150", "--camera_hz=4",
                                   "--width=160", "--height=120"], env=env,
                                  stdout=subprocess.DEVNULL, stderr=open(os.path.join(work, "drone.txt"), "w"))
-        disp = Display()
+        disp = Display(W, H)
         env["DISPLAY"] = disp.name
         status = os.path.join(work, "status.json")
         if os.path.exists(status):

@@ -28,6 +28,8 @@ import time
 import numpy as np
 from PIL import Image
 
+from xvfb_display import Display, missing_tools
+
 W, H = 320, 240
 
 
@@ -52,24 +54,6 @@ def quat_rotate(q_wxyz, v):
     return v + 2 * np.cross(u, np.cross(u, v) + w * v)
 
 
-class Display:
-    def __init__(self):
-        r, w = os.pipe()
-        self.proc = subprocess.Popen(
-            ["Xvfb", "-displayfd", str(w), "-screen", "0", f"{W}x{H}x24", "-nolisten", "tcp"],
-            pass_fds=(w,), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        os.close(w)
-        with os.fdopen(r) as f:
-            num = f.readline().strip()
-        if not num:
-            fail("Xvfb did not report a display number")
-        self.name = f":{num}"
-
-    def close(self):
-        self.proc.terminate()
-        self.proc.wait(timeout=10)
-
-
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--window_bin", required=True)
@@ -80,7 +64,7 @@ def main():
     ap.add_argument("--docs_dir", default="")
     ap.add_argument("--timeout_s", type=float, default=90)
     args = ap.parse_args()
-    missing = [t for t in ("Xvfb", "xdotool", "import") if shutil.which(t) is None]
+    missing = missing_tools()
     if missing:
         log(f"SKIPPED: {', '.join(missing)} not installed (apt-get install xvfb xdotool imagemagick)")
         return 0
@@ -91,7 +75,7 @@ def main():
     subprocess.run([args.render_bin, "--synthetic=apartment", "--synth_frames=24", "--store=10",
                     "--orbit=1", f"--width={W // 2}", f"--height={H // 2}",
                     f"--save_model={model}"], check=True, env=env, stdout=subprocess.DEVNULL)
-    disp = Display()
+    disp = Display(W, H)
     env["DISPLAY"] = disp.name
     status = os.path.join(work, "status.json")
     record = os.path.join(work, "session.tum")
@@ -324,6 +308,16 @@ def live_part(args, env, work, shot):
         log(f"checkpoint rendered at the live pose vs the live screenshot: {psnr(ck, before):.1f} dB")
         if psnr(ck, before) < 35:
             fail("the server checkpoint does not show what the live window showed")
+        # The model the window saved (views' colour as JPEG 90, as exoview_viewer saves) shows
+        # the same at that pose.
+        sv_dir = os.path.join(work, "saved_render")
+        subprocess.run([args.window_bin, f"--model={saved}", f"--path={tum}",
+                        f"--out_dir={sv_dir}", f"--width={W}", f"--height={H}"], check=True,
+                       env=env, stdout=subprocess.DEVNULL)
+        sv = np.asarray(Image.open(os.path.join(sv_dir, "frame_00000.png")).convert("RGB"))
+        log(f"saved model rendered at the live pose vs the live screenshot: {psnr(sv, before):.1f} dB")
+        if psnr(sv, before) < 30:
+            fail("the model the window saved does not show what the live window showed")
     finally:
         if win is not None and win.poll() is None:
             win.kill()
