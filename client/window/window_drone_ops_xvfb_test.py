@@ -92,7 +92,7 @@ def main():
     ap.add_argument("--docs_dir", default="")
     ap.add_argument("--timeout_s", type=float, default=90)
     args = ap.parse_args()
-    missing = [t for t in ("Xvfb", "xdotool", "import") if shutil.which(t) is None]
+    missing = base.missing_tools()
     if missing:
         log(f"SKIPPED: {', '.join(missing)} not installed (apt-get install xvfb xdotool imagemagick)")
         return 0
@@ -143,7 +143,7 @@ def main():
         def cstate():
             return stub.GetControlState(pb.ControlStateRequest(drone_id="drone"), timeout=10)
 
-        disp = base.Display()
+        disp = base.Display(W, H)
         env["DISPLAY"] = disp.name
         status = os.path.join(work, "status.json")
         if os.path.exists(status):
