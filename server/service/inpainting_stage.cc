@@ -39,6 +39,11 @@ absl::Status InpaintingStageOptions::Validate() const {
   if (live_views < 1 || live_views > 64)
     return absl::InvalidArgumentError("inpaint_live_views must be in [1, 64]");
   if (nice < 0 || nice > 19) return absl::InvalidArgumentError("inpaint_nice must be in [0, 19]");
+  if (frame_nice < -1 || frame_nice > 19)
+    return absl::InvalidArgumentError("inpaint_frame_nice must be -1 (= inpaint_nice) or in [0, 19]");
+  if (kf_crop_margin_px < 0 || !(kf_crop_margin_rel >= 0.0 && kf_crop_margin_rel <= 100.0))
+    return absl::InvalidArgumentError(
+        "inpaint_kf_crop_margin_px must be >= 0 and inpaint_kf_crop_margin_rel in [0, 100]");
   return absl::OkStatus();
 }
 
@@ -76,6 +81,10 @@ DrOptions ToDrOptions(const InpaintingStageOptions& o) {
   const bool dr = o.method == "dr";
   d.obs_views = dr ? o.observation_views : 0;
   d.kf_context = dr;  // "keyframe" (session 9): the library inpaints the whole ROI
+  if (dr) {
+    d.kf_crop_margin_px = o.kf_crop_margin_px;
+    d.kf_crop_margin_rel = o.kf_crop_margin_rel;
+  }
   return d;
 }
 
@@ -115,14 +124,15 @@ class InpaintingStageImpl final : public InpaintingStage {
     if (f.depth_m.empty()) return absl::OkStatus();
     int64_t next_index = 0;  // counts the frames that arrive (observation stride)
     {
-      std::lock_guard lock(mu_);
+      // slot_mu_ only: the stage's own threads run niced and may hold mu_ for milliseconds
+      // (the rule, job snapshots); the pipeline thread must never wait behind them.
+      std::lock_guard lock(slot_mu_);
       const int64_t seen = frames_seen_++;
       // Only every frame_stride-th frame is looked at.
       if (seen % options_.frame_stride != 0) {
         ++frames_strided_;
         return absl::OkStatus();
       }
-      if (slot_) ++frames_superseded_;
       if (!origin_) origin_ = ctx.origin;
       next_index = seen / options_.frame_stride;
     }
@@ -130,7 +140,8 @@ class InpaintingStageImpl final : public InpaintingStage {
     copy->frame = f;  // ~2 MB at 640x480: well under a millisecond
     copy->received_ns = pf.received_ns;
     {
-      std::lock_guard lock(mu_);
+      std::lock_guard lock(slot_mu_);
+      if (slot_) ++frames_superseded_;
       slot_ = std::move(copy);
       slot_set_ = set;
       slot_index_ = next_index;
@@ -156,16 +167,16 @@ class InpaintingStageImpl final : public InpaintingStage {
   // the live DR view, for the newest handed-off frame.
   void FrameLoop() {
     pthread_setname_np(pthread_self(), "exo-dr-frames");
-    NiceThisThread(options_.nice);
+    NiceThisThread(options_.frame_nice >= 0 ? options_.frame_nice : options_.nice);
     for (;;) {
       std::shared_ptr<PipelineFrame> pf;
       std::shared_ptr<const RegionSet> set;
       LocalOrigin origin;
       int64_t index = 0;
       {
-        std::unique_lock lock(mu_);
-        frame_cv_.wait(lock, [this] { return stop_ || slot_; });
-        if (stop_) return;
+        std::unique_lock lock(slot_mu_);
+        frame_cv_.wait(lock, [this] { return frame_stop_ || slot_; });
+        if (frame_stop_) return;
         pf = std::move(slot_);
         slot_.reset();
         set = std::move(slot_set_);
@@ -174,8 +185,11 @@ class InpaintingStageImpl final : public InpaintingStage {
         frame_busy_ = true;
       }
       ProcessFrame(*pf, set, origin, index);
-      std::lock_guard lock(mu_);
-      frame_busy_ = false;
+      {
+        std::lock_guard lock(slot_mu_);
+        frame_busy_ = false;
+      }
+      std::lock_guard lock(mu_);  // WaitIdle checks under mu_ (then slot_mu_)
       idle_cv_.notify_all();
     }
   }
@@ -311,6 +325,7 @@ class InpaintingStageImpl final : public InpaintingStage {
 
   uint64_t pending() const override {
     std::lock_guard lock(mu_);
+    std::lock_guard slot(slot_mu_);
     return (job_ ? 1 : 0) + (busy_ ? 1 : 0) + (slot_ ? 1 : 0) + (frame_busy_ ? 1 : 0);
   }
 
@@ -326,11 +341,15 @@ class InpaintingStageImpl final : public InpaintingStage {
     c["inpainting.frames_with_roi"] = static_cast<double>(frames_with_roi_);
     c["inpainting.frames_without_roi"] = static_cast<double>(frames_without_roi_);
     c["inpainting.frames_skipped_busy"] = static_cast<double>(skipped_busy_);
+    std::lock_guard slot(slot_mu_);  // lock order: mu_, then slot_mu_
     c["inpainting.frames_skipped_stride"] = static_cast<double>(frames_strided_);
     c["inpainting.views_withdrawn"] = static_cast<double>(withdrawn_);
     c["inpainting.decide_ms_mean"] = decisions_ ? decide_ns_ * 1e-6 / decisions_ : 0.0;
     c["inpainting.first_keyframe_ms"] = first_ms_;
     c["inpainting.propagated_keyframe_ms_mean"] = propagated_ ? propagated_ms_ / propagated_ : 0.0;
+    c["inpainting.first_keyframe_cpu_ms"] = first_cpu_ms_;
+    c["inpainting.propagated_keyframe_cpu_ms_mean"] =
+        propagated_ ? propagated_cpu_ms_ / propagated_ : 0.0;
     c["inpainting.keyframe_ms_last"] = last_ms_;
     c["inpainting.keyframe_ms_mean"] = published_ ? sum_ms_ / published_ : 0.0;
     c["inpainting.keyframe_cpu_ms_mean"] = published_ ? sum_cpu_ms_ / published_ : 0.0;
@@ -382,10 +401,15 @@ class InpaintingStageImpl final : public InpaintingStage {
   bool WaitIdle(double timeout_s) override {
     std::unique_lock lock(mu_);
     return idle_cv_.wait_for(lock, std::chrono::duration<double>(timeout_s),
-                             [this] { return !job_ && !busy_ && !slot_ && !frame_busy_; });
+                             [this] { return !job_ && !busy_ && FrameThreadIdle(); });
   }
 
  private:
+  bool FrameThreadIdle() const {
+    std::lock_guard lock(slot_mu_);
+    return !slot_ && !frame_busy_;
+  }
+
   // A keyframe is computed or waits for the worker (a waiting refresh gives way to a keyframe).
   bool SlotTakenLocked() const { return busy_ || (job_ && !job_->refresh); }
 
@@ -596,8 +620,10 @@ class InpaintingStageImpl final : public InpaintingStage {
       if (k.propagated) {
         ++propagated_;
         propagated_ms_ += ms;
+        propagated_cpu_ms_ += cpu_ms;
       } else if (first_ms_ == 0.0) {
         first_ms_ = ms;
+        first_cpu_ms_ = cpu_ms;
       }
     }
     if (evict) (void)store_->RemoveView(*evict);
@@ -611,6 +637,10 @@ class InpaintingStageImpl final : public InpaintingStage {
     {
       std::lock_guard lock(mu_);
       stop_ = true;
+    }
+    {
+      std::lock_guard lock(slot_mu_);
+      frame_stop_ = true;
     }
     cv_.notify_all();
     frame_cv_.notify_all();
@@ -627,7 +657,10 @@ class InpaintingStageImpl final : public InpaintingStage {
   std::mutex publish_mu_;  // publish vs Withdraw
   mutable std::mutex mu_;
   std::condition_variable cv_, idle_cv_, frame_cv_, live_cv_;
-  // The frame thread's one-frame slot (Process -> FrameLoop).
+  // The frame thread's one-frame slot (Process -> FrameLoop), under slot_mu_ with the arrival
+  // counters, origin_ and frame_busy_ (lock order: mu_ before slot_mu_, never the reverse).
+  mutable std::mutex slot_mu_;
+  bool frame_stop_ = false;
   std::shared_ptr<PipelineFrame> slot_;
   std::shared_ptr<const RegionSet> slot_set_;
   std::optional<LocalOrigin> origin_;
@@ -656,6 +689,7 @@ class InpaintingStageImpl final : public InpaintingStage {
            frames_without_roi_ = 0, skipped_busy_ = 0, withdrawn_ = 0, decisions_ = 0,
            frames_seen_ = 0, frames_strided_ = 0, refreshed_ = 0, refreshed_px_ = 0, refresh_jobs_ = 0;
   int64_t decide_ns_ = 0, keyframe_roi_px_ = 0, keyframe_observed_px_ = 0;
+  double first_cpu_ms_ = 0, propagated_cpu_ms_ = 0;
   double first_ms_ = 0, propagated_ms_ = 0, last_ms_ = 0, sum_ms_ = 0, sum_cpu_ms_ = 0;
   double refresh_cpu_ms_ = 0, frame_cpu_ms_ = 0;  // worker's refreshes; pipeline thread per frame
   uint64_t frames_measured_ = 0;
