@@ -4,6 +4,7 @@
 #include <chrono>
 #include <condition_variable>
 #include <deque>
+#include <functional>
 #include <mutex>
 #include <optional>
 #include <thread>
@@ -106,6 +107,7 @@ class InpaintingStageImpl final : public InpaintingStage {
       : options_(o), dr_options_(ToDrOptions(o)), dr_(dr_options_), regions_(std::move(regions)),
         store_(store) {
     RestoreFromStore();
+    publisher_ = std::thread([this] { PublisherLoop(); });
     worker_ = std::thread([this] { WorkerLoop(); });
     frames_thread_ = std::thread([this] { FrameLoop(); });
   }
@@ -473,10 +475,10 @@ class InpaintingStageImpl final : public InpaintingStage {
     auto msg = ViewToProto(v, options_.publish);
     if (!msg.ok()) return;
     for (uint32_t rid : job.regions->ids()) msg->add_region_ids(rid);
-    {
+    AtServerPriority([&] {
       ScopedDeltaSource source(job.timestamp_s);
       store_->AddView(*std::move(msg));  // same id: replaces the keyframe for every viewer
-    }
+    });
     std::lock_guard lock(mu_);
     dr_.ReplaceKeyframe(job.refresh.get(), r.view);
     ++refreshed_;
@@ -500,6 +502,32 @@ class InpaintingStageImpl final : public InpaintingStage {
           {view->color, view->depth_m, view->camera, view->local_from_cam}, roi, {}));
       ids_.push_back({view->id, 0, inpainting::CountNonZero(roi)});
       if (ids_.size() > options_.max_keyframes) ids_.pop_front();
+    }
+  }
+
+  // Runs `fn` (a store update: it takes the store's lock, which ingest's stages take too) on the
+  // publisher thread, at the server's priority, and waits for it. A niced thread holding the
+  // store's lock could be kept off the CPU by the machine's other work for a long time while
+  // the geometry and planning stages wait for that lock (priority inversion).
+  void AtServerPriority(const std::function<void()>& fn) {
+    std::unique_lock lock(pub_mu_);
+    pub_fn_ = &fn;
+    pub_cv_.notify_all();
+    pub_cv_.wait(lock, [this] { return pub_fn_ == nullptr || pub_stop_; });
+  }
+
+  void PublisherLoop() {
+    pthread_setname_np(pthread_self(), "exo-dr-publish");
+    std::unique_lock lock(pub_mu_);
+    for (;;) {
+      pub_cv_.wait(lock, [this] { return pub_stop_ || pub_fn_ != nullptr; });
+      if (pub_fn_) {
+        (*pub_fn_)();
+        pub_fn_ = nullptr;
+        pub_cv_.notify_all();
+        continue;
+      }
+      if (pub_stop_) return;
     }
   }
 
@@ -596,10 +624,10 @@ class InpaintingStageImpl final : public InpaintingStage {
       return;
     }
     for (uint32_t id : job.regions->ids()) msg->add_region_ids(id);
-    {
+    AtServerPriority([&] {
       ScopedDeltaSource source(job.timestamp_s);
       store_->AddView(*std::move(msg));
-    }
+    });
     const int roi_px = inpainting::CountNonZero(kv.roi);
     std::optional<ViewId> evict;
     {
@@ -626,7 +654,7 @@ class InpaintingStageImpl final : public InpaintingStage {
         first_cpu_ms_ = cpu_ms;
       }
     }
-    if (evict) (void)store_->RemoveView(*evict);
+    if (evict) AtServerPriority([&] { (void)store_->RemoveView(*evict); });
     log->info("inpainted keyframe {} of frame {} ({}; {} ROI px, {} observed in other views, {} "
               "inpainted, {} propagated) in {:.0f} ms ({:.0f} ms CPU)",
               v.id, job.sequence, job.reason, roi_px, k.observed_px, k.hallucinated_px,
@@ -647,6 +675,12 @@ class InpaintingStageImpl final : public InpaintingStage {
     live_cv_.notify_all();
     if (frames_thread_.joinable()) frames_thread_.join();
     if (worker_.joinable()) worker_.join();
+    {
+      std::lock_guard lock(pub_mu_);
+      pub_stop_ = true;
+    }
+    pub_cv_.notify_all();
+    if (publisher_.joinable()) publisher_.join();
   }
 
   const InpaintingStageOptions options_;
@@ -694,7 +728,12 @@ class InpaintingStageImpl final : public InpaintingStage {
   double refresh_cpu_ms_ = 0, frame_cpu_ms_ = 0;  // worker's refreshes; pipeline thread per frame
   uint64_t frames_measured_ = 0;
   std::string last_error_;
-  std::thread worker_, frames_thread_;
+  std::thread worker_, frames_thread_, publisher_;
+  // The publisher thread's one-call hand-off (AtServerPriority).
+  std::mutex pub_mu_;
+  std::condition_variable pub_cv_;
+  const std::function<void()>* pub_fn_ = nullptr;
+  bool pub_stop_ = false;
 };
 
 }  // namespace
