@@ -25,6 +25,9 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <map>
+#include <optional>
+#include <sstream>
 #include <string>
 #include <thread>
 #include <vector>
@@ -33,6 +36,7 @@
 #include <nlohmann/json.hpp>
 
 #include "client/uploader/upload_client.h"
+#include "common/io/image_file.h"
 #include "common/metrics/metrics.h"
 #include "common/cli/cli.h"
 #include "proto/exoview.grpc.pb.h"
@@ -66,6 +70,42 @@ double ProcessCpuMs(pid_t pid) {
   return (utime + stime) * 1000.0 / sysconf(_SC_CLK_TCK);
 }
 
+// CPU ms (utime + stime) of every thread of a process, summed per thread name (comm).
+std::map<std::string, double> ThreadCpuMs(pid_t pid) {
+  std::map<std::string, double> out;
+  const std::string dir = "/proc/" + std::to_string(pid) + "/task";
+  std::error_code ec;
+  for (const auto& e : std::filesystem::directory_iterator(dir, ec)) {
+    std::ifstream in(e.path() / "stat");
+    std::string s((std::istreambuf_iterator<char>(in)), {});
+    const size_t open = s.find('('), close = s.rfind(')');
+    if (open == std::string::npos || close == std::string::npos) continue;
+    const std::string name = s.substr(open + 1, close - open - 1);
+    std::istringstream rest(s.substr(close + 2));
+    std::string field;
+    double utime = 0, stime = 0;
+    for (int i = 3; i <= 15 && rest >> field; ++i) {
+      if (i == 14) utime = std::stod(field);
+      if (i == 15) stime = std::stod(field);
+    }
+    out[name] += (utime + stime) * 1000.0 / sysconf(_SC_CLK_TCK);
+  }
+  return out;
+}
+
+std::string Uptime() {
+  std::ifstream in("/proc/loadavg");
+  std::string a, b, c;
+  in >> a >> b >> c;
+  return a + " " + b + " " + c;
+}
+
+double Percentile(std::vector<double> v, double q) {
+  if (v.empty()) return 0;
+  std::sort(v.begin(), v.end());
+  return v[std::min(v.size() - 1, static_cast<size_t>(q * (v.size() - 1) + 0.5))];
+}
+
 double Round(double x, int digits) {
   const double f = std::pow(10.0, digits);
   return std::round(x * f) / f;
@@ -77,6 +117,7 @@ int Main(int argc, char** argv) {
   bool mark = true, watch = true;
   std::string method = "dr";
   std::vector<std::string> server_args;
+  std::string target_flag, dump_dir;
   CLI::App app{"Diminished reality in the live server: ingest rate with and without a marked "
                "region, per-keyframe inpainting time; prints JSON",
                "dr_live_bench"};
@@ -94,6 +135,12 @@ int Main(int argc, char** argv) {
   app.add_option("--server_arg", server_args,
                  "a flag passed to exoview_server, repeatable: --server_arg=--key=value")
       ->allow_extra_args(false);
+  app.add_option("--target", target_flag,
+                 "upload to this running server HOST:PORT instead of starting one (no server CPU "
+                 "figures; tests drive a viewer with it)");
+  app.add_option("--dump_dir", dump_dir,
+                 "write each frame's input colour (input_<seq>.png) and the chair's pixels "
+                 "(chair_<seq>.png, dilated 4 px) here");
   if (auto rc = exo::cli::Parse(app, argc, argv)) return *rc;
   if (before >= frames) {
     std::fprintf(stderr, "--before must be < --frames\n");
@@ -108,12 +155,17 @@ int Main(int argc, char** argv) {
   for (int k = 0; k < frames; ++k) {
     auto r = synth::RenderFrame(*scene.with, scene.Pose(double(k) / (frames - 1)), scene.ro);
     EXO_CHECK(r.ok());
-    if (watch && mark) {
+    if ((watch && mark) || !dump_dir.empty()) {
       auto g = synth::RenderFrame(*scene.without, scene.Pose(double(k) / (frames - 1)), scene.ro);
       EXO_CHECK(g.ok());
       chair[k] = testing::ChairPixels(*r, *g, 4);
       truth[k] = std::move(g->frame.color);
       input[k] = r->frame.color;
+    }
+    if (!dump_dir.empty()) {
+      std::filesystem::create_directories(dump_dir);
+      EXO_CHECK(WriteColorImage(dump_dir + "/input_" + std::to_string(k + 1) + ".png", input[k]).ok());
+      EXO_CHECK(WriteColorImage(dump_dir + "/chair_" + std::to_string(k + 1) + ".png", chair[k]).ok());
     }
     r->frame.sequence = k + 1;
     r->frame.timestamp_s = (k + 1) / 30.0;
@@ -129,10 +181,14 @@ int Main(int argc, char** argv) {
   std::vector<std::string> args{"--listen=127.0.0.1:0", "--port_file=" + dir + "/port",
                                 "--inpaint_method=" + method};
   args.insert(args.end(), server_args.begin(), server_args.end());
-  testing::Subprocess server(EXOVIEW_SERVER_BIN, args, dir + "/server.log");
-  if (!testing::WaitForFile(dir + "/port", 20)) return 1;
-  const std::string target =
-      "127.0.0.1:" + std::to_string(std::stoi(testing::ReadAll(dir + "/port")));
+  std::optional<testing::Subprocess> server;
+  std::string target = target_flag;
+  if (target.empty()) {
+    server.emplace(EXOVIEW_SERVER_BIN, args, dir + "/server.log");
+    if (!testing::WaitForFile(dir + "/port", 20)) return 1;
+    target = "127.0.0.1:" + std::to_string(std::stoi(testing::ReadAll(dir + "/port")));
+  }
+  const pid_t server_pid = server ? server->pid() : 0;
   auto channel = MakeChannel(target);
   auto stats = [&] {
     auto stub = v1::Exoview::NewStub(channel);
@@ -177,7 +233,7 @@ int Main(int argc, char** argv) {
     const grpc::Status st = stub->MarkRegion(&ctx, req, &reply);
     if (!st.ok()) {
       std::fprintf(stderr, "MarkRegion: %s\n%s\n", st.error_message().c_str(),
-                   testing::ReadAll(dir + "/server.log").c_str());
+                   server ? testing::ReadAll(dir + "/server.log").c_str() : "");
       return 1;
     }
     out["region_voxels"] = reply.region().num_voxels();
@@ -186,7 +242,9 @@ int Main(int argc, char** argv) {
   struct Watched {
     int frames = 0, composited = 0, scored = 0;
     double first_s = 0, last_s = 0, compose_ms = 0, latency_ms = 0, psnr = 0, psnr_input = 0;
-    std::vector<double> latencies;
+    double ssim = 0, ssim_input = 0;
+    double first_composited_s = -1, last_composited_s = 0;
+    std::vector<double> latencies, composited_latencies;
   } watched;
   std::atomic<bool> watching{true};
   grpc::ClientContext watch_ctx;
@@ -209,6 +267,9 @@ int Main(int argc, char** argv) {
         watched.latencies.push_back(m.latency_ms());
         if (!m.composited()) continue;
         ++watched.composited;
+        if (watched.first_composited_s < 0) watched.first_composited_s = t;
+        watched.last_composited_s = t;
+        watched.composited_latencies.push_back(m.latency_ms());
         const int k = static_cast<int>(m.sequence()) - 1;
         if (k < 0 || k >= frames || truth[k].empty() ||
             m.color_rgb().size() != truth[k].size())
@@ -217,30 +278,57 @@ int Main(int argc, char** argv) {
         std::memcpy(out.data(), m.color_rgb().data(), out.size());
         auto p = MaskedPsnr(out, truth[k], chair[k]);
         auto p0 = MaskedPsnr(input[k], truth[k], chair[k]);
-        if (!p.ok() || !p0.ok()) continue;
+        auto q = MaskedSsim(out, truth[k], chair[k]);
+        auto q0 = MaskedSsim(input[k], truth[k], chair[k]);
+        if (!p.ok() || !p0.ok() || !q.ok() || !q0.ok()) continue;
         watched.psnr += *p;
         watched.psnr_input += *p0;
+        watched.ssim += *q;
+        watched.ssim_input += *q0;
         ++watched.scored;
       }
       reader->Finish();
     });
   }
-  const double load0 = Load1(), cpu0 = ProcessCpuMs(server.pid());
+  const std::string uptime0 = Uptime();
+  const double load0 = Load1(), cpu0 = (server_pid ? ProcessCpuMs(server_pid) : 0.0);
+  const auto threads0 = (server_pid ? ThreadCpuMs(server_pid) : std::map<std::string, double>{});
   const UploadAckStats up = upload(before, frames - before);
-  const double upload_cpu_ms = ProcessCpuMs(server.pid()) - cpu0;
+  const double upload_cpu_ms = (server_pid ? ProcessCpuMs(server_pid) : 0.0) - cpu0;
+  auto threads1 = (server_pid ? ThreadCpuMs(server_pid) : std::map<std::string, double>{});
   const v1::Stats s = wait_drained();
-  const double drain_cpu_ms = ProcessCpuMs(server.pid()) - cpu0;
+  const double drain_cpu_ms = (server_pid ? ProcessCpuMs(server_pid) : 0.0) - cpu0;
   out["load1_before"] = load0;
   out["load1_after"] = Load1();
+  out["uptime_before"] = uptime0;
+  out["uptime_after"] = Uptime();
+  const uint64_t offered = up.sent;
   out["upload"] = {{"sent", up.sent},
                    {"accepted", up.accepted},
                    {"dropped", up.dropped},
                    {"rejected", up.rejected},
                    {"fps", Round(up.fps(), 2)},
+                   {"ingest_fps", Round(up.elapsed_s > 0 ? up.accepted / up.elapsed_s : 0.0, 2)},
+                   {"elapsed_s", Round(up.elapsed_s, 2)},
                    {"ack_latency_p50_ms", Round(up.ack_latency_p50_ms, 1)},
                    {"ack_latency_p95_ms", Round(up.ack_latency_p95_ms, 1)},
                    {"server_cpu_ms_per_frame", Round(upload_cpu_ms / std::max<uint64_t>(1, up.sent), 1)},
-                   {"server_cpu_ms_to_drained", Round(drain_cpu_ms, 0)}};
+                   {"server_cpu_ms_to_drained", Round(drain_cpu_ms, 0)},
+                   // The server's CPU per offered frame over the upload as a share of 2 idle
+                   // cores at the offered rate (< 1: the work fits the 2-core machine).
+                   {"two_core_share",
+                    Round(upload_cpu_ms / std::max<uint64_t>(1, offered) /
+                              (2000.0 / std::max(1.0, rate_hz)), 3)}};
+  {
+    // Per thread name, CPU ms per offered frame over the upload (where the CPU goes).
+    json t;
+    for (auto& [name, ms] : threads1) {
+      auto it = threads0.find(name);
+      const double d = ms - (it == threads0.end() ? 0.0 : it->second);
+      if (d >= 1.0) t[name] = Round(d / std::max<uint64_t>(1, offered), 2);
+    }
+    out["thread_cpu_ms_per_frame"] = t;
+  }
   if (watch) {
     std::this_thread::sleep_for(std::chrono::milliseconds(300));  // the last frame's output
     watch_ctx.TryCancel();
@@ -252,23 +340,39 @@ int Main(int argc, char** argv) {
         {"frames", watched.frames},
         {"composited", watched.composited},
         {"fps", span > 0 ? Round((watched.frames - 1) / span, 2) : 0.0},
+        {"composited_fps",
+         watched.last_composited_s > watched.first_composited_s && watched.composited > 1
+             ? Round((watched.composited - 1) /
+                         (watched.last_composited_s - watched.first_composited_s), 2)
+             : 0.0},
         {"compose_ms_mean", Round(watched.compose_ms / n, 2)},
         {"latency_ms_mean", Round(watched.latency_ms / n, 1)},
-        {"latency_ms_p95", watched.latencies.empty() ? 0.0
-             : Round(watched.latencies[std::min(watched.latencies.size() - 1,
-                                                watched.latencies.size() * 95 / 100)], 1)},
+        {"latency_ms_p50", Round(Percentile(watched.latencies, 0.5), 1)},
+        {"latency_ms_p95", Round(Percentile(watched.latencies, 0.95), 1)},
+        {"composited_latency_ms_p50", Round(Percentile(watched.composited_latencies, 0.5), 1)},
+        {"composited_latency_ms_p95", Round(Percentile(watched.composited_latencies, 0.95), 1)},
         {"scored", watched.scored},
         {"psnr_roi", watched.scored ? Round(watched.psnr / watched.scored, 2) : 0.0},
-        {"psnr_roi_input", watched.scored ? Round(watched.psnr_input / watched.scored, 2) : 0.0}};
+        {"psnr_roi_input", watched.scored ? Round(watched.psnr_input / watched.scored, 2) : 0.0},
+        {"ssim_roi", watched.scored ? Round(watched.ssim / watched.scored, 4) : 0.0},
+        {"ssim_roi_input", watched.scored ? Round(watched.ssim_input / watched.scored, 4) : 0.0}};
   }
   (void)watching;
   json ip;
   for (const auto& [k, v] : s.counters())
     if (k.rfind("inpainting.", 0) == 0) ip[k.substr(11)] = Round(v, 3);
   out["inpainting"] = ip;
+  json stages;
+  for (const auto& [k, v] : s.counters())
+    if (k.find(".process_ms_") != std::string::npos || k == "geometry.shed" ||
+        k == "geometry.fused")
+      stages[k] = Round(v, 2);
+  out["stages"] = stages;
   std::printf("%s\n", out.dump().c_str());
-  server.Signal(SIGTERM);
-  server.Wait(20);
+  if (server) {
+    server->Signal(SIGTERM);
+    server->Wait(20);
+  }
   std::filesystem::remove_all(dir);
   return 0;
 }

@@ -32,9 +32,16 @@ body{margin:0;background:#111;color:#ddd;font:13px monospace}
 #s{padding:4px 8px;white-space:pre}
 </style></head>
 <body><img id="v" alt="Exoview live view"><canvas id="o"></canvas><div id="s">connecting...</div>
+<button id="dr" style="position:absolute;right:8px;bottom:8px">DR view (V): off</button>
 <script>
 "use strict";
-let seq = 0;
+let seq = 0, drSeq = 0;
+// The live DR view (the server's camera stream with the marked regions removed): button / key V.
+let dr = new URLSearchParams(location.search).get("dr") === "1", drMeta = "";
+const drButton = document.getElementById("dr");
+function setDr(on) { dr = on; drButton.textContent = "DR view (V): " + (on ? "on" : "off"); }
+drButton.onclick = () => setDr(!dr);
+setDr(dr);
 // ?frames=N: stop after N frames (a still snapshot, e.g. for a headless browser's screenshot).
 const maxFrames = Number(new URLSearchParams(location.search).get("frames") || 0);
 let shown = 0;
@@ -43,9 +50,12 @@ const sleep = ms => new Promise(r => setTimeout(r, ms));
 async function frames() {
   for (;;) {
     try {
-      const r = await fetch("/frame.jpg?after=" + seq);
+      const live = dr;
+      const r = await fetch(live ? "/dr.jpg?after=" + drSeq : "/frame.jpg?after=" + seq);
+      if (live && r.status !== 200) { drMeta = await r.text(); await sleep(500); continue; }
       if (r.status === 200) {
-        seq = Number(r.headers.get("X-Frame-Seq"));
+        if (live) { drSeq = Number(r.headers.get("X-Frame-Seq")); drMeta = r.headers.get("X-Dr-Meta") || ""; }
+        else seq = Number(r.headers.get("X-Frame-Seq"));
         const u = URL.createObjectURL(await r.blob());
         img.onload = () => URL.revokeObjectURL(u);
         img.src = u;
@@ -64,7 +74,7 @@ function drawOverlay() {
   cv.width = r.width; cv.height = r.height;
   const g = cv.getContext("2d");
   g.clearRect(0, 0, cv.width, cv.height);
-  if (!overlay || !overlay.width) return;
+  if (dr || !overlay || !overlay.width) return;  // the overlays belong to the rendered view
   const k = Math.min(r.width / overlay.width, r.height / overlay.height);
   const ox = (r.width - k * overlay.width) / 2, oy = (r.height - k * overlay.height) / 2;
   for (const [x0, y0, x1, y1, c, w] of overlay.lines) {
@@ -96,13 +106,13 @@ async function stats() {
       document.getElementById("s").textContent =
         `frame ${j.frame_ms.toFixed(1)} ms  resolution 1/${j.stage}  model v${j.model_version}  ` +
         `views ${j.views}  cells ${j.cells}  ${j.sync}  frames ${j.frames}  browsers ${j.clients}  ` +
-        (j.control ? `\n${j.control}  ` : "") +
+        (j.control ? `\n${j.control}  ` : "") + (dr ? `\nlive DR view: ${drMeta}  ` : "") +
         (j.drone_controls && j.drone_controls.operator && j.drone_controls.operator.last
            ? `${j.drone_controls.operator.last.summary}  ` : "") +
         (j.drone_controls && j.drone_controls.xray
            ? `X-RAY cut at ${j.drone_controls.xray_clip_m.toFixed(2)} m  ` : "") +
         (droneMode ? "DRONE MODE  " : "") +
-        `| WASD QE move, drag/arrows look, wheel speed, R reset, F follow, G drone, 3 cells, 4 tau/refs, 5 drone` +
+        `| WASD QE move, drag/arrows look, wheel speed, R reset, F follow, G drone, 3 cells, 4 tau/refs, 5 drone, V DR view` +
         `\n| drone: ctrl/M + click = gaze-to-see, + drag from the drone = pick-and-place, ` +
         `IJKL UO YH joypad, X x-ray ([ ] plane)`;
       if (maxFrames > 0 && shown >= maxFrames) return;
@@ -127,6 +137,7 @@ function framePx(e) {
 const held = new Set();
 const send = q => fetch("/input?" + q, {method: "POST"}).catch(() => {});
 onkeydown = e => { if (e.code === "KeyM" && !e.repeat) { droneMode = !droneMode; return; }
+  if (e.code === "KeyV") { setDr(!dr); e.preventDefault(); return; }
   const k = keys[e.code]; if (!k) return; e.preventDefault();
   if (!held.has(k)) { held.add(k); send("key=" + k + "&down=1"); } };
 onkeyup = e => { const k = keys[e.code]; if (!k) return; held.delete(k); send("key=" + k + "&down=0"); };
@@ -337,12 +348,50 @@ class HttpView::Impl {
       frames_sent_.fetch_add(1);
       return Send(socket, res, req);
     }
+    if (req.method() == http::verb::get && path == "/dr.jpg") return DrFrame(socket, req, target);
     if (req.method() == http::verb::get && path == "/stream") return Stream(socket, req);
     if (req.method() == http::verb::post && path == "/input") {
       Input(Query(target));
       return Text(socket, req, http::status::no_content, "text/plain", "");
     }
     return Text(socket, req, http::status::not_found, "text/plain", "not found: " + path + "\n");
+  }
+
+  bool DrFrame(tcp::socket& socket, const http::request<http::string_body>& req,
+               const std::string& target) {
+    std::function<std::string()> status;
+    {
+      std::lock_guard lock(frame_mu_);
+      if (!dr_request_)
+        return Text(socket, req, http::status::not_found, "text/plain",
+                    "no live DR view: the viewer shows a model file, not a server (--server)\n");
+      dr_request_();
+      status = dr_status_;
+    }
+    const auto q = Query(target);
+    uint64_t after = 0;
+    if (auto it = q.find("after"); it != q.end())
+      after = uint64_t(std::max(0.0, ToDouble(it->second)));
+    std::shared_ptr<const std::vector<uint8_t>> jpeg;
+    std::string meta;
+    uint64_t seq = 0;
+    {
+      std::unique_lock lock(frame_mu_);
+      frame_cv_.wait_for(lock, std::chrono::seconds(2),
+                         [&] { return stop_.load() || (dr_latest_ && dr_seq_ > after); });
+      jpeg = dr_latest_;
+      meta = dr_meta_;
+      seq = dr_seq_;
+    }
+    if (!jpeg)
+      return Text(socket, req, http::status::service_unavailable, "text/plain",
+                  "no live DR frame yet (" + (status ? status() : std::string()) + ")\n");
+    http::response<http::vector_body<uint8_t>> res{http::status::ok, req.version()};
+    res.set(http::field::content_type, "image/jpeg");
+    res.set("X-Frame-Seq", std::to_string(seq));
+    res.set("X-Dr-Meta", meta);
+    res.body() = *jpeg;
+    return Send(socket, res, req);
   }
 
   bool Stream(tcp::socket& socket, const http::request<http::string_body>& req) {
@@ -479,6 +528,12 @@ class HttpView::Impl {
   std::shared_ptr<const std::vector<uint8_t>> latest_;
   std::string overlay_ = R"({"width":0,"height":0,"lines":[],"dots":[]})";
   uint64_t seq_ = 0;
+  // The live DR view (under frame_mu_).
+  std::shared_ptr<const std::vector<uint8_t>> dr_latest_;
+  std::string dr_meta_;
+  uint64_t dr_seq_ = 0;
+  std::function<void()> dr_request_;
+  std::function<std::string()> dr_status_;
   std::atomic<uint64_t> frames_sent_{0};
   std::mutex input_mu_;
   std::map<std::string, Clock::time_point> held_;
@@ -508,6 +563,21 @@ HttpInput HttpView::TakeInput() { return impl_->Take(); }
 void HttpView::SetOverlay(std::string json) {
   std::lock_guard lock(impl_->frame_mu_);
   impl_->overlay_ = std::move(json);
+}
+void HttpView::PublishDrFrame(std::vector<uint8_t> jpeg, std::string meta_json) {
+  auto p = std::make_shared<const std::vector<uint8_t>>(std::move(jpeg));
+  {
+    std::lock_guard lock(impl_->frame_mu_);
+    impl_->dr_latest_ = std::move(p);
+    impl_->dr_meta_ = std::move(meta_json);
+    ++impl_->dr_seq_;
+  }
+  impl_->frame_cv_.notify_all();
+}
+void HttpView::SetDrSource(std::function<void()> on_request, std::function<std::string()> status) {
+  std::lock_guard lock(impl_->frame_mu_);
+  impl_->dr_request_ = std::move(on_request);
+  impl_->dr_status_ = std::move(status);
 }
 uint64_t HttpView::frames_sent() const { return impl_->frames_sent_.load(); }
 int HttpView::clients() const {

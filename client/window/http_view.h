@@ -8,6 +8,12 @@
 //   GET /stream       the same frames as MJPEG (multipart/x-mixed-replace), for <img> or players
 //   GET /status       read-only JSON of the viewer's state
 //   GET /metrics      Prometheus text (frame time, bytes received, model version, clients)
+//   GET /dr.jpg?after=N      the live DR view (issue 18: the server's camera stream with the
+//                     marked regions removed, WatchDrView), waiting up to 2 s for a frame newer
+//                     than N; X-Frame-Seq as above, X-Dr-Meta: JSON of the frame (sequence,
+//                     composited, roi_px, latency_ms); 503 with the reason while there is none.
+//                     Each request is a demand (SetDrDemand): the viewer watches only while asked.
+//                     The page's "DR view" button (key V) switches the picture to it.
 //   GET /overlay.json the overlays of the newest frame (drone, camera, target, route, zones;
 //                     cells by coverage), drawn by the page on a canvas over the picture
 //   POST /input?key=K&down=0|1   held keys (w a s d q e, arrows; expire 0.6 s after the last
@@ -59,6 +65,10 @@ class HttpView {
   // {"width", "height", "lines": [[x0, y0, x1, y1, css colour, width], ...],
   //  "dots": [[x, y, css colour], ...]}.
   void SetOverlay(std::string json);
+  // The live DR view: the newest frame (JPEG) and its metadata (one-line JSON); `on_request` is
+  // called on every GET /dr.jpg (start / keep the subscription), `status` gives the 503's reason.
+  void PublishDrFrame(std::vector<uint8_t> jpeg, std::string meta_json);
+  void SetDrSource(std::function<void()> on_request, std::function<std::string()> status);
   HttpInput TakeInput();
   // Counters for the metrics.
   uint64_t frames_sent() const;

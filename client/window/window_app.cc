@@ -27,6 +27,7 @@
 #include "client/viewer/viewer_session.h"
 #include "client/vulkan/vulkan_renderer.h"
 #include "client/window/drone_operator.h"
+#include "client/window/dr_view_watch.h"
 #include "client/window/http_view.h"
 #include "client/window/presenter.h"
 #include "common/io/image_file.h"
@@ -1427,6 +1428,20 @@ class App {
         });
     if (!http.ok()) return Fail(http.status());
     view_ptr = http->get();
+    // The live DR view of a server (GET /dr.jpg, the page's "DR view" toggle): watched on demand.
+    std::unique_ptr<DrViewWatcher> dr_watch;
+    if (!o_.server.empty()) {
+      dr_watch = std::make_unique<DrViewWatcher>(MakeChannel(o_.server), [view_ptr](const v1::DrViewFrame& m) {
+        if (m.color_jpeg().empty()) return;
+        view_ptr->PublishDrFrame(
+            std::vector<uint8_t>(m.color_jpeg().begin(), m.color_jpeg().end()),
+            nlohmann::json({{"sequence", m.sequence()}, {"composited", m.composited()},
+                            {"roi_px", m.roi_px()}, {"latency_ms", std::round(m.latency_ms() * 10) / 10},
+                            {"width", m.width()}, {"height", m.height()}}).dump());
+      });
+      (*http)->SetDrSource([w = dr_watch.get()] { w->Demand(); },
+                           [w = dr_watch.get()] { return w->status(); });
+    }
     const int port = (*http)->port();
     if (!o_.port_file.empty()) std::ofstream(o_.port_file) << port << "\n";
     std::printf("%s\n", nlohmann::json({{"http", "http://127.0.0.1:" + std::to_string(port) + "/"}})

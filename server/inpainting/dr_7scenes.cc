@@ -77,6 +77,9 @@ int Main(int argc, char** argv) {
   std::vector<std::string> probes;
   app.add_option("--probe", probes, "u,v: print the registered depth there in --pick_frame and exit "
                  "(to choose --pick / --base)");
+  double temporal = -1;
+  app.add_option("--temporal", temporal, "weight of the previous output (default: the library's 0.8)")
+      ->check(CLI::Range(-1.0, 0.99));
   app.add_option("--live_views", live_views, "look-up views per frame")->check(CLI::Range(1, 64));
   if (auto rc = exo::cli::Parse(app, argc, argv)) return *rc;
   double pu, pv, bu, bv, sw, sd, sh;
@@ -244,6 +247,7 @@ int Main(int argc, char** argv) {
   DiminishedReality dr(dro);
   DrLiveOptions lo;
   lo.max_views = live_views;
+  if (temporal >= 0) lo.temporal = temporal;
   DrLiveState state;
   struct Kept {
     int frame;
@@ -253,6 +257,20 @@ int Main(int argc, char** argv) {
   int frames = 0, with_roi = 0, composited = 0, keyframes = 0;
   long roi_px_total = 0;
   double compose_cpu = 0, compose_wall = 0, kf_first_ms = 0, kf_prop_ms = 0, kf_cpu = 0;
+  // Why the fill looks as it does (session 13): ROI pixels without depth, taken from an
+  // observation, hallucinated in the keyframes; luma mean / std of the output's ROI against the
+  // input's 10-px ring outside it (a smear: lower std; exposure: a mean shift).
+  int64_t diag_roi = 0, diag_nodepth = 0, diag_observed = 0, kf_roi = 0, kf_halluc = 0;
+  double luma_roi = 0, luma_ring = 0, std_roi = 0, std_ring = 0;
+  int diag_frames = 0;
+  auto luma_stats = [](const ImageU8& c, const cv::Mat& m, double* mean, double* sd) {
+    cv::Mat rgb(c.height(), c.width(), CV_8UC3, const_cast<uint8_t*>(c.data())), g;
+    cv::cvtColor(rgb, g, cv::COLOR_RGB2GRAY);
+    cv::Scalar mu, sigma;
+    cv::meanStdDev(g, mu, sigma, m);
+    *mean = mu[0];
+    *sd = sigma[0];
+  };
   for (int i = first; i <= last; i += stride) {
     auto f = rd.Load(i);
     if (!f.ok()) {
@@ -279,12 +297,33 @@ int Main(int argc, char** argv) {
     compose_cpu += CpuMs() - c0;
     compose_wall += WallMs() - w0;
     composited += r->composited;
+    if (r->composited) {
+      for (size_t p = 0; p < roi.size(); ++p)
+        if (roi.data()[p]) {
+          ++diag_roi;
+          diag_nodepth += !(depth.data()[p] > 0.f);
+        }
+      diag_observed += r->observed_px;
+      cv::Mat m(roi.height(), roi.width(), CV_8UC1, const_cast<uint8_t*>(roi.data())), grown, ring;
+      cv::dilate(m, grown, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(21, 21)));
+      cv::subtract(grown, m, ring);
+      double a, b, c2, d2;
+      luma_stats(r->color, m, &a, &b);
+      luma_stats(f->color, ring, &c2, &d2);
+      luma_roi += a;
+      std_roi += b;
+      luma_ring += c2;
+      std_ring += d2;
+      ++diag_frames;
+    }
     kept.push_back({i, f->color, std::move(r->color), roi});
     const double k0 = CpuMs(), kw = WallMs();
     const KeyframeDecision d = dr.Decide(roi, frame.camera, frame.world_from_cam);
     if (d.insert) {
       auto k = DiminishedReality::ComputeKeyframe(dr.MakeJob(frame, roi, d), dro);
       if (k.ok()) {
+        kf_roi += CountNonZero(roi);
+        kf_halluc += k->hallucinated_px;
         dr.AddKeyframe(k->view, &*k);
         (keyframes == 0 ? kf_first_ms : kf_prop_ms) += WallMs() - kw;
         ++keyframes;
@@ -344,12 +383,19 @@ int Main(int argc, char** argv) {
               "\"first_keyframe_ms\": %.1f, \"propagated_keyframe_ms_mean\": %.1f, "
               "\"keyframe_and_observation_cpu_ms_total\": %.0f, \"compose_cpu_ms_per_frame\": %.2f, "
               "\"compose_wall_ms_per_frame\": %.2f, \"roi_px_mean\": %.0f, \"pick\": [%g, %g], "
-              "\"base\": [%g, %g], \"load1\": %.2f, \"sheet\": \"%s\"}\n",
+              "\"base\": [%g, %g], \"load1\": %.2f, \"sheet\": \"%s\", "
+              "\"fill\": {\"roi_without_depth\": %.3f, \"roi_from_observations\": %.3f, "
+              "\"keyframe_roi_hallucinated\": %.3f, \"luma_roi_mean\": %.1f, \"luma_ring_mean\": %.1f, "
+              "\"luma_roi_std\": %.1f, \"luma_ring_std\": %.1f}}\n",
               frames, with_roi, composited, box.voxels.size(), keyframes, kf_first_ms,
               keyframes > 1 ? kf_prop_ms / (keyframes - 1) : 0.0, kf_cpu,
               with_roi ? compose_cpu / with_roi : 0.0, with_roi ? compose_wall / with_roi : 0.0,
               with_roi ? double(roi_px_total) / with_roi : 0.0, pu, pv, bu, bv, load,
-              out_path.c_str());
+              out_path.c_str(), diag_roi ? double(diag_nodepth) / diag_roi : 0.0,
+              diag_roi ? double(diag_observed) / diag_roi : 0.0,
+              kf_roi ? double(kf_halluc) / kf_roi : 0.0, diag_frames ? luma_roi / diag_frames : 0.0,
+              diag_frames ? luma_ring / diag_frames : 0.0, diag_frames ? std_roi / diag_frames : 0.0,
+              diag_frames ? std_ring / diag_frames : 0.0);
   return 0;
 }
 

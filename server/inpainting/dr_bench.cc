@@ -228,6 +228,12 @@ int Main(int argc, char** argv) {
       ->check(CLI::Range(1, 64));
   bool prefer_observed = true, kf_context = true, bicubic = false;
   app.add_option("--bicubic", bicubic, "ours: bicubic colour look-up (false: bilinear)");
+  int kf_crop_margin_px = 0;
+  double kf_crop_margin_rel = 0.0;
+  app.add_option("--kf_crop_margin_px", kf_crop_margin_px,
+                 "ours/live: keyframes inpaint a crop around the ROI, margin px (0 and rel 0: whole frame)");
+  app.add_option("--kf_crop_margin_rel", kf_crop_margin_rel,
+                 "ours/live: crop margin as a multiple of the ROI's larger side");
   std::string ring = "lookup";
   app.add_option("--ring", ring, "ours: the blend's guide on the one-pixel ring around the ROI: "
                  "observed (looked up where another view observed it, else the frame), lookup "
@@ -349,6 +355,8 @@ int Main(int argc, char** argv) {
   dro.kf_context = kf_context;
   dro.prefer_observed = prefer_observed;
   dro.bicubic = bicubic;
+  dro.kf_crop_margin_px = kf_crop_margin_px;
+  dro.kf_crop_margin_rel = kf_crop_margin_rel;
   if (auto st = dro.Validate(); !st.ok()) {
     std::fprintf(stderr, "%s\n", std::string(st.message()).c_str());
     return 1;
@@ -365,6 +373,10 @@ int Main(int argc, char** argv) {
   live_opt.temporal = temporal;
   DrLiveState live_state;
   double live_kf_cpu_ms = 0, live_first_kf_ms = 0, live_prop_kf_ms = 0;
+  // CPU per keyframe (first / propagated) and the library's phases (CPU, summed).
+  double live_first_kf_cpu = 0, live_prop_kf_cpu = 0, live_prep = 0, live_search = 0,
+         live_poisson = 0;
+  int live_lib_runs = 0;
   int live_keyframes = 0, live_composited = 0;
   long live_unreached = 0;
   double our_frame_ms = 0;
@@ -501,14 +513,26 @@ int Main(int argc, char** argv) {
         const double k0 = CpuMs(), kw = WallMs();
         const KeyframeDecision d = live.Decide(roi, cam, pose);
         if (d.insert) {
+          const double kc = CpuMs();
           auto k = DiminishedReality::ComputeKeyframe(live.MakeJob(f, roi, d), dro);
           if (!k.ok()) {
             std::fprintf(stderr, "live keyframe %d: %s\n", t, std::string(k.status().message()).c_str());
             return 1;
           }
+          if (k->inpainted) {
+            live_prep += k->stats.cpu_ms_prepare;
+            live_search += k->stats.cpu_ms_search;
+            live_poisson += k->stats.cpu_ms_poisson;
+            ++live_lib_runs;
+          }
           live.AddKeyframe(k->view, &*k);
-          if (live_keyframes == 0) live_first_kf_ms = WallMs() - kw;
-          else live_prop_kf_ms += WallMs() - kw;
+          if (live_keyframes == 0) {
+            live_first_kf_ms = WallMs() - kw;
+            live_first_kf_cpu = CpuMs() - kc;
+          } else {
+            live_prop_kf_ms += WallMs() - kw;
+            live_prop_kf_cpu += CpuMs() - kc;
+          }
           ++live_keyframes;
         }
         live.AddObservation(f, roi, t);
@@ -616,11 +640,17 @@ int Main(int argc, char** argv) {
     std::printf(", \"live\": {\"compose_cpu_ms_per_frame\": %.2f, \"compose_fps_one_core\": %.1f, "
                 "\"composited_frames\": %d, \"unreached_px_mean\": %.1f, \"keyframes\": %d, "
                 "\"first_keyframe_ms\": %.1f, \"propagated_keyframe_ms_mean\": %.1f, "
-                "\"keyframe_and_observation_cpu_ms_total\": %.1f, \"views\": %d}",
+                "\"keyframe_and_observation_cpu_ms_total\": %.1f, \"views\": %d, "
+                "\"first_keyframe_cpu_ms\": %.1f, \"propagated_keyframe_cpu_ms_mean\": %.1f, "
+                "\"library_cpu_ms_mean\": {\"prepare\": %.1f, \"search\": %.1f, \"poisson\": %.1f}}",
                 cpu, cpu > 0 ? 1000.0 / cpu : 0.0, live_composited,
                 live_composited ? double(live_unreached) / live_composited : 0.0, live_keyframes,
                 live_first_kf_ms, live_keyframes > 1 ? live_prop_kf_ms / (live_keyframes - 1) : 0.0,
-                live_kf_cpu_ms, live_opt.max_views);
+                live_kf_cpu_ms, live_opt.max_views, live_first_kf_cpu,
+                live_keyframes > 1 ? live_prop_kf_cpu / (live_keyframes - 1) : 0.0,
+                live_lib_runs ? live_prep / live_lib_runs : 0.0,
+                live_lib_runs ? live_search / live_lib_runs : 0.0,
+                live_lib_runs ? live_poisson / live_lib_runs : 0.0);
   }
   std::printf("}\n");
   return 0;

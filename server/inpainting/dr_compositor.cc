@@ -23,6 +23,8 @@ absl::Status DrOptions::Validate() const {
     return absl::InvalidArgumentError("ring_sigma must be in [0, 100]");
   if (!(temporal >= 0.0 && temporal < 1.0))
     return absl::InvalidArgumentError("temporal must be in [0, 1)");
+  if (kf_crop_margin_px < 0 || !(kf_crop_margin_rel >= 0.0 && kf_crop_margin_rel <= 100.0))
+    return absl::InvalidArgumentError("kf_crop_margin_px must be >= 0, kf_crop_margin_rel in [0, 100]");
   return absl::OkStatus();
 }
 
@@ -42,6 +44,49 @@ int Count(const ImageU8& m) {
   int n = 0;
   for (size_t i = 0; i < m.size(); ++i) n += m.data()[i] != 0;
   return n;
+}
+
+// The keyframe's crop (DrOptions::kf_crop_margin_*): the ROI's bounding box grown by the margin,
+// clamped to the frame; the whole frame when both margins are 0 or the ROI is empty.
+cv::Rect KeyframeCrop(const ImageU8& roi, const DrOptions& o) {
+  const int w = roi.width(), h = roi.height();
+  const cv::Rect whole(0, 0, w, h);
+  if (o.kf_crop_margin_px <= 0 && o.kf_crop_margin_rel <= 0.0) return whole;
+  int x0 = w, y0 = h, x1 = -1, y1 = -1;
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x)
+      if (roi.data()[static_cast<size_t>(y) * w + x]) {
+        x0 = std::min(x0, x);
+        x1 = std::max(x1, x);
+        y0 = std::min(y0, y);
+        y1 = std::max(y1, y);
+      }
+  if (x1 < 0) return whole;
+  const int side = std::max(x1 - x0 + 1, y1 - y0 + 1);
+  const int m = std::max(o.kf_crop_margin_px,
+                         static_cast<int>(std::ceil(o.kf_crop_margin_rel * side)));
+  const int ax = std::max(0, x0 - m), ay = std::max(0, y0 - m);
+  const int bx = std::min(w, x1 + 1 + m), by = std::min(h, y1 + 1 + m);
+  return cv::Rect(ax, ay, bx - ax, by - ay);
+}
+
+template <typename T>
+Image<T> CropImage(const Image<T>& im, const cv::Rect& r) {
+  const int c = im.channels();
+  Image<T> out(r.width, r.height, c);
+  for (int y = 0; y < r.height; ++y)
+    std::memcpy(out.data() + static_cast<size_t>(y) * r.width * c,
+                im.data() + (static_cast<size_t>(y + r.y) * im.width() + r.x) * c,
+                sizeof(T) * r.width * c);
+  return out;
+}
+
+template <typename T>
+void PasteImage(const Image<T>& part, const cv::Rect& r, Image<T>* im) {
+  const int c = im->channels();
+  for (int y = 0; y < r.height; ++y)
+    std::memcpy(im->data() + (static_cast<size_t>(y + r.y) * im->width() + r.x) * c,
+                part.data() + static_cast<size_t>(y) * r.width * c, sizeof(T) * r.width * c);
 }
 
 absl::Status CheckFrame(const RgbdKeyframe& f, const ImageU8& roi) {
@@ -157,15 +202,37 @@ absl::StatusOr<DrKeyframe> DiminishedReality::ComputeKeyframe(const DrKeyframeJo
   out.hallucinated_px = Count(t_mask);
   if (out.hallucinated_px > 0) {
     const double i0 = WallMs();
-    EXO_ASSIGN_OR_RETURN(InpaintResult r,
-                         InpaintKeyframe(kf, t_mask, options.inpaint, job.previous.get()));
+    const cv::Rect crop = KeyframeCrop(roi, options);
+    if (crop.width == width && crop.height == height) {
+      EXO_ASSIGN_OR_RETURN(InpaintResult r,
+                           InpaintKeyframe(kf, t_mask, options.inpaint, job.previous.get()));
+      v->result = std::make_shared<InpaintResult>(std::move(r));
+      v->color = v->result->color;
+      v->depth = v->result->depth_m;
+    } else {
+      // The crop is a frame of its own (principal point shifted); its result carries the crop's
+      // camera, so a later keyframe propagates from it through 3D as from a whole frame.
+      RgbdKeyframe kc;
+      kc.color = CropImage(kf.color, crop);
+      kc.depth_m = CropImage(kf.depth_m, crop);
+      kc.camera = cam;
+      kc.camera.cx -= crop.x;
+      kc.camera.cy -= crop.y;
+      kc.camera.width = crop.width;
+      kc.camera.height = crop.height;
+      kc.world_from_cam = pose;
+      EXO_ASSIGN_OR_RETURN(InpaintResult r, InpaintKeyframe(kc, CropImage(t_mask, crop),
+                                                            options.inpaint, job.previous.get()));
+      v->color = kf.color;
+      v->depth = kf.depth_m;
+      PasteImage(r.color, crop, &v->color);
+      PasteImage(r.depth_m, crop, &v->depth);
+      v->result = std::make_shared<InpaintResult>(std::move(r));
+    }
     out.ms = WallMs() - i0;
     out.inpainted = true;
     out.propagated = job.previous != nullptr;
-    out.stats = r.stats;
-    v->result = std::make_shared<InpaintResult>(std::move(r));
-    v->color = v->result->color;
-    v->depth = v->result->depth_m;
+    out.stats = v->result->stats;
   } else {
     v->color = kf.color;
     v->depth = kf.depth_m;

@@ -60,6 +60,11 @@ struct DrOptions {
   bool kf_context = true;       // a keyframe takes observed colour first (see 2. above)
   bool prefer_observed = true;  // look up in every view (false: only the nearest keyframe)
   bool bicubic = false;
+  // A keyframe's PatchMatch + Poisson run on a crop of the frame around its ROI: the ROI's
+  // bounding box grown by max(kf_crop_margin_px, kf_crop_margin_rel x its larger side) on each
+  // side (clamped to the frame); the sources are the crop's pixels. 0 / 0 = the whole frame.
+  int kf_crop_margin_px = 0;
+  double kf_crop_margin_rel = 0.0;
   absl::Status Validate() const;
 };
 

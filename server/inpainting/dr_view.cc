@@ -10,6 +10,68 @@
 
 namespace exo::inpainting {
 
+namespace {
+
+// The keyframe pixels whose points can land on `mask`'s bounding box in the frame: the frame's
+// viewing frustum through that box (grown by a pixel), cut to the keyframe's depth range, is a
+// convex body whose corners lie on the box's four corner rays; their projections bound it. The
+// whole keyframe when a corner ray does not cross the depth range in a bounded segment.
+struct KfRect {
+  int x0 = 0, y0 = 0, x1 = 0, y1 = 0;
+};
+KfRect KeyframePixelsOnto(const DrView& kf, const PinholeCamera& cam, const Rigid3d& cam_from_kf,
+                          const ImageU8& mask) {
+  const KfRect whole{0, 0, kf.cam.width, kf.cam.height};
+  int bx0 = mask.width(), by0 = mask.height(), bx1 = -1, by1 = -1;
+  for (int y = 0; y < mask.height(); ++y)
+    for (int x = 0; x < mask.width(); ++x)
+      if (mask.at(x, y)) {
+        bx0 = std::min(bx0, x);
+        bx1 = std::max(bx1, x);
+        by0 = std::min(by0, y);
+        by1 = std::max(by1, y);
+      }
+  if (bx1 < 0) return KfRect{};
+  float zmin = std::numeric_limits<float>::max(), zmax = 0.f;
+  for (size_t i = 0; i < kf.depth.size(); ++i) {
+    const float z = kf.depth.data()[i];
+    if (z > 0.f) {
+      zmin = std::min(zmin, z);
+      zmax = std::max(zmax, z);
+    }
+  }
+  if (!(zmax > 0.f)) return KfRect{};
+  const Rigid3d kf_from_cam = cam_from_kf.Inverse();
+  const glm::dvec3 c = kf_from_cam * glm::dvec3(0.0);  // the frame's centre, keyframe coords
+  double u0 = 1e30, v0 = 1e30, u1 = -1e30, v1 = -1e30;
+  for (int k = 0; k < 4; ++k) {
+    const glm::dvec2 px(k & 1 ? bx1 + 1.5 : bx0 - 1.5, k & 2 ? by1 + 1.5 : by0 - 1.5);
+    const glm::dvec3 d = kf_from_cam * cam.Unproject(px, 1.0) - c;
+    if (std::abs(d.z) < 1e-9) return whole;
+    double ta = (zmin - c.z) / d.z, tb = (zmax - c.z) / d.z;
+    if (ta > tb) std::swap(ta, tb);
+    ta = std::max(ta, 0.0);
+    if (tb <= ta) continue;  // this ray never meets the keyframe's depth range
+    for (double t : {ta, tb}) {
+      glm::dvec2 uv;
+      if (!kf.cam.Project(c + t * d, &uv)) return whole;
+      u0 = std::min(u0, uv.x);
+      v0 = std::min(v0, uv.y);
+      u1 = std::max(u1, uv.x);
+      v1 = std::max(v1, uv.y);
+    }
+  }
+  if (u1 < u0) return whole;  // no ray met the range: keep it simple
+  KfRect r;
+  r.x0 = static_cast<int>(std::clamp(std::floor(u0) - 2.0, 0.0, double(kf.cam.width)));
+  r.y0 = static_cast<int>(std::clamp(std::floor(v0) - 2.0, 0.0, double(kf.cam.height)));
+  r.x1 = static_cast<int>(std::clamp(std::ceil(u1) + 3.0, 0.0, double(kf.cam.width)));
+  r.y1 = static_cast<int>(std::clamp(std::ceil(v1) + 3.0, 0.0, double(kf.cam.height)));
+  return r;
+}
+
+}  // namespace
+
 // Background depth of the frame's ROI: the keyframe's depth (observed + inpainted) forward-warped
 // into the ROI pixels (each point to its nearest pixel, nearest point wins; a 2x2 splat biases
 // the depth by half a pixel, which adds up on a floor seen at a grazing angle), the frame's own
@@ -21,8 +83,9 @@ ImageF WarpBackgroundDepth(const DrView& kf, const PinholeCamera& cam, const Rig
   for (size_t i = 0; i < d.size(); ++i) d.data()[i] = roi.data()[i] ? 0.f : frame_depth.data()[i];
   ImageF zbuf(w, h, 1, 1e30f);
   const Rigid3d cam_from_kf = pose.Inverse() * kf.world_from_cam;
-  for (int y = 0; y < kf.cam.height; ++y)
-    for (int x = 0; x < kf.cam.width; ++x) {
+  const KfRect rect = KeyframePixelsOnto(kf, cam, cam_from_kf, roi);
+  for (int y = rect.y0; y < rect.y1; ++y)
+    for (int x = rect.x0; x < rect.x1; ++x) {
       const float z = kf.depth.at(x, y);
       if (!(z > 0.f)) continue;
       const glm::dvec3 p = cam_from_kf * kf.cam.Unproject({x, y}, z);

@@ -158,8 +158,35 @@ ImageU8 ProjectRegions(const RegionLabels& labels, const ImageF& depth_m,
   ImageU8 mask(w, h, 1, 0);
   if (labels.empty() || w == 0 || h == 0) return mask;
   bool any = false;
-  for (int y = 0; y < h; ++y)
-    for (int x = 0; x < w; ++x) {
+  // Only the pixels inside the projection of the labels' bounding box can be labelled (the
+  // whole frame when the box reaches behind the camera).
+  int x0 = 0, y0 = 0, x1 = w, y1 = h;
+  glm::dvec3 lo, hi;
+  if (labels.Bounds(&lo, &hi)) {
+    const Rigid3d cam_from_local = local_from_cam.Inverse();
+    double u0 = 1e30, v0 = 1e30, u1 = -1e30, v1 = -1e30;
+    bool behind = false;
+    for (int c = 0; c < 8 && !behind; ++c) {
+      const glm::dvec3 corner(c & 1 ? hi.x : lo.x, c & 2 ? hi.y : lo.y, c & 4 ? hi.z : lo.z);
+      glm::dvec2 uv;
+      if (!camera.Project(cam_from_local * corner, &uv)) {
+        behind = true;
+        break;
+      }
+      u0 = std::min(u0, uv.x);
+      v0 = std::min(v0, uv.y);
+      u1 = std::max(u1, uv.x);
+      v1 = std::max(v1, uv.y);
+    }
+    if (!behind) {
+      x0 = static_cast<int>(std::clamp(std::floor(u0) - 1.0, 0.0, double(w)));
+      y0 = static_cast<int>(std::clamp(std::floor(v0) - 1.0, 0.0, double(h)));
+      x1 = static_cast<int>(std::clamp(std::ceil(u1) + 2.0, 0.0, double(w)));
+      y1 = static_cast<int>(std::clamp(std::ceil(v1) + 2.0, 0.0, double(h)));
+    }
+  }
+  for (int y = y0; y < y1; ++y)
+    for (int x = x0; x < x1; ++x) {
       const float z = depth_m.at(x, y);
       if (!ValidDepth(z)) continue;
       if (labels.Contains(local_from_cam * camera.Unproject({x, y}, z))) {

@@ -67,6 +67,13 @@ class RegionLabels {
   bool empty() const { return voxels_.empty(); }
   bool Contains(const glm::dvec3& p_local) const;
   double voxel_m() const { return voxel_m_; }
+  // The labelled voxels' bounding box (scene-local metres); false when empty.
+  bool Bounds(glm::dvec3* lo, glm::dvec3* hi) const {
+    if (empty()) return false;
+    *lo = glm::dvec3(lo_) * voxel_m_;
+    *hi = glm::dvec3(hi_ + 1) * voxel_m_;
+    return true;
+  }
 
  private:
   double voxel_m_ = 0.02;

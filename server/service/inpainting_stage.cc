@@ -4,6 +4,7 @@
 #include <chrono>
 #include <condition_variable>
 #include <deque>
+#include <functional>
 #include <mutex>
 #include <optional>
 #include <thread>
@@ -39,6 +40,11 @@ absl::Status InpaintingStageOptions::Validate() const {
   if (live_views < 1 || live_views > 64)
     return absl::InvalidArgumentError("inpaint_live_views must be in [1, 64]");
   if (nice < 0 || nice > 19) return absl::InvalidArgumentError("inpaint_nice must be in [0, 19]");
+  if (frame_nice < -1 || frame_nice > 19)
+    return absl::InvalidArgumentError("inpaint_frame_nice must be -1 (= inpaint_nice) or in [0, 19]");
+  if (kf_crop_margin_px < 0 || !(kf_crop_margin_rel >= 0.0 && kf_crop_margin_rel <= 100.0))
+    return absl::InvalidArgumentError(
+        "inpaint_kf_crop_margin_px must be >= 0 and inpaint_kf_crop_margin_rel in [0, 100]");
   return absl::OkStatus();
 }
 
@@ -76,6 +82,10 @@ DrOptions ToDrOptions(const InpaintingStageOptions& o) {
   const bool dr = o.method == "dr";
   d.obs_views = dr ? o.observation_views : 0;
   d.kf_context = dr;  // "keyframe" (session 9): the library inpaints the whole ROI
+  if (dr) {
+    d.kf_crop_margin_px = o.kf_crop_margin_px;
+    d.kf_crop_margin_rel = o.kf_crop_margin_rel;
+  }
   return d;
 }
 
@@ -97,6 +107,7 @@ class InpaintingStageImpl final : public InpaintingStage {
       : options_(o), dr_options_(ToDrOptions(o)), dr_(dr_options_), regions_(std::move(regions)),
         store_(store) {
     RestoreFromStore();
+    publisher_ = std::thread([this] { PublisherLoop(); });
     worker_ = std::thread([this] { WorkerLoop(); });
     frames_thread_ = std::thread([this] { FrameLoop(); });
   }
@@ -115,14 +126,15 @@ class InpaintingStageImpl final : public InpaintingStage {
     if (f.depth_m.empty()) return absl::OkStatus();
     int64_t next_index = 0;  // counts the frames that arrive (observation stride)
     {
-      std::lock_guard lock(mu_);
+      // slot_mu_ only: the stage's own threads run niced and may hold mu_ for milliseconds
+      // (the rule, job snapshots); the pipeline thread must never wait behind them.
+      std::lock_guard lock(slot_mu_);
       const int64_t seen = frames_seen_++;
       // Only every frame_stride-th frame is looked at.
       if (seen % options_.frame_stride != 0) {
         ++frames_strided_;
         return absl::OkStatus();
       }
-      if (slot_) ++frames_superseded_;
       if (!origin_) origin_ = ctx.origin;
       next_index = seen / options_.frame_stride;
     }
@@ -130,7 +142,8 @@ class InpaintingStageImpl final : public InpaintingStage {
     copy->frame = f;  // ~2 MB at 640x480: well under a millisecond
     copy->received_ns = pf.received_ns;
     {
-      std::lock_guard lock(mu_);
+      std::lock_guard lock(slot_mu_);
+      if (slot_) ++frames_superseded_;
       slot_ = std::move(copy);
       slot_set_ = set;
       slot_index_ = next_index;
@@ -156,16 +169,16 @@ class InpaintingStageImpl final : public InpaintingStage {
   // the live DR view, for the newest handed-off frame.
   void FrameLoop() {
     pthread_setname_np(pthread_self(), "exo-dr-frames");
-    NiceThisThread(options_.nice);
+    NiceThisThread(options_.frame_nice >= 0 ? options_.frame_nice : options_.nice);
     for (;;) {
       std::shared_ptr<PipelineFrame> pf;
       std::shared_ptr<const RegionSet> set;
       LocalOrigin origin;
       int64_t index = 0;
       {
-        std::unique_lock lock(mu_);
-        frame_cv_.wait(lock, [this] { return stop_ || slot_; });
-        if (stop_) return;
+        std::unique_lock lock(slot_mu_);
+        frame_cv_.wait(lock, [this] { return frame_stop_ || slot_; });
+        if (frame_stop_) return;
         pf = std::move(slot_);
         slot_.reset();
         set = std::move(slot_set_);
@@ -174,8 +187,11 @@ class InpaintingStageImpl final : public InpaintingStage {
         frame_busy_ = true;
       }
       ProcessFrame(*pf, set, origin, index);
-      std::lock_guard lock(mu_);
-      frame_busy_ = false;
+      {
+        std::lock_guard lock(slot_mu_);
+        frame_busy_ = false;
+      }
+      std::lock_guard lock(mu_);  // WaitIdle checks under mu_ (then slot_mu_)
       idle_cv_.notify_all();
     }
   }
@@ -311,6 +327,7 @@ class InpaintingStageImpl final : public InpaintingStage {
 
   uint64_t pending() const override {
     std::lock_guard lock(mu_);
+    std::lock_guard slot(slot_mu_);
     return (job_ ? 1 : 0) + (busy_ ? 1 : 0) + (slot_ ? 1 : 0) + (frame_busy_ ? 1 : 0);
   }
 
@@ -326,11 +343,15 @@ class InpaintingStageImpl final : public InpaintingStage {
     c["inpainting.frames_with_roi"] = static_cast<double>(frames_with_roi_);
     c["inpainting.frames_without_roi"] = static_cast<double>(frames_without_roi_);
     c["inpainting.frames_skipped_busy"] = static_cast<double>(skipped_busy_);
+    std::lock_guard slot(slot_mu_);  // lock order: mu_, then slot_mu_
     c["inpainting.frames_skipped_stride"] = static_cast<double>(frames_strided_);
     c["inpainting.views_withdrawn"] = static_cast<double>(withdrawn_);
     c["inpainting.decide_ms_mean"] = decisions_ ? decide_ns_ * 1e-6 / decisions_ : 0.0;
     c["inpainting.first_keyframe_ms"] = first_ms_;
     c["inpainting.propagated_keyframe_ms_mean"] = propagated_ ? propagated_ms_ / propagated_ : 0.0;
+    c["inpainting.first_keyframe_cpu_ms"] = first_cpu_ms_;
+    c["inpainting.propagated_keyframe_cpu_ms_mean"] =
+        propagated_ ? propagated_cpu_ms_ / propagated_ : 0.0;
     c["inpainting.keyframe_ms_last"] = last_ms_;
     c["inpainting.keyframe_ms_mean"] = published_ ? sum_ms_ / published_ : 0.0;
     c["inpainting.keyframe_cpu_ms_mean"] = published_ ? sum_cpu_ms_ / published_ : 0.0;
@@ -382,10 +403,15 @@ class InpaintingStageImpl final : public InpaintingStage {
   bool WaitIdle(double timeout_s) override {
     std::unique_lock lock(mu_);
     return idle_cv_.wait_for(lock, std::chrono::duration<double>(timeout_s),
-                             [this] { return !job_ && !busy_ && !slot_ && !frame_busy_; });
+                             [this] { return !job_ && !busy_ && FrameThreadIdle(); });
   }
 
  private:
+  bool FrameThreadIdle() const {
+    std::lock_guard lock(slot_mu_);
+    return !slot_ && !frame_busy_;
+  }
+
   // A keyframe is computed or waits for the worker (a waiting refresh gives way to a keyframe).
   bool SlotTakenLocked() const { return busy_ || (job_ && !job_->refresh); }
 
@@ -449,10 +475,10 @@ class InpaintingStageImpl final : public InpaintingStage {
     auto msg = ViewToProto(v, options_.publish);
     if (!msg.ok()) return;
     for (uint32_t rid : job.regions->ids()) msg->add_region_ids(rid);
-    {
+    AtServerPriority([&] {
       ScopedDeltaSource source(job.timestamp_s);
       store_->AddView(*std::move(msg));  // same id: replaces the keyframe for every viewer
-    }
+    });
     std::lock_guard lock(mu_);
     dr_.ReplaceKeyframe(job.refresh.get(), r.view);
     ++refreshed_;
@@ -476,6 +502,32 @@ class InpaintingStageImpl final : public InpaintingStage {
           {view->color, view->depth_m, view->camera, view->local_from_cam}, roi, {}));
       ids_.push_back({view->id, 0, inpainting::CountNonZero(roi)});
       if (ids_.size() > options_.max_keyframes) ids_.pop_front();
+    }
+  }
+
+  // Runs `fn` (a store update: it takes the store's lock, which ingest's stages take too) on the
+  // publisher thread, at the server's priority, and waits for it. A niced thread holding the
+  // store's lock could be kept off the CPU by the machine's other work for a long time while
+  // the geometry and planning stages wait for that lock (priority inversion).
+  void AtServerPriority(const std::function<void()>& fn) {
+    std::unique_lock lock(pub_mu_);
+    pub_fn_ = &fn;
+    pub_cv_.notify_all();
+    pub_cv_.wait(lock, [this] { return pub_fn_ == nullptr || pub_stop_; });
+  }
+
+  void PublisherLoop() {
+    pthread_setname_np(pthread_self(), "exo-dr-publish");
+    std::unique_lock lock(pub_mu_);
+    for (;;) {
+      pub_cv_.wait(lock, [this] { return pub_stop_ || pub_fn_ != nullptr; });
+      if (pub_fn_) {
+        (*pub_fn_)();
+        pub_fn_ = nullptr;
+        pub_cv_.notify_all();
+        continue;
+      }
+      if (pub_stop_) return;
     }
   }
 
@@ -572,10 +624,10 @@ class InpaintingStageImpl final : public InpaintingStage {
       return;
     }
     for (uint32_t id : job.regions->ids()) msg->add_region_ids(id);
-    {
+    AtServerPriority([&] {
       ScopedDeltaSource source(job.timestamp_s);
       store_->AddView(*std::move(msg));
-    }
+    });
     const int roi_px = inpainting::CountNonZero(kv.roi);
     std::optional<ViewId> evict;
     {
@@ -596,11 +648,13 @@ class InpaintingStageImpl final : public InpaintingStage {
       if (k.propagated) {
         ++propagated_;
         propagated_ms_ += ms;
+        propagated_cpu_ms_ += cpu_ms;
       } else if (first_ms_ == 0.0) {
         first_ms_ = ms;
+        first_cpu_ms_ = cpu_ms;
       }
     }
-    if (evict) (void)store_->RemoveView(*evict);
+    if (evict) AtServerPriority([&] { (void)store_->RemoveView(*evict); });
     log->info("inpainted keyframe {} of frame {} ({}; {} ROI px, {} observed in other views, {} "
               "inpainted, {} propagated) in {:.0f} ms ({:.0f} ms CPU)",
               v.id, job.sequence, job.reason, roi_px, k.observed_px, k.hallucinated_px,
@@ -612,11 +666,21 @@ class InpaintingStageImpl final : public InpaintingStage {
       std::lock_guard lock(mu_);
       stop_ = true;
     }
+    {
+      std::lock_guard lock(slot_mu_);
+      frame_stop_ = true;
+    }
     cv_.notify_all();
     frame_cv_.notify_all();
     live_cv_.notify_all();
     if (frames_thread_.joinable()) frames_thread_.join();
     if (worker_.joinable()) worker_.join();
+    {
+      std::lock_guard lock(pub_mu_);
+      pub_stop_ = true;
+    }
+    pub_cv_.notify_all();
+    if (publisher_.joinable()) publisher_.join();
   }
 
   const InpaintingStageOptions options_;
@@ -627,7 +691,10 @@ class InpaintingStageImpl final : public InpaintingStage {
   std::mutex publish_mu_;  // publish vs Withdraw
   mutable std::mutex mu_;
   std::condition_variable cv_, idle_cv_, frame_cv_, live_cv_;
-  // The frame thread's one-frame slot (Process -> FrameLoop).
+  // The frame thread's one-frame slot (Process -> FrameLoop), under slot_mu_ with the arrival
+  // counters, origin_ and frame_busy_ (lock order: mu_ before slot_mu_, never the reverse).
+  mutable std::mutex slot_mu_;
+  bool frame_stop_ = false;
   std::shared_ptr<PipelineFrame> slot_;
   std::shared_ptr<const RegionSet> slot_set_;
   std::optional<LocalOrigin> origin_;
@@ -656,11 +723,17 @@ class InpaintingStageImpl final : public InpaintingStage {
            frames_without_roi_ = 0, skipped_busy_ = 0, withdrawn_ = 0, decisions_ = 0,
            frames_seen_ = 0, frames_strided_ = 0, refreshed_ = 0, refreshed_px_ = 0, refresh_jobs_ = 0;
   int64_t decide_ns_ = 0, keyframe_roi_px_ = 0, keyframe_observed_px_ = 0;
+  double first_cpu_ms_ = 0, propagated_cpu_ms_ = 0;
   double first_ms_ = 0, propagated_ms_ = 0, last_ms_ = 0, sum_ms_ = 0, sum_cpu_ms_ = 0;
   double refresh_cpu_ms_ = 0, frame_cpu_ms_ = 0;  // worker's refreshes; pipeline thread per frame
   uint64_t frames_measured_ = 0;
   std::string last_error_;
-  std::thread worker_, frames_thread_;
+  std::thread worker_, frames_thread_, publisher_;
+  // The publisher thread's one-call hand-off (AtServerPriority).
+  std::mutex pub_mu_;
+  std::condition_variable pub_cv_;
+  const std::function<void()>* pub_fn_ = nullptr;
+  bool pub_stop_ = false;
 };
 
 }  // namespace

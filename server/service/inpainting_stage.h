@@ -63,6 +63,11 @@ struct InpaintingStageOptions {
   // The stage's two threads (frames, keyframes) run this much nicer than the server: the DR
   // work yields the CPU to ingest and the modelling stages (0 = the server's priority).
   int nice = 10;
+  // The frame thread's own niceness (the live DR view's rate); -1 = `nice`.
+  int frame_nice = -1;
+  // "dr": a keyframe inpaints a crop around its ROI (DrOptions::kf_crop_margin_*; 0 / 0 = whole).
+  int kf_crop_margin_px = 0;
+  double kf_crop_margin_rel = 0.0;
   ViewEncodeOptions publish;
   absl::Status Validate() const;
 };
