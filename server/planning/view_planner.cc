@@ -522,8 +522,21 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
       return std::min(nearest_.at(v.id).d2,
                       PoseDistance(v.centre, v.rotation, view.centre, view.rotation));
     };
+    // dispersion_keep_nearest: the candidate's nearest stored view (0: none / option off).
+    ViewId keep = 0;
+    if (options_.dispersion_keep_nearest) {
+      double best_d = std::numeric_limits<double>::infinity();
+      for (const auto& [vid, v] : views_) {
+        const double dist = PoseDistance(v.centre, v.rotation, view.centre, view.rotation);
+        if (dist < best_d) {
+          best_d = dist;
+          keep = vid;
+        }
+      }
+    }
     auto more_redundant = [&](const View& v, double red, const View& b, double b_red) {
       if (red != b_red) return red < b_red;
+      if (keep != 0 && (v.id == keep) != (b.id == keep)) return b.id == keep;
       const double cv = crowding(v), cb = crowding(b);
       if (cv != cb) return cv < cb;
       return v.id < b.id;
