@@ -262,6 +262,8 @@ planning::PlannerOptions PlannerFor(const PolicyConfig& c, const Source& src, do
                                       : product.dispersion_weight_exponent;
   po.dispersion_weight_after = c.dispersion_weight_after >= 0 ? c.dispersion_weight_after
                                                               : product.dispersion_weight_after;
+  po.dispersion_weight_until = c.dispersion_weight_until >= 0 ? c.dispersion_weight_until
+                                                              : product.dispersion_weight_until;
   po.dispersion_keep_nearest = c.dispersion_keep_nearest >= 0 ? c.dispersion_keep_nearest != 0
                                                               : product.dispersion_keep_nearest;
   po.d_max_m = src.scale.d_max_m;
@@ -400,6 +402,7 @@ std::string ConfigJson(const std::string& dataset, const std::string& test_poses
                  {"dispersion_guard_unique_after", po.dispersion_guard_unique_after},
                  {"dispersion_weight_exponent", po.dispersion_weight_exponent},
                  {"dispersion_weight_after", po.dispersion_weight_after},
+                 {"dispersion_weight_until", po.dispersion_weight_until},
                  {"dispersion_keep_nearest", int(po.dispersion_keep_nearest)},
                  {"sharp_gamma", c.sharp_gamma}};
   j["quality"] = {{"mssim", Round(r.quality.mssim, 4)},
@@ -570,6 +573,7 @@ class Engine {
         mo.dispersion_weight_exponent = po.dispersion_weight_exponent;
         mo.dispersion_weight_after = po.dispersion_weight_after;
         mo.dispersion_keep_nearest = po.dispersion_keep_nearest;
+        mo.dispersion_weight_until = po.dispersion_weight_until;
         mo.frame_quality.gamma = c.sharp_gamma;
         mo.cell_areas = !c.face_areas;
         mo.id_buffer_stride = IdStride();

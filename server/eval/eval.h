@@ -94,6 +94,7 @@ struct PolicyConfig {
   double dispersion_guard_unique_after = -1;  // policy option "dgua=V"
   double dispersion_weight_exponent = -1;     // policy option "dwe=V"
   double dispersion_weight_after = -1;        // policy option "dwa=V"
+  double dispersion_weight_until = -1;        // policy option "dwu=V"
   int dispersion_keep_nearest = -1;           // policy option "dkn=0|1"
 
   // OnlineModelOptions::frame_quality.gamma; policy option "sharp=G" (0 = off).

@@ -523,6 +523,34 @@ TEST(ViewPlanner, DensityWeightedDispersionKeepsMoreViewsWhereTheCameraLingers) 
     o.dispersion_weight_after = -1;
     EXPECT_FALSE(o.Validate().ok());
   }
+  // dispersion_weight_until: the weighting ends after U frames per view; an end before the
+  // first candidate is min-distance exactly, one beyond the stream the weighted store exactly.
+  for (double until : {1e-9, double(xs.size()) / double(store) + 1}) {
+    PlannerOptions o;
+    o.max_views = store;
+    o.cell_size_m = 1.0;
+    o.tau_max = 0.05;
+    o.dispersion = PlannerOptions::Dispersion::kFirst;
+    o.dispersion_guard = 1e9;
+    o.dispersion_guard_relative = 0;
+    o.dispersion_weight_exponent = 0.5;
+    o.dispersion_weight_until = until;
+    auto p = ViewPlanner::Create(o).value();
+    std::map<ViewId, double> x_of;
+    ViewId id = 1;
+    for (double x : xs) {
+      const glm::dvec3 eye(x, 0, 2);
+      auto d = p.Consider(MakeCandidate(id, eye, eye + glm::dvec3(1, 0, -1), p.grid())).value();
+      if (d.accepted) x_of[id] = x;
+      for (ViewId r : d.removed) x_of.erase(r);
+      ++id;
+    }
+    int in_linger = 0;
+    for (const auto& [v, x] : x_of) in_linger += x >= 10 && x < 12;
+    EXPECT_EQ(in_linger, until < 1 ? lingering[0] : lingering[1]) << "until " << until;
+    o.dispersion_weight_after = until;  // the end must come after the start
+    EXPECT_FALSE(o.Validate().ok());
+  }
   const double every_n = double(store) * 200.0 / double(xs.size());  // ~8.6
   EXPECT_LE(lingering[0], 2) << "min-distance is uniform over the line";
   EXPECT_GE(lingering[1], lingering[0] + 2) << "the weighted store keeps more views where the camera lingers";
