@@ -72,6 +72,8 @@ absl::Status OnlineModelOptions::Validate() const {
     po.dispersion_guard_unique_after = dispersion_guard_unique_after;
     po.dispersion_weight_exponent = dispersion_weight_exponent;
     po.dispersion_weight_after = dispersion_weight_after;
+    po.dispersion_keep_nearest = dispersion_keep_nearest;
+    po.dispersion_weight_until = dispersion_weight_until;
     EXO_RETURN_IF_ERROR(po.Validate());
   }
   if (tsdf_threads < 1) return absl::InvalidArgumentError("tsdf_threads must be >= 1");
@@ -312,6 +314,8 @@ absl::StatusOr<std::unique_ptr<OnlinePlanner>> OnlinePlanner::Create(
   po.dispersion_guard_unique_after = options.dispersion_guard_unique_after;
   po.dispersion_weight_exponent = options.dispersion_weight_exponent;
   po.dispersion_weight_after = options.dispersion_weight_after;
+  po.dispersion_keep_nearest = options.dispersion_keep_nearest;
+  po.dispersion_weight_until = options.dispersion_weight_until;
   po.cell_size_m = setup.cell_m;
   po.d_max_m = setup.d_max_m;
   po.sigma_m = setup.sigma_m;

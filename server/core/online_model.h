@@ -82,6 +82,8 @@ struct OnlineModelOptions {
   // PlannerOptions::dispersion_weight_exponent (density-weighted dispersion; 0 = off).
   double dispersion_weight_exponent = 0.0;
   double dispersion_weight_after = 0.0;  // PlannerOptions::dispersion_weight_after
+  double dispersion_weight_until = 0.0;  // PlannerOptions::dispersion_weight_until
+  bool dispersion_keep_nearest = false;  // PlannerOptions::dispersion_keep_nearest
   // Relative sharpness of each frame as the planner's candidate quality (issue 15;
   // planning/frame_quality.h). gamma 0 = off.
   planning::FrameQualityOptions frame_quality;

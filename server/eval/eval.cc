@@ -262,6 +262,10 @@ planning::PlannerOptions PlannerFor(const PolicyConfig& c, const Source& src, do
                                       : product.dispersion_weight_exponent;
   po.dispersion_weight_after = c.dispersion_weight_after >= 0 ? c.dispersion_weight_after
                                                               : product.dispersion_weight_after;
+  po.dispersion_weight_until = c.dispersion_weight_until >= 0 ? c.dispersion_weight_until
+                                                              : product.dispersion_weight_until;
+  po.dispersion_keep_nearest = c.dispersion_keep_nearest >= 0 ? c.dispersion_keep_nearest != 0
+                                                              : product.dispersion_keep_nearest;
   po.d_max_m = src.scale.d_max_m;
   po.sigma_m = src.scale.sigma_m;
   if (src.scale_mode == ScaleMode::kViewDepth && src.view_depth_m > 0) {
@@ -398,6 +402,8 @@ std::string ConfigJson(const std::string& dataset, const std::string& test_poses
                  {"dispersion_guard_unique_after", po.dispersion_guard_unique_after},
                  {"dispersion_weight_exponent", po.dispersion_weight_exponent},
                  {"dispersion_weight_after", po.dispersion_weight_after},
+                 {"dispersion_weight_until", po.dispersion_weight_until},
+                 {"dispersion_keep_nearest", int(po.dispersion_keep_nearest)},
                  {"sharp_gamma", c.sharp_gamma}};
   j["quality"] = {{"mssim", Round(r.quality.mssim, 4)},
                   {"psnr", Round(r.quality.psnr, 2)},
@@ -449,6 +455,7 @@ std::string ConfigJson(const std::string& dataset, const std::string& test_poses
   if (!r.per_view_ssim.empty()) {
     nlohmann::ordered_json pv;
     pv["ssim"] = RoundedArray(r.per_view_ssim, 4);
+    if (!r.per_view_coverage.empty()) pv["coverage"] = RoundedArray(r.per_view_coverage, 4);
     if (!r.per_view_near_m.empty()) {
       pv["near_m"] = RoundedArray(r.per_view_near_m, 3);
       pv["near_deg"] = RoundedArray(r.per_view_near_deg, 1);
@@ -565,6 +572,8 @@ class Engine {
         mo.dispersion_guard_unique_after = po.dispersion_guard_unique_after;
         mo.dispersion_weight_exponent = po.dispersion_weight_exponent;
         mo.dispersion_weight_after = po.dispersion_weight_after;
+        mo.dispersion_keep_nearest = po.dispersion_keep_nearest;
+        mo.dispersion_weight_until = po.dispersion_weight_until;
         mo.frame_quality.gamma = c.sharp_gamma;
         mo.cell_areas = !c.face_areas;
         mo.id_buffer_stride = IdStride();
@@ -884,6 +893,7 @@ class Engine {
         rt.render_ms_median = render_ms;
         if (opt_.per_view) {
           rt.per_view_ssim = sink.ssim;
+          rt.per_view_coverage = sink.cov;
           PerViewDiagnostics(selected, refs, g.grid, proxy_mesh, ts, int(sink.ssim.size()), &rt);
         }
         rt.json = ConfigJson(src_.dataset, ts.label, proxy_name, voxel_m, n, c, po.lambda,

@@ -94,6 +94,8 @@ struct PolicyConfig {
   double dispersion_guard_unique_after = -1;  // policy option "dgua=V"
   double dispersion_weight_exponent = -1;     // policy option "dwe=V"
   double dispersion_weight_after = -1;        // policy option "dwa=V"
+  double dispersion_weight_until = -1;        // policy option "dwu=V"
+  int dispersion_keep_nearest = -1;           // policy option "dkn=0|1"
 
   // OnlineModelOptions::frame_quality.gamma; policy option "sharp=G" (0 = off).
   double sharp_gamma = 0.0;
@@ -147,7 +149,8 @@ struct ConfigResult {
   // Per test view (only with per_view diagnostics on): SSIM; distance (m), angle between the
   // optical axes (deg) and stream index of the nearest stored view; the fraction of the view's
   // cell-id pixels whose R(b_k) contains that nearest view.
-  std::vector<double> per_view_ssim, per_view_near_m, per_view_near_deg, per_view_near_frame,
+  // per_view_coverage: the fraction of the view's pixels the blend covered (before the hole fill).
+  std::vector<double> per_view_ssim, per_view_coverage, per_view_near_m, per_view_near_deg, per_view_near_frame,
       per_view_ref_hit;
   std::string json;                              // the printed line
 };

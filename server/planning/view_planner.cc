@@ -64,10 +64,14 @@ absl::Status PlannerOptions::Validate() const {
     return absl::InvalidArgumentError("planner dispersion_min must be finite and >= 0");
   if (!std::isfinite(dispersion_weight_exponent) || dispersion_weight_exponent < 0.0 ||
       dispersion_weight_exponent > 0.95 || !std::isfinite(dispersion_weight_after) ||
-      dispersion_weight_after < 0.0)
+      dispersion_weight_after < 0.0 || !std::isfinite(dispersion_weight_until) ||
+      dispersion_weight_until < 0.0 ||
+      (dispersion_weight_until > 0.0 && dispersion_weight_until <= dispersion_weight_after))
     return absl::InvalidArgumentError(absl::StrCat(
-        "planner dispersion_weight_exponent must be in [0, 0.95] and dispersion_weight_after >= 0, "
-        "got ", dispersion_weight_exponent, " and ", dispersion_weight_after));
+        "planner dispersion_weight_exponent must be in [0, 0.95], dispersion_weight_after >= 0 "
+        "and dispersion_weight_until 0 or > dispersion_weight_after, got ",
+        dispersion_weight_exponent, ", ", dispersion_weight_after, " and ",
+        dispersion_weight_until));
   return absl::OkStatus();
 }
 
@@ -283,10 +287,13 @@ void ViewPlanner::GiveWeight(const glm::dvec3& centre, const glm::dquat& rotatio
 }
 
 bool ViewPlanner::Weighted() const {
+  const double offered = static_cast<double>(offered_);
+  const double capacity = static_cast<double>(options_.max_views);
   return options_.dispersion != PlannerOptions::Dispersion::kOff &&
          options_.dispersion_weight_exponent > 0.0 &&
-         static_cast<double>(offered_) >
-             options_.dispersion_weight_after * static_cast<double>(options_.max_views);
+         offered > options_.dispersion_weight_after * capacity &&
+         (options_.dispersion_weight_until <= 0.0 ||
+          offered <= options_.dispersion_weight_until * capacity);
 }
 
 double ViewPlanner::WeightedSpacing(double d1, double weight) const {
@@ -522,8 +529,21 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
       return std::min(nearest_.at(v.id).d2,
                       PoseDistance(v.centre, v.rotation, view.centre, view.rotation));
     };
+    // dispersion_keep_nearest: the candidate's nearest stored view (0: none / option off).
+    ViewId keep = 0;
+    if (options_.dispersion_keep_nearest) {
+      double best_d = std::numeric_limits<double>::infinity();
+      for (const auto& [vid, v] : views_) {
+        const double dist = PoseDistance(v.centre, v.rotation, view.centre, view.rotation);
+        if (dist < best_d) {
+          best_d = dist;
+          keep = vid;
+        }
+      }
+    }
     auto more_redundant = [&](const View& v, double red, const View& b, double b_red) {
       if (red != b_red) return red < b_red;
+      if (keep != 0 && (v.id == keep) != (b.id == keep)) return b.id == keep;
       const double cv = crowding(v), cb = crowding(b);
       if (cv != cb) return cv < cb;
       return v.id < b.id;

@@ -131,6 +131,16 @@ struct PlannerOptions {
   // distance before. Ten 7-Scenes folds: the weighting wins at 10.8 frames per view (store 25)
   // and loses at 5.6 and 2.8 (stores 48, 95; docs/planning.md "Session 12").
   double dispersion_weight_after = 0.0;
+  // > 0: the density-weighted redundancy only until the planner has been offered this many
+  // candidates per view of capacity (must exceed dispersion_weight_after); the plain distance
+  // after (the weights are still kept). 0: no end (docs/planning.md "Session 13").
+  double dispersion_weight_until = 0.0;
+  // kFirst / kTies: between views of equal redundancy (the two views of the store's closest
+  // pair), the candidate's nearest stored view stays and the other leaves (the min-distance
+  // baseline's rule); false: the one in the more crowded place leaves (second-neighbour
+  // distance, the candidate counted). Diagnostic for the long drone stream (docs/planning.md
+  // "Session 13").
+  bool dispersion_keep_nearest = false;
 
   absl::Status Validate() const;
 

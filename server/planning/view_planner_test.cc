@@ -523,6 +523,34 @@ TEST(ViewPlanner, DensityWeightedDispersionKeepsMoreViewsWhereTheCameraLingers) 
     o.dispersion_weight_after = -1;
     EXPECT_FALSE(o.Validate().ok());
   }
+  // dispersion_weight_until: the weighting ends after U frames per view; an end before the
+  // first candidate is min-distance exactly, one beyond the stream the weighted store exactly.
+  for (double until : {1e-9, double(xs.size()) / double(store) + 1}) {
+    PlannerOptions o;
+    o.max_views = store;
+    o.cell_size_m = 1.0;
+    o.tau_max = 0.05;
+    o.dispersion = PlannerOptions::Dispersion::kFirst;
+    o.dispersion_guard = 1e9;
+    o.dispersion_guard_relative = 0;
+    o.dispersion_weight_exponent = 0.5;
+    o.dispersion_weight_until = until;
+    auto p = ViewPlanner::Create(o).value();
+    std::map<ViewId, double> x_of;
+    ViewId id = 1;
+    for (double x : xs) {
+      const glm::dvec3 eye(x, 0, 2);
+      auto d = p.Consider(MakeCandidate(id, eye, eye + glm::dvec3(1, 0, -1), p.grid())).value();
+      if (d.accepted) x_of[id] = x;
+      for (ViewId r : d.removed) x_of.erase(r);
+      ++id;
+    }
+    int in_linger = 0;
+    for (const auto& [v, x] : x_of) in_linger += x >= 10 && x < 12;
+    EXPECT_EQ(in_linger, until < 1 ? lingering[0] : lingering[1]) << "until " << until;
+    o.dispersion_weight_after = until;  // the end must come after the start
+    EXPECT_FALSE(o.Validate().ok());
+  }
   const double every_n = double(store) * 200.0 / double(xs.size());  // ~8.6
   EXPECT_LE(lingering[0], 2) << "min-distance is uniform over the line";
   EXPECT_GE(lingering[1], lingering[0] + 2) << "the weighted store keeps more views where the camera lingers";
@@ -531,6 +559,41 @@ TEST(ViewPlanner, DensityWeightedDispersionKeepsMoreViewsWhereTheCameraLingers) 
   std::cout << "lingering views: min-distance " << lingering[0] << ", weighted " << lingering[1]
             << ", every-N " << every_n << "; mean frame-to-store distance " << mean_error[0]
             << " -> " << mean_error[1] << " m\n";
+}
+
+// dispersion_keep_nearest: the store's closest pair is A (x = 0) and B (x = 1); C lies at 5. A
+// candidate at x = -1.5 is farther from its nearest view (A, 1.5) than the pair's distance, so it
+// is stored and one of the pair leaves. The default removes the one in the more crowded place
+// (A: its nearest other view, the candidate counted, is 1.5 away; B's is 2.5); with the option the
+// candidate's nearest (A) stays and B leaves, as in the min-distance baseline.
+TEST(ViewPlanner, KeepNearestChoosesWhichViewOfTheClosestPairLeaves) {
+  for (bool keep_nearest : {false, true}) {
+    PlannerOptions o;
+    o.max_views = 3;
+    o.cell_size_m = 1.0;
+    o.tau_max = 0.05;  // cells saturate: the pose terms decide
+    o.dispersion = PlannerOptions::Dispersion::kFirst;
+    o.dispersion_guard = 1e9;
+    o.dispersion_guard_relative = 0;
+    o.dispersion_keep_nearest = keep_nearest;
+    auto p = ViewPlanner::Create(o).value();
+    ViewId id = 1;
+    for (double x : {0.0, 1.0, 5.0}) {
+      const glm::dvec3 eye(x, 0, 2);
+      auto d = p.Consider(MakeCandidate(id++, eye, eye + glm::dvec3(1, 0, -1), p.grid()));
+      ASSERT_TRUE(d.ok()) << d.status();
+      ASSERT_TRUE(d->accepted) << d->reason;
+    }
+    const glm::dvec3 eye(-1.5, 0, 2);
+    auto d = p.Consider(MakeCandidate(4, eye, eye + glm::dvec3(1, 0, -1), p.grid()));
+    ASSERT_TRUE(d.ok()) << d.status();
+    ASSERT_TRUE(d->accepted) << d->reason;
+    ASSERT_EQ(d->removed.size(), 1u);
+    EXPECT_EQ(d->removed[0], keep_nearest ? ViewId(2) : ViewId(1))
+        << (keep_nearest ? "the candidate's nearest view (A) must stay"
+                         : "the view in the more crowded place (A) must leave");
+    EXPECT_EQ(p.num_views(), 3u);
+  }
 }
 
 TEST(ViewPlanner, LongStreamRespectsBoundsAndIncrementalTauSumIsExact) {

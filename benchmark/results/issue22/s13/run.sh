@@ -1,0 +1,4 @@
+#!/bin/bash
+# usage: run.sh STREAM SEED POLICIES OUT   (run from the worktree root; session 12's protocol)
+s=$1; seed=$2; pol=$3; out=$4
+nice -n 10 build/server/eval/exoview_eval --scene apartment --traj $s --frames 5000 --scene_seed $seed --test_seed $((10+seed)) --store 50,100,200 --policies $pol --proxy gt --frame_w 160 --frame_h 120 --test_w 160 --test_h 120 --test_views 16 --test_poses near,scene > $out 2>$out.log
