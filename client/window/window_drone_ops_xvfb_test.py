@@ -364,36 +364,51 @@ def main():
             f"#{other.command_sequence} wins; the window's overlay shows its target")
 
         # ---- joypad keys: I forward, U turn left ----
-        cs = wait_still("before the joypad", timeout=60)
-        p0, yaw0 = v3(cs.drone.position), cs.drone.yaw
-        up = v3(cs.up) / np.linalg.norm(v3(cs.up))
-        e1 = np.array([1.0, 0, 0]) - up[0] * up
-        e1 /= np.linalg.norm(e1)
-        heading = math.cos(yaw0) * e1 + math.sin(yaw0) * np.cross(up, e1)
+        # Where the earlier steps left the drone, a zone border or a wall may block both I and K
+        # (the clamp then slides or stops the setpoint and says "boundary"); the drone is turned
+        # by ~90 degrees with U and the pair tried again, up to four headings.
+        def heading_of(cs):
+            up = v3(cs.up) / np.linalg.norm(v3(cs.up))
+            e1 = np.array([1.0, 0, 0]) - up[0] * up
+            e1 /= np.linalg.norm(e1)
+            return math.cos(cs.drone.yaw) * e1 + math.sin(cs.drone.yaw) * np.cross(up, e1)
+
         cs_held = None
-        for key, sign in (("i", 1.0), ("k", -1.0)):  # forward; back when a wall is ahead
-            st = read_status(lambda s: True, "a status")
-            n0 = seq_of(st, "joypad")
-            xdo("keydown", key)
-            time.sleep(1.0)
-            cs_held = cstate()
-            xdo("keyup", key)
-            st = read_status(lambda s: seq_of(s, "joypad") > n0, "joypad replies", timeout=20)
-            ahead = float((v3(cs_held.target) - p0) @ heading)
-            side = float(np.linalg.norm((v3(cs_held.target) - p0) - ahead * heading))
-            log(f"{key.upper()} held 1 s: {ops(st)['operator']['joypad_sent']} joypad commands "
-                f"so far, setpoint {ahead:.2f} m along the heading ({side:.2f} m off it); "
-                f"{last(st, 'joypad')['summary']}")
-            if cs_held.interaction != pb.JOYPAD or cs_held.operator_id != OPERATOR:
-                fail(f"holding {key.upper()} did not give a joypad command")
-            if sign * ahead >= 0.3 and side <= 0.1:
-                break
-            if "boundary" not in last(st, "joypad")["summary"]:
-                fail(f"holding {key.upper()} did not move the setpoint along the heading")
-            cs = wait_still("after a blocked joypad", timeout=30)
+        moved = False
+        for turn in range(4):
+            cs = wait_still("before the joypad", timeout=60)
             p0 = v3(cs.drone.position)
-        else:
-            fail("neither I nor K moved the setpoint along the heading")
+            heading = heading_of(cs)
+            for key, sign in (("i", 1.0), ("k", -1.0)):  # forward; back when a wall is ahead
+                st = read_status(lambda s: True, "a status")
+                n0 = seq_of(st, "joypad")
+                xdo("keydown", key)
+                time.sleep(1.0)
+                cs_held = cstate()
+                xdo("keyup", key)
+                st = read_status(lambda s: seq_of(s, "joypad") > n0, "joypad replies", timeout=20)
+                ahead = float((v3(cs_held.target) - p0) @ heading)
+                side = float(np.linalg.norm((v3(cs_held.target) - p0) - ahead * heading))
+                log(f"{key.upper()} held 1 s: {ops(st)['operator']['joypad_sent']} joypad commands "
+                    f"so far, setpoint {ahead:.2f} m along the heading ({side:.2f} m off it); "
+                    f"{last(st, 'joypad')['summary']}")
+                if cs_held.interaction != pb.JOYPAD or cs_held.operator_id != OPERATOR:
+                    fail(f"holding {key.upper()} did not give a joypad command")
+                if sign * ahead >= 0.3 and side <= 0.1:
+                    moved = True
+                    break
+                if "boundary" not in last(st, "joypad")["summary"]:
+                    fail(f"holding {key.upper()} did not move the setpoint along the heading")
+                cs = wait_still("after a blocked joypad", timeout=30)
+                p0 = v3(cs.drone.position)
+            if moved:
+                break
+            log("both I and K blocked at this heading: turning ~90 degrees with U")
+            xdo("keydown", "u")
+            time.sleep(1.5)
+            xdo("keyup", "u")
+        if not moved:
+            fail("neither I nor K moved the setpoint along the heading at four headings")
         wait_still("after I", timeout=30)
         xdo("keydown", "u")
         time.sleep(0.8)
