@@ -13,6 +13,12 @@ int main(int argc, char** argv) {
   app.add_option("--checkpoint", o.checkpoint, "or: a server checkpoint file (--checkpoint_path)");
   app.add_option("--server", o.server, "or: subscribe to this server HOST:PORT (live)");
   app.add_option("--journal", o.journal, "delta journal of the live subscription (resume)");
+  app.add_option("--tls_ca", o.security.tls_ca, "CA certificate (PEM) of the server's certificate: TLS");
+  app.add_option("--tls_cert", o.security.tls_cert, "client certificate (PEM), for mutual TLS");
+  app.add_option("--tls_key", o.security.tls_key, "client private key (PEM)");
+  app.add_option("--tls_server_name", o.security.server_name, "name to verify in the server certificate");
+  app.add_option("--token_file", o.security.token_file,
+                 "file holding this client's bearer token (a viewer's; an operator's to steer the drone)");
   app.add_option("--save_model", o.save_model, "write the model here on P and on exit (live)");
   app.add_option("--save_model_jpeg_quality", o.save_model_jpeg_quality,
                  "JPEG quality of the saved views' colour (0 = raw, 13x larger on 7-Scenes)")

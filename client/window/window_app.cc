@@ -100,7 +100,8 @@ class ModelSource {
       return src;
     }
     src->live_ = true;
-    EXO_ASSIGN_OR_RETURN(src->session_, ViewerSession::Open(MakeChannel(o.server), o.journal));
+    EXO_ASSIGN_OR_RETURN(auto channel, MakeChannel(o.server, o.security));
+    EXO_ASSIGN_OR_RETURN(src->session_, ViewerSession::Open(std::move(channel), o.journal));
     ViewerSession* vs = src->session_.get();
     ModelSource* self = src.get();
     vs->SetOnDelta([self](const v1::Delta& d, int64_t) {
@@ -190,9 +191,10 @@ class ModelSource {
 // control service (UNIMPLEMENTED) is asked again every 5 s; the HUD says which.
 class ControlSource {
  public:
-  ControlSource(const std::string& address, std::string drone_id)
+  ControlSource(const std::string& address, const std::shared_ptr<grpc::Channel>& channel,
+                std::string drone_id)
       : drone_id_(std::move(drone_id)),
-        stub_(exoview::control::v1::Control::NewStub(MakeChannel(address))) {
+        stub_(exoview::control::v1::Control::NewStub(channel)) {
     state_ = "control: connecting to " + address;
     thread_ = std::thread([this] { Run(); });
   }
@@ -395,9 +397,10 @@ class App {
     cells_by_tau_ = o_.cells_by_tau;
     const std::string control = o_.control.empty() ? (source_->live() ? o_.server : "") : o_.control;
     if (!control.empty() && control != "none") {
-      control_ = std::make_unique<ControlSource>(control, o_.drone_id);
+      EXO_ASSIGN_OR_RETURN(auto channel, MakeChannel(control, o_.security));
+      control_ = std::make_unique<ControlSource>(control, channel, o_.drone_id);
       operator_ = std::make_unique<DroneOperator>(
-          MakeChannel(control), o_.drone_id,
+          channel, o_.drone_id,
           o_.operator_id.empty() ? "window-" + std::to_string(getpid()) : o_.operator_id);
     }
     DroneControlsOptions dco;
@@ -1431,16 +1434,20 @@ class App {
     // The live DR view of a server (GET /dr.jpg, the page's "DR view" toggle): watched on demand.
     std::unique_ptr<DrViewWatcher> dr_watch;
     if (!o_.server.empty()) {
-      dr_watch = std::make_unique<DrViewWatcher>(MakeChannel(o_.server), [view_ptr](const v1::DrViewFrame& m) {
-        if (m.color_jpeg().empty()) return;
-        view_ptr->PublishDrFrame(
-            std::vector<uint8_t>(m.color_jpeg().begin(), m.color_jpeg().end()),
-            nlohmann::json({{"sequence", m.sequence()}, {"composited", m.composited()},
-                            {"roi_px", m.roi_px()}, {"latency_ms", std::round(m.latency_ms() * 10) / 10},
-                            {"width", m.width()}, {"height", m.height()}}).dump());
-      });
-      (*http)->SetDrSource([w = dr_watch.get()] { w->Demand(); },
-                           [w = dr_watch.get()] { return w->status(); });
+      // The same security as the model's channel (which opened, so this one builds too).
+      auto channel = MakeChannel(o_.server, o_.security);
+      if (channel.ok()) {
+        dr_watch = std::make_unique<DrViewWatcher>(*channel, [view_ptr](const v1::DrViewFrame& m) {
+          if (m.color_jpeg().empty()) return;
+          view_ptr->PublishDrFrame(
+              std::vector<uint8_t>(m.color_jpeg().begin(), m.color_jpeg().end()),
+              nlohmann::json({{"sequence", m.sequence()}, {"composited", m.composited()},
+                              {"roi_px", m.roi_px()}, {"latency_ms", std::round(m.latency_ms() * 10) / 10},
+                              {"width", m.width()}, {"height", m.height()}}).dump());
+        });
+        (*http)->SetDrSource([w = dr_watch.get()] { w->Demand(); },
+                             [w = dr_watch.get()] { return w->status(); });
+      }
     }
     const int port = (*http)->port();
     if (!o_.port_file.empty()) std::ofstream(o_.port_file) << port << "\n";

@@ -16,11 +16,16 @@
 
 #include <string>
 
+#include "client/uploader/upload_client.h"  // ChannelSecurity
+
 namespace exo {
 
 struct WindowAppOptions {
   // Model: a file (model_io.h) or a server subscription.
   std::string model_file, server, journal;
+  // TLS and the bearer token for every channel to the server (the live model, the control
+  // service, the live DR view), as exoview_viewer's --tls_* / --token_file; empty = plain text.
+  ChannelSecurity security;
   std::string checkpoint;  // or a server checkpoint (exoview_server --checkpoint_path)
   std::string save_model;  // written on P and on exit (live sessions)
   int save_model_jpeg_quality = 90;  // its views' colour: JPEG quality, 0 = raw (as exoview_viewer)

@@ -394,7 +394,9 @@ def main():
                     f"{last(st, 'joypad')['summary']}")
                 if cs_held.interaction != pb.JOYPAD or cs_held.operator_id != OPERATOR:
                     fail(f"holding {key.upper()} did not give a joypad command")
-                if sign * ahead >= 0.3 and side <= 0.1:
+                # 1 s of a key moves the setpoint ~1 m in open space; next to a zone border or a
+                # wall the clamp shortens it (seen: 0.22-0.32 m), so 0.2 m the right way is enough.
+                if sign * ahead >= 0.2 and side <= 0.2:
                     moved = True
                     break
                 if "boundary" not in last(st, "joypad")["summary"]:
