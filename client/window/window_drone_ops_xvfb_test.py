@@ -39,6 +39,7 @@ from PIL import Image
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 sys.dont_write_bytecode = True  # no __pycache__ in the source tree
 import window_drone_xvfb_test as base  # noqa: E402  (Display, control_stubs)
+from local_procs import fresh_port_file, start_server, wait_port  # noqa: E402
 
 W, H = base.W, base.H
 OPERATOR = "window-test"
@@ -112,20 +113,14 @@ def main():
              if w.startswith("control_zones=")]
     if not zones:
         fail(f"the uploader did not print the scene's control_zones: {probe.stderr[-300:]}")
-    port_file = os.path.join(work, "server.port")
-    if os.path.exists(port_file):
-        os.remove(port_file)
-    server = subprocess.Popen([args.server_bin, "--listen=127.0.0.1:0", f"--port_file={port_file}",
-                               "--log_level=warning", f"--control_zones={zones[0]}",
-                               "--control_cell_m=0.15"], env=env)
+    server, port_file = start_server(args.server_bin, work, env,
+                                     [f"--control_zones={zones[0]}", "--control_cell_m=0.15"])
     drone = win = disp = None
     try:
-        t0 = time.time()
-        while not os.path.exists(port_file) or not open(port_file).read().strip():
-            if server.poll() is not None or time.time() - t0 > 30:
-                fail("the server did not start")
-            time.sleep(0.1)
-        addr = "127.0.0.1:" + open(port_file).read().strip()
+        try:
+            addr = "127.0.0.1:" + wait_port(server, port_file, 30, "the server")
+        except RuntimeError as e:
+            fail(str(e))
         for traj, n in (("walk", 30), ("drone", 60)):
             subprocess.run([args.uploader_bin, f"--server={addr}", "--synthetic=apartment",
                             f"--trajectory={traj}", f"--frames={n}", "--width=160", "--height=120",
@@ -567,20 +562,16 @@ def xray_part(args, env, work, addr, pose, docs):
 def browser_part(args, env, work, addr, pb, cstate):
     """--http: the page's requests (POST /input) for a click, a drag with the hand at the eye,
     joypad keys and X-ray; the outcome in /status and the control state."""
-    port_file = os.path.join(work, "http.port")
-    if os.path.exists(port_file):
-        os.remove(port_file)
+    port_file = fresh_port_file(work, "http")
     view = subprocess.Popen([args.window_bin, f"--server={addr}", "--http=127.0.0.1:0",
                              f"--port_file={port_file}", "--width=640", "--height=360",
                              "--max_seconds=200", "--operator_id=browser-test"], env=env,
                             stdout=subprocess.DEVNULL)
     try:
-        t0 = time.time()
-        while not (os.path.exists(port_file) and open(port_file).read().strip()):
-            if view.poll() is not None or time.time() - t0 > 60:
-                fail("the browser view did not start")
-            time.sleep(0.1)
-        base_url = "http://127.0.0.1:" + open(port_file).read().strip()
+        try:
+            base_url = "http://127.0.0.1:" + wait_port(view, port_file, 60, "the browser view")
+        except RuntimeError as e:
+            fail(str(e))
 
         def post(q):
             urllib.request.urlopen(urllib.request.Request(base_url + "/input?" + q, method="POST"),

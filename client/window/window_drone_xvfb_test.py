@@ -29,6 +29,7 @@ import urllib.request
 import numpy as np
 from PIL import Image
 
+from local_procs import fresh_port_file, start_server, wait_port
 from xvfb_display import Display, missing_tools
 
 W, H = 960, 540
@@ -127,21 +128,14 @@ def main():
     if not zones:
         fail(f"the uploader did not print the scene's control_zones: {probe.stderr[-300:]}")
     zones = zones[0]
-    port_file = os.path.join(work, "server.port")
-    for stale in (port_file,):
-        if os.path.exists(stale):
-            os.remove(stale)
-    server = subprocess.Popen([args.server_bin, "--listen=127.0.0.1:0", f"--port_file={port_file}",
-                               "--log_level=warning", f"--control_zones={zones}",
-                               "--control_cell_m=0.15"], env=env)
+    server, port_file = start_server(args.server_bin, work, env,
+                                     [f"--control_zones={zones}", "--control_cell_m=0.15"])
     drone = win = disp = http = None
     try:
-        t0 = time.time()
-        while not os.path.exists(port_file) or not open(port_file).read().strip():
-            if server.poll() is not None or time.time() - t0 > 30:
-                fail("the server did not start")
-            time.sleep(0.1)
-        addr = "127.0.0.1:" + open(port_file).read().strip()
+        try:
+            addr = "127.0.0.1:" + wait_port(server, port_file, 30, "the server")
+        except RuntimeError as e:
+            fail(str(e))
         # A walk through the apartment and a drone flight first: views from many places and
         # directions, so the cells' coverage ranges from barely seen to τ_max.
         for traj, n in (("walk", 30), ("drone", 60)):
@@ -305,19 +299,15 @@ def main():
 def browser_part(args, env, work, addr):
     """--http on the same live server: /overlay.json has the drone's lines; headless Chromium
     draws them over the picture (DevTools screenshot: orange where the drone is)."""
-    port_file = os.path.join(work, "http.port")
-    if os.path.exists(port_file):
-        os.remove(port_file)
+    port_file = fresh_port_file(work, "http")
     view = subprocess.Popen([args.window_bin, f"--server={addr}", "--http=127.0.0.1:0",
                              f"--port_file={port_file}", "--width=640", "--height=360",
                              "--max_seconds=150"], env=env, stdout=subprocess.DEVNULL)
     try:
-        t0 = time.time()
-        while not (os.path.exists(port_file) and open(port_file).read().strip()):
-            if view.poll() is not None or time.time() - t0 > 60:
-                fail("the browser view did not start")
-            time.sleep(0.1)
-        base = "http://127.0.0.1:" + open(port_file).read().strip()
+        try:
+            base = "http://127.0.0.1:" + wait_port(view, port_file, 60, "the browser view")
+        except RuntimeError as e:
+            fail(str(e))
         urllib.request.urlopen(urllib.request.Request(base + "/input?key=g&down=1", method="POST"))
         ov = {}
         t0 = time.time()

@@ -18,6 +18,7 @@ import sys
 import tempfile
 import time
 
+from local_procs import start_server, wait_port
 from xvfb_display import Display, missing_tools
 
 W, H = 320, 240
@@ -52,21 +53,15 @@ def main():
     shutil.rmtree(certs, ignore_errors=True)
     subprocess.run(["bash", args.make_certs, certs], check=True, stdout=subprocess.DEVNULL)
     env = dict(os.environ, LP_NUM_THREADS="2", SDL_VIDEODRIVER="x11")
-    port_file = os.path.join(work, "server.port")
-    if os.path.exists(port_file):
-        os.remove(port_file)
-    server = subprocess.Popen([args.server_bin, "--listen=127.0.0.1:0", f"--port_file={port_file}",
-                               "--log_level=warning", f"--tls_cert={certs}/server.pem",
-                               f"--tls_key={certs}/server.key",
-                               f"--auth_tokens_file={certs}/tokens.txt"], env=env)
+    server, port_file = start_server(args.server_bin, work, env,
+                                     [f"--tls_cert={certs}/server.pem", f"--tls_key={certs}/server.key",
+                                      f"--auth_tokens_file={certs}/tokens.txt"])
     win = disp = None
     try:
-        t0 = time.time()
-        while not os.path.exists(port_file) or not open(port_file).read().strip():
-            if server.poll() is not None or time.time() - t0 > 30:
-                fail("the server did not start")
-            time.sleep(0.1)
-        addr = "127.0.0.1:" + open(port_file).read().strip()
+        try:
+            addr = "127.0.0.1:" + wait_port(server, port_file, 30, "the server")
+        except RuntimeError as e:
+            fail(str(e))
         tls = [f"--tls_ca={certs}/ca.pem", "--tls_server_name=localhost"]
         subprocess.run([args.uploader_bin, f"--server={addr}", *tls,
                         f"--token_file={certs}/uploader.token", "--synthetic=apartment",
