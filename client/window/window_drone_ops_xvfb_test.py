@@ -121,16 +121,7 @@ def main():
             addr = "127.0.0.1:" + wait_port(server, port_file, 30, "the server")
         except RuntimeError as e:
             fail(str(e))
-        for traj, n in (("walk", 30), ("drone", 60)):
-            subprocess.run([args.uploader_bin, f"--server={addr}", "--synthetic=apartment",
-                            f"--trajectory={traj}", f"--frames={n}", "--width=160", "--height=120",
-                            "--rate_hz=0"], check=True, env=env, stdout=subprocess.DEVNULL,
-                           stderr=subprocess.DEVNULL)
-        drone = subprocess.Popen([args.uploader_bin, "--drone=sim", "--synthetic=apartment",
-                                  f"--server={addr}", "--flight_s=240", "--camera_hz=2",
-                                  "--width=160", "--height=120"], env=env,
-                                 stdout=subprocess.DEVNULL,
-                                 stderr=open(os.path.join(work, "drone.txt"), "w"))
+        drone = base.model_and_fly(args, env, work, addr, flight_s=240, camera_hz=2)
         import grpc
         pb, pb_grpc = base.control_stubs(work)
         stub = pb_grpc.ControlStub(grpc.insecure_channel(addr))

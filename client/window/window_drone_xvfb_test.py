@@ -57,6 +57,21 @@ def orange_mask(img):
     return (r > 200) & (g > 100) & (g < 215) & (b < 90)
 
 
+def model_and_fly(args, env, work, addr, flight_s, camera_hz):
+    """A walk through the apartment and a drone flight first (views from many places and
+    directions, so the cells' coverage ranges from barely seen to τ_max), then the simulated
+    drone flying for flight_s with its camera at camera_hz: the process (stderr in drone.txt)."""
+    for traj, n in (("walk", 30), ("drone", 60)):
+        subprocess.run([args.uploader_bin, f"--server={addr}", "--synthetic=apartment",
+                        f"--trajectory={traj}", f"--frames={n}", "--width=160", "--height=120",
+                        "--rate_hz=0"], check=True, env=env, stdout=subprocess.DEVNULL,
+                       stderr=subprocess.DEVNULL)
+    return subprocess.Popen([args.uploader_bin, "--drone=sim", "--synthetic=apartment",
+                             f"--server={addr}", f"--flight_s={flight_s}", f"--camera_hz={camera_hz}",
+                             "--width=160", "--height=120"], env=env, stdout=subprocess.DEVNULL,
+                            stderr=open(os.path.join(work, "drone.txt"), "w"))
+
+
 def control_stubs(work):
     """exoview.control.v1 Python stubs from proto/control.proto (Debian's python3-grpc-tools)."""
     proto = os.path.normpath(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..",
@@ -136,17 +151,7 @@ def main():
             addr = "127.0.0.1:" + wait_port(server, port_file, 30, "the server")
         except RuntimeError as e:
             fail(str(e))
-        # A walk through the apartment and a drone flight first: views from many places and
-        # directions, so the cells' coverage ranges from barely seen to τ_max.
-        for traj, n in (("walk", 30), ("drone", 60)):
-            subprocess.run([args.uploader_bin, f"--server={addr}", "--synthetic=apartment",
-                            f"--trajectory={traj}", f"--frames={n}", "--width=160", "--height=120",
-                            "--rate_hz=0"], check=True, env=env, stdout=subprocess.DEVNULL,
-                           stderr=subprocess.DEVNULL)
-        drone = subprocess.Popen([args.uploader_bin, "--drone=sim", "--synthetic=apartment",
-                                  f"--server={addr}", "--flight_s=150", "--camera_hz=4",
-                                  "--width=160", "--height=120"], env=env,
-                                 stdout=subprocess.DEVNULL, stderr=open(os.path.join(work, "drone.txt"), "w"))
+        drone = model_and_fly(args, env, work, addr, flight_s=150, camera_hz=4)
         disp = Display(W, H)
         env["DISPLAY"] = disp.name
         status = os.path.join(work, "status.json")
