@@ -106,9 +106,7 @@ class GeometryStage final : public PipelineStage {
       ++extractions_[c.id];
       auto it = published_.find(c.id);
       if (it != published_.end()) {
-        const double old_n = static_cast<double>(it->second.triangles);
-        const double change =
-            std::abs(static_cast<double>(c.mesh.num_triangles()) - old_n) / std::max(1.0, old_n);
+        const double change = TriangleChange(c, it->second.triangles);
         const double age_s = (now - it->second.time_ns) * 1e-9;
         if (age_s < options_.republish_interval_s &&
             (change <= options_.republish_change_fraction || BudgetsStructural())) {
@@ -143,8 +141,12 @@ class GeometryStage final : public PipelineStage {
     }
   }
 
-  // Held-back chunks whose extraction count grew by republish_extraction_factor since their
-  // publication, largest growth first, within the token bucket (GeometryStageOptions).
+  // The relative change of a chunk's triangle count against its last publication's.
+  static double TriangleChange(const MeshChunk& c, size_t published_triangles) {
+    const double old_n = static_cast<double>(published_triangles);
+    return std::abs(static_cast<double>(c.mesh.num_triangles()) - old_n) / std::max(1.0, old_n);
+  }
+
   // Structural changes of published chunks share the refresh bucket (ahead of the growth
   // refreshes) when there is a bucket to share.
   bool BudgetsStructural() const {
@@ -152,6 +154,8 @@ class GeometryStage final : public PipelineStage {
            options_.refresh_budget_kbps > 0.0;
   }
 
+  // Held-back chunks whose extraction count grew by republish_extraction_factor since their
+  // publication, largest growth first, within the token bucket (GeometryStageOptions).
   void Refresh(int64_t now, const SceneContext& ctx, double source_time_s) {
     if (options_.republish_extraction_factor <= 0.0) return;
     const double rate = options_.refresh_budget_kbps * 125.0;  // bytes per stream second
@@ -173,9 +177,7 @@ class GeometryStage final : public PipelineStage {
       const auto pub = published_.find(id);
       if (pub == published_.end()) continue;
       if (structural) {
-        const double old_n = static_cast<double>(pub->second.triangles);
-        const double change =
-            std::abs(static_cast<double>(chunk.mesh.num_triangles()) - old_n) / std::max(1.0, old_n);
+        const double change = TriangleChange(chunk, pub->second.triangles);
         if (change > options_.republish_change_fraction) {
           due.push_back({kStructuralFirst + change, id});
           continue;
