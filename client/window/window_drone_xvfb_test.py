@@ -237,7 +237,10 @@ def main():
             f"..{pcts.max():.0f}, correlation of the dots' green with τ {corr:.2f}")
         if checked < 5 or matched < 0.9 * checked:
             fail("the cell dots on screen do not have the colour of their coverage τ")
-        if pcts.max() - pcts.min() >= 4 and corr < 0.6:
+        # The trend is testable only where the colour ramp itself spans more than the per-dot
+        # tolerance (CI once drew only τ 25-30 %, whose greens differ by less than the noise).
+        ramp = [coverage_rgb(p)[1] for p in pcts] if len(pcts) else [0]
+        if max(ramp) - min(ramp) > 24 and corr < 0.6:
             fail("the dots' colour does not follow τ (greener with more coverage)")
         # Key 4: the same cells by reference count (a different colouring).
         xdo("key", "4")
