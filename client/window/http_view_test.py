@@ -163,6 +163,16 @@ class Chromium:
             self.browser.kill()
 
 
+def reset_camera(base):
+    """R from the page's protocol: the camera back at its start pose. Waits (up to 10 s) for the
+    viewer to render the reset pose, so that a settle after it cannot see the frame before."""
+    frames = json.loads(get(base + "/status")[2])["frames"]
+    get(base + "/input?key=r&down=1", method="POST")
+    t0 = time.time()
+    while time.time() - t0 < 10 and json.loads(get(base + "/status")[2])["frames"] == frames:
+        time.sleep(0.1)
+
+
 def have_websocket():
     try:
         import websocket  # noqa: F401  (python3-websocket)
@@ -263,6 +273,9 @@ def devtools_part(chromium, base, work, env, docs_dir):
             body = get(base + "/frame.jpg?after=0", timeout=30)[2]
             return np.asarray(Image.open(io.BytesIO(body)).convert("RGB"))
 
+        # From the start pose (R): the earlier parts moved and turned the camera, and a camera
+        # walked out of the model shows the same empty picture before and after the key.
+        reset_camera(base)
         s0, p0 = settled_page("before the key")
         img0 = dt.screenshot()
         shown0, sent0 = page_picture(), viewer_picture()
@@ -416,6 +429,9 @@ def firefox_part(firefox, base, work, env, docs_dir):
             body = get(base + "/frame.jpg?after=0", timeout=30)[2]
             return np.asarray(Image.open(io.BytesIO(body)).convert("RGB"))
 
+        # From the start pose (R), as in the DevTools part: two more metres forward from where
+        # that part left the camera can leave the model (the same empty picture before and after).
+        reset_camera(base)
         s0, p0 = settled("before the key")
         img0 = ff.screenshot()
         shown0, sent0 = page_picture(), viewer_picture()
