@@ -410,7 +410,8 @@ void ZstdWrap(std::string* out) {
 
 absl::StatusOr<TriangleMesh> DecodeCompact(const std::string& b);
 
-absl::StatusOr<TriangleMesh> DecodeCompactZstd(const std::string& b) {
+// The format-1/3 bytes inside a format-2 payload.
+absl::StatusOr<std::string> UnwrapCompactZstd(const std::string& b) {
   if (b.size() < 5) return absl::InvalidArgumentError("compact mesh: zstd header cut");
   const uint32_t raw_size = GetLe<uint32_t>(b.data() + 1);
   if (raw_size < kCompactHeaderBytes || raw_size > kMaxCompactMeshBytes)
@@ -424,6 +425,11 @@ absl::StatusOr<TriangleMesh> DecodeCompactZstd(const std::string& b) {
   const uint8_t inner = static_cast<uint8_t>(raw[0]);
   if (inner != kCompactMeshFormat && inner != kCompactMeshCodec)
     return absl::InvalidArgumentError("compact mesh: zstd payload is not format 1 or 3");
+  return raw;
+}
+
+absl::StatusOr<TriangleMesh> DecodeCompactZstd(const std::string& b) {
+  EXO_ASSIGN_OR_RETURN(const std::string raw, UnwrapCompactZstd(b));
   return DecodeCompact(raw);
 }
 
@@ -614,6 +620,59 @@ absl::StatusOr<v1::CellRefsChanged> UnpackCellRefs(const v1::CellRefsChanged& ms
   if (!out.ParseFromString(raw)) return absl::InvalidArgumentError("cell refs: packed payload does not parse");
   if (!out.packed().empty()) return absl::InvalidArgumentError("cell refs: nested packed payload");
   return out;
+}
+
+// ---- mesh chunk batches (snapshots) ----
+namespace {
+constexpr size_t kMaxChunkBatchBytes = size_t{256} << 20;  // the server cuts batches at ~1 MB
+}  // namespace
+
+absl::StatusOr<v1::MeshChunkBatch> PackMeshChunks(
+    std::span<const v1::MeshChunkUpserted* const> chunks, int level) {
+  v1::MeshChunkList list;
+  list.mutable_chunks()->Reserve(static_cast<int>(chunks.size()));
+  for (const v1::MeshChunkUpserted* c : chunks) {
+    v1::MeshChunkUpserted* e = list.add_chunks();
+    *e = *c;
+    if (!e->compact().empty() && static_cast<uint8_t>(e->compact()[0]) == kCompactMeshZstd) {
+      EXO_ASSIGN_OR_RETURN(std::string raw, UnwrapCompactZstd(e->compact()));
+      e->set_compact(std::move(raw));
+    }
+  }
+  const std::string raw = list.SerializeAsString();
+  if (raw.size() > kMaxChunkBatchBytes)
+    return absl::InvalidArgumentError(absl::StrCat("mesh chunk batch: ", raw.size(),
+                                                   " bytes, more than ", kMaxChunkBatchBytes));
+  EXO_ASSIGN_OR_RETURN(const std::vector<uint8_t> z,
+                       ZstdCompress(reinterpret_cast<const uint8_t*>(raw.data()), raw.size(),
+                                    level, std::vector<uint8_t>{}));
+  std::string packed;
+  packed.reserve(4 + z.size());
+  PutLe<uint32_t>(&packed, static_cast<uint32_t>(raw.size()));
+  packed.append(reinterpret_cast<const char*>(z.data()), z.size());
+  v1::MeshChunkBatch out;
+  out.set_packed(std::move(packed));
+  return out;
+}
+
+absl::StatusOr<std::vector<v1::MeshChunkUpserted>> UnpackMeshChunks(const v1::MeshChunkBatch& batch) {
+  const std::string& b = batch.packed();
+  if (b.size() < 4) return absl::InvalidArgumentError("mesh chunk batch: header cut");
+  const uint32_t raw_size = GetLe<uint32_t>(b.data());
+  if (raw_size == 0 || raw_size > kMaxChunkBatchBytes)
+    return absl::InvalidArgumentError(absl::StrCat("mesh chunk batch: ", raw_size,
+                                                   " packed bytes outside [1, ",
+                                                   kMaxChunkBatchBytes, "]"));
+  std::string raw(raw_size, '\0');
+  EXO_RETURN_IF_ERROR(ZstdDecompress(
+      std::span<const uint8_t>(reinterpret_cast<const uint8_t*>(b.data()) + 4, b.size() - 4),
+      reinterpret_cast<uint8_t*>(raw.data()), raw.size(), "mesh chunk batch"));
+  v1::MeshChunkList list;
+  if (!list.ParseFromString(raw))
+    return absl::InvalidArgumentError("mesh chunk batch: payload does not parse");
+  if (list.chunks_size() == 0) return absl::InvalidArgumentError("mesh chunk batch: no chunks");
+  return std::vector<v1::MeshChunkUpserted>(std::make_move_iterator(list.mutable_chunks()->begin()),
+                                            std::make_move_iterator(list.mutable_chunks()->end()));
 }
 
 }  // namespace exo

@@ -6,6 +6,8 @@
 #pragma once
 
 #include <cstdint>
+#include <span>
+#include <vector>
 
 #include "common/camera.h"
 #include "common/frame.h"
@@ -86,5 +88,14 @@ absl::StatusOr<TriangleMesh> MeshFromProto(const v1::MeshChunkUpserted& msg);
 // carries plain entries).
 void PackCellRefs(v1::CellRefsChanged* msg);
 absl::StatusOr<v1::CellRefsChanged> UnpackCellRefs(const v1::CellRefsChanged& msg);
+
+// Mesh chunks of a snapshot on the wire (Delta.mesh_chunk_batch). PackMeshChunks puts the chunks
+// into one zstd frame at `level`, each chunk's `compact` unwrapped from format 2 to its format 1/3
+// bytes (the mesh it decodes to is unchanged); a plain (float) chunk goes in as it is.
+// UnpackMeshChunks decodes and bounds the frame and returns the chunks (their meshes are checked
+// when applied, by MeshFromProto).
+absl::StatusOr<v1::MeshChunkBatch> PackMeshChunks(
+    std::span<const v1::MeshChunkUpserted* const> chunks, int level = 6);
+absl::StatusOr<std::vector<v1::MeshChunkUpserted>> UnpackMeshChunks(const v1::MeshChunkBatch& batch);
 
 }  // namespace exo

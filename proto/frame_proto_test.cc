@@ -9,6 +9,7 @@
 #include <cstring>
 
 #include "common/io/zstd.h"
+#include "proto/model_proto.h"
 #include "proto/test_frames.h"
 
 namespace exo {
@@ -493,6 +494,93 @@ TEST(CellRefsWire, BadPackedPayloadsAreClearErrors) {
   std::memcpy(nested.data(), &n, 4);
   nested.append(reinterpret_cast<const char*>(z->data()), z->size());
   EXPECT_NE(bad(nested).message().find("nested"), std::string::npos);
+}
+
+
+// Snapshot chunk batches (SPEC §10 initial sync): many chunks in one zstd frame decode to the
+// same meshes as the chunks sent one by one (format 2 unwrapped, format 3 and plain as they are),
+// smaller than the parts; corrupt batches are errors.
+std::vector<v1::MeshChunkUpserted> SomeChunks() {
+  std::vector<v1::MeshChunkUpserted> out;
+  for (int k = 0; k < 40; ++k) {
+    const TriangleMesh m = TestChunk(glm::vec3(0.16f * (k % 8), 0.16f * (k / 8), 0.0f), 0.16f, 6);
+    v1::MeshChunkUpserted c;
+    if (k % 3 == 0)
+      MeshToProto(m, &c);  // format 1 or 2 (16 bits over the box, zstd when smaller)
+    else
+      MeshToProto(m, &c, /*plain=*/k == 7, {0.02f / 32});  // format 3; chunk 7 plain floats
+    c.set_chunk_id(1000 + k);
+    c.set_chunk_version(5 + k);
+    out.push_back(std::move(c));
+  }
+  return out;
+}
+
+TEST(MeshChunkBatchWire, DecodesToTheSameMeshesAndIsSmallerThanTheParts) {
+  const std::vector<v1::MeshChunkUpserted> chunks = SomeChunks();
+  bool has_format2 = false;
+  size_t parts = 0;
+  std::vector<const v1::MeshChunkUpserted*> ptrs;
+  for (const auto& c : chunks) {
+    has_format2 |= !c.compact().empty() && c.compact()[0] == 2;
+    parts += c.ByteSizeLong();
+    ptrs.push_back(&c);
+  }
+  ASSERT_TRUE(has_format2);  // the unwrap is exercised
+  auto batch = PackMeshChunks(ptrs);
+  ASSERT_TRUE(batch.ok()) << batch.status();
+  EXPECT_LT(batch->ByteSizeLong(), parts * 3 / 4);
+  auto back = UnpackMeshChunks(*batch);
+  ASSERT_TRUE(back.ok()) << back.status();
+  ASSERT_EQ(back->size(), chunks.size());
+  for (size_t i = 0; i < chunks.size(); ++i) {
+    const auto& b = (*back)[i];
+    EXPECT_EQ(b.chunk_id(), chunks[i].chunk_id());
+    EXPECT_EQ(b.chunk_version(), chunks[i].chunk_version());
+    EXPECT_TRUE(b.compact().empty() || b.compact()[0] != 2) << "chunk " << i << " still format 2";
+    auto m0 = MeshFromProto(chunks[i]);
+    auto m1 = MeshFromProto(b);
+    ASSERT_TRUE(m0.ok() && m1.ok());
+    EXPECT_EQ(MeshHash(*m0), MeshHash(*m1)) << "chunk " << i;
+  }
+}
+
+TEST(MeshChunkBatchWire, BadBatchesAreClearErrors) {
+  const std::vector<v1::MeshChunkUpserted> chunks = SomeChunks();
+  std::vector<const v1::MeshChunkUpserted*> ptrs;
+  for (const auto& c : chunks) ptrs.push_back(&c);
+  auto batch = PackMeshChunks(ptrs);
+  ASSERT_TRUE(batch.ok());
+  auto bad = [](std::string b) {
+    v1::MeshChunkBatch m;
+    m.set_packed(std::move(b));
+    return UnpackMeshChunks(m).status();
+  };
+  const std::string& b = batch->packed();
+  EXPECT_NE(bad("").message().find("header cut"), std::string::npos);
+  std::string huge = b;  // claims 4 GB
+  for (int k = 0; k < 4; ++k) huge[k] = static_cast<char>(0xff);
+  EXPECT_NE(bad(huge).message().find("outside"), std::string::npos);
+  EXPECT_FALSE(bad(b.substr(0, b.size() - 5)).ok());  // truncated frame
+  std::string flipped = b;
+  flipped[b.size() / 2] = static_cast<char>(flipped[b.size() / 2] ^ 0x5a);
+  EXPECT_FALSE(bad(flipped).ok());  // zstd's checksum
+  // A frame of bytes that are not a chunk list, and an empty list.
+  for (const std::string& raw : {std::string(64, '\xff'), std::string()}) {
+    auto z = ZstdCompress(reinterpret_cast<const uint8_t*>(raw.data()), raw.size(), 3, {});
+    ASSERT_TRUE(z.ok());
+    std::string p(4, '\0');
+    const uint32_t n = static_cast<uint32_t>(raw.size());
+    std::memcpy(p.data(), &n, 4);
+    p.append(reinterpret_cast<const char*>(z->data()), z->size());
+    EXPECT_FALSE(bad(p).ok()) << raw.size();
+  }
+  // A chunk whose format-2 payload is corrupt cannot be packed (no silent drop).
+  v1::MeshChunkUpserted broken = chunks[0];
+  ASSERT_EQ(broken.compact()[0], 2);
+  broken.set_compact(broken.compact().substr(0, 8));
+  const v1::MeshChunkUpserted* one[] = {&broken};
+  EXPECT_FALSE(PackMeshChunks(one).ok());
 }
 
 }  // namespace

@@ -73,6 +73,7 @@ const char* KindName(const v1::Delta& d) {
   switch (d.kind_case()) {
     case v1::Delta::kViewAdded: return "view_added";
     case v1::Delta::kMeshChunkUpserted: return "mesh_chunk";
+    case v1::Delta::kMeshChunkBatch: return "mesh_chunk";  // a snapshot's chunks, batched
     case v1::Delta::kCellRefsChanged: return "cell_refs";
     case v1::Delta::kViewUpdated: return "view_updated";
     case v1::Delta::kViewRemoved: return "view_removed";

@@ -71,6 +71,27 @@ absl::Status LocalStore::ApplyKind(const v1::Delta& d, LumigraphModel* model,
       c.mesh = std::move(mesh);
       return absl::OkStatus();
     }
+    case v1::Delta::kMeshChunkBatch: {
+      // A snapshot's chunks in one frame (Apply lets it in only inside a snapshot); every mesh is
+      // decoded and checked before any of them is applied: all or nothing.
+      EXO_ASSIGN_OR_RETURN(const std::vector<v1::MeshChunkUpserted> list,
+                           UnpackMeshChunks(d.mesh_chunk_batch()));
+      std::vector<TriangleMesh> meshes;
+      meshes.reserve(list.size());
+      for (const auto& m : list) {
+        EXO_ASSIGN_OR_RETURN(TriangleMesh mesh, MeshFromProto(m));
+        meshes.push_back(std::move(mesh));
+      }
+      for (size_t i = 0; i < list.size(); ++i) {
+        const auto& m = list[i];
+        (*chunks)[m.chunk_id()] = {m.chunk_version(), MeshHash(meshes[i])};
+        MeshChunk& c = model->chunks[m.chunk_id()];
+        c.id = m.chunk_id();
+        c.version = m.chunk_version();
+        c.mesh = std::move(meshes[i]);
+      }
+      return absl::OkStatus();
+    }
     case v1::Delta::kMeshChunkRemoved:
       if (model->chunks.erase(d.mesh_chunk_removed().chunk_id()) == 0)
         return absl::FailedPreconditionError("removal of unknown mesh chunk");
@@ -102,6 +123,8 @@ absl::Status LocalStore::Apply(const v1::Delta& d) {
     return absl::OkStatus();
   }
   if (in_snapshot_) return ApplyKind(d, &pending_, &pending_views_, &pending_chunks_);
+  if (d.has_mesh_chunk_batch())
+    return absl::FailedPreconditionError("a mesh chunk batch outside a snapshot");
   if (d.version() != model_.version + 1)
     return absl::FailedPreconditionError(absl::StrCat(
         "delta version ", d.version(), " does not follow the local version ", model_.version));

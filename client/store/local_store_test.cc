@@ -225,5 +225,87 @@ TEST(LocalStore, PackedCellRefsApplyLikeThePlainOnesAndCorruptOnesChangeNothing)
   EXPECT_EQ(b.Digest(), digest);
 }
 
+
+TEST(LocalStore, SnapshotChunkBatchesApplyLikeTheChunksAndAreRefusedOutsideASnapshot) {
+  // The server's gRPC edge sends a snapshot's chunks as MeshChunkBatch (proto/frame_proto.h
+  // PackMeshChunks): the same model and digest as the chunks one by one.
+  std::vector<v1::MeshChunkUpserted> chunks;
+  for (uint64_t id = 1; id <= 12; ++id) {
+    TriangleMesh m;
+    const float z = 0.1f * id;
+    m.positions = {{0, 0, z}, {1, 0, z}, {0, 1, z}, {1, 1, z}};
+    m.indices = {0, 1, 2, 1, 3, 2};
+    v1::MeshChunkUpserted c;
+    MeshToProto(m, &c, false, {id % 2 ? 0.02f / 32 : 0.0f});
+    c.set_chunk_id(id);
+    c.set_chunk_version(3 * id);
+    chunks.push_back(std::move(c));
+  }
+  auto snapshot = [&](bool batched, bool corrupt) {
+    std::vector<v1::Delta> out;
+    v1::Delta begin;
+    begin.set_version(9);
+    begin.mutable_snapshot_begin();
+    out.push_back(begin);
+    out.push_back(SceneDelta(9, 0.0));
+    out.push_back(ViewDelta(9, 4));
+    if (batched) {
+      std::vector<const v1::MeshChunkUpserted*> p;
+      for (const auto& c : chunks) p.push_back(&c);
+      auto b = PackMeshChunks(p);
+      EXO_CHECK(b.ok());
+      v1::Delta d;
+      d.set_version(9);
+      *d.mutable_mesh_chunk_batch() = *b;
+      if (corrupt) {
+        std::string bytes = d.mesh_chunk_batch().packed();
+        bytes.resize(bytes.size() - 3);
+        d.mutable_mesh_chunk_batch()->set_packed(bytes);
+      }
+      out.push_back(d);
+    } else {
+      for (const auto& c : chunks) {
+        v1::Delta d;
+        d.set_version(9);
+        *d.mutable_mesh_chunk_upserted() = c;
+        out.push_back(d);
+      }
+    }
+    v1::Delta end;
+    end.set_version(9);
+    end.set_model_epoch(77);
+    end.mutable_snapshot_end();
+    out.push_back(end);
+    return out;
+  };
+  LocalStore a, b;
+  for (const v1::Delta& d : snapshot(false, false)) ASSERT_TRUE(a.Apply(d).ok());
+  for (const v1::Delta& d : snapshot(true, false)) ASSERT_TRUE(b.Apply(d).ok());
+  EXPECT_EQ(a.version(), 9u);
+  EXPECT_EQ(b.version(), 9u);
+  EXPECT_EQ(b.model().chunks.size(), chunks.size());
+  EXPECT_EQ(a.Digest(), b.Digest());
+  for (const auto& [id, c] : a.model().chunks) {
+    ASSERT_TRUE(b.model().chunks.count(id));
+    EXPECT_EQ(b.model().chunks.at(id).version, c.version);
+    EXPECT_EQ(b.model().chunks.at(id).mesh.positions, c.mesh.positions);
+  }
+  // Outside a snapshot a batch is refused (it has no place in the version order).
+  v1::Delta live = snapshot(true, false)[3];
+  ASSERT_TRUE(live.has_mesh_chunk_batch());
+  live.set_version(10);
+  EXPECT_EQ(b.Apply(live).code(), absl::StatusCode::kFailedPrecondition);
+  EXPECT_EQ(b.version(), 9u);
+  // A corrupt batch inside a snapshot is an error; the model held before stays.
+  const uint64_t digest = b.Digest();
+  const auto bad = snapshot(true, true);
+  absl::Status st;
+  for (const v1::Delta& d : bad)
+    if (st = b.Apply(d); !st.ok()) break;
+  EXPECT_EQ(st.code(), absl::StatusCode::kInvalidArgument) << st;
+  EXPECT_EQ(b.version(), 9u);
+  EXPECT_EQ(b.Digest(), digest);
+}
+
 }  // namespace
 }  // namespace exo

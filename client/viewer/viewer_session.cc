@@ -111,7 +111,7 @@ absl::Status ViewerSession::Sync(const SyncOptions& options) {
       ++stats_.deltas;
       const uint64_t n = d.ByteSizeLong();
       stats_.bytes += n;
-      if (d.has_mesh_chunk_upserted()) {
+      if (d.has_mesh_chunk_upserted() || d.has_mesh_chunk_batch()) {
         stats_.mesh_bytes += n;
         ++stats_.mesh_chunks;
       }

@@ -35,9 +35,9 @@ struct SyncOptions {
 struct SessionStats {
   uint64_t deltas = 0;
   uint64_t bytes = 0;           // serialized delta bytes received
-  uint64_t mesh_bytes = 0;      // ... of which proxy mesh chunks (MeshChunkUpserted)
+  uint64_t mesh_bytes = 0;      // ... of which proxy mesh chunks (MeshChunkUpserted, snapshot batches)
   uint64_t view_bytes = 0;      // ... of which views (ViewAdded / ViewUpdated)
-  uint64_t mesh_chunks = 0;     // MeshChunkUpserted deltas received
+  uint64_t mesh_chunks = 0;     // MeshChunkUpserted / MeshChunkBatch deltas received
   uint64_t snapshots = 0;
   uint64_t resumed_from = 0;    // version passed to Subscribe
   uint64_t replayed = 0;        // deltas replayed from the journal at start

@@ -44,6 +44,9 @@ int main(int argc, char** argv) {
   app.add_option("--snapshot_when_cheaper", c.store.snapshot_when_cheaper,
                  "on resume, a snapshot instead of the missed deltas when it is fewer bytes")
       ->capture_default_str();
+  app.add_option("--snapshot_chunk_batch_bytes", c.store.snapshot_chunk_batch_bytes,
+                 "a snapshot's mesh chunks in zstd batches of up to this many bytes (0: one by one)")
+      ->capture_default_str();
   app.add_option("--tls_cert", c.tls_cert, "certificate chain (PEM); with --tls_key: TLS");
   app.add_option("--tls_key", c.tls_key, "private key (PEM)");
   app.add_option("--tls_client_ca", c.tls_client_ca, "CA of required client certificates");

@@ -50,7 +50,7 @@ class Relay::Service final : public v1::Exoview::Service {
     uint64_t deltas = 0, bytes = 0;
     bool write_failed = false;
     while (!write_failed && !ctx->IsCancelled() && !relay_->stop_.load() && !store->closed()) {
-      for (const DeltaPtr& d : sub->Next(100)) {
+      for (const DeltaPtr& d : sub->NextForWire(100)) {
         if (!writer->Write(*d)) {
           write_failed = true;
           break;

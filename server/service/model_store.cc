@@ -675,6 +675,60 @@ std::vector<DeltaPtr> Subscription::Next(int timeout_ms) {
   return out;
 }
 
+std::vector<DeltaPtr> Subscription::NextForWire(int timeout_ms) {
+  std::vector<DeltaPtr> out = Next(timeout_ms);
+  if (out.size() < 2 || !out.front()->has_snapshot_begin()) return out;
+  return store_->PackSnapshotForWire(std::move(out));
+}
+
+std::vector<DeltaPtr> ModelStore::PackSnapshotForWire(std::vector<DeltaPtr> parts) const {
+  const size_t limit = options_.snapshot_chunk_batch_bytes;
+  if (limit == 0 || !parts.back()->has_snapshot_end()) return parts;
+  const uint64_t version = parts.back()->version(), epoch = parts.back()->model_epoch();
+  std::lock_guard lock(wire_mu_);
+  if (wire_snapshot_ && wire_snapshot_version_ == version && wire_snapshot_epoch_ == epoch)
+    return *wire_snapshot_;
+  std::vector<DeltaPtr> out;
+  out.reserve(parts.size());
+  std::vector<DeltaPtr> run;  // consecutive chunk parts, at most `limit` bytes
+  size_t run_bytes = 0;
+  auto flush = [&] {
+    if (run.size() >= 2) {
+      std::vector<const v1::MeshChunkUpserted*> chunks;
+      chunks.reserve(run.size());
+      for (const DeltaPtr& d : run) chunks.push_back(&d->mesh_chunk_upserted());
+      auto batch = PackMeshChunks(chunks, options_.snapshot_chunk_batch_level);
+      if (batch.ok()) {
+        v1::Delta d;
+        d.set_version(version);
+        *d.mutable_mesh_chunk_batch() = *std::move(batch);
+        out.push_back(std::make_shared<const v1::Delta>(std::move(d)));
+        run.clear();
+      }
+      // Not packable (cannot happen for chunks this store encoded): sent one by one below.
+    }
+    out.insert(out.end(), run.begin(), run.end());
+    run.clear();
+    run_bytes = 0;
+  };
+  for (DeltaPtr& d : parts) {
+    if (!d->has_mesh_chunk_upserted()) {
+      flush();
+      out.push_back(std::move(d));
+      continue;
+    }
+    const size_t n = d->mesh_chunk_upserted().ByteSizeLong();
+    if (!run.empty() && run_bytes + n > limit) flush();
+    run_bytes += n;
+    run.push_back(std::move(d));
+  }
+  flush();
+  wire_snapshot_ = std::make_shared<const std::vector<DeltaPtr>>(out);
+  wire_snapshot_version_ = version;
+  wire_snapshot_epoch_ = epoch;
+  return out;
+}
+
 void Subscription::Close() {
   std::lock_guard lock(store_->mu_);
   closed_ = true;

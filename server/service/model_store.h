@@ -39,6 +39,11 @@ struct ModelStoreOptions {
   // On resume, send a snapshot instead of the missed deltas when it is fewer bytes. Off: resume
   // with deltas whenever the log still holds them.
   bool snapshot_when_cheaper = true;
+  // Snapshots on the wire (Subscription::NextForWire): the mesh chunks in MeshChunkBatch deltas
+  // of up to this many uncompressed bytes each, one zstd frame (level below) per batch; 0 sends
+  // each chunk as its own MeshChunkUpserted (a client that predates the batch needs that).
+  size_t snapshot_chunk_batch_bytes = size_t{1} << 20;
+  int snapshot_chunk_batch_level = 6;
   // A replica (exoview_relay): holds a copy of another store's history, fed by ReplayDelta and
   // RestoreCheckpoint(..., /*replica=*/true); it has no epoch of its own and never commits.
   bool replica = false;
@@ -63,6 +68,10 @@ class Subscription {
   // Blocks until there is something to send, `timeout_ms` elapsed (empty result), or Close().
   // Returns either a batch of log deltas or a whole snapshot (SnapshotBegin ... SnapshotEnd).
   std::vector<DeltaPtr> Next(int timeout_ms);
+  // Next() as a gRPC edge sends it: a snapshot's mesh chunks packed into MeshChunkBatch deltas
+  // (ModelStoreOptions::snapshot_chunk_batch_bytes), outside the store's lock, packed once per
+  // snapshot version for every subscriber that needs it. Log deltas are passed through.
+  std::vector<DeltaPtr> NextForWire(int timeout_ms);
   void Close();
   uint64_t sent_version() const { return sent_version_; }
   uint64_t snapshots() const { return snapshots_; }
@@ -192,6 +201,9 @@ class ModelStore {
   // SnapshotBegin, model, SnapshotEnd: built once per version, shared by every subscriber.
   std::shared_ptr<const std::vector<DeltaPtr>> SnapshotLocked() const;
   size_t SnapshotBytesLocked() const;
+  // The snapshot `parts` (SnapshotBegin ... SnapshotEnd) with their chunks batched; takes only
+  // wire_mu_ (the packing runs beside ingest, not under mu_).
+  std::vector<DeltaPtr> PackSnapshotForWire(std::vector<DeltaPtr> parts) const;
   uint64_t DigestLocked() const;
   uint64_t EpochAtLocked(uint64_t version) const;
   absl::Status ApplyModelDeltaLocked(const v1::Delta& d);  // restore: state only, no commit
@@ -212,6 +224,10 @@ class ModelStore {
   std::map<uint64_t, DeltaPtr> chunks_;
   mutable std::shared_ptr<const std::vector<DeltaPtr>> snapshot_;  // of snapshot_version_
   mutable uint64_t snapshot_version_ = ~uint64_t{0};
+  // The last snapshot as packed for the wire, keyed by its SnapshotEnd's (version, epoch).
+  mutable std::mutex wire_mu_;
+  mutable std::shared_ptr<const std::vector<DeltaPtr>> wire_snapshot_;
+  mutable uint64_t wire_snapshot_version_ = 0, wire_snapshot_epoch_ = 0;
   std::map<uint64_t, ChunkDigestRecord> chunk_records_;
   size_t view_bytes_ = 0, chunk_bytes_ = 0;
   // Delta log: versions (log_.front()->version() .. version_).

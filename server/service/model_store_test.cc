@@ -461,5 +461,99 @@ TEST(ModelStoreCoverage, CoverageTravelsInDeltasSnapshotsCheckpointsAndReplicas)
   EXPECT_EQ(replica.CellCoverage(), server.CellCoverage());
 }
 
+
+// A snapshot as the gRPC edges send it (NextForWire): the mesh chunks in zstd batches of at most
+// snapshot_chunk_batch_bytes, every other part the same shared object, every chunk back with its
+// id, version and mesh; packed once per version for every subscriber; 0 turns it off; log deltas
+// pass through.
+TEST(ModelStore, WireSnapshotsBatchTheChunksOncePerVersion) {
+  ModelStoreOptions o;
+  o.snapshot_chunk_batch_bytes = 400;  // a few chunks per batch
+  ModelStore store(o);
+  store.AddView(View(1, 1000));
+  const MeshWireOptions wire{0.02f / 32};
+  std::map<uint64_t, std::pair<uint64_t, uint64_t>> want;  // id -> (version, mesh hash)
+  for (uint64_t id = 1; id <= 30; ++id) {
+    TriangleMesh m = Tri(0.01f * id);
+    for (int k = 1; k < 4; ++k) {  // a strip: a few triangles per chunk
+      m.positions.push_back({float(k) + 1, 0, 0.01f * id});
+      m.indices.insert(m.indices.end(), {uint32_t(k), uint32_t(k + 2), uint32_t(k + 1)});
+    }
+    store.UpsertChunk(id, 2 * id, m, id % 2 ? wire : MeshWireOptions{});
+  }
+  for (const auto& c : store.Chunks()) {
+    auto m = MeshFromProto(*c);
+    ASSERT_TRUE(m.ok());
+    want[c->chunk_id()] = {c->chunk_version(), MeshHash(*m)};
+  }
+  constexpr uint64_t kFuture = 1000;
+  auto a = store.Subscribe(kFuture, 0);
+  auto b = store.Subscribe(kFuture, 0);
+  auto plain_sub = store.Subscribe(kFuture, 0);
+  const auto wa = a->NextForWire(0), wb = b->NextForWire(0);
+  const auto plain = plain_sub->Next(0);
+  ASSERT_EQ(wa.size(), wb.size());
+  for (size_t i = 0; i < wa.size(); ++i) EXPECT_EQ(wa[i].get(), wb[i].get()) << i;  // packed once
+  ASSERT_TRUE(wa.front()->has_snapshot_begin());
+  ASSERT_TRUE(wa.back()->has_snapshot_end());
+  EXPECT_EQ(wa.back().get(), plain.back().get());
+  std::map<uint64_t, std::pair<uint64_t, uint64_t>> got;
+  size_t batches = 0, wire_bytes = 0, plain_bytes = 0, views = 0;
+  for (const DeltaPtr& d : plain) plain_bytes += d->ByteSizeLong();
+  for (const DeltaPtr& d : wa) {
+    wire_bytes += d->ByteSizeLong();
+    if (d->has_view_added()) ++views;
+    if (d->has_mesh_chunk_upserted()) {
+      auto m = MeshFromProto(d->mesh_chunk_upserted());
+      ASSERT_TRUE(m.ok());
+      got[d->mesh_chunk_upserted().chunk_id()] = {d->mesh_chunk_upserted().chunk_version(),
+                                                 MeshHash(*m)};
+    }
+    if (!d->has_mesh_chunk_batch()) continue;
+    ++batches;
+    EXPECT_EQ(d->version(), wa.back()->version());
+    auto list = UnpackMeshChunks(d->mesh_chunk_batch());
+    ASSERT_TRUE(list.ok()) << list.status();
+    EXPECT_GE(list->size(), 2u);
+    size_t raw = 0;
+    for (const auto& c : *list) {
+      raw += c.ByteSizeLong();
+      auto m = MeshFromProto(c);
+      ASSERT_TRUE(m.ok());
+      EXPECT_FALSE(got.count(c.chunk_id())) << "chunk " << c.chunk_id() << " sent twice";
+      got[c.chunk_id()] = {c.chunk_version(), MeshHash(*m)};
+    }
+    EXPECT_LE(raw, 400u + 200u);  // the limit, overshot by at most one chunk
+  }
+  EXPECT_EQ(got, want);
+  EXPECT_EQ(views, 1u);
+  EXPECT_GE(batches, 3u);
+  EXPECT_LT(wire_bytes, plain_bytes);
+  // A new version: packed anew (the cached one was for the old version).
+  store.AddView(View(2, 1000));
+  auto c = store.Subscribe(kFuture, 0);
+  const auto wc = c->NextForWire(0);
+  EXPECT_EQ(wc.back()->version(), store.version());
+  EXPECT_NE(wc.back().get(), wa.back().get());
+  // Log deltas pass through unchanged.
+  store.AddView(View(3, 10));
+  const auto live = c->NextForWire(0);
+  ASSERT_EQ(live.size(), 1u);
+  EXPECT_TRUE(live[0]->has_view_added());
+  // Off: the parts themselves.
+  ModelStoreOptions off = o;
+  off.snapshot_chunk_batch_bytes = 0;
+  ModelStore store0(off);
+  store0.UpsertChunk(1, 1, Tri(0));
+  store0.UpsertChunk(2, 1, Tri(1));
+  auto s0 = store0.Subscribe(kFuture, 0);
+  size_t chunks0 = 0;
+  for (const DeltaPtr& d : s0->NextForWire(0)) {
+    EXPECT_FALSE(d->has_mesh_chunk_batch());
+    chunks0 += d->has_mesh_chunk_upserted();
+  }
+  EXPECT_EQ(chunks0, 2u);
+}
+
 }  // namespace
 }  // namespace exo

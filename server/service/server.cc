@@ -388,7 +388,7 @@ class ExoviewServer::Service final : public v1::Exoview::Service {
     uint64_t deltas = 0, bytes = 0;
     bool write_failed = false;
     while (!write_failed && !ctx->IsCancelled() && !shutting_down_->load()) {
-      for (const DeltaPtr& d : sub->Next(100)) {
+      for (const DeltaPtr& d : sub->NextForWire(100)) {
         watch.blocked_since_ns.store(SteadyNowNs());  // a client that does not read blocks here
         const bool written = writer->Write(*d);
         watch.blocked_since_ns.store(0);
