@@ -107,9 +107,14 @@ absl::StatusOr<PinholeCamera> IntrinsicsFromProto(const v1::Intrinsics& in) {
   return c;
 }
 
-void DepthToProto(const ImageF& depth_m, double metres_per_unit, v1::DepthImage* out) {
+void DepthToProto(const ImageF& depth_m, double metres_per_unit, v1::DepthImage* out,
+                  int zstd_level) {
   const ImageU16 raw = DepthU16FromMeters(depth_m, metres_per_unit);
-  const std::vector<uint8_t> bytes = EncodeDepth(raw);
+  DepthCodecOptions o;
+  o.zstd_level = zstd_level;
+  auto encoded = EncodeDepth(raw, o);
+  EXO_CHECK(encoded.ok());
+  const std::vector<uint8_t>& bytes = *encoded;
   out->set_codec(v1::DEPTH_CODEC_EXO_U16);
   out->set_data(bytes.data(), bytes.size());
   out->set_width(raw.width());

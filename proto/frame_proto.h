@@ -33,7 +33,8 @@ void IntrinsicsToProto(const PinholeCamera& camera, v1::Intrinsics* out);
 absl::StatusOr<PinholeCamera> IntrinsicsFromProto(const v1::Intrinsics& intrinsics);
 
 // Depth: encodes metres as u16 with `metres_per_unit` using the lossless common/io codec.
-void DepthToProto(const ImageF& depth_m, double metres_per_unit, v1::DepthImage* out);
+void DepthToProto(const ImageF& depth_m, double metres_per_unit, v1::DepthImage* out,
+                  int zstd_level = 1);
 // The size (against `limits`) and the codec header are checked before anything is allocated; the
 // depth scale must lie within the limits.
 absl::StatusOr<ImageF> DepthFromProto(const v1::DepthImage& depth, const FrameLimits& limits = {});

@@ -61,6 +61,8 @@ absl::Status ViewEncodeOptions::Validate() const {
     return absl::InvalidArgumentError("view jpeg_quality must be in [1, 100]");
   if (depth_downscale < 1 || depth_downscale > 16)
     return absl::InvalidArgumentError("view depth_downscale must be in [1, 16]");
+  if (depth_zstd_level < 1 || depth_zstd_level > 19)
+    return absl::InvalidArgumentError("view depth_zstd_level must be in [1, 19]");
   if (!(depth_metres_per_unit > 0.0))
     return absl::InvalidArgumentError("view depth_metres_per_unit must be > 0");
   return absl::OkStatus();
@@ -72,11 +74,13 @@ absl::StatusOr<v1::ViewAdded> ViewToProto(const StoredView& view, const ViewEnco
   msg.set_view_id(view.id);
   IntrinsicsToProto(view.camera, msg.mutable_intrinsics());
   PoseToProto(view.local_from_cam, msg.mutable_local_from_cam());
-  EXO_ASSIGN_OR_RETURN(std::vector<uint8_t> jpeg, EncodeJpeg(view.color, options.jpeg_quality));
+  EXO_ASSIGN_OR_RETURN(std::vector<uint8_t> jpeg,
+                       options.jpeg_optimize ? EncodeJpegOptimized(view.color, options.jpeg_quality)
+                                             : EncodeJpeg(view.color, options.jpeg_quality));
   msg.set_color_jpeg(jpeg.data(), jpeg.size());
   if (!view.depth_m.empty())
     DepthToProto(DownscaleDepth(view.depth_m, options.depth_downscale),
-                 options.depth_metres_per_unit, msg.mutable_depth());
+                 options.depth_metres_per_unit, msg.mutable_depth(), options.depth_zstd_level);
   msg.set_exposure(view.exposure);
   if (view.inpainted) {
     if (view.labels.width() != view.color.width() || view.labels.height() != view.color.height() ||

@@ -2,6 +2,12 @@
 
 #include <turbojpeg.h>
 
+#include <csetjmp>
+#include <cstdlib>
+#include <cstdio>  // jpeglib.h needs FILE
+
+#include <jpeglib.h>
+
 #include <algorithm>
 #include <memory>
 #include <string>
@@ -61,6 +67,62 @@ absl::StatusOr<std::vector<uint8_t>> EncodeJpeg(const ImageU8& rgb, int quality)
   }
   std::vector<uint8_t> bytes(out, out + out_size);
   tjFree(out);
+  return bytes;
+}
+
+namespace {
+struct JpegErrorJump {
+  jpeg_error_mgr mgr;
+  std::jmp_buf jump;
+  char message[JMSG_LENGTH_MAX];
+};
+}  // namespace
+
+absl::StatusOr<std::vector<uint8_t>> EncodeJpegOptimized(const ImageU8& rgb, int quality) {
+  if (rgb.empty() || rgb.channels() != 3)
+    return absl::InvalidArgumentError(absl::StrCat("EncodeJpeg needs a non-empty RGB8 image, got ",
+                                                   rgb.width(), "x", rgb.height(), "x",
+                                                   rgb.channels()));
+  if (quality < 1 || quality > 100)
+    return absl::InvalidArgumentError(absl::StrCat("JPEG quality ", quality, " not in [1, 100]"));
+  // libjpeg reports errors by longjmp out of error_exit: nothing with a destructor lives
+  // between setjmp and the last libjpeg call.
+  jpeg_compress_struct cinfo{};
+  JpegErrorJump err{};
+  cinfo.err = jpeg_std_error(&err.mgr);
+  err.mgr.error_exit = [](j_common_ptr c) {
+    auto* e = reinterpret_cast<JpegErrorJump*>(c->err);
+    (*c->err->format_message)(c, e->message);
+    std::longjmp(e->jump, 1);
+  };
+  unsigned char* out = nullptr;
+  unsigned long out_size = 0;  // NOLINT(runtime/int): libjpeg's type
+  if (setjmp(err.jump)) {
+    jpeg_destroy_compress(&cinfo);
+    std::free(out);
+    return absl::InternalError(absl::StrCat("JPEG encode failed: ", err.message));
+  }
+  jpeg_create_compress(&cinfo);
+  jpeg_mem_dest(&cinfo, &out, &out_size);
+  cinfo.image_width = static_cast<JDIMENSION>(rgb.width());
+  cinfo.image_height = static_cast<JDIMENSION>(rgb.height());
+  cinfo.input_components = 3;
+  cinfo.in_color_space = JCS_RGB;
+  jpeg_set_defaults(&cinfo);  // YCbCr, luma 2x2 (4:2:0)
+  jpeg_set_quality(&cinfo, quality, TRUE);
+  // What tjCompress2 does without TJFLAG_ACCURATEDCT: the fast integer DCT below quality 96
+  // (libjpeg-turbo's turbojpeg.c setCompDefaults), so the coefficients are EncodeJpeg's.
+  cinfo.dct_method = quality >= 96 ? JDCT_ISLOW : JDCT_FASTEST;
+  cinfo.optimize_coding = TRUE;
+  jpeg_start_compress(&cinfo, TRUE);
+  while (cinfo.next_scanline < cinfo.image_height) {
+    JSAMPROW row = const_cast<JSAMPROW>(rgb.data() + size_t{cinfo.next_scanline} * rgb.width() * 3);
+    jpeg_write_scanlines(&cinfo, &row, 1);
+  }
+  jpeg_finish_compress(&cinfo);
+  jpeg_destroy_compress(&cinfo);
+  std::vector<uint8_t> bytes(out, out + out_size);
+  std::free(out);
   return bytes;
 }
 

@@ -20,6 +20,12 @@ inline constexpr int64_t kMaxJpegPixels = int64_t{1} << 27;  // 134 Mpix
 
 // Encodes a 3-channel RGB8 image (4:2:0 chroma subsampling, `quality` in [1, 100]).
 absl::StatusOr<std::vector<uint8_t>> EncodeJpeg(const ImageU8& rgb, int quality = 90);
+// The same baseline JPEG with Huffman tables optimised for this image (libjpeg's
+// optimize_coding: a second pass over the coefficients): the same DCT and quantisation, so it
+// decodes to exactly the pixels of EncodeJpeg's, in ~7 % fewer bytes at quality 50, for ~1.3x
+// the encode time. What the server publishes views with (each is encoded once, sent to every
+// viewer).
+absl::StatusOr<std::vector<uint8_t>> EncodeJpegOptimized(const ImageU8& rgb, int quality = 90);
 
 // What a decode may cost. The scan limit is always on (TJFLAG_LIMITSCANS: more than 500 scans is
 // an error: a small progressive JPEG with hundreds of scans costs seconds of CPU).

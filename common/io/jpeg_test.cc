@@ -3,6 +3,8 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstring>
+#include <tuple>
 #include <filesystem>
 #include <random>
 
@@ -49,6 +51,30 @@ TEST(JpegTest, EncodeRejectsBadInput) {
   EXPECT_FALSE(EncodeJpeg(ImageU8(8, 8, 1), 90).ok());
   EXPECT_FALSE(EncodeJpeg(testing::MakeTestRgb(8, 8), 0).ok());
   EXPECT_FALSE(EncodeJpeg(testing::MakeTestRgb(8, 8), 101).ok());
+}
+
+// The publish encoder: optimised Huffman tables only, so exactly the pixels of EncodeJpeg, in
+// fewer bytes, still a baseline (SOF0) JPEG the upload path's sequential-only decode accepts;
+// odd sizes (partial MCUs) and quality extremes included.
+TEST(JpegTest, OptimizedHuffmanDecodesToTheSamePixelsInFewerBytes) {
+  for (const auto& [w, h, q] : {std::tuple{640, 480, 50}, std::tuple{161, 99, 50},
+                                std::tuple{64, 48, 1}, std::tuple{64, 48, 100}}) {
+    const ImageU8 img = testing::MakeTestRgb(w, h);
+    auto plain = EncodeJpeg(img, q);
+    auto opt = EncodeJpegOptimized(img, q);
+    ASSERT_TRUE(plain.ok() && opt.ok()) << opt.status();
+    EXPECT_LT(opt->size(), plain->size()) << w << "x" << h << " q" << q;
+    auto info = ReadJpegInfo(*opt);
+    ASSERT_TRUE(info.ok());
+    EXPECT_EQ(info->sof_marker, 0xC0);
+    auto a = DecodeJpeg(*plain), b = DecodeJpeg(*opt, JpegLimits{.sequential_only = true});
+    ASSERT_TRUE(a.ok() && b.ok()) << b.status();
+    ASSERT_TRUE(a->SameShape(*b));
+    EXPECT_EQ(0, std::memcmp(a->data(), b->data(), a->bytes())) << w << "x" << h << " q" << q;
+  }
+  EXPECT_FALSE(EncodeJpegOptimized(ImageU8(), 90).ok());
+  EXPECT_FALSE(EncodeJpegOptimized(ImageU8(8, 8, 1), 90).ok());
+  EXPECT_FALSE(EncodeJpegOptimized(testing::MakeTestRgb(8, 8), 0).ok());
 }
 
 // Guard: warnings are errors. libjpeg only *warns* on a truncated stream (grey padding,
