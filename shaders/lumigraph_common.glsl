@@ -213,4 +213,9 @@ layout(std140, set = 0, binding = 0) uniform Frame {
   // layer, 0) for floorproj.frag, (1 / width, 1 / height, 0, 0) of the floor texture
   // for floor.vert.
   vec4 floor_view[4];
+  // The viewer's X-ray hole (xray_hole.glsl; VulkanRenderer::SetXrayHole): the disc's centre
+  // in pixels (gl_FragCoord units) and its radius squared; the optical axis (local frame) and
+  // the clip's z-depth in metres.
+  vec4 xray_disc;  // x, y, radius^2, 0
+  vec4 xray_axis;  // xyz = optical axis, w = clip z-depth (m)
 } frame;

@@ -88,4 +88,15 @@ double XrayClipDistance(std::optional<double> picked_z_depth_m, double margin_m,
   return std::max(0.05, default_m);
 }
 
+glm::dvec2 XrayHoleCentre(const glm::dvec2& uv, int w, int h) {
+  return {(uv.x + 0.5) / std::max(1, w), (uv.y + 0.5) / std::max(1, h)};
+}
+
+bool InsideXrayHole(const glm::dvec2& uv, int w, int h, const glm::dvec2& centre, double radius) {
+  // The shader's test (shaders/xray_hole.glsl) on the fragment's centre (uv + 0.5).
+  const glm::dvec2 d(uv.x + 0.5 - centre.x * w, uv.y + 0.5 - centre.y * h);
+  const double r = radius * h;
+  return glm::dot(d, d) <= r * r;
+}
+
 }  // namespace exo::nav

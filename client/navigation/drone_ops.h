@@ -83,4 +83,12 @@ Sticks SticksFromGamepad(double left_x, double left_y, double right_x, double ri
 // z-depth) plus `margin_m` (a wall's thickness), else `default_m` in front of the camera.
 double XrayClipDistance(std::optional<double> picked_z_depth_m, double margin_m, double default_m);
 
+// The X-ray hole ("a virtual hole in the wall", thesis 5.2.7): only inside a disc on the picture
+// is the proxy nearer than the clip cut away (VulkanRenderer::SetXrayHole draws it; picking and
+// the gaze ray use these). The disc is resolution-independent: its centre as a fraction of the
+// picture, pixel `uv` (centres at integers) of a w x h picture at ((uv + 0.5) / (w, h)), its
+// radius as a fraction of the picture's height.
+glm::dvec2 XrayHoleCentre(const glm::dvec2& uv, int w, int h);
+bool InsideXrayHole(const glm::dvec2& uv, int w, int h, const glm::dvec2& centre, double radius);
+
 }  // namespace exo::nav

@@ -120,6 +120,24 @@ TEST(DroneOps, XrayPlaneThroughThePickedPointOrInFront) {
   EXPECT_DOUBLE_EQ(XrayClipDistance(std::nullopt, 0.3, 0.0), 0.05);
 }
 
+TEST(DroneOps, XrayHoleIsADiscAroundTheCursorInPictureFractions) {
+  const glm::dvec2 c = XrayHoleCentre({479.5, 269.5}, 960, 540);  // the picture's centre
+  EXPECT_DOUBLE_EQ(c.x, 0.5);
+  EXPECT_DOUBLE_EQ(c.y, 0.5);
+  const double r = 0.2;  // 108 px of 540
+  EXPECT_TRUE(InsideXrayHole({479.5, 269.5}, 960, 540, c, r));
+  EXPECT_TRUE(InsideXrayHole({479.5 + 107, 269.5}, 960, 540, c, r));
+  EXPECT_FALSE(InsideXrayHole({479.5 + 109, 269.5}, 960, 540, c, r));
+  EXPECT_FALSE(InsideXrayHole({479.5 + 80, 269.5 + 80}, 960, 540, c, r));  // 113 px away
+  // The same disc at half the resolution (a moving frame): the same part of the picture.
+  EXPECT_TRUE(InsideXrayHole({239.5 + 53, 134.5}, 480, 270, c, r));
+  EXPECT_FALSE(InsideXrayHole({239.5 + 55, 134.5}, 480, 270, c, r));
+  // A corner cursor: the disc is cut by the border, the far corner is outside.
+  const glm::dvec2 k = XrayHoleCentre({0, 0}, 960, 540);
+  EXPECT_TRUE(InsideXrayHole({0, 0}, 960, 540, k, r));
+  EXPECT_FALSE(InsideXrayHole({959, 539}, 960, 540, k, r));
+}
+
 // Picking in X-ray mode skips the surfaces in front of the cut-away plane.
 TEST(DroneOps, PickBeyondTheXrayPlane) {
   LumigraphModel m;

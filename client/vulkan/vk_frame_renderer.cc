@@ -4,9 +4,11 @@
 #include <array>
 #include <bit>
 #include <chrono>
+#include <cmath>
 #include <cstring>
 #include <limits>
 
+#include "absl/strings/str_cat.h"
 #include "common/lumigraph/cpu_renderer.h"
 
 namespace exo::vk {
@@ -41,9 +43,13 @@ struct GpuFrame {
   // RenderFloor: rows of one view's P and (width, height, layer, 0) (floorproj.frag) or
   // (1 / width, 1 / height, 0, 0) of the floor texture (floor.vert).
   glm::vec4 floor_view[4];
+  // The X-ray hole (shaders/xray_hole.glsl): (centre x, y in pixels, radius^2, 0) and (optical
+  // axis, clip z-depth); read only by the pipelines with the hole.
+  glm::vec4 xray_disc;
+  glm::vec4 xray_axis;
 };
 static_assert(sizeof(GpuFrame) == 128 + 48 + 16 + 16 * kBgViewTexels * blend::kMaxBackgroundViews +
-                                      16 + 16 * (kMaxInpaintedViews / 4) + 64);
+                                      16 + 16 * (kMaxInpaintedViews / 4) + 64 + 32);
 
 namespace {
 
@@ -351,6 +357,31 @@ void FrameRenderer::FillFrame(const PinholeCamera& camera, const Rigid3d& local_
   f->clip_from_local = glm::mat4(ClipFromCam(camera, opt_.near_m, opt_.far_m) * cam_from_local);
   f->cam_centre_cell = glm::vec4(glm::vec3(local_from_cam.translation), float(grid_.cell_size_m));
   f->iparams = glm::ivec4(0, 0, int(cells_.table_mask()), int(cells_.max_probe()));
+  if (xray_hole_) {
+    const XrayHole& x = *xray_hole_;
+    const double r_px = x.radius * camera.height;
+    f->xray_disc = glm::vec4(float(x.centre_x * camera.width), float(x.centre_y * camera.height),
+                             float(r_px * r_px), 0.0f);
+    f->xray_axis =
+        glm::vec4(glm::vec3(local_from_cam.RotationMatrix()[2]), float(x.clip_m));
+  }
+}
+
+absl::Status FrameRenderer::SetXrayHole(std::optional<XrayHole> hole) {
+  if (hole) {
+    const XrayHole& x = *hole;
+    if (!std::isfinite(x.clip_m) || !(x.clip_m > 0.0) || !(x.clip_m < opt_.far_m))
+      return absl::InvalidArgumentError(absl::StrCat(
+          "X-ray hole: clip_m must be in (0, ", opt_.far_m, ") m, got ", x.clip_m));
+    if (!std::isfinite(x.centre_x) || !std::isfinite(x.centre_y))
+      return absl::InvalidArgumentError("X-ray hole: the centre must be finite");
+    if (!std::isfinite(x.radius) || !(x.radius > 0.0))
+      return absl::InvalidArgumentError(
+          absl::StrCat("X-ray hole: radius must be > 0 (a fraction of the image height), got ",
+                       x.radius));
+  }
+  xray_hole_ = hole;
+  return absl::OkStatus();
 }
 
 // Records the proxy draw with `pipe` into `t`, copies the colour attachment to t.readback.
@@ -368,8 +399,8 @@ absl::Status FrameRenderer::Draw(RenderTarget& t, VkRenderPass pass, VkPipeline 
   return ctx_.Submit([&](VkCommandBuffer cmd) {
     if (deferred) {
       VkClearValue zero{};  // G-buffer w = 0: no surface
-      RecordBeginPass(cmd, p, p.gbuffer_pass(), t.gbuffer_fb.get(), zero, p.gbuffer_pipe(), t.w,
-                      t.h);
+      RecordBeginPass(cmd, p, p.gbuffer_pass(), t.gbuffer_fb.get(), zero,
+                      p.gbuffer_pipe(xray_hole_.has_value()), t.w, t.h);
       chunks_.RecordDraws(cmd);
       vkCmdEndRenderPass(cmd);
       if (compute_pipe != VK_NULL_HANDLE) return RecordComputeBlend(cmd, p, t, compute_pipe);
@@ -696,7 +727,8 @@ absl::StatusOr<exo::Image<uint64_t>> FrameRenderer::RenderCellIds(const PinholeC
   std::memcpy(frame_ubo_.mapped, &f, sizeof(f));
   VkClearValue clear{};
   clear.color.uint32[0] = clear.color.uint32[1] = 0xFFFFFFFFu;
-  EXO_RETURN_IF_ERROR(Draw(cellid_target_, pipes_->cellid_pass(), pipes_->cellid_pipe(), clear, 8));
+  EXO_RETURN_IF_ERROR(Draw(cellid_target_, pipes_->cellid_pass(), pipes_->cellid_pipe(xray_hole_.has_value()),
+                           clear, 8));
   exo::Image<uint64_t> out(w, h, 1, kNoCell);
   const uint32_t* src = static_cast<const uint32_t*>(cellid_target_.readback.mapped);
   for (size_t i = 0, n = size_t(w) * h; i < n; ++i)
@@ -716,7 +748,8 @@ absl::StatusOr<ImageF> FrameRenderer::RenderProxyDepth(const PinholeCamera& came
   f.background = glm::vec4(glm::vec3(local_from_cam.RotationMatrix()[2]), 0.0f);
   std::memcpy(frame_ubo_.mapped, &f, sizeof(f));
   VkClearValue clear{};  // 0 = no surface (invalid depth)
-  EXO_RETURN_IF_ERROR(Draw(zdepth_target_, pipes_->zdepth_pass(), pipes_->zdepth_pipe(), clear, 4));
+  EXO_RETURN_IF_ERROR(Draw(zdepth_target_, pipes_->zdepth_pass(), pipes_->zdepth_pipe(xray_hole_.has_value()),
+                           clear, 4));
   ImageF out(w, h, 1, 0.0f);
   std::memcpy(out.data(), zdepth_target_.readback.mapped, size_t(w) * h * sizeof(float));
   return out;

@@ -7,6 +7,7 @@
 
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <vector>
 
 #include "client/vulkan/vk_cell_table.h"
@@ -42,6 +43,10 @@ class FrameRenderer {
   absl::Status PrepareFloor(const PinholeCamera& camera, const Rigid3d& local_from_cam);
   absl::StatusOr<ImageF> RenderProxyDepth(const PinholeCamera& camera,
                                           const Rigid3d& local_from_cam);
+  // VulkanRenderer::SetXrayHole: Render's G-buffer pass, RenderCellIds and RenderProxyDepth use
+  // the pipelines with the hole while one is set (the floor passes do not).
+  absl::Status SetXrayHole(std::optional<XrayHole> hole);
+  const std::optional<XrayHole>& xray_hole() const { return xray_hole_; }
 
  private:
   FrameRenderer(const Context& ctx, const VulkanRendererOptions& opt, const CellGrid& grid,
@@ -112,6 +117,7 @@ class FrameRenderer {
   std::vector<SkyDraw> sky_draws_;
   Buffer sky_vb_;
   double sky_listed_views_px_ = 0;  // sum over drawn pixels of their list's length
+  std::optional<XrayHole> xray_hole_;
 };
 
 }  // namespace exo::vk

@@ -39,6 +39,19 @@ absl::StatusOr<std::unique_ptr<Pipelines>> Pipelines::Create(const Context& ctx,
                                                           sizeof(kSpvCellidFrag)));
   EXO_ASSIGN_OR_RETURN(p->zdepth_pipe_, p->CreatePipeline(p->zdepth_pass_.get(), kSpvViewdepthFrag,
                                                           sizeof(kSpvViewdepthFrag)));
+  // The same three with the X-ray hole (xray_hole.glsl: constant 4 = kXrayHole).
+  const int32_t hole = 1;
+  const VkSpecializationMapEntry hole_entry{4, 0, sizeof(int32_t)};
+  const VkSpecializationInfo hole_spec{1, &hole_entry, sizeof(hole), &hole};
+  EXO_ASSIGN_OR_RETURN(p->gbuffer_hole_pipe_,
+                       p->CreatePipeline(p->gbuffer_pass_.get(), kSpvGbufferFrag,
+                                         sizeof(kSpvGbufferFrag), Geometry::kMesh, &hole_spec));
+  EXO_ASSIGN_OR_RETURN(p->cellid_hole_pipe_,
+                       p->CreatePipeline(p->cellid_pass_.get(), kSpvCellidFrag,
+                                         sizeof(kSpvCellidFrag), Geometry::kMesh, &hole_spec));
+  EXO_ASSIGN_OR_RETURN(p->zdepth_hole_pipe_,
+                       p->CreatePipeline(p->zdepth_pass_.get(), kSpvViewdepthFrag,
+                                         sizeof(kSpvViewdepthFrag), Geometry::kMesh, &hole_spec));
   EXO_ASSIGN_OR_RETURN(p->floor_pipe_, p->CreatePipeline(p->color_pass_.get(), kSpvFloorFrag,
                                                          sizeof(kSpvFloorFrag), Geometry::kFloor));
   EXO_ASSIGN_OR_RETURN(p->floor_projective_pipe_,

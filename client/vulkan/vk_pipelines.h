@@ -69,9 +69,18 @@ class Pipelines {
   VkRenderPass gbuffer_pass() const { return gbuffer_pass_.get(); }
   VkRenderPass cellid_pass() const { return cellid_pass_.get(); }
   VkRenderPass zdepth_pass() const { return zdepth_pass_.get(); }
-  VkPipeline gbuffer_pipe() const { return gbuffer_pipe_.get(); }
-  VkPipeline cellid_pipe() const { return cellid_pipe_.get(); }
-  VkPipeline zdepth_pipe() const { return zdepth_pipe_.get(); }
+  // The proxy passes; xray_hole: the variant with the viewer's X-ray hole (shaders/
+  // xray_hole.glsl, specialisation constant 4), whose `discard` would cost llvmpipe its early
+  // depth test in every frame without a hole.
+  VkPipeline gbuffer_pipe(bool xray_hole = false) const {
+    return (xray_hole ? gbuffer_hole_pipe_ : gbuffer_pipe_).get();
+  }
+  VkPipeline cellid_pipe(bool xray_hole = false) const {
+    return (xray_hole ? cellid_hole_pipe_ : cellid_pipe_).get();
+  }
+  VkPipeline zdepth_pipe(bool xray_hole = false) const {
+    return (xray_hole ? zdepth_hole_pipe_ : zdepth_pipe_).get();
+  }
   // RenderFloor: the issue-16 floor (floor.vert + floor.frag) and the session-9 one
   // (floorproj.frag).
   VkPipeline floor_pipe() const { return floor_pipe_.get(); }
@@ -115,6 +124,7 @@ class Pipelines {
   UniqueBufferView buffer_views_[5];  // views, cell table, refs, ranked refs, background views
   UniqueRenderPass color_pass_, blend_pass_, cellid_pass_, zdepth_pass_, gbuffer_pass_;
   UniquePipeline gbuffer_pipe_, cellid_pipe_, zdepth_pipe_, floor_pipe_, floor_projective_pipe_;
+  UniquePipeline gbuffer_hole_pipe_, cellid_hole_pipe_, zdepth_hole_pipe_;
   // Blend pipelines per n_best (specialisation constant 0 of blend.frag / blend.comp: the
   // best-n slots and the n-th-best pick are then compile-time; measured ~6 % of the frame) and
   // per BlendVariant (constant 2, inpainted keyframes: their per-pixel loop cost ~8 % of the

@@ -280,6 +280,10 @@ absl::Status VulkanRenderer::SetNearPlane(float near_m) {
   return absl::OkStatus();
 }
 float VulkanRenderer::near_plane() const { return impl_->opt.near_m; }
+absl::Status VulkanRenderer::SetXrayHole(std::optional<XrayHole> hole) {
+  return impl_->frame->SetXrayHole(hole);
+}
+std::optional<XrayHole> VulkanRenderer::xray_hole() const { return impl_->frame->xray_hole(); }
 
 const UploadStats& VulkanRenderer::stats() const { return impl_->stats; }
 void VulkanRenderer::ResetStats() { impl_->stats = UploadStats{}; }

@@ -9,6 +9,7 @@
 
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <span>
 #include <string>
 #include <vector>
@@ -48,6 +49,17 @@ struct VulkanRendererOptions {
   bool blend_in_compute = false;
 
   absl::Status Validate() const;
+};
+
+// The X-ray hole (VulkanRenderer::SetXrayHole). The disc is resolution-independent: its centre
+// as a fraction of the image (0, 0: the top-left corner; pixel (x, y)'s centre is at
+// ((x + 0.5) / W, (y + 0.5) / H)), its radius as a fraction of the image height; a pixel is in
+// the hole when its centre is within the radius (a radius larger than the image's diagonal cuts
+// the whole picture).
+struct XrayHole {
+  double clip_m = 1.0;  // z-depth (metres along the optical axis) of the cut inside the disc
+  double centre_x = 0.5, centre_y = 0.5;
+  double radius = 0.25;
 };
 
 // Bytes and objects moved from host to GPU since the last ResetStats().
@@ -161,6 +173,13 @@ class VulkanRenderer {
   // RenderProxyDepth, RenderCellIds, RenderFloor). InvalidArgument unless 0 < near_m < far_m.
   absl::Status SetNearPlane(float near_m);
   float near_plane() const;
+  // The viewer's X-ray cut-away as a "virtual hole in the wall" (thesis 5.2.7, issue 19): from
+  // now on, inside the hole's disc on the image the proxy nearer than hole.clip_m is not drawn,
+  // so the modelled interior behind the wall shows there; outside the disc the picture is the
+  // normal one (Render, RenderProxyDepth, RenderCellIds; not RenderFloor). nullopt: no hole.
+  // InvalidArgument (the hole unchanged) unless 0 < clip_m < far_m, radius > 0, all finite.
+  absl::Status SetXrayHole(std::optional<XrayHole> hole);
+  std::optional<XrayHole> xray_hole() const;
 
   // ---- introspection ----
   const UploadStats& stats() const;

@@ -90,6 +90,12 @@ std::unique_ptr<VulkanRenderer> Make(const LumigraphModel& m) {
   return std::move(*r);
 }
 
+// The ray through pixel (x, y) of Cam() at the identity pose, scaled to z = 1.
+glm::dvec3 PixelRay(int x, int y) {
+  const PinholeCamera c = Cam();
+  return {(x - c.cx) / c.fx, (y - c.cy) / c.fy, 1.0};
+}
+
 int MaxDiff(const ImageU8& a, const ImageU8& b) {
   int m = 0;
   for (size_t i = 0; i < a.size(); ++i) m = std::max(m, std::abs(int(a.data()[i]) - int(b.data()[i])));
@@ -367,6 +373,81 @@ TEST(VulkanRendererTest, NearPlaneCutsAwayTheFrontSurface) {
   EXPECT_FALSE(r->SetNearPlane(0.0f).ok());
   EXPECT_FALSE(r->SetNearPlane(1e9f).ok());
   EXPECT_EQ(r->near_plane(), default_near);
+  EXPECT_TRUE(r->ValidationErrors().empty());
+}
+
+// The X-ray cut-away as a hole (issue 19, thesis 5.2.7 "a virtual hole in the wall"): the front
+// plane z = 2 (view 1's colours) and a far plane z = 4 seen by view 2 (other colours). With a
+// hole (clip 2.5 m, a disc off the centre) every pass shows the far plane inside the disc and
+// exactly the normal picture outside it; no hole again: the normal picture everywhere.
+TEST(VulkanRendererTest, XrayHoleCutsOnlyInsideTheDisc) {
+  LumigraphModel m = PlaneModel();
+  m.chunks[8] = Plane(8, 6.0f, 4.0f);
+  StoredView far = PlaneView(2, Rigid3d::Identity());
+  for (int y = 0; y < kH; ++y)
+    for (int x = 0; x < kW; ++x) {
+      far.depth_m.at(x, y) = 4.0f;
+      for (int c = 0; c < 3; ++c) far.color.at(x, y, c) = uint8_t(255 - far.color.at(x, y, c));
+    }
+  m.views[2] = far;
+  for (int x = -12; x < 12; ++x)
+    for (int y = -12; y < 12; ++y) m.cell_refs[PackCell({x, y, 8})] = {2};
+  auto r = Make(m);
+  const Rigid3d at = Rigid3d::Identity();
+  auto normal = r->Render(Cam(), at, blend::BlendOptions{});
+  ASSERT_TRUE(normal.ok()) << normal.status();
+  EXPECT_LE(MaxDiff(normal->color, m.views.at(1).color), 1);
+
+  XrayHole hole;
+  hole.clip_m = 2.5;
+  hole.centre_x = 0.3;
+  hole.centre_y = 0.6;
+  hole.radius = 0.25;  // 12 px of 48
+  ASSERT_TRUE(r->SetXrayHole(hole).ok());
+  ASSERT_TRUE(r->xray_hole().has_value());
+  auto holed = r->Render(Cam(), at, blend::BlendOptions{});
+  auto depth = r->RenderProxyDepth(Cam(), at);
+  auto ids = r->RenderCellIds(Cam(), at);
+  ASSERT_TRUE(holed.ok() && depth.ok() && ids.ok());
+  int inside = 0, outside = 0;
+  const double r_px = hole.radius * kH;
+  for (int y = 0; y < kH; ++y)
+    for (int x = 0; x < kW; ++x) {
+      const double d = std::hypot(x + 0.5 - hole.centre_x * kW, y + 0.5 - hole.centre_y * kH);
+      if (std::abs(d - r_px) < 0.5) continue;  // on the rim: either
+      const bool in = d < r_px;
+      (in ? inside : outside) += 1;
+      const StoredView& want = m.views.at(in ? 2 : 1);
+      for (int c = 0; c < 3; ++c)
+        ASSERT_LE(std::abs(int(holed->color.at(x, y, c)) - int(want.color.at(x, y, c))), 1)
+            << x << "," << y << (in ? " inside" : " outside");
+      EXPECT_NEAR(depth->at(x, y), in ? 4.0 : 2.0, 1e-5) << x << "," << y;
+      const glm::dvec3 p = PixelRay(x, y) * (in ? 4.0 : 2.0);
+      const auto near_edge = [](double v) { return std::abs(v / 0.5 - std::round(v / 0.5)) < 1e-3; };
+      if (!near_edge(p.x) && !near_edge(p.y)) {  // float vs double at a cell's border: either
+        EXPECT_EQ(ids->at(x, y), m.grid.IdOf(p)) << x << "," << y;
+      }
+    }
+  EXPECT_GT(inside, 300);  // pi 12^2 = 452
+  EXPECT_GT(outside, 2000);
+
+  // Bad holes are refused with the reason; the hole in place stays.
+  XrayHole bad = hole;
+  bad.clip_m = 0;
+  EXPECT_EQ(r->SetXrayHole(bad).code(), absl::StatusCode::kInvalidArgument);
+  bad = hole;
+  bad.radius = 0;
+  EXPECT_EQ(r->SetXrayHole(bad).code(), absl::StatusCode::kInvalidArgument);
+  bad = hole;
+  bad.centre_x = std::nan("");
+  EXPECT_EQ(r->SetXrayHole(bad).code(), absl::StatusCode::kInvalidArgument);
+  ASSERT_TRUE(r->xray_hole().has_value());
+  EXPECT_EQ(r->xray_hole()->clip_m, 2.5);
+
+  ASSERT_TRUE(r->SetXrayHole(std::nullopt).ok());
+  auto again = r->Render(Cam(), at, blend::BlendOptions{});
+  ASSERT_TRUE(again.ok());
+  EXPECT_EQ(MaxDiff(again->color, normal->color), 0);
   EXPECT_TRUE(r->ValidationErrors().empty());
 }
 

@@ -263,14 +263,15 @@ void DroneOperator::Run() {
 
 void DroneControls::Click(const PinholeCamera& cam, const Rigid3d& pose, const LocalOrigin& origin,
                           const glm::dvec2& px, std::optional<glm::dvec3> local_hit) {
-  const nav::Ray3 r = nav::GazeRay(cam, pose, px, xray_ ? xray_clip_m_ : 0.0);
+  const double clip = ClipAt(cam, px);
+  const nav::Ray3 r = nav::GazeRay(cam, pose, px, clip);
   const glm::dvec3 eye = r.origin + origin.origin_in_world;
   ++clicks_;
   last_gesture_ = {{"gesture", "click"},
                    {"px", {px.x, px.y}},
                    {"eye", J(eye)},
                    {"direction", J(r.dir)},
-                   {"from_xray_plane", xray_}};
+                   {"from_xray_plane", clip > 0}};
   // What the viewer's own proxy says is under the cursor (the server casts into its copy).
   if (local_hit)
     last_gesture_["local_hit"] = J(*local_hit + origin.origin_in_world);
@@ -345,10 +346,18 @@ void DroneControls::Gamepad(const nav::Sticks& s, double dt_s) {
   if (op_) op_->Joypad(s, dt_s);
 }
 
-void DroneControls::ToggleXray(std::optional<double> z_under_cursor) {
+void DroneControls::ToggleXray(std::optional<double> z_under_cursor, const glm::dvec2& centre) {
   xray_ = !xray_;
-  if (xray_)
+  if (xray_) {
     xray_clip_m_ = nav::XrayClipDistance(z_under_cursor, o_.xray_margin_m, o_.xray_default_m);
+    xray_centre_ = centre;
+  }
+}
+
+double DroneControls::ClipAt(const PinholeCamera& cam, const glm::dvec2& px) const {
+  if (!xray_ || !nav::InsideXrayHole(px, cam.width, cam.height, xray_centre_, o_.xray_radius))
+    return 0.0;
+  return xray_clip_m_;
 }
 
 void DroneControls::MoveXray(int steps) {
@@ -361,7 +370,8 @@ std::string DroneControls::HudLine() const {
                 drone_mode_ ? "DRONE MODE" : "operator");
   std::string s = buf;
   if (xray_) {
-    std::snprintf(buf, sizeof(buf), "  |  X-RAY: cut at %.2f m ([ ])", xray_clip_m_);
+    std::snprintf(buf, sizeof(buf), "  |  X-RAY: a hole at the cursor cut at %.2f m ([ ])",
+                  xray_clip_m_);
     s += buf;
   }
   if (drag_) {
@@ -376,6 +386,9 @@ nlohmann::json DroneControls::StatusJson() const {
       {"drone_mode", drone_mode_},
       {"xray", xray_},
       {"xray_clip_m", xray_ ? nlohmann::json(xray_clip_m_) : nlohmann::json(nullptr)},
+      {"xray_centre", xray_ ? nlohmann::json({xray_centre_.x, xray_centre_.y})
+                            : nlohmann::json(nullptr)},
+      {"xray_radius", o_.xray_radius},
       {"dragging", drag_.has_value()},
       {"clicks", clicks_},
       {"drags", drags_},

@@ -110,6 +110,9 @@ struct DroneControlsOptions {
   double xray_margin_m = 0.3;  // behind the picked point (a wall's thickness)
   double xray_default_m = 1.5;
   double xray_step_m = 0.25;
+  // The hole's radius as a fraction of the picture's height (nav::InsideXrayHole): only
+  // inside it is the picture cut at the plane; >= the picture's diagonal: the whole picture.
+  double xray_radius = 0.22;
 };
 
 class DroneControls {
@@ -148,8 +151,20 @@ class DroneControls {
 
   bool xray() const { return xray_; }
   double xray_clip_m() const { return xray_clip_m_; }
-  void ToggleXray(std::optional<double> z_under_cursor);
+  // The hole: centre as a fraction of the picture (nav::XrayHoleCentre), radius (of its height).
+  glm::dvec2 xray_centre() const { return xray_centre_; }
+  double xray_radius() const { return o_.xray_radius; }
+  // X: on at the cursor `centre` (a fraction of the picture) with the plane through the point
+  // under it + margin (else xray_default_m), or off.
+  void ToggleXray(std::optional<double> z_under_cursor, const glm::dvec2& centre = {0.5, 0.5});
   void MoveXray(int steps);
+  // The hole follows the cursor (no-op while off).
+  void MoveXrayHole(const glm::dvec2& centre) {
+    if (xray_) xray_centre_ = centre;
+  }
+  // The clip at pixel `px` of a picture of `cam`'s size: the plane's distance inside the hole,
+  // 0 (nothing cut) outside it or with X-ray off; picking and the gaze ray start there.
+  double ClipAt(const PinholeCamera& cam, const glm::dvec2& px) const;
 
   std::string HudLine() const;
   nlohmann::json StatusJson() const;
@@ -169,6 +184,7 @@ class DroneControls {
   std::optional<DragState> drag_;
   bool xray_ = false;
   double xray_clip_m_ = 0;
+  glm::dvec2 xray_centre_{0.5, 0.5};
   nlohmann::json last_gesture_ = nullptr;  // what was sent last, with the local geometry
   uint64_t clicks_ = 0, drags_ = 0, joypad_s_ms_ = 0;
   bool joy_was_active_ = false;

@@ -127,6 +127,8 @@ const keys = {KeyW:"w",KeyA:"a",KeyS:"s",KeyD:"d",KeyQ:"q",KeyE:"e",ArrowLeft:"l
 // Steering the drone: ctrl (or drone mode, M) + click = gaze-to-see at that pixel; + drag that
 // starts on the drone = pick-and-place (the mouse as the hand, docs/viewer.md).
 let droneMode = false, press = null, onDrone = false, cursor = null;
+// X-ray: the hole is around the pointer (sent with X and, while on, as it moves: 10 Hz at most).
+let xray = false, pointer = null, xatSent = 0;
 function framePx(e) {
   const r = img.getBoundingClientRect();
   if (!overlay || !overlay.width) return null;
@@ -139,6 +141,7 @@ const send = q => fetch("/input?" + q, {method: "POST"}).catch(() => {});
 onkeydown = e => { if (e.code === "KeyM" && !e.repeat) { droneMode = !droneMode; return; }
   if (e.code === "KeyV") { setDr(!dr); e.preventDefault(); return; }
   const k = keys[e.code]; if (!k) return; e.preventDefault();
+  if (k === "x") { if (e.repeat) return; xray = !xray; if (pointer) { send(`key=x&down=1&xat=${pointer.x},${pointer.y}`); return; } }
   if (!held.has(k)) { held.add(k); send("key=" + k + "&down=1"); } };
 onkeyup = e => { const k = keys[e.code]; if (!k) return; held.delete(k); send("key=" + k + "&down=0"); };
 setInterval(() => held.forEach(k => send("key=" + k + "&down=1")), 200);
@@ -164,6 +167,9 @@ onmouseup = e => {
   press = null; cursor = null; drawOverlay();
 };
 onmousemove = e => {
+  pointer = framePx(e) || pointer;
+  if (xray && pointer && !press && performance.now() - xatSent > 100) {
+    xatSent = performance.now(); send(`xat=${pointer.x},${pointer.y}`); }
   if (press) { if (onDrone) { cursor = framePx(e); drawOverlay(); } return; }
   if (drag) send("dx=" + e.movementX + "&dy=" + e.movementY);
 };
@@ -463,6 +469,10 @@ class HttpView::Impl {
       const auto v = numbers(it->second);
       if (v.size() == 2) gazes_.push_back({v[0], v[1]});
     }
+    if (auto it = q.find("xat"); it != q.end()) {
+      const auto v = numbers(it->second);
+      if (v.size() == 2 && std::isfinite(v[0]) && std::isfinite(v[1])) xray_at_ = {v[0], v[1]};
+    }
     if (auto it = q.find("pick"); it != q.end() && picks_.size() < 16) {
       const auto v = numbers(it->second);
       auto hand = [&](const char* k) { return q.count(k) ? ToDouble(q.at(k)) : -1.0; };
@@ -499,6 +509,7 @@ class HttpView::Impl {
     in.presses = std::exchange(presses_, {});
     in.gazes = std::exchange(gazes_, {});
     in.picks = std::exchange(picks_, {});
+    in.xray_at = std::exchange(xray_at_, std::nullopt);
     return in;
   }
 
@@ -540,6 +551,7 @@ class HttpView::Impl {
   std::vector<std::string> presses_;
   std::vector<std::array<double, 2>> gazes_;
   std::vector<std::array<double, 6>> picks_;
+  std::optional<std::array<double, 2>> xray_at_;
   double dx_ = 0, dy_ = 0, wheel_ = 0;
 };
 

@@ -26,6 +26,7 @@
 #pragma once
 
 #include <array>
+#include <optional>
 #include <chrono>
 #include <cstdint>
 #include <functional>
@@ -48,6 +49,9 @@ struct HttpInput {
   std::vector<std::string> held;
   std::vector<std::array<double, 2>> gazes;
   std::vector<std::array<double, 6>> picks;
+  // The pointer's last position over the picture (frame pixels), sent with X and while the
+  // X-ray hole is on: the hole is around it.
+  std::optional<std::array<double, 2>> xray_at;
 };
 
 class HttpView {

@@ -80,6 +80,10 @@ int main(int argc, char** argv) {
                  "X-ray: the plane's distance in front of the camera when no surface is under "
                  "the cursor (m)")
       ->check(CLI::Range(0.05, 1000.0));
+  app.add_option("--xray_radius", o.xray_radius,
+                 "X-ray: the hole's radius around the cursor, a fraction of the picture's height "
+                 "(2 or more: the whole picture is cut)")
+      ->check(CLI::Range(0.01, 10.0));
   if (auto rc = exo::cli::Parse(app, argc, argv)) return *rc;
   return exo::RunWindowApp(o);
 }

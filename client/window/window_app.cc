@@ -407,9 +407,9 @@ class App {
     dco.hand_m = o_.hand_m;
     dco.xray_margin_m = o_.xray_margin_m;
     dco.xray_default_m = o_.xray_default_m;
+    dco.xray_radius = o_.xray_radius;
     controls_ = std::make_unique<DroneControls>(operator_.get(), dco);
     EXO_ASSIGN_OR_RETURN(renderer_, VulkanRenderer::Create({}));
-    default_near_m_ = renderer_->near_plane();
     EXO_RETURN_IF_ERROR(SyncRenderer());
     if (need_views && info_->geom.views.empty())
       return absl::FailedPreconditionError("the model has no stored views (nothing to show)");
@@ -465,15 +465,40 @@ class App {
   }
 
   // ---- steering the drone (issue 19 item 5; client/window/drone_operator.h) ----
-  // The render thread's near plane: the X-ray cut-away's, else the renderer's default.
-  absl::Status ApplyNearPlane() {
-    const double clip = xray_clip_m_.load();
-    const float want = clip > 0 ? float(clip) : default_near_m_;
-    if (renderer_->near_plane() == want) return absl::OkStatus();
-    return renderer_->SetNearPlane(want);
+  // The render thread's X-ray hole (the cut-away around the cursor; none when off).
+  absl::Status ApplyXrayHole() {
+    const std::optional<XrayHole> want = XrayNow();
+    const std::optional<XrayHole> has = renderer_->xray_hole();
+    const auto same = [](const XrayHole& a, const XrayHole& b) {
+      return a.clip_m == b.clip_m && a.centre_x == b.centre_x && a.centre_y == b.centre_y &&
+             a.radius == b.radius;
+    };
+    if (want.has_value() == has.has_value() && (!want || same(*want, *has)))
+      return absl::OkStatus();
+    return renderer_->SetXrayHole(want);
+  }
+  std::optional<XrayHole> XrayNow() const {
+    std::lock_guard lock(xray_mu_);
+    return xray_hole_;
+  }
+  // The clip at pixel `px` of a W x H picture under the hole `h` (0: not cut there).
+  static double ClipAt(const std::optional<XrayHole>& h, const glm::dvec2& px, int W, int H) {
+    if (!h || !nav::InsideXrayHole(px, W, H, {h->centre_x, h->centre_y}, h->radius)) return 0.0;
+    return h->clip_m;
   }
   void SyncXray() {
-    xray_clip_m_ = controls_->xray() ? controls_->xray_clip_m() : 0.0;
+    std::optional<XrayHole> h;
+    if (controls_->xray()) {
+      h = XrayHole{};
+      h->clip_m = controls_->xray_clip_m();
+      h->centre_x = controls_->xray_centre().x;
+      h->centre_y = controls_->xray_centre().y;
+      h->radius = controls_->xray_radius();
+    }
+    {
+      std::lock_guard lock(xray_mu_);
+      xray_hole_ = h;
+    }
     rerender_ = true;
   }
   // The drone (world) and where it is on screen for the frame at `pose`.
@@ -510,12 +535,14 @@ class App {
         case SDLK_m:
           controls_->ToggleDroneMode();
           return true;
-        case SDLK_x: {
+        case SDLK_x: {  // the hole around the cursor, cut behind the surface under it
           int mx = W / 2, my = H / 2;
           SDL_GetMouseState(&mx, &my);
-          auto p = nav::Pick(info.geom, cam, at, {double(mx), double(my)});
+          const glm::dvec2 m(mx, my);
+          auto p = nav::Pick(info.geom, cam, at, m);
           if (!p) p = nav::Pick(info.geom, cam, at, {W / 2.0 - 0.5, H / 2.0 - 0.5});
-          controls_->ToggleXray(p ? std::optional(p->z_depth_m) : std::nullopt);
+          controls_->ToggleXray(p ? std::optional(p->z_depth_m) : std::nullopt,
+                                nav::XrayHoleCentre(m, W, H));
           SyncXray();
           return true;
         }
@@ -540,6 +567,11 @@ class App {
       controls_->Drag({double(e.motion.x), double(e.motion.y)});
       return true;
     }
+    if (e.type == SDL_MOUSEMOTION && controls_->xray()) {  // the hole follows the cursor
+      controls_->MoveXrayHole(nav::XrayHoleCentre({double(e.motion.x), double(e.motion.y)}, W, H));
+      SyncXray();
+      return false;  // still navigation (a drag looks around)
+    }
     if (e.type == SDL_MOUSEWHEEL && controls_->dragging()) {
       controls_->Wheel(e.wheel.y);
       return true;
@@ -551,8 +583,7 @@ class App {
         const glm::dvec2 p0 = *press_px_;
         press_px_.reset();
         if (glm::length(px - p0) <= 5.0) {
-          const double clip = xray_clip_m_.load();
-          auto hit = nav::Pick(info.geom, cam, at, px, clip);
+          auto hit = nav::Pick(info.geom, cam, at, px, controls_->ClipAt(cam, px));
           controls_->Click(cam, at, info.geom.origin, px,
                            hit ? std::optional(hit->point_local) : std::nullopt);
         }
@@ -604,6 +635,11 @@ class App {
       return true;
     };
     const ImU32 preview_col = IM_COL32(80, 200, 255, 255);
+    if (controls_->xray()) {  // the X-ray hole's rim (the cut-away is inside it)
+      const glm::dvec2 c = controls_->xray_centre();
+      dl->AddCircle(ImVec2(float(c.x * W), float(c.y * H)), float(controls_->xray_radius() * H),
+                    IM_COL32(120, 220, 255, 160), 64, 1.5f);
+    }
     if (auto p = controls_->Preview(cam, pose, info.geom.origin)) {
       ImVec2 a, b;
       const bool has_a = px(*controls_->drag_drone_world(), &a), has_b = px(p->target, &b);
@@ -978,7 +1014,7 @@ class App {
         [this](const nav::RenderJob& j, WindowFrame* f) -> absl::Status {
           const int W = j.request.width, H = j.request.height, d = j.divisor;
           const Rigid3d& pose = j.request.pose;
-          EXO_RETURN_IF_ERROR(ApplyNearPlane());  // the X-ray cut-away (key X)
+          EXO_RETURN_IF_ERROR(ApplyXrayHole());  // the X-ray cut-away (key X)
           // Reduced-resolution frames for a moving camera may be approximate; refinements and
           // every full-resolution frame (the one left on screen) are exact.
           EXO_ASSIGN_OR_RETURN(RenderResult r, RenderFull(pose, std::max(1, W / d),
@@ -996,8 +1032,9 @@ class App {
           if (d > 1 && j.changed && MsSince(t_centre_) < 200) {
             centre_stale_ = true;
           } else if (d == 1 || j.changed || centre_stale_) {
-            f->centre = nav::Pick(info_->geom, Camera(W, H), pose, {W / 2.0 - 0.5, H / 2.0 - 0.5},
-                                  xray_clip_m_.load());
+            const glm::dvec2 c(W / 2.0 - 0.5, H / 2.0 - 0.5);
+            f->centre = nav::Pick(info_->geom, Camera(W, H), pose, c,
+                                  ClipAt(renderer_->xray_hole(), c, W, H));
             f->has_centre = true;
             centre_stale_ = false;
             t_centre_ = Clock::now();
@@ -1357,7 +1394,7 @@ class App {
     controls_->Joypad(k, dt);
     for (const auto& g : hi.gazes) {
       const glm::dvec2 px(g[0] - 0.5, g[1] - 0.5);  // page pixels: corners at integers
-      auto hit = nav::Pick(info.geom, cam, at, px, xray_clip_m_.load());
+      auto hit = nav::Pick(info.geom, cam, at, px, controls_->ClipAt(cam, px));
       controls_->Click(cam, at, info.geom.origin, px,
                        hit ? std::optional(hit->point_local) : std::nullopt);
     }
@@ -1368,10 +1405,16 @@ class App {
         controls_->Drag(cam, at, info.geom.origin, p0, p1, p[4], p[5], d->first);
     }
     bool again = false;
+    // The page's last pointer position over the picture (page pixels: corners at integers).
+    const std::optional<glm::dvec2> pointer =
+        hi.xray_at ? std::optional(glm::dvec2((*hi.xray_at)[0] - 0.5, (*hi.xray_at)[1] - 0.5))
+                   : std::nullopt;
     for (const std::string& key : hi.presses) {
-      if (key == "x") {
-        auto c = nav::Pick(info.geom, cam, at, {W / 2.0 - 0.5, H / 2.0 - 0.5});
-        controls_->ToggleXray(c ? std::optional(c->z_depth_m) : std::nullopt);
+      if (key == "x") {  // the hole around the pointer (else the picture's centre)
+        const glm::dvec2 m = pointer.value_or(glm::dvec2(W / 2.0 - 0.5, H / 2.0 - 0.5));
+        auto c = nav::Pick(info.geom, cam, at, m);
+        controls_->ToggleXray(c ? std::optional(c->z_depth_m) : std::nullopt,
+                              nav::XrayHoleCentre(m, W, H));
       } else if (key == "xnear" || key == "xfar") {
         controls_->MoveXray(key == "xnear" ? -1 : 1);
       } else {
@@ -1379,6 +1422,14 @@ class App {
       }
       SyncXray();
       again = true;
+    }
+    if (pointer && controls_->xray() && hi.presses.empty()) {  // the hole follows the pointer
+      const glm::dvec2 c = nav::XrayHoleCentre(*pointer, W, H);
+      if (c != controls_->xray_centre()) {
+        controls_->MoveXrayHole(c);
+        SyncXray();
+        again = true;
+      }
     }
     rerender_ = false;
     return again;
@@ -1551,7 +1602,7 @@ class App {
         continue;
       }
       const auto t0 = Clock::now();
-      if (auto s = ApplyNearPlane(); !s.ok()) return Fail(s);  // the X-ray cut-away
+      if (auto s = ApplyXrayHole(); !s.ok()) return Fail(s);  // the X-ray cut-away
       auto img = Render(cam.pose(), std::max(1, W / d), std::max(1, H / d));
       if (!img.ok()) return Fail(img.status());
       auto jpeg = EncodeJpeg(*img, o_.jpeg_quality);
@@ -1816,8 +1867,8 @@ class App {
   // control service) and the gestures; the X-ray plane the render thread applies (0 = off).
   std::unique_ptr<DroneOperator> operator_;
   std::unique_ptr<DroneControls> controls_;
-  float default_near_m_ = 0.01f;
-  std::atomic<double> xray_clip_m_{0.0};
+  mutable std::mutex xray_mu_;
+  std::optional<XrayHole> xray_hole_;  // guarded by xray_mu_ (the UI sets, the renders read)
   std::optional<glm::dvec2> press_px_;  // an operator press that is not (yet) a drag
   bool rerender_ = false;               // the X-ray plane changed: render the view again
   SDL_GameController* gamepad_ = nullptr;

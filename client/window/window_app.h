@@ -67,6 +67,7 @@ struct WindowAppOptions {
   std::string operator_id;
   double hand_m = 0.5;
   double xray_margin_m = 0.3, xray_default_m = 1.5;
+  double xray_radius = 0.22;  // the X-ray hole's radius, a fraction of the picture's height
 };
 
 // Runs the app; returns the process exit code (0 ok, 1 runtime error, 2 bad input).

@@ -14,8 +14,10 @@ live window (exoview_window --server). Input is injected with xdotool:
   - two operators: a second operator (this test, over gRPC) and the window send in turn: the
     newest command wins (command sequence), the window's overlay shows the other's target;
   - joypad keys: I held -> the setpoint moves forward along the heading; U -> the yaw turns left;
-  - X-ray: X with the cursor on a wall -> the cut-away plane 0.3 m behind it, the centre pixel
-    shows a surface farther than the plane (the interior behind the wall), the picture changes;
+  - X-ray: X with the cursor on a wall -> a hole around the cursor cut 0.3 m behind the wall:
+    the centre pixel shows a surface farther than the plane (the interior behind the wall) and
+    the picture changes there; outside the hole it equals the picture without X-ray (PSNR in a
+    ring beyond the rim); the hole follows the cursor (moved away: the wall at the centre again);
   - the browser view (--http): the same gestures posted the way the page sends them: a click
     (gaze), a drag with the hand at the eye (the server's division guard: a finite target and
     the note), joypad keys, X-ray.
@@ -412,13 +414,18 @@ def main():
             fail("the window did not exit cleanly after Esc")
         win = None
 
+        browser_part(args, env, work, addr, pb, cstate)
         # ---- X-ray: a window at a known pose facing an inner wall, X with the cursor on it ----
+        # The sim drone stops first: the pictures with and without the hole are compared
+        # outside it, so the model must not change between them.
+        drone.terminate()
+        drone.wait(timeout=30)
+        time.sleep(1.0)
         for pose in XRAY_POSES:
             if xray_part(args, env, work, addr, pose, docs):
                 break
         else:
             fail("X-ray: no pose showed a modelled interior behind the wall")
-        browser_part(args, env, work, addr, pb, cstate)
         log("PASS")
         return 0
     finally:
@@ -509,30 +516,77 @@ def xray_part(args, env, work, addr, pose, docs):
         if d0 is None:
             log(f"X-ray at {pose}: no surface under the centre")
             return False
-        time.sleep(0.3)
-        p_off, img_off = shot("xray_off")
+        def settled_shot(name, pred, what):
+            """A screenshot of a finished full-resolution frame (no newer frame since)."""
+            for _ in range(10):
+                s1 = read_status(pred, what)
+                time.sleep(0.3)
+                p, img = shot(name)
+                s2 = read_status(pred, what)
+                if s2["frame"] == s1["frame"]:
+                    return s2, p, img
+            fail(f"X-ray: the picture did not settle ({what})")
+
         xdo("mousemove", str(W // 2), str(H // 2))
+        st, p_off, img_off = settled_shot("xray_off", lambda s: not xr(s).get("xray"), "no X-ray")
         xdo("key", "x")
         st = read_status(lambda s: xr(s).get("xray"), "X-ray on", after=st["frame"])
+        # The frame with the hole (its centre pick); a wall with nothing behind keeps d0.
+        t_hole = time.time()
+        while time.time() - t_hole < 5:
+            st = read_status(lambda s: xr(s).get("xray"), "X-ray on", after=st["frame"] - 1)
+            if st["centre_depth_m"] is None or abs(st["centre_depth_m"] - d0) > 0.05:
+                break
+            time.sleep(0.3)
         clip, d1 = xr(st)["xray_clip_m"], st["centre_depth_m"]
-        log(f"X-ray at {pose}: wall at {d0:.2f} m, cut at {clip:.2f} m, the centre now shows "
-            f"{'nothing' if d1 is None else f'a surface at {d1:.2f} m'}")
+        hc, hr = xr(st)["xray_centre"], xr(st)["xray_radius"]
+        log(f"X-ray at {pose}: wall at {d0:.2f} m, a hole of radius {hr * H:.0f} px around the "
+            f"cursor ({hc[0] * W:.1f}, {hc[1] * H:.1f}) px cut at {clip:.2f} m; the centre now "
+            f"shows {'nothing' if d1 is None else f'a surface at {d1:.2f} m'}")
         if abs(clip - (d0 + 0.3)) > 0.02:
             fail("the cut-away plane is not 0.3 m behind the point under the cursor")
+        if abs(hc[0] * W - (W // 2 + 0.5)) > 1 or abs(hc[1] * H - (H // 2 + 0.5)) > 1:
+            fail("the X-ray hole is not around the cursor")
         if d1 is None or d1 <= clip:
             xdo("key", "Escape")
             win.wait(timeout=30)
             return False
-        time.sleep(0.3)
-        p_on, img_on = shot("xray_on")
+        st, p_on, img_on = settled_shot("xray_on", lambda s: xr(s).get("xray"), "X-ray on")
         c = img_on[H // 2 - 20:H // 2 + 20, W // 2 - 20:W // 2 + 20].astype(int)
         c0 = img_off[H // 2 - 20:H // 2 + 20, W // 2 - 20:W // 2 + 20].astype(int)
         changed = float((np.abs(c - c0).max(axis=2) > 30).mean())
-        log(f"X-ray: {changed * 100:.0f} % of the 40x40 px around the centre changed")
+        log(f"X-ray: {changed * 100:.0f} % of the 40x40 px around the cursor changed")
         if changed < 0.2:
-            fail("the X-ray picture did not change where the wall was")
+            fail("the X-ray picture did not change inside the hole")
+        # Outside the hole the picture is the normal one: a ring 25..110 px beyond the rim (the
+        # rim is drawn), below the HUD (its text and width change with X-ray: y < 220).
+        yy, xx = np.mgrid[0:H, 0:W]
+        dist = np.hypot(xx + 0.5 - hc[0] * W, yy + 0.5 - hc[1] * H)
+        ring = (dist > hr * H + 25) & (dist < hr * H + 110) & (yy >= 220)
+        diff = img_on.astype(float) - img_off.astype(float)
+        mse = float((diff[ring] ** 2).mean())
+        psnr = float("inf") if mse == 0 else 10 * math.log10(255.0 ** 2 / mse)
+        off_px = float((np.abs(diff[ring]).max(axis=1) > 8).mean())
+        log(f"X-ray: outside the hole (ring of {int(ring.sum())} px) PSNR {psnr:.1f} dB against "
+            f"the picture without X-ray, {off_px * 100:.2f} % of its pixels differ by > 8")
+        if psnr < 40 or off_px > 0.005:
+            fail("the X-ray changed the picture outside the hole")
         docs(p_off, "window_xray_off.png")
         docs(p_on, "window_xray_on.png")
+        # The hole follows the cursor: 300 px to the right, the centre shows the wall again.
+        xdo("mousemove", str(W // 2 + 300), str(H // 2))
+        st = read_status(lambda s: abs(xr(s)["xray_centre"][0] * W - (W // 2 + 300.5)) < 1 and
+                         s["centre_depth_m"] is not None and abs(s["centre_depth_m"] - d0) < 0.02,
+                         "the hole moved with the cursor, the wall at the centre", after=st["frame"])
+        st, p_moved, img_moved = settled_shot("xray_moved", lambda s: xr(s).get("xray"),
+                                              "the hole moved")
+        docs(p_moved, "window_xray_moved.png")
+        c1 = img_moved[H // 2 - 20:H // 2 + 20, W // 2 - 20:W // 2 + 20].astype(int)
+        back = float((np.abs(c1 - c0).max(axis=2) > 8).mean())
+        log(f"X-ray: the cursor 300 px right: the centre depth {st['centre_depth_m']:.2f} m (the "
+            f"wall), {back * 100:.1f} % of the 40x40 px around the centre differ from no X-ray")
+        if back > 0.02:
+            fail("the picture at the centre is not the normal one after the hole moved away")
         xdo("key", "bracketright")
         st = read_status(lambda s: abs((xr(s).get("xray_clip_m") or 0) - (clip + 0.25)) < 1e-6,
                          "] moves the plane 0.25 m farther")
@@ -628,9 +682,20 @@ def browser_part(args, env, work, addr, pb, cstate):
         log(f"browser L held 1 s: {last(s, 'joypad')['summary']}; control state {cs.interaction}")
         if cs.interaction != pb.JOYPAD or cs.operator_id != "browser-test":
             fail("browser view: the joypad keys did not command the drone")
-        post("key=x&down=1")
+        # X with the pointer at (0.3, 0.5) of the picture (the page sends its last position):
+        # the hole is around it; the pointer moves (xat, as the page sends it): the hole too.
+        fw, fh = ov["width"], ov["height"]
+        post(f"key=x&down=1&xat={0.3 * fw},{0.5 * fh}")
         s = status(lambda s: s.get("drone_controls", {}).get("xray"), "X-ray on")
-        log(f"browser X: X-ray on, cut at {s['drone_controls']['xray_clip_m']:.2f} m")
+        dc = s["drone_controls"]
+        log(f"browser X: X-ray on, a hole at {dc['xray_centre']} of the picture, cut at "
+            f"{dc['xray_clip_m']:.2f} m")
+        if abs(dc["xray_centre"][0] - 0.3) > 1e-6 or abs(dc["xray_centre"][1] - 0.5) > 1e-6:
+            fail("browser view: the X-ray hole is not around the page's pointer")
+        post(f"xat={0.7 * fw},{0.25 * fh}")
+        status(lambda s: abs(s["drone_controls"]["xray_centre"][0] - 0.7) < 1e-6 and
+               abs(s["drone_controls"]["xray_centre"][1] - 0.25) < 1e-6,
+               "the hole following the pointer")
         post("key=x&down=1")
         status(lambda s: not s.get("drone_controls", {}).get("xray"), "X-ray off")
         chromium_part(args, env, work, base_url, status, last, cstate)

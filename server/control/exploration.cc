@@ -179,7 +179,65 @@ std::optional<NextView> ExplorationPlanner::Autonomous(const SafeFlight& safe,
         if (v.gain > 0 && (!best || v.score > best->score)) best = v;
       }
   }
+  if (!options_.sweep.empty() &&
+      (!best || best->gain_unknown > options_.sweep_unknown_share * best->gain))
+    if (auto s = NextSweepView(safe, from, frame, dist)) {
+      if (best) {  // what the coverage-driven choice saw (the decision log's unknown share)
+        s->gain = best->gain;
+        s->gain_unknown = best->gain_unknown;
+      }
+      return s;
+    }
   return best;
+}
+
+std::optional<NextView> ExplorationPlanner::NextSweepView(const SafeFlight& safe,
+                                                          const glm::dvec3& from,
+                                                          const SceneFrame& frame,
+                                                          const std::vector<float>& dist) {
+  const OccupancyGrid& g = safe.grid();
+  const size_t n = options_.sweep.size();
+  if (swept_.size() != n) swept_.assign(n, false);
+  // The up axis's cell step (the frame's up is one of the grid's axes in practice; the column
+  // is walked along whichever axis is closest to it).
+  glm::ivec3 up_step(0);
+  {
+    const glm::dvec3 u = frame.up;
+    int a = 0;
+    for (int k = 1; k < 3; ++k)
+      if (std::abs(u[k]) > std::abs(u[a])) a = k;
+    up_step[a] = u[a] > 0 ? 1 : -1;
+  }
+  for (size_t k = 0; k < n; ++k) {
+    if (swept_[k]) continue;
+    glm::ivec3 c = g.CellOf(options_.sweep[k]);
+    // Down the column from the sweep point to the first reachable cell.
+    std::optional<size_t> hit;
+    const int span = 2 * std::max({g.dims().x, g.dims().y, g.dims().z});
+    for (int steps = 0; steps < span; ++steps, c -= up_step) {
+      if (!g.InGrid(c)) continue;  // above the grid (or below it: the loop ends)
+      const size_t i = g.Index(c);
+      if (std::isfinite(dist[i])) {
+        hit = i;
+        break;
+      }
+    }
+    if (!hit || dist[*hit] < options_.min_goal_distance_m) {
+      if (hit) swept_[k] = true;  // already there
+      continue;
+    }
+    NextView v;
+    const glm::dvec3 p = g.CentreOf(g.CellOfIndex(*hit));
+    const glm::dvec3 along = k + 1 < n ? options_.sweep[k + 1] - options_.sweep[k] : p - from;
+    v.pose = Setpoint{p, glm::length(frame.Horizontal(along)) > 1e-6 ? frame.YawOf(along)
+                                                                     : frame.YawOf(p - from)};
+    v.pitch = options_.sweep_pitch;
+    v.path_m = dist[*hit];
+    v.sweep_index = static_cast<int>(k);
+    swept_[k] = true;
+    return v;
+  }
+  return std::nullopt;
 }
 
 std::optional<NextView> ExplorationPlanner::NearestFrontier(const SafeFlight& safe,

@@ -57,6 +57,17 @@ struct ExploreOptions {
   double min_goal_distance_m = 0.5;
   double frontier_reach_m = 0.6;
   uint64_t seed = 1;
+  // A systematic sweep as the autonomous mode's fallback (empty: none). When the best view's
+  // gain comes mostly from unknown space (gain_unknown > sweep_unknown_share × gain, or no
+  // view gains anything), the next view is the next sweep point instead (in order, each once):
+  // the highest reachable clear cell of the point's column at or below it, looking along the
+  // sweep at `sweep_pitch`; points whose column has no reachable cell wait for a later
+  // decision. Large outdoor scenes (the village): the scene's fly-over path, so that the
+  // flight sweeps the surface systematically while the planner's view is mostly unknown, and
+  // the coverage-driven choice takes over when surface dominates the gain.
+  std::vector<glm::dvec3> sweep;
+  double sweep_pitch = -0.698;  // 40° down, the fly-over's
+  double sweep_unknown_share = 0.9;
 };
 
 struct NextView {
@@ -64,6 +75,7 @@ struct NextView {
   double pitch = 0.0;  // camera pitch, rad, + up (one of ExploreOptions::pitches)
   double gain = 0.0, path_m = 0.0, score = 0.0;
   double gain_unknown = 0.0;  // the part of `gain` from rays ending in unknown space
+  int sweep_index = -1;       // >= 0: a point of ExploreOptions::sweep (the fallback)
 };
 
 class ExplorationPlanner {
@@ -105,6 +117,10 @@ class ExplorationPlanner {
     std::vector<glm::vec3> refs;  // unit directions cell -> camera, first r_max views
   };
   double DirectionalNovelty(const Cell& c, const glm::dvec3& dir) const;
+  // The next unvisited sweep point with a reachable cell in its column (see ExploreOptions).
+  std::optional<NextView> NextSweepView(const SafeFlight& safe, const glm::dvec3& from,
+                                        const SceneFrame& frame, const std::vector<float>& dist);
+  std::vector<bool> swept_;
   std::unordered_map<size_t, Cell> cells_;
   std::unordered_set<size_t> tried_;
 };

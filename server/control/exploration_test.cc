@@ -111,6 +111,49 @@ TEST(Exploration, AGimbalLooksDownAtAnUnseenFloor) {
   EXPECT_EQ(w->pitch, 0.0);
 }
 
+// The sweep fallback: in MakeWorld(false) every view's gain is unknown space (nothing is
+// occupied), so the planner flies the sweep's points in order, each once, at the highest
+// reachable cell of the point's column (the points lie above the zone: 5 m, the zone ends at
+// 3 m), looking along the sweep at its pitch; a point whose column is unknown (x >= 3) waits,
+// and once every reachable point is flown the coverage-driven view comes back.
+TEST(Exploration, SweepFallbackWhileTheGainIsMostlyUnknown) {
+  SafeFlight safe = MakeWorld(false);
+  ExploreOptions o;
+  o.seed = 3;
+  o.sweep = {{0.52, 0.52, 5}, {2.52, 0.52, 5}, {4.52, 0.52, 5}, {2.52, 3.52, 5}};
+  ExplorationPlanner p(o);
+  const glm::dvec3 from{1, 2, 1.5};
+  auto a = p.Autonomous(safe, from, SceneFrame::ZUp());
+  ASSERT_TRUE(a.has_value());
+  EXPECT_EQ(a->sweep_index, 0);
+  EXPECT_NEAR(a->pose.position.x, 0.55, 1e-9);  // the cell centre under (0.52, 0.52)
+  EXPECT_NEAR(a->pose.position.y, 0.55, 1e-9);
+  EXPECT_GT(a->pose.position.z, 2.6);  // the top of the zone, inside the drone's clearance
+  EXPECT_LT(a->pose.position.z, 3.0);
+  EXPECT_NEAR(a->pose.yaw, 0.0, 1e-9);  // towards the next point (+x)
+  EXPECT_DOUBLE_EQ(a->pitch, o.sweep_pitch);
+  EXPECT_GT(a->gain_unknown, 0.9 * a->gain);  // why: the best view's gain was unknown space
+  EXPECT_TRUE(safe.Plan(from, a->pose.position).ok());
+  auto b = p.Autonomous(safe, from, SceneFrame::ZUp());
+  ASSERT_TRUE(b.has_value());
+  EXPECT_EQ(b->sweep_index, 1);
+  auto c = p.Autonomous(safe, from, SceneFrame::ZUp());  // (4.52, 0.52) is unknown: skipped
+  ASSERT_TRUE(c.has_value());
+  EXPECT_EQ(c->sweep_index, 3);
+  auto d = p.Autonomous(safe, from, SceneFrame::ZUp());  // the coverage-driven view again
+  ASSERT_TRUE(d.has_value());
+  EXPECT_EQ(d->sweep_index, -1);
+  EXPECT_LT(std::abs(d->pose.yaw), kPi / 2);
+  // With surface in view (a wall: the gain is not mostly unknown) no sweep point is flown.
+  SafeFlight walled = MakeWorld(true);
+  ExploreOptions w = o;
+  w.unknown_gain = 0.0;
+  ExplorationPlanner q(w);
+  auto e = q.Autonomous(walled, from, SceneFrame::ZUp());
+  ASSERT_TRUE(e.has_value());
+  EXPECT_EQ(e->sweep_index, -1);
+}
+
 TEST(Exploration, NothingReachableGivesNoView) {
   SafeFlightOptions o;
   o.zones = {{"room", {0, 0, 0}, {4, 4, 3}}};

@@ -222,6 +222,9 @@ struct RunConfig {
   std::string dump_cells;
   ExploreOptions eo;
   bool no_return_is_free = false;
+  // Outdoor scenes: the autonomous mode falls back on the fly-over's path as a sweep
+  // (ExploreOptions::sweep) while its best view's gain is mostly unknown space.
+  bool sweep_fallback = false;
   // MSSIM over time: every this many seconds of flight (0: off), views kept by the planner.
   double mssim_every_s = 0;
   int store_views = 100;
@@ -242,6 +245,7 @@ struct RunResult {
   // Per decision (autonomous / frontier): what was chosen and how it ended.
   struct Decision {
     double t = 0, coverage = 0, gain = 0, gain_unknown = 0, path_m = 0;
+    bool sweep = false;  // a point of the sweep fallback
     glm::dvec3 goal{0.0};
     std::string outcome;  // none | unreachable | reached | timeout | replanned | open
   };
@@ -298,6 +302,14 @@ RunResult Run(const synth::SynthScene& scene, const RunConfig& rc) {
   EXO_CHECK(safe_or.ok());
   SafeFlight& safe = *safe_or;
   eo.seed = seed;
+  if (rc.sweep_fallback && policy == "autonomous" && scene.flyover_altitude_m > 0) {
+    // The scripted fly-over's path (below) as the autonomous mode's sweep fallback.
+    const glm::dvec3 lo = scene.navigable.min, hi = scene.navigable.max;
+    const double inset = 0.15 * std::min(hi.x - lo.x, hi.y - lo.y);
+    for (const glm::dvec2& h : synth::HilbertCurve(3))
+      eo.sweep.push_back({lo.x + inset + h.x * (hi.x - lo.x - 2 * inset),
+                          lo.y + inset + h.y * (hi.y - lo.y - 2 * inset), scene.flyover_altitude_m});
+  }
   ExplorationPlanner planner(eo);
   SimDroneOptions dopt;
   SimDrone drone(dopt);
@@ -480,6 +492,7 @@ RunResult Run(const synth::SynthScene& scene, const RunConfig& rc) {
           dl.gain = v->gain;
           dl.gain_unknown = v->gain_unknown;
           dl.path_m = v->path_m;
+          dl.sweep = v->sweep_index >= 0;
           dl.goal = v->pose.position;
         }
         dl.outcome = !v ? "none" : r ? "open" : "unreachable";
@@ -564,17 +577,19 @@ void PrintRun(const std::string& scene, const std::string& policy, uint64_t seed
   j["flight_s"] = res.curve.empty() ? 0 : res.curve.back().first;
   auto summarise = [&](bool after) {
     std::map<std::string, int> outcomes;
-    int n = 0, repeats = 0, mostly_unknown = 0;
-    double gain = 0, unknown = 0, path = 0;
+    int n = 0, repeats = 0, mostly_unknown = 0, sweeps = 0;
+    double gain = 0, unknown = 0, path = 0, goal_z = 0;
     std::vector<glm::dvec3> goals;
     for (const auto& d : res.log) {
       if ((d.t >= plateau) != after) continue;
       ++n;
       ++outcomes[d.outcome];
+      sweeps += d.sweep;
       if (d.outcome == "none") continue;
       gain += d.gain;
       unknown += d.gain_unknown;
       path += d.path_m;
+      goal_z += d.goal.z;
       if (d.gain_unknown > 0.5 * d.gain) ++mostly_unknown;
       for (const auto& g : goals)
         if (glm::length(g - d.goal) < 0.3) {
@@ -589,8 +604,10 @@ void PrintRun(const std::string& scene, const std::string& policy, uint64_t seed
     s["mean_gain"] = n ? gain / n : 0;
     s["unknown_share_of_gain"] = gain > 0 ? unknown / gain : 0;
     s["mostly_unknown"] = mostly_unknown;
+    s["sweep_points"] = sweeps;
     s["repeated_goals"] = repeats;
     s["mean_path_m"] = n ? path / n : 0;
+    s["mean_goal_z_m"] = n ? goal_z / n : 0;
     return s;
   };
   j["before_plateau"] = summarise(false);
@@ -648,6 +665,10 @@ int main(int argc, char** argv) {
   app.add_option("--sky_is_free", no_return_is_free,
                  "pixels without depth (the renderer's sky) carve free space to 5 m; off: they "
                  "carve nothing and the sky inside the navigable box stays unknown");
+  bool sweep_fallback = false;
+  app.add_option("--sweep_fallback", sweep_fallback,
+                 "outdoor scenes: the autonomous mode flies the fly-over's path as a sweep while "
+                 "its best view's gain is mostly (> 90 %) unknown space (ExploreOptions::sweep)");
   bool per_run = false;
   app.add_option("--per_run", per_run,
                  "also print one line per run (bench explore_run): coverage, decisions before and "
@@ -752,6 +773,7 @@ int main(int argc, char** argv) {
   base.dwell_s = dwell_s;
   base.grid_margin_m = grid_margin_m;
   base.no_return_is_free = no_return_is_free;
+  base.sweep_fallback = sweep_fallback;
   base.dump_cells = dump_cells;
   base.metric = scene_scale ? scene_derived : fixed_scale;
   base.alt_metric = scene_scale ? fixed_scale : scene_derived;
@@ -877,6 +899,7 @@ int main(int argc, char** argv) {
     j["dwell_s"] = dwell_s;
     j["grid_margin_m"] = grid_margin_m;
     j["sky_is_free"] = no_return_is_free;
+    j["sweep_fallback"] = sweep_fallback;
     j["collisions"] = collisions;
     j["replans"] = replans;
     j["decisions"] = decisions;
