@@ -137,13 +137,18 @@ function framePx(e) {
           y: (e.clientY - r.top - (r.height - k * overlay.height) / 2) / k};
 }
 const held = new Set();
+// One-shot keys (the viewer acts on each press): sent once per press, never re-sent as held
+// (re-sending them every 200 ms toggled X-ray, overlays, follow ... again while the key was down);
+// the X-ray cut's [ ] step on each auto-repeat.
+const once = new Set(["r", "f", "g", "1", "2", "3", "4", "5", "x", "xnear", "xfar"]);
 const send = q => fetch("/input?" + q, {method: "POST"}).catch(() => {});
 onkeydown = e => { if (e.code === "KeyM" && !e.repeat) { droneMode = !droneMode; return; }
   if (e.code === "KeyV") { setDr(!dr); e.preventDefault(); return; }
   const k = keys[e.code]; if (!k) return; e.preventDefault();
   if (k === "x") { if (e.repeat) return; xray = !xray; if (pointer) { send(`key=x&down=1&xat=${pointer.x},${pointer.y}`); return; } }
+  if (once.has(k)) { if (!e.repeat || k === "xnear" || k === "xfar") send("key=" + k + "&down=1"); return; }
   if (!held.has(k)) { held.add(k); send("key=" + k + "&down=1"); } };
-onkeyup = e => { const k = keys[e.code]; if (!k) return; held.delete(k); send("key=" + k + "&down=0"); };
+onkeyup = e => { const k = keys[e.code]; if (!k || once.has(k)) return; held.delete(k); send("key=" + k + "&down=0"); };
 setInterval(() => held.forEach(k => send("key=" + k + "&down=1")), 200);
 let drag = false;
 img.onmousedown = e => {

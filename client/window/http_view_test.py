@@ -282,7 +282,16 @@ def devtools_part(chromium, base, work, env, docs_dir):
         # W held for 0.6 s in the browser (the page re-sends held keys every 200 ms).
         dt.key("keyDown", "KeyW", "w", 87)
         time.sleep(0.6)
+        # A one-shot key (3: the cells overlay) is sent once per press, never re-sent as held
+        # (the page re-sends held keys every 200 ms; a one-shot key in that set toggled again).
+        dt.key("keyDown", "Digit3", "3", 51)
+        held_now = dt.eval("JSON.stringify([held.has('w'), held.has('3')])")
+        dt.key("keyUp", "Digit3", "3", 51)
+        dt.key("keyDown", "Digit3", "3", 51)
+        dt.key("keyUp", "Digit3", "3", 51)
         dt.key("keyUp", "KeyW", "w", 87)
+        if json.loads(held_now) != [True, False]:
+            fail(f"the page's held keys while W and 3 are down: {held_now} (3 is one-shot)")
         s1, p1 = settled_page("after W")
         img1 = dt.screenshot()
         shown1, sent1 = page_picture(), viewer_picture()
