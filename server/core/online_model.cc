@@ -73,6 +73,9 @@ absl::Status OnlineModelOptions::Validate() const {
     po.dispersion_weight_exponent = dispersion_weight_exponent;
     po.dispersion_weight_after = dispersion_weight_after;
     po.dispersion_keep_nearest = dispersion_keep_nearest;
+    po.dispersion_recency = dispersion_recency;
+    po.dispersion_drop_older = dispersion_drop_older;
+    po.observe_zero_coverage = observe_zero_coverage;
     po.dispersion_weight_until = dispersion_weight_until;
     EXO_RETURN_IF_ERROR(po.Validate());
   }
@@ -315,6 +318,9 @@ absl::StatusOr<std::unique_ptr<OnlinePlanner>> OnlinePlanner::Create(
   po.dispersion_weight_exponent = options.dispersion_weight_exponent;
   po.dispersion_weight_after = options.dispersion_weight_after;
   po.dispersion_keep_nearest = options.dispersion_keep_nearest;
+  po.dispersion_recency = options.dispersion_recency;
+  po.dispersion_drop_older = options.dispersion_drop_older;
+  po.observe_zero_coverage = options.observe_zero_coverage;
   po.dispersion_weight_until = options.dispersion_weight_until;
   po.cell_size_m = setup.cell_m;
   po.d_max_m = setup.d_max_m;

@@ -266,6 +266,12 @@ planning::PlannerOptions PlannerFor(const PolicyConfig& c, const Source& src, do
                                                               : product.dispersion_weight_until;
   po.dispersion_keep_nearest = c.dispersion_keep_nearest >= 0 ? c.dispersion_keep_nearest != 0
                                                               : product.dispersion_keep_nearest;
+  po.dispersion_recency =
+      c.dispersion_recency >= 0 ? c.dispersion_recency : product.dispersion_recency;
+  po.dispersion_drop_older = c.dispersion_drop_older >= 0 ? c.dispersion_drop_older != 0
+                                                          : product.dispersion_drop_older;
+  po.observe_zero_coverage = c.observe_zero_coverage >= 0 ? c.observe_zero_coverage != 0
+                                                          : product.observe_zero_coverage;
   po.d_max_m = src.scale.d_max_m;
   po.sigma_m = src.scale.sigma_m;
   if (src.scale_mode == ScaleMode::kViewDepth && src.view_depth_m > 0) {
@@ -404,6 +410,9 @@ std::string ConfigJson(const std::string& dataset, const std::string& test_poses
                  {"dispersion_weight_after", po.dispersion_weight_after},
                  {"dispersion_weight_until", po.dispersion_weight_until},
                  {"dispersion_keep_nearest", int(po.dispersion_keep_nearest)},
+                 {"dispersion_recency", po.dispersion_recency},
+                 {"dispersion_drop_older", int(po.dispersion_drop_older)},
+                 {"observe_zero_coverage", int(po.observe_zero_coverage)},
                  {"sharp_gamma", c.sharp_gamma}};
   j["quality"] = {{"mssim", Round(r.quality.mssim, 4)},
                   {"psnr", Round(r.quality.psnr, 2)},
@@ -573,6 +582,9 @@ class Engine {
         mo.dispersion_weight_exponent = po.dispersion_weight_exponent;
         mo.dispersion_weight_after = po.dispersion_weight_after;
         mo.dispersion_keep_nearest = po.dispersion_keep_nearest;
+        mo.dispersion_recency = po.dispersion_recency;
+        mo.dispersion_drop_older = po.dispersion_drop_older;
+        mo.observe_zero_coverage = po.observe_zero_coverage;
         mo.dispersion_weight_until = po.dispersion_weight_until;
         mo.frame_quality.gamma = c.sharp_gamma;
         mo.cell_areas = !c.face_areas;

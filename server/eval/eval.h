@@ -96,6 +96,9 @@ struct PolicyConfig {
   double dispersion_weight_after = -1;        // policy option "dwa=V"
   double dispersion_weight_until = -1;        // policy option "dwu=V"
   int dispersion_keep_nearest = -1;           // policy option "dkn=0|1"
+  double dispersion_recency = -1;             // policy option "drc=V"
+  int dispersion_drop_older = -1;             // policy option "ddo=0|1"
+  int observe_zero_coverage = -1;             // policy option "ozc=0|1"
 
   // OnlineModelOptions::frame_quality.gamma; policy option "sharp=G" (0 = off).
   double sharp_gamma = 0.0;

@@ -72,6 +72,9 @@ absl::Status PlannerOptions::Validate() const {
         "and dispersion_weight_until 0 or > dispersion_weight_after, got ",
         dispersion_weight_exponent, ", ", dispersion_weight_after, " and ",
         dispersion_weight_until));
+  if (!std::isfinite(dispersion_recency) || dispersion_recency < 0.0 || dispersion_recency > 0.5)
+    return absl::InvalidArgumentError(absl::StrCat(
+        "planner dispersion_recency must be in [0, 0.5], got ", dispersion_recency));
   return absl::OkStatus();
 }
 
@@ -178,6 +181,12 @@ double ViewPlanner::CoverageOf(const glm::dvec3& cam, CellId cell, double pixels
   return quality * Phi(phi_d, PositionalPart(AreaOf(cell), d, g, pixels, pixel_sr));
 }
 
+bool ViewPlanner::Observes(const glm::dvec3& cam, CellId cell) const {
+  // CoverageOf's guards: a camera inside the cell has no direction to it.
+  if (cell == kNoCell || !Finite(cam) || grid_.CoordOf(cam) == UnpackCell(cell)) return false;
+  return glm::length(cam - grid_.Centre(cell)) > 0.0;
+}
+
 double ViewPlanner::Phi(double phi_d, double phi_p) const {
   if (options_.novelty_positional) return phi_d * Coverage(options_.lambda, 1.0, phi_p);
   return Coverage(options_.lambda, phi_d, phi_p);
@@ -222,6 +231,7 @@ void ViewPlanner::AddView(View view, std::vector<CellId>* changed) {
     c.observers.push_back(ref);
     AddToCellTau(e.cell, e.phi);
     if (options_.render_refs_max > 0) changed->push_back(c.id);  // its observers changed
+    if (!(e.phi > 0.0f)) continue;  // observe_zero_coverage: observed, not a reference
     // Pre-selection (§3.1.4). τ(R ∪ I) - τ(R) = φ_I > 0 = Δτ while R has room.
     if (static_cast<int>(c.refs.size()) < options_.r_max) {
       c.refs.push_back(ref);
@@ -447,7 +457,9 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
   for (const CellPixelCount& c : cand.cells) {
     if (c.cell == kNoCell || c.pixels == 0) continue;
     const double phi = CoverageOf(centre, c.cell, c.pixels, pixel_sr, cand.quality);
-    if (!(phi > 0.0)) continue;
+    // observe_zero_coverage: a cell the view sees with φ = 0 (its direction duplicates a
+    // reference: another frame of a pan from the same centre) is still observed, at φ = 0.
+    if (!(phi > 0.0) && !(options_.observe_zero_coverage && Observes(centre, c.cell))) continue;
     const int32_t idx = CellIndex(c.cell);
     // Duplicate cells in the input are merged (φ is not additive, keep the larger).
     auto dup = std::find_if(view.entries.begin(), view.entries.end(),
@@ -462,7 +474,8 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
       view.pixels.push_back(c.pixels);
     }
   }
-  if (view.entries.empty()) {
+  if (std::none_of(view.entries.begin(), view.entries.end(),
+                   [](const Entry& e) { return e.phi > 0.0f; })) {
     d.reason = "candidate covers no cell";
     d.tau_sum = tau_sum_;
     return d;
@@ -543,6 +556,7 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
     }
     auto more_redundant = [&](const View& v, double red, const View& b, double b_red) {
       if (red != b_red) return red < b_red;
+      if (options_.dispersion_drop_older && v.id != b.id) return v.id < b.id;
       if (keep != 0 && (v.id == keep) != (b.id == keep)) return b.id == keep;
       const double cv = crowding(v), cb = crowding(b);
       if (cv != cb) return cv < cb;
@@ -661,7 +675,8 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
         weighted && nearest_id != 0
             ? WeightedSpacing(nearest, 1.0 + share * views_.at(nearest_id).weight)
             : nearest;
-    spread = full ? candidate_redundancy > victim_redundancy : nearest > options_.dispersion_min;
+    spread = full ? candidate_redundancy > (1.0 - options_.dispersion_recency) * victim_redundancy
+                  : nearest > options_.dispersion_min;
   }
   if (!(guard_gain > accept_gain) && !spread) {
     // The frame is represented by its nearest stored view (density-weighted dispersion).

@@ -4,8 +4,9 @@
 // most R_max views, the pre-selection a render client blends from.
 //
 // Bookkeeping (everything incremental, only the cells a candidate sees are touched):
-//   per stored view i: its cells k with φ(F_i, b_k) > 0, φ frozen when the view was accepted
-//     (the directional term depends on R(b_k) at that time, as in the thesis);
+//   per stored view i: its cells k with φ(F_i, b_k) > 0 (observe_zero_coverage: every cell it
+//     sees, φ = 0 included), φ frozen when the view was accepted (the directional term depends
+//     on R(b_k) at that time, as in the thesis);
 //   per cell k: τ(F, b_k) = Σ_i φ(F_i, b_k) (3.15), the observers (views with φ > 0), R(b_k);
 //   τ_sum(F) = Σ_k min(τ(F, b_k), τ_max) (3.16), kept as a running sum.
 // Candidate test: accept iff τ_sum(F ∪ I) > τ_sum(F) + Δτ_sum. When full, every stored view is
@@ -141,6 +142,24 @@ struct PlannerOptions {
   // distance, the candidate counted). Diagnostic for the long drone stream (docs/planning.md
   // "Session 13").
   bool dispersion_keep_nearest = false;
+  // kFirst / kTies, store full: the candidate replaces the most redundant view when its own
+  // redundancy exceeds (1 - dispersion_recency) x the victim's (0: strictly larger, the
+  // min-distance rule). Near-ties then go to the newer frame. In [0, 0.5] (docs/planning.md
+  // "Session 14").
+  double dispersion_recency = 0.0;
+  // kFirst / kTies: between views of equal redundancy (the two views of the store's closest
+  // pair) the older one (smaller id: the server numbers frames in arrival order) leaves, before
+  // the keep-nearest and crowding rules (docs/planning.md "Session 14").
+  bool dispersion_drop_older = false;
+  // Which stored views observe a cell (its published references when render_refs_max > 0, the
+  // unique-coverage guard's count, the views R(b_k) is rebuilt from). false: the views with
+  // φ > 0 at acceptance. A frame whose direction to the cell duplicates a reference's (a yaw
+  // pan turns on one centre: every frame after the first gets φ_d = 0 on the cells the first
+  // saw) then never observes those cells, even after the reference has left: the renderer
+  // cannot use it there, and R(b_k) is not the pre-selection replayed over the stored views.
+  // true: every cell the view sees (ψ_vis > 0, the camera outside it) is observed, at φ = 0
+  // where φ is 0; τ and the acceptance test are unchanged (docs/planning.md "Session 14").
+  bool observe_zero_coverage = false;
 
   absl::Status Validate() const;
 
@@ -291,6 +310,8 @@ class ViewPlanner {
   double PositionalPart(double area_m2, double d, double g, double pixels, double pixel_sr) const;
   // φ of (3.6), or its novelty-weighted form (PlannerOptions::novelty_positional).
   double Phi(double phi_d, double phi_p) const;
+  // The camera can observe the cell (not inside it): observe_zero_coverage.
+  bool Observes(const glm::dvec3& cam, CellId cell) const;
   // Replays the pre-selection over the cell's current observers in acceptance order;
   // true if the set of references changed.
   bool RebuildRefs(int32_t cell);

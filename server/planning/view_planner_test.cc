@@ -596,6 +596,106 @@ TEST(ViewPlanner, KeepNearestChoosesWhichViewOfTheClosestPairLeaves) {
   }
 }
 
+// dispersion_recency ρ: a full store's candidate replaces the most redundant view when its
+// distance to its nearest stored view exceeds (1 - ρ) x the victim's (ρ = 0: strictly larger).
+// Store A (x = 0), B (x = 1), C (x = 5), closest pair distance 1; a candidate 0.95 from A is
+// rejected at ρ = 0 and stored at ρ = 0.1, one 0.85 from A is rejected at both.
+// dispersion_drop_older: of the closest pair the older view leaves. B is stored first here, so
+// the crowding rule removes A (its second neighbour, the candidate, is nearer) and the option B.
+TEST(ViewPlanner, RecencyToleranceAndDropOlderDecideNearTies) {
+  struct Case {
+    double recency;
+    bool drop_older;
+    double candidate_x;
+    bool accepted;
+    ViewId removed;
+  };
+  for (const Case& k : {Case{0.0, false, -0.95, false, 0}, Case{0.1, false, -0.95, true, 2},
+                        Case{0.1, false, -0.85, false, 0}, Case{0.0, false, -1.5, true, 2},
+                        Case{0.0, true, -1.5, true, 1}, Case{0.1, true, -0.95, true, 1}}) {
+    PlannerOptions o;
+    o.max_views = 3;
+    o.cell_size_m = 1.0;
+    o.tau_max = 0.05;  // cells saturate: the pose terms decide
+    o.dispersion = PlannerOptions::Dispersion::kFirst;
+    o.dispersion_guard = 1e9;
+    o.dispersion_guard_relative = 0;
+    o.dispersion_recency = k.recency;
+    o.dispersion_drop_older = k.drop_older;
+    auto p = ViewPlanner::Create(o).value();
+    ViewId id = 1;
+    for (double x : {1.0, 0.0, 5.0}) {  // B (id 1), A (id 2), C (id 3)
+      const glm::dvec3 eye(x, 0, 2);
+      auto d = p.Consider(MakeCandidate(id++, eye, eye + glm::dvec3(1, 0, -1), p.grid()));
+      ASSERT_TRUE(d.ok()) << d.status();
+      ASSERT_TRUE(d->accepted) << d->reason;
+    }
+    const glm::dvec3 eye(k.candidate_x, 0, 2);
+    auto d = p.Consider(MakeCandidate(4, eye, eye + glm::dvec3(1, 0, -1), p.grid()));
+    ASSERT_TRUE(d.ok()) << d.status();
+    SCOPED_TRACE(testing::Message() << "recency " << k.recency << " drop_older " << k.drop_older
+                                    << " candidate x " << k.candidate_x);
+    EXPECT_EQ(d->accepted, k.accepted) << d->reason;
+    if (k.accepted) {
+      ASSERT_EQ(d->removed.size(), 1u);
+      EXPECT_EQ(d->removed[0], k.removed);
+    }
+    EXPECT_EQ(p.num_views(), 3u);
+  }
+  PlannerOptions bad;
+  for (double r : {-0.1, 0.6, std::numeric_limits<double>::quiet_NaN()}) {
+    bad.dispersion_recency = r;
+    EXPECT_FALSE(bad.Validate().ok()) << r;
+  }
+}
+
+// observe_zero_coverage: a yaw pan from one centre. The second frame's direction to every cell
+// the first already references is the first's, so its φ there is 0. Without the option it never
+// observes those cells: they are not published with it and, once the first frame has left, R(b_k)
+// has no view there although the stored second frame sees them (the replay of the pre-selection
+// over the stored views would take it). With the option it observes them at φ = 0: τ_sum and the
+// decisions are the same, the published references include it, and after the first frame leaves
+// R(b_k) is rebuilt with it (docs/planning.md "Session 14").
+TEST(ViewPlanner, ObserveZeroCoverageKeepsAPansFramesAsObservers) {
+  double tau[2] = {0, 0};
+  for (bool observe : {false, true}) {
+    PlannerOptions o;
+    o.max_views = 8;
+    o.cell_size_m = 1.0;
+    o.lambda = 1.0;  // the product's φ = φ_d
+    o.observe_zero_coverage = observe;
+    auto p = ViewPlanner::Create(o).value();
+    const glm::dvec3 eye(0.3, 0.4, 3.0);
+    const Candidate first = MakeCandidate(1, eye, eye + glm::dvec3(1.0, 0.0, -3.0), p.grid());
+    const Candidate second = MakeCandidate(2, eye, eye + glm::dvec3(1.6, 0.5, -3.0), p.grid());
+    ASSERT_TRUE(p.Consider(first)->accepted);
+    // The cells both frames see where the second's φ is exactly 0 (its direction duplicates).
+    std::vector<CellId> zero;
+    const double sr = second.id_camera.PixelSolidAngle();
+    for (const CellPixelCount& c : second.cells)
+      if (!p.Refs(c.cell).empty() && p.CoverageOf(eye, c.cell, c.pixels, sr) == 0.0 &&
+          p.grid().CoordOf(eye) != UnpackCell(c.cell))
+        zero.push_back(c.cell);
+    ASSERT_GE(zero.size(), 3u) << "the frames must share cells at φ = 0";
+    auto d = p.Consider(second);
+    ASSERT_TRUE(d.ok()) << d.status();
+    ASSERT_TRUE(d->accepted) << d->reason << " (it sees cells the first does not)";
+    tau[observe] = p.tau_sum();
+    for (CellId cell : zero) {
+      const std::vector<ViewId> pub = p.PublishedRefs(cell);
+      const bool published = std::find(pub.begin(), pub.end(), ViewId(2)) != pub.end();
+      EXPECT_EQ(published, observe) << "cell " << cell;
+      EXPECT_EQ(p.Refs(cell), std::vector<ViewId>{1}) << "a φ = 0 view is no reference";
+    }
+    ASSERT_TRUE(p.Remove(1).ok());
+    for (CellId cell : zero)
+      EXPECT_EQ(p.Refs(cell), observe ? std::vector<ViewId>{2} : std::vector<ViewId>{})
+          << "cell " << cell << ": R(b_k) after the first frame left";
+    EXPECT_NEAR(p.tau_sum(), p.RecomputeTauSum(), 1e-9);
+  }
+  EXPECT_DOUBLE_EQ(tau[0], tau[1]) << "observing at φ = 0 must not change τ";
+}
+
 TEST(ViewPlanner, LongStreamRespectsBoundsAndIncrementalTauSumIsExact) {
   PlannerOptions o;
   o.max_views = 12;
