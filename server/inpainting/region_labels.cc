@@ -142,12 +142,29 @@ RegionLabels::RegionLabels(std::span<const Region3D* const> regions) {
     hi_ = first ? v : glm::max(hi_, v);
     first = false;
   }
+  if (first) return;
+  const int64_t nx = int64_t{hi_.x} - lo_.x + 1, ny = int64_t{hi_.y} - lo_.y + 1,
+                nz = int64_t{hi_.z} - lo_.z + 1;
+  if (nx * ny * nz > kDenseMaxCells) return;
+  dense_nx_ = nx;
+  dense_nxy_ = nx * ny;
+  dense_.assign(static_cast<size_t>((nx * ny * nz + 63) / 64), 0);
+  for (uint64_t k : voxels_) {
+    const glm::ivec3 v = UnpackVoxel(k);
+    if (!InRange(v)) continue;  // Contains never answers true outside the range
+    const int64_t i = (v.x - lo_.x) + (v.y - lo_.y) * dense_nx_ + (v.z - lo_.z) * dense_nxy_;
+    dense_[static_cast<size_t>(i >> 6)] |= uint64_t{1} << (i & 63);
+  }
 }
 
 bool RegionLabels::Contains(const glm::dvec3& p_local) const {
   const glm::ivec3 v = VoxelOf(p_local, voxel_m_);
   if (v.x < lo_.x || v.y < lo_.y || v.z < lo_.z || v.x > hi_.x || v.y > hi_.y || v.z > hi_.z)
     return false;
+  if (!dense_.empty()) {
+    const int64_t i = (v.x - lo_.x) + (v.y - lo_.y) * dense_nx_ + (v.z - lo_.z) * dense_nxy_;
+    return (dense_[static_cast<size_t>(i >> 6)] >> (i & 63)) & 1;
+  }
   return InRange(v) && voxels_.count(PackVoxel(v.x, v.y, v.z)) != 0;
 }
 

@@ -16,6 +16,7 @@
 #include <unistd.h>
 
 #include <cerrno>
+#include <cstdio>
 
 #include "common/log/log.h"
 #include "proto/frame_proto.h"
@@ -42,6 +43,8 @@ absl::Status InpaintingStageOptions::Validate() const {
   if (nice < 0 || nice > 19) return absl::InvalidArgumentError("inpaint_nice must be in [0, 19]");
   if (frame_nice < -1 || frame_nice > 19)
     return absl::InvalidArgumentError("inpaint_frame_nice must be -1 (= inpaint_nice) or in [0, 19]");
+  if (!(frame_backoff_ms >= 0.0 && frame_backoff_ms <= 60000.0))
+    return absl::InvalidArgumentError("inpaint_frame_backoff_ms must be in [0, 60000]");
   if (kf_crop_margin_px < 0 || !(kf_crop_margin_rel >= 0.0 && kf_crop_margin_rel <= 100.0))
     return absl::InvalidArgumentError(
         "inpaint_kf_crop_margin_px must be >= 0 and inpaint_kf_crop_margin_rel in [0, 100]");
@@ -58,6 +61,34 @@ double ThreadCpuMs() {
   timespec t;
   clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
   return t.tv_sec * 1e3 + t.tv_nsec * 1e-6;
+}
+
+// How long the calling thread has waited runnable for a CPU (ms, the scheduler's run delay from
+// /proc/thread-self/schedstat; 0 where the kernel does not keep it).
+double ThreadRunDelayMs() {
+  FILE* f = std::fopen("/proc/thread-self/schedstat", "r");
+  if (!f) return 0.0;
+  unsigned long long run = 0, wait = 0;
+  const int n = std::fscanf(f, "%llu %llu", &run, &wait);
+  std::fclose(f);
+  return n == 2 ? wait * 1e-6 : 0.0;
+}
+
+// The calling thread's niceness (Linux: per thread), or `fallback` when it cannot be read.
+int ThreadNice(int fallback) {
+  const id_t tid = static_cast<id_t>(syscall(SYS_gettid));
+  errno = 0;
+  const int now = getpriority(PRIO_PROCESS, tid);
+  return errno != 0 ? fallback : now;
+}
+
+// Sets the calling thread's niceness to `base + nice` (clamped to 19; nice >= 0). A thread may
+// raise its niceness freely; lowering it back to the server's own needs no privilege on Linux
+// only with CAP_SYS_NICE or RLIMIT_NICE, so a failure is logged once and the thread stays nicer.
+bool SetThreadNice(int base, int nice) {
+  const id_t tid = static_cast<id_t>(syscall(SYS_gettid));
+  const int target = std::min(19, base + std::max(0, nice));
+  return setpriority(PRIO_PROCESS, tid, target) == 0;
 }
 
 // Lowers the calling thread's priority by `nice` below the server's own (Linux: nice is per
@@ -138,6 +169,9 @@ class InpaintingStageImpl final : public InpaintingStage {
       if (!origin_) origin_ = ctx.origin;
       next_index = seen / options_.frame_stride;
     }
+    // How long after its admission the frame reached this (the last) stage: the modelling
+    // stages' delay, which the frame thread's priority follows (frame_backoff_ms).
+    const double handoff_ms = (SteadyNowNs() - pf.received_ns) * 1e-6;
     auto copy = std::make_shared<PipelineFrame>();
     copy->frame = f;  // ~2 MB at 640x480: well under a millisecond
     copy->received_ns = pf.received_ns;
@@ -147,6 +181,9 @@ class InpaintingStageImpl final : public InpaintingStage {
       slot_ = std::move(copy);
       slot_set_ = set;
       slot_index_ = next_index;
+      handoff_ms_ = handoff_ms;
+      handoff_ms_sum_ += handoff_ms;
+      ++handoffs_;
     }
     frame_cv_.notify_all();
     return absl::OkStatus();
@@ -169,12 +206,20 @@ class InpaintingStageImpl final : public InpaintingStage {
   // the live DR view, for the newest handed-off frame.
   void FrameLoop() {
     pthread_setname_np(pthread_self(), "exo-dr-frames");
-    NiceThisThread(options_.frame_nice >= 0 ? options_.frame_nice : options_.nice);
+    // Two priorities: `frame_nice` while the pipeline keeps up, `nice` while frames reach the
+    // stage late (the modelling stages are behind and ingest would wait for them).
+    const int base = ThreadNice(0);
+    const int fast = options_.frame_nice >= 0 ? options_.frame_nice : options_.nice;
+    const int slow = std::max(fast, options_.nice);
+    bool backed_off = fast == slow;
+    NiceThisThread(backed_off ? slow : fast);
+    bool can_return = true;  // lowering the niceness again may need a privilege
     for (;;) {
       std::shared_ptr<PipelineFrame> pf;
       std::shared_ptr<const RegionSet> set;
       LocalOrigin origin;
       int64_t index = 0;
+      double handoff_ms = 0;
       {
         std::unique_lock lock(slot_mu_);
         frame_cv_.wait(lock, [this] { return frame_stop_ || slot_; });
@@ -185,6 +230,26 @@ class InpaintingStageImpl final : public InpaintingStage {
         index = slot_index_;
         origin = *origin_;
         frame_busy_ = true;
+        handoff_ms = handoff_ms_;
+      }
+      if (fast != slow && options_.frame_backoff_ms > 0) {
+        if (!backed_off && handoff_ms > options_.frame_backoff_ms) {
+          backed_off = SetThreadNice(base, slow);
+          if (backed_off) ++frame_backoffs_;
+        } else if (backed_off && can_return && handoff_ms < 0.5 * options_.frame_backoff_ms) {
+          if (SetThreadNice(base, fast)) {
+            backed_off = false;
+          } else {
+            can_return = false;
+            log::Get("inpainting")->warn(
+                "the DR frame thread cannot return to nice {} (needs CAP_SYS_NICE or RLIMIT_NICE); "
+                "it stays at {}", base + fast, base + slow);
+          }
+        }
+      }
+      {
+        std::lock_guard lock(slot_mu_);
+        frames_backed_off_ += backed_off;
       }
       ProcessFrame(*pf, set, origin, index);
       {
@@ -215,21 +280,29 @@ class InpaintingStageImpl final : public InpaintingStage {
     }
     const int64_t t0 = SteadyNowNs();
     const double c0 = ThreadCpuMs();
-    struct CpuTally {  // CPU of this frame's work on the frame thread, however it returns
+    struct CpuTally {  // CPU, wall and run delay of this frame's work, however it returns
       InpaintingStageImpl* self;
-      double c0;
+      double c0, r0;
+      int64_t t0, received_ns;
       ~CpuTally() {
+        const double cpu = ThreadCpuMs() - c0, runq = ThreadRunDelayMs() - r0;
+        const int64_t t1 = SteadyNowNs();
         std::lock_guard lock(self->mu_);
-        self->frame_cpu_ms_ += ThreadCpuMs() - c0;
+        self->frame_cpu_ms_ += cpu;
+        self->frame_wall_ms_ += (t1 - t0) * 1e-6;
+        self->frame_runq_ms_ += runq;
+        self->frame_pickup_ms_ += (t0 - received_ns) * 1e-6;
         ++self->frames_measured_;
       }
-    } tally{this, c0};
+    } tally{this, c0, ThreadRunDelayMs(), t0, pf.received_ns};
     const Rigid3d local_from_cam = origin.ToLocal(f.world_from_cam);
     ImageF depth = core::RegisterDepthToColor(f);
+    const double c1 = ThreadCpuMs();
     ImageU8 mask = inpainting::ProjectRegions(set->labels, depth, f.color_camera, local_from_cam,
                                               options_.region);
     const int roi = inpainting::CountNonZero(mask);
     inpainting::RgbdKeyframe frame{f.color, std::move(depth), f.color_camera, local_from_cam};
+    const double c2 = ThreadCpuMs();
     Job job;
     bool submit = false;
     inpainting::DrLiveSnapshot snap;
@@ -266,6 +339,10 @@ class InpaintingStageImpl final : public InpaintingStage {
           AddObservationLocked(frame, mask, index);
         }
       }
+      phase_register_cpu_ms_ += c1 - c0;
+      phase_project_cpu_ms_ += c2 - c1;
+      phase_rule_cpu_ms_ += ThreadCpuMs() - c2;
+      ++phase_frames_;
     }
     if (submit) {
       job.regions = set;
@@ -314,6 +391,7 @@ class InpaintingStageImpl final : public InpaintingStage {
       std::lock_guard lock(mu_);
       lf->index = ++live_frames_;
       live_composited_ += lf->composited;
+      live_roi_px_ += lf->roi_px;
       live_ms_ += ms;
       live_cpu_ms_ += cpu;
       live_latency_ms_ += lf->latency_ms;
@@ -365,9 +443,29 @@ class InpaintingStageImpl final : public InpaintingStage {
     // CPU of the stage's per-frame work on the pipeline thread (registration, re-projection,
     // the rule, observation copies), frames that got past the busy check.
     c["inpainting.frame_cpu_ms_mean"] = frames_measured_ ? frame_cpu_ms_ / frames_measured_ : 0.0;
+    // The frame thread per looked-at frame: wall, time runnable but waiting for a CPU (run
+    // delay), time from the frame's admission to the thread taking it, and the CPU by phase
+    // (depth registration; re-projection of the labels; rule + snapshot + observation copy under
+    // the lock); the compose is live_compose_cpu_ms_mean.
+    c["inpainting.frame_wall_ms_mean"] = frames_measured_ ? frame_wall_ms_ / frames_measured_ : 0.0;
+    c["inpainting.frame_runq_ms_mean"] = frames_measured_ ? frame_runq_ms_ / frames_measured_ : 0.0;
+    c["inpainting.frame_pickup_ms_mean"] =
+        frames_measured_ ? frame_pickup_ms_ / frames_measured_ : 0.0;
+    c["inpainting.frame_register_cpu_ms_mean"] =
+        phase_frames_ ? phase_register_cpu_ms_ / phase_frames_ : 0.0;
+    c["inpainting.frame_project_cpu_ms_mean"] =
+        phase_frames_ ? phase_project_cpu_ms_ / phase_frames_ : 0.0;
+    c["inpainting.frame_rule_cpu_ms_mean"] = phase_frames_ ? phase_rule_cpu_ms_ / phase_frames_ : 0.0;
+    // The keyframe thread: run delay per keyframe (waiting for a CPU while computing it).
+    c["inpainting.keyframe_runq_ms_mean"] = published_ ? keyframe_runq_ms_ / published_ : 0.0;
     c["inpainting.in_flight"] = (job_ || busy_) ? 1.0 : 0.0;  // a keyframe is being computed
     // Frames handed to the frame thread that a newer one replaced before it was looked at.
     c["inpainting.frames_superseded"] = static_cast<double>(frames_superseded_);
+    // Delay from admission to this stage's hand-off, and the frame thread's priority back-offs
+    // (frame_backoff_ms): times it went to inpaint_nice, frames it looked at while there.
+    c["inpainting.handoff_latency_ms_mean"] = handoffs_ ? handoff_ms_sum_ / handoffs_ : 0.0;
+    c["inpainting.frame_backoffs"] = static_cast<double>(frame_backoffs_);
+    c["inpainting.frames_backed_off"] = static_cast<double>(frames_backed_off_);
     c["inpainting.frames_looked_at"] = static_cast<double>(frames_looked_);
     // The live DR view: frames out, of them composited (a keyframe existed, ROI in view), and
     // per frame the compose's wall / CPU and the latency from admission to output.
@@ -377,6 +475,11 @@ class InpaintingStageImpl final : public InpaintingStage {
     c["inpainting.live_compose_cpu_ms_mean"] = live_frames_ ? live_cpu_ms_ / live_frames_ : 0.0;
     c["inpainting.live_latency_ms_mean"] = live_frames_ ? live_latency_ms_ / live_frames_ : 0.0;
     c["inpainting.live_watchers"] = static_cast<double>(watchers_);
+    // ROI pixels per live frame and per keyframe (the per-pixel work scales with them).
+    c["inpainting.live_roi_px_mean"] = live_frames_ ? double(live_roi_px_) / live_frames_ : 0.0;
+    c["inpainting.keyframe_roi_px_mean"] = published_ ? double(keyframe_roi_px_) / published_ : 0.0;
+    c["inpainting.keyframe_hallucinated_px_mean"] =
+        published_ ? double(keyframe_hallucinated_px_) / published_ : 0.0;
   }
 
   uint32_t Withdraw() override {
@@ -561,9 +664,13 @@ class InpaintingStageImpl final : public InpaintingStage {
         continue;
       }
       const int64_t t0 = SteadyNowNs();
-      const double c0 = ThreadCpuMs();
+      const double c0 = ThreadCpuMs(), r0 = ThreadRunDelayMs();
       absl::StatusOr<DrKeyframe> r = DiminishedReality::ComputeKeyframe(job.dr, dr_options_);
       const double ms = (SteadyNowNs() - t0) * 1e-6, cpu_ms = ThreadCpuMs() - c0;
+      {
+        std::lock_guard lock(mu_);
+        keyframe_runq_ms_ += ThreadRunDelayMs() - r0;
+      }
       if (!r.ok()) {
         // E.g. "no valid source patch": the ROI stays as observed in this frame.
         log->warn("inpainting keyframe failed: {}", std::string(r.status().message()));
@@ -645,6 +752,7 @@ class InpaintingStageImpl final : public InpaintingStage {
       sum_cpu_ms_ += cpu_ms;
       keyframe_roi_px_ += roi_px;
       keyframe_observed_px_ += k.observed_px;
+      keyframe_hallucinated_px_ += k.hallucinated_px;
       if (k.propagated) {
         ++propagated_;
         propagated_ms_ += ms;
@@ -700,6 +808,8 @@ class InpaintingStageImpl final : public InpaintingStage {
   std::optional<LocalOrigin> origin_;
   bool frame_busy_ = false;
   uint64_t frames_superseded_ = 0, frames_looked_ = 0;
+  double handoff_ms_ = 0, handoff_ms_sum_ = 0;  // the newest frame's; sum over hand-offs
+  uint64_t handoffs_ = 0, frame_backoffs_ = 0, frames_backed_off_ = 0;
   // The live DR view.
   int watchers_ = 0;
   inpainting::DrLiveState live_state_;  // frame thread only
@@ -722,10 +832,15 @@ class InpaintingStageImpl final : public InpaintingStage {
   uint64_t published_ = 0, propagated_ = 0, discarded_ = 0, failed_ = 0, frames_with_roi_ = 0,
            frames_without_roi_ = 0, skipped_busy_ = 0, withdrawn_ = 0, decisions_ = 0,
            frames_seen_ = 0, frames_strided_ = 0, refreshed_ = 0, refreshed_px_ = 0, refresh_jobs_ = 0;
-  int64_t decide_ns_ = 0, keyframe_roi_px_ = 0, keyframe_observed_px_ = 0;
+  int64_t decide_ns_ = 0, keyframe_roi_px_ = 0, keyframe_observed_px_ = 0,
+          keyframe_hallucinated_px_ = 0, live_roi_px_ = 0;
   double first_cpu_ms_ = 0, propagated_cpu_ms_ = 0;
   double first_ms_ = 0, propagated_ms_ = 0, last_ms_ = 0, sum_ms_ = 0, sum_cpu_ms_ = 0;
   double refresh_cpu_ms_ = 0, frame_cpu_ms_ = 0;  // worker's refreshes; pipeline thread per frame
+  double frame_wall_ms_ = 0, frame_runq_ms_ = 0, frame_pickup_ms_ = 0;
+  double phase_register_cpu_ms_ = 0, phase_project_cpu_ms_ = 0, phase_rule_cpu_ms_ = 0;
+  uint64_t phase_frames_ = 0;
+  double keyframe_runq_ms_ = 0;
   uint64_t frames_measured_ = 0;
   std::string last_error_;
   std::thread worker_, frames_thread_, publisher_;
