@@ -24,7 +24,8 @@ inline long RoundHalfAway(double x) {
   if (!(std::fabs(x) < 4503599627370496.0)) return std::lround(x);  // 2^52, NaN
   const long t = static_cast<long>(x);  // toward zero
   const double frac = x - static_cast<double>(t);  // exact
-  return frac >= 0.5 ? t + 1 : (frac <= -0.5 ? t - 1 : t);
+  // Branch-free: the rounding direction of image data is a coin toss for a branch predictor.
+  return t + static_cast<long>(frac >= 0.5) - static_cast<long>(frac <= -0.5);
 }
 
 // A view the look-up takes colour from: an inpainted keyframe (observed outside its T,

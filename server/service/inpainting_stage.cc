@@ -41,6 +41,8 @@ absl::Status InpaintingStageOptions::Validate() const {
   if (live_views < 1 || live_views > 64)
     return absl::InvalidArgumentError("inpaint_live_views must be in [1, 64]");
   if (nice < 0 || nice > 19) return absl::InvalidArgumentError("inpaint_nice must be in [0, 19]");
+  if (keyframe_nice < -1 || keyframe_nice > 19)
+    return absl::InvalidArgumentError("inpaint_keyframe_nice must be -1 (= inpaint_nice) or in [0, 19]");
   if (frame_nice < -1 || frame_nice > 19)
     return absl::InvalidArgumentError("inpaint_frame_nice must be -1 (= inpaint_nice) or in [0, 19]");
   if (!(frame_backoff_ms >= 0.0 && frame_backoff_ms <= 60000.0))
@@ -103,6 +105,47 @@ void NiceThisThread(int nice) {
   if (setpriority(PRIO_PROCESS, tid, target) != 0)
     log::Get("inpainting")->warn("setpriority({}) failed: {}", target, errno);
 }
+
+// A stage thread's two priorities (InpaintingStageOptions::frame_backoff_ms): `fast` while
+// frames reach the stage soon after their admission, `slow` while they arrive late (the modelling
+// stages are behind and ingest would wait for them). Used on the thread itself.
+class AdaptiveNice {
+ public:
+  AdaptiveNice(const char* who, int fast, int slow, double backoff_ms)
+      : who_(who), fast_(fast), slow_(std::max(fast, slow)), backoff_ms_(backoff_ms) {}
+  void Start() {
+    base_ = ThreadNice(0);
+    backed_off_ = fast_ == slow_;
+    NiceThisThread(backed_off_ ? slow_ : fast_);
+  }
+  // Given the newest frame's delay from admission to the stage; true when it just backed off.
+  bool Update(double handoff_ms) {
+    if (fast_ == slow_ || backoff_ms_ <= 0) return false;
+    if (!backed_off_ && handoff_ms > backoff_ms_) {
+      backed_off_ = SetThreadNice(base_, slow_);
+      return backed_off_;
+    }
+    if (backed_off_ && can_return_ && handoff_ms < 0.5 * backoff_ms_) {
+      if (SetThreadNice(base_, fast_)) {
+        backed_off_ = false;
+      } else {
+        can_return_ = false;  // lowering the niceness again needs CAP_SYS_NICE or RLIMIT_NICE
+        log::Get("inpainting")->warn("the {} thread cannot return to nice {} (needs CAP_SYS_NICE "
+                                     "or RLIMIT_NICE); it stays at {}",
+                                     who_, base_ + fast_, base_ + slow_);
+      }
+    }
+    return false;
+  }
+  bool backed_off() const { return backed_off_; }
+
+ private:
+  const char* who_;
+  int fast_, slow_;
+  double backoff_ms_;
+  int base_ = 0;
+  bool backed_off_ = false, can_return_ = true;
+};
 
 DrOptions ToDrOptions(const InpaintingStageOptions& o) {
   DrOptions d;
@@ -206,14 +249,9 @@ class InpaintingStageImpl final : public InpaintingStage {
   // the live DR view, for the newest handed-off frame.
   void FrameLoop() {
     pthread_setname_np(pthread_self(), "exo-dr-frames");
-    // Two priorities: `frame_nice` while the pipeline keeps up, `nice` while frames reach the
-    // stage late (the modelling stages are behind and ingest would wait for them).
-    const int base = ThreadNice(0);
-    const int fast = options_.frame_nice >= 0 ? options_.frame_nice : options_.nice;
-    const int slow = std::max(fast, options_.nice);
-    bool backed_off = fast == slow;
-    NiceThisThread(backed_off ? slow : fast);
-    bool can_return = true;  // lowering the niceness again may need a privilege
+    AdaptiveNice prio("DR frame", options_.frame_nice >= 0 ? options_.frame_nice : options_.nice,
+                      options_.nice, options_.frame_backoff_ms);
+    prio.Start();
     for (;;) {
       std::shared_ptr<PipelineFrame> pf;
       std::shared_ptr<const RegionSet> set;
@@ -232,24 +270,11 @@ class InpaintingStageImpl final : public InpaintingStage {
         frame_busy_ = true;
         handoff_ms = handoff_ms_;
       }
-      if (fast != slow && options_.frame_backoff_ms > 0) {
-        if (!backed_off && handoff_ms > options_.frame_backoff_ms) {
-          backed_off = SetThreadNice(base, slow);
-          if (backed_off) ++frame_backoffs_;
-        } else if (backed_off && can_return && handoff_ms < 0.5 * options_.frame_backoff_ms) {
-          if (SetThreadNice(base, fast)) {
-            backed_off = false;
-          } else {
-            can_return = false;
-            log::Get("inpainting")->warn(
-                "the DR frame thread cannot return to nice {} (needs CAP_SYS_NICE or RLIMIT_NICE); "
-                "it stays at {}", base + fast, base + slow);
-          }
-        }
-      }
       {
+        const bool backoff = prio.Update(handoff_ms);
         std::lock_guard lock(slot_mu_);
-        frames_backed_off_ += backed_off;
+        frame_backoffs_ += backoff;
+        frames_backed_off_ += prio.backed_off();
       }
       ProcessFrame(*pf, set, origin, index);
       {
@@ -466,6 +491,8 @@ class InpaintingStageImpl final : public InpaintingStage {
     c["inpainting.handoff_latency_ms_mean"] = handoffs_ ? handoff_ms_sum_ / handoffs_ : 0.0;
     c["inpainting.frame_backoffs"] = static_cast<double>(frame_backoffs_);
     c["inpainting.frames_backed_off"] = static_cast<double>(frames_backed_off_);
+    c["inpainting.keyframe_backoffs"] = static_cast<double>(keyframe_backoffs_);
+    c["inpainting.keyframe_jobs_backed_off"] = static_cast<double>(jobs_backed_off_);
     c["inpainting.frames_looked_at"] = static_cast<double>(frames_looked_);
     // The live DR view: frames out, of them composited (a keyframe existed, ROI in view), and
     // per frame the compose's wall / CPU and the latency from admission to output.
@@ -636,7 +663,10 @@ class InpaintingStageImpl final : public InpaintingStage {
 
   void WorkerLoop() {
     pthread_setname_np(pthread_self(), "exo-dr-keyframe");
-    NiceThisThread(options_.nice);
+    AdaptiveNice prio("DR keyframe",
+                      options_.keyframe_nice >= 0 ? options_.keyframe_nice : options_.nice,
+                      options_.nice, options_.frame_backoff_ms);
+    prio.Start();
     auto log = log::Get("inpainting");
     for (;;) {
       Job job;
@@ -647,6 +677,17 @@ class InpaintingStageImpl final : public InpaintingStage {
         job = std::move(*job_);
         job_.reset();
         busy_ = true;
+      }
+      {
+        double handoff_ms = 0;
+        {
+          std::lock_guard slot(slot_mu_);
+          handoff_ms = handoff_ms_;
+        }
+        const bool backoff = prio.Update(handoff_ms);
+        std::lock_guard lock(mu_);
+        keyframe_backoffs_ += backoff;
+        jobs_backed_off_ += prio.backed_off();
       }
       if (job.refresh) {
         const double c0 = ThreadCpuMs();
@@ -841,6 +882,7 @@ class InpaintingStageImpl final : public InpaintingStage {
   double phase_register_cpu_ms_ = 0, phase_project_cpu_ms_ = 0, phase_rule_cpu_ms_ = 0;
   uint64_t phase_frames_ = 0;
   double keyframe_runq_ms_ = 0;
+  uint64_t keyframe_backoffs_ = 0, jobs_backed_off_ = 0;  // under mu_
   uint64_t frames_measured_ = 0;
   std::string last_error_;
   std::thread worker_, frames_thread_, publisher_;

@@ -66,10 +66,12 @@ struct InpaintingStageOptions {
   // The frame thread's own niceness (the live DR view's rate) while the pipeline keeps up;
   // -1 = `nice`. Its work is bounded (only the newest frame, the live view only while watched).
   int frame_nice = 0;
-  // The frame thread backs off to `nice` while frames reach this stage more than this many ms
+  // The keyframe thread's niceness (keyframe latency) while the pipeline keeps up; -1 = `nice`.
+  int keyframe_nice = 0;
+  // Both threads back off to `nice` while frames reach this stage more than this many ms
   // after their admission (the modelling stages are behind: ingest comes first; at 30 Hz the
   // admission queue of 8 is full at ~270 ms), and returns to
-  // `frame_nice` once they arrive within half of it again. 0 = never back off.
+  // `frame_nice` / `keyframe_nice` once they arrive within half of it again. 0 = never back off.
   double frame_backoff_ms = 250.0;
   // "dr": a keyframe inpaints a crop around its ROI (DrOptions::kf_crop_margin_*; 0 / 0 = whole).
   int kf_crop_margin_px = 0;

@@ -200,6 +200,9 @@ TEST(InpaintingStage, DrKeyframesTakeObservedColourSessionNineDoesNot) {
   bad = InpaintingStageOptions();
   bad.frame_backoff_ms = -1;
   EXPECT_FALSE(bad.Validate().ok());
+  bad = InpaintingStageOptions();
+  bad.keyframe_nice = 20;
+  EXPECT_FALSE(bad.Validate().ok());
 }
 
 TEST(InpaintingStage, FrameStrideLooksAtEveryNthFrame) {
