@@ -84,9 +84,9 @@ int ThreadNice(int fallback) {
   return errno != 0 ? fallback : now;
 }
 
-// Sets the calling thread's niceness to `base + nice` (clamped to 19; nice >= 0). A thread may
-// raise its niceness freely; lowering it back to the server's own needs no privilege on Linux
-// only with CAP_SYS_NICE or RLIMIT_NICE, so a failure is logged once and the thread stays nicer.
+// Sets the calling thread's niceness to `base + nice` (clamped to 19; nice >= 0). Raising it
+// needs no privilege; lowering it again needs CAP_SYS_NICE or a large enough RLIMIT_NICE (Linux),
+// so that can fail (AdaptiveNice then keeps the thread at the nicer value).
 bool SetThreadNice(int base, int nice) {
   const id_t tid = static_cast<id_t>(syscall(SYS_gettid));
   const int target = std::min(19, base + std::max(0, nice));
