@@ -65,9 +65,12 @@ struct InpaintingStageOptions {
   int nice = 10;
   // The frame thread's own niceness (the live DR view's rate) while the pipeline keeps up;
   // -1 = `nice`. Its work is bounded (only the newest frame, the live view only while watched).
-  int frame_nice = 0;
+  // Default -1: at 0 (with keyframe_nice 0) the live view ran at 12-21 fps instead of 10-11 on a
+  // quiet machine, but the geometry stage shed 45-55 of 150 frames instead of 7-8 and one run
+  // dropped 6 of 142 at admission (docs/inpainting.md, Session 14).
+  int frame_nice = -1;
   // The keyframe thread's niceness (keyframe latency) while the pipeline keeps up; -1 = `nice`.
-  int keyframe_nice = 0;
+  int keyframe_nice = -1;
   // Both threads back off to `nice` while frames reach this stage more than this many ms
   // after their admission (the modelling stages are behind: ingest comes first; at 30 Hz the
   // admission queue of 8 is full at ~270 ms), and returns to
