@@ -106,6 +106,12 @@ double Percentile(std::vector<double> v, double q) {
   return v[std::min(v.size() - 1, static_cast<size_t>(q * (v.size() - 1) + 0.5))];
 }
 
+double CountNonZeroU8(const ImageU8& m) {
+  double n = 0;
+  for (size_t i = 0; i < m.size(); ++i) n += m.data()[i] != 0;
+  return n;
+}
+
 double Round(double x, int digits) {
   const double f = std::pow(10.0, digits);
   return std::round(x * f) / f;
@@ -117,7 +123,7 @@ int Main(int argc, char** argv) {
   bool mark = true, watch = true;
   std::string method = "dr";
   std::vector<std::string> server_args;
-  std::string target_flag, dump_dir;
+  std::string target_flag, dump_dir, server_bin = EXOVIEW_SERVER_BIN;
   CLI::App app{"Diminished reality in the live server: ingest rate with and without a marked "
                "region, per-keyframe inpainting time; prints JSON",
                "dr_live_bench"};
@@ -138,6 +144,8 @@ int Main(int argc, char** argv) {
   app.add_option("--target", target_flag,
                  "upload to this running server HOST:PORT instead of starting one (no server CPU "
                  "figures; tests drive a viewer with it)");
+  app.add_option("--server_bin", server_bin,
+                 "the exoview_server binary to start (A/B runs of two builds with one client)");
   app.add_option("--dump_dir", dump_dir,
                  "write each frame's input colour (input_<seq>.png) and the chair's pixels "
                  "(chair_<seq>.png, dilated 4 px) here");
@@ -184,7 +192,7 @@ int Main(int argc, char** argv) {
   std::optional<testing::Subprocess> server;
   std::string target = target_flag;
   if (target.empty()) {
-    server.emplace(EXOVIEW_SERVER_BIN, args, dir + "/server.log");
+    server.emplace(server_bin, args, dir + "/server.log");
     if (!testing::WaitForFile(dir + "/port", 20)) return 1;
     target = "127.0.0.1:" + std::to_string(std::stoi(testing::ReadAll(dir + "/port")));
   }
@@ -237,6 +245,13 @@ int Main(int argc, char** argv) {
       return 1;
     }
     out["region_voxels"] = reply.region().num_voxels();
+    if (watch) {
+      // The object's own pixels (dilated 4 px: dr_bench's ROI) per frame after the mark, beside
+      // the server's re-projected ROI (inpainting.live_roi_px_mean).
+      double px = 0;
+      for (int k = before; k < frames; ++k) px += CountNonZeroU8(chair[k]);
+      out["chair_px_mean"] = Round(px / std::max(1, frames - before), 0);
+    }
   }
   // The live DR view's watcher: from before the upload until it is drained.
   struct Watched {
@@ -247,6 +262,7 @@ int Main(int argc, char** argv) {
     std::vector<double> latencies, composited_latencies;
   } watched;
   std::atomic<bool> watching{true};
+  std::vector<std::pair<int, std::string>> received;  // composited frames: index, raw RGB
   grpc::ClientContext watch_ctx;
   std::thread watcher;
   if (watch) {
@@ -274,8 +290,19 @@ int Main(int argc, char** argv) {
         if (k < 0 || k >= frames || truth[k].empty() ||
             m.color_rgb().size() != truth[k].size())
           continue;
+        // Scored after the upload: the scoring (SSIM at 640x480) would otherwise take CPU from
+        // the server on the same machine while it is measured.
+        received.emplace_back(k, std::move(*m.mutable_color_rgb()));
+      }
+      reader->Finish();
+    });
+  }
+  auto score = [&] {
+    for (auto& [k, rgb] : received) {
+      {
         ImageU8 out(width, height, 3);
-        std::memcpy(out.data(), m.color_rgb().data(), out.size());
+        std::memcpy(out.data(), rgb.data(), out.size());
+        std::string().swap(rgb);
         auto p = MaskedPsnr(out, truth[k], chair[k]);
         auto p0 = MaskedPsnr(input[k], truth[k], chair[k]);
         auto q = MaskedSsim(out, truth[k], chair[k]);
@@ -287,13 +314,14 @@ int Main(int argc, char** argv) {
         watched.ssim_input += *q0;
         ++watched.scored;
       }
-      reader->Finish();
-    });
-  }
+    }
+  };
   const std::string uptime0 = Uptime();
   const double load0 = Load1(), cpu0 = (server_pid ? ProcessCpuMs(server_pid) : 0.0);
   const auto threads0 = (server_pid ? ThreadCpuMs(server_pid) : std::map<std::string, double>{});
+  const double client_cpu0 = ProcessCpuMs(getpid());
   const UploadAckStats up = upload(before, frames - before);
+  const double client_cpu_ms = ProcessCpuMs(getpid()) - client_cpu0;
   const double upload_cpu_ms = (server_pid ? ProcessCpuMs(server_pid) : 0.0) - cpu0;
   auto threads1 = (server_pid ? ThreadCpuMs(server_pid) : std::map<std::string, double>{});
   const v1::Stats s = wait_drained();
@@ -314,6 +342,10 @@ int Main(int argc, char** argv) {
                    {"ack_latency_p95_ms", Round(up.ack_latency_p95_ms, 1)},
                    {"server_cpu_ms_per_frame", Round(upload_cpu_ms / std::max<uint64_t>(1, up.sent), 1)},
                    {"server_cpu_ms_to_drained", Round(drain_cpu_ms, 0)},
+                   // This benchmark's own CPU (uploader + watcher) per offered frame: it shares
+                   // the machine with the server.
+                   {"client_cpu_ms_per_frame",
+                    Round(client_cpu_ms / std::max<uint64_t>(1, up.sent), 1)},
                    // The server's CPU per offered frame over the upload as a share of 2 idle
                    // cores at the offered rate (< 1: the work fits the 2-core machine).
                    {"two_core_share",
@@ -333,6 +365,7 @@ int Main(int argc, char** argv) {
     std::this_thread::sleep_for(std::chrono::milliseconds(300));  // the last frame's output
     watch_ctx.TryCancel();
     watcher.join();
+    score();
     const int n = std::max(1, watched.frames);
     std::sort(watched.latencies.begin(), watched.latencies.end());
     const double span = watched.last_s - watched.first_s;

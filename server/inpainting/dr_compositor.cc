@@ -615,7 +615,7 @@ absl::StatusOr<DrLiveResult> ComposeLiveFrame(const RgbdKeyframe& f, const Image
       const size_t j = static_cast<size_t>(y) * bw + x;
       for (int c = 0; c < 3; ++c)
         out.color.at(gx, gy, c) = static_cast<uint8_t>(
-            std::clamp(std::lround(col[3 * j + c] + (o.blend ? diff[3 * j + c] : 0.f)), 0L, 255L));
+            std::clamp(RoundHalfAway(col[3 * j + c] + (o.blend ? diff[3 * j + c] : 0.f)), 0L, 255L));
       out.depth.at(gx, gy) = depth.at(gx, gy);
     }
   if (state && o.temporal > 0 && state->prev_color.SameShape(out.color)) {
@@ -635,7 +635,7 @@ absl::StatusOr<DrLiveResult> ComposeLiveFrame(const RgbdKeyframe& f, const Image
           const double p = (1 - ay) * ((1 - ax) * prev.at(x0, y0, c) + ax * prev.at(x0 + 1, y0, c)) +
                            ay * ((1 - ax) * prev.at(x0, y0 + 1, c) + ax * prev.at(x0 + 1, y0 + 1, c));
           out.color.at(x, y, c) = static_cast<uint8_t>(std::clamp(
-              std::lround(o.temporal * p + (1 - o.temporal) * out.color.at(x, y, c)), 0L, 255L));
+              RoundHalfAway(o.temporal * p + (1 - o.temporal) * out.color.at(x, y, c)), 0L, 255L));
         }
       }
   }

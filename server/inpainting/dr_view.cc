@@ -19,19 +19,32 @@ namespace {
 struct KfRect {
   int x0 = 0, y0 = 0, x1 = 0, y1 = 0;
 };
-KfRect KeyframePixelsOnto(const DrView& kf, const PinholeCamera& cam, const Rigid3d& cam_from_kf,
-                          const ImageU8& mask) {
-  const KfRect whole{0, 0, kf.cam.width, kf.cam.height};
+// The bounding box of `mask`'s non-zero pixels, [x0, x1) x [y0, y1); empty (x1 = 0) when none.
+KfRect MaskBox(const ImageU8& mask) {
   int bx0 = mask.width(), by0 = mask.height(), bx1 = -1, by1 = -1;
-  for (int y = 0; y < mask.height(); ++y)
+  for (int y = 0; y < mask.height(); ++y) {
+    const uint8_t* r = mask.row(y);
+    int first = -1, last = -1;
     for (int x = 0; x < mask.width(); ++x)
-      if (mask.at(x, y)) {
-        bx0 = std::min(bx0, x);
-        bx1 = std::max(bx1, x);
-        by0 = std::min(by0, y);
-        by1 = std::max(by1, y);
+      if (r[x]) {
+        if (first < 0) first = x;
+        last = x;
       }
+    if (first < 0) continue;
+    bx0 = std::min(bx0, first);
+    bx1 = std::max(bx1, last);
+    by0 = std::min(by0, y);
+    by1 = y;
+  }
   if (bx1 < 0) return KfRect{};
+  return KfRect{bx0, by0, bx1 + 1, by1 + 1};
+}
+
+KfRect KeyframePixelsOnto(const DrView& kf, const PinholeCamera& cam, const Rigid3d& cam_from_kf,
+                          const KfRect& box) {
+  const KfRect whole{0, 0, kf.cam.width, kf.cam.height};
+  if (box.x1 <= box.x0) return KfRect{};
+  const int bx0 = box.x0, by0 = box.y0, bx1 = box.x1 - 1, by1 = box.y1 - 1;
   float zmin = std::numeric_limits<float>::max(), zmax = 0.f;
   for (size_t i = 0; i < kf.depth.size(); ++i) {
     const float z = kf.depth.data()[i];
@@ -83,7 +96,8 @@ ImageF WarpBackgroundDepth(const DrView& kf, const PinholeCamera& cam, const Rig
   for (size_t i = 0; i < d.size(); ++i) d.data()[i] = roi.data()[i] ? 0.f : frame_depth.data()[i];
   ImageF zbuf(w, h, 1, 1e30f);
   const Rigid3d cam_from_kf = pose.Inverse() * kf.world_from_cam;
-  const KfRect rect = KeyframePixelsOnto(kf, cam, cam_from_kf, roi);
+  const KfRect box = MaskBox(roi);
+  const KfRect rect = KeyframePixelsOnto(kf, cam, cam_from_kf, box);
   for (int y = rect.y0; y < rect.y1; ++y)
     for (int x = rect.x0; x < rect.x1; ++x) {
       const float z = kf.depth.at(x, y);
@@ -91,7 +105,7 @@ ImageF WarpBackgroundDepth(const DrView& kf, const PinholeCamera& cam, const Rig
       const glm::dvec3 p = cam_from_kf * kf.cam.Unproject({x, y}, z);
       glm::dvec2 uv;
       if (!cam.Project(p, &uv)) continue;
-      const int u = static_cast<int>(std::lround(uv.x)), v = static_cast<int>(std::lround(uv.y));
+      const int u = static_cast<int>(RoundHalfAway(uv.x)), v = static_cast<int>(RoundHalfAway(uv.y));
       if (!d.Contains(u, v) || !roi.at(u, v) || p.z >= zbuf.at(u, v)) continue;
       zbuf.at(u, v) = static_cast<float>(p.z);
       d.at(u, v) = static_cast<float>(p.z);
@@ -102,10 +116,12 @@ ImageF WarpBackgroundDepth(const DrView& kf, const PinholeCamera& cam, const Rig
   // Two fixed-point steps: each pixel's point is looked up in the keyframe (bilinear depth there)
   // and re-projected, which removes the nearest-pixel staircase of the splat.
   const Rigid3d kf_from_cam = cam_from_kf.Inverse();
+  // Each pixel's step reads only its own depth, so the steps update `d` in place; only the ROI's
+  // box holds ROI pixels.
   for (int it = 0; it < 2; ++it) {
-    ImageF next = d;
-    for (int y = 0; y < h; ++y)
-      for (int x = 0; x < w; ++x) {
+    ImageF& next = d;
+    for (int y = box.y0; y < box.y1; ++y)
+      for (int x = box.x0; x < box.x1; ++x) {
         if (!roi.at(x, y) || !(d.at(x, y) > 0.f)) continue;
         glm::dvec2 uv;
         if (!kf.cam.Project(kf_from_cam * cam.Unproject({x, y}, d.at(x, y)), &uv) ||
@@ -124,7 +140,6 @@ ImageF WarpBackgroundDepth(const DrView& kf, const PinholeCamera& cam, const Rig
         // order, is its z.
         if (q.z > 0) next.at(x, y) = static_cast<float>(q.z);
       }
-    d = std::move(next);
   }
   return d;
 }
@@ -163,9 +178,11 @@ void LookUpInViews(const std::vector<const DrView*>& views, const PinholeCamera&
     return (1 - ay) * ((1 - ax) * v.color.at(x0, y0, c) + ax * v.color.at(x0 + 1, y0, c)) +
            ay * ((1 - ax) * v.color.at(x0, y0 + 1, c) + ax * v.color.at(x0 + 1, y0 + 1, c));
   };
-  for (int y = 0; y < cam.height; ++y)
-    for (int x = 0; x < cam.width; ++x) {
-      observed->at(x, y) = filled->at(x, y) = 0;
+  std::fill(observed->data(), observed->data() + observed->size(), uint8_t{0});
+  std::fill(filled->data(), filled->data() + filled->size(), uint8_t{0});
+  const KfRect box = MaskBox(region);  // only the region's box is looked at
+  for (int y = box.y0; y < box.y1; ++y)
+    for (int x = box.x0; x < box.x1; ++x) {
       if (!region.at(x, y) || !(depth.at(x, y) > 0.f)) continue;
       const glm::dvec3 X = pose * cam.Unproject({x, y}, depth.at(x, y));
       const DrView* fallback = nullptr;
@@ -176,8 +193,8 @@ void LookUpInViews(const std::vector<const DrView*>& views, const PinholeCamera&
         const glm::dvec3 q = v->cam_from_world * X;
         glm::dvec2 uv;
         if (!v->cam.Project(q, &uv) || !v->cam.InImage(uv)) continue;
-        const int u = std::clamp(static_cast<int>(std::lround(uv.x)), 0, v->cam.width - 1),
-                  w = std::clamp(static_cast<int>(std::lround(uv.y)), 0, v->cam.height - 1);
+        const int u = std::clamp(static_cast<int>(RoundHalfAway(uv.x)), 0, v->cam.width - 1),
+                  w = std::clamp(static_cast<int>(RoundHalfAway(uv.y)), 0, v->cam.height - 1);
         const float z = v->depth.at(u, w);
         if (!(z > 0.f) || std::fabs(z - q.z) > 0.02 * q.z + 0.01) continue;
         if (!v->hallucinated.empty() && v->hallucinated.at(u, w)) {
@@ -200,7 +217,7 @@ void LookUpInViews(const std::vector<const DrView*>& views, const PinholeCamera&
       if (!hit) continue;
       filled->at(x, y) = 255;
       for (int c = 0; c < 3; ++c)
-        color->at(x, y, c) = static_cast<uint8_t>(std::lround(bilinear(*hit, hit_uv, c)));
+        color->at(x, y, c) = static_cast<uint8_t>(RoundHalfAway(bilinear(*hit, hit_uv, c)));
     }
 }
 

@@ -6,6 +6,7 @@
 // (docs/inpainting.md "Session 10"). Pure: Eigen-free image loops + SolvePoisson.
 #pragma once
 
+#include <cmath>
 #include <memory>
 #include <vector>
 
@@ -16,6 +17,16 @@
 #include "server/inpainting/inpaint.h"
 
 namespace exo::inpainting {
+
+// std::lround without the library call (bit-identical: half away from zero) for |x| < 2^52; the
+// per-pixel loops of the live DR view call it millions of times per second.
+inline long RoundHalfAway(double x) {
+  if (!(std::fabs(x) < 4503599627370496.0)) return std::lround(x);  // 2^52, NaN
+  const long t = static_cast<long>(x);  // toward zero
+  const double frac = x - static_cast<double>(t);  // exact
+  // Branch-free: the rounding direction of image data is a coin toss for a branch predictor.
+  return t + static_cast<long>(frac >= 0.5) - static_cast<long>(frac <= -0.5);
+}
 
 // A view the look-up takes colour from: an inpainted keyframe (observed outside its T,
 // inpainted inside: `hallucinated`) or an observed frame (depth 0 inside its ROI: never used).

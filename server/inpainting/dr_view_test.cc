@@ -93,5 +93,24 @@ TEST(DrView, PoissonBlendMeetsTheBorder) {
   EXPECT_EQ(PoissonBlendColor(guide, roi, &wrong).code(), absl::StatusCode::kInvalidArgument);
 }
 
+// The live view's rounding is std::lround's: halves away from zero, every representable
+// neighbour of a half, negatives, and the library's own fallback beyond 2^52.
+TEST(DrView, RoundHalfAwayIsLround) {
+  std::vector<double> xs = {0.0, -0.0, 0.5, -0.5, 1.5, -1.5, 2.5, 254.5, 255.49999999999997,
+                            0.49999999999999994, -0.49999999999999994, 1e15 + 0.5, 4503599627370497.0,
+                            -4503599627370497.0, 1e300, -1e300};
+  for (int i = -2000; i <= 2000; ++i) {
+    const double h = i + 0.5;
+    xs.push_back(h);
+    xs.push_back(std::nextafter(h, -1e9));
+    xs.push_back(std::nextafter(h, 1e9));
+    xs.push_back(i * 0.37);
+  }
+  for (double x : xs) EXPECT_EQ(RoundHalfAway(x), std::lround(x)) << x;
+  // Floats widened to double round as lroundf does.
+  for (float f : {0.5f, 2.5f, 127.49999f, 127.5f, -3.5f, std::nextafter(0.5f, 0.f)})
+    EXPECT_EQ(RoundHalfAway(f), std::lroundf(f)) << f;
+}
+
 }  // namespace
 }  // namespace exo::inpainting

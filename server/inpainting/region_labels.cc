@@ -142,12 +142,29 @@ RegionLabels::RegionLabels(std::span<const Region3D* const> regions) {
     hi_ = first ? v : glm::max(hi_, v);
     first = false;
   }
+  if (first) return;
+  const int64_t nx = int64_t{hi_.x} - lo_.x + 1, ny = int64_t{hi_.y} - lo_.y + 1,
+                nz = int64_t{hi_.z} - lo_.z + 1;
+  if (nx * ny * nz > kDenseMaxCells) return;
+  dense_nx_ = nx;
+  dense_nxy_ = nx * ny;
+  dense_.assign(static_cast<size_t>((nx * ny * nz + 63) / 64), 0);
+  for (uint64_t k : voxels_) {
+    const glm::ivec3 v = UnpackVoxel(k);
+    if (!InRange(v)) continue;  // Contains never answers true outside the range
+    const int64_t i = (v.x - lo_.x) + (v.y - lo_.y) * dense_nx_ + (v.z - lo_.z) * dense_nxy_;
+    dense_[static_cast<size_t>(i >> 6)] |= uint64_t{1} << (i & 63);
+  }
 }
 
 bool RegionLabels::Contains(const glm::dvec3& p_local) const {
   const glm::ivec3 v = VoxelOf(p_local, voxel_m_);
   if (v.x < lo_.x || v.y < lo_.y || v.z < lo_.z || v.x > hi_.x || v.y > hi_.y || v.z > hi_.z)
     return false;
+  if (!dense_.empty()) {
+    const int64_t i = (v.x - lo_.x) + (v.y - lo_.y) * dense_nx_ + (v.z - lo_.z) * dense_nxy_;
+    return (dense_[static_cast<size_t>(i >> 6)] >> (i & 63)) & 1;
+  }
   return InRange(v) && voxels_.count(PackVoxel(v.x, v.y, v.z)) != 0;
 }
 
@@ -161,9 +178,22 @@ ImageU8 ProjectRegions(const RegionLabels& labels, const ImageF& depth_m,
   // Only the pixels inside the projection of the labels' bounding box can be labelled (the
   // whole frame when the box reaches behind the camera).
   int x0 = 0, y0 = 0, x1 = w, y1 = h;
+  // The camera depth range of the labels' box (its corners bound it: depth is linear), widened by
+  // 1 mm: a pixel whose depth lies outside cannot back-project into a labelled voxel.
+  double zlo = -1e30, zhi = 1e30;
   glm::dvec3 lo, hi;
   if (labels.Bounds(&lo, &hi)) {
     const Rigid3d cam_from_local = local_from_cam.Inverse();
+    zlo = 1e30;
+    zhi = -1e30;
+    for (int c = 0; c < 8; ++c) {
+      const glm::dvec3 corner(c & 1 ? hi.x : lo.x, c & 2 ? hi.y : lo.y, c & 4 ? hi.z : lo.z);
+      const double z = (cam_from_local * corner).z;
+      zlo = std::min(zlo, z);
+      zhi = std::max(zhi, z);
+    }
+    zlo -= 1e-3 + 1e-6 * std::abs(zlo);
+    zhi += 1e-3 + 1e-6 * std::abs(zhi);
     double u0 = 1e30, v0 = 1e30, u1 = -1e30, v1 = -1e30;
     bool behind = false;
     for (int c = 0; c < 8 && !behind; ++c) {
@@ -188,7 +218,7 @@ ImageU8 ProjectRegions(const RegionLabels& labels, const ImageF& depth_m,
   for (int y = y0; y < y1; ++y)
     for (int x = x0; x < x1; ++x) {
       const float z = depth_m.at(x, y);
-      if (!ValidDepth(z)) continue;
+      if (!ValidDepth(z) || z < zlo || z > zhi) continue;
       if (labels.Contains(local_from_cam * camera.Unproject({x, y}, z))) {
         mask.at(x, y) = 255;
         any = true;

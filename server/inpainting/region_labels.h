@@ -79,6 +79,12 @@ class RegionLabels {
   double voxel_m_ = 0.02;
   std::unordered_set<uint64_t> voxels_;
   glm::ivec3 lo_{0}, hi_{-1};  // bounding box of the voxels: most points are rejected by it
+  // One bit per voxel of the bounding box (x fastest) when the box has at most kDenseMaxCells
+  // cells (ProjectRegions tests every pixel of the object's box in every frame: a bit test
+  // instead of a hash look-up); empty: the hash set alone.
+  static constexpr int64_t kDenseMaxCells = int64_t{1} << 25;  // 4 MB of bits
+  std::vector<uint64_t> dense_;
+  int64_t dense_nx_ = 0, dense_nxy_ = 0;
 };
 
 // The ROI mask (1 channel, 255 = ROI) of a frame: its pixels whose depth back-projects into a

@@ -2,6 +2,10 @@
 
 #include <gtest/gtest.h>
 
+#include <random>
+
+#include <opencv2/imgproc.hpp>
+
 #include "server/inpainting/keyframe_policy.h"
 #include "server/inpainting/test_scenes.h"
 
@@ -144,6 +148,59 @@ TEST(KeyframePolicy, PoseDistanceAndUnlabelledRule) {
   d = DecideKeyframe(roi, cam, Translated(1.0, 0, 0), kfs, o);
   EXPECT_TRUE(d.insert);
   EXPECT_STREQ(d.reason, "pose");
+}
+
+// ProjectRegions' shortcuts (the labels' box in the image and in depth, the voxel bitmap) give the
+// mask of the plain rule: every pixel whose depth back-projects into a labelled voxel, closed and
+// dilated. Random voxel blobs, random depths around them (many exactly on voxel faces), a
+// rotated camera; with and without the bitmap (a box beyond its size uses the hash set).
+TEST(RegionLabels, ProjectRegionsEqualsThePerPixelRule) {
+  std::mt19937 rng(7);
+  for (int trial = 0; trial < 6; ++trial) {
+    Region3D r;
+    r.voxel_m = 0.02;
+    std::uniform_int_distribution<int> d(-6, 6);
+    for (int i = 0; i < 1500; ++i) r.voxels.push_back(PackVoxel(d(rng), d(rng), 100 + d(rng)));
+    Region3D far;  // a second region far away: the box exceeds the bitmap on odd trials
+    far.voxel_m = 0.02;
+    far.voxels.push_back(PackVoxel(trial % 2 ? 200000 : 20, 0, 100));
+    std::sort(r.voxels.begin(), r.voxels.end());
+    r.voxels.erase(std::unique(r.voxels.begin(), r.voxels.end()), r.voxels.end());
+    const Region3D* both[] = {&r, &far};
+    const RegionLabels labels(both);
+    PinholeCamera cam;
+    cam.width = 96;
+    cam.height = 72;
+    cam.fx = cam.fy = 200;
+    cam.cx = 47.5;
+    cam.cy = 35.5;
+    Rigid3d pose;  // camera 2 m in front of the blob (z = 100 voxels = 2 m), slightly turned
+    pose.rotation = glm::angleAxis(0.05 * trial, glm::normalize(glm::dvec3(0.3, 1, 0.2)));
+    pose.translation = {0.01 * trial, -0.02, 0.0};
+    ImageF depth(cam.width, cam.height, 1, 0.f);
+    std::uniform_real_distribution<double> z(1.86, 2.16);
+    for (size_t i = 0; i < depth.size(); ++i)
+      depth.data()[i] = i % 3 == 0 ? static_cast<float>(std::round(z(rng) / 0.02) * 0.02)
+                                   : static_cast<float>(z(rng));
+    ImageU8 want(cam.width, cam.height, 1, 0);
+    for (int y = 0; y < cam.height; ++y)
+      for (int x = 0; x < cam.width; ++x) {
+        const float zz = depth.at(x, y);
+        if (zz > 0.f && labels.Contains(pose * cam.Unproject({x, y}, zz))) want.at(x, y) = 255;
+      }
+    ASSERT_GT(CountNonZero(want), 50) << trial;
+    RegionOptions sharp;  // no closing, no dilation: pixel for pixel
+    sharp.reproject_close_px = sharp.reproject_dilate_px = 0;
+    EXPECT_TRUE(ProjectRegions(labels, depth, cam, pose, sharp) == want) << "trial " << trial;
+    RegionOptions o;
+    cv::Mat m(cam.height, cam.width, CV_8UC1, want.data());
+    cv::morphologyEx(m, m, cv::MORPH_CLOSE,
+                     cv::getStructuringElement(cv::MORPH_ELLIPSE,
+                                               cv::Size(2 * o.reproject_close_px + 1, 2 * o.reproject_close_px + 1)));
+    cv::dilate(m, m, cv::getStructuringElement(cv::MORPH_ELLIPSE,
+                                               cv::Size(2 * o.reproject_dilate_px + 1, 2 * o.reproject_dilate_px + 1)));
+    EXPECT_TRUE(ProjectRegions(labels, depth, cam, pose, o) == want) << "trial " << trial;
+  }
 }
 
 }  // namespace

@@ -16,6 +16,7 @@
 #include <unistd.h>
 
 #include <cerrno>
+#include <cstdio>
 
 #include "common/log/log.h"
 #include "proto/frame_proto.h"
@@ -40,8 +41,12 @@ absl::Status InpaintingStageOptions::Validate() const {
   if (live_views < 1 || live_views > 64)
     return absl::InvalidArgumentError("inpaint_live_views must be in [1, 64]");
   if (nice < 0 || nice > 19) return absl::InvalidArgumentError("inpaint_nice must be in [0, 19]");
+  if (keyframe_nice < -1 || keyframe_nice > 19)
+    return absl::InvalidArgumentError("inpaint_keyframe_nice must be -1 (= inpaint_nice) or in [0, 19]");
   if (frame_nice < -1 || frame_nice > 19)
     return absl::InvalidArgumentError("inpaint_frame_nice must be -1 (= inpaint_nice) or in [0, 19]");
+  if (!(frame_backoff_ms >= 0.0 && frame_backoff_ms <= 60000.0))
+    return absl::InvalidArgumentError("inpaint_frame_backoff_ms must be in [0, 60000]");
   if (kf_crop_margin_px < 0 || !(kf_crop_margin_rel >= 0.0 && kf_crop_margin_rel <= 100.0))
     return absl::InvalidArgumentError(
         "inpaint_kf_crop_margin_px must be >= 0 and inpaint_kf_crop_margin_rel in [0, 100]");
@@ -60,6 +65,34 @@ double ThreadCpuMs() {
   return t.tv_sec * 1e3 + t.tv_nsec * 1e-6;
 }
 
+// How long the calling thread has waited runnable for a CPU (ms, the scheduler's run delay from
+// /proc/thread-self/schedstat; 0 where the kernel does not keep it).
+double ThreadRunDelayMs() {
+  FILE* f = std::fopen("/proc/thread-self/schedstat", "r");
+  if (!f) return 0.0;
+  unsigned long long run = 0, wait = 0;
+  const int n = std::fscanf(f, "%llu %llu", &run, &wait);
+  std::fclose(f);
+  return n == 2 ? wait * 1e-6 : 0.0;
+}
+
+// The calling thread's niceness (Linux: per thread), or `fallback` when it cannot be read.
+int ThreadNice(int fallback) {
+  const id_t tid = static_cast<id_t>(syscall(SYS_gettid));
+  errno = 0;
+  const int now = getpriority(PRIO_PROCESS, tid);
+  return errno != 0 ? fallback : now;
+}
+
+// Sets the calling thread's niceness to `base + nice` (clamped to 19; nice >= 0). Raising it
+// needs no privilege; lowering it again needs CAP_SYS_NICE or a large enough RLIMIT_NICE (Linux),
+// so that can fail (AdaptiveNice then keeps the thread at the nicer value).
+bool SetThreadNice(int base, int nice) {
+  const id_t tid = static_cast<id_t>(syscall(SYS_gettid));
+  const int target = std::min(19, base + std::max(0, nice));
+  return setpriority(PRIO_PROCESS, tid, target) == 0;
+}
+
 // Lowers the calling thread's priority by `nice` below the server's own (Linux: nice is per
 // thread; a server started at nice -10 runs these at 0).
 void NiceThisThread(int nice) {
@@ -72,6 +105,47 @@ void NiceThisThread(int nice) {
   if (setpriority(PRIO_PROCESS, tid, target) != 0)
     log::Get("inpainting")->warn("setpriority({}) failed: {}", target, errno);
 }
+
+// A stage thread's two priorities (InpaintingStageOptions::frame_backoff_ms): `fast` while
+// frames reach the stage soon after their admission, `slow` while they arrive late (the modelling
+// stages are behind and ingest would wait for them). Used on the thread itself.
+class AdaptiveNice {
+ public:
+  AdaptiveNice(const char* who, int fast, int slow, double backoff_ms)
+      : who_(who), fast_(fast), slow_(std::max(fast, slow)), backoff_ms_(backoff_ms) {}
+  void Start() {
+    base_ = ThreadNice(0);
+    backed_off_ = fast_ == slow_;
+    NiceThisThread(backed_off_ ? slow_ : fast_);
+  }
+  // Given the newest frame's delay from admission to the stage; true when it just backed off.
+  bool Update(double handoff_ms) {
+    if (fast_ == slow_ || backoff_ms_ <= 0) return false;
+    if (!backed_off_ && handoff_ms > backoff_ms_) {
+      backed_off_ = SetThreadNice(base_, slow_);
+      return backed_off_;
+    }
+    if (backed_off_ && can_return_ && handoff_ms < 0.5 * backoff_ms_) {
+      if (SetThreadNice(base_, fast_)) {
+        backed_off_ = false;
+      } else {
+        can_return_ = false;  // lowering the niceness again needs CAP_SYS_NICE or RLIMIT_NICE
+        log::Get("inpainting")->warn("the {} thread cannot return to nice {} (needs CAP_SYS_NICE "
+                                     "or RLIMIT_NICE); it stays at {}",
+                                     who_, base_ + fast_, base_ + slow_);
+      }
+    }
+    return false;
+  }
+  bool backed_off() const { return backed_off_; }
+
+ private:
+  const char* who_;
+  int fast_, slow_;
+  double backoff_ms_;
+  int base_ = 0;
+  bool backed_off_ = false, can_return_ = true;
+};
 
 DrOptions ToDrOptions(const InpaintingStageOptions& o) {
   DrOptions d;
@@ -138,6 +212,9 @@ class InpaintingStageImpl final : public InpaintingStage {
       if (!origin_) origin_ = ctx.origin;
       next_index = seen / options_.frame_stride;
     }
+    // How long after its admission the frame reached this (the last) stage: the modelling
+    // stages' delay, which the frame thread's priority follows (frame_backoff_ms).
+    const double handoff_ms = (SteadyNowNs() - pf.received_ns) * 1e-6;
     auto copy = std::make_shared<PipelineFrame>();
     copy->frame = f;  // ~2 MB at 640x480: well under a millisecond
     copy->received_ns = pf.received_ns;
@@ -147,6 +224,9 @@ class InpaintingStageImpl final : public InpaintingStage {
       slot_ = std::move(copy);
       slot_set_ = set;
       slot_index_ = next_index;
+      handoff_ms_ = handoff_ms;
+      handoff_ms_sum_ += handoff_ms;
+      ++handoffs_;
     }
     frame_cv_.notify_all();
     return absl::OkStatus();
@@ -169,12 +249,15 @@ class InpaintingStageImpl final : public InpaintingStage {
   // the live DR view, for the newest handed-off frame.
   void FrameLoop() {
     pthread_setname_np(pthread_self(), "exo-dr-frames");
-    NiceThisThread(options_.frame_nice >= 0 ? options_.frame_nice : options_.nice);
+    AdaptiveNice prio("DR frame", options_.frame_nice >= 0 ? options_.frame_nice : options_.nice,
+                      options_.nice, options_.frame_backoff_ms);
+    prio.Start();
     for (;;) {
       std::shared_ptr<PipelineFrame> pf;
       std::shared_ptr<const RegionSet> set;
       LocalOrigin origin;
       int64_t index = 0;
+      double handoff_ms = 0;
       {
         std::unique_lock lock(slot_mu_);
         frame_cv_.wait(lock, [this] { return frame_stop_ || slot_; });
@@ -185,6 +268,13 @@ class InpaintingStageImpl final : public InpaintingStage {
         index = slot_index_;
         origin = *origin_;
         frame_busy_ = true;
+        handoff_ms = handoff_ms_;
+      }
+      {
+        const bool backoff = prio.Update(handoff_ms);
+        std::lock_guard lock(slot_mu_);
+        frame_backoffs_ += backoff;
+        frames_backed_off_ += prio.backed_off();
       }
       ProcessFrame(*pf, set, origin, index);
       {
@@ -215,21 +305,29 @@ class InpaintingStageImpl final : public InpaintingStage {
     }
     const int64_t t0 = SteadyNowNs();
     const double c0 = ThreadCpuMs();
-    struct CpuTally {  // CPU of this frame's work on the frame thread, however it returns
+    struct CpuTally {  // CPU, wall and run delay of this frame's work, however it returns
       InpaintingStageImpl* self;
-      double c0;
+      double c0, r0;
+      int64_t t0, received_ns;
       ~CpuTally() {
+        const double cpu = ThreadCpuMs() - c0, runq = ThreadRunDelayMs() - r0;
+        const int64_t t1 = SteadyNowNs();
         std::lock_guard lock(self->mu_);
-        self->frame_cpu_ms_ += ThreadCpuMs() - c0;
+        self->frame_cpu_ms_ += cpu;
+        self->frame_wall_ms_ += (t1 - t0) * 1e-6;
+        self->frame_runq_ms_ += runq;
+        self->frame_pickup_ms_ += (t0 - received_ns) * 1e-6;
         ++self->frames_measured_;
       }
-    } tally{this, c0};
+    } tally{this, c0, ThreadRunDelayMs(), t0, pf.received_ns};
     const Rigid3d local_from_cam = origin.ToLocal(f.world_from_cam);
     ImageF depth = core::RegisterDepthToColor(f);
+    const double c1 = ThreadCpuMs();
     ImageU8 mask = inpainting::ProjectRegions(set->labels, depth, f.color_camera, local_from_cam,
                                               options_.region);
     const int roi = inpainting::CountNonZero(mask);
     inpainting::RgbdKeyframe frame{f.color, std::move(depth), f.color_camera, local_from_cam};
+    const double c2 = ThreadCpuMs();
     Job job;
     bool submit = false;
     inpainting::DrLiveSnapshot snap;
@@ -266,6 +364,10 @@ class InpaintingStageImpl final : public InpaintingStage {
           AddObservationLocked(frame, mask, index);
         }
       }
+      phase_register_cpu_ms_ += c1 - c0;
+      phase_project_cpu_ms_ += c2 - c1;
+      phase_rule_cpu_ms_ += ThreadCpuMs() - c2;
+      ++phase_frames_;
     }
     if (submit) {
       job.regions = set;
@@ -314,6 +416,7 @@ class InpaintingStageImpl final : public InpaintingStage {
       std::lock_guard lock(mu_);
       lf->index = ++live_frames_;
       live_composited_ += lf->composited;
+      live_roi_px_ += lf->roi_px;
       live_ms_ += ms;
       live_cpu_ms_ += cpu;
       live_latency_ms_ += lf->latency_ms;
@@ -365,9 +468,31 @@ class InpaintingStageImpl final : public InpaintingStage {
     // CPU of the stage's per-frame work on the pipeline thread (registration, re-projection,
     // the rule, observation copies), frames that got past the busy check.
     c["inpainting.frame_cpu_ms_mean"] = frames_measured_ ? frame_cpu_ms_ / frames_measured_ : 0.0;
+    // The frame thread per looked-at frame: wall, time runnable but waiting for a CPU (run
+    // delay), time from the frame's admission to the thread taking it, and the CPU by phase
+    // (depth registration; re-projection of the labels; rule + snapshot + observation copy under
+    // the lock); the compose is live_compose_cpu_ms_mean.
+    c["inpainting.frame_wall_ms_mean"] = frames_measured_ ? frame_wall_ms_ / frames_measured_ : 0.0;
+    c["inpainting.frame_runq_ms_mean"] = frames_measured_ ? frame_runq_ms_ / frames_measured_ : 0.0;
+    c["inpainting.frame_pickup_ms_mean"] =
+        frames_measured_ ? frame_pickup_ms_ / frames_measured_ : 0.0;
+    c["inpainting.frame_register_cpu_ms_mean"] =
+        phase_frames_ ? phase_register_cpu_ms_ / phase_frames_ : 0.0;
+    c["inpainting.frame_project_cpu_ms_mean"] =
+        phase_frames_ ? phase_project_cpu_ms_ / phase_frames_ : 0.0;
+    c["inpainting.frame_rule_cpu_ms_mean"] = phase_frames_ ? phase_rule_cpu_ms_ / phase_frames_ : 0.0;
+    // The keyframe thread: run delay per keyframe (waiting for a CPU while computing it).
+    c["inpainting.keyframe_runq_ms_mean"] = published_ ? keyframe_runq_ms_ / published_ : 0.0;
     c["inpainting.in_flight"] = (job_ || busy_) ? 1.0 : 0.0;  // a keyframe is being computed
     // Frames handed to the frame thread that a newer one replaced before it was looked at.
     c["inpainting.frames_superseded"] = static_cast<double>(frames_superseded_);
+    // Delay from admission to this stage's hand-off, and the frame thread's priority back-offs
+    // (frame_backoff_ms): times it went to inpaint_nice, frames it looked at while there.
+    c["inpainting.handoff_latency_ms_mean"] = handoffs_ ? handoff_ms_sum_ / handoffs_ : 0.0;
+    c["inpainting.frame_backoffs"] = static_cast<double>(frame_backoffs_);
+    c["inpainting.frames_backed_off"] = static_cast<double>(frames_backed_off_);
+    c["inpainting.keyframe_backoffs"] = static_cast<double>(keyframe_backoffs_);
+    c["inpainting.keyframe_jobs_backed_off"] = static_cast<double>(jobs_backed_off_);
     c["inpainting.frames_looked_at"] = static_cast<double>(frames_looked_);
     // The live DR view: frames out, of them composited (a keyframe existed, ROI in view), and
     // per frame the compose's wall / CPU and the latency from admission to output.
@@ -377,6 +502,11 @@ class InpaintingStageImpl final : public InpaintingStage {
     c["inpainting.live_compose_cpu_ms_mean"] = live_frames_ ? live_cpu_ms_ / live_frames_ : 0.0;
     c["inpainting.live_latency_ms_mean"] = live_frames_ ? live_latency_ms_ / live_frames_ : 0.0;
     c["inpainting.live_watchers"] = static_cast<double>(watchers_);
+    // ROI pixels per live frame and per keyframe (the per-pixel work scales with them).
+    c["inpainting.live_roi_px_mean"] = live_frames_ ? double(live_roi_px_) / live_frames_ : 0.0;
+    c["inpainting.keyframe_roi_px_mean"] = published_ ? double(keyframe_roi_px_) / published_ : 0.0;
+    c["inpainting.keyframe_hallucinated_px_mean"] =
+        published_ ? double(keyframe_hallucinated_px_) / published_ : 0.0;
   }
 
   uint32_t Withdraw() override {
@@ -533,7 +663,10 @@ class InpaintingStageImpl final : public InpaintingStage {
 
   void WorkerLoop() {
     pthread_setname_np(pthread_self(), "exo-dr-keyframe");
-    NiceThisThread(options_.nice);
+    AdaptiveNice prio("DR keyframe",
+                      options_.keyframe_nice >= 0 ? options_.keyframe_nice : options_.nice,
+                      options_.nice, options_.frame_backoff_ms);
+    prio.Start();
     auto log = log::Get("inpainting");
     for (;;) {
       Job job;
@@ -544,6 +677,17 @@ class InpaintingStageImpl final : public InpaintingStage {
         job = std::move(*job_);
         job_.reset();
         busy_ = true;
+      }
+      {
+        double handoff_ms = 0;
+        {
+          std::lock_guard slot(slot_mu_);
+          handoff_ms = handoff_ms_;
+        }
+        const bool backoff = prio.Update(handoff_ms);
+        std::lock_guard lock(mu_);
+        keyframe_backoffs_ += backoff;
+        jobs_backed_off_ += prio.backed_off();
       }
       if (job.refresh) {
         const double c0 = ThreadCpuMs();
@@ -561,9 +705,13 @@ class InpaintingStageImpl final : public InpaintingStage {
         continue;
       }
       const int64_t t0 = SteadyNowNs();
-      const double c0 = ThreadCpuMs();
+      const double c0 = ThreadCpuMs(), r0 = ThreadRunDelayMs();
       absl::StatusOr<DrKeyframe> r = DiminishedReality::ComputeKeyframe(job.dr, dr_options_);
       const double ms = (SteadyNowNs() - t0) * 1e-6, cpu_ms = ThreadCpuMs() - c0;
+      {
+        std::lock_guard lock(mu_);
+        keyframe_runq_ms_ += ThreadRunDelayMs() - r0;
+      }
       if (!r.ok()) {
         // E.g. "no valid source patch": the ROI stays as observed in this frame.
         log->warn("inpainting keyframe failed: {}", std::string(r.status().message()));
@@ -645,6 +793,7 @@ class InpaintingStageImpl final : public InpaintingStage {
       sum_cpu_ms_ += cpu_ms;
       keyframe_roi_px_ += roi_px;
       keyframe_observed_px_ += k.observed_px;
+      keyframe_hallucinated_px_ += k.hallucinated_px;
       if (k.propagated) {
         ++propagated_;
         propagated_ms_ += ms;
@@ -700,6 +849,8 @@ class InpaintingStageImpl final : public InpaintingStage {
   std::optional<LocalOrigin> origin_;
   bool frame_busy_ = false;
   uint64_t frames_superseded_ = 0, frames_looked_ = 0;
+  double handoff_ms_ = 0, handoff_ms_sum_ = 0;  // the newest frame's; sum over hand-offs
+  uint64_t handoffs_ = 0, frame_backoffs_ = 0, frames_backed_off_ = 0;
   // The live DR view.
   int watchers_ = 0;
   inpainting::DrLiveState live_state_;  // frame thread only
@@ -722,10 +873,16 @@ class InpaintingStageImpl final : public InpaintingStage {
   uint64_t published_ = 0, propagated_ = 0, discarded_ = 0, failed_ = 0, frames_with_roi_ = 0,
            frames_without_roi_ = 0, skipped_busy_ = 0, withdrawn_ = 0, decisions_ = 0,
            frames_seen_ = 0, frames_strided_ = 0, refreshed_ = 0, refreshed_px_ = 0, refresh_jobs_ = 0;
-  int64_t decide_ns_ = 0, keyframe_roi_px_ = 0, keyframe_observed_px_ = 0;
+  int64_t decide_ns_ = 0, keyframe_roi_px_ = 0, keyframe_observed_px_ = 0,
+          keyframe_hallucinated_px_ = 0, live_roi_px_ = 0;
   double first_cpu_ms_ = 0, propagated_cpu_ms_ = 0;
   double first_ms_ = 0, propagated_ms_ = 0, last_ms_ = 0, sum_ms_ = 0, sum_cpu_ms_ = 0;
   double refresh_cpu_ms_ = 0, frame_cpu_ms_ = 0;  // worker's refreshes; pipeline thread per frame
+  double frame_wall_ms_ = 0, frame_runq_ms_ = 0, frame_pickup_ms_ = 0;
+  double phase_register_cpu_ms_ = 0, phase_project_cpu_ms_ = 0, phase_rule_cpu_ms_ = 0;
+  uint64_t phase_frames_ = 0;
+  double keyframe_runq_ms_ = 0;
+  uint64_t keyframe_backoffs_ = 0, jobs_backed_off_ = 0;  // under mu_
   uint64_t frames_measured_ = 0;
   std::string last_error_;
   std::thread worker_, frames_thread_, publisher_;

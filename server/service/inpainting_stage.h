@@ -63,8 +63,19 @@ struct InpaintingStageOptions {
   // The stage's two threads (frames, keyframes) run this much nicer than the server: the DR
   // work yields the CPU to ingest and the modelling stages (0 = the server's priority).
   int nice = 10;
-  // The frame thread's own niceness (the live DR view's rate); -1 = `nice`.
+  // The frame thread's own niceness (the live DR view's rate) while the pipeline keeps up;
+  // -1 = `nice`. Its work is bounded (only the newest frame, the live view only while watched).
+  // Default -1: at 0 (with keyframe_nice 0) the live view ran at 12-21 fps instead of 10-11 on a
+  // quiet machine, but the geometry stage shed 45-55 of 150 frames instead of 7-8 and one run
+  // dropped 6 of 142 at admission (docs/inpainting.md, Session 14).
   int frame_nice = -1;
+  // The keyframe thread's niceness (keyframe latency) while the pipeline keeps up; -1 = `nice`.
+  int keyframe_nice = -1;
+  // Both threads back off to `nice` while frames reach this stage more than this many ms
+  // after their admission (the modelling stages are behind: ingest comes first; at 30 Hz the
+  // admission queue of 8 is full at ~270 ms), and returns to
+  // `frame_nice` / `keyframe_nice` once they arrive within half of it again. 0 = never back off.
+  double frame_backoff_ms = 250.0;
   // "dr": a keyframe inpaints a crop around its ROI (DrOptions::kf_crop_margin_*; 0 / 0 = whole).
   int kf_crop_margin_px = 0;
   double kf_crop_margin_rel = 0.0;

@@ -7,6 +7,11 @@
 #include "server/service/inpainting_stage.h"
 
 #include <gtest/gtest.h>
+#include <sys/resource.h>
+#include <sys/syscall.h>
+#include <unistd.h>
+
+#include <thread>
 
 #include "server/inpainting/test_scenes.h"
 
@@ -192,6 +197,12 @@ TEST(InpaintingStage, DrKeyframesTakeObservedColourSessionNineDoesNot) {
   bad = InpaintingStageOptions();
   bad.method = "magic";
   EXPECT_FALSE(bad.Validate().ok());
+  bad = InpaintingStageOptions();
+  bad.frame_backoff_ms = -1;
+  EXPECT_FALSE(bad.Validate().ok());
+  bad = InpaintingStageOptions();
+  bad.keyframe_nice = 20;
+  EXPECT_FALSE(bad.Validate().ok());
 }
 
 TEST(InpaintingStage, FrameStrideLooksAtEveryNthFrame) {
@@ -323,6 +334,55 @@ TEST(InpaintingStage, LiveViewRemovesTheBoxWhileWatched) {
   for (int k = 0; k < 10; ++k) ASSERT_TRUE(rig.stage->Process(rig.Frame(0.1 + 0.01 * k), rig.ctx).ok());
   ASSERT_TRUE(rig.stage->WaitIdle(30));
   EXPECT_EQ(rig.Counter("frames_looked_at") - looked + rig.Counter("frames_superseded"), 10.0);
+}
+
+// Whether a thread of this process may lower its niceness again (root, CAP_SYS_NICE or
+// RLIMIT_NICE): probed on a throw-away thread.
+bool CanReturnFromNice() {
+  bool ok = false;
+  std::thread([&] {
+    const id_t tid = static_cast<id_t>(syscall(SYS_gettid));
+    const int now = getpriority(PRIO_PROCESS, tid);
+    ok = now < 19 && setpriority(PRIO_PROCESS, tid, now + 1) == 0 &&
+         setpriority(PRIO_PROCESS, tid, now) == 0;
+  }).join();
+  return ok;
+}
+
+// The frame thread runs at frame_nice while frames reach the stage soon after admission, drops
+// to inpaint_nice when they arrive late (the modelling stages are behind), and returns.
+TEST(InpaintingStage, FrameThreadBacksOffWhileThePipelineIsBehind) {
+  InpaintingStageOptions o;
+  o.frame_nice = 0;
+  o.nice = 10;
+  o.frame_backoff_ms = 200;
+  Rig rig(160, 120, o);
+  PipelineFrame pf = rig.Frame(0.0);
+  pf.received_ns = SteadyNowNs();
+  ASSERT_TRUE(rig.stage->Process(pf, rig.ctx).ok());
+  ASSERT_TRUE(rig.stage->WaitIdle(30));
+  EXPECT_EQ(rig.Counter("frame_backoffs"), 0.0);
+  EXPECT_EQ(rig.Counter("frames_backed_off"), 0.0);
+  pf.received_ns = SteadyNowNs() - 2'000'000'000;  // admitted 2 s ago
+  ASSERT_TRUE(rig.stage->Process(pf, rig.ctx).ok());
+  ASSERT_TRUE(rig.stage->WaitIdle(30));
+  EXPECT_EQ(rig.Counter("frame_backoffs"), 1.0);
+  EXPECT_EQ(rig.Counter("frames_backed_off"), 1.0);
+  EXPECT_GT(rig.Counter("handoff_latency_ms_mean"), 900.0);
+  // Still late: stays backed off (no second back-off).
+  pf.received_ns = SteadyNowNs() - 2'000'000'000;
+  ASSERT_TRUE(rig.stage->Process(pf, rig.ctx).ok());
+  ASSERT_TRUE(rig.stage->WaitIdle(30));
+  EXPECT_EQ(rig.Counter("frame_backoffs"), 1.0);
+  EXPECT_EQ(rig.Counter("frames_backed_off"), 2.0);
+  pf.received_ns = SteadyNowNs();  // on time again
+  ASSERT_TRUE(rig.stage->Process(pf, rig.ctx).ok());
+  ASSERT_TRUE(rig.stage->WaitIdle(30));
+  if (CanReturnFromNice())
+    EXPECT_EQ(rig.Counter("frames_backed_off"), 2.0);  // back at frame_nice
+  else
+    std::printf("no privilege to lower the niceness again: the frame thread stays backed off\n");
+  EXPECT_EQ(rig.Counter("frame_backoffs"), 1.0);
 }
 
 }  // namespace
