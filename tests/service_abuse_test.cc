@@ -124,16 +124,20 @@ TEST_F(Abuse, CountAndByteLimitsAnswerResourceExhaustedWithTheLimit) {
 // the viewers end digest-equal; every never-reader is timed out (subscriber_write_timeout_s = 2).
 TEST_F(Abuse, NeverReadingSubscribersAreBoundedSharedAndTimedOut) {
   abuse::Options o;
-  // Full-resolution proxy on the wire (no clients' LOD, 16-bit format-2 chunks): the model must stay far beyond a
-  // stream's flow-control window for the never-readers' Writes to block.
-  Start({"--subscriber_write_timeout_s=2", "--chunk_lod_error_voxels=0", "--chunk_step_voxels=0"});
+  // Full-resolution proxy on the wire (no clients' LOD, 16-bit format-2 chunks, a snapshot's chunks
+  // one by one instead of zstd batches): the model must stay far beyond a stream's flow-control
+  // window for the never-readers' Writes to block.
+  const std::vector<std::string> flags = {"--subscriber_write_timeout_s=2",
+                                          "--chunk_lod_error_voxels=0", "--chunk_step_voxels=0",
+                                          "--snapshot_chunk_batch_bytes=0"};
+  Start(flags);
   abuse::Options base_o = o;
   base_o.never_readers = 0;
   const abuse::Result base = abuse::Run(target_, server_->pid(), base_o);
   ASSERT_TRUE(base.error.empty()) << base.error;
   server_->Signal(SIGTERM);
   server_->Wait(10);
-  Start({"--subscriber_write_timeout_s=2", "--chunk_lod_error_voxels=0", "--chunk_step_voxels=0"});
+  Start(flags);
   const abuse::Result r = abuse::Run(target_, server_->pid(), o);
   ASSERT_TRUE(r.error.empty()) << r.error;
   std::printf(
