@@ -586,6 +586,33 @@ absl::StatusOr<TriangleMesh> MeshFromProto(const v1::MeshChunkUpserted& msg) {
   return m;
 }
 
+// ---- packed payloads: u32 little-endian size N of the raw bytes, then one zstd frame of them ----
+namespace {
+std::string SizedZstdPayload(size_t raw_size, const std::vector<uint8_t>& z) {
+  std::string packed;
+  packed.reserve(4 + z.size());
+  PutLe<uint32_t>(&packed, static_cast<uint32_t>(raw_size));
+  packed.append(reinterpret_cast<const char*>(z.data()), z.size());
+  return packed;
+}
+
+// The raw bytes of a packed payload; a cut header, a size outside [1, max_bytes], a corrupt or
+// truncated frame are errors naming `what`.
+absl::StatusOr<std::string> UnpackSizedZstd(const std::string& b, size_t max_bytes,
+                                            const char* what) {
+  if (b.size() < 4) return absl::InvalidArgumentError(absl::StrCat(what, ": packed header cut"));
+  const uint32_t raw_size = GetLe<uint32_t>(b.data());
+  if (raw_size == 0 || raw_size > max_bytes)
+    return absl::InvalidArgumentError(absl::StrCat(what, ": ", raw_size,
+                                                   " packed bytes outside [1, ", max_bytes, "]"));
+  std::string raw(raw_size, '\0');
+  EXO_RETURN_IF_ERROR(ZstdDecompress(
+      std::span<const uint8_t>(reinterpret_cast<const uint8_t*>(b.data()) + 4, b.size() - 4),
+      reinterpret_cast<uint8_t*>(raw.data()), raw.size(), what));
+  return raw;
+}
+}  // namespace
+
 // ---- cell references ----
 namespace {
 constexpr size_t kMaxCellRefsBytes = size_t{64} << 20;  // a whole 200-view model is ~0.2 MB
@@ -598,29 +625,16 @@ void PackCellRefs(v1::CellRefsChanged* msg) {
   auto z = ZstdCompress(reinterpret_cast<const uint8_t*>(raw.data()), raw.size(), 9,
                         std::vector<uint8_t>{});
   if (!z.ok() || z->size() + 4 >= raw.size()) return;  // not smaller: stay plain
-  std::string packed;
-  packed.reserve(4 + z->size());
-  PutLe<uint32_t>(&packed, static_cast<uint32_t>(raw.size()));
-  packed.append(reinterpret_cast<const char*>(z->data()), z->size());
   msg->Clear();
-  msg->set_packed(std::move(packed));
+  msg->set_packed(SizedZstdPayload(raw.size(), *z));
 }
 
 absl::StatusOr<v1::CellRefsChanged> UnpackCellRefs(const v1::CellRefsChanged& msg) {
   if (msg.packed().empty()) return msg;
   if (msg.cells_size() > 0 || msg.coverage_size() > 0)
     return absl::InvalidArgumentError("cell refs: both packed and plain entries");
-  const std::string& b = msg.packed();
-  if (b.size() < 4) return absl::InvalidArgumentError("cell refs: packed header cut");
-  const uint32_t raw_size = GetLe<uint32_t>(b.data());
-  if (raw_size == 0 || raw_size > kMaxCellRefsBytes)
-    return absl::InvalidArgumentError(absl::StrCat("cell refs: ", raw_size,
-                                                   " packed bytes outside [1, ",
-                                                   kMaxCellRefsBytes, "]"));
-  std::string raw(raw_size, '\0');
-  EXO_RETURN_IF_ERROR(ZstdDecompress(
-      std::span<const uint8_t>(reinterpret_cast<const uint8_t*>(b.data()) + 4, b.size() - 4),
-      reinterpret_cast<uint8_t*>(raw.data()), raw.size(), "cell refs"));
+  EXO_ASSIGN_OR_RETURN(const std::string raw,
+                       UnpackSizedZstd(msg.packed(), kMaxCellRefsBytes, "cell refs"));
   v1::CellRefsChanged out;
   if (!out.ParseFromString(raw)) return absl::InvalidArgumentError("cell refs: packed payload does not parse");
   if (!out.packed().empty()) return absl::InvalidArgumentError("cell refs: nested packed payload");
@@ -651,27 +665,14 @@ absl::StatusOr<v1::MeshChunkBatch> PackMeshChunks(
   EXO_ASSIGN_OR_RETURN(const std::vector<uint8_t> z,
                        ZstdCompress(reinterpret_cast<const uint8_t*>(raw.data()), raw.size(),
                                     level, std::vector<uint8_t>{}));
-  std::string packed;
-  packed.reserve(4 + z.size());
-  PutLe<uint32_t>(&packed, static_cast<uint32_t>(raw.size()));
-  packed.append(reinterpret_cast<const char*>(z.data()), z.size());
   v1::MeshChunkBatch out;
-  out.set_packed(std::move(packed));
+  out.set_packed(SizedZstdPayload(raw.size(), z));
   return out;
 }
 
 absl::StatusOr<std::vector<v1::MeshChunkUpserted>> UnpackMeshChunks(const v1::MeshChunkBatch& batch) {
-  const std::string& b = batch.packed();
-  if (b.size() < 4) return absl::InvalidArgumentError("mesh chunk batch: header cut");
-  const uint32_t raw_size = GetLe<uint32_t>(b.data());
-  if (raw_size == 0 || raw_size > kMaxChunkBatchBytes)
-    return absl::InvalidArgumentError(absl::StrCat("mesh chunk batch: ", raw_size,
-                                                   " packed bytes outside [1, ",
-                                                   kMaxChunkBatchBytes, "]"));
-  std::string raw(raw_size, '\0');
-  EXO_RETURN_IF_ERROR(ZstdDecompress(
-      std::span<const uint8_t>(reinterpret_cast<const uint8_t*>(b.data()) + 4, b.size() - 4),
-      reinterpret_cast<uint8_t*>(raw.data()), raw.size(), "mesh chunk batch"));
+  EXO_ASSIGN_OR_RETURN(const std::string raw,
+                       UnpackSizedZstd(batch.packed(), kMaxChunkBatchBytes, "mesh chunk batch"));
   v1::MeshChunkList list;
   if (!list.ParseFromString(raw))
     return absl::InvalidArgumentError("mesh chunk batch: payload does not parse");

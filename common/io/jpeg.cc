@@ -45,15 +45,20 @@ int FindSofMarker(std::span<const uint8_t> b) {
   return 0;
 }
 
-}  // namespace
-
-absl::StatusOr<std::vector<uint8_t>> EncodeJpeg(const ImageU8& rgb, int quality) {
+absl::Status CheckEncodeInput(const ImageU8& rgb, int quality) {
   if (rgb.empty() || rgb.channels() != 3)
     return absl::InvalidArgumentError(absl::StrCat("EncodeJpeg needs a non-empty RGB8 image, got ",
                                                    rgb.width(), "x", rgb.height(), "x",
                                                    rgb.channels()));
   if (quality < 1 || quality > 100)
     return absl::InvalidArgumentError(absl::StrCat("JPEG quality ", quality, " not in [1, 100]"));
+  return absl::OkStatus();
+}
+
+}  // namespace
+
+absl::StatusOr<std::vector<uint8_t>> EncodeJpeg(const ImageU8& rgb, int quality) {
+  EXO_RETURN_IF_ERROR(CheckEncodeInput(rgb, quality));
   TjHandle h(tjInitCompress());
   if (!h) return absl::InternalError("tjInitCompress failed");
   unsigned char* out = nullptr;
@@ -79,12 +84,7 @@ struct JpegErrorJump {
 }  // namespace
 
 absl::StatusOr<std::vector<uint8_t>> EncodeJpegOptimized(const ImageU8& rgb, int quality) {
-  if (rgb.empty() || rgb.channels() != 3)
-    return absl::InvalidArgumentError(absl::StrCat("EncodeJpeg needs a non-empty RGB8 image, got ",
-                                                   rgb.width(), "x", rgb.height(), "x",
-                                                   rgb.channels()));
-  if (quality < 1 || quality > 100)
-    return absl::InvalidArgumentError(absl::StrCat("JPEG quality ", quality, " not in [1, 100]"));
+  EXO_RETURN_IF_ERROR(CheckEncodeInput(rgb, quality));
   // libjpeg reports errors by longjmp out of error_exit: nothing with a destructor lives
   // between setjmp and the last libjpeg call.
   jpeg_compress_struct cinfo{};
