@@ -2105,8 +2105,8 @@ class App {
   bool frame_moving_ = true;  // the frame on screen was rendered for a moving camera  // longest UI-loop iteration (input to present), waits excluded
   // The live DR view (key V): the subscription (only while the mode is on) and its newest frame.
   bool dr_mode_ = false;
-  std::unique_ptr<DrViewWatcher> dr_watch_;
-  DrLive dr_;
+  DrLive dr_;                                // before dr_watch_: its thread writes here
+  std::unique_ptr<DrViewWatcher> dr_watch_;  // (destroyed first)
   uint64_t dr_shown_sequence_ = 0;
   std::string dr_note_;  // why the DR view cannot be watched at all (no server)  // the uploaded frame's sequence of the DR picture on screen
 };
