@@ -378,6 +378,39 @@ TEST(RenderScheduler, ModelChangeRerendersAndErrorsStopTheWorker) {
   s.Stop();
 }
 
+// A 0 x 0 view pauses the worker (the window shows the live DR view instead): model changes
+// render nothing until a real view is posted again, which is rendered (and refined) at once.
+TEST(RenderScheduler, ZeroSizedViewPausesRendering) {
+  std::atomic<bool> model_changed{false};
+  std::atomic<int> renders{0}, polls{0};
+  RenderScheduler<int> s(
+      sched::Fixed4(),
+      [&](const RenderJob&, int*) {
+        renders.fetch_add(1);
+        return absl::OkStatus();
+      },
+      [&] {
+        polls.fetch_add(1);
+        return absl::StatusOr<bool>(model_changed.exchange(false));
+      },
+      [] {}, 5);
+  s.Post(sched::At(1));
+  ASSERT_TRUE(sched::WaitFor([&] { return s.converged(); }));
+  EXPECT_EQ(renders.load(), 3);
+  ViewRequest paused = sched::At(1);
+  paused.width = paused.height = 0;
+  s.Post(paused);
+  std::this_thread::sleep_for(std::chrono::milliseconds(30));
+  const int polls_paused = polls.load();
+  model_changed = true;  // a live delta while paused: not rendered
+  std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  EXPECT_EQ(renders.load(), 3);
+  EXPECT_EQ(polls.load(), polls_paused);  // nor polled (the model syncs when the view resumes)
+  s.Post(sched::At(1));  // back: the changed model is picked up and rendered 4 2 1
+  ASSERT_TRUE(sched::WaitFor([&] { return renders.load() == 6 && s.converged(); }));
+  EXPECT_TRUE(s.status().ok());
+}
+
 }  // namespace
 }  // namespace exo::nav
 

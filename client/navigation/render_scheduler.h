@@ -27,7 +27,7 @@ namespace exo::nav {
 
 struct ViewRequest {
   Rigid3d pose;  // local_from_cam
-  int width = 0, height = 0;  // window size (pixels); nothing is rendered while 0
+  int width = 0, height = 0;  // window size (pixels); nothing is rendered (paused) while 0
   uint64_t epoch = 0;         // bump to force a re-render of the same pose (e.g. overlays on)
   bool operator==(const ViewRequest& o) const {
     return pose.translation == o.pose.translation && pose.rotation == o.pose.rotation &&
@@ -133,6 +133,10 @@ class RenderScheduler {
         if (!has_request_) continue;
         rq = request_;
         seen = serial_;
+      }
+      if (rq.width <= 0 || rq.height <= 0) {  // paused (e.g. the window shows the live DR view):
+        refining = false;                     // no renders, the model is not polled either
+        continue;
       }
       absl::StatusOr<bool> polled = poll_();
       if (!polled.ok()) return Fail(polled.status());

@@ -10,11 +10,13 @@
 #include <cmath>
 #include <condition_variable>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <map>
 #include <mutex>
 #include <nlohmann/json.hpp>
+#include <span>
 #include <thread>
 #include <vector>
 
@@ -377,6 +379,120 @@ struct WindowFrame {
   std::shared_ptr<const SceneInfo> info;  // the model the frame shows
   double gpu_ms = 0;                      // submit-to-fence of the blend
 };
+
+// The window's live DR view (key V; issue 18 item 4): the newest DrViewFrame the server's
+// WatchDrView stream sent (the live camera's frame with the marked regions removed), decoded on
+// the watcher's thread; the UI thread presents it instead of the free-viewpoint render.
+struct DrLive {
+  std::mutex mu;
+  ImageU8 image;           // the newest frame (RGB8)
+  bool fresh = false;      // not presented yet
+  uint64_t frames = 0;     // received since the mode was switched on
+  uint64_t sequence = 0;   // the uploaded frame's sequence
+  bool composited = false;
+  uint32_t roi_px = 0;
+  double latency_ms = 0;   // the server's admission -> output
+  std::string error;       // a frame that could not be decoded
+  Clock::time_point arrived{};
+  std::vector<Clock::time_point> recent;  // arrivals in the last 2 s (fps)
+
+  void Reset() {
+    std::lock_guard lock(mu);
+    image = ImageU8();
+    fresh = false;
+    frames = sequence = 0;
+    composited = false;
+    roi_px = 0;
+    latency_ms = 0;
+    error.clear();
+    arrived = {};
+    recent.clear();
+  }
+  // Runs on the watcher's thread.
+  void Take(const v1::DrViewFrame& m) {
+    absl::StatusOr<ImageU8> img = absl::InvalidArgumentError("the frame carries no picture");
+    if (!m.color_jpeg().empty()) {
+      img = DecodeJpeg(std::span<const uint8_t>(
+          reinterpret_cast<const uint8_t*>(m.color_jpeg().data()), m.color_jpeg().size()));
+    } else if (m.width() > 0 && m.height() > 0 &&
+               m.color_rgb().size() == size_t(m.width()) * m.height() * 3) {
+      ImageU8 raw(int(m.width()), int(m.height()), 3);
+      std::memcpy(raw.data(), m.color_rgb().data(), m.color_rgb().size());
+      img = std::move(raw);
+    }
+    const auto now = Clock::now();
+    std::lock_guard lock(mu);
+    if (!img.ok()) {
+      error = std::string(img.status().message());
+      return;
+    }
+    image = *std::move(img);
+    fresh = true;
+    ++frames;
+    sequence = m.sequence();
+    composited = m.composited();
+    roi_px = m.roi_px();
+    latency_ms = m.latency_ms();
+    error.clear();
+    arrived = now;
+    recent.push_back(now);
+    while (!recent.empty() && now - recent.front() > std::chrono::seconds(2))
+      recent.erase(recent.begin());
+  }
+};
+
+// Why the DR stream is not delivering (the watcher's status), or "" while it is fine.
+std::string DrWatchProblem(const std::string& watch_status) {
+  if (watch_status.rfind("error: 12 ", 0) == 0)
+    return "the server has no DR view (inpainting off): " + watch_status.substr(10);
+  if (watch_status.rfind("error: 14 ", 0) == 0)
+    return "the server is unreachable (" + watch_status.substr(10) + "), retrying every 2 s";
+  if (watch_status.rfind("error:", 0) == 0) return watch_status + ", retrying every 2 s";
+  return "";
+}
+
+// What the HUD says about the live DR view, from the watcher's status and the newest frame;
+// *ok: a good picture is on screen (the line may then be hidden with Tab).
+std::string DrHudLine(const std::string& watch_status, DrLive& d, bool* ok) {
+  std::lock_guard lock(d.mu);
+  char b[256];
+  *ok = false;
+  const std::string problem = DrWatchProblem(watch_status);
+  if (d.frames > 0) {
+    const double age_ms = MsSince(d.arrived);
+    if (!problem.empty()) {
+      std::snprintf(b, sizeof(b), " (last frame seq %llu, %.1f s ago)",
+                    (unsigned long long)d.sequence, age_ms * 1e-3);
+      return "live DR view (V): " + problem + b;
+    }
+    double fps = 0;
+    if (d.recent.size() >= 2)
+      fps = (d.recent.size() - 1) /
+            std::max(1e-3, std::chrono::duration<double>(d.recent.back() - d.recent.front()).count());
+    std::snprintf(b, sizeof(b), "live DR view (V): frame seq %llu  age %.0f ms  %.1f fps  ",
+                  (unsigned long long)d.sequence, age_ms, fps);
+    std::string line = b;
+    if (d.composited) {
+      std::snprintf(b, sizeof(b), "regions removed (%u px)  server latency %.0f ms", d.roi_px,
+                    d.latency_ms);
+      *ok = age_ms <= 2000;
+    } else if (d.roi_px == 0) {
+      std::snprintf(b, sizeof(b), "no marked region in view: the camera's frame as it is");
+    } else {
+      std::snprintf(b, sizeof(b), "no inpainted keyframe yet (%u px marked): frame as it is",
+                    d.roi_px);
+    }
+    line += b;
+    if (age_ms > 2000) line += "  (no new frame: camera stopped, or the regions cleared)";
+    if (!d.error.empty()) line += "  [bad frame: " + d.error + "]";
+    return line;
+  }
+  if (!problem.empty()) return "live DR view (V): " + problem;
+  if (!d.error.empty()) return "live DR view (V): bad frame: " + d.error;
+  // The server sends DR frames only while a region is marked and the camera uploads.
+  return "live DR view (V): " + watch_status +
+         ", no frame yet: nothing marked on the server, or the camera is not uploading";
+}
 
 class App {
  public:
@@ -939,9 +1055,63 @@ class App {
     ImGui::SameLine();
     ImGui::Checkbox("drone", &show_drone_);
     ImGui::TextDisabled(
-        "WASD/QE move, drag/arrows look, wheel speed, right-click pick, R F G Tab 1-5 P Esc");
+        "WASD/QE move, drag/arrows look, wheel speed, right-click pick, R F G V Tab 1-5 P Esc");
     const ImVec2 hp = ImGui::GetWindowPos(), hs = ImGui::GetWindowSize();
     probe_["hud"] = {hp.x, hp.y, hs.x, hs.y};
+    ImGui::End();
+  }
+
+  // Key V: the live DR view on (subscribe to the server's WatchDrView, on the same channel
+  // security as the model's) or off (the subscription is closed at once: the server composites
+  // only while someone looks).
+  void SetDrMode(bool on, uint32_t wake_event) {
+    dr_mode_ = on;
+    dr_watch_.reset();
+    dr_.Reset();
+    dr_shown_sequence_ = 0;
+    dr_note_.clear();
+    if (!on) return;
+    if (o_.server.empty()) {
+      dr_note_ = "live DR view (V): only with a live server (--server); this is a saved model";
+      return;
+    }
+    auto channel = MakeChannel(o_.server, o_.security);
+    if (!channel.ok()) {
+      dr_note_ = "live DR view (V): " + std::string(channel.status().message());
+      return;
+    }
+    dr_watch_ = std::make_unique<DrViewWatcher>(
+        *channel,
+        [this, wake_event](const v1::DrViewFrame& m) {
+          dr_.Take(m);
+          SDL_Event e{};
+          e.type = wake_event;
+          SDL_PushEvent(&e);
+        },
+        /*idle_s=*/2.0);
+    dr_watch_->Demand();
+  }
+
+  // The live DR view's HUD: one line (frame seq, age, fps, what the server did) while the
+  // picture is good and the HUD is on (Tab); a message always when there is no good picture.
+  void DrawDrHud(int W) {
+    bool ok = false;
+    const std::string line =
+        !dr_note_.empty() ? dr_note_ : DrHudLine(dr_watch_ ? dr_watch_->status() : "off", dr_, &ok);
+    probe_.erase("dr_hud");
+    if (ok && !overlays_) return;
+    ImGui::SetNextWindowPos(ImVec2(8, 8), ImGuiCond_Always);
+    ImGui::SetNextWindowBgAlpha(0.6f);
+    ImGui::Begin("Live DR view", nullptr,
+                 ImGuiWindowFlags_NoDecoration | ImGuiWindowFlags_AlwaysAutoResize |
+                     ImGuiWindowFlags_NoFocusOnAppearing | ImGuiWindowFlags_NoNav);
+    ImGui::PushTextWrapPos(float(std::max(80, W - 24)));
+    ImGui::TextColored(ok ? ImVec4(0.6f, 1.f, 0.6f, 1.f) : ImVec4(1.f, 0.75f, 0.4f, 1.f), "%s",
+                       line.c_str());
+    ImGui::TextDisabled("V: back to the free-viewpoint view");
+    ImGui::PopTextWrapPos();
+    const ImVec2 hp = ImGui::GetWindowPos(), hs = ImGui::GetWindowSize();
+    probe_["dr_hud"] = {hp.x, hp.y, hs.x, hs.y};
     ImGui::End();
   }
 
@@ -972,6 +1142,19 @@ class App {
     }
     if (control_) j["control"] = control_->state();
     if (controls_) j["drone_controls"] = controls_->StatusJson();
+    {
+      bool dr_ok = false;
+      const std::string watch = dr_watch_ ? dr_watch_->status() : std::string("off");
+      const std::string line = dr_mode_ ? DrHudLine(watch, dr_, &dr_ok) : std::string();
+      std::lock_guard lock(dr_.mu);
+      j["dr_view"] = {{"on", dr_mode_},
+                      {"watch", watch},
+                      {"frames", dr_.frames},
+                      {"shown_sequence", dr_shown_sequence_},
+                      {"composited", dr_.composited},
+                      {"roi_px", dr_.roi_px},
+                      {"hud", line}};
+    }
     const Rigid3d world = {pose.rotation, pose.translation + info.geom.origin.origin_in_world};
     j["pose_world"] = PoseJson(world);
     if (auto n = nav::NearestView(info.geom, pose.translation)) {
@@ -1107,7 +1290,7 @@ class App {
       ui_max_gap_ms_ = std::max(ui_max_gap_ms_, MsSince(t_iter));
       t_iter = Clock::now();
       nav::FlyInput in;
-      bool events = false, overlay_changed = false;
+      bool events = false, overlay_changed = false, dr_switched = false;
       SDL_Event e;
       while (SDL_PollEvent(&e)) {
         if (e.type == wake_event) continue;  // a frame is ready: taken below
@@ -1161,6 +1344,10 @@ class App {
             case SDLK_5:
               show_drone_ = !show_drone_;
               overlay_changed = true;
+              break;
+            case SDLK_v:  // the live DR view instead of the free-viewpoint render, and back
+              SetDrMode(!dr_mode_, wake_event);
+              dr_switched = true;
               break;
             case SDLK_g:  // look at the drone from behind and above it
               if (control_)
@@ -1239,7 +1426,10 @@ class App {
         if (replay_i + 1 == replay.size()) replaying_ = false;
       }
       const int W = presenter_->width(), H = presenter_->height();
-      sched->Post({cam.pose(), W, H, epoch});
+      // The live DR view on screen: the render thread pauses (0 x 0); the subscription is kept
+      // demanded while the mode is on.
+      if (dr_mode_ && dr_watch_) dr_watch_->Demand();
+      sched->Post({cam.pose(), dr_mode_ ? 0 : W, dr_mode_ ? 0 : H, epoch});
       if (auto st = sched->status(); !st.ok()) return Fail(st);
       std::optional<Scheduler::Done> nf = sched->TakeFrame();
       if (nf) {
@@ -1257,19 +1447,47 @@ class App {
       const int busy = sched->busy_divisor();
       // Present a new frame at once; the HUD alone (input, a render in progress) at most 10 Hz
       // so that presenting does not take the CPU from the render thread.
-      const bool hud_due = overlays_ && (events || busy != last_busy || MsSince(t_presented) >= 250) &&
+      const bool hud_due = (overlays_ || dr_mode_) &&
+                           (events || busy != last_busy || MsSince(t_presented) >= 250) &&
                            MsSince(t_presented) >= 100;
       last_busy = busy;
-      if (nf || overlay_changed || hud_due) {
+      // What goes to the screen: the newest DR frame (a dark picture until the first arrives),
+      // or the render (again, after the DR view was switched off).
+      const ImageU8* upload = nullptr;
+      std::optional<ImageU8> dr_image;
+      bool dr_presented = false;
+      if (dr_mode_) {
+        {
+          std::lock_guard lock(dr_.mu);
+          if (dr_.fresh) {
+            dr_image = std::move(dr_.image);
+            dr_.image = ImageU8();
+            dr_.fresh = false;
+            dr_shown_sequence_ = dr_.sequence;
+            dr_presented = true;
+          }
+        }
+        if (!dr_image && dr_switched) {
+          dr_image = ImageU8(W, H, 3);
+          std::fill(dr_image->data(), dr_image->data() + size_t(W) * H * 3, uint8_t(24));
+        }
+        if (dr_image) upload = &*dr_image;
+      } else if (nf || (dr_switched && shown)) {
+        upload = &shown->frame.image;
+      }
+      if (upload || overlay_changed || hud_due) {
         presenter_->NewFrame();
-        if (shown)
-          DrawOverlays(*info, shown->job.request.pose, shown->frame.occ_depth, W, H);
-        DrawHud(*info, cam, W, H, busy);
+        if (dr_mode_) {
+          DrawDrHud(W);
+        } else {
+          if (shown)
+            DrawOverlays(*info, shown->job.request.pose, shown->frame.occ_depth, W, H);
+          DrawHud(*info, cam, W, H, busy);
+        }
         PresentTimings pt;
-        if (auto s = presenter_->Present(nf ? &shown->frame.image : nullptr, &pt); !s.ok())
-          return Fail(s);
+        if (auto s = presenter_->Present(upload, &pt); !s.ok()) return Fail(s);
         t_presented = Clock::now();
-        if (nf) present_ms_ = pt.upload_ms + pt.submit_ms;
+        if (nf && !dr_mode_) present_ms_ = pt.upload_ms + pt.submit_ms;
       }
       if (nf && !o_.record.empty()) {
         const Rigid3d& p = shown->job.request.pose;
@@ -1279,8 +1497,9 @@ class App {
       // Status after each full-resolution frame, and when the sync state changes (e.g. the
       // server went away: the last model stays on screen, the HUD says "reconnecting").
       const std::string sync_state = source_->state();
-      if (shown && ((nf && stage_ == 1) || sync_state != last_sync_state_ ||
-                    (operator_ && MsSince(t_status) > 250))) {  // the operator's replies too
+      if (shown && ((nf && stage_ == 1 && !dr_mode_) || sync_state != last_sync_state_ ||
+                    dr_presented || dr_switched ||
+                    ((operator_ || dr_mode_) && MsSince(t_status) > 250))) {  // replies too
         WriteStatus(*info, shown->job.request.pose, shown->seq);
         t_status = Clock::now();
       }
@@ -1291,12 +1510,13 @@ class App {
       const int wait_ms = moving || follow_ || replaying_ || sticks ? 10
                           : controls_->dragging()                  ? 20
                           : busy                                   ? 100
-                          : overlays_                              ? 250
+                          : overlays_ || dr_mode_                  ? 250
                                                                    : 1000;
       t_iter = Clock::now();  // the wait below is idle time, not a UI stall
       SDL_WaitEventTimeout(nullptr, wait_ms);
     }
     sched->Stop();
+    dr_watch_.reset();
     if (auto st = sched->status(); !st.ok()) return Fail(st);
     if (!o_.record.empty())
       if (auto s = nav::WriteTumPath(o_.record, recorded); !s.ok()) return Fail(s);
@@ -1883,6 +2103,12 @@ class App {
   std::atomic<bool> want_occ_{false};  // the render thread adds the overlays' proxy depth
   double ui_max_gap_ms_ = 0;
   bool frame_moving_ = true;  // the frame on screen was rendered for a moving camera  // longest UI-loop iteration (input to present), waits excluded
+  // The live DR view (key V): the subscription (only while the mode is on) and its newest frame.
+  bool dr_mode_ = false;
+  DrLive dr_;                                // before dr_watch_: its thread writes here
+  std::unique_ptr<DrViewWatcher> dr_watch_;  // (destroyed first)
+  uint64_t dr_shown_sequence_ = 0;
+  std::string dr_note_;  // why the DR view cannot be watched at all (no server)  // the uploaded frame's sequence of the DR picture on screen
 };
 
 }  // namespace

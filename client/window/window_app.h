@@ -9,7 +9,9 @@
 // camera, the proxy wireframe, cells coloured by the server's coverage τ or their reference
 // count, the drone with its camera frustum, target, route and flight zones), and steering the
 // drone (issue 19 item 5: Ctrl/M + click = gaze-to-see, + drag from the drone = pick-and-place,
-// I K J L U O Y H = joypad, X [ ] = the X-ray cut-away; client/window/drone_operator.h). Also the scripted
+// I K J L U O Y H = joypad, X [ ] = the X-ray cut-away; client/window/drone_operator.h), and
+// V = the live DR view (issue 18: the server's WatchDrView frames, the camera with the marked
+// regions removed, instead of the render; subscribed only while on). Also the scripted
 // modes that need no window: renders along a TUM path, and the frame-time benchmark (which
 // does need a window: it measures what the person sees, presentation included).
 #pragma once
