@@ -32,3 +32,14 @@ def start_server(server_bin, work, env, extra_args=()):
     proc = subprocess.Popen([server_bin, "--listen=127.0.0.1:0", f"--port_file={port_file}",
                              "--log_level=warning", *extra_args], env=env)
     return proc, port_file
+
+
+def scene_control_zones(uploader_bin, env, scene="apartment"):
+    """The synthetic scene's flight zone as the simulated-drone uploader prints it (before it
+    connects anywhere: the server address is a closed port); None if it printed none."""
+    probe = subprocess.run(["timeout", "20", uploader_bin, "--drone=sim", f"--synthetic={scene}",
+                            "--server=127.0.0.1:9", "--flight_s=1"], env=env, capture_output=True,
+                           text=True)
+    zones = [w.split("control_zones=", 1)[1].rstrip(")") for w in probe.stderr.split()
+             if w.startswith("control_zones=")]
+    return (zones[0] if zones else None), probe.stderr

@@ -41,7 +41,8 @@ from PIL import Image
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 sys.dont_write_bytecode = True  # no __pycache__ in the source tree
 import window_drone_xvfb_test as base  # noqa: E402  (Display, control_stubs)
-from local_procs import fresh_port_file, start_server, wait_port  # noqa: E402
+from local_procs import (fresh_port_file, scene_control_zones, start_server,  # noqa: E402
+                         wait_port)
 
 W, H = base.W, base.H
 OPERATOR = "window-test"
@@ -108,15 +109,11 @@ def main():
     work = args.work_dir or tempfile.mkdtemp(prefix="window_drone_ops_")
     os.makedirs(work, exist_ok=True)
     env = dict(os.environ, LP_NUM_THREADS="2", SDL_VIDEODRIVER="x11")
-    probe = subprocess.run(["timeout", "20", args.uploader_bin, "--drone=sim", "--synthetic=apartment",
-                            "--server=127.0.0.1:9", "--flight_s=1"], env=env, capture_output=True,
-                           text=True)
-    zones = [w.split("control_zones=", 1)[1].rstrip(")") for w in probe.stderr.split()
-             if w.startswith("control_zones=")]
+    zones, uploader_log = scene_control_zones(args.uploader_bin, env)
     if not zones:
-        fail(f"the uploader did not print the scene's control_zones: {probe.stderr[-300:]}")
+        fail(f"the uploader did not print the scene's control_zones: {uploader_log[-300:]}")
     server, port_file = start_server(args.server_bin, work, env,
-                                     [f"--control_zones={zones[0]}", "--control_cell_m=0.15"])
+                                     [f"--control_zones={zones}", "--control_cell_m=0.15"])
     drone = win = disp = None
     try:
         try:

@@ -29,7 +29,7 @@ import urllib.request
 import numpy as np
 from PIL import Image
 
-from local_procs import fresh_port_file, start_server, wait_port
+from local_procs import fresh_port_file, scene_control_zones, start_server, wait_port
 from xvfb_display import Display, missing_tools
 
 W, H = 960, 540
@@ -135,14 +135,9 @@ def main():
     os.makedirs(work, exist_ok=True)
     env = dict(os.environ, LP_NUM_THREADS="2", SDL_VIDEODRIVER="x11")
     # The scene's flight zone, as the uploader prints it (before it connects anywhere).
-    probe = subprocess.run(["timeout", "20", args.uploader_bin, "--drone=sim", "--synthetic=apartment",
-                            "--server=127.0.0.1:9", "--flight_s=1"], env=env, capture_output=True,
-                           text=True)
-    zones = [w.split("control_zones=", 1)[1].rstrip(")") for w in probe.stderr.split()
-             if w.startswith("control_zones=")]
+    zones, uploader_log = scene_control_zones(args.uploader_bin, env)
     if not zones:
-        fail(f"the uploader did not print the scene's control_zones: {probe.stderr[-300:]}")
-    zones = zones[0]
+        fail(f"the uploader did not print the scene's control_zones: {uploader_log[-300:]}")
     server, port_file = start_server(args.server_bin, work, env,
                                      [f"--control_zones={zones}", "--control_cell_m=0.15"])
     drone = win = disp = http = None
