@@ -462,6 +462,31 @@ TEST(CellRefsWire, PackedDecodesToThePlainMessageAndIsSmaller) {
   EXPECT_EQ(tiny.coverage_size(), 1);
 }
 
+// A packed payload's framing (u32 size, one zstd frame) built by hand around any bytes.
+std::string SizedZstdFrame(const std::string& raw) {
+  auto z = ZstdCompress(reinterpret_cast<const uint8_t*>(raw.data()), raw.size(), 3, {});
+  EXO_CHECK(z.ok());
+  std::string p(4, '\0');
+  const uint32_t n = static_cast<uint32_t>(raw.size());
+  std::memcpy(p.data(), &n, 4);
+  p.append(reinterpret_cast<const char*>(z->data()), z->size());
+  return p;
+}
+
+// The framing errors every packed payload shares: a cut header, a 4 GB size claim, a truncated
+// frame, a flipped byte (zstd's checksum). `bad` unpacks a payload of the given bytes.
+template <typename Unpack>
+void ExpectFramingErrors(const std::string& b, Unpack bad) {
+  EXPECT_NE(bad(b.substr(0, 3)).message().find("header cut"), std::string::npos);
+  std::string huge = b;
+  for (int k = 0; k < 4; ++k) huge[k] = static_cast<char>(0xff);
+  EXPECT_NE(bad(huge).message().find("outside"), std::string::npos);
+  EXPECT_FALSE(bad(b.substr(0, b.size() - 5)).ok());
+  std::string flipped = b;
+  flipped[b.size() / 2] = static_cast<char>(flipped[b.size() / 2] ^ 0x5a);
+  EXPECT_FALSE(bad(flipped).ok());
+}
+
 TEST(CellRefsWire, BadPackedPayloadsAreClearErrors) {
   v1::CellRefsChanged packed = SomeCellRefs(200);
   PackCellRefs(&packed);
@@ -471,29 +496,15 @@ TEST(CellRefsWire, BadPackedPayloadsAreClearErrors) {
     m.set_packed(std::move(b));
     return UnpackCellRefs(m).status();
   };
-  const std::string& b = packed.packed();
-  EXPECT_NE(bad(b.substr(0, 3)).message().find("header cut"), std::string::npos);
-  std::string huge = b;  // claims 4 GB
-  for (int k = 0; k < 4; ++k) huge[k] = static_cast<char>(0xff);
-  EXPECT_NE(bad(huge).message().find("outside"), std::string::npos);
-  EXPECT_FALSE(bad(b.substr(0, b.size() - 5)).ok());  // truncated frame
-  std::string flipped = b;
-  flipped[b.size() / 2] = static_cast<char>(flipped[b.size() / 2] ^ 0x5a);
-  EXPECT_FALSE(bad(flipped).ok());  // zstd's checksum
+  ExpectFramingErrors(packed.packed(), bad);
   // Both forms at once, and a packed payload that is itself packed, are refused.
   v1::CellRefsChanged both = packed;
   both.add_cells()->set_cell_id(1);
   EXPECT_NE(UnpackCellRefs(both).status().message().find("both"), std::string::npos);
   v1::CellRefsChanged inner;
   inner.set_packed(std::string(100, 'x'));
-  const std::string raw = inner.SerializeAsString();
-  auto z = ZstdCompress(reinterpret_cast<const uint8_t*>(raw.data()), raw.size(), 3, {});
-  ASSERT_TRUE(z.ok());
-  std::string nested(4, '\0');
-  const uint32_t n = static_cast<uint32_t>(raw.size());
-  std::memcpy(nested.data(), &n, 4);
-  nested.append(reinterpret_cast<const char*>(z->data()), z->size());
-  EXPECT_NE(bad(nested).message().find("nested"), std::string::npos);
+  EXPECT_NE(bad(SizedZstdFrame(inner.SerializeAsString())).message().find("nested"),
+            std::string::npos);
 }
 
 
@@ -556,25 +567,11 @@ TEST(MeshChunkBatchWire, BadBatchesAreClearErrors) {
     m.set_packed(std::move(b));
     return UnpackMeshChunks(m).status();
   };
-  const std::string& b = batch->packed();
   EXPECT_NE(bad("").message().find("header cut"), std::string::npos);
-  std::string huge = b;  // claims 4 GB
-  for (int k = 0; k < 4; ++k) huge[k] = static_cast<char>(0xff);
-  EXPECT_NE(bad(huge).message().find("outside"), std::string::npos);
-  EXPECT_FALSE(bad(b.substr(0, b.size() - 5)).ok());  // truncated frame
-  std::string flipped = b;
-  flipped[b.size() / 2] = static_cast<char>(flipped[b.size() / 2] ^ 0x5a);
-  EXPECT_FALSE(bad(flipped).ok());  // zstd's checksum
+  ExpectFramingErrors(batch->packed(), bad);
   // A frame of bytes that are not a chunk list, and an empty list.
-  for (const std::string& raw : {std::string(64, '\xff'), std::string()}) {
-    auto z = ZstdCompress(reinterpret_cast<const uint8_t*>(raw.data()), raw.size(), 3, {});
-    ASSERT_TRUE(z.ok());
-    std::string p(4, '\0');
-    const uint32_t n = static_cast<uint32_t>(raw.size());
-    std::memcpy(p.data(), &n, 4);
-    p.append(reinterpret_cast<const char*>(z->data()), z->size());
-    EXPECT_FALSE(bad(p).ok()) << raw.size();
-  }
+  for (const std::string& raw : {std::string(64, '\xff'), std::string()})
+    EXPECT_FALSE(bad(SizedZstdFrame(raw)).ok()) << raw.size();
   // A chunk whose format-2 payload is corrupt cannot be packed (no silent drop).
   v1::MeshChunkUpserted broken = chunks[0];
   ASSERT_EQ(broken.compact()[0], 2);
