@@ -8,6 +8,17 @@
 
 namespace exo {
 
+namespace {
+void PutChunk(const v1::MeshChunkUpserted& m, TriangleMesh mesh, LumigraphModel* model,
+              std::map<uint64_t, ChunkDigestRecord>* chunks) {
+  (*chunks)[m.chunk_id()] = {m.chunk_version(), MeshHash(mesh)};
+  MeshChunk& c = model->chunks[m.chunk_id()];
+  c.id = m.chunk_id();
+  c.version = m.chunk_version();
+  c.mesh = std::move(mesh);
+}
+}  // namespace
+
 absl::Status LocalStore::ApplyKind(const v1::Delta& d, LumigraphModel* model,
                                    std::map<ViewId, ViewDigestRecord>* views,
                                    std::map<uint64_t, ChunkDigestRecord>* chunks) {
@@ -64,11 +75,7 @@ absl::Status LocalStore::ApplyKind(const v1::Delta& d, LumigraphModel* model,
     case v1::Delta::kMeshChunkUpserted: {
       const auto& m = d.mesh_chunk_upserted();
       EXO_ASSIGN_OR_RETURN(TriangleMesh mesh, MeshFromProto(m));
-      (*chunks)[m.chunk_id()] = {m.chunk_version(), MeshHash(mesh)};
-      MeshChunk& c = model->chunks[m.chunk_id()];
-      c.id = m.chunk_id();
-      c.version = m.chunk_version();
-      c.mesh = std::move(mesh);
+      PutChunk(m, std::move(mesh), model, chunks);
       return absl::OkStatus();
     }
     case v1::Delta::kMeshChunkBatch: {
@@ -82,14 +89,7 @@ absl::Status LocalStore::ApplyKind(const v1::Delta& d, LumigraphModel* model,
         EXO_ASSIGN_OR_RETURN(TriangleMesh mesh, MeshFromProto(m));
         meshes.push_back(std::move(mesh));
       }
-      for (size_t i = 0; i < list.size(); ++i) {
-        const auto& m = list[i];
-        (*chunks)[m.chunk_id()] = {m.chunk_version(), MeshHash(meshes[i])};
-        MeshChunk& c = model->chunks[m.chunk_id()];
-        c.id = m.chunk_id();
-        c.version = m.chunk_version();
-        c.mesh = std::move(meshes[i]);
-      }
+      for (size_t i = 0; i < list.size(); ++i) PutChunk(list[i], std::move(meshes[i]), model, chunks);
       return absl::OkStatus();
     }
     case v1::Delta::kMeshChunkRemoved:
