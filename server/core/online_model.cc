@@ -75,6 +75,8 @@ absl::Status OnlineModelOptions::Validate() const {
     po.dispersion_keep_nearest = dispersion_keep_nearest;
     po.dispersion_recency = dispersion_recency;
     po.dispersion_drop_older = dispersion_drop_older;
+    po.dispersion_time_steps = dispersion_time_steps;
+    po.dispersion_time_max = dispersion_time_max;
     po.observe_zero_coverage = observe_zero_coverage;
     po.dispersion_weight_until = dispersion_weight_until;
     EXO_RETURN_IF_ERROR(po.Validate());
@@ -320,6 +322,8 @@ absl::StatusOr<std::unique_ptr<OnlinePlanner>> OnlinePlanner::Create(
   po.dispersion_keep_nearest = options.dispersion_keep_nearest;
   po.dispersion_recency = options.dispersion_recency;
   po.dispersion_drop_older = options.dispersion_drop_older;
+  po.dispersion_time_steps = options.dispersion_time_steps;
+  po.dispersion_time_max = options.dispersion_time_max;
   po.observe_zero_coverage = options.observe_zero_coverage;
   po.dispersion_weight_until = options.dispersion_weight_until;
   po.cell_size_m = setup.cell_m;

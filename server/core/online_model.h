@@ -86,6 +86,8 @@ struct OnlineModelOptions {
   bool dispersion_keep_nearest = false;  // PlannerOptions::dispersion_keep_nearest
   double dispersion_recency = 0.0;       // PlannerOptions::dispersion_recency
   bool dispersion_drop_older = false;    // PlannerOptions::dispersion_drop_older
+  double dispersion_time_steps = 0.0;    // PlannerOptions::dispersion_time_steps
+  bool dispersion_time_max = false;       // PlannerOptions::dispersion_time_max
   // PlannerOptions::observe_zero_coverage (session 14): a view observes every cell it sees, also
   // where its φ is 0 (the frames of a yaw pan after the first), so R(b_k) and the published
   // references stay the pre-selection over the views stored now. Long drone stream +0.012 SSIM

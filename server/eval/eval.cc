@@ -270,6 +270,11 @@ planning::PlannerOptions PlannerFor(const PolicyConfig& c, const Source& src, do
       c.dispersion_recency >= 0 ? c.dispersion_recency : product.dispersion_recency;
   po.dispersion_drop_older = c.dispersion_drop_older >= 0 ? c.dispersion_drop_older != 0
                                                           : product.dispersion_drop_older;
+  po.dispersion_time_steps = c.dispersion_time_steps >= 0
+                                     ? c.dispersion_time_steps
+                                     : product.dispersion_time_steps;
+  po.dispersion_time_max = c.dispersion_time_max >= 0 ? c.dispersion_time_max != 0
+                                                      : product.dispersion_time_max;
   po.observe_zero_coverage = c.observe_zero_coverage >= 0 ? c.observe_zero_coverage != 0
                                                           : product.observe_zero_coverage;
   po.d_max_m = src.scale.d_max_m;
@@ -412,6 +417,8 @@ std::string ConfigJson(const std::string& dataset, const std::string& test_poses
                  {"dispersion_keep_nearest", int(po.dispersion_keep_nearest)},
                  {"dispersion_recency", po.dispersion_recency},
                  {"dispersion_drop_older", int(po.dispersion_drop_older)},
+                 {"dispersion_time_steps", po.dispersion_time_steps},
+                 {"dispersion_time_max", int(po.dispersion_time_max)},
                  {"observe_zero_coverage", int(po.observe_zero_coverage)},
                  {"sharp_gamma", c.sharp_gamma}};
   j["quality"] = {{"mssim", Round(r.quality.mssim, 4)},
@@ -584,6 +591,8 @@ class Engine {
         mo.dispersion_keep_nearest = po.dispersion_keep_nearest;
         mo.dispersion_recency = po.dispersion_recency;
         mo.dispersion_drop_older = po.dispersion_drop_older;
+        mo.dispersion_time_steps = po.dispersion_time_steps;
+        mo.dispersion_time_max = po.dispersion_time_max;
         mo.observe_zero_coverage = po.observe_zero_coverage;
         mo.dispersion_weight_until = po.dispersion_weight_until;
         mo.frame_quality.gamma = c.sharp_gamma;

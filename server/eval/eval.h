@@ -98,6 +98,8 @@ struct PolicyConfig {
   int dispersion_keep_nearest = -1;           // policy option "dkn=0|1"
   double dispersion_recency = -1;             // policy option "drc=V"
   int dispersion_drop_older = -1;             // policy option "ddo=0|1"
+  double dispersion_time_steps = -1;          // policy option "dtk=V"
+  int dispersion_time_max = -1;               // policy option "dtm=0|1"
   int observe_zero_coverage = -1;             // policy option "ozc=0|1"
 
   // OnlineModelOptions::frame_quality.gamma; policy option "sharp=G" (0 = off).

@@ -169,6 +169,8 @@ absl::StatusOr<std::vector<PolicyConfig>> Configs(const Args& a) {
         else if (key == "dkn") c.dispersion_keep_nearest = v != 0 ? 1 : 0;
         else if (key == "drc") c.dispersion_recency = v;
         else if (key == "ddo") c.dispersion_drop_older = v != 0 ? 1 : 0;
+        else if (key == "dtk") c.dispersion_time_steps = v;
+        else if (key == "dtm") c.dispersion_time_max = v != 0 ? 1 : 0;
         else if (key == "ozc") c.observe_zero_coverage = v != 0 ? 1 : 0;
         else if (key == "mpr") c.dispersion_m_per_rad = v;
         else if (key == "dts") c.delta_tau_sum = v;

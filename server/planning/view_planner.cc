@@ -75,6 +75,10 @@ absl::Status PlannerOptions::Validate() const {
   if (!std::isfinite(dispersion_recency) || dispersion_recency < 0.0 || dispersion_recency > 0.5)
     return absl::InvalidArgumentError(absl::StrCat(
         "planner dispersion_recency must be in [0, 0.5], got ", dispersion_recency));
+  if (!std::isfinite(dispersion_time_steps) || dispersion_time_steps < 0.0)
+    return absl::InvalidArgumentError(absl::StrCat(
+        "planner dispersion_time_steps must be finite and >= 0, got ",
+        dispersion_time_steps));
   return absl::OkStatus();
 }
 
@@ -266,6 +270,36 @@ double ViewPlanner::PoseDistance(const glm::dvec3& ca, const glm::dquat& qa,
   return glm::length(ca - cb) + mpr * angle;
 }
 
+double ViewPlanner::ViewDistance(const glm::dvec3& ca, const glm::dquat& qa, ViewId ida,
+                                 const glm::dvec3& cb, const glm::dquat& qb, ViewId idb) const {
+  const double frames = ida > idb ? static_cast<double>(ida - idb) : static_cast<double>(idb - ida);
+  const double pose = PoseDistance(ca, qa, cb, qb);
+  return options_.dispersion_time_max ? std::max(pose, time_unit_ * frames)
+                                      : pose + time_unit_ * frames;
+}
+
+void ViewPlanner::TrackStep(const glm::dvec3& centre, const glm::dquat& rotation, ViewId id) {
+  if (has_last_ && id <= last_id_) return;  // out of order: not a step of the stream
+  if (has_last_) {
+    double step = PoseDistance(last_centre_, last_rotation_, centre, rotation) /
+                  static_cast<double>(id - last_id_);
+    if (options_.d_max_m > 0.0) step = std::min(step, options_.d_max_m);  // a jump is not motion
+    step_sum_ += step;
+    ++step_count_;
+  }
+  has_last_ = true;
+  last_centre_ = centre;
+  last_rotation_ = rotation;
+  last_id_ = id;
+  if (step_count_ == 0) return;
+  const double unit =
+      options_.dispersion_time_steps * step_sum_ / static_cast<double>(step_count_);
+  if (std::abs(unit - time_unit_) <= 0.02 * std::max(unit, time_unit_)) return;
+  time_unit_ = unit;
+  if (options_.dispersion != PlannerOptions::Dispersion::kOff)
+    for (auto& [vid, n] : nearest_) n = NearestOf(views_.at(vid));
+}
+
 double ViewPlanner::UniqueLoss(const View& v) const {
   // The cells v would leave with no stored observer (obs_scratch_: the candidate and the chosen
   // victims), each at the φ v would have there as the cell's only view (φ_d = 1): its frozen φ
@@ -282,12 +316,12 @@ double ViewPlanner::UniqueLoss(const View& v) const {
   return loss;
 }
 
-void ViewPlanner::GiveWeight(const glm::dvec3& centre, const glm::dquat& rotation,
+void ViewPlanner::GiveWeight(const glm::dvec3& centre, const glm::dquat& rotation, ViewId id_of,
                              double weight) {
   View* best = nullptr;
   double best_d = std::numeric_limits<double>::infinity();
   for (auto& [id, u] : views_) {
-    const double d = PoseDistance(centre, rotation, u.centre, u.rotation);
+    const double d = ViewDistance(centre, rotation, id_of, u.centre, u.rotation, u.id);
     if (d < best_d || (d == best_d && best != nullptr && id < best->id)) {
       best_d = d;
       best = &u;
@@ -334,7 +368,7 @@ ViewPlanner::Nearest ViewPlanner::NearestOf(const View& v) const {
   constexpr double kInf = std::numeric_limits<double>::infinity();
   Nearest n{kInf, kInf, 0, 0};
   for (const auto& [id, u] : views_)
-    if (id != v.id) n.Offer(PoseDistance(v.centre, v.rotation, u.centre, u.rotation), id);
+    if (id != v.id) n.Offer(ViewDistance(v, u), id);
   return n;
 }
 
@@ -343,7 +377,7 @@ void ViewPlanner::NearestAdd(const View& v) {
   Nearest n{kInf, kInf, 0, 0};
   for (const auto& [id, u] : views_) {
     if (id == v.id) continue;
-    const double d = PoseDistance(v.centre, v.rotation, u.centre, u.rotation);
+    const double d = ViewDistance(v, u);
     n.Offer(d, id);
     nearest_.at(id).Offer(d, v.id);
   }
@@ -450,6 +484,8 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
   if (!(cand.quality > 0.0) || !(cand.quality <= 1.0))
     return absl::InvalidArgumentError(
         absl::StrCat("candidate quality must be in (0, 1], got ", cand.quality));
+  if (options_.dispersion_time_steps > 0.0)
+    TrackStep(centre, cand.local_from_cam.rotation, cand.id);
   View view{cand.id, centre, cand.local_from_cam.rotation, cand.bytes, pixel_sr, cand.quality,
             {}, {}};
   view.entries.reserve(cand.cells.size());
@@ -540,14 +576,14 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
     auto redundancy = [&](const View& v) { return WeightedSpacing(nearest_.at(v.id).d1, v.weight); };
     auto crowding = [&](const View& v) {
       return std::min(nearest_.at(v.id).d2,
-                      PoseDistance(v.centre, v.rotation, view.centre, view.rotation));
+                      ViewDistance(v, view));
     };
     // dispersion_keep_nearest: the candidate's nearest stored view (0: none / option off).
     ViewId keep = 0;
     if (options_.dispersion_keep_nearest) {
       double best_d = std::numeric_limits<double>::infinity();
       for (const auto& [vid, v] : views_) {
-        const double dist = PoseDistance(v.centre, v.rotation, view.centre, view.rotation);
+        const double dist = ViewDistance(v, view);
         if (dist < best_d) {
           best_d = dist;
           keep = vid;
@@ -647,7 +683,7 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
   double share = 0.0;
   if (track) {
     for (const auto& [vid, v] : views_) {
-      const double dist = PoseDistance(v.centre, v.rotation, view.centre, view.rotation);
+      const double dist = ViewDistance(v, view);
       if (dist < nearest || (dist == nearest && vid < nearest_id)) {
         nearest = dist;
         nearest_id = vid;
@@ -669,7 +705,7 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
     // candidate next to the victim does not just replace it) must be farther than the victim's.
     if (!track)
       for (const auto& [vid, v] : views_)
-        nearest = std::min(nearest, PoseDistance(v.centre, v.rotation, view.centre, view.rotation));
+        nearest = std::min(nearest, ViewDistance(v, view));
     // Density-weighted: the candidate's own weight would be 1 + its share of u's frames.
     const double candidate_redundancy =
         weighted && nearest_id != 0
@@ -680,7 +716,7 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
   }
   if (!(guard_gain > accept_gain) && !spread) {
     // The frame is represented by its nearest stored view (density-weighted dispersion).
-    if (track) GiveWeight(view.centre, view.rotation, view.weight);
+    if (track) GiveWeight(view.centre, view.rotation, view.id, view.weight);
     d.reason = full ? absl::StrCat("store full and no victim gains more than delta_tau_sum (best ",
                                    gain, ")")
                     : absl::StrCat("coverage gain ", gain, " <= delta_tau_sum ",
@@ -699,12 +735,13 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
   struct Gone {
     glm::dvec3 centre;
     glm::dquat rotation;
+    ViewId id;
     double weight;
   };
   std::vector<Gone> gone;
   for (ViewId v : victims) {
     const View& g = views_.at(v);
-    gone.push_back({g.centre, g.rotation, g.weight});
+    gone.push_back({g.centre, g.rotation, g.id, g.weight});
     RemoveView(v, &stale, &d.changed_cells);
   }
   std::sort(stale.begin(), stale.end());
@@ -712,7 +749,7 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
   AddView(std::move(view), &d.changed_cells);
   // The frames a victim stood for move to its nearest view left (the candidate included).
   if (track)
-    for (const Gone& g : gone) GiveWeight(g.centre, g.rotation, g.weight);
+    for (const Gone& g : gone) GiveWeight(g.centre, g.rotation, g.id, g.weight);
   // ... and the candidate takes its share of the frames of its nearest view (if still stored).
   if (weighted && nearest_id != 0 && views_.count(nearest_id) && views_.count(cand.id)) {
     View& u = views_.at(nearest_id);
@@ -855,6 +892,13 @@ void ViewPlanner::SaveState(StateWriter* w) const {
   w->PutVec(scratch_);
   PutUnorderedPod(w, nearest_);
   w->PutVec(obs_scratch_);
+  w->Put<uint8_t>(has_last_ ? 1 : 0);
+  w->Put(last_centre_);
+  w->Put(last_rotation_);
+  w->Put(last_id_);
+  w->Put(step_sum_);
+  w->Put<uint64_t>(step_count_);
+  w->Put(time_unit_);
 }
 
 absl::Status ViewPlanner::LoadState(StateReader* r) {
@@ -872,8 +916,12 @@ absl::Status ViewPlanner::LoadState(StateReader* r) {
   cells_.assign(r->ok() ? cells : 0, Cell{});
   for (Cell& c : cells_)
     if (!(r->Get(&c.id) && r->Get(&c.tau) && r->GetVec(&c.observers) && r->GetVec(&c.refs))) break;
+  uint8_t has_last = 0;
   GetUnorderedPod(r, &areas_) && r->GetVec(&scratch_) && GetUnorderedPod(r, &nearest_) &&
-      r->GetVec(&obs_scratch_);
+      r->GetVec(&obs_scratch_) && r->Get(&has_last) && r->Get(&last_centre_) &&
+      r->Get(&last_rotation_) && r->Get(&last_id_) && r->Get(&step_sum_) &&
+      r->Get(&step_count_) && r->Get(&time_unit_);
+  has_last_ = has_last != 0;
   EXO_RETURN_IF_ERROR(r->Status("view planner"));
   // Every index must point into cells_ (a corrupt state must not crash a later Consider).
   for (const auto& [id, v] : views_)

@@ -151,6 +151,20 @@ struct PlannerOptions {
   // pair) the older one (smaller id: the server numbers frames in arrival order) leaves, before
   // the keep-nearest and crowding rules (docs/planning.md "Session 14").
   bool dispersion_drop_older = false;
+  // kFirst / kTies: time as a dimension of the dispersion's pose distance. Two views are apart
+  // by their pose distance plus κ × |id_a − id_b| × s, s = the stream's mean pose step per frame
+  // id so far (the server numbers frames in arrival order; each step capped at d_max_m), κ =
+  // this option: two frames of a camera that lingers in one place are as far apart as κ times
+  // the camera's typical motion over that time, so a lingering stretch keeps views spread over
+  // its time, and a place revisited later is not a plain duplicate of the first visit. Real
+  // poses and images carry errors correlated in time (pose drift, exposure, blur), so a
+  // held-out 7-Scenes frame is rendered best from its neighbours in time, not only in pose
+  // (docs/planning.md "Session 15"). Scale-free: s is measured, not set. 0 = pose only.
+  double dispersion_time_steps = 0.0;
+  // true: the larger of the pose distance and the time term instead of their sum, so frames of a
+  // camera moving faster than κ·s are apart by their pose distance alone (the default's spread)
+  // and only frames where the camera lingered are set apart by time.
+  bool dispersion_time_max = false;
   // Which stored views observe a cell (its published references when render_refs_max > 0, the
   // unique-coverage guard's count, the views R(b_k) is rebuilt from). false: the views with
   // φ > 0 at acceptance. A frame whose direction to the cell duplicates a reference's (a yaw
@@ -339,6 +353,12 @@ class ViewPlanner {
   // the views whose neighbour it was).
   double PoseDistance(const glm::dvec3& ca, const glm::dquat& qa, const glm::dvec3& cb,
                       const glm::dquat& qb) const;
+  // ... plus the time term (dispersion_time_steps): the distance the dispersion rules use.
+  double ViewDistance(const glm::dvec3& ca, const glm::dquat& qa, ViewId ida,
+                      const glm::dvec3& cb, const glm::dquat& qb, ViewId idb) const;
+  double ViewDistance(const View& a, const View& b) const {
+    return ViewDistance(a.centre, a.rotation, a.id, b.centre, b.rotation, b.id);
+  }
   struct Nearest {
     double d1, d2;     // distances to the nearest and second-nearest other stored view
     ViewId id1, id2;   // those views (0 when none)
@@ -353,13 +373,23 @@ class ViewPlanner {
   std::vector<int32_t> obs_scratch_;
   double UniqueLoss(const View& v) const;
   // Adds `weight` to the stored view nearest (pose distance) to the pose; none stored: dropped.
-  void GiveWeight(const glm::dvec3& centre, const glm::dquat& rotation, double weight);
+  void GiveWeight(const glm::dvec3& centre, const glm::dquat& rotation, ViewId id, double weight);
   // A view's redundancy from its nearest-neighbour distance d1 and weight
   // (dispersion_weight_exponent β: d1 × (w / d1)^β; β = 0: d1).
   double WeightedSpacing(double d1, double weight) const;
   // The density-weighted redundancy is in force (dispersion_weight_exponent, _after).
   bool Weighted() const;
   uint64_t offered_ = 0;  // candidates that passed validation (dispersion_guard_unique_after)
+  // dispersion_time_steps: the mean pose step per frame id over the valid candidates; the time
+  // unit κ·s the nearest-neighbour cache was computed with (recomputed when s drifts by > 2 %).
+  void TrackStep(const glm::dvec3& centre, const glm::dquat& rotation, ViewId id);
+  bool has_last_ = false;
+  glm::dvec3 last_centre_{0.0};
+  glm::dquat last_rotation_{1.0, 0.0, 0.0, 0.0};
+  ViewId last_id_ = 0;
+  double step_sum_ = 0.0;
+  uint64_t step_count_ = 0;
+  double time_unit_ = 0.0;
 };
 
 }  // namespace exo::planning

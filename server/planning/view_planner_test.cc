@@ -649,6 +649,56 @@ TEST(ViewPlanner, RecencyToleranceAndDropOlderDecideNearTies) {
   }
 }
 
+// dispersion_time_steps (session 15): time as a dimension of the dispersion's pose distance. A
+// camera passes a 20 m line at 0.25 m per frame but stands (1 mm jitter) at x = 10 for 200 frames;
+// store 12, cells saturated and no guard (the pose rule alone). Pose only (κ = 0), the standing
+// stretch is one place and keeps at most 2 views; with κ = 1 its 200 frames are as far apart as
+// the camera's mean step times their ids, so it keeps several. The unit is measured, not set: the
+// same stream scaled ×3 in space (cells too) keeps the same frames. Invalid κ is refused.
+TEST(ViewPlanner, TimeStepsSpreadALingeringStretchAndAreScaleFree) {
+  std::vector<double> xs;
+  for (double x = 0; x < 10; x += 0.25) xs.push_back(x);
+  for (int i = 0; i < 200; ++i) xs.push_back(10 + 0.001 * (i % 2));
+  for (double x = 10.25; x <= 20; x += 0.25) xs.push_back(x);
+  auto run = [&](double kappa, double scale) {
+    PlannerOptions o;
+    o.max_views = 12;
+    o.cell_size_m = 1.0 * scale;
+    o.d_max_m = 2.0 * scale;
+    o.tau_max = 0.05;  // cells saturate: the pose terms decide
+    o.dispersion = PlannerOptions::Dispersion::kFirst;
+    o.dispersion_guard = 1e9;
+    o.dispersion_guard_relative = 0;
+    o.dispersion_time_steps = kappa;
+    auto p = ViewPlanner::Create(o).value();
+    ViewId id = 1;
+    for (double x : xs) {
+      const glm::dvec3 eye = glm::dvec3(x, 0, 2) * scale;
+      auto d = p.Consider(MakeCandidate(id++, eye, eye + glm::dvec3(1, 0, -1) * scale, p.grid()));
+      EXPECT_TRUE(d.ok()) << d.status();
+    }
+    EXPECT_EQ(p.num_views(), 12u);
+    std::vector<ViewId> ids = p.ViewIds();
+    std::sort(ids.begin(), ids.end());
+    return ids;
+  };
+  auto standing = [&](const std::vector<ViewId>& ids) {
+    int n = 0;
+    for (ViewId v : ids) n += v > 40 && v <= 240;  // ids 41..240: the 200 standing frames
+    return n;
+  };
+  const auto pose_only = run(0.0, 1.0), timed = run(1.0, 1.0);
+  EXPECT_LE(standing(pose_only), 2);
+  EXPECT_GE(standing(timed), 4) << "the standing stretch keeps views spread over its time";
+  EXPECT_LT(standing(timed), 12) << "the line is still covered";
+  EXPECT_EQ(run(1.0, 3.0), timed) << "the time unit follows the stream's own speed";
+  PlannerOptions bad;
+  for (double k : {-0.5, std::numeric_limits<double>::infinity()}) {
+    bad.dispersion_time_steps = k;
+    EXPECT_FALSE(bad.Validate().ok()) << k;
+  }
+}
+
 // observe_zero_coverage: a yaw pan from one centre. The second frame's direction to every cell
 // the first already references is the first's, so its φ there is 0. Without the option it never
 // observes those cells: they are not published with it and, once the first frame has left, R(b_k)

@@ -109,7 +109,7 @@ bool Pipeline::Quiesce(double timeout_s, const std::function<void()>& fn) {
 }
 
 namespace {
-constexpr uint32_t kPipelineStateFormat = 0x45585031;  // "EXP1"
+constexpr uint32_t kPipelineStateFormat = 0x45585032;  // "EXP2" (session 15: the planner's time steps)
 }  // namespace
 
 absl::StatusOr<std::string> Pipeline::SaveState() const {
