@@ -16,7 +16,10 @@ layout(set = 0, binding = 2) uniform usamplerBuffer cell_entries;
 // Reference slots: view-record indices (the views' texture-array layers), ~0 = not resident.
 layout(set = 0, binding = 3) uniform usamplerBuffer ref_slots;
 layout(set = 0, binding = 4) uniform sampler2DArray colors;  // SRGB8_A8 + bilinear sampler
-layout(set = 0, binding = 5) uniform sampler2DArray depths;  // R32F baked z-depth (0 = invalid)
+// R32F baked z-depth (0 = invalid), read with imageLoad (the nearest texel, as texelFetch): a
+// storage image's load is addressed with the layer's scalar strides, texelFetch went through
+// llvmpipe's per-lane mip-level path (docs/vulkan.md, issue 16 session 15).
+layout(set = 0, binding = 5, r32f) uniform readonly image2DArray depths;
 
 // Deferred: the surface point per pixel from gbuffer.frag (w = 0: no proxy surface).
 layout(set = 0, binding = 6) uniform sampler2D gbuffer;
@@ -159,7 +162,7 @@ vec4 ShadeBackground(ivec2 pixel) {
     const vec2 size = wh.xy;
     if (!(uv.x >= -0.5 && uv.y >= -0.5 && uv.x < size.x - 0.5 && uv.y < size.y - 0.5)) continue;
     const vec2 pc = clamp(floor(uv + 0.5), vec2(0.0), size - 1.0);
-    if (!(texelFetch(depths, ivec3(ivec2(pc), int(wh.z)), 0).r < 0.0)) continue;
+    if (!(imageLoad(depths, ivec3(ivec2(pc), int(wh.z))).r < 0.0)) continue;
     InsertSample(best, n, BorderWeight(uv, size), j,
                  vec4(clamp(uv, vec2(0.0), size - 1.0), wh.z, wh.w));
   }
@@ -227,7 +230,7 @@ vec4 ShadeSurface(vec3 x) {
     in_roi = true;
     const vec4 ce = texelFetch(view_texels, base + 3);
     const float lb = length(ce.xyz - x);
-    const float z_stored = texelFetch(depths, ivec3(ivec2(pc), layer), 0).r;
+    const float z_stored = imageLoad(depths, ivec3(ivec2(pc), layer)).r;
     if (!ValidDepth(z_stored)) continue;
     const float range_d = z_stored * lb / z;
     if (lb > range_d + frame.weights.z + frame.weights.w * range_d) continue;
@@ -277,7 +280,7 @@ vec4 ShadeSurface(vec3 x) {
     const vec2 size = vec2(float(r1.z & 0xFFFFu), float(r1.z >> 16));
     if (!(uv.x >= -0.5 && uv.y >= -0.5 && uv.x < size.x - 0.5 && uv.y < size.y - 0.5)) continue;
     const vec2 pc = clamp(floor(uv + 0.5), vec2(0.0), size - 1.0);
-    const float z_stored = texelFetch(depths, ivec3(ivec2(pc), layer), 0).r;
+    const float z_stored = imageLoad(depths, ivec3(ivec2(pc), layer)).r;
     // ValidDepth(z_stored) is z_stored > 0 here: the baked layers hold only finite values (0
     // invalid, -1 background, > 0 depth; BakeDiscontinuities maps NaN / Inf to 0 at upload).
     if (!(z_stored > 0.0)) continue;

@@ -136,8 +136,10 @@ absl::Status Pipelines::CreateSetLayout() {
   // to a vector gather (measured: docs/vulkan.md).
   b[1].descriptorType = b[2].descriptorType = b[3].descriptorType =
       VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER;
-  b[4].descriptorType = b[5].descriptorType = b[6].descriptorType =
-      VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER;
+  b[4].descriptorType = b[6].descriptorType = VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER;
+  // The baked depth layers as a storage image (imageLoad, nearest texel; docs/vulkan.md issue 16
+  // session 15).
+  b[5].descriptorType = VK_DESCRIPTOR_TYPE_STORAGE_IMAGE;
   b[7].descriptorType = VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER;  // ranked refs (per frame)
   b[8].descriptorType = VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;        // blend.comp output (RGBA8)
   b[9].descriptorType = VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER; // RenderFloor's texture
@@ -165,13 +167,14 @@ absl::Status Pipelines::CreateSetLayout() {
 }
 
 absl::Status Pipelines::CreateDescriptorSet() {
-  VkDescriptorPoolSize sizes[4] = {{VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER, 1},
+  VkDescriptorPoolSize sizes[5] = {{VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER, 1},
                                    {VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER, 5},
-                                   {VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER, 4},
+                                   {VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER, 3},
+                                   {VK_DESCRIPTOR_TYPE_STORAGE_IMAGE, 1},
                                    {VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, 1}};
   VkDescriptorPoolCreateInfo pi{VK_STRUCTURE_TYPE_DESCRIPTOR_POOL_CREATE_INFO};
   pi.maxSets = 1;
-  pi.poolSizeCount = 4;
+  pi.poolSizeCount = 5;
   pi.pPoolSizes = sizes;
   VkDescriptorPool raw_pool;
   EXO_VK_RETURN(vkCreateDescriptorPool(ctx_.device(), &pi, nullptr, &raw_pool));
@@ -212,7 +215,7 @@ absl::Status Pipelines::WriteDescriptors(const DescriptorInputs& in) {
   VkBufferView bg_view = buffer_views_[4].get();
   VkDescriptorImageInfo ii[3] = {
       {linear_sampler_.get(), in.colors->view.get(), VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL},
-      {sampler_.get(), in.depths->view.get(), VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL},
+      {VK_NULL_HANDLE, in.depths->view.get(), VK_IMAGE_LAYOUT_GENERAL},
       {sampler_.get(), in.gbuffer->view.get(), VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL}};
   VkDescriptorImageInfo floor_info{linear_sampler_.get(), in.floor_colors->view.get(),
                                    VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL};
@@ -239,6 +242,9 @@ absl::Status Pipelines::WriteDescriptors(const DescriptorInputs& in) {
     } else if (i == 10) {
       w[i].descriptorType = VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER;
       w[i].pTexelBufferView = &bg_view;
+    } else if (i == 5) {
+      w[i].descriptorType = VK_DESCRIPTOR_TYPE_STORAGE_IMAGE;
+      w[i].pImageInfo = &ii[1];
     } else if (i == 9) {
       w[i].descriptorType = VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER;
       w[i].pImageInfo = &floor_info;

@@ -18,6 +18,11 @@ namespace {
 constexpr VkFormat kColorFormat = VK_FORMAT_R16G16B16A16_UNORM;
 constexpr uint32_t kColorTexelBytes = 8;
 constexpr uint32_t kDepthTexelBytes = 4;  // R32F
+// Layouts while resident: the colour layers are sampled (filtered), the depth layers are read
+// as a storage image (imageLoad in blend_shade.glsl: llvmpipe's image load addresses the texel
+// with the layer's scalar strides; texelFetch went through its per-lane mip-level path).
+constexpr VkImageLayout kColorLayout = VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL;
+constexpr VkImageLayout kDepthLayout = VK_IMAGE_LAYOUT_GENERAL;
 
 const std::array<uint16_t, 256>& Linear16Lut() {
   static const std::array<uint16_t, 256> lut = [] {
@@ -44,7 +49,7 @@ void ViewStore::RecordRegrowth(VkCommandBuffer cmd, Image* nc, Image* nd, bool h
   }
   if (had) {
     for (auto [src, dst] : {std::pair{&colors_, nc}, std::pair{&depths_, nd}}) {
-      TransitionImage(cmd, src->image.get(), a, VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL,
+      TransitionImage(cmd, src->image.get(), a, src == &depths_ ? kDepthLayout : kColorLayout,
                       VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL);
       VkImageCopy region{};
       region.srcSubresource = {a, 0, 0, slot_capacity_};
@@ -56,7 +61,7 @@ void ViewStore::RecordRegrowth(VkCommandBuffer cmd, Image* nc, Image* nd, bool h
   }
   for (Image* img : {nc, nd})
     TransitionImage(cmd, img->image.get(), a, VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL,
-                    VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL);
+                    img == nd ? kDepthLayout : kColorLayout);
 }
 
 absl::Status ViewStore::Grow(uint32_t w, uint32_t h, uint32_t slots) {
@@ -69,7 +74,8 @@ absl::Status ViewStore::Grow(uint32_t w, uint32_t h, uint32_t slots) {
                                   VK_IMAGE_USAGE_TRANSFER_SRC_BIT;
   EXO_ASSIGN_OR_RETURN(Image nc, Image::Create(ctx_, nw, nh, ns, kColorFormat, usage,
                                                VK_IMAGE_ASPECT_COLOR_BIT, true));
-  EXO_ASSIGN_OR_RETURN(Image nd, Image::Create(ctx_, nw, nh, ns, VK_FORMAT_R32_SFLOAT, usage,
+  EXO_ASSIGN_OR_RETURN(Image nd, Image::Create(ctx_, nw, nh, ns, VK_FORMAT_R32_SFLOAT,
+                                               usage | VK_IMAGE_USAGE_STORAGE_BIT,
                                                VK_IMAGE_ASPECT_COLOR_BIT, true));
   EXO_ASSIGN_OR_RETURN(Buffer nrec, Buffer::Create(ctx_, ns * sizeof(GpuView),
                                                    VK_BUFFER_USAGE_UNIFORM_TEXEL_BUFFER_BIT));
@@ -206,16 +212,17 @@ absl::Status ViewStore::CopyStagingToLayer(uint32_t slot, uint32_t w, uint32_t h
     const VkImageAspectFlags a = VK_IMAGE_ASPECT_COLOR_BIT;
     VkDeviceSize offset = 0;
     for (Image* img : {&colors_, &depths_}) {
-      TransitionImage(cmd, img->image.get(), a, VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL,
-                      VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, slot, 1);
+      const VkImageLayout resident = img == &depths_ ? kDepthLayout : kColorLayout;
+      TransitionImage(cmd, img->image.get(), a, resident, VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL,
+                      slot, 1);
       VkBufferImageCopy region{};
       region.bufferOffset = offset;
       region.imageSubresource = {a, 0, slot, 1};
       region.imageExtent = {w, h, 1};
       vkCmdCopyBufferToImage(cmd, staging_.buffer.get(), img->image.get(),
                              VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, 1, &region);
-      TransitionImage(cmd, img->image.get(), a, VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL,
-                      VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL, slot, 1);
+      TransitionImage(cmd, img->image.get(), a, VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, resident,
+                      slot, 1);
       offset += color_bytes;
     }
   });
