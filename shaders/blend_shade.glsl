@@ -201,6 +201,17 @@ vec4 ShadeSurface(vec3 x) {
   const vec3 a = c_o - x;
   const float la = length(a);
   const float d_o = max(la, kMinDistance);
+  // Loop invariants read once per pixel. llvmpipe moves nothing out of a loop (no loop-invariant
+  // code motion in its NIR or LLVM passes) and loads a Frame value under robust buffer access
+  // as 8 per-lane scalar loads: written inside the reference loop, the two occlusion epsilons
+  // alone were 16 loads per iteration. The same values and expressions, so bit-equal.
+  const vec3 a_unit = a / la;
+  const bool a_near = !(la > kMinDistance);
+  const float lambda = frame.weights.x;
+  const float min_weight = frame.weights.y;
+  const float eps_abs = frame.weights.z;
+  const float eps_rel = frame.weights.w;
+  const int positional = frame.iparams.x;
   BestSamples best;
   best.weight = vec4(0.0);
   best.index = ivec4(0x7FFFFFFF);  // empty: weight 0 (every inserted weight is > 0)
@@ -252,17 +263,17 @@ vec4 ShadeSurface(vec3 x) {
     // ---- weights: DirectionalWeight / PositionalWeight / CombinedWeight with v = 1 ----
     const vec3 b = uintBitsToFloat(r0.xyz) - x;
     const float lb = length(b);  // also the range of x from the view (a rotation keeps lengths)
-    const vec3 dab = a / la - b / lb;  // well-conditioned cosine (blend_math.h)
-    const float w_d = (!(la > kMinDistance) || !(lb > kMinDistance))
+    const vec3 dab = a_unit - b / lb;  // well-conditioned cosine (blend_math.h)
+    const float w_d = (a_near || !(lb > kMinDistance))
                           ? 0.0 : max(0.0, 1.0 - 0.5 * dot(dab, dab));
     float w;
     if (kLambdaOne != 0) {
-      w = max(w_d, frame.weights.y);
+      w = max(w_d, min_weight);
     } else {
-      const float w_p = frame.iparams.x == kPositionalPrinted
+      const float w_p = positional == kPositionalPrinted
                             ? max(0.0, 1.0 - lb / d_o)
                             : max(0.0, 1.0 - max(0.0, lb - d_o) / d_o);
-      w = CombinedWeight(1.0, w_d, w_p, frame.weights.x, frame.weights.y);
+      w = CombinedWeight(1.0, w_d, w_p, lambda, min_weight);
     }
     if (!(w >= nth)) continue;
     const uvec4 r1 = texelFetch(ranked_refs, t + 1);
@@ -286,7 +297,7 @@ vec4 ShadeSurface(vec3 x) {
     if (!(z_stored > 0.0)) continue;
     const float range_m = lb;
     const float range_d = z_stored * range_m / z;
-    if (range_m > range_d + frame.weights.z + frame.weights.w * range_d) continue;
+    if (range_m > range_d + eps_abs + eps_rel * range_d) continue;
     InsertSample(best, n, w, int(r1.y),
                  vec4(clamp(uv, vec2(0.0), size - 1.0), float(layer), uintBitsToFloat(r1.w)));
     nth = n == 1 ? best.weight.x : n == 2 ? best.weight.y : n == 3 ? best.weight.z : best.weight.w;
