@@ -23,11 +23,11 @@ layout(set = 0, binding = 5, r32f) uniform readonly image2DArray depths;
 
 // Deferred: the surface point per pixel from gbuffer.frag (w = 0: no proxy surface).
 layout(set = 0, binding = 6) uniform sampler2D gbuffer;
-// Per-frame ranked references (CellTable::RankRefs, client/vulkan/vk_cell_table.cc), 2 texels per
-// reference slot, same
-// slot index as ref_slots, sorted per cell by an upper bound of the weight this frame:
-//   (c_i.xyz, bound) as float bits; (layer, position in the cell's list, width | height << 16,
-//   exposure bits). bound = -1: reference not resident.
+// Per-frame ranked references (CellTable::RankRefs, client/vulkan/vk_cell_table.cc),
+// kRankedTexels texels per reference slot, same slot index as ref_slots, sorted per cell by an
+// upper bound of the weight this frame: (c_i.xyz, bound) as float bits; the rows of M = K R^T
+// with (layer | position in the cell's list << 16), (width | height << 16) and the exposure bits
+// in w. bound = -1: reference not resident.
 layout(set = 0, binding = 7) uniform usamplerBuffer ranked_refs;
 
 // The frame's background views, the same texels as frame.bg_views (kBgViewTexels per view):
@@ -37,7 +37,7 @@ layout(set = 0, binding = 7) uniform usamplerBuffer ranked_refs;
 layout(set = 0, binding = 10) uniform samplerBuffer bg_texels;
 
 const int kViewTexels = 5;
-const int kRankedTexels = 5;  // client/vulkan/vk_cell_table.h
+const int kRankedTexels = 4;  // client/vulkan/vk_cell_table.h
 // n of §3.1.4 (BlendOptions::n_best), a specialisation constant: one pipeline per n, so the
 // disabled best-n slots and the n-th-best pick fold away at compile time.
 layout(constant_id = 0) const int kNBest = 3;
@@ -276,19 +276,22 @@ vec4 ShadeSurface(vec3 x) {
       w = CombinedWeight(1.0, w_d, w_p, lambda, min_weight);
     }
     if (!(w >= nth)) continue;
-    const uvec4 r1 = texelFetch(ranked_refs, t + 1);
-    const int layer = int(r1.x);
+    // The view's M = K R^T (the 3x3 part of P = K [R^T | -R^T c]) with the record's integers
+    // and exposure in the w components (CellTable WriteRankedSlot).
+    const uvec4 m0 = texelFetch(ranked_refs, t + 1);  // w: layer | list position << 16
+    const uvec4 m1 = texelFetch(ranked_refs, t + 2);  // w: width | height << 16
+    const uvec4 m2 = texelFetch(ranked_refs, t + 3);  // w: exposure bits
+    const int layer = int(m0.w & 0xFFFFu);
     // ---- validity (3.4), blend_math.h Validity() with the discontinuity test baked into the
-    // depth layer. Projection by P = K [R^T | -R^T c]: hp = (z u, z v, z) with z the camera
-    // z-depth, so in_front is z > kMinDistance and uv = hp.xy / z, algebraically the same as
-    // K (R^T (x - c)). The range of x is |x - c| = lb, and the stored range along the same ray
+    // depth layer. Projection of x - c_i = -b by M: hp = (z u, z v, z) with z the camera
+    // z-depth, so in_front is z > kMinDistance and uv = hp.xy / z, algebraically K (R^T (x - c))
+    // of ProjectToView. The range of x is |x - c| = lb, and the stored range along the same ray
     // is z_stored * range / z (= z_stored * |ray|, RangeFromZDepth).
-    const vec4 hx = vec4(x, 1.0);
-    const float z = dot(uintBitsToFloat(texelFetch(ranked_refs, t + 4)), hx);
+    const vec3 xc = -b;
+    const float z = dot(uintBitsToFloat(m2.xyz), xc);
     if (!(z > kMinDistance)) continue;
-    const vec2 uv = vec2(dot(uintBitsToFloat(texelFetch(ranked_refs, t + 2)), hx),
-                         dot(uintBitsToFloat(texelFetch(ranked_refs, t + 3)), hx)) / z;
-    const vec2 size = vec2(float(r1.z & 0xFFFFu), float(r1.z >> 16));
+    const vec2 uv = vec2(dot(uintBitsToFloat(m0.xyz), xc), dot(uintBitsToFloat(m1.xyz), xc)) / z;
+    const vec2 size = vec2(float(m1.w & 0xFFFFu), float(m1.w >> 16));
     if (!(uv.x >= -0.5 && uv.y >= -0.5 && uv.x < size.x - 0.5 && uv.y < size.y - 0.5)) continue;
     const vec2 pc = clamp(floor(uv + 0.5), vec2(0.0), size - 1.0);
     const float z_stored = imageLoad(depths, ivec3(ivec2(pc), layer)).r;
@@ -298,8 +301,8 @@ vec4 ShadeSurface(vec3 x) {
     const float range_m = lb;
     const float range_d = z_stored * range_m / z;
     if (range_m > range_d + eps_abs + eps_rel * range_d) continue;
-    InsertSample(best, n, w, int(r1.y),
-                 vec4(clamp(uv, vec2(0.0), size - 1.0), float(layer), uintBitsToFloat(r1.w)));
+    InsertSample(best, n, w, int(m0.w >> 16),
+                 vec4(clamp(uv, vec2(0.0), size - 1.0), float(layer), uintBitsToFloat(m2.w)));
     nth = n == 1 ? best.weight.x : n == 2 ? best.weight.y : n == 3 ? best.weight.z : best.weight.w;
   }
 
