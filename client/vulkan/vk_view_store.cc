@@ -18,11 +18,6 @@ namespace {
 constexpr VkFormat kColorFormat = VK_FORMAT_R16G16B16A16_UNORM;
 constexpr uint32_t kColorTexelBytes = 8;
 constexpr uint32_t kDepthTexelBytes = 4;  // R32F
-// Layouts while resident: the colour layers are sampled (filtered), the depth layers are read
-// as a storage image (imageLoad in blend_shade.glsl: llvmpipe's image load addresses the texel
-// with the layer's scalar strides; texelFetch went through its per-lane mip-level path).
-constexpr VkImageLayout kColorLayout = VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL;
-constexpr VkImageLayout kDepthLayout = VK_IMAGE_LAYOUT_GENERAL;
 
 const std::array<uint16_t, 256>& Linear16Lut() {
   static const std::array<uint16_t, 256> lut = [] {
@@ -72,7 +67,8 @@ absl::Status ViewStore::Grow(uint32_t w, uint32_t h, uint32_t slots) {
     return absl::OkStatus();
   const VkImageUsageFlags usage = VK_IMAGE_USAGE_SAMPLED_BIT | VK_IMAGE_USAGE_TRANSFER_DST_BIT |
                                   VK_IMAGE_USAGE_TRANSFER_SRC_BIT;
-  EXO_ASSIGN_OR_RETURN(Image nc, Image::Create(ctx_, nw, nh, ns, kColorFormat, usage,
+  EXO_ASSIGN_OR_RETURN(Image nc, Image::Create(ctx_, nw, nh, ns, kColorFormat,
+                                               usage | VK_IMAGE_USAGE_STORAGE_BIT,
                                                VK_IMAGE_ASPECT_COLOR_BIT, true));
   EXO_ASSIGN_OR_RETURN(Image nd, Image::Create(ctx_, nw, nh, ns, VK_FORMAT_R32_SFLOAT,
                                                usage | VK_IMAGE_USAGE_STORAGE_BIT,
