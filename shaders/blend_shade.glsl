@@ -28,7 +28,7 @@ layout(set = 0, binding = 6) uniform sampler2D gbuffer;
 // upper bound of the weight this frame: (c_i.xyz, bound) as float bits; the rows of M = K R^T
 // with (layer | position in the cell's list << 16), (width | height << 16) and the exposure bits
 // in w. bound = -1: reference not resident.
-layout(set = 0, binding = 7) uniform usamplerBuffer ranked_refs;
+layout(set = 0, binding = 7, rgba32ui) uniform readonly uimageBuffer ranked_refs;
 
 // The frame's background views, the same texels as frame.bg_views (kBgViewTexels per view):
 // the background loop reads them with a loop-dependent index, which llvmpipe turns into a
@@ -278,7 +278,7 @@ vec4 ShadeSurface(vec3 x) {
   if (frame.bg_params.y > 0) count = min(count, uint(frame.bg_params.y));
   for (uint i = 0u; i < count; ++i) {
     const int t = kRankedTexels * int(offset + i);
-    const uvec4 r0 = texelFetch(ranked_refs, t);
+    const uvec4 r0 = imageLoad(ranked_refs, t);
     if (uintBitsToFloat(r0.w) < nth) break;  // also: bound -1 = not resident (sorted last)
     // ---- weights: DirectionalWeight / PositionalWeight / CombinedWeight with v = 1 ----
     const vec3 b = uintBitsToFloat(r0.xyz) - x;
@@ -298,9 +298,9 @@ vec4 ShadeSurface(vec3 x) {
     if (!(w >= nth)) continue;
     // The view's M = K R^T (the 3x3 part of P = K [R^T | -R^T c]) with the record's integers
     // and exposure in the w components (CellTable WriteRankedSlot).
-    const uvec4 m0 = texelFetch(ranked_refs, t + 1);  // w: layer | list position << 16
-    const uvec4 m1 = texelFetch(ranked_refs, t + 2);  // w: width | height << 16
-    const uvec4 m2 = texelFetch(ranked_refs, t + 3);  // w: exposure bits
+    const uvec4 m0 = imageLoad(ranked_refs, t + 1);  // w: layer | list position << 16
+    const uvec4 m1 = imageLoad(ranked_refs, t + 2);  // w: width | height << 16
+    const uvec4 m2 = imageLoad(ranked_refs, t + 3);  // w: exposure bits
     const int layer = int(m0.w & 0xFFFFu);
     // ---- validity (3.4), blend_math.h Validity() with the discontinuity test baked into the
     // depth layer. Projection of x - c_i = -b by M: hp = (z u, z v, z) with z the camera

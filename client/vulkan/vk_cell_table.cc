@@ -47,7 +47,8 @@ absl::Status CellTable::GrowSlabs(uint32_t slabs) {
   // kRankedTexels RGBA32UI texels (16 bytes each) per 4-byte reference slot.
   const size_t ranked_bytes = ns * slab_bytes * 4 * kRankedTexels;
   EXO_ASSIGN_OR_RETURN(Buffer nr, Buffer::Create(ctx_, ranked_bytes,
-                                                 VK_BUFFER_USAGE_UNIFORM_TEXEL_BUFFER_BIT));
+                                                 VK_BUFFER_USAGE_UNIFORM_TEXEL_BUFFER_BIT |
+                                                     VK_BUFFER_USAGE_STORAGE_TEXEL_BUFFER_BIT));
   std::memset(nr.mapped, 0, ranked_bytes);
   refs_buf_ = std::move(nb);
   ranked_buf_ = std::move(nr);

@@ -146,7 +146,10 @@ absl::Status Pipelines::CreateSetLayout() {
   // The baked depth layers as a storage image (imageLoad, nearest texel; docs/vulkan.md issue 16
   // session 15).
   b[5].descriptorType = VK_DESCRIPTOR_TYPE_STORAGE_IMAGE;
-  b[7].descriptorType = VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER;  // ranked refs (per frame)
+  // Ranked refs (per frame): a storage texel buffer read with imageLoad, which llvmpipe inlines
+  // (a uniform texel buffer's texelFetch is a call, and every call spills the live vector
+  // registers of the reference loop; docs/vulkan.md issue 16 session 15).
+  b[7].descriptorType = VK_DESCRIPTOR_TYPE_STORAGE_TEXEL_BUFFER;
   b[8].descriptorType = VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;        // blend.comp output (RGBA8)
   b[9].descriptorType = VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER; // RenderFloor's texture
   // The frame's background views (blend_shade.glsl bg_texels): read with a loop-dependent index,
@@ -176,14 +179,15 @@ absl::Status Pipelines::CreateSetLayout() {
 }
 
 absl::Status Pipelines::CreateDescriptorSet() {
-  VkDescriptorPoolSize sizes[5] = {{VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER, 1},
-                                   {VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER, 5},
+  VkDescriptorPoolSize sizes[6] = {{VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER, 1},
+                                   {VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER, 4},
+                                   {VK_DESCRIPTOR_TYPE_STORAGE_TEXEL_BUFFER, 1},
                                    {VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER, 3},
                                    {VK_DESCRIPTOR_TYPE_STORAGE_IMAGE, 2},
                                    {VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, 1}};
   VkDescriptorPoolCreateInfo pi{VK_STRUCTURE_TYPE_DESCRIPTOR_POOL_CREATE_INFO};
   pi.maxSets = 1;
-  pi.poolSizeCount = 5;
+  pi.poolSizeCount = 6;
   pi.pPoolSizes = sizes;
   VkDescriptorPool raw_pool;
   EXO_VK_RETURN(vkCreateDescriptorPool(ctx_.device(), &pi, nullptr, &raw_pool));
@@ -244,7 +248,7 @@ absl::Status Pipelines::WriteDescriptors(const DescriptorInputs& in) {
       w[i].descriptorType = VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER;
       w[i].pTexelBufferView = &tb[i - 1];
     } else if (i == 7) {
-      w[i].descriptorType = VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER;
+      w[i].descriptorType = VK_DESCRIPTOR_TYPE_STORAGE_TEXEL_BUFFER;
       w[i].pTexelBufferView = &ranked_view;
     } else if (i == 8) {
       w[i].descriptorType = VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;
