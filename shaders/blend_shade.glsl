@@ -15,7 +15,8 @@ layout(set = 0, binding = 1) uniform samplerBuffer view_texels;
 layout(set = 0, binding = 2) uniform usamplerBuffer cell_entries;
 // Reference slots: view-record indices (the views' texture-array layers), ~0 = not resident.
 layout(set = 0, binding = 3) uniform usamplerBuffer ref_slots;
-layout(set = 0, binding = 4) uniform sampler2DArray colors;  // SRGB8_A8 + bilinear sampler
+// Linear UNORM16 colour layers (bilinear sampler: the floors; the blend reads color_texels).
+layout(set = 0, binding = 4) uniform sampler2DArray colors;
 // R32F baked z-depth (0 = invalid), read with imageLoad (the nearest texel, as texelFetch): a
 // storage image's load is addressed with the layer's scalar strides, texelFetch went through
 // llvmpipe's per-lane mip-level path (docs/vulkan.md, issue 16 session 15).
@@ -27,7 +28,9 @@ layout(set = 0, binding = 6) uniform sampler2D gbuffer;
 // kRankedTexels texels per reference slot, same slot index as ref_slots, sorted per cell by an
 // upper bound of the weight this frame: (c_i.xyz, bound) as float bits; the rows of M = K R^T
 // with (layer | position in the cell's list << 16), (width | height << 16) and the exposure bits
-// in w. bound = -1: reference not resident.
+// in w. bound = -1: reference not resident. A storage texel buffer (imageLoad): llvmpipe inlines
+// the load, where a uniform texel buffer's texelFetch is a call that spills the reference loop's
+// live vector registers (docs/vulkan.md, issue 16 session 15).
 layout(set = 0, binding = 7, rgba32ui) uniform readonly uimageBuffer ranked_refs;
 
 // The frame's background views, the same texels as frame.bg_views (kBgViewTexels per view):
