@@ -15,26 +15,34 @@ layout(set = 0, binding = 1) uniform samplerBuffer view_texels;
 layout(set = 0, binding = 2) uniform usamplerBuffer cell_entries;
 // Reference slots: view-record indices (the views' texture-array layers), ~0 = not resident.
 layout(set = 0, binding = 3) uniform usamplerBuffer ref_slots;
-layout(set = 0, binding = 4) uniform sampler2DArray colors;  // SRGB8_A8 + bilinear sampler
-layout(set = 0, binding = 5) uniform sampler2DArray depths;  // R32F baked z-depth (0 = invalid)
+// Linear UNORM16 colour layers (bilinear sampler: the floors; the blend reads color_texels).
+layout(set = 0, binding = 4) uniform sampler2DArray colors;
+// R32F baked z-depth (0 = invalid), read with imageLoad (the nearest texel, as texelFetch): a
+// storage image's load is addressed with the layer's scalar strides, texelFetch went through
+// llvmpipe's per-lane mip-level path (docs/vulkan.md, issue 16 session 15).
+layout(set = 0, binding = 5, r32f) uniform readonly image2DArray depths;
 
 // Deferred: the surface point per pixel from gbuffer.frag (w = 0: no proxy surface).
 layout(set = 0, binding = 6) uniform sampler2D gbuffer;
-// Per-frame ranked references (CellTable::RankRefs, client/vulkan/vk_cell_table.cc), 2 texels per
-// reference slot, same
-// slot index as ref_slots, sorted per cell by an upper bound of the weight this frame:
-//   (c_i.xyz, bound) as float bits; (layer, position in the cell's list, width | height << 16,
-//   exposure bits). bound = -1: reference not resident.
-layout(set = 0, binding = 7) uniform usamplerBuffer ranked_refs;
+// Per-frame ranked references (CellTable::RankRefs, client/vulkan/vk_cell_table.cc),
+// kRankedTexels texels per reference slot, same slot index as ref_slots, sorted per cell by an
+// upper bound of the weight this frame: (c_i.xyz, bound) as float bits; the rows of M = K R^T
+// with (layer | position in the cell's list << 16), (width | height << 16) and the exposure bits
+// in w. bound = -1: reference not resident. A storage texel buffer (imageLoad): llvmpipe inlines
+// the load, where a uniform texel buffer's texelFetch is a call that spills the reference loop's
+// live vector registers (docs/vulkan.md, issue 16 session 15).
+layout(set = 0, binding = 7, rgba32ui) uniform readonly uimageBuffer ranked_refs;
 
 // The frame's background views, the same texels as frame.bg_views (kBgViewTexels per view):
 // the background loop reads them with a loop-dependent index, which llvmpipe turns into a
 // per-lane, per-component gather with bounds checks from a uniform block, a vector gather per
 // texel from a texel buffer (docs/vulkan.md, issue 16 session 13).
 layout(set = 0, binding = 10) uniform samplerBuffer bg_texels;
+// The colour layers (binding 4) as a storage image: SampleLinear's 4 nearest loads.
+layout(set = 0, binding = 11, rgba16) uniform readonly image2DArray color_texels;
 
 const int kViewTexels = 5;
-const int kRankedTexels = 5;  // client/vulkan/vk_cell_table.h
+const int kRankedTexels = 4;  // client/vulkan/vk_cell_table.h
 // n of §3.1.4 (BlendOptions::n_best), a specialisation constant: one pipeline per n, so the
 // disabled best-n slots and the n-th-best pick fold away at compile time.
 layout(constant_id = 0) const int kNBest = 3;
@@ -104,16 +112,34 @@ void InsertSample(inout BestSamples b, int n, float w, int idx, vec4 sample_para
 }
 
 // Bilinear sample of SrgbToLinear(texels) at clamped continuous pixel uv (centres at integers):
-// the convention of blend_math.h. One filtered fetch from the SRGB8_A8 array with the linear
-// sampler (the texture unit decodes to linear before filtering, as specified). uv is clamped to
-// the VIEW's [0, size-1] (layers can be larger than the view; at uv = size-1 the neighbour
-// outside the view gets weight exactly 0). llvmpipe filters with 8-bit fractional weights, so
-// this differs from the float lerp of the CPU reference by < 1/255 (golden tests bound it).
-// Four texelFetch + float lerp measured ~3x slower per frame on llvmpipe (docs/vulkan.md).
-void AccumulateSample(inout BlendAccumulator acc, float weight, vec4 s, vec2 layer_size,
+// cpu_renderer.cc SampleLinear, the same float lerps of the 4 nearest texels of the linear
+// UNORM16 layer (the decode of the stored sRGB8 texels done once at upload, quantised to
+// 1.5e-5). Four imageLoads of the storage-image view and float weights: 3 % less CPU per frame
+// than one filtered textureLod (llvmpipe's sampler path with per-lane mip strides and 8-bit
+// fractional weights), and closer to the CPU reference (docs/vulkan.md, issue 16 session 15;
+// with texelFetch the 4 fetches had measured ~3x slower). uv is clamped to the VIEW's
+// [0, size-1] (layers can be larger than the view).
+vec3 SampleLinear(vec2 uv, int layer, ivec2 layer_size) {
+  const vec2 f = floor(uv);
+  const vec2 t = uv - f;
+  const ivec2 i0 = ivec2(f);
+  // uv is clamped to the view's [0, size - 1]: at u = size - 1 the right neighbour (outside the
+  // view) has weight t.x = 0, as the CPU's clamp to the view; clamped to the layer here so that
+  // no load leaves the image.
+  const ivec2 i1 = min(i0 + 1, layer_size - 1);
+  const vec3 p00 = imageLoad(color_texels, ivec3(i0, layer)).rgb;
+  const vec3 p10 = imageLoad(color_texels, ivec3(i1.x, i0.y, layer)).rgb;
+  const vec3 p01 = imageLoad(color_texels, ivec3(i0.x, i1.y, layer)).rgb;
+  const vec3 p11 = imageLoad(color_texels, ivec3(i1, layer)).rgb;
+  const vec3 top = p00 + t.x * (p10 - p00);
+  const vec3 bot = p01 + t.x * (p11 - p01);
+  return top + t.y * (bot - top);
+}
+
+void AccumulateSample(inout BlendAccumulator acc, float weight, vec4 s, ivec2 layer_size,
                       bool enabled) {
   if (!enabled || !(weight > 0.0)) return;
-  const vec3 lin = textureLod(colors, vec3((s.xy + 0.5) / layer_size, s.z), 0.0).rgb;
+  const vec3 lin = SampleLinear(s.xy, int(s.z), layer_size);
   Accumulate(acc, lin, s.w, weight);
 }
 
@@ -123,7 +149,7 @@ bool BlendBest(BestSamples best, int n, out vec3 srgb) {
   BlendAccumulator acc;
   acc.sum_linear = vec3(0.0);
   acc.sum_weight = 0.0;
-  const vec2 layer_size = vec2(textureSize(colors, 0).xy);
+  const ivec2 layer_size = imageSize(color_texels).xy;
   AccumulateSample(acc, best.weight.x, best.s0, layer_size, 0 < n);
   AccumulateSample(acc, best.weight.y, best.s1, layer_size, 1 < n);
   AccumulateSample(acc, best.weight.z, best.s2, layer_size, 2 < n);
@@ -159,7 +185,7 @@ vec4 ShadeBackground(ivec2 pixel) {
     const vec2 size = wh.xy;
     if (!(uv.x >= -0.5 && uv.y >= -0.5 && uv.x < size.x - 0.5 && uv.y < size.y - 0.5)) continue;
     const vec2 pc = clamp(floor(uv + 0.5), vec2(0.0), size - 1.0);
-    if (!(texelFetch(depths, ivec3(ivec2(pc), int(wh.z)), 0).r < 0.0)) continue;
+    if (!(imageLoad(depths, ivec3(ivec2(pc), int(wh.z))).r < 0.0)) continue;
     InsertSample(best, n, BorderWeight(uv, size), j,
                  vec4(clamp(uv, vec2(0.0), size - 1.0), wh.z, wh.w));
   }
@@ -198,6 +224,17 @@ vec4 ShadeSurface(vec3 x) {
   const vec3 a = c_o - x;
   const float la = length(a);
   const float d_o = max(la, kMinDistance);
+  // Loop invariants read once per pixel. llvmpipe moves nothing out of a loop (no loop-invariant
+  // code motion in its NIR or LLVM passes) and loads a Frame value under robust buffer access
+  // as 8 per-lane scalar loads: written inside the reference loop, the two occlusion epsilons
+  // alone were 16 loads per iteration. The same values and expressions, so bit-equal.
+  const vec3 a_unit = a / la;
+  const bool a_near = !(la > kMinDistance);
+  const float lambda = frame.weights.x;
+  const float min_weight = frame.weights.y;
+  const float eps_abs = frame.weights.z;
+  const float eps_rel = frame.weights.w;
+  const int positional = frame.iparams.x;
   BestSamples best;
   best.weight = vec4(0.0);
   best.index = ivec4(0x7FFFFFFF);  // empty: weight 0 (every inserted weight is > 0)
@@ -227,7 +264,7 @@ vec4 ShadeSurface(vec3 x) {
     in_roi = true;
     const vec4 ce = texelFetch(view_texels, base + 3);
     const float lb = length(ce.xyz - x);
-    const float z_stored = texelFetch(depths, ivec3(ivec2(pc), layer), 0).r;
+    const float z_stored = imageLoad(depths, ivec3(ivec2(pc), layer)).r;
     if (!ValidDepth(z_stored)) continue;
     const float range_d = z_stored * lb / z;
     if (lb > range_d + frame.weights.z + frame.weights.w * range_d) continue;
@@ -244,48 +281,51 @@ vec4 ShadeSurface(vec3 x) {
   if (frame.bg_params.y > 0) count = min(count, uint(frame.bg_params.y));
   for (uint i = 0u; i < count; ++i) {
     const int t = kRankedTexels * int(offset + i);
-    const uvec4 r0 = texelFetch(ranked_refs, t);
+    const uvec4 r0 = imageLoad(ranked_refs, t);
     if (uintBitsToFloat(r0.w) < nth) break;  // also: bound -1 = not resident (sorted last)
     // ---- weights: DirectionalWeight / PositionalWeight / CombinedWeight with v = 1 ----
     const vec3 b = uintBitsToFloat(r0.xyz) - x;
     const float lb = length(b);  // also the range of x from the view (a rotation keeps lengths)
-    const vec3 dab = a / la - b / lb;  // well-conditioned cosine (blend_math.h)
-    const float w_d = (!(la > kMinDistance) || !(lb > kMinDistance))
+    const vec3 dab = a_unit - b / lb;  // well-conditioned cosine (blend_math.h)
+    const float w_d = (a_near || !(lb > kMinDistance))
                           ? 0.0 : max(0.0, 1.0 - 0.5 * dot(dab, dab));
     float w;
     if (kLambdaOne != 0) {
-      w = max(w_d, frame.weights.y);
+      w = max(w_d, min_weight);
     } else {
-      const float w_p = frame.iparams.x == kPositionalPrinted
+      const float w_p = positional == kPositionalPrinted
                             ? max(0.0, 1.0 - lb / d_o)
                             : max(0.0, 1.0 - max(0.0, lb - d_o) / d_o);
-      w = CombinedWeight(1.0, w_d, w_p, frame.weights.x, frame.weights.y);
+      w = CombinedWeight(1.0, w_d, w_p, lambda, min_weight);
     }
     if (!(w >= nth)) continue;
-    const uvec4 r1 = texelFetch(ranked_refs, t + 1);
-    const int layer = int(r1.x);
+    // The view's M = K R^T (the 3x3 part of P = K [R^T | -R^T c]) with the record's integers
+    // and exposure in the w components (CellTable WriteRankedSlot).
+    const uvec4 m0 = imageLoad(ranked_refs, t + 1);  // w: layer | list position << 16
+    const uvec4 m1 = imageLoad(ranked_refs, t + 2);  // w: width | height << 16
+    const uvec4 m2 = imageLoad(ranked_refs, t + 3);  // w: exposure bits
+    const int layer = int(m0.w & 0xFFFFu);
     // ---- validity (3.4), blend_math.h Validity() with the discontinuity test baked into the
-    // depth layer. Projection by P = K [R^T | -R^T c]: hp = (z u, z v, z) with z the camera
-    // z-depth, so in_front is z > kMinDistance and uv = hp.xy / z, algebraically the same as
-    // K (R^T (x - c)). The range of x is |x - c| = lb, and the stored range along the same ray
+    // depth layer. Projection of x - c_i = -b by M: hp = (z u, z v, z) with z the camera
+    // z-depth, so in_front is z > kMinDistance and uv = hp.xy / z, algebraically K (R^T (x - c))
+    // of ProjectToView. The range of x is |x - c| = lb, and the stored range along the same ray
     // is z_stored * range / z (= z_stored * |ray|, RangeFromZDepth).
-    const vec4 hx = vec4(x, 1.0);
-    const float z = dot(uintBitsToFloat(texelFetch(ranked_refs, t + 4)), hx);
+    const vec3 xc = -b;
+    const float z = dot(uintBitsToFloat(m2.xyz), xc);
     if (!(z > kMinDistance)) continue;
-    const vec2 uv = vec2(dot(uintBitsToFloat(texelFetch(ranked_refs, t + 2)), hx),
-                         dot(uintBitsToFloat(texelFetch(ranked_refs, t + 3)), hx)) / z;
-    const vec2 size = vec2(float(r1.z & 0xFFFFu), float(r1.z >> 16));
+    const vec2 uv = vec2(dot(uintBitsToFloat(m0.xyz), xc), dot(uintBitsToFloat(m1.xyz), xc)) / z;
+    const vec2 size = vec2(float(m1.w & 0xFFFFu), float(m1.w >> 16));
     if (!(uv.x >= -0.5 && uv.y >= -0.5 && uv.x < size.x - 0.5 && uv.y < size.y - 0.5)) continue;
     const vec2 pc = clamp(floor(uv + 0.5), vec2(0.0), size - 1.0);
-    const float z_stored = texelFetch(depths, ivec3(ivec2(pc), layer), 0).r;
+    const float z_stored = imageLoad(depths, ivec3(ivec2(pc), layer)).r;
     // ValidDepth(z_stored) is z_stored > 0 here: the baked layers hold only finite values (0
     // invalid, -1 background, > 0 depth; BakeDiscontinuities maps NaN / Inf to 0 at upload).
     if (!(z_stored > 0.0)) continue;
     const float range_m = lb;
     const float range_d = z_stored * range_m / z;
-    if (range_m > range_d + frame.weights.z + frame.weights.w * range_d) continue;
-    InsertSample(best, n, w, int(r1.y),
-                 vec4(clamp(uv, vec2(0.0), size - 1.0), float(layer), uintBitsToFloat(r1.w)));
+    if (range_m > range_d + eps_abs + eps_rel * range_d) continue;
+    InsertSample(best, n, w, int(m0.w >> 16),
+                 vec4(clamp(uv, vec2(0.0), size - 1.0), float(layer), uintBitsToFloat(m2.w)));
     nth = n == 1 ? best.weight.x : n == 2 ? best.weight.y : n == 3 ? best.weight.z : best.weight.w;
   }
 

@@ -47,7 +47,8 @@ absl::Status CellTable::GrowSlabs(uint32_t slabs) {
   // kRankedTexels RGBA32UI texels (16 bytes each) per 4-byte reference slot.
   const size_t ranked_bytes = ns * slab_bytes * 4 * kRankedTexels;
   EXO_ASSIGN_OR_RETURN(Buffer nr, Buffer::Create(ctx_, ranked_bytes,
-                                                 VK_BUFFER_USAGE_UNIFORM_TEXEL_BUFFER_BIT));
+                                                 VK_BUFFER_USAGE_UNIFORM_TEXEL_BUFFER_BIT |
+                                                     VK_BUFFER_USAGE_STORAGE_TEXEL_BUFFER_BIT));
   std::memset(nr.mapped, 0, ranked_bytes);
   refs_buf_ = std::move(nb);
   ranked_buf_ = std::move(nr);
@@ -197,8 +198,8 @@ absl::Status CellTable::SetRefs(CellId id, std::span<const ViewId> refs) {
 //   w_p is decreasing in |c_i - x| >= D_i - r and increasing in |c_o - x| <= D_o + r,
 //   bound = max(lambda W_d + (1 - lambda) W_p, min_weight), plus a slack for float rounding.
 // The cell's references are written to ranked_buf_ sorted by (bound desc, position in the
-// cell's list asc): per slot (c_i.xyz, bound) and (layer, position, width | height << 16,
-// exposure). blend.frag stops at the first reference whose bound is below the n-th best
+// cell's list asc): per slot (c_i.xyz, bound) and the view's projection rows with layer,
+// position, size and exposure (WriteRankedSlot). blend.frag stops at the first reference whose bound is below the n-th best
 // weight found so far (no later one can enter the best n) and breaks weight ties by the
 // position in the cell's list, so the selection equals blend_math.h's in-order InsertBest.
 // Non-resident references get bound -1 (sorted last, never evaluated).
@@ -217,8 +218,9 @@ std::array<glm::dvec3, 5> FrustumPlanes(const PinholeCamera& cam) {
           glm::dvec3(0.0, 0.0, 1.0)};
 }
 
-// The two ranked texels of one reference: (c_i.xyz, bound) and (layer, position,
-// width | height << 16, exposure); bound -1 and zeros for a non-resident one.
+// The ranked texels of one reference (kRankedTexels): (c_i.xyz, bound), then the rows of
+// M = K R^T (P's 3x3 part) with (layer | position << 16), (width | height << 16) and the
+// exposure in their w; bound -1 and zeros for a non-resident one.
 void WriteRankedSlot(const GpuView* v, float bound, uint32_t position, glm::uvec4* dst) {
   if (bound < 0.0f) {
     dst[0] = glm::uvec4(0u, 0u, 0u, FloatBits(-1.0f));
@@ -227,13 +229,14 @@ void WriteRankedSlot(const GpuView* v, float bound, uint32_t position, glm::uvec
   }
   dst[0] = glm::uvec4(FloatBits(v->centre_exposure.x), FloatBits(v->centre_exposure.y),
                       FloatBits(v->centre_exposure.z), FloatBits(bound));
-  dst[1] = glm::uvec4(uint32_t(v->size_layer.z), position,
-                      uint32_t(v->size_layer.x) | (uint32_t(v->size_layer.y) << 16),
-                      FloatBits(v->centre_exposure.w));
+  const uint32_t layer = uint32_t(v->size_layer.z);
+  const uint32_t w[3] = {layer | (position << 16),
+                         uint32_t(v->size_layer.x) | (uint32_t(v->size_layer.y) << 16),
+                         FloatBits(v->centre_exposure.w)};
   const glm::vec4* rows[3] = {&v->p0, &v->p1, &v->p2};
   for (int k = 0; k < 3; ++k)
-    dst[2 + k] = glm::uvec4(FloatBits(rows[k]->x), FloatBits(rows[k]->y), FloatBits(rows[k]->z),
-                            FloatBits(rows[k]->w));
+    dst[1 + k] =
+        glm::uvec4(FloatBits(rows[k]->x), FloatBits(rows[k]->y), FloatBits(rows[k]->z), w[k]);
 }
 
 }  // namespace
@@ -289,8 +292,8 @@ void CellTable::RankCell(const Entry& c, const glm::dvec3& m, double r, const gl
 //   w_p is decreasing in |c_i - x| >= D_i - r and increasing in |c_o - x| <= D_o + r,
 //   bound = max(lambda W_d + (1 - lambda) W_p, min_weight), plus a slack for float rounding.
 // The cell's references are written to ranked_buf_ sorted by (bound desc, position in the
-// cell's list asc): per slot (c_i.xyz, bound) and (layer, position, width | height << 16,
-// exposure). blend.frag stops at the first reference whose bound is below the n-th best
+// cell's list asc): per slot (c_i.xyz, bound) and the view's projection rows with layer,
+// position, size and exposure (WriteRankedSlot). blend.frag stops at the first reference whose bound is below the n-th best
 // weight found so far (no later one can enter the best n) and breaks weight ties by the
 // position in the cell's list, so the selection equals blend_math.h's in-order InsertBest.
 // Non-resident references get bound -1 (sorted last, never evaluated).

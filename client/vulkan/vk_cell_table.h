@@ -20,8 +20,11 @@
 namespace exo::vk {
 
 // RGBA32UI texels per reference slot of the per-frame ranked buffer (blend_shade.glsl
-// kRankedTexels): (c_i, bound), (layer, list position, size, exposure), the view's P rows 0..2.
-inline constexpr int kRankedTexels = 5;
+// kRankedTexels): (c_i, bound), (M row 0, layer | list position << 16), (M row 1, width |
+// height << 16), (M row 2, exposure), with M = K R^T the 3x3 part of the view's P (P's 4th
+// column -M c_i is not stored: the shader projects c_i - x). Layer and position fit 16 bits
+// (array layers <= 2048, max_refs_per_cell <= 1024).
+inline constexpr int kRankedTexels = 4;
 
 class CellTable {
  public:

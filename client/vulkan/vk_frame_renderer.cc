@@ -236,7 +236,7 @@ void RecordFloorTexture(VkCommandBuffer cmd, const Image& colors, uint32_t layer
                         const Image& stage, const Image& tex) {
   const uint32_t w = tex.width, h = tex.height;
   TransitionImage(cmd, colors.image.get(), VK_IMAGE_ASPECT_COLOR_BIT,
-                  VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL, VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL,
+                  ViewStore::kColorLayout, VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL,
                   layer, 1);
   TransitionImage(cmd, stage.image.get(), VK_IMAGE_ASPECT_COLOR_BIT, VK_IMAGE_LAYOUT_UNDEFINED,
                   VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, 0, 1);
@@ -248,7 +248,7 @@ void RecordFloorTexture(VkCommandBuffer cmd, const Image& colors, uint32_t layer
   vkCmdBlitImage(cmd, colors.image.get(), VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL, stage.image.get(),
                  VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, 1, &blit, VK_FILTER_NEAREST);
   TransitionImage(cmd, colors.image.get(), VK_IMAGE_ASPECT_COLOR_BIT,
-                  VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL, VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL,
+                  VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL, ViewStore::kColorLayout,
                   layer, 1);
   TransitionImage(cmd, stage.image.get(), VK_IMAGE_ASPECT_COLOR_BIT,
                   VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL, 0, 1);

@@ -1,5 +1,7 @@
 #include "client/vulkan/vk_pipelines.h"
 
+#include "client/vulkan/vk_view_store.h"
+
 #include <glm/glm.hpp>
 
 #include "shaders/blend.comp.h"
@@ -15,6 +17,10 @@
 #include "shaders/viewdepth.frag.h"
 
 namespace exo::vk {
+namespace {
+// Descriptor bindings of the one set (DescriptorInputs, blend_shade.glsl).
+constexpr uint32_t kBindings = 12;
+}  // namespace
 
 absl::StatusOr<std::unique_ptr<Pipelines>> Pipelines::Create(const Context& ctx,
                                                              bool blend_compute) {
@@ -123,8 +129,8 @@ absl::Status Pipelines::CreateSamplers() {
 }
 
 absl::Status Pipelines::CreateSetLayout() {
-  VkDescriptorSetLayoutBinding b[11]{};
-  for (uint32_t i = 0; i < 11; ++i) {
+  VkDescriptorSetLayoutBinding b[kBindings]{};
+  for (uint32_t i = 0; i < kBindings; ++i) {
     b[i].binding = i;
     b[i].descriptorCount = 1;
     b[i].stageFlags = VK_SHADER_STAGE_FRAGMENT_BIT | VK_SHADER_STAGE_COMPUTE_BIT;
@@ -136,16 +142,24 @@ absl::Status Pipelines::CreateSetLayout() {
   // to a vector gather (measured: docs/vulkan.md).
   b[1].descriptorType = b[2].descriptorType = b[3].descriptorType =
       VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER;
-  b[4].descriptorType = b[5].descriptorType = b[6].descriptorType =
-      VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER;
-  b[7].descriptorType = VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER;  // ranked refs (per frame)
+  b[4].descriptorType = b[6].descriptorType = VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER;
+  // The baked depth layers as a storage image (imageLoad, nearest texel; docs/vulkan.md issue 16
+  // session 15).
+  b[5].descriptorType = VK_DESCRIPTOR_TYPE_STORAGE_IMAGE;
+  // Ranked refs (per frame): a storage texel buffer read with imageLoad, which llvmpipe inlines
+  // (a uniform texel buffer's texelFetch is a call, and every call spills the live vector
+  // registers of the reference loop; docs/vulkan.md issue 16 session 15).
+  b[7].descriptorType = VK_DESCRIPTOR_TYPE_STORAGE_TEXEL_BUFFER;
   b[8].descriptorType = VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;        // blend.comp output (RGBA8)
   b[9].descriptorType = VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER; // RenderFloor's texture
   // The frame's background views (blend_shade.glsl bg_texels): read with a loop-dependent index,
   // which llvmpipe makes a per-lane, per-component gather from a uniform block.
   b[10].descriptorType = VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER;
+  // The colour layers as a storage image: the blend's bilinear sample as 4 imageLoads + lerp
+  // (blend_shade.glsl SampleLinear; docs/vulkan.md issue 16 session 15).
+  b[11].descriptorType = VK_DESCRIPTOR_TYPE_STORAGE_IMAGE;
   VkDescriptorSetLayoutCreateInfo li{VK_STRUCTURE_TYPE_DESCRIPTOR_SET_LAYOUT_CREATE_INFO};
-  li.bindingCount = 11;
+  li.bindingCount = kBindings;
   li.pBindings = b;
   VkDescriptorSetLayout raw_layout;
   EXO_VK_RETURN(vkCreateDescriptorSetLayout(ctx_.device(), &li, nullptr, &raw_layout));
@@ -165,13 +179,15 @@ absl::Status Pipelines::CreateSetLayout() {
 }
 
 absl::Status Pipelines::CreateDescriptorSet() {
-  VkDescriptorPoolSize sizes[4] = {{VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER, 1},
-                                   {VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER, 5},
-                                   {VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER, 4},
+  VkDescriptorPoolSize sizes[6] = {{VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER, 1},
+                                   {VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER, 4},
+                                   {VK_DESCRIPTOR_TYPE_STORAGE_TEXEL_BUFFER, 1},
+                                   {VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER, 3},
+                                   {VK_DESCRIPTOR_TYPE_STORAGE_IMAGE, 2},
                                    {VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, 1}};
   VkDescriptorPoolCreateInfo pi{VK_STRUCTURE_TYPE_DESCRIPTOR_POOL_CREATE_INFO};
   pi.maxSets = 1;
-  pi.poolSizeCount = 4;
+  pi.poolSizeCount = 6;
   pi.pPoolSizes = sizes;
   VkDescriptorPool raw_pool;
   EXO_VK_RETURN(vkCreateDescriptorPool(ctx_.device(), &pi, nullptr, &raw_pool));
@@ -211,14 +227,15 @@ absl::Status Pipelines::WriteDescriptors(const DescriptorInputs& in) {
   EXO_ASSIGN_OR_RETURN(buffer_views_[4], MakeBufferView(*in.bg_views, VK_FORMAT_R32G32B32A32_SFLOAT));
   VkBufferView bg_view = buffer_views_[4].get();
   VkDescriptorImageInfo ii[3] = {
-      {linear_sampler_.get(), in.colors->view.get(), VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL},
-      {sampler_.get(), in.depths->view.get(), VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL},
+      {linear_sampler_.get(), in.colors->view.get(), ViewStore::kColorLayout},
+      {VK_NULL_HANDLE, in.depths->view.get(), ViewStore::kDepthLayout},
       {sampler_.get(), in.gbuffer->view.get(), VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL}};
   VkDescriptorImageInfo floor_info{linear_sampler_.get(), in.floor_colors->view.get(),
                                    VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL};
   VkDescriptorBufferInfo out_info{in.blend_out->buffer.get(), 0, VK_WHOLE_SIZE};
-  const uint32_t writes = 11;
-  VkWriteDescriptorSet w[11]{};
+  VkDescriptorImageInfo color_texels{VK_NULL_HANDLE, in.colors->view.get(), ViewStore::kColorLayout};
+  const uint32_t writes = kBindings;
+  VkWriteDescriptorSet w[kBindings]{};
   for (uint32_t i = 0; i < writes; ++i) {
     w[i].sType = VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET;
     w[i].dstSet = desc_set_;
@@ -231,7 +248,7 @@ absl::Status Pipelines::WriteDescriptors(const DescriptorInputs& in) {
       w[i].descriptorType = VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER;
       w[i].pTexelBufferView = &tb[i - 1];
     } else if (i == 7) {
-      w[i].descriptorType = VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER;
+      w[i].descriptorType = VK_DESCRIPTOR_TYPE_STORAGE_TEXEL_BUFFER;
       w[i].pTexelBufferView = &ranked_view;
     } else if (i == 8) {
       w[i].descriptorType = VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;
@@ -239,6 +256,12 @@ absl::Status Pipelines::WriteDescriptors(const DescriptorInputs& in) {
     } else if (i == 10) {
       w[i].descriptorType = VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER;
       w[i].pTexelBufferView = &bg_view;
+    } else if (i == 5) {
+      w[i].descriptorType = VK_DESCRIPTOR_TYPE_STORAGE_IMAGE;
+      w[i].pImageInfo = &ii[1];
+    } else if (i == 11) {
+      w[i].descriptorType = VK_DESCRIPTOR_TYPE_STORAGE_IMAGE;
+      w[i].pImageInfo = &color_texels;
     } else if (i == 9) {
       w[i].descriptorType = VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER;
       w[i].pImageInfo = &floor_info;

@@ -29,12 +29,13 @@ struct DescriptorInputs {
   const Buffer* cell_table = nullptr;    // 2: cell hash table (RGBA32UI texel buffer)
   const Buffer* refs = nullptr;          // 3: reference slots (R32UI texel buffer)
   const Image* colors = nullptr;         // 4: colour layers (bilinear sampler)
-  const Image* depths = nullptr;         // 5: baked depth layers (nearest sampler)
+  const Image* depths = nullptr;         // 5: baked depth layers (storage image)
   const Image* gbuffer = nullptr;        // 6: G-buffer of the blend target (nearest sampler)
   const Buffer* ranked_refs = nullptr;   // 7: per-frame ranked references (RGBA32UI)
   const Buffer* blend_out = nullptr;     // 8: blend.comp output (storage buffer)
   const Image* floor_colors = nullptr;   // 9: RenderFloor's RGBA8 texture (bilinear sampler)
   const Buffer* bg_views = nullptr;      // 10: the frame's background views (RGBA32F texel buffer)
+  // 11: the colour layers (4) again, as a storage image (the blend's bilinear sample by 4 loads)
 };
 
 class Pipelines {

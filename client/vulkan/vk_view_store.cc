@@ -44,7 +44,7 @@ void ViewStore::RecordRegrowth(VkCommandBuffer cmd, Image* nc, Image* nd, bool h
   }
   if (had) {
     for (auto [src, dst] : {std::pair{&colors_, nc}, std::pair{&depths_, nd}}) {
-      TransitionImage(cmd, src->image.get(), a, VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL,
+      TransitionImage(cmd, src->image.get(), a, src == &depths_ ? kDepthLayout : kColorLayout,
                       VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL);
       VkImageCopy region{};
       region.srcSubresource = {a, 0, 0, slot_capacity_};
@@ -56,7 +56,7 @@ void ViewStore::RecordRegrowth(VkCommandBuffer cmd, Image* nc, Image* nd, bool h
   }
   for (Image* img : {nc, nd})
     TransitionImage(cmd, img->image.get(), a, VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL,
-                    VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL);
+                    img == nd ? kDepthLayout : kColorLayout);
 }
 
 absl::Status ViewStore::Grow(uint32_t w, uint32_t h, uint32_t slots) {
@@ -67,9 +67,11 @@ absl::Status ViewStore::Grow(uint32_t w, uint32_t h, uint32_t slots) {
     return absl::OkStatus();
   const VkImageUsageFlags usage = VK_IMAGE_USAGE_SAMPLED_BIT | VK_IMAGE_USAGE_TRANSFER_DST_BIT |
                                   VK_IMAGE_USAGE_TRANSFER_SRC_BIT;
-  EXO_ASSIGN_OR_RETURN(Image nc, Image::Create(ctx_, nw, nh, ns, kColorFormat, usage,
+  EXO_ASSIGN_OR_RETURN(Image nc, Image::Create(ctx_, nw, nh, ns, kColorFormat,
+                                               usage | VK_IMAGE_USAGE_STORAGE_BIT,
                                                VK_IMAGE_ASPECT_COLOR_BIT, true));
-  EXO_ASSIGN_OR_RETURN(Image nd, Image::Create(ctx_, nw, nh, ns, VK_FORMAT_R32_SFLOAT, usage,
+  EXO_ASSIGN_OR_RETURN(Image nd, Image::Create(ctx_, nw, nh, ns, VK_FORMAT_R32_SFLOAT,
+                                               usage | VK_IMAGE_USAGE_STORAGE_BIT,
                                                VK_IMAGE_ASPECT_COLOR_BIT, true));
   EXO_ASSIGN_OR_RETURN(Buffer nrec, Buffer::Create(ctx_, ns * sizeof(GpuView),
                                                    VK_BUFFER_USAGE_UNIFORM_TEXEL_BUFFER_BIT));
@@ -206,16 +208,17 @@ absl::Status ViewStore::CopyStagingToLayer(uint32_t slot, uint32_t w, uint32_t h
     const VkImageAspectFlags a = VK_IMAGE_ASPECT_COLOR_BIT;
     VkDeviceSize offset = 0;
     for (Image* img : {&colors_, &depths_}) {
-      TransitionImage(cmd, img->image.get(), a, VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL,
-                      VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, slot, 1);
+      const VkImageLayout resident = img == &depths_ ? kDepthLayout : kColorLayout;
+      TransitionImage(cmd, img->image.get(), a, resident, VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL,
+                      slot, 1);
       VkBufferImageCopy region{};
       region.bufferOffset = offset;
       region.imageSubresource = {a, 0, slot, 1};
       region.imageExtent = {w, h, 1};
       vkCmdCopyBufferToImage(cmd, staging_.buffer.get(), img->image.get(),
                              VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, 1, &region);
-      TransitionImage(cmd, img->image.get(), a, VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL,
-                      VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL, slot, 1);
+      TransitionImage(cmd, img->image.get(), a, VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, resident,
+                      slot, 1);
       offset += color_bytes;
     }
   });

@@ -69,6 +69,10 @@ class ViewStore {
   }
   const GpuView* records() const { return static_cast<const GpuView*>(records_.mapped); }
   const Buffer& records_buffer() const { return records_; }
+  // Layouts of the arrays while resident: both are read as storage images (imageLoad in
+  // blend_shade.glsl), the colour layers also through the bilinear sampler (floors).
+  static constexpr VkImageLayout kColorLayout = VK_IMAGE_LAYOUT_GENERAL;
+  static constexpr VkImageLayout kDepthLayout = VK_IMAGE_LAYOUT_GENERAL;
   const Image& colors() const { return colors_; }
   const Image& depths() const { return depths_; }
   // True once after the arrays or the record buffer were replaced (descriptors must follow).
@@ -76,8 +80,8 @@ class ViewStore {
   uint64_t ResidentBytes() const;
 
  private:
-  // Clears the new arrays nc, nd and, when `had`, copies the resident layers into them; both
-  // end in SHADER_READ_ONLY_OPTIMAL.
+  // Clears the new arrays nc, nd and, when `had`, copies the resident layers into them; they end
+  // in kColorLayout / kDepthLayout.
   void RecordRegrowth(VkCommandBuffer cmd, Image* nc, Image* nd, bool had) const;
   absl::Status Validate(const StoredView& v) const;
   // The slot of `id` (a free one when new), after growing the arrays to hold it.
