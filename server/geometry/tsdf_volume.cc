@@ -824,6 +824,11 @@ TsdfVoxel* TsdfVolume::MutableVoxelAt(const glm::ivec3& g) {
   return const_cast<TsdfVoxel*>(static_cast<const TsdfVolume*>(this)->VoxelAt(g));
 }
 
+uint64_t TsdfVolume::ChunkVersion(uint64_t key) const {
+  auto it = blocks_.find(key);
+  return it == blocks_.end() ? 0 : it->second->version;
+}
+
 std::vector<uint64_t> TsdfVolume::TakeDirtyBlocks() {
   std::vector<uint64_t> keys(dirty_.begin(), dirty_.end());
   dirty_.clear();

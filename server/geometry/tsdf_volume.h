@@ -124,6 +124,8 @@ class TsdfVolume {
   // The blocks changed since the last ExtractDirtyChunks / TakeDirtyBlocks (sorted), without
   // meshing them; clears the dirty set.
   std::vector<uint64_t> TakeDirtyBlocks();
+  // The last chunk version handed out for a block (0: none, or no such block).
+  uint64_t ChunkVersion(uint64_t block_key) const;
 
   // Signed distance at a local point (trilinear); false if any of the 8 voxels is unobserved.
   bool SdfAt(const glm::vec3& p_local, float* sdf_m) const;
