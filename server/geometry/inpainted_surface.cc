@@ -24,23 +24,27 @@ glm::ivec3 InpaintedSurface::BlockOf(const glm::ivec3& g) const {
           g.z >= 0 ? g.z / bs : (g.z + 1) / bs - 1};
 }
 
-// A block's voxels are read by the cubes of the blocks below it and by the gradients (normals)
-// of the blocks next to it: the 27 blocks around it may change.
+// A block's voxels are read by its own cubes and by those of the 7 blocks below it (as
+// TsdfVolume::ExtractDirtyChunks; the normals of the blocks above, which read one layer of it
+// for their gradients, follow with their next re-mesh).
 void InpaintedSurface::MarkDirty(uint64_t key) {
   const glm::ivec3 b = UnpackCell(key);
-  for (int dz = -1; dz <= 1; ++dz)
-    for (int dy = -1; dy <= 1; ++dy)
-      for (int dx = -1; dx <= 1; ++dx) dirty_.insert(PackCell(b + glm::ivec3(dx, dy, dz)));
+  for (int dz = -1; dz <= 0; ++dz)
+    for (int dy = -1; dy <= 0; ++dy)
+      for (int dx = -1; dx <= 0; ++dx) dirty_.insert(PackCell(b + glm::ivec3(dx, dy, dz)));
 }
 
+// A block holding ROI or inpainted voxels changes the meshes of the blocks whose cubes read it:
+// its own and the 7 below it (the normals of its other neighbours, which read one layer of it
+// for their gradients, keep the observed field's).
 void InpaintedSurface::RebuildAffected() {
   affected_.clear();
   for (const auto* set : {&roi_blocks_, &ip_blocks_})
     for (uint64_t key : *set) {
       const glm::ivec3 b = UnpackCell(key);
-      for (int dz = -1; dz <= 1; ++dz)
-        for (int dy = -1; dy <= 1; ++dy)
-          for (int dx = -1; dx <= 1; ++dx) affected_.insert(PackCell(b + glm::ivec3(dx, dy, dz)));
+      for (int dz = -1; dz <= 0; ++dz)
+        for (int dy = -1; dy <= 0; ++dy)
+          for (int dx = -1; dx <= 0; ++dx) affected_.insert(PackCell(b + glm::ivec3(dx, dy, dz)));
     }
 }
 
@@ -48,6 +52,8 @@ void InpaintedSurface::SetRoi(std::span<const glm::ivec3> label_voxels, double l
   for (uint64_t key : roi_blocks_) MarkDirty(key);  // the old ROI's blocks
   roi_.clear();
   roi_blocks_.clear();
+  roi_voxels_ = 0;
+  const int bs = tsdf_.block_size;
   const double vs = tsdf_.voxel_size_m;
   const double m = options_.carve_margin_voxels * vs;
   if (label_voxel_m > 0.0) {
@@ -61,13 +67,25 @@ void InpaintedSurface::SetRoi(std::span<const glm::ivec3> label_voxels, double l
       for (int z = lo.z; z <= hi.z; ++z)
         for (int y = lo.y; y <= hi.y; ++y)
           for (int x = lo.x; x <= hi.x; ++x) {
-            const glm::ivec3 g(x, y, z);
-            if (roi_.insert(PackCell(g)).second) roi_blocks_.insert(PackCell(BlockOf(g)));
+            const glm::ivec3 g(x, y, z), b = BlockOf(g), l = g - b * bs;
+            std::vector<uint8_t>& bits = roi_[PackCell(b)];
+            if (bits.empty()) bits.assign(size_t(bs) * bs * bs, 0);
+            uint8_t& f = bits[(size_t(l.z) * bs + l.y) * bs + l.x];
+            roi_voxels_ += !f;
+            f = 1;
           }
     }
   }
+  for (const auto& [key, bits] : roi_) roi_blocks_.insert(key);
   for (uint64_t key : roi_blocks_) MarkDirty(key);
   RebuildAffected();
+}
+
+bool InpaintedSurface::InRoi(const glm::ivec3& g) const {
+  const int bs = tsdf_.block_size;
+  const glm::ivec3 b = BlockOf(g), l = g - b * bs;
+  auto it = roi_.find(PackCell(b));
+  return it != roi_.end() && it->second[(size_t(l.z) * bs + l.y) * bs + l.x];
 }
 
 void InpaintedSurface::ClearInpainted() {
@@ -103,23 +121,32 @@ absl::StatusOr<InpaintedFuseStats> InpaintedSurface::IntegrateInpainted(
   const int bs = tsdf_.block_size;
   for (uint64_t key : ip_->TakeDirtyBlocks()) {
     ++st.blocks;
-    const glm::ivec3 base = UnpackCell(key) * bs;
-    for (int z = 0; z < bs; ++z)
-      for (int y = 0; y < bs; ++y)
-        for (int x = 0; x < bs; ++x) {
-          const glm::ivec3 g = base + glm::ivec3(x, y, z);
-          TsdfVoxel* v = ip_->MutableVoxelAt(g);
-          if (!v || !(v->weight > 0.0f)) continue;
-          const TsdfVoxel* o = InRoi(g) ? nullptr : observed.VoxelAt(g);
+    size_t kept = 0;
+    const glm::ivec3 bc = UnpackCell(key);
+    TsdfVoxel* ipv = ip_->MutableVoxelAt(bc * bs);
+    const TsdfVoxel* obv = observed.BlockVoxels(bc);
+    auto rit = roi_.find(key);
+    const uint8_t* roi = rit == roi_.end() ? nullptr : rit->second.data();
+    if (!ipv) continue;
+    for (size_t i = 0, n = size_t(bs) * bs * bs; i < n; ++i) {
+          TsdfVoxel* v = ipv + i;
+          if (!(v->weight > 0.0f)) continue;
+          const TsdfVoxel* o = (roi && roi[i]) || !obv ? nullptr : obv + i;
           if (o && !(o->weight < tsdf_.min_extract_weight)) {
             *v = TsdfVoxel{};
             ++st.voxels_erased;
           } else {
-            ++st.voxels_kept;
+            ++kept;
           }
-        }
-    ip_blocks_.insert(key);
-    MarkDirty(key);
+    }
+    st.voxels_kept += kept;
+    // A block whose inpainted values were all erased (observed) changes nothing for the clients.
+    if (kept > 0) {
+      ip_blocks_.insert(key);
+      MarkDirty(key);
+    } else if (ip_blocks_.erase(key)) {
+      MarkDirty(key);
+    }
   }
   RebuildAffected();
   return st;
@@ -146,8 +173,42 @@ const TsdfVoxel* InpaintedSurface::ClientVoxel(const TsdfVolume& observed,
 
 TriangleMesh InpaintedSurface::ExtractBlock(const TsdfVolume& observed, uint64_t key) const {
   if (!Affects(key)) return observed.ExtractBlock(key);
-  return observed.MeshBlockFrom(UnpackCell(key),
-                                [&](const glm::ivec3& g) { return ClientVoxel(observed, g); });
+  // ClientVoxel over the block's neighbourhood with the 27 blocks' voxels looked up once.
+  const int bs = tsdf_.block_size;
+  const glm::ivec3 bc = UnpackCell(key);
+  struct Nb {
+    const TsdfVoxel* obs = nullptr;
+    const TsdfVoxel* ip = nullptr;
+    const uint8_t* roi = nullptr;
+  } nb[27];
+  bool any = false;
+  for (int dz = -1; dz <= 1; ++dz)
+    for (int dy = -1; dy <= 1; ++dy)
+      for (int dx = -1; dx <= 1; ++dx) {
+        const glm::ivec3 b = bc + glm::ivec3(dx, dy, dz);
+        Nb& n = nb[(dz + 1) * 9 + (dy + 1) * 3 + (dx + 1)];
+        n.obs = observed.BlockVoxels(b);
+        n.ip = ip_->BlockVoxels(b);
+        auto it = roi_.find(PackCell(b));
+        if (it != roi_.end()) n.roi = it->second.data();
+        any |= (n.obs || n.ip) && dz >= 0 && dy >= 0 && dx >= 0;
+      }
+  if (!any) return TriangleMesh();
+  const float w = tsdf_.min_extract_weight;
+  const glm::ivec3 base = bc * bs;
+  return observed.MeshBlockFrom(bc, [&](const glm::ivec3& g) -> const TsdfVoxel* {
+    const glm::ivec3 r = g - base;
+    const int ox = r.x < 0 ? -1 : (r.x >= bs ? 1 : 0), oy = r.y < 0 ? -1 : (r.y >= bs ? 1 : 0),
+              oz = r.z < 0 ? -1 : (r.z >= bs ? 1 : 0);
+    const Nb& n = nb[(oz + 1) * 9 + (oy + 1) * 3 + (ox + 1)];
+    const size_t i = (size_t(r.z - oz * bs) * bs + (r.y - oy * bs)) * bs + (r.x - ox * bs);
+    const TsdfVoxel* ip = n.ip ? n.ip + i : nullptr;
+    const bool has_ip = ip && !(ip->weight < w);
+    if (n.roi && n.roi[i]) return has_ip ? ip : nullptr;  // L_IP or carved L_ROI
+    const TsdfVoxel* o = n.obs ? n.obs + i : nullptr;
+    if (o && !(o->weight < w)) return o;                  // L_O
+    return has_ip ? ip : nullptr;                          // L_IP in vacant space
+  });
 }
 
 std::vector<uint64_t> InpaintedSurface::TakeDirtyBlocks() {

@@ -31,6 +31,7 @@
 #include <span>
 #include <vector>
 
+#include <absl/container/flat_hash_map.h>
 #include <absl/container/flat_hash_set.h>
 #include <glm/glm.hpp>
 
@@ -80,13 +81,14 @@ class InpaintedSurface {
                                                         const PinholeCamera& camera,
                                                         const Rigid3d& local_from_cam);
 
-  bool InRoi(const glm::ivec3& voxel) const { return roi_.contains(PackCell(voxel)); }
+  bool InRoi(const glm::ivec3& voxel) const;
   VoxelLabel Label(const TsdfVolume& observed, const glm::ivec3& voxel) const;
   // The voxel the clients' mesh uses at `voxel` (nullptr: none).
   const TsdfVoxel* ClientVoxel(const TsdfVolume& observed, const glm::ivec3& voxel) const;
 
   // Whether the clients' mesh of this block (chunk id = block key) may differ from the observed
-  // volume's: the block or a neighbour holds ROI voxels or inpainted values.
+  // volume's: the block or one of the 7 above it (whose voxels its cubes read) holds ROI voxels
+  // or inpainted values.
   bool Affects(uint64_t block_key) const { return affected_.contains(block_key); }
   // The clients' mesh of one block: marching cubes over ClientVoxel (the observed volume's own
   // ExtractBlock, bit for bit, where !Affects).
@@ -97,7 +99,7 @@ class InpaintedSurface {
   std::vector<uint64_t> TakeDirtyBlocks();
 
   bool empty() const { return roi_.empty() && ip_blocks_.empty(); }
-  size_t roi_voxels() const { return roi_.size(); }
+  size_t roi_voxels() const { return roi_voxels_; }
   const TsdfVolume& inpainted() const { return *ip_; }
 
  private:
@@ -108,10 +110,12 @@ class InpaintedSurface {
   TsdfOptions tsdf_;
   InpaintedSurfaceOptions options_;
   std::unique_ptr<TsdfVolume> ip_;
-  absl::flat_hash_set<uint64_t> roi_;        // PackCell(voxel) of the ROI voxels
-  absl::flat_hash_set<uint64_t> roi_blocks_;  // blocks holding ROI voxels
+  // The ROI voxels: per block holding any, one flag per voxel (x fastest, as the blocks).
+  absl::flat_hash_map<uint64_t, std::vector<uint8_t>> roi_;
+  size_t roi_voxels_ = 0;
+  absl::flat_hash_set<uint64_t> roi_blocks_;  // the keys of roi_
   absl::flat_hash_set<uint64_t> ip_blocks_;   // blocks of the inpainted field
-  absl::flat_hash_set<uint64_t> affected_;    // roi_blocks_ and ip_blocks_, grown by one block
+  absl::flat_hash_set<uint64_t> affected_;    // roi_blocks_, ip_blocks_ and the blocks below them
   absl::flat_hash_set<uint64_t> dirty_;
 };
 

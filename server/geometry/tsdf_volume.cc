@@ -820,6 +820,11 @@ const TsdfVoxel* TsdfVolume::VoxelAt(const glm::ivec3& g) const {
   return &blk->voxels[(size_t(l.z) * bs + l.y) * bs + l.x];
 }
 
+const TsdfVoxel* TsdfVolume::BlockVoxels(const glm::ivec3& b) const {
+  const Block* blk = FindBlock(b);
+  return blk ? blk->voxels.data() : nullptr;
+}
+
 TsdfVoxel* TsdfVolume::MutableVoxelAt(const glm::ivec3& g) {
   return const_cast<TsdfVoxel*>(static_cast<const TsdfVolume*>(this)->VoxelAt(g));
 }

@@ -121,6 +121,8 @@ class TsdfVolume {
   // is not allocated.
   const TsdfVoxel* VoxelAt(const glm::ivec3& g) const;
   TsdfVoxel* MutableVoxelAt(const glm::ivec3& g);
+  // A block's block_size^3 voxels (x fastest), nullptr when it is not allocated.
+  const TsdfVoxel* BlockVoxels(const glm::ivec3& block) const;
   // The blocks changed since the last ExtractDirtyChunks / TakeDirtyBlocks (sorted), without
   // meshing them; clears the dirty set.
   std::vector<uint64_t> TakeDirtyBlocks();

@@ -108,7 +108,11 @@ class GeometryStage final : public PipelineStage {
       (*out)["geometry.inpaint_roi_voxels"] = static_cast<double>(ip_roi_voxels_.load());
       (*out)["geometry.inpaint_chunks_published"] = static_cast<double>(ip_published_.load());
       (*out)["geometry.inpaint_chunks_removed"] = static_cast<double>(ip_removed_.load());
-      (*out)["geometry.inpaint_ms_total"] = static_cast<double>(ip_ns_.load()) * 1e-6;
+      // Wall ms: fusing keyframes and regions (sync), the clients' mesh of re-meshed chunks
+      // (apply), the chunks the overlay changed (publish: marching cubes, LOD, store).
+      (*out)["geometry.inpaint_sync_ms_total"] = static_cast<double>(ip_sync_ns_.load()) * 1e-6;
+      (*out)["geometry.inpaint_apply_ms_total"] = static_cast<double>(ip_apply_ns_.load()) * 1e-6;
+      (*out)["geometry.inpaint_publish_ms_total"] = static_cast<double>(ip_ns_.load()) * 1e-6;
       (*out)["geometry.inpaint_waiting_dropped"] = static_cast<double>(link_->dropped());
     }
     (*out)["geometry.voxel_m"] = geometry_->volume().options().voxel_size_m;
@@ -295,7 +299,7 @@ class GeometryStage final : public PipelineStage {
       ip_erased_ += st->voxels_erased;
     }
     std::vector<uint64_t> dirty = surface_->TakeDirtyBlocks();
-    ip_ns_ += SteadyNowNs() - t0;
+    ip_sync_ns_ += SteadyNowNs() - t0;
     return dirty;
   }
 
@@ -313,6 +317,7 @@ class GeometryStage final : public PipelineStage {
       if (in_dirty(c.id)) continue;
       if (surface_->Affects(c.id)) {
         c.mesh = surface_->ExtractBlock(vol, c.id);
+        overlay_version_.try_emplace(c.id, 0);  // the clients' mesh of this chunk is the overlay's
         if (c.mesh.empty()) {
           removed.push_back(c.id);
           continue;
@@ -336,7 +341,7 @@ class GeometryStage final : public PipelineStage {
     }
     u->chunks = std::move(chunks);
     u->removed = std::move(removed);
-    ip_ns_ += SteadyNowNs() - t0;
+    ip_apply_ns_ += SteadyNowNs() - t0;
   }
 
   // The blocks whose clients' mesh the overlay changed: published now (or removed when empty).
@@ -345,7 +350,15 @@ class GeometryStage final : public PipelineStage {
     const int64_t t0 = SteadyNowNs();
     const TsdfVolume& vol = geometry_->volume();
     for (uint64_t key : dirty) {
+      // Neither affected now nor published by the overlay before: the clients have the observed
+      // mesh, as they should.
+      if (!surface_->Affects(key) && !overlay_version_.contains(key)) continue;
       TriangleMesh mesh = surface_->ExtractBlock(vol, key);
+      if (!pending_.contains(key) && !mesh.empty() && options_.refresh_min_move_voxels > 0.0) {
+        // Unchanged since its publication (e.g. inpainted values that were all erased there).
+        auto pub = published_.find(key);
+        if (pub != published_.end() && pub->second.positions == mesh.positions) continue;
+      }
       pending_.erase(key);  // a held-back mesh from before is stale
       if (!mesh.empty()) {
         uint64_t& ov = overlay_version_[key];
@@ -353,6 +366,7 @@ class GeometryStage final : public PipelineStage {
         pub_bytes_[kStructural] += PublishChunk({key, ov, std::move(mesh)}, now, ctx);
         ++ip_published_;
       } else if (published_.erase(key)) {
+        overlay_version_.try_emplace(key, 0);
         (void)ctx.store->RemoveChunk(key);
         ++ip_removed_;
       }
@@ -529,7 +543,7 @@ class GeometryStage final : public PipelineStage {
   std::unordered_map<uint64_t, uint64_t> overlay_version_;  // chunk id -> last version published
   std::atomic<uint64_t> ip_fused_{0}, ip_failed_{0}, ip_kept_{0}, ip_erased_{0}, ip_roi_voxels_{0},
       ip_published_{0}, ip_removed_{0};
-  std::atomic<int64_t> ip_ns_{0};
+  std::atomic<int64_t> ip_ns_{0}, ip_sync_ns_{0}, ip_apply_ns_{0};
   mutable std::mutex mu_;  // geometry_ (stage thread) vs counters (stats thread)
   std::unique_ptr<core::OnlineGeometry> geometry_;  // created on the first frame (scene set-up)
   std::atomic<int64_t> integrate_ns_{0};
