@@ -20,7 +20,10 @@
 
 #include "client/uploader/upload_client.h"
 #include "client/viewer/viewer_session.h"
+#include "common/datasets/exo_layout.h"
+#include "common/io/image_file.h"
 #include "common/lumigraph/cpu_renderer.h"
+#include <nlohmann/json.hpp>
 #include "common/metrics/metrics.h"
 #include "common/synth/render.h"
 #include "common/synth/scene.h"
@@ -40,6 +43,8 @@ using testing::ChairMarkRequest;
 using testing::ChairPixels;
 using testing::ChairScene;
 using testing::MakeChairScene;
+using testing::ReadAll;
+using testing::Subprocess;
 
 PinholeCamera Cam() {
   PinholeCamera c;
@@ -70,8 +75,36 @@ v1::Pose PoseMsg(const Rigid3d& p) {
   return m;
 }
 
+// Frame k of the sideways walk from x = -0.15 m in 2 cm steps.
+Frame BoxFrame(int k) {
+  const auto kf = RenderPlanes(Scene(), Cam(), PoseAt(-0.15 + 0.02 * k));
+  Frame f;
+  f.sequence = k + 1;
+  f.timestamp_s = 0.1 * (k + 1);
+  f.color_camera = f.depth_camera = Cam();
+  f.color = kf.color;
+  f.depth_m = kf.depth_m;
+  f.world_from_cam = kf.world_from_cam;
+  return f;
+}
+
 class ServiceInpainting : public testing::ServerProcessTest {
  protected:
+  // Vertices of a viewer's proxy on the marked part of the box face (z = 1.5 m; the strokes below
+  // cover a disc of ~12 cm around x = -0.15, y = -0.01 on it).
+  size_t BoxProxyVertices() {
+    auto session = ViewerSession::Open(MakeChannel(target_), "");
+    EXO_CHECK(session.ok());
+    EXPECT_TRUE((*session)->Sync({}).ok());
+    const LumigraphModel& model = (*session)->store().model();
+    size_t n = 0;
+    for (const auto& [id, c] : model.chunks)
+      for (const glm::vec3& p : c.mesh.positions) {
+        const glm::dvec3 w = model.origin.ToWorld(p);
+        n += std::abs(w.z - 1.5) < 0.03 && std::hypot(w.x + 0.15, w.y + 0.01) < 0.09;
+      }
+    return n;
+  }
   void Start(const std::string& log) {
     StartServer({"--checkpoint_path=" + dir_ + "/model.ckpt", "--checkpoint_interval_s=0.2",
                  "--voxel_size_m=0.04", "--mesh_every_n_frames=1", "--inpaint_radius_px=12",
@@ -81,22 +114,12 @@ class ServiceInpainting : public testing::ServerProcessTest {
   }
   // Frames [first, first + n) of a sideways walk from x = -0.15 m in 2 cm steps.
   void Upload(int first, int n, double rate_hz = 0) {
-    const auto planes = Scene();
     UploadOptions o;
     o.rate_hz = rate_hz;
     auto st = UploadStream(
         MakeChannel(target_), n,
         [&](size_t i) -> absl::StatusOr<v1::Frame> {
-          const int k = first + static_cast<int>(i);
-          const auto kf = RenderPlanes(planes, Cam(), PoseAt(-0.15 + 0.02 * k));
-          Frame f;
-          f.sequence = k + 1;
-          f.timestamp_s = 0.1 * (k + 1);
-          f.color_camera = f.depth_camera = Cam();
-          f.color = kf.color;
-          f.depth_m = kf.depth_m;
-          f.world_from_cam = kf.world_from_cam;
-          return FrameToProto(f, {});
+          return FrameToProto(BoxFrame(first + static_cast<int>(i)), {});
         },
         o);
     ASSERT_TRUE(st.ok()) << st.status();
@@ -169,6 +192,8 @@ TEST_F(ServiceInpainting, MarkInpaintPublishRestartAndClear) {
   const v1::Stats s0 = WaitProcessed();
   ASSERT_GT(s0.num_chunks(), 0u) << server_->Log();
   EXPECT_EQ(s0.counters().at("inpainting.keyframes_published"), 0.0);
+  const size_t box_before = BoxProxyVertices();
+  EXPECT_GE(box_before, 6u);
 
   // Hard cases, each a clear status.
   const Rigid3d here = PoseAt(-0.01);  // the camera of frame 7
@@ -237,6 +262,14 @@ TEST_F(ServiceInpainting, MarkInpaintPublishRestartAndClear) {
     EXPECT_LT(roi, labels->width() * labels->height() / 2);
     EXPECT_EQ(v.region_ids_size(), 2);
   }
+  // The labelled proxy: the box face is carved from the viewer's chunks, the wall behind it is
+  // filled by the keyframes' depth (L_IP).
+  const size_t box_after = BoxProxyVertices();
+  std::printf("box face vertices in the viewer's proxy: %zu before the mark, %zu after\n",
+              box_before, box_after);
+  EXPECT_LE(box_after * 4, box_before);
+  EXPECT_GE(s1.counters().at("geometry.inpaint_keyframes_fused"), 1.0);
+  EXPECT_GT(s1.counters().at("geometry.inpaint_roi_voxels"), 0.0);
 
   // Restart: regions and inpainted keyframes come back from the checkpoint.
   server_->Signal(SIGTERM);
@@ -247,6 +280,41 @@ TEST_F(ServiceInpainting, MarkInpaintPublishRestartAndClear) {
   EXPECT_EQ(regions[0].region_id(), box);
   EXPECT_EQ(regions[1].region_id(), overlap);
   EXPECT_EQ(InpaintedViews().size(), views.size());
+  EXPECT_LE(BoxProxyVertices() * 4, box_before);  // still carved after the restart
+
+  // The uploader side requests the live DR view (exoview_uploader --dr_view_out): ten more frames
+  // of the walk from an exo-layout folder; the server's DR frames arrive as JPEGs.
+  {
+    const std::string data = dir_ + "/walk", out = dir_ + "/dr";
+    for (int k = 26; k < 36; ++k) ASSERT_TRUE(WriteExoFrame(data, BoxFrame(k)).ok());
+    Subprocess up(EXOVIEW_UPLOADER_BIN,
+                  {"--server=" + target_, "--dataset=" + data, "--format=exo", "--rate_hz=10",
+                   "--dr_view_out=" + out, "--dr_view_linger_s=1.5",
+                   "--stats_json=" + dir_ + "/up.json"},
+                  dir_ + "/up.log");
+    ASSERT_EQ(up.Wait(60), 0) << ReadAll(dir_ + "/up.log");
+    const nlohmann::json j = nlohmann::json::parse(ReadAll(dir_ + "/up.json"));
+    std::printf("uploader: %s\n", j.dump().c_str());
+    EXPECT_EQ(j["accepted"].get<int>(), 10);
+    const auto& dr = j["dr_view"];
+    ASSERT_FALSE(dr.contains("error")) << dr.dump();
+    EXPECT_GE(dr["frames"].get<int>(), 3) << dr.dump();
+    EXPECT_EQ(dr["written"].get<int>(), dr["frames"].get<int>());
+    EXPECT_GE(dr["composited"].get<int>(), 1) << dr.dump();
+    int files = 0;
+    for (const auto& e : std::filesystem::directory_iterator(out)) {
+      const std::string name = e.path().filename().string();
+      ASSERT_EQ(name.rfind("dr_", 0), 0u) << name;
+      const int seq = std::stoi(name.substr(3));
+      EXPECT_GE(seq, 27);  // sequences of the frames uploaded now
+      EXPECT_LE(seq, 36);
+      auto img = ReadColorImage(e.path().string());
+      ASSERT_TRUE(img.ok()) << img.status();
+      EXPECT_EQ(img->width(), Cam().width);
+      ++files;
+    }
+    EXPECT_EQ(files, dr["written"].get<int>());
+  }
   // New ids continue after the restored ones.
   ASSERT_TRUE(Mark({{64, 60}}, here, &reply).ok());
   EXPECT_GT(reply.region().region_id(), border);
@@ -262,6 +330,8 @@ TEST_F(ServiceInpainting, MarkInpaintPublishRestartAndClear) {
   }
   EXPECT_TRUE(List().empty());
   EXPECT_TRUE(InpaintedViews().empty());
+  // ... and the box comes back into the viewer's proxy at once (no frame needed).
+  EXPECT_GT(BoxProxyVertices() * 2, box_before);
 }
 
 // --- Diminished reality on the apartment's chair, through the live server ---
