@@ -7,6 +7,7 @@
 #include <cmath>
 #include <memory>
 
+#include "common/lumigraph/model.h"
 #include "common/status.h"
 #include "common/synth/render.h"
 #include "common/synth/scene.h"
@@ -20,6 +21,7 @@ struct ChairScene {
   std::shared_ptr<synth::SynthScene> with, without;
   synth::RenderOptions ro;
   glm::dvec3 centre{0.0};
+  synth::Box3 bounds;  // the chair's box (world = the scene's frame)
   // t in [0, 1] along the arc.
   Rigid3d Pose(double t) const {
     const double a = (90.0 + (-0.5 + t) * 90.0) * M_PI / 180.0;
@@ -41,8 +43,22 @@ inline ChairScene MakeChairScene(int w, int h) {
   c.ro.height = h;
   c.ro.num_threads = 1;
   for (const auto& o : c.with->removable)
-    if (o.name == "chair") c.centre = o.bounds.Centre();
+    if (o.name == "chair") {
+      c.centre = o.bounds.Centre();
+      c.bounds = o.bounds;
+    }
   return c;
+}
+
+// Vertices of a viewer's proxy (its mesh chunks) on the chair: inside the chair's box, above the
+// lowest 5 cm (the floor under its legs is surface of the scene without it too).
+inline size_t ChairProxyVertices(const LumigraphModel& model, const ChairScene& scene) {
+  synth::Box3 b = scene.bounds;
+  b.min.z += 0.05;
+  size_t n = 0;
+  for (const auto& [id, c] : model.chunks)
+    for (const glm::vec3& p : c.mesh.positions) n += b.Contains(model.origin.ToWorld(p));
+  return n;
 }
 
 // The chair's pixels (depth with it nearer than without), dilated by `dilate` px.

@@ -14,8 +14,18 @@
 // (dilated 4 px) against the apartment rendered WITHOUT the chair from the same pose (and the
 // input frame's PSNR there, the chair itself, for contrast).
 //
+// With --held_out=N (session 15: the labelled proxy) a viewer syncs after the upload and the CPU
+// lumigraph oracle renders N held-out poses that see the chair from other angles than the
+// keyframes (lower and farther, higher and closer, beyond the arc's ends); per pose and in the
+// mean: inside the chair's pixels (dilated 4 px) PSNR / SSIM / colour MAE of the render against
+// the apartment WITHOUT the chair, and the depth MAE of the viewer's proxy there (the proxy
+// rasterised at the pose against the chair-free depth), with the chair's vertices left in the
+// viewer's proxy. Compare --server_arg=--inpaint_fuse_proxy=false (the object stays in the
+// proxy) with the default.
+//
 //   dr_live_bench [--width=640 --height=480] [--frames=150] [--rate_hz=30] [--mark=true]
-//                 [--method=dr|keyframe] [--watch=true] [--server_arg=--key=value ...]
+//                 [--method=dr|keyframe] [--watch=true] [--held_out=0]
+//                 [--server_arg=--key=value ...]
 #include <unistd.h>
 
 #include <algorithm>
@@ -36,6 +46,9 @@
 #include <nlohmann/json.hpp>
 
 #include "client/uploader/upload_client.h"
+#include "client/viewer/viewer_session.h"
+#include "common/lumigraph/cpu_renderer.h"
+#include "common/raster/rasterizer.h"
 #include "common/io/image_file.h"
 #include "common/metrics/metrics.h"
 #include "common/cli/cli.h"
@@ -117,8 +130,114 @@ double Round(double x, int digits) {
   return std::round(x * f) / f;
 }
 
+// Held-out poses (world): the chair seen from other angles than the arc's keyframes (the arc:
+// radius 1.7 m, eye 1.5 m, 45-135 degrees). Poses inside furniture or the walls are skipped.
+struct HeldOut {
+  std::string name;
+  Rigid3d pose;
+};
+std::vector<HeldOut> HeldOutPoses(const testing::ChairScene& scene, int n) {
+  struct P {
+    double deg, radius, eye;
+  };
+  const P all[] = {{60, 2.3, 1.0},  {90, 2.3, 1.0},  {120, 2.3, 1.0}, {75, 1.2, 1.9},
+                   {105, 1.2, 1.9}, {38, 1.7, 1.2},  {142, 1.7, 1.2}, {90, 1.4, 0.8},
+                   {50, 2.0, 1.8},  {130, 2.0, 1.8}, {70, 1.6, 1.25}, {110, 1.6, 1.25}};
+  std::vector<HeldOut> out;
+  for (const P& p : all) {
+    if (static_cast<int>(out.size()) >= n) break;
+    const double a = p.deg * M_PI / 180.0;
+    const glm::dvec3 eye(scene.centre.x + p.radius * std::cos(a),
+                         scene.centre.y + p.radius * std::sin(a), p.eye);
+    if (!scene.with->IsFree(eye, 0.1)) continue;
+    char name[64];
+    std::snprintf(name, sizeof name, "%.0fdeg_r%.1f_eye%.2f", p.deg, p.radius, p.eye);
+    out.push_back({name, synth::LookAt(eye, scene.centre)});
+  }
+  return out;
+}
+
+// Held-out renders of a synced viewer (see the header): one JSON object per pose and the means.
+json ScoreHeldOut(const std::shared_ptr<grpc::Channel>& channel, const testing::ChairScene& scene,
+                  int n) {
+  json out;
+  auto session = ViewerSession::Open(channel, "");
+  EXO_CHECK(session.ok());
+  EXO_CHECK((*session)->Sync({}).ok());
+  const LumigraphModel& model = (*session)->store().model();
+  out["proxy_chair_vertices"] = testing::ChairProxyVertices(model, scene);
+  out["proxy_triangles"] = model.ProxyMesh().num_triangles();
+  auto renderer = CpuLumigraphRenderer::Create(model, {});
+  EXO_CHECK(renderer.ok());
+  const TriangleMesh proxy = model.ProxyMesh();
+  json poses = json::array();
+  double sum[8] = {};
+  int scored = 0;
+  for (const HeldOut& h : HeldOutPoses(scene, n)) {
+    auto a = synth::RenderFrame(*scene.with, h.pose, scene.ro);
+    auto b = synth::RenderFrame(*scene.without, h.pose, scene.ro);
+    EXO_CHECK(a.ok() && b.ok());
+    const ImageU8 roi = testing::ChairPixels(*a, *b, 4);
+    const double roi_px = CountNonZeroU8(roi);
+    if (roi_px < 100) continue;
+    const Rigid3d local = model.origin.ToLocal(h.pose);
+    auto mine = (*renderer)->Render(scene.ro.Camera(), local);
+    EXO_CHECK(mine.ok());
+    auto psnr = MaskedPsnr(mine->color, b->frame.color, roi);
+    auto ssim = MaskedSsim(mine->color, b->frame.color, roi);
+    auto psnr0 = MaskedPsnr(a->frame.color, b->frame.color, roi);
+    auto ssim0 = MaskedSsim(a->frame.color, b->frame.color, roi);
+    if (!psnr.ok() || !ssim.ok() || !psnr0.ok() || !ssim0.ok()) continue;
+    RasterOptions ro;
+    auto depth = Rasterize(proxy, scene.ro.Camera(), local, ro);
+    EXO_CHECK(depth.ok());
+    // Colour MAE (grey levels, RGB mean) and proxy depth MAE (mm; pixels where the proxy has
+    // surface and the truth has depth) inside the chair's pixels.
+    double cmae = 0, dmae = 0, dn = 0, n_roi = 0;
+    const ImageF& gt = b->frame.depth_m;
+    for (int y = 0; y < roi.height(); ++y)
+      for (int x = 0; x < roi.width(); ++x) {
+        if (!roi.at(x, y)) continue;
+        ++n_roi;
+        for (int c = 0; c < 3; ++c)
+          cmae += std::abs(int(mine->color.at(x, y, c)) - int(b->frame.color.at(x, y, c)));
+        const float d = depth->z_depth_m.at(x, y), g = gt.at(x, y);
+        if (d > 0.f && g > 0.f) {
+          dmae += std::abs(double(d) - double(g));
+          ++dn;
+        }
+      }
+    cmae /= 3.0 * std::max(1.0, n_roi);
+    dmae = dn > 0 ? 1000.0 * dmae / dn : 0.0;
+    const double depth_cov = dn / std::max(1.0, n_roi);
+    poses.push_back({{"pose", h.name},
+                     {"roi_px", roi_px},
+                     {"psnr_roi", Round(*psnr, 2)},
+                     {"ssim_roi", Round(*ssim, 4)},
+                     {"color_mae_roi", Round(cmae, 2)},
+                     {"depth_mae_roi_mm", Round(dmae, 1)},
+                     {"depth_coverage_roi", Round(depth_cov, 3)},
+                     {"psnr_roi_chair", Round(*psnr0, 2)},
+                     {"ssim_roi_chair", Round(*ssim0, 4)}});
+    const double v[8] = {*psnr, *ssim, cmae, dmae, depth_cov, *psnr0, *ssim0, 0};
+    for (int i = 0; i < 7; ++i) sum[i] += v[i];
+    ++scored;
+  }
+  out["poses"] = poses;
+  const double k = std::max(1, scored);
+  out["mean"] = {{"scored", scored},
+                 {"psnr_roi", Round(sum[0] / k, 2)},
+                 {"ssim_roi", Round(sum[1] / k, 4)},
+                 {"color_mae_roi", Round(sum[2] / k, 2)},
+                 {"depth_mae_roi_mm", Round(sum[3] / k, 1)},
+                 {"depth_coverage_roi", Round(sum[4] / k, 3)},
+                 {"psnr_roi_chair", Round(sum[5] / k, 2)},
+                 {"ssim_roi_chair", Round(sum[6] / k, 4)}};
+  return out;
+}
+
 int Main(int argc, char** argv) {
-  int width = 640, height = 480, frames = 150, before = 8;
+  int width = 640, height = 480, frames = 150, before = 8, held_out = 0;
   double rate_hz = 30.0;
   bool mark = true, watch = true;
   std::string method = "dr";
@@ -136,6 +255,10 @@ int Main(int argc, char** argv) {
       ->check(CLI::Range(0.0, 1000.0));
   app.add_option("--mark", mark, "mark the chair after --before frames");
   app.add_option("--watch", watch, "watch the live DR view during the upload (WatchDrView)");
+  app.add_option("--held_out", held_out,
+                 "after the upload, render this many held-out poses (other angles than the arc) "
+                 "from a synced viewer and score the chair's pixels and the proxy's depth there")
+      ->check(CLI::Range(0, 12));
   app.add_option("--method", method, "the server's inpaint_method")
       ->check(CLI::IsMember({"dr", "keyframe"}));
   app.add_option("--server_arg", server_args,
@@ -401,6 +524,11 @@ int Main(int argc, char** argv) {
         k == "geometry.fused")
       stages[k] = Round(v, 2);
   out["stages"] = stages;
+  json proxy;
+  for (const auto& [k, v] : s.counters())
+    if (k.rfind("geometry.inpaint_", 0) == 0) proxy[k.substr(17)] = Round(v, 3);
+  out["labelled_proxy"] = proxy;
+  if (held_out > 0) out["held_out"] = ScoreHeldOut(channel, scene, held_out);
   std::printf("%s\n", out.dump().c_str());
   if (server) {
     server->Signal(SIGTERM);

@@ -8,11 +8,13 @@
 #include <string>
 #include <vector>
 
+#include "client/uploader/dr_view_recorder.h"
 #include "client/uploader/sim_flight.h"
 #include "client/uploader/synth_source.h"
 #include "client/uploader/upload_client.h"
 #include "common/cli/cli.h"
 #include "common/datasets/dataset.h"
+#include <nlohmann/json.hpp>
 
 int main(int argc, char** argv) {
   CLI::App app{
@@ -27,6 +29,8 @@ int main(int argc, char** argv) {
   opt.encode.jpeg_quality = 90;
   int frames = -1, first = 0;
   std::string drone = "none";
+  exo::DrViewRecordOptions dr_view;
+  double dr_view_linger_s = 1.0;
   exo::SimFlightOptions flight;
   app.add_option("--server", server, "HOST:PORT of the server (required)");
   exo::ChannelSecurity security;
@@ -94,6 +98,15 @@ int main(int argc, char** argv) {
                  "append the sequence of every frame the server acked durable, one a line, "
                  "flushed at once (what an operator compares with the server's model: "
                  "deploy/itest.sh)");
+  app.add_option("--dr_view_out", dr_view.out_dir,
+                 "also watch the server's live DR view of this stream (WatchDrView: the frames "
+                 "with the marked regions removed) and write each frame it sends as "
+                 "DIR/dr_<sequence>.jpg; counts under \"dr_view\" in the JSON");
+  app.add_option("--dr_view_quality", dr_view.jpeg_quality, "JPEG quality of the DR view")
+      ->check(CLI::Range(1, 100));
+  app.add_option("--dr_view_linger_s", dr_view_linger_s,
+                 "seconds to keep watching after the last frame (the last frames' DR output)")
+      ->check(CLI::Range(0.0, 60.0));
   if (auto rc = exo::cli::Parse(app, argc, argv)) return *rc;
   std::FILE* durable_file = nullptr;
   if (!durable_log.empty()) {
@@ -184,12 +197,28 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "exoview_uploader: %s\n", std::string(channel.status().message()).c_str());
     return 2;
   }
+  std::unique_ptr<exo::DrViewRecorder> recorder;
+  if (!dr_view.out_dir.empty()) {
+    auto r = exo::DrViewRecorder::Start(*channel, dr_view);
+    if (!r.ok()) {
+      std::fprintf(stderr, "exoview_uploader: %s\n", std::string(r.status().message()).c_str());
+      return 2;
+    }
+    recorder = *std::move(r);
+  }
   auto stats = exo::UploadFrames(*channel, *source, static_cast<size_t>(first), count, opt);
   if (!stats.ok()) {
     std::fprintf(stderr, "exoview_uploader: %s\n", std::string(stats.status().message()).c_str());
     return 1;
   }
-  const std::string json = stats->ToJson();
+  std::string json = stats->ToJson();
+  if (recorder) {
+    const exo::DrViewRecordStats dr = recorder->Stop(dr_view_linger_s);
+    if (!dr.error.empty()) std::fprintf(stderr, "exoview_uploader: DR view: %s\n", dr.error.c_str());
+    auto j = nlohmann::ordered_json::parse(json);
+    j["dr_view"] = nlohmann::ordered_json::parse(dr.ToJson());
+    json = j.dump();
+  }
   std::printf("%s\n", json.c_str());
   if (!stats_json.empty()) std::ofstream(stats_json) << json << "\n";
   if (!send_log.empty()) {  // "timestamp_s steady_ns" per frame (CLOCK_MONOTONIC)

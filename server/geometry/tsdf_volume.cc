@@ -150,6 +150,17 @@ absl::Status TsdfOptions::Validate() const {
   return absl::OkStatus();
 }
 
+// Per-thread buffers of MeshBlock / MeshBlockFrom and MeshGrid (one block's neighbourhood).
+struct MeshScratch {
+  std::vector<const TsdfVoxel*> grid;  // nullptr = unobserved
+  std::vector<uint8_t> observed, below;
+  std::vector<int32_t> edge_vertex;
+};
+static MeshScratch& Scratch() {
+  thread_local MeshScratch s;
+  return s;
+}
+
 struct TsdfVolume::Block {
   glm::ivec3 coord{0};
   std::vector<TsdfVoxel> voxels;  // block_size^3, x fastest
@@ -634,12 +645,14 @@ TriangleMesh TsdfVolume::MeshBlock(const glm::ivec3& bc) const {
     if (!neg || !pos) return mesh;
   }
   // Scratch buffers reused per thread (MeshBlock runs for every re-meshed chunk of every frame).
-  thread_local std::vector<const TsdfVoxel*> grid;
+  MeshScratch& sc = Scratch();
+  std::vector<const TsdfVoxel*>& grid = sc.grid;
   grid.assign(size_t(n) * n * n, nullptr);  // nullptr = unobserved
   // The same neighbourhood as flat arrays for the cube classification below: corner observed
   // (1/0) and below the surface (sdf < 0), so the 512 cubes are classified without branches or
   // pointer chasing.
-  thread_local std::vector<uint8_t> observed, below;
+  std::vector<uint8_t>& observed = sc.observed;
+  std::vector<uint8_t>& below = sc.below;
   observed.assign(size_t(n) * n * n, 0);
   below.assign(size_t(n) * n * n, 0);
   auto gi = [n](int x, int y, int z) { return (size_t(z) * n + y) * n + x; };
@@ -663,6 +676,18 @@ TriangleMesh TsdfVolume::MeshBlock(const glm::ivec3& bc) const {
     }
   }
 
+  return MeshGrid(bc);
+}
+
+TriangleMesh TsdfVolume::MeshGrid(const glm::ivec3& bc) const {
+  TriangleMesh mesh;
+  const int bs = options_.block_size;
+  const int n = bs + 3;
+  MeshScratch& sc = Scratch();
+  const std::vector<const TsdfVoxel*>& grid = sc.grid;
+  const std::vector<uint8_t>& observed = sc.observed;
+  const std::vector<uint8_t>& below = sc.below;
+  auto gi = [n](int x, int y, int z) { return (size_t(z) * n + y) * n + x; };
   const auto& cases = mc::Cases();
   const auto& lut = SrgbToLinearLut();
   const float vs = options_.voxel_size_m;
@@ -670,7 +695,7 @@ TriangleMesh TsdfVolume::MeshBlock(const glm::ivec3& bc) const {
   const bool with_color = options_.integrate_color;
   // Vertex of the edge starting at cube-space corner (x,y,z) in 0..bs along `axis`.
   const int m = bs + 1;
-  thread_local std::vector<int32_t> edge_vertex;
+  std::vector<int32_t>& edge_vertex = sc.edge_vertex;
   edge_vertex.assign(size_t(m) * m * m * 3, -1);
   auto gradient = [&](int x, int y, int z) {
     glm::vec3 g(0.0f);
@@ -756,6 +781,64 @@ TriangleMesh TsdfVolume::MeshBlock(const glm::ivec3& bc) const {
         mesh.normals[i] = glm::normalize(acc[i]);
   }
   return mesh;
+}
+
+TriangleMesh TsdfVolume::MeshBlockFrom(
+    const glm::ivec3& bc, const std::function<const TsdfVoxel*(const glm::ivec3&)>& voxel) const {
+  const int bs = options_.block_size;
+  const int n = bs + 3;
+  MeshScratch& sc = Scratch();
+  sc.grid.assign(size_t(n) * n * n, nullptr);
+  sc.observed.assign(size_t(n) * n * n, 0);
+  sc.below.assign(size_t(n) * n * n, 0);
+  const glm::ivec3 base = bc * bs;
+  bool neg = false, pos = false;
+  for (int lz = 0; lz < n; ++lz)
+    for (int ly = 0; ly < n; ++ly)
+      for (int lx = 0; lx < n; ++lx) {
+        const TsdfVoxel* v = voxel(base + glm::ivec3(lx - 1, ly - 1, lz - 1));
+        if (!v || v->weight < options_.min_extract_weight) continue;
+        const size_t i = (size_t(lz) * n + ly) * n + lx;
+        sc.grid[i] = v;
+        sc.observed[i] = 1;
+        sc.below[i] = v->sdf_m < 0;
+        // Cube corners of this block's cubes: voxels 0..bs (the early out of MeshBlock).
+        if (lx >= 1 && ly >= 1 && lz >= 1 && lx <= bs + 1 && ly <= bs + 1 && lz <= bs + 1)
+          (v->sdf_m < 0 ? neg : pos) = true;
+      }
+  if (!neg || !pos) return TriangleMesh();
+  return MeshGrid(bc);
+}
+
+const TsdfVoxel* TsdfVolume::VoxelAt(const glm::ivec3& g) const {
+  const int bs = options_.block_size;
+  const glm::ivec3 b(g.x >= 0 ? g.x / bs : (g.x + 1) / bs - 1, g.y >= 0 ? g.y / bs : (g.y + 1) / bs - 1,
+                     g.z >= 0 ? g.z / bs : (g.z + 1) / bs - 1);
+  const Block* blk = FindBlock(b);
+  if (!blk) return nullptr;
+  const glm::ivec3 l = g - b * bs;
+  return &blk->voxels[(size_t(l.z) * bs + l.y) * bs + l.x];
+}
+
+const TsdfVoxel* TsdfVolume::BlockVoxels(const glm::ivec3& b) const {
+  const Block* blk = FindBlock(b);
+  return blk ? blk->voxels.data() : nullptr;
+}
+
+TsdfVoxel* TsdfVolume::MutableVoxelAt(const glm::ivec3& g) {
+  return const_cast<TsdfVoxel*>(static_cast<const TsdfVolume*>(this)->VoxelAt(g));
+}
+
+uint64_t TsdfVolume::ChunkVersion(uint64_t key) const {
+  auto it = blocks_.find(key);
+  return it == blocks_.end() ? 0 : it->second->version;
+}
+
+std::vector<uint64_t> TsdfVolume::TakeDirtyBlocks() {
+  std::vector<uint64_t> keys(dirty_.begin(), dirty_.end());
+  dirty_.clear();
+  std::sort(keys.begin(), keys.end());
+  return keys;
 }
 
 std::vector<MeshChunk> TsdfVolume::ExtractDirtyChunks() {

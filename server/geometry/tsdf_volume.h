@@ -23,6 +23,7 @@
 #pragma once
 
 #include <array>
+#include <functional>
 #include <cstdint>
 #include <memory>
 #include <vector>
@@ -110,6 +111,24 @@ class TsdfVolume {
   // One block's chunk mesh, computed now (empty if the block does not exist).
   TriangleMesh ExtractBlock(uint64_t block_key) const;
 
+  // One block's chunk mesh from a caller's field (InpaintFusion's labelled proxy,
+  // geometry/inpainted_surface.h): `voxel(g)` is the voxel to mesh at global voxel g (nullptr or
+  // weight < min_extract_weight = none); same marching cubes as ExtractBlock, which it equals
+  // bit for bit when `voxel` returns this volume's voxels.
+  TriangleMesh MeshBlockFrom(const glm::ivec3& block,
+                             const std::function<const TsdfVoxel*(const glm::ivec3&)>& voxel) const;
+  // The voxel at global voxel coordinate g (block * block_size + local); nullptr when its block
+  // is not allocated.
+  const TsdfVoxel* VoxelAt(const glm::ivec3& g) const;
+  TsdfVoxel* MutableVoxelAt(const glm::ivec3& g);
+  // A block's block_size^3 voxels (x fastest), nullptr when it is not allocated.
+  const TsdfVoxel* BlockVoxels(const glm::ivec3& block) const;
+  // The blocks changed since the last ExtractDirtyChunks / TakeDirtyBlocks (sorted), without
+  // meshing them; clears the dirty set.
+  std::vector<uint64_t> TakeDirtyBlocks();
+  // The last chunk version handed out for a block (0: none, or no such block).
+  uint64_t ChunkVersion(uint64_t block_key) const;
+
   // Signed distance at a local point (trilinear); false if any of the 8 voxels is unobserved.
   bool SdfAt(const glm::vec3& p_local, float* sdf_m) const;
 
@@ -138,6 +157,7 @@ class TsdfVolume {
   struct Context;
   Block* FindBlock(const glm::ivec3& b) const;
   TriangleMesh MeshBlock(const glm::ivec3& b) const;
+  TriangleMesh MeshGrid(const glm::ivec3& b) const;  // marching cubes over the thread's scratch
   void IntegrateBlock(Block* block, const Context& ctx) const;
   static float CosIncidence(const Context& c, int u, int v);
   // Keys of the blocks the frame's truncation bands cross, per task of image rows (duplicates

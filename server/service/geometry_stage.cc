@@ -1,6 +1,8 @@
 #include "server/service/geometry_stage.h"
 
+#include "server/geometry/inpainted_surface.h"
 #include "server/geometry/mesh_lod.h"
+#include "server/inpainting/region_labels.h"
 #include "common/state_io.h"
 
 #include <algorithm>
@@ -30,8 +32,15 @@ namespace {
 class GeometryStage final : public PipelineStage {
  public:
   GeometryStage(const GeometryStageOptions& options, const core::OnlineModelOptions& model,
-                std::shared_ptr<GeometryHandoff> handoff)
-      : options_(options), model_(model), handoff_(std::move(handoff)) {}
+                std::shared_ptr<GeometryHandoff> handoff,
+                std::shared_ptr<InpaintedProxyLink> inpainted)
+      : options_(options), model_(model), handoff_(std::move(handoff)),
+        link_(options.inpaint_fuse ? std::move(inpainted) : nullptr) {
+    if (link_) link_->SetApplier([this] { ApplyFromLink(); });
+  }
+  ~GeometryStage() override {
+    if (link_) link_->SetApplier(nullptr);  // waits for a Kick in progress
+  }
   std::string name() const override { return "geometry"; }
 
   void SetBacklog(size_t queued, size_t capacity) override {
@@ -40,6 +49,8 @@ class GeometryStage final : public PipelineStage {
   }
 
   absl::Status Process(const PipelineFrame& f, const SceneContext& ctx) override {
+    std::lock_guard stage(stage_mu_);
+    ctx_ = &ctx;
     // Load shedding (GeometryStageOptions::shed_backlog_fraction): skip fusing this frame.
     const bool shed = options_.shed_backlog_fraction > 0 && has_geometry_ &&
                       static_cast<double>(queued_) >=
@@ -49,6 +60,7 @@ class GeometryStage final : public PipelineStage {
       ++shed_run_;
       shed_.fetch_add(1);
       if (handoff_) handoff_->Push(core::GeometryUpdate{});
+      if (geometry_) PublishOverlay(SyncOverlay(), ctx, last_now_ns_);
       return absl::OkStatus();
     }
     shed_run_ = 0;
@@ -59,7 +71,14 @@ class GeometryStage final : public PipelineStage {
     // Exactly one hand-off entry per frame, also when integration failed (an empty update).
     if (handoff_) handoff_->Push(u.ok() ? *u : core::GeometryUpdate{});
     EXO_RETURN_IF_ERROR(u.status());
+    last_now_ns_ = static_cast<int64_t>(std::llround(f.frame.timestamp_s * 1e9));
+    last_time_s_ = f.frame.timestamp_s;
+    // The labelled proxy (the planner got the observed update above): blocks the overlay
+    // changed are published below, the others' re-meshed chunks get the clients' mesh.
+    const std::vector<uint64_t> dirty = SyncOverlay();
+    ApplyOverlay(&*u, dirty);
     Publish(*std::move(u), ctx, f.frame.timestamp_s);
+    PublishOverlay(dirty, ctx, last_now_ns_);
     return absl::OkStatus();
   }
 
@@ -81,6 +100,21 @@ class GeometryStage final : public PipelineStage {
     (*out)["geometry.lod_fallbacks"] = static_cast<double>(lod_fallbacks_.load());
     (*out)["geometry.lod_ms"] = static_cast<double>(lod_ns_.load()) * 1e-6;
     (*out)["geometry.digest"] = static_cast<double>(geometry_->Digest());
+    if (link_) {
+      (*out)["geometry.inpaint_keyframes_fused"] = static_cast<double>(ip_fused_.load());
+      (*out)["geometry.inpaint_keyframes_failed"] = static_cast<double>(ip_failed_.load());
+      (*out)["geometry.inpaint_voxels_kept"] = static_cast<double>(ip_kept_.load());
+      (*out)["geometry.inpaint_voxels_erased"] = static_cast<double>(ip_erased_.load());
+      (*out)["geometry.inpaint_roi_voxels"] = static_cast<double>(ip_roi_voxels_.load());
+      (*out)["geometry.inpaint_chunks_published"] = static_cast<double>(ip_published_.load());
+      (*out)["geometry.inpaint_chunks_removed"] = static_cast<double>(ip_removed_.load());
+      // Wall ms: fusing keyframes and regions (sync), the clients' mesh of re-meshed chunks
+      // (apply), the chunks the overlay changed (publish: marching cubes, LOD, store).
+      (*out)["geometry.inpaint_sync_ms_total"] = static_cast<double>(ip_sync_ns_.load()) * 1e-6;
+      (*out)["geometry.inpaint_apply_ms_total"] = static_cast<double>(ip_apply_ns_.load()) * 1e-6;
+      (*out)["geometry.inpaint_publish_ms_total"] = static_cast<double>(ip_ns_.load()) * 1e-6;
+      (*out)["geometry.inpaint_waiting_dropped"] = static_cast<double>(link_->dropped());
+    }
     (*out)["geometry.voxel_m"] = geometry_->volume().options().voxel_size_m;
     // TSDF integration + dirty-chunk meshing per frame (the rest of process_ms: hand-off, publish)
     (*out)["geometry.integrate_mesh_ms_mean"] =
@@ -217,6 +251,129 @@ class GeometryStage final : public PipelineStage {
     }
   }
 
+  // --- InpaintFusion's labelled proxy (under stage_mu_) ---
+
+  // The inpainting stage's keyframes arrive asynchronously: applied here when they come after
+  // the last frame (InpaintedProxyLink::Kick, from the stage's publisher thread).
+  void ApplyFromLink() {
+    std::lock_guard stage(stage_mu_);
+    if (!ctx_ || !geometry_) return;
+    const ScopedDeltaSource source(last_time_s_);
+    PublishOverlay(SyncOverlay(), *ctx_, last_now_ns_);
+  }
+
+  // New regions and waiting keyframes into the surface; the blocks whose clients' mesh may have
+  // changed.
+  std::vector<uint64_t> SyncOverlay() {
+    if (!link_ || !geometry_) return {};
+    const int64_t t0 = SteadyNowNs();
+    const TsdfVolume& vol = geometry_->volume();
+    if (!surface_) {
+      geometry::InpaintedSurfaceOptions so;
+      so.carve_margin_voxels = options_.inpaint_carve_margin_voxels;
+      surface_ = std::make_unique<geometry::InpaintedSurface>(vol.options(), so);
+    }
+    const std::shared_ptr<const RegionSet> set = link_->regions()->Get();
+    if (!roi_generation_ || *roi_generation_ != set->generation) {
+      roi_generation_ = set->generation;
+      std::vector<glm::ivec3> labels;
+      double label_m = 0.0;
+      for (const auto& r : set->regions) {
+        label_m = r.voxel_m;
+        for (uint64_t k : r.voxels) labels.push_back(inpainting::UnpackVoxel(k));
+      }
+      surface_->SetRoi(labels, label_m);
+      ip_roi_voxels_ = surface_->roi_voxels();
+    }
+    InpaintedProxyLink::Pending p = link_->Take();
+    if (p.reset) surface_->ClearInpainted();
+    for (const InpaintedDepth& d : p.items) {
+      auto st = surface_->IntegrateInpainted(vol, d.depth, d.mask, d.color.empty() ? nullptr : &d.color,
+                                             d.camera, d.local_from_cam);
+      if (!st.ok()) {
+        ++ip_failed_;
+        continue;
+      }
+      ++ip_fused_;
+      ip_kept_ += st->voxels_kept;
+      ip_erased_ += st->voxels_erased;
+    }
+    std::vector<uint64_t> dirty = surface_->TakeDirtyBlocks();
+    ip_sync_ns_ += SteadyNowNs() - t0;
+    return dirty;
+  }
+
+  // This frame's re-meshed chunks: the clients' mesh where the surface affects them; the blocks
+  // in `dirty` are left to PublishOverlay (published at once, whatever the republish rules).
+  void ApplyOverlay(core::GeometryUpdate* u, const std::vector<uint64_t>& dirty) {
+    if (!surface_) return;
+    const int64_t t0 = SteadyNowNs();
+    const TsdfVolume& vol = geometry_->volume();
+    auto in_dirty = [&](uint64_t id) { return std::binary_search(dirty.begin(), dirty.end(), id); };
+    std::vector<MeshChunk> chunks;
+    chunks.reserve(u->chunks.size());
+    std::vector<uint64_t> removed;
+    for (MeshChunk& c : u->chunks) {
+      if (in_dirty(c.id)) continue;
+      if (surface_->Affects(c.id)) {
+        c.mesh = surface_->ExtractBlock(vol, c.id);
+        overlay_version_.try_emplace(c.id, 0);  // the clients' mesh of this chunk is the overlay's
+        if (c.mesh.empty()) {
+          removed.push_back(c.id);
+          continue;
+        }
+      }
+      chunks.push_back(std::move(c));
+    }
+    for (uint64_t id : u->removed) {
+      if (in_dirty(id)) continue;
+      if (surface_->Affects(id)) {
+        // The observation left the block empty; the inpainted surface may not.
+        TriangleMesh m = surface_->ExtractBlock(vol, id);
+        if (!m.empty()) {
+          uint64_t& ov = overlay_version_[id];
+          ov = std::max(ov, vol.ChunkVersion(id));
+          chunks.push_back({id, ov, std::move(m)});
+          continue;
+        }
+      }
+      removed.push_back(id);
+    }
+    u->chunks = std::move(chunks);
+    u->removed = std::move(removed);
+    ip_apply_ns_ += SteadyNowNs() - t0;
+  }
+
+  // The blocks whose clients' mesh the overlay changed: published now (or removed when empty).
+  void PublishOverlay(const std::vector<uint64_t>& dirty, const SceneContext& ctx, int64_t now) {
+    if (!surface_ || dirty.empty()) return;
+    const int64_t t0 = SteadyNowNs();
+    const TsdfVolume& vol = geometry_->volume();
+    for (uint64_t key : dirty) {
+      // Neither affected now nor published by the overlay before: the clients have the observed
+      // mesh, as they should.
+      if (!surface_->Affects(key) && !overlay_version_.contains(key)) continue;
+      TriangleMesh mesh = surface_->ExtractBlock(vol, key);
+      if (!pending_.contains(key) && !mesh.empty() && options_.refresh_min_move_voxels > 0.0) {
+        // Unchanged since its publication (e.g. inpainted values that were all erased there).
+        auto pub = published_.find(key);
+        if (pub != published_.end() && pub->second.positions == mesh.positions) continue;
+      }
+      pending_.erase(key);  // a held-back mesh from before is stale
+      if (!mesh.empty()) {
+        uint64_t& ov = overlay_version_[key];
+        ov = std::max(ov, vol.ChunkVersion(key));
+        pub_bytes_[kStructural] += PublishChunk({key, ov, std::move(mesh)}, now, ctx);
+        ++ip_published_;
+      } else if (published_.erase(key)) {
+        overlay_version_.try_emplace(key, 0);
+        (void)ctx.store->RemoveChunk(key);
+        ++ip_removed_;
+      }
+    }
+    ip_ns_ += SteadyNowNs() - t0;
+  }
+
   static void PutMesh(StateWriter* w, const TriangleMesh& m) {
     w->PutVec(m.positions);
     w->PutVec(m.normals);
@@ -231,6 +388,7 @@ class GeometryStage final : public PipelineStage {
 
  public:
   absl::StatusOr<std::string> SaveState() const override {
+    std::lock_guard stage(stage_mu_);
     std::lock_guard lock(mu_);
     if (!geometry_) return std::string();
     StateWriter w;
@@ -255,12 +413,17 @@ class GeometryStage final : public PipelineStage {
       PutMesh(&w, c.mesh);
     });
     PutUnorderedPod(&w, extractions_);
+    // The labelled proxy's chunk versions (its surface is rebuilt from the regions and the
+    // inpainted views after a restart).
+    PutUnorderedPod(&w, overlay_version_);
     return std::move(w.str());
   }
 
   absl::Status RestoreState(std::string_view state, const SceneContext& ctx) override {
     if (state.empty()) return absl::OkStatus();
+    std::lock_guard stage(stage_mu_);
     std::lock_guard lock(mu_);
+    ctx_ = &ctx;
     EXO_ASSIGN_OR_RETURN(geometry_, core::OnlineGeometry::Create(model_, ctx.setup));
     StateReader r(state);
     EXO_RETURN_IF_ERROR(geometry_->LoadState(&r));
@@ -287,6 +450,7 @@ class GeometryStage final : public PipelineStage {
     }) && GetUnordered(&r, &pending_, [&r](MeshChunk* c) {
       return r.Get(&c->id) && r.Get(&c->version) && GetMesh(&r, &c->mesh);
     }) && GetUnorderedPod(&r, &extractions_);
+    if (!r.done()) GetUnorderedPod(&r, &overlay_version_);  // absent in older checkpoints
     EXO_RETURN_IF_ERROR(r.Status("geometry stage"));
     if (!r.done()) return absl::DataLossError("geometry stage state: trailing bytes");
     return absl::OkStatus();
@@ -302,6 +466,11 @@ class GeometryStage final : public PipelineStage {
   // Returns the chunk's bytes on the wire.
   size_t PublishChunk(MeshChunk c, int64_t now, const SceneContext& ctx) {
     const MeshWireOptions wire{static_cast<float>(options_.publish_step_voxels * ctx.setup.voxel_m)};
+    // A chunk the labelled proxy published keeps increasing versions (its own and the volume's).
+    if (auto it = overlay_version_.find(c.id); it != overlay_version_.end()) {
+      c.version = std::max(c.version, it->second + 1);
+      it->second = c.version;
+    }
     Published& p = published_[c.id];
     p.triangles = c.mesh.num_triangles();
     p.time_ns = now;
@@ -362,6 +531,19 @@ class GeometryStage final : public PipelineStage {
   const GeometryStageOptions options_;
   const core::OnlineModelOptions model_;
   std::shared_ptr<GeometryHandoff> handoff_;
+  std::shared_ptr<InpaintedProxyLink> link_;  // null: no labelled proxy
+  // The stage's whole work (Process, ApplyFromLink, Save/RestoreState): the labelled proxy's
+  // keyframes are applied from another thread. Lock order: stage_mu_ before mu_.
+  mutable std::mutex stage_mu_;
+  const SceneContext* ctx_ = nullptr;  // the pipeline's, set by the first Process / RestoreState
+  int64_t last_now_ns_ = 0;            // stream time of the last frame
+  double last_time_s_ = 0.0;
+  std::unique_ptr<geometry::InpaintedSurface> surface_;  // created with the geometry
+  std::optional<uint64_t> roi_generation_;                 // of the regions applied
+  std::unordered_map<uint64_t, uint64_t> overlay_version_;  // chunk id -> last version published
+  std::atomic<uint64_t> ip_fused_{0}, ip_failed_{0}, ip_kept_{0}, ip_erased_{0}, ip_roi_voxels_{0},
+      ip_published_{0}, ip_removed_{0};
+  std::atomic<int64_t> ip_ns_{0}, ip_sync_ns_{0}, ip_apply_ns_{0};
   mutable std::mutex mu_;  // geometry_ (stage thread) vs counters (stats thread)
   std::unique_ptr<core::OnlineGeometry> geometry_;  // created on the first frame (scene set-up)
   std::atomic<int64_t> integrate_ns_{0};
@@ -386,10 +568,11 @@ class GeometryStage final : public PipelineStage {
 
 absl::StatusOr<std::unique_ptr<PipelineStage>> MakeGeometryStage(
     const GeometryStageOptions& options, const core::OnlineModelOptions& model,
-    std::shared_ptr<GeometryHandoff> handoff) {
+    std::shared_ptr<GeometryHandoff> handoff, std::shared_ptr<InpaintedProxyLink> inpainted) {
   EXO_RETURN_IF_ERROR(options.Validate());
   EXO_RETURN_IF_ERROR(model.Validate());
-  return std::unique_ptr<PipelineStage>(new GeometryStage(options, model, std::move(handoff)));
+  return std::unique_ptr<PipelineStage>(
+      new GeometryStage(options, model, std::move(handoff), std::move(inpainted)));
 }
 
 }  // namespace exo

@@ -18,6 +18,7 @@
 #include <optional>
 
 #include "server/core/online_model.h"
+#include "server/service/inpainted_proxy.h"
 #include "server/service/pipeline.h"
 
 namespace exo {
@@ -92,7 +93,16 @@ struct GeometryStageOptions {
   // same surfaces), at most `shed_max_run` frames in a row. 0 = never shed (deterministic runs).
   double shed_backlog_fraction = 0.5;
   int shed_max_run = 2;
+  // InpaintFusion's labelled proxy (issue 18, geometry/inpainted_surface.h; only with an
+  // InpaintedProxyLink, i.e. with the inpainting stage): the marked regions are carved from the
+  // chunks the clients get and the inpainted keyframes' depth fills them (L_IP voxels only);
+  // the planner keeps the observed proxy. The ROI is the label voxels grown by this many TSDF
+  // voxels. false = the clients get the observed proxy (the object stays in it).
+  bool inpaint_fuse = true;
+  int inpaint_carve_margin_voxels = 1;
   absl::Status Validate() const {
+    if (inpaint_carve_margin_voxels < 0 || inpaint_carve_margin_voxels > 16)
+      return absl::InvalidArgumentError("inpaint_carve_margin_voxels must be in [0, 16]");
     if (!(shed_backlog_fraction >= 0.0 && shed_backlog_fraction <= 1.0))
       return absl::InvalidArgumentError("shed_backlog_fraction must be in [0, 1]");
     if (shed_max_run < 1 || shed_max_run > 100)
@@ -134,6 +144,7 @@ class GeometryHandoff {
 
 absl::StatusOr<std::unique_ptr<PipelineStage>> MakeGeometryStage(
     const GeometryStageOptions& options, const core::OnlineModelOptions& model,
-    std::shared_ptr<GeometryHandoff> handoff = nullptr);
+    std::shared_ptr<GeometryHandoff> handoff = nullptr,
+    std::shared_ptr<InpaintedProxyLink> inpainted = nullptr);
 
 }  // namespace exo

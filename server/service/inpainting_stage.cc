@@ -177,9 +177,9 @@ struct Job {
 class InpaintingStageImpl final : public InpaintingStage {
  public:
   InpaintingStageImpl(const InpaintingStageOptions& o, std::shared_ptr<RegionRegistry> regions,
-                      ModelStore* store)
+                      ModelStore* store, std::shared_ptr<InpaintedProxyLink> link)
       : options_(o), dr_options_(ToDrOptions(o)), dr_(dr_options_), regions_(std::move(regions)),
-        store_(store) {
+        store_(store), link_(std::move(link)) {
     RestoreFromStore();
     publisher_ = std::thread([this] { PublisherLoop(); });
     worker_ = std::thread([this] { WorkerLoop(); });
@@ -510,18 +510,23 @@ class InpaintingStageImpl final : public InpaintingStage {
   }
 
   uint32_t Withdraw() override {
-    std::lock_guard publish(publish_mu_);
-    {
-      std::lock_guard lock(mu_);
-      dr_.Clear();
-      ids_.clear();
-      last_obs_index_ = -1;
-    }
     uint32_t n = 0;
-    for (const auto& v : store_->Views())
-      if (v->inpainted() && store_->RemoveView(v->view_id()).ok()) ++n;
-    std::lock_guard lock(mu_);
-    withdrawn_ += n;
+    {
+      std::lock_guard publish(publish_mu_);
+      {
+        std::lock_guard lock(mu_);
+        dr_.Clear();
+        ids_.clear();
+        last_obs_index_ = -1;
+      }
+      for (const auto& v : store_->Views())
+        if (v->inpainted() && store_->RemoveView(v->view_id()).ok()) ++n;
+      if (link_) link_->Reset();  // the labelled proxy forgets the inpainted depth
+      std::lock_guard lock(mu_);
+      withdrawn_ += n;
+    }
+    // The proxy without the cleared regions' carving and fill, now (not at the next frame).
+    if (link_) link_->Kick();
     return n;
   }
 
@@ -630,6 +635,7 @@ class InpaintingStageImpl final : public InpaintingStage {
       for (size_t i = 0; i < roi.size(); ++i) roi.data()[i] = roi.data()[i] ? 255 : 0;
       dr_.AddKeyframe(inpainting::MakeKeyframeView(
           {view->color, view->depth_m, view->camera, view->local_from_cam}, roi, {}));
+      if (link_) link_->Add({view->depth_m, roi, view->color, view->camera, view->local_from_cam});
       ids_.push_back({view->id, 0, inpainting::CountNonZero(roi)});
       if (ids_.size() > options_.max_keyframes) ids_.pop_front();
     }
@@ -723,6 +729,9 @@ class InpaintingStageImpl final : public InpaintingStage {
         continue;
       }
       Publish(job, *std::move(r), ms, cpu_ms, log);
+      // The proxy chunks with the keyframe's depth, now: keyframes also come after the last
+      // frame. At the server's priority (the geometry stage's lock and the store's are taken).
+      if (link_) AtServerPriority([&] { link_->Kick(); });
       std::lock_guard lock(mu_);
       busy_ = false;
       QueueRefreshLocked();
@@ -776,6 +785,8 @@ class InpaintingStageImpl final : public InpaintingStage {
       ScopedDeltaSource source(job.timestamp_s);
       store_->AddView(*std::move(msg));
     });
+    // Its depth into the labelled proxy (L_IP voxels; the geometry stage applies it on Kick).
+    if (link_) link_->Add({kv.depth, kv.roi, kv.color, kv.cam, kv.world_from_cam});
     const int roi_px = inpainting::CountNonZero(kv.roi);
     std::optional<ViewId> evict;
     {
@@ -837,6 +848,7 @@ class InpaintingStageImpl final : public InpaintingStage {
   DiminishedReality dr_;  // under mu_ (ComputeKeyframe works on a job's own snapshot)
   std::shared_ptr<RegionRegistry> regions_;
   ModelStore* store_;
+  std::shared_ptr<InpaintedProxyLink> link_;  // the labelled proxy (null: off)
   std::mutex publish_mu_;  // publish vs Withdraw
   mutable std::mutex mu_;
   std::condition_variable cv_, idle_cv_, frame_cv_, live_cv_;
@@ -897,8 +909,9 @@ class InpaintingStageImpl final : public InpaintingStage {
 
 std::unique_ptr<InpaintingStage> MakeInpaintingStage(const InpaintingStageOptions& options,
                                                      std::shared_ptr<RegionRegistry> regions,
-                                                     ModelStore* store) {
-  return std::make_unique<InpaintingStageImpl>(options, std::move(regions), store);
+                                                     ModelStore* store,
+                                                     std::shared_ptr<InpaintedProxyLink> link) {
+  return std::make_unique<InpaintingStageImpl>(options, std::move(regions), store, std::move(link));
 }
 
 }  // namespace exo

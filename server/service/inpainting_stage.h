@@ -27,6 +27,7 @@
 #include "server/inpainting/dr_compositor.h"
 #include "server/inpainting/inpaint.h"
 #include "server/inpainting/keyframe_policy.h"
+#include "server/service/inpainted_proxy.h"
 #include "server/service/pipeline.h"
 #include "server/service/regions.h"
 
@@ -89,7 +90,8 @@ class InpaintingStage;
 // pipeline as a stage.
 std::unique_ptr<InpaintingStage> MakeInpaintingStage(const InpaintingStageOptions& options,
                                                      std::shared_ptr<RegionRegistry> regions,
-                                                     ModelStore* store);
+                                                     ModelStore* store,
+                                                     std::shared_ptr<InpaintedProxyLink> link = nullptr);
 
 // One frame of the live DR view.
 struct DrLiveFrame {

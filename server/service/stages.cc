@@ -17,13 +17,18 @@ absl::StatusOr<std::vector<std::unique_ptr<PipelineStage>>> MakeStages(
   core::OnlineModelOptions model = config.pipeline.model;
   if (!config.planning_cell_areas) model.cell_areas = false;
   std::shared_ptr<GeometryHandoff> handoff;
+  // InpaintFusion's labelled proxy: the inpainting stage's keyframes into the geometry stage's
+  // chunks (geometry_stage.h inpaint_fuse).
+  std::shared_ptr<InpaintedProxyLink> link;
+  if (regions && store && config.enable_geometry && config.geometry.inpaint_fuse)
+    link = std::make_shared<InpaintedProxyLink>(regions);
   if (config.enable_geometry) {
     if (config.enable_planning) handoff = std::make_shared<GeometryHandoff>();
     GeometryStageOptions go = config.geometry;
     // Lossless (back-pressured) ingest processes every frame in order, deterministically: a
     // full queue there is not overload, nothing is shed.
     if (config.pipeline.admission_block) go.shed_backlog_fraction = 0.0;
-    EXO_ASSIGN_OR_RETURN(auto g, MakeGeometryStage(go, model, handoff));
+    EXO_ASSIGN_OR_RETURN(auto g, MakeGeometryStage(go, model, handoff, link));
     stages.push_back(std::move(g));
   }
   // Inpainting before planning: the planning stage adds the frame's stored views, so it must be
@@ -37,7 +42,7 @@ absl::StatusOr<std::vector<std::unique_ptr<PipelineStage>>> MakeStages(
     o.publish = config.publish;
     o.region = config.regions.region;
     EXO_RETURN_IF_ERROR(o.Validate());
-    auto s = MakeInpaintingStage(o, std::move(regions), store);
+    auto s = MakeInpaintingStage(o, std::move(regions), store, link);
     if (inpainting) *inpainting = s.get();
     stages.push_back(std::move(s));
   }
