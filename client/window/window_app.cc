@@ -48,6 +48,12 @@ namespace {
 // Scene completion's views (server/service/completion_stage.h; the wire's contract, docs/
 // inpainting.md "Session 15"): ids from 0x60000000, inpainted. Clients never include server code.
 constexpr ViewId kCompletionViewIdFirst = 0x60000000u;
+size_t CountCompletionViews(const LumigraphModel& m) {
+  size_t n = 0;
+  for (auto it = m.views.lower_bound(kCompletionViewIdFirst); it != m.views.end(); ++it)
+    n += it->second.inpainted;
+  return n;
+}
 
 std::atomic<bool> g_stop{false};
 void OnSignal(int) { g_stop.store(true); }
@@ -1185,6 +1191,7 @@ class App {
                         {"pose_local", PoseJson(pose)},
                         {"model_version", info.version},
                         {"views", info.geom.views.size()},
+                        {"completion_views", CountCompletionViews(info.geom)},
                         {"cells", info.cells},
                         {"sync", source_->state()},
                         {"frame_ms", frame_ms_},
@@ -1914,6 +1921,7 @@ class App {
                           {"height", img->height()},
                           {"model_version", info_->version},
                           {"views", info_->geom.views.size()},
+                          {"completion_views", CountCompletionViews(info_->geom)},
                           {"cells", info_->cells},
                           {"sync", source_->state()},
                           {"bytes_received", source_->bytes()},

@@ -35,7 +35,7 @@ struct CompletionOptions {
   CpuRenderOptions render;  // blend.fill_holes is ignored (always off: holes are what we want)
   // Fewer hole pixels than this (and than min_hole_fraction of the frame): nothing to complete.
   int min_hole_px = 32;
-  double min_hole_fraction = 0.0005;
+  double min_hole_fraction = 0.01;
   // Fewer known pixels (covered or background) than this fraction of the frame: the camera looks
   // at nothing modelled, there is nothing to copy from (FAILED_PRECONDITION).
   double min_known_fraction = 0.05;
