@@ -13,6 +13,7 @@
 #include <deque>
 #include <future>
 #include <mutex>
+#include <set>
 #include <thread>
 
 #include "common/log/log.h"
@@ -377,13 +378,27 @@ class CompletionStageImpl final : public CompletionStage {
       entries = entries_;
     }
     if (entries.empty()) return 0;
+    // Bounded work per period while frames arrive (every chunk or view change is a change): the
+    // views to re-check since the last change, at most refresh_views_per_check of them per call.
     const uint64_t sig = ObservedSignature();
-    if (!force && sig == last_signature_) return 0;
-    last_signature_ = sig;
+    if (sig != last_signature_) {
+      last_signature_ = sig;
+      to_check_.clear();
+      for (const Entry& e : entries) to_check_.insert(e.id);
+    }
+    if (!force && to_check_.empty()) return 0;
     EXO_ASSIGN_OR_RETURN(LumigraphModel observed, Snapshot(/*observed_only=*/true));
-    int changed = 0;
+    int changed = 0, checked = 0;
     std::deque<Entry> keep;
     for (Entry e : entries) {
+      const bool due = force || (to_check_.count(e.id) &&
+                                 checked < std::max(1, options_.refresh_views_per_check));
+      if (!due) {
+        keep.push_back(e);
+        continue;
+      }
+      ++checked;
+      to_check_.erase(e.id);
       auto it = cache_.find(e.id);
       if (it == cache_.end()) continue;  // removed meanwhile
       const StoredView& v = it->second.view;
@@ -461,6 +476,7 @@ class CompletionStageImpl final : public CompletionStage {
   // Worker only.
   std::map<ViewId, CachedView> cache_;
   uint64_t last_signature_ = 0;
+  std::set<ViewId> to_check_;  // completion views not re-checked since the observations changed
   std::thread worker_;
 };
 
@@ -475,6 +491,8 @@ absl::Status CompletionStageOptions::Validate() const {
   if (!(refresh_period_s >= 0.0) || !std::isfinite(refresh_period_s))
     return absl::InvalidArgumentError("completion_refresh_period_s must be >= 0");
   if (refresh_min_px < 0) return absl::InvalidArgumentError("completion_refresh_min_px must be >= 0");
+  if (refresh_views_per_check < 1 || refresh_views_per_check > 64)
+    return absl::InvalidArgumentError("completion_refresh_views_per_check must be in [1, 64]");
   if (nice < 0 || nice > 19) return absl::InvalidArgumentError("completion_nice must be in [0, 19]");
   return absl::OkStatus();
 }

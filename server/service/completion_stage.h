@@ -11,7 +11,8 @@
 //     kCompletionChunkBit | view id (TSDF chunk ids are packed cells, < 2^63).
 // Observations are preferred (SPEC §7): every `refresh_period_s` the worker looks whether the
 // observed part of the model (views that are not inpainted, chunks that are not completion
-// chunks) changed; if so, each completion view's holes are found again without any completion
+// chunks) changed; if so, each completion view's holes are found again (at most
+// refresh_views_per_check views per period) without any completion
 // view or chunk, its labels shrink to the holes that remain (republished under the same id, its
 // depth taken from the proxy where the proxy now has a surface, its mesh chunk rebuilt) or, when
 // fewer than min_hole_px remain, the view and its chunk are withdrawn.
@@ -51,6 +52,9 @@ struct CompletionStageOptions {
   int max_side_px = 640;      // default (and largest) longer side of a completion keyframe
   size_t max_views = 8;       // completion views kept (oldest withdrawn beyond)
   double refresh_period_s = 1.0;  // observations re-checked this often (0 = never)
+  // ... at most this many completion views per period (a render each: bounded CPU while frames
+  // arrive and every chunk update counts as a change).
+  int refresh_views_per_check = 2;
   int refresh_min_px = 16;    // republish once this many hole pixels were observed since
   int nice = 5;               // the worker runs this much nicer than the server
   ViewEncodeOptions publish;
