@@ -13,6 +13,9 @@ the viewers (docs/inpainting.md "Marking a region").
       [--depth_tol_m D] [--label TEXT]
   exoview_regions.py --target HOST:PORT list
   exoview_regions.py --target HOST:PORT clear [--id N]      (no id: every region)
+  exoview_regions.py --target HOST:PORT complete --camera FX,FY,CX,CY,W,H \
+      --local_from_cam TX,TY,TZ,QW,QX,QY,QZ [--max_side_px N]
+      (scene completion at a viewer's camera, viewer role: docs/inpainting.md "Session 15")
 
 With TLS and roles (docs/security.md): --tls_ca ca.pem --token_file operator.token.
 Prints JSON; exits 1 with the server's status and message on an error.
@@ -54,6 +57,11 @@ def main():
     sub.add_parser("list")
     c = sub.add_parser("clear")
     c.add_argument("--id", type=int, default=0, help="region id (0: every region)")
+    k = sub.add_parser("complete")
+    k.add_argument("--camera", required=True, help="FX,FY,CX,CY,W,H (pixels)")
+    k.add_argument("--local_from_cam", required=True,
+                   help="TX,TY,TZ,QW,QX,QY,QZ (the viewer's camera, scene-local)")
+    k.add_argument("--max_side_px", type=int, default=0, help="0: the server's default (640)")
     args = ap.parse_args()
 
     exoview_stubs.load(args.stubs)
@@ -91,6 +99,16 @@ def main():
             req.radius_px, req.depth_tolerance_m, req.label = (args.radius_px, args.depth_tol_m,
                                                                args.label)
             out = stub.MarkRegion(req, timeout=30)
+        elif args.cmd == "complete":
+            req = pb.CompleteViewRequest(max_side_px=args.max_side_px)
+            fx, fy, cx, cy, w, h = floats(args.camera, 6, "--camera")
+            req.camera.fx, req.camera.fy, req.camera.cx, req.camera.cy = fx, fy, cx, cy
+            req.camera.width, req.camera.height = int(w), int(h)
+            t = floats(args.local_from_cam, 7, "the pose")
+            p = req.local_from_cam
+            p.translation.x, p.translation.y, p.translation.z = t[0:3]
+            p.quaternion.w, p.quaternion.x, p.quaternion.y, p.quaternion.z = t[3:7]
+            out = stub.CompleteView(req, timeout=120)
         elif args.cmd == "list":
             out = stub.ListRegions(pb.ListRegionsRequest(), timeout=30)
         else:

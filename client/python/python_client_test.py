@@ -137,8 +137,8 @@ class PythonClientTest(unittest.TestCase):
         self.assertEqual(rc, 0, err)
         services = json.loads(out)["services"]
         self.assertEqual(services.get("exoview.v1.Exoview"),
-                         ["ClearRegion", "GetStats", "ListRegions", "MarkRegion", "Subscribe",
-                          "Upload", "WatchDrView"])
+                         ["ClearRegion", "CompleteView", "GetStats", "ListRegions", "MarkRegion",
+                          "Subscribe", "Upload", "WatchDrView"])
         self.assertIn("grpc.health.v1.Health", services)
 
     def test_uploads_frames_it_wrote_and_reads_stats(self):

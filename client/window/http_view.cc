@@ -111,8 +111,9 @@ async function stats() {
            ? `${j.drone_controls.operator.last.summary}  ` : "") +
         (j.drone_controls && j.drone_controls.xray
            ? `X-RAY cut at ${j.drone_controls.xray_clip_m.toFixed(2)} m  ` : "") +
+        (j.completion && j.completion.hud ? `\n${j.completion.hud}  ` : "") +
         (droneMode ? "DRONE MODE  " : "") +
-        `| WASD QE move, drag/arrows look, wheel speed, R reset, F follow, G drone, 3 cells, 4 tau/refs, 5 drone, V DR view` +
+        `| WASD QE move, drag/arrows look, wheel speed, R reset, F follow, G drone, 3 cells, 4 tau/refs, 5 drone, V DR view, C complete the holes` +
         `\n| drone: ctrl/M + click = gaze-to-see, + drag from the drone = pick-and-place, ` +
         `IJKL UO YH joypad, X x-ray ([ ] plane)`;
       if (maxFrames > 0 && shown >= maxFrames) return;
@@ -123,7 +124,7 @@ async function stats() {
 const keys = {KeyW:"w",KeyA:"a",KeyS:"s",KeyD:"d",KeyQ:"q",KeyE:"e",ArrowLeft:"left",
   ArrowRight:"right",ArrowUp:"up",ArrowDown:"down",KeyR:"r",KeyF:"f",Digit1:"1",Digit2:"2",
   Digit3:"3",Digit4:"4",Digit5:"5",KeyG:"g",KeyI:"i",KeyJ:"j",KeyK:"k",KeyL:"l",KeyU:"u",
-  KeyO:"o",KeyY:"y",KeyH:"h",KeyX:"x",BracketLeft:"xnear",BracketRight:"xfar"};
+  KeyO:"o",KeyY:"y",KeyH:"h",KeyX:"x",BracketLeft:"xnear",BracketRight:"xfar",KeyC:"c"};
 // Steering the drone: ctrl (or drone mode, M) + click = gaze-to-see at that pixel; + drag that
 // starts on the drone = pick-and-place (the mouse as the hand, docs/viewer.md).
 let droneMode = false, press = null, onDrone = false, cursor = null;
@@ -140,7 +141,7 @@ const held = new Set();
 // One-shot keys (the viewer acts on each press): sent once per press, never re-sent as held
 // (re-sending them every 200 ms toggled X-ray, overlays, follow ... again while the key was down);
 // the X-ray cut's [ ] step on each auto-repeat.
-const once = new Set(["r", "f", "g", "1", "2", "3", "4", "5", "x", "xnear", "xfar"]);
+const once = new Set(["r", "f", "g", "1", "2", "3", "4", "5", "x", "xnear", "xfar", "c"]);
 const send = q => fetch("/input?" + q, {method: "POST"}).catch(() => {});
 onkeydown = e => { if (e.code === "KeyM" && !e.repeat) { droneMode = !droneMode; return; }
   if (e.code === "KeyV") { setDr(!dr); e.preventDefault(); return; }
@@ -445,7 +446,7 @@ class HttpView::Impl {
                                                   "i", "j",    "k",     "l",  "u",
                                                   "o", "y",    "h"};
       static const std::set<std::string> kOnce = {"r", "f", "g", "tab", "1", "2", "3",
-                                                  "4", "5", "x", "xnear", "xfar"};
+                                                  "4", "5", "x", "xnear", "xfar", "c"};
       if (kHeld.count(k->second)) {
         if (down)
           held_[k->second] = Clock::now();

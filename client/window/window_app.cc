@@ -30,6 +30,7 @@
 #include "client/vulkan/vulkan_renderer.h"
 #include "client/window/drone_operator.h"
 #include "client/window/dr_view_watch.h"
+#include "client/window/completion_request.h"
 #include "client/window/http_view.h"
 #include "client/window/presenter.h"
 #include "common/io/image_file.h"
@@ -43,6 +44,16 @@
 
 namespace exo {
 namespace {
+
+// Scene completion's views (server/service/completion_stage.h; the wire's contract, docs/
+// inpainting.md "Session 15"): ids from 0x60000000, inpainted. Clients never include server code.
+constexpr ViewId kCompletionViewIdFirst = 0x60000000u;
+size_t CountCompletionViews(const LumigraphModel& m) {
+  size_t n = 0;
+  for (auto it = m.views.lower_bound(kCompletionViewIdFirst); it != m.views.end(); ++it)
+    n += it->second.inpainted;
+  return n;
+}
 
 std::atomic<bool> g_stop{false};
 void OnSignal(int) { g_stop.store(true); }
@@ -318,8 +329,9 @@ SceneInfo CopySceneInfo(const LumigraphModel& m, uint64_t version) {
     sv.id = id;
     sv.camera = v.camera;
     sv.local_from_cam = v.local_from_cam;
+    sv.inpainted = v.inpainted;  // (no labels: the overlay marks the view by its frustum)
     s.geom.views.emplace(id, std::move(sv));
-    s.newest = id;
+    if (!v.inpainted) s.newest = id;  // the live camera is the newest observation
   }
   s.cells = m.cell_refs.size();
   for (const auto& [c, r] : m.cell_refs) s.max_refs = std::max<int>(s.max_refs, int(r.size()));
@@ -938,10 +950,16 @@ class App {
       for (const auto& [id, v] : info.geom.views) {
         const bool live = info.newest && id == *info.newest;
         // Age: oldest blue -> newest yellow; the live (newest) camera green and thicker.
-        const float a = last > first ? float(id - first) / float(last - first) : 1.f;
+        // Inpainted views (SPEC §7): scene completion's (ids from 0x60000000) magenta, the
+        // diminished-reality keyframes orange.
+        const ViewId obs_last = info.newest ? *info.newest : last;
+        const float a = obs_last > first ? std::min(1.f, float(id - first) / float(obs_last - first)) : 1.f;
+        const bool completion = v.inpainted && id >= kCompletionViewIdFirst;
         const ImU32 col =
-            live ? IM_COL32(40, 255, 40, 255)
-                 : IM_COL32(int(60 + 195 * a), int(80 + 175 * a), int(255 * (1 - a)), 200);
+            live         ? IM_COL32(40, 255, 40, 255)
+            : completion ? IM_COL32(255, 40, 255, 255)
+            : v.inpainted ? IM_COL32(255, 140, 0, 230)
+                         : IM_COL32(int(60 + 195 * a), int(80 + 175 * a), int(255 * (1 - a)), 200);
         const PinholeCamera& vc = v.camera;
         const double z = live ? 2 * scale : scale;
         glm::dvec3 c[4];
@@ -953,7 +971,7 @@ class App {
         const glm::dvec3 o = v.local_from_cam.translation;
         // A frustum at (or around) the eye would cover the screen: skip those within 3 sizes.
         if (glm::length(o - pose.translation) < 3 * z) continue;
-        const float th = live ? 2.5f : 1.2f;
+        const float th = live ? 2.5f : v.inpainted ? 2.0f : 1.2f;
         for (int i = 0; i < 4; ++i) {
           line(o, c[i], col, th);
           line(c[i], c[(i + 1) % 4], col, th);
@@ -1027,6 +1045,13 @@ class App {
           ImGui::TextColored(r->ok ? ImVec4(0.6f, 1.f, 0.6f, 1.f) : ImVec4(1.f, 0.5f, 0.4f, 1.f),
                              "%s", r->Summary().c_str());
     }
+    {
+      bool ok = true;
+      const std::string line = CompletionLine(&ok);
+      if (!line.empty())
+        ImGui::TextColored(ok ? ImVec4(1.f, 0.55f, 1.f, 1.f) : ImVec4(1.f, 0.5f, 0.4f, 1.f), "%s",
+                           line.c_str());
+    }
     if (control_) {
       ImGui::Text("%s", control_->state().c_str());
       if (auto cv = control_->view(); cv && cv->drone_known) {
@@ -1059,6 +1084,46 @@ class App {
     const ImVec2 hp = ImGui::GetWindowPos(), hs = ImGui::GetWindowSize();
     probe_["hud"] = {hp.x, hp.y, hs.x, hs.y};
     ImGui::End();
+  }
+
+  // Key C: scene completion at the camera (CompleteView on the model's server, same security).
+  void RequestCompletion(const PinholeCamera& camera, const Rigid3d& pose) {
+    if (o_.server.empty()) {
+      completion_note_ = "completion (C): only with a live server (--server); this is a saved model";
+      return;
+    }
+    if (!completion_) {
+      auto channel = MakeChannel(o_.server, o_.security);
+      if (!channel.ok()) {
+        completion_note_ = "completion (C): " + std::string(channel.status().message());
+        return;
+      }
+      completion_ = std::make_unique<CompletionRequester>(*channel);
+    }
+    completion_note_.clear();
+    completion_->Request(camera, pose);
+  }
+  // The HUD's completion line ("" before the first C) and whether it reports a success.
+  std::string CompletionLine(bool* ok) const {
+    *ok = completion_note_.empty();
+    if (!completion_note_.empty()) return completion_note_;
+    if (!completion_) return std::string();
+    const CompletionRequester::State st = completion_->state();
+    *ok = st.ok;
+    return st.line;
+  }
+  nlohmann::json CompletionJson() const {
+    bool ok = true;
+    nlohmann::json j = {{"hud", CompletionLine(&ok)}, {"ok", ok}};
+    if (completion_) {
+      const CompletionRequester::State st = completion_->state();
+      j["busy"] = st.busy;
+      j["requests"] = st.requests;
+      j["replies"] = st.replies;
+      j["view_id"] = st.view_id;
+      j["hole_px"] = st.hole_px;
+    }
+    return j;
   }
 
   // Key V: the live DR view on (subscribe to the server's WatchDrView, on the same channel
@@ -1126,6 +1191,7 @@ class App {
                         {"pose_local", PoseJson(pose)},
                         {"model_version", info.version},
                         {"views", info.geom.views.size()},
+                        {"completion_views", CountCompletionViews(info.geom)},
                         {"cells", info.cells},
                         {"sync", source_->state()},
                         {"frame_ms", frame_ms_},
@@ -1142,6 +1208,7 @@ class App {
     }
     if (control_) j["control"] = control_->state();
     if (controls_) j["drone_controls"] = controls_->StatusJson();
+    j["completion"] = CompletionJson();
     {
       bool dr_ok = false;
       const std::string watch = dr_watch_ ? dr_watch_->status() : std::string("off");
@@ -1343,6 +1410,11 @@ class App {
               break;
             case SDLK_5:
               show_drone_ = !show_drone_;
+              overlay_changed = true;
+              break;
+            case SDLK_c:  // scene completion at this camera (the server inpaints the holes)
+              RequestCompletion(Camera(presenter_->width(), presenter_->height()),
+                                shown ? shown->job.request.pose : cam.pose());
               overlay_changed = true;
               break;
             case SDLK_v:  // the live DR view instead of the free-viewpoint render, and back
@@ -1661,6 +1733,7 @@ class App {
     std::mutex status_mu;
     std::string status_text = "{}";
     std::string controls_text;  // DroneControls::StatusJson, refreshed by the loop
+    std::string completion_text;  // CompletionJson, refreshed by the loop
     double frame_ms = 0;
     uint64_t frames = 0;
     HttpView* view_ptr = nullptr;
@@ -1668,10 +1741,13 @@ class App {
         o_.http,
         [&] {
           std::lock_guard lock(status_mu);
-          if (controls_text.empty()) return status_text;
           nlohmann::json j = nlohmann::json::parse(status_text, nullptr, false);
           if (j.is_discarded()) return status_text;
-          j["drone_controls"] = nlohmann::json::parse(controls_text, nullptr, false);
+          if (!controls_text.empty())
+            j["drone_controls"] = nlohmann::json::parse(controls_text, nullptr, false);
+          j["completion"] = completion_text.empty()
+                                ? nlohmann::json::object()
+                                : nlohmann::json::parse(completion_text, nullptr, false);
           return j.dump();
         },
         [&] {
@@ -1763,6 +1839,7 @@ class App {
       if (MsSince(t_controls) >= 200) {
         std::lock_guard lock(status_mu);
         controls_text = controls_->StatusJson().dump();
+        completion_text = CompletionJson().dump();
         t_controls = Clock::now();
       }
       for (const std::string& k : hi.presses) {
@@ -1790,6 +1867,8 @@ class App {
         } else if (k == "5") {
           show_drone_ = !show_drone_;
           overlay_due = true;
+        } else if (k == "c") {  // scene completion at the page's camera
+          RequestCompletion(Camera(W, H), have_frame ? last_pose : cam.pose());
         }
       }
       // The overlays follow the drone at 5 Hz even when no frame is rendered.
@@ -1842,6 +1921,7 @@ class App {
                           {"height", img->height()},
                           {"model_version", info_->version},
                           {"views", info_->geom.views.size()},
+                          {"completion_views", CountCompletionViews(info_->geom)},
                           {"cells", info_->cells},
                           {"sync", source_->state()},
                           {"bytes_received", source_->bytes()},
@@ -2105,6 +2185,8 @@ class App {
   bool frame_moving_ = true;  // the frame on screen was rendered for a moving camera  // longest UI-loop iteration (input to present), waits excluded
   // The live DR view (key V): the subscription (only while the mode is on) and its newest frame.
   bool dr_mode_ = false;
+  std::unique_ptr<CompletionRequester> completion_;  // key C (created on the first press)
+  std::string completion_note_;
   DrLive dr_;                                // before dr_watch_: its thread writes here
   std::unique_ptr<DrViewWatcher> dr_watch_;  // (destroyed first)
   uint64_t dr_shown_sequence_ = 0;

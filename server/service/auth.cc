@@ -62,6 +62,8 @@ const char* RpcName(Rpc rpc) {
       return "GetControlState";
     case Rpc::kExplore:
       return "Explore";
+    case Rpc::kCompleteView:
+      return "CompleteView";
   }
   return "?";
 }
@@ -82,12 +84,12 @@ bool RoleAllows(Role role, Rpc rpc) {
       return rpc == Rpc::kUpload || rpc == Rpc::kDroneLink;
     case Role::kViewer:
       return rpc == Rpc::kSubscribe || rpc == Rpc::kGetStats || rpc == Rpc::kListRegions ||
-             rpc == Rpc::kGetControlState;
+             rpc == Rpc::kGetControlState || rpc == Rpc::kCompleteView;
     case Role::kOperator:
       return rpc == Rpc::kSubscribe || rpc == Rpc::kGetStats || rpc == Rpc::kListRegions ||
              rpc == Rpc::kMarkRegion || rpc == Rpc::kGetControlState ||
              rpc == Rpc::kPickAndPlace || rpc == Rpc::kGazeToSee || rpc == Rpc::kJoypad ||
-             rpc == Rpc::kGoToView || rpc == Rpc::kExplore;
+             rpc == Rpc::kGoToView || rpc == Rpc::kExplore || rpc == Rpc::kCompleteView;
   }
   return false;
 }

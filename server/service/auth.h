@@ -27,6 +27,8 @@ enum class Rpc {
   kUpload, kSubscribe, kGetStats, kMarkRegion, kListRegions,
   // exoview.control.v1.Control
   kDroneLink, kPickAndPlace, kGazeToSee, kJoypad, kGoToView, kGetControlState, kExplore,
+  // Scene completion at a viewer's camera (viewer, operator, admin).
+  kCompleteView,
 };
 
 const char* RoleName(Role role);

@@ -385,6 +385,8 @@ void ControlServiceHost::Feed() {
           break;
         }
         case v1::Delta::kMeshChunkUpserted: {
+          // Scene completion's meshes are hallucinated surface: not in the drone's map.
+          if (IsCompletionChunk(d->mesh_chunk_upserted().chunk_id())) break;
           auto mesh = MeshFromProto(d->mesh_chunk_upserted());
           if (mesh.ok()) core_->UpsertChunk(d->mesh_chunk_upserted().chunk_id(), *std::move(mesh));
           break;
@@ -394,6 +396,7 @@ void ControlServiceHost::Feed() {
           break;
         case v1::Delta::kViewAdded: {
           const auto& v = d->view_added();
+          if (IsCompletionView(v.view_id())) break;  // hallucinated pixels: not the drone's
           auto pose = PoseFromProto(v.local_from_cam());
           auto cam = IntrinsicsFromProto(v.intrinsics());
           if (!pose.ok() || !cam.ok()) break;

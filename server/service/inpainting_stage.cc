@@ -1,4 +1,5 @@
 #include "server/service/inpainting_stage.h"
+#include "server/service/completion_stage.h"  // IsCompletionView
 
 #include <algorithm>
 #include <chrono>
@@ -520,7 +521,9 @@ class InpaintingStageImpl final : public InpaintingStage {
         last_obs_index_ = -1;
       }
       for (const auto& v : store_->Views())
-        if (v->inpainted() && store_->RemoveView(v->view_id()).ok()) ++n;
+        if (v->inpainted() && !IsCompletionView(v->view_id()) &&  // (scene completion's own)
+            store_->RemoveView(v->view_id()).ok())
+          ++n;
       if (link_) link_->Reset();  // the labelled proxy forgets the inpainted depth
       std::lock_guard lock(mu_);
       withdrawn_ += n;
@@ -627,7 +630,7 @@ class InpaintingStageImpl final : public InpaintingStage {
   // their whole ROI counts as inpainted, so their colour there is never taken as observed).
   void RestoreFromStore() {
     for (const auto& v : store_->Views()) {
-      if (!v->inpainted()) continue;
+      if (!v->inpainted() || IsCompletionView(v->view_id())) continue;  // scene completion's
       next_id_ = std::max<ViewId>(next_id_, v->view_id() + 1);
       auto view = ViewFromProto(*v);
       if (!view.ok() || view->labels.empty()) continue;

@@ -414,6 +414,11 @@ std::vector<CellId> ModelStore::CellIds() const {
   return out;
 }
 
+std::unordered_map<CellId, std::vector<ViewId>> ModelStore::CellRefs() const {
+  std::lock_guard lock(mu_);
+  return cell_refs_;
+}
+
 std::unordered_map<CellId, uint8_t> ModelStore::CellCoverage() const {
   std::lock_guard lock(mu_);
   return cell_coverage_;

@@ -152,6 +152,8 @@ class ModelStore {
   // The published views (for a restarted planner), ordered by id.
   std::vector<std::shared_ptr<const v1::ViewAdded>> Views() const;
   std::vector<CellId> CellIds() const;
+  // The published reference lists R(b_k) (scene completion renders the model as clients do).
+  std::unordered_map<CellId, std::vector<ViewId>> CellRefs() const;
   // The published coverage per cell (τ/τ_max in whole percent; cells never given one absent).
   std::unordered_map<CellId, uint8_t> CellCoverage() const;
   // Mutation: SetCellRefs with the cells' coverage (CellCoverage: τ/τ_max in whole percent,

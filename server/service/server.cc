@@ -480,11 +480,41 @@ class ExoviewServer::Service final : public v1::Exoview::Service {
       u->set_applied_frames(p.applied_frames);
       u->set_double_applied(p.double_applied);
     }
+    if (completion_) {
+      std::map<std::string, double> m;
+      completion_->AddCounters(&m);
+      for (const auto& [k, v] : m) c[k] = v;
+    }
     if (delta_log_) {
       std::map<std::string, double> m;
       delta_log_->AddCounters(&m);
       for (const auto& [k, v] : m) c[k] = v;
     }
+    return grpc::Status::OK;
+  }
+
+  void SetCompletion(CompletionStage* completion) { completion_ = completion; }
+
+  // Scene completion at a viewer's camera (issue 18 item 4; completion_stage.h): viewer right.
+  grpc::Status CompleteView(grpc::ServerContext* ctx, const v1::CompleteViewRequest* req,
+                            v1::CompleteViewReply* out) override {
+    auto who = Authorize(*ctx, Rpc::kCompleteView);
+    if (!who.ok()) return ToGrpc(who.status());
+    if (!completion_)
+      return grpc::Status(grpc::StatusCode::UNIMPLEMENTED,
+                          "scene completion is disabled on this server (config completion = false)");
+    auto reply = [&]() -> absl::StatusOr<v1::CompleteViewReply> {
+      CompletionRequest r;
+      EXO_ASSIGN_OR_RETURN(r.camera, IntrinsicsFromProto(req->camera()));
+      if (!req->has_local_from_cam())
+        return absl::InvalidArgumentError("local_from_cam (the viewer's scene-local pose) is required");
+      EXO_ASSIGN_OR_RETURN(r.local_from_cam, PoseFromProto(req->local_from_cam()));
+      r.max_side_px = req->max_side_px();
+      r.who = who->empty() ? ctx->peer() : *who;
+      return completion_->Complete(r);
+    }();
+    if (!reply.ok()) return ToGrpc(reply.status());
+    *out = *std::move(reply);
     return grpc::Status::OK;
   }
 
@@ -708,6 +738,7 @@ class ExoviewServer::Service final : public v1::Exoview::Service {
   Pipeline* pipeline_;
   RegionRegistry* regions_ = nullptr;
   InpaintingStage* inpainting_ = nullptr;
+  CompletionStage* completion_ = nullptr;
   std::function<void()> regions_changed_;
   const std::atomic<bool>* shutting_down_;
   const UdpPoseInput* udp_;
@@ -873,6 +904,12 @@ absl::Status ExoviewServer::Start() {
   service_ = std::make_unique<Service>(config_, store_.get(), pipeline_.get(), &shutting_down_,
                                        udp_.get(), std::move(auth), durability_.get());
   service_->set_delta_log(delta_log_.get());
+  if (config_.enable_completion) {
+    CompletionStageOptions co = config_.completion;
+    co.publish = config_.publish;
+    EXO_ASSIGN_OR_RETURN(completion_, CompletionStage::Create(co, store_.get()));
+    service_->SetCompletion(completion_.get());
+  }
   service_->SetInpainting(regions_.get(), inpainting_, [this] {
     if (auto s = WriteCheckpoint(true); !s.ok())
       log::Get("server")->error("checkpoint: {}", std::string(s.message()));
@@ -921,6 +958,7 @@ void ExoviewServer::Shutdown() {
   if (control_) control_->Stop();
   if (store_) store_->CloseAll();  // wakes subscription loops
   if (server_) server_->Shutdown(std::chrono::system_clock::now() + std::chrono::seconds(2));
+  completion_.reset();  // no CompleteView call is left (queued ones are refused)
   if (pipeline_) pipeline_->Stop();  // every admitted frame is processed before we return
   if (delta_log_) delta_log_->Close();  // publishes what the pipeline committed (bounded wait)
   udp_.reset();

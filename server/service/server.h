@@ -26,6 +26,7 @@
 #include "server/service/planning_stage.h"
 #include "server/service/control_service.h"
 #include "server/service/inpainting_stage.h"
+#include "server/service/completion_stage.h"
 #include "server/service/regions.h"
 
 namespace grpc {
@@ -55,6 +56,9 @@ struct ServerConfig {
   bool enable_inpainting = true;
   RegionRegistryOptions regions;
   InpaintingStageOptions inpainting;  // inpainting.publish is taken from `publish`
+  // Scene completion at a viewer's request (CompleteView; completion_stage.h).
+  bool enable_completion = true;
+  CompletionStageOptions completion;  // completion.publish is taken from `publish`
   // Optional UDP pose input: -1 = off; 0 = any free port (see ExoviewServer::udp_pose_port).
   int udp_pose_port = -1;
   std::string udp_pose_address = "127.0.0.1";
@@ -172,6 +176,7 @@ class ExoviewServer {
   std::unique_ptr<Pipeline> pipeline_;
   std::shared_ptr<RegionRegistry> regions_;  // null without inpainting
   InpaintingStage* inpainting_ = nullptr;    // owned by pipeline_
+  std::unique_ptr<CompletionStage> completion_;  // null with completion off
   std::unique_ptr<Durability> durability_;
   std::unique_ptr<Service> service_;
   std::unique_ptr<ControlServiceHost> control_;

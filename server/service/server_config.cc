@@ -139,6 +139,18 @@ std::vector<ConfigKey> MakeKeys() {
           EXO_FIELD(regions.region.roi.depth_tol_m)),
       Key("inpaint_voxel_m", "size of an L_ROI label voxel (m)", EXO_FIELD(regions.region.voxel_m)),
       Key("inpaint_max_regions", "marked regions at most", EXO_FIELD(regions.max_regions)),
+      Key("completion", "scene completion at a viewer's request (CompleteView)",
+          EXO_FIELD(enable_completion)),
+      Key("completion_max_side_px", "longer side of a completion keyframe (the viewer's camera is scaled down to it)",
+          EXO_FIELD(completion.max_side_px)),
+      Key("completion_max_views", "completion views kept (oldest withdrawn beyond)",
+          EXO_FIELD(completion.max_views)),
+      Key("completion_min_hole_px", "fewer hole pixels than this: nothing to complete",
+          EXO_FIELD(completion.completion.min_hole_px)),
+      Key("completion_refresh_period_s", "completion views re-checked against new observations this often (0 = never)",
+          EXO_FIELD(completion.refresh_period_s)),
+      Key("completion_nice", "the completion thread runs this much nicer than the server",
+          EXO_FIELD(completion.nice)),
       Key("inpaint_max_keyframes", "inpainted keyframes kept (oldest withdrawn beyond)",
           EXO_FIELD(inpainting.max_keyframes)),
       Key("inpaint_method", "inpainted keyframes: dr (observed colour first from earlier frames, then PatchMatch; session 11) or keyframe (the whole ROI by PatchMatch; session 9)",
@@ -339,6 +351,7 @@ absl::Status ServerConfig::Validate() const {
     EXO_RETURN_IF_ERROR(regions.Validate());
     EXO_RETURN_IF_ERROR(inpainting.Validate());
   }
+  if (enable_completion) EXO_RETURN_IF_ERROR(completion.Validate());
   if (!(checkpoint_quiesce_s >= 0.0 && checkpoint_quiesce_s <= 600.0))
     return absl::InvalidArgumentError("checkpoint_quiesce_s must be in [0, 600]");
   if (!(checkpoint_interval_s >= 0.0))
