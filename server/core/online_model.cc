@@ -66,6 +66,7 @@ absl::Status OnlineModelOptions::Validate() const {
     planning::PlannerOptions po;
     po.dispersion = dispersion;
     po.dispersion_m_per_rad = dispersion_m_per_rad;
+    po.dispersion_rotation_scale = dispersion_rotation_scale;
     po.dispersion_guard = dispersion_guard;
     po.dispersion_guard_relative = dispersion_guard_relative;
     po.dispersion_guard_unique = dispersion_guard_unique;
@@ -313,6 +314,7 @@ absl::StatusOr<std::unique_ptr<OnlinePlanner>> OnlinePlanner::Create(
   po.soft_saturation = options.soft_saturation;
   po.dispersion = options.dispersion;
   po.dispersion_m_per_rad = options.dispersion_m_per_rad;
+  po.dispersion_rotation_scale = options.dispersion_rotation_scale;
   po.dispersion_guard = options.dispersion_guard;
   po.dispersion_guard_relative = options.dispersion_guard_relative;
   po.dispersion_guard_unique = options.dispersion_guard_unique;

@@ -72,6 +72,7 @@ struct OnlineModelOptions {
   // docs/planning.md "Pose dispersion").
   planning::PlannerOptions::Dispersion dispersion = planning::PlannerOptions::Dispersion::kFirst;
   double dispersion_m_per_rad = 0.0;
+  double dispersion_rotation_scale = 1.0;  // PlannerOptions::dispersion_rotation_scale
   double dispersion_guard = 0.5;
   double dispersion_guard_relative = 0.65;
   // PlannerOptions::dispersion_guard_unique / _after (session 11): the frozen-τ guard while the

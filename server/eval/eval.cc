@@ -248,6 +248,9 @@ planning::PlannerOptions PlannerFor(const PolicyConfig& c, const Source& src, do
                                     : product.dispersion;
   po.dispersion_m_per_rad =
       c.dispersion_m_per_rad >= 0 ? c.dispersion_m_per_rad : product.dispersion_m_per_rad;
+  po.dispersion_rotation_scale = c.dispersion_rotation_scale > 0
+                                     ? c.dispersion_rotation_scale
+                                     : product.dispersion_rotation_scale;
   po.dispersion_guard = c.dispersion_guard >= 0 ? c.dispersion_guard : product.dispersion_guard;
   po.dispersion_guard_relative = c.dispersion_guard_relative >= 0
                                      ? c.dispersion_guard_relative
@@ -407,6 +410,7 @@ std::string ConfigJson(const std::string& dataset, const std::string& test_poses
                  {"soft_saturation", int(c.soft_saturation)},
                  {"dispersion", int(po.dispersion)},
                  {"dispersion_m_per_rad", po.dispersion_m_per_rad},
+                 {"dispersion_rotation_scale", po.dispersion_rotation_scale},
                  {"dispersion_guard", po.dispersion_guard},
                  {"dispersion_guard_relative", po.dispersion_guard_relative},
                  {"dispersion_guard_unique", int(po.dispersion_guard_unique)},
@@ -582,6 +586,7 @@ class Engine {
         mo.soft_saturation = po.soft_saturation;
         mo.dispersion = po.dispersion;
         mo.dispersion_m_per_rad = po.dispersion_m_per_rad;
+        mo.dispersion_rotation_scale = po.dispersion_rotation_scale;
         mo.dispersion_guard = po.dispersion_guard;
         mo.dispersion_guard_relative = po.dispersion_guard_relative;
         mo.dispersion_guard_unique = po.dispersion_guard_unique;
@@ -612,6 +617,7 @@ class Engine {
           u.chunks.push_back(gt);
           EXO_RETURN_IF_ERROR(st.planner->Apply(u));
         }
+        if (c.replay_refs) groups_[g].needs_final = true;
       } else if (c.policy == Policy::kOfflineGreedy || PolicyIsBaseline(c.policy) ||
                  c.policy == Policy::kOnlineFinalAreas) {
         groups_[g].needs_final = true;
@@ -776,6 +782,39 @@ class Engine {
       const planning::PlannerOptions po = PlannerFor(c, src_, g.grid.cell_size_m, src_.frame_bytes);
       std::vector<int> selected;
       std::unordered_map<CellId, std::vector<ViewId>> refs;
+      // Frame i as a candidate with the cell ids it was planned with (offline passes).
+      auto final_candidate = [&](int i) {
+        planning::Candidate cand;
+        cand.id = ViewId(i + 1);
+        cand.local_from_cam = src_.poses[i];
+        cand.id_camera = g.id_cam;
+        cand.cells = g.final_cells[i];
+        cand.bytes = src_.frame_bytes;
+        return cand;
+      };
+      // A planner for an offline pass: the final proxy's cell areas from the start (none with
+      // --face_areas 1).
+      auto offline_planner = [&](const planning::PlannerOptions& opts)
+          -> absl::StatusOr<planning::ViewPlanner> {
+        EXO_ASSIGN_OR_RETURN(auto p, planning::ViewPlanner::Create(opts));
+        if (!c.face_areas)
+          for (const auto& [cell, a] : g.areas->areas()) EXO_RETURN_IF_ERROR(p.SetCellArea(cell, a));
+        return p;
+      };
+      // Fair rule: the planner's pre-selection (§3.1.4) with the same options, every selected
+      // view accepted (τ_max huge and Δτ_sum 0 make the gain Σφ > 0 for any view that covers a
+      // cell; φ and R(b_k) do not depend on τ_max), in frame order.
+      auto replayed_refs = [&](const std::vector<int>& sel)
+          -> absl::StatusOr<std::unordered_map<CellId, std::vector<ViewId>>> {
+        planning::PlannerOptions pre = po;
+        pre.max_views = std::max<size_t>(1, sel.size());
+        pre.max_bytes = std::max<size_t>(1, sel.size()) * src_.frame_bytes;
+        pre.tau_max = 1e30;
+        pre.delta_tau_sum = 0;
+        EXO_ASSIGN_OR_RETURN(auto p, offline_planner(pre));
+        for (int i : sel) EXO_RETURN_IF_ERROR(p.Consider(final_candidate(i)).status());
+        return p.CellPublishedRefs();
+      };
       if (c.policy == Policy::kOnline) {
         OnlineState& st = online_[ci];
         const std::vector<double>& plan = st.plan_ms;
@@ -794,27 +833,12 @@ class Engine {
         r.model_digest = core::ModelDigest(r.geometry_digest, r.planner_digest);
         r.accepted = st.accepted;
         r.tau_sum = p.tau_sum();
+        if (c.replay_refs) {  // diagnostic: the baselines' references for the same store
+          std::sort(selected.begin(), selected.end());
+          EXO_ASSIGN_OR_RETURN(refs, replayed_refs(selected));
+        }
       } else {
         auto t0 = Clock::now();
-        // Frame i as a candidate with the cell ids it was planned with (offline passes).
-        auto final_candidate = [&](int i) {
-          planning::Candidate cand;
-          cand.id = ViewId(i + 1);
-          cand.local_from_cam = src_.poses[i];
-          cand.id_camera = g.id_cam;
-          cand.cells = g.final_cells[i];
-          cand.bytes = src_.frame_bytes;
-          return cand;
-        };
-        // A planner for an offline pass: the final proxy's cell areas from the start (none with
-        // --face_areas 1).
-        auto offline_planner = [&](const planning::PlannerOptions& opts)
-            -> absl::StatusOr<planning::ViewPlanner> {
-          EXO_ASSIGN_OR_RETURN(auto p, planning::ViewPlanner::Create(opts));
-          if (!c.face_areas)
-            for (const auto& [cell, a] : g.areas->areas()) EXO_RETURN_IF_ERROR(p.SetCellArea(cell, a));
-          return p;
-        };
         if (c.policy == Policy::kEveryN) {
           // Evenly over the WHOLE stream: index floor(k n / store), k = 0..store-1 (an integer
           // step n / store would leave the tail unsampled when store does not divide n).
@@ -874,17 +898,7 @@ class Engine {
             for (const auto& cc : g.final_cells[i])
               if (cc.pixels > 0) refs[cc.cell].push_back(ViewId(i + 1));
         } else if (c.policy != Policy::kOfflineGreedy) {
-          // Fair rule: the planner's pre-selection (§3.1.4) with the same options, every
-          // selected view accepted (τ_max huge and Δτ_sum 0 make the gain Σφ > 0 for any view
-          // that covers a cell; φ and R(b_k) do not depend on τ_max), in frame order.
-          planning::PlannerOptions pre = po;
-          pre.max_views = std::max<size_t>(1, selected.size());
-          pre.max_bytes = std::max<size_t>(1, selected.size()) * src_.frame_bytes;
-          pre.tau_max = 1e30;
-          pre.delta_tau_sum = 0;
-          EXO_ASSIGN_OR_RETURN(auto p, offline_planner(pre));
-          for (int i : selected) EXO_RETURN_IF_ERROR(p.Consider(final_candidate(i)).status());
-          refs = p.CellPublishedRefs();
+          EXO_ASSIGN_OR_RETURN(refs, replayed_refs(selected));
         }
       }
       double ref_sum = 0;

@@ -88,6 +88,7 @@ struct PolicyConfig {
   // -1: the product's default (core::OnlineModelOptions), as every unset planner option.
   int dispersion = -1;  // 0 off, 1 ties, 2 first
   double dispersion_m_per_rad = -1;
+  double dispersion_rotation_scale = -1;  // policy option "drs=V"
   double dispersion_guard = -1;           // policy option "dg=V"
   double dispersion_guard_relative = -1;  // policy option "dgr=V"
   int dispersion_guard_unique = -1;       // policy option "dgu=0|1"
@@ -101,6 +102,11 @@ struct PolicyConfig {
   double dispersion_time_steps = -1;          // policy option "dtk=V"
   int dispersion_time_max = -1;               // policy option "dtm=0|1"
   int observe_zero_coverage = -1;             // policy option "ozc=0|1"
+  // Online policy only, diagnostic (policy option "rpl=1"): the online planner's final store
+  // rendered with the references the baselines get (the pre-selection replayed over the stored
+  // views in frame order) instead of the planner's own: separates which views are stored from
+  // which views each cell references (docs/planning.md "Session 15").
+  bool replay_refs = false;
 
   // OnlineModelOptions::frame_quality.gamma; policy option "sharp=G" (0 = off).
   double sharp_gamma = 0.0;

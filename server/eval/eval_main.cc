@@ -172,12 +172,14 @@ absl::StatusOr<std::vector<PolicyConfig>> Configs(const Args& a) {
         else if (key == "dtk") c.dispersion_time_steps = v;
         else if (key == "dtm") c.dispersion_time_max = v != 0 ? 1 : 0;
         else if (key == "ozc") c.observe_zero_coverage = v != 0 ? 1 : 0;
+        else if (key == "rpl") c.replay_refs = v != 0;
         else if (key == "mpr") c.dispersion_m_per_rad = v;
+        else if (key == "drs") c.dispersion_rotation_scale = v;
         else if (key == "dts") c.delta_tau_sum = v;
         else if (key == "sharp") c.sharp_gamma = v;
         else
           return absl::InvalidArgumentError("unknown policy option " + key +
-                                            " (lambda, blend_lambda, tau_max, soft, sharp, disp, mpr, dg, dgr, dgu, dgua, dwe, dwa, dwu, dkn, drc, ddo, ozc, dts)");
+                                            " (lambda, blend_lambda, tau_max, soft, sharp, disp, mpr, dg, dgr, dgu, dgua, dwe, dwa, dwu, dkn, drc, ddo, ozc, rpl, drs, dts)");
       }
       c.tag = opts;
     }

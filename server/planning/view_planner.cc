@@ -50,6 +50,8 @@ absl::Status PlannerOptions::Validate() const {
     return absl::InvalidArgumentError("planner cell_size_m must be finite and > 0");
   if (!std::isfinite(dispersion_m_per_rad) || dispersion_m_per_rad < 0.0)
     return absl::InvalidArgumentError("planner dispersion_m_per_rad must be finite and >= 0");
+  if (!(dispersion_rotation_scale > 0.0 && dispersion_rotation_scale <= 1.0))
+    return absl::InvalidArgumentError("planner dispersion_rotation_scale must be in (0, 1]");
   if (dispersion != Dispersion::kOff && dispersion != Dispersion::kTies &&
       dispersion != Dispersion::kFirst)
     return absl::InvalidArgumentError(absl::StrCat(
@@ -258,8 +260,9 @@ void ViewPlanner::AddView(View view, std::vector<CellId>* changed) {
 
 double ViewPlanner::PoseDistance(const glm::dvec3& ca, const glm::dquat& qa,
                                  const glm::dvec3& cb, const glm::dquat& qb) const {
-  const double mpr =
-      options_.dispersion_m_per_rad > 0.0 ? options_.dispersion_m_per_rad : options_.d_max_m;
+  const double mpr = options_.dispersion_m_per_rad > 0.0
+                         ? options_.dispersion_m_per_rad
+                         : options_.dispersion_rotation_scale * options_.d_max_m;
   // The rotation angle 2 acos(|q_a · q_b|) from the chord |q_a ∓ q_b| = 2 sin(α / 2) between
   // the unit quaternions (α = half the rotation angle): 4 asin(chord / 2), well conditioned for
   // nearly equal rotations, where acos near 1 loses half the digits.

@@ -92,6 +92,12 @@ struct PlannerOptions {
   enum class Dispersion { kOff = 0, kTies = 1, kFirst = 2 };
   Dispersion dispersion = Dispersion::kOff;
   double dispersion_m_per_rad = 0.0;
+  // dispersion_m_per_rad = 0: the turn's weight is this fraction of d_max_m (1: a turn counts as
+  // the displacement it causes at the typical viewing distance). A turn about the camera centre
+  // adds no parallax (the stored rays through the centre stay exact for every surface point both
+  // views see): it only changes what is in view, which the other stored views fill; a displacement
+  // does both. (0, 1] (docs/planning.md "Session 15").
+  double dispersion_rotation_scale = 1.0;
   double dispersion_guard = 0.5;  // τ units (kFirst)
   // > 0: the guard is this fraction of the mean τ per stored view (τ_sum / n) instead.
   double dispersion_guard_relative = 0.0;

@@ -6,6 +6,7 @@
 #include <map>
 #include <random>
 #include <set>
+#include <tuple>
 
 #include <gtest/gtest.h>
 
@@ -593,6 +594,58 @@ TEST(ViewPlanner, KeepNearestChoosesWhichViewOfTheClosestPairLeaves) {
         << (keep_nearest ? "the candidate's nearest view (A) must stay"
                          : "the view in the more crowded place (A) must leave");
     EXPECT_EQ(p.num_views(), 3u);
+  }
+}
+
+// dispersion_rotation_scale s: a turn of θ counts as s · d_max · θ metres in the pose distance.
+// Store A (x = 0), A' (A turned by 0.4 rad about the vertical) and C (x = 5), d_max = 2: the
+// closest pair is A-A' at 0.8 m (s = 1) or 0.2 m (s = 0.25). A candidate displaced 0.5 m from A
+// is rejected at s = 1 (the turned view counts as more distinct than the displacement) and stored
+// at s = 0.25, replacing one view of the turned pair; dispersion_m_per_rad > 0 wins over s.
+TEST(ViewPlanner, RotationScaleWeighsATurnAgainstADisplacement) {
+  struct Case {
+    double scale, m_per_rad;
+    bool accepted;
+  };
+  for (const Case& k : {Case{1.0, 0.0, false}, Case{0.25, 0.0, true}, Case{0.25, 2.0, false},
+                        Case{1.0, 0.5, true}}) {
+    PlannerOptions o;
+    o.max_views = 3;
+    o.cell_size_m = 1.0;
+    o.d_max_m = 2.0;
+    o.tau_max = 0.05;  // cells saturate: the pose terms decide
+    o.dispersion = PlannerOptions::Dispersion::kFirst;
+    o.dispersion_guard = 1e9;
+    o.dispersion_guard_relative = 0;
+    o.dispersion_rotation_scale = k.scale;
+    o.dispersion_m_per_rad = k.m_per_rad;
+    ASSERT_TRUE(o.Validate().ok());
+    auto p = ViewPlanner::Create(o).value();
+    const double th = 0.4;
+    const glm::dvec3 a(0, 0, 2), c(5, 0, 2);
+    for (const auto& [id, eye, dir] :
+         {std::tuple{ViewId(1), a, glm::dvec3(1, 0, -1)},
+          std::tuple{ViewId(2), a, glm::dvec3(std::cos(th), std::sin(th), -1)},
+          std::tuple{ViewId(3), c, glm::dvec3(1, 0, -1)}}) {
+      auto d = p.Consider(MakeCandidate(id, eye, eye + dir, p.grid()));
+      ASSERT_TRUE(d.ok()) << d.status();
+      ASSERT_TRUE(d->accepted) << d->reason;
+    }
+    const glm::dvec3 eye(-0.5, 0, 2);
+    auto d = p.Consider(MakeCandidate(4, eye, eye + glm::dvec3(1, 0, -1), p.grid()));
+    ASSERT_TRUE(d.ok()) << d.status();
+    SCOPED_TRACE(testing::Message() << "scale " << k.scale << " m_per_rad " << k.m_per_rad);
+    EXPECT_EQ(d->accepted, k.accepted) << d->reason;
+    if (k.accepted) {
+      ASSERT_EQ(d->removed.size(), 1u);
+      EXPECT_TRUE(d->removed[0] == 1 || d->removed[0] == 2) << d->removed[0];
+    }
+    EXPECT_EQ(p.num_views(), 3u);
+  }
+  PlannerOptions bad;
+  for (double s : {0.0, -0.5, 1.5, std::numeric_limits<double>::quiet_NaN()}) {
+    bad.dispersion_rotation_scale = s;
+    EXPECT_FALSE(bad.Validate().ok()) << s;
   }
 }
 

@@ -207,6 +207,8 @@ std::vector<ConfigKey> MakeKeys() {
           EXO_FIELD(pipeline.model.dispersion_time_steps)),
       Key("planner_dispersion_time_max", "... the larger of pose distance and time term instead of their sum (time sets apart only frames where the camera lingered)",
           EXO_FIELD(pipeline.model.dispersion_time_max)),
+      Key("planner_dispersion_rotation_scale", "pose distance when planner_dispersion_m_per_rad is 0: metres per radian of turn = this x d_max, in (0, 1] (docs/planning.md \"Session 15\")",
+          EXO_FIELD(pipeline.model.dispersion_rotation_scale)),
       Key("planner_dispersion_guard", "dispersion 2: a view whose removal loses more coverage (tau) than this is kept, a frame that gains more is stored (1e9: no guard, pure pose dispersion)",
           EXO_FIELD(pipeline.model.dispersion_guard)),
       Key("planner_dispersion_guard_relative", "dispersion 2: the guard as this fraction of the mean tau per stored view (0: the absolute planner_dispersion_guard)",
