@@ -22,7 +22,16 @@ absl::StatusOr<std::unique_ptr<ControlCore>> ControlCore::Create(
   EXO_RETURN_IF_ERROR(options.Validate());
   EXO_ASSIGN_OR_RETURN(SceneFrame frame, SceneFrame::FromUp(options.up));
   EXO_ASSIGN_OR_RETURN(SafeFlight safe, SafeFlight::Create(options.safe));
-  return std::unique_ptr<ControlCore>(new ControlCore(options, frame, std::move(safe)));
+  ControlCoreOptions o = options;
+  if (o.explore_sweep_altitude_m > 0 && !o.safe.zones.empty()) {
+    glm::dvec3 lo = o.safe.zones.front().min, hi = o.safe.zones.front().max;
+    for (const Zone& z : o.safe.zones) {
+      lo = glm::min(lo, z.min);
+      hi = glm::max(hi, z.max);
+    }
+    o.explore.sweep = HilbertSweep(lo, hi, o.explore_sweep_altitude_m, frame);
+  }
+  return std::unique_ptr<ControlCore>(new ControlCore(o, frame, std::move(safe)));
 }
 
 void ControlCore::SetOrigin(const glm::dvec3& origin_in_world) {
@@ -51,7 +60,7 @@ void ControlCore::AddView(uint32_t id, const Rigid3d& local_from_cam, const Pinh
     Rigid3d world_from_cam = local_from_cam;
     world_from_cam.translation += origin_;
     safe_.grid().CarveDepth(*depth_m, camera, world_from_cam, options_.carve_stride,
-                            options_.carve_max_range_m);
+                            options_.carve_max_range_m, options_.carve_no_return);
     // The view raises τ of the surface cells it sees (exploration's estimate of the lumigraph).
     planner_.Observe(safe_.grid(), *depth_m, camera, world_from_cam, options_.carve_stride);
   }
@@ -115,7 +124,8 @@ std::optional<OutgoingSetpoint> ControlCore::NextSetpoint(const std::string& dro
   // camera looks where the drone flies).
   const bool last = v.waypoint_index + 1 == v.waypoints.size();
   out.setpoint = Setpoint{v.waypoints[v.waypoint_index], v.target.yaw,
-                          last ? v.target.camera_pitch : 0.0};
+                          last ? v.target.camera_pitch
+                               : v.kind == InteractionKind::kExplore ? d.travel_pitch : 0.0};
   out.kind = v.kind;
   out.command_sequence = v.command_sequence;
   out.operator_id = v.operator_id;
@@ -306,13 +316,18 @@ bool ControlCore::ExploreStep(const std::string& drone_id, double now_s) {
     Drone& d = it->second;
     const DroneView& v = d.view;
     const DroneState& s = v.state;
-    const bool at_goal = !v.waypoints.empty() && v.waypoint_index + 1 == v.waypoints.size() &&
-                         glm::length(s.position - v.waypoints.back()) <
-                             options_.waypoint_tolerance_m &&
-                         std::abs(WrapAngle(s.yaw - v.target.yaw)) < 0.1;
+    // A goal to pass through (a sweep point at the sweep's altitude): there once within its
+    // distance, whatever the yaw, and no hover.
+    const double dist_to_goal =
+        v.waypoints.empty() ? 0.0 : glm::length(s.position - v.waypoints.back());
+    const bool at_goal =
+        !v.waypoints.empty() && v.waypoint_index + 1 == v.waypoints.size() &&
+        (d.pass_m > 0 ? dist_to_goal < d.pass_m
+                      : dist_to_goal < options_.waypoint_tolerance_m &&
+                            std::abs(WrapAngle(s.yaw - v.target.yaw)) < 0.1);
     if (!at_goal) d.arrived_s = -1.0;
     else if (d.arrived_s < 0) d.arrived_s = now_s;
-    bool due = (at_goal && now_s - d.arrived_s >= options_.explore_dwell_s) ||
+    bool due = (at_goal && now_s - d.arrived_s >= (d.pass_m > 0 ? 0.0 : options_.explore_dwell_s)) ||
                now_s - d.issued_s > options_.explore_goal_timeout_s;
     // A route that crosses newly seen obstacles (or unknown space) is dropped.
     glm::dvec3 a = s.position;
@@ -339,6 +354,9 @@ bool ControlCore::ExploreStep(const std::string& drone_id, double now_s) {
   Drone* d = &it->second;
   DroneView& v = d->view;
   if (!v.exploring || v.command_sequence != command) return false;  // superseded meanwhile
+  planner_.TakeDecisionState(planner);  // the sweep's progress (the τ estimates stay)
+  d->travel_pitch = 0.0;
+  d->pass_m = 0.0;
   const Command c{v.explore_operator, 0, drone_id};
   if (!next) {
     // Nothing reachable gains anything (early on: too little modelled to fly anywhere). Turn
@@ -357,9 +375,15 @@ bool ControlCore::ExploreStep(const std::string& drone_id, double now_s) {
   auto r = Commit(c, d, InteractionKind::kExplore,
                   Setpoint{next->pose.position, next->pose.yaw, next->pitch}, now_s);
   if (r.ok()) {
+    d->travel_pitch = next->travel_pitch;
+    d->pass_m = next->pass_m;
     v.explore_note = absl::StrFormat(
-        "view %d: gain %.1f (%.0f%% from unknown space), path %.1f m, pitch %.2f rad",
-        v.explore_decisions, next->gain, next->gain > 0 ? 100 * next->gain_unknown / next->gain : 0,
+        "view %d%s: gain %.1f (%.0f%% from unknown space), path %.1f m, pitch %.2f rad",
+        v.explore_decisions,
+        next->climb             ? " (climb: looking at the sweep)"
+        : next->sweep_index >= 0 ? absl::StrFormat(" (sweep point %d)", next->sweep_index)
+                                 : std::string(),
+        next->gain, next->gain > 0 ? 100 * next->gain_unknown / next->gain : 0,
         r->route.length_m, next->pitch);
   } else {
     // No route this time: turn in place and look again.

@@ -51,6 +51,14 @@ struct ControlCoreOptions {
   // after which a goal not reached is given up.
   ExploreOptions explore = DefaultExploreOptions();
   double explore_dwell_s = 1.0;
+  // > 0: exploration sweeps the zones' footprint at this height along `up` (a Hilbert curve,
+  // HilbertSweep; ExploreOptions::sweep: flown while the best view's gain is mostly unknown
+  // space, with the climb and pass-through of ExploreOptions). 0: no sweep.
+  double explore_sweep_altitude_m = 0.0;
+  // Pixels without depth (a simulated sky) carve free space up to carve_max_range_m
+  // (OccupancyGrid::CarveDepth's no_return_is_free); off for real sensors, whose black or
+  // specular surfaces return nothing too.
+  bool carve_no_return = false;
   double explore_goal_timeout_s = 30.0;
   double drone_sphere_m = 0.15;  // an exploring drone's own volume, marked free
   static ExploreOptions DefaultExploreOptions() {
@@ -172,6 +180,8 @@ class ControlCore {
     uint64_t sent_sequence = 0;  // the setpoint sequence last sent
     double arrived_s = -1.0;     // exploring: when the drone reached its goal (-1: not there)
     int idle_turns = 0;          // exploring: turns in place with nothing to gain, in a row
+    double travel_pitch = 0.0;   // exploring: camera pitch before the route's last waypoint
+    double pass_m = 0.0;         // exploring: > 0: the goal is passed through (NextView)
   };
   ControlCore(const ControlCoreOptions& options, const SceneFrame& frame, SafeFlight safe)
       : options_(options), frame_(frame), safe_(std::move(safe)), planner_(options.explore) {}

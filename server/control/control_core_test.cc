@@ -162,5 +162,89 @@ TEST(ControlCore, ClosedLoopWithTheSimulatedDroneHasNoCollision) {
   EXPECT_EQ(core->View("drone").waypoint_index + 1, r->route.waypoints.size());
 }
 
+// The outdoor sweep over the service's core (explore_sweep_altitude_m, session 15): a look
+// before the climb, then the sweep's points passed through without a hover, its progress kept
+// across decisions (each planned on a copy off the lock).
+TEST(ControlCore, ExploreSweepLooksThenClimbsAndPassesThroughItsPoints) {
+  ControlCoreOptions o;
+  o.safe.zones = {{"village", {0, 0, 0}, {20, 20, 10}}};
+  o.safe.cell_m = 0.5;
+  o.safe.drone_radius_m = 0.2;
+  o.explore_sweep_altitude_m = 8.0;
+  o.explore.range_m = 30.0;  // an outdoor scale (the village's)
+  auto made = ControlCore::Create(o);
+  ASSERT_TRUE(made.ok()) << made.status();
+  ControlCore& core = **made;
+  ASSERT_EQ(core.options().explore.sweep.size(), 64u);
+  const glm::dvec3 p0 = core.options().explore.sweep.front();  // the inset corner (3, 3, 8)
+  EXPECT_NEAR(p0.x, 3.0, 1e-9);
+  EXPECT_NEAR(p0.y, 3.0, 1e-9);
+  EXPECT_NEAR(p0.z, 8.0, 1e-9);
+  // Known free: the air below 3 m (what a level camera carves near the ground); above: unknown.
+  auto free_below = [](double top) {
+    return [top](SafeFlight& s) {
+      OccupancyGrid& g = s.grid();
+      for (size_t i = 0; i < g.num_cells(); ++i)
+        if (g.CentreOf(g.CellOfIndex(i)).z < top) g.Set(g.CellOfIndex(i), Occupancy::kFree);
+    };
+  };
+  core.WithSafeFlight(free_below(3.0));
+  core.OnDroneState("drone", At({4, 4, 1.5}), 0);
+  ASSERT_TRUE(core.Explore({"op", 1, "drone"}, true, 0).ok());
+  EXPECT_FALSE(core.ExploreStep("drone", 0.0));  // at the hold: the dwell starts
+  ASSERT_TRUE(core.ExploreStep("drone", 1.1));
+  // 1. A look at the first point from the free layer: the camera pitched up toward it.
+  DroneView v = core.View("drone");
+  EXPECT_NE(v.explore_note.find("climb"), std::string::npos) << v.explore_note;
+  EXPECT_GT(v.target.camera_pitch, 0.0);
+  EXPECT_LT(v.target.position.z, 3.0);
+  const glm::dvec3 look = v.target.position;
+  const double to_p0 = std::atan2(p0.z - look.z, glm::length(glm::dvec2(p0 - look)));
+  EXPECT_LT(std::abs(to_p0 - v.target.camera_pitch), 0.45);  // within the vertical half-FOV
+  // 2. The look has carved the air (all of it, here): the sweep's first point at its altitude.
+  core.WithSafeFlight(free_below(100.0));
+  DroneState s = At(look);
+  s.yaw = v.target.yaw;
+  s.camera_pitch = v.target.camera_pitch;
+  core.OnDroneState("drone", s, 2.0);
+  EXPECT_FALSE(core.ExploreStep("drone", 2.0));
+  ASSERT_TRUE(core.ExploreStep("drone", 3.1));
+  v = core.View("drone");
+  EXPECT_NE(v.explore_note.find("sweep point 0"), std::string::npos) << v.explore_note;
+  EXPECT_NEAR(v.target.position.x, p0.x, 0.5);
+  EXPECT_NEAR(v.target.position.y, p0.y, 0.5);
+  EXPECT_GT(v.target.position.z, 7.0);  // at the altitude (the cell under the point)
+  EXPECT_EQ(v.target.camera_pitch, o.explore.sweep_pitch);
+  const auto sp = core.NextSetpoint("drone", 3.2);
+  ASSERT_TRUE(sp.has_value());
+  EXPECT_EQ(sp->setpoint.camera_pitch, o.explore.sweep_pitch);  // one leg: the last waypoint
+  // 3. Passed through: 0.8 m short of the point, facing elsewhere, and no hover: the next
+  //    decision at once, the next point (the sweep's progress survived the copy).
+  s = At(v.target.position + glm::dvec3(0, 0, -0.8));
+  s.yaw = 2.0;
+  core.OnDroneState("drone", s, 10.0);
+  const uint64_t decisions = core.View("drone").explore_decisions;
+  ASSERT_TRUE(core.ExploreStep("drone", 10.0));
+  v = core.View("drone");
+  EXPECT_EQ(v.explore_decisions, decisions + 1);
+  EXPECT_NE(v.explore_note.find("sweep point 1"), std::string::npos) << v.explore_note;
+  // With the hover (sweep_pass_m 0) the same place is not the goal yet.
+  ControlCoreOptions h = o;
+  h.explore.sweep_pass_m = 0.0;
+  auto hovering = ControlCore::Create(h);
+  ASSERT_TRUE(hovering.ok());
+  (*hovering)->WithSafeFlight(free_below(100.0));
+  (*hovering)->OnDroneState("drone", At({4, 4, 8}), 0);
+  ASSERT_TRUE((*hovering)->Explore({"op", 1, "drone"}, true, 0).ok());
+  EXPECT_FALSE((*hovering)->ExploreStep("drone", 0.0));
+  ASSERT_TRUE((*hovering)->ExploreStep("drone", 1.1));
+  const DroneView w = (*hovering)->View("drone");
+  DroneState t = At(w.target.position + glm::dvec3(0, 0, -0.8));
+  t.yaw = 2.0;
+  (*hovering)->OnDroneState("drone", t, 5.0);
+  EXPECT_FALSE((*hovering)->ExploreStep("drone", 5.0));
+  EXPECT_FALSE((*hovering)->ExploreStep("drone", 7.0));
+}
+
 }  // namespace
 }  // namespace exo::control

@@ -61,6 +61,22 @@ void ExplorationPlanner::Observe(const OccupancyGrid& grid, const ImageF& depth_
   }
 }
 
+void ExplorationPlanner::TakeDecisionState(const ExplorationPlanner& copy) {
+  tried_ = copy.tried_;
+  sweep_ = copy.sweep_;
+  sweep_reversed_ = copy.sweep_reversed_;
+  swept_ = copy.swept_;
+  sweep_retried_ = copy.sweep_retried_;
+  last_sweep_ = copy.last_sweep_;
+  last_sweep_goal_ = copy.last_sweep_goal_;
+  climb_turns_ = copy.climb_turns_;
+  climb_done_ = copy.climb_done_;
+  looks_ = copy.looks_;
+  look_misses_ = copy.look_misses_;
+  last_look_ = copy.last_look_;
+  last_look_place_ = copy.last_look_place_;
+}
+
 double ExplorationPlanner::DirectionalNovelty(const Cell& c, const glm::dvec3& dir) const {
   if (c.refs.empty()) return 1.0;  // SPEC §4 erratum 1
   double gamma = -1;
@@ -158,6 +174,20 @@ double ExplorationPlanner::Gain(const OccupancyGrid& grid, const Setpoint& pose,
 std::optional<NextView> ExplorationPlanner::Autonomous(const SafeFlight& safe,
                                                        const glm::dvec3& from,
                                                        const SceneFrame& frame) {
+  // The last sweep point proposed was not reached (its route was dropped, or it timed out):
+  // it is flown again, once.
+  if (last_sweep_ >= 0 && !sweep_retried_[last_sweep_] &&
+      glm::length(from - last_sweep_goal_) > options_.sweep_climb_tolerance_m) {
+    swept_[last_sweep_] = false;
+    sweep_retried_[last_sweep_] = true;
+  }
+  last_sweep_ = -1;
+  // The last look (sweep_climb) was not reached: it does not count as a look, up to a limit.
+  if (last_look_ >= 0 && glm::length(from - last_look_place_) > options_.sweep_climb_tolerance_m) {
+    if (!looks_[last_look_].empty()) looks_[last_look_].pop_back();
+    ++look_misses_[last_look_];
+  }
+  last_look_ = -1;
   const OccupancyGrid& g = safe.grid();
   const std::vector<float> dist = Distances(safe, from);
   std::vector<size_t> reachable;
@@ -197,7 +227,18 @@ std::optional<NextView> ExplorationPlanner::NextSweepView(const SafeFlight& safe
                                                           const std::vector<float>& dist) {
   const OccupancyGrid& g = safe.grid();
   const size_t n = options_.sweep.size();
-  if (swept_.size() != n) swept_.assign(n, false);
+  if (swept_.size() != n) {
+    // The sweep starts at its end nearer to the drone (horizontally).
+    swept_.assign(n, false);
+    sweep_retried_.assign(n, false);
+    looks_.assign(n, {});
+    look_misses_.assign(n, 0);
+    sweep_ = options_.sweep;
+    sweep_reversed_ = glm::length(frame.Horizontal(sweep_.back() - from)) <
+                      glm::length(frame.Horizontal(sweep_.front() - from));
+    if (sweep_reversed_) std::reverse(sweep_.begin(), sweep_.end());
+  }
+
   // The up axis's cell step (the frame's up is one of the grid's axes in practice; the column
   // is walked along whichever axis is closest to it).
   glm::ivec3 up_step(0);
@@ -208,9 +249,26 @@ std::optional<NextView> ExplorationPlanner::NextSweepView(const SafeFlight& safe
       if (std::abs(u[k]) > std::abs(u[a])) a = k;
     up_step[a] = u[a] > 0 ? 1 : -1;
   }
+  const double tol = options_.sweep_climb_tolerance_m;
+  if (options_.sweep_climb && !climb_done_) {
+    // Climb first while the sweep's altitude is out of reach (see ExploreOptions).
+    size_t k0 = 0;
+    while (k0 < n && swept_[k0]) ++k0;
+    if (k0 < n) {
+      const double want = frame.Height(sweep_[k0]);
+      double top = -std::numeric_limits<double>::infinity();
+      for (size_t i = 0; i < dist.size(); ++i)
+        if (std::isfinite(dist[i])) top = std::max(top, frame.Height(g.CentreOf(g.CellOfIndex(i))));
+      if (top < want - tol) {
+        if (auto v = ClimbView(safe, from, frame, dist, k0)) return v;
+      } else {
+        climb_done_ = true;
+      }
+    }
+  }
   for (size_t k = 0; k < n; ++k) {
     if (swept_[k]) continue;
-    glm::ivec3 c = g.CellOf(options_.sweep[k]);
+    glm::ivec3 c = g.CellOf(sweep_[k]);
     // Down the column from the sweep point to the first reachable cell.
     std::optional<size_t> hit;
     const int span = 2 * std::max({g.dims().x, g.dims().y, g.dims().z});
@@ -222,22 +280,127 @@ std::optional<NextView> ExplorationPlanner::NextSweepView(const SafeFlight& safe
         break;
       }
     }
+    const double want = frame.Height(sweep_[k]);
+    // Below the sweep's altitude (or none): look at the point first (sweep_climb).
+    if (options_.sweep_climb &&
+        (!hit || frame.Height(g.CentreOf(g.CellOfIndex(*hit))) < want - tol))
+      if (auto v = LookView(safe, frame, dist, k)) return v;
     if (!hit || dist[*hit] < options_.min_goal_distance_m) {
       if (hit) swept_[k] = true;  // already there
       continue;
     }
     NextView v;
     const glm::dvec3 p = g.CentreOf(g.CellOfIndex(*hit));
-    const glm::dvec3 along = k + 1 < n ? options_.sweep[k + 1] - options_.sweep[k] : p - from;
+    const glm::dvec3 along = k + 1 < n ? sweep_[k + 1] - sweep_[k] : p - from;
     v.pose = Setpoint{p, glm::length(frame.Horizontal(along)) > 1e-6 ? frame.YawOf(along)
                                                                      : frame.YawOf(p - from)};
     v.pitch = options_.sweep_pitch;
+    // Along the sweep's altitude the camera may look down on the way too (sweep_travel_pitch).
+    if (!std::isnan(options_.sweep_travel_pitch) && frame.Height(from) >= want - tol &&
+        frame.Height(p) >= want - tol)
+      v.travel_pitch = options_.sweep_travel_pitch;
+    if (frame.Height(p) >= want - tol) v.pass_m = options_.sweep_pass_m;
+    // Passing through: facing the leg flown (as the fly-over does), not the next one.
+    if (v.pass_m > 0 && glm::length(frame.Horizontal(p - from)) > 1.0)
+      v.pose.yaw = frame.YawOf(p - from);
     v.path_m = dist[*hit];
-    v.sweep_index = static_cast<int>(k);
+    v.sweep_index = static_cast<int>(sweep_reversed_ ? n - 1 - k : k);
     swept_[k] = true;
+    last_sweep_ = static_cast<int>(k);
+    last_sweep_goal_ = p;
     return v;
   }
   return std::nullopt;
+}
+
+std::optional<NextView> ExplorationPlanner::LookView(const SafeFlight& safe,
+                                                     const SceneFrame& frame,
+                                                     const std::vector<float>& dist, size_t k) {
+  // The reachable cell with the shortest flight (there, then straight on to the point) from
+  // which sweep point k lies within the camera's view at a pitch in [0, sweep_climb_pitch] and
+  // within range. Its frames observe the air along the line of sight, which the sweep then
+  // flies. At most two looks per point, from places at least 2 m apart.
+  const OccupancyGrid& g = safe.grid();
+  std::vector<glm::dvec3>& looked = looks_[k];
+  if (looked.size() >= 2 || look_misses_[k] >= 4) return std::nullopt;
+  const glm::dvec3 toward = sweep_[k];
+  const double max_elev = options_.sweep_climb_pitch + 0.5 * options_.vfov_rad - 0.05;
+  const double max_range = options_.range_m - 1.0;
+  std::optional<size_t> look;
+  double look_cost = std::numeric_limits<double>::infinity();
+  for (size_t i = 0; i < dist.size(); ++i) {
+    if (!std::isfinite(dist[i])) continue;
+    const glm::dvec3 p = g.CentreOf(g.CellOfIndex(i));
+    const glm::dvec3 d = toward - p;
+    const double len = glm::length(d);
+    if (len > max_range || len < 1e-6) continue;
+    if (std::atan2(glm::dot(d, frame.up), glm::length(frame.Horizontal(d))) > max_elev) continue;
+    bool again = false;
+    for (const glm::dvec3& q : looked) again |= glm::length(q - p) < 2.0;
+    if (again) continue;
+    const double cost = dist[i] + len;
+    if (cost < look_cost) {
+      look_cost = cost;
+      look = i;
+    }
+  }
+  if (!look) return std::nullopt;
+  const glm::dvec3 p = g.CentreOf(g.CellOfIndex(*look));
+  looked.push_back(p);
+  last_look_ = static_cast<int>(k);
+  last_look_place_ = p;
+  const glm::dvec3 d = toward - p;
+  NextView v;
+  v.climb = true;
+  v.pose = Setpoint{p, frame.YawOf(d)};
+  v.pitch = std::clamp(std::atan2(glm::dot(d, frame.up), glm::length(frame.Horizontal(d))), 0.0,
+                       options_.sweep_climb_pitch);
+  v.path_m = dist[*look];
+  return v;
+}
+
+std::optional<NextView> ExplorationPlanner::ClimbView(const SafeFlight& safe,
+                                                      const glm::dvec3& from,
+                                                      const SceneFrame& frame,
+                                                      const std::vector<float>& dist, size_t k) {
+  // 1. A look at the sweep point (LookView).
+  if (auto v = LookView(safe, frame, dist, k)) return v;
+  const OccupancyGrid& g = safe.grid();
+  const glm::dvec3 toward = sweep_[k];
+  NextView v;
+  v.climb = true;
+  // 2. No such place: the most height per metre of flight, looking up toward the point.
+  const double h0 = frame.Height(from);
+  std::optional<size_t> best;
+  double best_score = 0;
+  for (size_t i = 0; i < dist.size(); ++i) {
+    if (!std::isfinite(dist[i]) || dist[i] < options_.min_goal_distance_m) continue;
+    const double dh = frame.Height(g.CentreOf(g.CellOfIndex(i))) - h0;
+    if (dh < g.options().cell_m) continue;  // at least a cell higher
+    const double score = dh / (dist[i] + options_.travel_offset_m);
+    if (score > best_score) {
+      best_score = score;
+      best = i;
+    }
+  }
+  v.pitch = v.travel_pitch = options_.sweep_climb_pitch;
+  if (best) {
+    climb_turns_ = 0;
+    const glm::dvec3 p = g.CentreOf(g.CellOfIndex(*best));
+    const glm::dvec3 ahead = frame.Horizontal(toward - p);
+    v.pose = Setpoint{p, glm::length(ahead) > 1e-6 ? frame.YawOf(ahead) : frame.YawOf(p - from)};
+    v.path_m = dist[*best];
+    v.score = best_score;
+    return v;
+  }
+  // 3. The top of the air seen so far: turn in place looking up, a quarter turn at a time.
+  if (++climb_turns_ > 4) {
+    climb_done_ = true;
+    return std::nullopt;
+  }
+  v.pose = Setpoint{from, WrapAngle(frame.YawOf(frame.Horizontal(toward - from)) +
+                                    kPi / 2 * (climb_turns_ - 1))};
+  return v;
 }
 
 std::optional<NextView> ExplorationPlanner::NearestFrontier(const SafeFlight& safe,
@@ -299,6 +462,47 @@ std::optional<NextView> ExplorationPlanner::NearestFrontier(const SafeFlight& sa
     return v;
   }
   return std::nullopt;
+}
+
+}  // namespace exo::control
+
+namespace exo::control {
+
+std::vector<glm::dvec3> HilbertSweep(const glm::dvec3& lo, const glm::dvec3& hi, double altitude,
+                                     const SceneFrame& frame, int order, double inset) {
+  // The box's extent along the frame's two horizontal axes.
+  glm::dvec2 a(std::numeric_limits<double>::infinity()), b(-a);
+  for (int corner = 0; corner < 8; ++corner) {
+    const glm::dvec3 c((corner & 1) ? hi.x : lo.x, (corner & 2) ? hi.y : lo.y,
+                       (corner & 4) ? hi.z : lo.z);
+    const glm::dvec2 h(glm::dot(c, frame.e1), glm::dot(c, frame.e2));
+    a = glm::min(a, h);
+    b = glm::max(b, h);
+  }
+  const double in = inset * std::min(b.x - a.x, b.y - a.y);
+  const int n = 1 << std::max(0, order);
+  std::vector<glm::dvec3> out;
+  out.reserve(static_cast<size_t>(n) * n);
+  for (int d = 0; d < n * n; ++d) {  // index -> cell of the Hilbert curve (synth::HilbertCurve)
+    int x = 0, y = 0, t = d;
+    for (int s = 1; s < n; s *= 2) {
+      const int rx = 1 & (t / 2), ry = 1 & (t ^ rx);
+      if (ry == 0) {
+        if (rx == 1) {
+          x = s - 1 - x;
+          y = s - 1 - y;
+        }
+        std::swap(x, y);
+      }
+      x += s * rx;
+      y += s * ry;
+      t /= 4;
+    }
+    const double u = n > 1 ? double(x) / (n - 1) : 0.5, w = n > 1 ? double(y) / (n - 1) : 0.5;
+    const double e1 = a.x + in + u * (b.x - a.x - 2 * in), e2 = a.y + in + w * (b.y - a.y - 2 * in);
+    out.push_back(e1 * frame.e1 + e2 * frame.e2 + altitude * frame.up);
+  }
+  return out;
 }
 
 }  // namespace exo::control

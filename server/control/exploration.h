@@ -17,6 +17,7 @@
 #pragma once
 
 #include <cstdint>
+#include <limits>
 #include <optional>
 #include <random>
 #include <unordered_map>
@@ -62,13 +63,46 @@ struct ExploreOptions {
   // view gains anything), the next view is the next sweep point instead (in order, each once):
   // the highest reachable clear cell of the point's column at or below it, looking along the
   // sweep at `sweep_pitch`; points whose column has no reachable cell wait for a later
-  // decision. Large outdoor scenes (the village): the scene's fly-over path, so that the
-  // flight sweeps the surface systematically while the planner's view is mostly unknown, and
-  // the coverage-driven choice takes over when surface dominates the gain.
+  // decision. The sweep starts at its end nearer the drone; a point whose view was not reached
+  // (its route dropped) is flown again, once. Large outdoor scenes (the village): the scene's
+  // fly-over path, so that the flight sweeps the surface systematically while the planner's
+  // view is mostly unknown, and the coverage-driven choice takes over when surface dominates
+  // the gain.
   std::vector<glm::dvec3> sweep;
   double sweep_pitch = -0.698;  // 40° down, the fly-over's
   double sweep_unknown_share = 0.9;
+  // Looking before climbing (session 15). The drone flies only through air it has seen to be
+  // free (unknown space is never entered), so a sweep point above what it has seen needs a
+  // look first. While the next sweep point's column is not reachable within
+  // `sweep_climb_tolerance_m` of its altitude, the view is a look at it: from the reachable
+  // cell with the shortest flight there and on to the point, among those from which the point
+  // lies within the camera's view at a pitch in [0, sweep_climb_pitch] and within range_m
+  // (its frames observe the air along the line of sight, which the sweep then flies up,
+  // camera down); at most two looks per point (a look not reached does not count, up to four
+  // such). Before any cell at the sweep's altitude is reachable and with no place to look
+  // from: the reachable cell with the most height per metre of flight (+ travel_offset_m),
+  // looking up, and at the top of what it has seen quarter turns in place looking up (four at
+  // most). false: the sweep flies to the highest reachable cell under each point (session 14).
+  bool sweep_climb = true;
+  double sweep_climb_pitch = 0.5;  // rad, + up (within the gimbal's +30°)
+  double sweep_climb_tolerance_m = 1.0;
+  // Camera pitch while travelling to a sweep point that is at the sweep's altitude (within
+  // sweep_climb_tolerance_m) along a route that stays there: NaN = level (the camera looks
+  // where the drone flies and observes the air ahead for later routes); e.g. sweep_pitch: the
+  // fly-over's look-down all the way.
+  double sweep_travel_pitch = std::numeric_limits<double>::quiet_NaN();
+  // Sweep points at the sweep's altitude are passed through, not hovered at: the drone is at
+  // one once within this distance (m) and the next decision follows at once, so that it flies
+  // the sweep as a path without stopping at every point (0: hover as at any view).
+  double sweep_pass_m = 1.0;
 };
+
+// A Hilbert-curve sweep (order `order`: 4^order points, in order) over the horizontal box
+// [lo, hi] (the two horizontal axes of `frame`; the box is inset by `inset` × its smaller side
+// on every side) at `altitude` along frame.up. The scripted fly-over's path; the Control
+// service's sweep over the zones' footprint (control_explore_sweep_altitude_m).
+std::vector<glm::dvec3> HilbertSweep(const glm::dvec3& lo, const glm::dvec3& hi, double altitude,
+                                     const SceneFrame& frame, int order = 3, double inset = 0.15);
 
 struct NextView {
   Setpoint pose;
@@ -76,6 +110,12 @@ struct NextView {
   double gain = 0.0, path_m = 0.0, score = 0.0;
   double gain_unknown = 0.0;  // the part of `gain` from rays ending in unknown space
   int sweep_index = -1;       // >= 0: a point of ExploreOptions::sweep (the fallback)
+  bool climb = false;         // a climb toward the sweep's altitude (sweep_climb)
+  // Camera pitch on the way to the view (before the last waypoint): 0 = level.
+  double travel_pitch = 0.0;
+  // > 0: a point to pass through (ExploreOptions::sweep_pass_m): reached within this distance,
+  // whatever the yaw, and not hovered at.
+  double pass_m = 0.0;
 };
 
 class ExplorationPlanner {
@@ -85,6 +125,9 @@ class ExplorationPlanner {
   const ExploreOptions& options() const { return options_; }
   // Restarts the candidate sampling (a copy planning off the lock gets its own sequence).
   void Reseed(uint64_t seed) { rng_.seed(seed); }
+  // Takes over what a copy decided (the sweep's progress, its looks, the frontier's tried
+  // goals), keeping this planner's τ estimates (frames observed meanwhile stay).
+  void TakeDecisionState(const ExplorationPlanner& copy);
   // Surface cells with a τ estimate, and those at or above `tau`.
   size_t CellsAtOrAbove(double tau) const {
     size_t n = 0;
@@ -120,7 +163,25 @@ class ExplorationPlanner {
   // The next unvisited sweep point with a reachable cell in its column (see ExploreOptions).
   std::optional<NextView> NextSweepView(const SafeFlight& safe, const glm::dvec3& from,
                                         const SceneFrame& frame, const std::vector<float>& dist);
+  // Climbing to the sweep (ExploreOptions::sweep_climb): turns in place at the top of the
+  // observed air so far, and whether the climb is over.
+  std::optional<NextView> ClimbView(const SafeFlight& safe, const glm::dvec3& from,
+                                    const SceneFrame& frame, const std::vector<float>& dist,
+                                    size_t k);
+  std::optional<NextView> LookView(const SafeFlight& safe, const SceneFrame& frame,
+                                   const std::vector<float>& dist, size_t k);
+  int climb_turns_ = 0;
+  std::vector<std::vector<glm::dvec3>> looks_;  // per sweep point: where it was looked at from
+  std::vector<int> look_misses_;                // per sweep point: looks not reached
+  int last_look_ = -1;                          // the sweep point looked at last (-1: none)
+  glm::dvec3 last_look_place_{0.0};
+  bool climb_done_ = false;
+  std::vector<glm::dvec3> sweep_;  // ExploreOptions::sweep, from its end nearer the drone
+  bool sweep_reversed_ = false;
   std::vector<bool> swept_;
+  std::vector<bool> sweep_retried_;
+  int last_sweep_ = -1;  // the sweep point proposed last (-1: the last view was none)
+  glm::dvec3 last_sweep_goal_{0.0};
   std::unordered_map<size_t, Cell> cells_;
   std::unordered_set<size_t> tried_;
 };

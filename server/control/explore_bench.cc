@@ -27,6 +27,7 @@
 // truth (SSIM on luma, mean over the poses).
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <map>
 #include <nlohmann/json.hpp>
@@ -246,6 +247,7 @@ struct RunResult {
   struct Decision {
     double t = 0, coverage = 0, gain = 0, gain_unknown = 0, path_m = 0;
     bool sweep = false;  // a point of the sweep fallback
+    std::string kind;     // view | sweep | climb | none
     glm::dvec3 goal{0.0};
     std::string outcome;  // none | unreachable | reached | timeout | replanned | open
   };
@@ -304,11 +306,9 @@ RunResult Run(const synth::SynthScene& scene, const RunConfig& rc) {
   eo.seed = seed;
   if (rc.sweep_fallback && policy == "autonomous" && scene.flyover_altitude_m > 0) {
     // The scripted fly-over's path (below) as the autonomous mode's sweep fallback.
-    const glm::dvec3 lo = scene.navigable.min, hi = scene.navigable.max;
-    const double inset = 0.15 * std::min(hi.x - lo.x, hi.y - lo.y);
-    for (const glm::dvec2& h : synth::HilbertCurve(3))
-      eo.sweep.push_back({lo.x + inset + h.x * (hi.x - lo.x - 2 * inset),
-                          lo.y + inset + h.y * (hi.y - lo.y - 2 * inset), scene.flyover_altitude_m});
+    // (the library's HilbertSweep, as the Control service builds it from its zones).
+    eo.sweep = HilbertSweep(scene.navigable.min, scene.navigable.max, scene.flyover_altitude_m,
+                            frame);
   }
   ExplorationPlanner planner(eo);
   SimDroneOptions dopt;
@@ -365,7 +365,7 @@ RunResult Run(const synth::SynthScene& scene, const RunConfig& rc) {
   double goal_yaw = yaw0, route_start = 0, arrived_at = -1;
   // Camera gimbal: pitch (+ up) towards the goal's on the last leg, level while travelling,
   // at most 1.5 rad/s.
-  double goal_pitch = 0, cam_pitch = 0;
+  double goal_pitch = 0, cam_pitch = 0, travel_pitch = 0, goal_pass_m = 0;
   size_t script_index = 0;
   glm::dvec3 prev = start;
   double next_frame = 0;
@@ -441,20 +441,26 @@ RunResult Run(const synth::SynthScene& scene, const RunConfig& rc) {
       }
     }
     // Decide when idle: spin first, then the policy.
-    const bool at_goal = !route.empty() && wp + 1 == route.size() &&
-                         glm::length(s.position - route.back()) < 0.15 &&
-                         std::abs(WrapAngle(s.yaw - goal_yaw)) < 0.1 &&
-                         std::abs(cam_pitch - goal_pitch) < 0.05;
+    // A point to pass through (a sweep point, ExploreOptions::sweep_pass_m): there once within
+    // that distance, no hover.
+    const bool at_goal =
+        !route.empty() && wp + 1 == route.size() &&
+        (goal_pass_m > 0 ? glm::length(s.position - route.back()) < goal_pass_m
+                         : glm::length(s.position - route.back()) < 0.15 &&
+                               std::abs(WrapAngle(s.yaw - goal_yaw)) < 0.1 &&
+                               std::abs(cam_pitch - goal_pitch) < 0.05);
     // At the goal the drone hovers `dwell_s` (frames keep coming: τ grows from the chosen view).
     if (at_goal && arrived_at < 0) arrived_at = t;
     if (!at_goal) arrived_at = -1;
-    const bool dwelt = at_goal && t - arrived_at >= dwell_s;
+    const bool dwelt = at_goal && t - arrived_at >= (goal_pass_m > 0 ? 0.0 : dwell_s);
     if (route.empty() || dwelt || t - route_start > 30) {
       if (!out.log.empty() && out.log.back().outcome == "open")
         out.log.back().outcome = dwelt ? "reached" : route.empty() ? "replanned" : "timeout";
       arrived_at = -1;
       route_start = t;
       goal_pitch = 0;
+      travel_pitch = 0;
+      goal_pass_m = 0;
       if (t < 4.0) {  // initial look-around: four quarter turns in place
         route = {start};
         wp = 0;
@@ -471,6 +477,14 @@ RunResult Run(const synth::SynthScene& scene, const RunConfig& rc) {
         const glm::dvec3 dir = target - s.position;
         goal_yaw = glm::length(glm::dvec2(dir.x, dir.y)) > 0.3 ? frame.YawOf(dir) : s.yaw;
         goal_pitch = flyover ? -glm::radians(40.0) : 0.0;
+        if (!out.log.empty() && out.log.back().outcome == "open") out.log.back().outcome = "reached";
+        RunResult::Decision dl;  // the script's waypoints, for --trace_decisions
+        dl.t = t;
+        dl.coverage = out.curve.empty() ? 0 : out.curve.back().second;
+        dl.goal = target;
+        dl.kind = "script";
+        dl.outcome = "open";
+        out.log.push_back(dl);
       } else {
         const auto t0 = std::chrono::steady_clock::now();
         std::optional<NextView> v = policy == "autonomous"
@@ -493,6 +507,7 @@ RunResult Run(const synth::SynthScene& scene, const RunConfig& rc) {
           dl.gain_unknown = v->gain_unknown;
           dl.path_m = v->path_m;
           dl.sweep = v->sweep_index >= 0;
+          dl.kind = v->climb ? "climb" : dl.sweep ? "sweep" : "view";
           dl.goal = v->pose.position;
         }
         dl.outcome = !v ? "none" : r ? "open" : "unreachable";
@@ -504,6 +519,8 @@ RunResult Run(const synth::SynthScene& scene, const RunConfig& rc) {
           wp = 0;
           goal_yaw = v->pose.yaw;
           goal_pitch = v->pitch;
+          travel_pitch = v->travel_pitch;
+          goal_pass_m = v->pass_m;
         } else {
           route = {s.position};  // unreachable this time: turn and look again
           wp = 0;
@@ -513,7 +530,7 @@ RunResult Run(const synth::SynthScene& scene, const RunConfig& rc) {
     }
     while (wp + 1 < route.size() && glm::length(s.position - route[wp]) < 0.15) ++wp;
     const bool last = wp + 1 == route.size();
-    const double want_pitch = last ? goal_pitch : 0.0, max_step = 1.5 / dopt.rate_hz;
+    const double want_pitch = last ? goal_pitch : travel_pitch, max_step = 1.5 / dopt.rate_hz;
     cam_pitch += std::clamp(want_pitch - cam_pitch, -max_step, max_step);
     drone.Receive({route[wp], last ? goal_yaw : frame.YawOf(route[wp] - s.position)}, t);
     const DroneState& n = drone.Step();
@@ -552,7 +569,7 @@ RunResult Run(const synth::SynthScene& scene, const RunConfig& rc) {
 // points up to the end; decisions before and after it are summarised by outcome, share of the
 // chosen gain from unknown space, and repeats (a goal within 0.3 m of an earlier goal).
 void PrintRun(const std::string& scene, const std::string& policy, uint64_t seed,
-              const RunResult& res) {
+              const RunResult& res, bool trace) {
   nlohmann::json j;
   j["bench"] = "explore_run";
   j["scene"] = scene;
@@ -618,6 +635,14 @@ void PrintRun(const std::string& scene, const std::string& policy, uint64_t seed
   for (const auto& [t, v] : res.mssim) m[std::to_string(static_cast<int>(std::lround(t)))] = v;
   j["mssim_at_s"] = m;
   j["stored_views"] = res.stored_views;
+  if (trace) {  // every decision: [t, coverage, goal x, y, z, kind, outcome]
+    nlohmann::json d = nlohmann::json::array();
+    for (const auto& l : res.log)
+      d.push_back({std::round(l.t * 10) / 10, std::round(l.coverage * 1000) / 1000,
+                   std::round(l.goal.x * 10) / 10, std::round(l.goal.y * 10) / 10,
+                   std::round(l.goal.z * 10) / 10, l.kind, l.outcome});
+    j["decisions"] = d;
+  }
   std::printf("%s\n", j.dump().c_str());
   std::fflush(stdout);
 }
@@ -669,11 +694,23 @@ int main(int argc, char** argv) {
   app.add_option("--sweep_fallback", sweep_fallback,
                  "outdoor scenes: the autonomous mode flies the fly-over's path as a sweep while "
                  "its best view's gain is mostly (> 90 %) unknown space (ExploreOptions::sweep)");
+  app.add_option("--sweep_climb", eo.sweep_climb,
+                 "with --sweep_fallback: climb to the sweep's altitude first, looking up "
+                 "(ExploreOptions::sweep_climb; session 15)");
+  app.add_option("--sweep_travel_pitch", eo.sweep_travel_pitch,
+                 "with --sweep_fallback: camera pitch (rad) while travelling between sweep points "
+                 "at the sweep's altitude (default: level)");
+  app.add_option("--sweep_pass_m", eo.sweep_pass_m,
+                 "with --sweep_fallback: sweep points at the sweep's altitude are passed through "
+                 "within this distance, not hovered at (0: hovered at, dwell_s)");
   bool per_run = false;
   app.add_option("--per_run", per_run,
                  "also print one line per run (bench explore_run): coverage, decisions before and "
                  "after the plateau (what the planner picked once coverage stopped growing), "
                  "where the uncovered area sits in the planner's view");
+  bool trace_decisions = false;
+  app.add_option("--trace_decisions", trace_decisions,
+                 "with --per_run: list every decision (time, coverage, goal, kind, outcome)");
   std::string dump_cells;
   app.add_option("--dump_cells", dump_cells,
                  "write the last run's ground-truth cells (x y z area tau area_up area_down "
@@ -838,7 +875,7 @@ int main(int argc, char** argv) {
           else break;
         alt_at[s30].push_back(c);
       }
-      if (per_run) PrintRun(scene_name, policy, seed0 + r, res);
+      if (per_run) PrintRun(scene_name, policy, seed0 + r, res, trace_decisions);
       final_seen.push_back(res.final_seen);
       collisions += res.collisions;
       replans += res.replans;
@@ -900,6 +937,11 @@ int main(int argc, char** argv) {
     j["grid_margin_m"] = grid_margin_m;
     j["sky_is_free"] = no_return_is_free;
     j["sweep_fallback"] = sweep_fallback;
+    j["sweep_climb"] = eo.sweep_climb;
+    j["sweep_pass_m"] = eo.sweep_pass_m;
+    j["sweep_travel_pitch"] = std::isnan(eo.sweep_travel_pitch)
+                                  ? nlohmann::json(nullptr)
+                                  : nlohmann::json(eo.sweep_travel_pitch);
     j["collisions"] = collisions;
     j["replans"] = replans;
     j["decisions"] = decisions;

@@ -5,6 +5,7 @@
 #include <grpcpp/grpcpp.h>
 
 #include <chrono>
+#include <cmath>
 
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
@@ -74,19 +75,40 @@ absl::StatusOr<glm::dvec3> ParseVec3(const std::string& key, absl::string_view t
 
 std::string Vec3Text(const glm::dvec3& v) { return absl::StrCat(v.x, ",", v.y, ",", v.z); }
 
-ConfigKey DoubleKey(std::string name, std::string help, double* (*field)(ServerConfig&)) {
+// A number key: > 0, or >= 0 with `zero_ok` (0 then means off).
+ConfigKey DoubleKey(std::string name, std::string help, double* (*field)(ServerConfig&),
+                    bool zero_ok = false) {
   ConfigKey k;
   k.name = name;
   k.help = std::move(help);
   k.get = [field](const ServerConfig& c) {
     return absl::StrCat(*field(const_cast<ServerConfig&>(c)));
   };
-  k.set = [field, name](const std::string& v, ServerConfig* c) {
+  k.set = [field, name, zero_ok](const std::string& v, ServerConfig* c) {
     double x;
-    if (!absl::SimpleAtod(v, &x) || !(x > 0))
-      return absl::InvalidArgumentError(
-          absl::StrCat("config ", name, ": '", v, "' is not a positive number"));
+    if (!absl::SimpleAtod(v, &x) || !std::isfinite(x) || !(zero_ok ? x >= 0 : x > 0))
+      return absl::InvalidArgumentError(absl::StrCat(
+          "config ", name, ": '", v, "' is not a ", zero_ok ? "non-negative" : "positive",
+          " number"));
     *field(*c) = x;
+    return absl::OkStatus();
+  };
+  return k;
+}
+
+ConfigKey BoolKey(std::string name, std::string help, bool* (*field)(ServerConfig&)) {
+  ConfigKey k;
+  k.name = name;
+  k.help = std::move(help);
+  k.get = [field](const ServerConfig& c) {
+    return std::string(*field(const_cast<ServerConfig&>(c)) ? "true" : "false");
+  };
+  k.set = [field, name](const std::string& v, ServerConfig* c) {
+    bool b;
+    if (!absl::SimpleAtob(v, &b))
+      return absl::InvalidArgumentError(
+          absl::StrCat("config ", name, ": '", v, "' is not true or false"));
+    *field(*c) = b;
     return absl::OkStatus();
   };
   return k;
@@ -184,6 +206,28 @@ void AppendControlConfigKeys(std::vector<ConfigKey>* keys) {
   keys->push_back(DoubleKey("control_explore_sigma_m",
                             "exploration: sigma of (3.11), in m",
                             [](ServerConfig& c) { return &c.control.core.explore.sigma_m; }));
+  // Outdoor scenes (docs/control.md, sessions 14-15): a sweep over the zones' footprint as the
+  // autonomous mode's fallback while its best view's gain is mostly unknown space.
+  keys->push_back(DoubleKey(
+      "control_explore_sweep_altitude_m",
+      "exploration: sweep the zones' footprint (a Hilbert curve, 64 points, inset 15 %) at this "
+      "height along control_up while the best view's gain is mostly unknown space; 0: no sweep",
+      [](ServerConfig& c) { return &c.control.core.explore_sweep_altitude_m; }, true));
+  keys->push_back(BoolKey(
+      "control_explore_sweep_climb",
+      "exploration: look at a sweep point above the air seen so far before climbing to it "
+      "(false: fly to the highest reachable cell under it)",
+      [](ServerConfig& c) { return &c.control.core.explore.sweep_climb; }));
+  keys->push_back(DoubleKey(
+      "control_explore_sweep_pass_m",
+      "exploration: sweep points at the sweep's altitude are passed through within this "
+      "distance, not hovered at, in m; 0: hovered at",
+      [](ServerConfig& c) { return &c.control.core.explore.sweep_pass_m; }, true));
+  keys->push_back(BoolKey(
+      "control_carve_no_return",
+      "pixels without depth carve free space up to control_carve_range_m (a simulated sky; "
+      "off for real sensors, whose black or specular surfaces return nothing too)",
+      [](ServerConfig& c) { return &c.control.core.carve_no_return; }));
 }
 
 // ---------------------------------------------------------------------------------------------

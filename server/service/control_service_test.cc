@@ -425,6 +425,29 @@ TEST(ControlServiceConfig, KeysParseAndRejectWithClearErrors) {
   auto zero = ApplyConfigValue("control_explore_range_m", "0", &c);
   EXPECT_NE(zero.message().find("control_explore_range_m"), std::string::npos) << zero;
   EXPECT_EQ(c.control.core.explore.range_m, 30.0);  // unchanged by the refused value
+  // The outdoor sweep (session 15): off by default; 0 allowed (off), negatives and words not.
+  EXPECT_EQ(c.control.core.explore_sweep_altitude_m, 0.0);
+  EXPECT_TRUE(c.control.core.explore.sweep_climb);
+  EXPECT_EQ(c.control.core.explore.sweep_pass_m, 1.0);
+  EXPECT_FALSE(c.control.core.carve_no_return);
+  ASSERT_TRUE(ApplyConfigValue("control_explore_sweep_altitude_m", "22", &c).ok());
+  ASSERT_TRUE(ApplyConfigValue("control_explore_sweep_climb", "false", &c).ok());
+  ASSERT_TRUE(ApplyConfigValue("control_explore_sweep_pass_m", "0", &c).ok());
+  ASSERT_TRUE(ApplyConfigValue("control_carve_no_return", "true", &c).ok());
+  EXPECT_EQ(c.control.core.explore_sweep_altitude_m, 22.0);
+  EXPECT_FALSE(c.control.core.explore.sweep_climb);
+  EXPECT_EQ(c.control.core.explore.sweep_pass_m, 0.0);
+  EXPECT_TRUE(c.control.core.carve_no_return);
+  auto neg = ApplyConfigValue("control_explore_sweep_altitude_m", "-3", &c);
+  EXPECT_NE(neg.message().find("control_explore_sweep_altitude_m"), std::string::npos) << neg;
+  EXPECT_EQ(c.control.core.explore_sweep_altitude_m, 22.0);
+  auto word = ApplyConfigValue("control_explore_sweep_climb", "maybe", &c);
+  EXPECT_NE(word.message().find("true or false"), std::string::npos) << word;
+  EXPECT_FALSE(c.control.core.explore.sweep_climb);
+  std::string climb;
+  for (const ConfigKey& k : ConfigKeys())
+    if (k.name == "control_explore_sweep_climb") climb = k.get(c);
+  EXPECT_EQ(climb, "false");
 }
 
 }  // namespace
