@@ -78,13 +78,13 @@ build_image() {  # name, rootfs, entrypoint, healthcheck-port (or "")
   local t0 t1
   t0=$(date +%s.%N)
   podman build -q --format docker -t "localhost/$name:$TAG" "$(dirname "$rootfs")" >/dev/null
+  t1=$(date +%s.%N)
+  local size
+  size=$(podman image inspect "localhost/$name:$TAG" --format '{{.Size}}')
   # The image this build replaced under the tag is now dangling: drop it (only dangling images with
   # this title), or every test run leaves ~240 MB behind until the disk fills (session 15: 2 274
   # images, 4.9 GB left, and NATS JetStream refused the itest's stream: "insufficient storage").
   podman image prune -f --filter "label=org.opencontainers.image.title=$name" >/dev/null 2>&1 || true
-  t1=$(date +%s.%N)
-  local size
-  size=$(podman image inspect "localhost/$name:$TAG" --format '{{.Size}}')
   printf '{"image": "localhost/%s:%s", "size_bytes": %s, "build_s": %.1f}\n' "$name" "$TAG" "$size" \
     "$(echo "$t1 - $t0" | bc -l)"
 }
