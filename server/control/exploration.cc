@@ -5,6 +5,8 @@
 #include <limits>
 #include <queue>
 
+#include "common/hilbert.h"
+
 namespace exo::control {
 namespace {
 
@@ -483,22 +485,8 @@ std::vector<glm::dvec3> HilbertSweep(const glm::dvec3& lo, const glm::dvec3& hi,
   const int n = 1 << std::max(0, order);
   std::vector<glm::dvec3> out;
   out.reserve(static_cast<size_t>(n) * n);
-  for (int d = 0; d < n * n; ++d) {  // index -> cell of the Hilbert curve (synth::HilbertCurve)
-    int x = 0, y = 0, t = d;
-    for (int s = 1; s < n; s *= 2) {
-      const int rx = 1 & (t / 2), ry = 1 & (t ^ rx);
-      if (ry == 0) {
-        if (rx == 1) {
-          x = s - 1 - x;
-          y = s - 1 - y;
-        }
-        std::swap(x, y);
-      }
-      x += s * rx;
-      y += s * ry;
-      t /= 4;
-    }
-    const double u = n > 1 ? double(x) / (n - 1) : 0.5, w = n > 1 ? double(y) / (n - 1) : 0.5;
+  for (const glm::dvec2& p : HilbertCurve(order)) {
+    const double u = p.x, w = p.y;
     const double e1 = a.x + in + u * (b.x - a.x - 2 * in), e2 = a.y + in + w * (b.y - a.y - 2 * in);
     out.push_back(e1 * frame.e1 + e2 * frame.e2 + altitude * frame.up);
   }
