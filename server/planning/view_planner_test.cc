@@ -62,6 +62,19 @@ Candidate MakeCandidate(ViewId id, const glm::dvec3& centre, const glm::dvec3& t
   return c;
 }
 
+// Options where only the pose rule of kFirst decides: cells of 1 m saturate at once (τ_max 0.05)
+// and the coverage guard is off (the dispersion tests below).
+PlannerOptions PoseRuleOptions(size_t max_views) {
+  PlannerOptions o;
+  o.max_views = max_views;
+  o.cell_size_m = 1.0;
+  o.tau_max = 0.05;  // cells saturate: the pose terms decide
+  o.dispersion = PlannerOptions::Dispersion::kFirst;
+  o.dispersion_guard = 1e9;  // no coverage guard: the dispersion rule alone
+  o.dispersion_guard_relative = 0;
+  return o;
+}
+
 // ---- coverage math ----
 
 TEST(Coverage, TammesBound) {
@@ -460,13 +473,7 @@ TEST(ViewPlanner, DensityWeightedDispersionKeepsMoreViewsWhereTheCameraLingers) 
   int lingering[2] = {0, 0};
   double mean_error[2] = {0, 0};
   for (int weighted : {0, 1}) {
-    PlannerOptions o;
-    o.max_views = store;
-    o.cell_size_m = 1.0;
-    o.tau_max = 0.05;  // cells saturate: the pose terms decide
-    o.dispersion = PlannerOptions::Dispersion::kFirst;
-    o.dispersion_guard = 1e9;  // no coverage guard: the dispersion rule alone
-    o.dispersion_guard_relative = 0;
+    PlannerOptions o = PoseRuleOptions(store);
     o.dispersion_weight_exponent = weighted ? 0.5 : 0.0;
     auto p = ViewPlanner::Create(o).value();
     std::map<ViewId, double> x_of;
@@ -499,13 +506,7 @@ TEST(ViewPlanner, DensityWeightedDispersionKeepsMoreViewsWhereTheCameraLingers) 
   // dispersion_weight_after: the plain distance until the stream has offered more than T
   // frames per view of capacity, so a T beyond the stream's length is min-distance exactly.
   {
-    PlannerOptions o;
-    o.max_views = store;
-    o.cell_size_m = 1.0;
-    o.tau_max = 0.05;
-    o.dispersion = PlannerOptions::Dispersion::kFirst;
-    o.dispersion_guard = 1e9;
-    o.dispersion_guard_relative = 0;
+    PlannerOptions o = PoseRuleOptions(store);
     o.dispersion_weight_exponent = 0.5;
     o.dispersion_weight_after = double(xs.size()) / double(store) + 1;  // never reached
     auto p = ViewPlanner::Create(o).value();
@@ -527,13 +528,7 @@ TEST(ViewPlanner, DensityWeightedDispersionKeepsMoreViewsWhereTheCameraLingers) 
   // dispersion_weight_until: the weighting ends after U frames per view; an end before the
   // first candidate is min-distance exactly, one beyond the stream the weighted store exactly.
   for (double until : {1e-9, double(xs.size()) / double(store) + 1}) {
-    PlannerOptions o;
-    o.max_views = store;
-    o.cell_size_m = 1.0;
-    o.tau_max = 0.05;
-    o.dispersion = PlannerOptions::Dispersion::kFirst;
-    o.dispersion_guard = 1e9;
-    o.dispersion_guard_relative = 0;
+    PlannerOptions o = PoseRuleOptions(store);
     o.dispersion_weight_exponent = 0.5;
     o.dispersion_weight_until = until;
     auto p = ViewPlanner::Create(o).value();
@@ -569,13 +564,7 @@ TEST(ViewPlanner, DensityWeightedDispersionKeepsMoreViewsWhereTheCameraLingers) 
 // candidate's nearest (A) stays and B leaves, as in the min-distance baseline.
 TEST(ViewPlanner, KeepNearestChoosesWhichViewOfTheClosestPairLeaves) {
   for (bool keep_nearest : {false, true}) {
-    PlannerOptions o;
-    o.max_views = 3;
-    o.cell_size_m = 1.0;
-    o.tau_max = 0.05;  // cells saturate: the pose terms decide
-    o.dispersion = PlannerOptions::Dispersion::kFirst;
-    o.dispersion_guard = 1e9;
-    o.dispersion_guard_relative = 0;
+    PlannerOptions o = PoseRuleOptions(3);
     o.dispersion_keep_nearest = keep_nearest;
     auto p = ViewPlanner::Create(o).value();
     ViewId id = 1;
@@ -609,14 +598,8 @@ TEST(ViewPlanner, RotationScaleWeighsATurnAgainstADisplacement) {
   };
   for (const Case& k : {Case{1.0, 0.0, false}, Case{0.25, 0.0, true}, Case{0.25, 2.0, false},
                         Case{1.0, 0.5, true}}) {
-    PlannerOptions o;
-    o.max_views = 3;
-    o.cell_size_m = 1.0;
+    PlannerOptions o = PoseRuleOptions(3);
     o.d_max_m = 2.0;
-    o.tau_max = 0.05;  // cells saturate: the pose terms decide
-    o.dispersion = PlannerOptions::Dispersion::kFirst;
-    o.dispersion_guard = 1e9;
-    o.dispersion_guard_relative = 0;
     o.dispersion_rotation_scale = k.scale;
     o.dispersion_m_per_rad = k.m_per_rad;
     ASSERT_TRUE(o.Validate().ok());
@@ -666,13 +649,7 @@ TEST(ViewPlanner, RecencyToleranceAndDropOlderDecideNearTies) {
   for (const Case& k : {Case{0.0, false, -0.95, false, 0}, Case{0.1, false, -0.95, true, 2},
                         Case{0.1, false, -0.85, false, 0}, Case{0.0, false, -1.5, true, 2},
                         Case{0.0, true, -1.5, true, 1}, Case{0.1, true, -0.95, true, 1}}) {
-    PlannerOptions o;
-    o.max_views = 3;
-    o.cell_size_m = 1.0;
-    o.tau_max = 0.05;  // cells saturate: the pose terms decide
-    o.dispersion = PlannerOptions::Dispersion::kFirst;
-    o.dispersion_guard = 1e9;
-    o.dispersion_guard_relative = 0;
+    PlannerOptions o = PoseRuleOptions(3);
     o.dispersion_recency = k.recency;
     o.dispersion_drop_older = k.drop_older;
     auto p = ViewPlanner::Create(o).value();
