@@ -78,6 +78,8 @@ absl::Status OnlineModelOptions::Validate() const {
     po.dispersion_drop_older = dispersion_drop_older;
     po.dispersion_time_steps = dispersion_time_steps;
     po.dispersion_time_max = dispersion_time_max;
+    po.dispersion_time_arc = dispersion_time_arc;
+    po.dispersion_time_auto_ref = dispersion_time_auto_ref;
     po.observe_zero_coverage = observe_zero_coverage;
     po.dispersion_weight_until = dispersion_weight_until;
     EXO_RETURN_IF_ERROR(po.Validate());
@@ -297,7 +299,8 @@ OnlinePlanner::OnlinePlanner(planning::ViewPlanner planner, const OnlineModelOpt
       setup_(setup),
       areas_(CellGrid{setup.cell_m}),
       cell_ids_(std::move(cell_ids)),
-      quality_(options.frame_quality) {}
+      quality_(options.frame_quality),
+      drift_(planning::StreamDriftOptions{}) {}
 
 absl::StatusOr<std::unique_ptr<OnlinePlanner>> OnlinePlanner::Create(
     const OnlineModelOptions& options, const SceneSetup& setup) {
@@ -326,6 +329,8 @@ absl::StatusOr<std::unique_ptr<OnlinePlanner>> OnlinePlanner::Create(
   po.dispersion_drop_older = options.dispersion_drop_older;
   po.dispersion_time_steps = options.dispersion_time_steps;
   po.dispersion_time_max = options.dispersion_time_max;
+  po.dispersion_time_arc = options.dispersion_time_arc;
+  po.dispersion_time_auto_ref = options.dispersion_time_auto_ref;
   po.observe_zero_coverage = options.observe_zero_coverage;
   po.dispersion_weight_until = options.dispersion_weight_until;
   po.cell_size_m = setup.cell_m;
@@ -397,6 +402,13 @@ absl::StatusOr<HandOff> OnlinePlanner::Plan(const PlanFrame& f) {
   const ViewId id = ++last_id_;
   HandOff none;
   none.id = id;
+  // Every frame with depth enters the drift measurement (also frames the governor skips): the
+  // time term follows the stream's own time-correlated error.
+  if (options_.dispersion_time_auto_ref > 0.0 && f.depth != nullptr && !f.depth->empty()) {
+    drift_.Next(*f.depth, f.depth_camera, f.local_from_depth);
+    const double g = drift_.Growth();
+    if (g >= 0.0) planner_.SetTimeScale(g / options_.dispersion_time_auto_ref);
+  }
   // Every frame enters the quality reference window (also frames the governor skips).
   const double quality = options_.frame_quality.gamma > 0 && f.color != nullptr
                              ? quality_.Next(planning::LaplacianVariance(*f.color))
@@ -466,6 +478,7 @@ absl::Status OnlinePlanner::SaveState(StateWriter* w) const {
   w->Put(last_candidate_s_);
   w->PutVec(quality_.State());
   w->Put(counters_);
+  w->PutVec(drift_.State());
   return absl::OkStatus();
 }
 
@@ -482,9 +495,11 @@ absl::Status OnlinePlanner::LoadState(StateReader* r) {
     Rigid3d pose;
     if (r->Get(&id) && r->Get(&pose)) poses_[id] = pose;
   }
-  std::vector<double> recent;
-  r->Get(&last_id_) && r->Get(&last_candidate_s_) && r->GetVec(&recent) && r->Get(&counters_);
+  std::vector<double> recent, drift;
+  r->Get(&last_id_) && r->Get(&last_candidate_s_) && r->GetVec(&recent) && r->Get(&counters_) &&
+      r->GetVec(&drift);
   quality_.SetState(recent);
+  drift_.SetState(drift);
   return r->Status("online planner");
 }
 

@@ -33,6 +33,7 @@
 #include "server/geometry/tsdf_volume.h"
 #include "server/planning/cell_id_proxy.h"
 #include "server/planning/frame_quality.h"
+#include "server/planning/stream_drift.h"
 #include "server/planning/view_planner.h"
 
 namespace exo::core {
@@ -89,6 +90,9 @@ struct OnlineModelOptions {
   bool dispersion_drop_older = false;    // PlannerOptions::dispersion_drop_older
   double dispersion_time_steps = 0.0;    // PlannerOptions::dispersion_time_steps
   bool dispersion_time_max = false;       // PlannerOptions::dispersion_time_max
+  bool dispersion_time_arc = false;       // PlannerOptions::dispersion_time_arc
+  double dispersion_time_auto_ref = 0.0;  // PlannerOptions::dispersion_time_auto_ref; the
+                                          // OnlinePlanner measures g (planning/stream_drift.h)
   // PlannerOptions::observe_zero_coverage (session 14): a view observes every cell it sees, also
   // where its φ is 0 (the frames of a yaw pan after the first), so R(b_k) and the published
   // references stay the pre-selection over the views stored now. Long drone stream +0.012 SSIM
@@ -235,6 +239,7 @@ class OnlinePlanner {
     uint64_t ids_from_proxy = 0, cellid_update_errors = 0;
   };
   const Counters& counters() const { return counters_; }
+  const planning::StreamDrift& drift() const { return drift_; }
 
  private:
   OnlinePlanner(planning::ViewPlanner planner, const OnlineModelOptions& options,
@@ -252,6 +257,7 @@ class OnlinePlanner {
   ViewId last_id_ = 0;
   double last_candidate_s_ = -1e300;
   planning::FrameQuality quality_;
+  planning::StreamDrift drift_;  // dispersion_time_auto_ref
   Counters counters_;
 };
 

@@ -278,6 +278,11 @@ planning::PlannerOptions PlannerFor(const PolicyConfig& c, const Source& src, do
                                      : product.dispersion_time_steps;
   po.dispersion_time_max = c.dispersion_time_max >= 0 ? c.dispersion_time_max != 0
                                                       : product.dispersion_time_max;
+  po.dispersion_time_arc = c.dispersion_time_arc >= 0 ? c.dispersion_time_arc != 0
+                                                      : product.dispersion_time_arc;
+  po.dispersion_time_auto_ref = c.dispersion_time_auto_ref >= 0
+                                    ? c.dispersion_time_auto_ref
+                                    : product.dispersion_time_auto_ref;
   po.observe_zero_coverage = c.observe_zero_coverage >= 0 ? c.observe_zero_coverage != 0
                                                           : product.observe_zero_coverage;
   po.d_max_m = src.scale.d_max_m;
@@ -423,6 +428,8 @@ std::string ConfigJson(const std::string& dataset, const std::string& test_poses
                  {"dispersion_drop_older", int(po.dispersion_drop_older)},
                  {"dispersion_time_steps", po.dispersion_time_steps},
                  {"dispersion_time_max", int(po.dispersion_time_max)},
+                 {"dispersion_time_arc", int(po.dispersion_time_arc)},
+                 {"dispersion_time_auto_ref", po.dispersion_time_auto_ref},
                  {"observe_zero_coverage", int(po.observe_zero_coverage)},
                  {"sharp_gamma", c.sharp_gamma}};
   j["quality"] = {{"mssim", Round(r.quality.mssim, 4)},
@@ -454,6 +461,10 @@ std::string ConfigJson(const std::string& dataset, const std::string& test_poses
   j["integrate_cpu"] = {{"integrate_cpu_ms_median", Round(r.integrate_cpu_ms_median, 2)},
                         {"integrate_cpu_ms_p95", Round(r.integrate_cpu_ms_p95, 2)}};
   j["proxy_triangles"] = r.proxy_triangles;
+  if (PolicyIsOnline(c.policy))
+    j["stream_drift"] = {{"near", Round(r.drift_near, 5)},
+                         {"far", Round(r.drift_far, 5)},
+                         {"time_scale", Round(r.time_scale, 3)}};
   // Issue 15: MS-SSIM and GMSD of the filled frame; the attribution oracles of the config.
   j["perceptual"] = {{"ms_ssim", std::isfinite(r.quality.ms_ssim)
                                      ? nlohmann::ordered_json(Round(r.quality.ms_ssim, 4))
@@ -598,6 +609,8 @@ class Engine {
         mo.dispersion_drop_older = po.dispersion_drop_older;
         mo.dispersion_time_steps = po.dispersion_time_steps;
         mo.dispersion_time_max = po.dispersion_time_max;
+        mo.dispersion_time_arc = po.dispersion_time_arc;
+        mo.dispersion_time_auto_ref = po.dispersion_time_auto_ref;
         mo.observe_zero_coverage = po.observe_zero_coverage;
         mo.dispersion_weight_until = po.dispersion_weight_until;
         mo.frame_quality.gamma = c.sharp_gamma;
@@ -833,6 +846,9 @@ class Engine {
         r.model_digest = core::ModelDigest(r.geometry_digest, r.planner_digest);
         r.accepted = st.accepted;
         r.tau_sum = p.tau_sum();
+        r.drift_near = st.planner->drift().MeanNear();
+        r.drift_far = st.planner->drift().MeanFar();
+        r.time_scale = p.time_scale();
         if (c.replay_refs) {  // diagnostic: the baselines' references for the same store
           std::sort(selected.begin(), selected.end());
           EXO_ASSIGN_OR_RETURN(refs, replayed_refs(selected));

@@ -101,6 +101,8 @@ struct PolicyConfig {
   int dispersion_drop_older = -1;             // policy option "ddo=0|1"
   double dispersion_time_steps = -1;          // policy option "dtk=V"
   int dispersion_time_max = -1;               // policy option "dtm=0|1"
+  int dispersion_time_arc = -1;               // policy option "dta=0|1"
+  double dispersion_time_auto_ref = -1;       // policy option "dtr=V"
   int observe_zero_coverage = -1;             // policy option "ozc=0|1"
   // Online policy only, diagnostic (policy option "rpl=1"): the online planner's final store
   // rendered with the references the baselines get (the pre-selection replayed over the stored
@@ -152,6 +154,9 @@ struct ConfigResult {
   // extraction + cell areas; the cell-id LOD update excluded, as in integrate_ms_*).
   double integrate_cpu_ms_median = 0, integrate_cpu_ms_p95 = 0;
   size_t proxy_triangles = 0;                    // triangles of the final proxy mesh
+  // Online: the stream's depth disagreement 1 and 15 frames apart (planning/stream_drift.h; 0
+  // when not measured) and the time term's final scale.
+  double drift_near = 0, drift_far = 0, time_scale = 1;
   std::string test_poses;                        // label of the test pose set ("scene", ...)
   std::vector<int> selected;                     // stored input frame indices (stream order)
   // Online policy: digests of the core's model (server/core ModelDigest), the same values the

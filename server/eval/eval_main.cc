@@ -171,6 +171,8 @@ absl::StatusOr<std::vector<PolicyConfig>> Configs(const Args& a) {
         else if (key == "ddo") c.dispersion_drop_older = v != 0 ? 1 : 0;
         else if (key == "dtk") c.dispersion_time_steps = v;
         else if (key == "dtm") c.dispersion_time_max = v != 0 ? 1 : 0;
+        else if (key == "dta") c.dispersion_time_arc = v != 0 ? 1 : 0;
+        else if (key == "dtr") c.dispersion_time_auto_ref = v;
         else if (key == "ozc") c.observe_zero_coverage = v != 0 ? 1 : 0;
         else if (key == "rpl") c.replay_refs = v != 0;
         else if (key == "mpr") c.dispersion_m_per_rad = v;

@@ -81,6 +81,10 @@ absl::Status PlannerOptions::Validate() const {
     return absl::InvalidArgumentError(absl::StrCat(
         "planner dispersion_time_steps must be finite and >= 0, got ",
         dispersion_time_steps));
+  if (!std::isfinite(dispersion_time_auto_ref) || dispersion_time_auto_ref < 0.0)
+    return absl::InvalidArgumentError(absl::StrCat(
+        "planner dispersion_time_auto_ref must be finite and >= 0, got ",
+        dispersion_time_auto_ref));
   return absl::OkStatus();
 }
 
@@ -139,6 +143,7 @@ absl::StatusOr<std::vector<CellPixelCount>> CountDepthCellPixels(
 
 ViewPlanner::ViewPlanner(const PlannerOptions& options) : options_(options) {
   grid_.cell_size_m = options.cell_size_m;
+  if (options.dispersion_time_auto_ref > 0.0) time_scale_ = 0.0;  // until measured
 }
 
 absl::StatusOr<ViewPlanner> ViewPlanner::Create(const PlannerOptions& options) {
@@ -274,11 +279,18 @@ double ViewPlanner::PoseDistance(const glm::dvec3& ca, const glm::dquat& qa,
 }
 
 double ViewPlanner::ViewDistance(const glm::dvec3& ca, const glm::dquat& qa, ViewId ida,
-                                 const glm::dvec3& cb, const glm::dquat& qb, ViewId idb) const {
-  const double frames = ida > idb ? static_cast<double>(ida - idb) : static_cast<double>(idb - ida);
+                                 double arca, const glm::dvec3& cb, const glm::dquat& qb,
+                                 ViewId idb, double arcb) const {
   const double pose = PoseDistance(ca, qa, cb, qb);
-  return options_.dispersion_time_max ? std::max(pose, time_unit_ * frames)
-                                      : pose + time_unit_ * frames;
+  double time = 0.0;
+  if (options_.dispersion_time_arc) {
+    time = Kappa() * std::abs(arca - arcb);
+  } else {
+    const double frames =
+        ida > idb ? static_cast<double>(ida - idb) : static_cast<double>(idb - ida);
+    time = time_unit_ * frames;
+  }
+  return options_.dispersion_time_max ? std::max(pose, time) : pose + time;
 }
 
 void ViewPlanner::TrackStep(const glm::dvec3& centre, const glm::dquat& rotation, ViewId id) {
@@ -289,18 +301,42 @@ void ViewPlanner::TrackStep(const glm::dvec3& centre, const glm::dquat& rotation
     if (options_.d_max_m > 0.0) step = std::min(step, options_.d_max_m);  // a jump is not motion
     step_sum_ += step;
     ++step_count_;
+    if (options_.dispersion_time_arc) {
+      // The path between two candidates, each capped at d_max_m like the id clock's steps (a
+      // jump is not motion).
+      double path = PoseDistance(last_centre_, last_rotation_, centre, rotation);
+      if (options_.d_max_m > 0.0) path = std::min(path, options_.d_max_m);
+      arc_ += path;
+    }
   }
   has_last_ = true;
   last_centre_ = centre;
   last_rotation_ = rotation;
   last_id_ = id;
+  // The arc clock's distances do not drift: the nearest-neighbour cache stays valid.
+  if (options_.dispersion_time_arc) return;
+  RecomputeTimeUnit();
+}
+
+void ViewPlanner::RecomputeTimeUnit() {
   if (step_count_ == 0) return;
-  const double unit =
-      options_.dispersion_time_steps * step_sum_ / static_cast<double>(step_count_);
+  const double unit = Kappa() * step_sum_ / static_cast<double>(step_count_);
   if (std::abs(unit - time_unit_) <= 0.02 * std::max(unit, time_unit_)) return;
   time_unit_ = unit;
   if (options_.dispersion != PlannerOptions::Dispersion::kOff)
     for (auto& [vid, n] : nearest_) n = NearestOf(views_.at(vid));
+}
+
+void ViewPlanner::SetTimeScale(double scale) {
+  scale = std::isfinite(scale) ? std::clamp(scale, 0.0, 1.0) : 0.0;
+  if (std::abs(scale - time_scale_) <= 0.02 * std::max(scale, time_scale_)) return;
+  time_scale_ = scale;
+  if (options_.dispersion_time_arc) {
+    if (options_.dispersion != PlannerOptions::Dispersion::kOff)
+      for (auto& [vid, n] : nearest_) n = NearestOf(views_.at(vid));
+  } else {
+    RecomputeTimeUnit();
+  }
 }
 
 double ViewPlanner::UniqueLoss(const View& v) const {
@@ -320,11 +356,11 @@ double ViewPlanner::UniqueLoss(const View& v) const {
 }
 
 void ViewPlanner::GiveWeight(const glm::dvec3& centre, const glm::dquat& rotation, ViewId id_of,
-                             double weight) {
+                             double arc, double weight) {
   View* best = nullptr;
   double best_d = std::numeric_limits<double>::infinity();
   for (auto& [id, u] : views_) {
-    const double d = ViewDistance(centre, rotation, id_of, u.centre, u.rotation, u.id);
+    const double d = ViewDistance(centre, rotation, id_of, arc, u.centre, u.rotation, u.id, u.arc);
     if (d < best_d || (d == best_d && best != nullptr && id < best->id)) {
       best_d = d;
       best = &u;
@@ -491,6 +527,7 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
     TrackStep(centre, cand.local_from_cam.rotation, cand.id);
   View view{cand.id, centre, cand.local_from_cam.rotation, cand.bytes, pixel_sr, cand.quality,
             {}, {}};
+  view.arc = arc_;
   view.entries.reserve(cand.cells.size());
   view.pixels.reserve(cand.cells.size());
   for (const CellPixelCount& c : cand.cells) {
@@ -719,7 +756,7 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
   }
   if (!(guard_gain > accept_gain) && !spread) {
     // The frame is represented by its nearest stored view (density-weighted dispersion).
-    if (track) GiveWeight(view.centre, view.rotation, view.id, view.weight);
+    if (track) GiveWeight(view.centre, view.rotation, view.id, view.arc, view.weight);
     d.reason = full ? absl::StrCat("store full and no victim gains more than delta_tau_sum (best ",
                                    gain, ")")
                     : absl::StrCat("coverage gain ", gain, " <= delta_tau_sum ",
@@ -739,12 +776,13 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
     glm::dvec3 centre;
     glm::dquat rotation;
     ViewId id;
+    double arc;
     double weight;
   };
   std::vector<Gone> gone;
   for (ViewId v : victims) {
     const View& g = views_.at(v);
-    gone.push_back({g.centre, g.rotation, g.id, g.weight});
+    gone.push_back({g.centre, g.rotation, g.id, g.arc, g.weight});
     RemoveView(v, &stale, &d.changed_cells);
   }
   std::sort(stale.begin(), stale.end());
@@ -752,7 +790,7 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
   AddView(std::move(view), &d.changed_cells);
   // The frames a victim stood for move to its nearest view left (the candidate included).
   if (track)
-    for (const Gone& g : gone) GiveWeight(g.centre, g.rotation, g.id, g.weight);
+    for (const Gone& g : gone) GiveWeight(g.centre, g.rotation, g.id, g.arc, g.weight);
   // ... and the candidate takes its share of the frames of its nearest view (if still stored).
   if (weighted && nearest_id != 0 && views_.count(nearest_id) && views_.count(cand.id)) {
     View& u = views_.at(nearest_id);
@@ -882,6 +920,7 @@ void ViewPlanner::SaveState(StateWriter* w) const {
     w->Put(v.quality);
     w->PutVec(v.entries);
     w->PutVec(v.pixels);
+    w->Put(v.arc);
   });
   PutUnorderedPod(w, cell_index_);
   w->Put<uint64_t>(cells_.size());
@@ -902,6 +941,8 @@ void ViewPlanner::SaveState(StateWriter* w) const {
   w->Put(step_sum_);
   w->Put<uint64_t>(step_count_);
   w->Put(time_unit_);
+  w->Put(arc_);
+  w->Put(time_scale_);
 }
 
 absl::Status ViewPlanner::LoadState(StateReader* r) {
@@ -912,7 +953,7 @@ absl::Status ViewPlanner::LoadState(StateReader* r) {
     uint64_t b = 0;
     const bool ok = r->Get(&v->id) && r->Get(&v->centre) && r->Get(&v->rotation) &&
                     r->Get(&b) && r->Get(&v->pixel_sr) && r->Get(&v->quality) &&
-                    r->GetVec(&v->entries) && r->GetVec(&v->pixels);
+                    r->GetVec(&v->entries) && r->GetVec(&v->pixels) && r->Get(&v->arc);
     v->bytes = b;
     return ok;
   }) && GetUnorderedPod(r, &cell_index_) && r->Count(&cells, sizeof(CellId) + sizeof(double));
@@ -923,7 +964,8 @@ absl::Status ViewPlanner::LoadState(StateReader* r) {
   GetUnorderedPod(r, &areas_) && r->GetVec(&scratch_) && GetUnorderedPod(r, &nearest_) &&
       r->GetVec(&obs_scratch_) && r->Get(&has_last) && r->Get(&last_centre_) &&
       r->Get(&last_rotation_) && r->Get(&last_id_) && r->Get(&step_sum_) &&
-      r->Get(&step_count_) && r->Get(&time_unit_);
+      r->Get(&step_count_) && r->Get(&time_unit_) && r->Get(&arc_) &&
+      r->Get(&time_scale_);
   has_last_ = has_last != 0;
   EXO_RETURN_IF_ERROR(r->Status("view planner"));
   // Every index must point into cells_ (a corrupt state must not crash a later Consider).

@@ -171,6 +171,20 @@ struct PlannerOptions {
   // camera moving faster than κ·s are apart by their pose distance alone (the default's spread)
   // and only frames where the camera lingered are set apart by time.
   bool dispersion_time_max = false;
+  // The time term's clock (session 16). false: frame ids (κ × |id_a − id_b| × s). true: the
+  // camera's travelled pose path, κ × |arc_a − arc_b| with arc = the running sum of the pose
+  // steps between consecutive candidates (each capped at d_max_m): frames of a camera that stands
+  // perfectly still are apart by nothing (a synthetic stream's stop repeats one image), while a
+  // hand-held camera that dwells keeps moving by its shake and pose noise (7-Scenes: ~1° per
+  // frame, 30° summed over 30 frames against 3–19° net), so there the clock runs as time does.
+  // Scale-free like the id clock: no s to measure.
+  bool dispersion_time_arc = false;
+  // The time term follows the stream's measured time-correlated error (session 16): > 0, the
+  // effective κ is dispersion_time_steps × min(1, g / this), g = the growth of the stream's
+  // depth disagreement from 1 to 15 frames apart (planning/stream_drift.h, measured by the
+  // caller and given with SetTimeScale); until a measurement arrives the time term is off.
+  // 0 = κ as set.
+  double dispersion_time_auto_ref = 0.0;
   // Which stored views observe a cell (its published references when render_refs_max > 0, the
   // unique-coverage guard's count, the views R(b_k) is rebuilt from). false: the views with
   // φ > 0 at acceptance. A frame whose direction to the cell duplicates a reference's (a yaw
@@ -287,6 +301,9 @@ class ViewPlanner {
   // server's checkpoint (common/state_io.h); LoadState into a planner made with the same options
   // replaces it (error: truncated / corrupt state, nothing usable).
   void SaveState(StateWriter* w) const;
+  // dispersion_time_auto_ref: the measured scale of the time term, in [0, 1] (clamped).
+  void SetTimeScale(double scale);
+  double time_scale() const { return time_scale_; }
   absl::Status LoadState(StateReader* r);
 
  private:
@@ -322,6 +339,7 @@ class ViewPlanner {
     std::vector<Entry> entries;
     std::vector<uint32_t> pixels;   // ψ_vis per entry (copied into the cell's Ref by AddView)
     double weight = 1.0;            // stream frames it stands for (dispersion_weight_exponent)
+    double arc = 0.0;               // the travelled pose path at its arrival (dispersion_time_arc)
   };
   double AreaOf(CellId cell) const;  // A(b_k), or A_cell when unknown
   // A cell's contribution to τ_sum: min(τ, τ_max), or the soft form (soft_saturation).
@@ -360,10 +378,10 @@ class ViewPlanner {
   double PoseDistance(const glm::dvec3& ca, const glm::dquat& qa, const glm::dvec3& cb,
                       const glm::dquat& qb) const;
   // ... plus the time term (dispersion_time_steps): the distance the dispersion rules use.
-  double ViewDistance(const glm::dvec3& ca, const glm::dquat& qa, ViewId ida,
-                      const glm::dvec3& cb, const glm::dquat& qb, ViewId idb) const;
+  double ViewDistance(const glm::dvec3& ca, const glm::dquat& qa, ViewId ida, double arca,
+                      const glm::dvec3& cb, const glm::dquat& qb, ViewId idb, double arcb) const;
   double ViewDistance(const View& a, const View& b) const {
-    return ViewDistance(a.centre, a.rotation, a.id, b.centre, b.rotation, b.id);
+    return ViewDistance(a.centre, a.rotation, a.id, a.arc, b.centre, b.rotation, b.id, b.arc);
   }
   struct Nearest {
     double d1, d2;     // distances to the nearest and second-nearest other stored view
@@ -379,7 +397,8 @@ class ViewPlanner {
   std::vector<int32_t> obs_scratch_;
   double UniqueLoss(const View& v) const;
   // Adds `weight` to the stored view nearest (pose distance) to the pose; none stored: dropped.
-  void GiveWeight(const glm::dvec3& centre, const glm::dquat& rotation, ViewId id, double weight);
+  void GiveWeight(const glm::dvec3& centre, const glm::dquat& rotation, ViewId id, double arc,
+                  double weight);
   // A view's redundancy from its nearest-neighbour distance d1 and weight
   // (dispersion_weight_exponent β: d1 × (w / d1)^β; β = 0: d1).
   double WeightedSpacing(double d1, double weight) const;
@@ -396,6 +415,10 @@ class ViewPlanner {
   double step_sum_ = 0.0;
   uint64_t step_count_ = 0;
   double time_unit_ = 0.0;
+  double arc_ = 0.0;  // dispersion_time_arc: the travelled pose path so far
+  double time_scale_ = 1.0;  // SetTimeScale (0 until measured when dispersion_time_auto_ref > 0)
+  double Kappa() const { return options_.dispersion_time_steps * time_scale_; }
+  void RecomputeTimeUnit();
 };
 
 }  // namespace exo::planning

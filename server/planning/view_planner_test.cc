@@ -729,6 +729,121 @@ TEST(ViewPlanner, TimeStepsSpreadALingeringStretchAndAreScaleFree) {
   }
 }
 
+// dispersion_time_arc (session 16): the time term's clock is the travelled pose path. The line
+// of the test above, but the camera stands at x = 10 for 200 frames either perfectly still (a
+// synthetic stream's stop: one image repeated) or shaking in yaw by ±1° per frame (a hand-held
+// camera: 7-Scenes turns ~1° per frame while dwelling). The id clock spreads views over both
+// stops; the arc clock keeps at most 2 where nothing moves and spreads them where the camera
+// shakes. A planner restored from its state mid-stand (the travelled path included) ends with
+// the same store as one that never stopped.
+TEST(ViewPlanner, TimeArcClockRunsOnlyWhileTheCameraMoves) {
+  auto stream = [](double shake_deg) {
+    std::vector<std::pair<glm::dvec3, glm::dvec3>> poses;  // eye, target
+    auto add = [&](double x, double yaw_deg) {
+      const double a = glm::radians(yaw_deg);
+      const glm::dvec3 eye(x, 0, 2);
+      poses.push_back({eye, eye + glm::dvec3(std::cos(a), std::sin(a), -1)});
+    };
+    for (double x = 0; x < 10; x += 0.25) add(x, 0);
+    for (int i = 0; i < 200; ++i) add(10, shake_deg * (i % 2 == 0 ? 1 : -1));
+    for (double x = 10.25; x <= 20; x += 0.25) add(x, 0);
+    return poses;
+  };
+  auto options = [](bool arc) {
+    PlannerOptions o;
+    o.max_views = 12;
+    o.cell_size_m = 1.0;
+    o.d_max_m = 2.0;
+    o.tau_max = 0.05;
+    o.dispersion = PlannerOptions::Dispersion::kFirst;
+    o.dispersion_guard = 1e9;
+    o.dispersion_guard_relative = 0;
+    o.dispersion_time_steps = 1.0;
+    o.dispersion_time_arc = arc;
+    return o;
+  };
+  // restart_at > 0: the planner's state is saved after that many frames and loaded into a new one.
+  auto run = [&](bool arc, double shake_deg, size_t restart_at = 0) {
+    auto p = ViewPlanner::Create(options(arc)).value();
+    ViewId id = 1;
+    for (const auto& [eye, target] : stream(shake_deg)) {
+      if (restart_at > 0 && id == restart_at + 1) {
+        StateWriter w;
+        p.SaveState(&w);
+        p = ViewPlanner::Create(options(arc)).value();
+        StateReader r(w.str());
+        EXPECT_TRUE(p.LoadState(&r).ok());
+      }
+      auto d = p.Consider(MakeCandidate(id++, eye, target, p.grid()));
+      EXPECT_TRUE(d.ok()) << d.status();
+    }
+    EXPECT_EQ(p.num_views(), 12u);
+    std::vector<ViewId> ids = p.ViewIds();
+    std::sort(ids.begin(), ids.end());
+    return ids;
+  };
+  auto standing = [](const std::vector<ViewId>& ids) {
+    int n = 0;
+    for (ViewId v : ids) n += v > 40 && v <= 240;
+    return n;
+  };
+  EXPECT_GE(standing(run(false, 0.0)), 4) << "the id clock runs while the camera stands still";
+  EXPECT_LE(standing(run(true, 0.0)), 2) << "the arc clock stops with the camera";
+  const auto shaking = run(true, 1.0);
+  EXPECT_GE(standing(shaking), 4) << "a shaking camera's path keeps growing";
+  EXPECT_LT(standing(shaking), 12) << "the line is still covered";
+  EXPECT_EQ(run(true, 1.0, 140), shaking) << "the travelled path survives a restart";
+}
+
+// dispersion_time_auto_ref (session 16): the time term waits for the caller's measurement of
+// the stream's time-correlated error (SetTimeScale). Unmeasured it is off (the stand keeps at most
+// 2 views, as pose only); at scale 1 it is κ as set (the stand is spread); scales are clamped to
+// [0, 1]; the scale survives a restart.
+TEST(ViewPlanner, TimeAutoScaleFollowsTheMeasurement) {
+  std::vector<double> xs;
+  for (double x = 0; x < 10; x += 0.25) xs.push_back(x);
+  for (int i = 0; i < 200; ++i) xs.push_back(10 + 0.001 * (i % 2));
+  for (double x = 10.25; x <= 20; x += 0.25) xs.push_back(x);
+  PlannerOptions o;
+  o.max_views = 12;
+  o.cell_size_m = 1.0;
+  o.d_max_m = 2.0;
+  o.tau_max = 0.05;
+  o.dispersion = PlannerOptions::Dispersion::kFirst;
+  o.dispersion_guard = 1e9;
+  o.dispersion_guard_relative = 0;
+  o.dispersion_time_steps = 1.0;
+  o.dispersion_time_auto_ref = 0.001;
+  auto run = [&](double scale) {
+    auto p = ViewPlanner::Create(o).value();
+    EXPECT_EQ(p.time_scale(), 0.0);
+    if (scale >= 0) p.SetTimeScale(scale);
+    ViewId id = 1;
+    for (double x : xs) {
+      const glm::dvec3 eye(x, 0, 2);
+      EXPECT_TRUE(p.Consider(MakeCandidate(id++, eye, eye + glm::dvec3(1, 0, -1), p.grid())).ok());
+    }
+    int n = 0;
+    for (ViewId v : p.ViewIds()) n += v > 40 && v <= 240;
+    return std::make_pair(n, p.time_scale());
+  };
+  EXPECT_LE(run(-1).first, 2) << "unmeasured: off";
+  EXPECT_GE(run(1.0).first, 4) << "measured time-correlated error: κ as set";
+  EXPECT_EQ(run(7.0).second, 1.0);
+  EXPECT_EQ(run(-1).second, 0.0);
+  auto p = ViewPlanner::Create(o).value();
+  p.SetTimeScale(0.5);
+  StateWriter w;
+  p.SaveState(&w);
+  auto q = ViewPlanner::Create(o).value();
+  StateReader r(w.str());
+  ASSERT_TRUE(q.LoadState(&r).ok());
+  EXPECT_EQ(q.time_scale(), 0.5);
+  PlannerOptions bad;
+  bad.dispersion_time_auto_ref = -1;
+  EXPECT_FALSE(bad.Validate().ok());
+}
+
 // observe_zero_coverage: a yaw pan from one centre. The second frame's direction to every cell
 // the first already references is the first's, so its φ there is 0. Without the option it never
 // observes those cells: they are not published with it and, once the first frame has left, R(b_k)

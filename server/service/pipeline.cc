@@ -109,7 +109,7 @@ bool Pipeline::Quiesce(double timeout_s, const std::function<void()>& fn) {
 }
 
 namespace {
-constexpr uint32_t kPipelineStateFormat = 0x45585032;  // "EXP2" (session 15: the planner's time steps)
+constexpr uint32_t kPipelineStateFormat = 0x45585033;  // "EXP3" (session 16: the planner's travelled path)
 }  // namespace
 
 absl::StatusOr<std::string> Pipeline::SaveState() const {
