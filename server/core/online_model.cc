@@ -406,8 +406,8 @@ absl::StatusOr<HandOff> OnlinePlanner::Plan(const PlanFrame& f) {
   // time term follows the stream's own time-correlated error.
   if (options_.dispersion_time_auto_ref > 0.0 && f.depth != nullptr && !f.depth->empty()) {
     drift_.Next(*f.depth, f.depth_camera, f.local_from_depth);
-    const double g = drift_.Growth();
-    if (g >= 0.0) planner_.SetTimeScale(g / options_.dispersion_time_auto_ref);
+    if (drift_.Growth() >= 0.0)
+      planner_.SetTimeScale(drift_.TimeScale(options_.dispersion_time_auto_ref));
   }
   // Every frame enters the quality reference window (also frames the governor skips).
   const double quality = options_.frame_quality.gamma > 0 && f.color != nullptr

@@ -846,8 +846,8 @@ class Engine {
         r.model_digest = core::ModelDigest(r.geometry_digest, r.planner_digest);
         r.accepted = st.accepted;
         r.tau_sum = p.tau_sum();
-        r.drift_near = st.planner->drift().MeanNear();
-        r.drift_far = st.planner->drift().MeanFar();
+        r.drift_near = st.planner->drift().Near();
+        r.drift_far = st.planner->drift().Far();
         r.time_scale = p.time_scale();
         if (c.replay_refs) {  // diagnostic: the baselines' references for the same store
           std::sort(selected.begin(), selected.end());

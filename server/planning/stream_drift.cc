@@ -67,33 +67,71 @@ void StreamDrift::Next(const ImageF& depth, const PinholeCamera& camera,
   s.camera.width = w;
   s.camera.height = h;
   s.local_from_depth = local_from_depth;
-  auto measure = [&](const Small& o, double* sum, uint64_t* n) {
+  auto measure = [&](const Small& o, std::vector<uint64_t>* h) {
     const double r = MedianRelativeDisagreement(o.depth, o.camera, o.local_from_depth, s.depth,
                                                 s.camera, s.local_from_depth, options_.min_overlap);
-    if (r >= 0.0) {
-      *sum += r;
-      ++*n;
-    }
+    if (r >= 0.0) ++(*h)[Bin(r)];
   };
-  if (!recent_.empty()) measure(recent_.back(), &sum1_, &n1_);
-  if (static_cast<int>(recent_.size()) == options_.lag) measure(recent_.front(), &suml_, &nl_);
+  if (!recent_.empty()) measure(recent_.back(), &near_);
+  if (static_cast<int>(recent_.size()) == options_.lag) measure(recent_.front(), &far_);
   recent_.push_back(std::move(s));
   while (static_cast<int>(recent_.size()) > options_.lag) recent_.pop_front();
 }
 
+int StreamDrift::Bin(double r) {
+  if (!(r >= 1e-6)) return 0;
+  if (r >= 1.0) return kBins - 1;
+  return std::clamp(1 + static_cast<int>(std::floor(40.0 * (std::log10(r) + 6.0))), 1, kBins - 2);
+}
+
+uint64_t StreamDrift::Count(const std::vector<uint64_t>& h) {
+  uint64_t n = 0;
+  for (uint64_t c : h) n += c;
+  return n;
+}
+
+double StreamDrift::Median(const std::vector<uint64_t>& h) {
+  const uint64_t n = Count(h);
+  if (n == 0) return 0.0;
+  uint64_t seen = 0;
+  for (int b = 0; b < kBins; ++b) {
+    seen += h[b];
+    if (2 * seen >= n) {
+      if (b == 0) return 0.0;
+      if (b == kBins - 1) return 1.0;
+      return std::pow(10.0, (b - 0.5) / 40.0 - 6.0);  // the bin's geometric centre
+    }
+  }
+  return 1.0;
+}
+
 double StreamDrift::Growth() const {
-  if (n1_ < static_cast<uint64_t>(options_.min_pairs) ||
-      nl_ < static_cast<uint64_t>(options_.min_pairs))
+  if (pairs_near() < static_cast<uint64_t>(options_.min_pairs) ||
+      pairs_far() < static_cast<uint64_t>(options_.min_pairs))
     return -1.0;
-  return std::max(0.0, MeanFar() - MeanNear());
+  return std::max(0.0, Far() - Near());
+}
+
+double StreamDrift::TimeScale(double ref) const {
+  const double g = Growth();
+  if (g < 0.0 || !(ref > 0.0)) return 0.0;
+  return std::clamp((g - 0.5 * ref) / (0.5 * ref), 0.0, 1.0);
+}
+
+std::vector<double> StreamDrift::State() const {
+  std::vector<double> s;
+  s.reserve(2 * kBins);
+  for (uint64_t c : near_) s.push_back(static_cast<double>(c));
+  for (uint64_t c : far_) s.push_back(static_cast<double>(c));
+  return s;
 }
 
 void StreamDrift::SetState(const std::vector<double>& s) {
-  if (s.size() != 4) return;
-  sum1_ = s[0];
-  n1_ = static_cast<uint64_t>(s[1]);
-  suml_ = s[2];
-  nl_ = static_cast<uint64_t>(s[3]);
+  if (s.size() != 2 * static_cast<size_t>(kBins)) return;
+  for (int b = 0; b < kBins; ++b) {
+    near_[b] = static_cast<uint64_t>(s[b]);
+    far_[b] = static_cast<uint64_t>(s[kBins + b]);
+  }
 }
 
 }  // namespace exo::planning

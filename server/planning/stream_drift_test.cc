@@ -55,15 +55,19 @@ TEST(StreamDrift, GrowthIsZeroForExactPosesAndPositiveForDrift) {
   };
   const StreamDrift exact = run(0.0);
   ASSERT_GE(exact.Growth(), 0.0);
-  EXPECT_LT(exact.MeanNear(), 1e-3);
-  EXPECT_LT(exact.Growth(), 2e-4) << "near " << exact.MeanNear() << " far " << exact.MeanFar();
+  EXPECT_LT(exact.Near(), 1e-3);
+  EXPECT_LT(exact.Growth(), 2e-4) << "near " << exact.Near() << " far " << exact.Far();
   const StreamDrift drifting = run(1.0);
-  EXPECT_GT(drifting.Growth(), 2e-3) << "near " << drifting.MeanNear() << " far "
-                                     << drifting.MeanFar();
+  EXPECT_GT(drifting.Growth(), 2e-3) << "near " << drifting.Near() << " far "
+                                     << drifting.Far();
   EXPECT_GT(drifting.pairs_far(), 40u);
+  EXPECT_EQ(exact.TimeScale(1e-3), 0.0) << "exact poses: the time term stays off";
+  EXPECT_EQ(drifting.TimeScale(1e-3), 1.0) << "a drifting tracker: the time term is on";
+  EXPECT_EQ(StreamDrift(StreamDriftOptions{}).TimeScale(1e-3), 0.0) << "unmeasured: off";
   StreamDrift restored(StreamDriftOptions{});
   restored.SetState(drifting.State());
   EXPECT_DOUBLE_EQ(restored.Growth(), drifting.Growth());
+  EXPECT_EQ(restored.pairs_far(), drifting.pairs_far());
   StreamDriftOptions bad;
   bad.lag = 1;
   EXPECT_FALSE(bad.Validate().ok());

@@ -180,10 +180,10 @@ struct PlannerOptions {
   // Scale-free like the id clock: no s to measure.
   bool dispersion_time_arc = false;
   // The time term follows the stream's measured time-correlated error (session 16): > 0, the
-  // effective κ is dispersion_time_steps × min(1, g / this), g = the growth of the stream's
-  // depth disagreement from 1 to 15 frames apart (planning/stream_drift.h, measured by the
-  // caller and given with SetTimeScale); until a measurement arrives the time term is off.
-  // 0 = κ as set.
+  // effective κ is dispersion_time_steps × a scale the caller measures and sets (SetTimeScale;
+  // core::OnlinePlanner: StreamDrift::TimeScale(this), 0 while the growth g of the stream's
+  // depth disagreement from 1 to 15 frames apart is below half this, 1 from this on); until a
+  // measurement arrives the time term is off. 0 = κ as set.
   double dispersion_time_auto_ref = 0.0;
   // Which stored views observe a cell (its published references when render_refs_max > 0, the
   // unique-coverage guard's count, the views R(b_k) is rebuilt from). false: the views with

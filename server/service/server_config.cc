@@ -209,7 +209,7 @@ std::vector<ConfigKey> MakeKeys() {
           EXO_FIELD(pipeline.model.dispersion_time_max)),
       Key("planner_dispersion_time_arc", "the time term's clock is the camera's travelled pose path instead of frame ids (a camera standing perfectly still adds no time; docs/planning.md \"Session 16\")",
           EXO_FIELD(pipeline.model.dispersion_time_arc)),
-      Key("planner_dispersion_time_auto_ref", "> 0: the time term's κ is scaled by min(1, g / this), g = the stream's measured growth of depth disagreement from 1 to 15 frames apart (time-correlated error: 0 with exact poses; 0 = κ as set; docs/planning.md \"Session 16\")",
+      Key("planner_dispersion_time_auto_ref", "> 0: the time term is on only where the stream's measured growth g of depth disagreement from 1 to 15 frames apart reaches this (time-correlated error: ~0 with exact poses; off below half of it, linear in between; 0 = κ as set; docs/planning.md \"Session 16\")",
           EXO_FIELD(pipeline.model.dispersion_time_auto_ref)),
       Key("planner_dispersion_rotation_scale", "pose distance when planner_dispersion_m_per_rad is 0: metres per radian of turn = this x d_max, in (0, 1] (docs/planning.md \"Session 15\")",
           EXO_FIELD(pipeline.model.dispersion_rotation_scale)),
