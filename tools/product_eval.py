@@ -128,7 +128,11 @@ def run_fold(args, fold, reg_dir, work):
               "accepted": acks.get("accepted"), "dropped": acks.get("dropped"),
               "rejected": acks.get("rejected"), "rate_hz": args.rate_hz,
               "store_views": c.get("planning.views"), "voxel_m": c.get("geometry.voxel_m"),
-              "cell_m": c.get("planning.cell_m"), "load_1min": round(os.getloadavg()[0], 2)}
+              "cell_m": c.get("planning.cell_m"), "load_1min": round(os.getloadavg()[0], 2),
+              # the planner's time term and the stream drift that switches it (docs/planning.md
+              # "Session 16 (lead)")
+              "time_scale": c.get("planning.time_scale"), "drift_near": c.get("planning.drift_near"),
+              "drift_far": c.get("planning.drift_far")}
     ingest.update(viewer_bytes(os.path.join(work, "viewer.log")))
     meshes = []
     if not args.no_open3d and (args.open3d_folds == "all"
@@ -190,6 +194,13 @@ def check(lines, min_ssim, min_psnr, min_coverage):
     for a in ingest:
         if not a.get("accepted"):
             errs.append("fold %d: no frame accepted: %s" % (a["fold"], a))
+        # Real frames: the tracker's drift makes the depth disagreement grow with time (7-Scenes:
+        # 0.15-0.26 % of the depth from 1 to 15 frames apart), so the server's planner must have
+        # switched its time term on (synthetic streams measure < 0.01 %: off).
+        if a.get("time_scale") is not None and a["time_scale"] < 1.0:
+            errs.append("fold %d: the planner's time term is not on for real frames (scale %s, "
+                        "drift %s -> %s)" % (a["fold"], a["time_scale"], a.get("drift_near"),
+                                             a.get("drift_far")))
     for method in ("lumigraph_product", "vertex_color_ours"):
         if not any(l["method"] == method for l in evals):
             errs.append("no %s result" % method)

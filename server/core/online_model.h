@@ -88,11 +88,15 @@ struct OnlineModelOptions {
   bool dispersion_keep_nearest = false;  // PlannerOptions::dispersion_keep_nearest
   double dispersion_recency = 0.0;       // PlannerOptions::dispersion_recency
   bool dispersion_drop_older = false;    // PlannerOptions::dispersion_drop_older
-  double dispersion_time_steps = 0.0;    // PlannerOptions::dispersion_time_steps
-  bool dispersion_time_max = false;       // PlannerOptions::dispersion_time_max
+  // The time term (session 16 default): κ = 1, max form, on only where the stream's depth
+  // disagreement grows by >= 0.1 % of the depth from 1 to 15 frames apart (time-correlated error:
+  // 7-Scenes 0.26 %, synthetic streams < 0.01 %: there it stays off and the planner is the
+  // pose-only one of session 15). docs/planning.md "Session 16 (lead)".
+  double dispersion_time_steps = 1.0;     // PlannerOptions::dispersion_time_steps
+  bool dispersion_time_max = true;        // PlannerOptions::dispersion_time_max
   bool dispersion_time_arc = false;       // PlannerOptions::dispersion_time_arc
-  double dispersion_time_auto_ref = 0.0;  // PlannerOptions::dispersion_time_auto_ref; the
-                                          // OnlinePlanner measures g (planning/stream_drift.h)
+  double dispersion_time_auto_ref = 0.001;  // PlannerOptions::dispersion_time_auto_ref; the
+                                            // OnlinePlanner measures g (planning/stream_drift.h)
   // PlannerOptions::observe_zero_coverage (session 14): a view observes every cell it sees, also
   // where its φ is 0 (the frames of a yaw pan after the first), so R(b_k) and the published
   // references stay the pre-selection over the views stored now. Long drone stream +0.012 SSIM

@@ -163,6 +163,12 @@ class PlanningStage final : public PipelineStage {
           c.accepted ? publish_ns_ * 1e-6 / static_cast<double>(c.accepted) : 0.0;
       (*out)["planning.digest"] = static_cast<double>(planner_->Digest());
       (*out)["planning.cell_m"] = planner_->setup().cell_m;
+      // The time term's measured switch (planning/stream_drift.h): the stream's depth
+      // disagreement 1 and 15 frames apart and the scale the planner uses (docs/planning.md
+      // "Session 16 (lead)").
+      (*out)["planning.drift_near"] = planner_->drift().Near();
+      (*out)["planning.drift_far"] = planner_->drift().Far();
+      (*out)["planning.time_scale"] = planner_->planner().time_scale();
     }
     (*out)["planning.rebuilt_views"] = static_cast<double>(rebuilt_views_);
     (*out)["planning.rebuild_removed"] = static_cast<double>(rebuild_removed_);
