@@ -11,6 +11,7 @@
 //       [--sizes=640x480,1280x720,1920x1080] [--scene=village|apartment] [--view_size=320x240]
 //       [--pose=k (all frames from novel pose k)] [--background_views=N (sky pass; 0 = off)]
 //       [--fill_holes=0|1 (push-pull fill of uncovered pixels; default 1)] [--n_best=1..4]
+//       [--max_candidates=K (RenderApprox: at most K references per pixel; 0 = exact)]
 // Env: EXO_VULKAN_BENCH_DUMP=<dir> writes every frame + ground truth as PNG.
 #include <algorithm>
 #include <chrono>
