@@ -58,6 +58,15 @@ layout(constant_id = 2) const int kInpainted = 1;
 // Whether frame.weights.x (lambda) is exactly 1: CombinedWeight is then max(w_d, min_weight)
 // exactly (1 * w_d + 0 * w_p with a finite w_p), so the positional weight is compiled out.
 layout(constant_id = 3) const int kLambdaOne = 0;
+// Whether this pipeline has the frame's min_weight and occlusion epsilons (frame.weights.yzw)
+// baked in as constants 6..8 (Pipelines::EnsureBlendPipe: the BlendOptions defaults, used when
+// the frame's values equal them bit for bit). llvmpipe loads a Frame value in a fragment shader
+// as 8 per-lane scalar loads with a bounds test; as constants they are immediates (the same
+// floats, so the same pixels; docs/vulkan.md, issue 16 session 16).
+layout(constant_id = 5) const int kBakedWeights = 0;
+layout(constant_id = 6) const float kBakedMinWeight = 0.0;
+layout(constant_id = 7) const float kBakedEpsAbs = 0.0;
+layout(constant_id = 8) const float kBakedEpsRel = 0.0;
 
 // Background pass (blend.frag, kBlendPassBackground): the screen is drawn as rectangles of
 // 16x16-pixel tiles grouped by the list of background views that can be valid for some ray of
@@ -231,9 +240,9 @@ vec4 ShadeSurface(vec3 x) {
   const vec3 a_unit = a / la;
   const bool a_near = !(la > kMinDistance);
   const float lambda = frame.weights.x;
-  const float min_weight = frame.weights.y;
-  const float eps_abs = frame.weights.z;
-  const float eps_rel = frame.weights.w;
+  const float min_weight = kBakedWeights != 0 ? kBakedMinWeight : frame.weights.y;
+  const float eps_abs = kBakedWeights != 0 ? kBakedEpsAbs : frame.weights.z;
+  const float eps_rel = kBakedWeights != 0 ? kBakedEpsRel : frame.weights.w;
   const int positional = frame.iparams.x;
   BestSamples best;
   best.weight = vec4(0.0);

@@ -109,6 +109,13 @@ absl::StatusOr<Fixture> MakeFixture(synth::SceneKind kind, bool eye_level_sky = 
   return f;
 }
 
+// min_weight and both occlusion epsilons at their defaults (the Vulkan pipelines then bake them).
+bool BlendOptionsHaveDefaultWeights(const blend::BlendOptions& bo) {
+  const blend::BlendOptions d;
+  return bo.min_weight == d.min_weight && bo.occlusion_epsilon_m == d.occlusion_epsilon_m &&
+         bo.occlusion_epsilon_rel == d.occlusion_epsilon_rel;
+}
+
 int MaxDiff(const ImageU8& a, const ImageU8& b) {
   int m = 0;
   for (size_t i = 0; i < a.size(); ++i)
@@ -228,20 +235,44 @@ TEST(GoldenBlendOptionsTest, EveryNBestAndPositionalModeMatchCpuReference) {
   auto gpu_cs = VulkanRenderer::Create(vo);
   ASSERT_TRUE(gpu_cs.ok()) << gpu_cs.status();
   ASSERT_TRUE((*gpu_cs)->SyncModel(fx->model).ok());
-  struct Case { int n; blend::PositionalMode mode; float lambda; };
+  // The last case keeps lambda 1 but changes min_weight and both occlusion epsilons: the
+  // pipelines read them from the Frame block instead of the default values baked in as
+  // specialisation constants (BlendVariant::default_weights); it must change the CPU reference
+  // (checked below), so a GPU path that kept the baked defaults would fail it.
+  struct Case {
+    int n;
+    blend::PositionalMode mode;
+    float lambda;
+    float min_weight = blend::BlendOptions{}.min_weight;
+    float eps_m = blend::BlendOptions{}.occlusion_epsilon_m;
+    float eps_rel = blend::BlendOptions{}.occlusion_epsilon_rel;
+  };
+  auto cpu_default = CpuLumigraphRenderer::Create(fx->model, CpuRenderOptions{});
+  ASSERT_TRUE(cpu_default.ok()) << cpu_default.status();
   for (const Case& k : {Case{1, blend::PositionalMode::kUlrResolution, 0.5f},
                         Case{2, blend::PositionalMode::kPrinted, 0.3f},
-                        Case{4, blend::PositionalMode::kUlrResolution, 0.8f}}) {
+                        Case{4, blend::PositionalMode::kUlrResolution, 0.8f},
+                        Case{3, blend::PositionalMode::kUlrResolution, 1.0f, 0.2f, 0.005f, 0.0f}}) {
     CpuRenderOptions co;
     co.blend.n_best = k.n;
     co.blend.positional_mode = k.mode;
     co.blend.lambda = k.lambda;
+    co.blend.min_weight = k.min_weight;
+    co.blend.occlusion_epsilon_m = k.eps_m;
+    co.blend.occlusion_epsilon_rel = k.eps_rel;
+    const bool custom_weights = !BlendOptionsHaveDefaultWeights(co.blend);
     auto cpu = CpuLumigraphRenderer::Create(fx->model, co);
     ASSERT_TRUE(cpu.ok()) << cpu.status();
-    size_t compared = 0, within = 0;
+    size_t compared = 0, within = 0, changed_by_weights = 0;
     for (size_t i = 1; i < fx->novel.size(); i += 4) {
       auto e = (*cpu)->Render(fx->camera, fx->novel[i]);
       ASSERT_TRUE(e.ok()) << e.status();
+      if (custom_weights) {
+        auto d = (*cpu_default)->Render(fx->camera, fx->novel[i]);
+        ASSERT_TRUE(d.ok()) << d.status();
+        const Agreement ch = Compare(e->color, d->color, d->coverage, e->coverage, d->background);
+        changed_by_weights += ch.compared - ch.within;
+      }
       auto a = (*gpu)->Render(fx->camera, fx->novel[i], co.blend);
       ASSERT_TRUE(a.ok()) << a.status();
       const Agreement ag = Compare(a->color, e->color, e->coverage, a->coverage, e->background);
@@ -258,8 +289,12 @@ TEST(GoldenBlendOptionsTest, EveryNBestAndPositionalModeMatchCpuReference) {
                      e->color, ag.diff);
     }
     const double frac = double(within) / std::max<size_t>(1, compared);
-    fprintf(stderr, "[golden village n=%d mode=%d lambda=%.1f] %zu px, %.5f within 2/255\n", k.n,
-            int(k.mode), k.lambda, compared, frac);
+    fprintf(stderr,
+            "[golden village n=%d mode=%d lambda=%.1f min_weight=%g eps=%g/%g] %zu px, %.5f "
+            "within 2/255 (%zu px changed by the weights vs the defaults)\n",
+            k.n, int(k.mode), k.lambda, k.min_weight, k.eps_m, k.eps_rel, compared, frac,
+            changed_by_weights);
+    if (custom_weights) EXPECT_GT(changed_by_weights, compared / 100) << "case not sensitive";
     EXPECT_GT(compared, size_t(kW * kH) / 4);
     EXPECT_GE(frac, 0.999) << "n " << k.n;
   }

@@ -580,6 +580,7 @@ absl::Status FrameRenderer::DrawBlend(const blend::BlendOptions& bo, int sky_vie
   BlendVariant v;
   v.inpainted = inpainted;
   v.lambda_one = bo.lambda == 1.0f;
+  v.default_weights = BlendVariant::DefaultWeights(bo);
   EXO_RETURN_IF_ERROR(pipes_->EnsureBlendPipe(bo.n_best, v));
   return Draw(color_target_, pipes_->blend_pass(), pipes_->blend_pipe(bo.n_best, v), clear, 4,
               /*deferred=*/true, pipes_->blend_compute_pipe(bo.n_best, v),

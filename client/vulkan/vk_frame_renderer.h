@@ -81,7 +81,7 @@ class FrameRenderer {
   // The deferred blend of one frame into color_target_ (graphics or compute); sky_views: the
   // frame's background views (0: the pass for pixels without surface is not drawn);
   // inpainted: the frame has inpainted keyframes (else the pipeline without their loop); the
-  // pipeline variant also follows bo.lambda == 1 (BlendVariant).
+  // pipeline variant also follows bo.lambda == 1 and the default weights (BlendVariant).
   absl::Status DrawBlend(const blend::BlendOptions& bo, int sky_views, bool inpainted);
   absl::Status Draw(RenderTarget& t, VkRenderPass pass, VkPipeline pipe, const VkClearValue& clear,
                     uint32_t texel_bytes, bool deferred = false,

@@ -1,5 +1,7 @@
 #include "client/vulkan/vk_pipelines.h"
 
+#include <bit>
+
 #include "client/vulkan/vk_view_store.h"
 
 #include <glm/glm.hpp>
@@ -36,8 +38,9 @@ absl::StatusOr<std::unique_ptr<Pipelines>> Pipelines::Create(const Context& ctx,
                                                              /*sampled_output=*/true));
   EXO_ASSIGN_OR_RETURN(p->cellid_pass_, p->CreateRenderPass(VK_FORMAT_R32G32_UINT));
   EXO_ASSIGN_OR_RETURN(p->zdepth_pass_, p->CreateRenderPass(VK_FORMAT_R32_SFLOAT));
-  BlendVariant v;  // the default options: no inpainted keyframe, lambda 1
+  BlendVariant v;  // the default options: no inpainted keyframe, lambda 1, default weights
   v.lambda_one = blend::BlendOptions{}.lambda == 1.0f;
+  v.default_weights = true;
   EXO_RETURN_IF_ERROR(p->EnsureBlendPipe(blend::BlendOptions{}.n_best, v));
   EXO_ASSIGN_OR_RETURN(p->gbuffer_pipe_, p->CreatePipeline(p->gbuffer_pass_.get(), kSpvGbufferFrag,
                                                            sizeof(kSpvGbufferFrag)));
@@ -66,6 +69,15 @@ absl::StatusOr<std::unique_ptr<Pipelines>> Pipelines::Create(const Context& ctx,
   return p;
 }
 
+bool BlendVariant::DefaultWeights(const blend::BlendOptions& bo) {
+  const blend::BlendOptions d;
+  return std::bit_cast<uint32_t>(bo.min_weight) == std::bit_cast<uint32_t>(d.min_weight) &&
+         std::bit_cast<uint32_t>(bo.occlusion_epsilon_m) ==
+             std::bit_cast<uint32_t>(d.occlusion_epsilon_m) &&
+         std::bit_cast<uint32_t>(bo.occlusion_epsilon_rel) ==
+             std::bit_cast<uint32_t>(d.occlusion_epsilon_rel);
+}
+
 absl::Status Pipelines::EnsureBlendPipe(int n_best, BlendVariant v) {
   if (n_best < 1 || n_best > blend::kMaxBlendViews)
     return absl::InvalidArgumentError("n_best out of range");
@@ -74,13 +86,23 @@ absl::Status Pipelines::EnsureBlendPipe(int n_best, BlendVariant v) {
   // Specialisation constants of blend_shade.glsl: 0 = n_best, 1 = which pixels the pipeline
   // shades (kBlendPass: 0 both, the compute path; 1 surface; 2 background at infinity),
   // 2 = whether the frame has inpainted keyframes (kInpainted: 0 compiles their loop out),
-  // 3 = whether lambda is exactly 1 (kLambdaOne: the positional weight is compiled out).
-  int32_t values[4] = {n_best, 0, v.inpainted ? 1 : 0, v.lambda_one ? 1 : 0};
-  const VkSpecializationMapEntry entries[4] = {{0, 0, sizeof(int32_t)},
-                                               {1, sizeof(int32_t), sizeof(int32_t)},
-                                               {2, 2 * sizeof(int32_t), sizeof(int32_t)},
-                                               {3, 3 * sizeof(int32_t), sizeof(int32_t)}};
-  VkSpecializationInfo spec{4, entries, sizeof(values), values};
+  // 3 = whether lambda is exactly 1 (kLambdaOne: the positional weight is compiled out),
+  // 5 = whether 6..8 hold the frame's min_weight, occlusion_epsilon_m and _rel (kBakedWeights:
+  // the defaults; constant 4 is xray_hole.glsl's, not in the blend shaders).
+  const blend::BlendOptions d;
+  int32_t values[8] = {n_best,
+                       0,
+                       v.inpainted ? 1 : 0,
+                       v.lambda_one ? 1 : 0,
+                       v.default_weights ? 1 : 0,
+                       std::bit_cast<int32_t>(d.min_weight),
+                       std::bit_cast<int32_t>(d.occlusion_epsilon_m),
+                       std::bit_cast<int32_t>(d.occlusion_epsilon_rel)};
+  VkSpecializationMapEntry entries[8];
+  const uint32_t ids[8] = {0, 1, 2, 3, 5, 6, 7, 8};
+  for (uint32_t k = 0; k < 8; ++k)
+    entries[k] = {ids[k], uint32_t(k * sizeof(int32_t)), sizeof(int32_t)};
+  VkSpecializationInfo spec{8, entries, sizeof(values), values};
   if (blend_compute_) {
     EXO_ASSIGN_OR_RETURN(b.compute, CreateComputeBlendPipe(spec));
     return absl::OkStatus();

@@ -15,11 +15,19 @@ namespace exo::vk {
 
 // Per-frame choices baked into a blend pipeline as specialisation constants (blend_shade.glsl):
 // the frame has inpainted keyframes (else their loop is compiled out), the blend's lambda is
-// exactly 1 (the positional weight is then multiplied by 0: compiled out, same weights).
+// exactly 1 (the positional weight is then multiplied by 0: compiled out, same weights), the
+// frame's min_weight and occlusion epsilons are the BlendOptions defaults (baked in as
+// constants instead of read per pixel from the Frame block; same floats).
 struct BlendVariant {
   bool inpainted = false;
   bool lambda_one = false;
-  int index() const { return (inpainted ? 1 : 0) | (lambda_one ? 2 : 0); }
+  bool default_weights = false;
+  int index() const {
+    return (inpainted ? 1 : 0) | (lambda_one ? 2 : 0) | (default_weights ? 4 : 0);
+  }
+  static constexpr int kCount = 8;
+  // Whether `bo`'s min_weight and occlusion epsilons are the defaults, bit for bit.
+  static bool DefaultWeights(const blend::BlendOptions& bo);
 };
 
 // What the descriptor set binds; every pointer must be non-null and outlive the next write.
@@ -129,11 +137,12 @@ class Pipelines {
   // Blend pipelines per n_best (specialisation constant 0 of blend.frag / blend.comp: the
   // best-n slots and the n-th-best pick are then compile-time; measured ~6 % of the frame) and
   // per BlendVariant (constant 2, inpainted keyframes: their per-pixel loop cost ~8 % of the
-  // frame even with no keyframe, llvmpipe runs a loop body at least once; constant 3, lambda 1).
+  // frame even with no keyframe, llvmpipe runs a loop body at least once; constant 3, lambda 1;
+  // constants 5..8, the default min_weight and occlusion epsilons).
   struct BlendPipes {
     UniquePipeline surface, sky, compute;
   };
-  BlendPipes blend_pipes_[blend::kMaxBlendViews + 1][4];
+  BlendPipes blend_pipes_[blend::kMaxBlendViews + 1][BlendVariant::kCount];
 };
 
 }  // namespace exo::vk

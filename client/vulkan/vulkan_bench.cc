@@ -11,6 +11,7 @@
 //       [--sizes=640x480,1280x720,1920x1080] [--scene=village|apartment] [--view_size=320x240]
 //       [--pose=k (all frames from novel pose k)] [--background_views=N (sky pass; 0 = off)]
 //       [--fill_holes=0|1 (push-pull fill of uncovered pixels; default 1)] [--n_best=1..4]
+//       [--max_candidates=K (RenderApprox: at most K references per pixel; 0 = exact)]
 // Env: EXO_VULKAN_BENCH_DUMP=<dir> writes every frame + ground truth as PNG.
 #include <algorithm>
 #include <chrono>
@@ -98,6 +99,7 @@ int main(int argc, char** argv) {
   int background_views = blend::BlendOptions{}.background_views;
   bool fill_holes = blend::BlendOptions{}.fill_holes;
   int n_best = blend::BlendOptions{}.n_best;
+  int max_candidates = 0;  // RenderApprox::max_candidates (0 = exact)
   std::string scene_name = "village";
   std::string refs_text = "8,16,32,60", sizes_text = "640x480,1280x720,1920x1080",
               view_size_text = "320x240";
@@ -123,6 +125,9 @@ int main(int argc, char** argv) {
   app.add_option("--fill_holes", fill_holes, "push-pull fill of uncovered pixels (0|1)");
   app.add_option("--n_best", n_best, "views blended per pixel")
       ->check(CLI::Range(1, blend::kMaxBlendViews));
+  app.add_option("--max_candidates", max_candidates,
+                 "RenderApprox::max_candidates: references a pixel evaluates (0 = all, exact)")
+      ->check(CLI::NonNegativeNumber);
   if (auto rc = exo::cli::Parse(app, argc, argv)) return *rc;
   const std::vector<int> refs_list = ParseInts(refs_text, ',');
   const std::vector<int> sizes = ParseInts(sizes_text, 'x');
@@ -196,7 +201,7 @@ int main(int argc, char** argv) {
             novel[fixed_pose >= 0 ? fixed_pose % novel.size() : std::max(0, k - 1) % novel.size()];
         const auto t0 = std::chrono::steady_clock::now();
         const double c0 = ProcessCpuMs();
-        auto out = r->Render(cam, pose, bo);
+        auto out = r->Render(cam, pose, bo, RenderApprox{max_candidates});
         const double cpu_ms = ProcessCpuMs() - c0;
         const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
         if (!out.ok()) { fprintf(stderr, "%s\n", out.status().ToString().c_str()); return 1; }
@@ -283,6 +288,7 @@ int main(int argc, char** argv) {
           {"median_readback_ms", Round(med(rb_v), 2)},
           {"median_rank_ms", Round(med(rank_v), 2)},
           {"n_best", n_best},
+          {"max_candidates", max_candidates},
           {"fill_holes", int(fill_holes)},
           {"median_fill_ms", Round(med(fill_v), 2)},
           {"median_filled_px", Round(med(filled_v), 0)},
