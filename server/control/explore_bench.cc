@@ -569,7 +569,7 @@ RunResult Run(const synth::SynthScene& scene, const RunConfig& rc) {
 // points up to the end; decisions before and after it are summarised by outcome, share of the
 // chosen gain from unknown space, and repeats (a goal within 0.3 m of an earlier goal).
 void PrintRun(const std::string& scene, const std::string& policy, uint64_t seed,
-              const RunResult& res, bool trace) {
+              const RunResult& res, bool trace, const std::vector<double>& levels) {
   nlohmann::json j;
   j["bench"] = "explore_run";
   j["scene"] = scene;
@@ -590,6 +590,23 @@ void PrintRun(const std::string& scene, const std::string& policy, uint64_t seed
       break;
     }
   j["t80_s"] = t80 >= 0 ? nlohmann::json(t80) : nlohmann::json(nullptr);
+  // Flight time and path length to each --levels level (null: not reached).
+  nlohmann::json to_s = nlohmann::json::object(), to_m = nlohmann::json::object();
+  for (double level : levels) {
+    char buf[32];
+    std::snprintf(buf, sizeof(buf), "%g", std::round(level * 1000) / 10);
+    to_s[buf] = nullptr;
+    to_m[buf] = nullptr;
+    for (size_t k = 0; k < res.curve.size(); ++k)
+      if (res.curve[k].second >= level) {
+        to_s[buf] = res.curve[k].first;
+        to_m[buf] = res.path_at[k];
+        break;
+      }
+  }
+  j["flight_s_to"] = to_s;
+  j["path_m_to"] = to_m;
+  j["path_m"] = res.path_m;
   j["plateau_s"] = plateau;
   j["flight_s"] = res.curve.empty() ? 0 : res.curve.back().first;
   auto summarise = [&](bool after) {
@@ -875,7 +892,7 @@ int main(int argc, char** argv) {
           else break;
         alt_at[s30].push_back(c);
       }
-      if (per_run) PrintRun(scene_name, policy, seed0 + r, res, trace_decisions);
+      if (per_run) PrintRun(scene_name, policy, seed0 + r, res, trace_decisions, levels);
       final_seen.push_back(res.final_seen);
       collisions += res.collisions;
       replans += res.replans;
@@ -917,6 +934,17 @@ int main(int argc, char** argv) {
       j["runs_reaching_" + k] = reached[l];
       j["mean_flight_s_to_" + k] = mean(time_to[l]);
       j["mean_path_m_to_" + k] = mean(path_to[l]);
+      // The spread over the runs that reached the level: min, max, standard deviation.
+      for (const auto& [name, v] : {std::pair{"flight_s", &time_to[l]}, std::pair{"path_m", &path_to[l]}}) {
+        if (v->empty()) continue;
+        const double m = *mean(*v).get_ptr<const double*>();
+        double ss = 0;
+        for (double x : *v) ss += (x - m) * (x - m);
+        j[std::string(name) + "_spread_to_" + k] = {
+            {"min", *std::min_element(v->begin(), v->end())},
+            {"max", *std::max_element(v->begin(), v->end())},
+            {"sd", v->size() > 1 ? std::sqrt(ss / (v->size() - 1)) : 0.0}};
+      }
     }
     j["mean_final_coverage"] = mean(final_cov);
     j["mean_final_seen"] = mean(final_seen);
