@@ -717,6 +717,11 @@ int main(int argc, char** argv) {
   app.add_option("--sweep_travel_pitch", eo.sweep_travel_pitch,
                  "with --sweep_fallback: camera pitch (rad) while travelling between sweep points "
                  "at the sweep's altitude (default: level)");
+  app.add_option("--sweep_climb_face_centre", eo.sweep_climb_face_centre,
+                 "autonomous + sweep: on a climb up to a sweep point the camera faces the centre "
+                 "of the points still to fly (false: the leg, session 15)");
+  app.add_option("--sweep_pitch", eo.sweep_pitch,
+                 "autonomous + sweep: camera pitch at the sweep's points (rad, + up)");
   app.add_option("--sweep_pass_m", eo.sweep_pass_m,
                  "with --sweep_fallback: sweep points at the sweep's altitude are passed through "
                  "within this distance, not hovered at (0: hovered at, dwell_s)");
@@ -967,6 +972,8 @@ int main(int argc, char** argv) {
     j["sweep_fallback"] = sweep_fallback;
     j["sweep_climb"] = eo.sweep_climb;
     j["sweep_pass_m"] = eo.sweep_pass_m;
+    j["sweep_pitch"] = eo.sweep_pitch;
+    j["sweep_climb_face_centre"] = eo.sweep_climb_face_centre;
     j["sweep_travel_pitch"] = std::isnan(eo.sweep_travel_pitch)
                                   ? nlohmann::json(nullptr)
                                   : nlohmann::json(eo.sweep_travel_pitch);
