@@ -223,6 +223,7 @@ struct RunConfig {
   std::string dump_cells;
   ExploreOptions eo;
   bool no_return_is_free = false;
+  bool sky_rule = false;  // missing depth carved by OccupancyGrid::SkyRule (a real sensor's)
   // Outdoor scenes: the autonomous mode falls back on the fly-over's path as a sweep
   // (ExploreOptions::sweep) while its best view's gain is mostly unknown space.
   bool sweep_fallback = false;
@@ -391,7 +392,14 @@ RunResult Run(const synth::SynthScene& scene, const RunConfig& rc) {
             for (int dx = -r; dx <= r; ++dx)
               if (glm::length(glm::dvec3(dx, dy, dz)) * cell_m <= dopt.radius_m)
                 g.Set(c + glm::ivec3(dx, dy, dz), Occupancy::kFree);
-        g.CarveDepth(z, cam, pose, 2, rc.carve_range_m, rc.no_return_is_free);
+        if (rc.sky_rule) {  // a real sensor's rule for missing depth (OccupancyGrid::SkyRule)
+          OccupancyGrid::SkyRule sky;
+          sky.up = frame.up;
+          sky.color = &*colour;
+          g.CarveDepth(z, cam, pose, 2, rc.carve_range_m, sky);
+        } else {
+          g.CarveDepth(z, cam, pose, 2, rc.carve_range_m, rc.no_return_is_free);
+        }
         planner.Observe(g, z, cam, pose, 2);
         cov.AddFrame(z, cam, pose, 2);
         alt.AddFrame(z, cam, pose, 2);
@@ -708,6 +716,11 @@ int main(int argc, char** argv) {
                  "pixels without depth (the renderer's sky) carve free space to 5 m; off: they "
                  "carve nothing and the sky inside the navigable box stays unknown");
   bool sweep_fallback = false;
+  bool sky_rule = false;
+  app.add_option("--sky_rule", sky_rule,
+                 "pixels without depth carve free space only where they look like sky (above "
+                 "the horizon, nothing measured above them in the image column, bright and "
+                 "blue: OccupancyGrid::SkyRule, a rule for real sensors); overrides --sky_is_free");
   app.add_option("--sweep_fallback", sweep_fallback,
                  "outdoor scenes: the autonomous mode flies the fly-over's path as a sweep while "
                  "its best view's gain is mostly (> 90 %) unknown space (ExploreOptions::sweep)");
@@ -832,6 +845,7 @@ int main(int argc, char** argv) {
   base.dwell_s = dwell_s;
   base.grid_margin_m = grid_margin_m;
   base.no_return_is_free = no_return_is_free;
+  base.sky_rule = sky_rule;
   base.sweep_fallback = sweep_fallback;
   base.dump_cells = dump_cells;
   base.metric = scene_scale ? scene_derived : fixed_scale;
@@ -969,6 +983,7 @@ int main(int argc, char** argv) {
     j["dwell_s"] = dwell_s;
     j["grid_margin_m"] = grid_margin_m;
     j["sky_is_free"] = no_return_is_free;
+    j["sky_rule"] = sky_rule;
     j["sweep_fallback"] = sweep_fallback;
     j["sweep_climb"] = eo.sweep_climb;
     j["sweep_pass_m"] = eo.sweep_pass_m;
