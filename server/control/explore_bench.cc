@@ -224,6 +224,7 @@ struct RunConfig {
   ExploreOptions eo;
   bool no_return_is_free = false;
   bool sky_rule = false;  // missing depth carved by OccupancyGrid::SkyRule (a real sensor's)
+  double sky_min_elevation_rad = -0.1;
   // Outdoor scenes: the autonomous mode falls back on the fly-over's path as a sweep
   // (ExploreOptions::sweep) while its best view's gain is mostly unknown space.
   bool sweep_fallback = false;
@@ -396,6 +397,7 @@ RunResult Run(const synth::SynthScene& scene, const RunConfig& rc) {
           OccupancyGrid::SkyRule sky;
           sky.up = frame.up;
           sky.color = &*colour;
+          sky.min_elevation_rad = rc.sky_min_elevation_rad;
           g.CarveDepth(z, cam, pose, 2, rc.carve_range_m, sky);
         } else {
           g.CarveDepth(z, cam, pose, 2, rc.carve_range_m, rc.no_return_is_free);
@@ -721,6 +723,9 @@ int main(int argc, char** argv) {
                  "pixels without depth carve free space only where they look like sky (above "
                  "the horizon, nothing measured above them in the image column, bright and "
                  "blue: OccupancyGrid::SkyRule, a rule for real sensors); overrides --sky_is_free");
+  double sky_min_elevation_rad = -0.1;
+  app.add_option("--sky_min_elevation_rad", sky_min_elevation_rad,
+                 "--sky_rule: the lowest ray elevation a missing depth is taken as sky at (rad)");
   app.add_option("--sweep_fallback", sweep_fallback,
                  "outdoor scenes: the autonomous mode flies the fly-over's path as a sweep while "
                  "its best view's gain is mostly (> 90 %) unknown space (ExploreOptions::sweep)");
@@ -846,6 +851,7 @@ int main(int argc, char** argv) {
   base.grid_margin_m = grid_margin_m;
   base.no_return_is_free = no_return_is_free;
   base.sky_rule = sky_rule;
+  base.sky_min_elevation_rad = sky_min_elevation_rad;
   base.sweep_fallback = sweep_fallback;
   base.dump_cells = dump_cells;
   base.metric = scene_scale ? scene_derived : fixed_scale;
@@ -984,6 +990,7 @@ int main(int argc, char** argv) {
     j["grid_margin_m"] = grid_margin_m;
     j["sky_is_free"] = no_return_is_free;
     j["sky_rule"] = sky_rule;
+    j["sky_min_elevation_rad"] = sky_min_elevation_rad;
     j["sweep_fallback"] = sweep_fallback;
     j["sweep_climb"] = eo.sweep_climb;
     j["sweep_pass_m"] = eo.sweep_pass_m;
