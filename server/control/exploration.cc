@@ -305,6 +305,20 @@ std::optional<NextView> ExplorationPlanner::NextSweepView(const SafeFlight& safe
     // Passing through: facing the leg flown (as the fly-over does), not the next one.
     if (v.pass_m > 0 && glm::length(frame.Horizontal(p - from)) > 1.0)
       v.pose.yaw = frame.YawOf(p - from);
+    if (options_.sweep_climb_face_centre && frame.Height(p) >= want - tol &&
+        frame.Height(from) < want - tol) {
+      // A climb up to the sweep's altitude: face the centre of the points still to fly (see
+      // ExploreOptions).
+      glm::dvec3 centre(0.0);
+      int m = 0;
+      for (size_t j = k + 1; j < n; ++j)
+        if (!swept_[j]) {
+          centre += sweep_[j];
+          ++m;
+        }
+      if (m > 0 && glm::length(frame.Horizontal(centre / double(m) - p)) > 1.0)
+        v.pose.yaw = frame.YawOf(centre / double(m) - p);
+    }
     v.path_m = dist[*hit];
     v.sweep_index = static_cast<int>(sweep_reversed_ ? n - 1 - k : k);
     swept_[k] = true;

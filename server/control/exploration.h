@@ -95,6 +95,11 @@ struct ExploreOptions {
   // one once within this distance (m) and the next decision follows at once, so that it flies
   // the sweep as a path without stopping at every point (0: hover as at any view).
   double sweep_pass_m = 1.0;
+  // Climbing up a line of sight to a sweep point at the sweep's altitude (the drone more than
+  // sweep_climb_tolerance_m below it), the camera faces the centre of the sweep points still to fly, not the leg: the
+  // climb enters the sweep at its end, a corner, and facing the leg looks out of the scene
+  // (session 16). false: facing the leg (session 15).
+  bool sweep_climb_face_centre = true;
 };
 
 // A Hilbert-curve sweep (order `order`: 4^order points, in order) over the horizontal box

@@ -238,6 +238,31 @@ TEST(Exploration, SweepClimbLooksAtThePointBeforeFlyingUpTheLineOfSight) {
   EXPECT_DOUBLE_EQ(first->pitch, o.sweep_pitch);
   EXPECT_EQ(first->pass_m, o.sweep_pass_m);
   EXPECT_TRUE(safe.Plan(look->pose.position, first->pose.position).ok());
+  //    Climbing, the camera faces the centre of the points still to fly, not the leg
+  //    (session 16: the climb enters the sweep at a corner, and facing the leg looked out of
+  //    the scene); with sweep_climb_face_centre off, the leg. Here the two agree roughly (the
+  //    drone came from the sweep's side); below, from the north, they do not.
+  const glm::dvec3 centre = (o.sweep[1] + o.sweep[2] + o.sweep[3]) / 3.0;
+  EXPECT_NEAR(WrapAngle(first->pose.yaw - frame.YawOf(centre - first->pose.position)), 0.0, 1e-9);
+  for (const bool face_centre : {true, false}) {
+    ExploreOptions n = o;
+    n.sweep_climb_face_centre = face_centre;
+    ExplorationPlanner r(n);
+    SafeFlight s2 = MakeOutdoor();
+    const glm::dvec3 north{5, 25, 1.5};
+    auto l2 = r.Autonomous(s2, north, frame);
+    ASSERT_TRUE(l2.has_value());
+    ASSERT_TRUE(l2->climb);
+    EXPECT_GT(l2->pose.position.y, 8.0);  // looked at (5, 5) from the north
+    CarveAlong(&s2, l2->pose.position, o.sweep[0], 1.0);
+    auto f2 = r.Autonomous(s2, l2->pose.position, frame);
+    ASSERT_TRUE(f2.has_value());
+    EXPECT_EQ(f2->sweep_index, 0);
+    const double leg = frame.YawOf(f2->pose.position - l2->pose.position);  // ~ south
+    const double mid = frame.YawOf(centre - f2->pose.position);             // ~ north-east
+    EXPECT_GT(std::abs(WrapAngle(leg - mid)), 1.5);
+    EXPECT_NEAR(WrapAngle(f2->pose.yaw - (face_centre ? mid : leg)), 0.0, 1e-9) << face_centre;
+  }
   // 3. The next point (6 m on, not seen): a look from where the drone is, level (pitch 0:
   //    the point is at the drone's height), facing it.
   auto next = p.Autonomous(safe, first->pose.position, frame);

@@ -223,6 +223,8 @@ struct RunConfig {
   std::string dump_cells;
   ExploreOptions eo;
   bool no_return_is_free = false;
+  bool sky_rule = false;  // missing depth carved by OccupancyGrid::SkyRule (a real sensor's)
+  double sky_min_elevation_rad = -0.1;
   // Outdoor scenes: the autonomous mode falls back on the fly-over's path as a sweep
   // (ExploreOptions::sweep) while its best view's gain is mostly unknown space.
   bool sweep_fallback = false;
@@ -391,7 +393,15 @@ RunResult Run(const synth::SynthScene& scene, const RunConfig& rc) {
             for (int dx = -r; dx <= r; ++dx)
               if (glm::length(glm::dvec3(dx, dy, dz)) * cell_m <= dopt.radius_m)
                 g.Set(c + glm::ivec3(dx, dy, dz), Occupancy::kFree);
-        g.CarveDepth(z, cam, pose, 2, rc.carve_range_m, rc.no_return_is_free);
+        if (rc.sky_rule) {  // a real sensor's rule for missing depth (OccupancyGrid::SkyRule)
+          OccupancyGrid::SkyRule sky;
+          sky.up = frame.up;
+          sky.color = &*colour;
+          sky.min_elevation_rad = rc.sky_min_elevation_rad;
+          g.CarveDepth(z, cam, pose, 2, rc.carve_range_m, sky);
+        } else {
+          g.CarveDepth(z, cam, pose, 2, rc.carve_range_m, rc.no_return_is_free);
+        }
         planner.Observe(g, z, cam, pose, 2);
         cov.AddFrame(z, cam, pose, 2);
         alt.AddFrame(z, cam, pose, 2);
@@ -569,7 +579,7 @@ RunResult Run(const synth::SynthScene& scene, const RunConfig& rc) {
 // points up to the end; decisions before and after it are summarised by outcome, share of the
 // chosen gain from unknown space, and repeats (a goal within 0.3 m of an earlier goal).
 void PrintRun(const std::string& scene, const std::string& policy, uint64_t seed,
-              const RunResult& res, bool trace) {
+              const RunResult& res, bool trace, const std::vector<double>& levels) {
   nlohmann::json j;
   j["bench"] = "explore_run";
   j["scene"] = scene;
@@ -590,6 +600,23 @@ void PrintRun(const std::string& scene, const std::string& policy, uint64_t seed
       break;
     }
   j["t80_s"] = t80 >= 0 ? nlohmann::json(t80) : nlohmann::json(nullptr);
+  // Flight time and path length to each --levels level (null: not reached).
+  nlohmann::json to_s = nlohmann::json::object(), to_m = nlohmann::json::object();
+  for (double level : levels) {
+    char buf[32];
+    std::snprintf(buf, sizeof(buf), "%g", std::round(level * 1000) / 10);
+    to_s[buf] = nullptr;
+    to_m[buf] = nullptr;
+    for (size_t k = 0; k < res.curve.size(); ++k)
+      if (res.curve[k].second >= level) {
+        to_s[buf] = res.curve[k].first;
+        to_m[buf] = res.path_at[k];
+        break;
+      }
+  }
+  j["flight_s_to"] = to_s;
+  j["path_m_to"] = to_m;
+  j["path_m"] = res.path_m;
   j["plateau_s"] = plateau;
   j["flight_s"] = res.curve.empty() ? 0 : res.curve.back().first;
   auto summarise = [&](bool after) {
@@ -691,6 +718,14 @@ int main(int argc, char** argv) {
                  "pixels without depth (the renderer's sky) carve free space to 5 m; off: they "
                  "carve nothing and the sky inside the navigable box stays unknown");
   bool sweep_fallback = false;
+  bool sky_rule = false;
+  app.add_option("--sky_rule", sky_rule,
+                 "pixels without depth carve free space only where they look like sky (above "
+                 "the horizon, nothing measured above them in the image column, bright and "
+                 "blue: OccupancyGrid::SkyRule, a rule for real sensors); overrides --sky_is_free");
+  double sky_min_elevation_rad = -0.1;
+  app.add_option("--sky_min_elevation_rad", sky_min_elevation_rad,
+                 "--sky_rule: the lowest ray elevation a missing depth is taken as sky at (rad)");
   app.add_option("--sweep_fallback", sweep_fallback,
                  "outdoor scenes: the autonomous mode flies the fly-over's path as a sweep while "
                  "its best view's gain is mostly (> 90 %) unknown space (ExploreOptions::sweep)");
@@ -700,6 +735,11 @@ int main(int argc, char** argv) {
   app.add_option("--sweep_travel_pitch", eo.sweep_travel_pitch,
                  "with --sweep_fallback: camera pitch (rad) while travelling between sweep points "
                  "at the sweep's altitude (default: level)");
+  app.add_option("--sweep_climb_face_centre", eo.sweep_climb_face_centre,
+                 "autonomous + sweep: on a climb up to a sweep point the camera faces the centre "
+                 "of the points still to fly (false: the leg, session 15)");
+  app.add_option("--sweep_pitch", eo.sweep_pitch,
+                 "autonomous + sweep: camera pitch at the sweep's points (rad, + up)");
   app.add_option("--sweep_pass_m", eo.sweep_pass_m,
                  "with --sweep_fallback: sweep points at the sweep's altitude are passed through "
                  "within this distance, not hovered at (0: hovered at, dwell_s)");
@@ -810,6 +850,8 @@ int main(int argc, char** argv) {
   base.dwell_s = dwell_s;
   base.grid_margin_m = grid_margin_m;
   base.no_return_is_free = no_return_is_free;
+  base.sky_rule = sky_rule;
+  base.sky_min_elevation_rad = sky_min_elevation_rad;
   base.sweep_fallback = sweep_fallback;
   base.dump_cells = dump_cells;
   base.metric = scene_scale ? scene_derived : fixed_scale;
@@ -875,7 +917,7 @@ int main(int argc, char** argv) {
           else break;
         alt_at[s30].push_back(c);
       }
-      if (per_run) PrintRun(scene_name, policy, seed0 + r, res, trace_decisions);
+      if (per_run) PrintRun(scene_name, policy, seed0 + r, res, trace_decisions, levels);
       final_seen.push_back(res.final_seen);
       collisions += res.collisions;
       replans += res.replans;
@@ -917,6 +959,17 @@ int main(int argc, char** argv) {
       j["runs_reaching_" + k] = reached[l];
       j["mean_flight_s_to_" + k] = mean(time_to[l]);
       j["mean_path_m_to_" + k] = mean(path_to[l]);
+      // The spread over the runs that reached the level: min, max, standard deviation.
+      for (const auto& [name, v] : {std::pair{"flight_s", &time_to[l]}, std::pair{"path_m", &path_to[l]}}) {
+        if (v->empty()) continue;
+        const double m = *mean(*v).get_ptr<const double*>();
+        double ss = 0;
+        for (double x : *v) ss += (x - m) * (x - m);
+        j[std::string(name) + "_spread_to_" + k] = {
+            {"min", *std::min_element(v->begin(), v->end())},
+            {"max", *std::max_element(v->begin(), v->end())},
+            {"sd", v->size() > 1 ? std::sqrt(ss / (v->size() - 1)) : 0.0}};
+      }
     }
     j["mean_final_coverage"] = mean(final_cov);
     j["mean_final_seen"] = mean(final_seen);
@@ -936,9 +989,13 @@ int main(int argc, char** argv) {
     j["dwell_s"] = dwell_s;
     j["grid_margin_m"] = grid_margin_m;
     j["sky_is_free"] = no_return_is_free;
+    j["sky_rule"] = sky_rule;
+    j["sky_min_elevation_rad"] = sky_min_elevation_rad;
     j["sweep_fallback"] = sweep_fallback;
     j["sweep_climb"] = eo.sweep_climb;
     j["sweep_pass_m"] = eo.sweep_pass_m;
+    j["sweep_pitch"] = eo.sweep_pitch;
+    j["sweep_climb_face_centre"] = eo.sweep_climb_face_centre;
     j["sweep_travel_pitch"] = std::isnan(eo.sweep_travel_pitch)
                                   ? nlohmann::json(nullptr)
                                   : nlohmann::json(eo.sweep_travel_pitch);

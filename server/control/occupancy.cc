@@ -88,6 +88,42 @@ void OccupancyGrid::Set(const glm::ivec3& c, Occupancy s) {
 void OccupancyGrid::CarveDepth(const ImageF& depth_m, const PinholeCamera& camera,
                                const Rigid3d& frame_from_cam, int stride, double max_range_m,
                                bool no_return_is_free) {
+  CarveDepthWhere(depth_m, camera, frame_from_cam, stride, max_range_m,
+                  [&](int, int, const glm::dvec3&) { return no_return_is_free; });
+}
+
+void OccupancyGrid::CarveDepth(const ImageF& depth_m, const PinholeCamera& camera,
+                               const Rigid3d& frame_from_cam, int stride, double max_range_m,
+                               const SkyRule& sky) {
+  if (depth_m.empty()) return;
+  // Per column, the first row with a measurement (the sky lies above it).
+  std::vector<int> first_return(depth_m.width(), depth_m.height());
+  for (int x = 0; x < depth_m.width(); ++x)
+    for (int y = 0; y < depth_m.height(); ++y) {
+      const float z = depth_m.at(x, y);
+      if (z > 0 && std::isfinite(z)) {
+        first_return[x] = y;
+        break;
+      }
+    }
+  const glm::dvec3 up = glm::normalize(sky.up);
+  const double min_sin = std::sin(sky.min_elevation_rad);
+  const bool colour = sky.color && sky.color->width() == depth_m.width() &&
+                      sky.color->height() == depth_m.height() && sky.color->channels() >= 3;
+  CarveDepthWhere(depth_m, camera, frame_from_cam, stride, max_range_m,
+                  [&](int x, int y, const glm::dvec3& dir) {
+                    if (y >= first_return[x] || glm::dot(dir, up) < min_sin) return false;
+                    if (!colour) return true;
+                    const double r = sky.color->at(x, y, 0), g = sky.color->at(x, y, 1),
+                                 b = sky.color->at(x, y, 2);
+                    return b >= sky.min_blue && b >= r + sky.blue_margin && b >= g;
+                  });
+}
+
+template <typename IsSky>
+void OccupancyGrid::CarveDepthWhere(const ImageF& depth_m, const PinholeCamera& camera,
+                                    const Rigid3d& frame_from_cam, int stride,
+                                    double max_range_m, const IsSky& is_sky) {
   if (depth_m.empty() || camera.width <= 0 || camera.fx <= 0) return;
   stride = std::max(1, stride);
   // The depth image may be a downscaled version of the camera.
@@ -99,12 +135,12 @@ void OccupancyGrid::CarveDepth(const ImageF& depth_m, const PinholeCamera& camer
     for (int x = stride / 2; x < depth_m.width(); x += stride) {
       float z = depth_m.at(x, y);
       const bool no_return = !(z > 0) || !std::isfinite(z);
-      if (no_return && !no_return_is_free) continue;
-      if (no_return) z = std::numeric_limits<float>::infinity();  // free to max_range_m
       const glm::dvec2 uv((x + 0.5) * sx - 0.5, (y + 0.5) * sy - 0.5);
       const glm::dvec3 ray = frame_from_cam.rotation * camera.RayZ1(uv);
-      const double range = z * glm::length(ray);
       const glm::dvec3 dir = glm::normalize(ray);
+      if (no_return && !is_sky(x, y, dir)) continue;
+      if (no_return) z = std::numeric_limits<float>::infinity();  // free to max_range_m
+      const double range = z * glm::length(ray);
       const bool hit = range <= max_range_m;
       const double free_until = std::min(range, max_range_m) - (hit ? step : 0.0);
       for (double t = 0; t < free_until; t += step) Set(CellOf(eye + t * dir), Occupancy::kFree);

@@ -77,6 +77,27 @@ class OccupancyGrid {
   // may be a dark or shiny surface).
   void CarveDepth(const ImageF& depth_m, const PinholeCamera& camera, const Rigid3d& frame_from_cam,
                   int stride = 4, double max_range_m = 5.0, bool no_return_is_free = false);
+  // Which pixels without a measurement are sky, for a real sensor (session 16): a missing
+  // depth is taken as "nothing within range" only where the ray points above
+  // `min_elevation_rad` (`up`: the scene's up; default 0.1 rad below the horizon, where from
+  // an altitude the ground lies beyond any sensor's range and the renderer's sky carves the
+  // air at the drone's own height; 0.05 above cost the village's drone 4 points of coverage
+  // at 120 s, 3 seeds), every pixel above it in its
+  // image column has no measurement either (the sky touches the image's top edge: a dark
+  // window or a black car under something measured is not sky; the camera is assumed to have
+  // no roll, as a gimbal's), and, with `color` (linear RGB, the depth image's size), the pixel
+  // is bright and blue (b >= min_blue, b >= r + blue_margin, b >= g: a black or grey surface
+  // is not). Still a guess: a bright blue surface filling the top of the view would be carved.
+  struct SkyRule {
+    glm::dvec3 up{0.0, 0.0, 1.0};
+    double min_elevation_rad = -0.1;
+    const ImageF* color = nullptr;
+    double min_blue = 0.25, blue_margin = 0.08;
+  };
+  // As above; pixels without a measurement carve free space up to max_range_m where `sky`
+  // says they are sky.
+  void CarveDepth(const ImageF& depth_m, const PinholeCamera& camera, const Rigid3d& frame_from_cam,
+                  int stride, double max_range_m, const SkyRule& sky);
   // The TSDF's evidence; `frame_from_local` maps the TSDF's local frame to the grid's frame.
   void MarkFromTsdf(const TsdfVolume& volume, const glm::dvec3& frame_from_local_offset);
   // Cells crossed by the triangles are occupied.
@@ -90,6 +111,12 @@ class OccupancyGrid {
   const std::vector<uint8_t>& ClearMask() const;
 
  private:
+  // CarveDepth's loop: a pixel without a measurement carves free space where is_sky(x, y,
+  // unit ray direction) says so.
+  template <typename IsSky>
+  void CarveDepthWhere(const ImageF& depth_m, const PinholeCamera& camera,
+                       const Rigid3d& frame_from_cam, int stride, double max_range_m,
+                       const IsSky& is_sky);
   explicit OccupancyGrid(const OccupancyOptions& options);
   void Recompute() const;
 

@@ -310,6 +310,58 @@ TEST(Occupancy, CarvingADepthImageFreesTheRaysAndOccupiesTheHits) {
   EXPECT_FALSE(OccupancyGrid::Create(OccupancyOptions{}).ok());
 }
 
+// A real sensor's missing depth (session 16): only sky is carved — above the horizon, nothing
+// measured above it in its column, bright and blue; the renderer's rule (no_return_is_free)
+// carves every missing pixel.
+TEST(Occupancy, SkyRuleCarvesOnlyTheSkyOfARealSensorsMissingDepth) {
+  OccupancyOptions o;
+  o.min = {0, 0, 0};
+  o.max = {4, 4, 3};
+  ImageF depth;
+  PinholeCamera cam;
+  Rigid3d pose;
+  PlaneDepth(&depth, &cam, &pose);  // level, looking along +x; image left = +y, top = +z
+  ImageF colour(128, 96, 3, 0.0f);
+  for (int y = 0; y < 96; ++y)
+    for (int x = 0; x < 128; ++x) {
+      depth.at(x, y) = 0.0f;  // no return ...
+      const bool dark = x >= 96;  // ... a dark grey surface on the right, blue sky elsewhere
+      colour.at(x, y, 0) = dark ? 0.05f : 0.2f;
+      colour.at(x, y, 1) = dark ? 0.05f : 0.3f;
+      colour.at(x, y, 2) = dark ? 0.05f : 0.6f;
+    }
+  for (int y = 20; y < 30; ++y)  // a measured surface in the left half, above the horizon
+    for (int x = 0; x < 64; ++x) depth.at(x, y) = 1.95f;
+  const glm::dvec3 sky_left(3.0, 2.79, 2.44), under_measured(3.0, 2.79, 1.69),
+      sky_right(3.0, 1.59, 2.44), dark_right(3.0, 0.79, 2.44), below_horizon(3.0, 1.59, 0.94);
+  auto carve = [&](auto&& how) {
+    auto g = OccupancyGrid::Create(o);
+    EXO_CHECK(g.ok());
+    how(*g);
+    return *std::move(g);
+  };
+  OccupancyGrid::SkyRule rule;
+  rule.color = &colour;
+  const OccupancyGrid sky = carve([&](OccupancyGrid& g) { g.CarveDepth(depth, cam, pose, 1, 5.0, rule); });
+  EXPECT_EQ(sky.At(sky_left), Occupancy::kFree);
+  EXPECT_EQ(sky.At(sky_right), Occupancy::kFree);
+  EXPECT_EQ(sky.At(under_measured), Occupancy::kUnknown);  // something measured above it
+  EXPECT_EQ(sky.At(dark_right), Occupancy::kUnknown);      // not sky-coloured
+  EXPECT_EQ(sky.At(below_horizon), Occupancy::kUnknown);   // below the horizon
+  EXPECT_EQ(sky.At(glm::dvec3(2.45, 2.79, 1.94)), Occupancy::kOccupied);  // the measured surface
+  // Without colour the dark surface counts as sky; the renderer's rule carves everything.
+  rule.color = nullptr;
+  const OccupancyGrid grey = carve([&](OccupancyGrid& g) { g.CarveDepth(depth, cam, pose, 1, 5.0, rule); });
+  EXPECT_EQ(grey.At(dark_right), Occupancy::kFree);
+  EXPECT_EQ(grey.At(under_measured), Occupancy::kUnknown);
+  const OccupancyGrid all = carve([&](OccupancyGrid& g) { g.CarveDepth(depth, cam, pose, 1, 5.0, true); });
+  for (const glm::dvec3& p : {sky_left, under_measured, sky_right, dark_right, below_horizon})
+    EXPECT_EQ(all.At(p), Occupancy::kFree);
+  const OccupancyGrid none = carve([&](OccupancyGrid& g) { g.CarveDepth(depth, cam, pose, 1, 5.0, false); });
+  for (const glm::dvec3& p : {sky_left, under_measured, sky_right, dark_right, below_horizon})
+    EXPECT_EQ(none.At(p), Occupancy::kUnknown);
+}
+
 TEST(Occupancy, TsdfViewMarksFrontFreeAndSurfaceOccupied) {
   TsdfOptions to;
   to.voxel_size_m = 0.04f;
