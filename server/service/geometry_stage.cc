@@ -310,6 +310,17 @@ class GeometryStage final : public PipelineStage {
     const int64_t t0 = SteadyNowNs();
     const TsdfVolume& vol = geometry_->volume();
     auto in_dirty = [&](uint64_t id) { return std::binary_search(dirty.begin(), dirty.end(), id); };
+    // The drone's map keeps the observed mesh of every chunk whose clients' mesh is (or was) the
+    // overlay's, noted before the labelled mesh is published (observed_chunks.h).
+    if (ObservedChunks* obs = link_->observed()) {
+      auto labelled = [&](uint64_t id) {
+        return surface_->Affects(id) || overlay_version_.contains(id) || in_dirty(id);
+      };
+      for (const MeshChunk& c : u->chunks)
+        if (labelled(c.id)) obs->Set(c.id, c.mesh);
+      for (uint64_t id : u->removed)
+        if (labelled(id)) obs->Set(id, TriangleMesh{});
+    }
     std::vector<MeshChunk> chunks;
     chunks.reserve(u->chunks.size());
     std::vector<uint64_t> removed;
@@ -353,6 +364,8 @@ class GeometryStage final : public PipelineStage {
       // Neither affected now nor published by the overlay before: the clients have the observed
       // mesh, as they should.
       if (!surface_->Affects(key) && !overlay_version_.contains(key)) continue;
+      if (ObservedChunks* obs = link_->observed(); obs && !obs->Contains(key))
+        obs->Set(key, vol.ExtractBlock(key));  // before its labelled mesh goes out
       TriangleMesh mesh = surface_->ExtractBlock(vol, key);
       if (!pending_.contains(key) && !mesh.empty() && options_.refresh_min_move_voxels > 0.0) {
         // Unchanged since its publication (e.g. inpainted values that were all erased there).
@@ -453,6 +466,11 @@ class GeometryStage final : public PipelineStage {
     if (!r.done()) GetUnorderedPod(&r, &overlay_version_);  // absent in older checkpoints
     EXO_RETURN_IF_ERROR(r.Status("geometry stage"));
     if (!r.done()) return absl::DataLossError("geometry stage state: trailing bytes");
+    // The store's chunks of the checkpoint are the labelled ones: the drone's map gets their
+    // observed mesh from the restored volume.
+    if (link_ && link_->observed())
+      for (const auto& [key, version] : overlay_version_)
+        link_->observed()->Set(key, geometry_->volume().ExtractBlock(key));
     return absl::OkStatus();
   }
 

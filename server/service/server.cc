@@ -827,7 +827,8 @@ absl::Status ExoviewServer::Start() {
   EXO_ASSIGN_OR_RETURN(delta_log_, MakeDeltaLog(config_.delta_log));
   EXO_RETURN_IF_ERROR(delta_log_->Open(store_.get(), store_is_authority));
   // The stages after the checkpoint and the log replay: a restarted stage sees the restored model.
-  EXO_ASSIGN_OR_RETURN(auto stages, MakeStages(config_, regions_, store_.get(), &inpainting_));
+  EXO_ASSIGN_OR_RETURN(auto stages, MakeStages(config_, regions_, store_.get(), &inpainting_,
+                                               observed_chunks_));
   pipeline_ = std::make_unique<Pipeline>(config_.pipeline, store_.get(), std::move(stages));
   // The pipeline's state at the checkpoint (scene set-up, TSDF, planner): the journal replay and
   // the next frames continue exactly as an uninterrupted server would have (issue 20).
@@ -838,7 +839,9 @@ absl::Status ExoviewServer::Start() {
                                 "rebuild from the stored views instead",
                                 std::string(s.message()));
       pipeline_state.clear();
-      EXO_ASSIGN_OR_RETURN(auto fresh, MakeStages(config_, regions_, store_.get(), &inpainting_));
+      observed_chunks_->Clear();  // what the failed restore put there (control has not started)
+      EXO_ASSIGN_OR_RETURN(auto fresh, MakeStages(config_, regions_, store_.get(), &inpainting_,
+                                                  observed_chunks_));
       pipeline_ = std::make_unique<Pipeline>(config_.pipeline, store_.get(), std::move(fresh));
     }
   }
@@ -921,7 +924,8 @@ absl::Status ExoviewServer::Start() {
                                        config_.control, store_.get(),
                                        [svc](const grpc::ServerContext& ctx, Rpc rpc) {
                                          return svc->AuthorizeCall(ctx, rpc);
-                                       }));
+                                       },
+                                       observed_chunks_));
   }
   grpc::EnableDefaultHealthCheckService(true);
   // Server reflection: grpcurl-style tools list exoview.v1.Exoview and fetch its descriptors.

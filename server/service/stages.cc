@@ -12,7 +12,7 @@ std::vector<std::string> AvailableStages() {
 
 absl::StatusOr<std::vector<std::unique_ptr<PipelineStage>>> MakeStages(
     const ServerConfig& config, std::shared_ptr<RegionRegistry> regions, ModelStore* store,
-    InpaintingStage** inpainting) {
+    InpaintingStage** inpainting, std::shared_ptr<ObservedChunks> observed) {
   std::vector<std::unique_ptr<PipelineStage>> stages;
   core::OnlineModelOptions model = config.pipeline.model;
   if (!config.planning_cell_areas) model.cell_areas = false;
@@ -21,7 +21,7 @@ absl::StatusOr<std::vector<std::unique_ptr<PipelineStage>>> MakeStages(
   // chunks (geometry_stage.h inpaint_fuse).
   std::shared_ptr<InpaintedProxyLink> link;
   if (regions && store && config.enable_geometry && config.geometry.inpaint_fuse)
-    link = std::make_shared<InpaintedProxyLink>(regions);
+    link = std::make_shared<InpaintedProxyLink>(regions, std::move(observed));
   if (config.enable_geometry) {
     if (config.enable_planning) handoff = std::make_shared<GeometryHandoff>();
     GeometryStageOptions go = config.geometry;
