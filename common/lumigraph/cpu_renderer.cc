@@ -333,7 +333,8 @@ absl::StatusOr<CpuRenderOutput> CpuLumigraphRenderer::Render(const PinholeCamera
         const glm::vec3 p(raster.position_local.at(x, y, 0), raster.position_local.at(x, y, 1),
                           raster.position_local.at(x, y, 2));
         // InpaintFusion (SPEC §7, 4.17-4.18): a surface point inside an inpainted keyframe's ROI
-        // (its label at the point's projection is L_IP) is blended from the inpainted keyframes
+        // (its label at the point's projection is L_IP and the point is not hidden behind the
+        // keyframe's surface: blend::InpaintedLabelHolds) is blended from the inpainted keyframes
         // whose ROI holds it only; everywhere else only the cell's observed references count.
         bool in_roi = false;
         blend::BestN best = blend::EmptyBestN();
@@ -352,11 +353,12 @@ absl::StatusOr<CpuRenderOutput> CpuLumigraphRenderer::Render(const PinholeCamera
         };
         for (int vi : inpainted) {
           const ViewData& vd = views_[vi];
-          const blend::Projection proj = blend::ProjectToView(p, vd.params);
-          if (!proj.in_front || !blend::InsideImage(proj.uv, vd.params.size)) continue;
-          const int lx = std::clamp(static_cast<int>(std::floor(proj.uv.x + 0.5f)), 0, vd.params.size.x - 1);
-          const int ly = std::clamp(static_cast<int>(std::floor(proj.uv.y + 0.5f)), 0, vd.params.size.y - 1);
-          if (vd.labels->at(lx, ly) == 0) continue;
+          const ImageU8& labels = *vd.labels;
+          const ImageF& depth = *vd.depth;
+          if (!blend::InpaintedLabelHolds(
+                  p, vd.params, bo, [&](glm::ivec2 q) { return labels.at(q.x, q.y) != 0; },
+                  [&](glm::ivec2 q) { return depth.at(q.x, q.y); }))
+            continue;
           in_roi = true;
           consider(vi);
         }
