@@ -44,6 +44,23 @@ struct CompletionOptions {
   // their depth are skipped (an occlusion edge).
   int mesh_step_px = 4;
   double mesh_jump_rel = 0.1;
+  // The colour in the holes (session 16): PatchMatch copies plausible texture, but where the
+  // hidden surface differs it copies the wrong texture, and its mean colour with it (session 15:
+  // 2.1-2.7 dB below a push-pull fill inside the holes). With detail_gain >= 0 the holes take the
+  // push-pull fill of the render (its low frequencies: the MSE-optimal smooth guess) plus
+  // detail_gain times PatchMatch's high frequencies (its colour minus its Gaussian blur of
+  // detail_sigma_px): texture without shifting the mean. < 0: PatchMatch's colour as it is.
+  // completion_bench (docs/inpainting.md "Session 16"): in PSNR and SSIM every gain > 0 loses to
+  // 0 (PatchMatch's texture is uncorrelated with the hidden surface), so 0: the low frequencies
+  // only; PatchMatch + Poisson still give the void holes' depth.
+  double detail_gain = 0.0;
+  double detail_sigma_px = 3.0;
+  // Session 16: where a surface hole's proxy surface carries fused colour (the chunks' vertex
+  // colours: the TSDF's running mean over every frame fused there, an observation even where no
+  // stored view covers it), that colour is the keyframe's there (known to PatchMatch, which then
+  // fills only the pixels without it: void holes, uncoloured surface). Chunks without vertex
+  // colours (the wire's format 3 carries none) are not used.
+  bool use_vertex_color = true;
   absl::Status Validate() const;
 };
 
@@ -54,6 +71,7 @@ struct CompletionHoles {
   ImageU8 holes;       // 255 = hole (surface or void)
   ImageU8 known;       // 255 = covered or background (the render shows something there)
   int hole_px = 0, surface_hole_px = 0, void_hole_px = 0;
+  int fused_color_px = 0;  // CompleteView: surface-hole pixels coloured from the proxy's vertex colour
   int covered_px = 0, background_px = 0;
   double render_ms = 0;
 };
