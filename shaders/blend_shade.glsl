@@ -333,11 +333,11 @@ vec4 ShadeSurface(vec3 x) {
 
   vec3 srgb;
   const bool covered = BlendBest(best, n, srgb);
-  return vec4(srgb, covered ? 1.0 : 128.0 / 255.0);
+  return vec4(srgb, covered ? (in_roi ? 224.0 / 255.0 : 1.0) : 128.0 / 255.0);  // 224: inpainted
 }
 
-// rgb = sRGB, a = coverage (1 blended, 128/255 surface without a valid view, 64/255 no surface
-// but filled at infinity, 0 no surface).
+// rgb = sRGB, a = coverage (1 blended, 224/255 blended from inpainted views, 128/255 surface
+// without a valid view, 64/255 no surface but filled at infinity, 0 no surface).
 vec4 ShadePixel(ivec2 pixel) {
   const vec4 g = texelFetch(gbuffer, pixel, 0);
   if (g.w == 0.0) return ShadeBackground(pixel);  // no proxy surface

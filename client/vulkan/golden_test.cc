@@ -132,7 +132,8 @@ Agreement Compare(const ImageU8& actual, const ImageU8& expected, const ImageU8&
   double se = 0;
   for (int y = 0; y < actual.height(); ++y)
     for (int x = 0; x < actual.width(); ++x) {
-      const bool cpu_blend = cpu_cov.at(x, y) != 0, gpu_blend = gpu_cov.at(x, y) == 2;
+      const bool cpu_blend = cpu_cov.at(x, y) != 0,
+                 gpu_blend = gpu_cov.at(x, y) == 2 || gpu_cov.at(x, y) == 4;
       const bool cpu_fill = cpu_bg.at(x, y) != 0, gpu_fill = gpu_cov.at(x, y) == 3;
       if (!cpu_blend && !gpu_blend && !cpu_fill && !gpu_fill) continue;
       ++a.compared;
@@ -495,7 +496,7 @@ void InpaintedKeyframesMatchCpuReference(float depth_scale) {
   ASSERT_TRUE((*gpu)->SyncModel(fx->model).ok());
   auto cpu = CpuLumigraphRenderer::Create(fx->model, co);
   ASSERT_TRUE(cpu.ok()) << cpu.status();
-  size_t compared = 0, within = 0, changed = 0;
+  size_t compared = 0, within = 0, changed = 0, ip_cpu = 0, ip_both = 0, ip_gpu = 0;
   for (size_t i = 0; i < fx->novel.size(); i += 2) {
     auto e = (*cpu)->Render(fx->camera, fx->novel[i]);
     ASSERT_TRUE(e.ok()) << e.status();
@@ -511,7 +512,18 @@ void InpaintedKeyframesMatchCpuReference(float depth_scale) {
                              << " coverage mismatches, " << ag.value_mismatch << " of "
                              << ag.compared;
     if (ag.psnr < 40.0) WriteFailure("inpainted_" + std::to_string(i), a->color, e->color, ag.diff);
+    // The pixels blended from inpainted views (the window's tint): CPU mask vs GPU code 4.
+    for (size_t j = 0; j < e->inpainted.size(); ++j) {
+      const bool c = e->inpainted.data()[j] != 0, g = a->coverage.data()[j] == 4;
+      ip_cpu += c;
+      ip_gpu += g;
+      ip_both += c && g;
+    }
   }
+  fprintf(stderr, "[golden inpainted, depth x%.1f] blended from inpainted views: %zu px (CPU), "
+          "%zu (GPU), %zu both\n", depth_scale, ip_cpu, ip_gpu, ip_both);
+  EXPECT_GE(double(ip_both), 0.999 * double(std::max(ip_cpu, ip_gpu)));
+  if (depth_scale >= 1.0f) EXPECT_GT(ip_cpu, size_t(kW * kH / 10));
   const double frac = double(within) / std::max<size_t>(1, compared);
   fprintf(stderr, "[golden inpainted, depth x%.1f] %zu px, %.5f within 2/255, %zu channel values "
           "changed by ROIs\n", depth_scale, compared, frac, changed);

@@ -214,6 +214,7 @@ absl::StatusOr<CpuRenderOutput> CpuLumigraphRenderer::Render(const PinholeCamera
   CpuRenderOutput out;
   out.color = ImageU8(w, h, 3);
   out.coverage = ImageU8(w, h, 1, 0);
+  out.inpainted = ImageU8(w, h, 1, 0);
   if (options_.debug_weights) {
     out.weight_sum = ImageF(w, h, 1, 0.0f);
     out.num_views = ImageU8(w, h, 1, 0);
@@ -378,6 +379,7 @@ absl::StatusOr<CpuRenderOutput> CpuLumigraphRenderer::Render(const PinholeCamera
         if (blend::Resolve(acc, bo.background_srgb, &srgb)) {
           for (int c = 0; c < 3; ++c) out.color.at(x, y, c) = blend::UnitToU8(srgb[c]);
           out.coverage.at(x, y) = 255;
+          if (in_roi) out.inpainted.at(x, y) = 255;
           ++covered[t];
         }
         if (options_.debug_weights) {

@@ -51,9 +51,10 @@ struct CompletionOptions {
   // detail_gain times PatchMatch's high frequencies (its colour minus its Gaussian blur of
   // detail_sigma_px): texture without shifting the mean. < 0: PatchMatch's colour as it is.
   // completion_bench (docs/inpainting.md "Session 16"): in PSNR and SSIM every gain > 0 loses to
-  // 0 (PatchMatch's texture is uncorrelated with the hidden surface), so 0: the low frequencies
-  // only; PatchMatch + Poisson still give the void holes' depth.
-  double detail_gain = 0.0;
+  // 0 (PatchMatch's texture is uncorrelated with the hidden surface), but at 0 the completion's
+  // colour IS the push-pull fill the viewer already sees (no texture at all); 0.5 keeps half the
+  // texture for -0.38 dB against push-pull (session 15's PatchMatch colour: -2.09 dB).
+  double detail_gain = 0.5;
   double detail_sigma_px = 3.0;
   // Session 16: where a surface hole's proxy surface carries fused colour (the chunks' vertex
   // colours: the TSDF's running mean over every frame fused there, an observation even where no
