@@ -71,6 +71,8 @@ absl::Status CompletionOptions::Validate() const {
   if (!(mesh_jump_rel > 0.0)) return absl::InvalidArgumentError("completion mesh_jump_rel must be > 0");
   if (!std::isfinite(detail_gain) || detail_gain > 4.0)
     return absl::InvalidArgumentError("completion detail_gain must be < 0 (off) or in [0, 4]");
+  if (!(vertex_color_depth_tol_m >= 0.0 && vertex_color_depth_tol_m <= 1.0))
+    return absl::InvalidArgumentError("completion vertex_color_depth_tol_m must be in [0, 1]");
   if (!(detail_sigma_px >= 0.5 && detail_sigma_px <= 64.0))
     return absl::InvalidArgumentError("completion detail_sigma_px must be in [0.5, 64]");
   return absl::OkStatus();
@@ -202,7 +204,8 @@ TriangleMesh MeshFromDepth(const ImageF& depth_m, const ImageU8& mask, const Pin
 absl::StatusOr<CompletionResult> CompleteView(const LumigraphModel& model,
                                               const PinholeCamera& camera,
                                               const Rigid3d& local_from_cam,
-                                              const CompletionOptions& options) {
+                                              const CompletionOptions& options,
+                                              const TriangleMesh* coloured_proxy) {
   const double t0 = WallMs(), c0 = CpuMs();
   CompletionResult out;
   EXO_ASSIGN_OR_RETURN(out.before, FindHoles(model, camera, local_from_cam, options));
@@ -235,12 +238,15 @@ absl::StatusOr<CompletionResult> CompleteView(const LumigraphModel& model,
   // pixels of the keyframe; PatchMatch fills the rest (`fill`).
   ImageU8 fill = hb.holes;
   if (options.use_vertex_color && hb.surface_hole_px > 0) {
-    TriangleMesh coloured;
-    for (const auto& [id, c] : model.chunks)
-      if (!c.mesh.empty() && c.mesh.colors.size() == c.mesh.positions.size() &&
-          c.mesh.normals.empty() == coloured.normals.empty())
-        coloured.Append(c.mesh);
-    if (!coloured.empty()) {
+    TriangleMesh own;
+    if (!coloured_proxy)
+      for (const auto& [id, c] : model.chunks)
+        if (!c.mesh.empty() && c.mesh.colors.size() == c.mesh.positions.size() &&
+            c.mesh.normals.empty() == own.normals.empty())
+          own.Append(c.mesh);
+    const TriangleMesh& coloured = coloured_proxy ? *coloured_proxy : own;
+    const float tol = static_cast<float>(options.vertex_color_depth_tol_m);
+    if (!coloured.empty() && coloured.colors.size() == coloured.positions.size()) {
       RasterOptions rs;
       rs.z_depth = true;
       rs.position = true;
@@ -253,7 +259,7 @@ absl::StatusOr<CompletionResult> CompleteView(const LumigraphModel& model,
           const uint32_t t = cr.triangle_id.at(x, y);
           if (!hb.holes.at(x, y) || !(zp > 0.0f) || t == kNoTriangle) continue;
           // The coloured surface must be the proxy's front surface there.
-          if (std::fabs(cr.z_depth_m.at(x, y) - zp) > 1e-3f * zp + 1e-4f) continue;
+          if (std::fabs(cr.z_depth_m.at(x, y) - zp) > std::max(1e-3f * zp + 1e-4f, tol)) continue;
           const glm::vec3 p(cr.position_local.at(x, y, 0), cr.position_local.at(x, y, 1),
                             cr.position_local.at(x, y, 2));
           const uint32_t* tri = &coloured.indices[3 * size_t(t)];

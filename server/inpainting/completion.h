@@ -62,6 +62,10 @@ struct CompletionOptions {
   // fills only the pixels without it: void holes, uncoloured surface). Chunks without vertex
   // colours (the wire's format 3 carries none) are not used.
   bool use_vertex_color = true;
+  // The coloured surface must lie within this of the proxy's depth at the pixel (max with 0.1 %
+  // of the depth): a separate coloured mesh (CompleteView's `coloured_proxy`, the server's
+  // full-resolution chunks) differs from the published, simplified proxy by the LOD's error.
+  double vertex_color_depth_tol_m = 0.02;
   absl::Status Validate() const;
 };
 
@@ -99,10 +103,13 @@ absl::StatusOr<CompletionHoles> FindHoles(const LumigraphModel& model, const Pin
 // Completes the holes of `model` at the camera (see the file comment). Errors: invalid options or
 // camera, non-finite pose (INVALID_ARGUMENT); nothing modelled in view or no valid source patch
 // (FAILED_PRECONDITION).
+// `coloured_proxy` (may be null): a mesh with vertex colours for the colour guide
+// (use_vertex_color) instead of the model's chunks that carry colours.
 absl::StatusOr<CompletionResult> CompleteView(const LumigraphModel& model,
                                               const PinholeCamera& camera,
                                               const Rigid3d& local_from_cam,
-                                              const CompletionOptions& options);
+                                              const CompletionOptions& options,
+                                              const TriangleMesh* coloured_proxy = nullptr);
 
 // A mesh (scene-local) of `depth_m` over the pixels of `mask` (!= 0) dilated by `step_px`: grid
 // vertices every `step_px`, quads with all four corners at valid depth whose depths differ by at

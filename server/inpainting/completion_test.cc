@@ -185,6 +185,26 @@ TEST(Completion, SurfaceHolesTakeTheProxysFusedColour) {
               err / n, err_off / n);
   EXPECT_LT(err / n, 6.0);
   EXPECT_LT(err / n, 0.5 * err_off / n);
+
+  // The server's way: the model's chunks without colours (as on the wire), the coloured mesh
+  // handed separately (the geometry stage's full-resolution chunks), 1 cm off the proxy: the
+  // same pixels take it (within vertex_color_depth_tol_m).
+  LumigraphModel plain = model;
+  plain.chunks[1].mesh.colors.clear();
+  auto r_plain = CompleteView(plain, cam, pose, Options());
+  ASSERT_TRUE(r_plain.ok()) << r_plain.status();
+  EXPECT_EQ(r_plain->before.fused_color_px, 0);
+  TriangleMesh separate = mesh;
+  for (glm::vec3& p : separate.positions) p.z += 0.01f;
+  auto r_sep = CompleteView(plain, cam, pose, Options(), &separate);
+  ASSERT_TRUE(r_sep.ok()) << r_sep.status();
+  // (720 of 840 measured: the shifted mesh's edge at x = 0.6 m projects a few columns inwards)
+  EXPECT_GE(r_sep->before.fused_color_px, h.surface_hole_px * 8 / 10);
+  CompletionOptions tight = Options();
+  tight.vertex_color_depth_tol_m = 0.0;  // 1 cm off at 2 m is beyond 0.1 % of the depth
+  auto r_tight = CompleteView(plain, cam, pose, tight, &separate);
+  ASSERT_TRUE(r_tight.ok()) << r_tight.status();
+  EXPECT_EQ(r_tight->before.fused_color_px, 0);
 }
 
 TEST(Completion, NothingToCompleteWhereTheViewsSeeEverything) {

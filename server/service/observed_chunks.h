@@ -10,6 +10,8 @@
 // once here stays here (its observed mesh is kept up to date, also after the regions are
 // cleared), so a reader ignores the published deltas of every id Contains() reports and applies
 // TakeChanged() instead. Thread-safe.
+// A second instance (ServerConfig: completion with geometry) holds every chunk's full-resolution
+// observed mesh with its fused vertex colours (no normals) for scene completion's colour guide.
 #pragma once
 
 #include <cstdint>
@@ -41,6 +43,15 @@ class ObservedChunks {
     out.reserve(changed_.size());
     for (uint64_t id : changed_) out.emplace_back(id, meshes_.at(id));
     changed_.clear();
+    return out;
+  }
+  // Every mesh held, appended (those with vertex colours of their size, or all when none has
+  // colours): the server's coloured proxy for scene completion (completion_stage.h).
+  TriangleMesh Merged() const {
+    std::lock_guard lock(mu_);
+    TriangleMesh out;
+    for (const auto& [id, m] : meshes_)
+      if (!m.empty() && m.colors.size() == m.positions.size() && m.normals.empty()) out.Append(m);
     return out;
   }
   void Clear() {

@@ -179,6 +179,9 @@ class ExoviewServer {
   InpaintingStage* inpainting_ = nullptr;    // owned by pipeline_
   // The labelled proxy's chunks as observed: geometry stage -> drone control (observed_chunks.h).
   std::shared_ptr<ObservedChunks> observed_chunks_ = std::make_shared<ObservedChunks>();
+  // Every chunk at full resolution with its fused vertex colours: geometry stage -> scene
+  // completion's colour guide (null without completion).
+  std::shared_ptr<ObservedChunks> coloured_chunks_;
   std::unique_ptr<CompletionStage> completion_;  // null with completion off
   std::unique_ptr<Durability> durability_;
   std::unique_ptr<Service> service_;

@@ -18,5 +18,6 @@ class ObservedChunks;
 absl::StatusOr<std::vector<std::unique_ptr<PipelineStage>>> MakeStages(
     const ServerConfig& config, std::shared_ptr<RegionRegistry> regions = nullptr,
     ModelStore* store = nullptr, InpaintingStage** inpainting = nullptr,
-    std::shared_ptr<ObservedChunks> observed = nullptr);
+    std::shared_ptr<ObservedChunks> observed = nullptr,
+    std::shared_ptr<ObservedChunks> coloured = nullptr);  // completion's colour guide
 }  // namespace exo
