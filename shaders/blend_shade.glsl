@@ -270,13 +270,15 @@ vec4 ShadeSurface(vec3 x) {
     if (!(uv.x >= -0.5 && uv.y >= -0.5 && uv.x < size.x - 0.5 && uv.y < size.y - 0.5)) continue;
     const vec2 pc = clamp(floor(uv + 0.5), vec2(0.0), size - 1.0);
     if (!(texelFetch(colors, ivec3(ivec2(pc), layer), 0).a > 0.5)) continue;
-    in_roi = true;
     const vec4 ce = texelFetch(view_texels, base + 3);
     const float lb = length(ce.xyz - x);
     const float z_stored = imageLoad(depths, ivec3(ivec2(pc), layer)).r;
-    if (!ValidDepth(z_stored)) continue;
     const float range_d = z_stored * lb / z;
-    if (lb > range_d + frame.weights.z + frame.weights.w * range_d) continue;
+    // The label holds only where x is not behind the keyframe's surface (blend_math.h InpaintedLabelHolds).
+    const bool hidden = ValidDepth(z_stored) && lb > range_d + frame.weights.z + frame.weights.w * range_d;
+    if (hidden) continue;
+    in_roi = true;
+    if (!ValidDepth(z_stored)) continue;
     // The shared weight functions (lumigraph_common.glsl = blend_math.h), not the inlined copies
     // of the reference loop below: this block follows any change of the weights by itself.
     const float w_d = DirectionalWeight(x, c_o, ce.xyz);
@@ -340,11 +342,11 @@ vec4 ShadeSurface(vec3 x) {
 
   vec3 srgb;
   const bool covered = BlendBest(best, n, srgb);
-  return vec4(srgb, covered ? 1.0 : 128.0 / 255.0);
+  return vec4(srgb, covered ? (in_roi ? 224.0 / 255.0 : 1.0) : 128.0 / 255.0);  // 224: inpainted
 }
 
-// rgb = sRGB, a = coverage (1 blended, 128/255 surface without a valid view, 64/255 no surface
-// but filled at infinity, 0 no surface).
+// rgb = sRGB, a = coverage (1 blended, 224/255 blended from inpainted views, 128/255 surface
+// without a valid view, 64/255 no surface but filled at infinity, 0 no surface).
 vec4 ShadePixel(ivec2 pixel) {
   const vec4 g = texelFetch(gbuffer, pixel, 0);
   if (g.w == 0.0) return ShadeBackground(pixel);  // no proxy surface

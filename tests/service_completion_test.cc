@@ -175,6 +175,18 @@ TEST_F(ServiceCompletion, ViewerCompletesWhatNobodyObservedEveryViewerGetsIt) {
   EXPECT_GT(reply.model_version(), version0);
   EXPECT_GT(reply.total_ms(), 0.0);
   std::cout << "completion: " << reply.ShortDebugString() << "\n";
+  // Session 16: the surface holes take the geometry stage's fused vertex colour (the published
+  // chunks carry none; the server hands the full-resolution coloured chunks to the completion).
+  {
+    const v1::Stats s = Stats();
+    const double fused = s.counters().at("completion.fused_color_px_total");
+    std::cout << "surface hole px " << reply.surface_hole_px() << ", of them with fused colour "
+              << fused << "\n";
+    if (reply.surface_hole_px() >= 20) {
+      EXPECT_GT(fused, 0.5 * reply.surface_hole_px());
+    }
+    EXPECT_LE(fused, double(reply.surface_hole_px()));
+  }
 
   // Every viewer gets it: a second viewer's snapshot, and the first one resuming.
   auto other = Viewer();

@@ -28,6 +28,7 @@
 #include "common/synth/render.h"
 #include "common/synth/scene.h"
 #include "common/synth/trajectory.h"
+#include "proto/control.grpc.pb.h"
 #include "proto/exoview.grpc.pb.h"
 #include "proto/frame_proto.h"
 #include "tests/dr_chair_scene.h"
@@ -88,6 +89,33 @@ Frame BoxFrame(int k) {
   return f;
 }
 
+// The same walk before a SOLID box (x in [-0.3, 0], |y| < 0.25, z in [1.5, 1.8]) 20 cm in front
+// of the wall: front, sides, top and bottom faces (the walk sees the front and the right side).
+Frame SolidBoxFrame(int k) {
+  auto in_box = [](const glm::dvec3& p, int skip) {
+    const double lo[3] = {-0.3, -0.25, 1.5}, hi[3] = {0.0, 0.25, 1.8};
+    for (int a = 0; a < 3; ++a)
+      if (a != skip && (p[a] < lo[a] - 1e-9 || p[a] > hi[a] + 1e-9)) return false;
+    return true;
+  };
+  const std::vector<WorldPlane> scene = {
+      {glm::dvec3(0, 0, -1), -2.0, nullptr},
+      {glm::dvec3(0, 0, -1), -1.5, [=](const glm::dvec3& p) { return in_box(p, 2); }},
+      {glm::dvec3(1, 0, 0), 0.0, [=](const glm::dvec3& p) { return in_box(p, 0); }},
+      {glm::dvec3(-1, 0, 0), 0.3, [=](const glm::dvec3& p) { return in_box(p, 0); }},
+      {glm::dvec3(0, -1, 0), 0.25, [=](const glm::dvec3& p) { return in_box(p, 1); }},
+      {glm::dvec3(0, 1, 0), 0.25, [=](const glm::dvec3& p) { return in_box(p, 1); }}};
+  const auto kf = RenderPlanes(scene, Cam(), PoseAt(-0.15 + 0.02 * k));
+  Frame f;
+  f.sequence = k + 1;
+  f.timestamp_s = 0.1 * (k + 1);
+  f.color_camera = f.depth_camera = Cam();
+  f.color = kf.color;
+  f.depth_m = kf.depth_m;
+  f.world_from_cam = kf.world_from_cam;
+  return f;
+}
+
 class ServiceInpainting : public testing::ServerProcessTest {
  protected:
   // Vertices of a viewer's proxy on the marked part of the box face (z = 1.5 m; the strokes below
@@ -105,24 +133,25 @@ class ServiceInpainting : public testing::ServerProcessTest {
       }
     return n;
   }
-  void Start(const std::string& log) {
+  void Start(const std::string& log, std::vector<std::string> extra = {}) {
     // admission_block: every frame of the walk is processed (the assertions count frames; at
     // load 15 one of 18 frames was dropped at admission without it).
-    StartServer({"--checkpoint_path=" + dir_ + "/model.ckpt", "--checkpoint_interval_s=0.2",
-                 "--admission_block=true",
-                 "--voxel_size_m=0.04", "--mesh_every_n_frames=1", "--inpaint_radius_px=12",
-                 "--inpaint_depth_tol_m=0.1", "--log_level=debug"},
-                log);
+    std::vector<std::string> flags = {
+        "--checkpoint_path=" + dir_ + "/model.ckpt", "--checkpoint_interval_s=0.2",
+        "--admission_block=true", "--voxel_size_m=0.04", "--mesh_every_n_frames=1",
+        "--inpaint_radius_px=12", "--inpaint_depth_tol_m=0.1", "--log_level=debug"};
+    flags.insert(flags.end(), extra.begin(), extra.end());
+    StartServer(flags, log);
     stub_ = v1::Exoview::NewStub(MakeChannel(target_));
   }
   // Frames [first, first + n) of a sideways walk from x = -0.15 m in 2 cm steps.
-  void Upload(int first, int n, double rate_hz = 0) {
+  void Upload(int first, int n, double rate_hz = 0, Frame (*frame)(int) = BoxFrame) {
     UploadOptions o;
     o.rate_hz = rate_hz;
     auto st = UploadStream(
         MakeChannel(target_), n,
         [&](size_t i) -> absl::StatusOr<v1::Frame> {
-          return FrameToProto(BoxFrame(first + static_cast<int>(i)), {});
+          return FrameToProto(frame(first + static_cast<int>(i)), {});
         },
         o);
     ASSERT_TRUE(st.ok()) << st.status();
@@ -335,6 +364,104 @@ TEST_F(ServiceInpainting, MarkInpaintPublishRestartAndClear) {
   EXPECT_TRUE(InpaintedViews().empty());
   // ... and the box comes back into the viewer's proxy at once (no frame needed).
   EXPECT_GT(BoxProxyVertices() * 2, box_before);
+}
+
+// The drone's map keeps a removed object (issue 18): the clients' proxy has the marked box face
+// carved, but the control service ray-casts and routes in the OBSERVED geometry (the box is
+// physically there). The operator gazes at the marked part of the box face: the gaze hits the
+// face (not the wall behind it), and the route to the viewpoint stays out of the box; the same
+// after a restart from the checkpoint (the observed chunks come from the restored TSDF).
+TEST_F(ServiceInpainting, DroneGazesAtTheRemovedObjectsObservedSurface) {
+  // Camera frame: y down; the zone spans the walk and the space before the box and the wall.
+  const std::vector<std::string> control = {"--control_zones=room:-0.9,-0.7,-0.3,0.9,0.7,1.95",
+                                            "--control_up=0,-1,0"};
+  Start("server1.log", control);
+  ASSERT_NO_FATAL_FAILURE(Upload(0, 8, 0, SolidBoxFrame));
+  WaitProcessed();
+  const size_t box_before = BoxProxyVertices();
+  ASSERT_GE(box_before, 6u);
+  const Rigid3d here = PoseAt(-0.01);  // the camera of frame 7
+  v1::MarkRegionReply reply;
+  const grpc::Status mark = Mark({{62, 55}, {66, 62}}, here, &reply);
+  ASSERT_TRUE(mark.ok()) << mark.error_message() << server_->Log();
+  ASSERT_NO_FATAL_FAILURE(Upload(8, 18, 20, SolidBoxFrame));
+  const v1::Stats s = WaitProcessed("geometry.inpaint_keyframes_fused", 1);
+  EXPECT_GE(s.counters().at("inpainting.keyframes_published"), 1.0);
+  // The viewers' proxy has the marked part of the box face carved.
+  const size_t box_after = BoxProxyVertices();
+  std::printf("box face vertices in the viewer's proxy: %zu before the mark, %zu after\n",
+              box_before, box_after);
+  ASSERT_LE(box_after * 4, box_before);
+
+  namespace cv1 = exoview::control::v1;
+  uint64_t op_seq = 0;
+  auto gaze_and_check = [&](const std::string& when) {
+    auto stub = cv1::Control::NewStub(MakeChannel(target_));
+    // The drone side: one state at the camera of frame 7 (the control core needs a drone).
+    grpc::ClientContext link_ctx;
+    auto link = stub->DroneLink(&link_ctx);
+    cv1::DroneState st;
+    st.set_drone_id("drone");
+    st.set_sequence(1);
+    st.set_timestamp_s(1.0);
+    st.mutable_position()->set_x(-0.01);
+    ASSERT_TRUE(link->Write(st));
+    for (int i = 0; i < 200; ++i) {
+      grpc::ClientContext ctx;
+      cv1::ControlState cs;
+      ASSERT_TRUE(stub->GetControlState(&ctx, cv1::ControlStateRequest(), &cs).ok());
+      if (cs.drone_known()) break;
+      std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    }
+    // The control feeder polls the observed chunks every 100 ms.
+    std::this_thread::sleep_for(std::chrono::milliseconds(400));
+    // Gaze at the centre of the marked disc on the box face (-0.15, -0.01, 1.5).
+    cv1::GazeToSeeRequest req;
+    req.mutable_header()->set_operator_id("alice");
+    req.mutable_header()->set_operator_sequence(++op_seq);
+    req.mutable_eye()->set_x(-0.01);
+    req.mutable_direction()->set_x(-0.14);
+    req.mutable_direction()->set_y(-0.01);
+    req.mutable_direction()->set_z(1.5);
+    grpc::ClientContext ctx;
+    cv1::InteractionReply r;
+    const grpc::Status gs = stub->GazeToSee(&ctx, req, &r);
+    link->WritesDone();
+    link_ctx.TryCancel();
+    link->Finish();
+    ASSERT_TRUE(gs.ok()) << when << ": " << gs.error_message() << server_->Log();
+    ASSERT_TRUE(r.has_gaze());
+    const glm::dvec3 p(r.gaze_point().x(), r.gaze_point().y(), r.gaze_point().z());
+    std::printf("%s: gaze point (%.3f, %.3f, %.3f), target (%.3f, %.3f, %.3f), %d waypoints\n",
+                when.c_str(), p.x, p.y, p.z, r.target().x(), r.target().y(), r.target().z(),
+                r.waypoints_size());
+    // The observed box face (z = 1.5 m; a 4 cm TSDF), not the wall at 2 m behind it.
+    EXPECT_NEAR(p.z, 1.5, 0.05) << when;
+    EXPECT_NEAR(p.x, -0.15, 0.05) << when;
+    // The route (the waypoints from the drone, sampled every 5 mm) never enters the box.
+    std::vector<glm::dvec3> path = {{-0.01, 0.0, 0.0}};
+    for (const auto& w : r.waypoints()) path.emplace_back(w.x(), w.y(), w.z());
+    ASSERT_GE(path.size(), 2u);
+    double closest = 1e9;
+    for (size_t i = 0; i + 1 < path.size(); ++i) {
+      const int n = 1 + static_cast<int>(glm::length(path[i + 1] - path[i]) / 0.005);
+      for (int k = 0; k <= n; ++k) {
+        const glm::dvec3 q = path[i] + (path[i + 1] - path[i]) * (double(k) / n);
+        const glm::dvec3 d = glm::max(glm::max(glm::dvec3(-0.3, -0.25, 1.5) - q, glm::dvec3(0.0)),
+                                      q - glm::dvec3(0.0, 0.25, 1.8));
+        closest = std::min(closest, glm::length(d));
+      }
+    }
+    std::printf("%s: the route's closest approach to the box: %.3f m\n", when.c_str(), closest);
+    EXPECT_GT(closest, 0.1) << when;  // the drone's radius is 0.2 m, the grid's cell 0.1 m
+  };
+  gaze_and_check("live");
+
+  server_->Signal(SIGTERM);
+  ASSERT_TRUE(server_->Wait(20).has_value());
+  Start("server2.log", control);
+  ASSERT_LE(BoxProxyVertices() * 4, box_before);  // the viewers' proxy is still carved
+  gaze_and_check("after restart");
 }
 
 // --- Diminished reality on the apartment's chair, through the live server ---

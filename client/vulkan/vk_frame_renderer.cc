@@ -206,7 +206,7 @@ void UnpackBlendOutput(const uint8_t* src, uint32_t w, uint32_t h, RenderResult*
   static constexpr Tables kT = [] {
     Tables t{};
     for (int a = 0; a < 256; ++a) {
-      t.coverage[a] = a == 0 ? 0 : a == 255 ? 2 : a == 64 ? 3 : 1;
+      t.coverage[a] = a == 0 ? 0 : a == 255 ? 2 : a == 64 ? 3 : a == 224 ? 4 : 1;
       t.known[a] = t.coverage[a] >= 2;
     }
     return t;

@@ -75,7 +75,8 @@ struct UploadStats {
 struct RenderResult {
   ImageU8 color;     // RGB8, sRGB
   // 1 ch: 0 = no proxy surface, 1 = surface but no valid view, 2 = blended, 3 = no proxy
-  // surface, filled at infinity from the stored views (BlendOptions::background_views).
+  // surface, filled at infinity from the stored views (BlendOptions::background_views), 4 =
+  // blended from inpainted views (InpaintFusion's label rule; the window's tint, key I).
   ImageU8 coverage;
   double gpu_ms = 0;       // submit-to-fence time of the render pass
   double readback_ms = 0;  // copy-out of the colour attachment to ImageU8

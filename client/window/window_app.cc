@@ -1079,11 +1079,30 @@ class App {
     ImGui::Checkbox("tau", &cells_by_tau_);
     ImGui::SameLine();
     ImGui::Checkbox("drone", &show_drone_);
+    if (tint_inpainted_.load())
+      ImGui::TextColored(ImVec4(1.f, 0.35f, 1.f, 1.f),
+                         "T: tinted = rendered from inpainted views (DR keyframes, completions)");
     ImGui::TextDisabled(
-        "WASD/QE move, drag/arrows look, wheel speed, right-click pick, R F G V Tab 1-5 P Esc");
+        "WASD/QE move, drag/arrows look, wheel speed, right-click pick, R F G V C T Tab 1-5 P Esc");
     const ImVec2 hp = ImGui::GetWindowPos(), hs = ImGui::GetWindowSize();
     probe_["hud"] = {hp.x, hp.y, hs.x, hs.y};
     ImGui::End();
+  }
+
+  // Key T: the pixels blended from inpainted views (VulkanRenderer coverage 4: DR keyframes and
+  // scene completions, InpaintFusion's label rule) mixed 45 % towards magenta. Returns their count.
+  static uint64_t TintInpainted(RenderResult* r) {
+    uint64_t n = 0;
+    uint8_t* c = r->color.data();
+    const uint8_t* cov = r->coverage.data();
+    const size_t px = r->coverage.size();
+    constexpr int kTint[3] = {255, 64, 255};
+    for (size_t i = 0; i < px; ++i) {
+      if (cov[i] != 4) continue;
+      for (int k = 0; k < 3; ++k) c[3 * i + k] = uint8_t((55 * c[3 * i + k] + 45 * kTint[k] + 50) / 100);
+      ++n;
+    }
+    return n;
   }
 
   // Key C: scene completion at the camera (CompleteView on the model's server, same security).
@@ -1192,6 +1211,8 @@ class App {
                         {"model_version", info.version},
                         {"views", info.geom.views.size()},
                         {"completion_views", CountCompletionViews(info.geom)},
+                        {"tint_inpainted", tint_inpainted_.load()},
+                        {"tinted_px", tinted_px_.load()},
                         {"cells", info.cells},
                         {"sync", source_->state()},
                         {"frame_ms", frame_ms_},
@@ -1269,6 +1290,7 @@ class App {
           // every full-resolution frame (the one left on screen) are exact.
           EXO_ASSIGN_OR_RETURN(RenderResult r, RenderFull(pose, std::max(1, W / d),
                                                           std::max(1, H / d), j.changed && d > 1));
+          if (tint_inpainted_.load()) tinted_px_ = TintInpainted(&r);
           f->image = std::move(r.color);
           f->gpu_ms = r.gpu_ms;
           if (want_occ_.load()) {
@@ -1416,6 +1438,11 @@ class App {
               RequestCompletion(Camera(presenter_->width(), presenter_->height()),
                                 shown ? shown->job.request.pose : cam.pose());
               overlay_changed = true;
+              break;
+            case SDLK_t:  // tint the pixels rendered from inpainted views (and back)
+              tint_inpainted_ = !tint_inpainted_.load();
+              tinted_px_ = 0;
+              rerender_ = true;
               break;
             case SDLK_v:  // the live DR view instead of the free-viewpoint render, and back
               SetDrMode(!dr_mode_, wake_event);
@@ -2162,6 +2189,10 @@ class App {
   bool synced_once_ = false;
   bool overlays_ = true, show_frusta_ = true, show_wire_ = false, show_cells_ = false;
   bool cells_by_tau_ = true, show_drone_ = true;
+  // Key T: pixels the renderer blended from inpainted views (coverage code 4) tinted magenta;
+  // the count of the last frame rendered with the tint.
+  std::atomic<bool> tint_inpainted_{false};
+  std::atomic<uint64_t> tinted_px_{0};
   std::unique_ptr<ControlSource> control_;  // drone overlays (nullptr: no control service)
   // Steering the drone from the viewer (issue 19 item 5): the commands' sender (nullptr: no
   // control service) and the gestures; the X-ray plane the render thread applies (0 = off).

@@ -10,6 +10,7 @@
 // count, the drone with its camera frustum, target, route and flight zones), and steering the
 // drone (issue 19 item 5: Ctrl/M + click = gaze-to-see, + drag from the drone = pick-and-place,
 // I K J L U O Y H = joypad, X [ ] = the X-ray cut-away; client/window/drone_operator.h), and
+// T = tint the pixels rendered from inpainted views, C = scene completion at the camera,
 // V = the live DR view (issue 18: the server's WatchDrView frames, the camera with the marked
 // regions removed, instead of the render; subscribed only while on). Also the scripted
 // modes that need no window: renders along a TUM path, and the frame-time benchmark (which

@@ -253,6 +253,31 @@ inline float Validity(const glm::vec3& x, const BlendView& view, const BlendOpti
   return 1.0f;
 }
 
+// InpaintFusion's label rule (SPEC §7, 4.17-4.18), the same in both renderers
+// (cpu_renderer.cc; blend_shade.glsl's inpainted loop): surface point x lies in an inpainted
+// view's L_IP region when the view's label at x's nearest pixel is set (`label(pixel) -> bool`)
+// AND x is not hidden behind the view's own surface there: the occlusion test of (3.4),
+// |x - c_i| <= D_i + ε (a pixel without valid depth hides nothing). A point behind the view's
+// surface is not what the view shows: a scene completion's hole surface does not claim an
+// observed surface that another pose sees behind it, a DR keyframe's background does not claim
+// what lies behind the background. A point IN FRONT of the view's surface is claimed: a removed
+// object still in the proxy is replaced by the keyframe's background (4.17). One rule for every
+// inpainted view (DR keyframes and scene completions alike).
+template <typename FetchLabel, typename FetchDepth>
+inline bool InpaintedLabelHolds(const glm::vec3& x, const BlendView& view, const BlendOptions& opt,
+                                FetchLabel&& label, FetchDepth&& fetch_depth) {
+  const Projection proj = ProjectToView(x, view);
+  if (!proj.in_front || !InsideImage(proj.uv, view.size)) return false;
+  const glm::ivec2 px(static_cast<int>(std::floor(proj.uv.x + 0.5f)),
+                      static_cast<int>(std::floor(proj.uv.y + 0.5f)));
+  const glm::ivec2 pc = glm::clamp(px, glm::ivec2(0), view.size - 1);
+  if (!label(pc)) return false;
+  const float z = fetch_depth(pc);
+  if (!ValidDepth(z)) return true;
+  const float range_d = RangeFromZDepth(proj.uv, z, view.intrinsics);
+  return !(proj.range_m > range_d + opt.occlusion_epsilon_m + opt.occlusion_epsilon_rel * range_d);
+}
+
 // ---- best-n selection (§3.1.4) ----
 
 struct BestN {

@@ -214,6 +214,7 @@ absl::StatusOr<CpuRenderOutput> CpuLumigraphRenderer::Render(const PinholeCamera
   CpuRenderOutput out;
   out.color = ImageU8(w, h, 3);
   out.coverage = ImageU8(w, h, 1, 0);
+  out.inpainted = ImageU8(w, h, 1, 0);
   if (options_.debug_weights) {
     out.weight_sum = ImageF(w, h, 1, 0.0f);
     out.num_views = ImageU8(w, h, 1, 0);
@@ -333,7 +334,8 @@ absl::StatusOr<CpuRenderOutput> CpuLumigraphRenderer::Render(const PinholeCamera
         const glm::vec3 p(raster.position_local.at(x, y, 0), raster.position_local.at(x, y, 1),
                           raster.position_local.at(x, y, 2));
         // InpaintFusion (SPEC §7, 4.17-4.18): a surface point inside an inpainted keyframe's ROI
-        // (its label at the point's projection is L_IP) is blended from the inpainted keyframes
+        // (its label at the point's projection is L_IP and the point is not hidden behind the
+        // keyframe's surface: blend::InpaintedLabelHolds) is blended from the inpainted keyframes
         // whose ROI holds it only; everywhere else only the cell's observed references count.
         bool in_roi = false;
         blend::BestN best = blend::EmptyBestN();
@@ -352,11 +354,12 @@ absl::StatusOr<CpuRenderOutput> CpuLumigraphRenderer::Render(const PinholeCamera
         };
         for (int vi : inpainted) {
           const ViewData& vd = views_[vi];
-          const blend::Projection proj = blend::ProjectToView(p, vd.params);
-          if (!proj.in_front || !blend::InsideImage(proj.uv, vd.params.size)) continue;
-          const int lx = std::clamp(static_cast<int>(std::floor(proj.uv.x + 0.5f)), 0, vd.params.size.x - 1);
-          const int ly = std::clamp(static_cast<int>(std::floor(proj.uv.y + 0.5f)), 0, vd.params.size.y - 1);
-          if (vd.labels->at(lx, ly) == 0) continue;
+          const ImageU8& labels = *vd.labels;
+          const ImageF& depth = *vd.depth;
+          if (!blend::InpaintedLabelHolds(
+                  p, vd.params, bo, [&](glm::ivec2 q) { return labels.at(q.x, q.y) != 0; },
+                  [&](glm::ivec2 q) { return depth.at(q.x, q.y); }))
+            continue;
           in_roi = true;
           consider(vi);
         }
@@ -376,6 +379,7 @@ absl::StatusOr<CpuRenderOutput> CpuLumigraphRenderer::Render(const PinholeCamera
         if (blend::Resolve(acc, bo.background_srgb, &srgb)) {
           for (int c = 0; c < 3; ++c) out.color.at(x, y, c) = blend::UnitToU8(srgb[c]);
           out.coverage.at(x, y) = 255;
+          if (in_roi) out.inpainted.at(x, y) = 255;
           ++covered[t];
         }
         if (options_.debug_weights) {

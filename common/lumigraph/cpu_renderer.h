@@ -41,6 +41,9 @@ struct CpuRenderOutput {
   // 1 channel: 255 = no proxy surface, filled at infinity from >= 1 stored view (coverage stays
   // 0 there: coverage measures the lumigraph's surface blend), 0 otherwise.
   ImageU8 background;
+  // 1 channel: 255 = blended from inpainted views (InpaintFusion's label rule held there; the
+  // Vulkan renderer's coverage code 4, the window's tint), 0 otherwise.
+  ImageU8 inpainted;
   ImageF weight_sum;   // debug: Σ w_i of the selected views (0 where uncovered)
   ImageU8 num_views;   // debug: number of views blended per pixel
   size_t covered_pixels = 0;

@@ -604,5 +604,107 @@ TEST(CpuRendererInpainted, InsideTheRoiOnlyInpaintedOutsideOnlyObserved) {
   EXPECT_FALSE(CpuLumigraphRenderer::Create(m, opt).ok());
 }
 
+// A panel (x, y in [-0.25, 0.25] at z = 1.6) before a wall at z = 3.1.
+TriangleMesh Panel() {
+  TriangleMesh m;
+  m.positions = {{-0.25f, -0.25f, 1.6f}, {0.25f, -0.25f, 1.6f}, {0.25f, 0.25f, 1.6f},
+                 {-0.25f, 0.25f, 1.6f}};
+  m.indices = {0, 1, 2, 0, 2, 3};
+  return m;
+}
+
+// The label rule's depth check (blend::InpaintedLabelHolds), the same for every inpainted view:
+// a scene completion whose labels are the panel (a hole: no observed view saw it) claims the
+// panel, but NOT the observed wall that a novel camera off to the side sees behind the panel
+// and that projects into the completion's labels (before: those pixels were taken from the
+// completion, where the wall is hidden, i.e. left uncovered). A DR keyframe whose depth is the
+// background behind a removed object still claims the object's surface in front of it.
+TEST(CpuRendererInpainted, LabelsHoldOnlyWhereThePointIsNotBehindTheViewsSurface) {
+  const TriangleMesh wall = Plane(3.1f), panel = Panel();
+  TriangleMesh both = wall;
+  both.Append(panel);
+  LumigraphModel m;
+  m.grid.cell_size_m = 0.5;
+  m.chunks[0].mesh = both;
+  // Observed: the wall (the panel is a hole: no observed depth or colour of it).
+  StoredView obs = MakeView(1, wall, Rigid3d::Identity(), 1.0f, true);
+  obs.color = ImageU8(64, 48, 3, 60);
+  m.views[1] = obs;
+  {  // its references: the cells of the wall it saw (also those behind the panel)
+    RasterOptions ro;
+    ro.cell_id = true;
+    ro.cell_grid = m.grid;
+    for (uint64_t cell : Rasterize(wall, obs.camera, obs.local_from_cam, ro)->cell_id.span())
+      if (cell != kNoCell && m.cell_refs[cell].empty()) m.cell_refs[cell].push_back(1);
+  }
+  // The completion at the same camera: the panel's pixels labelled, its depth the proxy's.
+  StoredView c = MakeView(0x60000000u, both, Rigid3d::Identity(), 1.0f, true);
+  c.color = ImageU8(64, 48, 3, 200);
+  c.inpainted = true;
+  c.labels = ImageU8(64, 48, 1, 0);
+  int labelled = 0;
+  for (int y = 0; y < 48; ++y)
+    for (int x = 0; x < 64; ++x)
+      if (c.depth_m.at(x, y) < 2.0f) c.labels.at(x, y) = 255, ++labelled;
+  ASSERT_GT(labelled, 40);
+  m.views[c.id] = c;
+  CpuRenderOptions opt;
+  opt.blend.fill_holes = false;
+  auto r = CpuLumigraphRenderer::Create(m, opt).value();
+  Rigid3d novel;
+  novel.translation = {0.6, 0.0, 0.0};
+  auto out = r->Render(SmallCam(), novel).value();
+  // Which pixels of the novel camera see the wall at a point inside the completion's labels.
+  RasterOptions ro;
+  auto nr = Rasterize(both, SmallCam(), novel, ro).value();
+  const PinholeCamera cam = SmallCam();
+  int behind = 0, behind_observed = 0, panel_px = 0, panel_completed = 0;
+  for (int y = 0; y < 48; ++y)
+    for (int x = 0; x < 64; ++x) {
+      const float z = nr.z_depth_m.at(x, y);
+      if (!(z > 0.0f)) continue;
+      const glm::dvec3 p = novel * cam.Unproject(glm::dvec2(x, y), z);
+      if (z < 2.5f) {  // the panel
+        ++panel_px;
+        panel_completed += out.coverage.at(x, y) && out.color.at(x, y, 0) == 200;
+        continue;
+      }
+      glm::dvec2 uv;
+      if (!cam.Project(p, &uv)) continue;  // the completion is at the origin: p is in its frame
+      const int u = int(std::floor(uv.x + 0.5)), v = int(std::floor(uv.y + 0.5));
+      if (u < 0 || v < 0 || u >= 64 || v >= 48 || c.labels.at(u, v) == 0) continue;
+      ++behind;
+      behind_observed += out.coverage.at(x, y) && out.color.at(x, y, 0) == 60;
+    }
+  std::printf("wall behind the completed panel: %d px, %d from the observation; panel %d px, %d "
+              "completed\n", behind, behind_observed, panel_px, panel_completed);
+  EXPECT_GT(behind, 30);
+  EXPECT_GE(behind_observed, behind - 4);  // label edges: nearest-pixel rounding
+  EXPECT_GT(panel_px, 40);
+  EXPECT_GE(panel_completed, panel_px - 8);
+
+  // DR: an object (the panel) still in the proxy, a keyframe whose depth is the background (the
+  // wall) and whose labels are the object's pixels: the object's surface lies in front of the
+  // keyframe's surface and is claimed (replaced), as before the depth check.
+  LumigraphModel d;
+  d.grid.cell_size_m = 0.5;
+  d.chunks[0].mesh = both;
+  StoredView seen = MakeView(1, both, Rigid3d::Identity(), 1.0f, true);
+  seen.color = ImageU8(64, 48, 3, 60);
+  d.views[1] = seen;
+  ReferenceAllCells(&d);
+  StoredView kf = MakeView(0x40000000u, wall, Rigid3d::Identity(), 1.0f, true);
+  kf.color = ImageU8(64, 48, 3, 200);
+  kf.inpainted = true;
+  kf.labels = c.labels;
+  d.views[kf.id] = kf;
+  auto rd = CpuLumigraphRenderer::Create(d, opt).value();
+  Rigid3d near;
+  near.translation = {0.03, 0.0, 0.0};
+  auto od = rd->Render(SmallCam(), near).value();
+  EXPECT_EQ(od.color.at(32, 24, 0), 200);  // the object's centre: the keyframe's background
+  EXPECT_EQ(od.color.at(5, 5, 0), 60);     // the wall: the observation
+}
+
 }  // namespace
 }  // namespace exo

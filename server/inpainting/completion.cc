@@ -6,6 +6,7 @@
 #include <chrono>
 #include <cmath>
 
+#include "common/lumigraph/blend_math.h"
 #include "common/raster/rasterizer.h"
 
 namespace exo::inpainting {
@@ -29,6 +30,32 @@ bool FinitePose(const Rigid3d& p) {
          std::isfinite(p.translation.z) && ValidateQuaternion(q).ok();
 }
 
+// Separable Gaussian blur of an RGB8 image into floats (borders clamped), radius 3 sigma.
+std::vector<float> GaussianBlur3(const ImageU8& img, double sigma) {
+  const int w = img.width(), h = img.height(), r = std::max(1, int(std::ceil(3.0 * sigma)));
+  std::vector<float> k(2 * r + 1);
+  float sum = 0.0f;
+  for (int i = -r; i <= r; ++i) sum += k[i + r] = float(std::exp(-0.5 * i * i / (sigma * sigma)));
+  for (float& v : k) v /= sum;
+  std::vector<float> tmp(size_t(w) * h * 3), out(size_t(w) * h * 3);
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x)
+      for (int c = 0; c < 3; ++c) {
+        float a = 0.0f;
+        for (int i = -r; i <= r; ++i) a += k[i + r] * img.at(std::clamp(x + i, 0, w - 1), y, c);
+        tmp[(size_t(y) * w + x) * 3 + c] = a;
+      }
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x)
+      for (int c = 0; c < 3; ++c) {
+        float a = 0.0f;
+        for (int i = -r; i <= r; ++i)
+          a += k[i + r] * tmp[(size_t(std::clamp(y + i, 0, h - 1)) * w + x) * 3 + c];
+        out[(size_t(y) * w + x) * 3 + c] = a;
+      }
+  return out;
+}
+
 }  // namespace
 
 absl::Status CompletionOptions::Validate() const {
@@ -42,6 +69,12 @@ absl::Status CompletionOptions::Validate() const {
   if (mesh_step_px < 1 || mesh_step_px > 64)
     return absl::InvalidArgumentError("completion mesh_step_px must be in [1, 64]");
   if (!(mesh_jump_rel > 0.0)) return absl::InvalidArgumentError("completion mesh_jump_rel must be > 0");
+  if (!std::isfinite(detail_gain) || detail_gain > 4.0)
+    return absl::InvalidArgumentError("completion detail_gain must be < 0 (off) or in [0, 4]");
+  if (!(vertex_color_depth_tol_m >= 0.0 && vertex_color_depth_tol_m <= 1.0))
+    return absl::InvalidArgumentError("completion vertex_color_depth_tol_m must be in [0, 1]");
+  if (!(detail_sigma_px >= 0.5 && detail_sigma_px <= 64.0))
+    return absl::InvalidArgumentError("completion detail_sigma_px must be in [0.5, 64]");
   return absl::OkStatus();
 }
 
@@ -171,7 +204,8 @@ TriangleMesh MeshFromDepth(const ImageF& depth_m, const ImageU8& mask, const Pin
 absl::StatusOr<CompletionResult> CompleteView(const LumigraphModel& model,
                                               const PinholeCamera& camera,
                                               const Rigid3d& local_from_cam,
-                                              const CompletionOptions& options) {
+                                              const CompletionOptions& options,
+                                              const TriangleMesh* coloured_proxy) {
   const double t0 = WallMs(), c0 = CpuMs();
   CompletionResult out;
   EXO_ASSIGN_OR_RETURN(out.before, FindHoles(model, camera, local_from_cam, options));
@@ -200,8 +234,65 @@ absl::StatusOr<CompletionResult> CompleteView(const LumigraphModel& model,
         kf.depth_m.at(x, y) = hb.proxy_depth.at(x, y);
   kf.camera = camera;
   kf.world_from_cam = local_from_cam;
+  // The proxy's fused colour at the surface holes (CompletionOptions::use_vertex_color): known
+  // pixels of the keyframe; PatchMatch fills the rest (`fill`).
+  ImageU8 fill = hb.holes;
+  if (options.use_vertex_color && hb.surface_hole_px > 0) {
+    TriangleMesh own;
+    if (!coloured_proxy)
+      for (const auto& [id, c] : model.chunks)
+        if (!c.mesh.empty() && c.mesh.colors.size() == c.mesh.positions.size() &&
+            c.mesh.normals.empty() == own.normals.empty())
+          own.Append(c.mesh);
+    const TriangleMesh& coloured = coloured_proxy ? *coloured_proxy : own;
+    const float tol = static_cast<float>(options.vertex_color_depth_tol_m);
+    if (!coloured.empty() && coloured.colors.size() == coloured.positions.size()) {
+      RasterOptions rs;
+      rs.z_depth = true;
+      rs.position = true;
+      rs.triangle_id = true;
+      rs.num_threads = options.render.num_threads;
+      EXO_ASSIGN_OR_RETURN(RasterOutput cr, Rasterize(coloured, camera, local_from_cam, rs));
+      for (int y = 0; y < h; ++y)
+        for (int x = 0; x < w; ++x) {
+          const float zp = hb.proxy_depth.at(x, y);
+          const uint32_t t = cr.triangle_id.at(x, y);
+          if (!hb.holes.at(x, y) || !(zp > 0.0f) || t == kNoTriangle) continue;
+          // The coloured surface must be the proxy's front surface there.
+          if (std::fabs(cr.z_depth_m.at(x, y) - zp) > std::max(1e-3f * zp + 1e-4f, tol)) continue;
+          const glm::vec3 p(cr.position_local.at(x, y, 0), cr.position_local.at(x, y, 1),
+                            cr.position_local.at(x, y, 2));
+          const uint32_t* tri = &coloured.indices[3 * size_t(t)];
+          const glm::vec3 a = coloured.positions[tri[0]], b = coloured.positions[tri[1]],
+                          c = coloured.positions[tri[2]];
+          // Barycentric weights of p in (a, b, c).
+          const glm::vec3 e0 = b - a, e1 = c - a, ep = p - a;
+          const float d00 = glm::dot(e0, e0), d01 = glm::dot(e0, e1), d11 = glm::dot(e1, e1);
+          const float d20 = glm::dot(ep, e0), d21 = glm::dot(ep, e1);
+          const float den = d00 * d11 - d01 * d01;
+          if (!(std::fabs(den) > 1e-20f)) continue;
+          const float v = std::clamp((d11 * d20 - d01 * d21) / den, 0.0f, 1.0f);
+          const float wgt = std::clamp((d00 * d21 - d01 * d20) / den, 0.0f, 1.0f - v);
+          const glm::vec3 lin = (1.0f - v - wgt) * coloured.colors[tri[0]] +
+                                v * coloured.colors[tri[1]] + wgt * coloured.colors[tri[2]];
+          const glm::vec3 srgb = blend::LinearToSrgb(glm::clamp(lin, 0.0f, 1.0f));
+          for (int ch = 0; ch < 3; ++ch) kf.color.at(x, y, ch) = blend::UnitToU8(srgb[ch]);
+          kf.depth_m.at(x, y) = zp;
+          fill.at(x, y) = 0;
+          ++out.before.fused_color_px;
+        }
+    }
+  }
+  int fill_px = 0;
+  for (uint8_t m : fill.span()) fill_px += m != 0;
   const double ti = WallMs();
-  EXO_ASSIGN_OR_RETURN(InpaintResult r, InpaintKeyframe(kf, hb.holes, options.inpaint));
+  InpaintResult r;
+  if (fill_px > 0) {
+    EXO_ASSIGN_OR_RETURN(r, InpaintKeyframe(kf, fill, options.inpaint));
+  } else {  // every hole has fused colour (no void holes: those have no surface)
+    r.color = kf.color;
+    r.depth_m = kf.depth_m;
+  }
   out.inpaint_ms = WallMs() - ti;
   out.stats = r.stats;
   // Depth of the view: the proxy's where it has a surface (surface holes included: the renderers
@@ -236,6 +327,24 @@ absl::StatusOr<CompletionResult> CompleteView(const LumigraphModel& model,
   out.mesh_ms = WallMs() - tm;
   out.view.camera = camera;
   out.view.local_from_cam = local_from_cam;
+  if (options.detail_gain >= 0.0) {
+    // Push-pull's low frequencies + PatchMatch's high frequencies (CompletionOptions).
+    ImageU8 base = kf.color, known = hb.known;
+    for (size_t i = 0; i < known.size(); ++i)
+      if (hb.holes.data()[i] && !fill.data()[i]) known.data()[i] = 255;  // fused colour
+    FillHoles(base, known);
+    const std::vector<float> low = GaussianBlur3(r.color, options.detail_sigma_px);
+    const float gain = static_cast<float>(options.detail_gain);
+    for (int y = 0; y < h; ++y)
+      for (int x = 0; x < w; ++x) {
+        if (!fill.at(x, y)) continue;
+        for (int c = 0; c < 3; ++c) {
+          const float detail = r.color.at(x, y, c) - low[(size_t(y) * w + x) * 3 + c];
+          r.color.at(x, y, c) = static_cast<uint8_t>(
+              std::clamp(std::lround(base.at(x, y, c) + gain * detail), 0L, 255L));
+        }
+      }
+  }
   out.view.color = std::move(r.color);
   out.view.depth_m = std::move(depth);
   out.view.inpainted = true;

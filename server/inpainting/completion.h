@@ -44,6 +44,28 @@ struct CompletionOptions {
   // their depth are skipped (an occlusion edge).
   int mesh_step_px = 4;
   double mesh_jump_rel = 0.1;
+  // The colour in the holes (session 16): PatchMatch copies plausible texture, but where the
+  // hidden surface differs it copies the wrong texture, and its mean colour with it (session 15:
+  // 2.1-2.7 dB below a push-pull fill inside the holes). With detail_gain >= 0 the holes take the
+  // push-pull fill of the render (its low frequencies: the MSE-optimal smooth guess) plus
+  // detail_gain times PatchMatch's high frequencies (its colour minus its Gaussian blur of
+  // detail_sigma_px): texture without shifting the mean. < 0: PatchMatch's colour as it is.
+  // completion_bench (docs/inpainting.md "Session 16"): in PSNR and SSIM every gain > 0 loses to
+  // 0 (PatchMatch's texture is uncorrelated with the hidden surface), but at 0 the completion's
+  // colour IS the push-pull fill the viewer already sees (no texture at all); 0.5 keeps half the
+  // texture for -0.38 dB against push-pull (session 15's PatchMatch colour: -2.09 dB).
+  double detail_gain = 0.5;
+  double detail_sigma_px = 3.0;
+  // Session 16: where a surface hole's proxy surface carries fused colour (the chunks' vertex
+  // colours: the TSDF's running mean over every frame fused there, an observation even where no
+  // stored view covers it), that colour is the keyframe's there (known to PatchMatch, which then
+  // fills only the pixels without it: void holes, uncoloured surface). Chunks without vertex
+  // colours (the wire's format 3 carries none) are not used.
+  bool use_vertex_color = true;
+  // The coloured surface must lie within this of the proxy's depth at the pixel (max with 0.1 %
+  // of the depth): a separate coloured mesh (CompleteView's `coloured_proxy`, the server's
+  // full-resolution chunks) differs from the published, simplified proxy by the LOD's error.
+  double vertex_color_depth_tol_m = 0.02;
   absl::Status Validate() const;
 };
 
@@ -54,6 +76,7 @@ struct CompletionHoles {
   ImageU8 holes;       // 255 = hole (surface or void)
   ImageU8 known;       // 255 = covered or background (the render shows something there)
   int hole_px = 0, surface_hole_px = 0, void_hole_px = 0;
+  int fused_color_px = 0;  // CompleteView: surface-hole pixels coloured from the proxy's vertex colour
   int covered_px = 0, background_px = 0;
   double render_ms = 0;
 };
@@ -80,10 +103,13 @@ absl::StatusOr<CompletionHoles> FindHoles(const LumigraphModel& model, const Pin
 // Completes the holes of `model` at the camera (see the file comment). Errors: invalid options or
 // camera, non-finite pose (INVALID_ARGUMENT); nothing modelled in view or no valid source patch
 // (FAILED_PRECONDITION).
+// `coloured_proxy` (may be null): a mesh with vertex colours for the colour guide
+// (use_vertex_color) instead of the model's chunks that carry colours.
 absl::StatusOr<CompletionResult> CompleteView(const LumigraphModel& model,
                                               const PinholeCamera& camera,
                                               const Rigid3d& local_from_cam,
-                                              const CompletionOptions& options);
+                                              const CompletionOptions& options,
+                                              const TriangleMesh* coloured_proxy = nullptr);
 
 // A mesh (scene-local) of `depth_m` over the pixels of `mask` (!= 0) dilated by `step_px`: grid
 // vertices every `step_px`, quads with all four corners at valid depth whose depths differ by at

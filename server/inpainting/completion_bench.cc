@@ -24,6 +24,7 @@
 #include "common/synth/render.h"
 #include "common/synth/scene.h"
 #include "common/synth/trajectory.h"
+#include "server/geometry/tsdf_volume.h"
 #include "server/inpainting/completion.h"
 
 namespace {
@@ -62,6 +63,20 @@ int Main(int argc, char** argv) {
   app.add_option("--dump_dir", dump_dir, "writes gt / pushpull / ours / holes PNGs per pose");
   app.add_option("--w", w, "InpaintOptions::w (default: the library's)");
   app.add_option("--kappa", kappa, "InpaintOptions::kappa (default: the library's)");
+  std::string proxy_kind = "triangles";
+  double tsdf_voxel = 0.03;
+  bool vertex_color = true;
+  app.add_option("--proxy", proxy_kind,
+                 "triangles: the scene triangles the observed frames saw (session 15); tsdf: the "
+                 "observed frames fused into a TSDF (--tsdf_voxel), its mesh with fused vertex "
+                 "colours, as the server's geometry stage holds it")
+      ->check(CLI::IsMember({"triangles", "tsdf"}));
+  app.add_option("--tsdf_voxel", tsdf_voxel, "TSDF voxel (m) of --proxy=tsdf");
+  app.add_option("--vertex_color", vertex_color, "CompletionOptions::use_vertex_color");
+  double detail_gain = -2, detail_sigma = -1;
+  app.add_option("--detail_gain", detail_gain,
+                 "CompletionOptions::detail_gain (< 0: PatchMatch's colour; default: the library's)");
+  app.add_option("--detail_sigma", detail_sigma, "CompletionOptions::detail_sigma_px");
   if (auto rc = exo::cli::Parse(app, argc, argv)) return *rc;
   if (observed >= frames) {
     std::fprintf(stderr, "--observed must be < --frames\n");
@@ -116,11 +131,27 @@ int Main(int argc, char** argv) {
   MeshChunk proxy;
   proxy.id = 1;
   proxy.version = 1;
-  for (uint32_t t : seen)
-    for (int k = 0; k < 3; ++k) {
-      proxy.mesh.indices.push_back(uint32_t(proxy.mesh.positions.size()));
-      proxy.mesh.positions.push_back(scene->mesh.positions[scene->mesh.indices[3 * t + k]]);
+  if (proxy_kind == "tsdf") {
+    TsdfOptions topt;
+    topt.voxel_size_m = static_cast<float>(tsdf_voxel);
+    topt.num_threads = 1;
+    TsdfVolume vol(topt);
+    for (int i = 0; i < observed; ++i) {
+      auto f = synth::RenderFrame(*scene, (*traj)[i].local_from_cam, ro);
+      if (!f.ok()) return std::fprintf(stderr, "%s\n", f.status().ToString().c_str()), 1;
+      auto st = vol.IntegrateDepth(f->frame.depth_m, cam, (*traj)[i].local_from_cam, &f->frame.color,
+                                   &cam);
+      if (!st.ok()) return std::fprintf(stderr, "%s\n", st.status().ToString().c_str()), 1;
     }
+    proxy.mesh = vol.ExtractAll();
+    proxy.mesh.normals.clear();
+  } else {
+    for (uint32_t t : seen)
+      for (int k = 0; k < 3; ++k) {
+        proxy.mesh.indices.push_back(uint32_t(proxy.mesh.positions.size()));
+        proxy.mesh.positions.push_back(scene->mesh.positions[scene->mesh.indices[3 * t + k]]);
+      }
+  }
   const size_t proxy_triangles = proxy.mesh.num_triangles();
   model.chunks[1] = std::move(proxy);
 
@@ -129,6 +160,9 @@ int Main(int argc, char** argv) {
   co.render.num_threads = 1;
   if (w > 0) co.inpaint.w = w;
   if (kappa > 0) co.inpaint.kappa = kappa;
+  if (detail_gain > -2) co.detail_gain = detail_gain;
+  if (detail_sigma > 0) co.detail_sigma_px = detail_sigma;
+  co.use_vertex_color = vertex_color;
   std::vector<std::pair<int, Rigid3d>> viewer_poses;
   if (pose_set == "walk") {
     for (int i = observed; i < frames; i += pose_every) viewer_poses.push_back({i, (*traj)[i].local_from_cam});
@@ -170,6 +204,9 @@ int Main(int argc, char** argv) {
       mc.id = uint64_t{1} << 63;
       mc.version = 1;
       mc.mesh = r->void_mesh;
+      // A coloured proxy's chunks and this uncoloured one cannot be merged (ProxyMesh): grey.
+      if (!model.chunks.at(1).mesh.colors.empty())
+        mc.mesh.colors.assign(mc.mesh.positions.size(), glm::vec3(0.5f));
       after_model.chunks[mc.id] = std::move(mc);
     }
     auto after_raw = CpuLumigraphRenderer::Create(after_model, nofill).value()->Render(cam, pose);
@@ -203,6 +240,7 @@ int Main(int argc, char** argv) {
                      {"hole_fraction_after", after},
                      {"surface_hole_px", r->before.surface_hole_px},
                      {"void_hole_px", r->before.void_hole_px},
+                     {"fused_color_px", r->before.fused_color_px},
                      {"mesh_triangles", r->void_mesh.num_triangles()},
                      {"ms", r->total_ms},
                      {"cpu_ms", r->total_cpu_ms},
@@ -232,6 +270,10 @@ int Main(int argc, char** argv) {
                         {"observed_frames", observed},
                         {"stored_views", model.views.size()},
                         {"proxy_triangles", proxy_triangles},
+                        {"proxy", proxy_kind},
+                        {"vertex_color", co.use_vertex_color},
+                        {"detail_gain", co.detail_gain},
+                        {"detail_sigma_px", co.detail_sigma_px},
                         {"poses", counted},
                         {"poses_skipped", skipped},
                         {"poses_failed", failed},

@@ -9,6 +9,7 @@
 #include <cmath>
 #include <limits>
 
+#include "common/lumigraph/blend_math.h"
 #include "server/inpainting/test_scenes.h"
 
 namespace exo::inpainting {
@@ -143,6 +144,69 @@ TEST(Completion, FillsOnlyTheHolesAndTheModelThenCoversTheFrame) {
   EXPECT_EQ(again->before.hole_px, 0);
 }
 
+// Session 16: the proxy's fused vertex colour is an observation: a surface hole takes it (the
+// render of the wall's texture at the vertices, interpolated), PatchMatch / push-pull fill only
+// the void; without vertex colours (or with use_vertex_color off) nothing is taken from it.
+TEST(Completion, SurfaceHolesTakeTheProxysFusedColour) {
+  LumigraphModel model = WallModel();
+  TriangleMesh& mesh = model.chunks[1].mesh;
+  for (const glm::vec3& p : mesh.positions) {  // the wall's texture, linear, as a TSDF stores it
+    const glm::dvec3 t = testing::Texture(glm::dvec3(p)) / 255.0;
+    mesh.colors.push_back(glm::vec3(blend::SrgbToLinear(float(std::clamp(t.x, 0.0, 1.0))),
+                                    blend::SrgbToLinear(float(std::clamp(t.y, 0.0, 1.0))),
+                                    blend::SrgbToLinear(float(std::clamp(t.z, 0.0, 1.0)))));
+  }
+  const PinholeCamera cam = SmallCamera();
+  const Rigid3d pose = At(0.3);
+  auto r = CompleteView(model, cam, pose, Options());
+  ASSERT_TRUE(r.ok()) << r.status();
+  const CompletionHoles& h = r->before;
+  EXPECT_EQ(h.fused_color_px, h.surface_hole_px);
+  ASSERT_GT(h.surface_hole_px, 20);
+  // Against the true texture at those pixels (a 5 cm grid interpolates it: a few levels).
+  const RgbdKeyframe truth = RenderPlanes(Wall(), cam, pose);
+  double err = 0, err_off = 0;
+  int n = 0;
+  CompletionOptions off = Options();
+  off.use_vertex_color = false;
+  auto r_off = CompleteView(model, cam, pose, off);
+  ASSERT_TRUE(r_off.ok()) << r_off.status();
+  EXPECT_EQ(r_off->before.fused_color_px, 0);
+  for (int y = 0; y < cam.height; ++y)
+    for (int x = 0; x < cam.width; ++x) {
+      if (!h.holes.at(x, y) || !(h.proxy_depth.at(x, y) > 0.0f)) continue;
+      for (int k = 0; k < 3; ++k) {
+        err += std::abs(int(r->view.color.at(x, y, k)) - int(truth.color.at(x, y, k)));
+        err_off += std::abs(int(r_off->view.color.at(x, y, k)) - int(truth.color.at(x, y, k)));
+      }
+      n += 3;
+    }
+  std::printf("surface holes: mean abs error %.2f levels with the fused colour, %.2f without\n",
+              err / n, err_off / n);
+  EXPECT_LT(err / n, 6.0);
+  EXPECT_LT(err / n, 0.5 * err_off / n);
+
+  // The server's way: the model's chunks without colours (as on the wire), the coloured mesh
+  // handed separately (the geometry stage's full-resolution chunks), 1 cm off the proxy: the
+  // same pixels take it (within vertex_color_depth_tol_m).
+  LumigraphModel plain = model;
+  plain.chunks[1].mesh.colors.clear();
+  auto r_plain = CompleteView(plain, cam, pose, Options());
+  ASSERT_TRUE(r_plain.ok()) << r_plain.status();
+  EXPECT_EQ(r_plain->before.fused_color_px, 0);
+  TriangleMesh separate = mesh;
+  for (glm::vec3& p : separate.positions) p.z += 0.01f;
+  auto r_sep = CompleteView(plain, cam, pose, Options(), &separate);
+  ASSERT_TRUE(r_sep.ok()) << r_sep.status();
+  // (720 of 840 measured: the shifted mesh's edge at x = 0.6 m projects a few columns inwards)
+  EXPECT_GE(r_sep->before.fused_color_px, h.surface_hole_px * 8 / 10);
+  CompletionOptions tight = Options();
+  tight.vertex_color_depth_tol_m = 0.0;  // 1 cm off at 2 m is beyond 0.1 % of the depth
+  auto r_tight = CompleteView(plain, cam, pose, tight, &separate);
+  ASSERT_TRUE(r_tight.ok()) << r_tight.status();
+  EXPECT_EQ(r_tight->before.fused_color_px, 0);
+}
+
 TEST(Completion, NothingToCompleteWhereTheViewsSeeEverything) {
   const LumigraphModel model = WallModel();
   auto r = CompleteView(model, SmallCamera(), At(-0.6), Options());
@@ -190,6 +254,16 @@ TEST(Completion, BadInput) {
             absl::StatusCode::kInvalidArgument);
   CompletionOptions o = Options();
   o.mesh_step_px = 0;
+  EXPECT_EQ(CompleteView(model, SmallCamera(), At(0.0), o).status().code(),
+            absl::StatusCode::kInvalidArgument);
+  for (double g : {std::numeric_limits<double>::quiet_NaN(), 5.0}) {
+    o = Options();
+    o.detail_gain = g;
+    EXPECT_EQ(CompleteView(model, SmallCamera(), At(0.0), o).status().code(),
+              absl::StatusCode::kInvalidArgument);
+  }
+  o = Options();
+  o.detail_sigma_px = 0.0;
   EXPECT_EQ(CompleteView(model, SmallCamera(), At(0.0), o).status().code(),
             absl::StatusCode::kInvalidArgument);
 }

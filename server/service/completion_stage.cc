@@ -1,5 +1,7 @@
 #include "server/service/completion_stage.h"
 
+#include <optional>
+
 #include <pthread.h>
 #include <sys/resource.h>
 #include <sys/syscall.h>
@@ -52,8 +54,9 @@ bool FinitePose(const Rigid3d& p) {
 
 class CompletionStageImpl final : public CompletionStage {
  public:
-  CompletionStageImpl(const CompletionStageOptions& options, ModelStore* store)
-      : options_(options), store_(store) {
+  CompletionStageImpl(const CompletionStageOptions& options, ModelStore* store,
+                      std::shared_ptr<ObservedChunks> coloured)
+      : options_(options), store_(store), coloured_(std::move(coloured)) {
     TakeOverRestoredViews();
     worker_ = std::thread([this] { WorkerLoop(); });
   }
@@ -126,6 +129,7 @@ class CompletionStageImpl final : public CompletionStage {
     (*c)["completion.ms_mean"] = completed_ ? sum_ms_ / completed_ : 0.0;
     (*c)["completion.cpu_ms_mean"] = completed_ ? sum_cpu_ms_ / completed_ : 0.0;
     (*c)["completion.hole_px_total"] = static_cast<double>(hole_px_);
+    (*c)["completion.fused_color_px_total"] = static_cast<double>(fused_px_);
   }
 
  private:
@@ -292,7 +296,10 @@ class CompletionStageImpl final : public CompletionStage {
     }
     auto model = Snapshot(/*observed_only=*/false);
     if (!model.ok()) return fail(model.status());
-    auto r = inpainting::CompleteView(*model, cam, job.request.local_from_cam, options_.completion);
+    std::optional<TriangleMesh> coloured;
+    if (coloured_ && options_.completion.use_vertex_color) coloured = coloured_->Merged();
+    auto r = inpainting::CompleteView(*model, cam, job.request.local_from_cam, options_.completion,
+                                      coloured && !coloured->empty() ? &*coloured : nullptr);
     if (!r.ok()) return fail(r.status());
     v1::CompleteViewReply out;
     out.set_width(cam.width);
@@ -354,12 +361,15 @@ class CompletionStageImpl final : public CompletionStage {
       sum_ms_ += out.total_ms();
       sum_cpu_ms_ += out.cpu_ms();
       hole_px_ += r->before.hole_px;
+      fused_px_ += r->before.fused_color_px;
     }
-    log->info("completion view {:#x} for {}: {}x{}, {} hole px ({} surface, {} void; {} covered, "
+    log->info("completion view {:#x} for {}: {}x{}, {} hole px ({} surface, {} of them with "
+              "fused colour, {} void; {} covered, "
               "{} background), mesh {} triangles, render {:.0f} ms, inpaint {:.0f} ms, total "
               "{:.0f} ms ({:.0f} ms CPU)",
               e.id, job.request.who.empty() ? "a viewer" : job.request.who, cam.width, cam.height,
-              r->before.hole_px, r->before.surface_hole_px, r->before.void_hole_px,
+              r->before.hole_px, r->before.surface_hole_px, r->before.fused_color_px,
+              r->before.void_hole_px,
               r->before.covered_px, r->before.background_px, r->void_mesh.num_triangles(),
               r->render_ms, r->inpaint_ms, out.total_ms(), out.cpu_ms());
     return out;
@@ -464,6 +474,7 @@ class CompletionStageImpl final : public CompletionStage {
 
   const CompletionStageOptions options_;
   ModelStore* store_;
+  std::shared_ptr<ObservedChunks> coloured_;  // may be null
   mutable std::mutex mu_;
   std::condition_variable cv_;
   std::deque<std::shared_ptr<Job>> queue_;
@@ -471,7 +482,7 @@ class CompletionStageImpl final : public CompletionStage {
   std::deque<Entry> entries_;  // oldest first
   ViewId next_id_ = kCompletionViewIdBase;
   uint64_t requests_ = 0, completed_ = 0, nothing_ = 0, failed_ = 0, refused_busy_ = 0,
-           refreshed_ = 0, withdrawn_ = 0, evicted_ = 0, hole_px_ = 0;
+           refreshed_ = 0, withdrawn_ = 0, evicted_ = 0, hole_px_ = 0, fused_px_ = 0;
   double sum_ms_ = 0, sum_cpu_ms_ = 0;
   // Worker only.
   std::map<ViewId, CachedView> cache_;
@@ -498,10 +509,12 @@ absl::Status CompletionStageOptions::Validate() const {
 }
 
 absl::StatusOr<std::unique_ptr<CompletionStage>> CompletionStage::Create(
-    const CompletionStageOptions& options, ModelStore* store) {
+    const CompletionStageOptions& options, ModelStore* store,
+    std::shared_ptr<ObservedChunks> coloured) {
   EXO_RETURN_IF_ERROR(options.Validate());
   if (store == nullptr) return absl::InvalidArgumentError("no model store");
-  return std::unique_ptr<CompletionStage>(new CompletionStageImpl(options, store));
+  return std::unique_ptr<CompletionStage>(
+      new CompletionStageImpl(options, store, std::move(coloured)));
 }
 
 }  // namespace exo

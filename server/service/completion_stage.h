@@ -31,6 +31,7 @@
 #include "proto/model_proto.h"
 #include "server/inpainting/completion.h"
 #include "server/service/model_store.h"
+#include "server/service/observed_chunks.h"
 
 namespace exo {
 
@@ -71,8 +72,12 @@ struct CompletionRequest {
 class CompletionStage {
  public:
   // Starts the worker; the completion views of a restored model (checkpoint) are taken over.
+  // `coloured` (may be null): the geometry stage's full-resolution chunks with their fused
+  // vertex colours (observed_chunks.h), the colour guide of CompletionOptions::use_vertex_color
+  // (the published chunks carry no colours).
   static absl::StatusOr<std::unique_ptr<CompletionStage>> Create(
-      const CompletionStageOptions& options, ModelStore* store);
+      const CompletionStageOptions& options, ModelStore* store,
+      std::shared_ptr<ObservedChunks> coloured = nullptr);
   virtual ~CompletionStage() = default;
   // Blocks the caller (an RPC thread) until the completion is published or refused. Errors:
   // INVALID_ARGUMENT (camera, pose, size), FAILED_PRECONDITION (no scene, nothing modelled in

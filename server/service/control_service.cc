@@ -391,8 +391,10 @@ class ControlServiceHost::Impl final : public cv1::Control::Service {
 // ---------------------------------------------------------------------------------------------
 
 absl::StatusOr<std::unique_ptr<ControlServiceHost>> ControlServiceHost::Start(
-    const ControlServiceOptions& options, ModelStore* store, AuthorizeFn authorize) {
+    const ControlServiceOptions& options, ModelStore* store, AuthorizeFn authorize,
+    std::shared_ptr<ObservedChunks> observed) {
   std::unique_ptr<ControlServiceHost> h(new ControlServiceHost());
+  h->observed_ = std::move(observed);
   EXO_ASSIGN_OR_RETURN(h->core_, control::ControlCore::Create(options.core));
   h->impl_ = std::make_unique<Impl>(h->core_.get(), std::move(authorize));
   h->store_ = store;
@@ -420,7 +422,14 @@ void ControlServiceHost::Stop() {
 void ControlServiceHost::Feed() {
   auto log = log::Get("control");
   auto sub = store_->Subscribe(0, 0);
+  // The chunks published labelled (observed_chunks.h): their published deltas are skipped.
+  auto labelled = [this](uint64_t id) { return observed_ && observed_->Contains(id); };
   while (!stop_.load()) {
+    if (observed_)
+      for (auto& [id, mesh] : observed_->TakeChanged()) {
+        if (mesh.empty()) core_->RemoveChunk(id);
+        else core_->UpsertChunk(id, std::move(mesh));
+      }
     for (const DeltaPtr& d : sub->Next(100)) {
       switch (d->kind_case()) {
         case v1::Delta::kSceneParams: {
@@ -431,16 +440,21 @@ void ControlServiceHost::Feed() {
         case v1::Delta::kMeshChunkUpserted: {
           // Scene completion's meshes are hallucinated surface: not in the drone's map.
           if (IsCompletionChunk(d->mesh_chunk_upserted().chunk_id())) break;
+          if (labelled(d->mesh_chunk_upserted().chunk_id())) break;  // the observed one instead
           auto mesh = MeshFromProto(d->mesh_chunk_upserted());
           if (mesh.ok()) core_->UpsertChunk(d->mesh_chunk_upserted().chunk_id(), *std::move(mesh));
           break;
         }
         case v1::Delta::kMeshChunkRemoved:
+          if (labelled(d->mesh_chunk_removed().chunk_id())) break;
           core_->RemoveChunk(d->mesh_chunk_removed().chunk_id());
           break;
         case v1::Delta::kViewAdded: {
           const auto& v = d->view_added();
-          if (IsCompletionView(v.view_id())) break;  // hallucinated pixels: not the drone's
+          // Hallucinated pixels are not the drone's: a DR keyframe's depth lies BEHIND the removed
+          // object (carving it would make the object's inside free space), a completion's is a
+          // guess.
+          if (v.inpainted() || IsCompletionView(v.view_id())) break;
           auto pose = PoseFromProto(v.local_from_cam());
           auto cam = IntrinsicsFromProto(v.intrinsics());
           if (!pose.ok() || !cam.ok()) break;

@@ -3,7 +3,10 @@
 // and the operators' interaction RPCs, over server/control's ControlCore. The core's world
 // follows the published model: a thread subscribes to the ModelStore like a client and feeds it
 // the scene origin, the proxy mesh chunks (ray casting, occupied cells) and the stored views
-// (poses for go-to-view, depth carved into known free space).
+// (poses for go-to-view, depth carved into known free space). Only observed geometry: inpainted
+// views (DR keyframes, scene completions) and completion chunks are skipped, and where the
+// published chunk is InpaintFusion's labelled proxy (a marked object carved out) the observed
+// mesh of that chunk is used instead (ObservedChunks): the object is physically there.
 // Served when at least one flight zone is configured (control_zones).
 #pragma once
 
@@ -25,6 +28,7 @@ class ServerContext;
 namespace exo {
 
 class ModelStore;
+class ObservedChunks;
 struct ConfigKey;
 
 struct ControlServiceOptions {
@@ -45,8 +49,12 @@ class ControlServiceHost {
   // Errors: invalid options (zones, up axis, ...). `authorize` (null = every call allowed) runs
   // first in every RPC; with authentication an interaction's operator_id is the caller's
   // principal, whatever the request's header says.
+  // `observed` (may be null): the observed mesh of the chunks the store publishes labelled
+  // (InpaintFusion's proxy with the marked objects carved): the drone's map takes those instead
+  // of the published ones, since a removed object is still physically there.
   static absl::StatusOr<std::unique_ptr<ControlServiceHost>> Start(
-      const ControlServiceOptions& options, ModelStore* store, AuthorizeFn authorize = nullptr);
+      const ControlServiceOptions& options, ModelStore* store, AuthorizeFn authorize = nullptr,
+      std::shared_ptr<ObservedChunks> observed = nullptr);
   ~ControlServiceHost();
   grpc::Service* service();
   control::ControlCore& core() { return *core_; }
@@ -60,6 +68,7 @@ class ControlServiceHost {
   std::unique_ptr<control::ControlCore> core_;
   std::unique_ptr<Impl> impl_;
   ModelStore* store_ = nullptr;
+  std::shared_ptr<ObservedChunks> observed_;
   std::atomic<bool> stop_{false};
   std::thread feeder_;
   std::thread explorer_;

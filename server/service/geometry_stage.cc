@@ -33,9 +33,11 @@ class GeometryStage final : public PipelineStage {
  public:
   GeometryStage(const GeometryStageOptions& options, const core::OnlineModelOptions& model,
                 std::shared_ptr<GeometryHandoff> handoff,
-                std::shared_ptr<InpaintedProxyLink> inpainted)
+                std::shared_ptr<InpaintedProxyLink> inpainted,
+                std::shared_ptr<ObservedChunks> coloured)
       : options_(options), model_(model), handoff_(std::move(handoff)),
-        link_(options.inpaint_fuse ? std::move(inpainted) : nullptr) {
+        link_(options.inpaint_fuse ? std::move(inpainted) : nullptr),
+        coloured_(std::move(coloured)) {
     if (link_) link_->SetApplier([this] { ApplyFromLink(); });
   }
   ~GeometryStage() override {
@@ -71,6 +73,10 @@ class GeometryStage final : public PipelineStage {
     // Exactly one hand-off entry per frame, also when integration failed (an empty update).
     if (handoff_) handoff_->Push(u.ok() ? *u : core::GeometryUpdate{});
     EXO_RETURN_IF_ERROR(u.status());
+    if (coloured_) {  // scene completion's colour guide: the observed chunks, full res, colours
+      for (const MeshChunk& c : u->chunks) coloured_->Set(c.id, ForColour(c.mesh));
+      for (uint64_t id : u->removed) coloured_->Set(id, TriangleMesh{});
+    }
     last_now_ns_ = static_cast<int64_t>(std::llround(f.frame.timestamp_s * 1e9));
     last_time_s_ = f.frame.timestamp_s;
     // The labelled proxy (the planner got the observed update above): blocks the overlay
@@ -310,6 +316,17 @@ class GeometryStage final : public PipelineStage {
     const int64_t t0 = SteadyNowNs();
     const TsdfVolume& vol = geometry_->volume();
     auto in_dirty = [&](uint64_t id) { return std::binary_search(dirty.begin(), dirty.end(), id); };
+    // The drone's map keeps the observed mesh of every chunk whose clients' mesh is (or was) the
+    // overlay's, noted before the labelled mesh is published (observed_chunks.h).
+    if (ObservedChunks* obs = link_->observed()) {
+      auto labelled = [&](uint64_t id) {
+        return surface_->Affects(id) || overlay_version_.contains(id) || in_dirty(id);
+      };
+      for (const MeshChunk& c : u->chunks)
+        if (labelled(c.id)) obs->Set(c.id, c.mesh);
+      for (uint64_t id : u->removed)
+        if (labelled(id)) obs->Set(id, TriangleMesh{});
+    }
     std::vector<MeshChunk> chunks;
     chunks.reserve(u->chunks.size());
     std::vector<uint64_t> removed;
@@ -353,6 +370,8 @@ class GeometryStage final : public PipelineStage {
       // Neither affected now nor published by the overlay before: the clients have the observed
       // mesh, as they should.
       if (!surface_->Affects(key) && !overlay_version_.contains(key)) continue;
+      if (ObservedChunks* obs = link_->observed(); obs && !obs->Contains(key))
+        obs->Set(key, vol.ExtractBlock(key));  // before its labelled mesh goes out
       TriangleMesh mesh = surface_->ExtractBlock(vol, key);
       if (!pending_.contains(key) && !mesh.empty() && options_.refresh_min_move_voxels > 0.0) {
         // Unchanged since its publication (e.g. inpainted values that were all erased there).
@@ -372,6 +391,15 @@ class GeometryStage final : public PipelineStage {
       }
     }
     ip_ns_ += SteadyNowNs() - t0;
+  }
+
+  static TriangleMesh ForColour(const TriangleMesh& m) {
+    TriangleMesh out;
+    if (m.colors.size() != m.positions.size()) return out;  // no colours fused
+    out.positions = m.positions;
+    out.colors = m.colors;
+    out.indices = m.indices;
+    return out;
   }
 
   static void PutMesh(StateWriter* w, const TriangleMesh& m) {
@@ -453,6 +481,14 @@ class GeometryStage final : public PipelineStage {
     if (!r.done()) GetUnorderedPod(&r, &overlay_version_);  // absent in older checkpoints
     EXO_RETURN_IF_ERROR(r.Status("geometry stage"));
     if (!r.done()) return absl::DataLossError("geometry stage state: trailing bytes");
+    if (coloured_)
+      for (const auto& [key, p] : published_)
+        coloured_->Set(key, ForColour(geometry_->volume().ExtractBlock(key)));
+    // The store's chunks of the checkpoint are the labelled ones: the drone's map gets their
+    // observed mesh from the restored volume.
+    if (link_ && link_->observed())
+      for (const auto& [key, version] : overlay_version_)
+        link_->observed()->Set(key, geometry_->volume().ExtractBlock(key));
     return absl::OkStatus();
   }
 
@@ -532,6 +568,7 @@ class GeometryStage final : public PipelineStage {
   const core::OnlineModelOptions model_;
   std::shared_ptr<GeometryHandoff> handoff_;
   std::shared_ptr<InpaintedProxyLink> link_;  // null: no labelled proxy
+  std::shared_ptr<ObservedChunks> coloured_;  // null: no scene completion
   // The stage's whole work (Process, ApplyFromLink, Save/RestoreState): the labelled proxy's
   // keyframes are applied from another thread. Lock order: stage_mu_ before mu_.
   mutable std::mutex stage_mu_;
@@ -568,11 +605,12 @@ class GeometryStage final : public PipelineStage {
 
 absl::StatusOr<std::unique_ptr<PipelineStage>> MakeGeometryStage(
     const GeometryStageOptions& options, const core::OnlineModelOptions& model,
-    std::shared_ptr<GeometryHandoff> handoff, std::shared_ptr<InpaintedProxyLink> inpainted) {
+    std::shared_ptr<GeometryHandoff> handoff, std::shared_ptr<InpaintedProxyLink> inpainted,
+    std::shared_ptr<ObservedChunks> coloured) {
   EXO_RETURN_IF_ERROR(options.Validate());
   EXO_RETURN_IF_ERROR(model.Validate());
-  return std::unique_ptr<PipelineStage>(
-      new GeometryStage(options, model, std::move(handoff), std::move(inpainted)));
+  return std::unique_ptr<PipelineStage>(new GeometryStage(
+      options, model, std::move(handoff), std::move(inpainted), std::move(coloured)));
 }
 
 }  // namespace exo

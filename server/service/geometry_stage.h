@@ -145,6 +145,7 @@ class GeometryHandoff {
 absl::StatusOr<std::unique_ptr<PipelineStage>> MakeGeometryStage(
     const GeometryStageOptions& options, const core::OnlineModelOptions& model,
     std::shared_ptr<GeometryHandoff> handoff = nullptr,
-    std::shared_ptr<InpaintedProxyLink> inpainted = nullptr);
+    std::shared_ptr<InpaintedProxyLink> inpainted = nullptr,
+    std::shared_ptr<ObservedChunks> coloured = nullptr);  // every chunk, full res + colours
 
 }  // namespace exo

@@ -289,6 +289,32 @@ TEST(GeometryStage, PublishedChunksAreSimplifiedWithinTheLod) {
   EXPECT_EQ(handed_lod, handed_full);  // planning sees the full mesh either way
 }
 
+// Scene completion's colour guide (session 16): with a coloured map the stage keeps every chunk
+// it extracts at full resolution with its fused vertex colours (the published chunks, LOD and
+// wire format 3, carry none): as many triangles as planning gets, one colour per vertex.
+TEST(GeometryStage, KeepsTheFullResolutionColouredChunksForCompletion) {
+  GeometryStageOptions go;
+  go.shed_backlog_fraction = 0.0;
+  Rig rig(go);
+  auto coloured = std::make_shared<ObservedChunks>();
+  core::OnlineModelOptions mo;
+  auto s = MakeGeometryStage(go, mo, rig.handoff, nullptr, coloured);
+  ASSERT_TRUE(s.ok()) << s.status();
+  rig.stage = std::move(*s);
+  uint64_t handed = 0;
+  for (uint64_t q = 1; q <= 3; ++q) {
+    rig.Run(q, 0);
+    while (auto u = rig.handoff->Pop())
+      for (const MeshChunk& c : u->chunks) handed = std::max<uint64_t>(handed, c.mesh.num_triangles());
+  }
+  const TriangleMesh m = coloured->Merged();
+  ASSERT_GT(m.num_triangles(), 0u);
+  EXPECT_EQ(m.colors.size(), m.positions.size());
+  EXPECT_TRUE(m.normals.empty());
+  EXPECT_GE(m.num_triangles(), handed);  // the full mesh (the published one is simplified)
+  EXPECT_GT(coloured->size(), 0u);
+}
+
 TEST(GeometryStage, LodOptionValidated) {
   GeometryStageOptions go;
   go.publish_lod_error_voxels = -1;

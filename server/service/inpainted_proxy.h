@@ -16,6 +16,7 @@
 #include "common/camera.h"
 #include "common/image.h"
 #include "common/rigid3.h"
+#include "server/service/observed_chunks.h"
 #include "server/service/regions.h"
 
 namespace exo {
@@ -34,10 +35,14 @@ class InpaintedProxyLink {
   // the stage publishes at most one keyframe at a time, so this only fills without frames).
   static constexpr size_t kMaxWaiting = 32;
 
-  explicit InpaintedProxyLink(std::shared_ptr<RegionRegistry> regions)
-      : regions_(std::move(regions)) {}
+  // `observed` (may be null): where the geometry stage keeps the observed mesh of every chunk
+  // it publishes labelled (the drone's map, observed_chunks.h).
+  explicit InpaintedProxyLink(std::shared_ptr<RegionRegistry> regions,
+                              std::shared_ptr<ObservedChunks> observed = nullptr)
+      : regions_(std::move(regions)), observed_(std::move(observed)) {}
 
   const std::shared_ptr<RegionRegistry>& regions() const { return regions_; }
+  ObservedChunks* observed() const { return observed_.get(); }
 
   // Inpainting stage: a published keyframe's depth; every inpainted view withdrawn.
   void Add(InpaintedDepth d) {
@@ -83,6 +88,7 @@ class InpaintedProxyLink {
 
  private:
   std::shared_ptr<RegionRegistry> regions_;
+  std::shared_ptr<ObservedChunks> observed_;
   // Lock order: applier_mu_ -> (the geometry stage's locks) -> mu_; never mu_ then applier_mu_.
   std::mutex applier_mu_;
   std::function<void()> applier_;

@@ -827,7 +827,10 @@ absl::Status ExoviewServer::Start() {
   EXO_ASSIGN_OR_RETURN(delta_log_, MakeDeltaLog(config_.delta_log));
   EXO_RETURN_IF_ERROR(delta_log_->Open(store_.get(), store_is_authority));
   // The stages after the checkpoint and the log replay: a restarted stage sees the restored model.
-  EXO_ASSIGN_OR_RETURN(auto stages, MakeStages(config_, regions_, store_.get(), &inpainting_));
+  if (config_.enable_completion && config_.completion.completion.use_vertex_color)
+    coloured_chunks_ = std::make_shared<ObservedChunks>();
+  EXO_ASSIGN_OR_RETURN(auto stages, MakeStages(config_, regions_, store_.get(), &inpainting_,
+                                               observed_chunks_, coloured_chunks_));
   pipeline_ = std::make_unique<Pipeline>(config_.pipeline, store_.get(), std::move(stages));
   // The pipeline's state at the checkpoint (scene set-up, TSDF, planner): the journal replay and
   // the next frames continue exactly as an uninterrupted server would have (issue 20).
@@ -838,7 +841,10 @@ absl::Status ExoviewServer::Start() {
                                 "rebuild from the stored views instead",
                                 std::string(s.message()));
       pipeline_state.clear();
-      EXO_ASSIGN_OR_RETURN(auto fresh, MakeStages(config_, regions_, store_.get(), &inpainting_));
+      observed_chunks_->Clear();  // what the failed restore put there (control has not started)
+      if (coloured_chunks_) coloured_chunks_->Clear();
+      EXO_ASSIGN_OR_RETURN(auto fresh, MakeStages(config_, regions_, store_.get(), &inpainting_,
+                                                  observed_chunks_, coloured_chunks_));
       pipeline_ = std::make_unique<Pipeline>(config_.pipeline, store_.get(), std::move(fresh));
     }
   }
@@ -907,7 +913,7 @@ absl::Status ExoviewServer::Start() {
   if (config_.enable_completion) {
     CompletionStageOptions co = config_.completion;
     co.publish = config_.publish;
-    EXO_ASSIGN_OR_RETURN(completion_, CompletionStage::Create(co, store_.get()));
+    EXO_ASSIGN_OR_RETURN(completion_, CompletionStage::Create(co, store_.get(), coloured_chunks_));
     service_->SetCompletion(completion_.get());
   }
   service_->SetInpainting(regions_.get(), inpainting_, [this] {
@@ -921,7 +927,8 @@ absl::Status ExoviewServer::Start() {
                                        config_.control, store_.get(),
                                        [svc](const grpc::ServerContext& ctx, Rpc rpc) {
                                          return svc->AuthorizeCall(ctx, rpc);
-                                       }));
+                                       },
+                                       observed_chunks_));
   }
   grpc::EnableDefaultHealthCheckService(true);
   // Server reflection: grpcurl-style tools list exoview.v1.Exoview and fetch its descriptors.

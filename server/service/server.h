@@ -28,6 +28,7 @@
 #include "server/service/inpainting_stage.h"
 #include "server/service/completion_stage.h"
 #include "server/service/regions.h"
+#include "server/service/observed_chunks.h"
 
 namespace grpc {
 class Server;
@@ -176,6 +177,11 @@ class ExoviewServer {
   std::unique_ptr<Pipeline> pipeline_;
   std::shared_ptr<RegionRegistry> regions_;  // null without inpainting
   InpaintingStage* inpainting_ = nullptr;    // owned by pipeline_
+  // The labelled proxy's chunks as observed: geometry stage -> drone control (observed_chunks.h).
+  std::shared_ptr<ObservedChunks> observed_chunks_ = std::make_shared<ObservedChunks>();
+  // Every chunk at full resolution with its fused vertex colours: geometry stage -> scene
+  // completion's colour guide (null without completion).
+  std::shared_ptr<ObservedChunks> coloured_chunks_;
   std::unique_ptr<CompletionStage> completion_;  // null with completion off
   std::unique_ptr<Durability> durability_;
   std::unique_ptr<Service> service_;

@@ -147,6 +147,8 @@ std::vector<ConfigKey> MakeKeys() {
           EXO_FIELD(completion.max_views)),
       Key("completion_min_hole_px", "fewer hole pixels than this: nothing to complete",
           EXO_FIELD(completion.completion.min_hole_px)),
+      Key("completion_detail_gain", "completion colour in the holes: push-pull fill + this x PatchMatch's high frequencies (0 = push-pull only, the PSNR/SSIM optimum; < 0 = PatchMatch's colour, session 15)",
+          EXO_FIELD(completion.completion.detail_gain)),
       Key("completion_refresh_period_s", "completion views re-checked against new observations this often (0 = never)",
           EXO_FIELD(completion.refresh_period_s)),
       Key("completion_nice", "the completion thread runs this much nicer than the server",

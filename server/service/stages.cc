@@ -12,7 +12,8 @@ std::vector<std::string> AvailableStages() {
 
 absl::StatusOr<std::vector<std::unique_ptr<PipelineStage>>> MakeStages(
     const ServerConfig& config, std::shared_ptr<RegionRegistry> regions, ModelStore* store,
-    InpaintingStage** inpainting) {
+    InpaintingStage** inpainting, std::shared_ptr<ObservedChunks> observed,
+    std::shared_ptr<ObservedChunks> coloured) {
   std::vector<std::unique_ptr<PipelineStage>> stages;
   core::OnlineModelOptions model = config.pipeline.model;
   if (!config.planning_cell_areas) model.cell_areas = false;
@@ -21,14 +22,14 @@ absl::StatusOr<std::vector<std::unique_ptr<PipelineStage>>> MakeStages(
   // chunks (geometry_stage.h inpaint_fuse).
   std::shared_ptr<InpaintedProxyLink> link;
   if (regions && store && config.enable_geometry && config.geometry.inpaint_fuse)
-    link = std::make_shared<InpaintedProxyLink>(regions);
+    link = std::make_shared<InpaintedProxyLink>(regions, std::move(observed));
   if (config.enable_geometry) {
     if (config.enable_planning) handoff = std::make_shared<GeometryHandoff>();
     GeometryStageOptions go = config.geometry;
     // Lossless (back-pressured) ingest processes every frame in order, deterministically: a
     // full queue there is not overload, nothing is shed.
     if (config.pipeline.admission_block) go.shed_backlog_fraction = 0.0;
-    EXO_ASSIGN_OR_RETURN(auto g, MakeGeometryStage(go, model, handoff, link));
+    EXO_ASSIGN_OR_RETURN(auto g, MakeGeometryStage(go, model, handoff, link, std::move(coloured)));
     stages.push_back(std::move(g));
   }
   // Inpainting before planning: the planning stage adds the frame's stored views, so it must be
