@@ -69,6 +69,7 @@ absl::Status OnlineModelOptions::Validate() const {
     po.dispersion_rotation_scale = dispersion_rotation_scale;
     po.dispersion_turn_overlap_rad = dispersion_turn_overlap_rad;
     po.dispersion_turn_overlap_scale = dispersion_turn_overlap_scale;
+    po.dispersion_turn_axis = dispersion_turn_axis;
     po.dispersion_guard = dispersion_guard;
     po.dispersion_guard_relative = dispersion_guard_relative;
     po.dispersion_guard_unique = dispersion_guard_unique;
@@ -319,6 +320,7 @@ absl::StatusOr<std::unique_ptr<OnlinePlanner>> OnlinePlanner::Create(
   po.dispersion_rotation_scale = options.dispersion_rotation_scale;
   po.dispersion_turn_overlap_rad = options.dispersion_turn_overlap_rad;
   po.dispersion_turn_overlap_scale = options.dispersion_turn_overlap_scale;
+  po.dispersion_turn_axis = options.dispersion_turn_axis;
   po.dispersion_guard = options.dispersion_guard;
   po.dispersion_guard_relative = options.dispersion_guard_relative;
   po.dispersion_guard_unique = options.dispersion_guard_unique;

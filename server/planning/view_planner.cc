@@ -276,7 +276,12 @@ double ViewPlanner::PoseDistance(const glm::dvec3& ca, const glm::dquat& qa,
   const double sign = glm::dot(qa, qb) < 0.0 ? -1.0 : 1.0;
   const double chord = glm::length(glm::dvec4(qa.w, qa.x, qa.y, qa.z) -
                                    sign * glm::dvec4(qb.w, qb.x, qb.y, qb.z));
-  const double angle = 4.0 * std::asin(std::min(1.0, 0.5 * chord));
+  double angle = 4.0 * std::asin(std::min(1.0, 0.5 * chord));
+  if (options_.dispersion_turn_axis) {
+    // The angle between the optical axes, 2 asin(|a - b| / 2) (well conditioned near 0).
+    const glm::dvec3 za = qa * glm::dvec3(0.0, 0.0, 1.0), zb = qb * glm::dvec3(0.0, 0.0, 1.0);
+    angle = 2.0 * std::asin(std::min(1.0, 0.5 * glm::length(za - zb)));
+  }
   return glm::length(ca - cb) + mpr * TurnWeight(angle);
 }
 

@@ -106,6 +106,12 @@ struct PlannerOptions {
   // what it did. 0 = off (docs/planning.md "Session 16").
   double dispersion_turn_overlap_rad = 0.0;
   double dispersion_turn_overlap_scale = 0.5;  // s in (0, 1]
+  // true: the turn between two views is the angle between their optical axes (camera +z) instead
+  // of the full rotation angle: a roll about the axis keeps every ray the view holds (the image
+  // only turns), so it does not make a view novel. A drone looking down at pitch p that yaws by
+  // θ turns its axis by about θ cos p (and rolls its image by θ sin p): its pans count less the
+  // steeper it looks down; a level camera's yaw counts in full (docs/planning.md "Session 16").
+  bool dispersion_turn_axis = false;
   double dispersion_guard = 0.5;  // τ units (kFirst)
   // > 0: the guard is this fraction of the mean τ per stored view (τ_sum / n) instead.
   double dispersion_guard_relative = 0.0;
