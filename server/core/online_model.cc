@@ -67,6 +67,9 @@ absl::Status OnlineModelOptions::Validate() const {
     po.dispersion = dispersion;
     po.dispersion_m_per_rad = dispersion_m_per_rad;
     po.dispersion_rotation_scale = dispersion_rotation_scale;
+    po.dispersion_turn_overlap_rad = dispersion_turn_overlap_rad;
+    po.dispersion_turn_overlap_scale = dispersion_turn_overlap_scale;
+    po.dispersion_turn_axis = dispersion_turn_axis;
     po.dispersion_guard = dispersion_guard;
     po.dispersion_guard_relative = dispersion_guard_relative;
     po.dispersion_guard_unique = dispersion_guard_unique;
@@ -318,6 +321,9 @@ absl::StatusOr<std::unique_ptr<OnlinePlanner>> OnlinePlanner::Create(
   po.dispersion = options.dispersion;
   po.dispersion_m_per_rad = options.dispersion_m_per_rad;
   po.dispersion_rotation_scale = options.dispersion_rotation_scale;
+  po.dispersion_turn_overlap_rad = options.dispersion_turn_overlap_rad;
+  po.dispersion_turn_overlap_scale = options.dispersion_turn_overlap_scale;
+  po.dispersion_turn_axis = options.dispersion_turn_axis;
   po.dispersion_guard = options.dispersion_guard;
   po.dispersion_guard_relative = options.dispersion_guard_relative;
   po.dispersion_guard_unique = options.dispersion_guard_unique;

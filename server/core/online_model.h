@@ -74,6 +74,10 @@ struct OnlineModelOptions {
   planning::PlannerOptions::Dispersion dispersion = planning::PlannerOptions::Dispersion::kFirst;
   double dispersion_m_per_rad = 0.0;
   double dispersion_rotation_scale = 1.0;  // PlannerOptions::dispersion_rotation_scale
+  // PlannerOptions::dispersion_turn_overlap_rad / _scale (session 16; 0 = off).
+  double dispersion_turn_overlap_rad = 0.0;
+  double dispersion_turn_overlap_scale = 0.5;
+  bool dispersion_turn_axis = false;  // PlannerOptions::dispersion_turn_axis (session 16)
   double dispersion_guard = 0.5;
   double dispersion_guard_relative = 0.65;
   // PlannerOptions::dispersion_guard_unique / _after (session 11): the frozen-τ guard while the

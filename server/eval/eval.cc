@@ -8,6 +8,7 @@
 #include <filesystem>
 #include <map>
 #include <memory>
+#include <numbers>
 #include <queue>
 #include <random>
 #include <unordered_map>
@@ -251,6 +252,14 @@ planning::PlannerOptions PlannerFor(const PolicyConfig& c, const Source& src, do
   po.dispersion_rotation_scale = c.dispersion_rotation_scale > 0
                                      ? c.dispersion_rotation_scale
                                      : product.dispersion_rotation_scale;
+  po.dispersion_turn_overlap_rad = c.dispersion_turn_overlap_deg >= 0
+                                       ? c.dispersion_turn_overlap_deg * (std::numbers::pi / 180.0)
+                                       : product.dispersion_turn_overlap_rad;
+  po.dispersion_turn_overlap_scale = c.dispersion_turn_overlap_scale > 0
+                                         ? c.dispersion_turn_overlap_scale
+                                         : product.dispersion_turn_overlap_scale;
+  po.dispersion_turn_axis = c.dispersion_turn_axis >= 0 ? c.dispersion_turn_axis != 0
+                                                        : product.dispersion_turn_axis;
   po.dispersion_guard = c.dispersion_guard >= 0 ? c.dispersion_guard : product.dispersion_guard;
   po.dispersion_guard_relative = c.dispersion_guard_relative >= 0
                                      ? c.dispersion_guard_relative
@@ -416,6 +425,9 @@ std::string ConfigJson(const std::string& dataset, const std::string& test_poses
                  {"dispersion", int(po.dispersion)},
                  {"dispersion_m_per_rad", po.dispersion_m_per_rad},
                  {"dispersion_rotation_scale", po.dispersion_rotation_scale},
+                 {"dispersion_turn_overlap_deg", Round(po.dispersion_turn_overlap_rad * 180.0 / std::numbers::pi, 2)},
+                 {"dispersion_turn_overlap_scale", po.dispersion_turn_overlap_scale},
+                 {"dispersion_turn_axis", int(po.dispersion_turn_axis)},
                  {"dispersion_guard", po.dispersion_guard},
                  {"dispersion_guard_relative", po.dispersion_guard_relative},
                  {"dispersion_guard_unique", int(po.dispersion_guard_unique)},
@@ -598,6 +610,9 @@ class Engine {
         mo.dispersion = po.dispersion;
         mo.dispersion_m_per_rad = po.dispersion_m_per_rad;
         mo.dispersion_rotation_scale = po.dispersion_rotation_scale;
+        mo.dispersion_turn_overlap_rad = po.dispersion_turn_overlap_rad;
+        mo.dispersion_turn_overlap_scale = po.dispersion_turn_overlap_scale;
+        mo.dispersion_turn_axis = po.dispersion_turn_axis;
         mo.dispersion_guard = po.dispersion_guard;
         mo.dispersion_guard_relative = po.dispersion_guard_relative;
         mo.dispersion_guard_unique = po.dispersion_guard_unique;

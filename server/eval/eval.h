@@ -89,6 +89,9 @@ struct PolicyConfig {
   int dispersion = -1;  // 0 off, 1 ties, 2 first
   double dispersion_m_per_rad = -1;
   double dispersion_rotation_scale = -1;  // policy option "drs=V"
+  double dispersion_turn_overlap_deg = -1;   // policy option "dfo=DEG" (0 = off)
+  double dispersion_turn_overlap_scale = -1; // policy option "dfs=V"
+  int dispersion_turn_axis = -1;             // policy option "dax=0|1"
   double dispersion_guard = -1;           // policy option "dg=V"
   double dispersion_guard_relative = -1;  // policy option "dgr=V"
   int dispersion_guard_unique = -1;       // policy option "dgu=0|1"

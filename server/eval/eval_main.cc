@@ -177,11 +177,14 @@ absl::StatusOr<std::vector<PolicyConfig>> Configs(const Args& a) {
         else if (key == "rpl") c.replay_refs = v != 0;
         else if (key == "mpr") c.dispersion_m_per_rad = v;
         else if (key == "drs") c.dispersion_rotation_scale = v;
+        else if (key == "dfo") c.dispersion_turn_overlap_deg = v;
+        else if (key == "dfs") c.dispersion_turn_overlap_scale = v;
+        else if (key == "dax") c.dispersion_turn_axis = v != 0 ? 1 : 0;
         else if (key == "dts") c.delta_tau_sum = v;
         else if (key == "sharp") c.sharp_gamma = v;
         else
           return absl::InvalidArgumentError("unknown policy option " + key +
-                                            " (lambda, blend_lambda, tau_max, soft, sharp, disp, mpr, dg, dgr, dgu, dgua, dwe, dwa, dwu, dkn, drc, ddo, ozc, rpl, drs, dts)");
+                                            " (lambda, blend_lambda, tau_max, soft, sharp, disp, mpr, dg, dgr, dgu, dgua, dwe, dwa, dwu, dkn, drc, ddo, ozc, rpl, drs, dfo, dfs, dax, dts)");
       }
       c.tag = opts;
     }

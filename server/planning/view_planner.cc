@@ -4,6 +4,7 @@
 #include <array>
 #include <cmath>
 #include <limits>
+#include <numbers>
 
 #include "server/planning/coverage.h"
 
@@ -52,6 +53,12 @@ absl::Status PlannerOptions::Validate() const {
     return absl::InvalidArgumentError("planner dispersion_m_per_rad must be finite and >= 0");
   if (!(dispersion_rotation_scale > 0.0 && dispersion_rotation_scale <= 1.0))
     return absl::InvalidArgumentError("planner dispersion_rotation_scale must be in (0, 1]");
+  if (!(std::isfinite(dispersion_turn_overlap_rad) && dispersion_turn_overlap_rad >= 0.0 &&
+        dispersion_turn_overlap_rad <= std::numbers::pi) ||
+      !(dispersion_turn_overlap_scale > 0.0 && dispersion_turn_overlap_scale <= 1.0))
+    return absl::InvalidArgumentError(absl::StrCat(
+        "planner dispersion_turn_overlap_rad must be in [0, pi] and dispersion_turn_overlap_scale "
+        "in (0, 1], got ", dispersion_turn_overlap_rad, " and ", dispersion_turn_overlap_scale));
   if (dispersion != Dispersion::kOff && dispersion != Dispersion::kTies &&
       dispersion != Dispersion::kFirst)
     return absl::InvalidArgumentError(absl::StrCat(
@@ -274,8 +281,22 @@ double ViewPlanner::PoseDistance(const glm::dvec3& ca, const glm::dquat& qa,
   const double sign = glm::dot(qa, qb) < 0.0 ? -1.0 : 1.0;
   const double chord = glm::length(glm::dvec4(qa.w, qa.x, qa.y, qa.z) -
                                    sign * glm::dvec4(qb.w, qb.x, qb.y, qb.z));
-  const double angle = 4.0 * std::asin(std::min(1.0, 0.5 * chord));
-  return glm::length(ca - cb) + mpr * angle;
+  double angle = 4.0 * std::asin(std::min(1.0, 0.5 * chord));
+  if (options_.dispersion_turn_axis) {
+    // The angle between the optical axes, 2 asin(|a - b| / 2) (well conditioned near 0).
+    const glm::dvec3 za = qa * glm::dvec3(0.0, 0.0, 1.0), zb = qb * glm::dvec3(0.0, 0.0, 1.0);
+    angle = 2.0 * std::asin(std::min(1.0, 0.5 * glm::length(za - zb)));
+  }
+  return glm::length(ca - cb) + mpr * TurnWeight(angle);
+}
+
+double ViewPlanner::TurnWeight(double angle) const {
+  // dispersion_turn_overlap_rad φ: a turn within the views' shared field of view at the reduced
+  // weight s, the rest at the full one.
+  const double phi = options_.dispersion_turn_overlap_rad;
+  if (!(phi > 0.0)) return angle;
+  const double s = options_.dispersion_turn_overlap_scale;
+  return angle <= phi ? s * angle : s * phi + (angle - phi);
 }
 
 double ViewPlanner::ViewDistance(const glm::dvec3& ca, const glm::dquat& qa, ViewId ida,

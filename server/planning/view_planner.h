@@ -98,6 +98,20 @@ struct PlannerOptions {
   // views see): it only changes what is in view, which the other stored views fill; a displacement
   // does both. (0, 1] (docs/planning.md "Session 15").
   double dispersion_rotation_scale = 1.0;
+  // > 0: a turn counts at dispersion_turn_overlap_scale of its weight up to this angle φ
+  // (radians) and at its full weight beyond: turn(θ) = s·min(θ, φ) + max(0, θ − φ), × the metres
+  // per radian above. Two views turned by less than about half the field of view still share
+  // most of what they see, so one can stand in for the other's coverage and the store keeps
+  // places rather than orientations; a turn beyond it brings other surfaces into view and costs
+  // what it did. 0 = off (docs/planning.md "Session 16").
+  double dispersion_turn_overlap_rad = 0.0;
+  double dispersion_turn_overlap_scale = 0.5;  // s in (0, 1]
+  // true: the turn between two views is the angle between their optical axes (camera +z) instead
+  // of the full rotation angle: a roll about the axis keeps every ray the view holds (the image
+  // only turns), so it does not make a view novel. A drone looking down at pitch p that yaws by
+  // θ turns its axis by about θ cos p (and rolls its image by θ sin p): its pans count less the
+  // steeper it looks down; a level camera's yaw counts in full (docs/planning.md "Session 16").
+  bool dispersion_turn_axis = false;
   double dispersion_guard = 0.5;  // τ units (kFirst)
   // > 0: the guard is this fraction of the mean τ per stored view (τ_sum / n) instead.
   double dispersion_guard_relative = 0.0;
@@ -377,6 +391,8 @@ class ViewPlanner {
   // the views whose neighbour it was).
   double PoseDistance(const glm::dvec3& ca, const glm::dquat& qa, const glm::dvec3& cb,
                       const glm::dquat& qb) const;
+  // A turn of `angle` radians in radians of full weight (dispersion_turn_overlap_rad).
+  double TurnWeight(double angle) const;
   // ... plus the time term (dispersion_time_steps): the distance the dispersion rules use.
   double ViewDistance(const glm::dvec3& ca, const glm::dquat& qa, ViewId ida, double arca,
                       const glm::dvec3& cb, const glm::dquat& qb, ViewId idb, double arcb) const;

@@ -632,6 +632,111 @@ TEST(ViewPlanner, RotationScaleWeighsATurnAgainstADisplacement) {
   }
 }
 
+// dispersion_turn_overlap_rad φ (session 16): a turn within φ counts at the reduced weight s, the
+// rest at the full one. Store A (x = 0), A' (A turned by θ about the vertical) and C (x = 5),
+// d_max = 2, φ = 0.6 rad, s = 0.25. A small turn (θ = 0.4 < φ) makes A-A' 0.2 m apart instead of
+// 0.8, so a candidate displaced 0.5 m from A is stored, replacing one view of the turned pair (at
+// φ = 0 it is rejected, the rule since session 9). A large turn (θ = 1.2 > φ) costs
+// 2 (0.25 × 0.6 + 0.6) = 1.5 m: the turned view stays and the displaced candidate is rejected.
+TEST(ViewPlanner, TurnOverlapWeighsTurnsWithinTheFieldOfViewLess) {
+  struct Case {
+    double theta, overlap;
+    bool accepted;
+  };
+  for (const Case& k : {Case{0.4, 0.0, false}, Case{0.4, 0.6, true}, Case{1.2, 0.6, false},
+                        Case{1.2, 0.0, false}}) {
+    PlannerOptions o = PoseRuleOptions(3);
+    o.d_max_m = 2.0;
+    o.dispersion_turn_overlap_rad = k.overlap;
+    o.dispersion_turn_overlap_scale = 0.25;
+    ASSERT_TRUE(o.Validate().ok());
+    auto p = ViewPlanner::Create(o).value();
+    const glm::dvec3 a(0, 0, 2), c(5, 0, 2);
+    for (const auto& [id, eye, dir] :
+         {std::tuple{ViewId(1), a, glm::dvec3(1, 0, -1)},
+          std::tuple{ViewId(2), a, glm::dvec3(std::cos(k.theta), std::sin(k.theta), -1)},
+          std::tuple{ViewId(3), c, glm::dvec3(1, 0, -1)}}) {
+      auto d = p.Consider(MakeCandidate(id, eye, eye + dir, p.grid()));
+      ASSERT_TRUE(d.ok()) << d.status();
+      ASSERT_TRUE(d->accepted) << d->reason;
+    }
+    const glm::dvec3 eye(-0.5, 0, 2);
+    auto d = p.Consider(MakeCandidate(4, eye, eye + glm::dvec3(1, 0, -1), p.grid()));
+    ASSERT_TRUE(d.ok()) << d.status();
+    SCOPED_TRACE(testing::Message() << "theta " << k.theta << " overlap " << k.overlap);
+    EXPECT_EQ(d->accepted, k.accepted) << d->reason;
+    if (k.accepted) {
+      ASSERT_EQ(d->removed.size(), 1u);
+      EXPECT_TRUE(d->removed[0] == 1 || d->removed[0] == 2) << d->removed[0];
+    }
+    EXPECT_EQ(p.num_views(), 3u);
+  }
+  PlannerOptions bad;
+  for (double phi : {-0.1, 4.0, std::numeric_limits<double>::quiet_NaN()}) {
+    bad.dispersion_turn_overlap_rad = phi;
+    EXPECT_FALSE(bad.Validate().ok()) << phi;
+  }
+  bad = PlannerOptions{};
+  for (double s : {0.0, 1.5, std::numeric_limits<double>::quiet_NaN()}) {
+    bad.dispersion_turn_overlap_rad = 0.5;
+    bad.dispersion_turn_overlap_scale = s;
+    EXPECT_FALSE(bad.Validate().ok()) << s;
+  }
+}
+
+// dispersion_turn_axis (session 16): the turn between two views is the angle between their
+// optical axes, so a roll about the axis (the same rays, the image turned) is no turn, and a yaw
+// counts about θ cos(pitch). Store A (x = 0), B (A's pose turned, `offset` away) and C (x = 5),
+// d_max = 2. A candidate displaced 0.5 m from A (A's orientation) is stored only when A-B is
+// closer than 0.5 m:
+//  - B = A rolled by 0.6 rad, 0.3 m away: 0.3 + 2 × 0.6 = 1.5 m by the full angle, 0.3 m by the
+//    axes (stored);
+//  - B = A yawed by 0.4 rad looking 45° down, 0.3 m away: 0.3 + 2 × 0.28 = 0.86 m by the axes
+//    (rejected);
+//  - B = A yawed by 0.4 rad looking 63° down (cos 0.45), same centre: 2 × 0.18 = 0.36 m by the
+//    axes (stored) against 0.8 m by the full angle (rejected).
+TEST(ViewPlanner, TurnAxisIgnoresRollAndWeighsYawByPitch) {
+  struct Case {
+    glm::dvec3 dir;
+    double yaw, roll, offset;
+    bool axis, accepted;
+  };
+  for (const Case& k : {Case{{1, 0, -1}, 0.0, 0.6, 0.3, false, false},
+                        Case{{1, 0, -1}, 0.0, 0.6, 0.3, true, true},
+                        Case{{1, 0, -1}, 0.4, 0.0, 0.3, true, false},
+                        Case{{1, 0, -2}, 0.4, 0.0, 0.0, false, false},
+                        Case{{1, 0, -2}, 0.4, 0.0, 0.0, true, true}}) {
+    PlannerOptions o = PoseRuleOptions(3);
+    o.d_max_m = 2.0;
+    o.dispersion_turn_axis = k.axis;
+    ASSERT_TRUE(o.Validate().ok());
+    auto p = ViewPlanner::Create(o).value();
+    const glm::dvec3 a(0, 0, 2), b(k.offset, 0, 2), c(5, 0, 2);
+    ASSERT_TRUE(p.Consider(MakeCandidate(1, a, a + k.dir, p.grid()))->accepted);
+    // B: the same direction yawed about the vertical, then rolled about its own axis.
+    const glm::dvec3 yawed(k.dir.x * std::cos(k.yaw), k.dir.x * std::sin(k.yaw), k.dir.z);
+    Candidate bc = MakeCandidate(2, b, b + yawed, p.grid());
+    bc.local_from_cam.rotation =
+        glm::normalize(bc.local_from_cam.rotation * glm::angleAxis(k.roll, glm::dvec3(0, 0, 1)));
+    const auto ids = GroundPlaneCellIds(bc.id_camera, bc.local_from_cam, p.grid(), 1e9);
+    bc.cells = CountCellPixels(ids.data(), ids.size());
+    auto db = p.Consider(bc);
+    ASSERT_TRUE(db.ok()) << db.status();
+    ASSERT_TRUE(db->accepted) << db->reason;
+    ASSERT_TRUE(p.Consider(MakeCandidate(3, c, c + k.dir, p.grid()))->accepted);
+    const glm::dvec3 eye(-0.5, 0, 2);
+    auto d = p.Consider(MakeCandidate(4, eye, eye + k.dir, p.grid()));
+    ASSERT_TRUE(d.ok()) << d.status();
+    SCOPED_TRACE(testing::Message() << "yaw " << k.yaw << " roll " << k.roll << " axis " << k.axis);
+    EXPECT_EQ(d->accepted, k.accepted) << d->reason;
+    if (k.accepted) {
+      ASSERT_EQ(d->removed.size(), 1u);
+      EXPECT_TRUE(d->removed[0] == 1 || d->removed[0] == 2) << d->removed[0];
+    }
+    EXPECT_EQ(p.num_views(), 3u);
+  }
+}
+
 // dispersion_recency ρ: a full store's candidate replaces the most redundant view when its
 // distance to its nearest stored view exceeds (1 - ρ) x the victim's (ρ = 0: strictly larger).
 // Store A (x = 0), B (x = 1), C (x = 5), closest pair distance 1; a candidate 0.95 from A is
