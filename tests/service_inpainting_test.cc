@@ -76,9 +76,9 @@ v1::Pose PoseMsg(const Rigid3d& p) {
   return m;
 }
 
-// Frame k of the sideways walk from x = -0.15 m in 2 cm steps.
-Frame BoxFrame(int k) {
-  const auto kf = RenderPlanes(Scene(), Cam(), PoseAt(-0.15 + 0.02 * k));
+// Frame k of a sideways walk (sequence k + 1 at 10 Hz) from a render of the plane scene.
+template <typename Rendered>
+Frame WalkFrame(const Rendered& kf, int k) {
   Frame f;
   f.sequence = k + 1;
   f.timestamp_s = 0.1 * (k + 1);
@@ -87,6 +87,12 @@ Frame BoxFrame(int k) {
   f.depth_m = kf.depth_m;
   f.world_from_cam = kf.world_from_cam;
   return f;
+}
+
+// Frame k of the sideways walk from x = -0.15 m in 2 cm steps.
+Frame BoxFrame(int k) {
+  const auto kf = RenderPlanes(Scene(), Cam(), PoseAt(-0.15 + 0.02 * k));
+  return WalkFrame(kf, k);
 }
 
 // The same walk before a SOLID box (x in [-0.3, 0], |y| < 0.25, z in [1.5, 1.8]) 20 cm in front
@@ -106,14 +112,7 @@ Frame SolidBoxFrame(int k) {
       {glm::dvec3(0, -1, 0), 0.25, [=](const glm::dvec3& p) { return in_box(p, 1); }},
       {glm::dvec3(0, 1, 0), 0.25, [=](const glm::dvec3& p) { return in_box(p, 1); }}};
   const auto kf = RenderPlanes(scene, Cam(), PoseAt(-0.15 + 0.02 * k));
-  Frame f;
-  f.sequence = k + 1;
-  f.timestamp_s = 0.1 * (k + 1);
-  f.color_camera = f.depth_camera = Cam();
-  f.color = kf.color;
-  f.depth_m = kf.depth_m;
-  f.world_from_cam = kf.world_from_cam;
-  return f;
+  return WalkFrame(kf, k);
 }
 
 class ServiceInpainting : public testing::ServerProcessTest {

@@ -586,6 +586,31 @@ TEST(ViewPlanner, KeepNearestChoosesWhichViewOfTheClosestPairLeaves) {
   }
 }
 
+// The scenario of the turn-weight tests: store A (x = 0), A turned by θ about the vertical and
+// C (x = 5), then offer a candidate 0.5 m behind A. Expects whether it is stored (replacing one
+// view of the turned pair) and that the store keeps 3 views.
+void ExpectTurnedPairThenDisplaced(const PlannerOptions& o, double theta, bool accepted) {
+  auto p = ViewPlanner::Create(o).value();
+  const glm::dvec3 a(0, 0, 2), c(5, 0, 2);
+  for (const auto& [id, eye, dir] :
+       {std::tuple{ViewId(1), a, glm::dvec3(1, 0, -1)},
+        std::tuple{ViewId(2), a, glm::dvec3(std::cos(theta), std::sin(theta), -1)},
+        std::tuple{ViewId(3), c, glm::dvec3(1, 0, -1)}}) {
+    auto d = p.Consider(MakeCandidate(id, eye, eye + dir, p.grid()));
+    ASSERT_TRUE(d.ok()) << d.status();
+    ASSERT_TRUE(d->accepted) << d->reason;
+  }
+  const glm::dvec3 eye(-0.5, 0, 2);
+  auto d = p.Consider(MakeCandidate(4, eye, eye + glm::dvec3(1, 0, -1), p.grid()));
+  ASSERT_TRUE(d.ok()) << d.status();
+  EXPECT_EQ(d->accepted, accepted) << d->reason;
+  if (accepted) {
+    ASSERT_EQ(d->removed.size(), 1u);
+    EXPECT_TRUE(d->removed[0] == 1 || d->removed[0] == 2) << d->removed[0];
+  }
+  EXPECT_EQ(p.num_views(), 3u);
+}
+
 // dispersion_rotation_scale s: a turn of θ counts as s · d_max · θ metres in the pose distance.
 // Store A (x = 0), A' (A turned by 0.4 rad about the vertical) and C (x = 5), d_max = 2: the
 // closest pair is A-A' at 0.8 m (s = 1) or 0.2 m (s = 0.25). A candidate displaced 0.5 m from A
@@ -603,27 +628,8 @@ TEST(ViewPlanner, RotationScaleWeighsATurnAgainstADisplacement) {
     o.dispersion_rotation_scale = k.scale;
     o.dispersion_m_per_rad = k.m_per_rad;
     ASSERT_TRUE(o.Validate().ok());
-    auto p = ViewPlanner::Create(o).value();
-    const double th = 0.4;
-    const glm::dvec3 a(0, 0, 2), c(5, 0, 2);
-    for (const auto& [id, eye, dir] :
-         {std::tuple{ViewId(1), a, glm::dvec3(1, 0, -1)},
-          std::tuple{ViewId(2), a, glm::dvec3(std::cos(th), std::sin(th), -1)},
-          std::tuple{ViewId(3), c, glm::dvec3(1, 0, -1)}}) {
-      auto d = p.Consider(MakeCandidate(id, eye, eye + dir, p.grid()));
-      ASSERT_TRUE(d.ok()) << d.status();
-      ASSERT_TRUE(d->accepted) << d->reason;
-    }
-    const glm::dvec3 eye(-0.5, 0, 2);
-    auto d = p.Consider(MakeCandidate(4, eye, eye + glm::dvec3(1, 0, -1), p.grid()));
-    ASSERT_TRUE(d.ok()) << d.status();
     SCOPED_TRACE(testing::Message() << "scale " << k.scale << " m_per_rad " << k.m_per_rad);
-    EXPECT_EQ(d->accepted, k.accepted) << d->reason;
-    if (k.accepted) {
-      ASSERT_EQ(d->removed.size(), 1u);
-      EXPECT_TRUE(d->removed[0] == 1 || d->removed[0] == 2) << d->removed[0];
-    }
-    EXPECT_EQ(p.num_views(), 3u);
+    ExpectTurnedPairThenDisplaced(o, 0.4, k.accepted);
   }
   PlannerOptions bad;
   for (double s : {0.0, -0.5, 1.5, std::numeric_limits<double>::quiet_NaN()}) {
@@ -650,26 +656,8 @@ TEST(ViewPlanner, TurnOverlapWeighsTurnsWithinTheFieldOfViewLess) {
     o.dispersion_turn_overlap_rad = k.overlap;
     o.dispersion_turn_overlap_scale = 0.25;
     ASSERT_TRUE(o.Validate().ok());
-    auto p = ViewPlanner::Create(o).value();
-    const glm::dvec3 a(0, 0, 2), c(5, 0, 2);
-    for (const auto& [id, eye, dir] :
-         {std::tuple{ViewId(1), a, glm::dvec3(1, 0, -1)},
-          std::tuple{ViewId(2), a, glm::dvec3(std::cos(k.theta), std::sin(k.theta), -1)},
-          std::tuple{ViewId(3), c, glm::dvec3(1, 0, -1)}}) {
-      auto d = p.Consider(MakeCandidate(id, eye, eye + dir, p.grid()));
-      ASSERT_TRUE(d.ok()) << d.status();
-      ASSERT_TRUE(d->accepted) << d->reason;
-    }
-    const glm::dvec3 eye(-0.5, 0, 2);
-    auto d = p.Consider(MakeCandidate(4, eye, eye + glm::dvec3(1, 0, -1), p.grid()));
-    ASSERT_TRUE(d.ok()) << d.status();
     SCOPED_TRACE(testing::Message() << "theta " << k.theta << " overlap " << k.overlap);
-    EXPECT_EQ(d->accepted, k.accepted) << d->reason;
-    if (k.accepted) {
-      ASSERT_EQ(d->removed.size(), 1u);
-      EXPECT_TRUE(d->removed[0] == 1 || d->removed[0] == 2) << d->removed[0];
-    }
-    EXPECT_EQ(p.num_views(), 3u);
+    ExpectTurnedPairThenDisplaced(o, k.theta, k.accepted);
   }
   PlannerOptions bad;
   for (double phi : {-0.1, 4.0, std::numeric_limits<double>::quiet_NaN()}) {
