@@ -412,8 +412,7 @@ absl::StatusOr<HandOff> OnlinePlanner::Plan(const PlanFrame& f) {
   // time term follows the stream's own time-correlated error.
   if (options_.dispersion_time_auto_ref > 0.0 && f.depth != nullptr && !f.depth->empty()) {
     drift_.Next(*f.depth, f.depth_camera, f.local_from_depth);
-    if (drift_.Growth() >= 0.0)
-      planner_.SetTimeScale(drift_.TimeScale(options_.dispersion_time_auto_ref));
+    planner_.SetTimeScale(drift_.TimeScale(options_.dispersion_time_auto_ref));  // 0 until measured
   }
   // Every frame enters the quality reference window (also frames the governor skips).
   const double quality = options_.frame_quality.gamma > 0 && f.color != nullptr
