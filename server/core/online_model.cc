@@ -64,6 +64,9 @@ absl::Status OnlineModelOptions::Validate() const {
   {
     // The planner's own checks of the selection options, at configuration time.
     planning::PlannerOptions po;
+    po.policy = policy;
+    po.baseline_m_per_rad = baseline_m_per_rad;
+    po.baseline_stream_frames = baseline_stream_frames;
     po.dispersion = dispersion;
     po.dispersion_m_per_rad = dispersion_m_per_rad;
     po.dispersion_rotation_scale = dispersion_rotation_scale;
@@ -319,6 +322,9 @@ absl::StatusOr<std::unique_ptr<OnlinePlanner>> OnlinePlanner::Create(
   po.novelty_positional = options.novelty_positional;
   po.soft_saturation = options.soft_saturation;
   po.dispersion = options.dispersion;
+  po.policy = options.policy;
+  po.baseline_m_per_rad = options.baseline_m_per_rad;
+  po.baseline_stream_frames = options.baseline_stream_frames;
   po.dispersion_m_per_rad = options.dispersion_m_per_rad;
   po.dispersion_rotation_scale = options.dispersion_rotation_scale;
   po.dispersion_turn_overlap_rad = options.dispersion_turn_overlap_rad;
@@ -459,6 +465,7 @@ absl::StatusOr<HandOff> OnlinePlanner::Readmit(const StoredView& v) {
       planning::Candidate cand,
       CandidateFromDepth(v.id, v.depth_m, v.camera, v.local_from_cam, v.local_from_cam,
                          planner_.grid(), options_.id_buffer_stride, bytes));
+  cand.readmit = true;  // a baseline policy keeps it (no stream position after a restart)
   return Decide(std::move(cand));
 }
 

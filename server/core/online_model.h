@@ -72,6 +72,11 @@ struct OnlineModelOptions {
   // Pose dispersion first, guarded by coverage relative to the mean τ per view (issues 15 / 22,
   // docs/planning.md "Pose dispersion").
   planning::PlannerOptions::Dispersion dispersion = planning::PlannerOptions::Dispersion::kFirst;
+  // PlannerOptions::policy / baseline_m_per_rad / baseline_stream_frames: the coverage planner,
+  // or an online baseline in the product path (issues 15 / 22; docs/planning.md "Session 17").
+  planning::PlannerOptions::Policy policy = planning::PlannerOptions::Policy::kCoverage;
+  double baseline_m_per_rad = 1.0;
+  int64_t baseline_stream_frames = 0;
   double dispersion_m_per_rad = 0.0;
   double dispersion_rotation_scale = 1.0;  // PlannerOptions::dispersion_rotation_scale
   // PlannerOptions::dispersion_turn_overlap_rad / _scale (session 16; 0 = off).

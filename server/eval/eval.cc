@@ -32,7 +32,7 @@
 #include "common/synth/trajectory.h"
 #include "server/core/online_model.h"
 #include "server/eval/attribution.h"
-#include "server/eval/online_baselines.h"
+#include "server/planning/online_baselines.h"
 #include "server/geometry/cell_areas.h"
 #include "server/geometry/scene_scale.h"
 #include "server/planning/cell_id_proxy.h"
@@ -40,6 +40,12 @@
 
 namespace exo::eval {
 namespace {
+
+using planning::KeyframeSelector;
+using planning::MinDistanceSelector;
+using planning::OnlineSelector;
+using planning::ProgressiveEveryN;
+using planning::ReservoirSampler;
 
 using Clock = std::chrono::steady_clock;
 double MsSince(Clock::time_point t0) {
@@ -99,74 +105,6 @@ absl::StatusOr<std::vector<planning::CellPixelCount>> CellCounts(
 }
 
 // ---- policies other than the online planner ----
-
-// Pose distance for the minimum-distance policy: metres + scale * radians.
-double PoseDistance(const Rigid3d& a, const Rigid3d& b, double metres_per_rad) {
-  const double dt = glm::length(a.translation - b.translation);
-  const double dot = std::abs(glm::dot(a.rotation, b.rotation));
-  const double ang = 2.0 * std::acos(std::min(1.0, dot));
-  return dt + metres_per_rad * ang;
-}
-
-class MinDistanceSelector : public OnlineSelector {
- public:
-  MinDistanceSelector(size_t capacity, double metres_per_rad)
-      : cap_(capacity), mpr_(metres_per_rad) {}
-  size_t size() const override { return sel_.size(); }
-  void Offer(int idx, const Rigid3d& pose) override {
-    if (sel_.size() < cap_) {
-      sel_.push_back({idx, pose});
-      return;
-    }
-    // Closest pair in the store (O(n^2) but n <= a few hundred and only when full).
-    if (pair_dirty_) {
-      pair_d_ = 1e300;
-      for (size_t i = 0; i < sel_.size(); ++i)
-        for (size_t j = i + 1; j < sel_.size(); ++j) {
-          const double d = PoseDistance(sel_[i].pose, sel_[j].pose, mpr_);
-          if (d < pair_d_) {
-            pair_d_ = d;
-            pair_i_ = i;
-            pair_j_ = j;
-          }
-        }
-      pair_dirty_ = false;
-    }
-    double nearest = 1e300;
-    size_t nearest_k = 0;
-    for (size_t k = 0; k < sel_.size(); ++k) {
-      const double d = PoseDistance(pose, sel_[k].pose, mpr_);
-      if (d < nearest) {
-        nearest = d;
-        nearest_k = k;
-      }
-    }
-    if (nearest <= pair_d_) return;
-    // Replace the member of the closest pair that is not the candidate's nearest neighbour's
-    // twin: drop pair_j_ unless that is the candidate's nearest (then drop pair_i_).
-    const size_t drop = nearest_k == pair_j_ ? pair_i_ : pair_j_;
-    sel_[drop] = {idx, pose};
-    pair_dirty_ = true;
-  }
-  std::vector<int> Selected() const override {
-    std::vector<int> out;
-    for (const auto& s : sel_) out.push_back(s.idx);
-    std::sort(out.begin(), out.end());
-    return out;
-  }
-
- private:
-  struct Sel {
-    int idx;
-    Rigid3d pose;
-  };
-  size_t cap_;
-  double mpr_;
-  std::vector<Sel> sel_;
-  bool pair_dirty_ = true;
-  double pair_d_ = 0;
-  size_t pair_i_ = 0, pair_j_ = 1;
-};
 
 // Gain of a candidate against the current store: τ_sum(F ∪ I) - τ_sum(F) (store not full).
 double GainOf(const planning::ViewPlanner& p, const Rigid3d& pose, const PinholeCamera& id_cam,
@@ -876,7 +814,7 @@ class Engine {
           const int m = std::min(n, c.store);
           for (int k = 0; k < m; ++k) selected.push_back(int((int64_t(k) * n) / m));
         } else if (selectors_.count(ci)) {
-          selected = selectors_.at(ci)->Selected();
+          for (int64_t k : selectors_.at(ci)->Selected()) selected.push_back(int(k));
         } else if (c.policy == Policy::kAll) {
           for (int i = 0; i < n; ++i) selected.push_back(i);
         } else if (c.policy == Policy::kOfflineGreedy) {

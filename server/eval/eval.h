@@ -14,7 +14,7 @@
 //   kMinDistance   online dispersion: when full, a frame replaces one view of the closest pair
 //                  if its nearest-view pose distance exceeds that pair's distance
 //   kAll           every frame (unbounded store)
-// Issue 22 online baselines (online_baselines.h; they never know the length):
+// Issue 22 online baselines (server/planning/online_baselines.h; they never know the length):
 //   kEveryNOnline  every-N with progressive decimation (keep every frame until full, then drop
 //                  every other kept frame and double N)
 //   kReservoir     reservoir sampling, seeded (PolicyConfig::policy_seed)

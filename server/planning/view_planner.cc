@@ -34,6 +34,17 @@ absl::Status PlannerOptions::Validate() const {
     return absl::InvalidArgumentError(absl::StrCat(
         "planner render_refs_max must be in [0, ", kMaxRenderRefs, "], got ", render_refs_max));
   if (max_views < 1) return absl::InvalidArgumentError("planner max_views must be >= 1");
+  if (policy != Policy::kCoverage && policy != Policy::kMinDistance &&
+      policy != Policy::kEveryN && policy != Policy::kEveryNOnline)
+    return absl::InvalidArgumentError(absl::StrCat(
+        "planner policy must be 0 (lumigraph), 1 (min_distance), 2 (every_n) or 3 "
+        "(every_n_online), got ", int(policy)));
+  if (!std::isfinite(baseline_m_per_rad) || baseline_m_per_rad < 0.0)
+    return absl::InvalidArgumentError("planner baseline_m_per_rad must be finite and >= 0");
+  if (policy == Policy::kEveryN && baseline_stream_frames < 1)
+    return absl::InvalidArgumentError(
+        "planner policy every_n (the length-aware oracle) needs the stream's length: set "
+        "baseline_stream_frames (server key planner_baseline_stream_frames) > 0");
   if (max_bytes < 1) return absl::InvalidArgumentError("planner max_bytes must be >= 1");
   if (!std::isfinite(lambda) || lambda < 0.0 || lambda > 1.0)
     return absl::InvalidArgumentError(absl::StrCat("planner lambda must be in [0,1], got ", lambda));
@@ -148,9 +159,31 @@ absl::StatusOr<std::vector<CellPixelCount>> CountDepthCellPixels(
   return CountCellPixels(ids.data(), ids.size());
 }
 
+const char* PolicyName(int policy) {
+  switch (static_cast<PlannerOptions::Policy>(policy)) {
+    case PlannerOptions::Policy::kCoverage: return "lumigraph";
+    case PlannerOptions::Policy::kMinDistance: return "min_distance";
+    case PlannerOptions::Policy::kEveryN: return "every_n";
+    case PlannerOptions::Policy::kEveryNOnline: return "every_n_online";
+  }
+  return "unknown";
+}
+
 ViewPlanner::ViewPlanner(const PlannerOptions& options) : options_(options) {
   grid_.cell_size_m = options.cell_size_m;
   if (options.dispersion_time_auto_ref > 0.0) time_scale_ = 0.0;  // until measured
+  switch (options.policy) {
+    case PlannerOptions::Policy::kCoverage: break;
+    case PlannerOptions::Policy::kMinDistance:
+      selector_ = std::make_unique<MinDistanceSelector>(options.max_views, options.baseline_m_per_rad);
+      break;
+    case PlannerOptions::Policy::kEveryN:
+      selector_ = std::make_unique<LengthAwareEveryN>(options.max_views, options.baseline_stream_frames);
+      break;
+    case PlannerOptions::Policy::kEveryNOnline:
+      selector_ = std::make_unique<ProgressiveEveryN>(options.max_views);
+      break;
+  }
 }
 
 absl::StatusOr<ViewPlanner> ViewPlanner::Create(const PlannerOptions& options) {
@@ -514,6 +547,7 @@ absl::StatusOr<std::vector<CellId>> ViewPlanner::Remove(ViewId id) {
   if (!views_.count(id)) return absl::NotFoundError(absl::StrCat("view ", id, " is not stored"));
   std::vector<int32_t> stale;
   std::vector<CellId> changed;
+  if (selector_) selector_->Forget(id);
   RemoveView(id, &stale, &changed);
   for (int32_t k : stale)
     if (RebuildRefs(k)) changed.push_back(cells_[k].id);
@@ -571,6 +605,7 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
       view.pixels.push_back(c.pixels);
     }
   }
+  if (selector_) return ConsiderBaseline(cand, std::move(view));
   if (std::none_of(view.entries.begin(), view.entries.end(),
                    [](const Entry& e) { return e.phi > 0.0f; })) {
     d.reason = "candidate covers no cell";
@@ -829,6 +864,56 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
   return d;
 }
 
+Decision ViewPlanner::ConsiderBaseline(const Candidate& cand, View view) {
+  Decision d;
+  ++offered_;
+  const char* name = PolicyName(int(options_.policy));
+  // A stored view after a restart (its stream position is gone) is adopted while there is room.
+  if (cand.readmit)
+    selector_->Adopt(cand.id, cand.local_from_cam);
+  else
+    selector_->Offer(cand.id, cand.local_from_cam);
+  const std::vector<int64_t> kept = selector_->Selected();
+  const bool keep = std::binary_search(kept.begin(), kept.end(), int64_t(cand.id));
+  if (!keep || bytes_ + cand.bytes > options_.max_bytes) {
+    if (keep) selector_->Forget(cand.id);
+    d.reason = keep ? absl::StrCat("store bytes ", bytes_, " + ", cand.bytes, " exceed ",
+                                   options_.max_bytes, " (", name, " policy)")
+                    : absl::StrCat("not kept by the ", name, " policy");
+    d.tau_sum = tau_sum_;
+    return d;
+  }
+  // Victims: the stored views the baseline no longer keeps (all of its drops since its last
+  // kept frame).
+  std::vector<ViewId> victims;
+  for (const auto& [vid, v] : views_)
+    if (!std::binary_search(kept.begin(), kept.end(), int64_t(vid))) victims.push_back(vid);
+  std::sort(victims.begin(), victims.end());
+  double gain = 0.0;
+  for (const Entry& e : view.entries) {
+    const double t = cells_[e.cell].tau;
+    gain += Sat(t + e.phi) - Sat(t);
+  }
+  d.accepted = true;
+  d.gain = gain;
+  d.reason = victims.empty() ? absl::StrCat("accepted (", name, " policy)")
+                             : absl::StrCat("accepted, replacing ", victims.size(), " view(s) (",
+                                            name, " policy)");
+  std::vector<int32_t> stale;
+  for (ViewId v : victims) RemoveView(v, &stale, &d.changed_cells);
+  std::sort(stale.begin(), stale.end());
+  stale.erase(std::unique(stale.begin(), stale.end()), stale.end());
+  AddView(std::move(view), &d.changed_cells);
+  for (int32_t k : stale)
+    if (RebuildRefs(k)) d.changed_cells.push_back(cells_[k].id);
+  d.removed = std::move(victims);
+  std::sort(d.changed_cells.begin(), d.changed_cells.end());
+  d.changed_cells.erase(std::unique(d.changed_cells.begin(), d.changed_cells.end()),
+                        d.changed_cells.end());
+  d.tau_sum = tau_sum_;
+  return d;
+}
+
 std::vector<ViewId> ViewPlanner::ViewIds() const {
   std::vector<ViewId> ids;
   ids.reserve(views_.size());
@@ -964,6 +1049,8 @@ void ViewPlanner::SaveState(StateWriter* w) const {
   w->Put(time_unit_);
   w->Put(arc_);
   w->Put(time_scale_);
+  w->Put<int32_t>(static_cast<int32_t>(options_.policy));
+  if (selector_) selector_->SaveState(w);
 }
 
 absl::Status ViewPlanner::LoadState(StateReader* r) {
@@ -988,7 +1075,14 @@ absl::Status ViewPlanner::LoadState(StateReader* r) {
       r->Get(&step_count_) && r->Get(&time_unit_) && r->Get(&arc_) &&
       r->Get(&time_scale_);
   has_last_ = has_last != 0;
+  int32_t policy = -1;
+  r->Get(&policy);
   EXO_RETURN_IF_ERROR(r->Status("view planner"));
+  if (policy != static_cast<int32_t>(options_.policy))
+    return absl::FailedPreconditionError(absl::StrCat(
+        "view planner state was written with policy ", PolicyName(policy), ", this planner runs ",
+        PolicyName(int(options_.policy))));
+  if (selector_) EXO_RETURN_IF_ERROR(selector_->LoadState(r));
   // Every index must point into cells_ (a corrupt state must not crash a later Consider).
   for (const auto& [id, v] : views_)
     for (const Entry& e : v.entries)

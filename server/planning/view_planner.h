@@ -35,8 +35,11 @@
 #include "common/rigid3.h"
 #include "common/state_io.h"
 #include "common/status.h"
+#include "server/planning/online_baselines.h"
 
 namespace exo::planning {
+
+const char* PolicyName(int policy);  // PlannerOptions::Policy: "lumigraph", "min_distance", ...
 
 struct PlannerOptions {
   int r_max = 16;                    // |R(b_k)| <= R_max; >= 2 (erratum 2)
@@ -209,6 +212,24 @@ struct PlannerOptions {
   // where φ is 0; τ and the acceptance test are unchanged (docs/planning.md "Session 14").
   bool observe_zero_coverage = false;
 
+  // Which frames the store keeps (issues 15 / 22). kCoverage: the planner's own rules above.
+  // The others are the online baselines of online_baselines.h deciding from the camera poses
+  // alone (each frame offered once, in stream order); the planner then keeps its bookkeeping
+  // and reference pre-selection for the views the baseline keeps, so a client renders a
+  // baseline's store exactly as it renders the planner's, and the product path can measure
+  // (or, for a stream type where a baseline wins, run) it. The view count bounds these stores;
+  // a frame over the byte budget is not kept. Views a baseline drops while it does not keep the
+  // frame (progressive every-N's thinning) leave with its next kept frame.
+  //   kMinDistance: the closest stored pair loses a member to a frame farther from its nearest
+  //     stored view (pose distance |Δt| + baseline_m_per_rad × angle);
+  //   kEveryN: the length-aware oracle: baseline_stream_frames frames expected, min(L, capacity)
+  //     of them kept evenly (frame k iff k = floor(j L / m));
+  //   kEveryNOnline: progressive every-N (N doubles and every other view leaves when full).
+  enum class Policy { kCoverage = 0, kMinDistance = 1, kEveryN = 2, kEveryNOnline = 3 };
+  Policy policy = Policy::kCoverage;
+  double baseline_m_per_rad = 1.0;
+  int64_t baseline_stream_frames = 0;
+
   absl::Status Validate() const;
 
   // Defaults derived from the observed scene (SPEC §4: "cell size and d_max derived from the
@@ -247,6 +268,9 @@ struct Candidate {
   // blurred frame < 1): every φ of the view is multiplied by it, so a blurred frame covers less
   // and a sharp one of the same place replaces it. 1 = the thesis' planner.
   double quality = 1.0;
+  // A stored view offered again after a restart (core::OnlinePlanner::Readmit): a baseline
+  // policy keeps it while it has room instead of counting it as a new frame of the stream.
+  bool readmit = false;
 };
 
 struct Decision {
@@ -355,6 +379,9 @@ class ViewPlanner {
     double weight = 1.0;            // stream frames it stands for (dispersion_weight_exponent)
     double arc = 0.0;               // the travelled pose path at its arrival (dispersion_time_arc)
   };
+  // A baseline policy's decision (PlannerOptions::policy != kCoverage) for a validated view.
+  Decision ConsiderBaseline(const Candidate& cand, View view);
+  std::unique_ptr<OnlineSelector> selector_;  // null for kCoverage
   double AreaOf(CellId cell) const;  // A(b_k), or A_cell when unknown
   // A cell's contribution to τ_sum: min(τ, τ_max), or the soft form (soft_saturation).
   double Sat(double tau) const;

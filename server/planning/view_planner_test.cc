@@ -1059,6 +1059,100 @@ TEST(ViewPlanner, LongStreamRespectsBoundsAndIncrementalTauSumIsExact) {
   EXPECT_LT(p.BookkeepingBytes(), 200000u);
 }
 
+// The baseline policies in the planner (issue 15 / 22: the product path can run them): the store
+// holds exactly the views the baseline selector alone keeps, at every frame; the planner's
+// bookkeeping (τ, the references replayed over the stored views) stays exact; a checkpoint
+// continues the same stream; a state of another policy is refused.
+TEST(ViewPlanner, BaselinePoliciesKeepTheSelectorsStoreWithExactReferences) {
+  using P = PlannerOptions::Policy;
+  for (P policy : {P::kMinDistance, P::kEveryN, P::kEveryNOnline}) {
+    SCOPED_TRACE(PolicyName(int(policy)));
+    PlannerOptions o;
+    o.max_views = 12;
+    o.r_max = 4;
+    o.cell_size_m = 1.0;
+    o.d_max_m = 3.0;
+    o.policy = policy;
+    o.baseline_m_per_rad = 1.5;
+    o.baseline_stream_frames = 300;
+    auto p = ViewPlanner::Create(o).value();
+    std::unique_ptr<OnlineSelector> alone;
+    if (policy == P::kMinDistance) alone = std::make_unique<MinDistanceSelector>(12, 1.5);
+    if (policy == P::kEveryN) alone = std::make_unique<LengthAwareEveryN>(12, 300);
+    if (policy == P::kEveryNOnline) alone = std::make_unique<ProgressiveEveryN>(12);
+    std::mt19937 rng(11);
+    std::uniform_real_distribution<double> u(-6, 6), h(1.5, 5.0);
+    std::map<ViewId, Candidate> candidates;
+    std::string saved;
+    std::vector<int64_t> kept_at_save;
+    int accepted = 0;
+    for (ViewId id = 1; id <= 300; ++id) {
+      const glm::dvec3 target(u(rng), u(rng), 0);
+      const glm::dvec3 centre = target + glm::dvec3(u(rng) * 0.5, u(rng) * 0.5, h(rng));
+      Candidate c = MakeCandidate(id, centre, target, p.grid(), 1000, 6.0);
+      candidates.emplace(id, c);
+      alone->Offer(id, c.local_from_cam);
+      auto d = p.Consider(c);
+      ASSERT_TRUE(d.ok()) << d.status();
+      accepted += d->accepted;
+      // The planner's store is the selector's (the views a progressive thinning dropped leave
+      // with the next kept frame, so compare at kept frames).
+      if (d->accepted) {
+        std::vector<int64_t> ids;
+        for (ViewId v : p.ViewIds()) ids.push_back(v);
+        std::sort(ids.begin(), ids.end());
+        ASSERT_EQ(ids, alone->Selected()) << "frame " << id;
+      }
+      ASSERT_LE(p.num_views(), o.max_views);
+      ASSERT_NEAR(p.tau_sum(), p.RecomputeTauSum(), 1e-9 * (1 + p.tau_sum()));
+      if (id == 150) {
+        StateWriter w;
+        p.SaveState(&w);
+        saved = w.str();
+        kept_at_save = alone->Selected();
+      }
+    }
+    EXPECT_GE(accepted, 12);  // every_n: exactly 12 of 300, evenly
+    // References: the pre-selection replayed over the stored views in id order.
+    {
+      PlannerOptions fo = o;
+      fo.policy = P::kCoverage;
+      fo.max_views = 1000;
+      fo.tau_max = 1e30;
+      fo.delta_tau_sum = 0;
+      auto fresh = ViewPlanner::Create(fo).value();
+      for (ViewId id : p.ViewIds()) ASSERT_TRUE(fresh.Consider(candidates.at(id))->accepted);
+      for (const auto& [cell, refs] : p.CellRefs()) {
+        std::vector<ViewId> a = refs, b = fresh.Refs(cell);
+        std::sort(a.begin(), a.end());
+        std::sort(b.begin(), b.end());
+        EXPECT_EQ(a, b) << "cell " << cell;
+      }
+    }
+    // Restored at frame 150, the rest of the stream gives the same store.
+    auto q = ViewPlanner::Create(o).value();
+    StateReader r(saved);
+    ASSERT_TRUE(q.LoadState(&r).ok());
+    for (ViewId id = 151; id <= 300; ++id) ASSERT_TRUE(q.Consider(candidates.at(id)).ok());
+    EXPECT_EQ(q.ViewIds().size(), p.ViewIds().size());
+    std::vector<ViewId> a = q.ViewIds(), b = p.ViewIds();
+    std::sort(a.begin(), a.end());
+    std::sort(b.begin(), b.end());
+    EXPECT_EQ(a, b);
+    // Another policy's state is a clear error.
+    PlannerOptions other = o;
+    other.policy = policy == P::kMinDistance ? P::kEveryNOnline : P::kMinDistance;
+    auto x = ViewPlanner::Create(other).value();
+    StateReader r2(saved);
+    const absl::Status st = x.LoadState(&r2);
+    EXPECT_FALSE(st.ok());
+    EXPECT_TRUE(absl::StrContains(st.message(), "policy")) << st;
+  }
+  PlannerOptions bad;
+  bad.policy = PlannerOptions::Policy::kEveryN;  // the length-aware oracle needs the length
+  EXPECT_FALSE(ViewPlanner::Create(bad).ok());
+}
+
 // Exact victim choice on a hand-computable case. Cells: A = (0,0,0), B = (5,0,0), C = (10,0,0)
 // (cell size 1). Three views with fixed coverage via λ = 1 and distinct directions.
 TEST(ViewPlanner, VictimIsTheViewWhoseRemovalLosesLeast) {

@@ -109,7 +109,7 @@ bool Pipeline::Quiesce(double timeout_s, const std::function<void()>& fn) {
 }
 
 namespace {
-constexpr uint32_t kPipelineStateFormat = 0x45585033;  // "EXP3" (session 16: the planner's travelled path)
+constexpr uint32_t kPipelineStateFormat = 0x45585034;  // "EXP4" (session 17: the planner policy and its baseline selector)
 }  // namespace
 
 absl::StatusOr<std::string> Pipeline::SaveState() const {

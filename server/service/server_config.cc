@@ -14,7 +14,15 @@ namespace {
 
 template <typename T>
 absl::Status ParseValue(const std::string& key, const std::string& v, T* out) {
-  if constexpr (std::is_same_v<T, std::string>) {
+  if constexpr (std::is_same_v<T, planning::PlannerOptions::Policy>) {
+    for (int p = 0; p <= 3; ++p)
+      if (v == planning::PolicyName(p) || v == absl::StrCat(p)) {
+        *out = static_cast<T>(p);
+        return absl::OkStatus();
+      }
+    return absl::InvalidArgumentError(absl::StrCat(
+        "config ", key, ": '", v, "' is not a policy (lumigraph, min_distance, every_n, every_n_online)"));
+  } else if constexpr (std::is_same_v<T, std::string>) {
     *out = v;
     return absl::OkStatus();
   } else if constexpr (std::is_same_v<T, double>) {
@@ -35,6 +43,8 @@ template <typename T>
 std::string ValueText(const T& v) {
   if constexpr (std::is_same_v<T, bool>) {
     return v ? "true" : "false";
+  } else if constexpr (std::is_same_v<T, planning::PlannerOptions::Policy>) {
+    return planning::PolicyName(static_cast<int>(v));
   } else if constexpr (std::is_enum_v<T>) {
     return absl::StrCat(static_cast<int>(v));
   } else {
@@ -200,6 +210,13 @@ std::vector<ConfigKey> MakeKeys() {
           EXO_FIELD(pipeline.model.lambda)),
       Key("delta_tau_sum", "minimum objective gain to accept a view",
           EXO_FIELD(pipeline.model.delta_tau_sum)),
+      Key("planner_policy",
+          "which frames the view store keeps: lumigraph (the coverage planner, default) or an online baseline deciding from camera poses alone (min_distance, every_n = the length-aware oracle, needs planner_baseline_stream_frames; every_n_online = progressive); the planner's references follow the baseline's store (docs/planning.md \"Session 17 (lead)\")",
+          EXO_FIELD(pipeline.model.policy)),
+      Key("planner_baseline_m_per_rad", "min_distance policy: pose distance = metres + this x radians of turn",
+          EXO_FIELD(pipeline.model.baseline_m_per_rad)),
+      Key("planner_baseline_stream_frames", "every_n policy: the stream's length in frames (an oracle a real stream does not have)",
+          EXO_FIELD(pipeline.model.baseline_stream_frames)),
       Key("planner_dispersion",
           "view selection: 0 = the thesis' coverage objective alone, 1 = pose dispersion among coverage ties, 2 = pose dispersion first, guarded by coverage (docs/planning.md)",
           EXO_FIELD(pipeline.model.dispersion)),
