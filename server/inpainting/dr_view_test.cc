@@ -15,13 +15,13 @@
 namespace exo::inpainting {
 namespace {
 
-PinholeCamera SmallCamera() {
+PinholeCamera SmallCamera(int w = 32, int h = 24, double f = 30.0) {
   PinholeCamera c;
-  c.width = 32;
-  c.height = 24;
-  c.fx = c.fy = 30.0;
-  c.cx = 15.5;
-  c.cy = 11.5;
+  c.width = w;
+  c.height = h;
+  c.fx = c.fy = f;
+  c.cx = 0.5 * (w - 1);
+  c.cy = 0.5 * (h - 1);
   return c;
 }
 
@@ -134,12 +134,7 @@ ImageF WarpReference(const DrView& kf, const PinholeCamera& cam, const Rigid3d& 
 }
 
 TEST(DrView, BackgroundDepthEqualsTheWholeFrameWarp) {
-  PinholeCamera cam;
-  cam.width = 96;
-  cam.height = 72;
-  cam.fx = cam.fy = 80.0;
-  cam.cx = 47.5;
-  cam.cy = 35.5;
+  const PinholeCamera cam = SmallCamera(96, 72, 80.0);
   std::mt19937 rng(7);
   std::uniform_real_distribution<double> u(-1.0, 1.0);
   int sparse = 0, dense = 0;
