@@ -6,21 +6,16 @@
 #include <span>
 
 #include "common/image_fill.h"
+#include "common/image_fill_impl.h"
+#include "server/inpainting/depth_maps.h"
 #include "server/inpainting/poisson.h"
 
 namespace exo::inpainting {
 
 namespace {
 
-// The keyframe pixels whose points can land on `mask`'s bounding box in the frame: the frame's
-// viewing frustum through that box (grown by a pixel), cut to the keyframe's depth range, is a
-// convex body whose corners lie on the box's four corner rays; their projections bound it. The
-// whole keyframe when a corner ray does not cross the depth range in a bounded segment.
-struct KfRect {
-  int x0 = 0, y0 = 0, x1 = 0, y1 = 0;
-};
 // The bounding box of `mask`'s non-zero pixels, [x0, x1) x [y0, y1); empty (x1 = 0) when none.
-KfRect MaskBox(const ImageU8& mask) {
+PixelRect MaskBox(const ImageU8& mask) {
   int bx0 = mask.width(), by0 = mask.height(), bx1 = -1, by1 = -1;
   for (int y = 0; y < mask.height(); ++y) {
     const uint8_t* r = mask.row(y);
@@ -36,51 +31,8 @@ KfRect MaskBox(const ImageU8& mask) {
     by0 = std::min(by0, y);
     by1 = y;
   }
-  if (bx1 < 0) return KfRect{};
-  return KfRect{bx0, by0, bx1 + 1, by1 + 1};
-}
-
-KfRect KeyframePixelsOnto(const DrView& kf, const PinholeCamera& cam, const Rigid3d& cam_from_kf,
-                          const KfRect& box) {
-  const KfRect whole{0, 0, kf.cam.width, kf.cam.height};
-  if (box.x1 <= box.x0) return KfRect{};
-  const int bx0 = box.x0, by0 = box.y0, bx1 = box.x1 - 1, by1 = box.y1 - 1;
-  float zmin = std::numeric_limits<float>::max(), zmax = 0.f;
-  for (size_t i = 0; i < kf.depth.size(); ++i) {
-    const float z = kf.depth.data()[i];
-    if (z > 0.f) {
-      zmin = std::min(zmin, z);
-      zmax = std::max(zmax, z);
-    }
-  }
-  if (!(zmax > 0.f)) return KfRect{};
-  const Rigid3d kf_from_cam = cam_from_kf.Inverse();
-  const glm::dvec3 c = kf_from_cam * glm::dvec3(0.0);  // the frame's centre, keyframe coords
-  double u0 = 1e30, v0 = 1e30, u1 = -1e30, v1 = -1e30;
-  for (int k = 0; k < 4; ++k) {
-    const glm::dvec2 px(k & 1 ? bx1 + 1.5 : bx0 - 1.5, k & 2 ? by1 + 1.5 : by0 - 1.5);
-    const glm::dvec3 d = kf_from_cam * cam.Unproject(px, 1.0) - c;
-    if (std::abs(d.z) < 1e-9) return whole;
-    double ta = (zmin - c.z) / d.z, tb = (zmax - c.z) / d.z;
-    if (ta > tb) std::swap(ta, tb);
-    ta = std::max(ta, 0.0);
-    if (tb <= ta) continue;  // this ray never meets the keyframe's depth range
-    for (double t : {ta, tb}) {
-      glm::dvec2 uv;
-      if (!kf.cam.Project(c + t * d, &uv)) return whole;
-      u0 = std::min(u0, uv.x);
-      v0 = std::min(v0, uv.y);
-      u1 = std::max(u1, uv.x);
-      v1 = std::max(v1, uv.y);
-    }
-  }
-  if (u1 < u0) return whole;  // no ray met the range: keep it simple
-  KfRect r;
-  r.x0 = static_cast<int>(std::clamp(std::floor(u0) - 2.0, 0.0, double(kf.cam.width)));
-  r.y0 = static_cast<int>(std::clamp(std::floor(v0) - 2.0, 0.0, double(kf.cam.height)));
-  r.x1 = static_cast<int>(std::clamp(std::ceil(u1) + 3.0, 0.0, double(kf.cam.width)));
-  r.y1 = static_cast<int>(std::clamp(std::ceil(v1) + 3.0, 0.0, double(kf.cam.height)));
-  return r;
+  if (bx1 < 0) return PixelRect{};
+  return PixelRect{bx0, by0, bx1 + 1, by1 + 1};
 }
 
 }  // namespace
@@ -94,10 +46,13 @@ ImageF WarpBackgroundDepth(const DrView& kf, const PinholeCamera& cam, const Rig
   const int w = cam.width, h = cam.height;
   ImageF d(w, h, 1, 0.f);
   for (size_t i = 0; i < d.size(); ++i) d.data()[i] = roi.data()[i] ? 0.f : frame_depth.data()[i];
-  ImageF zbuf(w, h, 1, 1e30f);
   const Rigid3d cam_from_kf = pose.Inverse() * kf.world_from_cam;
-  const KfRect box = MaskBox(roi);
-  const KfRect rect = KeyframePixelsOnto(kf, cam, cam_from_kf, box);
+  const PixelRect box = MaskBox(roi);
+  const PixelRect rect = SourcePixelsOnto(kf.depth, kf.cam, cam, cam_from_kf, box);
+  // The z-buffer covers only the ROI's box (a splat lands only on ROI pixels).
+  const int zw = box.x1 - box.x0;
+  std::vector<float> zbuf(static_cast<size_t>(std::max(0, zw)) * std::max(0, box.y1 - box.y0),
+                          1e30f);
   for (int y = rect.y0; y < rect.y1; ++y)
     for (int x = rect.x0; x < rect.x1; ++x) {
       const float z = kf.depth.at(x, y);
@@ -106,13 +61,33 @@ ImageF WarpBackgroundDepth(const DrView& kf, const PinholeCamera& cam, const Rig
       glm::dvec2 uv;
       if (!cam.Project(p, &uv)) continue;
       const int u = static_cast<int>(RoundHalfAway(uv.x)), v = static_cast<int>(RoundHalfAway(uv.y));
-      if (!d.Contains(u, v) || !roi.at(u, v) || p.z >= zbuf.at(u, v)) continue;
-      zbuf.at(u, v) = static_cast<float>(p.z);
+      if (!d.Contains(u, v) || !roi.at(u, v)) continue;
+      float& zb = zbuf[static_cast<size_t>(v - box.y0) * zw + (u - box.x0)];
+      if (p.z >= zb) continue;
+      zb = static_cast<float>(p.z);
       d.at(u, v) = static_cast<float>(p.z);
     }
+  // Push-pull (bilinear) of the pixels without depth. With few of them (the usual frame: the
+  // splat's gaps in the ROI) the sparse evaluation computes only the pyramid cells they read,
+  // bit-identical to the dense pass over the whole frame (image_fill_impl.h), whose full pyramid
+  // was most of this function's time.
   std::vector<uint8_t> known(d.size());
-  for (size_t i = 0; i < d.size(); ++i) known[i] = d.data()[i] > 0.f;
-  PushPullFill(std::span<float>(d.data(), d.size()), 1, known, w, h, PullFilter::kBilinear);
+  std::vector<size_t> unknown;
+  for (size_t i = 0; i < d.size(); ++i) {
+    known[i] = d.data()[i] > 0.f;
+    if (!known[i]) unknown.push_back(i);
+  }
+  if (unknown.size() <= d.size() / 16) {
+    if (!unknown.empty() && unknown.size() < d.size()) {
+      float* dd = d.data();
+      const uint8_t* kn = known.data();
+      image_fill_internal::PushPullSparseBilinear<1>(
+          w, h, 1, [kn](size_t i) { return kn[i] != 0; }, [dd](size_t i, int) { return dd[i]; },
+          [dd](size_t i, int, float v) { dd[i] = v; }, unknown);
+    }
+  } else {
+    PushPullFill(std::span<float>(d.data(), d.size()), 1, known, w, h, PullFilter::kBilinear);
+  }
   // Two fixed-point steps: each pixel's point is looked up in the keyframe (bilinear depth there)
   // and re-projected, which removes the nearest-pixel staircase of the splat.
   const Rigid3d kf_from_cam = cam_from_kf.Inverse();
@@ -180,7 +155,7 @@ void LookUpInViews(const std::vector<const DrView*>& views, const PinholeCamera&
   };
   std::fill(observed->data(), observed->data() + observed->size(), uint8_t{0});
   std::fill(filled->data(), filled->data() + filled->size(), uint8_t{0});
-  const KfRect box = MaskBox(region);  // only the region's box is looked at
+  const PixelRect box = MaskBox(region);  // only the region's box is looked at
   for (int y = box.y0; y < box.y1; ++y)
     for (int x = box.x0; x < box.x1; ++x) {
       if (!region.at(x, y) || !(depth.at(x, y) > 0.f)) continue;

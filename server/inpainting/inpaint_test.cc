@@ -1,6 +1,7 @@
 #include "server/inpainting/inpaint.h"
 
 #include <cmath>
+#include <cstring>
 
 #include <gtest/gtest.h>
 
@@ -536,6 +537,57 @@ TEST(DepthMapsTest, PushPullFillsHolesAndNormalsFacePlane) {
   for (int y = 5; y < 55; y += 5)
     for (int x = 5; x < 75; x += 5)
       EXPECT_GT(n.at(x, y, 0) * expect.x + n.at(x, y, 1) * expect.y + n.at(x, y, 2) * expect.z, 0.999);
+}
+
+// The smoothing of NormalsFromDepth runs four columns at a time inside the frame and one at a
+// time near its left and right edges. Zero-depth columns added on the left (the principal point
+// shifted with them) change neither the sums (a zero neighbour is never averaged) nor the normals
+// (a pixel without depth is unusable, as one outside the frame), but move every pixel to another
+// lane or to the scalar edge loop: the normals must stay the same bit for bit.
+TEST(DepthMapsTest, NormalsDoNotDependOnTheColumnOffset) {
+  const PinholeCamera cam = SmallCamera(61, 23);
+  ImageF depth(cam.width, cam.height, 1, 0.f);
+  for (int y = 0; y < cam.height; ++y)
+    for (int x = 0; x < cam.width; ++x) {
+      float z = 1.5f + 0.002f * x * x / 7.f + 0.01f * std::sin(0.7f * y + 0.3f * x);
+      if (x > 30) z += 0.2f;                           // a depth step
+      if ((x * 5 + y * 3) % 23 == 0) z = 0.f;          // holes
+      if (x == 40 && y == 7) z = std::nanf("");        // invalid
+      depth.at(x, y) = z;
+    }
+  const ImageF base = NormalsFromDepth(depth, cam);
+  for (int pad = 1; pad <= 5; ++pad) {
+    PinholeCamera pc = cam;
+    pc.width += pad;
+    pc.cx += pad;
+    ImageF padded(pc.width, pc.height, 1, 0.f);
+    for (int y = 0; y < cam.height; ++y)
+      for (int x = 0; x < cam.width; ++x) padded.at(x + pad, y) = depth.at(x, y);
+    const ImageF n = NormalsFromDepth(padded, pc, 2, 0.05f, 1 + pad % 2);
+    int differ = 0;
+    for (int y = 0; y < cam.height; ++y)
+      for (int x = 0; x < cam.width; ++x)
+        for (int k = 0; k < 3; ++k)
+          differ += std::memcmp(&base.at(x, y, k), &n.at(x + pad, y, k), sizeof(float)) != 0;
+    EXPECT_EQ(differ, 0) << "pad " << pad;
+  }
+}
+
+// The units check compares the median (the n/2-th smallest valid depth) with the limit.
+TEST(DepthMapsTest, DepthUnitsCheckAtTheMedian) {
+  auto check = [](std::vector<float> v) {
+    ImageF d(static_cast<int>(v.size()), 1, 1, 0.f);
+    for (size_t i = 0; i < v.size(); ++i) d.data()[i] = v[i];
+    return CheckDepthUnits(d, 100.0).ok();
+  };
+  EXPECT_TRUE(check({1.f, 1.f, 200.f}));
+  EXPECT_FALSE(check({1.f, 200.f}));  // sorted {1, 200}: index 1
+  EXPECT_FALSE(check({200.f, 1.f, 200.f}));
+  EXPECT_TRUE(check({0.f, 0.f, 200.f, 1.f, 1.f, std::nanf("")}));  // {1, 1, 200}
+  EXPECT_TRUE(check({100.f, 100.f}));  // at the limit: not above it
+  EXPECT_FALSE(check({100.0001f, 100.0001f, 1.f}));
+  EXPECT_TRUE(check({0.f, 0.f}));
+  EXPECT_FALSE(check({1.f, -1.f}));
 }
 
 }  // namespace

@@ -544,9 +544,20 @@ int Propagate(const InpaintResult& prev, const RgbdKeyframe& frame, Level& L) {
   // Depth of T in this keyframe: forward-warp the previous inpainted depth (z-buffer, 2x2
   // footprint), standing in for the projection of the fused global map.
   std::vector<float> zbuf(static_cast<size_t>(w) * h, std::numeric_limits<float>::infinity());
-  const int pw = prev.depth_m.width(), ph = prev.depth_m.height();
-  for (int y = 0; y < ph; ++y) {
-    for (int x = 0; x < pw; ++x) {
+  // Only T's pixels read the z-buffer: only the previous pixels whose 2x2 footprint can reach
+  // T's bounding box are warped (SourcePixelsOnto; the same z-buffer values there).
+  PixelRect tbox{w, h, 0, 0};
+  for (int y = 0; y < h; ++y)
+    if (L.row_x1[y] >= 0) {
+      tbox.x0 = std::min(tbox.x0, L.row_x0[y]);
+      tbox.x1 = std::max(tbox.x1, L.row_x1[y] + 1);
+      tbox.y0 = std::min(tbox.y0, y);
+      tbox.y1 = y + 1;
+    }
+  if (tbox.x1 <= tbox.x0) return 0;
+  const PixelRect rect = SourcePixelsOnto(prev.depth_m, cam_p, cam_k, k_from_p, tbox);
+  for (int y = rect.y0; y < rect.y1; ++y) {
+    for (int x = rect.x0; x < rect.x1; ++x) {
       const float z = prev.depth_m.at(x, y);
       if (!(z > 0.f) || !std::isfinite(z)) continue;
       const glm::dvec3 pk = k_from_p * cam_p.Unproject({x, y}, z);

@@ -225,16 +225,27 @@ ImageU8 ProjectRegions(const RegionLabels& labels, const ImageF& depth_m,
       }
     }
   if (!any) return mask;
-  cv::Mat m(h, w, CV_8UC1, mask.data());
-  if (options.reproject_close_px > 0) {
-    const int k = 2 * options.reproject_close_px + 1;
-    cv::morphologyEx(m, m, cv::MORPH_CLOSE,
+  // The morphology runs on a crop: the labelled pixels lie in [x0, x1) x [y0, y1), the closing
+  // and the dilation reach at most 2 close + dilate px beyond them, so a crop grown by one more
+  // pixel (clamped to the frame, where both see the same constant border) gives the whole
+  // frame's result bit for bit: outside the crop the mask stays 0, and an erosion that meets the
+  // crop's edge (border = no erosion) sits where the dilated mask is 0 anyway.
+  const int cr = std::max(0, options.reproject_close_px), dr = std::max(0, options.reproject_dilate_px);
+  const int m = 2 * cr + dr + 1;
+  const cv::Rect crop(cv::Point(std::max(0, x0 - m), std::max(0, y0 - m)),
+                      cv::Point(std::min(w, x1 + m), std::min(h, y1 + m)));
+  cv::Mat full(h, w, CV_8UC1, mask.data());
+  cv::Mat part = full(crop).clone();
+  if (cr > 0) {
+    const int k = 2 * cr + 1;
+    cv::morphologyEx(part, part, cv::MORPH_CLOSE,
                      cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(k, k)));
   }
-  if (options.reproject_dilate_px > 0) {
-    const int k = 2 * options.reproject_dilate_px + 1;
-    cv::dilate(m, m, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(k, k)));
+  if (dr > 0) {
+    const int k = 2 * dr + 1;
+    cv::dilate(part, part, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(k, k)));
   }
+  part.copyTo(full(crop));
   return mask;
 }
 
