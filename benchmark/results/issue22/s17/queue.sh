@@ -1,0 +1,19 @@
+#!/bin/bash
+# queue.sh: session 17's runs, one exoview_eval at a time (2 shared cores); times -> runs.log.
+here=$(cd "$(dirname "$0")" && pwd); cd "$here"
+ALL=online,min_distance,every_n_online,reservoir,keyframe,every_n
+job() {  # SCENE STREAM SEED POLICIES OUT
+  local t0=$(date +%s)
+  ./run.sh "$@"; local rc=$?
+  echo "$1 $2 s$3 [$4] rc $rc $(date +%s | awk -v t=$t0 '{print $1-t}') s: $(tail -1 $5.log); $(uptime)" >> runs.log
+}
+mkdir -p dev
+for job in "$@"; do
+  case $job in
+    ad1) job apartment drone 1 $ALL,online:drs=0.5 dev/apartment_drone_s1.jsonl ;;
+    vd) for s in 1 2 3; do job village drone $s $ALL,online:drs=0.5 dev/village_drone_s$s.jsonl; done ;;
+    ad) for s in 2 3; do job apartment drone $s $ALL,online:drs=0.5 dev/apartment_drone_s$s.jsonl; done ;;
+    ah) for s in 1 2 3; do job apartment handheld $s $ALL,online:drs=0.5 dev/apartment_handheld_s$s.jsonl; done ;;
+    vh) for s in 1 2 3; do job village handheld $s $ALL,online:drs=0.5 dev/village_handheld_s$s.jsonl; done ;;
+  esac
+done
