@@ -17,3 +17,10 @@ for job in "$@"; do
     vh) for s in 1 2 3; do job village handheld $s $ALL,online:drs=0.5 dev/village_handheld_s$s.jsonl; done ;;
   esac
 done
+# (appended) single seeds: ah1 / vh1 / ad2
+for job in "$@"; do
+  case $job in
+    ah1) job apartment handheld 1 $ALL,online:drs=0.5 dev/apartment_handheld_s1.jsonl ;;
+    vh1) job village handheld 1 $ALL,online:drs=0.5 dev/village_handheld_s1.jsonl ;;
+  esac
+done

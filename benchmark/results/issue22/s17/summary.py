@@ -34,8 +34,12 @@ def load(files, views, metric="ssim"):
             if not line:
                 continue
             r = json.loads(line)
-            if r.get("bench") != "eval" or "config" not in r or "per_view" not in r:
+            if r.get("bench") != "eval" or "config" not in r:
                 continue
+            if "per_view" not in r:  # older rows (session 14): the mean alone
+                if metric != "ssim":
+                    continue
+                r["per_view"] = {"ssim": [r["quality"]["mssim"]]}
             c = r["config"]
             name = c["policy"] + ("" if r.get("tag") in (None, "main") else ":" + r["tag"])
             ds = r["dataset"].split("/seed")
