@@ -82,12 +82,17 @@ def main():
     ap.add_argument("--new", default="online")
     ap.add_argument("--views", type=int, default=0)
     ap.add_argument("--spread", action="store_true", help="only the spread table (planner - each)")
+    ap.add_argument("--compact", action="store_true",
+                    help="one row per (stream, poses, row): D @ each store with its verdict")
     ap.add_argument("--cause", action="store_true",
                     help="per policy: mean over seeds and test views of the nearest stored camera "
                          "centre (m), its turn (deg) and the blend coverage")
     args = ap.parse_args()
     if args.cause:
         cause(args)
+        return
+    if args.compact:
+        compact(args)
         return
     data = load(args.files, args.views)
     groups = sorted({(k[0], k[1]) for k in data})
@@ -128,6 +133,34 @@ def main():
                 else:
                     cells.append("%+.4f (%d/%d, sd %.4f, se %.4f) %s" % (D, wins, k, sd, se, verdict(p)))
             print(f"| − {LABEL.get(n, n)} | " + " | ".join(cells) + " |")
+
+
+def compact(args):
+    data = load(args.files, args.views)
+    groups = sorted({(k[0], k[1]) for k in data})
+    print("| stream, poses (seeds) | planner − | 50 | 100 | 200 |")
+    print("|---|---|---|---|---|")
+    for stream, poses in groups:
+        names = sorted({k[2] for k in data if k[:2] == (stream, poses)})
+        stores = sorted({k[3] for k in data if k[:2] == (stream, poses)})
+        order = [n for n in BASELINES + [ORACLE] if n in names] + \
+                [n for n in names if n not in BASELINES + [ORACLE, args.new]]
+        for n in order:
+            cells, nseeds = [], 0
+            for s in stores:
+                a, b = data.get((stream, poses, args.new, s)), data.get((stream, poses, n, s))
+                p = paired(a, b) if a and b else None
+                if not p:
+                    cells.append("–")
+                    continue
+                nseeds = max(nseeds, p[4])
+                if n == ORACLE:
+                    bm = st.mean(st.mean(x) for x in b.values())
+                    cells.append("%+.4f (%+.2f %%)" % (p[0], 100 * p[0] / bm))
+                else:
+                    v = verdict(p).replace("**", "")
+                    cells.append("%+.4f %s" % (p[0], v if v != "tie" else "tie"))
+            print(f"| {stream}, {poses} ({nseeds}) | {LABEL.get(n, n)} | " + " | ".join(cells) + " |")
 
 
 def cause(args):
