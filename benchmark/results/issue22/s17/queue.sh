@@ -1,12 +1,7 @@
 #!/bin/bash
 # queue.sh: session 17's runs, one exoview_eval at a time (2 shared cores); times -> runs.log.
 here=$(cd "$(dirname "$0")" && pwd); cd "$here"
-ALL=online,min_distance,every_n_online,reservoir,keyframe,every_n
-job() {  # SCENE STREAM SEED POLICIES OUT
-  local t0=$(date +%s)
-  ./run.sh "$@"; local rc=$?
-  echo "$1 $2 s$3 [$4] rc $rc $(date +%s | awk -v t=$t0 '{print $1-t}') s: $(tail -1 $5.log); $(uptime)" >> runs.log
-}
+. ./jobs.sh
 mkdir -p dev
 for job in "$@"; do
   case $job in

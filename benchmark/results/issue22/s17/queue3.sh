@@ -3,11 +3,7 @@
 # (online:mpr=7: 7 m/rad, the m sessions 15-16 found good on the village drone; under the server's
 # rule every other stream has d_max < 7 m, so a cap at 7 m/rad changes only the outdoor drone).
 here=$(cd "$(dirname "$0")" && pwd); cd "$here"
-job() {  # SCENE STREAM SEED POLICIES OUT
-  local t0=$(date +%s)
-  ./run.sh "$@"; local rc=$?
-  echo "$1 $2 s$3 [$4] rc $rc $(date +%s | awk -v t=$t0 '{print $1-t}') s: $(tail -1 $5.log); $(date -u +%H:%M) load $(cut -d' ' -f1-3 /proc/loadavg)" >> runs.log
-}
+. ./jobs.sh
 job apartment handheld 1 online,min_distance,every_n_online,reservoir,keyframe,every_n dev/apartment_handheld_s1.jsonl
 job village handheld 1 online,min_distance,keyframe,every_n dev/village_handheld_s1.jsonl
 job village drone 3 online,min_distance,online:mpr=7,online:drs=0.5 dev/village_drone_s3.jsonl

@@ -3,12 +3,7 @@
 # policies: no time left for seed 3 and the online:mpr=7 probe): the village handheld seed 1, then
 # the apartment streams' seed 2.
 here=$(cd "$(dirname "$0")" && pwd); cd "$here"
-ALL=online,min_distance,every_n_online,reservoir,keyframe,every_n
-job() {  # SCENE STREAM SEED POLICIES OUT
-  local t0=$(date +%s)
-  ./run.sh "$@"; local rc=$?
-  echo "$1 $2 s$3 [$4] rc $rc $(date +%s | awk -v t=$t0 '{print $1-t}') s: $(tail -1 $5.log); $(date -u +%H:%M) load $(cut -d' ' -f1-3 /proc/loadavg)" >> runs.log
-}
+. ./jobs.sh
 job village handheld 1 online,min_distance,keyframe,every_n dev/village_handheld_s1.jsonl
 job apartment handheld 2 $ALL dev/apartment_handheld_s2.jsonl
 job apartment drone 2 $ALL dev/apartment_drone_s2.jsonl
