@@ -234,7 +234,7 @@ planning::PlannerOptions PlannerFor(const PolicyConfig& c, const Source& src, do
                                                           : product.observe_zero_coverage;
   po.d_max_m = src.scale.d_max_m;
   po.sigma_m = src.scale.sigma_m;
-  if (src.scale_mode == ScaleMode::kViewDepth && src.view_depth_m > 0) {
+  if (src.scale_mode != ScaleMode::kBounds && src.view_depth_m > 0) {
     const planning::PlannerOptions f =
         planning::PlannerOptions::ForScene(src.scale.diameter_m, src.view_depth_m);
     po.d_max_m = f.d_max_m;
@@ -1126,7 +1126,15 @@ const char* CellIdSourceName(CellIdSource s) {
 }
 
 const char* ScaleModeName(ScaleMode m) {
-  return m == ScaleMode::kBounds ? "bounds" : "view_depth";
+  return m == ScaleMode::kBounds ? "bounds" : m == ScaleMode::kServer ? "server" : "view_depth";
+}
+
+bool ParseScaleMode(std::string_view name, ScaleMode* out) {
+  if (name == "bounds") *out = ScaleMode::kBounds;
+  else if (name == "depth") *out = ScaleMode::kViewDepth;
+  else if (name == "server") *out = ScaleMode::kServer;
+  else return false;
+  return true;
 }
 
 const char* PolicyName(Policy p) {
@@ -1201,6 +1209,17 @@ absl::StatusOr<std::vector<ConfigResult>> RunSynthetic(const SynthRunOptions& o)
   if (o.scale_mode == ScaleMode::kViewDepth) {
     EXO_ASSIGN_OR_RETURN(synth::RenderedFrame f0, synth::RenderFrame(scene, src.poses[0], rop));
     src.view_depth_m = core::MedianDepth(f0.frame.depth_m);
+  } else if (o.scale_mode == ScaleMode::kServer) {
+    // What the server derives from this stream's first frame (issue 22, session 17): the depth
+    // range is the one the engine below fuses with (a deployment for this scene sets it so).
+    EXO_ASSIGN_OR_RETURN(synth::RenderedFrame f0, synth::RenderFrame(scene, src.poses[0], rop));
+    core::OnlineModelOptions mo;
+    mo.voxel_m = o.voxel_m;
+    mo.max_depth_m = std::max(6.0, scene.ExtentM());
+    mo.min_depth_m = 0.1;
+    EXO_ASSIGN_OR_RETURN(const core::SceneSetup setup, core::ChooseSceneSetup(f0.frame, mo));
+    src.scale = setup.scale;
+    src.view_depth_m = setup.view_depth_m;
   }
   // The product's λ (the server has one for every scene; the thesis used 0.5 aerial, 0.4 indoor).
   src.default_lambda = core::OnlineModelOptions{}.lambda;

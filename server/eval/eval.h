@@ -33,6 +33,7 @@
 #include <functional>
 #include <optional>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "common/lumigraph/blend_math.h"
@@ -186,9 +187,14 @@ enum class TestPoseMode {
 // How d_max and σ of (3.11) are chosen (the cell size always follows scene_scale.h).
 enum class ScaleMode {
   kBounds,     // server/geometry/scene_scale.h: d_max = clamp(0.15 D, 1, 50), σ = clamp(0.2 D, .5, 50)
-  kViewDepth   // PlannerOptions::ForScene: d_max = median valid depth of the first frame (the
+  kViewDepth,  // PlannerOptions::ForScene: d_max = median valid depth of the first frame (the
                // distance the operator actually views the surface from), σ = max(d_max, 0.1 D)
+  kServer      // the server's rule, core::ChooseSceneSetup on the first frame: as kViewDepth, but
+               // D (hence the cell size and σ) from the first frame's fused surface, not the scene
+               // bounds. The 7-Scenes path always uses ChooseSceneSetup, so there it = kViewDepth.
 };
+// "bounds" | "depth" | "server"; false for another name.
+bool ParseScaleMode(std::string_view name, ScaleMode* out);
 const char* ScaleModeName(ScaleMode m);
 
 // Where ψ_vis (3.12) of a frame comes from.

@@ -55,7 +55,8 @@ constexpr char kUsage[] =
     "  --lod_keep F          keep a chunk's LOD while its triangle count is within F (default 0.1)\n"
     "  --ids depth|proxy     psi_vis from the frame's own depth (default, as the server does) or\n"
     "                        from a render of the proxy (SPEC 3.12 as written)\n"
-    "  --scale bounds|depth  d_max/σ from scene_scale.h or from the first frame's median depth\n"
+    "  --scale bounds|depth|server  d_max/σ from scene_scale.h, from the first frame's median depth,\n"
+    "                 or the server's rule (core::ChooseSceneSetup on the first frame)\n"
     "                        (synthetic default bounds, 7-Scenes default depth)\n"
     "  policies every_n_uncapped, min_distance_uncapped, all_uncapped: baseline referencing every\n"
     "  selected observer per cell (no R_max cap); plain names use the planner's pre-selection\n"
@@ -293,7 +294,10 @@ int RunOne(const Args& a) {
     o.cellid_lod_keep = a.Num("--lod_keep", o.cellid_lod_keep);
     if (a.kv.count("--ids")) o.cell_ids = a.Get("--ids", "") == "proxy" ? CellIdSource::kProxy : CellIdSource::kFrameDepth;
     o.per_view = a.Num("--per_view", 0) != 0;
-    if (a.kv.count("--scale")) o.scale_mode = a.Get("--scale", "") == "bounds" ? ScaleMode::kBounds : ScaleMode::kViewDepth;
+    if (a.kv.count("--scale") && !ParseScaleMode(a.Get("--scale", ""), &o.scale_mode)) {
+      std::fprintf(stderr, "unknown --scale %s (bounds | depth | server)\n", a.Get("--scale", "").c_str());
+      return 2;
+    }
     o.blend = Blend(a);
     o.configs = *configs;
     o.emit = Emit;
@@ -349,7 +353,10 @@ int RunOne(const Args& a) {
   o.walk_look_around_deg = a.Num("--look_around", -1);
   o.per_view = a.Num("--per_view", 0) != 0;
   o.vertex_color_baseline = a.Num("--vertex_color", 1) != 0;
-  if (a.kv.count("--scale")) o.scale_mode = a.Get("--scale", "") == "bounds" ? ScaleMode::kBounds : ScaleMode::kViewDepth;
+  if (a.kv.count("--scale") && !ParseScaleMode(a.Get("--scale", ""), &o.scale_mode)) {
+    std::fprintf(stderr, "unknown --scale %s (bounds | depth | server)\n", a.Get("--scale", "").c_str());
+    return 2;
+  }
   o.configs = *configs;
   o.emit = Emit;
   o.dump_dir = a.Get("--dump", "");
@@ -442,7 +449,7 @@ constexpr std::pair<const char*, const char*> kFlags[] = {
     {"--lod_m", "cell-id LOD cluster size in metres (wins over --lod)"},
     {"--lod_keep", "keep a chunk's LOD within this triangle-count change (default 0.1)"},
     {"--ids", "depth | proxy: where psi_vis comes from"},
-    {"--scale", "bounds | depth: d_max / sigma rule"},
+    {"--scale", "bounds | depth | server: d_max / sigma (/ cell) rule"},
     {"--vertex_color", "0: no vertex-colour baseline"},
     {"--dump", "directory for render/GT/coverage PNGs"},
     {"--dump_views", "how many views to dump"},

@@ -11,6 +11,9 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
+#include "common/synth/render.h"
+#include "common/synth/scene.h"
+#include "common/synth/trajectory.h"
 #include "server/core/online_model.h"
 
 namespace exo::eval {
@@ -177,6 +180,66 @@ TEST(EvalSmokeTest, OnlineBaselinesOnADroneStream) {
   // 90 frames into 10 slots: N = 16 after four decimations (0, 16, ..., 80: 6 views).
   const std::vector<int> prog = (*r)[1].selected;
   EXPECT_EQ(prog, (std::vector<int>{0, 16, 32, 48, 64, 80}));
+}
+
+// --scale server (issue 22, session 17): the synthetic run's d_max, sigma and cell size are the
+// server's, core::ChooseSceneSetup on the stream's first frame (D from that frame's surface,
+// d_max = its median depth), not the scene-bounds rule (0.15 D of the whole scene).
+TEST(EvalSmokeTest, ServerScaleIsTheServersSceneSetup) {
+  SynthRunOptions o = Tiny();
+  o.scene = "village";
+  o.traj = "drone";
+  o.proxy = ProxyKind::kGroundTruth;
+  o.frames = 30;
+  o.frame_width = 160;
+  o.frame_height = 120;
+  o.test_views = 1;
+  o.vertex_color_baseline = false;
+  PolicyConfig on;
+  on.policy = Policy::kOnline;
+  on.store = 6;
+  o.configs = {on};
+  // The server's setup of this stream's first frame, computed here independently.
+  synth::SceneOptions sco;
+  sco.seed = o.scene_seed;
+  auto scene = synth::MakeScene(synth::SceneKind::kVillage, sco);
+  ASSERT_TRUE(scene.ok()) << scene.status();
+  synth::TrajectoryOptions to;
+  to.num_frames = o.frames;
+  to.seed = o.scene_seed;
+  auto traj = synth::MakeTrajectory(*scene, synth::TrajectoryKind::kDrone, to);
+  ASSERT_TRUE(traj.ok()) << traj.status();
+  synth::RenderOptions rop;
+  rop.width = o.frame_width;
+  rop.height = o.frame_height;
+  auto f0 = synth::RenderFrame(*scene, (*traj)[0].local_from_cam, rop);
+  ASSERT_TRUE(f0.ok()) << f0.status();
+  core::OnlineModelOptions mo;
+  mo.max_depth_m = std::max(6.0, scene->ExtentM());
+  mo.min_depth_m = 0.1;
+  auto setup = core::ChooseSceneSetup(f0->frame, mo);
+  ASSERT_TRUE(setup.ok()) << setup.status();
+
+  double d_max[2], cell[2];
+  for (int k = 0; k < 2; ++k) {
+    o.scale_mode = k == 0 ? ScaleMode::kServer : ScaleMode::kBounds;
+    auto r = RunSynthetic(o);
+    ASSERT_TRUE(r.ok()) << r.status();
+    ASSERT_EQ(r->size(), 1u);
+    const nlohmann::json j = nlohmann::json::parse((*r)[0].json);
+    EXPECT_EQ(j["config"]["scale"], k == 0 ? "server" : "bounds");
+    d_max[k] = j["config"]["d_max_m"].get<double>();
+    cell[k] = j["config"]["cell_m"].get<double>();
+  }
+  EXPECT_NEAR(d_max[0], setup->d_max_m, 0.006);
+  EXPECT_NEAR(cell[0], setup->cell_m, 0.0006);
+  EXPECT_NEAR(d_max[0], setup->view_depth_m, 0.006);  // the server's d_max is the median depth
+  // The two rules differ on this stream (village: 0.15 D of the scene vs the drone's view depth).
+  EXPECT_GT(std::abs(d_max[0] - d_max[1]), 1.0);
+  ScaleMode m = ScaleMode::kBounds;
+  EXPECT_TRUE(ParseScaleMode("server", &m));
+  EXPECT_EQ(m, ScaleMode::kServer);
+  EXPECT_FALSE(ParseScaleMode("serve", &m));
 }
 
 TEST(EvalSmokeTest, RejectsBadOptions) {
