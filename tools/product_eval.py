@@ -152,7 +152,14 @@ def run_fold(args, fold, reg_dir, work):
               # the planner's time term and the stream drift that switches it (docs/planning.md
               # "Session 16 (lead)")
               "time_scale": c.get("planning.time_scale"), "drift_near": c.get("planning.drift_near"),
-              "drift_far": c.get("planning.drift_far")}
+              "drift_far": c.get("planning.drift_far"),
+              # refinement of the kept views (a view accepted while the worker's queue is full
+              # is not refined: refinement.skipped_under_load)
+              "planning_accepted": c.get("planning.accepted"),
+              "refine_submitted": c.get("refinement.submitted"),
+              "refine_refined": c.get("refinement.refined"),
+              "refine_updated": c.get("refinement.updated"),
+              "refine_skipped": c.get("refinement.skipped_under_load")}
     ingest.update(viewer_bytes(os.path.join(work, "viewer.log")))
     meshes = []
     if not args.no_open3d and (args.open3d_folds == "all"
