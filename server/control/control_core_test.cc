@@ -208,6 +208,7 @@ TEST(ControlCore, ExploreSweepLooksThenClimbsAndPassesThroughItsPoints) {
   s.camera_pitch = v.target.camera_pitch;
   core.OnDroneState("drone", s, 2.0);
   EXPECT_FALSE(core.ExploreStep("drone", 2.0));
+  EXPECT_FALSE(core.ExploreStep("drone", 2.4));  // the look's hover: explore_dwell_s (1 s)
   ASSERT_TRUE(core.ExploreStep("drone", 3.1));
   v = core.View("drone");
   EXPECT_NE(v.explore_note.find("sweep point 0"), std::string::npos) << v.explore_note;
@@ -244,6 +245,31 @@ TEST(ControlCore, ExploreSweepLooksThenClimbsAndPassesThroughItsPoints) {
   (*hovering)->OnDroneState("drone", t, 5.0);
   EXPECT_FALSE((*hovering)->ExploreStep("drone", 5.0));
   EXPECT_FALSE((*hovering)->ExploreStep("drone", 7.0));
+  // A shorter hover at looks (sweep_look_dwell_s, session 17): the same look is done after
+  // 0.3 s; the hold at the start keeps explore_dwell_s.
+  ControlCoreOptions q = o;
+  q.explore.sweep_look_dwell_s = 0.3;
+  auto quick = ControlCore::Create(q);
+  ASSERT_TRUE(quick.ok());
+  (*quick)->WithSafeFlight(free_below(3.0));
+  (*quick)->OnDroneState("drone", At({4, 4, 1.5}), 0);
+  ASSERT_TRUE((*quick)->Explore({"op", 1, "drone"}, true, 0).ok());
+  EXPECT_FALSE((*quick)->ExploreStep("drone", 0.0));
+  EXPECT_FALSE((*quick)->ExploreStep("drone", 0.5));
+  ASSERT_TRUE((*quick)->ExploreStep("drone", 1.1));
+  const DroneView ql = (*quick)->View("drone");
+  EXPECT_NE(ql.explore_note.find("climb"), std::string::npos) << ql.explore_note;
+  EXPECT_LT(glm::length(ql.target.position - look), 1e-9);  // the same look
+  (*quick)->WithSafeFlight(free_below(100.0));
+  DroneState qs = At(look);
+  qs.yaw = ql.target.yaw;
+  qs.camera_pitch = ql.target.camera_pitch;
+  (*quick)->OnDroneState("drone", qs, 2.0);
+  EXPECT_FALSE((*quick)->ExploreStep("drone", 2.0));
+  EXPECT_FALSE((*quick)->ExploreStep("drone", 2.2));
+  ASSERT_TRUE((*quick)->ExploreStep("drone", 2.4));
+  EXPECT_NE((*quick)->View("drone").explore_note.find("sweep point 0"), std::string::npos)
+      << (*quick)->View("drone").explore_note;
 }
 
 }  // namespace
