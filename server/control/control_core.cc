@@ -14,6 +14,12 @@ absl::Status ControlCoreOptions::Validate() const {
   if (!(waypoint_tolerance_m > 0) || !(setpoint_rate_hz > 0))
     return absl::InvalidArgumentError("control: waypoint_tolerance_m and setpoint_rate_hz > 0");
   if (!(gaze.offset_m > 0)) return absl::InvalidArgumentError("control: gaze offset must be > 0");
+  if (carve_no_return && carve_sky_rule)
+    return absl::InvalidArgumentError(
+        "control: carve_no_return and carve_sky_rule exclude each other (every missing depth "
+        "carved, or only the sky's)");
+  if (!(std::abs(carve_sky_min_elevation_rad) <= kPi / 2))
+    return absl::InvalidArgumentError("control: carve_sky_min_elevation_rad must be in [-pi/2, pi/2]");
   return absl::OkStatus();
 }
 
@@ -53,14 +59,27 @@ void ControlCore::RemoveChunk(uint64_t id) {
 }
 
 void ControlCore::AddView(uint32_t id, const Rigid3d& local_from_cam, const PinholeCamera& camera,
-                          const ImageF* depth_m) {
+                          const ImageF* depth_m, const ImageU8* colour_srgb) {
+  // The sky rule's colour, converted off the lock.
+  ImageF colour;
+  if (options_.carve_sky_rule && colour_srgb && depth_m)
+    colour = OccupancyGrid::SkyColour(*colour_srgb, depth_m->width(), depth_m->height());
   std::lock_guard lock(mu_);
   view_poses_[id] = local_from_cam;
   if (depth_m && !depth_m->empty()) {
     Rigid3d world_from_cam = local_from_cam;
     world_from_cam.translation += origin_;
-    safe_.grid().CarveDepth(*depth_m, camera, world_from_cam, options_.carve_stride,
-                            options_.carve_max_range_m, options_.carve_no_return);
+    if (options_.carve_sky_rule) {
+      OccupancyGrid::SkyRule sky;
+      sky.up = options_.up;
+      sky.min_elevation_rad = options_.carve_sky_min_elevation_rad;
+      sky.color = colour.empty() ? nullptr : &colour;
+      safe_.grid().CarveDepth(*depth_m, camera, world_from_cam, options_.carve_stride,
+                              options_.carve_max_range_m, sky);
+    } else {
+      safe_.grid().CarveDepth(*depth_m, camera, world_from_cam, options_.carve_stride,
+                              options_.carve_max_range_m, options_.carve_no_return);
+    }
     // The view raises τ of the surface cells it sees (exploration's estimate of the lumigraph).
     planner_.Observe(safe_.grid(), *depth_m, camera, world_from_cam, options_.carve_stride);
   }
@@ -327,7 +346,8 @@ bool ControlCore::ExploreStep(const std::string& drone_id, double now_s) {
                             std::abs(WrapAngle(s.yaw - v.target.yaw)) < 0.1);
     if (!at_goal) d.arrived_s = -1.0;
     else if (d.arrived_s < 0) d.arrived_s = now_s;
-    bool due = (at_goal && now_s - d.arrived_s >= (d.pass_m > 0 ? 0.0 : options_.explore_dwell_s)) ||
+    const double dwell = d.pass_m > 0 ? 0.0 : d.dwell_s >= 0 ? d.dwell_s : options_.explore_dwell_s;
+    bool due = (at_goal && now_s - d.arrived_s >= dwell) ||
                now_s - d.issued_s > options_.explore_goal_timeout_s;
     // A route that crosses newly seen obstacles (or unknown space) is dropped.
     glm::dvec3 a = s.position;
@@ -357,6 +377,7 @@ bool ControlCore::ExploreStep(const std::string& drone_id, double now_s) {
   planner_.TakeDecisionState(planner);  // the sweep's progress (the τ estimates stay)
   d->travel_pitch = 0.0;
   d->pass_m = 0.0;
+  d->dwell_s = -1.0;
   const Command c{v.explore_operator, 0, drone_id};
   if (!next) {
     // Nothing reachable gains anything (early on: too little modelled to fly anywhere). Turn
@@ -377,6 +398,7 @@ bool ControlCore::ExploreStep(const std::string& drone_id, double now_s) {
   if (r.ok()) {
     d->travel_pitch = next->travel_pitch;
     d->pass_m = next->pass_m;
+    d->dwell_s = next->dwell_s;
     v.explore_note = absl::StrFormat(
         "view %d%s: gain %.1f (%.0f%% from unknown space), path %.1f m, pitch %.2f rad",
         v.explore_decisions,

@@ -59,6 +59,12 @@ struct ControlCoreOptions {
   // (OccupancyGrid::CarveDepth's no_return_is_free); off for real sensors, whose black or
   // specular surfaces return nothing too.
   bool carve_no_return = false;
+  // Pixels without depth carve free space where OccupancyGrid::SkyRule takes them for sky (a
+  // rule for real sensors, session 17): the ray above carve_sky_min_elevation_rad (along `up`),
+  // nothing measured above it in its image column, and, when the view's colour is given to
+  // AddView, bright and blue. Off by default; excludes carve_no_return.
+  bool carve_sky_rule = false;
+  double carve_sky_min_elevation_rad = -0.1;
   double explore_goal_timeout_s = 30.0;
   double drone_sphere_m = 0.15;  // an exploring drone's own volume, marked free
   static ExploreOptions DefaultExploreOptions() {
@@ -128,8 +134,9 @@ class ControlCore {
   void UpsertChunk(uint64_t id, TriangleMesh mesh_local);  // also marks its cells occupied
   void RemoveChunk(uint64_t id);
   // A stored view: its pose (go-to-view) and its depth carved into the occupancy view.
+  // `colour_srgb` (the view's camera image, any size; may be null) serves carve_sky_rule only.
   void AddView(uint32_t id, const Rigid3d& local_from_cam, const PinholeCamera& camera,
-               const ImageF* depth_m);
+               const ImageF* depth_m, const ImageU8* colour_srgb = nullptr);
   void UpdateViewPose(uint32_t id, const Rigid3d& local_from_cam);
   void RemoveView(uint32_t id);
   // Direct access for tests and tools (under the core's lock).
@@ -182,6 +189,7 @@ class ControlCore {
     int idle_turns = 0;          // exploring: turns in place with nothing to gain, in a row
     double travel_pitch = 0.0;   // exploring: camera pitch before the route's last waypoint
     double pass_m = 0.0;         // exploring: > 0: the goal is passed through (NextView)
+    double dwell_s = -1.0;       // exploring: >= 0: the hover at the goal (NextView)
   };
   ControlCore(const ControlCoreOptions& options, const SceneFrame& frame, SafeFlight safe)
       : options_(options), frame_(frame), safe_(std::move(safe)), planner_(options.explore) {}

@@ -208,6 +208,7 @@ TEST(ControlCore, ExploreSweepLooksThenClimbsAndPassesThroughItsPoints) {
   s.camera_pitch = v.target.camera_pitch;
   core.OnDroneState("drone", s, 2.0);
   EXPECT_FALSE(core.ExploreStep("drone", 2.0));
+  EXPECT_FALSE(core.ExploreStep("drone", 2.4));  // the look's hover: explore_dwell_s (1 s)
   ASSERT_TRUE(core.ExploreStep("drone", 3.1));
   v = core.View("drone");
   EXPECT_NE(v.explore_note.find("sweep point 0"), std::string::npos) << v.explore_note;
@@ -228,22 +229,48 @@ TEST(ControlCore, ExploreSweepLooksThenClimbsAndPassesThroughItsPoints) {
   v = core.View("drone");
   EXPECT_EQ(v.explore_decisions, decisions + 1);
   EXPECT_NE(v.explore_note.find("sweep point 1"), std::string::npos) << v.explore_note;
+  // A second core from `opts`: known air below `free_top`, the drone at `at`, exploring, its
+  // first decision after the hold's dwell (explore_dwell_s, whatever sweep_look_dwell_s is).
+  auto first_view = [&](const ControlCoreOptions& opts, double free_top, glm::dvec3 at) {
+    auto made = ControlCore::Create(opts);
+    EXO_CHECK(made.ok());
+    std::unique_ptr<ControlCore> c = *std::move(made);
+    c->WithSafeFlight(free_below(free_top));
+    c->OnDroneState("drone", At(at), 0);
+    EXPECT_TRUE(c->Explore({"op", 1, "drone"}, true, 0).ok());
+    EXPECT_FALSE(c->ExploreStep("drone", 0.0));
+    EXPECT_FALSE(c->ExploreStep("drone", 0.5));
+    EXPECT_TRUE(c->ExploreStep("drone", 1.1));
+    return c;
+  };
   // With the hover (sweep_pass_m 0) the same place is not the goal yet.
   ControlCoreOptions h = o;
   h.explore.sweep_pass_m = 0.0;
-  auto hovering = ControlCore::Create(h);
-  ASSERT_TRUE(hovering.ok());
-  (*hovering)->WithSafeFlight(free_below(100.0));
-  (*hovering)->OnDroneState("drone", At({4, 4, 8}), 0);
-  ASSERT_TRUE((*hovering)->Explore({"op", 1, "drone"}, true, 0).ok());
-  EXPECT_FALSE((*hovering)->ExploreStep("drone", 0.0));
-  ASSERT_TRUE((*hovering)->ExploreStep("drone", 1.1));
-  const DroneView w = (*hovering)->View("drone");
+  const std::unique_ptr<ControlCore> hovering = first_view(h, 100.0, {4, 4, 8});
+  const DroneView w = hovering->View("drone");
   DroneState t = At(w.target.position + glm::dvec3(0, 0, -0.8));
   t.yaw = 2.0;
-  (*hovering)->OnDroneState("drone", t, 5.0);
-  EXPECT_FALSE((*hovering)->ExploreStep("drone", 5.0));
-  EXPECT_FALSE((*hovering)->ExploreStep("drone", 7.0));
+  hovering->OnDroneState("drone", t, 5.0);
+  EXPECT_FALSE(hovering->ExploreStep("drone", 5.0));
+  EXPECT_FALSE(hovering->ExploreStep("drone", 7.0));
+  // A shorter hover at looks (sweep_look_dwell_s, session 17): the same look is done after
+  // 0.3 s instead of 1 s.
+  ControlCoreOptions q = o;
+  q.explore.sweep_look_dwell_s = 0.3;
+  const std::unique_ptr<ControlCore> quick = first_view(q, 3.0, {4, 4, 1.5});
+  const DroneView ql = quick->View("drone");
+  EXPECT_NE(ql.explore_note.find("climb"), std::string::npos) << ql.explore_note;
+  EXPECT_LT(glm::length(ql.target.position - look), 1e-9);  // the same look
+  quick->WithSafeFlight(free_below(100.0));
+  DroneState qs = At(look);
+  qs.yaw = ql.target.yaw;
+  qs.camera_pitch = ql.target.camera_pitch;
+  quick->OnDroneState("drone", qs, 2.0);
+  EXPECT_FALSE(quick->ExploreStep("drone", 2.0));
+  EXPECT_FALSE(quick->ExploreStep("drone", 2.2));
+  ASSERT_TRUE(quick->ExploreStep("drone", 2.4));
+  EXPECT_NE(quick->View("drone").explore_note.find("sweep point 0"), std::string::npos)
+      << quick->View("drone").explore_note;
 }
 
 }  // namespace

@@ -368,6 +368,7 @@ std::optional<NextView> ExplorationPlanner::LookView(const SafeFlight& safe,
   const glm::dvec3 d = toward - p;
   NextView v;
   v.climb = true;
+  v.dwell_s = options_.sweep_look_dwell_s;
   v.pose = Setpoint{p, frame.YawOf(d)};
   v.pitch = std::clamp(std::atan2(glm::dot(d, frame.up), glm::length(frame.Horizontal(d))), 0.0,
                        options_.sweep_climb_pitch);
@@ -385,6 +386,7 @@ std::optional<NextView> ExplorationPlanner::ClimbView(const SafeFlight& safe,
   const glm::dvec3 toward = sweep_[k];
   NextView v;
   v.climb = true;
+  v.dwell_s = options_.sweep_look_dwell_s;
   // 2. No such place: the most height per metre of flight, looking up toward the point.
   const double h0 = frame.Height(from);
   std::optional<size_t> best;

@@ -100,6 +100,10 @@ struct ExploreOptions {
   // climb enters the sweep at its end, a corner, and facing the leg looks out of the scene
   // (session 16). false: facing the leg (session 15).
   bool sweep_climb_face_centre = true;
+  // The hover at a look (sweep_climb's views toward a point above the air seen so far), in s;
+  // < 0: the caller's usual dwell. The camera is still during it, so every frame after the
+  // first carves the same rays again (session 17).
+  double sweep_look_dwell_s = -1.0;
 };
 
 // A Hilbert-curve sweep (order `order`: 4^order points, in order) over the horizontal box
@@ -121,6 +125,9 @@ struct NextView {
   // > 0: a point to pass through (ExploreOptions::sweep_pass_m): reached within this distance,
   // whatever the yaw, and not hovered at.
   double pass_m = 0.0;
+  // >= 0: hover this long at the view instead of the caller's dwell (a look:
+  // ExploreOptions::sweep_look_dwell_s).
+  double dwell_s = -1.0;
 };
 
 class ExplorationPlanner {

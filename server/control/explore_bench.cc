@@ -367,7 +367,7 @@ RunResult Run(const synth::SynthScene& scene, const RunConfig& rc) {
   double goal_yaw = yaw0, route_start = 0, arrived_at = -1;
   // Camera gimbal: pitch (+ up) towards the goal's on the last leg, level while travelling,
   // at most 1.5 rad/s.
-  double goal_pitch = 0, cam_pitch = 0, travel_pitch = 0, goal_pass_m = 0;
+  double goal_pitch = 0, cam_pitch = 0, travel_pitch = 0, goal_pass_m = 0, goal_dwell_s = dwell_s;
   size_t script_index = 0;
   glm::dvec3 prev = start;
   double next_frame = 0;
@@ -462,7 +462,7 @@ RunResult Run(const synth::SynthScene& scene, const RunConfig& rc) {
     // At the goal the drone hovers `dwell_s` (frames keep coming: τ grows from the chosen view).
     if (at_goal && arrived_at < 0) arrived_at = t;
     if (!at_goal) arrived_at = -1;
-    const bool dwelt = at_goal && t - arrived_at >= (goal_pass_m > 0 ? 0.0 : dwell_s);
+    const bool dwelt = at_goal && t - arrived_at >= (goal_pass_m > 0 ? 0.0 : goal_dwell_s);
     if (route.empty() || dwelt || t - route_start > 30) {
       if (!out.log.empty() && out.log.back().outcome == "open")
         out.log.back().outcome = dwelt ? "reached" : route.empty() ? "replanned" : "timeout";
@@ -471,6 +471,7 @@ RunResult Run(const synth::SynthScene& scene, const RunConfig& rc) {
       goal_pitch = 0;
       travel_pitch = 0;
       goal_pass_m = 0;
+      goal_dwell_s = dwell_s;
       if (t < 4.0) {  // initial look-around: four quarter turns in place
         route = {start};
         wp = 0;
@@ -531,6 +532,7 @@ RunResult Run(const synth::SynthScene& scene, const RunConfig& rc) {
           goal_pitch = v->pitch;
           travel_pitch = v->travel_pitch;
           goal_pass_m = v->pass_m;
+          if (v->dwell_s >= 0) goal_dwell_s = v->dwell_s;
         } else {
           route = {s.position};  // unreachable this time: turn and look again
           wp = 0;
@@ -743,6 +745,8 @@ int main(int argc, char** argv) {
   app.add_option("--sweep_pass_m", eo.sweep_pass_m,
                  "with --sweep_fallback: sweep points at the sweep's altitude are passed through "
                  "within this distance, not hovered at (0: hovered at, dwell_s)");
+  app.add_option("--sweep_look_dwell_s", eo.sweep_look_dwell_s,
+                 "with --sweep_fallback: the hover at a look before a climb, s (< 0: dwell_s)");
   bool per_run = false;
   app.add_option("--per_run", per_run,
                  "also print one line per run (bench explore_run): coverage, decisions before and "
@@ -996,6 +1000,7 @@ int main(int argc, char** argv) {
     j["sweep_pass_m"] = eo.sweep_pass_m;
     j["sweep_pitch"] = eo.sweep_pitch;
     j["sweep_climb_face_centre"] = eo.sweep_climb_face_centre;
+    j["sweep_look_dwell_s"] = eo.sweep_look_dwell_s;
     j["sweep_travel_pitch"] = std::isnan(eo.sweep_travel_pitch)
                                   ? nlohmann::json(nullptr)
                                   : nlohmann::json(eo.sweep_travel_pitch);

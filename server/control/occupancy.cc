@@ -6,6 +6,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "common/cells.h"
+#include "common/lumigraph/blend_math.h"  // SrgbToLinear
 #include "server/geometry/tsdf_volume.h"
 
 namespace exo::control {
@@ -118,6 +119,19 @@ void OccupancyGrid::CarveDepth(const ImageF& depth_m, const PinholeCamera& camer
                                  b = sky.color->at(x, y, 2);
                     return b >= sky.min_blue && b >= r + sky.blue_margin && b >= g;
                   });
+}
+
+ImageF OccupancyGrid::SkyColour(const ImageU8& srgb, int width, int height) {
+  if (srgb.empty() || srgb.channels() < 3 || width <= 0 || height <= 0) return {};
+  ImageF out(width, height, 3);
+  for (int y = 0; y < height; ++y) {
+    const int sy = std::min(srgb.height() - 1, static_cast<int>((y + 0.5) * srgb.height() / height));
+    for (int x = 0; x < width; ++x) {
+      const int sx = std::min(srgb.width() - 1, static_cast<int>((x + 0.5) * srgb.width() / width));
+      for (int c = 0; c < 3; ++c) out.at(x, y, c) = blend::SrgbToLinear(srgb.at(sx, sy, c) / 255.0f);
+    }
+  }
+  return out;
 }
 
 template <typename IsSky>

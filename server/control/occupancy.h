@@ -98,6 +98,9 @@ class OccupancyGrid {
   // says they are sky.
   void CarveDepth(const ImageF& depth_m, const PinholeCamera& camera, const Rigid3d& frame_from_cam,
                   int stride, double max_range_m, const SkyRule& sky);
+  // SkyRule's colour from a camera's sRGB8 image of any size (a stored view's decoded JPEG,
+  // often larger than its depth): linear RGB at width x height, the nearest pixel's.
+  static ImageF SkyColour(const ImageU8& srgb, int width, int height);
   // The TSDF's evidence; `frame_from_local` maps the TSDF's local frame to the grid's frame.
   void MarkFromTsdf(const TsdfVolume& volume, const glm::dvec3& frame_from_local_offset);
   // Cells crossed by the triangles are occupied.

@@ -11,6 +11,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_split.h"
 #include "absl/strings/strip.h"
+#include "common/io/jpeg.h"
 #include "common/log/log.h"
 #include "proto/control.grpc.pb.h"
 #include "proto/frame_proto.h"
@@ -90,6 +91,20 @@ ConfigKey DoubleKey(std::string name, std::string help, double* (*field)(ServerC
       return absl::InvalidArgumentError(absl::StrCat(
           "config ", name, ": '", v, "' is not a ", zero_ok ? "non-negative" : "positive",
           " number"));
+    *field(*c) = x;
+    return absl::OkStatus();
+  };
+  return k;
+}
+
+// An angle key in radians within [-pi/2, pi/2] (an elevation: negative is below the horizon).
+ConfigKey ElevationKey(std::string name, std::string help, double* (*field)(ServerConfig&)) {
+  ConfigKey k = DoubleKey(name, std::move(help), field);
+  k.set = [field, name](const std::string& v, ServerConfig* c) {
+    double x;
+    if (!absl::SimpleAtod(v, &x) || !(std::abs(x) <= control::kPi / 2))
+      return absl::InvalidArgumentError(
+          absl::StrCat("config ", name, ": '", v, "' is not an angle in [-pi/2, pi/2] rad"));
     *field(*c) = x;
     return absl::OkStatus();
   };
@@ -228,6 +243,19 @@ void AppendControlConfigKeys(std::vector<ConfigKey>* keys) {
       "pixels without depth carve free space up to control_carve_range_m (a simulated sky; "
       "off for real sensors, whose black or specular surfaces return nothing too)",
       [](ServerConfig& c) { return &c.control.core.carve_no_return; }));
+  // A sky rule for real sensors (docs/control.md, sessions 16-17): OccupancyGrid::SkyRule with
+  // the stored view's JPEG colour.
+  keys->push_back(BoolKey(
+      "control_carve_sky_rule",
+      "pixels without depth carve free space up to control_carve_range_m only where they look "
+      "like sky: above control_carve_sky_min_elevation_rad, nothing measured above them in their "
+      "image column, bright and blue in the view's colour (not with control_carve_no_return)",
+      [](ServerConfig& c) { return &c.control.core.carve_sky_rule; }));
+  keys->push_back(ElevationKey(
+      "control_carve_sky_min_elevation_rad",
+      "control_carve_sky_rule: the lowest ray elevation above the horizon (along control_up) a "
+      "missing depth is taken as sky at, in rad; negative: below the horizon",
+      [](ServerConfig& c) { return &c.control.core.carve_sky_min_elevation_rad; }));
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -460,7 +488,13 @@ void ControlServiceHost::Feed() {
           if (!pose.ok() || !cam.ok()) break;
           absl::StatusOr<ImageF> depth =
               v.has_depth() ? DepthFromProto(v.depth()) : absl::StatusOr<ImageF>(ImageF());
-          core_->AddView(v.view_id(), *pose, *cam, depth.ok() ? &*depth : nullptr);
+          // The sky rule's colour test needs the view's colour (decoded only for it).
+          absl::StatusOr<ImageU8> colour = absl::NotFoundError("no colour");
+          if (core_->options().carve_sky_rule && depth.ok() && !v.color_jpeg().empty())
+            colour = DecodeJpeg(std::span(reinterpret_cast<const uint8_t*>(v.color_jpeg().data()),
+                                          v.color_jpeg().size()));
+          core_->AddView(v.view_id(), *pose, *cam, depth.ok() ? &*depth : nullptr,
+                         colour.ok() ? &*colour : nullptr);
           break;
         }
         case v1::Delta::kViewUpdated: {

@@ -13,6 +13,8 @@
 
 #include "common/drone/sim_drone.h"
 #include "common/drone/test_util.h"
+#include "common/io/jpeg.h"
+#include "proto/frame_proto.h"
 #include "proto/control.grpc.pb.h"
 #include "server/service/server.h"
 
@@ -381,6 +383,80 @@ TEST_F(ControlServiceTest, ExploreStartsStreamsViewsAndYieldsToOtherInteractions
   side.Close();
 }
 
+// A real sensor's missing depth through the running service (session 17): with
+// control_carve_sky_rule a stored view (published to the model store as the pipeline does) carves
+// free space along its pixels without depth only where its JPEG colour is sky: the blue upper left,
+// not the black upper right, which the rule without colour would carve too.
+TEST(ControlServiceSkyRule, StoredViewsCarveOnlyTheSkyOfTheirMissingDepth) {
+  ServerConfig c;
+  c.listen = "127.0.0.1:0";
+  c.enable_geometry = false;
+  c.enable_planning = false;
+  ASSERT_TRUE(ApplyConfigValue("control_zones", "yard:0,0,0,8,4,3", &c).ok());
+  ASSERT_TRUE(ApplyConfigValue("control_carve_sky_rule", "true", &c).ok());
+  ExoviewServer server(c);
+  ASSERT_TRUE(server.Start().ok());
+  // A level camera at (0.5, 2, 1.5) looking along +x (image left = +y, top = +z). The lower half
+  // of its depth (half the camera's size, as stored depth often is) measures a wall 3 m away,
+  // the upper half returns nothing: blue sky on the left, a black surface on the right.
+  const PinholeCamera cam{100, 100, 63.5, 47.5, 128, 96};
+  Rigid3d pose;
+  pose.rotation = glm::quat_cast(
+      glm::dmat3(glm::dvec3(0, -1, 0), glm::dvec3(0, 0, -1), glm::dvec3(1, 0, 0)));
+  pose.translation = {0.5, 2, 1.5};
+  ImageF depth(64, 48, 1, 0.0f);
+  for (int y = 24; y < 48; ++y)
+    for (int x = 0; x < 64; ++x) depth.at(x, y) = 3.0f;
+  ImageU8 colour(128, 96, 3);
+  for (int y = 0; y < 96; ++y)
+    for (int x = 0; x < 128; ++x) {
+      const bool black = x >= 64 && y < 48;
+      colour.at(x, y, 0) = black ? 10 : 110;
+      colour.at(x, y, 1) = black ? 10 : 160;
+      colour.at(x, y, 2) = black ? 12 : 230;
+    }
+  v1::ViewAdded v;
+  v.set_view_id(7);
+  IntrinsicsToProto(cam, v.mutable_intrinsics());
+  PoseToProto(pose, v.mutable_local_from_cam());
+  DepthToProto(depth, 0.001, v.mutable_depth());
+  auto jpeg = EncodeJpeg(colour);
+  ASSERT_TRUE(jpeg.ok());
+  v.set_color_jpeg(std::string(jpeg->begin(), jpeg->end()));
+  server.store().AddView(std::move(v));
+  // Known-free cells in a box 2-3.5 m ahead: above the camera (0.6-1.2 m) to its left and
+  // right, and below it, in front of the wall.
+  auto free_cells = [&](double y0, double y1, double z0, double z1) {
+    size_t n = 0;
+    server.control_core()->WithSafeFlight([&](control::SafeFlight& s) {
+      const control::OccupancyGrid& g = s.grid();
+      for (double x = 2.05; x < 3.5; x += 0.1)
+        for (double y = y0 + 0.05; y < y1; y += 0.1)
+          for (double z = z0 + 0.05; z < z1; z += 0.1)
+            n += g.At(glm::dvec3(x, y, z)) == control::Occupancy::kFree;
+    });
+    return n;
+  };
+  for (int i = 0; i < 400 && free_cells(2.6, 3.4, 2.1, 2.7) == 0; ++i)
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  EXPECT_GT(free_cells(2.6, 3.4, 2.1, 2.7), 20u);  // the sky on the left: carved
+  EXPECT_EQ(free_cells(0.6, 1.4, 2.1, 2.7), 0u);   // the black surface on the right: not
+  // The measured lower half: free in front of the wall, either side (the ordinary carving).
+  EXPECT_GT(free_cells(2.6, 3.4, 0.7, 1.3), 20u);
+  EXPECT_GT(free_cells(0.6, 1.4, 0.7, 1.3), 20u);
+  server.Shutdown();
+  // The two carving rules exclude each other; the elevation is an angle.
+  ServerConfig both = c;
+  ASSERT_TRUE(ApplyConfigValue("control_carve_no_return", "true", &both).ok());
+  auto refused = control::ControlCore::Create(both.control.core);
+  ASSERT_FALSE(refused.ok());
+  EXPECT_NE(refused.status().message().find("exclude each other"), std::string::npos);
+  auto steep = ApplyConfigValue("control_carve_sky_min_elevation_rad", "2", &c);
+  EXPECT_NE(steep.message().find("control_carve_sky_min_elevation_rad"), std::string::npos) << steep;
+  ASSERT_TRUE(ApplyConfigValue("control_carve_sky_min_elevation_rad", "-0.3", &c).ok());
+  EXPECT_EQ(c.control.core.carve_sky_min_elevation_rad, -0.3);
+}
+
 TEST(ControlServiceConfig, KeysParseAndRejectWithClearErrors) {
   ServerConfig c;
   EXPECT_FALSE(c.control.enabled());
@@ -430,6 +506,8 @@ TEST(ControlServiceConfig, KeysParseAndRejectWithClearErrors) {
   EXPECT_TRUE(c.control.core.explore.sweep_climb);
   EXPECT_EQ(c.control.core.explore.sweep_pass_m, 1.0);
   EXPECT_FALSE(c.control.core.carve_no_return);
+  EXPECT_FALSE(c.control.core.carve_sky_rule);
+  EXPECT_EQ(c.control.core.carve_sky_min_elevation_rad, -0.1);
   ASSERT_TRUE(ApplyConfigValue("control_explore_sweep_altitude_m", "22", &c).ok());
   ASSERT_TRUE(ApplyConfigValue("control_explore_sweep_climb", "false", &c).ok());
   ASSERT_TRUE(ApplyConfigValue("control_explore_sweep_pass_m", "0", &c).ok());
