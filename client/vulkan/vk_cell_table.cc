@@ -241,8 +241,8 @@ void WriteRankedSlot(const GpuView* v, float bound, uint32_t position, glm::uvec
 
 }  // namespace
 
-void CellTable::RankCell(const Entry& c, const glm::dvec3& m, double r, const glm::dvec3& c_o,
-                         bool by_centre, const blend::BlendOptions& bo) {
+void CellTable::RankCell(const Entry& c, const glm::dvec3& m, double r, const glm::dvec3& centre,
+                         const glm::dvec3& c_o, bool by_centre, const blend::BlendOptions& bo) {
   const size_t per_slab = size_t(opt_.max_refs_per_cell);
   const uint32_t* slots = static_cast<const uint32_t*>(refs_buf_.mapped) + c.slab * per_slab;
   const GpuView* recs = views_.records();
@@ -261,9 +261,9 @@ void CellTable::RankCell(const Entry& c, const glm::dvec3& m, double r, const gl
     }
     // Estimate: the weight at the centre (a ball of radius 0), times 1e-3 when the view does
     // not see the centre (behind it or outside its image: most likely invalid at the cell).
-    float key = BlendWeightUpperBound(m, 0.0, c_o, c_i, bo);
+    float key = BlendWeightUpperBound(centre, 0.0, c_o, c_i, bo);
     const GpuView& v = recs[slot];
-    const glm::vec4 hm(glm::vec3(m), 1.0f);
+    const glm::vec4 hm(glm::vec3(centre), 1.0f);
     const float z = glm::dot(v.p2, hm);
     const float u = glm::dot(v.p0, hm) / z, w = glm::dot(v.p1, hm) / z;
     if (!(z > 0.0f && u >= -0.5f && w >= -0.5f && u < v.size_layer.x - 0.5f &&
@@ -300,9 +300,17 @@ void CellTable::RankCell(const Entry& c, const glm::dvec3& m, double r, const gl
 // Cells whose ball lies entirely outside the novel camera's frustum (side planes through the
 // centre, z >= 0) are skipped: no pixel's surface point can fall in them this frame, so their
 // stale records are never read (exact).
+// Surface ball (issue 16 session 17): a pixel's surface point x comes from the proxy mesh, so
+// besides the cube's ball, x lies in the ball of the proxy surface inside the cell
+// (common/cell_surface.h: the triangles clipped to the cell's box inflated for the float
+// floor(x / q) and the slack, radius + a slack of 0.2 % of q for a rasterised point off its
+// triangle); the smaller of the two balls is used. A flat cell's surface ball has radius
+// ~0.71 q (q / sqrt 2 plus margins), 0.82 of the cube's. A cell without proxy surface keeps the
+// cube's ball.
 void CellTable::RankRefs(const glm::vec3& c_o_f, const PinholeCamera& cam,
                          const Rigid3d& local_from_cam, double cell_size_m,
-                         const blend::BlendOptions& bo, bool by_centre_weight) {
+                         const blend::BlendOptions& bo, const CellSurfaceBounds* surface,
+                         bool by_centre_weight) {
   const double q = cell_size_m;
   const glm::dvec3 c_o(c_o_f);
   const glm::dmat3 cam_from_local = glm::transpose(local_from_cam.RotationMatrix());
@@ -310,11 +318,22 @@ void CellTable::RankRefs(const glm::vec3& c_o_f, const PinholeCamera& cam,
   for (const auto& [id, c] : cells_) {
     const glm::dvec3 m = (glm::dvec3(UnpackCell(id)) + 0.5) * q;
     // Half diagonal, + 0.1 % of q and 1e-5 relative to |m| for floor(x / q) in float.
-    const double r = q * (0.5 * std::sqrt(3.0) * 1.001) + 1e-5 * (glm::length(m) + q);
-    const glm::dvec3 m_cam = cam_from_local * (m - c_o);
+    double r = q * (0.5 * std::sqrt(3.0) * 1.001) + 1e-5 * (glm::length(m) + q);
+    glm::dvec3 ball = m;
+    if (surface) {
+      auto it = surface->find(id);
+      if (it != surface->end()) {
+        const double rs = CellSurfaceBallRadius(it->second, q);
+        if (rs < r) {
+          ball = it->second.centre;
+          r = rs;
+        }
+      }
+    }
+    const glm::dvec3 m_cam = cam_from_local * (ball - c_o);
     bool outside = false;
     for (const glm::dvec3& n : planes) outside = outside || glm::dot(n, m_cam) < -1.01 * r;
-    if (!outside) RankCell(c, m, r, c_o, by_centre_weight, bo);
+    if (!outside) RankCell(c, ball, r, m, c_o, by_centre_weight, bo);
   }
 }
 

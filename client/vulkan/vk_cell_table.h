@@ -16,6 +16,7 @@
 #include "client/vulkan/vk_core_internal.h"
 #include "client/vulkan/vk_view_store.h"
 #include "client/vulkan/vulkan_renderer.h"
+#include "common/cell_surface.h"
 
 namespace exo::vk {
 
@@ -45,11 +46,14 @@ class CellTable {
   absl::Status SetRefs(CellId id, std::span<const ViewId> refs);
   // Rewrites the slabs of the cells that reference `view` (after it arrived or left).
   void RefreshCellsOf(ViewId view);
-  // Per-frame reference ranking into the ranked buffer (see the .cc for the bound). With
-  // `by_centre_weight` (RenderApprox::max_candidates > 0) the order is an estimate instead: the
-  // weight at the cell centre, views that do not see the centre last (not exact).
+  // Per-frame reference ranking into the ranked buffer (see the .cc for the bound). `surface`
+  // (MeshChunks::SurfaceBounds for this cell size; may be null) narrows each cell's region from
+  // the ball of its cube to the ball of the proxy surface in it. With `by_centre_weight`
+  // (RenderApprox::max_candidates > 0) the order is an estimate instead: the weight at the cell
+  // centre, views that do not see the centre last (not exact).
   void RankRefs(const glm::vec3& c_o, const PinholeCamera& cam, const Rigid3d& local_from_cam,
-                double cell_size_m, const blend::BlendOptions& bo, bool by_centre_weight = false);
+                double cell_size_m, const blend::BlendOptions& bo,
+                const CellSurfaceBounds* surface, bool by_centre_weight = false);
 
   const std::unordered_map<CellId, Entry>& entries() const { return cells_; }
   uint32_t table_mask() const { return uint32_t(table_.size() - 1); }
@@ -73,9 +77,11 @@ class CellTable {
   void Unlink(CellId id, const Entry& c);  // drops `id` from the reverse index
   void Erase(std::unordered_map<CellId, Entry>::iterator it);
   absl::StatusOr<std::unordered_map<CellId, Entry>::iterator> Insert(CellId id);
-  // Ranks one cell's references (ball B(m, r)) for the camera at c_o into ranked_buf_.
-  void RankCell(const Entry& c, const glm::dvec3& m, double r, const glm::dvec3& c_o, bool by_centre,
-                const blend::BlendOptions& bo);
+  // Ranks one cell's references for the camera at c_o into ranked_buf_: the bound over the
+  // ball B(m, r) of the cell's surface points; the centre-weight estimate at the cell centre
+  // `centre`.
+  void RankCell(const Entry& c, const glm::dvec3& m, double r, const glm::dvec3& centre,
+                const glm::dvec3& c_o, bool by_centre, const blend::BlendOptions& bo);
 
   const Context& ctx_;
   const VulkanRendererOptions& opt_;

@@ -615,6 +615,7 @@ absl::StatusOr<RenderResult> FrameRenderer::Render(const PinholeCamera& camera,
   }
   const auto tr = Clock::now();
   cells_.RankRefs(glm::vec3(f.cam_centre_cell), camera, local_from_cam, grid_.cell_size_m, bo,
+                  &chunks_.SurfaceBounds(grid_.cell_size_m),
                   /*by_centre_weight=*/approx.max_candidates > 0);
   r.rank_ms = MsSince(tr);
   const auto t0 = Clock::now();
