@@ -65,8 +65,12 @@ void MergeSurfaceBound(const CellSurfaceBound& b, CellSurfaceBound* into);
 // size q: every surface piece point plus the slack for a rasterised point off its triangle. (A
 // point x within the slack s of the surface and in the cell's box B is within s of a surface
 // point in B inflated by s, which the clipping kept.)
-inline double CellSurfaceBallRadius(const CellSurfaceBound& b, double q) {
-  return b.radius + CellSurfaceSlackM(q, glm::length(b.centre) + b.radius);
+inline double CellSurfaceBoundSlackM(const CellSurfaceBound& b, double q) {
+  return CellSurfaceSlackM(q, glm::length(b.centre) + b.radius);
 }
+inline double CellSurfaceBallRadius(const CellSurfaceBound& b, double q) {
+  return b.radius + CellSurfaceBoundSlackM(b, q);
+}
+// The box the ranking may use is likewise [lo, hi] inflated by CellSurfaceBoundSlackM.
 
 }  // namespace exo

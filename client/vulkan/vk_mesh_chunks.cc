@@ -57,6 +57,7 @@ const CellSurfaceBounds& MeshChunks::SurfaceBounds(double q) {
   }
   surface_q_ = q;
   surface_dirty_ = false;
+  ++surface_stamp_;
   return surface_;
 }
 

@@ -44,6 +44,8 @@ class MeshChunks {
   // lazily: chunks changed since the last call (all after a change of q) are clipped again, then
   // the per-chunk bounds are merged.
   const CellSurfaceBounds& SurfaceBounds(double q);
+  // Changes (> 0) whenever SurfaceBounds re-merged: consumers cache what they derive from it.
+  uint64_t surface_stamp() const { return surface_stamp_; }
 
   const std::map<uint64_t, Entry>& entries() const { return chunks_; }
   uint64_t ResidentBytes() const;
@@ -56,6 +58,7 @@ class MeshChunks {
   CellSurfaceBounds surface_;        // merged SurfaceBounds
   bool surface_dirty_ = true;        // a chunk changed since surface_ was merged
   double surface_q_ = 0.0;
+  uint64_t surface_stamp_ = 0;
   Buffer vertices_, indices_;
   uint32_t index_count_ = 0;
 };
