@@ -9,11 +9,16 @@ namespace {
 using Polygon = std::vector<glm::dvec3>;
 using CellPoints = std::unordered_map<CellId, std::vector<glm::dvec3>>;
 
+// Scratch polygons of one clipping level (reused: a large triangle is split many times).
+struct ClipScratch {
+  Polygon below, above, piece, rest;
+};
+
 // Clips `poly` along axes axis..2 to the inflated boxes [k q - e, (k + 1) q + e] of every cell it
 // reaches and appends each non-empty piece's points to its cell (`cell` holds the indices of the
 // axes done).
 void ClipToInflatedCells(const Polygon& poly, int axis, glm::ivec3 cell, double q, double e,
-                         CellPoints* out) {
+                         CellPoints* out, ClipScratch* scratch) {
   if (poly.empty()) return;
   if (axis == 3) {
     auto& pts = (*out)[PackCell(cell)];
@@ -23,12 +28,12 @@ void ClipToInflatedCells(const Polygon& poly, int axis, glm::ivec3 cell, double 
   double lo = poly[0][axis], hi = lo;
   for (const auto& p : poly) lo = std::min(lo, p[axis]), hi = std::max(hi, p[axis]);
   const int64_t k0 = int64_t(std::floor((lo - e) / q)), k1 = int64_t(std::floor((hi + e) / q));
-  Polygon below, above, piece, rest;
+  ClipScratch& s = scratch[axis];
   for (int64_t k = k0; k <= k1; ++k) {
-    SplitPolygon(poly, axis, double(k) * q - e, &below, &above);
-    SplitPolygon(above, axis, double(k + 1) * q + e, &piece, &rest);
+    SplitPolygon(poly, axis, double(k) * q - e, &s.below, &s.above);
+    SplitPolygon(s.above, axis, double(k + 1) * q + e, &s.piece, &s.rest);
     cell[axis] = int32_t(k);
-    ClipToInflatedCells(piece, axis + 1, cell, q, e, out);
+    ClipToInflatedCells(s.piece, axis + 1, cell, q, e, out, scratch);
   }
 }
 
@@ -58,6 +63,7 @@ CellSurfaceBounds SurfaceBoundsPerCell(std::span<const glm::vec3> positions,
   const double q = grid.cell_size_m;
   CellPoints pts;
   Polygon tri(3);
+  ClipScratch scratch[3];
   for (size_t t = 0; t + 2 < indices.size(); t += 3) {
     double extent = 0.0;
     for (int j = 0; j < 3; ++j) {
@@ -74,7 +80,7 @@ CellSurfaceBounds SurfaceBoundsPerCell(std::span<const glm::vec3> positions,
       p.insert(p.end(), tri.begin(), tri.end());
       continue;
     }
-    ClipToInflatedCells(tri, 0, glm::ivec3(0), q, e, &pts);
+    ClipToInflatedCells(tri, 0, glm::ivec3(0), q, e, &pts, scratch);
   }
   CellSurfaceBounds out;
   out.reserve(pts.size());
