@@ -477,6 +477,21 @@ TEST(VulkanRendererTest, BakeDiscontinuitiesInvalidatesNearJumps) {
   for (int x = 0; x < 10; ++x) EXPECT_EQ(b.at(x, 0) == 0.0f, x >= 3 && x <= 6) << x;
 }
 
+// A random unit direction (rejection sampling in the unit ball) and options alternating the
+// positional mode, for the bound tests below.
+glm::dvec3 RandomUnit(std::mt19937& rng) {
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  glm::dvec3 d;
+  do d = {u(rng), u(rng), u(rng)}; while (glm::length(d) < 0.1 || glm::length(d) > 1.0);
+  return glm::normalize(d);
+}
+blend::BlendOptions AlternatingPositionalMode(int t) {
+  blend::BlendOptions bo;
+  bo.positional_mode =
+      t % 2 ? blend::PositionalMode::kPrinted : blend::PositionalMode::kUlrResolution;
+  return bo;
+}
+
 // The per-frame reference ranking is exact only if BlendWeightUpperBound is a true upper bound of
 // the weight blend_math.h computes (in float) for every surface point in the cell's ball. Samples
 // points on the ball's surface (where the extremes lie) and inside, for random cameras near and
@@ -486,17 +501,11 @@ TEST(VulkanRendererTest, BakeDiscontinuitiesInvalidatesNearJumps) {
 TEST(BlendWeightUpperBoundTest, BoundsEveryPointOfTheCellBallAndIsInformative) {
   std::mt19937 rng(7);
   std::uniform_real_distribution<double> u(-1.0, 1.0), u01(0.0, 1.0);
-  auto unit = [&] {
-    glm::dvec3 d;
-    do d = {u(rng), u(rng), u(rng)}; while (glm::length(d) < 0.1 || glm::length(d) > 1.0);
-    return glm::normalize(d);
-  };
+  auto unit = [&] { return RandomUnit(rng); };
   int configs = 0, informative = 0;
   double slack_sum = 0.0;
   for (int t = 0; t < 2000; ++t) {
-    blend::BlendOptions bo;
-    bo.positional_mode = t % 2 ? blend::PositionalMode::kPrinted
-                               : blend::PositionalMode::kUlrResolution;
+    blend::BlendOptions bo = AlternatingPositionalMode(t);
     bo.lambda = float(u01(rng));
     const glm::dvec3 m(20.0 * u(rng), 20.0 * u(rng), 5.0 * u(rng));
     const double r = 0.05 + 1.5 * u01(rng);
@@ -533,16 +542,10 @@ TEST(BlendWeightUpperBoundTest, BoundsEveryPointOfTheCellBallAndIsInformative) {
 TEST(BlendWeightUpperBoundTest, BoxRegionBoundsEveryPointOfTheBoxAndIsTighter) {
   std::mt19937 rng(8);
   std::uniform_real_distribution<double> u(-1.0, 1.0), u01(0.0, 1.0);
-  auto unit = [&] {
-    glm::dvec3 d;
-    do d = {u(rng), u(rng), u(rng)}; while (glm::length(d) < 0.1 || glm::length(d) > 1.0);
-    return glm::normalize(d);
-  };
+  auto unit = [&] { return RandomUnit(rng); };
   int configs = 0, tighter = 0;
   for (int t = 0; t < 2000; ++t) {
-    blend::BlendOptions bo;
-    bo.positional_mode = t % 2 ? blend::PositionalMode::kPrinted
-                               : blend::PositionalMode::kUlrResolution;
+    blend::BlendOptions bo = AlternatingPositionalMode(t);
     bo.lambda = t % 3 ? 1.0f : float(u01(rng));
     const glm::dvec3 centre(20.0 * u(rng), 20.0 * u(rng), 5.0 * u(rng));
     glm::dvec3 half(0.05 + 0.3 * u01(rng), 0.05 + 0.3 * u01(rng), 0.05 + 0.3 * u01(rng));
