@@ -239,10 +239,38 @@ void WriteRankedSlot(const GpuView* v, float bound, uint32_t position, glm::uvec
         glm::uvec4(FloatBits(rows[k]->x), FloatBits(rows[k]->y), FloatBits(rows[k]->z), w[k]);
 }
 
+// The region of cell `id` (centre m) RankRefs bounds over: the cube's ball (half diagonal, +
+// 0.1 % of q and 1e-5 relative to |m| for floor(x / q) in float) and the cube inflated alike;
+// with a bound of the proxy surface in the cell, the surface's ball when smaller and its box
+// (plus the slack) cut to the cube.
+CellRegion CellRegionOf(CellId id, const glm::dvec3& m, double q, const CellSurfaceBounds* surface) {
+  CellRegion g;
+  g.m = m;
+  g.r = q * (0.5 * std::sqrt(3.0) * 1.001) + 1e-5 * (glm::length(m) + q);
+  const double e = 1e-3 * q + 1e-5 * (glm::length(m) + q);
+  g.has_box = true;
+  g.lo = m - 0.5 * q - e;
+  g.hi = m + 0.5 * q + e;
+  if (!surface) return g;
+  auto it = surface->find(id);
+  if (it == surface->end()) return g;
+  const CellSurfaceBound& b = it->second;
+  const double rs = CellSurfaceBallRadius(b, q);
+  if (rs < g.r) {
+    g.m = b.centre;
+    g.r = rs;
+  }
+  const double s = CellSurfaceBoundSlackM(b, q);
+  g.lo = glm::max(g.lo, b.lo - s);
+  g.hi = glm::min(g.hi, b.hi + s);
+  return g;
+}
+
 }  // namespace
 
-void CellTable::RankCell(const Entry& c, const glm::dvec3& m, double r, const glm::dvec3& c_o,
+void CellTable::RankCell(const Entry& c, const glm::dvec3& centre, const glm::dvec3& c_o,
                          bool by_centre, const blend::BlendOptions& bo) {
+  const CellWeightBound bound(c.region, c_o);
   const size_t per_slab = size_t(opt_.max_refs_per_cell);
   const uint32_t* slots = static_cast<const uint32_t*>(refs_buf_.mapped) + c.slab * per_slab;
   const GpuView* recs = views_.records();
@@ -256,14 +284,14 @@ void CellTable::RankCell(const Entry& c, const glm::dvec3& m, double r, const gl
     }
     const glm::dvec3 c_i(glm::vec3(recs[slot].centre_exposure));
     if (!by_centre) {
-      rank_scratch_.emplace_back(BlendWeightUpperBound(m, r, c_o, c_i, bo), uint32_t(i));
+      rank_scratch_.emplace_back(bound(c_i, bo), uint32_t(i));
       continue;
     }
     // Estimate: the weight at the centre (a ball of radius 0), times 1e-3 when the view does
     // not see the centre (behind it or outside its image: most likely invalid at the cell).
-    float key = BlendWeightUpperBound(m, 0.0, c_o, c_i, bo);
+    float key = BlendWeightUpperBound(centre, 0.0, c_o, c_i, bo);
     const GpuView& v = recs[slot];
-    const glm::vec4 hm(glm::vec3(m), 1.0f);
+    const glm::vec4 hm(glm::vec3(centre), 1.0f);
     const float z = glm::dot(v.p2, hm);
     const float u = glm::dot(v.p0, hm) / z, w = glm::dot(v.p1, hm) / z;
     if (!(z > 0.0f && u >= -0.5f && w >= -0.5f && u < v.size_layer.x - 0.5f &&
@@ -300,21 +328,34 @@ void CellTable::RankCell(const Entry& c, const glm::dvec3& m, double r, const gl
 // Cells whose ball lies entirely outside the novel camera's frustum (side planes through the
 // centre, z >= 0) are skipped: no pixel's surface point can fall in them this frame, so their
 // stale records are never read (exact).
+// Surface ball (issue 16 session 17): a pixel's surface point x comes from the proxy mesh, so
+// besides the cube's ball, x lies in the ball of the proxy surface inside the cell
+// (common/cell_surface.h: the triangles clipped to the cell's box inflated for the float
+// floor(x / q) and the slack, radius + a slack of 0.2 % of q for a rasterised point off its
+// triangle); the smaller of the two balls is used. A flat cell's surface ball has radius
+// ~0.71 q (q / sqrt 2 plus margins), 0.82 of the cube's. A cell without proxy surface keeps the
+// cube's ball. The directional term's turns also use the box of the surface (its AABB plus the
+// slack, cut to the inflated cube; the cube alone without surface): BlendWeightUpperBound's
+// CellRegion takes the smaller turn of ball and box per camera.
 void CellTable::RankRefs(const glm::vec3& c_o_f, const PinholeCamera& cam,
                          const Rigid3d& local_from_cam, double cell_size_m,
-                         const blend::BlendOptions& bo, bool by_centre_weight) {
+                         const blend::BlendOptions& bo, const CellSurfaceBounds* surface,
+                         uint64_t surface_stamp, bool by_centre_weight) {
   const double q = cell_size_m;
   const glm::dvec3 c_o(c_o_f);
   const glm::dmat3 cam_from_local = glm::transpose(local_from_cam.RotationMatrix());
   const std::array<glm::dvec3, 5> planes = FrustumPlanes(cam);
-  for (const auto& [id, c] : cells_) {
+  for (auto& [id, c] : cells_) {
     const glm::dvec3 m = (glm::dvec3(UnpackCell(id)) + 0.5) * q;
-    // Half diagonal, + 0.1 % of q and 1e-5 relative to |m| for floor(x / q) in float.
-    const double r = q * (0.5 * std::sqrt(3.0) * 1.001) + 1e-5 * (glm::length(m) + q);
-    const glm::dvec3 m_cam = cam_from_local * (m - c_o);
+    if (c.region_stamp != surface_stamp || surface_stamp == 0) {
+      c.region = CellRegionOf(id, m, q, surface);
+      c.region_stamp = surface_stamp;
+    }
+    const CellRegion& g = c.region;
+    const glm::dvec3 m_cam = cam_from_local * (g.m - c_o);
     bool outside = false;
-    for (const glm::dvec3& n : planes) outside = outside || glm::dot(n, m_cam) < -1.01 * r;
-    if (!outside) RankCell(c, m, r, c_o, by_centre_weight, bo);
+    for (const glm::dvec3& n : planes) outside = outside || glm::dot(n, m_cam) < -1.01 * g.r;
+    if (!outside) RankCell(c, m, c_o, by_centre_weight, bo);
   }
 }
 

@@ -16,6 +16,7 @@
 #include "client/vulkan/vk_core_internal.h"
 #include "client/vulkan/vk_view_store.h"
 #include "client/vulkan/vulkan_renderer.h"
+#include "common/cell_surface.h"
 
 namespace exo::vk {
 
@@ -32,6 +33,10 @@ class CellTable {
     uint32_t table_index = 0;
     uint32_t slab = 0;
     std::vector<ViewId> refs;
+    // RankRefs' region of the cell's surface points, valid for surface stamp region_stamp (0:
+    // not computed).
+    CellRegion region;
+    uint64_t region_stamp = 0;
   };
 
   // `views` resolves references to slots; all arguments must outlive the table.
@@ -45,11 +50,17 @@ class CellTable {
   absl::Status SetRefs(CellId id, std::span<const ViewId> refs);
   // Rewrites the slabs of the cells that reference `view` (after it arrived or left).
   void RefreshCellsOf(ViewId view);
-  // Per-frame reference ranking into the ranked buffer (see the .cc for the bound). With
-  // `by_centre_weight` (RenderApprox::max_candidates > 0) the order is an estimate instead: the
-  // weight at the cell centre, views that do not see the centre last (not exact).
+  // Per-frame reference ranking into the ranked buffer (see the .cc for the bound). `surface`
+  // (MeshChunks::SurfaceBounds for this cell size; may be null) narrows each cell's region from
+  // the cube to the ball and box of the proxy surface in it; `surface_stamp` (> 0,
+  // MeshChunks::surface_stamp) changes whenever `surface` or the cell size does: each cell's
+  // region is cached until then. With `by_centre_weight`
+  // (RenderApprox::max_candidates > 0) the order is an estimate instead: the weight at the cell
+  // centre, views that do not see the centre last (not exact).
   void RankRefs(const glm::vec3& c_o, const PinholeCamera& cam, const Rigid3d& local_from_cam,
-                double cell_size_m, const blend::BlendOptions& bo, bool by_centre_weight = false);
+                double cell_size_m, const blend::BlendOptions& bo,
+                const CellSurfaceBounds* surface, uint64_t surface_stamp,
+                bool by_centre_weight = false);
 
   const std::unordered_map<CellId, Entry>& entries() const { return cells_; }
   uint32_t table_mask() const { return uint32_t(table_.size() - 1); }
@@ -73,8 +84,9 @@ class CellTable {
   void Unlink(CellId id, const Entry& c);  // drops `id` from the reverse index
   void Erase(std::unordered_map<CellId, Entry>::iterator it);
   absl::StatusOr<std::unordered_map<CellId, Entry>::iterator> Insert(CellId id);
-  // Ranks one cell's references (ball B(m, r)) for the camera at c_o into ranked_buf_.
-  void RankCell(const Entry& c, const glm::dvec3& m, double r, const glm::dvec3& c_o, bool by_centre,
+  // Ranks one cell's references for the camera at c_o into ranked_buf_: the bound over the
+  // region of the cell's surface points; the centre-weight estimate at the cell centre `centre`.
+  void RankCell(const Entry& c, const glm::dvec3& centre, const glm::dvec3& c_o, bool by_centre,
                 const blend::BlendOptions& bo);
 
   const Context& ctx_;

@@ -614,7 +614,9 @@ absl::StatusOr<RenderResult> FrameRenderer::Render(const PinholeCamera& camera,
     r.sky_views_per_px = sky_listed_views_px_ / (double(w) * h);
   }
   const auto tr = Clock::now();
+  const CellSurfaceBounds& surface = chunks_.SurfaceBounds(grid_.cell_size_m);
   cells_.RankRefs(glm::vec3(f.cam_centre_cell), camera, local_from_cam, grid_.cell_size_m, bo,
+                  &surface, chunks_.surface_stamp(),
                   /*by_centre_weight=*/approx.max_candidates > 0);
   r.rank_ms = MsSince(tr);
   const auto t0 = Clock::now();

@@ -19,6 +19,7 @@ absl::Status MeshChunks::Upsert(const MeshChunk& chunk) {
       return absl::InvalidArgumentError(
           absl::StrCat("chunk ", chunk.id, ": non-finite vertex position"));
   dirty_ = true;
+  surface_dirty_ = true;
   if (m.indices.empty()) {
     chunks_.erase(chunk.id);
     return absl::OkStatus();
@@ -37,7 +38,27 @@ absl::Status MeshChunks::Remove(uint64_t chunk_id) {
   if (chunks_.erase(chunk_id) == 0)
     return absl::NotFoundError(absl::StrCat("chunk ", chunk_id, " not resident"));
   dirty_ = true;
+  surface_dirty_ = true;
   return absl::OkStatus();
+}
+
+const CellSurfaceBounds& MeshChunks::SurfaceBounds(double q) {
+  if (!surface_dirty_ && q == surface_q_) return surface_;
+  surface_.clear();
+  for (auto& [id, c] : chunks_) {
+    if (c.surface_q != q) {
+      c.surface = SurfaceBoundsPerCell(c.positions, c.indices, CellGrid{q});
+      c.surface_q = q;
+    }
+    for (const auto& [cell, b] : c.surface) {
+      auto [it, fresh] = surface_.try_emplace(cell, b);
+      if (!fresh) MergeSurfaceBound(b, &it->second);
+    }
+  }
+  surface_q_ = q;
+  surface_dirty_ = false;
+  ++surface_stamp_;
+  return surface_;
 }
 
 absl::Status MeshChunks::PrepareDraw() {

@@ -11,6 +11,7 @@
 
 #include "client/vulkan/vk_core_internal.h"
 #include "client/vulkan/vulkan_renderer.h"
+#include "common/cell_surface.h"
 #include "common/lumigraph/model.h"
 
 namespace exo::vk {
@@ -21,6 +22,9 @@ class MeshChunks {
     uint64_t version = 0;
     std::vector<glm::vec3> positions;
     std::vector<uint32_t> indices;
+    // This chunk's surface per cell for the grid of cell size surface_q (0: not computed yet).
+    CellSurfaceBounds surface;
+    double surface_q = 0.0;
   };
 
   // `ctx` and `stats` must outlive the chunks.
@@ -35,6 +39,14 @@ class MeshChunks {
   // caller; PrepareDraw() first).
   void RecordDraws(VkCommandBuffer cmd) const;
 
+  // Per cell, the bound of the whole resident proxy surface in it (common/cell_surface.h) for
+  // cells of size q: the per-frame reference ranking's region (CellTable::RankRefs). Computed
+  // lazily: chunks changed since the last call (all after a change of q) are clipped again, then
+  // the per-chunk bounds are merged.
+  const CellSurfaceBounds& SurfaceBounds(double q);
+  // Changes (> 0) whenever SurfaceBounds re-merged: consumers cache what they derive from it.
+  uint64_t surface_stamp() const { return surface_stamp_; }
+
   const std::map<uint64_t, Entry>& entries() const { return chunks_; }
   uint64_t ResidentBytes() const;
 
@@ -43,6 +55,10 @@ class MeshChunks {
   UploadStats& stats_;
   std::map<uint64_t, Entry> chunks_;
   bool dirty_ = false;
+  CellSurfaceBounds surface_;        // merged SurfaceBounds
+  bool surface_dirty_ = true;        // a chunk changed since surface_ was merged
+  double surface_q_ = 0.0;
+  uint64_t surface_stamp_ = 0;
   Buffer vertices_, indices_;
   uint32_t index_count_ = 0;
 };

@@ -69,21 +69,65 @@ ImageF BakeDiscontinuities(const ImageF& depth_m, int radius_px, float delta_z_m
   return out;
 }
 
+namespace {
+
+// Cosine and sine of an upper bound of the angle at apex c (|c - m| = d > r) between the ray to m
+// and the ray to any point of the region: asin(r / d) for the ball, or, when smaller, the largest
+// angle to a corner of the box (only when every corner is within 90 degrees of the ray: then the
+// box lies in the convex cone of that half-angle).
+void RegionTurn(const CellRegion& g, const glm::dvec3& c, double d, double* cos_turn,
+                double* sin_turn) {
+  double sn = g.r / d, cs = std::sqrt(1.0 - sn * sn);
+  if (g.has_box) {
+    const glm::dvec3 u = (g.m - c) / d;
+    double cmin = 1.0;
+    for (int k = 0; k < 8; ++k) {
+      const glm::dvec3 v(k & 1 ? g.hi.x : g.lo.x, k & 2 ? g.hi.y : g.lo.y, k & 4 ? g.hi.z : g.lo.z);
+      const glm::dvec3 w = v - c;
+      const double lw = glm::length(w);
+      cmin = std::min(cmin, lw > 0.0 ? glm::dot(u, w) / lw : -1.0);
+    }
+    if (cmin > cs) {
+      cs = cmin;
+      sn = std::sqrt(std::max(0.0, 1.0 - cmin * cmin));
+    }
+  }
+  *cos_turn = cs;
+  *sin_turn = sn;
+}
+
+}  // namespace
+
 float BlendWeightUpperBound(const glm::dvec3& m, double r, const glm::dvec3& c_o,
                             const glm::dvec3& c_i, const blend::BlendOptions& bo) {
-  // See vk::CellTable::RankRefs (vk_cell_table.cc) for the derivation. Directional: each ray turns by at most asin(r / D)
-  // as x moves in the ball, so the angle at x is >= the angle at m minus both turns.
-  const glm::dvec3 a = c_o - m, b = c_i - m;
-  const double d_o = glm::length(a), d_i = glm::length(b);
+  CellRegion g;
+  g.m = m;
+  g.r = r;
+  return CellWeightBound(g, c_o)(c_i, bo);
+}
+
+CellWeightBound::CellWeightBound(const CellRegion& g, const glm::dvec3& c_o, bool box_turn_refs)
+    : g_(g), a_(c_o - g.m), d_o_(glm::length(a_)), box_turn_refs_(box_turn_refs) {
+  if (d_o_ > g.r) RegionTurn(g_, c_o, d_o_, &cos_o_, &sin_o_);
+}
+
+float CellWeightBound::operator()(const glm::dvec3& c_i, const blend::BlendOptions& bo) const {
+  // See vk::CellTable::RankRefs (vk_cell_table.cc) for the derivation. Directional: each ray
+  // turns by at most its RegionTurn (the reference's: asin(r / D_i) unless box_turn_refs) as x
+  // moves in the region, so the angle at x is >= the angle at m minus both turns.
+  const double r = g_.r, d_o = d_o_;
+  const glm::dvec3 b = c_i - g_.m;
+  const double d_i = glm::length(b);
   double w_d = 1.0;
   if (d_o > r && d_i > r) {
-    // cos(max(0, theta - delta)) with theta = angle(a, b), delta = asin(r/d_o) + asin(r/d_i) < pi,
-    // without trigonometric calls: cos/sin of delta by angle addition, then
+    // cos(max(0, theta - delta)) with theta = angle(a, b), delta = turn_o + turn_i < pi, without
+    // trigonometric calls: cos/sin of delta by angle addition, then
     // theta <= delta <=> cos(theta) >= cos(delta), else cos(theta - delta) by angle subtraction.
-    const double cos_t = std::clamp(glm::dot(a, b) / (d_o * d_i), -1.0, 1.0);
+    const double cos_t = std::clamp(glm::dot(a_, b) / (d_o * d_i), -1.0, 1.0);
     const double sin_t = std::sqrt(std::max(0.0, 1.0 - cos_t * cos_t));
-    const double so = r / d_o, si = r / d_i;
-    const double co = std::sqrt(1.0 - so * so), ci = std::sqrt(1.0 - si * si);
+    const double co = cos_o_, so = sin_o_;
+    double si = r / d_i, ci = std::sqrt(1.0 - si * si);
+    if (box_turn_refs_) RegionTurn(g_, c_i, d_i, &ci, &si);
     const double cos_d = co * ci - so * si, sin_d = so * ci + co * si;
     w_d = cos_t >= cos_d ? 1.0 : std::max(0.0, cos_t * cos_d + sin_t * sin_d);
   }

@@ -217,4 +217,32 @@ ImageF BakeDiscontinuities(const ImageF& depth_m, int radius_px, float delta_z_m
 float BlendWeightUpperBound(const glm::dvec3& m, double r, const glm::dvec3& c_o,
                             const glm::dvec3& c_i, const blend::BlendOptions& options);
 
+// Where a cell's surface points can lie for the bound below: the ball B(m, r) and, with has_box,
+// also the box [lo, hi] (both must contain every point; the renderer uses the ball and box of
+// the proxy surface in the cell, common/cell_surface.h, or the cell's cube).
+struct CellRegion {
+  glm::dvec3 m{0.0};
+  double r = 0.0;
+  bool has_box = false;
+  glm::dvec3 lo{0.0}, hi{0.0};
+};
+// The same bound over the points of `region`, for one novel camera c_o and any reference c_i:
+// the directional term's turn of the novel camera's ray is the smaller of asin(r / D_o) (ball)
+// and the largest angle between the ray to m and the rays to the box's 8 corners (a box inside a
+// cone of half-angle < 90 degrees around the ray has its corners in it, and the cone is convex),
+// so a flat or thin box seen edge-on bounds tighter than its ball; computed once per cell and
+// frame. With `box_turn_refs` the reference's ray gets the corner turn too (8 more corners per
+// reference: host time for little, docs/vulkan.md session 17; off in the renderer).
+class CellWeightBound {
+ public:
+  CellWeightBound(const CellRegion& region, const glm::dvec3& c_o, bool box_turn_refs = false);
+  float operator()(const glm::dvec3& c_i, const blend::BlendOptions& options) const;
+
+ private:
+  CellRegion g_;
+  glm::dvec3 a_;  // c_o - m
+  double d_o_ = 0.0, cos_o_ = 1.0, sin_o_ = 0.0;
+  bool box_turn_refs_ = false;
+};
+
 }  // namespace exo

@@ -477,6 +477,21 @@ TEST(VulkanRendererTest, BakeDiscontinuitiesInvalidatesNearJumps) {
   for (int x = 0; x < 10; ++x) EXPECT_EQ(b.at(x, 0) == 0.0f, x >= 3 && x <= 6) << x;
 }
 
+// A random unit direction (rejection sampling in the unit ball) and options alternating the
+// positional mode, for the bound tests below.
+glm::dvec3 RandomUnit(std::mt19937& rng) {
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  glm::dvec3 d;
+  do d = {u(rng), u(rng), u(rng)}; while (glm::length(d) < 0.1 || glm::length(d) > 1.0);
+  return glm::normalize(d);
+}
+blend::BlendOptions AlternatingPositionalMode(int t) {
+  blend::BlendOptions bo;
+  bo.positional_mode =
+      t % 2 ? blend::PositionalMode::kPrinted : blend::PositionalMode::kUlrResolution;
+  return bo;
+}
+
 // The per-frame reference ranking is exact only if BlendWeightUpperBound is a true upper bound of
 // the weight blend_math.h computes (in float) for every surface point in the cell's ball. Samples
 // points on the ball's surface (where the extremes lie) and inside, for random cameras near and
@@ -486,17 +501,11 @@ TEST(VulkanRendererTest, BakeDiscontinuitiesInvalidatesNearJumps) {
 TEST(BlendWeightUpperBoundTest, BoundsEveryPointOfTheCellBallAndIsInformative) {
   std::mt19937 rng(7);
   std::uniform_real_distribution<double> u(-1.0, 1.0), u01(0.0, 1.0);
-  auto unit = [&] {
-    glm::dvec3 d;
-    do d = {u(rng), u(rng), u(rng)}; while (glm::length(d) < 0.1 || glm::length(d) > 1.0);
-    return glm::normalize(d);
-  };
+  auto unit = [&] { return RandomUnit(rng); };
   int configs = 0, informative = 0;
   double slack_sum = 0.0;
   for (int t = 0; t < 2000; ++t) {
-    blend::BlendOptions bo;
-    bo.positional_mode = t % 2 ? blend::PositionalMode::kPrinted
-                               : blend::PositionalMode::kUlrResolution;
+    blend::BlendOptions bo = AlternatingPositionalMode(t);
     bo.lambda = float(u01(rng));
     const glm::dvec3 m(20.0 * u(rng), 20.0 * u(rng), 5.0 * u(rng));
     const double r = 0.05 + 1.5 * u01(rng);
@@ -524,6 +533,52 @@ TEST(BlendWeightUpperBoundTest, BoundsEveryPointOfTheCellBallAndIsInformative) {
   // Informative: most configurations bound below 1, and the bound is close to the sampled max.
   EXPECT_GT(informative, configs / 2);
   EXPECT_LT(slack_sum / configs, 0.05) << "mean bound - sampled max";
+}
+
+// CellWeightBound over a CellRegion with a box: every sampled point of the box (corners, faces,
+// interior) gets a weight below it, and for flat or thin boxes it is below the bound over the
+// box's ball alone in most configurations (the corner turns are smaller seen edge-on). Guard:
+// with the corner cosine taken as the maximum instead of the minimum, sampled weights exceed it.
+TEST(BlendWeightUpperBoundTest, BoxRegionBoundsEveryPointOfTheBoxAndIsTighter) {
+  std::mt19937 rng(8);
+  std::uniform_real_distribution<double> u(-1.0, 1.0), u01(0.0, 1.0);
+  auto unit = [&] { return RandomUnit(rng); };
+  int configs = 0, tighter = 0;
+  for (int t = 0; t < 2000; ++t) {
+    blend::BlendOptions bo = AlternatingPositionalMode(t);
+    bo.lambda = t % 3 ? 1.0f : float(u01(rng));
+    const glm::dvec3 centre(20.0 * u(rng), 20.0 * u(rng), 5.0 * u(rng));
+    glm::dvec3 half(0.05 + 0.3 * u01(rng), 0.05 + 0.3 * u01(rng), 0.05 + 0.3 * u01(rng));
+    half[t % 3] *= t % 4 == 0 ? 1.0 : 1e-3;  // mostly flat boxes
+    CellRegion g;
+    g.m = centre;
+    g.r = glm::length(half);
+    g.has_box = true;
+    g.lo = centre - half;
+    g.hi = centre + half;
+    const glm::dvec3 c_o = centre + unit() * (g.r * 0.5 + 30.0 * u01(rng));
+    const glm::dvec3 dir_i = t % 3 ? glm::normalize(c_o - centre + 0.3 * glm::length(c_o - centre) * unit())
+                                   : unit();
+    const glm::dvec3 c_i = centre + dir_i * (g.r * 0.5 + 30.0 * u01(rng));
+    // The renderer's mode (box turn for the novel camera only) and both rays' box turns.
+    const float bound = CellWeightBound(g, c_o, /*box_turn_refs=*/t % 2 == 0)(c_i, bo);
+    const float ball = BlendWeightUpperBound(g.m, g.r, c_o, c_i, bo);
+    ASSERT_LE(bound, ball) << "config " << t;
+    const glm::vec3 fo(c_o), fi(c_i);
+    for (int k = 0; k < 400; ++k) {
+      glm::dvec3 s(u(rng), u(rng), u(rng));
+      if (k < 8) s = glm::dvec3(k & 1 ? 1 : -1, k & 2 ? 1 : -1, k & 4 ? 1 : -1);  // corners
+      else if (k % 2) s[k % 3] = s[k % 3] < 0 ? -1.0 : 1.0;                  // on a face
+      const glm::vec3 x(centre + s * half);
+      const float w = blend::CombinedWeight(1.0f, blend::DirectionalWeight(x, fo, fi),
+                                            blend::PositionalWeight(x, fo, fi, bo.positional_mode),
+                                            bo.lambda, bo.min_weight);
+      ASSERT_LE(w, bound) << "config " << t << " sample " << k;
+    }
+    ++configs;
+    if (bound < ball) ++tighter;
+  }
+  EXPECT_GT(tighter, configs / 2);
 }
 
 // Background at infinity without any proxy: a stored view that saw nothing within range (depth 0

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <limits>
 
+#include "common/cell_surface.h"
 #include "common/status.h"
 
 namespace exo {
@@ -16,25 +17,6 @@ double PolygonArea(const Polygon& p) {
   glm::dvec3 acc(0.0);
   for (size_t i = 1; i + 1 < p.size(); ++i) acc += glm::cross(p[i] - p[0], p[i + 1] - p[0]);
   return 0.5 * glm::length(acc);
-}
-
-// Splits `poly` at the plane coord[axis] = c into the part below and the part above.
-void Split(const Polygon& poly, int axis, double c, Polygon* below, Polygon* above) {
-  below->clear();
-  above->clear();
-  const size_t n = poly.size();
-  for (size_t i = 0; i < n; ++i) {
-    const glm::dvec3& a = poly[i];
-    const glm::dvec3& b = poly[(i + 1) % n];
-    const double da = a[axis] - c, db = b[axis] - c;
-    if (da <= 0) below->push_back(a);
-    if (da >= 0) above->push_back(a);
-    if ((da < 0 && db > 0) || (da > 0 && db < 0)) {
-      const glm::dvec3 x = a + (b - a) * (da / (da - db));
-      below->push_back(x);
-      above->push_back(x);
-    }
-  }
 }
 
 // Recursively clips along axes 0, 1, 2 and accumulates piece areas per cell.
@@ -59,7 +41,7 @@ void ClipInto(const Polygon& poly, int axis, const CellGrid& grid,
   }
   Polygon rest = poly, below, above;
   for (int64_t k = k0 + 1; k <= k1 && rest.size() >= 3; ++k) {
-    Split(rest, axis, double(k) * q, &below, &above);
+    SplitPolygon(rest, axis, double(k) * q, &below, &above);
     ClipInto(below, axis + 1, grid, out);
     rest.swap(above);
   }
