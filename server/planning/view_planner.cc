@@ -854,14 +854,19 @@ absl::StatusOr<Decision> ViewPlanner::Consider(const Candidate& cand) {
     u.weight -= moved;
     views_.at(cand.id).weight += moved;
   }
-  for (int32_t k : stale)
-    if (RebuildRefs(k)) d.changed_cells.push_back(cells_[k].id);
-  d.removed = std::move(victims);
-  std::sort(d.changed_cells.begin(), d.changed_cells.end());
-  d.changed_cells.erase(std::unique(d.changed_cells.begin(), d.changed_cells.end()),
-                        d.changed_cells.end());
-  d.tau_sum = tau_sum_;
+  FinishAccepted(stale, std::move(victims), &d);
   return d;
+}
+
+void ViewPlanner::FinishAccepted(const std::vector<int32_t>& stale, std::vector<ViewId> victims,
+                                 Decision* d) {
+  for (int32_t k : stale)
+    if (RebuildRefs(k)) d->changed_cells.push_back(cells_[k].id);
+  d->removed = std::move(victims);
+  std::sort(d->changed_cells.begin(), d->changed_cells.end());
+  d->changed_cells.erase(std::unique(d->changed_cells.begin(), d->changed_cells.end()),
+                         d->changed_cells.end());
+  d->tau_sum = tau_sum_;
 }
 
 Decision ViewPlanner::ConsiderBaseline(const Candidate& cand, View view) {
@@ -904,13 +909,7 @@ Decision ViewPlanner::ConsiderBaseline(const Candidate& cand, View view) {
   std::sort(stale.begin(), stale.end());
   stale.erase(std::unique(stale.begin(), stale.end()), stale.end());
   AddView(std::move(view), &d.changed_cells);
-  for (int32_t k : stale)
-    if (RebuildRefs(k)) d.changed_cells.push_back(cells_[k].id);
-  d.removed = std::move(victims);
-  std::sort(d.changed_cells.begin(), d.changed_cells.end());
-  d.changed_cells.erase(std::unique(d.changed_cells.begin(), d.changed_cells.end()),
-                        d.changed_cells.end());
-  d.tau_sum = tau_sum_;
+  FinishAccepted(stale, std::move(victims), &d);
   return d;
 }
 

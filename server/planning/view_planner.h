@@ -379,6 +379,9 @@ class ViewPlanner {
     double weight = 1.0;            // stream frames it stands for (dispersion_weight_exponent)
     double arc = 0.0;               // the travelled pose path at its arrival (dispersion_time_arc)
   };
+  // An accepted decision's end: the stale cells' R(b_k) rebuilt (the candidate already added),
+  // the victims and the changed cells (sorted, unique) recorded, τ_sum.
+  void FinishAccepted(const std::vector<int32_t>& stale, std::vector<ViewId> victims, Decision* d);
   // A baseline policy's decision (PlannerOptions::policy != kCoverage) for a validated view.
   Decision ConsiderBaseline(const Candidate& cand, View view);
   std::unique_ptr<OnlineSelector> selector_;  // null for kCoverage
