@@ -15,7 +15,7 @@ PKGS=(build-essential cmake ninja-build pkg-config
       python3-grpc-tools python3-protobuf python3-numpy python3-pil python3-open3d
       libsdl2-dev libimgui-dev xvfb xdotool imagemagick chromium firefox-esr python3-websocket libssl-dev
       zlib1g-dev
-      nats-server libnats-dev python3-kubernetes podman runc)
+      nats-server libnats-dev python3-kubernetes podman runc catatonit)
 
 missing=()
 for p in "${PKGS[@]}"; do
