@@ -843,14 +843,7 @@ TEST(ViewPlanner, TimeArcClockRunsOnlyWhileTheCameraMoves) {
     return poses;
   };
   auto options = [](bool arc) {
-    PlannerOptions o;
-    o.max_views = 12;
-    o.cell_size_m = 1.0;
-    o.d_max_m = 2.0;
-    o.tau_max = 0.05;
-    o.dispersion = PlannerOptions::Dispersion::kFirst;
-    o.dispersion_guard = 1e9;
-    o.dispersion_guard_relative = 0;
+    PlannerOptions o = PoseRuleOptions(12);  // d_max_m: the default 2 m
     o.dispersion_time_steps = 1.0;
     o.dispersion_time_arc = arc;
     return o;
@@ -897,14 +890,7 @@ TEST(ViewPlanner, TimeAutoScaleFollowsTheMeasurement) {
   for (double x = 0; x < 10; x += 0.25) xs.push_back(x);
   for (int i = 0; i < 200; ++i) xs.push_back(10 + 0.001 * (i % 2));
   for (double x = 10.25; x <= 20; x += 0.25) xs.push_back(x);
-  PlannerOptions o;
-  o.max_views = 12;
-  o.cell_size_m = 1.0;
-  o.d_max_m = 2.0;
-  o.tau_max = 0.05;
-  o.dispersion = PlannerOptions::Dispersion::kFirst;
-  o.dispersion_guard = 1e9;
-  o.dispersion_guard_relative = 0;
+  PlannerOptions o = PoseRuleOptions(12);  // d_max_m: the default 2 m
   o.dispersion_time_steps = 1.0;
   o.dispersion_time_auto_ref = 0.001;
   auto run = [&](double scale) {
