@@ -10,6 +10,12 @@ reference count into B. Build vulkan_bench in that tree, dump frames with
 and `count DIR...` prints, per dump directory and configuration (frames f1.., the timed ones),
 the mean iterations per surface pixel and the mean over 4x4 pixel blocks of the block's maximum
 (llvmpipe shades a 4x4 block as two 8-lane vectors and runs a loop while any lane is active).
+
+`patch-reasons TREE MODE` (session 18) writes the iterations into R, 255 into G and into B two
+counts of how iterations ended, each capped at 15, as B = first + 16 * second: MODE `frustum` =
+(behind the view or outside its image, stored depth <= 0), MODE `skip` = (occluded, weight below
+the n-th best before the validity test). `reasons DIR...` prints their means per surface pixel
+(the stopping iteration and the valid ones are the rest).
 """
 import collections
 import glob
@@ -29,6 +35,60 @@ def patch(tree):
         '    if (uintBitsToFloat', '    ++iters;\n    if (uintBitsToFloat'))
     s = s.replace(b, '  return vec4(float(iters) / 255.0, 1.0, float(count) / 255.0, 1.0);')
     open(p, 'w').write(s)
+
+
+def patch_reasons(tree, mode):
+    p = tree + '/shaders/blend_shade.glsl'
+    s = open(p).read()
+    reps = [
+        ('  for (uint i = 0u; i < count; ++i) {\n    const int t',
+         '  uint iters = 0u, r_fr = 0u, r_d0 = 0u, r_occ = 0u, r_w = 0u;\n'
+         '  for (uint i = 0u; i < count; ++i) {\n    ++iters;\n    const int t'),
+        ('    if (!(w >= nth)) continue;', '    if (!(w >= nth)) { ++r_w; continue; }'),
+        ('    if (!(z > kMinDistance)) continue;\n    const vec2 uv = vec2(dot(uintBitsToFloat(m0',
+         '    if (!(z > kMinDistance)) { ++r_fr; continue; }\n'
+         '    const vec2 uv = vec2(dot(uintBitsToFloat(m0'),
+        ('    if (!(uv.x >= -0.5 && uv.y >= -0.5 && uv.x < size.x - 0.5 && uv.y < size.y - 0.5)) '
+         'continue;\n    const vec2 pc = clamp(floor(uv + 0.5), vec2(0.0), size - 1.0);\n'
+         '    const float z_stored = imageLoad(depths, ivec3(ivec2(pc), layer)).r;',
+         '    if (!(uv.x >= -0.5 && uv.y >= -0.5 && uv.x < size.x - 0.5 && uv.y < size.y - 0.5)) '
+         '{ ++r_fr; continue; }\n    const vec2 pc = clamp(floor(uv + 0.5), vec2(0.0), size - 1.0);\n'
+         '    const float z_stored = imageLoad(depths, ivec3(ivec2(pc), layer)).r;'),
+        ('    if (!(z_stored > 0.0)) continue;', '    if (!(z_stored > 0.0)) { ++r_d0; continue; }'),
+        ('    if (range_m > range_d + eps_abs + eps_rel * range_d) continue;',
+         '    if (range_m > range_d + eps_abs + eps_rel * range_d) { ++r_occ; continue; }'),
+    ]
+    for a, b in reps:
+        assert s.count(a) == 1, 'blend_shade.glsl changed: update the probe: ' + a[:40]
+        s = s.replace(a, b)
+    end = ('  return vec4(srgb, covered ? (in_roi ? 224.0 / 255.0 : 1.0) : 128.0 / 255.0);'
+           '  // 224: inpainted')
+    assert s.count(end) == 1, 'blend_shade.glsl changed: update the probe'
+    first, second = ('r_fr', 'r_d0') if mode == 'frustum' else ('r_occ', 'r_w')
+    s = s.replace(end, f'  return vec4(float(iters) / 255.0, 1.0, float(min({first}, 15u) + '
+                       f'16u * min({second}, 15u)) / 255.0, 1.0);')
+    open(p, 'w').write(s)
+
+
+def reasons(dirs):
+    import numpy as np
+    from PIL import Image
+    res = collections.OrderedDict()
+    for d in dirs:
+        for f in sorted(glob.glob(d + '/*_vulkan.png')):
+            name = f.split('/')[-1]
+            if '_f0_' in name:
+                continue
+            a = np.asarray(Image.open(f).convert('RGB')).astype(np.int64)
+            m = a[..., 1] == 255
+            s = res.setdefault((d, name.rsplit('_f', 1)[0]), [0, 0, 0, 0])
+            s[0] += a[..., 0][m].sum()
+            s[1] += (a[..., 2][m] % 16).sum()
+            s[2] += (a[..., 2][m] // 16).sum()
+            s[3] += m.sum()
+    for (d, k), (it, r1, r2, n) in res.items():
+        print(f'{d} {k}: surface px {n}, iterations/px {it / n:.3f}, '
+              f'first reason/px {r1 / n:.3f}, second reason/px {r2 / n:.3f}')
 
 
 def count(dirs):
@@ -59,7 +119,11 @@ def count(dirs):
 if __name__ == '__main__':
     if len(sys.argv) == 3 and sys.argv[1] == 'patch':
         patch(sys.argv[2])
+    elif len(sys.argv) == 4 and sys.argv[1] == 'patch-reasons':
+        patch_reasons(sys.argv[2], sys.argv[3])
     elif len(sys.argv) >= 3 and sys.argv[1] == 'count':
         count(sys.argv[2:])
+    elif len(sys.argv) >= 3 and sys.argv[1] == 'reasons':
+        reasons(sys.argv[2:])
     else:
         sys.exit(__doc__)
