@@ -11,7 +11,10 @@ and `count DIR...` prints, per dump directory and configuration (frames f1.., th
 the mean iterations per surface pixel and the mean over 4x4 pixel blocks of the block's maximum
 (llvmpipe shades a 4x4 block as two 8-lane vectors and runs a loop while any lane is active).
 
-`patch-reasons TREE MODE` (session 18) writes the iterations into R, 255 into G and into B two
+Both loop forms count the loop bodies a pixel's lane runs: before session 18 the stop was tested
+at the top of the body (the stopping iteration is counted: llvmpipe ran it as a masked body),
+since then at its end. `patch-reasons TREE MODE` (session 18; the loop form before session 18
+only) writes the iterations into R, 255 into G and into B two
 counts of how iterations ended, each capped at 15, as B = first + 16 * second: MODE `frustum` =
 (behind the view or outside its image, stored depth <= 0), MODE `skip` = (occluded, weight below
 the n-th best before the validity test). `reasons DIR...` prints their means per surface pixel
@@ -25,14 +28,25 @@ import sys
 def patch(tree):
     p = tree + '/shaders/blend_shade.glsl'
     s = open(p).read()
+    # Before session 18: the stop tested at the top of the body (the stopping iteration counts).
     a = '''  for (uint i = 0u; i < count; ++i) {
     const int t = kRankedTexels * int(offset + i);
     const uvec4 r0 = imageLoad(ranked_refs, t);
     if (uintBitsToFloat(r0.w) < nth) break;'''
+    # Since session 18: the stop tested at the end of the body (every iteration is a body).
+    a18 = '''  uvec4 r0 = uvec4(0u);
+  if (count > 0u) r0 = imageLoad(ranked_refs, kRankedTexels * int(offset));'''
+    a18_body = '''    for (uint i = 0u;;) {
+      const int t = kRankedTexels * int(offset + i);'''
     b = '''  return vec4(srgb, covered ? (in_roi ? 224.0 / 255.0 : 1.0) : 128.0 / 255.0);  // 224: inpainted'''
-    assert a in s and b in s, 'blend_shade.glsl changed: update the probe'
-    s = s.replace(a, a.replace('  for (uint i', '  uint iters = 0u;\n  for (uint i').replace(
-        '    if (uintBitsToFloat', '    ++iters;\n    if (uintBitsToFloat'))
+    assert b in s, 'blend_shade.glsl changed: update the probe'
+    if a in s:
+        s = s.replace(a, a.replace('  for (uint i', '  uint iters = 0u;\n  for (uint i').replace(
+            '    if (uintBitsToFloat', '    ++iters;\n    if (uintBitsToFloat'))
+    else:
+        assert s.count(a18) == 1 and s.count(a18_body) == 1, 'blend_shade.glsl changed: update the probe'
+        s = s.replace(a18, '  uint iters = 0u;\n' + a18)
+        s = s.replace(a18_body, a18_body + '\n      ++iters;')
     s = s.replace(b, '  return vec4(float(iters) / 255.0, 1.0, float(count) / 255.0, 1.0);')
     open(p, 'w').write(s)
 

@@ -1,0 +1,105 @@
+#!/usr/bin/python3
+"""In-process A/B timing of two forms of the blend's reference loop (issue 16, session 18).
+
+Under load (2 cores shared by several agents) the CPU time of the same binary varies by
++-15 % between runs, which hides a 5-10 % change in separate-process pairs. This timing build
+renders every frame twice in one process, once with each loop form, in alternating order, so
+both see the same load within ~0.1 s:
+
+  vulkan_loop_ab_probe.py patch TREE OLD_SHADER
+    TREE: a copy of the sources (never the working tree) whose blend_shade.glsl has the new loop;
+    OLD_SHADER: a blend_shade.glsl with the old loop (e.g. `git show 7513250:shaders/blend_shade.glsl`).
+    The surface loop becomes `if (kAbOld != 0) { old loop } else { new loop }` on specialisation
+    constant 9 (BlendVariant bit 8: both pipelines are built, each holds one form), and vulkan_bench
+    renders each frame with kAbOld = 0 and 1 and prints ab_cpu_new / ab_cpu_old (per-frame CPU ms)
+    and the paired median of new / old.
+Run e.g. `vulkan_bench --frames=20 --refs=16 --sizes=1280x720 --fill_holes=0 --pose=3`.
+"""
+import sys
+
+LOOP_OLD_START = '  for (uint i = 0u; i < count; ++i) {\n    const int t = kRankedTexels'
+LOOP_NEW_START = '  // The stop is tested at the END of an iteration'
+LOOP_END = '  vec3 srgb;\n  const bool covered = BlendBest(best, n, srgb);'
+
+
+def rep(s, a, b):
+    assert s.count(a) == 1, 'sources changed: update the probe: ' + a[:60]
+    return s.replace(a, b)
+
+
+def patch(tree, old_shader):
+    old = open(old_shader).read()
+    old_loop = old[old.index(LOOP_OLD_START):old.index(LOOP_END)]
+    p = tree + '/shaders/blend_shade.glsl'
+    s = open(p).read()
+    i, j = s.index(LOOP_NEW_START), s.index(LOOP_END)
+    s = s[:i] + 'if (kAbOld != 0) {\n' + old_loop + '} else {\n' + s[i:j] + '}\n' + s[j:]
+    s = rep(s, 'layout(constant_id = 5) const int kBakedWeights = 0;',
+            'layout(constant_id = 5) const int kBakedWeights = 0;\n'
+            'layout(constant_id = 9) const int kAbOld = 0;')
+    open(p, 'w').write(s)
+
+    p = tree + '/client/vulkan/vk_pipelines.h'
+    s = open(p).read()
+    s = rep(s, '  bool default_weights = false;\n', '  bool default_weights = false;\n  bool ab_old = false;\n')
+    s = rep(s, '(default_weights ? 4 : 0);', '(default_weights ? 4 : 0) | (ab_old ? 8 : 0);')
+    s = rep(s, 'static constexpr int kCount = 8;', 'static constexpr int kCount = 16;')
+    open(p, 'w').write(s)
+
+    p = tree + '/client/vulkan/vk_pipelines.cc'
+    s = open(p).read()
+    s = rep(s, 'int32_t values[8] = {n_best,', 'int32_t values[9] = {n_best,')
+    s = rep(s, '                       std::bit_cast<int32_t>(d.occlusion_epsilon_rel)};',
+            '                       std::bit_cast<int32_t>(d.occlusion_epsilon_rel),\n'
+            '                       v.ab_old ? 1 : 0};')
+    s = rep(s, '  VkSpecializationMapEntry entries[8];\n  const uint32_t ids[8] = {0, 1, 2, 3, 5, 6, 7, 8};\n'
+               '  for (uint32_t k = 0; k < 8; ++k)',
+            '  VkSpecializationMapEntry entries[9];\n  const uint32_t ids[9] = {0, 1, 2, 3, 5, 6, 7, 8, 9};\n'
+            '  for (uint32_t k = 0; k < 9; ++k)')
+    s = rep(s, 'VkSpecializationInfo spec{8, entries,', 'VkSpecializationInfo spec{9, entries,')
+    open(p, 'w').write(s)
+
+    p = tree + '/client/vulkan/vk_frame_renderer.cc'
+    s = open(p).read()
+    s = rep(s, '  v.default_weights = BlendVariant::DefaultWeights(bo);\n',
+            '  v.default_weights = BlendVariant::DefaultWeights(bo);\n  v.ab_old = g_ab_old != 0;\n')
+    s = rep(s, 'namespace exo::vk {\n', 'namespace exo::vk {\nint g_ab_old = 0;\n')
+    open(p, 'w').write(s)
+
+    p = tree + '/client/vulkan/vulkan_bench.cc'
+    s = open(p).read()
+    s = rep(s, 'int main(int argc, char** argv) {',
+            'namespace exo::vk { extern int g_ab_old; }\nint main(int argc, char** argv) {')
+    s = rep(s, '''        auto out = r->Render(cam, pose, bo, RenderApprox{max_candidates});
+        const double cpu_ms = ProcessCpuMs() - c0;''',
+            '''        // A/B: this frame with the other loop form first or after (order alternating).
+        double ab_other_cpu = 0;
+        auto ab_other = [&] {
+          exo::vk::g_ab_old = 1;
+          const double a0 = ProcessCpuMs();
+          auto o = r->Render(cam, pose, bo, RenderApprox{max_candidates});
+          ab_other_cpu = ProcessCpuMs() - a0;
+          exo::vk::g_ab_old = 0;
+          return o.ok();
+        };
+        if (k % 2 == 1 && !ab_other()) return 1;
+        const double c0b = ProcessCpuMs();
+        auto out = r->Render(cam, pose, bo, RenderApprox{max_candidates});
+        const double cpu_ms = ProcessCpuMs() - c0b;
+        if (k % 2 == 0 && !ab_other()) return 1;
+        (void)c0;
+        if (k > 0) { ab_new.push_back(cpu_ms); ab_old.push_back(ab_other_cpu); }''')
+    s = rep(s, '      int ssim_n = 0;\n', '      int ssim_n = 0;\n      std::vector<double> ab_new, ab_old;\n')
+    s = rep(s, '          {"median_rank_ms", Round(med(rank_v), 2)},',
+            '''          {"median_rank_ms", Round(med(rank_v), 2)},
+          {"ab_cpu_new", ab_new}, {"ab_cpu_old", ab_old},
+          {"ab_median_cpu_new", Round(med(ab_new), 2)}, {"ab_median_cpu_old", Round(med(ab_old), 2)},
+          {"ab_median_ratio_new_old", [&] { std::vector<double> q; for (size_t i = 0; i < ab_new.size(); ++i) q.push_back(ab_new[i] / ab_old[i]); return Round(med(q), 4); }()},''')
+    open(p, 'w').write(s)
+
+
+if __name__ == '__main__':
+    if len(sys.argv) == 4 and sys.argv[1] == 'patch':
+        patch(sys.argv[2], sys.argv[3])
+    else:
+        sys.exit(__doc__)
