@@ -8,7 +8,8 @@ both see the same load within ~0.1 s:
 
   vulkan_loop_ab_probe.py patch TREE OLD_SHADER
     TREE: a copy of the sources (never the working tree) whose blend_shade.glsl has the new loop;
-    OLD_SHADER: a blend_shade.glsl with the old loop (e.g. `git show 7513250:shaders/blend_shade.glsl`).
+    OLD_SHADER: a blend_shade.glsl with another loop (e.g. `git show 7513250:shaders/blend_shade.glsl`);
+    the loop is the text between the max_candidates cap and the blend of the best n.
     The surface loop becomes `if (kAbOld != 0) { old loop } else { new loop }` on specialisation
     constant 9 (BlendVariant bit 8: both pipelines are built, each holds one form), and vulkan_bench
     renders each frame with kAbOld = 0 and 1 and prints ab_cpu_new / ab_cpu_old (per-frame CPU ms)
@@ -17,9 +18,14 @@ Run e.g. `vulkan_bench --frames=20 --refs=16 --sizes=1280x720 --fill_holes=0 --p
 """
 import sys
 
-LOOP_OLD_START = '  for (uint i = 0u; i < count; ++i) {\n    const int t = kRankedTexels'
-LOOP_NEW_START = '  // The stop is tested at the END of an iteration'
+# The surface loop: from after the max_candidates cap to the blend of the best n.
+LOOP_START = '  if (frame.bg_params.y > 0) count = min(count, uint(frame.bg_params.y));\n'
 LOOP_END = '  vec3 srgb;\n  const bool covered = BlendBest(best, n, srgb);'
+
+
+def loop_span(s):
+    i = s.index(LOOP_START) + len(LOOP_START)
+    return i, s.index(LOOP_END)
 
 
 def rep(s, a, b):
@@ -29,10 +35,11 @@ def rep(s, a, b):
 
 def patch(tree, old_shader):
     old = open(old_shader).read()
-    old_loop = old[old.index(LOOP_OLD_START):old.index(LOOP_END)]
+    i, j = loop_span(old)
+    old_loop = old[i:j]
     p = tree + '/shaders/blend_shade.glsl'
     s = open(p).read()
-    i, j = s.index(LOOP_NEW_START), s.index(LOOP_END)
+    i, j = loop_span(s)
     s = s[:i] + 'if (kAbOld != 0) {\n' + old_loop + '} else {\n' + s[i:j] + '}\n' + s[j:]
     s = rep(s, 'layout(constant_id = 5) const int kBakedWeights = 0;',
             'layout(constant_id = 5) const int kBakedWeights = 0;\n'

@@ -11,9 +11,11 @@ and `count DIR...` prints, per dump directory and configuration (frames f1.., th
 the mean iterations per surface pixel and the mean over 4x4 pixel blocks of the block's maximum
 (llvmpipe shades a 4x4 block as two 8-lane vectors and runs a loop while any lane is active).
 
-Both loop forms count the loop bodies a pixel's lane runs: before session 18 the stop was tested
-at the top of the body (the stopping iteration is counted: llvmpipe ran it as a masked body),
-since then at its end. `patch-reasons TREE MODE` (session 18; the loop form before session 18
+Three loop forms are recognised, each counting the loop bodies a pixel's lane runs: before
+session 18 the stop was tested at the top of the body (the stopping iteration is counted: llvmpipe
+runs it as a masked body); the session-18 loop with the stop at the end of the body; the
+session-18 scan form (R = outer bodies, i.e. validity evaluations, B = inner scan iterations,
+i.e. weight evaluations; `count` prints B's mean as B/px). `patch-reasons TREE MODE` (session 18; the loop form before session 18
 only) writes the iterations into R, 255 into G and into B two
 counts of how iterations ended, each capped at 15, as B = first + 16 * second: MODE `frustum` =
 (behind the view or outside its image, stored depth <= 0), MODE `skip` = (occluded, weight below
@@ -36,13 +38,23 @@ def patch(tree):
     # Since session 18: the stop tested at the end of the body (every iteration is a body).
     a18 = '''  uvec4 r0 = uvec4(0u);
   if (count > 0u) r0 = imageLoad(ranked_refs, kRankedTexels * int(offset));'''
-    a18_body = '''    for (uint i = 0u;;) {
-      const int t = kRankedTexels * int(offset + i);'''
+    a18_body = '''    for (uint i = 0u;;) {''' + ('''
+      const int t = kRankedTexels * int(offset + i);''' if 'const int t = kRankedTexels * int(offset + i);\n      // ---- weights' in s else '')
     b = '''  return vec4(srgb, covered ? (in_roi ? 224.0 / 255.0 : 1.0) : 128.0 / 255.0);  // 224: inpainted'''
     assert b in s, 'blend_shade.glsl changed: update the probe'
+    scan = '''      for (;;) {
+        b = uintBitsToFloat(r0.xyz) - x;'''
     if a in s:
         s = s.replace(a, a.replace('  for (uint i', '  uint iters = 0u;\n  for (uint i').replace(
             '    if (uintBitsToFloat', '    ++iters;\n    if (uintBitsToFloat'))
+    elif scan in s:
+        # Since session 18 (scan form): R = outer bodies (validity evaluations), B = inner scan
+        # iterations (weights), each per pixel.
+        assert s.count(a18) == 1 and s.count(a18_body) == 1 and s.count(scan) == 1, 'update the probe'
+        s = s.replace(a18, '  uint iters = 0u, scans = 0u;\n' + a18)
+        s = s.replace(a18_body, a18_body + '\n      ++iters;')
+        s = s.replace(scan, scan.replace('      for (;;) {', '      for (;;) {\n        ++scans;'))
+        s = s.replace(b, '  return vec4(float(iters) / 255.0, 1.0, float(scans) / 255.0, 1.0);')
     else:
         assert s.count(a18) == 1 and s.count(a18_body) == 1, 'blend_shade.glsl changed: update the probe'
         s = s.replace(a18, '  uint iters = 0u;\n' + a18)
@@ -120,14 +132,15 @@ def count(dirs):
             h, w = it.shape
             blk = it[:h // 4 * 4, :w // 4 * 4].reshape(h // 4, 4, w // 4, 4).max(axis=(1, 3))
             bm = m[:h // 4 * 4, :w // 4 * 4].reshape(h // 4, 4, w // 4, 4).any(axis=(1, 3))
-            s = res.setdefault((d, name.rsplit('_f', 1)[0]), [0, 0, 0, 0])
+            s = res.setdefault((d, name.rsplit('_f', 1)[0]), [0, 0, 0, 0, 0])
+            s[4] += a[..., 2][m].sum()
             s[0] += it[m].sum()
             s[1] += m.sum()
             s[2] += blk[bm].sum()
             s[3] += bm.sum()
-    for (d, k), (it, n, bs, bn) in res.items():
+    for (d, k), (it, n, bs, bn, bsum) in res.items():
         print(f'{d} {k}: surface px {n}, iterations/px {it / n:.3f}, '
-              f'max per 4x4 block {bs / bn:.3f}')
+              f'max per 4x4 block {bs / bn:.3f}, B/px {bsum / n:.3f}')
 
 
 if __name__ == '__main__':
