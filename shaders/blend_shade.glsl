@@ -290,85 +290,68 @@ vec4 ShadeSurface(vec3 x) {
   // RenderApprox::max_candidates (vulkan_renderer.h): at most this many references, in rank
   // order (0 = all: exact).
   if (frame.bg_params.y > 0) count = min(count, uint(frame.bg_params.y));
-  // Two nested loops, both with their stops at the END of the body (llvmpipe runs a loop body
-  // as one 8-lane vector, masked, while any lane is active, and checks the lanes only at the
-  // end of the body: a top-of-body break cost a whole masked iteration). The inner loop is a
-  // cheap scan: the weight from the ranked record's first texel, advancing past references
-  // whose weight is below nth (which cannot enter the best n: skipped before their validity
-  // test); the outer body evaluates the validity of the one the scan stopped at. Before, each
-  // skipped reference cost a whole (masked) body with the 3 projection texels and the depth
-  // gather. The same references in the same order and the same nth (it changes only in the
-  // outer body): the same selection (docs/vulkan.md, issue 16 session 18).
+  // The stop is tested at the END of an iteration, for the next reference (a loop whose only
+  // exits are the breaks at its end): llvmpipe runs a loop body as one 8-lane vector while any
+  // lane is active and only checks the lanes at the end of the body, so a top-of-body "bound <
+  // nth: break" cost every vector one whole masked iteration after its last lane's final
+  // reference. The continues of the old body are nested ifs (masked the same way). The same
+  // references in the same order: the same selection (docs/vulkan.md, issue 16 session 18).
   uvec4 r0 = uvec4(0u);
   if (count > 0u) r0 = imageLoad(ranked_refs, kRankedTexels * int(offset));
   // Bound -1 = not resident (sorted last): below nth = 0, so such a list is never entered.
   if (count > 0u && !(uintBitsToFloat(r0.w) < nth)) {
     for (uint i = 0u;;) {
-      // ---- scan: weights (DirectionalWeight / PositionalWeight / CombinedWeight, v = 1) of
-      // reference i, i + 1, ... until one reaches nth, the list ends or a bound is below nth.
-      vec3 b;
-      float lb, w;
-      bool done = false;
-      for (;;) {
-        b = uintBitsToFloat(r0.xyz) - x;
-        lb = length(b);  // also the range of x from the view (a rotation keeps lengths)
-        const vec3 dab = a_unit - b / lb;  // well-conditioned cosine (blend_math.h)
-        const float w_d = (a_near || !(lb > kMinDistance))
-                              ? 0.0 : max(0.0, 1.0 - 0.5 * dot(dab, dab));
-        if (kLambdaOne != 0) {
-          w = max(w_d, min_weight);
-        } else {
-          const float w_p = positional == kPositionalPrinted
-                                ? max(0.0, 1.0 - lb / d_o)
-                                : max(0.0, 1.0 - max(0.0, lb - d_o) / d_o);
-          w = CombinedWeight(1.0, w_d, w_p, lambda, min_weight);
-        }
-        const bool skip = !(w >= nth);
-        if (skip) {
-          ++i;
-          done = i >= count;
-          if (!done) {
-            r0 = imageLoad(ranked_refs, kRankedTexels * int(offset + i));
-            done = uintBitsToFloat(r0.w) < nth;
-          }
-        }
-        if (!skip || done) break;
-      }
-      if (done) break;
-      // ---- validity (3.4) of reference i (w >= nth), blend_math.h Validity() with the
-      // discontinuity test baked into the depth layer. The view's M = K R^T (the 3x3 part of
-      // P = K [R^T | -R^T c]) with the record's integers and exposure in the w components
-      // (CellTable WriteRankedSlot). Projection of x - c_i = -b by M: hp = (z u, z v, z) with
-      // z the camera z-depth, so in_front is z > kMinDistance and uv = hp.xy / z,
-      // algebraically K (R^T (x - c)) of ProjectToView. The range of x is |x - c| = lb, and
-      // the stored range along the same ray is z_stored * range / z (= z_stored * |ray|,
-      // RangeFromZDepth).
       const int t = kRankedTexels * int(offset + i);
-      const uvec4 m0 = imageLoad(ranked_refs, t + 1);  // w: layer | list position << 16
-      const uvec4 m1 = imageLoad(ranked_refs, t + 2);  // w: width | height << 16
-      const uvec4 m2 = imageLoad(ranked_refs, t + 3);  // w: exposure bits
-      const int layer = int(m0.w & 0xFFFFu);
-      const vec3 xc = -b;
-      const float z = dot(uintBitsToFloat(m2.xyz), xc);
-      if (z > kMinDistance) {
-        const vec2 uv =
-            vec2(dot(uintBitsToFloat(m0.xyz), xc), dot(uintBitsToFloat(m1.xyz), xc)) / z;
-        const vec2 size = vec2(float(m1.w & 0xFFFFu), float(m1.w >> 16));
-        if (uv.x >= -0.5 && uv.y >= -0.5 && uv.x < size.x - 0.5 && uv.y < size.y - 0.5) {
-          const vec2 pc = clamp(floor(uv + 0.5), vec2(0.0), size - 1.0);
-          const float z_stored = imageLoad(depths, ivec3(ivec2(pc), layer)).r;
-          // ValidDepth(z_stored) is z_stored > 0 here: the baked layers hold only finite values
-          // (0 invalid, -1 background, > 0 depth; BakeDiscontinuities maps NaN / Inf to 0 at
-          // upload).
-          const float range_m = lb;
-          const float range_d = z_stored * range_m / z;
-          if (z_stored > 0.0 && !(range_m > range_d + eps_abs + eps_rel * range_d)) {
-            InsertSample(best, n, w, int(m0.w >> 16),
-                         vec4(clamp(uv, vec2(0.0), size - 1.0), float(layer),
-                              uintBitsToFloat(m2.w)));
-            nth = n == 1 ? best.weight.x
-                : n == 2 ? best.weight.y
-                : n == 3 ? best.weight.z : best.weight.w;
+      // ---- weights: DirectionalWeight / PositionalWeight / CombinedWeight with v = 1 ----
+      const vec3 b = uintBitsToFloat(r0.xyz) - x;
+      const float lb = length(b);  // also the range of x from the view (a rotation keeps lengths)
+      const vec3 dab = a_unit - b / lb;  // well-conditioned cosine (blend_math.h)
+      const float w_d = (a_near || !(lb > kMinDistance))
+                            ? 0.0 : max(0.0, 1.0 - 0.5 * dot(dab, dab));
+      float w;
+      if (kLambdaOne != 0) {
+        w = max(w_d, min_weight);
+      } else {
+        const float w_p = positional == kPositionalPrinted
+                              ? max(0.0, 1.0 - lb / d_o)
+                              : max(0.0, 1.0 - max(0.0, lb - d_o) / d_o);
+        w = CombinedWeight(1.0, w_d, w_p, lambda, min_weight);
+      }
+      if (w >= nth) {
+        // The view's M = K R^T (the 3x3 part of P = K [R^T | -R^T c]) with the record's
+        // integers and exposure in the w components (CellTable WriteRankedSlot).
+        const uvec4 m0 = imageLoad(ranked_refs, t + 1);  // w: layer | list position << 16
+        const uvec4 m1 = imageLoad(ranked_refs, t + 2);  // w: width | height << 16
+        const uvec4 m2 = imageLoad(ranked_refs, t + 3);  // w: exposure bits
+        const int layer = int(m0.w & 0xFFFFu);
+        // ---- validity (3.4), blend_math.h Validity() with the discontinuity test baked into
+        // the depth layer. Projection of x - c_i = -b by M: hp = (z u, z v, z) with z the
+        // camera z-depth, so in_front is z > kMinDistance and uv = hp.xy / z, algebraically
+        // K (R^T (x - c)) of ProjectToView. The range of x is |x - c| = lb, and the stored
+        // range along the same ray is z_stored * range / z (= z_stored * |ray|,
+        // RangeFromZDepth).
+        const vec3 xc = -b;
+        const float z = dot(uintBitsToFloat(m2.xyz), xc);
+        if (z > kMinDistance) {
+          const vec2 uv =
+              vec2(dot(uintBitsToFloat(m0.xyz), xc), dot(uintBitsToFloat(m1.xyz), xc)) / z;
+          const vec2 size = vec2(float(m1.w & 0xFFFFu), float(m1.w >> 16));
+          if (uv.x >= -0.5 && uv.y >= -0.5 && uv.x < size.x - 0.5 && uv.y < size.y - 0.5) {
+            const vec2 pc = clamp(floor(uv + 0.5), vec2(0.0), size - 1.0);
+            const float z_stored = imageLoad(depths, ivec3(ivec2(pc), layer)).r;
+            // ValidDepth(z_stored) is z_stored > 0 here: the baked layers hold only finite
+            // values (0 invalid, -1 background, > 0 depth; BakeDiscontinuities maps NaN / Inf
+            // to 0 at upload).
+            const float range_m = lb;
+            const float range_d = z_stored * range_m / z;
+            if (z_stored > 0.0 && !(range_m > range_d + eps_abs + eps_rel * range_d)) {
+              InsertSample(best, n, w, int(m0.w >> 16),
+                           vec4(clamp(uv, vec2(0.0), size - 1.0), float(layer),
+                                uintBitsToFloat(m2.w)));
+              nth = n == 1 ? best.weight.x
+                  : n == 2 ? best.weight.y
+                  : n == 3 ? best.weight.z : best.weight.w;
+            }
           }
         }
       }
