@@ -33,6 +33,13 @@ def rep(s, a, b):
     return s.replace(a, b)
 
 
+def edit(path, pairs):
+    s = open(path).read()
+    for a, b in pairs:
+        s = rep(s, a, b)
+    open(path, 'w').write(s)
+
+
 def patch(tree, old_shader):
     old = open(old_shader).read()
     i, j = loop_span(old)
@@ -46,38 +53,34 @@ def patch(tree, old_shader):
             'layout(constant_id = 9) const int kAbOld = 0;')
     open(p, 'w').write(s)
 
-    p = tree + '/client/vulkan/vk_pipelines.h'
-    s = open(p).read()
-    s = rep(s, '  bool default_weights = false;\n', '  bool default_weights = false;\n  bool ab_old = false;\n')
-    s = rep(s, '(default_weights ? 4 : 0);', '(default_weights ? 4 : 0) | (ab_old ? 8 : 0);')
-    s = rep(s, 'static constexpr int kCount = 8;', 'static constexpr int kCount = 16;')
-    open(p, 'w').write(s)
+    edit(tree + '/client/vulkan/vk_pipelines.h', [
+        ('  bool default_weights = false;\n', '  bool default_weights = false;\n  bool ab_old = false;\n'),
+        ('(default_weights ? 4 : 0);', '(default_weights ? 4 : 0) | (ab_old ? 8 : 0);'),
+        ('static constexpr int kCount = 8;', 'static constexpr int kCount = 16;'),
+    ])
 
-    p = tree + '/client/vulkan/vk_pipelines.cc'
-    s = open(p).read()
-    s = rep(s, 'int32_t values[8] = {n_best,', 'int32_t values[9] = {n_best,')
-    s = rep(s, '                       std::bit_cast<int32_t>(d.occlusion_epsilon_rel)};',
+    edit(tree + '/client/vulkan/vk_pipelines.cc', [
+        ('int32_t values[8] = {n_best,', 'int32_t values[9] = {n_best,'),
+        ('                       std::bit_cast<int32_t>(d.occlusion_epsilon_rel)};',
             '                       std::bit_cast<int32_t>(d.occlusion_epsilon_rel),\n'
-            '                       v.ab_old ? 1 : 0};')
-    s = rep(s, '  VkSpecializationMapEntry entries[8];\n  const uint32_t ids[8] = {0, 1, 2, 3, 5, 6, 7, 8};\n'
+            '                       v.ab_old ? 1 : 0};'),
+        ('  VkSpecializationMapEntry entries[8];\n  const uint32_t ids[8] = {0, 1, 2, 3, 5, 6, 7, 8};\n'
                '  for (uint32_t k = 0; k < 8; ++k)',
             '  VkSpecializationMapEntry entries[9];\n  const uint32_t ids[9] = {0, 1, 2, 3, 5, 6, 7, 8, 9};\n'
-            '  for (uint32_t k = 0; k < 9; ++k)')
-    s = rep(s, 'VkSpecializationInfo spec{8, entries,', 'VkSpecializationInfo spec{9, entries,')
-    open(p, 'w').write(s)
+            '  for (uint32_t k = 0; k < 9; ++k)'),
+        ('VkSpecializationInfo spec{8, entries,', 'VkSpecializationInfo spec{9, entries,'),
+    ])
 
-    p = tree + '/client/vulkan/vk_frame_renderer.cc'
-    s = open(p).read()
-    s = rep(s, '  v.default_weights = BlendVariant::DefaultWeights(bo);\n',
-            '  v.default_weights = BlendVariant::DefaultWeights(bo);\n  v.ab_old = g_ab_old != 0;\n')
-    s = rep(s, 'namespace exo::vk {\n', 'namespace exo::vk {\nint g_ab_old = 0;\n')
-    open(p, 'w').write(s)
+    edit(tree + '/client/vulkan/vk_frame_renderer.cc', [
+        ('  v.default_weights = BlendVariant::DefaultWeights(bo);\n',
+            '  v.default_weights = BlendVariant::DefaultWeights(bo);\n  v.ab_old = g_ab_old != 0;\n'),
+        ('namespace exo::vk {\n', 'namespace exo::vk {\nint g_ab_old = 0;\n'),
+    ])
 
-    p = tree + '/client/vulkan/vulkan_bench.cc'
-    s = open(p).read()
-    s = rep(s, 'int main(int argc, char** argv) {',
-            'namespace exo::vk { extern int g_ab_old; }\nint main(int argc, char** argv) {')
-    s = rep(s, '''        auto out = r->Render(cam, pose, bo, RenderApprox{max_candidates});
+    edit(tree + '/client/vulkan/vulkan_bench.cc', [
+        ('int main(int argc, char** argv) {',
+            'namespace exo::vk { extern int g_ab_old; }\nint main(int argc, char** argv) {'),
+        ('''        auto out = r->Render(cam, pose, bo, RenderApprox{max_candidates});
         const double cpu_ms = ProcessCpuMs() - c0;''',
             '''        // A/B: this frame with the other loop form first or after (order alternating).
         double ab_other_cpu = 0;
@@ -95,14 +98,14 @@ def patch(tree, old_shader):
         const double cpu_ms = ProcessCpuMs() - c0b;
         if (k % 2 == 0 && !ab_other()) return 1;
         (void)c0;
-        if (k > 0) { ab_new.push_back(cpu_ms); ab_old.push_back(ab_other_cpu); }''')
-    s = rep(s, '      int ssim_n = 0;\n', '      int ssim_n = 0;\n      std::vector<double> ab_new, ab_old;\n')
-    s = rep(s, '          {"median_rank_ms", Round(med(rank_v), 2)},',
+        if (k > 0) { ab_new.push_back(cpu_ms); ab_old.push_back(ab_other_cpu); }'''),
+        ('      int ssim_n = 0;\n', '      int ssim_n = 0;\n      std::vector<double> ab_new, ab_old;\n'),
+        ('          {"median_rank_ms", Round(med(rank_v), 2)},',
             '''          {"median_rank_ms", Round(med(rank_v), 2)},
           {"ab_cpu_new", ab_new}, {"ab_cpu_old", ab_old},
           {"ab_median_cpu_new", Round(med(ab_new), 2)}, {"ab_median_cpu_old", Round(med(ab_old), 2)},
-          {"ab_median_ratio_new_old", [&] { std::vector<double> q; for (size_t i = 0; i < ab_new.size(); ++i) q.push_back(ab_new[i] / ab_old[i]); return Round(med(q), 4); }()},''')
-    open(p, 'w').write(s)
+          {"ab_median_ratio_new_old", [&] { std::vector<double> q; for (size_t i = 0; i < ab_new.size(); ++i) q.push_back(ab_new[i] / ab_old[i]); return Round(med(q), 4); }()},'''),
+    ])
 
 
 if __name__ == '__main__':

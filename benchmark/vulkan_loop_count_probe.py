@@ -96,22 +96,27 @@ def patch_reasons(tree, mode):
     open(p, 'w').write(s)
 
 
-def reasons(dirs):
+def timed_frames(dirs):
+    """(dir, configuration, RGB int64 array) of every timed frame (f1..) in the dump dirs."""
     import numpy as np
     from PIL import Image
-    res = collections.OrderedDict()
     for d in dirs:
         for f in sorted(glob.glob(d + '/*_vulkan.png')):
             name = f.split('/')[-1]
             if '_f0_' in name:
                 continue
-            a = np.asarray(Image.open(f).convert('RGB')).astype(np.int64)
-            m = a[..., 1] == 255
-            s = res.setdefault((d, name.rsplit('_f', 1)[0]), [0, 0, 0, 0])
-            s[0] += a[..., 0][m].sum()
-            s[1] += (a[..., 2][m] % 16).sum()
-            s[2] += (a[..., 2][m] // 16).sum()
-            s[3] += m.sum()
+            yield d, name.rsplit('_f', 1)[0], np.asarray(Image.open(f).convert('RGB')).astype(np.int64)
+
+
+def reasons(dirs):
+    res = collections.OrderedDict()
+    for d, config, a in timed_frames(dirs):
+        m = a[..., 1] == 255
+        s = res.setdefault((d, config), [0, 0, 0, 0])
+        s[0] += a[..., 0][m].sum()
+        s[1] += (a[..., 2][m] % 16).sum()
+        s[2] += (a[..., 2][m] // 16).sum()
+        s[3] += m.sum()
     for (d, k), (it, r1, r2, n) in res.items():
         print(f'{d} {k}: surface px {n}, iterations/px {it / n:.3f}, '
               f'first reason/px {r1 / n:.3f}, second reason/px {r2 / n:.3f}')
@@ -119,25 +124,19 @@ def reasons(dirs):
 
 def count(dirs):
     import numpy as np
-    from PIL import Image
     res = collections.OrderedDict()
-    for d in dirs:
-        for f in sorted(glob.glob(d + '/*_vulkan.png')):
-            name = f.split('/')[-1]
-            if '_f0_' in name:
-                continue
-            a = np.asarray(Image.open(f).convert('RGB')).astype(np.int64)
-            m = a[..., 1] == 255
-            it = np.where(m, a[..., 0], 0)
-            h, w = it.shape
-            blk = it[:h // 4 * 4, :w // 4 * 4].reshape(h // 4, 4, w // 4, 4).max(axis=(1, 3))
-            bm = m[:h // 4 * 4, :w // 4 * 4].reshape(h // 4, 4, w // 4, 4).any(axis=(1, 3))
-            s = res.setdefault((d, name.rsplit('_f', 1)[0]), [0, 0, 0, 0, 0])
-            s[4] += a[..., 2][m].sum()
-            s[0] += it[m].sum()
-            s[1] += m.sum()
-            s[2] += blk[bm].sum()
-            s[3] += bm.sum()
+    for d, config, a in timed_frames(dirs):
+        m = a[..., 1] == 255
+        it = np.where(m, a[..., 0], 0)
+        h, w = it.shape
+        blk = it[:h // 4 * 4, :w // 4 * 4].reshape(h // 4, 4, w // 4, 4).max(axis=(1, 3))
+        bm = m[:h // 4 * 4, :w // 4 * 4].reshape(h // 4, 4, w // 4, 4).any(axis=(1, 3))
+        s = res.setdefault((d, config), [0, 0, 0, 0, 0])
+        s[4] += a[..., 2][m].sum()
+        s[0] += it[m].sum()
+        s[1] += m.sum()
+        s[2] += blk[bm].sum()
+        s[3] += bm.sum()
     for (d, k), (it, n, bs, bn, bsum) in res.items():
         print(f'{d} {k}: surface px {n}, iterations/px {it / n:.3f}, '
               f'max per 4x4 block {bs / bn:.3f}, B/px {bsum / n:.3f}')
