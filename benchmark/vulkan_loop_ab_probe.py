@@ -6,10 +6,11 @@ Under load (2 cores shared by several agents) the CPU time of the same binary va
 renders every frame twice in one process, once with each loop form, in alternating order, so
 both see the same load within ~0.1 s:
 
-  vulkan_loop_ab_probe.py patch TREE OLD_SHADER
+  vulkan_loop_ab_probe.py patch TREE OLD_SHADER [surface|sky]
     TREE: a copy of the sources (never the working tree) whose blend_shade.glsl has the new loop;
     OLD_SHADER: a blend_shade.glsl with another loop (e.g. `git show 7513250:shaders/blend_shade.glsl`);
-    the loop is the text between the max_candidates cap and the blend of the best n.
+    the loop is the text between the max_candidates cap and the blend of the best n (surface, the
+    default) or ShadeBackground's view loop (sky).
     The surface loop becomes `if (kAbOld != 0) { old loop } else { new loop }` on specialisation
     constant 9 (BlendVariant bit 8: both pipelines are built, each holds one form), and vulkan_bench
     renders each frame with kAbOld = 0 and 1 and prints ab_cpu_new / ab_cpu_old (per-frame CPU ms)
@@ -18,14 +19,22 @@ Run e.g. `vulkan_bench --frames=20 --refs=16 --sizes=1280x720 --fill_holes=0 --p
 """
 import sys
 
-# The surface loop: from after the max_candidates cap to the blend of the best n.
-LOOP_START = '  if (frame.bg_params.y > 0) count = min(count, uint(frame.bg_params.y));\n'
-LOOP_END = '  vec3 srgb;\n  const bool covered = BlendBest(best, n, srgb);'
+# The loops the A/B can swap: the surface pass's reference loop (from after the max_candidates
+# cap to the blend of the best n) and the background pass's view loop (ShadeBackground, from
+# after the empty best-n to its blend).
+REGIONS = {
+    'surface': ('  if (frame.bg_params.y > 0) count = min(count, uint(frame.bg_params.y));\n',
+                '  vec3 srgb;\n  const bool covered = BlendBest(best, n, srgb);'),
+    'sky': ('  best.s0 = best.s1 = best.s2 = best.s3 = vec4(0.0);\n',
+            '  vec3 srgb;\n  const bool filled = BlendBest(best, n, srgb);'),
+}
 
 
-def loop_span(s):
-    i = s.index(LOOP_START) + len(LOOP_START)
-    return i, s.index(LOOP_END)
+def loop_span(s, region):
+    start, end = REGIONS[region]
+    j = s.index(end)
+    i = s.rindex(start, 0, j) + len(start)
+    return i, j
 
 
 def rep(s, a, b):
@@ -40,13 +49,13 @@ def edit(path, pairs):
     open(path, 'w').write(s)
 
 
-def patch(tree, old_shader):
+def patch(tree, old_shader, region='surface'):
     old = open(old_shader).read()
-    i, j = loop_span(old)
+    i, j = loop_span(old, region)
     old_loop = old[i:j]
     p = tree + '/shaders/blend_shade.glsl'
     s = open(p).read()
-    i, j = loop_span(s)
+    i, j = loop_span(s, region)
     s = s[:i] + 'if (kAbOld != 0) {\n' + old_loop + '} else {\n' + s[i:j] + '}\n' + s[j:]
     s = rep(s, 'layout(constant_id = 5) const int kBakedWeights = 0;',
             'layout(constant_id = 5) const int kBakedWeights = 0;\n'
@@ -109,7 +118,7 @@ def patch(tree, old_shader):
 
 
 if __name__ == '__main__':
-    if len(sys.argv) == 4 and sys.argv[1] == 'patch':
-        patch(sys.argv[2], sys.argv[3])
+    if len(sys.argv) in (4, 5) and sys.argv[1] == 'patch':
+        patch(*sys.argv[2:])
     else:
         sys.exit(__doc__)

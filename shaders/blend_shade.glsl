@@ -182,21 +182,30 @@ vec4 ShadeBackground(ivec2 pixel) {
   best.weight = vec4(0.0);
   best.index = ivec4(0x7FFFFFFF);
   best.s0 = best.s1 = best.s2 = best.s3 = vec4(0.0);
-  for (int k = 0; k < count; ++k) {
-    const int j = listed ? int((sky_list.packed >> (4u + 3u * uint(k))) & 7u) : k;
-    const int b = kBgViewTexels * j;
-    const mat3 cam_from_local = mat3(texelFetch(bg_texels, b).xyz,
-                                     texelFetch(bg_texels, b + 1).xyz,
-                                     texelFetch(bg_texels, b + 2).xyz);
-    const vec4 wh = texelFetch(bg_texels, b + 4);
-    vec2 uv;
-    if (!ProjectDirection(d, cam_from_local, texelFetch(bg_texels, b + 3), uv)) continue;
-    const vec2 size = wh.xy;
-    if (!(uv.x >= -0.5 && uv.y >= -0.5 && uv.x < size.x - 0.5 && uv.y < size.y - 0.5)) continue;
-    const vec2 pc = clamp(floor(uv + 0.5), vec2(0.0), size - 1.0);
-    if (!(imageLoad(depths, ivec3(ivec2(pc), int(wh.z))).r < 0.0)) continue;
-    InsertSample(best, n, BorderWeight(uv, size), j,
-                 vec4(clamp(uv, vec2(0.0), size - 1.0), wh.z, wh.w));
+  // The loop's exit is tested at the END of the body (as in ShadeSurface's reference loop):
+  // llvmpipe checks the lanes only there, so a top-of-body "k < count" ran one more whole
+  // masked body after the last view (docs/vulkan.md, issue 16 session 18). The same views in
+  // the same order.
+  if (count > 0) {
+    for (int k = 0;;) {
+      const int j = listed ? int((sky_list.packed >> (4u + 3u * uint(k))) & 7u) : k;
+      const int b = kBgViewTexels * j;
+      const mat3 cam_from_local = mat3(texelFetch(bg_texels, b).xyz,
+                                       texelFetch(bg_texels, b + 1).xyz,
+                                       texelFetch(bg_texels, b + 2).xyz);
+      const vec4 wh = texelFetch(bg_texels, b + 4);
+      vec2 uv;
+      if (ProjectDirection(d, cam_from_local, texelFetch(bg_texels, b + 3), uv)) {
+        const vec2 size = wh.xy;
+        if (uv.x >= -0.5 && uv.y >= -0.5 && uv.x < size.x - 0.5 && uv.y < size.y - 0.5) {
+          const vec2 pc = clamp(floor(uv + 0.5), vec2(0.0), size - 1.0);
+          if (imageLoad(depths, ivec3(ivec2(pc), int(wh.z))).r < 0.0)
+            InsertSample(best, n, BorderWeight(uv, size), j,
+                         vec4(clamp(uv, vec2(0.0), size - 1.0), wh.z, wh.w));
+        }
+      }
+      if (++k >= count) break;
+    }
   }
   vec3 srgb;
   const bool filled = BlendBest(best, n, srgb);
