@@ -516,17 +516,24 @@ TEST(ControlServiceConfig, KeysParseAndRejectWithClearErrors) {
   EXPECT_EQ(c.control.core.explore_sweep_altitude_m, 0.0);
   EXPECT_TRUE(c.control.core.explore.sweep_climb);
   EXPECT_EQ(c.control.core.explore.sweep_pass_m, 1.0);
+  EXPECT_EQ(c.control.core.explore.sweep_look_dwell_s, 0.5);
   EXPECT_FALSE(c.control.core.carve_no_return);
   EXPECT_FALSE(c.control.core.carve_sky_rule);
   EXPECT_EQ(c.control.core.carve_sky_min_elevation_rad, -0.1);
   ASSERT_TRUE(ApplyConfigValue("control_explore_sweep_altitude_m", "22", &c).ok());
   ASSERT_TRUE(ApplyConfigValue("control_explore_sweep_climb", "false", &c).ok());
   ASSERT_TRUE(ApplyConfigValue("control_explore_sweep_pass_m", "0", &c).ok());
+  ASSERT_TRUE(ApplyConfigValue("control_explore_sweep_look_dwell_s", "1", &c).ok());
   ASSERT_TRUE(ApplyConfigValue("control_carve_no_return", "true", &c).ok());
   EXPECT_EQ(c.control.core.explore_sweep_altitude_m, 22.0);
   EXPECT_FALSE(c.control.core.explore.sweep_climb);
   EXPECT_EQ(c.control.core.explore.sweep_pass_m, 0.0);
+  EXPECT_EQ(c.control.core.explore.sweep_look_dwell_s, 1.0);
   EXPECT_TRUE(c.control.core.carve_no_return);
+  auto dwell = ApplyConfigValue("control_explore_sweep_look_dwell_s", "-1", &c);
+  EXPECT_NE(dwell.message().find("control_explore_sweep_look_dwell_s"), std::string::npos)
+      << dwell;
+  EXPECT_EQ(c.control.core.explore.sweep_look_dwell_s, 1.0);
   auto neg = ApplyConfigValue("control_explore_sweep_altitude_m", "-3", &c);
   EXPECT_NE(neg.message().find("control_explore_sweep_altitude_m"), std::string::npos) << neg;
   EXPECT_EQ(c.control.core.explore_sweep_altitude_m, 22.0);
