@@ -104,8 +104,8 @@ struct ExploreOptions {
   // The hover at a look (sweep_climb's views toward a point above the air seen so far), in s;
   // < 0: the caller's usual dwell. The camera is still during it, so every frame after the
   // first carves the same rays again (session 17). 0.5 s: one frame of the bench's camera
-  // (a frame every 0.5 s of flight); measured in session 18 on the village's 20 seeds: 50 %
-  // 1.5 s sooner than with the usual 1 s (16 of 20 seeds), 66.8 % not later (docs/control.md).
+  // (a frame every 0.5 s of flight); measured in session 18 on the village: 50 % 1.5 s sooner
+  // than with the usual 1 s (16 of 20 seeds), 66.8 % 3.9 s sooner (14 of 15; docs/control.md).
   double sweep_look_dwell_s = 0.5;
   // Looks at one sweep point that may go unreached (their route dropped by obstacles the next
   // frames reveal) before the point gets no more looks and the climb falls back to the most
