@@ -208,8 +208,8 @@ TEST(ControlCore, ExploreSweepLooksThenClimbsAndPassesThroughItsPoints) {
   s.camera_pitch = v.target.camera_pitch;
   core.OnDroneState("drone", s, 2.0);
   EXPECT_FALSE(core.ExploreStep("drone", 2.0));
-  EXPECT_FALSE(core.ExploreStep("drone", 2.4));  // the look's hover: explore_dwell_s (1 s)
-  ASSERT_TRUE(core.ExploreStep("drone", 3.1));
+  EXPECT_FALSE(core.ExploreStep("drone", 2.4));  // the look's hover: sweep_look_dwell_s (0.5 s)
+  ASSERT_TRUE(core.ExploreStep("drone", 2.6));
   v = core.View("drone");
   EXPECT_NE(v.explore_note.find("sweep point 0"), std::string::npos) << v.explore_note;
   EXPECT_NEAR(v.target.position.x, p0.x, 0.5);
@@ -253,24 +253,24 @@ TEST(ControlCore, ExploreSweepLooksThenClimbsAndPassesThroughItsPoints) {
   hovering->OnDroneState("drone", t, 5.0);
   EXPECT_FALSE(hovering->ExploreStep("drone", 5.0));
   EXPECT_FALSE(hovering->ExploreStep("drone", 7.0));
-  // A shorter hover at looks (sweep_look_dwell_s, session 17): the same look is done after
-  // 0.3 s instead of 1 s.
+  // The look's hover at the usual dwell (sweep_look_dwell_s < 0: explore_dwell_s, 1 s; the
+  // default before session 18): the same look is not done after 0.6 s, done after 1 s.
   ControlCoreOptions q = o;
-  q.explore.sweep_look_dwell_s = 0.3;
-  const std::unique_ptr<ControlCore> quick = first_view(q, 3.0, {4, 4, 1.5});
-  const DroneView ql = quick->View("drone");
-  EXPECT_NE(ql.explore_note.find("climb"), std::string::npos) << ql.explore_note;
-  EXPECT_LT(glm::length(ql.target.position - look), 1e-9);  // the same look
-  quick->WithSafeFlight(free_below(100.0));
-  DroneState qs = At(look);
-  qs.yaw = ql.target.yaw;
-  qs.camera_pitch = ql.target.camera_pitch;
-  quick->OnDroneState("drone", qs, 2.0);
-  EXPECT_FALSE(quick->ExploreStep("drone", 2.0));
-  EXPECT_FALSE(quick->ExploreStep("drone", 2.2));
-  ASSERT_TRUE(quick->ExploreStep("drone", 2.4));
-  EXPECT_NE(quick->View("drone").explore_note.find("sweep point 0"), std::string::npos)
-      << quick->View("drone").explore_note;
+  q.explore.sweep_look_dwell_s = -1.0;
+  const std::unique_ptr<ControlCore> usual = first_view(q, 3.0, {4, 4, 1.5});
+  const DroneView ul = usual->View("drone");
+  EXPECT_NE(ul.explore_note.find("climb"), std::string::npos) << ul.explore_note;
+  EXPECT_LT(glm::length(ul.target.position - look), 1e-9);  // the same look
+  usual->WithSafeFlight(free_below(100.0));
+  DroneState us = At(look);
+  us.yaw = ul.target.yaw;
+  us.camera_pitch = ul.target.camera_pitch;
+  usual->OnDroneState("drone", us, 2.0);
+  EXPECT_FALSE(usual->ExploreStep("drone", 2.0));
+  EXPECT_FALSE(usual->ExploreStep("drone", 2.6));
+  ASSERT_TRUE(usual->ExploreStep("drone", 3.1));
+  EXPECT_NE(usual->View("drone").explore_note.find("sweep point 0"), std::string::npos)
+      << usual->View("drone").explore_note;
 }
 
 }  // namespace

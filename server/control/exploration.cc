@@ -338,7 +338,7 @@ std::optional<NextView> ExplorationPlanner::LookView(const SafeFlight& safe,
   // flies. At most two looks per point, from places at least 2 m apart.
   const OccupancyGrid& g = safe.grid();
   std::vector<glm::dvec3>& looked = looks_[k];
-  if (looked.size() >= 2 || look_misses_[k] >= 4) return std::nullopt;
+  if (looked.size() >= 2 || look_misses_[k] >= options_.sweep_look_misses) return std::nullopt;
   const glm::dvec3 toward = sweep_[k];
   const double max_elev = options_.sweep_climb_pitch + 0.5 * options_.vfov_rad - 0.05;
   const double max_range = options_.range_m - 1.0;

@@ -78,11 +78,12 @@ struct ExploreOptions {
   // cell with the shortest flight there and on to the point, among those from which the point
   // lies within the camera's view at a pitch in [0, sweep_climb_pitch] and within range_m
   // (its frames observe the air along the line of sight, which the sweep then flies up,
-  // camera down); at most two looks per point (a look not reached does not count, up to four
-  // such). Before any cell at the sweep's altitude is reachable and with no place to look
-  // from: the reachable cell with the most height per metre of flight (+ travel_offset_m),
-  // looking up, and at the top of what it has seen quarter turns in place looking up (four at
-  // most). false: the sweep flies to the highest reachable cell under each point (session 14).
+  // camera down); at most two looks per point (a look not reached does not count, up to
+  // sweep_look_misses such). Before any cell at the sweep's altitude is reachable and with no
+  // place to look from: the reachable cell with the most height per metre of flight
+  // (+ travel_offset_m), looking up, and at the top of what it has seen quarter turns in place
+  // looking up (four at most). false: the sweep flies to the highest reachable cell under each
+  // point (session 14).
   bool sweep_climb = true;
   double sweep_climb_pitch = 0.5;  // rad, + up (within the gimbal's +30°)
   double sweep_climb_tolerance_m = 1.0;
@@ -102,8 +103,16 @@ struct ExploreOptions {
   bool sweep_climb_face_centre = true;
   // The hover at a look (sweep_climb's views toward a point above the air seen so far), in s;
   // < 0: the caller's usual dwell. The camera is still during it, so every frame after the
-  // first carves the same rays again (session 17).
-  double sweep_look_dwell_s = -1.0;
+  // first carves the same rays again (session 17). 0.5 s: one frame of the bench's camera
+  // (a frame every 0.5 s of flight); measured in session 18 on the village: 50 % 1.5 s sooner
+  // than with the usual 1 s (16 of 20 seeds), 66.8 % 3.9 s sooner (14 of 15; docs/control.md).
+  double sweep_look_dwell_s = 0.5;
+  // Looks at one sweep point that may go unreached (their route dropped by obstacles the next
+  // frames reveal) before the point gets no more looks and the climb falls back to the most
+  // height per metre (session 15: 4). Session 18's traces: in 4 of 20 village seeds the first
+  // look was dropped at 4 frames in a row (4.0-5.5 s) and the fallback then flew 15-20 s to a
+  // high place before the sweep began.
+  int sweep_look_misses = 4;
 };
 
 // A Hilbert-curve sweep (order `order`: 4^order points, in order) over the horizontal box

@@ -745,6 +745,9 @@ int main(int argc, char** argv) {
   app.add_option("--sweep_pass_m", eo.sweep_pass_m,
                  "with --sweep_fallback: sweep points at the sweep's altitude are passed through "
                  "within this distance, not hovered at (0: hovered at, dwell_s)");
+  app.add_option("--sweep_look_misses", eo.sweep_look_misses,
+                 "with --sweep_fallback: unreached looks at one sweep point before it gets no "
+                 "more (ExploreOptions::sweep_look_misses)");
   app.add_option("--sweep_look_dwell_s", eo.sweep_look_dwell_s,
                  "with --sweep_fallback: the hover at a look before a climb, s (< 0: dwell_s)");
   bool per_run = false;
@@ -1001,6 +1004,7 @@ int main(int argc, char** argv) {
     j["sweep_pitch"] = eo.sweep_pitch;
     j["sweep_climb_face_centre"] = eo.sweep_climb_face_centre;
     j["sweep_look_dwell_s"] = eo.sweep_look_dwell_s;
+    j["sweep_look_misses"] = eo.sweep_look_misses;
     j["sweep_travel_pitch"] = std::isnan(eo.sweep_travel_pitch)
                                   ? nlohmann::json(nullptr)
                                   : nlohmann::json(eo.sweep_travel_pitch);

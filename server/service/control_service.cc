@@ -238,6 +238,11 @@ void AppendControlConfigKeys(std::vector<ConfigKey>* keys) {
       "exploration: sweep points at the sweep's altitude are passed through within this "
       "distance, not hovered at, in m; 0: hovered at",
       [](ServerConfig& c) { return &c.control.core.explore.sweep_pass_m; }, true));
+  keys->push_back(DoubleKey(
+      "control_explore_sweep_look_dwell_s",
+      "exploration: the hover at a look before a climb to a sweep point, in s (the usual "
+      "hover elsewhere: 1 s)",
+      [](ServerConfig& c) { return &c.control.core.explore.sweep_look_dwell_s; }, true));
   keys->push_back(BoolKey(
       "control_carve_no_return",
       "pixels without depth carve free space up to control_carve_range_m (a simulated sky; "
