@@ -156,6 +156,9 @@ def run_fold(args, fold, reg_dir, work):
               # refinement of the kept views (a view accepted while the worker's queue is full
               # is not refined: refinement.skipped_under_load)
               "planning_accepted": c.get("planning.accepted"),
+              # frames the planner saw, and those the bandwidth governor kept from it
+              "planning_candidates": c.get("planning.candidates"),
+              "planning_governed": c.get("planning.governed"),
               "refine_submitted": c.get("refinement.submitted"),
               "refine_refined": c.get("refinement.refined"),
               "refine_updated": c.get("refinement.updated"),

@@ -88,13 +88,13 @@ struct PipelineOptions {
   // client) instead of dropping the frame; every frame is then processed, in order (what a
   // deterministic run, e.g. the eval-equivalence test, needs).
   bool admission_block = false;
-  // The online model the stages run (server/core): the evaluation's defaults, plus the server's
-  // bandwidth governor (2 candidates/s once the store is full; docs/service.md).
-  core::OnlineModelOptions model = [] {
-    core::OnlineModelOptions m;
-    m.max_candidates_per_s_when_full = 2.0;
-    return m;
-  }();
+  // The online model the stages run (server/core): the evaluation's defaults. The bandwidth
+  // governor (max_candidates_per_s_when_full, key of the same name) is off: at 2 candidates/s it
+  // hid 14 of every 15 frames of a 30 Hz stream from the planner once the store was full, so the
+  // store stayed the stream's first frames (real 7-Scenes folds, product path: SSIM 0.759 -> 0.798
+  // at 50 views without it; docs/evaluation.md "Session 18"). The store's churn it saved decays
+  // by itself (about capacity / frames-so-far replacements per frame; docs/service.md).
+  core::OnlineModelOptions model;
   absl::Status Validate() const;
 };
 

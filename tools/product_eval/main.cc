@@ -341,6 +341,11 @@ absl::Status Run(const Args& a) {
     j["method"] = "lumigraph_product";
     j["renderer"] = r->DeviceName();
     j["store_views"] = model.views.size();
+    {  // which stream frames the store kept (the server numbers frames in arrival order)
+      std::vector<int64_t> ids;
+      for (const auto& [id, v] : model.views) ids.push_back(static_cast<int64_t>(id));
+      j["store_ids"] = ids;
+    }
     j["cells"] = model.cell_refs.size();
     j["chunks"] = model.chunks.size();
     j["proxy_triangles"] = model.ProxyMesh().num_triangles();
