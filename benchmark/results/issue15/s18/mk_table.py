@@ -20,7 +20,7 @@ rows = []
 for S in (50, 100, 200):
     pol = {"lumigraph": load([f"{R}/g_s{S}.jsonl", f"{R}/t{S}_lumi.jsonl"]),
            "every_n": load([f"{R}/t{S}_evn.jsonl", os.path.join(R, "..", "s17", f"product_eval_store{S}_every_n.jsonl")]),
-           "min_distance": load([f"{R}/t{S}_mind.jsonl"])}
+           "min_distance": load([f"{R}/t{S}_mind.jsonl", f"{R}/t{S}_mind_b.jsonl"])}
     L = pol["lumigraph"]
     for p, d in pol.items():
         if not d: continue
